@@ -1,0 +1,380 @@
+//! Everything that crosses a process boundary: payload types, service names and the one place where
+//! each service's quality of service is set.
+//!
+//! Payloads are `#[repr(C)]` plain data with explicit padding, a stable iceoryx2 type name ending in
+//! the layout version, and a compile-time size check, so a consumer in another language can map them
+//! from `docs/ipc.md` alone. Publishers and subscribers open services through the functions here, so
+//! both sides always ask for the same QoS (iceoryx2 rejects a mismatch).
+
+use std::path::PathBuf;
+
+use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::{event, publish_subscribe};
+
+/// Version of the payload layouts below; bumped together with every type name's `V` suffix.
+pub const LAYOUT_VERSION: u32 = 1;
+/// Most raw pings a reading carries.
+pub const MAX_PINGS: usize = crate::protocol::MAX_PINGS_PER_READING;
+
+/// Averaged readings, one per 6° beam position, from the driver.
+pub const READINGS_SERVICE: &str = "sonar/readings";
+/// Scan commands to the driver (full scan, local scan, stop), from any process.
+pub const COMMANDS_SERVICE: &str = "sonar/commands";
+/// The driver's connection state and counters, for viewers (history 1).
+pub const DRIVER_STATUS_SERVICE: &str = "sonar/driver_status";
+
+/// Bits of [`Reading::flags`].
+pub mod flags {
+    /// No ping of the group heard an echo (or too few agreed): `distance_m` is meaningless.
+    pub const NO_ECHO: u32 = 1 << 0;
+    /// The echo lies outside the sensor's [min, max] range and was not used as a distance.
+    pub const OUT_OF_RANGE: u32 = 1 << 1;
+    /// Some pings were left out of the average (no echo, or outside the dominant cluster).
+    pub const PINGS_REJECTED: u32 = 1 << 2;
+    /// The source sends no raw pings (hobby radar dialect): `echo_us` is synthesised from the range.
+    pub const NO_RAW_PINGS: u32 = 1 << 3;
+}
+
+/// How the head is scanning.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[repr(u8)]
+pub enum ScanMode {
+    /// Not known (e.g. a hobby sketch that never says).
+    #[default]
+    Unknown = 0,
+    /// The 300° sweep between the limit switches.
+    Full = 1,
+    /// Back and forth over a segment.
+    Local = 2,
+    /// Stopped.
+    Idle = 3,
+}
+
+impl ScanMode {
+    pub fn from_u8(v: u8) -> Self {
+        match v {
+            1 => ScanMode::Full,
+            2 => ScanMode::Local,
+            3 => ScanMode::Idle,
+            _ => ScanMode::Unknown,
+        }
+    }
+}
+
+/// One averaged reading: the pings of one 6° group, their combined time of flight and distance.
+#[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("sonar::ReadingV1")]
+#[repr(C)]
+pub struct Reading {
+    /// Driver's sequence number, from 0, without gaps.
+    pub seq: u64,
+    /// Host wall-clock time when the line arrived, ns since the Unix epoch.
+    pub host_stamp_ns: u64,
+    /// [`LAYOUT_VERSION`].
+    pub layout_version: u32,
+    /// The device's own reading counter.
+    pub device_seq: u32,
+    /// The device's millisecond clock at the last ping.
+    pub device_time_ms: u32,
+    /// Sweep (one pass in one direction) this reading belongs to.
+    pub sweep_id: u32,
+    /// [`flags`] bits.
+    pub flags: u32,
+    /// Beam centre: mean of the ping angles, degrees, counter-clockwise from the sensor's forward axis.
+    pub angle_deg: f32,
+    /// Half-width of the beam used for mapping.
+    pub beam_half_angle_deg: f32,
+    /// Combined time of flight of the accepted pings, µs (round trip).
+    pub tof_us: f32,
+    /// d = V·t/2, metres; valid only without `NO_ECHO`/`OUT_OF_RANGE`.
+    pub distance_m: f32,
+    /// V used for the conversion, from the configured air temperature.
+    pub speed_of_sound_mps: f32,
+    pub min_range_m: f32,
+    pub max_range_m: f32,
+    /// Raw echo times of the pings in ping order, µs, 0 = no echo; entries past `ping_count` are 0.
+    pub echo_us: [u32; MAX_PINGS],
+    /// +1 counter-clockwise (angle increasing), -1 clockwise, 0 unknown.
+    pub direction: i8,
+    /// [`ScanMode`] as `u8`.
+    pub mode: u8,
+    pub ping_count: u8,
+    /// Pings that went into `tof_us`.
+    pub pings_used: u8,
+    pub reserved: [u8; 4],
+}
+
+const _: () = assert!(std::mem::size_of::<Reading>() == 104);
+const _: () = assert!(std::mem::align_of::<Reading>() == 8);
+
+impl Reading {
+    pub fn has(&self, flag: u32) -> bool {
+        self.flags & flag != 0
+    }
+
+    /// True when `distance_m` is a range to an obstacle.
+    pub fn is_valid_range(&self) -> bool {
+        !self.has(flags::NO_ECHO) && !self.has(flags::OUT_OF_RANGE)
+    }
+
+    pub fn scan_mode(&self) -> ScanMode {
+        ScanMode::from_u8(self.mode)
+    }
+}
+
+/// What a [`ScanCommand`] asks for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum ScanCommandKind {
+    FullScan = 1,
+    LocalScan = 2,
+    Stop = 3,
+    /// Ask the device for a status line (refreshes `sonar/driver_status`).
+    Status = 4,
+}
+
+/// A command to the driver on [`COMMANDS_SERVICE`].
+#[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("sonar::ScanCommandV1")]
+#[repr(C)]
+pub struct ScanCommand {
+    /// [`ScanCommandKind`] as `u32`; anything else is rejected by the driver.
+    pub kind: u32,
+    /// Local scan segment, degrees (ignored otherwise).
+    pub from_deg: f32,
+    pub to_deg: f32,
+    pub layout_version: u32,
+}
+
+const _: () = assert!(std::mem::size_of::<ScanCommand>() == 16);
+
+impl ScanCommand {
+    pub fn new(kind: ScanCommandKind, from_deg: f32, to_deg: f32) -> Self {
+        Self {
+            kind: kind as u32,
+            from_deg,
+            to_deg,
+            layout_version: LAYOUT_VERSION,
+        }
+    }
+
+    pub fn kind(&self) -> Option<ScanCommandKind> {
+        Some(match self.kind {
+            1 => ScanCommandKind::FullScan,
+            2 => ScanCommandKind::LocalScan,
+            3 => ScanCommandKind::Stop,
+            4 => ScanCommandKind::Status,
+            _ => return None,
+        })
+    }
+}
+
+/// Connection state of the driver, in [`DriverStatus::link_state`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[repr(u32)]
+pub enum LinkState {
+    #[default]
+    Connecting = 0,
+    Connected = 1,
+    /// The port went away; the driver retries with back-off.
+    Disconnected = 2,
+}
+
+/// The driver's state and counters on [`DRIVER_STATUS_SERVICE`], published on change and once a
+/// second.
+#[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("sonar::DriverStatusV1")]
+#[repr(C)]
+pub struct DriverStatus {
+    pub stamp_ns: u64,
+    pub readings_published: u64,
+    /// Lines that parsed.
+    pub lines_ok: u64,
+    /// Lines rejected: bad checksum, garbage, truncated, overlong, malformed fields.
+    pub lines_rejected: u64,
+    pub reconnects: u32,
+    /// [`LinkState`] as `u32`.
+    pub link_state: u32,
+    /// [`ScanMode`] as `u32`.
+    pub mode: u32,
+    pub sweep_id: u32,
+    /// Last reading's angle.
+    pub angle_deg: f32,
+    /// +1 / -1 / 0.
+    pub direction: i32,
+    pub layout_version: u32,
+    pub reserved: u32,
+}
+
+const _: () = assert!(std::mem::size_of::<DriverStatus>() == 64);
+
+/// A failure to set up or use an iceoryx2 resource, with what was being done.
+#[derive(Debug, thiserror::Error)]
+#[error("{context}: {message}")]
+pub struct IpcError {
+    pub context: String,
+    pub message: String,
+}
+
+impl IpcError {
+    pub fn new(context: impl Into<String>, err: impl std::fmt::Debug) -> Self {
+        Self {
+            context: context.into(),
+            message: format!("{err:?}"),
+        }
+    }
+}
+
+/// Where the iceoryx2 services live. Every process of one pipeline must get the same values.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct IpcArgs {
+    /// iceoryx2 config file (TOML). Without it, iceoryx2's own lookup applies
+    /// (./config/iceoryx2.toml, ~/.config/iceoryx2/iceoryx2.toml, /etc/iceoryx2/iceoryx2.toml).
+    #[arg(long, env = "SONAR_IOX_CONFIG", value_name = "FILE")]
+    pub iox_config: Option<PathBuf>,
+    /// Prefix of the shared-memory files; pipelines with different prefixes never see each other.
+    #[arg(long, env = "SONAR_IOX_PREFIX", value_name = "PREFIX")]
+    pub iox_prefix: Option<String>,
+    /// Directory of iceoryx2's service and node records.
+    #[arg(long, env = "SONAR_IOX_ROOT", value_name = "DIR")]
+    pub iox_root: Option<PathBuf>,
+}
+
+impl IpcArgs {
+    /// The iceoryx2 configuration these arguments describe.
+    pub fn config(&self) -> Result<Config, IpcError> {
+        let mut cfg = match &self.iox_config {
+            Some(file) => {
+                let path = FilePath::new(file.as_os_str().as_encoded_bytes())
+                    .map_err(|e| IpcError::new(format!("config path {}", file.display()), e))?;
+                Config::from_file(&path)
+                    .map_err(|e| IpcError::new(format!("read {}", file.display()), e))?
+            }
+            None => Config::global_config().clone(),
+        };
+        if let Some(prefix) = &self.iox_prefix {
+            cfg.global.prefix = FileName::new(prefix.as_bytes())
+                .map_err(|e| IpcError::new(format!("prefix {prefix:?}"), e))?;
+        }
+        if let Some(root) = &self.iox_root {
+            let mut bytes = root.as_os_str().as_encoded_bytes().to_vec();
+            if !bytes.ends_with(b"/") {
+                bytes.push(b'/');
+            }
+            let path = Path::new(&bytes)
+                .map_err(|e| IpcError::new(format!("root path {}", root.display()), e))?;
+            cfg.global.set_root_path(&path);
+        }
+        Ok(cfg)
+    }
+
+    /// Creates this process's node; also removes what crashed processes of the pipeline left behind.
+    pub fn node(&self, name: &str) -> Result<Node<ipc::Service>, IpcError> {
+        let cfg = self.config()?;
+        let node_name = NodeName::new(name).map_err(|e| IpcError::new("node name", e))?;
+        NodeBuilder::new()
+            .name(&node_name)
+            .config(&cfg)
+            .create::<ipc::Service>()
+            .map_err(|e| IpcError::new(format!("create iceoryx2 node {name}"), e))
+    }
+}
+
+fn service_name(name: &str) -> Result<ServiceName, IpcError> {
+    ServiceName::new(name).map_err(|e| IpcError::new(format!("service name {name}"), e))
+}
+
+pub type PubSub<T> = publish_subscribe::PortFactory<ipc::Service, T, ()>;
+pub type Event = event::PortFactory<ipc::Service>;
+
+/// `sonar/readings`. A subscriber buffers a few sweeps so a slow consumer (a recorder on a busy
+/// machine) loses nothing; readings are 104 B, so this costs little memory.
+pub fn readings_service(node: &Node<ipc::Service>) -> Result<PubSub<Reading>, IpcError> {
+    node.service_builder(&service_name(READINGS_SERVICE)?)
+        .publish_subscribe::<Reading>()
+        .max_publishers(2)
+        .max_subscribers(8)
+        .subscriber_max_buffer_size(256)
+        .subscriber_max_borrowed_samples(4)
+        .history_size(0)
+        .open_or_create()
+        .map_err(|e| IpcError::new(format!("open {READINGS_SERVICE}"), e))
+}
+
+/// `sonar/commands`: many writers (viewer, scripts), one reader (the driver).
+pub fn commands_service(node: &Node<ipc::Service>) -> Result<PubSub<ScanCommand>, IpcError> {
+    node.service_builder(&service_name(COMMANDS_SERVICE)?)
+        .publish_subscribe::<ScanCommand>()
+        .max_publishers(8)
+        .max_subscribers(2)
+        .subscriber_max_buffer_size(16)
+        .history_size(0)
+        .open_or_create()
+        .map_err(|e| IpcError::new(format!("open {COMMANDS_SERVICE}"), e))
+}
+
+/// `sonar/driver_status`, history 1 so a viewer that starts late sees the state at once.
+pub fn driver_status_service(node: &Node<ipc::Service>) -> Result<PubSub<DriverStatus>, IpcError> {
+    node.service_builder(&service_name(DRIVER_STATUS_SERVICE)?)
+        .publish_subscribe::<DriverStatus>()
+        .max_publishers(1)
+        .max_subscribers(8)
+        .subscriber_max_buffer_size(1)
+        .history_size(1)
+        .open_or_create()
+        .map_err(|e| IpcError::new(format!("open {DRIVER_STATUS_SERVICE}"), e))
+}
+
+/// The event service that wakes the consumers of the publish-subscribe service of the same name.
+pub fn wakeup_service(node: &Node<ipc::Service>, name: &str) -> Result<Event, IpcError> {
+    node.service_builder(&service_name(name)?)
+        .event()
+        .open_or_create()
+        .map_err(|e| IpcError::new(format!("open event service {name}"), e))
+}
+
+/// Nanoseconds since the Unix epoch (0 if the clock is before it).
+pub fn unix_time_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
+        .unwrap_or(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::mem::offset_of;
+
+    /// The offsets `docs/ipc.md` documents for other languages.
+    #[test]
+    fn reading_layout_matches_documentation() {
+        assert_eq!(offset_of!(Reading, seq), 0);
+        assert_eq!(offset_of!(Reading, host_stamp_ns), 8);
+        assert_eq!(offset_of!(Reading, layout_version), 16);
+        assert_eq!(offset_of!(Reading, sweep_id), 28);
+        assert_eq!(offset_of!(Reading, flags), 32);
+        assert_eq!(offset_of!(Reading, angle_deg), 36);
+        assert_eq!(offset_of!(Reading, distance_m), 48);
+        assert_eq!(offset_of!(Reading, echo_us), 64);
+        assert_eq!(offset_of!(Reading, direction), 96);
+        assert_eq!(offset_of!(Reading, pings_used), 99);
+    }
+
+    #[test]
+    fn command_kinds_round_trip_and_unknown_is_rejected() {
+        for kind in [
+            ScanCommandKind::FullScan,
+            ScanCommandKind::LocalScan,
+            ScanCommandKind::Stop,
+            ScanCommandKind::Status,
+        ] {
+            assert_eq!(ScanCommand::new(kind, 0.0, 0.0).kind(), Some(kind));
+        }
+        let bogus = ScanCommand {
+            kind: 99,
+            ..Default::default()
+        };
+        assert_eq!(bogus.kind(), None);
+    }
+}

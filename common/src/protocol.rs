@@ -1,0 +1,920 @@
+//! The line protocol between the microcontroller and the PC (see `docs/protocol.md`).
+//!
+//! Every line is `$BODY*HH\n`: `BODY` is comma-separated printable ASCII whose first field is the
+//! message tag, `HH` the XOR of all `BODY` bytes as two hex digits (the NMEA 0183 scheme, chosen
+//! because an 8-bit microcontroller computes it with one instruction per byte). Angles travel as
+//! signed integer centidegrees so that neither side ever parses a float.
+//!
+//! Everything here is pure: [`encode_command`]/[`encode_device`] build lines, [`parse_command`] and
+//! [`parse_device`] read them back, and [`LineFramer`] cuts a byte stream into lines. Parsing never
+//! panics and rejects any line whose checksum does not match before looking at its fields.
+
+use std::fmt::Write as _;
+
+/// Version of this protocol, exchanged in the `HELLO` handshake.
+pub const PROTOCOL_VERSION: u32 = 1;
+/// Longest line either side accepts, terminator included; longer input is discarded as garbage.
+pub const MAX_LINE_LEN: usize = 160;
+/// Most pings one reading can carry on the wire (the paper uses four).
+pub const MAX_PINGS_PER_READING: usize = 8;
+
+/// Direction of the stepper: `Ccw` increases the angle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Direction {
+    Ccw,
+    Cw,
+}
+
+impl Direction {
+    /// +1 for counter-clockwise (angle increasing), -1 for clockwise.
+    pub fn sign(self) -> i32 {
+        match self {
+            Direction::Ccw => 1,
+            Direction::Cw => -1,
+        }
+    }
+
+    pub fn reversed(self) -> Self {
+        match self {
+            Direction::Ccw => Direction::Cw,
+            Direction::Cw => Direction::Ccw,
+        }
+    }
+
+    fn wire(self) -> &'static str {
+        match self {
+            Direction::Ccw => "+",
+            Direction::Cw => "-",
+        }
+    }
+
+    fn from_wire(s: &str) -> Result<Self, ParseError> {
+        match s {
+            "+" => Ok(Direction::Ccw),
+            "-" => Ok(Direction::Cw),
+            _ => Err(ParseError::BadField("direction")),
+        }
+    }
+}
+
+/// Which of the paper's two modes a sweep belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum WireScanMode {
+    /// Between the two limit switches (300°).
+    Full,
+    /// Back and forth over a segment chosen by the PC.
+    Local,
+}
+
+impl WireScanMode {
+    fn wire(self) -> &'static str {
+        match self {
+            WireScanMode::Full => "F",
+            WireScanMode::Local => "L",
+        }
+    }
+
+    fn from_wire(s: &str) -> Result<Self, ParseError> {
+        match s {
+            "F" => Ok(WireScanMode::Full),
+            "L" => Ok(WireScanMode::Local),
+            _ => Err(ParseError::BadField("scan mode")),
+        }
+    }
+}
+
+/// Which limit switch closed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Limit {
+    Min,
+    Max,
+}
+
+/// What the device is doing, as reported by `ST`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum DeviceState {
+    Idle,
+    Full,
+    Local,
+}
+
+/// Error codes a device reports with `ERR`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ErrorCode {
+    /// A line from the PC had a wrong checksum.
+    Checksum,
+    /// A line from the PC could not be understood.
+    Syntax,
+    /// An angle outside the limit switches was asked for.
+    Range,
+    /// The PC speaks a protocol version the device does not.
+    Version,
+    /// Hardware fault (stepper stalled, limit switch never reached, sensor silent).
+    Hardware,
+}
+
+impl ErrorCode {
+    fn wire(self) -> &'static str {
+        match self {
+            ErrorCode::Checksum => "CHECKSUM",
+            ErrorCode::Syntax => "SYNTAX",
+            ErrorCode::Range => "RANGE",
+            ErrorCode::Version => "VERSION",
+            ErrorCode::Hardware => "HARDWARE",
+        }
+    }
+
+    fn from_wire(s: &str) -> Result<Self, ParseError> {
+        Ok(match s {
+            "CHECKSUM" => ErrorCode::Checksum,
+            "SYNTAX" => ErrorCode::Syntax,
+            "RANGE" => ErrorCode::Range,
+            "VERSION" => ErrorCode::Version,
+            "HARDWARE" => ErrorCode::Hardware,
+            _ => return Err(ParseError::BadField("error code")),
+        })
+    }
+}
+
+/// A command from the PC to the device.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum HostCommand {
+    /// Handshake: the protocol version the PC speaks.
+    Hello { version: u32 },
+    /// Sweep between the limit switches until stopped.
+    FullScan,
+    /// Sweep back and forth between two angles (centidegrees, `from < to`).
+    LocalScan { from_cdeg: i32, to_cdeg: i32 },
+    /// Stop after the current ping and hold the position.
+    Stop,
+    /// Ask for one `ST` line.
+    Status,
+}
+
+/// A message from the device to the PC.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum DeviceMessage {
+    /// Handshake reply with the device's geometry, so the PC can check its configuration.
+    Hello {
+        version: u32,
+        firmware: String,
+        step_cdeg: u32,
+        pings_per_reading: u32,
+        min_cdeg: i32,
+        max_cdeg: i32,
+    },
+    /// A command was accepted; carries the command's tag.
+    Ack { command: String },
+    /// The raw echo times of the pings of one beam position group, 0 µs meaning no echo.
+    Reading(WireReading),
+    /// A limit switch closed; the stepper reverses.
+    LimitHit(Limit),
+    /// A sweep (one pass in one direction) begins.
+    SweepStart {
+        sweep: u32,
+        direction: Direction,
+        mode: WireScanMode,
+        from_cdeg: i32,
+        to_cdeg: i32,
+    },
+    /// A sweep ends.
+    SweepEnd { sweep: u32 },
+    /// Reply to `STATUS`.
+    Status {
+        state: DeviceState,
+        angle_cdeg: i32,
+        direction: Direction,
+        sweep: u32,
+    },
+    /// Something went wrong on the device.
+    Error { code: ErrorCode, text: String },
+}
+
+/// One `RD` line: up to [`MAX_PINGS_PER_READING`] raw echo times around a centre angle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WireReading {
+    /// The device's own reading counter (wraps at `u32::MAX`).
+    pub seq: u32,
+    /// The device's millisecond clock when the last ping of the group ended.
+    pub time_ms: u32,
+    pub sweep: u32,
+    pub direction: Direction,
+    /// Centre of the ping angles, centidegrees.
+    pub angle_cdeg: i32,
+    pub ping_count: u8,
+    /// Echo times in µs, in ping order; entries past `ping_count` are 0.
+    pub echo_us: [u32; MAX_PINGS_PER_READING],
+}
+
+impl WireReading {
+    /// The echo times actually carried.
+    pub fn pings(&self) -> &[u32] {
+        &self.echo_us[..usize::from(self.ping_count)]
+    }
+}
+
+/// Why a line was rejected. Every variant is a counted, logged event in the driver, never a panic.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ParseError {
+    #[error("line does not start with '$'")]
+    NoStart,
+    #[error("line has no '*' checksum separator")]
+    NoChecksum,
+    #[error("checksum mismatch: line says {declared:02X}, body gives {computed:02X}")]
+    ChecksumMismatch { declared: u8, computed: u8 },
+    #[error("checksum is not two hex digits")]
+    BadChecksumDigits,
+    #[error("line contains non-printable or non-ASCII bytes")]
+    NotAscii,
+    #[error("line longer than {MAX_LINE_LEN} bytes")]
+    TooLong,
+    #[error("unknown message tag {0:?}")]
+    UnknownTag(String),
+    #[error("wrong number of fields for {tag}: expected {expected}, got {got}")]
+    FieldCount {
+        tag: &'static str,
+        expected: usize,
+        got: usize,
+    },
+    #[error("field {0} is malformed")]
+    BadField(&'static str),
+}
+
+/// XOR of all bytes: the checksum of a line body.
+pub fn checksum(body: &[u8]) -> u8 {
+    body.iter().fold(0, |acc, b| acc ^ b)
+}
+
+/// Wraps a body into a complete line, `$BODY*HH\n`.
+fn frame(body: &str) -> String {
+    format!("${body}*{:02X}\n", checksum(body.as_bytes()))
+}
+
+/// Checks framing and checksum, returns the body's fields.
+fn unframe(line: &[u8]) -> Result<Vec<&str>, ParseError> {
+    let line = trim_line_end(line);
+    if line.len() > MAX_LINE_LEN {
+        return Err(ParseError::TooLong);
+    }
+    let rest = line.strip_prefix(b"$").ok_or(ParseError::NoStart)?;
+    let star = rest
+        .iter()
+        .rposition(|&b| b == b'*')
+        .ok_or(ParseError::NoChecksum)?;
+    let (body, tail) = (&rest[..star], &rest[star + 1..]);
+    if !body.iter().all(|b| (0x20..0x7f).contains(b)) {
+        return Err(ParseError::NotAscii);
+    }
+    let declared = parse_hex_byte(tail).ok_or(ParseError::BadChecksumDigits)?;
+    let computed = checksum(body);
+    if declared != computed {
+        return Err(ParseError::ChecksumMismatch { declared, computed });
+    }
+    // Printable ASCII was checked above, so this cannot fail; map it anyway rather than unwrap.
+    let body = std::str::from_utf8(body).map_err(|_| ParseError::NotAscii)?;
+    Ok(body.split(',').collect())
+}
+
+fn trim_line_end(line: &[u8]) -> &[u8] {
+    let mut end = line.len();
+    while end > 0 && matches!(line[end - 1], b'\n' | b'\r') {
+        end -= 1;
+    }
+    &line[..end]
+}
+
+fn parse_hex_byte(digits: &[u8]) -> Option<u8> {
+    if digits.len() != 2 {
+        return None;
+    }
+    let s = std::str::from_utf8(digits).ok()?;
+    u8::from_str_radix(s, 16).ok()
+}
+
+fn expect_fields(fields: &[&str], tag: &'static str, expected: usize) -> Result<(), ParseError> {
+    if fields.len() == expected {
+        Ok(())
+    } else {
+        Err(ParseError::FieldCount {
+            tag,
+            expected,
+            got: fields.len(),
+        })
+    }
+}
+
+/// Parses a decimal integer field; rejects signs where the type has none, spaces and overflow.
+fn num<T: std::str::FromStr>(s: &str, what: &'static str) -> Result<T, ParseError> {
+    if s.is_empty() || s.starts_with('+') || s.contains(' ') {
+        return Err(ParseError::BadField(what));
+    }
+    s.parse().map_err(|_| ParseError::BadField(what))
+}
+
+/// Free text fields may not contain the separators of the frame.
+fn sanitize_text(text: &str) -> String {
+    text.chars()
+        .map(|c| {
+            if c.is_ascii_graphic() && !matches!(c, '$' | '*' | ',') || c == ' ' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .take(80)
+        .collect()
+}
+
+/// Encodes a PC command as a complete line.
+pub fn encode_command(cmd: &HostCommand) -> String {
+    let body = match cmd {
+        HostCommand::Hello { version } => format!("HELLO,{version}"),
+        HostCommand::FullScan => "SCAN,FULL".to_owned(),
+        HostCommand::LocalScan { from_cdeg, to_cdeg } => {
+            format!("SCAN,LOCAL,{from_cdeg},{to_cdeg}")
+        }
+        HostCommand::Stop => "STOP".to_owned(),
+        HostCommand::Status => "STATUS".to_owned(),
+    };
+    frame(&body)
+}
+
+/// Parses a line sent by the PC (the device's side of the protocol).
+pub fn parse_command(line: &[u8]) -> Result<HostCommand, ParseError> {
+    let f = unframe(line)?;
+    match f[0] {
+        "HELLO" => {
+            expect_fields(&f, "HELLO", 2)?;
+            Ok(HostCommand::Hello {
+                version: num(f[1], "version")?,
+            })
+        }
+        "SCAN" => match f.get(1).copied() {
+            Some("FULL") => {
+                expect_fields(&f, "SCAN,FULL", 2)?;
+                Ok(HostCommand::FullScan)
+            }
+            Some("LOCAL") => {
+                expect_fields(&f, "SCAN,LOCAL", 4)?;
+                let from_cdeg = num(f[2], "from angle")?;
+                let to_cdeg = num(f[3], "to angle")?;
+                if from_cdeg >= to_cdeg {
+                    return Err(ParseError::BadField("local scan segment (from >= to)"));
+                }
+                Ok(HostCommand::LocalScan { from_cdeg, to_cdeg })
+            }
+            _ => Err(ParseError::BadField("scan kind")),
+        },
+        "STOP" => {
+            expect_fields(&f, "STOP", 1)?;
+            Ok(HostCommand::Stop)
+        }
+        "STATUS" => {
+            expect_fields(&f, "STATUS", 1)?;
+            Ok(HostCommand::Status)
+        }
+        other => Err(ParseError::UnknownTag(sanitize_text(other))),
+    }
+}
+
+/// Encodes a device message as a complete line.
+pub fn encode_device(msg: &DeviceMessage) -> String {
+    let mut body = String::with_capacity(64);
+    // Writing into a String cannot fail; the results are ignored for that reason only.
+    match msg {
+        DeviceMessage::Hello {
+            version,
+            firmware,
+            step_cdeg,
+            pings_per_reading,
+            min_cdeg,
+            max_cdeg,
+        } => {
+            let _ = write!(
+                body,
+                "HELLO,{version},{},{step_cdeg},{pings_per_reading},{min_cdeg},{max_cdeg}",
+                sanitize_text(firmware)
+            );
+        }
+        DeviceMessage::Ack { command } => {
+            let _ = write!(body, "ACK,{}", sanitize_text(command));
+        }
+        DeviceMessage::Reading(r) => {
+            let _ = write!(
+                body,
+                "RD,{},{},{},{},{},{}",
+                r.seq,
+                r.time_ms,
+                r.sweep,
+                r.direction.wire(),
+                r.angle_cdeg,
+                r.ping_count
+            );
+            for echo in r.pings() {
+                let _ = write!(body, ",{echo}");
+            }
+        }
+        DeviceMessage::LimitHit(limit) => {
+            body.push_str(match limit {
+                Limit::Min => "LIM,MIN",
+                Limit::Max => "LIM,MAX",
+            });
+        }
+        DeviceMessage::SweepStart {
+            sweep,
+            direction,
+            mode,
+            from_cdeg,
+            to_cdeg,
+        } => {
+            let _ = write!(
+                body,
+                "SWP,START,{sweep},{},{},{from_cdeg},{to_cdeg}",
+                direction.wire(),
+                mode.wire()
+            );
+        }
+        DeviceMessage::SweepEnd { sweep } => {
+            let _ = write!(body, "SWP,END,{sweep}");
+        }
+        DeviceMessage::Status {
+            state,
+            angle_cdeg,
+            direction,
+            sweep,
+        } => {
+            let state = match state {
+                DeviceState::Idle => "IDLE",
+                DeviceState::Full => "FULL",
+                DeviceState::Local => "LOCAL",
+            };
+            let _ = write!(
+                body,
+                "ST,{state},{angle_cdeg},{},{sweep}",
+                direction.wire()
+            );
+        }
+        DeviceMessage::Error { code, text } => {
+            let _ = write!(body, "ERR,{},{}", code.wire(), sanitize_text(text));
+        }
+    }
+    frame(&body)
+}
+
+/// Parses a line sent by the device (the PC's side of the protocol).
+pub fn parse_device(line: &[u8]) -> Result<DeviceMessage, ParseError> {
+    let f = unframe(line)?;
+    match f[0] {
+        "HELLO" => {
+            expect_fields(&f, "HELLO", 7)?;
+            Ok(DeviceMessage::Hello {
+                version: num(f[1], "version")?,
+                firmware: f[2].to_owned(),
+                step_cdeg: num(f[3], "step angle")?,
+                pings_per_reading: num(f[4], "pings per reading")?,
+                min_cdeg: num(f[5], "min angle")?,
+                max_cdeg: num(f[6], "max angle")?,
+            })
+        }
+        "ACK" => {
+            expect_fields(&f, "ACK", 2)?;
+            Ok(DeviceMessage::Ack {
+                command: f[1].to_owned(),
+            })
+        }
+        "RD" => parse_reading(&f).map(DeviceMessage::Reading),
+        "LIM" => {
+            expect_fields(&f, "LIM", 2)?;
+            match f[1] {
+                "MIN" => Ok(DeviceMessage::LimitHit(Limit::Min)),
+                "MAX" => Ok(DeviceMessage::LimitHit(Limit::Max)),
+                _ => Err(ParseError::BadField("limit")),
+            }
+        }
+        "SWP" => match f.get(1).copied() {
+            Some("START") => {
+                expect_fields(&f, "SWP,START", 7)?;
+                Ok(DeviceMessage::SweepStart {
+                    sweep: num(f[2], "sweep")?,
+                    direction: Direction::from_wire(f[3])?,
+                    mode: WireScanMode::from_wire(f[4])?,
+                    from_cdeg: num(f[5], "from angle")?,
+                    to_cdeg: num(f[6], "to angle")?,
+                })
+            }
+            Some("END") => {
+                expect_fields(&f, "SWP,END", 3)?;
+                Ok(DeviceMessage::SweepEnd {
+                    sweep: num(f[2], "sweep")?,
+                })
+            }
+            _ => Err(ParseError::BadField("sweep event")),
+        },
+        "ST" => {
+            expect_fields(&f, "ST", 5)?;
+            let state = match f[1] {
+                "IDLE" => DeviceState::Idle,
+                "FULL" => DeviceState::Full,
+                "LOCAL" => DeviceState::Local,
+                _ => return Err(ParseError::BadField("state")),
+            };
+            Ok(DeviceMessage::Status {
+                state,
+                angle_cdeg: num(f[2], "angle")?,
+                direction: Direction::from_wire(f[3])?,
+                sweep: num(f[4], "sweep")?,
+            })
+        }
+        "ERR" => {
+            expect_fields(&f, "ERR", 3)?;
+            Ok(DeviceMessage::Error {
+                code: ErrorCode::from_wire(f[1])?,
+                text: f[2].to_owned(),
+            })
+        }
+        other => Err(ParseError::UnknownTag(sanitize_text(other))),
+    }
+}
+
+fn parse_reading(f: &[&str]) -> Result<WireReading, ParseError> {
+    const HEAD: usize = 7;
+    if f.len() < HEAD {
+        return Err(ParseError::FieldCount {
+            tag: "RD",
+            expected: HEAD,
+            got: f.len(),
+        });
+    }
+    let ping_count: u8 = num(f[6], "ping count")?;
+    if ping_count == 0 || usize::from(ping_count) > MAX_PINGS_PER_READING {
+        return Err(ParseError::BadField("ping count"));
+    }
+    expect_fields(f, "RD", HEAD + usize::from(ping_count))?;
+    let mut echo_us = [0u32; MAX_PINGS_PER_READING];
+    for (slot, field) in echo_us.iter_mut().zip(&f[HEAD..]) {
+        *slot = num(field, "echo time")?;
+    }
+    Ok(WireReading {
+        seq: num(f[1], "sequence")?,
+        time_ms: num(f[2], "device time")?,
+        sweep: num(f[3], "sweep")?,
+        direction: Direction::from_wire(f[4])?,
+        angle_cdeg: num(f[5], "angle")?,
+        ping_count,
+        echo_us,
+    })
+}
+
+/// A reading of the hobby "Arduino radar" sketches: angle in degrees, distance in cm.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HobbyReading {
+    pub angle_deg: f32,
+    /// Distance in cm; 0 means no echo (NewPing convention).
+    pub distance_cm: f32,
+}
+
+/// Parses one line of the hobby radar dialect: `37,18` (also `37;18`, `37*18`), without terminator.
+///
+/// These sketches send no checksum, so plausibility is all we can check: both fields numeric and
+/// finite, the angle within a turn, the distance not negative.
+pub fn parse_hobby(line: &[u8]) -> Result<HobbyReading, ParseError> {
+    let line = trim_line_end(line);
+    if line.len() > MAX_LINE_LEN {
+        return Err(ParseError::TooLong);
+    }
+    let text = std::str::from_utf8(line).map_err(|_| ParseError::NotAscii)?;
+    let text = text.trim();
+    let (angle, distance) = text
+        .split_once([',', ';', '*'])
+        .ok_or(ParseError::FieldCount {
+            tag: "hobby",
+            expected: 2,
+            got: 1,
+        })?;
+    let angle_deg: f32 = angle
+        .trim()
+        .parse()
+        .map_err(|_| ParseError::BadField("angle"))?;
+    let distance_cm: f32 = distance
+        .trim()
+        .trim_end_matches('#')
+        .parse()
+        .map_err(|_| ParseError::BadField("distance"))?;
+    if !angle_deg.is_finite() || !(-360.0..=360.0).contains(&angle_deg) {
+        return Err(ParseError::BadField("angle"));
+    }
+    if !distance_cm.is_finite() || distance_cm < 0.0 {
+        return Err(ParseError::BadField("distance"));
+    }
+    Ok(HobbyReading {
+        angle_deg,
+        distance_cm,
+    })
+}
+
+/// Which bytes end a line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Terminators {
+    /// Our protocol: `\n` (a preceding `\r` is tolerated).
+    Newline,
+    /// The hobby sketches: `\n`, `\r`, or `.`/`#` (HowToMechatronics ends each record with `.` and no
+    /// newline, Techno-E-Solution with `#`), so decimal points are not supported in that dialect.
+    Hobby,
+}
+
+/// Cuts a byte stream into lines of at most [`MAX_LINE_LEN`] bytes.
+///
+/// A line that grows past the limit is dropped whole (reported once as [`FramedLine::Overflow`]) and
+/// framing resumes at the next terminator, so one lost newline costs one line, never the stream.
+#[derive(Debug)]
+pub struct LineFramer {
+    buf: Vec<u8>,
+    overflowed: bool,
+    terminators: Terminators,
+}
+
+/// One item cut from the stream.
+#[derive(Debug, PartialEq, Eq)]
+pub enum FramedLine<'a> {
+    Line(&'a [u8]),
+    /// A line exceeded [`MAX_LINE_LEN`] and was discarded.
+    Overflow,
+}
+
+impl LineFramer {
+    pub fn new(terminators: Terminators) -> Self {
+        Self {
+            buf: Vec::with_capacity(MAX_LINE_LEN),
+            overflowed: false,
+            terminators,
+        }
+    }
+
+    fn is_terminator(&self, b: u8) -> bool {
+        match self.terminators {
+            Terminators::Newline => b == b'\n',
+            Terminators::Hobby => matches!(b, b'\n' | b'\r' | b'.' | b'#'),
+        }
+    }
+
+    /// Feeds bytes; calls `on_line` for each complete line (without terminator) or overflow.
+    pub fn push(&mut self, bytes: &[u8], mut on_line: impl FnMut(FramedLine<'_>)) {
+        for &b in bytes {
+            if self.is_terminator(b) {
+                if self.overflowed {
+                    self.overflowed = false;
+                } else if !trim_line_end(&self.buf).is_empty() {
+                    on_line(FramedLine::Line(trim_line_end(&self.buf)));
+                }
+                self.buf.clear();
+            } else if self.overflowed {
+                // Skip the rest of an overlong line.
+            } else if self.buf.len() >= MAX_LINE_LEN {
+                self.buf.clear();
+                self.overflowed = true;
+                on_line(FramedLine::Overflow);
+            } else {
+                self.buf.push(b);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn reading(pings: &[u32]) -> WireReading {
+        let mut echo_us = [0; MAX_PINGS_PER_READING];
+        echo_us[..pings.len()].copy_from_slice(pings);
+        WireReading {
+            seq: 7,
+            time_ms: 123_456,
+            sweep: 3,
+            direction: Direction::Cw,
+            angle_cdeg: -14_700,
+            ping_count: pings.len() as u8,
+            echo_us,
+        }
+    }
+
+    #[test]
+    fn checksum_is_nmea_xor() {
+        // Known NMEA sentence: $GPGLL,5057.970,N,00146.110,E,142451,A*27
+        assert_eq!(checksum(b"GPGLL,5057.970,N,00146.110,E,142451,A"), 0x27);
+        assert_eq!(encode_command(&HostCommand::Stop), "$STOP*18\n");
+    }
+
+    #[test]
+    fn every_command_round_trips() {
+        for cmd in [
+            HostCommand::Hello { version: 1 },
+            HostCommand::FullScan,
+            HostCommand::LocalScan {
+                from_cdeg: -3000,
+                to_cdeg: 4500,
+            },
+            HostCommand::Stop,
+            HostCommand::Status,
+        ] {
+            let line = encode_command(&cmd);
+            assert!(line.ends_with('\n'));
+            assert_eq!(parse_command(line.as_bytes()), Ok(cmd));
+        }
+    }
+
+    #[test]
+    fn every_device_message_round_trips() {
+        for msg in [
+            DeviceMessage::Hello {
+                version: 1,
+                firmware: "sonar-sim 0.1.0".into(),
+                step_cdeg: 150,
+                pings_per_reading: 4,
+                min_cdeg: -15000,
+                max_cdeg: 15000,
+            },
+            DeviceMessage::Ack {
+                command: "SCAN".into(),
+            },
+            DeviceMessage::Reading(reading(&[5800, 5830, 0, 5790])),
+            DeviceMessage::LimitHit(Limit::Min),
+            DeviceMessage::LimitHit(Limit::Max),
+            DeviceMessage::SweepStart {
+                sweep: 2,
+                direction: Direction::Ccw,
+                mode: WireScanMode::Local,
+                from_cdeg: -3000,
+                to_cdeg: 3000,
+            },
+            DeviceMessage::SweepEnd { sweep: 2 },
+            DeviceMessage::Status {
+                state: DeviceState::Full,
+                angle_cdeg: 4425,
+                direction: Direction::Cw,
+                sweep: 9,
+            },
+            DeviceMessage::Error {
+                code: ErrorCode::Range,
+                text: "angle outside limits".into(),
+            },
+        ] {
+            let line = encode_device(&msg);
+            assert_eq!(parse_device(line.as_bytes()), Ok(msg), "{line}");
+        }
+    }
+
+    #[test]
+    fn reading_line_has_documented_shape() {
+        let line = encode_device(&DeviceMessage::Reading(reading(&[5800, 5830, 0, 5790])));
+        assert!(line.starts_with("$RD,7,123456,3,-,-14700,4,5800,5830,0,5790*"));
+    }
+
+    #[test]
+    fn rejects_bad_checksum_and_framing() {
+        let good = encode_command(&HostCommand::FullScan);
+        let bad = good.replace("FULL", "FULM");
+        assert!(matches!(
+            parse_command(bad.as_bytes()),
+            Err(ParseError::ChecksumMismatch { .. })
+        ));
+        assert_eq!(parse_command(b"SCAN,FULL*00"), Err(ParseError::NoStart));
+        assert_eq!(parse_command(b"$SCAN,FULL"), Err(ParseError::NoChecksum));
+        assert_eq!(
+            parse_command(b"$SCAN,FULL*G1"),
+            Err(ParseError::BadChecksumDigits)
+        );
+        assert_eq!(parse_device(b"$\xff*FF"), Err(ParseError::NotAscii));
+        assert_eq!(parse_device(&[b'$'; 400]), Err(ParseError::TooLong));
+    }
+
+    #[test]
+    fn rejects_wrong_fields_even_with_good_checksum() {
+        let cases: [(&str, fn(&[u8]) -> bool); 6] = [
+            ("RD,1,2,3,+,100,5,1,2,3,4", |l| parse_device(l).is_err()),
+            ("RD,1,2,3,+,100,0", |l| parse_device(l).is_err()),
+            ("RD,1,2,3,x,100,1,5", |l| parse_device(l).is_err()),
+            ("RD,1,2,3,+,100,1,-5", |l| parse_device(l).is_err()),
+            ("SCAN,LOCAL,300,100", |l| parse_command(l).is_err()),
+            ("WHAT,1", |l| parse_device(l).is_err()),
+        ];
+        for (body, rejected) in cases {
+            assert!(rejected(frame(body).as_bytes()), "{body} was accepted");
+        }
+    }
+
+    #[test]
+    fn hobby_dialect_variants() {
+        let expect = HobbyReading {
+            angle_deg: 37.0,
+            distance_cm: 18.0,
+        };
+        for line in ["37,18", "37;18", "37*18#", " 37 , 18 \r"] {
+            assert_eq!(parse_hobby(line.as_bytes()), Ok(expect), "{line:?}");
+        }
+        assert!(parse_hobby(b"37").is_err());
+        assert!(parse_hobby(b"37,-1").is_err());
+        assert!(parse_hobby(b"abc,1").is_err());
+        assert!(parse_hobby(b"37,NaN").is_err());
+    }
+
+    #[test]
+    fn framer_splits_lines_and_drops_overlong_ones() {
+        let mut framer = LineFramer::new(Terminators::Newline);
+        let mut out = Vec::new();
+        let mut collect = |l: FramedLine<'_>| {
+            out.push(match l {
+                FramedLine::Line(l) => String::from_utf8_lossy(l).into_owned(),
+                FramedLine::Overflow => "<overflow>".into(),
+            })
+        };
+        framer.push(b"$A*41\r\n$B", &mut collect);
+        framer.push(b"*42\n", &mut collect);
+        framer.push(&[b'x'; MAX_LINE_LEN + 10], &mut collect);
+        framer.push(b"\n$C*43\n", &mut collect);
+        assert_eq!(out, ["$A*41", "$B*42", "<overflow>", "$C*43"]);
+    }
+
+    #[test]
+    fn hobby_framer_splits_on_dots() {
+        let mut framer = LineFramer::new(Terminators::Hobby);
+        let mut out = Vec::new();
+        framer.push(b"15,20.16,21.17,22\n", |l| {
+            if let FramedLine::Line(l) = l {
+                out.push(parse_hobby(l).map(|r| r.angle_deg));
+            }
+        });
+        assert_eq!(out, [Ok(15.0), Ok(16.0), Ok(17.0)]);
+    }
+
+    fn arb_reading() -> impl Strategy<Value = WireReading> {
+        (
+            any::<u32>(),
+            any::<u32>(),
+            any::<u32>(),
+            any::<bool>(),
+            any::<i32>(),
+            prop::collection::vec(any::<u32>(), 1..=MAX_PINGS_PER_READING),
+        )
+            .prop_map(|(seq, time_ms, sweep, ccw, angle_cdeg, pings)| {
+                let mut r = reading(&pings);
+                r.seq = seq;
+                r.time_ms = time_ms;
+                r.sweep = sweep;
+                r.direction = if ccw { Direction::Ccw } else { Direction::Cw };
+                r.angle_cdeg = angle_cdeg;
+                r
+            })
+    }
+
+    proptest! {
+        #[test]
+        fn reading_round_trips(r in arb_reading()) {
+            let line = encode_device(&DeviceMessage::Reading(r));
+            prop_assert!(line.len() <= MAX_LINE_LEN);
+            prop_assert_eq!(parse_device(line.as_bytes()), Ok(DeviceMessage::Reading(r)));
+        }
+
+        #[test]
+        fn local_scan_round_trips(a in -36000i32..36000, len in 1i32..36000) {
+            let cmd = HostCommand::LocalScan { from_cdeg: a, to_cdeg: a + len };
+            prop_assert_eq!(parse_command(encode_command(&cmd).as_bytes()), Ok(cmd));
+        }
+
+        #[test]
+        fn arbitrary_bytes_never_panic(bytes in prop::collection::vec(any::<u8>(), 0..300)) {
+            let _ = parse_device(&bytes);
+            let _ = parse_command(&bytes);
+            let _ = parse_hobby(&bytes);
+            let mut framer = LineFramer::new(Terminators::Hobby);
+            framer.push(&bytes, |_| {});
+        }
+
+        /// Whatever bytes arrive, nothing is accepted unless its checksum matches its body.
+        #[test]
+        fn nothing_accepted_without_matching_checksum(
+            bytes in prop::collection::vec(any::<u8>(), 0..200),
+        ) {
+            if parse_device(&bytes).is_ok() {
+                let line = trim_line_end(&bytes);
+                let star = line.iter().rposition(|&b| b == b'*').unwrap();
+                let declared = parse_hex_byte(&line[star + 1..]).unwrap();
+                prop_assert_eq!(declared, checksum(&line[1..star]));
+            }
+        }
+
+        /// Corrupting one byte of a valid reading line is always detected or harmless.
+        #[test]
+        fn single_byte_corruption_never_yields_a_different_reading(
+            r in arb_reading(), pos in any::<prop::sample::Index>(), flip in 1u8..=255,
+        ) {
+            let mut line = encode_device(&DeviceMessage::Reading(r)).into_bytes();
+            let i = pos.index(line.len());
+            line[i] ^= flip;
+            if let Ok(DeviceMessage::Reading(parsed)) = parse_device(&line) {
+                prop_assert_eq!(parsed, r);
+            }
+        }
+    }
+}
