@@ -448,11 +448,7 @@ pub fn encode_device(msg: &DeviceMessage) -> String {
                 DeviceState::Full => "FULL",
                 DeviceState::Local => "LOCAL",
             };
-            let _ = write!(
-                body,
-                "ST,{state},{angle_cdeg},{},{sweep}",
-                direction.wire()
-            );
+            let _ = write!(body, "ST,{state},{angle_cdeg},{},{sweep}", direction.wire());
         }
         DeviceMessage::Error { code, text } => {
             let _ = write!(body, "ERR,{},{}", code.wire(), sanitize_text(text));

@@ -1,1 +1,606 @@
-fn main() {}
+//! `sonar-driver`: owns the serial port of the sonar head and publishes its readings over iceoryx2.
+//!
+//! Single-threaded by design: the loop reads the port with a short timeout, so one thread can also
+//! poll the command service and notice Ctrl-C/SIGTERM (through the iceoryx2 node's signal handler)
+//! without locks or channels. At 5 readings/s (real hardware) or tens of thousands (simulator at
+//! `--speed max`) that loop is never the bottleneck.
+
+use std::io::{ErrorKind, Read, Write};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use clap::Parser;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::service::ipc::Service as Ipc;
+use serialport::{DataBits, Parity, SerialPort, StopBits, TTYPort};
+use sonar_common::ipc::{
+    self, DriverStatus, IpcArgs, LinkState, Reading, ScanCommand, ScanCommandKind, ScanMode,
+};
+use sonar_common::protocol::{
+    DeviceMessage, FramedLine, HostCommand, LineFramer, PROTOCOL_VERSION, encode_command,
+};
+use sonar_common::sensor::SensorConfig;
+use sonar_driver::averaging::PingPolicy;
+use sonar_driver::decoder::{Decoded, Decoder, Dialect};
+use tracing::{debug, error, info, warn};
+
+/// How long one read of the port may block: bounds the latency of commands and of shutdown.
+const READ_TIMEOUT: Duration = Duration::from_millis(50);
+const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(2);
+const HANDSHAKE_ATTEMPTS: u32 = 3;
+const STATUS_PERIOD: Duration = Duration::from_secs(1);
+const MIN_BACKOFF: Duration = Duration::from_millis(250);
+
+/// Reads a sonar head (or its simulator) over a serial port and publishes each averaged 6° reading
+/// on the iceoryx2 service `sonar/readings`; takes scan commands on `sonar/commands`.
+///
+/// Examples:
+///   sonar-driver --port /dev/ttyUSB0
+///   sonar-driver --port "$(sonar-sim --print-pty-only)"   # see the README
+///   sonar-driver --port /dev/ttyACM0 --dialect hobby       # an "Arduino radar" sketch at 9600 baud
+#[derive(Debug, Parser)]
+#[command(version, verbatim_doc_comment)]
+struct Args {
+    /// Serial device: a USB adapter (/dev/ttyUSB0) or the simulator's pseudo-terminal.
+    #[arg(long, env = "SONAR_PORT")]
+    port: PathBuf,
+    /// Baud rate [default: 115200 for native, 9600 for hobby].
+    #[arg(long)]
+    baud: Option<u32>,
+    #[arg(long, value_enum, default_value_t = ParityArg::None)]
+    parity: ParityArg,
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u8).range(5..=8))]
+    data_bits: u8,
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
+    stop_bits: u8,
+    /// Serial format the device speaks.
+    #[arg(long, value_enum, default_value_t = Dialect::Native)]
+    dialect: Dialect,
+    /// Scan to start after the handshake: `full`, `none`, or a local segment `FROM..TO` in degrees
+    /// (e.g. `-30..30`). Restarted after a reconnect.
+    #[arg(long, default_value = "full", value_parser = parse_scan, allow_hyphen_values = true)]
+    scan: ScanRequest,
+    /// Air temperature in °C, for the speed of sound (V = 331.3 + 0.606·T m/s).
+    #[arg(long, default_value_t = 20.0, allow_hyphen_values = true)]
+    air_temperature: f32,
+    /// Beam half-angle stamped on readings, degrees (the paper's ±30°).
+    #[arg(long, default_value_t = 30.0)]
+    beam_half_angle: f32,
+    /// Hobby dialect: added to the sketch's servo angle so that 0° is the sensor's forward axis.
+    #[arg(long, default_value_t = -90.0, allow_hyphen_values = true)]
+    hobby_angle_offset: f32,
+    /// Also print each reading on standard output, one line each.
+    #[arg(long)]
+    print: bool,
+    /// Longest wait between reconnection attempts, seconds.
+    #[arg(long, default_value_t = 5.0)]
+    max_backoff: f64,
+    #[command(flatten)]
+    ipc: IpcArgs,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum ParityArg {
+    None,
+    Odd,
+    Even,
+}
+
+/// The scan the driver keeps the head doing.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum ScanRequest {
+    None,
+    Full,
+    Local { from_deg: f32, to_deg: f32 },
+}
+
+fn parse_scan(s: &str) -> Result<ScanRequest, String> {
+    match s {
+        "none" => Ok(ScanRequest::None),
+        "full" => Ok(ScanRequest::Full),
+        _ => {
+            let (a, b) = s
+                .split_once("..")
+                .ok_or_else(|| format!("expected full, none or FROM..TO degrees, got {s:?}"))?;
+            let from_deg: f32 = a.trim().parse().map_err(|_| format!("bad angle {a:?}"))?;
+            let to_deg: f32 = b.trim().parse().map_err(|_| format!("bad angle {b:?}"))?;
+            local_segment(from_deg, to_deg)
+        }
+    }
+}
+
+fn local_segment(from_deg: f32, to_deg: f32) -> Result<ScanRequest, String> {
+    if !(from_deg.is_finite() && to_deg.is_finite() && from_deg < to_deg) {
+        return Err(format!(
+            "local scan needs FROM < TO, got {from_deg}..{to_deg}"
+        ));
+    }
+    if from_deg < -360.0 || to_deg > 360.0 {
+        return Err("local scan angles must lie within ±360°".into());
+    }
+    Ok(ScanRequest::Local { from_deg, to_deg })
+}
+
+impl ScanRequest {
+    fn host_command(self) -> Option<HostCommand> {
+        match self {
+            ScanRequest::None => None,
+            ScanRequest::Full => Some(HostCommand::FullScan),
+            ScanRequest::Local { from_deg, to_deg } => Some(HostCommand::LocalScan {
+                from_cdeg: (from_deg * 100.0).round() as i32,
+                to_cdeg: (to_deg * 100.0).round() as i32,
+            }),
+        }
+    }
+}
+
+fn main() -> std::process::ExitCode {
+    sonar_common::init_tracing();
+    match run(Args::parse()) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            error!("{e:#}");
+            eprintln!("sonar-driver: error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+/// Why a session on an open port ended.
+enum SessionEnd {
+    Shutdown,
+    PortLost(anyhow::Error),
+}
+
+fn run(args: Args) -> Result<()> {
+    let sensor = SensorConfig {
+        air_temperature_c: args.air_temperature,
+        beam_half_angle_deg: args.beam_half_angle,
+        ..SensorConfig::default()
+    };
+    sensor.validate().context("invalid sensor settings")?;
+    let node = args.ipc.node("sonar-driver")?;
+    let mut link = Link::new(&node, &args, sensor)?;
+
+    // A port that is missing or busy at start is a mistake to report, not to wait out.
+    let mut port = open_port(&args)?;
+    let mut backoff = MIN_BACKOFF;
+    loop {
+        match link.session(&mut port, &node)? {
+            SessionEnd::Shutdown => break,
+            SessionEnd::PortLost(e) => {
+                warn!("lost {}: {e:#}", args.port.display());
+                link.set_state(LinkState::Disconnected)?;
+                drop(port);
+                port = loop {
+                    if node.wait(backoff).is_err() {
+                        info!("shutting down while disconnected");
+                        return Ok(());
+                    }
+                    match open_port(&args) {
+                        Ok(p) => break p,
+                        Err(e) => {
+                            warn!("reconnect in {backoff:?}: {e:#}");
+                            backoff = (backoff * 2).min(Duration::from_secs_f64(args.max_backoff));
+                        }
+                    }
+                };
+                link.status.reconnects += 1;
+                backoff = MIN_BACKOFF;
+            }
+        }
+    }
+    if args.dialect == Dialect::Native {
+        // Leave the motor idle when nobody is listening any more.
+        let _ = port.write_all(encode_command(&HostCommand::Stop).as_bytes());
+    }
+    link.set_state(LinkState::Disconnected)?;
+    info!(
+        readings = link.status.readings_published,
+        rejected = link.status.lines_rejected,
+        "driver stopped"
+    );
+    Ok(())
+}
+
+fn open_port(args: &Args) -> Result<TTYPort> {
+    let path = args.port.to_string_lossy().into_owned();
+    if !Path::new(&path).exists() {
+        bail!(
+            "serial port {path} does not exist (is the device plugged in, or the simulator running?)"
+        );
+    }
+    let baud = args.baud.unwrap_or(match args.dialect {
+        Dialect::Native => 115_200,
+        Dialect::Hobby => 9_600,
+    });
+    let port = serialport::new(&path, baud)
+        .data_bits(match args.data_bits {
+            5 => DataBits::Five,
+            6 => DataBits::Six,
+            7 => DataBits::Seven,
+            _ => DataBits::Eight,
+        })
+        .parity(match args.parity {
+            ParityArg::None => Parity::None,
+            ParityArg::Odd => Parity::Odd,
+            ParityArg::Even => Parity::Even,
+        })
+        .stop_bits(if args.stop_bits == 2 {
+            StopBits::Two
+        } else {
+            StopBits::One
+        })
+        .timeout(READ_TIMEOUT)
+        .open_native()
+        .map_err(|e| {
+            let hint = match e.kind() {
+                serialport::ErrorKind::NoDevice => " (busy: another program has it open?)",
+                serialport::ErrorKind::Io(ErrorKind::PermissionDenied) => {
+                    " (permission denied: add yourself to the dialout group)"
+                }
+                _ => "",
+            };
+            anyhow::anyhow!("cannot open serial port {path}: {e}{hint}")
+        })?;
+    info!(port = %path, baud, dialect = ?args.dialect, "serial port open");
+    Ok(port)
+}
+
+/// The driver's side of the pipeline: decoder, iceoryx2 ports and counters.
+struct Link {
+    decoder: Decoder,
+    dialect: Dialect,
+    print: bool,
+    scan: ScanRequest,
+    publisher: Publisher<Ipc, Reading, ()>,
+    notifier: Notifier<Ipc>,
+    commands: Subscriber<Ipc, ScanCommand, ()>,
+    status_publisher: Publisher<Ipc, DriverStatus, ()>,
+    status: DriverStatus,
+    hello: Option<DeviceMessage>,
+    version_rejected: bool,
+}
+
+impl Link {
+    fn new(node: &Node<Ipc>, args: &Args, sensor: SensorConfig) -> Result<Self> {
+        let readings = ipc::readings_service(node)?;
+        let publisher = readings
+            .publisher_builder()
+            .create()
+            .map_err(|e| ipc::IpcError::new("create readings publisher", e))?;
+        let notifier = ipc::wakeup_service(node, ipc::READINGS_SERVICE)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| ipc::IpcError::new("create readings notifier", e))?;
+        let commands = ipc::commands_service(node)?
+            .subscriber_builder()
+            .create()
+            .map_err(|e| ipc::IpcError::new("create command subscriber", e))?;
+        let status_publisher = ipc::driver_status_service(node)?
+            .publisher_builder()
+            .create()
+            .map_err(|e| ipc::IpcError::new("create status publisher", e))?;
+        Ok(Self {
+            decoder: Decoder::new(
+                args.dialect,
+                sensor,
+                PingPolicy::default(),
+                args.hobby_angle_offset,
+            ),
+            dialect: args.dialect,
+            print: args.print,
+            scan: args.scan,
+            publisher,
+            notifier,
+            commands,
+            status_publisher,
+            status: DriverStatus {
+                layout_version: ipc::LAYOUT_VERSION,
+                ..Default::default()
+            },
+            hello: None,
+            version_rejected: false,
+        })
+    }
+
+    fn set_state(&mut self, state: LinkState) -> Result<()> {
+        self.status.link_state = state as u32;
+        self.publish_status()
+    }
+
+    fn publish_status(&mut self) -> Result<()> {
+        self.status.stamp_ns = ipc::unix_time_ns();
+        self.status.readings_published = self.decoder.readings_decoded();
+        let sample = self
+            .status_publisher
+            .loan_uninit()
+            .map_err(|e| ipc::IpcError::new("loan status sample", e))?;
+        sample
+            .write_payload(self.status)
+            .send()
+            .map_err(|e| ipc::IpcError::new("send status", e))?;
+        Ok(())
+    }
+
+    /// Runs one connection: handshake, scan request, then lines until the port fails or we stop.
+    fn session(&mut self, port: &mut TTYPort, node: &Node<Ipc>) -> Result<SessionEnd> {
+        self.set_state(LinkState::Connecting)?;
+        // Bytes queued before we opened belong to nobody (or a previous driver).
+        let _ = port.clear(serialport::ClearBuffer::All);
+        let mut framer = LineFramer::new(self.dialect.terminators());
+        let mut buf = [0u8; 4096];
+
+        if self.dialect == Dialect::Native {
+            self.hello = None;
+            let mut attempt = 0;
+            while self.hello.is_none() {
+                if attempt == HANDSHAKE_ATTEMPTS {
+                    return Ok(SessionEnd::PortLost(anyhow::anyhow!(
+                        "no HELLO reply in {HANDSHAKE_ATTEMPTS} attempts (wrong --baud or --dialect?)"
+                    )));
+                }
+                attempt += 1;
+                if let Err(e) = send(
+                    port,
+                    &HostCommand::Hello {
+                        version: PROTOCOL_VERSION,
+                    },
+                ) {
+                    return Ok(SessionEnd::PortLost(e));
+                }
+                let deadline = Instant::now() + HANDSHAKE_TIMEOUT;
+                while self.hello.is_none() && Instant::now() < deadline {
+                    if node.wait(Duration::ZERO).is_err() {
+                        return Ok(SessionEnd::Shutdown);
+                    }
+                    if let Err(e) = self.read_some(port, &mut framer, &mut buf)? {
+                        return Ok(SessionEnd::PortLost(e));
+                    }
+                    if self.version_rejected {
+                        bail!("the device does not speak protocol version {PROTOCOL_VERSION}");
+                    }
+                }
+            }
+            if let Some(hello) = &self.hello {
+                info!(?hello, "handshake done");
+                self.decoder.adopt_device_geometry(hello);
+            }
+            if let Some(cmd) = self.scan.host_command()
+                && let Err(e) = send(port, &cmd)
+            {
+                return Ok(SessionEnd::PortLost(e));
+            }
+        }
+        self.set_state(LinkState::Connected)?;
+
+        let mut next_status = Instant::now() + STATUS_PERIOD;
+        loop {
+            if node.wait(Duration::ZERO).is_err() {
+                return Ok(SessionEnd::Shutdown);
+            }
+            if let Err(e) = self.forward_commands(port) {
+                return Ok(SessionEnd::PortLost(e));
+            }
+            if let Err(e) = self.read_some(port, &mut framer, &mut buf)? {
+                return Ok(SessionEnd::PortLost(e));
+            }
+            if Instant::now() >= next_status {
+                self.publish_status()?;
+                next_status = Instant::now() + STATUS_PERIOD;
+            }
+        }
+    }
+
+    /// Reads what the port has (waiting at most [`READ_TIMEOUT`]) and handles every complete line.
+    /// The outer error is fatal (shared memory), the inner one a lost port.
+    fn read_some(
+        &mut self,
+        port: &mut TTYPort,
+        framer: &mut LineFramer,
+        buf: &mut [u8],
+    ) -> Result<Result<(), anyhow::Error>> {
+        let n = match port.read(buf) {
+            Ok(0) => return Ok(Err(anyhow::anyhow!("end of file on the serial port"))),
+            Ok(n) => n,
+            Err(e) if matches!(e.kind(), ErrorKind::TimedOut | ErrorKind::Interrupted) => {
+                return Ok(Ok(()));
+            }
+            Err(e) => return Ok(Err(anyhow::Error::new(e).context("read failed"))),
+        };
+        let mut fatal = Ok(());
+        framer.push(&buf[..n], |item| {
+            if fatal.is_ok() {
+                fatal = self.handle(item);
+            }
+        });
+        fatal.map(Ok)
+    }
+
+    fn handle(&mut self, item: FramedLine<'_>) -> Result<()> {
+        let line = match item {
+            FramedLine::Line(line) => line,
+            FramedLine::Overflow => {
+                self.status.lines_rejected += 1;
+                warn!("discarded an overlong line (garbage on the serial line?)");
+                return Ok(());
+            }
+        };
+        match self.decoder.decode(line, ipc::unix_time_ns()) {
+            Err(e) => {
+                self.status.lines_rejected += 1;
+                warn!(
+                    line = %String::from_utf8_lossy(line),
+                    rejected = self.status.lines_rejected,
+                    "rejected line: {e}"
+                );
+            }
+            Ok(Decoded::Reading(reading)) => {
+                self.status.lines_ok += 1;
+                self.publish(&reading)?;
+            }
+            Ok(Decoded::Message(msg)) => {
+                self.status.lines_ok += 1;
+                self.on_message(msg);
+            }
+        }
+        Ok(())
+    }
+
+    fn on_message(&mut self, msg: DeviceMessage) {
+        match &msg {
+            DeviceMessage::Hello { .. } => self.hello = Some(msg),
+            DeviceMessage::Error { code, text } => {
+                if *code == sonar_common::protocol::ErrorCode::Version {
+                    self.version_rejected = true;
+                }
+                warn!(?code, text, "device reports an error");
+            }
+            DeviceMessage::SweepStart {
+                sweep,
+                direction,
+                mode,
+                ..
+            } => {
+                self.status.sweep_id = *sweep;
+                self.status.direction = direction.sign();
+                self.status.mode = match mode {
+                    sonar_common::protocol::WireScanMode::Full => ScanMode::Full,
+                    sonar_common::protocol::WireScanMode::Local => ScanMode::Local,
+                } as u32;
+                debug!(?msg, "sweep start");
+            }
+            other => debug!(msg = ?other, "device message"),
+        }
+    }
+
+    fn publish(&mut self, reading: &Reading) -> Result<()> {
+        let sample = self
+            .publisher
+            .loan_uninit()
+            .map_err(|e| ipc::IpcError::new("loan reading sample", e))?;
+        sample
+            .write_payload(*reading)
+            .send()
+            .map_err(|e| ipc::IpcError::new("send reading", e))?;
+        self.notifier
+            .notify()
+            .map_err(|e| ipc::IpcError::new("notify readings", e))?;
+        self.status.angle_deg = reading.angle_deg;
+        self.status.direction = i32::from(reading.direction);
+        self.status.sweep_id = reading.sweep_id;
+        debug!(
+            seq = reading.seq,
+            angle = reading.angle_deg,
+            distance = reading.distance_m,
+            flags = reading.flags,
+            "reading"
+        );
+        if self.print {
+            println!("{}", format_reading(reading));
+        }
+        Ok(())
+    }
+
+    /// Forwards commands from `sonar/commands` to the device.
+    fn forward_commands(&mut self, port: &mut TTYPort) -> Result<()> {
+        loop {
+            let sample = match self.commands.receive() {
+                Ok(Some(sample)) => sample,
+                Ok(None) => return Ok(()),
+                Err(e) => {
+                    warn!("receiving commands failed: {e:?}");
+                    return Ok(());
+                }
+            };
+            let cmd = *sample.payload();
+            let request = match cmd.kind() {
+                Some(ScanCommandKind::FullScan) => Some(ScanRequest::Full),
+                Some(ScanCommandKind::LocalScan) => match local_segment(cmd.from_deg, cmd.to_deg) {
+                    Ok(r) => Some(r),
+                    Err(e) => {
+                        warn!("rejected local scan command: {e}");
+                        continue;
+                    }
+                },
+                Some(ScanCommandKind::Stop) => Some(ScanRequest::None),
+                Some(ScanCommandKind::Status) => None,
+                None => {
+                    warn!(kind = cmd.kind, "rejected unknown command");
+                    continue;
+                }
+            };
+            if self.dialect == Dialect::Hobby {
+                warn!(?cmd, "the hobby dialect takes no commands; ignored");
+                continue;
+            }
+            info!(?cmd, "command");
+            let host = match request {
+                Some(request) => {
+                    self.scan = request;
+                    request.host_command().unwrap_or(HostCommand::Stop)
+                }
+                None => HostCommand::Status,
+            };
+            send(port, &host)?;
+        }
+    }
+}
+
+fn send(port: &mut TTYPort, cmd: &HostCommand) -> Result<()> {
+    port.write_all(encode_command(cmd).as_bytes())
+        .and_then(|()| port.flush())
+        .with_context(|| format!("write {cmd:?}"))
+}
+
+fn format_reading(r: &Reading) -> String {
+    let range = if r.is_valid_range() {
+        format!("{:.3} m", r.distance_m)
+    } else if r.has(ipc::flags::OUT_OF_RANGE) {
+        "out of range".to_owned()
+    } else {
+        "no echo".to_owned()
+    };
+    format!(
+        "#{:<6} sweep {:<4} {} {:>7.2}°  {:>12}  pings {}/{}  raw µs {:?}",
+        r.seq,
+        r.sweep_id,
+        if r.direction >= 0 { '+' } else { '-' },
+        r.angle_deg,
+        range,
+        r.pings_used,
+        r.ping_count,
+        &r.echo_us[..usize::from(r.ping_count)]
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn scan_argument_forms() {
+        assert_eq!(parse_scan("full"), Ok(ScanRequest::Full));
+        assert_eq!(parse_scan("none"), Ok(ScanRequest::None));
+        assert_eq!(
+            parse_scan("-30..45.5"),
+            Ok(ScanRequest::Local {
+                from_deg: -30.0,
+                to_deg: 45.5
+            })
+        );
+        assert!(parse_scan("30..-30").is_err());
+        assert!(parse_scan("left").is_err());
+        assert_eq!(
+            parse_scan("-30..30").map(ScanRequest::host_command),
+            Ok(Some(HostCommand::LocalScan {
+                from_cdeg: -3000,
+                to_cdeg: 3000
+            }))
+        );
+    }
+}

@@ -1,1 +1,230 @@
-//! End-to-end test support
+//! Support for the end-to-end tests: start the real binaries as separate processes, each test in its
+//! own iceoryx2 namespace (prefix + root path), and clean up after them.
+//!
+//! The binaries are taken from the same target directory as the test executable, so build them first
+//! (`cargo build --workspace --bins`, which the README's test command does).
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test support: a failure here is a test failure
+
+use std::io::{BufRead, BufReader, Read};
+use std::path::PathBuf;
+use std::process::{Child, ChildStdout, Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+use iceoryx2::prelude::*;
+use iceoryx2::service::ipc::Service as Ipc;
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+use sonar_common::ipc::IpcArgs;
+
+/// Generous bound for anything a test waits for; only there so a broken build fails instead of
+/// hanging CI. No test asserts on how fast something happens.
+pub const PATIENCE: Duration = Duration::from_secs(60);
+
+/// Path of a workspace binary next to the running test executable.
+pub fn bin(name: &str) -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    // target/<profile>/deps/<test-binary> → target/<profile>/<name>
+    let dir = exe
+        .parent()
+        .and_then(|deps| deps.parent())
+        .expect("target dir");
+    let path = dir.join(name);
+    assert!(
+        path.exists(),
+        "{} is missing: run `cargo build --workspace --bins` before the tests",
+        path.display()
+    );
+    path
+}
+
+/// A running process that is stopped with SIGTERM when dropped.
+#[derive(Debug)]
+pub struct Proc {
+    pub name: String,
+    pub child: Child,
+}
+
+impl Proc {
+    /// Sends SIGTERM and waits for the exit; the status tells whether shutdown was clean.
+    pub fn terminate(mut self) -> ExitStatus {
+        sigterm(&self.child);
+        let status = wait_timeout(&mut self.child).unwrap_or_else(|| {
+            let _ = self.child.kill();
+            panic!("{} did not exit after SIGTERM", self.name)
+        });
+        std::mem::forget(self);
+        status
+    }
+
+    /// Waits for the process to exit by itself; returns its status and standard error.
+    pub fn wait_exit(mut self) -> (ExitStatus, String) {
+        let status = wait_timeout(&mut self.child).unwrap_or_else(|| {
+            let _ = self.child.kill();
+            panic!("{} did not exit", self.name)
+        });
+        let mut stderr = String::new();
+        if let Some(mut e) = self.child.stderr.take() {
+            let _ = e.read_to_string(&mut stderr);
+        }
+        std::mem::forget(self);
+        (status, stderr)
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        sigterm(&self.child);
+        if wait_timeout(&mut self.child).is_none() {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
+
+/// Asks a child to shut down, as Ctrl-C or systemd would.
+fn sigterm(child: &Child) {
+    if let Ok(pid) = i32::try_from(child.id()) {
+        let _ = kill(Pid::from_raw(pid), Signal::SIGTERM);
+    }
+}
+
+fn wait_timeout(child: &mut Child) -> Option<ExitStatus> {
+    let deadline = Instant::now() + PATIENCE;
+    while Instant::now() < deadline {
+        if let Ok(Some(status)) = child.try_wait() {
+            return Some(status);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    None
+}
+
+/// One test's private iceoryx2 namespace and the processes it started.
+#[derive(Debug)]
+pub struct Sandbox {
+    pub prefix: String,
+    pub root: PathBuf,
+}
+
+impl Sandbox {
+    pub fn new(test: &str) -> Self {
+        let tag = format!("sonar_t{}_{test}_", std::process::id());
+        let root = std::env::temp_dir().join(format!("{tag}root"));
+        let _ = std::fs::remove_dir_all(&root);
+        std::fs::create_dir_all(&root).unwrap();
+        Self { prefix: tag, root }
+    }
+
+    pub fn ipc_args(&self) -> IpcArgs {
+        IpcArgs {
+            iox_config: None,
+            iox_prefix: Some(self.prefix.clone()),
+            iox_root: Some(self.root.clone()),
+        }
+    }
+
+    /// An iceoryx2 node of the test process in this namespace.
+    pub fn node(&self, name: &str) -> Node<Ipc> {
+        self.ipc_args().node(name).unwrap()
+    }
+
+    /// A command for a workspace binary with this namespace in its environment and logs on stderr.
+    pub fn command(&self, name: &str) -> Command {
+        let mut cmd = Command::new(bin(name));
+        cmd.env("SONAR_IOX_PREFIX", &self.prefix)
+            .env("SONAR_IOX_ROOT", &self.root)
+            .env(
+                "RUST_LOG",
+                std::env::var("RUST_LOG").unwrap_or_else(|_| "info".into()),
+            )
+            .stdin(Stdio::null());
+        cmd
+    }
+
+    pub fn spawn(&self, name: &str, args: &[&str]) -> Proc {
+        let child = self
+            .command(name)
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap_or_else(|e| panic!("start {name}: {e}"));
+        Proc {
+            name: name.to_owned(),
+            child,
+        }
+    }
+
+    /// Starts the simulator and returns it with the path of its pseudo-terminal.
+    pub fn spawn_sim(&self, args: &[&str]) -> (Proc, String) {
+        let mut sim = Proc {
+            name: "sonar-sim".into(),
+            child: self
+                .command("sonar-sim")
+                .args(args)
+                .stdout(Stdio::piped())
+                .stderr(Stdio::inherit())
+                .spawn()
+                .expect("start sonar-sim"),
+        };
+        let pty = read_pty_line(sim.child.stdout.take().expect("sim stdout"));
+        (sim, pty)
+    }
+
+    /// Files this namespace has in /dev/shm.
+    pub fn shm_files(&self) -> Vec<String> {
+        std::fs::read_dir("/dev/shm")
+            .map(|dir| {
+                dir.filter_map(|e| e.ok())
+                    .map(|e| e.file_name().to_string_lossy().into_owned())
+                    .filter(|n| n.starts_with(&self.prefix))
+                    .collect()
+            })
+            .unwrap_or_default()
+    }
+}
+
+impl Drop for Sandbox {
+    fn drop(&mut self) {
+        for f in self.shm_files() {
+            let _ = std::fs::remove_file(format!("/dev/shm/{f}"));
+        }
+        let _ = std::fs::remove_dir_all(&self.root);
+    }
+}
+
+/// The simulator prints `PTY <path>` as its first line.
+fn read_pty_line(stdout: ChildStdout) -> String {
+    let mut line = String::new();
+    BufReader::new(stdout)
+        .read_line(&mut line)
+        .expect("read simulator stdout");
+    line.strip_prefix("PTY ")
+        .unwrap_or_else(|| panic!("simulator printed {line:?} instead of `PTY <path>`"))
+        .trim()
+        .to_owned()
+}
+
+/// Polls `receive` until `done` says enough, or [`PATIENCE`] runs out (then panics).
+pub fn collect_until<T>(
+    node: &Node<Ipc>,
+    mut receive: impl FnMut() -> Option<T>,
+    mut done: impl FnMut(&[T]) -> bool,
+) -> Vec<T> {
+    let deadline = Instant::now() + PATIENCE;
+    let mut got = Vec::new();
+    loop {
+        while let Some(item) = receive() {
+            got.push(item);
+            if done(&got) {
+                return got;
+            }
+        }
+        assert!(
+            Instant::now() < deadline,
+            "gave up waiting after {} items",
+            got.len()
+        );
+        let _ = node.wait(Duration::from_millis(5));
+    }
+}

@@ -1,0 +1,380 @@
+//! End to end: the simulator on a pseudo-terminal, the driver as a separate process, and the test as
+//! an iceoryx2 consumer in its own namespace.
+
+use std::io::{Read, Write};
+use std::os::fd::AsFd;
+use std::time::{Duration, Instant};
+
+use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
+use nix::pty::openpty;
+use sonar_common::ipc::{
+    self, DriverStatus, LinkState, Reading, ScanCommand, ScanCommandKind, ScanMode, flags,
+};
+use sonar_common::protocol::{DeviceMessage, Direction, WireReading, encode_device};
+use sonar_e2e::{PATIENCE, Sandbox, collect_until};
+
+fn readings_subscriber(
+    node: &iceoryx2::prelude::Node<iceoryx2::service::ipc::Service>,
+) -> iceoryx2::port::subscriber::Subscriber<iceoryx2::service::ipc::Service, Reading, ()> {
+    ipc::readings_service(node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap()
+}
+
+fn receive_reading(
+    sub: &iceoryx2::port::subscriber::Subscriber<iceoryx2::service::ipc::Service, Reading, ()>,
+) -> Option<Reading> {
+    sub.receive().unwrap().map(|s| *s.payload())
+}
+
+fn sweeps_of(readings: &[Reading], sweep: u32) -> Vec<Reading> {
+    readings
+        .iter()
+        .filter(|r| r.sweep_id == sweep)
+        .copied()
+        .collect()
+}
+
+#[test]
+fn full_sweeps_of_the_room_stream_over_shared_memory() {
+    let sandbox = Sandbox::new("room");
+    let node = sandbox.node("test-consumer");
+    // Subscribe before the driver starts, so not one reading is missed.
+    let sub = readings_subscriber(&node);
+    let (sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "max", "--seed", "7"]);
+    let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+
+    let readings = collect_until(
+        &node,
+        || receive_reading(&sub),
+        |got| got.iter().any(|r| r.sweep_id == 3),
+    );
+
+    // Sequence numbers come without gaps.
+    for (i, r) in readings.iter().enumerate() {
+        assert_eq!(r.seq, i as u64);
+        assert_eq!(r.layout_version, ipc::LAYOUT_VERSION);
+        assert_eq!(r.scan_mode(), ScanMode::Full);
+    }
+    // Sweep 1 goes counter-clockwise from the min limit, sweep 2 back: 50 readings 6° apart each.
+    for (sweep, dir) in [(1, 1i8), (2, -1i8)] {
+        let s = sweeps_of(&readings, sweep);
+        assert_eq!(s.len(), 50, "sweep {sweep}");
+        let first = if dir > 0 { -147.0 } else { 147.0 };
+        for (k, r) in s.iter().enumerate() {
+            assert_eq!(r.direction, dir);
+            let expected = first + f32::from(dir) * 6.0 * k as f32;
+            assert!((r.angle_deg - expected).abs() < 1e-3, "{r:?}");
+            assert_eq!(r.ping_count, 4);
+        }
+    }
+
+    // The 2.4 m square room, sensor at its centre: walls 1.20 m away along the axes, corners 1.70 m
+    // away on the diagonals, nothing nearer than a wall or farther than a corner.
+    let both: Vec<Reading> = readings
+        .iter()
+        .filter(|r| r.sweep_id <= 2)
+        .copied()
+        .collect();
+    let valid: Vec<&Reading> = both.iter().filter(|r| r.is_valid_range()).collect();
+    assert!(valid.len() >= 80, "only {} valid readings", valid.len());
+    for r in &valid {
+        assert!(
+            (1.16..=1.75).contains(&r.distance_m),
+            "reading outside the room: {r:?}"
+        );
+    }
+    let near = |a: f32, targets: &[f32], tol: f32| targets.iter().any(|t| (a - t).abs() <= tol);
+    let axis_readings: Vec<&&Reading> = valid
+        .iter()
+        .filter(|r| near(r.angle_deg, &[-90.0, 0.0, 90.0], 10.0))
+        .collect();
+    assert!(axis_readings.len() >= 12);
+    for r in axis_readings {
+        assert!((r.distance_m - 1.20).abs() <= 0.03, "wall reading {r:?}");
+    }
+    let diagonal: Vec<&&Reading> = valid
+        .iter()
+        .filter(|r| near(r.angle_deg, &[-135.0, -45.0, 45.0, 135.0], 3.0))
+        .collect();
+    assert!(diagonal.len() >= 6);
+    for r in diagonal {
+        assert!((r.distance_m - 1.697).abs() <= 0.05, "corner reading {r:?}");
+    }
+
+    assert!(driver.terminate().success(), "driver did not exit cleanly");
+    assert!(sim.terminate().success(), "simulator did not exit cleanly");
+    drop(sub);
+    drop(node);
+    let left: Vec<String> = sandbox
+        .shm_files()
+        .into_iter()
+        .filter(|f| !f.ends_with(".global_mgmt"))
+        .collect();
+    assert!(left.is_empty(), "stale shared memory: {left:?}");
+}
+
+#[test]
+fn a_missing_port_is_a_clear_error() {
+    let sandbox = Sandbox::new("missing");
+    let driver = sandbox.spawn("sonar-driver", &["--port", "/dev/ttyDOESNOTEXIST"]);
+    let (status, stderr) = driver.wait_exit();
+    assert!(!status.success());
+    assert!(
+        stderr.contains("/dev/ttyDOESNOTEXIST does not exist"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn a_busy_port_is_a_clear_error() {
+    let sandbox = Sandbox::new("busy");
+    let node = sandbox.node("test-consumer");
+    let status = ipc::driver_status_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let (_sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "max"]);
+    let _first = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "none"]);
+    wait_for_status(&node, &status, |s| {
+        s.link_state == LinkState::Connected as u32
+    });
+
+    let second = sandbox.spawn("sonar-driver", &["--port", &pty]);
+    let (exit, stderr) = second.wait_exit();
+    assert!(!exit.success());
+    assert!(stderr.contains("cannot open serial port"), "{stderr}");
+    assert!(stderr.contains("busy"), "{stderr}");
+}
+
+fn wait_for_status(
+    node: &iceoryx2::prelude::Node<iceoryx2::service::ipc::Service>,
+    sub: &iceoryx2::port::subscriber::Subscriber<iceoryx2::service::ipc::Service, DriverStatus, ()>,
+    pred: impl Fn(&DriverStatus) -> bool,
+) -> DriverStatus {
+    let got = collect_until(
+        node,
+        || sub.receive().unwrap().map(|s| *s.payload()),
+        |got| got.last().is_some_and(&pred),
+    );
+    *got.last().unwrap()
+}
+
+#[test]
+fn a_scan_command_from_any_process_starts_a_local_scan() {
+    let sandbox = Sandbox::new("local");
+    let node = sandbox.node("test-commander");
+    let sub = readings_subscriber(&node);
+    let status = ipc::driver_status_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let (_sim, pty) = sandbox.spawn_sim(&["--scene", "obstacle", "--speed", "max"]);
+    let _driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "none"]);
+    wait_for_status(&node, &status, |s| {
+        s.link_state == LinkState::Connected as u32
+    });
+
+    let commands = ipc::commands_service(&node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    commands
+        .send_copy(ScanCommand::new(ScanCommandKind::LocalScan, -30.0, 30.0))
+        .unwrap();
+
+    let readings = collect_until(&node, || receive_reading(&sub), |got| got.len() >= 40);
+    let centres: Vec<f32> = (0..10).map(|k| -27.0 + 6.0 * k as f32).collect();
+    for r in &readings {
+        assert_eq!(r.scan_mode(), ScanMode::Local);
+        assert!(
+            centres.iter().any(|c| (r.angle_deg - c).abs() < 1e-3),
+            "reading outside the segment: {r:?}"
+        );
+    }
+    let directions: std::collections::BTreeSet<i8> = readings.iter().map(|r| r.direction).collect();
+    assert_eq!(directions.len(), 2, "a local scan goes back and forth");
+    // The post 1 m ahead is seen straight ahead; the wall 2 m ahead beside it.
+    let ahead = readings
+        .iter()
+        .find(|r| r.angle_deg.abs() < 4.0 && r.is_valid_range())
+        .expect("a valid reading straight ahead");
+    assert!((ahead.distance_m - 0.975).abs() < 0.05, "{ahead:?}");
+    let beside = readings
+        .iter()
+        .find(|r| (r.angle_deg - 27.0).abs() < 1e-3 && r.is_valid_range())
+        .expect("a valid reading at 27°");
+    assert!((beside.distance_m - 2.0).abs() < 0.05, "{beside:?}");
+}
+
+#[test]
+fn the_hobby_radar_dialect_works_unchanged() {
+    let sandbox = Sandbox::new("hobby");
+    let node = sandbox.node("test-consumer");
+    let sub = readings_subscriber(&node);
+    let (_sim, pty) =
+        sandbox.spawn_sim(&["--scene", "room", "--speed", "max", "--dialect", "hobby"]);
+    let _driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--dialect", "hobby"]);
+
+    let readings = collect_until(&node, || receive_reading(&sub), |got| got.len() >= 200);
+    // Past the first (possibly partial) record, angles step by one degree within the servo's
+    // 15°..165°, shifted so that 90° is straight ahead.
+    for pair in readings[1..].windows(2) {
+        let step = pair[1].angle_deg - pair[0].angle_deg;
+        assert!(step.abs() <= 1.0 + 1e-3, "{pair:?}");
+    }
+    for r in &readings[1..] {
+        assert!((-75.0..=75.0).contains(&r.angle_deg), "{r:?}");
+        assert!(r.has(flags::NO_RAW_PINGS));
+        assert_eq!(r.ping_count, 1);
+    }
+    let straight = readings[1..]
+        .iter()
+        .find(|r| r.angle_deg == 0.0)
+        .expect("a reading straight ahead");
+    // Integer centimetres: the wall 1.20 m ahead.
+    assert!((straight.distance_m - 1.20).abs() <= 0.03, "{straight:?}");
+    let sweeps: std::collections::BTreeSet<u32> = readings.iter().map(|r| r.sweep_id).collect();
+    assert!(sweeps.len() >= 2, "direction reversals start new sweeps");
+}
+
+/// The test plays the microcontroller on a pseudo-terminal of its own and sends the driver every
+/// kind of damage a serial line does.
+#[test]
+fn garbage_on_the_line_is_counted_and_never_published() {
+    let sandbox = Sandbox::new("garbage");
+    let node = sandbox.node("test-device");
+    let sub = readings_subscriber(&node);
+    let status = ipc::driver_status_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let pty = openpty(None, None).unwrap();
+    let slave_path = nix::unistd::ttyname(pty.slave.as_fd()).unwrap();
+    let mut tio = nix::sys::termios::tcgetattr(pty.slave.as_fd()).unwrap();
+    nix::sys::termios::cfmakeraw(&mut tio);
+    nix::sys::termios::tcsetattr(pty.slave.as_fd(), nix::sys::termios::SetArg::TCSANOW, &tio)
+        .unwrap();
+    let mut master = std::fs::File::from(pty.master);
+    let _driver = sandbox.spawn(
+        "sonar-driver",
+        &["--port", slave_path.to_str().unwrap(), "--scan", "none"],
+    );
+
+    // Answer the handshake.
+    let mut heard = String::new();
+    let deadline = Instant::now() + PATIENCE;
+    while !heard.contains("$HELLO,1*") {
+        assert!(Instant::now() < deadline, "no handshake, heard {heard:?}");
+        let mut fds = [PollFd::new(master.as_fd(), PollFlags::POLLIN)];
+        if poll(&mut fds, PollTimeout::from(100u16)).unwrap() > 0 {
+            let mut buf = [0u8; 256];
+            let n = master.read(&mut buf).unwrap();
+            heard.push_str(&String::from_utf8_lossy(&buf[..n]));
+        }
+    }
+    let hello = DeviceMessage::Hello {
+        version: 1,
+        firmware: "test-device".into(),
+        step_cdeg: 150,
+        pings_per_reading: 4,
+        min_cdeg: -15000,
+        max_cdeg: 15000,
+    };
+    master.write_all(encode_device(&hello).as_bytes()).unwrap();
+    wait_for_status(&node, &status, |s| {
+        s.link_state == LinkState::Connected as u32
+    });
+
+    let t = 5831; // ≈ 1.00 m at 20 °C
+    let good = |seq: u32, angle_cdeg: i32| {
+        encode_device(&DeviceMessage::Reading(WireReading {
+            seq,
+            time_ms: 1000 + seq,
+            sweep: 1,
+            direction: Direction::Ccw,
+            angle_cdeg,
+            ping_count: 4,
+            echo_us: [t, t, t, t, 0, 0, 0, 0],
+        }))
+    };
+    let mut stream = Vec::new();
+    stream.extend_from_slice(b"hello world\n"); // no frame
+    stream.extend_from_slice(good(90, 9900).replace("RD,90", "RD,91").as_bytes()); // bad checksum
+    stream.extend_from_slice(&good(92, 9900).as_bytes()[..20]); // truncated ...
+    stream.push(b'\n'); // ... by a line break
+    stream.extend_from_slice(&[b'x'; 500]); // overlong
+    stream.push(b'\n');
+    stream.extend_from_slice(b"\x00\xff\xfe$RD*\n"); // binary noise
+    stream.extend_from_slice(good(0, -300).as_bytes());
+    stream.extend_from_slice(b"$RD,1,2,3,+,100,1*00\n"); // bad checksum, wrong fields
+    stream.extend_from_slice(good(1, 300).as_bytes());
+    master.write_all(&stream).unwrap();
+
+    let readings = collect_until(&node, || receive_reading(&sub), |got| got.len() >= 2);
+    assert_eq!(readings[0].device_seq, 0);
+    assert_eq!(readings[0].angle_deg, -3.0);
+    assert_eq!(readings[1].device_seq, 1);
+    assert_eq!(readings[1].angle_deg, 3.0);
+    for r in &readings {
+        assert!((r.distance_m - 1.0).abs() < 0.005, "{r:?}");
+        assert_eq!(r.flags, 0);
+    }
+    let last = wait_for_status(&node, &status, |s| s.lines_rejected >= 6);
+    assert_eq!(last.lines_rejected, 6);
+    assert_eq!(last.lines_ok, 3); // HELLO and two readings
+    // Nothing else was published.
+    std::thread::sleep(Duration::from_millis(200));
+    assert!(receive_reading(&sub).is_none());
+}
+
+#[test]
+fn the_driver_reconnects_when_the_port_comes_back() {
+    let sandbox = Sandbox::new("reconnect");
+    let link = sandbox.root.join("sonar-tty");
+    let link_str = link.to_str().unwrap().to_owned();
+    let node = sandbox.node("test-consumer");
+    let sub = readings_subscriber(&node);
+    let status = ipc::driver_status_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let sim_args = ["--scene", "room", "--speed", "100", "--link", &link_str];
+    let (sim, _) = sandbox.spawn_sim(&sim_args);
+    let _driver = sandbox.spawn(
+        "sonar-driver",
+        &[
+            "--port",
+            &link_str,
+            "--scan",
+            "full",
+            "--max-backoff",
+            "0.5",
+        ],
+    );
+    let before = collect_until(&node, || receive_reading(&sub), |got| got.len() >= 3);
+
+    assert!(sim.terminate().success());
+    wait_for_status(&node, &status, |s| {
+        s.link_state == LinkState::Disconnected as u32
+    });
+    // Whatever the old simulator sent is in by now; only the new one can send more.
+    let stale: Vec<Reading> = std::iter::from_fn(|| receive_reading(&sub)).collect();
+    let last_seq = stale.last().unwrap_or(&before[before.len() - 1]).seq;
+    let (_sim, _) = sandbox.spawn_sim(&sim_args);
+    let after = collect_until(&node, || receive_reading(&sub), |got| got.len() >= 3);
+    assert_eq!(
+        after[0].seq,
+        last_seq + 1,
+        "the sequence goes on without a gap"
+    );
+    let s = wait_for_status(&node, &status, |s| s.reconnects >= 1);
+    assert_eq!(s.link_state, LinkState::Connected as u32);
+}
