@@ -1,5 +1,6 @@
 //! End to end: the simulator on a pseudo-terminal, the driver as a separate process, and the test as
 //! an iceoryx2 consumer in its own namespace.
+#![allow(clippy::unwrap_used, clippy::expect_used)] // helpers outside #[test] fns; a panic is a failure
 
 use std::io::{Read, Write};
 use std::os::fd::AsFd;
