@@ -379,3 +379,61 @@ fn the_driver_reconnects_when_the_port_comes_back() {
     let s = wait_for_status(&node, &status, |s| s.reconnects >= 1);
     assert_eq!(s.link_state, LinkState::Connected as u32);
 }
+
+/// A consumer in another language, written from docs/ipc.md alone, reads the driver's readings.
+#[test]
+fn a_python_consumer_reads_the_documented_layout() {
+    let workspace = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let python = std::env::var_os("SONAR_PYTHON")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| workspace.join(".venv/bin/python3"));
+    assert!(
+        python.exists(),
+        "{} missing: python3 -m venv .venv && .venv/bin/pip install 'iceoryx2==0.10.*' (.ci/run does)",
+        python.display()
+    );
+    let sandbox = Sandbox::new("python");
+    let node = sandbox.node("test-consumer");
+    let status = ipc::driver_status_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let (_sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "20"]);
+    let _driver = sandbox.spawn("sonar-driver", &["--port", &pty]);
+    wait_for_status(&node, &status, |s| {
+        s.link_state == LinkState::Connected as u32
+    });
+
+    let output = std::process::Command::new(python)
+        .arg(workspace.join("examples/python/print_readings.py"))
+        .args(["--count", "5"])
+        .env("SONAR_IOX_PREFIX", &sandbox.prefix)
+        .env("SONAR_IOX_ROOT", &sandbox.root)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let lines: Vec<&str> = stdout
+        .lines()
+        .filter(|l| l.starts_with("reading "))
+        .collect();
+    assert_eq!(lines.len(), 5, "{stdout}");
+    // Each line parses back: the angle is one of the 6° centres and the range lies in the room.
+    for line in lines {
+        let fields: Vec<&str> = line.split_whitespace().collect();
+        let angle: f32 = fields[5].parse().unwrap();
+        assert!(
+            ((angle + 147.0) / 6.0 - ((angle + 147.0) / 6.0).round()).abs() < 1e-3,
+            "{line}"
+        );
+        if fields[7] == "m" {
+            let d: f32 = fields[6].parse().unwrap();
+            assert!((1.16..=1.75).contains(&d), "{line}");
+        }
+    }
+}
