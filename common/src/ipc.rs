@@ -22,6 +22,12 @@ pub const READINGS_SERVICE: &str = "sonar/readings";
 pub const COMMANDS_SERVICE: &str = "sonar/commands";
 /// The driver's connection state and counters, for viewers (history 1).
 pub const DRIVER_STATUS_SERVICE: &str = "sonar/driver_status";
+/// Probability-grid snapshots from the fusion engine: [`GridHeader`] + one `u8` per cell.
+pub const GRID_SERVICE: &str = "sonar/grid";
+/// The basic method's radar array from the fusion engine.
+pub const RADAR_SERVICE: &str = "sonar/radar";
+/// Commands to the fusion engine (clear map, switch model/rule/preset).
+pub const FUSION_COMMANDS_SERVICE: &str = "sonar/fusion_commands";
 
 /// Bits of [`Reading::flags`].
 pub mod flags {
@@ -208,6 +214,175 @@ pub struct DriverStatus {
 
 const _: () = assert!(std::mem::size_of::<DriverStatus>() == 64);
 
+/// Cell value of a grid snapshot for a cell no reading has touched yet.
+pub const CELL_UNKNOWN: u8 = 255;
+/// Observed cells carry `round(p · CELL_PROBABILITY_SCALE)`: 0 = certainly free, 254 = certainly
+/// occupied, 127 = even odds. Keeping 255 out of the scale lets "never seen" stay distinct from
+/// "seen, but undecided", which is what a viewer must show.
+pub const CELL_PROBABILITY_SCALE: f32 = 254.0;
+
+/// Encodes an occupancy probability as a snapshot cell value.
+pub fn encode_probability(p: f32) -> u8 {
+    (p.clamp(0.0, 1.0) * CELL_PROBABILITY_SCALE).round() as u8
+}
+
+/// Decodes a snapshot cell value; `None` for [`CELL_UNKNOWN`].
+pub fn decode_probability(cell: u8) -> Option<f32> {
+    (cell != CELL_UNKNOWN).then(|| f32::from(cell) / CELL_PROBABILITY_SCALE)
+}
+
+/// Sensor model codes in [`GridHeader::model`] and [`FusionCommand`].
+pub mod model_code {
+    pub const PAPER: u32 = 1;
+    pub const LOG_ODDS: u32 = 2;
+    pub const SMOOTH: u32 = 3;
+}
+
+/// Combination rule codes in [`GridHeader::rule`] and [`FusionCommand`].
+pub mod rule_code {
+    pub const BAYES: u32 = 1;
+    pub const LOG_ODDS: u32 = 2;
+    pub const DEMPSTER_SHAFER: u32 = 3;
+    pub const HIMM: u32 = 4;
+}
+
+/// Preset codes in [`GridHeader::preset`] and [`FusionCommand`]; 0 = custom settings.
+pub mod preset_code {
+    pub const CUSTOM: u32 = 0;
+    pub const PAPER: u32 = 1;
+    pub const RECOMMENDED: u32 = 2;
+}
+
+/// The fixed part of a `sonar/grid` snapshot; the payload is `width × height` cells, row-major,
+/// row 0 at the lowest y (the ROS `OccupancyGrid` convention), each cell encoded as described at
+/// [`CELL_UNKNOWN`].
+#[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("sonar::GridHeaderV1")]
+#[repr(C)]
+pub struct GridHeader {
+    pub seq: u64,
+    pub stamp_ns: u64,
+    /// Readings fused since the map was last cleared.
+    pub readings_fused: u64,
+    pub layout_version: u32,
+    pub width: u32,
+    pub height: u32,
+    /// Cell edge, metres.
+    pub resolution_m: f32,
+    /// World position of the outer corner of cell (0, 0), metres.
+    pub origin_x_m: f32,
+    pub origin_y_m: f32,
+    /// Sensor pose in the world at the last fused reading.
+    pub pose_x_m: f32,
+    pub pose_y_m: f32,
+    pub pose_theta_rad: f32,
+    /// [`model_code`], [`rule_code`], [`preset_code`].
+    pub model: u32,
+    pub rule: u32,
+    pub preset: u32,
+    /// Sweep of the last fused reading.
+    pub sweep_id: u32,
+    /// Cells with p > 0.5, p < 0.5, and never observed.
+    pub occupied_cells: u32,
+    pub free_cells: u32,
+    pub unknown_cells: u32,
+}
+
+const _: () = assert!(std::mem::size_of::<GridHeader>() == 88);
+
+/// Most angle bins a radar snapshot carries (1° bins over a full turn).
+pub const RADAR_MAX_BINS: usize = 360;
+
+/// The basic method (paper §III.A): the latest distance per beam angle, on `sonar/radar`.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("sonar::RadarV1")]
+#[repr(C)]
+pub struct Radar {
+    pub seq: u64,
+    pub stamp_ns: u64,
+    pub layout_version: u32,
+    /// Bins in use, from `first_bin_deg` in steps of `bin_width_deg`.
+    pub bin_count: u32,
+    /// Centre angle of bin 0, degrees.
+    pub first_bin_deg: f32,
+    pub bin_width_deg: f32,
+    pub beam_half_angle_deg: f32,
+    pub max_range_m: f32,
+    /// Angle of the last reading: where the sweep line is.
+    pub current_angle_deg: f32,
+    pub sweep_id: u32,
+    /// +1 / -1 / 0.
+    pub direction: i32,
+    /// [`ScanMode`] as `u32`.
+    pub mode: u32,
+    /// Latest range per bin, metres; NaN = no reading yet, +∞ = the latest reading had no echo.
+    pub distances_m: [f32; RADAR_MAX_BINS],
+}
+
+const _: () = assert!(std::mem::size_of::<Radar>() == 56 + 4 * RADAR_MAX_BINS);
+
+impl Default for Radar {
+    fn default() -> Self {
+        Self {
+            seq: 0,
+            stamp_ns: 0,
+            layout_version: LAYOUT_VERSION,
+            bin_count: 0,
+            first_bin_deg: 0.0,
+            bin_width_deg: 0.0,
+            beam_half_angle_deg: 0.0,
+            max_range_m: 0.0,
+            current_angle_deg: 0.0,
+            sweep_id: 0,
+            direction: 0,
+            mode: 0,
+            distances_m: [f32::NAN; RADAR_MAX_BINS],
+        }
+    }
+}
+
+/// What a [`FusionCommand`] asks for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum FusionCommandKind {
+    /// Forget everything: grid back to the prior, radar empty.
+    Clear = 1,
+    /// `value` is a [`preset_code`].
+    SetPreset = 2,
+    /// `value` is a [`model_code`].
+    SetModel = 3,
+    /// `value` is a [`rule_code`].
+    SetRule = 4,
+}
+
+/// A command to the fusion engine on [`FUSION_COMMANDS_SERVICE`].
+#[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("sonar::FusionCommandV1")]
+#[repr(C)]
+pub struct FusionCommand {
+    pub kind: u32,
+    pub value: u32,
+}
+
+impl FusionCommand {
+    pub fn new(kind: FusionCommandKind, value: u32) -> Self {
+        Self {
+            kind: kind as u32,
+            value,
+        }
+    }
+
+    pub fn kind(&self) -> Option<FusionCommandKind> {
+        Some(match self.kind {
+            1 => FusionCommandKind::Clear,
+            2 => FusionCommandKind::SetPreset,
+            3 => FusionCommandKind::SetModel,
+            4 => FusionCommandKind::SetRule,
+            _ => return None,
+        })
+    }
+}
+
 /// A failure to set up or use an iceoryx2 resource, with what was being done.
 #[derive(Debug, thiserror::Error)]
 #[error("{context}: {message}")]
@@ -325,6 +500,52 @@ pub fn driver_status_service(node: &Node<ipc::Service>) -> Result<PubSub<DriverS
         .map_err(|e| IpcError::new(format!("open {DRIVER_STATUS_SERVICE}"), e))
 }
 
+pub type GridService = publish_subscribe::PortFactory<ipc::Service, [u8], GridHeader>;
+
+/// `sonar/grid`: history 1 so a late joiner gets the current map at once; a subscriber buffers one
+/// snapshot (a newer one replaces it: viewers want the latest, never a backlog) and may hold two
+/// while it reads the next. Slots = 6 × (1 + 2) + 1 + 2 = 21 snapshots of shared memory (sparse:
+/// only written pages are committed).
+pub fn grid_service(node: &Node<ipc::Service>) -> Result<GridService, IpcError> {
+    node.service_builder(&service_name(GRID_SERVICE)?)
+        .publish_subscribe::<[u8]>()
+        .user_header::<GridHeader>()
+        .max_publishers(1)
+        .max_subscribers(6)
+        .subscriber_max_buffer_size(1)
+        .subscriber_max_borrowed_samples(2)
+        .history_size(1)
+        .open_or_create()
+        .map_err(|e| IpcError::new(format!("open {GRID_SERVICE}"), e))
+}
+
+/// `sonar/radar`, with the same policy as the grid.
+pub fn radar_service(node: &Node<ipc::Service>) -> Result<PubSub<Radar>, IpcError> {
+    node.service_builder(&service_name(RADAR_SERVICE)?)
+        .publish_subscribe::<Radar>()
+        .max_publishers(1)
+        .max_subscribers(6)
+        .subscriber_max_buffer_size(1)
+        .subscriber_max_borrowed_samples(2)
+        .history_size(1)
+        .open_or_create()
+        .map_err(|e| IpcError::new(format!("open {RADAR_SERVICE}"), e))
+}
+
+/// `sonar/fusion_commands`: many writers, the fusion engine reads.
+pub fn fusion_commands_service(
+    node: &Node<ipc::Service>,
+) -> Result<PubSub<FusionCommand>, IpcError> {
+    node.service_builder(&service_name(FUSION_COMMANDS_SERVICE)?)
+        .publish_subscribe::<FusionCommand>()
+        .max_publishers(8)
+        .max_subscribers(2)
+        .subscriber_max_buffer_size(16)
+        .history_size(0)
+        .open_or_create()
+        .map_err(|e| IpcError::new(format!("open {FUSION_COMMANDS_SERVICE}"), e))
+}
+
 /// The event service that wakes the consumers of the publish-subscribe service of the same name.
 pub fn wakeup_service(node: &Node<ipc::Service>, name: &str) -> Result<Event, IpcError> {
     node.service_builder(&service_name(name)?)
@@ -359,6 +580,18 @@ mod tests {
         assert_eq!(offset_of!(Reading, echo_us), 64);
         assert_eq!(offset_of!(Reading, direction), 96);
         assert_eq!(offset_of!(Reading, pings_used), 99);
+    }
+
+    #[test]
+    fn cell_encoding_keeps_unknown_apart() {
+        assert_eq!(encode_probability(0.0), 0);
+        assert_eq!(encode_probability(0.5), 127);
+        assert_eq!(encode_probability(1.0), 254);
+        assert_eq!(encode_probability(7.0), 254);
+        assert_eq!(decode_probability(CELL_UNKNOWN), None);
+        for v in 0..=254u8 {
+            assert_eq!(encode_probability(decode_probability(v).unwrap()), v);
+        }
     }
 
     #[test]
