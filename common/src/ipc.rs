@@ -28,6 +28,9 @@ pub const GRID_SERVICE: &str = "sonar/grid";
 pub const RADAR_SERVICE: &str = "sonar/radar";
 /// Commands to the fusion engine (clear map, switch model/rule/preset).
 pub const FUSION_COMMANDS_SERVICE: &str = "sonar/fusion_commands";
+/// The robot's pose in the world, from odometry or localisation (optional; static at the origin
+/// without it).
+pub const POSE_SERVICE: &str = "robot/pose";
 
 /// Bits of [`Reading::flags`].
 pub mod flags {
@@ -383,6 +386,21 @@ impl FusionCommand {
     }
 }
 
+/// Pose of the sensor's rotation axis in the world on [`POSE_SERVICE`]; angle 0 of the sensor points
+/// along the robot's heading `theta_rad`.
+#[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("sonar::Pose2DV1")]
+#[repr(C)]
+pub struct Pose2D {
+    pub stamp_ns: u64,
+    pub x_m: f32,
+    pub y_m: f32,
+    pub theta_rad: f32,
+    pub layout_version: u32,
+}
+
+const _: () = assert!(std::mem::size_of::<Pose2D>() == 24);
+
 /// A failure to set up or use an iceoryx2 resource, with what was being done.
 #[derive(Debug, thiserror::Error)]
 #[error("{context}: {message}")]
@@ -544,6 +562,18 @@ pub fn fusion_commands_service(
         .history_size(0)
         .open_or_create()
         .map_err(|e| IpcError::new(format!("open {FUSION_COMMANDS_SERVICE}"), e))
+}
+
+/// `robot/pose`, history 1 so the fusion engine starts from the latest pose.
+pub fn pose_service(node: &Node<ipc::Service>) -> Result<PubSub<Pose2D>, IpcError> {
+    node.service_builder(&service_name(POSE_SERVICE)?)
+        .publish_subscribe::<Pose2D>()
+        .max_publishers(2)
+        .max_subscribers(8)
+        .subscriber_max_buffer_size(16)
+        .history_size(1)
+        .open_or_create()
+        .map_err(|e| IpcError::new(format!("open {POSE_SERVICE}"), e))
 }
 
 /// The event service that wakes the consumers of the publish-subscribe service of the same name.
