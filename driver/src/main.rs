@@ -40,7 +40,7 @@ const MIN_BACKOFF: Duration = Duration::from_millis(250);
 ///
 /// Examples:
 ///   sonar-driver --port /dev/ttyUSB0
-///   sonar-driver --port "$(sonar-sim --print-pty-only)"   # see the README
+///   sonar-driver --port /dev/pts/5                          # the `PTY <path>` that sonar-sim prints
 ///   sonar-driver --port /dev/ttyACM0 --dialect hobby       # an "Arduino radar" sketch at 9600 baud
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
@@ -163,11 +163,12 @@ fn run(args: Args) -> Result<()> {
         ..SensorConfig::default()
     };
     sensor.validate().context("invalid sensor settings")?;
+    // A port that is missing or busy at start is a mistake to report, not to wait out. It is
+    // opened first so that a second driver on a busy port says so, rather than failing on the
+    // readings service that the first driver already publishes.
+    let mut port = open_port(&args)?;
     let node = args.ipc.node("sonar-driver")?;
     let mut link = Link::new(&node, &args, sensor)?;
-
-    // A port that is missing or busy at start is a mistake to report, not to wait out.
-    let mut port = open_port(&args)?;
     let mut backoff = MIN_BACKOFF;
     loop {
         match link.session(&mut port, &node)? {
