@@ -1,0 +1,643 @@
+//! The echo model: which echo an SRF05 aimed at `aim_deg` hears first, and how noisy its time is.
+//!
+//! Levels are in dB; 0 dB is the echo of a hard flat wall 0.5 m ahead on the beam axis, before air
+//! absorption and receiver gain. An echo is heard when its level reaches [`EchoParams::threshold_db`];
+//! the SRF05 reports the **first** (nearest) echo heard, or times out. The level of an echo is
+//!
+//! ```text
+//! level = spreading(kind, r) − surface losses − 2·α·r + tvg(r) + beam(θ)
+//! ```
+//!
+//! - `spreading`: a flat wall mirrors the transducer to an image 2r away: −20·log10(2r). A vertical
+//!   cylinder of radius a (post) is curved in one plane, which spreads its echo by a further a/r
+//!   relative to a flat mirror at the same range: −20·log10(2r) + 10·log10(a/r) (so a thicker post
+//!   returns more). A wall edge diffracts like a thin cylinder of radius
+//!   [`EchoParams::edge_radius_m`]. A 90° concave corner returns every ray parallel to itself (two
+//!   bounces), so it spreads like a flat wall from any direction inside it, less
+//!   [`EchoParams::corner_loss_db`] for its finite aperture.
+//! - `α`: air absorption at 40 kHz, 1.3 dB/m at 20 °C and 50 % humidity (ISO 9613-1), both ways.
+//! - `tvg`: the receiver's time-varied gain. The SRF05 raises its amplifier gain while it waits for
+//!   the echo so that far targets are not lost, modelled as a ramp of
+//!   [`EchoParams::tvg_db_per_m`] per metre of range that holds after [`EchoParams::tvg_max_range_m`].
+//!   Without it the calibration points of `sensor-facts.md` contradict each other: a 5 cm post at
+//!   1 m is heard only within ±10–15° (so its echo is barely above threshold on the axis), yet the
+//!   same post at 2 m, 9 dB fainter by spreading alone, is still heard near the axis; the ramp makes
+//!   up for that loss over the first 2 m. Its slope and the threshold are the two values fitted to
+//!   those facts (see the calibration tests).
+//! - `beam`: the transducer's round-trip directivity, −6 dB at 27° off axis (sensor-facts: ≈ 55°
+//!   full width at −6 dB), falling as the square of the angle (the shape of a piston's main lobe in
+//!   dB), and nothing past the configured beam half-angle (±30°).
+//!
+//! Which targets return at all:
+//! - a **flat wall** returns only specularly, from the foot of the perpendicular from the sensor, if
+//!   that foot lies on the wall, inside the beam, and at an incidence (= the foot's angle off the beam
+//!   axis) under [`EchoParams::specular_cutoff_deg`] (sensor-facts: a flat card read correctly up to
+//!   ≈ 25–30°). It reads the perpendicular distance: foreshortening.
+//! - a **corner** (concave joint of opening up to [`EchoParams::corner_max_opening_deg`]) returns
+//!   from its vertex whenever the vertex is in the beam.
+//! - an **edge** (free wall end, convex joint) returns weakly from its vertex.
+//! - a **post** returns from its nearest point (distance to centre − radius), when its centre is in
+//!   the beam.
+//! - **occlusion**: a return whose line of sight crosses a wall gives nothing. A post shadows it only
+//!   when it is wider than the first Fresnel zone there, √(λ·d·(r−d)/r): sound diffracts around a
+//!   5 cm post, which is why the wall behind the paper's small obstacle is still heard through it.
+//!
+//! Multipath (the late phantom echoes of specular walls past the cut-off) is not modelled: such a
+//! ping reads "no echo".
+//!
+//! Noise, from a seeded ChaCha RNG so runs repeat: the detector fires on the 1st to 3rd cycle of the
+//! echo ([`NoiseParams::late_cycles_max`], sensor-facts: jitter of about one wavelength), and a few
+//! pings ([`NoiseParams::spurious_probability`]) end early on a transient, uniformly between the
+//! minimum range and the true echo. Ranges below the minimum read the minimum; beyond the maximum
+//! there is no echo.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use sonar_common::sensor::SensorConfig;
+
+use crate::firmware::Transducer;
+use crate::geometry::{Vec2, angle_diff_deg};
+use crate::scene::{Scene, SceneError, Surface};
+
+/// Level drop at [`EchoParams::beam_6db_half_angle_deg`].
+const BEAM_REFERENCE_DB: f64 = 6.0;
+/// Joints within this of straight are neither corners nor edges.
+const FLAT_JOINT_DEG: f64 = 1.0;
+/// A surface does not hide itself: the line of sight stops this short of the target.
+const SELF_OCCLUSION_M: f64 = 0.005;
+
+/// Physical parameters of the echo model; `[echo]` in a scene file. Defaults from
+/// `shared/docs/sensor-facts.md` where it has a number, fitted to its calibration points otherwise.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EchoParams {
+    /// Carrier frequency: the SRF05 sends 8 cycles at 40 kHz (sensor-facts, paper §II.A.1). Sets
+    /// the wavelength (8.6 mm at 20 °C) for the jitter and the Fresnel zones.
+    pub frequency_hz: f64,
+    /// Angle off axis where the round-trip beam is 6 dB down: 27° (sensor-facts: ≈ 55° full width).
+    pub beam_6db_half_angle_deg: f64,
+    /// Largest incidence at which a flat wall still returns: sensor-facts' bench measurement read a
+    /// card correctly up to ≈ 25–30°; 28° lets a wall be heard to ±25° off its normal with margin.
+    pub specular_cutoff_deg: f64,
+    /// Air absorption, one way: 1.3 dB/m at 40 kHz, 20 °C, 50 % RH (ISO 9613-1).
+    pub absorption_db_per_m: f64,
+    /// Receiver gain ramp per metre of range (fitted: see the module docs).
+    pub tvg_db_per_m: f64,
+    /// Range after which the gain ramp holds.
+    pub tvg_max_range_m: f64,
+    /// Detection threshold (fitted: a 5 cm post at 1 m is heard within ≈ ±13°).
+    pub threshold_db: f64,
+    /// Loss of a concave corner against a flat wall at the same range (finite aperture).
+    pub corner_loss_db: f64,
+    /// Concave joints up to this opening act as corners; wider ones are shallow bends.
+    pub corner_max_opening_deg: f64,
+    /// An edge scatters like a cylinder of this radius: weak, heard only near.
+    pub edge_radius_m: f64,
+    /// Extra loss of a soft surface (fabric, foam) against a hard one.
+    pub soft_loss_db: f64,
+}
+
+impl Default for EchoParams {
+    fn default() -> Self {
+        Self {
+            frequency_hz: 40_000.0,
+            beam_6db_half_angle_deg: 27.0,
+            specular_cutoff_deg: 28.0,
+            absorption_db_per_m: 1.3,
+            tvg_db_per_m: 11.0,
+            tvg_max_range_m: 2.0,
+            threshold_db: -15.0,
+            corner_loss_db: 3.0,
+            corner_max_opening_deg: 120.0,
+            edge_radius_m: 0.01,
+            soft_loss_db: 12.0,
+        }
+    }
+}
+
+/// Noise of the ranging; `[noise]` in a scene file.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NoiseParams {
+    /// The detector fires on the first to the `1 + late_cycles_max`-th cycle of the echo, each late
+    /// cycle adding one period (half a wavelength of range): 2 gives sensor-facts' jitter of about
+    /// one wavelength (0–8.6 mm).
+    pub late_cycles_max: u32,
+    /// Share of pings ended early by a transient (sensor-facts: rare spurious short readings).
+    pub spurious_probability: f64,
+}
+
+impl Default for NoiseParams {
+    fn default() -> Self {
+        Self {
+            late_cycles_max: 2,
+            spurious_probability: 0.005,
+        }
+    }
+}
+
+fn require(ok: bool, what: &str) -> Result<(), String> {
+    if ok { Ok(()) } else { Err(what.to_owned()) }
+}
+
+impl EchoParams {
+    pub fn validate(&self) -> Result<(), String> {
+        let p = self;
+        require(
+            p.frequency_hz.is_finite() && p.frequency_hz > 0.0,
+            "echo.frequency_hz must be > 0",
+        )?;
+        require(
+            p.beam_6db_half_angle_deg > 0.0 && p.beam_6db_half_angle_deg < 90.0,
+            "echo.beam_6db_half_angle_deg must be in (0, 90)",
+        )?;
+        require(
+            p.specular_cutoff_deg >= 0.0 && p.specular_cutoff_deg <= 90.0,
+            "echo.specular_cutoff_deg must be in [0, 90]",
+        )?;
+        for (value, name) in [
+            (p.absorption_db_per_m, "echo.absorption_db_per_m"),
+            (p.tvg_db_per_m, "echo.tvg_db_per_m"),
+            (p.tvg_max_range_m, "echo.tvg_max_range_m"),
+            (p.corner_loss_db, "echo.corner_loss_db"),
+            (p.soft_loss_db, "echo.soft_loss_db"),
+        ] {
+            require(
+                value.is_finite() && value >= 0.0,
+                &format!("{name} must be >= 0"),
+            )?;
+        }
+        require(
+            p.threshold_db.is_finite(),
+            "echo.threshold_db must be a number",
+        )?;
+        require(
+            p.corner_max_opening_deg > 0.0 && p.corner_max_opening_deg < 180.0,
+            "echo.corner_max_opening_deg must be in (0, 180)",
+        )?;
+        require(
+            p.edge_radius_m.is_finite() && p.edge_radius_m > 0.0,
+            "echo.edge_radius_m must be > 0",
+        )
+    }
+
+    fn surface_loss_db(&self, surface: Surface) -> f64 {
+        match surface {
+            Surface::Hard => 0.0,
+            Surface::Soft => self.soft_loss_db,
+        }
+    }
+}
+
+impl NoiseParams {
+    pub fn validate(&self) -> Result<(), String> {
+        require(
+            (0.0..=1.0).contains(&self.spurious_probability),
+            "noise.spurious_probability must be in [0, 1]",
+        )
+    }
+}
+
+/// What returned an echo (indices into the scene's walls, vertices and posts).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Target {
+    Wall(usize),
+    Corner(usize),
+    Edge(usize),
+    Post(usize),
+}
+
+/// One echo arriving at the transducer, before noise.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Echo {
+    pub target: Target,
+    pub range_m: f64,
+    /// Level above the detection threshold; heard when >= 0.
+    pub margin_db: f64,
+}
+
+/// A scene heard through an SRF05: implements [`Transducer`] for the firmware.
+#[derive(Debug, Clone)]
+pub struct EchoModel {
+    scene: Scene,
+    sensor: SensorConfig,
+    rng: ChaCha8Rng,
+}
+
+impl EchoModel {
+    /// Checks the scene's echo and noise parameters; `seed` fixes the noise.
+    pub fn new(scene: Scene, sensor: SensorConfig, seed: u64) -> Result<Self, SceneError> {
+        if let Err(message) = scene.echo.validate().and(scene.noise.validate()) {
+            return Err(SceneError::Invalid {
+                origin: scene.name.clone(),
+                message,
+            });
+        }
+        Ok(Self {
+            scene,
+            sensor,
+            rng: ChaCha8Rng::seed_from_u64(seed),
+        })
+    }
+
+    fn speed_of_sound_mps(&self) -> f64 {
+        f64::from(self.sensor.speed_of_sound_mps())
+    }
+
+    pub fn wavelength_m(&self) -> f64 {
+        self.speed_of_sound_mps() / self.scene.echo.frequency_hz
+    }
+
+    /// Round-trip beam gain `off_deg` off the axis; `None` outside the beam.
+    fn beam_db(&self, off_deg: f64) -> Option<f64> {
+        (off_deg.abs() <= f64::from(self.sensor.beam_half_angle_deg)).then(|| {
+            -BEAM_REFERENCE_DB * (off_deg / self.scene.echo.beam_6db_half_angle_deg).powi(2)
+        })
+    }
+
+    /// Absorption both ways plus the receiver's gain ramp at range `r`.
+    fn receiver_db(&self, r: f64) -> f64 {
+        let p = &self.scene.echo;
+        -2.0 * p.absorption_db_per_m * r + p.tvg_db_per_m * r.min(p.tvg_max_range_m)
+    }
+
+    /// Spreading of a flat mirror: the image of the transducer is 2r away (0 dB at r = 0.5 m).
+    fn plane_db(r: f64) -> f64 {
+        -20.0 * (2.0 * r).log10()
+    }
+
+    /// Spreading of a vertical cylinder of radius `a`: a mirror curved in one plane.
+    fn cylinder_db(r: f64, a: f64) -> f64 {
+        Self::plane_db(r) + 10.0 * (a / r).log10()
+    }
+
+    /// Every echo a ping aimed at `aim_deg` receives, audible or not, in no order. Returns whose line
+    /// of sight is blocked are left out.
+    pub fn echoes(&self, aim_deg: f64) -> Vec<Echo> {
+        let p = &self.scene.echo;
+        let mut out = Vec::new();
+        // A return from `at`, `level` dB before beam and receiver gains, heard only within `cone`
+        // degrees of the axis (a wall's specular cut-off; else the beam alone limits it).
+        let mut hear = |target: Target, at: Vec2, range: f64, level: f64, cone: f64| {
+            let off = angle_diff_deg(at.angle_deg(), aim_deg);
+            if off.abs() > cone {
+                return;
+            }
+            if let Some(beam) = self.beam_db(off)
+                && !self.occluded(at)
+            {
+                out.push(Echo {
+                    target,
+                    range_m: range,
+                    margin_db: level + beam + self.receiver_db(range) - p.threshold_db,
+                });
+            }
+        };
+        for (i, w) in self.scene.walls().iter().enumerate() {
+            let e = w.b - w.a;
+            let t = -w.a.dot(e) / e.dot(e);
+            let foot = w.a + e * t;
+            let r = foot.norm();
+            if (0.0..=1.0).contains(&t) && r > 1e-6 {
+                let level = Self::plane_db(r) - p.surface_loss_db(w.surface);
+                hear(Target::Wall(i), foot, r, level, p.specular_cutoff_deg);
+            }
+        }
+        for (i, v) in self.scene.vertices().iter().enumerate() {
+            let r = v.at.norm();
+            let [s1, s2] = v.surfaces.map(|s| p.surface_loss_db(s));
+            if v.opening_deg < 180.0 - FLAT_JOINT_DEG && v.opening_deg <= p.corner_max_opening_deg {
+                // Two bounces: both walls' losses.
+                let level = Self::plane_db(r) - p.corner_loss_db - s1 - s2;
+                hear(Target::Corner(i), v.at, r, level, f64::INFINITY);
+            } else if v.opening_deg > 180.0 + FLAT_JOINT_DEG {
+                let level = Self::cylinder_db(r, p.edge_radius_m) - s1.min(s2);
+                hear(Target::Edge(i), v.at, r, level, f64::INFINITY);
+            }
+        }
+        for (i, c) in self.scene.posts().iter().enumerate() {
+            let d = c.centre.norm();
+            let r = d - c.radius;
+            let nearest = c.centre * (r / d);
+            let level = Self::cylinder_db(r, c.radius) - p.surface_loss_db(c.surface);
+            hear(Target::Post(i), nearest, r, level, f64::INFINITY);
+        }
+        out
+    }
+
+    /// The echo the SRF05 reports, without noise: the nearest one above threshold.
+    pub fn first_echo(&self, aim_deg: f64) -> Option<Echo> {
+        self.echoes(aim_deg)
+            .into_iter()
+            .filter(|e| e.margin_db >= 0.0)
+            .min_by(|a, b| a.range_m.total_cmp(&b.range_m))
+    }
+
+    /// Whether the straight path from the sensor to `at` is blocked: by any wall it crosses, or by a
+    /// post wider than the first Fresnel zone where the path passes it.
+    fn occluded(&self, at: Vec2) -> bool {
+        let dist = at.norm();
+        let dir = at * (1.0 / dist);
+        let reach = dist - SELF_OCCLUSION_M;
+        let crosses = |a: Vec2, b: Vec2| {
+            let e = b - a;
+            let denom = dir.cross(e);
+            if denom.abs() < 1e-12 {
+                return false; // parallel: grazing a wall edge-on does not block
+            }
+            let s = a.cross(e) / denom; // along the path
+            let u = a.cross(dir) / denom; // along the wall
+            s > 0.0 && s < reach && (0.0..=1.0).contains(&u)
+        };
+        let lambda = self.wavelength_m();
+        let shadows = |c: Vec2, radius: f64| {
+            let s = c.dot(dir).clamp(0.0, reach);
+            let miss = (c - dir * s).norm();
+            let fresnel = (lambda * s * (dist - s) / dist).sqrt();
+            miss < radius - fresnel
+        };
+        self.scene.walls().iter().any(|w| crosses(w.a, w.b))
+            || self
+                .scene
+                .posts()
+                .iter()
+                .any(|c| shadows(c.centre, c.radius))
+    }
+}
+
+impl Transducer for EchoModel {
+    /// One ping with noise, as the SRF05's echo line reports it: round-trip µs, 0 = no echo.
+    fn ping(&mut self, aim_deg: f64) -> u32 {
+        let min = f64::from(self.sensor.min_range_m);
+        let max = f64::from(self.sensor.max_range_m);
+        let noise = self.scene.noise;
+        let truth = self.first_echo(aim_deg).map(|e| e.range_m);
+        let range = if self.rng.random_bool(noise.spurious_probability) {
+            let upto = truth.unwrap_or(max).max(min);
+            Some(self.rng.random_range(min..=upto))
+        } else {
+            truth
+        };
+        let Some(range) = range else {
+            return 0;
+        };
+        let v = self.speed_of_sound_mps();
+        let late_cycles = self.rng.random_range(0..=noise.late_cycles_max);
+        let echo_us = 2.0 * range.max(min) / v * 1e6
+            + f64::from(late_cycles) * 1e6 / self.scene.echo.frequency_hz;
+        if echo_us * v / 2e6 > max || echo_us > f64::from(self.sensor.echo_timeout_us) {
+            0
+        } else {
+            echo_us.round() as u32
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{Post, Wall};
+
+    fn wall(a: [f64; 2], b: [f64; 2]) -> Wall {
+        Wall {
+            a: a.into(),
+            b: b.into(),
+            surface: Surface::Hard,
+        }
+    }
+
+    fn post(x: f64, y: f64, radius: f64) -> Post {
+        Post {
+            centre: Vec2::new(x, y),
+            radius,
+            surface: Surface::Hard,
+        }
+    }
+
+    fn model(walls: Vec<Wall>, posts: Vec<Post>) -> EchoModel {
+        let scene = Scene::new("test", walls, posts).unwrap();
+        EchoModel::new(scene, SensorConfig::default(), 1).unwrap()
+    }
+
+    /// A wall across the +x axis at distance `d`, long enough to fill the beam.
+    fn facing_wall(d: f64) -> Wall {
+        wall([d, -5.0], [d, 5.0])
+    }
+
+    fn range_of(echo_us: u32) -> f64 {
+        f64::from(SensorConfig::default().range_m(echo_us as f32))
+    }
+
+    /// Largest angle off axis (0.05° steps) up to which the first echo comes from `target`.
+    fn cone_half_angle(m: &EchoModel, target: Target, centre_deg: f64) -> f64 {
+        let mut off = 0.0;
+        while m
+            .first_echo(centre_deg + off + 0.05)
+            .is_some_and(|e| e.target == target)
+        {
+            off += 0.05;
+        }
+        off
+    }
+
+    #[test]
+    fn wall_at_normal_incidence_reads_its_distance_within_noise() {
+        let mut m = model(vec![facing_wall(1.0)], vec![]);
+        for _ in 0..200 {
+            let us = m.ping(0.0);
+            assert!((range_of(us) - 1.0).abs() <= 0.02, "{us} µs");
+        }
+    }
+
+    #[test]
+    fn wall_is_heard_within_the_specular_cutoff_only() {
+        for d in [1.0, 2.0, 4.0] {
+            let m = model(vec![facing_wall(d)], vec![]);
+            for aim in [-25.0, -12.0, 0.0, 8.0, 25.0] {
+                let e = m.first_echo(aim).expect("wall heard");
+                assert!(
+                    (e.range_m - d).abs() < 1e-9,
+                    "reads the perpendicular distance"
+                );
+            }
+            let cutoff = cone_half_angle(&m, Target::Wall(0), 0.0);
+            assert!((27.9..=28.0).contains(&cutoff), "{d} m: cut-off {cutoff}°");
+            for aim in [-29.0, 29.0, 35.0, 90.0] {
+                assert_eq!(m.first_echo(aim), None, "{d} m, {aim}°");
+            }
+        }
+        // Past the 4 m maximum range the ping times out.
+        let mut far = model(vec![facing_wall(4.2)], vec![]);
+        assert!(far.first_echo(0.0).is_some());
+        assert_eq!(far.ping(0.0), 0);
+    }
+
+    #[test]
+    fn small_post_has_a_narrow_effective_cone() {
+        let m = model(vec![], vec![post(1.0, 0.0, 0.025)]);
+        let at_1m = cone_half_angle(&m, Target::Post(0), 0.0);
+        let m2 = model(vec![], vec![post(2.0, 0.0, 0.025)]);
+        let at_2m = cone_half_angle(&m2, Target::Post(0), 0.0);
+        println!("5 cm post: effective half-angle {at_1m:.2}° at 1 m, {at_2m:.2}° at 2 m");
+        assert!((10.0..=15.0).contains(&at_1m), "{at_1m}");
+        assert!(at_2m > 3.0 && at_2m < at_1m, "{at_2m}");
+        for aim in [0.0, 4.0, -8.0, 8.0] {
+            let e = m.first_echo(aim).expect("heard");
+            assert!((e.range_m - 0.975).abs() < 1e-9);
+        }
+        for aim in [17.0, -17.0, 25.0] {
+            assert_eq!(m.first_echo(aim), None, "{aim}°");
+        }
+        // A thicker post is heard farther off axis.
+        let thick = model(vec![], vec![post(1.0, 0.0, 0.1)]);
+        assert!(cone_half_angle(&thick, Target::Post(0), 0.0) > at_1m + 5.0);
+    }
+
+    #[test]
+    fn post_in_front_of_a_wall() {
+        let mut m = model(vec![facing_wall(2.0)], vec![post(1.0, 0.0, 0.025)]);
+        for aim in [-3.0, 0.0, 3.0] {
+            for _ in 0..20 {
+                let r = range_of(m.ping(aim));
+                assert!((r - 0.975).abs() < 0.02, "{aim}°: {r}");
+            }
+        }
+        // 20° beside it the post is under threshold and the wall behind is heard through the gap the
+        // post leaves in the first Fresnel zone.
+        for aim in [-20.0, 20.0] {
+            for _ in 0..20 {
+                let r = range_of(m.ping(aim));
+                assert!((r - 2.0).abs() < 0.02, "{aim}°: {r}");
+            }
+        }
+    }
+
+    #[test]
+    fn corner_returns_from_far_off_axis_where_walls_do_not() {
+        // Short walls meeting 1.2 m ahead: their normals' feet miss them, so only the corner can
+        // return.
+        let corner = model(
+            vec![wall([1.2, 0.0], [0.9, 0.3]), wall([1.2, 0.0], [0.9, -0.3])],
+            vec![],
+        );
+        for aim in [-25.0, 0.0, 25.0] {
+            let e = corner.first_echo(aim).expect("corner heard");
+            assert!(matches!(e.target, Target::Corner(_)), "{e:?}");
+            assert!((e.range_m - 1.2).abs() < 1e-9);
+        }
+        // The same walls 2 cm apart (no joint): two weak edges, not heard from 25° off.
+        let apart = model(
+            vec![
+                wall([1.2, 0.01], [0.9, 0.3]),
+                wall([1.2, -0.01], [0.9, -0.3]),
+            ],
+            vec![],
+        );
+        assert_eq!(apart.first_echo(25.0), None);
+        assert_eq!(apart.first_echo(-25.0), None);
+        // A flat wall through the same point, turned 45°, is not heard at all.
+        let flat = model(vec![wall([1.5, -0.3], [0.9, 0.3])], vec![]);
+        for aim in [-25.0, 0.0, 25.0] {
+            assert_eq!(flat.first_echo(aim), None);
+        }
+    }
+
+    #[test]
+    fn edges_are_weak() {
+        // The free end of a wall running away from the sensor (its normal's foot misses it): heard
+        // only close by.
+        let near = model(vec![wall([0.3, 0.0], [2.0, 0.6])], vec![]);
+        let e = near
+            .first_echo(-20.0)
+            .expect("a wall end 0.3 m away is heard");
+        assert!(matches!(e.target, Target::Edge(_)), "{e:?}");
+        let far = model(vec![wall([1.0, 0.0], [2.7, 0.6])], vec![]);
+        assert_eq!(far.first_echo(0.0), None);
+    }
+
+    #[test]
+    fn occlusion() {
+        // A post 2 m ahead is heard on axis ...
+        let alone = model(vec![], vec![post(2.0, 0.0, 0.025)]);
+        assert!(alone.first_echo(0.0).is_some());
+        // ... but not behind a slanted board (which returns nothing itself) ...
+        let board = wall([0.8, -0.3], [1.2, 0.3]);
+        let hidden = model(vec![board], vec![post(2.0, 0.0, 0.025)]);
+        assert!(
+            hidden
+                .echoes(0.0)
+                .iter()
+                .all(|e| e.target != Target::Post(0))
+        );
+        assert_eq!(hidden.first_echo(0.0), None);
+        // ... nor behind a 40 cm pillar, which is wider than the Fresnel zone; a 5 cm post is not.
+        let pillar = model(vec![], vec![post(1.0, 0.0, 0.2), post(2.0, 0.0, 0.025)]);
+        assert!(
+            pillar
+                .echoes(0.0)
+                .iter()
+                .all(|e| e.target != Target::Post(1))
+        );
+        let thin = model(vec![], vec![post(1.0, 0.0, 0.025), post(2.0, 0.0, 0.025)]);
+        assert!(thin.echoes(0.0).iter().any(|e| e.target == Target::Post(1)));
+        // Room walls hide what is outside the room.
+        let mut room = Scene::builtin("room").unwrap();
+        room = Scene::new("outside", room.walls().to_vec(), vec![post(3.0, 0.0, 0.5)]).unwrap();
+        let m = EchoModel::new(room, SensorConfig::default(), 1).unwrap();
+        assert!(m.echoes(0.0).iter().all(|e| e.target != Target::Post(0)));
+    }
+
+    #[test]
+    fn soft_surfaces_return_less() {
+        let mut soft = facing_wall(3.0);
+        soft.surface = Surface::Soft;
+        let hard = model(vec![facing_wall(3.0)], vec![])
+            .first_echo(0.0)
+            .unwrap();
+        let soft = model(vec![soft], vec![]).echoes(0.0)[0];
+        assert!((hard.margin_db - soft.margin_db - 12.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn noise_is_seeded_and_rare_transients_read_short() {
+        let scene = Scene::new("w", vec![facing_wall(2.0)], vec![]).unwrap();
+        let run = |seed| {
+            let mut m = EchoModel::new(scene.clone(), SensorConfig::default(), seed).unwrap();
+            (0..4000).map(|_| m.ping(0.0)).collect::<Vec<u32>>()
+        };
+        let a = run(7);
+        assert_eq!(a, run(7));
+        assert_ne!(a, run(8));
+        let ranges: Vec<f64> = a.iter().map(|&us| range_of(us)).collect();
+        let short = ranges.iter().filter(|&&r| r < 1.99).count();
+        // 0.5 % of 4000 = 20 expected.
+        assert!((5..=45).contains(&short), "{short} transients");
+        let good: Vec<f64> = ranges.into_iter().filter(|&r| r >= 1.99).collect();
+        let spread = good.iter().cloned().fold(f64::MIN, f64::max)
+            - good.iter().cloned().fold(f64::MAX, f64::min);
+        // One wavelength of jitter (8.6 mm) plus rounding to the µs.
+        assert!((0.0080..=0.0095).contains(&spread), "{spread}");
+        assert!(good.iter().all(|r| (r - 2.0).abs() <= 0.01));
+    }
+
+    #[test]
+    fn too_close_reads_the_minimum_range() {
+        let mut scene = Scene::new("w", vec![facing_wall(0.01)], vec![]).unwrap();
+        scene.noise.late_cycles_max = 0;
+        scene.noise.spurious_probability = 0.0;
+        let mut m = EchoModel::new(scene, SensorConfig::default(), 1).unwrap();
+        assert_eq!(
+            m.ping(0.0),
+            SensorConfig::default().echo_time_us(0.03).round() as u32
+        );
+    }
+
+    #[test]
+    fn invalid_parameters_are_rejected() {
+        let mut scene = Scene::new("w", vec![], vec![]).unwrap();
+        scene.noise.spurious_probability = f64::NAN;
+        let err = EchoModel::new(scene, SensorConfig::default(), 1).unwrap_err();
+        assert!(err.to_string().contains("spurious_probability"), "{err}");
+    }
+}

@@ -1,0 +1,824 @@
+//! The microcontroller as a pure state machine: commands in, device messages out, on a simulated
+//! clock. No I/O and no wall time, so every behaviour is a deterministic unit test.
+//!
+//! The head's position is kept in half steps from the MIN limit switch: the pings of a reading sit
+//! half a step in from the edges of its 6° (see [`SensorConfig::reading_centres_deg`]), so ping
+//! positions are odd half steps and the two limits even ones. Time advances only through
+//! [`Firmware::act`] (one step of the motor or one ping per call) and [`Firmware::idle_until`].
+
+use sonar_common::protocol::{
+    DeviceMessage, DeviceState, Direction, ErrorCode, HostCommand, Limit, MAX_PINGS_PER_READING,
+    PROTOCOL_VERSION, ParseError, WireReading, WireScanMode, parse_command,
+};
+use sonar_common::sensor::{SensorConfig, SensorConfigError};
+
+/// The firmware's name in the `HELLO` reply.
+pub const FIRMWARE_ID: &str = concat!("sonar-sim ", env!("CARGO_PKG_VERSION"));
+
+/// The ranging sensor as the firmware sees it.
+pub trait Transducer {
+    /// Fires one ping with the head at `aim_deg`; returns the echo time in µs, 0 for no echo.
+    fn ping(&mut self, aim_deg: f64) -> u32;
+}
+
+/// How long the hardware takes, in simulated time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Timing {
+    /// One ping, echo wait included: HC-SR04/SRF05 datasheets ask for ≥ 50 ms between pings so the
+    /// previous burst has died out.
+    pub ping_interval_ms: u32,
+    /// One 1.5° step of the geared stepper.
+    pub step_time_ms: u32,
+}
+
+impl Default for Timing {
+    fn default() -> Self {
+        Self {
+            ping_interval_ms: 50,
+            step_time_ms: 10,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Scan {
+    Full,
+    /// Reading indices (into the reading centres) of the segment's ends.
+    Local {
+        first: usize,
+        last: usize,
+    },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Activity {
+    Idle,
+    /// Driving without pings to where the next sweep of `scan` starts (a half-step position);
+    /// `ending` is a sweep still open, closed on arrival (after the limit switch).
+    Travel {
+        scan: Scan,
+        target: i32,
+        ending: Option<u32>,
+    },
+    /// In sweep `sweep`; next comes ping `ping` of the `k`-th reading in sweep order.
+    Sweep {
+        scan: Scan,
+        sweep: u32,
+        k: usize,
+        ping: usize,
+    },
+}
+
+/// The emulated PIC: stepper, limit switches and ranging, driven by host commands.
+#[derive(Debug)]
+pub struct Firmware<T> {
+    cfg: SensorConfig,
+    timing: Timing,
+    transducer: T,
+    centres_cdeg: Vec<i32>,
+    /// Position of the MAX limit switch, half steps from MIN.
+    max_h: i32,
+    now_us: u64,
+    pos_h: i32,
+    dir: Direction,
+    activity: Activity,
+    /// Id of the latest sweep started (0 before the first).
+    last_sweep: u32,
+    seq: u32,
+    echoes: [u32; MAX_PINGS_PER_READING],
+    commands: u64,
+    rejected_lines: u64,
+}
+
+impl<T: Transducer> Firmware<T> {
+    /// Powers on: homed to the MIN limit, whose switch has already reversed the motor (so the
+    /// direction is counter-clockwise), idle, clock at 0.
+    pub fn new(
+        cfg: SensorConfig,
+        timing: Timing,
+        transducer: T,
+    ) -> Result<Self, SensorConfigError> {
+        cfg.validate()?;
+        let max_h = ((cfg.sweep_max_deg - cfg.sweep_min_deg) / cfg.step_deg * 2.0).round() as i32;
+        Ok(Self {
+            centres_cdeg: cfg
+                .reading_centres_deg()
+                .iter()
+                .map(|&c| cdeg(c.into()))
+                .collect(),
+            cfg,
+            timing,
+            transducer,
+            max_h,
+            now_us: 0,
+            pos_h: 0,
+            dir: Direction::Ccw,
+            activity: Activity::Idle,
+            last_sweep: 0,
+            seq: 0,
+            echoes: [0; MAX_PINGS_PER_READING],
+            commands: 0,
+            rejected_lines: 0,
+        })
+    }
+
+    /// Simulated time, µs since power-on.
+    pub fn now_us(&self) -> u64 {
+        self.now_us
+    }
+
+    /// Whether [`Firmware::act`] has something to do.
+    pub fn is_busy(&self) -> bool {
+        self.activity != Activity::Idle
+    }
+
+    /// Lets simulated time pass while idle (a busy device's clock follows its actions).
+    pub fn idle_until(&mut self, t_us: u64) {
+        if !self.is_busy() {
+            self.now_us = self.now_us.max(t_us);
+        }
+    }
+
+    /// Head angle, degrees.
+    pub fn angle_deg(&self) -> f64 {
+        f64::from(self.cfg.sweep_min_deg)
+            + f64::from(self.pos_h) * f64::from(self.cfg.step_deg) / 2.0
+    }
+
+    /// Readings sent so far.
+    pub fn readings(&self) -> u32 {
+        self.seq
+    }
+
+    /// Commands obeyed and lines rejected so far.
+    pub fn command_counts(&self) -> (u64, u64) {
+        (self.commands, self.rejected_lines)
+    }
+
+    pub fn transducer(&self) -> &T {
+        &self.transducer
+    }
+
+    /// One line from the host, terminator optional.
+    pub fn handle_line(&mut self, line: &[u8], out: &mut Vec<DeviceMessage>) {
+        match parse_command(line) {
+            Ok(cmd) => self.handle_command(cmd, out),
+            Err(e) => {
+                self.rejected_lines += 1;
+                let code = match e {
+                    ParseError::ChecksumMismatch { .. } => ErrorCode::Checksum,
+                    _ => ErrorCode::Syntax,
+                };
+                out.push(DeviceMessage::Error {
+                    code,
+                    text: e.to_string(),
+                });
+            }
+        }
+    }
+
+    /// A line too long for the receive buffer was thrown away.
+    pub fn handle_overflow(&mut self, out: &mut Vec<DeviceMessage>) {
+        self.rejected_lines += 1;
+        out.push(DeviceMessage::Error {
+            code: ErrorCode::Syntax,
+            text: "line too long".into(),
+        });
+    }
+
+    pub fn handle_command(&mut self, cmd: HostCommand, out: &mut Vec<DeviceMessage>) {
+        self.commands += 1;
+        let ack = |command: &str| DeviceMessage::Ack {
+            command: command.into(),
+        };
+        match cmd {
+            HostCommand::Hello { version } if version == PROTOCOL_VERSION => {
+                let (min_cdeg, max_cdeg) = self.limits_cdeg();
+                out.push(DeviceMessage::Hello {
+                    version: PROTOCOL_VERSION,
+                    firmware: FIRMWARE_ID.into(),
+                    step_cdeg: cdeg(self.cfg.step_deg.into()).unsigned_abs(),
+                    pings_per_reading: u32::from(self.cfg.pings_per_reading),
+                    min_cdeg,
+                    max_cdeg,
+                })
+            }
+            HostCommand::Hello { version } => out.push(DeviceMessage::Error {
+                code: ErrorCode::Version,
+                text: format!("host speaks version {version}; device speaks {PROTOCOL_VERSION}"),
+            }),
+            HostCommand::FullScan => {
+                out.push(ack("SCAN"));
+                self.close_sweep(out);
+                let at_limit = self.pos_h == 0 || self.pos_h == self.max_h;
+                let target = match (at_limit, self.dir) {
+                    (true, _) => self.pos_h,
+                    (false, Direction::Ccw) => self.max_h,
+                    (false, Direction::Cw) => 0,
+                };
+                self.activity = Activity::Travel {
+                    scan: Scan::Full,
+                    target,
+                    ending: None,
+                };
+            }
+            HostCommand::LocalScan { from_cdeg, to_cdeg } => {
+                let (min, max) = self.limits_cdeg();
+                let inside = |c: &i32| (from_cdeg..=to_cdeg).contains(c);
+                let first = self.centres_cdeg.iter().position(inside);
+                let last = self.centres_cdeg.iter().rposition(inside);
+                let (Some(first), Some(last)) = (first, last) else {
+                    out.push(DeviceMessage::Error {
+                        code: ErrorCode::Range,
+                        text: format!("no reading centre in {from_cdeg}..{to_cdeg}"),
+                    });
+                    return;
+                };
+                if from_cdeg < min || to_cdeg > max {
+                    out.push(DeviceMessage::Error {
+                        code: ErrorCode::Range,
+                        text: format!("segment outside the limits {min}..{max}"),
+                    });
+                    return;
+                }
+                out.push(ack("SCAN"));
+                self.close_sweep(out);
+                let scan = Scan::Local { first, last };
+                let (lo, hi) = self.segment_ends_h(scan);
+                let target = if (self.pos_h - lo).abs() <= (self.pos_h - hi).abs() {
+                    lo
+                } else {
+                    hi
+                };
+                self.activity = Activity::Travel {
+                    scan,
+                    target,
+                    ending: None,
+                };
+            }
+            HostCommand::Stop => {
+                out.push(ack("STOP"));
+                self.close_sweep(out);
+                self.activity = Activity::Idle;
+            }
+            HostCommand::Status => {
+                let (state, sweep) = match self.activity {
+                    Activity::Idle => (DeviceState::Idle, self.last_sweep),
+                    Activity::Travel { scan, .. } => (scan.state(), self.last_sweep),
+                    Activity::Sweep { scan, sweep, .. } => (scan.state(), sweep),
+                };
+                out.push(DeviceMessage::Status {
+                    state,
+                    angle_cdeg: cdeg(self.angle_deg()),
+                    direction: self.dir,
+                    sweep,
+                });
+            }
+        }
+    }
+
+    /// Does the next step of the motor or the next ping and advances the clock by its duration;
+    /// returns false when idle. Messages carry the time at the end of the action.
+    pub fn act(&mut self, out: &mut Vec<DeviceMessage>) -> bool {
+        match self.activity {
+            Activity::Idle => return false,
+            Activity::Travel {
+                scan,
+                target,
+                ending,
+            } => {
+                if self.pos_h != target {
+                    self.step_toward(target, out);
+                } else {
+                    if let Some(sweep) = ending {
+                        out.push(DeviceMessage::SweepEnd { sweep });
+                    }
+                    self.start_sweep(scan, out);
+                }
+            }
+            Activity::Sweep {
+                scan,
+                sweep,
+                k,
+                ping,
+            } => {
+                let (lo, hi) = self.bounds(scan);
+                let reading = match self.dir {
+                    Direction::Ccw => lo + k,
+                    Direction::Cw => hi - k,
+                };
+                let target = self.ping_h(reading, ping);
+                if self.pos_h != target {
+                    self.step_toward(target, out);
+                    return true;
+                }
+                self.echoes[ping] = self.transducer.ping(self.angle_deg());
+                self.now_us += u64::from(self.timing.ping_interval_ms) * 1000;
+                let pings = usize::from(self.cfg.pings_per_reading);
+                if ping + 1 < pings {
+                    self.activity = Activity::Sweep {
+                        scan,
+                        sweep,
+                        k,
+                        ping: ping + 1,
+                    };
+                    return true;
+                }
+                out.push(DeviceMessage::Reading(WireReading {
+                    seq: self.seq,
+                    time_ms: (self.now_us / 1000) as u32,
+                    sweep,
+                    direction: self.dir,
+                    angle_cdeg: self.centres_cdeg[reading],
+                    ping_count: self.cfg.pings_per_reading,
+                    echo_us: self.echoes,
+                }));
+                self.seq = self.seq.wrapping_add(1);
+                if k < hi - lo {
+                    self.activity = Activity::Sweep {
+                        scan,
+                        sweep,
+                        k: k + 1,
+                        ping: 0,
+                    };
+                } else if scan == Scan::Full {
+                    // Run on to the limit switch, which ends the sweep.
+                    self.activity = Activity::Travel {
+                        scan,
+                        target: if self.dir == Direction::Ccw {
+                            self.max_h
+                        } else {
+                            0
+                        },
+                        ending: Some(sweep),
+                    };
+                } else {
+                    out.push(DeviceMessage::SweepEnd { sweep });
+                    self.start_sweep(scan, out);
+                }
+            }
+        }
+        true
+    }
+
+    /// Moves at most one step toward `target`; a limit switch reached reverses the motor.
+    fn step_toward(&mut self, target: i32, out: &mut Vec<DeviceMessage>) {
+        let delta = (target - self.pos_h).clamp(-2, 2);
+        self.dir = if delta > 0 {
+            Direction::Ccw
+        } else {
+            Direction::Cw
+        };
+        self.pos_h += delta;
+        self.now_us += u64::from(delta.unsigned_abs()) * u64::from(self.timing.step_time_ms) * 500;
+        if self.pos_h == 0 || self.pos_h == self.max_h {
+            out.push(DeviceMessage::LimitHit(if self.pos_h == 0 {
+                Limit::Min
+            } else {
+                Limit::Max
+            }));
+            self.dir = self.dir.reversed();
+        }
+    }
+
+    /// Begins a sweep from where the head stands (a limit, or an end of the local segment).
+    fn start_sweep(&mut self, scan: Scan, out: &mut Vec<DeviceMessage>) {
+        let (lo, hi) = self.bounds(scan);
+        self.dir = match scan {
+            Scan::Full if self.pos_h == 0 => Direction::Ccw,
+            Scan::Full => Direction::Cw,
+            Scan::Local { .. } if self.pos_h <= self.segment_ends_h(scan).0 => Direction::Ccw,
+            Scan::Local { .. } => Direction::Cw,
+        };
+        self.last_sweep += 1;
+        let (from, to) = match self.dir {
+            Direction::Ccw => (lo, hi),
+            Direction::Cw => (hi, lo),
+        };
+        out.push(DeviceMessage::SweepStart {
+            sweep: self.last_sweep,
+            direction: self.dir,
+            mode: match scan {
+                Scan::Full => WireScanMode::Full,
+                Scan::Local { .. } => WireScanMode::Local,
+            },
+            from_cdeg: self.centres_cdeg[from],
+            to_cdeg: self.centres_cdeg[to],
+        });
+        self.activity = Activity::Sweep {
+            scan,
+            sweep: self.last_sweep,
+            k: 0,
+            ping: 0,
+        };
+    }
+
+    /// Reports the end of a sweep still under way (a new command interrupts it).
+    fn close_sweep(&mut self, out: &mut Vec<DeviceMessage>) {
+        if let Activity::Sweep { sweep, .. }
+        | Activity::Travel {
+            ending: Some(sweep),
+            ..
+        } = self.activity
+        {
+            out.push(DeviceMessage::SweepEnd { sweep });
+        }
+    }
+
+    fn bounds(&self, scan: Scan) -> (usize, usize) {
+        match scan {
+            Scan::Full => (0, self.centres_cdeg.len() - 1),
+            Scan::Local { first, last } => (first, last),
+        }
+    }
+
+    /// Half-step position of ping `j` (in the order of motion) of reading `i`.
+    fn ping_h(&self, i: usize, j: usize) -> i32 {
+        let p = i32::from(self.cfg.pings_per_reading);
+        let centre = p * (2 * i as i32 + 1);
+        centre + self.dir.sign() * (2 * j as i32 - (p - 1))
+    }
+
+    /// Outermost ping positions of a scan's readings.
+    fn segment_ends_h(&self, scan: Scan) -> (i32, i32) {
+        let (lo, hi) = self.bounds(scan);
+        let p = i32::from(self.cfg.pings_per_reading);
+        (
+            p * (2 * lo as i32 + 1) - (p - 1),
+            p * (2 * hi as i32 + 1) + (p - 1),
+        )
+    }
+
+    fn limits_cdeg(&self) -> (i32, i32) {
+        (
+            cdeg(self.cfg.sweep_min_deg.into()),
+            cdeg(self.cfg.sweep_max_deg.into()),
+        )
+    }
+}
+
+impl Scan {
+    fn state(self) -> DeviceState {
+        match self {
+            Scan::Full => DeviceState::Full,
+            Scan::Local { .. } => DeviceState::Local,
+        }
+    }
+}
+
+/// Degrees to the wire's centidegrees.
+fn cdeg(deg: f64) -> i32 {
+    (deg * 100.0).round() as i32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sonar_common::protocol::{checksum, encode_command};
+
+    /// Records where it was aimed; always hears something 1 m away.
+    #[derive(Debug, Default)]
+    struct Probe {
+        aims: Vec<f64>,
+    }
+
+    impl Transducer for Probe {
+        fn ping(&mut self, aim_deg: f64) -> u32 {
+            self.aims.push(aim_deg);
+            5823
+        }
+    }
+
+    fn firmware() -> Firmware<Probe> {
+        Firmware::new(SensorConfig::default(), Timing::default(), Probe::default()).unwrap()
+    }
+
+    fn command(fw: &mut Firmware<Probe>, cmd: HostCommand) -> Vec<DeviceMessage> {
+        let mut out = Vec::new();
+        fw.handle_line(encode_command(&cmd).as_bytes(), &mut out);
+        out
+    }
+
+    /// Acts until `n` messages came out (or panics if the device idles or runs away).
+    fn run(fw: &mut Firmware<Probe>, n: usize) -> Vec<DeviceMessage> {
+        let mut out = Vec::new();
+        for _ in 0..100_000 {
+            if out.len() >= n {
+                return out;
+            }
+            assert!(fw.act(&mut out), "idle after {out:?}");
+        }
+        panic!("no {n} messages");
+    }
+
+    fn readings(msgs: &[DeviceMessage]) -> Vec<WireReading> {
+        msgs.iter()
+            .filter_map(|m| match m {
+                DeviceMessage::Reading(r) => Some(*r),
+                _ => None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn handshake_reports_the_geometry_or_refuses_the_version() {
+        let mut fw = firmware();
+        assert_eq!(
+            command(&mut fw, HostCommand::Hello { version: 1 }),
+            [DeviceMessage::Hello {
+                version: 1,
+                firmware: FIRMWARE_ID.into(),
+                step_cdeg: 150,
+                pings_per_reading: 4,
+                min_cdeg: -15000,
+                max_cdeg: 15000,
+            }]
+        );
+        let reply = command(&mut fw, HostCommand::Hello { version: 2 });
+        assert!(matches!(
+            &reply[..],
+            [DeviceMessage::Error {
+                code: ErrorCode::Version,
+                ..
+            }]
+        ));
+        assert!(!fw.is_busy());
+    }
+
+    #[test]
+    fn power_on_status_is_idle_at_the_min_limit() {
+        let mut fw = firmware();
+        assert_eq!(
+            command(&mut fw, HostCommand::Status),
+            [DeviceMessage::Status {
+                state: DeviceState::Idle,
+                angle_cdeg: -15000,
+                direction: Direction::Ccw,
+                sweep: 0,
+            }]
+        );
+        assert!(!fw.act(&mut Vec::new()));
+    }
+
+    #[test]
+    fn full_sweeps_run_between_the_limits() {
+        let mut fw = firmware();
+        assert_eq!(
+            command(&mut fw, HostCommand::FullScan),
+            [DeviceMessage::Ack {
+                command: "SCAN".into()
+            }]
+        );
+        let msgs = run(&mut fw, 2 * 54);
+        let start = |sweep, direction, from_cdeg, to_cdeg| DeviceMessage::SweepStart {
+            sweep,
+            direction,
+            mode: WireScanMode::Full,
+            from_cdeg,
+            to_cdeg,
+        };
+        assert_eq!(msgs[0], start(1, Direction::Ccw, -14700, 14700));
+        assert_eq!(msgs[51], DeviceMessage::LimitHit(Limit::Max));
+        assert_eq!(msgs[52], DeviceMessage::SweepEnd { sweep: 1 });
+        assert_eq!(msgs[53], start(2, Direction::Cw, 14700, -14700));
+        assert_eq!(msgs[104], DeviceMessage::LimitHit(Limit::Min));
+        assert_eq!(msgs[105], DeviceMessage::SweepEnd { sweep: 2 });
+        assert_eq!(msgs[106], start(3, Direction::Ccw, -14700, 14700));
+
+        for (sweep, rds, first, step) in [
+            (1, readings(&msgs[1..51]), -14700, 600),
+            (2, readings(&msgs[54..104]), 14700, -600),
+        ] {
+            assert_eq!(rds.len(), 50);
+            for (k, r) in rds.iter().enumerate() {
+                assert_eq!(r.sweep, sweep);
+                assert_eq!(r.angle_cdeg, first + step * k as i32);
+                assert_eq!(r.pings(), [5823; 4]);
+                assert_eq!(
+                    r.direction,
+                    if step > 0 {
+                        Direction::Ccw
+                    } else {
+                        Direction::Cw
+                    }
+                );
+            }
+        }
+        let all = readings(&msgs);
+        assert!(all.iter().enumerate().all(|(i, r)| r.seq == i as u32));
+        // Half a step off the switch, then 3 steps and 4 pings: 5 + 30 + 200 ms; then 4 steps and
+        // 4 pings per reading.
+        assert_eq!(all[0].time_ms, 235);
+        assert!(
+            all[..50]
+                .windows(2)
+                .all(|w| w[1].time_ms - w[0].time_ms == 240)
+        );
+
+        // Pings 1.5° apart around each centre, in the order of motion.
+        let aims = &fw.transducer().aims;
+        assert_eq!(aims[..4], [-149.25, -147.75, -146.25, -144.75]);
+        assert_eq!(aims[200..204], [149.25, 147.75, 146.25, 144.75]);
+    }
+
+    #[test]
+    fn full_scan_from_between_the_limits_first_drives_on_to_the_limit_ahead() {
+        let mut fw = firmware();
+        command(
+            &mut fw,
+            HostCommand::LocalScan {
+                from_cdeg: -3000,
+                to_cdeg: 3000,
+            },
+        );
+        run(&mut fw, 3); // SWP,START and two readings, going CCW
+        command(&mut fw, HostCommand::Stop);
+        let pings_before = fw.transducer().aims.len();
+        let reply = command(&mut fw, HostCommand::FullScan);
+        assert_eq!(
+            reply,
+            [DeviceMessage::Ack {
+                command: "SCAN".into()
+            }]
+        );
+        let msgs = run(&mut fw, 2);
+        assert_eq!(msgs[0], DeviceMessage::LimitHit(Limit::Max));
+        assert_eq!(
+            fw.transducer().aims.len(),
+            pings_before,
+            "no pings on the way"
+        );
+        assert!(matches!(
+            msgs[1],
+            DeviceMessage::SweepStart {
+                sweep: 2,
+                direction: Direction::Cw,
+                mode: WireScanMode::Full,
+                from_cdeg: 14700,
+                ..
+            }
+        ));
+    }
+
+    #[test]
+    fn local_scan_sweeps_back_and_forth_over_the_segment() {
+        let mut fw = firmware();
+        let reply = command(
+            &mut fw,
+            HostCommand::LocalScan {
+                from_cdeg: -3000,
+                to_cdeg: 3000,
+            },
+        );
+        assert_eq!(
+            reply,
+            [DeviceMessage::Ack {
+                command: "SCAN".into()
+            }]
+        );
+        let msgs = run(&mut fw, 3 * 12);
+        assert!(!msgs.iter().any(|m| matches!(m, DeviceMessage::LimitHit(_))));
+        let expect_start = |sweep, direction, from_cdeg, to_cdeg| DeviceMessage::SweepStart {
+            sweep,
+            direction,
+            mode: WireScanMode::Local,
+            from_cdeg,
+            to_cdeg,
+        };
+        assert_eq!(msgs[0], expect_start(1, Direction::Ccw, -2700, 2700));
+        assert_eq!(msgs[11], DeviceMessage::SweepEnd { sweep: 1 });
+        assert_eq!(msgs[12], expect_start(2, Direction::Cw, 2700, -2700));
+        assert_eq!(msgs[23], DeviceMessage::SweepEnd { sweep: 2 });
+        assert_eq!(msgs[24], expect_start(3, Direction::Ccw, -2700, 2700));
+        let angles: Vec<i32> = readings(&msgs[..24]).iter().map(|r| r.angle_cdeg).collect();
+        let up: Vec<i32> = (0..10).map(|k| -2700 + 600 * k).collect();
+        let down: Vec<i32> = up.iter().rev().copied().collect();
+        assert_eq!(angles, [up, down].concat());
+        // No pings on the way from the MIN limit; the segment starts 2.25° below its first centre.
+        let aims = &fw.transducer().aims;
+        assert_eq!(aims[0], -29.25);
+        assert_eq!(aims[39], 29.25);
+        assert_eq!(aims[40], 29.25);
+    }
+
+    #[test]
+    fn local_scan_outside_the_limits_or_between_centres_is_refused() {
+        let mut fw = firmware();
+        for (from_cdeg, to_cdeg) in [(-16000, 0), (0, 15001), (100, 200), (14800, 15000)] {
+            let reply = command(&mut fw, HostCommand::LocalScan { from_cdeg, to_cdeg });
+            assert!(
+                matches!(
+                    &reply[..],
+                    [DeviceMessage::Error {
+                        code: ErrorCode::Range,
+                        ..
+                    }]
+                ),
+                "{from_cdeg}..{to_cdeg}: {reply:?}"
+            );
+        }
+        assert!(!fw.is_busy());
+        // A segment holding one centre is fine.
+        let reply = command(
+            &mut fw,
+            HostCommand::LocalScan {
+                from_cdeg: 200,
+                to_cdeg: 400,
+            },
+        );
+        assert_eq!(reply.len(), 1);
+        let rds = readings(&run(&mut fw, 8));
+        assert!(rds.iter().all(|r| r.angle_cdeg == 300));
+    }
+
+    #[test]
+    fn stop_ends_the_sweep_and_holds_the_position() {
+        let mut fw = firmware();
+        command(&mut fw, HostCommand::FullScan);
+        run(&mut fw, 3);
+        let status = command(&mut fw, HostCommand::Status);
+        assert!(matches!(
+            status[..],
+            [DeviceMessage::Status {
+                state: DeviceState::Full,
+                direction: Direction::Ccw,
+                sweep: 1,
+                ..
+            }]
+        ));
+        // Half-way through the third reading.
+        let mut out = Vec::new();
+        for _ in 0..4 {
+            fw.act(&mut out);
+        }
+        assert!(out.is_empty());
+        assert_eq!(
+            command(&mut fw, HostCommand::Stop),
+            [
+                DeviceMessage::Ack {
+                    command: "STOP".into()
+                },
+                DeviceMessage::SweepEnd { sweep: 1 }
+            ]
+        );
+        assert!(!fw.act(&mut out));
+        let angle = *fw.transducer().aims.last().unwrap();
+        assert_eq!(
+            command(&mut fw, HostCommand::Status),
+            [DeviceMessage::Status {
+                state: DeviceState::Idle,
+                angle_cdeg: (angle * 100.0).round() as i32,
+                direction: Direction::Ccw,
+                sweep: 1,
+            }]
+        );
+        // Idle time passes only when told; a second STOP is acknowledged and changes nothing.
+        let t = fw.now_us();
+        fw.idle_until(t + 5_000_000);
+        assert_eq!(fw.now_us(), t + 5_000_000);
+        assert_eq!(command(&mut fw, HostCommand::Stop).len(), 1);
+    }
+
+    #[test]
+    fn bad_lines_are_answered_with_errors() {
+        let mut fw = firmware();
+        let bad_checksum = encode_command(&HostCommand::FullScan).replace("FULL", "FULM");
+        let framed = |body: &str| format!("${body}*{:02X}", checksum(body.as_bytes()));
+        let mut out = Vec::new();
+        for line in [
+            bad_checksum,
+            "hello".into(),
+            framed("FOO"),
+            framed("SCAN,LOCAL,300,100"),
+        ] {
+            fw.handle_line(line.as_bytes(), &mut out);
+        }
+        let codes: Vec<ErrorCode> = out
+            .iter()
+            .map(|m| match m {
+                DeviceMessage::Error { code, .. } => *code,
+                other => panic!("{other:?}"),
+            })
+            .collect();
+        assert_eq!(
+            codes,
+            [
+                ErrorCode::Checksum,
+                ErrorCode::Syntax,
+                ErrorCode::Syntax,
+                ErrorCode::Syntax
+            ]
+        );
+        out.clear();
+        fw.handle_overflow(&mut out);
+        assert!(matches!(
+            out[..],
+            [DeviceMessage::Error {
+                code: ErrorCode::Syntax,
+                ..
+            }]
+        ));
+        assert_eq!(fw.command_counts(), (0, 5));
+        assert!(!fw.is_busy());
+    }
+}

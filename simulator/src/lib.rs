@@ -1,0 +1,86 @@
+//! `sonar-sim`: the paper's sonar head — PIC microcontroller, geared stepper between two limit
+//! switches, SRF05 — in software, behind a pseudo-terminal, so the driver runs exactly as on the
+//! hardware.
+//!
+//! # Design
+//!
+//! Three pure layers and one thin I/O layer:
+//!
+//! - [`firmware`]: the microcontroller as a state machine. Host lines in, [`DeviceMessage`]s out,
+//!   on a **simulated** millisecond clock: every behaviour is deterministic and unit-tested without
+//!   wall time.
+//! - [`echo`]: the physics. For a ping aimed at an angle, every echo the scene returns, its range
+//!   and level; the first one above the detection threshold is what the SRF05 reports, with seeded
+//!   noise.
+//! - [`scene`]: walls, polygons and posts from TOML/JSON files or the four built-in scenes (the
+//!   paper's Figs. 8–11), with their ground truth for evaluation.
+//! - [`serve`](mod@serve): the pseudo-terminal and the loop that paces simulated time against wall time.
+//!   [`hobby`] is the alternative firmware of the `--dialect hobby` mode.
+//!
+//! # Device behaviour (protocol version 1, `docs/protocol.md`)
+//!
+//! - **Power-on**: the head has homed to the MIN limit (−150°); the switch reversed the motor, so
+//!   the direction is `+` (CCW). Idle; `ST,IDLE,-15000,+,0`.
+//! - `HELLO,v` → `HELLO,1,sonar-sim <version>,<step_cdeg>,<pings_per_reading>,<min_cdeg>,<max_cdeg>`
+//!   if `v` is 1, else `ERR,VERSION,…`. A scan under way goes on.
+//! - `SCAN,FULL` → `ACK,SCAN`. At a limit, the sweep starts at once, away from it. Between the
+//!   limits the head first drives on (no pings) to the limit ahead in its current direction, which
+//!   reports `LIM,MIN|MAX` and reverses it. Each sweep is `SWP,START,<id>,<dir>,F,<first>,<last>`
+//!   (first and last reading centres in sweep order), one `RD` per reading centre in the order of
+//!   motion (50 by default, −147° … +147° in 6°), then the head runs on to the limit switch:
+//!   `LIM,…`, `SWP,END,<id>`, and the next sweep (id + 1) starts back. Forever, until `STOP`.
+//! - `SCAN,LOCAL,a,b` (centidegrees) → `ERR,RANGE,…` if `a` or `b` lies outside the limits or no
+//!   reading centre lies in `[a, b]`; else `ACK,SCAN`, the head drives (no pings) to the end of the
+//!   segment nearest to it (the outermost ping position, 2.25° beyond the outermost centre) and
+//!   sweeps back and forth over the centres in `[a, b]`: `SWP,START,…,L,…`, the `RD`s, `SWP,END`,
+//!   then at once the pass back. No limit switch events.
+//! - A `SCAN` during a scan replaces it: `ACK,SCAN`, `SWP,END` for the open sweep, then as above.
+//! - `STOP` → `ACK,STOP`, `SWP,END,<id>` if a sweep was open, idle where the head stands. The
+//!   reading in progress is discarded.
+//! - `STATUS` → `ST,<IDLE|FULL|LOCAL>,<angle_cdeg>,<dir>,<sweep>`: the mode (driving to a scan's
+//!   start counts as that mode), the head angle, the direction of its last motion, and the open
+//!   sweep's id, or the last one (0 before any).
+//! - A line with a bad checksum → `ERR,CHECKSUM,…`; any other unreadable line (or one longer than
+//!   160 bytes) → `ERR,SYNTAX,…`.
+//! - Commands are obeyed between actions (after the current motor step or ping), as the PIC's main
+//!   loop would; a reply comes at most one ping (50 ms simulated) late.
+//! - `RD,<seq>,<time_ms>,<sweep>,<dir>,<centre_cdeg>,<P>,<e1>,…,<eP>`: `seq` from 0, +1 per `RD`
+//!   for the life of the process; `time_ms` the simulated clock when the last ping ended; `P` pings
+//!   (4), taken at the P stepper positions of the reading, centre + (j − (P−1)/2)·step, in the order
+//!   of motion (−2.25°, −0.75°, +0.75°, +2.25° going CCW); echo times in µs, 0 = no echo.
+//! - Timing ([`Timing`]): a ping takes 50 ms (echo wait included), a 1.5° step 10 ms. The limit
+//!   switches sit half a step beyond the outermost ping positions. A full sweep takes
+//!   50 × (4 × 10 + 4 × 50) ms ≈ 12 s.
+//!
+//! # Echo model
+//!
+//! See [`echo`] for the physics and [`EchoParams`]/[`NoiseParams`] for every parameter and where
+//! its default comes from (`shared/docs/sensor-facts.md`, ISO 9613-1, or the calibration points).
+//! In short: a flat wall returns only at normal incidence within the 28° specular cut-off, at the
+//! perpendicular distance; concave corners return from anywhere in the ±30° beam; edges weakly; a
+//! post from its nearest point with a strength growing with its radius, so a 5 cm post at 1 m is
+//! heard only within about ±13° of it. Levels combine spreading, air absorption, the receiver's
+//! gain ramp and the beam pattern against one detection threshold; the nearest echo above it
+//! wins, unless the line of sight is blocked. Noise: late detection by up to two cycles (≤ 8.6 mm)
+//! and 0.5 % transient short readings, from a seeded ChaCha RNG.
+//!
+//! # Ground truth
+//!
+//! [`Scene::walls`], [`Scene::posts`] and [`Scene::distance_to_surface`] give other crates (the
+//! evaluation) the true surfaces to rasterise.
+
+pub mod echo;
+pub mod firmware;
+pub mod geometry;
+pub mod hobby;
+pub mod scene;
+pub mod serve;
+
+pub use echo::{Echo, EchoModel, EchoParams, NoiseParams, Target};
+pub use firmware::{FIRMWARE_ID, Firmware, Timing, Transducer};
+pub use geometry::Vec2;
+pub use hobby::HobbySketch;
+pub use scene::{BUILTIN_NAMES, Post, Scene, SceneError, SuggestedScan, Surface, Vertex, Wall};
+pub use serve::{Device, NativeDevice, Pty, ServeStats, Speed, serve};
+#[doc(no_inline)]
+pub use sonar_common::protocol::DeviceMessage;

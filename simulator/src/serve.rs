@@ -1,0 +1,401 @@
+//! The device behind a pseudo-terminal: the only part of the crate that does I/O.
+//!
+//! [`serve`] runs one loop on one thread: perform the device's next action (a motor step or a ping)
+//! on the simulated clock, wait until that moment in wall time (simulated time / speed factor) while
+//! gathering what the host sends, write what the action produced, then obey the commands received
+//! meanwhile — as the PIC's main loop would, after the current step or ping. Waiting is done in
+//! `poll` on the master, so input, pacing and the stop flag (set by a signal handler) share one
+//! wait.
+//!
+//! Writes never block the loop for long: when the terminal's buffer is full (nobody reads the
+//! slave), a line waits up to [`WRITE_PATIENCE`] for room and is then dropped and counted, as bytes
+//! sent by a UART with no listener are lost. At `--speed max` that wait is the back-pressure that
+//! keeps a slow reader from losing lines.
+
+use std::fs::File;
+use std::io::{self, ErrorKind, Read, Write};
+use std::os::fd::{AsFd, OwnedFd};
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use nix::errno::Errno;
+use nix::fcntl::{FcntlArg, OFlag, fcntl};
+use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
+use nix::pty::openpty;
+use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
+use sonar_common::protocol::{DeviceMessage, FramedLine, LineFramer, Terminators, encode_device};
+use tracing::{debug, info, warn};
+
+use crate::firmware::{Firmware, Transducer};
+use crate::hobby::HobbySketch;
+
+/// How long a line may wait for room in the terminal's buffer before it is dropped.
+pub const WRITE_PATIENCE: Duration = Duration::from_millis(200);
+/// Longest wait while idle before looking at the stop flag again.
+const IDLE_POLL: Duration = Duration::from_millis(100);
+/// Falling further behind wall time than this (a stalled reader) restarts the pacing rather than
+/// rushing to catch up.
+const MAX_LAG: Duration = Duration::from_secs(1);
+
+/// A pseudo-terminal whose slave plays the serial port.
+#[derive(Debug)]
+pub struct Pty {
+    master: File,
+    /// Held open so that the master never reads EIO while no host has the slave open (between a
+    /// driver's close and reopen).
+    _slave: OwnedFd,
+    path: PathBuf,
+}
+
+impl Pty {
+    /// Opens a pseudo-terminal with its slave in raw mode (no echo, no line editing, 8-bit clean,
+    /// like a serial port) and its master non-blocking.
+    pub fn open() -> io::Result<Self> {
+        let pty = openpty(None, None)?;
+        let mut tio = tcgetattr(&pty.slave)?;
+        cfmakeraw(&mut tio);
+        tcsetattr(&pty.slave, SetArg::TCSANOW, &tio)?;
+        let path = nix::unistd::ttyname(&pty.slave)?;
+        let flags = OFlag::from_bits_truncate(fcntl(&pty.master, FcntlArg::F_GETFL)?);
+        fcntl(&pty.master, FcntlArg::F_SETFL(flags | OFlag::O_NONBLOCK))?;
+        Ok(Self {
+            master: File::from(pty.master),
+            _slave: pty.slave,
+            path,
+        })
+    }
+
+    /// Path of the slave, e.g. `/dev/pts/3`: the "serial port" to give the driver.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
+/// How fast simulated time runs against wall time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Speed {
+    /// Simulated seconds per wall second (1 = real time).
+    Factor(f64),
+    /// As fast as the host reads.
+    Max,
+}
+
+impl FromStr for Speed {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s == "max" {
+            return Ok(Speed::Max);
+        }
+        match s.parse::<f64>() {
+            Ok(f) if f.is_finite() && f > 0.0 => Ok(Speed::Factor(f)),
+            _ => Err(format!(
+                "expected a positive factor (1 = real time) or `max`, got {s:?}"
+            )),
+        }
+    }
+}
+
+/// Something that talks over the line: the native firmware or the hobby sketch.
+pub trait Device {
+    /// Bytes from the host; appends the replies (complete lines).
+    fn receive(&mut self, bytes: &[u8], out: &mut Vec<String>);
+    /// Performs the next timed action and appends what it prints; false when idle.
+    fn act(&mut self, out: &mut Vec<String>) -> bool;
+    /// Simulated time, µs.
+    fn now_us(&self) -> u64;
+    /// Lets simulated time pass while idle.
+    fn idle_until(&mut self, t_us: u64);
+    /// What it did, for the log.
+    fn summary(&self) -> String;
+}
+
+/// Our firmware behind its UART: cuts the byte stream into lines, encodes the messages.
+#[derive(Debug)]
+pub struct NativeDevice<T> {
+    firmware: Firmware<T>,
+    framer: LineFramer,
+    msgs: Vec<DeviceMessage>,
+}
+
+impl<T: Transducer> NativeDevice<T> {
+    pub fn new(firmware: Firmware<T>) -> Self {
+        Self {
+            firmware,
+            framer: LineFramer::new(Terminators::Newline),
+            msgs: Vec::new(),
+        }
+    }
+
+    fn flush(&mut self, out: &mut Vec<String>) {
+        out.extend(self.msgs.drain(..).map(|m| encode_device(&m)));
+    }
+}
+
+impl<T: Transducer> Device for NativeDevice<T> {
+    fn receive(&mut self, bytes: &[u8], out: &mut Vec<String>) {
+        let Self {
+            firmware,
+            framer,
+            msgs,
+        } = self;
+        framer.push(bytes, |line| match line {
+            FramedLine::Line(l) => {
+                debug!(line = %String::from_utf8_lossy(l), "host line");
+                firmware.handle_line(l, msgs);
+            }
+            FramedLine::Overflow => firmware.handle_overflow(msgs),
+        });
+        self.flush(out);
+    }
+
+    fn act(&mut self, out: &mut Vec<String>) -> bool {
+        let busy = self.firmware.act(&mut self.msgs);
+        self.flush(out);
+        busy
+    }
+
+    fn now_us(&self) -> u64 {
+        self.firmware.now_us()
+    }
+
+    fn idle_until(&mut self, t_us: u64) {
+        self.firmware.idle_until(t_us);
+    }
+
+    fn summary(&self) -> String {
+        let (commands, rejected) = self.firmware.command_counts();
+        format!(
+            "{commands} commands, {rejected} lines rejected, {} readings",
+            self.firmware.readings()
+        )
+    }
+}
+
+impl<T: Transducer> Device for HobbySketch<T> {
+    fn receive(&mut self, bytes: &[u8], _out: &mut Vec<String>) {
+        debug!(bytes = bytes.len(), "the hobby sketch reads no input");
+    }
+
+    fn act(&mut self, out: &mut Vec<String>) -> bool {
+        out.push(self.step());
+        true
+    }
+
+    fn now_us(&self) -> u64 {
+        HobbySketch::now_us(self)
+    }
+
+    fn idle_until(&mut self, _t_us: u64) {}
+
+    fn summary(&self) -> String {
+        format!("{} records", self.records())
+    }
+}
+
+/// Counters of the line.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ServeStats {
+    pub bytes_received: u64,
+    pub lines_written: u64,
+    pub lines_dropped: u64,
+}
+
+/// Maps simulated time to wall time.
+#[derive(Debug)]
+struct Pacer {
+    speed: Speed,
+    wall0: Instant,
+    sim0_us: u64,
+}
+
+impl Pacer {
+    /// When simulated time `sim_us` happens in wall time.
+    fn wall_at(&mut self, sim_us: u64) -> Instant {
+        let now = Instant::now();
+        let Speed::Factor(f) = self.speed else {
+            return now;
+        };
+        let due = self.wall0
+            + Duration::from_secs_f64(sim_us.saturating_sub(self.sim0_us) as f64 / 1e6 / f);
+        if now > due + MAX_LAG {
+            self.wall0 = now;
+            self.sim0_us = sim_us;
+            now
+        } else {
+            due
+        }
+    }
+
+    /// Simulated time now, for an idle device whose clock stands at `current_us`.
+    fn sim_now(&self, current_us: u64) -> u64 {
+        match self.speed {
+            Speed::Max => current_us,
+            Speed::Factor(f) => {
+                let elapsed = self.wall0.elapsed().as_secs_f64() * f * 1e6;
+                current_us.max(self.sim0_us + elapsed as u64)
+            }
+        }
+    }
+}
+
+/// The master side of the terminal with its counters.
+struct Line<'a> {
+    master: &'a File,
+    stats: ServeStats,
+    /// Lines are being dropped (nobody reads); logged once per episode.
+    dropping: bool,
+}
+
+fn poll_timeout(wait: Duration) -> PollTimeout {
+    let ms = wait.as_micros().div_ceil(1000);
+    PollTimeout::from(u16::try_from(ms).unwrap_or(u16::MAX))
+}
+
+impl Line<'_> {
+    /// Waits up to `wait` for input and appends all there is; true if anything came.
+    fn read_into(&mut self, buf: &mut Vec<u8>, wait: Duration) -> io::Result<bool> {
+        let mut fds = [PollFd::new(self.master.as_fd(), PollFlags::POLLIN)];
+        match poll(&mut fds, poll_timeout(wait)) {
+            Ok(0) | Err(Errno::EINTR) => return Ok(false),
+            Ok(_) => {}
+            Err(e) => return Err(e.into()),
+        }
+        let before = buf.len();
+        let mut chunk = [0u8; 1024];
+        loop {
+            match (&*self.master).read(&mut chunk) {
+                Ok(0) => break,
+                Ok(n) => buf.extend_from_slice(&chunk[..n]),
+                Err(e) if e.kind() == ErrorKind::WouldBlock => break,
+                Err(e) if e.kind() == ErrorKind::Interrupted => {}
+                Err(e) => return Err(e),
+            }
+        }
+        self.stats.bytes_received += (buf.len() - before) as u64;
+        Ok(buf.len() > before)
+    }
+
+    /// Writes one line, or drops it after [`WRITE_PATIENCE`] without room.
+    fn write_line(&mut self, line: &str) -> io::Result<()> {
+        let deadline = Instant::now() + WRITE_PATIENCE;
+        let mut rest = line.as_bytes();
+        while !rest.is_empty() {
+            match (&*self.master).write(rest) {
+                Ok(n) => rest = &rest[n..],
+                Err(e) if e.kind() == ErrorKind::Interrupted => {}
+                Err(e) if e.kind() == ErrorKind::WouldBlock => {
+                    let wait = deadline.saturating_duration_since(Instant::now());
+                    if wait.is_zero() {
+                        self.stats.lines_dropped += 1;
+                        if !self.dropping {
+                            warn!("nobody reads the port: dropping lines");
+                            self.dropping = true;
+                        }
+                        return Ok(());
+                    }
+                    let mut fds = [PollFd::new(self.master.as_fd(), PollFlags::POLLOUT)];
+                    match poll(&mut fds, poll_timeout(wait)) {
+                        Ok(_) | Err(Errno::EINTR) => {}
+                        Err(e) => return Err(e.into()),
+                    }
+                }
+                Err(e) => return Err(e),
+            }
+        }
+        if self.dropping {
+            info!(dropped = self.stats.lines_dropped, "the port is read again");
+            self.dropping = false;
+        }
+        self.stats.lines_written += 1;
+        Ok(())
+    }
+}
+
+/// Serves `device` on `pty` until `stop` is set.
+pub fn serve(
+    pty: &Pty,
+    device: &mut dyn Device,
+    speed: Speed,
+    stop: &AtomicBool,
+) -> io::Result<ServeStats> {
+    let mut line = Line {
+        master: &pty.master,
+        stats: ServeStats::default(),
+        dropping: false,
+    };
+    let mut pacer = Pacer {
+        speed,
+        wall0: Instant::now(),
+        sim0_us: device.now_us(),
+    };
+    let mut out = Vec::new();
+    let mut input = Vec::new();
+    while !stop.load(Ordering::Relaxed) {
+        out.clear();
+        let busy = device.act(&mut out);
+        let due = if busy {
+            pacer.wall_at(device.now_us())
+        } else {
+            Instant::now() + IDLE_POLL
+        };
+        // Until the action is over in wall time, gather what the host sends; an idle device
+        // answers at once.
+        input.clear();
+        loop {
+            let got = line.read_into(&mut input, due.saturating_duration_since(Instant::now()))?;
+            if stop.load(Ordering::Relaxed) || Instant::now() >= due || (got && !busy) {
+                break;
+            }
+        }
+        for l in &out {
+            line.write_line(l)?;
+        }
+        if !busy {
+            device.idle_until(pacer.sim_now(device.now_us()));
+        }
+        if !input.is_empty() {
+            out.clear();
+            device.receive(&input, &mut out);
+            for l in &out {
+                line.write_line(l)?;
+            }
+        }
+    }
+    Ok(line.stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn speed_parses_factors_and_max() {
+        assert_eq!("max".parse(), Ok(Speed::Max));
+        assert_eq!("20".parse(), Ok(Speed::Factor(20.0)));
+        assert_eq!("0.5".parse(), Ok(Speed::Factor(0.5)));
+        for bad in ["0", "-1", "fast", "inf", "NaN"] {
+            assert!(bad.parse::<Speed>().is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn pacing_maps_simulated_to_wall_time() {
+        // Anchored in the future, so no lag can have built up whatever the scheduler does.
+        let wall0 = Instant::now() + Duration::from_secs(3600);
+        let mut pacer = Pacer {
+            speed: Speed::Factor(10.0),
+            wall0,
+            sim0_us: 1_000_000,
+        };
+        assert_eq!(pacer.wall_at(1_500_000) - wall0, Duration::from_millis(50));
+        assert_eq!(pacer.sim_now(0), 1_000_000);
+        assert_eq!(pacer.sim_now(2_000_000), 2_000_000);
+        assert_eq!(
+            poll_timeout(Duration::from_micros(1)),
+            PollTimeout::from(1u16)
+        );
+    }
+}
