@@ -1,1 +1,320 @@
-fn main() {}
+//! `sonar-viewer`: terminal setup and teardown, logging, signals and the frame loop. Everything it
+//! shows and every decision about keys lives in the library; see its documentation.
+//!
+//! One thread: each turn of the loop takes the newest snapshots (at most `--fps` times a second),
+//! draws if anything changed, and waits for terminal input until the next frame is due. Keys are
+//! handled as soon as they arrive and drawn at once, so the viewer stays responsive while shared
+//! memory is read only at the frame rate.
+
+use std::fmt;
+use std::fs::OpenOptions;
+use std::io::{IsTerminal, Stdout, stdout};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use clap::{Parser, ValueEnum};
+use crossterm::event::{self, Event};
+use crossterm::terminal::{
+    EnterAlternateScreen, LeaveAlternateScreen, disable_raw_mode, enable_raw_mode,
+};
+use crossterm::{cursor, execute};
+use iceoryx2::prelude::*;
+use iceoryx2::service::ipc::Service as Ipc;
+use iceoryx2_log::{Log, LogLevel};
+use ratatui::Terminal;
+use ratatui::backend::CrosstermBackend;
+use sonar_common::ipc::{IpcArgs, unix_time_ns};
+use sonar_viewer::app::{Action, App, View, key_help_text};
+use sonar_viewer::export;
+use sonar_viewer::heatmap::{ColorMode, Palette};
+use sonar_viewer::source::Source;
+use sonar_viewer::ui::{self, DrawInfo, MapCache};
+use tracing::{error, info, warn};
+
+/// Redraw at least this often, so "gone for N s" keeps counting while nothing arrives.
+const IDLE_REDRAW: Duration = Duration::from_secs(1);
+
+/// Terminal viewer of the sonar pipeline: the probability map, the radar display and the state of
+/// the driver and the fusion engine. Its keys send scan and fusion commands over iceoryx2.
+///
+/// Start it before or after the other processes, with the same --iox-* settings; it shows
+/// "waiting for …" until they appear and carries on when they restart.
+///
+/// Examples:
+///   sonar-viewer
+///   sonar-viewer --view map --color 256
+///   sonar-viewer --iox-prefix test_ --log-file viewer.log
+#[derive(Debug, Parser)]
+#[command(version, verbatim_doc_comment, after_help = key_help_text())]
+struct Args {
+    /// View at start: map, radar or split (both).
+    #[arg(long, value_enum, default_value_t = ViewArg::Split)]
+    view: ViewArg,
+    /// Colours: auto (truecolor if COLORTERM is truecolor or 24bit, else 256), truecolor, 256.
+    #[arg(long, value_enum, default_value_t = ColorArg::Auto)]
+    color: ColorArg,
+    /// Frames per second at most; snapshots arriving faster are skipped, never queued.
+    #[arg(long, default_value_t = 25, value_parser = clap::value_parser!(u32).range(1..=60))]
+    fps: u32,
+    /// Directory where `s` saves the map as PNG.
+    #[arg(long, default_value = ".", value_name = "DIR")]
+    save_dir: PathBuf,
+    /// Log file [default: $XDG_STATE_HOME/sonar-viewer.log, else /tmp/sonar-viewer.log]; the
+    /// level comes from RUST_LOG (default info), iceoryx2's from IOX2_LOG_LEVEL (default warn).
+    #[arg(long, value_name = "FILE")]
+    log_file: Option<PathBuf>,
+    #[command(flatten)]
+    ipc: IpcArgs,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum ViewArg {
+    Map,
+    Radar,
+    Split,
+}
+
+impl From<ViewArg> for View {
+    fn from(v: ViewArg) -> Self {
+        match v {
+            ViewArg::Map => View::Map,
+            ViewArg::Radar => View::Radar,
+            ViewArg::Split => View::Split,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum ColorArg {
+    Auto,
+    Truecolor,
+    #[value(name = "256")]
+    Ansi256,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    let log = init_logging(args.log_file.clone());
+    match run(args, log) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            // The terminal is restored by now: the message lands on the user's screen.
+            error!("{e:#}");
+            eprintln!("sonar-viewer: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Forwards iceoryx2's log messages to `tracing`. Its default logger writes to standard error,
+/// which is the terminal the viewer draws on.
+struct IceoryxToTracing;
+
+impl Log for IceoryxToTracing {
+    fn log(&self, level: LogLevel, origin: fmt::Arguments, message: fmt::Arguments) {
+        match level {
+            LogLevel::Trace => tracing::trace!(%origin, "{message}"),
+            LogLevel::Debug => tracing::debug!(%origin, "{message}"),
+            LogLevel::Info => tracing::info!(%origin, "{message}"),
+            LogLevel::Warn => tracing::warn!(%origin, "{message}"),
+            LogLevel::Error | LogLevel::Fatal => tracing::error!(%origin, "{message}"),
+        }
+    }
+}
+
+static ICEORYX_TO_TRACING: IceoryxToTracing = IceoryxToTracing;
+
+fn default_log_path() -> PathBuf {
+    match std::env::var_os("XDG_STATE_HOME") {
+        Some(dir) if !dir.is_empty() => PathBuf::from(dir).join("sonar-viewer.log"),
+        _ => PathBuf::from("/tmp/sonar-viewer.log"),
+    }
+}
+
+/// Logs to a file; on failure the viewer runs without a log and says why in its status line.
+fn init_logging(path: Option<PathBuf>) -> Result<PathBuf, String> {
+    // Before anything of iceoryx2 runs: its logger can be set only once, and the default one would
+    // scribble over the picture.
+    iceoryx2_log::set_logger(&ICEORYX_TO_TRACING);
+    iceoryx2_log::set_log_level_from_env_or(LogLevel::Warn);
+    let path = path.unwrap_or_else(default_log_path);
+    let file = OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&path)
+        .map_err(|e| format!("not logging: {}: {e}", path.display()))?;
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(Mutex::new(file))
+        .with_ansi(false)
+        .try_init()
+        .map_err(|e| format!("not logging: {e}"))?;
+    Ok(path)
+}
+
+/// Sets the returned flag on SIGTERM, SIGINT, SIGHUP (the SSH session went away) and SIGQUIT.
+fn quit_on_signals(node: &Node<Ipc>) -> Result<Arc<AtomicBool>> {
+    // iceoryx2 installs its SIGINT/SIGTERM handlers the first time it looks for signals (also
+    // inside some shared-memory operations), replacing what is there without chaining. Let it do
+    // so now: the handlers registered next chain to it, so neither loses the signal.
+    let _ = node.wait(Duration::ZERO);
+    let quit = Arc::new(AtomicBool::new(false));
+    for signal in [
+        signal_hook::consts::SIGTERM,
+        signal_hook::consts::SIGINT,
+        signal_hook::consts::SIGHUP,
+        signal_hook::consts::SIGQUIT,
+    ] {
+        signal_hook::flag::register(signal, Arc::clone(&quit))
+            .with_context(|| format!("cannot handle signal {signal}"))?;
+    }
+    Ok(quit)
+}
+
+/// Whether raw mode and the alternate screen are on; makes restoring idempotent, so the panic hook
+/// and the guard's `Drop` can both run without the second one disturbing the restored screen.
+static TERMINAL_ACTIVE: AtomicBool = AtomicBool::new(false);
+
+fn restore_terminal() {
+    if TERMINAL_ACTIVE.swap(false, Ordering::SeqCst) {
+        let _ = disable_raw_mode();
+        let _ = execute!(stdout(), LeaveAlternateScreen, cursor::Show);
+    }
+}
+
+/// The terminal in raw mode on the alternate screen; restored when dropped and on panic.
+struct Tui {
+    terminal: Terminal<CrosstermBackend<Stdout>>,
+}
+
+impl Tui {
+    fn enter() -> Result<Self> {
+        let default_hook = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |panic| {
+            restore_terminal();
+            default_hook(panic);
+        }));
+        TERMINAL_ACTIVE.store(true, Ordering::SeqCst);
+        let terminal = enable_raw_mode()
+            .and_then(|()| execute!(stdout(), EnterAlternateScreen, cursor::Hide))
+            .and_then(|()| Terminal::new(CrosstermBackend::new(stdout())));
+        match terminal {
+            Ok(terminal) => Ok(Self { terminal }),
+            Err(e) => {
+                restore_terminal();
+                Err(e).context("cannot set up the terminal")
+            }
+        }
+    }
+}
+
+impl Drop for Tui {
+    fn drop(&mut self) {
+        restore_terminal();
+    }
+}
+
+fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
+    if !stdout().is_terminal() {
+        bail!("standard output is not a terminal: run sonar-viewer in a terminal (or in tmux)");
+    }
+    let node = args
+        .ipc
+        .node("sonar-viewer")
+        .context("cannot join the iceoryx2 pipeline")?;
+    let quit = quit_on_signals(&node)?;
+    let mode = match args.color {
+        ColorArg::Auto => ColorMode::detect(std::env::var("COLORTERM").ok().as_deref()),
+        ColorArg::Truecolor => ColorMode::TrueColor,
+        ColorArg::Ansi256 => ColorMode::Indexed256,
+    };
+    let mut app = App::new(Palette::new(mode), args.view.into());
+    match &log {
+        Ok(path) => info!(log = %path.display(), ?mode, "viewer starting"),
+        Err(problem) => app.message = Some(problem.clone()),
+    }
+    let mut source = Source::new(node, Instant::now());
+    let mut cache = MapCache::default();
+    let mut tui = Tui::enter()?;
+
+    let frame = Duration::from_secs(1) / args.fps;
+    let mut next_poll = Instant::now();
+    let mut last_draw: Option<Instant> = None;
+    let mut dirty = true;
+    while !quit.load(Ordering::Relaxed) {
+        let now = Instant::now();
+        if now >= next_poll {
+            dirty |= source.poll(&mut app, now);
+            next_poll = now + frame;
+        }
+        if dirty || last_draw.is_none_or(|t| now.duration_since(t) >= IDLE_REDRAW) {
+            let mut info = DrawInfo::default();
+            tui.terminal
+                .draw(|f| info = ui::draw(f, &app, &mut cache, now))
+                .context("cannot draw")?;
+            app.map_px = info.map_px;
+            dirty = false;
+            last_draw = Some(now);
+        }
+        let timeout = next_poll.saturating_duration_since(Instant::now());
+        if event::poll(timeout).context("cannot read the terminal")? {
+            // Take every queued event before drawing again, so held-down keys never lag behind.
+            loop {
+                if let Event::Key(key) = event::read().context("cannot read the terminal")?
+                    && let Some(action) = app.on_key(key)
+                    && perform(action, &mut app, &mut source, &args)
+                {
+                    info!("quit");
+                    return Ok(());
+                }
+                if !event::poll(Duration::ZERO).context("cannot read the terminal")? {
+                    break;
+                }
+            }
+            dirty = true;
+        }
+    }
+    info!("quit on a signal");
+    Ok(())
+}
+
+/// Carries out an action and reports the outcome in the status line; true to quit.
+fn perform(action: Action, app: &mut App, source: &mut Source, args: &Args) -> bool {
+    let now = Instant::now();
+    let what = action.describe();
+    let outcome = match action {
+        Action::Quit => return true,
+        Action::Scan(cmd) => delivery(source.send_scan(cmd, now), "driver"),
+        Action::Fusion(cmd) => delivery(source.send_fusion(cmd, now), "fusion engine"),
+        Action::SaveMap => match &app.grid {
+            None => Err("no map yet".to_owned()),
+            Some(grid) => export::save_png(&args.save_dir, grid, unix_time_ns() / 1_000_000_000)
+                .map(|path| format!("saved {}", path.display()))
+                .map_err(|e| e.to_string()),
+        },
+    };
+    app.message = Some(match outcome {
+        Ok(done) => {
+            info!("{what}: {done}");
+            format!("{what}: {done}")
+        }
+        Err(e) => {
+            warn!("{what}: {e}");
+            format!("{what} failed: {e}")
+        }
+    });
+    false
+}
+
+fn delivery(sent: Result<usize, String>, receiver: &str) -> Result<String, String> {
+    match sent? {
+        0 => Err(format!("no {receiver} is listening")),
+        _ => Ok("sent".to_owned()),
+    }
+}

@@ -1,0 +1,979 @@
+//! The viewer's state and what keys do to it.
+//!
+//! No I/O here: the IPC layer feeds copies of snapshots in through the `on_*` methods, key presses
+//! come in through [`App::on_key`], and whatever must reach the outside world (commands, saving a
+//! PNG, quitting) comes out as an [`Action`]. Times are passed in, never read, so the tests control
+//! the clock.
+
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+use crossterm::event::{KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
+use sonar_common::ipc::{
+    DriverStatus, FusionCommand, FusionCommandKind, GridHeader, LAYOUT_VERSION, RADAR_MAX_BINS,
+    Radar, Reading, ScanCommand, ScanCommandKind, ScanMode, model_code, preset_code, rule_code,
+};
+use sonar_common::sensor::SensorConfig;
+
+use crate::heatmap::{MAX_PIXELS_PER_CELL, Palette, Viewport};
+
+/// How long a producer may go without a sample or a live publisher before it counts as gone. The
+/// driver publishes its status every second and publishers are checked every second, so three
+/// seconds rides out a busy moment without letting a crash go unnoticed for long.
+pub const PEER_TIMEOUT: Duration = Duration::from_secs(3);
+/// Readings listed in the status panel.
+pub const LAST_READINGS: usize = 3;
+/// One key press turns or widens the local-scan segment by one reading's span.
+pub const SEGMENT_STEP_DEG: f32 = 6.0;
+/// The narrowest local scan the selection allows: two readings.
+pub const SEGMENT_MIN_WIDTH_DEG: f32 = 12.0;
+/// Cursor steps per key press with Shift.
+const FAST_STEPS: i64 = 8;
+
+/// What the main area shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum View {
+    /// The probability map.
+    Map,
+    /// The basic method's radar display.
+    Radar,
+    /// Both side by side.
+    Split,
+}
+
+impl View {
+    fn next(self) -> Self {
+        match self {
+            View::Map => View::Radar,
+            View::Radar => View::Split,
+            View::Split => View::Map,
+        }
+    }
+}
+
+/// Whether a producer process is there.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Liveness {
+    /// Never seen since the viewer started.
+    Waiting,
+    Alive,
+    /// Seen before, silent for this long.
+    Gone(Duration),
+}
+
+/// When a producer was last seen: a sample from it, or its publisher with a live node.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct Peer {
+    last_seen: Option<Instant>,
+}
+
+impl Peer {
+    pub fn seen(&mut self, now: Instant) {
+        self.last_seen = Some(self.last_seen.map_or(now, |t| t.max(now)));
+    }
+
+    pub fn liveness(&self, now: Instant) -> Liveness {
+        match self.last_seen {
+            None => Liveness::Waiting,
+            Some(t) => {
+                let silent = now.saturating_duration_since(t);
+                if silent <= PEER_TIMEOUT {
+                    Liveness::Alive
+                } else {
+                    Liveness::Gone(silent)
+                }
+            }
+        }
+    }
+}
+
+/// A private copy of one `sonar/grid` snapshot (so no shared-memory sample is held across frames).
+#[derive(Debug, Clone, Default)]
+pub struct GridSnapshot {
+    pub header: GridHeader,
+    /// `width × height` cells, row 0 at the lowest y, as published.
+    pub cells: Vec<u8>,
+}
+
+impl GridSnapshot {
+    pub fn width(&self) -> u32 {
+        self.header.width
+    }
+
+    pub fn height(&self) -> u32 {
+        self.header.height
+    }
+
+    pub fn cell(&self, x: u32, y: u32) -> Option<u8> {
+        if x >= self.width() || y >= self.height() {
+            return None;
+        }
+        self.cells
+            .get(y as usize * self.width() as usize + x as usize)
+            .copied()
+    }
+
+    /// World coordinates of the centre of cell (`x`, `y`), metres.
+    pub fn cell_center_m(&self, x: u32, y: u32) -> (f32, f32) {
+        let h = &self.header;
+        (
+            h.origin_x_m + (x as f32 + 0.5) * h.resolution_m,
+            h.origin_y_m + (y as f32 + 0.5) * h.resolution_m,
+        )
+    }
+
+    /// The cell containing the world point (`x_m`, `y_m`).
+    pub fn cell_at_m(&self, x_m: f32, y_m: f32) -> Option<(u32, u32)> {
+        let h = &self.header;
+        let x = ((x_m - h.origin_x_m) / h.resolution_m).floor();
+        let y = ((y_m - h.origin_y_m) / h.resolution_m).floor();
+        let inside = |v: f32, n: u32| v >= 0.0 && v < n as f32;
+        (inside(x, h.width) && inside(y, h.height)).then_some((x as u32, y as u32))
+    }
+
+    /// The cell under the sensor at the last fused reading.
+    pub fn sensor_cell(&self) -> Option<(u32, u32)> {
+        self.cell_at_m(self.header.pose_x_m, self.header.pose_y_m)
+    }
+}
+
+/// Why a grid snapshot cannot be shown; `Ok` when header and payload agree.
+pub fn check_grid(header: &GridHeader, payload_len: usize) -> Result<(), String> {
+    if header.layout_version != LAYOUT_VERSION {
+        return Err(format!(
+            "grid layout version {} (this viewer reads {LAYOUT_VERSION})",
+            header.layout_version
+        ));
+    }
+    let cells = (header.width as usize).checked_mul(header.height as usize);
+    if header.width == 0 || header.height == 0 || cells != Some(payload_len) {
+        return Err(format!(
+            "grid {}×{} arrived with {payload_len} cells",
+            header.width, header.height
+        ));
+    }
+    if !(header.resolution_m.is_finite() && header.resolution_m > 0.0) {
+        return Err(format!("grid resolution {} m", header.resolution_m));
+    }
+    Ok(())
+}
+
+/// Why a radar snapshot cannot be shown.
+pub fn check_radar(radar: &Radar) -> Result<(), String> {
+    if radar.layout_version != LAYOUT_VERSION {
+        return Err(format!(
+            "radar layout version {} (this viewer reads {LAYOUT_VERSION})",
+            radar.layout_version
+        ));
+    }
+    if radar.bin_count as usize > RADAR_MAX_BINS
+        || (radar.bin_count > 0 && !(radar.bin_width_deg.is_finite() && radar.bin_width_deg > 0.0))
+    {
+        return Err(format!(
+            "radar with {} bins of {}°",
+            radar.bin_count, radar.bin_width_deg
+        ));
+    }
+    Ok(())
+}
+
+/// An angular segment, degrees, `from_deg < to_deg`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Segment {
+    pub from_deg: f32,
+    pub to_deg: f32,
+}
+
+impl Segment {
+    /// The segment of `half_width` either side of `center`, kept within `limits`.
+    pub fn around(center: f32, half_width: f32, limits: Segment) -> Self {
+        let width = (2.0 * half_width).min(limits.to_deg - limits.from_deg);
+        let from = (center - width / 2.0).clamp(limits.from_deg, limits.to_deg - width);
+        Self {
+            from_deg: from,
+            to_deg: from + width,
+        }
+    }
+
+    fn center(self) -> f32 {
+        (self.from_deg + self.to_deg) / 2.0
+    }
+
+    fn half_width(self) -> f32 {
+        (self.to_deg - self.from_deg) / 2.0
+    }
+
+    /// Turned counter-clockwise by `delta` (clockwise if negative), same width, within `limits`.
+    pub fn turned(self, delta: f32, limits: Segment) -> Self {
+        Self::around(self.center() + delta, self.half_width(), limits)
+    }
+
+    /// Widened by `delta` on each side (narrowed if negative), never below the minimum width.
+    pub fn widened(self, delta: f32, limits: Segment) -> Self {
+        let half = (self.half_width() + delta).max(SEGMENT_MIN_WIDTH_DEG / 2.0);
+        Self::around(self.center(), half, limits)
+    }
+}
+
+/// Where the sweep is, 0 at the start of its pass and 1 at the end; `None` without a direction.
+pub fn sweep_progress(angle_deg: f32, direction: i32, limits: Segment) -> Option<f32> {
+    let span = limits.to_deg - limits.from_deg;
+    if !(span > 0.0 && angle_deg.is_finite()) {
+        return None;
+    }
+    let f = ((angle_deg - limits.from_deg) / span).clamp(0.0, 1.0);
+    match direction.signum() {
+        1 => Some(f),
+        -1 => Some(1.0 - f),
+        _ => None,
+    }
+}
+
+/// Readings per second from the driver's `readings_published` counter.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct RateMeter {
+    reference: Option<(u64, u64)>,
+    per_second: Option<f64>,
+}
+
+impl RateMeter {
+    /// Rates are taken over at least a second, so the status published on every state change does
+    /// not make them jump.
+    const MIN_SPAN_NS: u64 = 1_000_000_000;
+
+    pub fn update(&mut self, stamp_ns: u64, count: u64) {
+        match self.reference {
+            Some((t0, c0)) if count >= c0 && stamp_ns >= t0 => {
+                let dt = stamp_ns - t0;
+                if dt >= Self::MIN_SPAN_NS {
+                    self.per_second = Some((count - c0) as f64 * 1e9 / dt as f64);
+                    self.reference = Some((stamp_ns, count));
+                }
+            }
+            // First status, or the driver restarted and its counter began again.
+            _ => {
+                self.reference = Some((stamp_ns, count));
+                self.per_second = None;
+            }
+        }
+    }
+
+    pub fn per_second(&self) -> Option<f64> {
+        self.per_second
+    }
+}
+
+/// Names and codes of the fusion settings, as in `sonar_common::ipc`.
+pub const MODELS: &[(u32, &str)] = &[
+    (model_code::PAPER, "paper"),
+    (model_code::LOG_ODDS, "log-odds"),
+    (model_code::SMOOTH, "smooth"),
+];
+pub const RULES: &[(u32, &str)] = &[
+    (rule_code::BAYES, "Bayes"),
+    (rule_code::LOG_ODDS, "log-odds"),
+    (rule_code::DEMPSTER_SHAFER, "Dempster-Shafer"),
+    (rule_code::HIMM, "HIMM"),
+];
+/// "custom" is what the engine reports after a model or rule change; `p` never asks for it.
+pub const PRESETS: &[(u32, &str)] = &[
+    (preset_code::PAPER, "paper"),
+    (preset_code::RECOMMENDED, "recommended"),
+    (preset_code::CUSTOM, "custom"),
+];
+
+/// The name of `code` in `table`, or "#code" for one this viewer does not know.
+pub fn setting_name(table: &[(u32, &str)], code: u32) -> String {
+    table
+        .iter()
+        .find(|(c, _)| *c == code)
+        .map_or_else(|| format!("#{code}"), |(_, n)| (*n).to_owned())
+}
+
+/// The code after `current` among `choices`, wrapping around; the first when `current` is not one.
+fn next_setting(choices: &[u32], current: u32) -> u32 {
+    let next = choices
+        .iter()
+        .position(|&c| c == current)
+        .map_or(0, |i| (i + 1) % choices.len());
+    choices.get(next).copied().unwrap_or(current)
+}
+
+/// The key bindings, for the `?` overlay and `--help`.
+pub const KEYS: &[(&str, &str)] = &[
+    ("f", "full scan"),
+    ("l", "local scan: pick a segment on the radar"),
+    ("  ←/→  ↑/↓", "turn / widen it, Enter scans, Esc cancels"),
+    ("x", "stop scanning"),
+    ("C", "clear the map"),
+    ("m  r  p", "next sensor model / rule / preset"),
+    ("arrows", "move the cursor (Shift: faster)"),
+    ("+  -  0", "zoom in / out / whole map"),
+    ("Tab 1 2 3", "next view / map / radar / split"),
+    ("w", "radar arcs: bin width / beam width"),
+    ("s", "save the map as a PNG"),
+    ("?", "show or hide this help"),
+    ("q  Ctrl-C", "quit"),
+];
+
+/// [`KEYS`] as plain text.
+pub fn key_help_text() -> String {
+    let mut text = String::from("Keys:\n");
+    for (key, what) in KEYS {
+        text.push_str(&format!("  {key:<12} {what}\n"));
+    }
+    text
+}
+
+/// Something only the main loop can do.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Action {
+    Quit,
+    /// Publish on `sonar/commands`.
+    Scan(ScanCommand),
+    /// Publish on `sonar/fusion_commands`.
+    Fusion(FusionCommand),
+    /// Save the current grid as a PNG.
+    SaveMap,
+}
+
+impl Action {
+    /// What the action asks for, in words, for the status line and the log.
+    pub fn describe(&self) -> String {
+        match self {
+            Action::Quit => "quit".to_owned(),
+            Action::SaveMap => "save the map".to_owned(),
+            Action::Scan(cmd) => match cmd.kind() {
+                Some(ScanCommandKind::FullScan) => "full scan".to_owned(),
+                Some(ScanCommandKind::LocalScan) => {
+                    format!("local scan {:+.0}°..{:+.0}°", cmd.from_deg, cmd.to_deg)
+                }
+                Some(ScanCommandKind::Stop) => "stop".to_owned(),
+                Some(ScanCommandKind::Status) => "status request".to_owned(),
+                None => format!("scan command #{}", cmd.kind),
+            },
+            Action::Fusion(cmd) => match cmd.kind() {
+                Some(FusionCommandKind::Clear) => "clear the map".to_owned(),
+                Some(FusionCommandKind::SetModel) => {
+                    format!("sensor model {}", setting_name(MODELS, cmd.value))
+                }
+                Some(FusionCommandKind::SetRule) => {
+                    format!("combination rule {}", setting_name(RULES, cmd.value))
+                }
+                Some(FusionCommandKind::SetPreset) => {
+                    format!("preset {}", setting_name(PRESETS, cmd.value))
+                }
+                None => format!("fusion command #{}", cmd.kind),
+            },
+        }
+    }
+}
+
+/// Zoom, pan and cursor of the map.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct MapView {
+    /// Halvings of the fitting scale; 0 shows the whole grid.
+    pub zoom: u32,
+    /// Grid point (x right, y up) in the middle of the picture when zoomed in.
+    pub center: (f64, f64),
+    /// The cell whose coordinates and probability the status panel shows.
+    pub cursor: Option<(u32, u32)>,
+}
+
+impl MapView {
+    pub fn viewport(&self, grid_w: u32, grid_h: u32, width_px: u32, height_px: u32) -> Viewport {
+        if self.zoom == 0 {
+            return Viewport::fit(grid_w, grid_h, width_px, height_px);
+        }
+        let fit = Viewport::fit_scale(grid_w, grid_h, width_px, height_px);
+        let scale = (fit / f64::from(1u32 << self.zoom.min(30))).max(1.0 / MAX_PIXELS_PER_CELL);
+        Viewport::centred(
+            self.center.0,
+            self.center.1,
+            scale,
+            grid_h,
+            width_px,
+            height_px,
+        )
+    }
+
+    fn cursor_center(&self) -> Option<(f64, f64)> {
+        self.cursor
+            .map(|(x, y)| (f64::from(x) + 0.5, f64::from(y) + 0.5))
+    }
+}
+
+/// Everything the viewer shows.
+#[derive(Debug)]
+pub struct App {
+    pub view: View,
+    pub show_help: bool,
+    pub palette: Palette,
+    pub grid: Option<GridSnapshot>,
+    /// Bumped with every new grid copy, so the renderer knows when to pool again.
+    pub grid_generation: u64,
+    pub radar: Option<Radar>,
+    pub driver: Option<DriverStatus>,
+    pub driver_peer: Peer,
+    pub fusion_peer: Peer,
+    /// The newest readings, newest first.
+    pub readings: VecDeque<Reading>,
+    pub rate: RateMeter,
+    pub map: MapView,
+    /// Pixels of the map picture at the last frame (0 × 0 when no map is shown).
+    pub map_px: (u32, u32),
+    /// The local-scan segment being chosen, while `l` mode is on.
+    pub selection: Option<Segment>,
+    /// The last local scan asked for from here (its limits give the sweep progress).
+    pub local_segment: Option<Segment>,
+    /// Radar arcs as wide as the beam (the paper's picture) instead of one angle bin.
+    pub beam_arcs: bool,
+    /// The status line: the outcome of the last action.
+    pub message: Option<String>,
+    /// Why a service could not be opened, if one could not.
+    pub ipc_problem: Option<String>,
+    /// Angles the head can reach, for the local-scan selection and the sweep progress.
+    pub sweep_limits: Segment,
+}
+
+impl App {
+    pub fn new(palette: Palette, view: View) -> Self {
+        let sensor = SensorConfig::default();
+        Self {
+            view,
+            show_help: false,
+            palette,
+            grid: None,
+            grid_generation: 0,
+            radar: None,
+            driver: None,
+            driver_peer: Peer::default(),
+            fusion_peer: Peer::default(),
+            readings: VecDeque::with_capacity(LAST_READINGS + 1),
+            rate: RateMeter::default(),
+            map: MapView::default(),
+            map_px: (0, 0),
+            selection: None,
+            local_segment: None,
+            beam_arcs: false,
+            message: None,
+            ipc_problem: None,
+            sweep_limits: Segment {
+                from_deg: sensor.sweep_min_deg,
+                to_deg: sensor.sweep_max_deg,
+            },
+        }
+    }
+
+    /// Takes a copy of a grid snapshot (header and cells as read from shared memory).
+    pub fn on_grid(
+        &mut self,
+        header: &GridHeader,
+        cells: &[u8],
+        now: Instant,
+    ) -> Result<(), String> {
+        self.fusion_peer.seen(now);
+        check_grid(header, cells.len())?;
+        let grid = self.grid.get_or_insert_with(GridSnapshot::default);
+        let resized = (grid.header.width, grid.header.height) != (header.width, header.height);
+        grid.header = *header;
+        grid.cells.clear();
+        grid.cells.extend_from_slice(cells);
+        self.grid_generation += 1;
+        if resized || self.map.cursor.is_none() {
+            // A new (or re-sized) map: show all of it, cursor on the sensor.
+            let cursor = grid
+                .sensor_cell()
+                .unwrap_or((header.width / 2, header.height / 2));
+            self.map = MapView {
+                cursor: Some(cursor),
+                ..MapView::default()
+            };
+        }
+        Ok(())
+    }
+
+    pub fn on_radar(&mut self, radar: &Radar, now: Instant) -> Result<(), String> {
+        self.fusion_peer.seen(now);
+        check_radar(radar)?;
+        self.radar = Some(*radar);
+        Ok(())
+    }
+
+    pub fn on_driver_status(&mut self, status: &DriverStatus, now: Instant) -> Result<(), String> {
+        self.driver_peer.seen(now);
+        if status.layout_version != LAYOUT_VERSION {
+            return Err(format!(
+                "driver status layout version {}",
+                status.layout_version
+            ));
+        }
+        self.rate.update(status.stamp_ns, status.readings_published);
+        self.driver = Some(*status);
+        Ok(())
+    }
+
+    pub fn on_reading(&mut self, reading: &Reading, now: Instant) {
+        self.driver_peer.seen(now);
+        self.readings.push_front(*reading);
+        self.readings.truncate(LAST_READINGS);
+    }
+
+    /// Which producers have a publisher whose process is alive.
+    pub fn on_publishers(&mut self, driver_alive: bool, fusion_alive: bool, now: Instant) {
+        if driver_alive {
+            self.driver_peer.seen(now);
+        }
+        if fusion_alive {
+            self.fusion_peer.seen(now);
+        }
+    }
+
+    /// The driver's scan mode, from its status (or the radar when the driver has not said).
+    pub fn scan_mode(&self) -> ScanMode {
+        let from_u32 = |m: u32| u8::try_from(m).map_or(ScanMode::Unknown, ScanMode::from_u8);
+        match self.driver.map(|s| from_u32(s.mode)) {
+            Some(mode) if mode != ScanMode::Unknown => mode,
+            _ => self.radar.map_or(ScanMode::Unknown, |r| from_u32(r.mode)),
+        }
+    }
+
+    /// The limits of the sweep in progress, if known.
+    pub fn sweep_segment(&self) -> Option<Segment> {
+        match self.scan_mode() {
+            ScanMode::Full => Some(self.sweep_limits),
+            ScanMode::Local => self.local_segment,
+            ScanMode::Idle | ScanMode::Unknown => None,
+        }
+    }
+
+    pub fn on_key(&mut self, key: KeyEvent) -> Option<Action> {
+        if key.kind == KeyEventKind::Release {
+            return None;
+        }
+        // Raw mode delivers Ctrl-C as a key, not as SIGINT.
+        if key.modifiers.contains(KeyModifiers::CONTROL) && key.code == KeyCode::Char('c') {
+            return Some(Action::Quit);
+        }
+        if key.code == KeyCode::Char('q') {
+            return Some(Action::Quit);
+        }
+        if self.show_help {
+            self.show_help = false;
+            return None;
+        }
+        if let Some(selection) = self.selection {
+            return self.on_selection_key(selection, key.code);
+        }
+        let fast = if key.modifiers.contains(KeyModifiers::SHIFT) {
+            FAST_STEPS
+        } else {
+            1
+        };
+        match key.code {
+            KeyCode::Char('?') | KeyCode::F(1) => self.show_help = true,
+            KeyCode::Char('f') => return Some(scan(ScanCommandKind::FullScan, None)),
+            KeyCode::Char('x') => return Some(scan(ScanCommandKind::Stop, None)),
+            KeyCode::Char('l') => {
+                // Start from the last local scan, else around the sweep line.
+                let center = self.radar.map_or(0.0, |r| r.current_angle_deg);
+                let center = if center.is_finite() { center } else { 0.0 };
+                self.selection = Some(
+                    self.local_segment
+                        .unwrap_or_else(|| Segment::around(center, 30.0, self.sweep_limits)),
+                );
+                if self.view == View::Map {
+                    self.view = View::Split;
+                }
+            }
+            KeyCode::Char('C') => {
+                return Some(Action::Fusion(FusionCommand::new(
+                    FusionCommandKind::Clear,
+                    0,
+                )));
+            }
+            KeyCode::Char('m') => {
+                return self.next_fusion_setting(FusionCommandKind::SetModel, MODELS, |h| h.model);
+            }
+            KeyCode::Char('r') => {
+                return self.next_fusion_setting(FusionCommandKind::SetRule, RULES, |h| h.rule);
+            }
+            KeyCode::Char('p') => {
+                return self
+                    .next_fusion_setting(FusionCommandKind::SetPreset, PRESETS, |h| h.preset);
+            }
+            KeyCode::Char('s') => return Some(Action::SaveMap),
+            KeyCode::Char('w') => self.beam_arcs = !self.beam_arcs,
+            KeyCode::Tab => self.view = self.view.next(),
+            KeyCode::Char('1') => self.view = View::Map,
+            KeyCode::Char('2') => self.view = View::Radar,
+            KeyCode::Char('3') => self.view = View::Split,
+            KeyCode::Char('+' | '=') => self.zoom(true),
+            KeyCode::Char('-') => self.zoom(false),
+            KeyCode::Char('0') => self.map.zoom = 0,
+            KeyCode::Left => self.move_cursor(-1, 0, fast),
+            KeyCode::Right => self.move_cursor(1, 0, fast),
+            KeyCode::Up => self.move_cursor(0, 1, fast),
+            KeyCode::Down => self.move_cursor(0, -1, fast),
+            _ => {}
+        }
+        None
+    }
+
+    fn on_selection_key(&mut self, selection: Segment, code: KeyCode) -> Option<Action> {
+        let limits = self.sweep_limits;
+        match code {
+            KeyCode::Left => self.selection = Some(selection.turned(SEGMENT_STEP_DEG, limits)),
+            KeyCode::Right => self.selection = Some(selection.turned(-SEGMENT_STEP_DEG, limits)),
+            KeyCode::Up => self.selection = Some(selection.widened(SEGMENT_STEP_DEG, limits)),
+            KeyCode::Down => self.selection = Some(selection.widened(-SEGMENT_STEP_DEG, limits)),
+            KeyCode::Enter => {
+                self.selection = None;
+                self.local_segment = Some(selection);
+                return Some(scan(ScanCommandKind::LocalScan, Some(selection)));
+            }
+            KeyCode::Esc | KeyCode::Char('l') => self.selection = None,
+            _ => {}
+        }
+        None
+    }
+
+    /// Asks the fusion engine for the setting after the one in use (as the grid reports it).
+    fn next_fusion_setting(
+        &self,
+        kind: FusionCommandKind,
+        table: &[(u32, &str)],
+        in_use: fn(&GridHeader) -> u32,
+    ) -> Option<Action> {
+        let choices: Vec<u32> = table
+            .iter()
+            .map(|(code, _)| *code)
+            // "custom" is a state the engine reports, not one to ask for.
+            .filter(|&code| !(kind == FusionCommandKind::SetPreset && code == preset_code::CUSTOM))
+            .collect();
+        let current = self.grid.as_ref().map_or(0, |g| in_use(&g.header));
+        let value = next_setting(&choices, current);
+        Some(Action::Fusion(FusionCommand::new(kind, value)))
+    }
+
+    fn zoom(&mut self, closer: bool) {
+        let Some(grid) = &self.grid else { return };
+        let (w, h) = self.map_px;
+        if closer {
+            let fit = Viewport::fit_scale(grid.width(), grid.height(), w, h);
+            let next = self.map.zoom + 1;
+            // Stop where one cell fills MAX_PIXELS_PER_CELL pixels.
+            if next <= 30 && fit / f64::from(1u32 << next) >= 1.0 / MAX_PIXELS_PER_CELL {
+                self.map.zoom = next;
+                if let Some(c) = self.map.cursor_center() {
+                    self.map.center = c;
+                }
+            }
+        } else {
+            self.map.zoom = self.map.zoom.saturating_sub(1);
+        }
+    }
+
+    /// Moves the cursor by `steps` pixels (at least one cell); when it leaves the picture the view
+    /// re-centres on it, which is how the map pans.
+    fn move_cursor(&mut self, dx: i64, dy: i64, steps: i64) {
+        let Some(grid) = &self.grid else { return };
+        let (gw, gh) = (grid.width(), grid.height());
+        let (w, h) = self.map_px;
+        let vp = self.map.viewport(gw, gh, w, h);
+        let cells_per_step = (vp.scale.round() as i64).max(1) * steps;
+        let (x, y) = self.map.cursor.unwrap_or((gw / 2, gh / 2));
+        let clamp = |v: i64, n: u32| v.clamp(0, i64::from(n) - 1) as u32;
+        let cursor = (
+            clamp(i64::from(x) + dx * cells_per_step, gw),
+            clamp(i64::from(y) + dy * cells_per_step, gh),
+        );
+        self.map.cursor = Some(cursor);
+        if self.map.zoom > 0
+            && vp.pixel_of(cursor.0, cursor.1, gh).is_none()
+            && let Some(c) = self.map.cursor_center()
+        {
+            self.map.center = c;
+        }
+    }
+}
+
+fn scan(kind: ScanCommandKind, segment: Option<Segment>) -> Action {
+    let (from, to) = segment.map_or((0.0, 0.0), |s| (s.from_deg, s.to_deg));
+    Action::Scan(ScanCommand::new(kind, from, to))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::heatmap::ColorMode;
+
+    fn key(code: KeyCode) -> KeyEvent {
+        KeyEvent::new(code, KeyModifiers::NONE)
+    }
+
+    fn app() -> App {
+        App::new(Palette::new(ColorMode::TrueColor), View::Split)
+    }
+
+    fn grid_header(w: u32, h: u32) -> GridHeader {
+        GridHeader {
+            layout_version: LAYOUT_VERSION,
+            width: w,
+            height: h,
+            resolution_m: 0.05,
+            origin_x_m: -(w as f32) * 0.025,
+            origin_y_m: -(h as f32) * 0.025,
+            model: model_code::PAPER,
+            rule: rule_code::HIMM,
+            preset: preset_code::CUSTOM,
+            ..GridHeader::default()
+        }
+    }
+
+    #[test]
+    fn quit_keys() {
+        let mut app = app();
+        assert_eq!(app.on_key(key(KeyCode::Char('q'))), Some(Action::Quit));
+        let ctrl_c = KeyEvent::new(KeyCode::Char('c'), KeyModifiers::CONTROL);
+        assert_eq!(app.on_key(ctrl_c), Some(Action::Quit));
+        app.show_help = true;
+        assert_eq!(app.on_key(key(KeyCode::Char('q'))), Some(Action::Quit));
+    }
+
+    #[test]
+    fn scan_keys_make_driver_commands() {
+        let mut app = app();
+        let Some(Action::Scan(cmd)) = app.on_key(key(KeyCode::Char('f'))) else {
+            panic!("f should start a full scan");
+        };
+        assert_eq!(cmd.kind(), Some(ScanCommandKind::FullScan));
+        let Some(Action::Scan(cmd)) = app.on_key(key(KeyCode::Char('x'))) else {
+            panic!("x should stop");
+        };
+        assert_eq!(cmd.kind(), Some(ScanCommandKind::Stop));
+    }
+
+    #[test]
+    fn local_scan_is_chosen_with_arrows_and_sent_with_enter() {
+        let mut app = app();
+        app.view = View::Map;
+        assert_eq!(app.on_key(key(KeyCode::Char('l'))), None);
+        assert_eq!(app.view, View::Split, "the radar must be visible to choose");
+        assert_eq!(
+            app.selection,
+            Some(Segment {
+                from_deg: -30.0,
+                to_deg: 30.0
+            })
+        );
+        app.on_key(key(KeyCode::Left)); // turn counter-clockwise
+        app.on_key(key(KeyCode::Down)); // narrow
+        // While choosing, f is not a full scan.
+        assert_eq!(app.on_key(key(KeyCode::Char('f'))), None);
+        let Some(Action::Scan(cmd)) = app.on_key(key(KeyCode::Enter)) else {
+            panic!("Enter should send the local scan");
+        };
+        assert_eq!(cmd.kind(), Some(ScanCommandKind::LocalScan));
+        assert_eq!((cmd.from_deg, cmd.to_deg), (-18.0, 30.0));
+        assert_eq!(Action::Scan(cmd).describe(), "local scan -18°..+30°");
+        assert_eq!(app.selection, None);
+        assert_eq!(app.local_segment.map(|s| s.to_deg), Some(30.0));
+        // The next selection starts from the segment just scanned.
+        app.on_key(key(KeyCode::Char('l')));
+        assert_eq!(app.selection, app.local_segment);
+    }
+
+    #[test]
+    fn selection_stays_within_the_sweep_and_a_minimum_width() {
+        let limits = Segment {
+            from_deg: -150.0,
+            to_deg: 150.0,
+        };
+        let mut s = Segment::around(140.0, 30.0, limits);
+        assert_eq!((s.from_deg, s.to_deg), (90.0, 150.0));
+        for _ in 0..100 {
+            s = s.widened(-SEGMENT_STEP_DEG, limits);
+        }
+        assert_eq!(s.to_deg - s.from_deg, SEGMENT_MIN_WIDTH_DEG);
+        for _ in 0..100 {
+            s = s.turned(-SEGMENT_STEP_DEG, limits);
+        }
+        assert_eq!(s.from_deg, -150.0);
+        for _ in 0..100 {
+            s = s.widened(SEGMENT_STEP_DEG, limits);
+        }
+        assert_eq!((s.from_deg, s.to_deg), (-150.0, 150.0));
+    }
+
+    #[test]
+    fn escape_cancels_the_selection() {
+        let mut app = app();
+        app.on_key(key(KeyCode::Char('l')));
+        assert_eq!(app.on_key(key(KeyCode::Esc)), None);
+        assert_eq!(app.selection, None);
+        assert_eq!(app.local_segment, None);
+    }
+
+    #[test]
+    fn fusion_keys_cycle_from_the_settings_in_use() {
+        let mut app = app();
+        let t = Instant::now();
+        app.on_grid(&grid_header(4, 4), &[0; 16], t).unwrap();
+        let fusion = |a: Option<Action>| match a {
+            Some(Action::Fusion(c)) => (c.kind(), c.value),
+            other => panic!("expected a fusion command, got {other:?}"),
+        };
+        assert_eq!(
+            fusion(app.on_key(key(KeyCode::Char('m')))),
+            (Some(FusionCommandKind::SetModel), model_code::LOG_ODDS)
+        );
+        // HIMM is the last rule: wrap to the first.
+        assert_eq!(
+            fusion(app.on_key(key(KeyCode::Char('r')))),
+            (Some(FusionCommandKind::SetRule), rule_code::BAYES)
+        );
+        // From "custom", the first selectable preset; "custom" itself is never sent.
+        assert_eq!(
+            fusion(app.on_key(key(KeyCode::Char('p')))),
+            (Some(FusionCommandKind::SetPreset), preset_code::PAPER)
+        );
+        assert_eq!(
+            next_setting(
+                &[preset_code::PAPER, preset_code::RECOMMENDED],
+                preset_code::RECOMMENDED
+            ),
+            preset_code::PAPER
+        );
+        assert_eq!(
+            fusion(app.on_key(key(KeyCode::Char('C')))),
+            (Some(FusionCommandKind::Clear), 0)
+        );
+        assert_eq!(setting_name(RULES, 99), "#99");
+        let himm = Action::Fusion(FusionCommand::new(
+            FusionCommandKind::SetRule,
+            rule_code::HIMM,
+        ));
+        assert_eq!(himm.describe(), "combination rule HIMM");
+    }
+
+    #[test]
+    fn views_and_help() {
+        let mut app = app();
+        app.on_key(key(KeyCode::Char('1')));
+        assert_eq!(app.view, View::Map);
+        app.on_key(key(KeyCode::Tab));
+        assert_eq!(app.view, View::Radar);
+        app.on_key(key(KeyCode::Char('?')));
+        assert!(app.show_help);
+        // Any key closes the help without acting.
+        assert_eq!(app.on_key(key(KeyCode::Char('f'))), None);
+        assert!(!app.show_help);
+    }
+
+    #[test]
+    fn cursor_moves_by_a_pixel_and_zoom_pans_to_it() {
+        let mut app = app();
+        let t = Instant::now();
+        app.on_grid(&grid_header(400, 200), &vec![0; 400 * 200], t)
+            .unwrap();
+        app.map_px = (100, 50); // 4 cells per pixel at the fitting zoom
+        assert_eq!(app.map.cursor, Some((200, 100)), "starts on the sensor");
+        app.on_key(key(KeyCode::Right));
+        assert_eq!(app.map.cursor, Some((204, 100)));
+        app.on_key(KeyEvent::new(KeyCode::Up, KeyModifiers::SHIFT));
+        assert_eq!(app.map.cursor, Some((204, 132)));
+        app.on_key(key(KeyCode::Char('+')));
+        assert_eq!(app.map.zoom, 1);
+        assert_eq!(app.map.center, (204.5, 132.5));
+        // Far to the left, out of the zoomed picture: the view follows.
+        for _ in 0..20 {
+            app.on_key(KeyEvent::new(KeyCode::Left, KeyModifiers::SHIFT));
+        }
+        assert_eq!(app.map.cursor, Some((0, 132)));
+        let vp = app.map.viewport(400, 200, 100, 50);
+        assert!(vp.pixel_of(0, 132, 200).is_some(), "{vp:?}");
+        // Zooming stops at MAX_PIXELS_PER_CELL pixels per cell: fit 4 → 1/8 is 5 halvings.
+        for _ in 0..10 {
+            app.on_key(key(KeyCode::Char('+')));
+        }
+        assert_eq!(app.map.zoom, 5);
+        app.on_key(key(KeyCode::Char('0')));
+        assert_eq!(app.map.zoom, 0);
+    }
+
+    #[test]
+    fn liveness_waits_then_lives_then_goes() {
+        let t = Instant::now();
+        let mut peer = Peer::default();
+        assert_eq!(peer.liveness(t), Liveness::Waiting);
+        peer.seen(t);
+        assert_eq!(peer.liveness(t + PEER_TIMEOUT), Liveness::Alive);
+        let later = t + PEER_TIMEOUT + Duration::from_secs(2);
+        assert_eq!(
+            peer.liveness(later),
+            Liveness::Gone(PEER_TIMEOUT + Duration::from_secs(2))
+        );
+        peer.seen(later);
+        assert_eq!(peer.liveness(later), Liveness::Alive);
+    }
+
+    #[test]
+    fn bad_snapshots_are_refused() {
+        let mut app = app();
+        let t = Instant::now();
+        assert!(app.on_grid(&grid_header(4, 4), &[0; 15], t).is_err());
+        let mut old = grid_header(4, 4);
+        old.layout_version = 0;
+        assert!(app.on_grid(&old, &[0; 16], t).is_err());
+        let mut zero_res = grid_header(4, 4);
+        zero_res.resolution_m = 0.0;
+        assert!(app.on_grid(&zero_res, &[0; 16], t).is_err());
+        assert!(app.grid.is_none());
+        // A refused snapshot still shows that fusion is there.
+        assert_eq!(app.fusion_peer.liveness(t), Liveness::Alive);
+        let radar = Radar {
+            bin_count: 400,
+            ..Radar::default()
+        };
+        assert!(app.on_radar(&radar, t).is_err());
+    }
+
+    #[test]
+    fn rate_from_the_driver_counter() {
+        let mut rate = RateMeter::default();
+        rate.update(10_000_000_000, 100);
+        assert_eq!(rate.per_second(), None);
+        rate.update(10_500_000_000, 102); // too soon: keep the reference
+        assert_eq!(rate.per_second(), None);
+        rate.update(12_000_000_000, 110);
+        assert_eq!(rate.per_second(), Some(5.0));
+        rate.update(13_000_000_000, 3); // restarted driver
+        assert_eq!(rate.per_second(), None);
+    }
+
+    #[test]
+    fn sweep_progress_follows_the_direction() {
+        let limits = Segment {
+            from_deg: -150.0,
+            to_deg: 150.0,
+        };
+        let near = |a: Option<f32>, b: f32| a.is_some_and(|a| (a - b).abs() < 1e-6);
+        assert!(near(sweep_progress(-150.0, 1, limits), 0.0));
+        assert!(near(sweep_progress(0.0, 1, limits), 0.5));
+        assert!(near(sweep_progress(90.0, -1, limits), 0.2));
+        assert_eq!(sweep_progress(0.0, 0, limits), None);
+    }
+
+    #[test]
+    fn world_and_cell_coordinates_agree() {
+        let grid = GridSnapshot {
+            header: grid_header(100, 80),
+            cells: vec![0; 8000],
+        };
+        assert_eq!(grid.sensor_cell(), Some((50, 40)));
+        let (x, y) = grid.cell_center_m(10, 70);
+        assert_eq!(grid.cell_at_m(x, y), Some((10, 70)));
+        assert_eq!(grid.cell_at_m(100.0, 0.0), None);
+    }
+}

@@ -1,0 +1,706 @@
+//! Rendering: the [`App`] into a ratatui buffer. Nothing here changes the state; the only thing
+//! kept between frames is the pooled map picture in [`MapCache`], which is recomputed only when a
+//! new grid arrives or the view moves.
+//!
+//! Layout: the view(s) on the left, the status panel on the right (when the terminal is at least
+//! [`PANEL_MIN_TERMINAL_WIDTH`] wide), one status line at the bottom, the key help on top when asked.
+//!
+//! Text without colour (what `tmux capture-pane -p` returns) still tells the map apart: in the map,
+//! `▄` marks a terminal cell holding an occupied pixel (a wall), `▀` observed space without walls,
+//! a blank never-observed space or the outside of the grid, `+` the cursor and `@` the sensor.
+
+use std::time::Instant;
+
+use ratatui::Frame;
+use ratatui::buffer::Buffer;
+use ratatui::layout::{Constraint, Layout, Rect};
+use ratatui::style::{Color, Modifier, Style};
+use ratatui::symbols::Marker;
+use ratatui::text::{Line, Span};
+use ratatui::widgets::canvas::{Canvas, Circle, Context, Line as CanvasLine, Points};
+use ratatui::widgets::{Block, Clear, Paragraph, Widget, Wrap};
+use sonar_common::ipc::{
+    CELL_UNKNOWN, LinkState, Radar, Reading, ScanMode, decode_probability, flags,
+};
+
+use crate::app::{
+    App, KEYS, Liveness, MODELS, PRESETS, RULES, Segment, View, setting_name, sweep_progress,
+};
+use crate::heatmap::{Palette, Pooled, Viewport, cell_rgb, is_occupied};
+
+/// Width of the status panel, borders included.
+pub const PANEL_WIDTH: u16 = 34;
+/// Narrower terminals show only the view(s) and the status line.
+pub const PANEL_MIN_TERMINAL_WIDTH: u16 = 72;
+/// Radar range when the snapshot does not give one (the SRF05's 4 m).
+const DEFAULT_RADAR_RANGE_M: f64 = 4.0;
+
+const LABEL: Style = Style::new().fg(Color::DarkGray);
+const WALL_GLYPH: char = '▄';
+const OBSERVED_GLYPH: char = '▀';
+const CURSOR_GLYPH: char = '+';
+const SENSOR_GLYPH: char = '@';
+
+/// The pooled map picture and what it was computed from.
+#[derive(Debug, Default)]
+pub struct MapCache {
+    key: Option<(u64, Viewport)>,
+    pooled: Pooled,
+}
+
+impl MapCache {
+    /// Forgets the picture, so the next frame pools again (for the benchmark's cold frames).
+    pub fn invalidate(&mut self) {
+        self.key = None;
+    }
+}
+
+/// What the frame learned about the layout, for key handling until the next frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct DrawInfo {
+    /// Pixels of the map picture (0 × 0 when the map is not shown).
+    pub map_px: (u32, u32),
+}
+
+pub fn draw(frame: &mut Frame, app: &App, cache: &mut MapCache, now: Instant) -> DrawInfo {
+    let area = frame.area();
+    render(area, frame.buffer_mut(), app, cache, now)
+}
+
+/// Renders the whole screen into `buf`.
+pub fn render(
+    area: Rect,
+    buf: &mut Buffer,
+    app: &App,
+    cache: &mut MapCache,
+    now: Instant,
+) -> DrawInfo {
+    let [main, bottom] = Layout::vertical([Constraint::Min(1), Constraint::Length(1)]).areas(area);
+    let (views, panel) = if main.width >= PANEL_MIN_TERMINAL_WIDTH {
+        let [views, panel] =
+            Layout::horizontal([Constraint::Min(1), Constraint::Length(PANEL_WIDTH)]).areas(main);
+        (views, Some(panel))
+    } else {
+        (main, None)
+    };
+    let mut info = DrawInfo::default();
+    match app.view {
+        View::Map => info.map_px = render_map(views, buf, app, cache, now),
+        View::Radar => render_radar(views, buf, app, now),
+        View::Split => {
+            let [left, right] =
+                Layout::horizontal([Constraint::Percentage(50), Constraint::Percentage(50)])
+                    .areas(views);
+            info.map_px = render_map(left, buf, app, cache, now);
+            render_radar(right, buf, app, now);
+        }
+    }
+    if let Some(panel) = panel {
+        // Wrapped so that a long IPC problem is readable in full.
+        Paragraph::new(status_lines(app, now))
+            .wrap(Wrap { trim: false })
+            .block(Block::bordered().title(" status "))
+            .render(panel, buf);
+    }
+    Paragraph::new(bottom_line(app)).render(bottom, buf);
+    if app.show_help {
+        render_help(area, buf);
+    }
+    info
+}
+
+/// A centred note inside an empty view.
+fn render_note(area: Rect, buf: &mut Buffer, text: String, style: Style) {
+    let y = area.y + area.height / 2;
+    if area.height > 0 {
+        Paragraph::new(Line::styled(text, style).centered())
+            .render(Rect::new(area.x, y, area.width, 1), buf);
+    }
+}
+
+/// What to say in a view that has nothing to show yet.
+fn waiting_note(app: &App, now: Instant, what: &str) -> (String, Style) {
+    match app.fusion_peer.liveness(now) {
+        Liveness::Waiting => (
+            "waiting for fusion…".to_owned(),
+            Style::new().fg(Color::Yellow),
+        ),
+        Liveness::Alive => (
+            format!("fusion is up, waiting for its first {what}…"),
+            Style::new().fg(Color::Yellow),
+        ),
+        Liveness::Gone(_) => (
+            format!("fusion gone before its first {what}"),
+            Style::new().fg(Color::Red),
+        ),
+    }
+}
+
+/// The probability map; returns the picture's size in pixels.
+fn render_map(
+    area: Rect,
+    buf: &mut Buffer,
+    app: &App,
+    cache: &mut MapCache,
+    now: Instant,
+) -> (u32, u32) {
+    let title = match &app.grid {
+        Some(g) => {
+            let zoom = if app.map.zoom == 0 {
+                String::new()
+            } else {
+                format!(" · zoom ×{}", 1u64 << app.map.zoom.min(63))
+            };
+            format!(
+                " map {}×{} · {}{zoom} ",
+                g.width(),
+                g.height(),
+                format_length(g.header.resolution_m)
+            )
+        }
+        None => " map ".to_owned(),
+    };
+    let block = Block::bordered().title(title);
+    let inner = block.inner(area);
+    block.render(area, buf);
+    let (w, h) = (u32::from(inner.width), 2 * u32::from(inner.height));
+    let Some(grid) = &app.grid else {
+        let (text, style) = waiting_note(app, now, "map");
+        render_note(inner, buf, text, style);
+        return (w, h);
+    };
+    if w == 0 || h == 0 {
+        return (w, h);
+    }
+    let vp = app.map.viewport(grid.width(), grid.height(), w, h);
+    let key = (app.grid_generation, vp);
+    if cache.key != Some(key) {
+        cache.pooled.pool(
+            &grid.cells,
+            grid.width() as usize,
+            grid.height() as usize,
+            &vp,
+        );
+        cache.key = Some(key);
+    }
+    paint_pixels(inner, buf, &cache.pooled, &app.palette);
+
+    let mut mark = |cell: Option<(u32, u32)>, glyph: char| {
+        let Some((px, py)) = cell.and_then(|(x, y)| vp.pixel_of(x, y, grid.height())) else {
+            return;
+        };
+        let pixel = cache.pooled.get(px, py);
+        // Black on light colours, white on dark ones.
+        let [r, g, b] = pixel.map_or([0; 3], cell_rgb);
+        let fg = if 299 * u32::from(r) + 587 * u32::from(g) + 114 * u32::from(b) > 128_000 {
+            Color::Black
+        } else {
+            Color::White
+        };
+        let pos = (inner.x + px as u16, inner.y + (py / 2) as u16);
+        if let Some(cell) = buf.cell_mut(pos) {
+            cell.set_char(glyph)
+                .set_fg(fg)
+                .set_bg(app.palette.color(pixel))
+                .set_style(Modifier::BOLD);
+        }
+    };
+    mark(grid.sensor_cell(), SENSOR_GLYPH);
+    mark(app.map.cursor, CURSOR_GLYPH);
+    (w, h)
+}
+
+/// Two pixels per terminal cell, upper and lower, drawn with half blocks.
+fn paint_pixels(area: Rect, buf: &mut Buffer, pooled: &Pooled, palette: &Palette) {
+    for row in 0..area.height {
+        for col in 0..area.width {
+            let upper = pooled.get(u32::from(col), 2 * u32::from(row));
+            let lower = pooled.get(u32::from(col), 2 * u32::from(row) + 1);
+            let (glyph, fg, bg) = half_block(upper, lower, palette);
+            if let Some(cell) = buf.cell_mut((area.x + col, area.y + row)) {
+                cell.set_char(glyph).set_fg(fg).set_bg(bg);
+            }
+        }
+    }
+}
+
+/// Glyph, foreground and background of a cell showing pixel `upper` over pixel `lower`.
+///
+/// One colour per pixel either way; the glyph is chosen so that the text alone carries the class:
+/// `▄` (foreground = lower, background = upper) when a pixel is occupied, `▀` (foreground = upper)
+/// when a pixel is observed, else a blank. A never-observed pixel over one outside the grid (only
+/// along the grid's edge) is drawn as a blank in the never-observed colour.
+fn half_block(upper: Option<u8>, lower: Option<u8>, palette: &Palette) -> (char, Color, Color) {
+    let (cu, cl) = (palette.color(upper), palette.color(lower));
+    let occupied = |p: Option<u8>| p.is_some_and(is_occupied);
+    let observed = |p: Option<u8>| p.is_some_and(|v| v != CELL_UNKNOWN);
+    if occupied(upper) || occupied(lower) {
+        (WALL_GLYPH, cl, cu)
+    } else if observed(upper) || observed(lower) {
+        (OBSERVED_GLYPH, cu, cl)
+    } else {
+        let bg = if upper.is_some() { cu } else { cl };
+        (' ', bg, bg)
+    }
+}
+
+/// The basic method's display: arcs at the latest range per angle, range rings, the sweep line and
+/// the local-scan segment being chosen. Angles as in the readings: 0° along the sensor's forward
+/// axis, drawn to the right like the map's x axis, counter-clockwise positive.
+fn render_radar(area: Rect, buf: &mut Buffer, app: &App, now: Instant) {
+    let title = match &app.radar {
+        Some(r) => format!(
+            " radar · {} · sweep {} {} ",
+            format_length(radar_range(r) as f32),
+            r.sweep_id,
+            direction_name(r.direction)
+        ),
+        None => " radar ".to_owned(),
+    };
+    let block = Block::bordered().title(title);
+    let inner = block.inner(area);
+    block.render(area, buf);
+    let Some(radar) = &app.radar else {
+        let (text, style) = waiting_note(app, now, "radar");
+        render_note(inner, buf, text, style);
+        return;
+    };
+    if inner.width == 0 || inner.height == 0 {
+        return;
+    }
+    let range = radar_range(radar);
+    // Terminal cells are about twice as tall as wide: scale the bounds so circles stay round.
+    let (w, h) = (f64::from(inner.width), 2.0 * f64::from(inner.height));
+    let half = 1.08 * range;
+    let (hx, hy) = if w >= h {
+        (half * w / h, half)
+    } else {
+        (half, half * h / w)
+    };
+    // Canvas resolution (braille: 2 × 4 dots per cell), to space the points of the arcs.
+    let dot = (2.0 * hx / (2.0 * w)).min(2.0 * hy / (4.0 * f64::from(inner.height)));
+    let label_cell = 2.0 * hx / w;
+    let selection = app.selection;
+    let beam_arcs = app.beam_arcs;
+    Canvas::default()
+        .marker(Marker::Braille)
+        .x_bounds([-hx, hx])
+        .y_bounds([-hy, hy])
+        .paint(|ctx| {
+            paint_rings(ctx, range, label_cell);
+            ctx.layer();
+            let (echoes, silent) = radar_points(radar, range, dot, beam_arcs);
+            ctx.draw(&Points {
+                coords: &silent,
+                color: Color::DarkGray,
+            });
+            ctx.draw(&Points {
+                coords: &echoes,
+                color: Color::LightRed,
+            });
+            ctx.layer();
+            if radar.current_angle_deg.is_finite() {
+                let (x, y) = polar(range, f64::from(radar.current_angle_deg));
+                ctx.draw(&CanvasLine::new(0.0, 0.0, x, y, Color::Green));
+            }
+            if let Some(s) = selection {
+                paint_selection(ctx, s, range, dot);
+            }
+        })
+        .render(inner, buf);
+}
+
+fn radar_range(radar: &Radar) -> f64 {
+    let r = f64::from(radar.max_range_m);
+    if r.is_finite() && r > 0.0 {
+        r
+    } else {
+        DEFAULT_RADAR_RANGE_M
+    }
+}
+
+fn polar(r: f64, deg: f64) -> (f64, f64) {
+    let a = deg.to_radians();
+    (r * a.cos(), r * a.sin())
+}
+
+/// Canvas coordinates of points to draw.
+type Dots = Vec<(f64, f64)>;
+
+/// Points `dot` apart along the arc of radius `r` from `from_deg` to `to_deg`.
+fn arc(r: f64, from_deg: f64, to_deg: f64, dot: f64, out: &mut Dots) {
+    let span = (to_deg - from_deg).to_radians().abs();
+    let n = ((r * span / dot.max(1e-9)).ceil() as usize).clamp(1, 10_000);
+    out.extend((0..=n).map(|i| polar(r, from_deg + (to_deg - from_deg) * i as f64 / n as f64)));
+}
+
+/// Rings at round distances, labelled in metres along the blind side behind the sensor (180°).
+fn paint_rings(ctx: &mut Context, range: f64, label_cell: f64) {
+    let step = ring_step(range);
+    let rings = (range / step + 1e-6).floor() as usize;
+    // Label every k-th ring so the labels (up to 6 cells) never overlap.
+    let every = ((6.0 * label_cell / step).ceil() as usize).max(1);
+    for k in 1..=rings {
+        let r = k as f64 * step;
+        ctx.draw(&Circle {
+            x: 0.0,
+            y: 0.0,
+            radius: r,
+            color: Color::DarkGray,
+        });
+        if k % every == 0 || k == rings {
+            ctx.print(-r, 0.0, Span::styled(format_length(r as f32), LABEL));
+        }
+    }
+    ctx.print(range, 0.0, Span::styled("0°", LABEL));
+    ctx.print(0.0, range, Span::styled("90°", LABEL));
+}
+
+/// The largest round step that still gives at least three rings.
+fn ring_step(range: f64) -> f64 {
+    const STEPS: [f64; 10] = [50.0, 20.0, 10.0, 5.0, 2.0, 1.0, 0.5, 0.25, 0.1, 0.05];
+    STEPS
+        .into_iter()
+        .find(|&s| range / s >= 3.0)
+        .unwrap_or(STEPS[STEPS.len() - 1])
+}
+
+/// Arcs of the radar array: echoes at their range; bins whose latest reading heard nothing as a
+/// faint arc at the edge, so covered-but-empty sectors differ from never-scanned ones.
+fn radar_points(radar: &Radar, range: f64, dot: f64, beam_arcs: bool) -> (Dots, Dots) {
+    let (mut echoes, mut silent) = (Vec::new(), Vec::new());
+    let bins = (radar.bin_count as usize).min(radar.distances_m.len());
+    let width = f64::from(radar.bin_width_deg);
+    let half = if beam_arcs {
+        f64::from(radar.beam_half_angle_deg).max(width / 2.0)
+    } else {
+        width / 2.0
+    };
+    for (i, &d) in radar.distances_m[..bins].iter().enumerate() {
+        let center = f64::from(radar.first_bin_deg) + i as f64 * width;
+        let d = f64::from(d);
+        if d.is_finite() && d > 0.0 && d <= range {
+            arc(d, center - half, center + half, dot, &mut echoes);
+        } else if d == f64::INFINITY {
+            arc(
+                range,
+                center - width / 2.0,
+                center + width / 2.0,
+                dot,
+                &mut silent,
+            );
+        }
+    }
+    (echoes, silent)
+}
+
+fn paint_selection(ctx: &mut Context, s: Segment, range: f64, dot: f64) {
+    let (from, to) = (f64::from(s.from_deg), f64::from(s.to_deg));
+    for edge in [from, to] {
+        let (x, y) = polar(range, edge);
+        ctx.draw(&CanvasLine::new(0.0, 0.0, x, y, Color::Yellow));
+    }
+    let mut points = Vec::new();
+    arc(range, from, to, dot, &mut points);
+    ctx.draw(&Points {
+        coords: &points,
+        color: Color::Yellow,
+    });
+    let (x, y) = polar(range * 0.5, (from + to) / 2.0);
+    ctx.print(
+        x,
+        y,
+        Span::styled(
+            "scan",
+            Style::new().fg(Color::Yellow).add_modifier(Modifier::BOLD),
+        ),
+    );
+}
+
+fn liveness_span(liveness: Liveness, name: &str) -> Span<'static> {
+    match liveness {
+        Liveness::Waiting => Span::styled(
+            format!("waiting for {name}…"),
+            Style::new().fg(Color::Yellow),
+        ),
+        Liveness::Alive => Span::styled("alive", Style::new().fg(Color::Green)),
+        Liveness::Gone(d) => Span::styled(
+            format!("gone for {} s", d.as_secs()),
+            Style::new().fg(Color::Red).add_modifier(Modifier::BOLD),
+        ),
+    }
+}
+
+fn row(label: &str, value: Vec<Span<'static>>) -> Line<'static> {
+    let mut spans = vec![Span::styled(format!("{label:<9}"), LABEL)];
+    spans.extend(value);
+    Line::from(spans)
+}
+
+fn text(s: impl Into<String>) -> Span<'static> {
+    Span::raw(s.into())
+}
+
+fn direction_name(direction: i32) -> &'static str {
+    match direction.signum() {
+        1 => "ccw",
+        -1 => "cw",
+        _ => "",
+    }
+}
+
+fn mode_name(mode: ScanMode) -> &'static str {
+    match mode {
+        ScanMode::Full => "full",
+        ScanMode::Local => "local",
+        ScanMode::Idle => "stopped",
+        ScanMode::Unknown => "unknown",
+    }
+}
+
+/// Metres as "2.5 cm", "40 cm", "1.5 m".
+fn format_length(m: f32) -> String {
+    let trim = |v: String| -> String {
+        if v.contains('.') {
+            v.trim_end_matches('0').trim_end_matches('.').to_owned()
+        } else {
+            v
+        }
+    };
+    if m < 1.0 {
+        format!("{} cm", trim(format!("{:.1}", m * 100.0)))
+    } else {
+        format!("{} m", trim(format!("{m:.2}")))
+    }
+}
+
+/// Counts as "9999", "12.3k", "4.2M", so that a large grid's still fit the panel.
+fn format_count(n: u32) -> String {
+    match n {
+        0..10_000 => n.to_string(),
+        10_000..1_000_000 => format!("{:.1}k", f64::from(n) / 1e3),
+        _ => format!("{:.1}M", f64::from(n) / 1e6),
+    }
+}
+
+fn format_reading(r: &Reading) -> String {
+    let range = if r.is_valid_range() {
+        format!("{:.3} m", r.distance_m)
+    } else if r.has(flags::OUT_OF_RANGE) {
+        "out of range".to_owned()
+    } else {
+        "no echo".to_owned()
+    };
+    format!("{:+6.1}°  {range}", r.angle_deg)
+}
+
+fn progress_bar(fraction: f32, cells: usize) -> String {
+    let full = ((fraction.clamp(0.0, 1.0) * cells as f32).round() as usize).min(cells);
+    format!("{}{}", "█".repeat(full), "░".repeat(cells - full))
+}
+
+/// The status panel.
+fn status_lines(app: &App, now: Instant) -> Vec<Line<'static>> {
+    let mut lines = Vec::new();
+    let driver_live = app.driver_peer.liveness(now);
+    let mut driver = vec![liveness_span(driver_live, "driver")];
+    if let (Liveness::Alive, Some(s)) = (driver_live, &app.driver) {
+        let link = match s.link_state {
+            x if x == LinkState::Connected as u32 => "connected",
+            x if x == LinkState::Disconnected as u32 => "port lost",
+            _ => "connecting",
+        };
+        driver.push(text(format!(" · {link}")));
+    }
+    lines.push(row("driver", driver));
+    lines.push(row(
+        "fusion",
+        vec![liveness_span(app.fusion_peer.liveness(now), "fusion")],
+    ));
+
+    let mode = app.scan_mode();
+    let (sweep_id, angle, direction) = match (&app.driver, &app.radar) {
+        (Some(s), _) => (s.sweep_id, s.angle_deg, s.direction),
+        (None, Some(r)) => (r.sweep_id, r.current_angle_deg, r.direction),
+        (None, None) => (0, f32::NAN, 0),
+    };
+    let mut scan = match mode {
+        ScanMode::Unknown if app.driver.is_none() && app.radar.is_none() => vec![text("–")],
+        _ => vec![text(mode_name(mode))],
+    };
+    if matches!(mode, ScanMode::Full | ScanMode::Local) {
+        scan.push(text(format!(
+            " · sweep {sweep_id} {}",
+            direction_name(direction)
+        )));
+    }
+    lines.push(row("scan", scan));
+    let progress = app
+        .sweep_segment()
+        .and_then(|s| sweep_progress(angle, direction, s));
+    let mut sweep = Vec::new();
+    if let Some(f) = progress {
+        sweep.push(Span::styled(
+            progress_bar(f, 10),
+            Style::new().fg(Color::Green),
+        ));
+        sweep.push(text(format!(" {:>3.0}%", f * 100.0)));
+    }
+    if angle.is_finite() {
+        sweep.push(text(format!(" {angle:+.0}°")));
+    }
+    lines.push(row("sweep", sweep));
+
+    let rate = match (driver_live, app.rate.per_second()) {
+        (Liveness::Alive, Some(r)) => format!("{r:.1} readings/s"),
+        _ => "–".to_owned(),
+    };
+    lines.push(row("rate", vec![text(rate)]));
+    let rejected = app.driver.map_or(0, |s| s.lines_rejected);
+    let rejected_style = if rejected > 0 {
+        Style::new().fg(Color::Yellow)
+    } else {
+        Style::new()
+    };
+    lines.push(row(
+        "errors",
+        vec![Span::styled(
+            format!("{rejected} lines rejected"),
+            rejected_style,
+        )],
+    ));
+    for (i, r) in app.readings.iter().enumerate() {
+        lines.push(row(
+            if i == 0 { "last" } else { "" },
+            vec![text(format_reading(r))],
+        ));
+    }
+    if app.readings.is_empty() {
+        lines.push(row("last", vec![text("–")]));
+    }
+
+    match &app.grid {
+        Some(g) => {
+            let h = &g.header;
+            lines.push(row("model", vec![text(setting_name(MODELS, h.model))]));
+            lines.push(row("rule", vec![text(setting_name(RULES, h.rule))]));
+            lines.push(row("preset", vec![text(setting_name(PRESETS, h.preset))]));
+            lines.push(row(
+                "grid",
+                vec![text(format!(
+                    "{}×{} · {}",
+                    h.width,
+                    h.height,
+                    format_length(h.resolution_m)
+                ))],
+            ));
+            lines.push(row(
+                "fused",
+                vec![text(format!("{} readings", h.readings_fused))],
+            ));
+            lines.push(row(
+                "cells",
+                vec![Span::styled(
+                    format!("{} occupied", format_count(h.occupied_cells)),
+                    Style::new().fg(Color::LightRed),
+                )],
+            ));
+            lines.push(row(
+                "",
+                vec![text(format!("{} free", format_count(h.free_cells)))],
+            ));
+            lines.push(row(
+                "",
+                vec![text(format!("{} unknown", format_count(h.unknown_cells)))],
+            ));
+            if let Some((x, y)) = app.map.cursor {
+                let (wx, wy) = g.cell_center_m(x, y);
+                lines.push(row("cursor", vec![text(format!("{wx:+.2}, {wy:+.2} m"))]));
+                let p = match g.cell(x, y).and_then(decode_probability) {
+                    Some(p) => format!("p = {p:.2} {}", if p > 0.5 { "occupied" } else { "free" }),
+                    None => "never observed".to_owned(),
+                };
+                lines.push(row("", vec![text(p)]));
+            }
+        }
+        None => lines.push(row("grid", vec![text("–")])),
+    }
+    if let Some(problem) = &app.ipc_problem {
+        lines.push(row(
+            "ipc",
+            vec![Span::styled(problem.clone(), Style::new().fg(Color::Red))],
+        ));
+    }
+    lines
+}
+
+fn bottom_line(app: &App) -> Line<'static> {
+    let key = Style::new().fg(Color::Cyan).add_modifier(Modifier::BOLD);
+    if let Some(s) = app.selection {
+        return Line::from(vec![
+            Span::styled(
+                format!(" local scan {:+.0}°..{:+.0}° ", s.from_deg, s.to_deg),
+                Style::new().fg(Color::Yellow).add_modifier(Modifier::BOLD),
+            ),
+            Span::styled("←/→", key),
+            text(" turn  "),
+            Span::styled("↑/↓", key),
+            text(" width  "),
+            Span::styled("Enter", key),
+            text(" scan  "),
+            Span::styled("Esc", key),
+            text(" cancel"),
+        ]);
+    }
+    if let Some(message) = &app.message {
+        return Line::from(vec![
+            text(format!(" {message}  ")),
+            Span::styled("?", key),
+            text(" help  "),
+            Span::styled("q", key),
+            text(" quit"),
+        ]);
+    }
+    let mut spans = vec![text(" ")];
+    for (k, what) in [
+        ("f", "full scan"),
+        ("l", "local"),
+        ("x", "stop"),
+        ("C", "clear"),
+        ("s", "save"),
+        ("Tab", "view"),
+        ("?", "help"),
+        ("q", "quit"),
+    ] {
+        spans.push(Span::styled(k, key));
+        spans.push(text(format!(" {what}  ")));
+    }
+    Line::from(spans)
+}
+
+fn render_help(area: Rect, buf: &mut Buffer) {
+    let width = KEYS
+        .iter()
+        .map(|(k, w)| 14 + w.chars().count().max(k.chars().count()))
+        .max()
+        .unwrap_or(40) as u16
+        + 4;
+    let popup = area.centered(
+        Constraint::Length(width.min(area.width)),
+        Constraint::Length((KEYS.len() as u16 + 4).min(area.height)),
+    );
+    let key = Style::new().fg(Color::Cyan).add_modifier(Modifier::BOLD);
+    let mut lines: Vec<Line> = KEYS
+        .iter()
+        .map(|(k, what)| Line::from(vec![Span::styled(format!("{k:<13} "), key), text(*what)]))
+        .collect();
+    lines.push(Line::styled("any key closes this help", LABEL));
+    Clear.render(popup, buf);
+    Paragraph::new(lines)
+        .block(Block::bordered().title(" keys "))
+        .render(popup, buf);
+}
+
+#[cfg(test)]
+#[path = "ui_tests.rs"]
+mod tests;

@@ -1,0 +1,434 @@
+//! Rendering tests: synthetic grids and radar arrays drawn into ratatui's `TestBackend`, checked
+//! by insta snapshots (the glyphs) and by assertions on the colours and positions that matter.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::time::{Duration, Instant};
+
+use ratatui::Terminal;
+use ratatui::backend::TestBackend;
+use ratatui::buffer::Buffer;
+use sonar_common::ipc::{
+    CELL_UNKNOWN, DriverStatus, GridHeader, LAYOUT_VERSION, LinkState, Radar, Reading, ScanMode,
+    encode_probability, flags, model_code, preset_code, rule_code,
+};
+
+use super::*;
+use crate::app::{App, Segment, View};
+use crate::heatmap::{ColorMode, Palette, Viewport};
+
+const FREE: u8 = 20;
+const WALL: u8 = 230;
+
+/// A 6 m × 4 m grid at 5 cm: a room from (-2.5, -1.5) to (2, 1.5) m with one-cell walls, seen
+/// free inside, never observed outside; a post inside casts an unobserved shadow. Sensor at (0, 0).
+fn room_grid() -> (GridHeader, Vec<u8>) {
+    let (w, h) = (120usize, 80usize);
+    let mut cells = vec![CELL_UNKNOWN; w * h];
+    for y in 10..=70 {
+        for x in 10..=100 {
+            let wall = x == 10 || x == 100 || y == 10 || y == 70;
+            cells[y * w + x] = if wall { WALL } else { FREE };
+        }
+    }
+    for y in 50..=60 {
+        for x in 80..=99 {
+            let post = x < 83 && y < 53;
+            cells[y * w + x] = if post { WALL } else { CELL_UNKNOWN };
+        }
+    }
+    let count = |f: fn(u8) -> bool| cells.iter().filter(|&&c| f(c)).count() as u32;
+    let header = GridHeader {
+        seq: 42,
+        layout_version: LAYOUT_VERSION,
+        width: w as u32,
+        height: h as u32,
+        resolution_m: 0.05,
+        origin_x_m: -3.0,
+        origin_y_m: -2.0,
+        readings_fused: 250,
+        model: model_code::PAPER,
+        rule: rule_code::BAYES,
+        preset: preset_code::PAPER,
+        sweep_id: 3,
+        occupied_cells: count(|c| c != CELL_UNKNOWN && c > 127),
+        free_cells: count(|c| c < 127),
+        unknown_cells: count(|c| c == CELL_UNKNOWN),
+        ..GridHeader::default()
+    };
+    (header, cells)
+}
+
+/// Range from the origin to the room's walls along `deg`.
+fn room_range(deg: f32) -> f32 {
+    let (s, c) = deg.to_radians().sin_cos();
+    let tx = if c > 0.0 { 2.0 / c } else { -2.5 / c };
+    let ty = if s > 0.0 { 1.5 / s } else { -1.5 / s };
+    tx.abs().min(ty.abs())
+}
+
+/// 6° bins over the full sweep; swept up to 45°, one bin without echo.
+fn room_radar() -> Radar {
+    let mut radar = Radar {
+        seq: 9,
+        bin_count: 50,
+        first_bin_deg: -147.0,
+        bin_width_deg: 6.0,
+        beam_half_angle_deg: 30.0,
+        max_range_m: 4.0,
+        current_angle_deg: 45.0,
+        sweep_id: 3,
+        direction: 1,
+        mode: ScanMode::Full as u32,
+        ..Radar::default()
+    };
+    for i in 0..50 {
+        let deg = -147.0 + 6.0 * i as f32;
+        radar.distances_m[i] = if deg > 45.0 {
+            f32::NAN // not swept yet
+        } else if deg == -99.0 {
+            f32::INFINITY // no echo
+        } else {
+            room_range(deg)
+        };
+    }
+    radar
+}
+
+fn reading(seq: u64, angle_deg: f32, distance_m: f32, flags: u32) -> Reading {
+    Reading {
+        seq,
+        angle_deg,
+        distance_m,
+        flags,
+        layout_version: LAYOUT_VERSION,
+        ..Reading::default()
+    }
+}
+
+/// Everything running: driver connected and scanning, fusion publishing the room.
+fn live_app(t0: Instant) -> App {
+    let mut app = App::new(Palette::new(ColorMode::TrueColor), View::Split);
+    let (header, cells) = room_grid();
+    app.on_grid(&header, &cells, t0).unwrap();
+    app.on_radar(&room_radar(), t0).unwrap();
+    let status = DriverStatus {
+        stamp_ns: 1_000_000_000,
+        readings_published: 240,
+        lines_ok: 960,
+        lines_rejected: 2,
+        link_state: LinkState::Connected as u32,
+        mode: ScanMode::Full as u32,
+        sweep_id: 3,
+        angle_deg: 45.0,
+        direction: 1,
+        layout_version: LAYOUT_VERSION,
+        ..DriverStatus::default()
+    };
+    app.on_driver_status(&status, t0).unwrap();
+    let later = DriverStatus {
+        stamp_ns: 2_000_000_000,
+        readings_published: 245,
+        ..status
+    };
+    app.on_driver_status(&later, t0).unwrap();
+    app.on_reading(&reading(243, 33.0, 1.79, 0), t0);
+    app.on_reading(&reading(244, 39.0, 0.0, flags::NO_ECHO), t0);
+    app.on_reading(&reading(245, 45.0, 2.12, 0), t0);
+    app
+}
+
+fn draw(app: &mut App, width: u16, height: u16, now: Instant) -> Terminal<TestBackend> {
+    let mut terminal = Terminal::new(TestBackend::new(width, height)).unwrap();
+    let mut cache = MapCache::default();
+    let mut info = DrawInfo::default();
+    terminal
+        .draw(|f| info = draw_frame(f, app, &mut cache, now))
+        .unwrap();
+    app.map_px = info.map_px;
+    terminal
+}
+
+fn draw_frame(f: &mut Frame, app: &App, cache: &mut MapCache, now: Instant) -> DrawInfo {
+    super::draw(f, app, cache, now)
+}
+
+fn screen_text(buf: &Buffer) -> String {
+    let area = buf.area;
+    (0..area.height)
+        .map(|y| {
+            (0..area.width)
+                .map(|x| buf[(x, y)].symbol())
+                .collect::<String>()
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// The terminal cell and pixel half showing grid cell (x, y) in a map drawn at `inner`.
+fn cell_of(app: &App, inner: Rect, x: u32, y: u32) -> ((u16, u16), bool) {
+    let grid = app.grid.as_ref().unwrap();
+    let (w, h) = app.map_px;
+    let vp: Viewport = app.map.viewport(grid.width(), grid.height(), w, h);
+    let (px, py) = vp.pixel_of(x, y, grid.height()).unwrap();
+    (
+        (inner.x + px as u16, inner.y + (py / 2) as u16),
+        py % 2 == 0,
+    )
+}
+
+#[test]
+fn map_view_shows_walls_free_and_unknown_apart() {
+    let t0 = Instant::now();
+    let mut app = live_app(t0);
+    app.view = View::Map;
+    app.map.cursor = Some((30, 30)); // out of the way of the cells checked below
+    let terminal = draw(&mut app, 64, 24, t0);
+    insta::assert_snapshot!(terminal.backend());
+
+    let buf = terminal.backend().buffer();
+    let inner = Rect::new(1, 1, 62, 21);
+    let palette = Palette::new(ColorMode::TrueColor);
+    // The east wall (x = 100) at mid height.
+    let (pos, _) = cell_of(&app, inner, 100, 40);
+    assert_eq!(buf[pos].symbol(), "▄", "wall glyph at {pos:?}");
+    let wall_color = palette.color(Some(WALL));
+    assert!(buf[pos].fg == wall_color || buf[pos].bg == wall_color);
+    // Free space inside, never-observed space outside: different glyphs and colours.
+    let (free, _) = cell_of(&app, inner, 40, 40);
+    let (unknown, _) = cell_of(&app, inner, 110, 40);
+    assert_eq!(buf[free].symbol(), "▀");
+    assert_eq!(buf[free].fg, palette.color(Some(FREE)));
+    assert_eq!(buf[unknown].symbol(), " ");
+    assert_eq!(buf[unknown].bg, palette.color(Some(CELL_UNKNOWN)));
+    assert_ne!(buf[free].fg, buf[unknown].bg);
+    // The shadow behind the post is never observed either, though inside the room.
+    let (shadow, _) = cell_of(&app, inner, 92, 56);
+    assert_eq!(buf[shadow].symbol(), " ");
+    // The sensor sits at the origin.
+    let (sensor, _) = cell_of(&app, inner, 60, 40);
+    assert_eq!(buf[sensor].symbol(), "@");
+}
+
+#[test]
+fn downsampling_keeps_a_single_occupied_cell_visible() {
+    let t0 = Instant::now();
+    let mut app = App::new(Palette::new(ColorMode::Indexed256), View::Map);
+    let (w, h) = (2000u32, 1500u32);
+    let mut cells = vec![encode_probability(0.1); (w * h) as usize];
+    let (x, y) = (1234u32, 567u32);
+    cells[(y * w + x) as usize] = encode_probability(0.9);
+    let header = GridHeader {
+        layout_version: LAYOUT_VERSION,
+        width: w,
+        height: h,
+        resolution_m: 0.01,
+        origin_x_m: -20.0,
+        origin_y_m: -15.0,
+        ..GridHeader::default()
+    };
+    app.on_grid(&header, &cells, t0).unwrap();
+    app.map.cursor = Some((0, 0));
+    let terminal = draw(&mut app, 40, 14, t0);
+    insta::assert_snapshot!(terminal.backend());
+
+    // About 57 × 57 cells per pixel, and still exactly one wall glyph, where the cell is.
+    let buf = terminal.backend().buffer();
+    let text = screen_text(buf);
+    assert_eq!(text.matches('▄').count(), 1, "{text}");
+    let (pos, upper) = cell_of(&app, Rect::new(1, 1, 38, 11), x, y);
+    assert_eq!(buf[pos].symbol(), "▄");
+    let occupied = Palette::new(ColorMode::Indexed256).color(Some(encode_probability(0.9)));
+    let shown = if upper { buf[pos].bg } else { buf[pos].fg };
+    assert_eq!(shown, occupied);
+    assert!(matches!(shown, Color::Indexed(_)), "256-colour mode");
+}
+
+/// World position of the centre of a terminal cell of a radar drawn at `inner` for `range`.
+fn radar_world(inner: Rect, range: f64, col: u16, row: u16) -> (f64, f64) {
+    let (w, h) = (f64::from(inner.width), 2.0 * f64::from(inner.height));
+    let half = 1.08 * range;
+    let (hx, hy) = if w >= h {
+        (half * w / h, half)
+    } else {
+        (half, half * h / w)
+    };
+    let fx = (f64::from(col - inner.x) + 0.5) / w;
+    let fy = (f64::from(row - inner.y) + 0.5) / f64::from(inner.height);
+    (-hx + 2.0 * hx * fx, hy - 2.0 * hy * fy)
+}
+
+#[test]
+fn radar_shows_a_wall_as_an_arc_at_its_range() {
+    let t0 = Instant::now();
+    let mut app = App::new(Palette::new(ColorMode::TrueColor), View::Radar);
+    // A wall 2.5 m away from 20° to 60°, in 1° bins; nothing elsewhere.
+    let mut radar = Radar {
+        layout_version: LAYOUT_VERSION,
+        bin_count: 301,
+        first_bin_deg: -150.0,
+        bin_width_deg: 1.0,
+        beam_half_angle_deg: 30.0,
+        max_range_m: 4.0,
+        current_angle_deg: 60.0,
+        direction: 1,
+        mode: ScanMode::Local as u32,
+        ..Radar::default()
+    };
+    for deg in 20..=60 {
+        radar.distances_m[(deg + 150) as usize] = 2.5;
+    }
+    app.on_radar(&radar, t0).unwrap();
+    let terminal = draw(&mut app, 60, 26, t0);
+    insta::assert_snapshot!(terminal.backend());
+
+    let buf = terminal.backend().buffer();
+    let inner = Rect::new(1, 1, 58, 23);
+    let echoes: Vec<(f64, f64)> = (inner.top()..inner.bottom())
+        .flat_map(|y| (inner.left()..inner.right()).map(move |x| (x, y)))
+        .filter(|&(x, y)| buf[(x, y)].fg == Color::LightRed)
+        .map(|(x, y)| radar_world(inner, 4.0, x, y))
+        .collect();
+    assert!(echoes.len() >= 6, "the arc is drawn: {echoes:?}");
+    for (x, y) in echoes {
+        let (r, a) = (x.hypot(y), y.atan2(x).to_degrees());
+        // Within a terminal cell (≈ 0.18 m wide, 0.35 m tall here) of the arc.
+        assert!((r - 2.5).abs() < 0.3, "echo at r = {r:.2} m");
+        assert!((15.0..=65.0).contains(&a), "echo at {a:.0}°");
+    }
+}
+
+#[test]
+fn split_view_with_status_panel() {
+    let t0 = Instant::now();
+    let mut app = live_app(t0);
+    let terminal = draw(&mut app, 120, 32, t0 + Duration::from_secs(1));
+    insta::assert_snapshot!(terminal.backend());
+
+    let text = screen_text(terminal.backend().buffer());
+    for expected in [
+        "driver   alive · connected",
+        "fusion   alive",
+        "scan     full · sweep 3 ccw",
+        "5.0 readings/s",
+        "2 lines rejected",
+        "+45.0°  2.120 m",
+        "+39.0°  no echo",
+        "model    paper",
+        "rule     Bayes",
+        "grid     120×80 · 5 cm",
+        "occupied",
+        "cursor   +0.03, +0.03 m",
+        "p = 0.08 free",
+    ] {
+        assert!(text.contains(expected), "missing {expected:?} in\n{text}");
+    }
+}
+
+#[test]
+fn waiting_for_everything_before_the_other_processes_start() {
+    let t0 = Instant::now();
+    let mut app = App::new(Palette::new(ColorMode::TrueColor), View::Split);
+    let terminal = draw(&mut app, 100, 24, t0);
+    insta::assert_snapshot!(terminal.backend());
+    let text = screen_text(terminal.backend().buffer());
+    assert!(text.contains("waiting for driver…"));
+    assert!(text.contains("waiting for fusion…"));
+}
+
+#[test]
+fn producers_that_stop_are_reported_gone() {
+    let t0 = Instant::now();
+    let mut app = live_app(t0);
+    let terminal = draw(&mut app, 120, 32, t0 + Duration::from_secs(12));
+    let text = screen_text(terminal.backend().buffer());
+    assert!(text.contains("driver   gone for 12 s"), "{text}");
+    assert!(text.contains("fusion   gone for 12 s"), "{text}");
+    // The last map stays on screen.
+    assert!(text.contains('▄'));
+}
+
+#[test]
+fn local_scan_selection_is_drawn_on_the_radar() {
+    let t0 = Instant::now();
+    let mut app = live_app(t0);
+    app.view = View::Radar;
+    app.selection = Some(Segment {
+        from_deg: -30.0,
+        to_deg: 30.0,
+    });
+    let terminal = draw(&mut app, 80, 24, t0);
+    insta::assert_snapshot!(terminal.backend());
+    let buf = terminal.backend().buffer();
+    assert!(screen_text(buf).contains("local scan -30°..+30° ←/→ turn"));
+    assert!(
+        buf.content()
+            .iter()
+            .any(|c| c.fg == Color::Yellow && c.symbol() != " ")
+    );
+}
+
+#[test]
+fn key_help_overlay() {
+    let t0 = Instant::now();
+    let mut app = live_app(t0);
+    app.show_help = true;
+    let terminal = draw(&mut app, 100, 24, t0);
+    insta::assert_snapshot!(terminal.backend());
+}
+
+#[test]
+fn tiny_terminals_do_not_break_anything() {
+    let t0 = Instant::now();
+    for view in [View::Map, View::Radar, View::Split] {
+        for (w, h) in [(1, 1), (3, 2), (8, 3), (20, 4), (71, 5)] {
+            let mut app = live_app(t0);
+            app.view = view;
+            app.show_help = true;
+            draw(&mut app, w, h, t0);
+        }
+    }
+}
+
+#[test]
+fn half_blocks_encode_the_class_in_the_glyph() {
+    let p = Palette::new(ColorMode::TrueColor);
+    let c = |v| p.color(Some(v));
+    assert_eq!(
+        half_block(Some(WALL), Some(FREE), &p),
+        ('▄', c(FREE), c(WALL))
+    );
+    assert_eq!(
+        half_block(Some(FREE), Some(WALL), &p),
+        ('▄', c(WALL), c(FREE))
+    );
+    assert_eq!(
+        half_block(Some(FREE), Some(CELL_UNKNOWN), &p),
+        ('▀', c(FREE), c(CELL_UNKNOWN))
+    );
+    assert_eq!(
+        half_block(Some(CELL_UNKNOWN), Some(CELL_UNKNOWN), &p),
+        (' ', c(CELL_UNKNOWN), c(CELL_UNKNOWN))
+    );
+    assert_eq!(
+        half_block(None, Some(CELL_UNKNOWN), &p),
+        (' ', c(CELL_UNKNOWN), c(CELL_UNKNOWN))
+    );
+    assert_eq!(
+        half_block(None, None, &p),
+        (' ', Color::Reset, Color::Reset)
+    );
+}
+
+#[test]
+fn ring_steps_and_lengths() {
+    assert_eq!(ring_step(4.0), 1.0);
+    assert_eq!(ring_step(1.0), 0.25);
+    assert_eq!(ring_step(10.0), 2.0);
+    assert_eq!(format_length(0.05), "5 cm");
+    assert_eq!(format_length(0.025), "2.5 cm");
+    assert_eq!(format_length(2.0), "2 m");
+    assert_eq!(format_length(1.5), "1.5 m");
+    assert_eq!(format_count(9999), "9999");
+    assert_eq!(format_count(12_345), "12.3k");
+    assert_eq!(format_count(4_194_304), "4.2M");
+}
