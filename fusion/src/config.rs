@@ -1,0 +1,415 @@
+//! Everything a fusion engine is set up with, its two presets, and their validation.
+
+use std::fmt;
+use std::str::FromStr;
+
+use serde::{Deserialize, Serialize};
+use sonar_common::sensor::SensorConfig;
+
+use crate::model::{ModelConfig, PaperModel, SmoothModel};
+use crate::observation::Limits;
+use crate::radar::RadarConfig;
+use crate::rule::{LogOddsRule, RuleConfig};
+
+/// Most cells per side of a grid (and of the fast kernel's cone stencil): 4096² = 16.8 M cells,
+/// which keeps the largest per-cell state (Dempster–Shafer's two f32 masses) at 128 MiB and the
+/// stencil at the same.
+pub const MAX_CELLS_PER_SIDE: usize = 4096;
+
+/// A name no model, rule or preset goes by.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown {what} {given:?}; valid names: {}", .valid.join(", "))]
+pub struct UnknownName {
+    pub what: &'static str,
+    pub given: String,
+    pub valid: &'static [&'static str],
+}
+
+impl UnknownName {
+    pub(crate) fn new(what: &'static str, given: &str, valid: &'static [&'static str]) -> Self {
+        Self {
+            what,
+            given: given.to_owned(),
+            valid,
+        }
+    }
+}
+
+/// A configuration the engine cannot run with.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ConfigError {
+    #[error("grid.resolution_m must be a positive number of metres, got {0}")]
+    InvalidResolution(f32),
+    #[error("grid.cells must be between 1 and {max} per side, got {cells}")]
+    GridSize { cells: u32, max: usize },
+    #[error(
+        "a cone of {max_range_m} m at {resolution_m} m cells needs a stencil of {side} cells per \
+         side, more than the {max} allowed: coarser cells or a shorter max_range_m"
+    )]
+    StencilTooLarge {
+        max_range_m: f32,
+        resolution_m: f32,
+        side: usize,
+        max: usize,
+    },
+    #[error("{name} = {value} is invalid: expected {expected}")]
+    InvalidParameter {
+        name: &'static str,
+        value: f32,
+        expected: &'static str,
+    },
+}
+
+/// `Ok` if `ok`, else the error naming the parameter.
+pub(crate) fn check(
+    name: &'static str,
+    value: f32,
+    ok: bool,
+    expected: &'static str,
+) -> Result<(), ConfigError> {
+    if ok {
+        Ok(())
+    } else {
+        Err(ConfigError::InvalidParameter {
+            name,
+            value,
+            expected,
+        })
+    }
+}
+
+/// The probability grid: square, centred on the world origin.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GridConfig {
+    /// Cells per side.
+    pub cells: u32,
+    /// Cell edge, metres.
+    pub resolution_m: f32,
+}
+
+impl Default for GridConfig {
+    /// 400 × 400 cells of 2 cm: ±4 m, the sensor's whole range around it.
+    fn default() -> Self {
+        Self {
+            cells: 400,
+            resolution_m: 0.02,
+        }
+    }
+}
+
+/// Upper bounds on the readings: the cone the fast kernel prepares for. Readings with a wider beam
+/// or a longer range are fused as if they had these.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SensorLimits {
+    pub beam_half_angle_deg: f32,
+    pub max_range_m: f32,
+}
+
+impl Default for SensorLimits {
+    /// The paper's ±30° and the SRF05's 4 m (`sonar_common::sensor::SensorConfig`).
+    fn default() -> Self {
+        let s = SensorConfig::default();
+        Self {
+            beam_half_angle_deg: s.beam_half_angle_deg,
+            max_range_m: s.max_range_m,
+        }
+    }
+}
+
+impl SensorLimits {
+    pub(crate) fn limits(&self) -> Limits {
+        Limits {
+            half_angle: self.beam_half_angle_deg.to_radians(),
+            max_range: self.max_range_m,
+        }
+    }
+}
+
+/// The two ready-made configurations.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Preset {
+    /// The paper exactly as written: eqs. 1–3 with eq. 6, readings without an echo ignored.
+    Paper,
+    /// What we recommend: the smooth model with clamped log-odds; see the crate documentation.
+    Recommended,
+}
+
+impl Preset {
+    pub const ALL: [Preset; 2] = [Preset::Paper, Preset::Recommended];
+    const NAMES: [&'static str; 2] = ["paper", "recommended"];
+
+    pub fn name(self) -> &'static str {
+        Self::NAMES[self as usize]
+    }
+
+    /// The `sonar_common::ipc::preset_code` of this preset.
+    pub fn code(self) -> u32 {
+        use sonar_common::ipc::preset_code;
+        match self {
+            Preset::Paper => preset_code::PAPER,
+            Preset::Recommended => preset_code::RECOMMENDED,
+        }
+    }
+
+    /// The preset with this `sonar_common::ipc::preset_code` (`CUSTOM` has none).
+    pub fn from_code(code: u32) -> Option<Self> {
+        Self::ALL.into_iter().find(|p| p.code() == code)
+    }
+}
+
+impl fmt::Display for Preset {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Preset {
+    type Err = UnknownName;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|p| p.name() == s)
+            .ok_or_else(|| UnknownName::new("preset", s, &Self::NAMES))
+    }
+}
+
+/// Everything the fusion engine is set up with. `Default` is [`Preset::Recommended`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FusionConfig {
+    pub grid: GridConfig,
+    pub sensor: SensorLimits,
+    pub model: ModelConfig,
+    pub rule: RuleConfig,
+    /// Fuse readings without an echo as free space up to the maximum range (never an obstacle).
+    /// The paper ignores them.
+    pub clear_on_no_echo: bool,
+    /// The basic method's angle bins.
+    pub radar: RadarConfig,
+}
+
+impl Default for FusionConfig {
+    fn default() -> Self {
+        Self::preset(Preset::Recommended)
+    }
+}
+
+impl FusionConfig {
+    pub fn preset(preset: Preset) -> Self {
+        let (model, rule, clear_on_no_echo) = match preset {
+            Preset::Paper => (
+                ModelConfig::Paper(PaperModel::default()),
+                RuleConfig::Bayes,
+                false,
+            ),
+            Preset::Recommended => (
+                ModelConfig::Smooth(SmoothModel::default()),
+                RuleConfig::LogOdds(LogOddsRule::default()),
+                true,
+            ),
+        };
+        Self {
+            grid: GridConfig::default(),
+            sensor: SensorLimits::default(),
+            model,
+            rule,
+            clear_on_no_echo,
+            radar: RadarConfig::default(),
+        }
+    }
+
+    /// The preset this configuration is, if it is one (the `preset` field of a snapshot header).
+    pub fn matching_preset(&self) -> Option<Preset> {
+        Preset::ALL.into_iter().find(|&p| *self == Self::preset(p))
+    }
+
+    /// Side of the fast kernel's cone stencil, in cells: the farthest reach of any reading, both
+    /// ways, plus a cell of margin each side.
+    pub(crate) fn stencil_side(&self) -> usize {
+        let reach = self.model.max_reach(self.sensor.max_range_m);
+        let radius = (f64::from(reach) / f64::from(self.grid.resolution_m)).ceil() + 1.0;
+        // Saturating float-to-int conversion: an absurd range yields an absurd side, rejected.
+        2 * (radius as usize) + 1
+    }
+
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let res = self.grid.resolution_m;
+        if !(res.is_finite() && res > 0.0) {
+            return Err(ConfigError::InvalidResolution(res));
+        }
+        if self.grid.cells == 0 || self.grid.cells as usize > MAX_CELLS_PER_SIDE {
+            return Err(ConfigError::GridSize {
+                cells: self.grid.cells,
+                max: MAX_CELLS_PER_SIDE,
+            });
+        }
+        let s = &self.sensor;
+        check(
+            "sensor.beam_half_angle_deg",
+            s.beam_half_angle_deg,
+            s.beam_half_angle_deg > 0.0 && s.beam_half_angle_deg < 90.0,
+            "in (0, 90) degrees",
+        )?;
+        check(
+            "sensor.max_range_m",
+            s.max_range_m,
+            s.max_range_m > 0.0 && s.max_range_m.is_finite(),
+            "a positive number of metres",
+        )?;
+        self.model.validate()?;
+        self.rule.validate()?;
+        self.radar.validate()?;
+        let side = self.stencil_side();
+        if side > MAX_CELLS_PER_SIDE {
+            return Err(ConfigError::StencilTooLarge {
+                max_range_m: s.max_range_m,
+                resolution_m: res,
+                side,
+                max: MAX_CELLS_PER_SIDE,
+            });
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{AlphaSign, ModelKind};
+    use crate::rule::{HimmRule, RuleKind};
+
+    #[test]
+    fn presets_are_valid_and_recognised() {
+        for p in Preset::ALL {
+            let cfg = FusionConfig::preset(p);
+            assert_eq!(cfg.validate(), Ok(()));
+            assert_eq!(cfg.matching_preset(), Some(p));
+            assert_eq!(p.name().parse::<Preset>(), Ok(p));
+            assert_eq!(Preset::from_code(p.code()), Some(p));
+        }
+        assert_eq!(
+            FusionConfig::default(),
+            FusionConfig::preset(Preset::Recommended)
+        );
+        let paper = FusionConfig::preset(Preset::Paper);
+        assert_eq!(paper.model.kind(), ModelKind::Paper);
+        assert_eq!(paper.rule.kind(), RuleKind::Bayes);
+        assert!(!paper.clear_on_no_echo);
+        let custom = FusionConfig {
+            clear_on_no_echo: false,
+            ..FusionConfig::default()
+        };
+        assert_eq!(custom.matching_preset(), None);
+        assert!("papers".parse::<Preset>().is_err());
+    }
+
+    #[test]
+    fn invalid_configurations_say_what_is_wrong() {
+        let base = FusionConfig::default();
+        for res in [0.0, -0.02, f32::NAN] {
+            let cfg = FusionConfig {
+                grid: GridConfig {
+                    resolution_m: res,
+                    ..base.grid
+                },
+                ..base
+            };
+            assert!(matches!(
+                cfg.validate(),
+                Err(ConfigError::InvalidResolution(_))
+            ));
+        }
+        for cells in [0, 5000] {
+            let cfg = FusionConfig {
+                grid: GridConfig { cells, ..base.grid },
+                ..base
+            };
+            assert!(matches!(cfg.validate(), Err(ConfigError::GridSize { .. })));
+        }
+        let fine = FusionConfig {
+            grid: GridConfig {
+                cells: 400,
+                resolution_m: 0.001,
+            },
+            ..base
+        };
+        assert!(matches!(
+            fine.validate(),
+            Err(ConfigError::StencilTooLarge { .. })
+        ));
+        let bad_rule = FusionConfig {
+            rule: RuleConfig::Himm(HimmRule {
+                max_count: 255,
+                ..Default::default()
+            }),
+            ..base
+        };
+        let err = bad_rule.validate().unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "rule.max_count = 255 is invalid: expected in 1..=254"
+        );
+        let bad_model = FusionConfig {
+            model: ModelConfig::Paper(PaperModel {
+                max_occupied: 0.3,
+                ..Default::default()
+            }),
+            ..base
+        };
+        assert!(matches!(
+            bad_model.validate(),
+            Err(ConfigError::InvalidParameter {
+                name: "model.max_occupied",
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn toml_round_trip_and_partial_files() {
+        let cfg = FusionConfig {
+            model: ModelConfig::Paper(PaperModel {
+                alpha: AlphaSign::Signed,
+                ..Default::default()
+            }),
+            ..FusionConfig::default()
+        };
+        let text = toml::to_string(&cfg).unwrap();
+        assert_eq!(toml::from_str::<FusionConfig>(&text).unwrap(), cfg);
+
+        let partial: FusionConfig = toml::from_str(
+            r#"
+            clear_on_no_echo = false
+            [grid]
+            resolution_m = 0.01
+            [model]
+            kind = "paper"
+            tolerance = 0.1
+            [rule]
+            kind = "bayes"
+            "#,
+        )
+        .unwrap();
+        assert_eq!(partial.grid.cells, 400);
+        assert_eq!(partial.grid.resolution_m, 0.01);
+        assert_eq!(
+            partial.model,
+            ModelConfig::Paper(PaperModel {
+                tolerance: 0.1,
+                ..Default::default()
+            })
+        );
+        assert_eq!(partial.rule, RuleConfig::Bayes);
+
+        for bad in [
+            "[model]\nkind = \"ros\"",
+            "[model]\nkind = \"paper\"\ntolerence = 0.1",
+            "[grid]\nsize = 3",
+        ] {
+            assert!(toml::from_str::<FusionConfig>(bad).is_err(), "{bad}");
+        }
+    }
+}

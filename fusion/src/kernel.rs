@@ -1,0 +1,326 @@
+//! The update of the grid by one reading: the fast cone kernel, and what every kernel shares.
+//!
+//! The paper's arrays (GridAngles, GridLength, AngleInside; see [`crate::reference`]) imply a pass
+//! over the whole grid per reading, though a 60° cone to 4 m covers a sixth of the disc around the
+//! sensor and far less of a large grid. The fast kernel visits only the cells of the cone:
+//!
+//! - **Stencil.** The range and bearing of every cell within reach, relative to the sensor's cell,
+//!   computed once (the paper's GridLength and GridAngles, cut to the reach instead of the grid).
+//!   It depends only on where the sensor sits inside its cell, so it serves every reading taken
+//!   from there, and, for a sensor parked elsewhere, is rebuilt once it has stayed put for
+//!   [`REBUILD_AFTER`] readings.
+//! - **Row spans per beam angle.** The stepper's angles are discrete (reading centres every 6°,
+//!   pings every 1.5°), so per beam direction, quantised to [`ANGLE_STEP`], the cache keeps for
+//!   each stencil row the first and last column inside the cone (widened by half a step and a
+//!   rounding margin), worked out on first use. A reading clips those spans to its own reach and
+//!   to the grid and runs along contiguous row slices of cells and stencil values: no gathers, no
+//!   branches in the loop (models and rules are written with selects), so it vectorises; and the
+//!   exact cone test in the loop makes the result independent of the quantisation.
+//! - **Bounding-box fallback.** A moving robot rarely repeats a sub-cell position, and a stencil
+//!   per pose would cost more than it saves, so readings from positions other than the stencil's
+//!   visit the bounding box of their cone instead, computing each cell's range and bearing (a
+//!   square root and an arctangent), still touching a fraction of the grid.
+//!
+//! No path allocates once warm: the stencil and the spans of an angle are built the first time
+//! they are needed and kept.
+//!
+//! Every path computes a cell's range and bearing with the same function and fuses it with
+//! [`fuse_run`], so they agree with the reference to the last bit.
+
+use std::f32::consts::{FRAC_PI_2, PI};
+
+use crate::config::FusionConfig;
+use crate::geometry::{GridGeometry, SensorCell, off_axis};
+use crate::grid::Layer;
+use crate::model::CellEvidence;
+use crate::observation::{Beam, Limits};
+use crate::rule::{Combine, Domain};
+
+/// Quantum of the beam directions the row spans are cached for: 0.25°, a sixth of a stepper step,
+/// so the spans are only 0.125° wider each side than the cone itself.
+pub(crate) const ANGLE_STEP: f32 = PI / 720.0;
+const ANGLE_KEYS: usize = 1440;
+/// Readings in a row from one new sub-cell position before the stencil moves there.
+pub(crate) const REBUILD_AFTER: u32 = 16;
+
+/// A reading's evidence for the cell at range `r` and world bearing `bearing`, in the rule's
+/// domain; NaN (no evidence) outside the rule's cone of `cone` radians around `axis`.
+#[inline(always)]
+pub(crate) fn cell_evidence<R: Combine, E: CellEvidence>(
+    evidence: &E,
+    axis: f32,
+    cone: f32,
+    r: f32,
+    bearing: f32,
+) -> f32 {
+    let alpha = off_axis(bearing, axis);
+    let e = match R::DOMAIN {
+        Domain::Probability => evidence.probability(r, alpha),
+        Domain::LogOdds => evidence.log_odds(r, alpha),
+    };
+    if alpha.abs() <= cone { e } else { f32::NAN }
+}
+
+/// Fuses a reading into a run of cells whose (range, bearing) `polar` yields in order; returns how
+/// many cells it updated.
+#[inline(always)]
+pub(crate) fn fuse_run<R: Combine, E: CellEvidence>(
+    rule: &R,
+    evidence: &E,
+    axis: f32,
+    cone: f32,
+    cells: &mut [R::Cell],
+    polar: impl Iterator<Item = (f32, f32)>,
+) -> usize {
+    let mut updated = 0;
+    for (cell, (r, bearing)) in cells.iter_mut().zip(polar) {
+        let e = cell_evidence::<R, E>(evidence, axis, cone, r, bearing);
+        updated += usize::from(rule.fuse(cell, e));
+    }
+    updated
+}
+
+/// Range and bearing of the cells around a sensor's cell, row-major, `side` = 2·radius + 1.
+struct Stencil {
+    fraction: [u32; 2],
+    radius: i64,
+    side: usize,
+    range: Vec<f32>,
+    bearing: Vec<f32>,
+}
+
+impl Stencil {
+    fn new(sensor: &SensorCell, radius: i64) -> Self {
+        let side = (2 * radius + 1) as usize;
+        let mut range = Vec::with_capacity(side * side);
+        let mut bearing = Vec::with_capacity(side * side);
+        for oy in -radius..=radius {
+            for ox in -radius..=radius {
+                let (r, a) = sensor.polar(ox, oy);
+                range.push(r);
+                bearing.push(a);
+            }
+        }
+        Self {
+            fraction: sensor.fraction_bits(),
+            radius,
+            side,
+            range,
+            bearing,
+        }
+    }
+
+    fn at(&self, ox: i64, oy: i64) -> usize {
+        (oy + self.radius) as usize * self.side + (ox + self.radius) as usize
+    }
+}
+
+/// For one beam direction, per stencil row from `first_row` on, the first and last column offset
+/// of the cells that can lie in the cone (`lo > hi`: none).
+struct Spans {
+    first_row: i64,
+    rows: Vec<[i64; 2]>,
+}
+
+impl Spans {
+    fn new(stencil: &Stencil, axis: f32, cone: f32, reach: f32) -> Self {
+        let margin = cone + ANGLE_STEP / 2.0 + 1e-4;
+        let k = stencil.radius;
+        let mut first_row = None;
+        let mut rows = Vec::new();
+        for oy in -k..=k {
+            let mut span = [i64::MAX, i64::MIN];
+            for ox in -k..=k {
+                let i = stencil.at(ox, oy);
+                if stencil.range[i] <= reach && off_axis(stencil.bearing[i], axis).abs() <= margin {
+                    span = [span[0].min(ox), span[1].max(ox)];
+                }
+            }
+            if span[0] <= span[1] || first_row.is_some() {
+                first_row.get_or_insert(oy);
+                rows.push(span);
+            }
+        }
+        // Trailing empty rows carry nothing.
+        while rows.last().is_some_and(|s| s[0] > s[1]) {
+            rows.pop();
+        }
+        Self {
+            first_row: first_row.unwrap_or(0),
+            rows,
+        }
+    }
+}
+
+/// A stencil and the row spans worked out on it so far, per angle key.
+struct Prepared {
+    stencil: Stencil,
+    spans: Vec<Option<Box<Spans>>>,
+}
+
+/// The fast kernel's caches for one grid geometry, one reach and one rule.
+pub(crate) struct ConeCache {
+    radius: i64,
+    reach: f32,
+    limits: Limits,
+    prepared: Option<Prepared>,
+    /// A sub-cell position other than the stencil's, and how many readings in a row came from it.
+    candidate: Option<([u32; 2], u32)>,
+}
+
+impl ConeCache {
+    pub fn new(config: &FusionConfig) -> Self {
+        Self {
+            radius: (config.stencil_side() as i64 - 1) / 2,
+            reach: config.model.max_reach(config.sensor.max_range_m),
+            limits: config.sensor.limits(),
+            prepared: None,
+            candidate: None,
+        }
+    }
+
+    /// The stencil for a sensor at `sensor`, built or moved there when due; `None` while the
+    /// sensor is elsewhere.
+    fn prepared_for(&mut self, sensor: &SensorCell) -> Option<&mut Prepared> {
+        let fraction = sensor.fraction_bits();
+        let current = self.prepared.as_ref().map(|p| p.stencil.fraction);
+        if current.is_some_and(|f| f != fraction) {
+            let seen = match self.candidate {
+                Some((f, n)) if f == fraction => n + 1,
+                _ => 1,
+            };
+            self.candidate = Some((fraction, seen));
+            if seen < REBUILD_AFTER {
+                return None;
+            }
+        }
+        if current != Some(fraction) {
+            self.candidate = None;
+            self.prepared = Some(Prepared {
+                stencil: Stencil::new(sensor, self.radius),
+                spans: (0..ANGLE_KEYS).map(|_| None).collect(),
+            });
+        }
+        self.prepared.as_mut()
+    }
+
+    /// Fuses the reading of `beam` (whose evidence is `evidence`) into `layer`; returns how many
+    /// cells it updated.
+    pub fn update<R: Combine, E: CellEvidence>(
+        &mut self,
+        layer: &mut Layer<R>,
+        geometry: &GridGeometry,
+        beam: &Beam,
+        evidence: &E,
+    ) -> usize {
+        let sensor = geometry.sensor_cell(beam.position);
+        let cone = layer.rule.cone_half_angle(beam.half_angle);
+        let reach = evidence.reach().min(self.reach);
+        let (max_reach, envelope) = (
+            self.reach,
+            layer.rule.cone_half_angle(self.limits.half_angle),
+        );
+        let Some(Prepared { stencil, spans }) = self.prepared_for(&sensor) else {
+            return bounding_box(layer, geometry, &sensor, beam, cone, reach, evidence);
+        };
+        let key = ((beam.axis + PI) / ANGLE_STEP).round() as usize % ANGLE_KEYS;
+        let spans = spans[key].get_or_insert_with(|| {
+            let axis = key as f32 * ANGLE_STEP - PI;
+            Box::new(Spans::new(stencil, axis, envelope, max_reach))
+        });
+
+        let n = geometry.cells_per_side() as i64;
+        let [cx, cy] = sensor.cell;
+        let k = (reach / geometry.resolution()).ceil() as i64 + 1;
+        let mut updated = 0;
+        for (row, &[lo, hi]) in (spans.first_row..).zip(&spans.rows) {
+            let gy = cy + row;
+            if row.abs() > k || !(0..n).contains(&gy) {
+                continue;
+            }
+            // The reach's disc, conservatively: a cell centre lies within half a cell of its
+            // offset, so the disc is widened by a cell.
+            let near = (row.abs() - 1).max(0) as f32;
+            let half = ((k * k) as f32 - near * near).max(0.0).sqrt().ceil() as i64 + 1;
+            let lo = lo.max(-half).max(-cx);
+            let hi = hi.min(half).min(n - 1 - cx);
+            if lo > hi {
+                continue;
+            }
+            let first = (gy * n + cx + lo) as usize;
+            let len = (hi - lo + 1) as usize;
+            let s = stencil.at(lo, row);
+            let polar = stencil.range[s..s + len]
+                .iter()
+                .copied()
+                .zip(stencil.bearing[s..s + len].iter().copied());
+            updated += fuse_run(
+                &layer.rule,
+                evidence,
+                beam.axis,
+                cone,
+                &mut layer.cells[first..first + len],
+                polar,
+            );
+        }
+        updated
+    }
+}
+
+/// The fallback: every cell of the bounding box of the cone, up to `reach`.
+fn bounding_box<R: Combine, E: CellEvidence>(
+    layer: &mut Layer<R>,
+    geometry: &GridGeometry,
+    sensor: &SensorCell,
+    beam: &Beam,
+    cone: f32,
+    reach: f32,
+    evidence: &E,
+) -> usize {
+    // The sector's extreme points: its apex, the ends of its arc, and the arc's crossings of the
+    // axes' directions.
+    let mut lo = [0.0f32; 2];
+    let mut hi = [0.0f32; 2];
+    let mut include = |angle: f32| {
+        let (s, c) = angle.sin_cos();
+        for (i, v) in [c * reach, s * reach].into_iter().enumerate() {
+            lo[i] = lo[i].min(v);
+            hi[i] = hi[i].max(v);
+        }
+    };
+    include(beam.axis - cone);
+    include(beam.axis + cone);
+    for quarter in -2..=2 {
+        let angle = quarter as f32 * FRAC_PI_2;
+        if off_axis(angle, beam.axis).abs() <= cone {
+            include(angle);
+        }
+    }
+    let n = geometry.cells_per_side() as i64;
+    let res = geometry.resolution();
+    // Offsets from the sensor's cell, a cell wider each side for the sub-cell position.
+    let span = |axis: usize| {
+        let c = sensor.cell[axis];
+        let from = ((lo[axis] / res).floor() as i64 - 1).max(-c);
+        let to = ((hi[axis] / res).ceil() as i64 + 1).min(n - 1 - c);
+        (from, to)
+    };
+    let ((x0, x1), (y0, y1)) = (span(0), span(1));
+    if x0 > x1 {
+        return 0;
+    }
+    let mut updated = 0;
+    for oy in y0..=y1 {
+        let first = ((sensor.cell[1] + oy) * n + sensor.cell[0] + x0) as usize;
+        let len = (x1 - x0 + 1) as usize;
+        updated += fuse_run(
+            &layer.rule,
+            evidence,
+            beam.axis,
+            cone,
+            &mut layer.cells[first..first + len],
+            (x0..=x1).map(|ox| sensor.polar(ox, oy)),
+        );
+    }
+    updated
+}

@@ -1,0 +1,412 @@
+//! The engine a fusion process drives: one configuration, its probability grid and radar array.
+
+use std::fmt;
+
+use nalgebra::Isometry2;
+
+use crate::config::{ConfigError, FusionConfig};
+use crate::geometry::GridGeometry;
+use crate::grid::{OccupancyGrid, with_layer};
+use crate::kernel::ConeCache;
+use crate::model::with_model;
+use crate::observation::{Beam, Observation, ObservationError};
+use crate::radar::RadarMap;
+use crate::reference::PaperArrays;
+
+/// Which kernel fuses a reading into the grid. Both give the same grid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Kernel {
+    /// Only the cells of the cone (see [`crate::kernel`]).
+    #[default]
+    Cone,
+    /// The paper's pass over the whole grid (see [`crate::reference`]): for tests and benchmarks.
+    WholeGrid,
+}
+
+/// What one reading changed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Update {
+    /// The radar bin it went into, if a bin covers its angle.
+    pub radar_bin: Option<usize>,
+    /// Grid cells it updated.
+    pub cells_updated: usize,
+}
+
+/// Both of the paper's maps, fed reading by reading.
+pub struct Mapper {
+    config: FusionConfig,
+    grid: OccupancyGrid,
+    radar: RadarMap,
+    cones: ConeCache,
+    paper_arrays: PaperArrays,
+    readings: u64,
+    pose: Isometry2<f32>,
+}
+
+impl fmt::Debug for Mapper {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Mapper")
+            .field("config", &self.config)
+            .field("readings", &self.readings)
+            .field("pose", &self.pose)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Mapper {
+    /// Empty maps for `config`, once it validates.
+    pub fn new(config: FusionConfig) -> Result<Self, ConfigError> {
+        config.validate()?;
+        let geometry = GridGeometry::new(config.grid.cells as usize, config.grid.resolution_m);
+        Ok(Self {
+            grid: OccupancyGrid::new(geometry, &config.rule),
+            radar: RadarMap::new(config.radar)?,
+            cones: ConeCache::new(&config),
+            paper_arrays: PaperArrays::default(),
+            readings: 0,
+            pose: Isometry2::identity(),
+            config,
+        })
+    }
+
+    pub fn config(&self) -> &FusionConfig {
+        &self.config
+    }
+
+    /// The probability method's grid.
+    pub fn grid(&self) -> &OccupancyGrid {
+        &self.grid
+    }
+
+    /// The basic method's array.
+    pub fn radar(&self) -> &RadarMap {
+        &self.radar
+    }
+
+    /// Readings fused since the maps were last cleared.
+    pub fn readings_fused(&self) -> u64 {
+        self.readings
+    }
+
+    /// Sensor pose of the last reading fused.
+    pub fn last_pose(&self) -> Isometry2<f32> {
+        self.pose
+    }
+
+    /// Fuses one reading into both maps with the fast kernel.
+    pub fn update(&mut self, obs: &Observation) -> Result<Update, ObservationError> {
+        self.update_with(obs, Kernel::Cone)
+    }
+
+    /// Fuses one reading into both maps with the chosen kernel.
+    pub fn update_with(
+        &mut self,
+        obs: &Observation,
+        kernel: Kernel,
+    ) -> Result<Update, ObservationError> {
+        let beam = Beam::new(
+            obs,
+            self.config.sensor.limits(),
+            self.config.clear_on_no_echo,
+        )?;
+        let radar_bin = self.radar.record(obs);
+        self.readings += 1;
+        self.pose = obs.pose;
+        let Some(beam) = beam else {
+            return Ok(Update {
+                radar_bin,
+                cells_updated: 0,
+            });
+        };
+        let (geometry, store) = self.grid.parts_mut();
+        let (cones, arrays) = (&mut self.cones, &mut self.paper_arrays);
+        let cells_updated = with_model!(&self.config.model, m => {
+            let evidence = m.reading(&beam);
+            with_layer!(store, layer => match kernel {
+                Kernel::Cone => cones.update(layer, geometry, &beam, &evidence),
+                Kernel::WholeGrid => arrays.update(layer, geometry, &beam, &evidence),
+            })
+        });
+        Ok(Update {
+            radar_bin,
+            cells_updated,
+        })
+    }
+
+    /// Forgets everything: the grid back to the prior, the radar empty. The kernels' caches stay.
+    pub fn clear(&mut self) {
+        self.grid.clear();
+        self.radar.clear();
+        self.readings = 0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::{GridConfig, Preset};
+    use crate::model::{ModelConfig, ModelKind};
+    use crate::rule::{RuleConfig, RuleKind};
+    use nalgebra::Vector2;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+    use sonar_common::sensor::SensorConfig;
+
+    const DEG: f32 = std::f32::consts::PI / 180.0;
+
+    fn reading(angle_deg: f32, range_m: Option<f32>) -> Observation {
+        Observation {
+            pose: Isometry2::identity(),
+            angle_rad: angle_deg * DEG,
+            range_m,
+            beam_half_angle_rad: 30.0 * DEG,
+            max_range_m: 4.0,
+        }
+    }
+
+    /// Every probability of the grid, `None` for unknown cells.
+    fn cells(m: &Mapper) -> Vec<Option<f32>> {
+        let n = m.grid().geometry().cells_per_side();
+        (0..n)
+            .flat_map(|y| (0..n).map(move |x| (x, y)))
+            .map(|(x, y)| m.grid().probability(x, y))
+            .collect()
+    }
+
+    /// The stepper's angles (reading centres and ping positions) and arbitrary ones.
+    fn random_angle_deg(rng: &mut ChaCha8Rng, centres: &[f32]) -> f32 {
+        let centre = centres[rng.random_range(0..centres.len())];
+        match rng.random_range(0..3) {
+            0 => centre,
+            1 => centre + [-2.25, -0.75, 0.75, 2.25][rng.random_range(0..4)],
+            _ => rng.random_range(-180.0..180.0),
+        }
+    }
+
+    /// Random readings: 20 at the origin, then parked elsewhere long enough for the stencil to
+    /// move there, then moving at every reading, 60 after the origin in all.
+    fn random_observations(seed: u64) -> Vec<Observation> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let centres = SensorConfig::default().reading_centres_deg();
+        let parked = Isometry2::new(Vector2::new(0.37, -0.21), 0.4);
+        (0..80)
+            .map(|i| {
+                let pose = if i < 20 {
+                    Isometry2::identity()
+                } else if i < 20 + REBUILD + 10 {
+                    parked
+                } else {
+                    Isometry2::new(
+                        Vector2::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)),
+                        rng.random_range(-3.2..3.2),
+                    )
+                };
+                Observation {
+                    pose,
+                    angle_rad: random_angle_deg(&mut rng, &centres) * DEG,
+                    range_m: rng.random_bool(0.85).then(|| rng.random_range(0.05..4.3)),
+                    beam_half_angle_rad: rng.random_range(10.0..40.0) * DEG,
+                    max_range_m: 4.0,
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn fast_kernel_equals_the_whole_grid_pass_for_every_model_and_rule() {
+        for (seed, model) in ModelKind::ALL.into_iter().enumerate() {
+            for rule in RuleKind::ALL {
+                for clear_on_no_echo in [false, true] {
+                    // 3 m of grid each side, less than the 4 m range: the cone is clipped.
+                    let config = FusionConfig {
+                        grid: GridConfig {
+                            cells: 120,
+                            resolution_m: 0.05,
+                        },
+                        model: ModelConfig::default_for(model),
+                        rule: RuleConfig::default_for(rule),
+                        clear_on_no_echo,
+                        ..FusionConfig::default()
+                    };
+                    let mut fast = Mapper::new(config).unwrap();
+                    let mut reference = Mapper::new(config).unwrap();
+                    for obs in random_observations(seed as u64) {
+                        let a = fast.update_with(&obs, Kernel::Cone).unwrap();
+                        let b = reference.update_with(&obs, Kernel::WholeGrid).unwrap();
+                        assert_eq!(a, b, "{model} {rule} {obs:?}");
+                    }
+                    let (a, b) = (cells(&fast), cells(&reference));
+                    assert!(a.iter().any(|c| c.is_some()));
+                    for (i, (a, b)) in a.iter().zip(&b).enumerate() {
+                        match (a, b) {
+                            (Some(a), Some(b)) => {
+                                assert!((a - b).abs() <= 1e-6, "{model} {rule} cell {i}: {a} {b}")
+                            }
+                            _ => assert_eq!(a, b, "{model} {rule} cell {i}"),
+                        }
+                    }
+                }
+            }
+        }
+    }
+    const REBUILD: usize = crate::kernel::REBUILD_AFTER as usize;
+
+    #[test]
+    fn every_model_and_rule_is_symmetric_about_the_beam_axis() {
+        for model in ModelKind::ALL {
+            for rule in RuleKind::ALL {
+                for (axis_deg, mirror_x) in [(0.0, false), (90.0, true), (-90.0, true)] {
+                    let config = FusionConfig {
+                        model: ModelConfig::default_for(model),
+                        rule: RuleConfig::default_for(rule),
+                        ..FusionConfig::default()
+                    };
+                    let mut m = Mapper::new(config).unwrap();
+                    m.update(&reading(axis_deg, Some(2.0))).unwrap();
+                    m.update(&reading(axis_deg, Some(1.3))).unwrap();
+                    let n = m.grid().geometry().cells_per_side();
+                    for y in 0..n {
+                        for x in 0..n {
+                            let (mx, my) = if mirror_x {
+                                (n - 1 - x, y)
+                            } else {
+                                (x, n - 1 - y)
+                            };
+                            // Exact about the x axis; within rounding of π/2 about the y axis.
+                            let (a, b) = (m.grid().probability(x, y), m.grid().probability(mx, my));
+                            assert_eq!(a.is_some(), b.is_some(), "{model} {rule} ({x}, {y})");
+                            let (a, b) = (a.unwrap_or(0.0), b.unwrap_or(0.0));
+                            assert!(
+                                (a - b).abs() <= 1e-6,
+                                "{model} {rule} axis {axis_deg}: ({x}, {y}) {a} {b}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn paper_preset_by_hand() {
+        let mut m = Mapper::new(FusionConfig::preset(Preset::Paper)).unwrap();
+        // The default grid: 2 cm cells, the sensor at the corner of cells 199 and 200, so cell
+        // (300, 200) has its centre at (2.01, 0.01): r = 2.010025 m, a = 0.285051°.
+        m.update(&reading(0.0, Some(2.0))).unwrap();
+        // Region I (1.9 ≤ r ≤ 2.1): s = ((4 − r)/4 + (30 − 0.285051)/30)/2 = 0.743996;
+        // eq. 1: 0.98·s = 0.729116; eq. 4: P(H|s) = P(s|H); eq. 6 from the prior 0.5: the same.
+        let p = m.grid().probability(300, 200).unwrap();
+        assert!((p - 0.729_116).abs() < 1e-5, "{p}");
+        // Region II, cell (250, 200) at (1.01, 0.01): r = 1.010050, a = 0.567266°;
+        // eq. 2: 1 − ((4 − r)/4 + (30 − a)/30)/2 = 0.135711.
+        let q = m.grid().probability(250, 200).unwrap();
+        assert!((q - 0.135_711).abs() < 1e-5, "{q}");
+        // Region III: untouched.
+        assert_eq!(m.grid().probability(310, 200), None);
+        // A second reading at 6°, also 2.0 m: α = 5.714949° for the first cell, P(s|H) = 0.640428;
+        // eq. 6: 0.729116·0.640428 / (0.729116·0.640428 + 0.270884·0.359572) = 0.827408.
+        m.update(&reading(6.0, Some(2.0))).unwrap();
+        let p = m.grid().probability(300, 200).unwrap();
+        assert!((p - 0.827_408).abs() < 1e-5, "{p}");
+        // And for the second: P(s|H) = 0.216802; eq. 6 gives 0.041655.
+        let q = m.grid().probability(250, 200).unwrap();
+        assert!((q - 0.041_655).abs() < 1e-5, "{q}");
+    }
+
+    /// Occupied cells (p > 0.5) closer to the sensor than `range` − `margin`, after one reading
+    /// along the x axis.
+    fn occupied_in_front(preset: Preset, range: f32, margin: f32) -> usize {
+        let mut m = Mapper::new(FusionConfig::preset(preset)).unwrap();
+        m.update(&reading(0.0, Some(range))).unwrap();
+        let g = m.grid().geometry();
+        let n = g.cells_per_side();
+        (0..n)
+            .flat_map(|y| (0..n).map(move |x| (x, y)))
+            .filter(|&(x, y)| {
+                g.cell_centre(x, y).coords.norm() < range - margin
+                    && m.grid().probability(x, y).is_some_and(|p| p > 0.5)
+            })
+            .count()
+    }
+
+    #[test]
+    fn the_paper_paints_wedges_in_front_of_the_echo_and_the_recommended_model_does_not() {
+        // Eq. 2 gives P > 0.5 where (R − r)/R + (β − |α|)/β < 1: at 3.5 m, from about 2 m on
+        // near the cone's edges.
+        assert!(occupied_in_front(Preset::Paper, 3.5, 3.5 * 0.05) > 100);
+        // The recommended model's occupied band is centred on the range (half-width
+        // max(2.5 cm, 1 % of it)); nothing in front of the band.
+        for range in [0.5, 2.0, 3.5] {
+            let band = crate::model::SmoothModel::default().band(range);
+            assert_eq!(occupied_in_front(Preset::Recommended, range, band), 0);
+        }
+    }
+
+    #[test]
+    fn no_echo_clears_up_to_max_range_and_marks_nothing() {
+        let mut paper = Mapper::new(FusionConfig::preset(Preset::Paper)).unwrap();
+        let u = paper.update(&reading(33.0, None)).unwrap();
+        assert_eq!(u.cells_updated, 0);
+        assert_eq!(u.radar_bin, Some(30));
+        assert_eq!(paper.readings_fused(), 1);
+
+        let mut m = Mapper::new(FusionConfig::default()).unwrap();
+        for obs in [reading(33.0, None), reading(-33.0, Some(4.0))] {
+            let u = m.update(&obs).unwrap();
+            assert!(u.cells_updated > 1000);
+        }
+        assert_eq!(m.radar().distances_m()[30], f32::INFINITY);
+        let g = *m.grid().geometry();
+        let mut bytes = vec![0; g.len()];
+        let counts = m.grid().encode_into(&mut bytes);
+        assert_eq!(counts.occupied, 0);
+        assert!(counts.free > 1000);
+        for y in 0..g.cells_per_side() {
+            for x in 0..g.cells_per_side() {
+                if g.cell_centre(x, y).coords.norm() > 4.0 {
+                    assert_eq!(m.grid().probability(x, y), None);
+                }
+            }
+        }
+        m.clear();
+        assert_eq!(m.readings_fused(), 0);
+        assert_eq!(m.grid().probability(250, 250), None);
+        assert!(m.radar().distances_m().iter().all(|d| d.is_nan()));
+    }
+
+    #[test]
+    fn readings_are_fused_at_the_robot_pose() {
+        let mut m = Mapper::new(FusionConfig::default()).unwrap();
+        // The robot 1 m along y, heading along y; the sensor's 0° looks along the world's y.
+        let pose = Isometry2::new(Vector2::new(0.0, 1.0), 90.0 * DEG);
+        let obs = Observation {
+            pose,
+            ..reading(0.0, Some(1.5))
+        };
+        m.update(&obs).unwrap();
+        assert_eq!(m.last_pose(), pose);
+        let g = *m.grid().geometry();
+        let at = |x: f32, y: f32| {
+            let (cx, cy) = g.cell_at(nalgebra::Point2::new(x, y)).unwrap();
+            m.grid().probability(cx, cy)
+        };
+        assert!(at(0.01, 2.51).unwrap() > 0.5);
+        assert!(at(0.01, 1.51).unwrap() < 0.5);
+        assert_eq!(at(2.51, 0.01), None);
+    }
+
+    #[test]
+    fn invalid_observations_change_nothing() {
+        let mut m = Mapper::new(FusionConfig::default()).unwrap();
+        let bad = Observation {
+            angle_rad: f32::NAN,
+            ..reading(0.0, Some(1.0))
+        };
+        assert_eq!(
+            m.update(&bad),
+            Err(ObservationError::NotFinite("angle_rad"))
+        );
+        assert_eq!(m.readings_fused(), 0);
+        assert!(m.radar().current_angle_deg().is_none());
+    }
+}

@@ -1,0 +1,710 @@
+//! Inverse sensor models: what one reading says about one cell of its cone.
+//!
+//! A model turns a [`Beam`] into a per-reading [`CellEvidence`] (the reading's constants worked
+//! out once), which then answers for any cell at range `r` and angle `alpha` off the beam axis with
+//! the occupancy probability the reading alone implies (prior 0.5), or its log-odds — whichever the
+//! combination rule consumes, so neither rule pays for a conversion when the model is native in
+//! its domain. NaN means "no evidence": the cell lies beyond the reading (region III) and stays as
+//! it is.
+
+use std::fmt;
+use std::str::FromStr;
+
+use serde::{Deserialize, Serialize};
+
+use crate::config::{ConfigError, UnknownName, check};
+use crate::observation::Beam;
+
+/// What one reading says about the cells of its cone, with its constants worked out.
+pub(crate) trait CellEvidence: Copy {
+    /// Farthest range this reading updates.
+    fn reach(&self) -> f32;
+    /// P(occupied | this reading) for a cell at range `r`, `alpha` radians off the axis; NaN for
+    /// no evidence.
+    fn probability(&self, r: f32, alpha: f32) -> f32;
+    /// The same as log-odds, ln(p / (1 − p)); NaN for no evidence.
+    fn log_odds(&self, r: f32, alpha: f32) -> f32;
+}
+
+/// ln(p / (1 − p)); ±∞ at 0 and 1, which the log-odds rule's clamping absorbs.
+pub(crate) fn logit(p: f32) -> f32 {
+    (p / (1.0 - p)).ln()
+}
+
+/// 1 / (1 + e^(−l)).
+pub(crate) fn sigmoid(l: f32) -> f32 {
+    1.0 / (1.0 + (-l).exp())
+}
+
+/// The names a model goes by in configuration files and on command lines.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ModelKind {
+    /// The paper's eqs. 1–3.
+    Paper,
+    /// The inverse range-sensor model of *Probabilistic Robotics* (Table 9.2).
+    LogOdds,
+    /// Smooth angular and radial fall-off after ROS `range_sensor_layer`.
+    Smooth,
+}
+
+impl ModelKind {
+    pub const ALL: [ModelKind; 3] = [ModelKind::Paper, ModelKind::LogOdds, ModelKind::Smooth];
+    const NAMES: [&'static str; 3] = ["paper", "log-odds", "smooth"];
+
+    pub fn name(self) -> &'static str {
+        Self::NAMES[self as usize]
+    }
+
+    /// The `sonar_common::ipc::model_code` of this model.
+    pub fn code(self) -> u32 {
+        use sonar_common::ipc::model_code;
+        match self {
+            ModelKind::Paper => model_code::PAPER,
+            ModelKind::LogOdds => model_code::LOG_ODDS,
+            ModelKind::Smooth => model_code::SMOOTH,
+        }
+    }
+
+    /// The model with this `sonar_common::ipc::model_code`.
+    pub fn from_code(code: u32) -> Option<Self> {
+        Self::ALL.into_iter().find(|k| k.code() == code)
+    }
+}
+
+impl fmt::Display for ModelKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for ModelKind {
+    type Err = UnknownName;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.name() == s)
+            .ok_or_else(|| UnknownName::new("sensor model", s, &Self::NAMES))
+    }
+}
+
+/// A sensor model and its parameters; `[model]` in a configuration file, with `kind` naming it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case")]
+pub enum ModelConfig {
+    Paper(PaperModel),
+    LogOdds(LogOddsModel),
+    Smooth(SmoothModel),
+}
+
+impl ModelConfig {
+    /// `kind` with its default parameters.
+    pub fn default_for(kind: ModelKind) -> Self {
+        match kind {
+            ModelKind::Paper => ModelConfig::Paper(PaperModel::default()),
+            ModelKind::LogOdds => ModelConfig::LogOdds(LogOddsModel::default()),
+            ModelKind::Smooth => ModelConfig::Smooth(SmoothModel::default()),
+        }
+    }
+
+    pub fn kind(&self) -> ModelKind {
+        match self {
+            ModelConfig::Paper(_) => ModelKind::Paper,
+            ModelConfig::LogOdds(_) => ModelKind::LogOdds,
+            ModelConfig::Smooth(_) => ModelKind::Smooth,
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        match self {
+            ModelConfig::Paper(m) => m.validate(),
+            ModelConfig::LogOdds(m) => m.validate(),
+            ModelConfig::Smooth(m) => m.validate(),
+        }
+    }
+
+    /// Farthest range any reading can update when ranges go up to `max_range`.
+    pub(crate) fn max_reach(&self, max_range: f32) -> f32 {
+        match self {
+            ModelConfig::Paper(m) => max_range * (1.0 + m.tolerance),
+            ModelConfig::LogOdds(_) => max_range,
+            ModelConfig::Smooth(m) => max_range + m.band(max_range),
+        }
+    }
+}
+
+/// Runs `$body` with `$m` bound to the concrete model inside a [`ModelConfig`], so the kernels are
+/// compiled once per model with its evidence inlined into their loops.
+macro_rules! with_model {
+    ($model:expr, $m:ident => $body:expr) => {
+        match $model {
+            $crate::model::ModelConfig::Paper($m) => $body,
+            $crate::model::ModelConfig::LogOdds($m) => $body,
+            $crate::model::ModelConfig::Smooth($m) => $body,
+        }
+    };
+}
+pub(crate) use with_model;
+
+/// What the paper's β stands for.
+///
+/// The paper calls β "the beam width" yet tests membership with ±30° (so the width is 60°), and
+/// its source [2] (Murphy) defines β as *half* the field of view. With β the half-angle the term
+/// (β − |α|)/β runs from 1 on the axis to 0 at the edge, like (R − r)/R runs from 1 at the sensor
+/// to 0 at the maximum range; with the full width it never falls below one half, so the cone's
+/// edge would count as much as the middle of a half-as-wide beam. We read β as the half-angle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum BeamWidth {
+    #[default]
+    HalfAngle,
+    FullWidth,
+}
+
+/// How the paper's α enters eqs. 1–2.
+///
+/// The paper defines α = a − θ (signed) and writes (β − α)/β. Taken literally the model is not
+/// symmetric about the beam axis: one edge gets (β + β)/β = 2 and the probabilities leave [0, 1].
+/// Murphy's model (the paper's [2]) is symmetric; we use |α| and keep the literal form as an
+/// option (its results are clamped to [0, 1]). α is counter-clockwise positive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum AlphaSign {
+    #[default]
+    Absolute,
+    Signed,
+}
+
+/// The paper's sensor model, eqs. 1–3.
+///
+/// With s = ((R − r)/R + (β − |α|)/β) / 2:
+/// - region I, d(1 − p) ≤ r ≤ d(1 + p): P(s|H) = s · MaxOccupied (eq. 1);
+/// - region II, r < d(1 − p): P(s|H) = 1 − s (eq. 2);
+/// - region III, beyond: unknown, no update (eq. 3).
+///
+/// With the prior 0.5, P(H|s) = P(s|H) (eq. 4). Both eqs. are flawed: s < 1/2 wherever
+/// (R − r)/R + (β − |α|)/β < 1, i.e. far from the sensor or near the beam's edge, and there eq. 2
+/// exceeds 0.5 — evidence of *occupancy* in front of the echo, which paints phantom wedges along
+/// the cone's edges — while eq. 1 falls below 0.5, evidence of *free* space where the echo came
+/// from. This model keeps both, as written; the recommended [`SmoothModel`] has neither.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PaperModel {
+    /// The paper's % error p, as a fraction: region I is d(1 − p)..d(1 + p). The paper gives no
+    /// value; 0.05 is the 5 % of Murphy's worked example (tolerance 0.5 at a range of 10) and covers
+    /// the SRF05's 3–4 cm quoted accuracy at ranges beyond 0.7 m.
+    pub tolerance: f32,
+    /// MaxOccupied: 0.98 as in Murphy's example (the paper gives no value); below 1 so no single
+    /// reading makes a cell certain.
+    pub max_occupied: f32,
+    pub beam_width: BeamWidth,
+    pub alpha: AlphaSign,
+}
+
+impl Default for PaperModel {
+    fn default() -> Self {
+        Self {
+            tolerance: 0.05,
+            max_occupied: 0.98,
+            beam_width: BeamWidth::HalfAngle,
+            alpha: AlphaSign::Absolute,
+        }
+    }
+}
+
+impl PaperModel {
+    fn validate(&self) -> Result<(), ConfigError> {
+        check(
+            "model.tolerance",
+            self.tolerance,
+            (0.0..1.0).contains(&self.tolerance),
+            "a fraction in [0, 1)",
+        )?;
+        check(
+            "model.max_occupied",
+            self.max_occupied,
+            self.max_occupied > 0.5 && self.max_occupied <= 1.0,
+            "in (0.5, 1]",
+        )
+    }
+
+    pub(crate) fn reading(&self, beam: &Beam) -> PaperReading {
+        let beta = match self.beam_width {
+            BeamWidth::HalfAngle => beam.half_angle,
+            BeamWidth::FullWidth => 2.0 * beam.half_angle,
+        };
+        let (inner, outer) = match beam.echo {
+            Some(d) => (d * (1.0 - self.tolerance), d * (1.0 + self.tolerance)),
+            // Clearing: region II up to the maximum range, no region I.
+            None => (beam.max_range, f32::NEG_INFINITY),
+        };
+        PaperReading {
+            inv_range: 1.0 / beam.max_range,
+            range: beam.max_range,
+            beta,
+            inv_beta: 1.0 / beta,
+            inner,
+            outer,
+            max_occupied: self.max_occupied,
+            signed: self.alpha == AlphaSign::Signed,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct PaperReading {
+    range: f32,
+    inv_range: f32,
+    beta: f32,
+    inv_beta: f32,
+    inner: f32,
+    outer: f32,
+    max_occupied: f32,
+    signed: bool,
+}
+
+impl CellEvidence for PaperReading {
+    fn reach(&self) -> f32 {
+        self.inner.max(self.outer)
+    }
+
+    #[inline(always)]
+    fn probability(&self, r: f32, alpha: f32) -> f32 {
+        let alpha = if self.signed { alpha } else { alpha.abs() };
+        let s = ((self.range - r) * self.inv_range + (self.beta - alpha) * self.inv_beta) * 0.5;
+        let p = if r < self.inner {
+            1.0 - s // eq. 2
+        } else if r <= self.outer {
+            s * self.max_occupied // eq. 1
+        } else {
+            f32::NAN // eq. 3
+        };
+        p.clamp(0.0, 1.0)
+    }
+
+    #[inline(always)]
+    fn log_odds(&self, r: f32, alpha: f32) -> f32 {
+        logit(self.probability(r, alpha))
+    }
+}
+
+/// The inverse range-sensor model of Thrun, Burgard & Fox, *Probabilistic Robotics*, Table 9.2,
+/// for one beam: l_occ within `thickness_m / 2` of the measured range, l_free in front of it,
+/// nothing beyond, uniformly across the cone. Native in log-odds.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LogOddsModel {
+    /// p_occ: the occupancy the reading implies at the echo.
+    pub occupied_probability: f32,
+    /// p_free: the occupancy the reading implies in front of the echo.
+    pub free_probability: f32,
+    /// The book's α: thickness of obstacles, metres.
+    pub thickness_m: f32,
+}
+
+impl Default for LogOddsModel {
+    fn default() -> Self {
+        // Values commonly used with the book's algorithm; 5 cm covers the SRF05's 3–4 cm accuracy.
+        Self {
+            occupied_probability: 0.7,
+            free_probability: 0.3,
+            thickness_m: 0.05,
+        }
+    }
+}
+
+impl LogOddsModel {
+    fn validate(&self) -> Result<(), ConfigError> {
+        check(
+            "model.occupied_probability",
+            self.occupied_probability,
+            self.occupied_probability > 0.5 && self.occupied_probability < 1.0,
+            "in (0.5, 1)",
+        )?;
+        check(
+            "model.free_probability",
+            self.free_probability,
+            self.free_probability > 0.0 && self.free_probability < 0.5,
+            "in (0, 0.5)",
+        )?;
+        check(
+            "model.thickness_m",
+            self.thickness_m,
+            self.thickness_m > 0.0 && self.thickness_m.is_finite(),
+            "a positive number of metres",
+        )
+    }
+
+    pub(crate) fn reading(&self, beam: &Beam) -> LogOddsReading {
+        let half = self.thickness_m / 2.0;
+        let (free_to, occupied_to) = match beam.echo {
+            // The book stops at min(z_max, z + α/2).
+            Some(d) => (d - half, (d + half).min(beam.max_range)),
+            None => (beam.max_range, f32::NEG_INFINITY),
+        };
+        LogOddsReading {
+            free_to,
+            occupied_to,
+            p_occ: self.occupied_probability,
+            p_free: self.free_probability,
+            l_occ: logit(self.occupied_probability),
+            l_free: logit(self.free_probability),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct LogOddsReading {
+    free_to: f32,
+    occupied_to: f32,
+    p_occ: f32,
+    p_free: f32,
+    l_occ: f32,
+    l_free: f32,
+}
+
+impl LogOddsReading {
+    #[inline(always)]
+    fn pick(&self, r: f32, free: f32, occupied: f32) -> f32 {
+        if r <= self.free_to {
+            free
+        } else if r < self.occupied_to {
+            occupied
+        } else {
+            f32::NAN
+        }
+    }
+}
+
+impl CellEvidence for LogOddsReading {
+    fn reach(&self) -> f32 {
+        self.free_to.max(self.occupied_to)
+    }
+
+    #[inline(always)]
+    fn probability(&self, r: f32, _alpha: f32) -> f32 {
+        self.pick(r, self.p_free, self.p_occ)
+    }
+
+    #[inline(always)]
+    fn log_odds(&self, r: f32, _alpha: f32) -> f32 {
+        self.pick(r, self.l_free, self.l_occ)
+    }
+}
+
+/// A model with smooth angular and radial fall-off, shaped after ROS `range_sensor_layer`, native
+/// in log-odds, with separate angular profiles for occupied and free evidence.
+///
+/// With γ(α; θ) = max(0, 1 − (α/θ)²) (ROS's angular weight), w = max(`min_band_m`,
+/// `band_fraction`·d) (ROS's δ·r), and the radial trust f(r) = (1 − x/√(1 + x²))/2 with
+/// x = 2(r − `fade_range_m`) (ROS's (1 − tanh x)/2, with an algebraic sigmoid of the same midpoint
+/// and slope that costs a square root instead of an exponential, so the kernel vectorises):
+/// - free, r < d − 2w: l = `free_log_odds` · γ(α; θ_free) · f(r);
+/// - ramp, d − 2w ≤ r < d − w: the same times 1 − t², t = (r − (d − 2w))/w (ROS's quadratic ramp);
+/// - occupied, d − w ≤ r < d + w: l = `occupied_log_odds` · γ(α; θ_occ) · f(r) · (1 − ((r − d)/w)²);
+/// - beyond: nothing.
+///
+/// It never raises occupancy in front of the measured range, nor lowers it at the range.
+///
+/// ROS scales the probability's deviation from one half by the weights, with extremes 0 and 1
+/// (infinite log-odds on the axis); scaling log-odds keeps every reading's evidence finite, and
+/// the two separate angular widths let free-space evidence cover the cone while occupied evidence
+/// stays near the axis, where a small object is actually heard.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SmoothModel {
+    /// Log-odds added at the measured range on the axis, near the sensor (> 0).
+    pub occupied_log_odds: f32,
+    /// Log-odds added in front of the measured range on the axis, near the sensor (< 0).
+    pub free_log_odds: f32,
+    /// Angle off the axis where occupied evidence falls to zero.
+    pub occupied_half_angle_deg: f32,
+    /// Angle off the axis where free evidence falls to zero.
+    pub free_half_angle_deg: f32,
+    /// Half-thickness of the occupied band as a fraction of the measured range (ROS's δ).
+    pub band_fraction: f32,
+    /// Smallest half-thickness of the occupied band, metres.
+    pub min_band_m: f32,
+    /// Range at which the radial trust has fallen to one half (ROS's φ_v).
+    pub fade_range_m: f32,
+}
+
+impl Default for SmoothModel {
+    /// The recommended parameters; `lib.rs` explains the choice.
+    fn default() -> Self {
+        Self {
+            occupied_log_odds: 1.0,
+            free_log_odds: -1.0,
+            occupied_half_angle_deg: 12.0,
+            free_half_angle_deg: 30.0,
+            band_fraction: 0.01,
+            min_band_m: 0.025,
+            fade_range_m: 3.0,
+        }
+    }
+}
+
+impl SmoothModel {
+    fn validate(&self) -> Result<(), ConfigError> {
+        check(
+            "model.occupied_log_odds",
+            self.occupied_log_odds,
+            self.occupied_log_odds > 0.0 && self.occupied_log_odds.is_finite(),
+            "a positive number",
+        )?;
+        check(
+            "model.free_log_odds",
+            self.free_log_odds,
+            self.free_log_odds < 0.0 && self.free_log_odds.is_finite(),
+            "a negative number",
+        )?;
+        for (name, v) in [
+            (
+                "model.occupied_half_angle_deg",
+                self.occupied_half_angle_deg,
+            ),
+            ("model.free_half_angle_deg", self.free_half_angle_deg),
+        ] {
+            check(name, v, v > 0.0 && v < 90.0, "in (0, 90) degrees")?;
+        }
+        check(
+            "model.band_fraction",
+            self.band_fraction,
+            (0.0..0.5).contains(&self.band_fraction),
+            "a fraction in [0, 0.5)",
+        )?;
+        check(
+            "model.min_band_m",
+            self.min_band_m,
+            self.min_band_m > 0.0 && self.min_band_m.is_finite(),
+            "a positive number of metres",
+        )?;
+        check(
+            "model.fade_range_m",
+            self.fade_range_m,
+            self.fade_range_m > 0.0 && self.fade_range_m.is_finite(),
+            "a positive number of metres",
+        )
+    }
+
+    pub(crate) fn band(&self, d: f32) -> f32 {
+        self.min_band_m.max(self.band_fraction * d)
+    }
+
+    pub(crate) fn reading(&self, beam: &Beam) -> SmoothReading {
+        let inv_sq = |deg: f32| {
+            let t = deg.to_radians();
+            1.0 / (t * t)
+        };
+        let (d, band) = match beam.echo {
+            Some(d) => (d, self.band(d)),
+            // Clearing: free at full strength up to the maximum range, no occupied band.
+            None => (f32::NEG_INFINITY, 0.0),
+        };
+        let (ramp_from, free_to) = match beam.echo {
+            Some(_) => (d - 2.0 * band, d - band),
+            None => (beam.max_range, beam.max_range),
+        };
+        SmoothReading {
+            d,
+            ramp_from,
+            free_to,
+            occupied_to: d + band,
+            inv_band: if band > 0.0 { 1.0 / band } else { 0.0 },
+            l_occ: self.occupied_log_odds,
+            l_free: self.free_log_odds,
+            inv_sq_occ: inv_sq(self.occupied_half_angle_deg),
+            inv_sq_free: inv_sq(self.free_half_angle_deg),
+            fade_range: self.fade_range_m,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct SmoothReading {
+    d: f32,
+    ramp_from: f32,
+    free_to: f32,
+    occupied_to: f32,
+    inv_band: f32,
+    l_occ: f32,
+    l_free: f32,
+    inv_sq_occ: f32,
+    inv_sq_free: f32,
+    fade_range: f32,
+}
+
+impl CellEvidence for SmoothReading {
+    fn reach(&self) -> f32 {
+        self.free_to.max(self.occupied_to)
+    }
+
+    #[inline(always)]
+    fn probability(&self, r: f32, alpha: f32) -> f32 {
+        sigmoid(self.log_odds(r, alpha))
+    }
+
+    #[inline(always)]
+    fn log_odds(&self, r: f32, alpha: f32) -> f32 {
+        // Written as arithmetic and selects, without early returns, so the loop vectorises.
+        let a2 = alpha * alpha;
+        let x = 2.0 * (r - self.fade_range);
+        let trust = 0.5 - 0.5 * x / (1.0 + x * x).sqrt();
+        let t = ((r - self.ramp_from) * self.inv_band).max(0.0);
+        let j = (r - self.d) * self.inv_band;
+        let free = self.l_free * (1.0 - a2 * self.inv_sq_free).max(0.0) * (1.0 - t * t);
+        let occupied = self.l_occ * (1.0 - a2 * self.inv_sq_occ).max(0.0) * (1.0 - j * j);
+        let l = if r < self.free_to {
+            free
+        } else if r < self.occupied_to {
+            occupied
+        } else {
+            0.0
+        } * trust;
+        // A zero weight (outside a profile's angle, at a band's end) is no evidence: the cell stays
+        // unknown rather than "seen, undecided".
+        if l != 0.0 { l } else { f32::NAN }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector2;
+
+    fn beam(echo: Option<f32>) -> Beam {
+        Beam {
+            position: Vector2::zeros(),
+            axis: 0.0,
+            half_angle: 30f32.to_radians(),
+            max_range: 4.0,
+            echo,
+        }
+    }
+
+    fn close(a: f32, b: f32) -> bool {
+        (a - b).abs() < 1e-5
+    }
+
+    #[test]
+    fn paper_equations_by_hand() {
+        let m = PaperModel::default().reading(&beam(Some(2.0)));
+        // Region I, r = 2.0, α = 10°: s = ((4−2)/4 + (30−10)/30)/2 = (0.5 + 0.6667)/2 = 0.58333;
+        // eq. 1: 0.58333 · 0.98 = 0.57167.
+        assert!(close(m.probability(2.0, 10f32.to_radians()), 0.571_667));
+        // Region I edge, r = 2.1 = d(1 + p), α = 0: s = (0.475 + 1)/2 = 0.7375 → 0.72275.
+        assert!(close(m.probability(2.1, 0.0), 0.722_75));
+        // Region II, r = 1.0, α = 0: s = (0.75 + 1)/2 = 0.875; eq. 2: 1 − 0.875 = 0.125.
+        assert!(close(m.probability(1.0, 0.0), 0.125));
+        // Region II, r = 1.8, α = −25°: s = (0.55 + 0.16667)/2 = 0.35833; eq. 2 gives 0.64167 — the
+        // flaw: occupancy evidence in front of the echo.
+        assert!(close(m.probability(1.8, -25f32.to_radians()), 0.641_667));
+        // Region III.
+        assert!(m.probability(2.2, 0.0).is_nan());
+        assert!(close(m.log_odds(1.0, 0.0), (0.125f32 / 0.875).ln()));
+    }
+
+    #[test]
+    fn paper_conventions_change_the_angular_term() {
+        let full = PaperModel {
+            beam_width: BeamWidth::FullWidth,
+            ..Default::default()
+        }
+        .reading(&beam(Some(2.0)));
+        // β = 60°: s = (0.5 + (60 − 10)/60)/2 = 0.66667 → 0.65333.
+        assert!(close(full.probability(2.0, 10f32.to_radians()), 0.653_333));
+        let signed = PaperModel {
+            alpha: AlphaSign::Signed,
+            ..Default::default()
+        }
+        .reading(&beam(Some(2.0)));
+        // α = −10°: s = (0.5 + 40/30)/2 = 0.91667 → 0.89833; +10° as before.
+        assert!(close(
+            signed.probability(2.0, -10f32.to_radians()),
+            0.898_333
+        ));
+        assert!(close(
+            signed.probability(2.0, 10f32.to_radians()),
+            0.571_667
+        ));
+        // The literal form leaves [0, 1]; clamped. α = −30° on the sensor: 1 − (1 + 2)/2 < 0.
+        assert_eq!(signed.probability(0.0, -30f32.to_radians()), 0.0);
+    }
+
+    #[test]
+    fn paper_model_clearing_has_no_region_one() {
+        let m = PaperModel::default().reading(&beam(None));
+        assert!(close(
+            m.probability(3.9, 0.0),
+            1.0 - (0.1 / 4.0 + 1.0) / 2.0
+        ));
+        assert!(m.probability(4.01, 0.0).is_nan());
+        assert_eq!(m.reach(), 4.0);
+    }
+
+    #[test]
+    fn book_model_regions() {
+        let m = LogOddsModel::default().reading(&beam(Some(2.0)));
+        assert!(close(m.log_odds(1.0, 0.4), logit(0.3)));
+        assert!(close(m.log_odds(2.02, 0.0), logit(0.7)));
+        assert!(close(m.probability(1.98, -0.4), 0.7));
+        assert!(m.log_odds(2.03, 0.0).is_nan());
+        // Clipped at the maximum range and cleared up to it without an echo.
+        let far = LogOddsModel::default().reading(&beam(Some(3.99)));
+        assert!(far.log_odds(4.001, 0.0).is_nan());
+        let clear = LogOddsModel::default().reading(&beam(None));
+        assert!(close(clear.log_odds(3.99, 0.0), logit(0.3)));
+    }
+
+    #[test]
+    fn smooth_model_never_raises_occupancy_in_front_nor_lowers_it_at_the_range() {
+        let m = SmoothModel {
+            fade_range_m: 100.0,
+            ..Default::default()
+        }
+        .reading(&beam(Some(2.0)));
+        for i in 0..400 {
+            let r = i as f32 * 0.01;
+            for a in [-29.0f32, -12.0, -5.0, 0.0, 3.0, 11.9, 25.0] {
+                let l = m.log_odds(r, a.to_radians());
+                if r < 2.0 - 0.025 {
+                    assert!(l.is_nan() || l < 0.0, "r {r} α {a}: {l}");
+                } else if !l.is_nan() {
+                    assert!(l > 0.0, "r {r} α {a}: {l}");
+                }
+            }
+        }
+        // On the axis: full free evidence well in front, full occupied evidence at the range
+        // (the far trust is ≈ 1 with the fade pushed away).
+        assert!(close(m.log_odds(1.0, 0.0), -1.0));
+        assert!(close(m.log_odds(2.0, 0.0), 1.0));
+        // Half-way along the ramp: 1 − 0.5² of the free evidence.
+        assert!(close(m.log_odds(2.0 - 0.0375, 0.0), -0.75));
+        // Occupied evidence stops at its own angle, free evidence at the beam's.
+        assert!(m.log_odds(2.0, 12.5f32.to_radians()).is_nan());
+        assert!(m.log_odds(1.0, 20f32.to_radians()) < 0.0);
+        assert!(m.log_odds(2.03, 0.0).is_nan());
+    }
+
+    #[test]
+    fn smooth_model_fades_with_range() {
+        let m = SmoothModel::default().reading(&beam(Some(3.5)));
+        // At the fade range the trust is one half.
+        assert!(close(m.log_odds(3.0, 0.0), -0.5));
+        assert!(m.log_odds(1.0, 0.0) < -0.98);
+    }
+
+    #[test]
+    fn model_names_parse_and_list_the_valid_ones() {
+        for kind in ModelKind::ALL {
+            assert_eq!(kind.name().parse::<ModelKind>(), Ok(kind));
+            assert_eq!(ModelKind::from_code(kind.code()), Some(kind));
+            assert_eq!(ModelConfig::default_for(kind).kind(), kind);
+        }
+        let err = "ros".parse::<ModelKind>().unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "unknown sensor model \"ros\"; valid names: paper, log-odds, smooth"
+        );
+    }
+}

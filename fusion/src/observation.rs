@@ -1,0 +1,206 @@
+//! What the kernels consume: one reading, placed in the world.
+
+use nalgebra::{Isometry2, Vector2};
+use sonar_common::ipc::Reading;
+
+use crate::geometry::wrap_angle;
+
+/// One reading of the rotating sensor, at the sensor's pose in the world.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Observation {
+    /// Pose of the sensor's rotation axis in the world; its x axis is the sensor's angle 0. The
+    /// identity when the robot does not move (or no `robot/pose` service exists).
+    pub pose: Isometry2<f32>,
+    /// Beam centre, radians, counter-clockwise from the sensor's forward axis.
+    pub angle_rad: f32,
+    /// Measured range, metres; `None` when nothing echoed or the echo lay outside the sensor's range.
+    pub range_m: Option<f32>,
+    /// Half-width of the beam (the paper's ±30°), radians.
+    pub beam_half_angle_rad: f32,
+    /// Farthest range the sensor reports, metres (the paper's R).
+    pub max_range_m: f32,
+}
+
+impl Observation {
+    /// The reading as the driver published it, taken at `pose`. A reading flagged `NO_ECHO` or
+    /// `OUT_OF_RANGE` carries no range: its distance is never used as an obstacle.
+    pub fn from_reading(reading: &Reading, pose: Isometry2<f32>) -> Self {
+        Self {
+            pose,
+            angle_rad: reading.angle_deg.to_radians(),
+            range_m: reading.is_valid_range().then_some(reading.distance_m),
+            beam_half_angle_rad: reading.beam_half_angle_deg.to_radians(),
+            max_range_m: reading.max_range_m,
+        }
+    }
+}
+
+/// An observation the kernels cannot place.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum ObservationError {
+    #[error("observation field {0} is not a finite number")]
+    NotFinite(&'static str),
+    #[error("observation field {0} must be positive")]
+    NotPositive(&'static str),
+}
+
+/// Upper bounds on every observation: the cone the fast kernel's caches are built for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Limits {
+    pub half_angle: f32,
+    pub max_range: f32,
+}
+
+/// An observation made ready for a kernel: checked, clamped to the [`Limits`], and in world terms.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Beam {
+    /// Sensor position in the world.
+    pub position: Vector2<f32>,
+    /// World bearing of the beam axis, in [−π, π].
+    pub axis: f32,
+    /// Half-width of the beam (the paper's β in our reading of it).
+    pub half_angle: f32,
+    /// The paper's R.
+    pub max_range: f32,
+    /// The measured range, or `None` to clear free space up to `max_range`.
+    pub echo: Option<f32>,
+}
+
+impl Beam {
+    /// The beam of `obs`, or `None` when it brings nothing to fuse: no echo while clearing on no
+    /// echo is off (the paper ignores such readings).
+    ///
+    /// A range at or beyond the maximum range is treated as no echo: an SRF05 whose echo line times
+    /// out reads the maximum, which is never an obstacle.
+    pub fn new(
+        obs: &Observation,
+        limits: Limits,
+        clear_on_no_echo: bool,
+    ) -> Result<Option<Self>, ObservationError> {
+        let finite = |v: f32, name| {
+            if v.is_finite() {
+                Ok(v)
+            } else {
+                Err(ObservationError::NotFinite(name))
+            }
+        };
+        let positive = |v: f32, name| {
+            if finite(v, name)? > 0.0 {
+                Ok(v)
+            } else {
+                Err(ObservationError::NotPositive(name))
+            }
+        };
+        let position = obs.pose.translation.vector;
+        finite(position.x, "pose.x")?;
+        finite(position.y, "pose.y")?;
+        let heading = finite(obs.pose.rotation.angle(), "pose.rotation")?;
+        let angle = finite(obs.angle_rad, "angle_rad")?;
+        let half_angle = positive(obs.beam_half_angle_rad, "beam_half_angle_rad")?;
+        let max_range = positive(obs.max_range_m, "max_range_m")?.min(limits.max_range);
+        let echo = match obs.range_m {
+            Some(d) => Some(positive(d, "range_m")?).filter(|&d| d < max_range),
+            None => None,
+        };
+        if echo.is_none() && !clear_on_no_echo {
+            return Ok(None);
+        }
+        Ok(Some(Self {
+            position,
+            axis: wrap_angle(heading + angle),
+            half_angle: half_angle.min(limits.half_angle),
+            max_range,
+            echo,
+        }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sonar_common::ipc::flags;
+
+    const LIMITS: Limits = Limits {
+        half_angle: 0.5,
+        max_range: 4.0,
+    };
+
+    fn obs(range_m: Option<f32>) -> Observation {
+        Observation {
+            pose: Isometry2::identity(),
+            angle_rad: 0.3,
+            range_m,
+            beam_half_angle_rad: 0.6,
+            max_range_m: 5.0,
+        }
+    }
+
+    #[test]
+    fn reading_flags_decide_whether_there_is_a_range() {
+        let mut r = Reading {
+            angle_deg: 90.0,
+            distance_m: 1.5,
+            beam_half_angle_deg: 30.0,
+            max_range_m: 4.0,
+            ..Default::default()
+        };
+        let o = Observation::from_reading(&r, Isometry2::identity());
+        assert_eq!(o.range_m, Some(1.5));
+        assert!((o.angle_rad - std::f32::consts::FRAC_PI_2).abs() < 1e-6);
+        for flag in [flags::NO_ECHO, flags::OUT_OF_RANGE] {
+            r.flags = flag;
+            assert_eq!(
+                Observation::from_reading(&r, Isometry2::identity()).range_m,
+                None
+            );
+        }
+    }
+
+    #[test]
+    fn no_echo_is_ignored_unless_clearing() {
+        assert_eq!(Beam::new(&obs(None), LIMITS, false), Ok(None));
+        let b = Beam::new(&obs(None), LIMITS, true).unwrap().unwrap();
+        assert_eq!(b.echo, None);
+        // Clamped to the limits.
+        assert_eq!(b.max_range, 4.0);
+        assert_eq!(b.half_angle, 0.5);
+    }
+
+    #[test]
+    fn a_range_at_max_range_is_no_obstacle() {
+        assert_eq!(Beam::new(&obs(Some(4.0)), LIMITS, false), Ok(None));
+        let b = Beam::new(&obs(Some(4.5)), LIMITS, true).unwrap().unwrap();
+        assert_eq!(b.echo, None);
+        let b = Beam::new(&obs(Some(3.9)), LIMITS, false).unwrap().unwrap();
+        assert_eq!(b.echo, Some(3.9));
+    }
+
+    #[test]
+    fn pose_turns_the_beam() {
+        let mut o = obs(Some(1.0));
+        o.pose = Isometry2::new(Vector2::new(1.0, 2.0), 3.0);
+        let b = Beam::new(&o, LIMITS, false).unwrap().unwrap();
+        assert!((b.axis - wrap_angle(3.3)).abs() < 1e-6);
+        assert_eq!(b.position, Vector2::new(1.0, 2.0));
+    }
+
+    #[test]
+    fn nonsense_is_rejected() {
+        let mut o = obs(Some(f32::NAN));
+        assert_eq!(
+            Beam::new(&o, LIMITS, false),
+            Err(ObservationError::NotFinite("range_m"))
+        );
+        o.range_m = Some(-1.0);
+        assert_eq!(
+            Beam::new(&o, LIMITS, false),
+            Err(ObservationError::NotPositive("range_m"))
+        );
+        o.range_m = Some(1.0);
+        o.beam_half_angle_rad = 0.0;
+        assert_eq!(
+            Beam::new(&o, LIMITS, false),
+            Err(ObservationError::NotPositive("beam_half_angle_rad"))
+        );
+    }
+}
