@@ -520,19 +520,32 @@ pub fn driver_status_service(node: &Node<ipc::Service>) -> Result<PubSub<DriverS
 
 pub type GridService = publish_subscribe::PortFactory<ipc::Service, [u8], GridHeader>;
 
+const GRID_MAX_SUBSCRIBERS: usize = 6;
+const GRID_SUBSCRIBER_BUFFER: usize = 1;
+const GRID_SUBSCRIBER_BORROWED: usize = 2;
+const GRID_HISTORY: usize = 1;
+/// Loans a publisher may hold at once (iceoryx2's default).
+const PUBLISHER_MAX_LOANS: usize = 2;
+/// Snapshots the grid publisher's data segment has room for: its size in /dev/shm is this many
+/// times (header + cells).
+pub const GRID_SEGMENT_SLOTS: usize = GRID_MAX_SUBSCRIBERS
+    * (GRID_SUBSCRIBER_BUFFER + GRID_SUBSCRIBER_BORROWED)
+    + GRID_HISTORY
+    + PUBLISHER_MAX_LOANS;
+
 /// `sonar/grid`: history 1 so a late joiner gets the current map at once; a subscriber buffers one
 /// snapshot (a newer one replaces it: viewers want the latest, never a backlog) and may hold two
-/// while it reads the next. Slots = 6 × (1 + 2) + 1 + 2 = 21 snapshots of shared memory (sparse:
-/// only written pages are committed).
+/// while it reads the next: [`GRID_SEGMENT_SLOTS`] = 6 × (1 + 2) + 1 + 2 = 21 snapshots of shared
+/// memory (sparse: only written pages are committed).
 pub fn grid_service(node: &Node<ipc::Service>) -> Result<GridService, IpcError> {
     node.service_builder(&service_name(GRID_SERVICE)?)
         .publish_subscribe::<[u8]>()
         .user_header::<GridHeader>()
         .max_publishers(1)
-        .max_subscribers(6)
-        .subscriber_max_buffer_size(1)
-        .subscriber_max_borrowed_samples(2)
-        .history_size(1)
+        .max_subscribers(GRID_MAX_SUBSCRIBERS)
+        .subscriber_max_buffer_size(GRID_SUBSCRIBER_BUFFER)
+        .subscriber_max_borrowed_samples(GRID_SUBSCRIBER_BORROWED)
+        .history_size(GRID_HISTORY)
         .open_or_create()
         .map_err(|e| IpcError::new(format!("open {GRID_SERVICE}"), e))
 }

@@ -1,6 +1,7 @@
 //! Occupancy-grid fusion of sonar readings (draft docs).
 
 pub mod config;
+pub mod engine;
 pub mod geometry;
 pub mod grid;
 pub mod kernel;

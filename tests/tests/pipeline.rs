@@ -9,7 +9,8 @@ use std::time::{Duration, Instant};
 use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
 use nix::pty::openpty;
 use sonar_common::ipc::{
-    self, DriverStatus, LinkState, Reading, ScanCommand, ScanCommandKind, ScanMode, flags,
+    self, DriverStatus, FusionCommand, FusionCommandKind, GridHeader, LinkState, Reading,
+    ScanCommand, ScanCommandKind, ScanMode, flags,
 };
 use sonar_common::protocol::{DeviceMessage, Direction, WireReading, encode_device};
 use sonar_e2e::{PATIENCE, Sandbox, collect_until};
@@ -437,5 +438,196 @@ fn a_python_consumer_reads_the_documented_layout() {
             let d: f32 = fields[6].parse().unwrap();
             assert!((1.16..=1.75).contains(&d), "{line}");
         }
+    }
+}
+
+/// A private copy of a `sonar/grid` snapshot.
+struct Snapshot {
+    header: GridHeader,
+    cells: Vec<u8>,
+}
+
+impl Snapshot {
+    /// The highest probability of the cells within `radius` cells of world point (`x`, `y`),
+    /// `None` if all of them are unknown.
+    fn max_near(&self, x: f32, y: f32, radius: i64) -> Option<f32> {
+        let h = &self.header;
+        let cx = ((x - h.origin_x_m) / h.resolution_m).floor() as i64;
+        let cy = ((y - h.origin_y_m) / h.resolution_m).floor() as i64;
+        let mut best = None;
+        for j in cy - radius..=cy + radius {
+            for i in cx - radius..=cx + radius {
+                let inside = (0..h.width as i64).contains(&i) && (0..h.height as i64).contains(&j);
+                assert!(inside, "({x}, {y}) lies outside the grid");
+                let cell = self.cells[(j * h.width as i64 + i) as usize];
+                if let Some(p) = ipc::decode_probability(cell) {
+                    best = Some(best.map_or(p, |b: f32| b.max(p)));
+                }
+            }
+        }
+        best
+    }
+}
+
+#[test]
+fn the_fusion_engine_maps_the_room_walls_occupied_and_the_space_in_front_free() {
+    let sandbox = Sandbox::new("fusion");
+    let node = sandbox.node("test-map-consumer");
+    let grid = ipc::grid_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let radar = ipc::radar_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let (sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100", "--seed", "11"]);
+    let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+    let fusion = sandbox.spawn("sonar-fusion", &["--max-rate", "20"]);
+
+    // Two full sweeps: the snapshot published at the end of the second one holds 100 readings.
+    let snapshots = collect_until(
+        &node,
+        || {
+            grid.receive().unwrap().map(|s| Snapshot {
+                header: *s.user_header(),
+                cells: s.payload().to_vec(),
+            })
+        },
+        |got| got.last().is_some_and(|s| s.header.readings_fused >= 100),
+    );
+    let map = snapshots.last().unwrap();
+    let h = &map.header;
+    assert_eq!(h.layout_version, ipc::LAYOUT_VERSION);
+    assert_eq!((h.width, h.height, h.resolution_m), (400, 400, 0.02));
+    assert_eq!(map.cells.len(), 400 * 400);
+    assert_eq!(h.preset, ipc::preset_code::RECOMMENDED);
+    assert!(
+        snapshots
+            .windows(2)
+            .all(|w| w[0].header.seq < w[1].header.seq),
+        "snapshots in order"
+    );
+    assert_eq!(
+        h.occupied_cells + h.free_cells + h.unknown_cells,
+        400 * 400,
+        "counts cover the grid"
+    );
+
+    // The 2.4 m room around the sensor: the walls 1.2 m away are occupied where the beam meets
+    // them near normal incidence (a wall returns its perpendicular distance, so farther along it
+    // reads as an arc), and so are the four corners, strong reflectors; the space half-way to
+    // them is free. The wall behind (x = -1.2) faces the sweep's blind 60° and stays unseen.
+    for (x, y) in [
+        (1.2, 0.0),
+        (1.2, 0.2),
+        (0.0, 1.2),
+        (0.0, -1.2),
+        (1.2, 1.2),
+        (1.2, -1.2),
+        (-1.2, 1.2),
+        (-1.2, -1.2),
+    ] {
+        let p = map.max_near(x, y, 2).unwrap_or(0.5);
+        assert!(p > 0.5, "wall at ({x}, {y}) has p = {p}");
+    }
+    for (x, y) in [(0.6, 0.0), (0.0, 0.6), (0.0, -0.6), (0.5, 0.5)] {
+        let p = map.max_near(x, y, 1).expect("observed");
+        assert!(p < 0.5, "free space at ({x}, {y}) has p = {p}");
+    }
+    // Beyond the walls nothing was ever seen.
+    assert_eq!(map.max_near(3.5, 0.0, 1), None);
+
+    // The basic method's array: the wall straight ahead at 1.2 m.
+    let latest = collect_until(
+        &node,
+        || radar.receive().unwrap().map(|s| *s.payload()),
+        |got| !got.is_empty(),
+    );
+    let r = latest.last().unwrap();
+    assert_eq!(r.bin_count, 50);
+    let ahead = ((3.0 - r.first_bin_deg) / r.bin_width_deg).round() as usize;
+    assert!((r.distances_m[ahead] - 1.2).abs() < 0.05, "{r:?}");
+
+    assert!(fusion.terminate().success(), "fusion did not exit cleanly");
+    assert!(driver.terminate().success());
+    assert!(sim.terminate().success());
+}
+
+#[test]
+fn fusion_commands_switch_the_preset_and_clear_the_map() {
+    let sandbox = Sandbox::new("fusioncmd");
+    let node = sandbox.node("test-commander");
+    let grid = ipc::grid_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let (_sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100"]);
+    let _driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+    let _fusion = sandbox.spawn("sonar-fusion", &[]);
+    let next = |pred: &dyn Fn(&GridHeader) -> bool| {
+        let got = collect_until(
+            &node,
+            || grid.receive().unwrap().map(|s| *s.user_header()),
+            |got| got.last().is_some_and(pred),
+        );
+        *got.last().unwrap()
+    };
+    next(&|h| h.readings_fused >= 20);
+
+    let commands = ipc::fusion_commands_service(&node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    let wake = ipc::wakeup_service(&node, ipc::FUSION_COMMANDS_SERVICE)
+        .unwrap()
+        .notifier_builder()
+        .create()
+        .unwrap();
+    let send = |cmd| {
+        commands.send_copy(cmd).unwrap();
+        wake.notify().unwrap();
+    };
+    send(FusionCommand::new(
+        FusionCommandKind::SetPreset,
+        ipc::preset_code::PAPER,
+    ));
+    let paper = next(&|h| h.preset == ipc::preset_code::PAPER);
+    assert_eq!(paper.model, ipc::model_code::PAPER);
+    assert_eq!(paper.rule, ipc::rule_code::BAYES);
+    // The readings so far were re-fused, not dropped.
+    assert!(paper.readings_fused >= 20, "{paper:?}");
+
+    send(FusionCommand::new(FusionCommandKind::Clear, 0));
+    // The map restarts: a snapshot with fewer readings than before the clear.
+    let before = paper.readings_fused;
+    next(&|h| h.readings_fused < before);
+}
+
+#[test]
+fn bad_fusion_settings_are_clear_errors() {
+    let sandbox = Sandbox::new("fusionbad");
+    for (args, expected) in [
+        (
+            &["--resolution", "-0.02"][..],
+            "resolution_m must be a positive",
+        ),
+        (
+            &["--cells", "5000"][..],
+            "grid.cells must be between 1 and 4096",
+        ),
+        (&["--model", "sonar"][..], "unknown sensor model \"sonar\""),
+        (
+            &["--config", "/nonexistent/sonar.toml"][..],
+            "cannot read config file",
+        ),
+    ] {
+        let (status, stderr) = sandbox.spawn("sonar-fusion", args).wait_exit();
+        assert!(!status.success(), "{args:?}");
+        assert!(stderr.contains(expected), "{args:?}: {stderr}");
     }
 }

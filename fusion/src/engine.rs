@@ -1,0 +1,451 @@
+//! The fusion process's state, without its I/O: readings and commands in, snapshots out.
+//!
+//! The process (`src/main.rs`) only moves bytes between iceoryx2 and an [`Engine`]; everything it
+//! decides — when a sweep has ended, what a command does, what a snapshot header says — lives here
+//! so that it is tested without shared memory.
+//!
+//! The engine keeps the observations fused since the last clear (up to a bound), so that switching
+//! the model, the rule or the preset re-fuses the same data: a user compares methods on one scan
+//! instead of waiting for new sweeps.
+
+use std::collections::VecDeque;
+
+use nalgebra::{Isometry2, Vector2};
+use sonar_common::ipc::{
+    FusionCommand, FusionCommandKind, GridHeader, LAYOUT_VERSION, Pose2D, RADAR_MAX_BINS, Radar,
+    Reading, preset_code,
+};
+
+use crate::config::{ConfigError, FusionConfig, Preset};
+use crate::grid::CellCounts;
+use crate::mapper::Mapper;
+use crate::model::{ModelConfig, ModelKind};
+use crate::observation::Observation;
+use crate::rule::{RuleConfig, RuleKind};
+
+/// A command the engine refuses; the maps are unchanged.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CommandError {
+    #[error("unknown fusion command kind {0}")]
+    UnknownKind(u32),
+    #[error("unknown {what} code {code}")]
+    UnknownCode { what: &'static str, code: u32 },
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+}
+
+/// What the latest reading said about the scan, for the snapshots' headers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+struct ScanState {
+    sweep_id: u32,
+    direction: i8,
+    mode: u8,
+}
+
+/// Both maps, the observations behind them, and the scan state.
+#[derive(Debug)]
+pub struct Engine {
+    mapper: Mapper,
+    history: VecDeque<Observation>,
+    history_limit: usize,
+    scan: Option<ScanState>,
+    pose: Isometry2<f32>,
+    rejected_readings: u64,
+}
+
+impl Engine {
+    /// Empty maps for `config`; up to `history_limit` observations are kept for re-fusing.
+    pub fn new(config: FusionConfig, history_limit: usize) -> Result<Self, ConfigError> {
+        Ok(Self {
+            mapper: Mapper::new(config)?,
+            history: VecDeque::new(),
+            history_limit,
+            scan: None,
+            pose: Isometry2::identity(),
+            rejected_readings: 0,
+        })
+    }
+
+    pub fn mapper(&self) -> &Mapper {
+        &self.mapper
+    }
+
+    /// Readings the kernels refused (non-finite angle or range); they are logged by the process.
+    pub fn rejected_readings(&self) -> u64 {
+        self.rejected_readings
+    }
+
+    /// Takes the robot's latest pose; readings fused from now on are placed there. A pose that is
+    /// not finite is refused (`false`) and the previous one kept.
+    pub fn set_pose(&mut self, pose: &Pose2D) -> bool {
+        let finite = pose.x_m.is_finite() && pose.y_m.is_finite() && pose.theta_rad.is_finite();
+        if finite {
+            self.pose = Isometry2::new(Vector2::new(pose.x_m, pose.y_m), pose.theta_rad);
+        }
+        finite
+    }
+
+    /// Whether `reading` starts a new sweep after readings of another one: the moment to publish
+    /// the finished sweep's maps, before this reading changes them.
+    pub fn starts_new_sweep(&self, reading: &Reading) -> bool {
+        self.scan.is_some_and(|s| s.sweep_id != reading.sweep_id)
+    }
+
+    /// Fuses `reading` at the current pose into both maps; `false` if the kernels refused it.
+    pub fn fuse(&mut self, reading: &Reading) -> bool {
+        let obs = Observation::from_reading(reading, self.pose);
+        self.scan = Some(ScanState {
+            sweep_id: reading.sweep_id,
+            direction: reading.direction,
+            mode: reading.mode,
+        });
+        if self.mapper.update(&obs).is_err() {
+            self.rejected_readings += 1;
+            return false;
+        }
+        if self.history_limit > 0 {
+            if self.history.len() == self.history_limit {
+                self.history.pop_front();
+            }
+            self.history.push_back(obs);
+        }
+        true
+    }
+
+    /// Carries out a command from `sonar/fusion_commands`. Switching model, rule or preset keeps
+    /// the grid's size and re-fuses the kept observations under the new configuration.
+    pub fn apply(&mut self, command: &FusionCommand) -> Result<(), CommandError> {
+        let kind = command
+            .kind()
+            .ok_or(CommandError::UnknownKind(command.kind))?;
+        let current = *self.mapper.config();
+        let unknown = |what| CommandError::UnknownCode {
+            what,
+            code: command.value,
+        };
+        let config = match kind {
+            FusionCommandKind::Clear => {
+                self.mapper.clear();
+                self.history.clear();
+                return Ok(());
+            }
+            FusionCommandKind::SetPreset => {
+                let preset = Preset::from_code(command.value).ok_or_else(|| unknown("preset"))?;
+                FusionConfig {
+                    grid: current.grid,
+                    sensor: current.sensor,
+                    radar: current.radar,
+                    ..FusionConfig::preset(preset)
+                }
+            }
+            FusionCommandKind::SetModel => {
+                let kind = ModelKind::from_code(command.value).ok_or_else(|| unknown("model"))?;
+                FusionConfig {
+                    model: ModelConfig::default_for(kind),
+                    ..current
+                }
+            }
+            FusionCommandKind::SetRule => {
+                let kind = RuleKind::from_code(command.value).ok_or_else(|| unknown("rule"))?;
+                FusionConfig {
+                    rule: RuleConfig::default_for(kind),
+                    ..current
+                }
+            }
+        };
+        self.reconfigure(config)
+    }
+
+    /// Rebuilds the maps for `config` from the kept observations.
+    fn reconfigure(&mut self, config: FusionConfig) -> Result<(), CommandError> {
+        let mut mapper = Mapper::new(config)?;
+        for obs in &self.history {
+            // Every kept observation was accepted once; the limits of the new configuration are
+            // the same (grid and sensor are kept), so none is refused now.
+            let _ = mapper.update(obs);
+        }
+        self.mapper = mapper;
+        Ok(())
+    }
+
+    /// The header of a `sonar/grid` snapshot whose cells [`Self::encode_grid`] returned `counts` for.
+    pub fn grid_header(&self, seq: u64, stamp_ns: u64, counts: CellCounts) -> GridHeader {
+        let config = self.mapper.config();
+        let geometry = self.mapper.grid().geometry();
+        let side = geometry.cells_per_side() as u32;
+        let origin = geometry.origin();
+        let pose = self.mapper.last_pose();
+        GridHeader {
+            seq,
+            stamp_ns,
+            readings_fused: self.mapper.readings_fused(),
+            layout_version: LAYOUT_VERSION,
+            width: side,
+            height: side,
+            resolution_m: geometry.resolution(),
+            origin_x_m: origin.x,
+            origin_y_m: origin.y,
+            pose_x_m: pose.translation.x,
+            pose_y_m: pose.translation.y,
+            pose_theta_rad: pose.rotation.angle(),
+            model: config.model.kind().code(),
+            rule: config.rule.kind().code(),
+            preset: config
+                .matching_preset()
+                .map_or(preset_code::CUSTOM, Preset::code),
+            sweep_id: self.scan.map_or(0, |s| s.sweep_id),
+            occupied_cells: counts.occupied,
+            free_cells: counts.free,
+            unknown_cells: counts.unknown,
+        }
+    }
+
+    /// Writes the grid's cells in the snapshot encoding into `out` (one byte per cell).
+    ///
+    /// # Panics
+    /// If `out` does not hold one byte per cell: the caller sizes it from the grid.
+    pub fn encode_grid(&self, out: &mut [u8]) -> CellCounts {
+        self.mapper.grid().encode_into(out)
+    }
+
+    /// Cells per snapshot.
+    pub fn grid_len(&self) -> usize {
+        self.mapper.grid().geometry().len()
+    }
+
+    /// The basic method's array as a `sonar/radar` snapshot.
+    pub fn radar(&self, seq: u64, stamp_ns: u64) -> Radar {
+        let map = self.mapper.radar();
+        let config = map.config();
+        let sensor = self.mapper.config().sensor;
+        let scan = self.scan.unwrap_or_default();
+        let mut distances_m = [f32::NAN; RADAR_MAX_BINS];
+        for (out, &d) in distances_m.iter_mut().zip(map.distances_m()) {
+            *out = d;
+        }
+        Radar {
+            seq,
+            stamp_ns,
+            layout_version: LAYOUT_VERSION,
+            bin_count: config.bin_count,
+            first_bin_deg: config.first_bin_deg,
+            bin_width_deg: config.bin_width_deg,
+            beam_half_angle_deg: sensor.beam_half_angle_deg,
+            max_range_m: sensor.max_range_m,
+            current_angle_deg: map.current_angle_deg().unwrap_or(f32::NAN),
+            sweep_id: scan.sweep_id,
+            direction: i32::from(scan.direction),
+            mode: u32::from(scan.mode),
+            distances_m,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sonar_common::ipc::{ScanMode, flags, model_code, rule_code};
+
+    fn reading(sweep_id: u32, angle_deg: f32, distance_m: f32) -> Reading {
+        Reading {
+            layout_version: LAYOUT_VERSION,
+            sweep_id,
+            angle_deg,
+            beam_half_angle_deg: 30.0,
+            distance_m,
+            min_range_m: 0.03,
+            max_range_m: 4.0,
+            direction: 1,
+            mode: ScanMode::Full as u8,
+            ..Reading::default()
+        }
+    }
+
+    /// A wall 1.2 m away across two sweeps.
+    fn sweeps() -> Vec<Reading> {
+        let mut out = Vec::new();
+        for sweep in 1..=2 {
+            for k in 0..50 {
+                let angle = -147.0 + 6.0 * k as f32;
+                let d = 1.2 / angle.to_radians().cos().abs().max(0.3);
+                let mut r = reading(sweep, angle, d.min(3.9));
+                if k % 7 == 0 {
+                    r.flags = flags::NO_ECHO;
+                }
+                out.push(r);
+            }
+        }
+        out
+    }
+
+    fn encoded(engine: &Engine) -> Vec<u8> {
+        let mut cells = vec![0; engine.grid_len()];
+        engine.encode_grid(&mut cells);
+        cells
+    }
+
+    #[test]
+    fn a_new_sweep_is_announced_before_its_first_reading_is_fused() {
+        let mut engine = Engine::new(FusionConfig::default(), 100).unwrap();
+        let r1 = reading(1, 0.0, 1.0);
+        assert!(!engine.starts_new_sweep(&r1), "nothing fused yet");
+        engine.fuse(&r1);
+        assert!(!engine.starts_new_sweep(&reading(1, 6.0, 1.0)));
+        assert!(engine.starts_new_sweep(&reading(2, 6.0, 1.0)));
+    }
+
+    #[test]
+    fn switching_the_preset_refuses_the_kept_readings() {
+        let readings = sweeps();
+        let mut live = Engine::new(FusionConfig::default(), 1000).unwrap();
+        for r in &readings {
+            live.fuse(r);
+        }
+        live.apply(&FusionCommand::new(
+            FusionCommandKind::SetPreset,
+            preset_code::PAPER,
+        ))
+        .unwrap();
+
+        let mut fresh = Engine::new(FusionConfig::preset(Preset::Paper), 1000).unwrap();
+        for r in &readings {
+            fresh.fuse(r);
+        }
+        assert_eq!(encoded(&live), encoded(&fresh));
+        let h = live.grid_header(1, 0, CellCounts::default());
+        assert_eq!(h.preset, preset_code::PAPER);
+        assert_eq!(h.model, model_code::PAPER);
+        assert_eq!(h.rule, rule_code::BAYES);
+        assert_eq!(h.readings_fused, readings.len() as u64);
+    }
+
+    #[test]
+    fn a_bounded_history_keeps_the_latest_readings() {
+        let readings = sweeps();
+        let mut engine = Engine::new(FusionConfig::default(), 50).unwrap();
+        for r in &readings {
+            engine.fuse(r);
+        }
+        engine
+            .apply(&FusionCommand::new(
+                FusionCommandKind::SetRule,
+                rule_code::HIMM,
+            ))
+            .unwrap();
+        let mut expected = Engine::new(
+            FusionConfig {
+                rule: RuleConfig::default_for(RuleKind::Himm),
+                ..FusionConfig::default()
+            },
+            50,
+        )
+        .unwrap();
+        for r in &readings[50..] {
+            expected.fuse(r);
+        }
+        assert_eq!(encoded(&engine), encoded(&expected));
+        let h = engine.grid_header(1, 0, CellCounts::default());
+        assert_eq!(h.preset, preset_code::CUSTOM);
+        assert_eq!(h.rule, rule_code::HIMM);
+    }
+
+    #[test]
+    fn clear_forgets_maps_and_history() {
+        let mut engine = Engine::new(FusionConfig::default(), 1000).unwrap();
+        for r in &sweeps() {
+            engine.fuse(r);
+        }
+        let before = encoded(&engine);
+        assert!(before.iter().any(|&c| c != sonar_common::ipc::CELL_UNKNOWN));
+        engine
+            .apply(&FusionCommand::new(FusionCommandKind::Clear, 0))
+            .unwrap();
+        assert!(
+            encoded(&engine)
+                .iter()
+                .all(|&c| c == sonar_common::ipc::CELL_UNKNOWN)
+        );
+        assert!(engine.radar(1, 0).distances_m.iter().all(|d| d.is_nan()));
+        // With the history gone, a switch re-fuses nothing.
+        engine
+            .apply(&FusionCommand::new(
+                FusionCommandKind::SetModel,
+                model_code::LOG_ODDS,
+            ))
+            .unwrap();
+        assert!(
+            encoded(&engine)
+                .iter()
+                .all(|&c| c == sonar_common::ipc::CELL_UNKNOWN)
+        );
+    }
+
+    #[test]
+    fn bad_commands_change_nothing() {
+        let mut engine = Engine::new(FusionConfig::default(), 1000).unwrap();
+        for r in &sweeps() {
+            engine.fuse(r);
+        }
+        let before = encoded(&engine);
+        for (cmd, expected) in [
+            (
+                FusionCommand { kind: 99, value: 0 },
+                CommandError::UnknownKind(99),
+            ),
+            (
+                FusionCommand::new(FusionCommandKind::SetModel, 42),
+                CommandError::UnknownCode {
+                    what: "model",
+                    code: 42,
+                },
+            ),
+            (
+                FusionCommand::new(FusionCommandKind::SetPreset, preset_code::CUSTOM),
+                CommandError::UnknownCode {
+                    what: "preset",
+                    code: preset_code::CUSTOM,
+                },
+            ),
+        ] {
+            assert_eq!(engine.apply(&cmd), Err(expected));
+        }
+        assert_eq!(encoded(&engine), before);
+    }
+
+    #[test]
+    fn readings_are_placed_at_the_latest_pose_and_bad_poses_are_refused() {
+        let mut engine = Engine::new(FusionConfig::default(), 10).unwrap();
+        let pose = Pose2D {
+            x_m: 0.5,
+            y_m: -0.25,
+            theta_rad: 0.3,
+            ..Pose2D::default()
+        };
+        assert!(engine.set_pose(&pose));
+        assert!(!engine.set_pose(&Pose2D {
+            x_m: f32::NAN,
+            ..pose
+        }));
+        engine.fuse(&reading(1, 0.0, 1.0));
+        let h = engine.grid_header(1, 0, CellCounts::default());
+        assert_eq!((h.pose_x_m, h.pose_y_m), (0.5, -0.25));
+        assert!((h.pose_theta_rad - 0.3).abs() < 1e-6);
+    }
+
+    #[test]
+    fn the_radar_snapshot_carries_the_latest_distance_per_bin() {
+        let mut engine = Engine::new(FusionConfig::default(), 10).unwrap();
+        engine.fuse(&reading(1, 3.0, 1.5));
+        let mut no_echo = reading(1, 9.0, 0.0);
+        no_echo.flags = flags::NO_ECHO;
+        engine.fuse(&no_echo);
+        let radar = engine.radar(7, 0);
+        assert_eq!(radar.bin_count, 50);
+        let bin = |deg: f32| ((deg - radar.first_bin_deg) / radar.bin_width_deg).round() as usize;
+        assert_eq!(radar.distances_m[bin(3.0)], 1.5);
+        assert_eq!(radar.distances_m[bin(9.0)], f32::INFINITY);
+        assert!(radar.distances_m[bin(-3.0)].is_nan());
+        assert_eq!(radar.current_angle_deg, 9.0);
+        assert_eq!((radar.seq, radar.sweep_id, radar.direction), (7, 1, 1));
+    }
+}
