@@ -182,6 +182,15 @@ impl Sandbox {
             })
             .unwrap_or_default()
     }
+
+    /// Files left in /dev/shm once every process of the namespace has gone, except the 16-byte
+    /// global management file that iceoryx2 keeps per prefix by design.
+    pub fn stale_shm_files(&self) -> Vec<String> {
+        self.shm_files()
+            .into_iter()
+            .filter(|f| !f.ends_with(".global_mgmt"))
+            .collect()
+    }
 }
 
 impl Drop for Sandbox {

@@ -112,11 +112,7 @@ fn full_sweeps_of_the_room_stream_over_shared_memory() {
     assert!(sim.terminate().success(), "simulator did not exit cleanly");
     drop(sub);
     drop(node);
-    let left: Vec<String> = sandbox
-        .shm_files()
-        .into_iter()
-        .filter(|f| !f.ends_with(".global_mgmt"))
-        .collect();
+    let left = sandbox.stale_shm_files();
     assert!(left.is_empty(), "stale shared memory: {left:?}");
 }
 
@@ -554,6 +550,9 @@ fn the_fusion_engine_maps_the_room_walls_occupied_and_the_space_in_front_free() 
     assert!(fusion.terminate().success(), "fusion did not exit cleanly");
     assert!(driver.terminate().success());
     assert!(sim.terminate().success());
+    drop((grid, radar, node));
+    let left = sandbox.stale_shm_files();
+    assert!(left.is_empty(), "stale shared memory: {left:?}");
 }
 
 #[test]
