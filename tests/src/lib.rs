@@ -237,3 +237,80 @@ pub fn collect_until<T>(
         let _ = node.wait(Duration::from_millis(5));
     }
 }
+
+/// A terminal for a text program: a detached tmux session on a private server socket, so tests
+/// never see each other's sessions. Killed with its server when dropped.
+#[derive(Debug)]
+pub struct Tmux {
+    socket: PathBuf,
+}
+
+impl Tmux {
+    /// Starts `name` (a workspace binary, with `args`) in a `cols` × `rows` terminal, inside a
+    /// shell that prints `EXIT=<status>` when it ends and stays, so the test can see the status
+    /// and what the terminal looked like afterwards.
+    pub fn start(sandbox: &Sandbox, name: &str, args: &[&str], cols: u16, rows: u16) -> Self {
+        let socket = sandbox.root.join("tmux.sock");
+        let mut line = format!(
+            "SONAR_IOX_PREFIX={} SONAR_IOX_ROOT={} {}",
+            sandbox.prefix,
+            sandbox.root.display(),
+            bin(name).display()
+        );
+        for a in args {
+            line.push(' ');
+            line.push_str(a);
+        }
+        line.push_str("; echo EXIT=$?; sleep 600");
+        let tmux = Self { socket };
+        let status = tmux
+            .cmd()
+            .args(["new-session", "-d", "-x", &cols.to_string(), "-y", &rows.to_string()])
+            .arg(line)
+            .status()
+            .expect("run tmux (apt-get install -y tmux)");
+        assert!(status.success(), "tmux new-session failed");
+        tmux
+    }
+
+    fn cmd(&self) -> Command {
+        let mut cmd = Command::new("tmux");
+        cmd.arg("-S").arg(&self.socket).stdin(Stdio::null());
+        cmd
+    }
+
+    /// Types keys, in tmux `send-keys` notation (`f`, `Enter`, `C-c`).
+    pub fn send_keys(&self, keys: &[&str]) {
+        let status = self.cmd().arg("send-keys").args(keys).status().unwrap();
+        assert!(status.success(), "tmux send-keys {keys:?} failed");
+    }
+
+    /// The screen as text, without colours.
+    pub fn capture(&self) -> String {
+        let out = self.cmd().args(["capture-pane", "-p"]).output().unwrap();
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    }
+
+    /// Waits until the screen satisfies `pred`; returns it. Fails with the last screen after
+    /// [`PATIENCE`].
+    pub fn wait_for(&self, what: &str, pred: impl Fn(&str) -> bool) -> String {
+        let deadline = Instant::now() + PATIENCE;
+        loop {
+            let screen = self.capture();
+            if pred(&screen) {
+                return screen;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "gave up waiting for {what}; the screen:\n{screen}"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+}
+
+impl Drop for Tmux {
+    fn drop(&mut self) {
+        let _ = self.cmd().arg("kill-server").status();
+    }
+}

@@ -1,0 +1,88 @@
+//! End to end in a real terminal: simulator, driver, fusion and the viewer in tmux; the test
+//! presses keys as a user would and reads the screen.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use sonar_common::ipc::{self, ScanMode};
+use sonar_e2e::{Sandbox, Tmux, collect_until};
+
+/// Rows of the screen holding a horizontal run of at least `len` wall glyphs (`▄`, see the
+/// viewer's README), by row index.
+fn wall_rows(screen: &str, len: usize) -> Vec<usize> {
+    screen
+        .lines()
+        .enumerate()
+        .filter(|(_, line)| {
+            let mut run = 0;
+            line.chars().any(|c| {
+                run = if c == '▄' { run + 1 } else { 0 };
+                run >= len
+            })
+        })
+        .map(|(i, _)| i)
+        .collect()
+}
+
+#[test]
+fn the_viewer_shows_the_room_scans_on_keys_and_quits_cleanly() {
+    let sandbox = Sandbox::new("viewer");
+    let node = sandbox.node("test-observer");
+    let readings = ipc::readings_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let (_sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "20"]);
+    let _driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "none"]);
+    let _fusion = sandbox.spawn("sonar-fusion", &[]);
+    let log = sandbox.root.join("viewer.log");
+    let log = log.to_str().unwrap();
+    let term = Tmux::start(
+        &sandbox,
+        "sonar-viewer",
+        &["--view", "map", "--log-file", log],
+        140,
+        50,
+    );
+
+    term.wait_for("driver and fusion alive", |s| {
+        s.contains("driver   alive") && s.contains("fusion   alive")
+    });
+    assert!(wall_rows(&term.capture(), 8).is_empty(), "no scan, no walls");
+
+    // `f`: the driver starts full sweeps and the room's north and south walls (facing the sweep)
+    // appear above and below the sensor.
+    term.send_keys(&["f"]);
+    let screen = term.wait_for("the room's walls", |s| {
+        let rows = wall_rows(s, 8);
+        rows.len() >= 2 && rows[rows.len() - 1] - rows[0] >= 8
+    });
+    let rows = wall_rows(&screen, 8);
+    // The sensor is `@`, under the cursor `+` until the cursor moves; the status panel (right of
+    // `││`) has `+` signs of its own.
+    let sensor_row = screen
+        .lines()
+        .map(|l| l.split("││").next().unwrap_or(l))
+        .position(|map| map.contains('@') || map.contains('+'))
+        .unwrap_or_else(|| panic!("the sensor is drawn:\n{screen}"));
+    assert!(
+        rows[0] < sensor_row && sensor_row < rows[rows.len() - 1],
+        "walls above and below the sensor:\n{screen}"
+    );
+    assert!(screen.contains("scan     full"), "{screen}");
+
+    // `l` then Enter: a local scan of the selected segment, which the driver carries out.
+    term.send_keys(&["l"]);
+    term.send_keys(&["Enter"]);
+    term.wait_for("local scan in the status panel", |s| s.contains("scan     local"));
+    collect_until(
+        &node,
+        || readings.receive().unwrap().map(|s| *s.payload()),
+        |got| got.last().is_some_and(|r| r.scan_mode() == ScanMode::Local),
+    );
+
+    // `q` quits with status 0 and gives the terminal back: the map is gone from the screen.
+    term.send_keys(&["q"]);
+    let after = term.wait_for("the viewer's exit", |s| s.contains("EXIT="));
+    assert!(after.contains("EXIT=0"), "{after}");
+    assert!(!after.contains('▄') && !after.contains("driver   alive"), "{after}");
+}
