@@ -265,7 +265,14 @@ impl Tmux {
         let tmux = Self { socket };
         let status = tmux
             .cmd()
-            .args(["new-session", "-d", "-x", &cols.to_string(), "-y", &rows.to_string()])
+            .args([
+                "new-session",
+                "-d",
+                "-x",
+                &cols.to_string(),
+                "-y",
+                &rows.to_string(),
+            ])
             .arg(line)
             .status()
             .expect("run tmux (apt-get install -y tmux)");

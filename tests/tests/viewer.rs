@@ -47,7 +47,10 @@ fn the_viewer_shows_the_room_scans_on_keys_and_quits_cleanly() {
     term.wait_for("driver and fusion alive", |s| {
         s.contains("driver   alive") && s.contains("fusion   alive")
     });
-    assert!(wall_rows(&term.capture(), 8).is_empty(), "no scan, no walls");
+    assert!(
+        wall_rows(&term.capture(), 8).is_empty(),
+        "no scan, no walls"
+    );
 
     // `f`: the driver starts full sweeps and the room's north and south walls (facing the sweep)
     // appear above and below the sensor.
@@ -73,7 +76,9 @@ fn the_viewer_shows_the_room_scans_on_keys_and_quits_cleanly() {
     // `l` then Enter: a local scan of the selected segment, which the driver carries out.
     term.send_keys(&["l"]);
     term.send_keys(&["Enter"]);
-    term.wait_for("local scan in the status panel", |s| s.contains("scan     local"));
+    term.wait_for("local scan in the status panel", |s| {
+        s.contains("scan     local")
+    });
     collect_until(
         &node,
         || readings.receive().unwrap().map(|s| *s.payload()),
@@ -84,5 +89,8 @@ fn the_viewer_shows_the_room_scans_on_keys_and_quits_cleanly() {
     term.send_keys(&["q"]);
     let after = term.wait_for("the viewer's exit", |s| s.contains("EXIT="));
     assert!(after.contains("EXIT=0"), "{after}");
-    assert!(!after.contains('▄') && !after.contains("driver   alive"), "{after}");
+    assert!(
+        !after.contains('▄') && !after.contains("driver   alive"),
+        "{after}"
+    );
 }
