@@ -1,0 +1,184 @@
+//! The pipeline's one configuration: a TOML file (see `examples/sonar.toml`), overridden by the
+//! launcher's flags and their environment variables, turned into each process's command line.
+//!
+//! The launcher passes a process only the settings the user gave, so every default lives in one
+//! place: the process that uses it. The `[fusion]` table is validated here, before anything starts,
+//! and handed to `sonar-fusion` as the same file.
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+use sonar_fusion::FusionConfig;
+
+/// A configuration file the pipeline cannot start with.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("invalid configuration in {path}: {message}")]
+    Parse { path: PathBuf, message: String },
+    #[error("invalid [fusion] settings in {path}: {source}")]
+    Fusion {
+        path: PathBuf,
+        source: sonar_fusion::ConfigError,
+    },
+}
+
+/// The file's tables. Every key is optional; unknown keys are errors (a typo must not be ignored).
+#[derive(Debug, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PipelineFile {
+    pub iceoryx2: Iceoryx2Section,
+    pub serial: SerialSection,
+    pub sensor: SensorSection,
+    pub simulator: SimulatorSection,
+    /// `sonar-fusion` reads this table from the same file.
+    pub fusion: FusionConfig,
+    pub viewer: ViewerSection,
+    pub launcher: LauncherSection,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Iceoryx2Section {
+    /// Prefix of the shared-memory names: separates pipelines on one machine.
+    pub prefix: Option<String>,
+    /// Directory of iceoryx2's service and node files.
+    pub root: Option<PathBuf>,
+    /// A full iceoryx2 configuration file instead.
+    pub config: Option<PathBuf>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SerialSection {
+    /// The sensor head's serial device; without it the simulator runs instead.
+    pub port: Option<PathBuf>,
+    pub baud: Option<u32>,
+    /// `native` or `hobby`.
+    pub dialect: Option<String>,
+    /// `full`, `none` or `FROM..TO` degrees.
+    pub scan: Option<String>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SensorSection {
+    pub air_temperature_c: Option<f32>,
+    pub beam_half_angle_deg: Option<f32>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimulatorSection {
+    /// Built-in scene (`room`, `corner`, `obstacle`, `two-obstacles`) or scene file.
+    pub scene: Option<String>,
+    /// Speed factor or `max`.
+    pub speed: Option<String>,
+    pub seed: Option<u64>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ViewerSection {
+    /// Start the terminal viewer in front (off for a robot started at boot).
+    pub enabled: bool,
+    /// `map`, `radar` or `split`.
+    pub view: Option<String>,
+    /// `auto`, `truecolor` or `256`.
+    pub color: Option<String>,
+}
+
+impl Default for ViewerSection {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            view: None,
+            color: None,
+        }
+    }
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LauncherSection {
+    /// Where each process's log goes.
+    pub log_dir: Option<PathBuf>,
+    /// Restarts of one process within a minute before the launcher gives up.
+    pub max_restarts: Option<u32>,
+}
+
+impl PipelineFile {
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::parse(&text, path)
+    }
+
+    fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        let file: Self = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: path.to_owned(),
+            message: e.to_string(),
+        })?;
+        file.fusion
+            .validate()
+            .map_err(|source| ConfigError::Fusion {
+                path: path.to_owned(),
+                source,
+            })?;
+        Ok(file)
+    }
+}
+
+/// Appends `--flag value` when the value is set.
+pub fn push_opt<T: ToString>(args: &mut Vec<String>, flag: &str, value: Option<T>) {
+    if let Some(v) = value {
+        args.push(flag.to_owned());
+        args.push(v.to_string());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_example_configuration_parses() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/sonar.toml");
+        let file = PipelineFile::load(&path).unwrap();
+        assert_eq!(file.simulator.scene.as_deref(), Some("room"));
+        assert!(file.viewer.enabled);
+        assert_eq!(file.fusion, FusionConfig::default());
+    }
+
+    #[test]
+    fn an_empty_file_means_every_default() {
+        let file = PipelineFile::parse("", Path::new("x.toml")).unwrap();
+        assert!(file.serial.port.is_none());
+        assert!(file.viewer.enabled);
+    }
+
+    #[test]
+    fn typos_and_bad_fusion_settings_are_errors() {
+        let typo = PipelineFile::parse("[serial]\nbuad = 9600\n", Path::new("x.toml"));
+        assert!(
+            matches!(&typo, Err(ConfigError::Parse { message, .. }) if message.contains("buad")),
+            "{typo:?}"
+        );
+        let bad = PipelineFile::parse("[fusion.grid]\nresolution_m = -1.0\n", Path::new("x.toml"));
+        assert!(matches!(bad, Err(ConfigError::Fusion { .. })), "{bad:?}");
+    }
+
+    #[test]
+    fn only_given_settings_become_flags() {
+        let mut args = Vec::new();
+        push_opt(&mut args, "--baud", Some(9600));
+        push_opt::<u32>(&mut args, "--seed", None);
+        assert_eq!(args, ["--baud", "9600"]);
+    }
+}

@@ -1,0 +1,530 @@
+//! `sonar-pipeline`: the whole pipeline with one command.
+//!
+//! Starts the simulator (or uses a real serial port), the driver, the fusion engine and the
+//! terminal viewer as separate OS processes sharing one configuration and one iceoryx2 namespace,
+//! restarts a process that dies, and stops them all when the viewer quits (`q`), on Ctrl-C or on
+//! SIGTERM. The viewer owns the terminal; the other processes log to files in the log directory.
+
+mod config;
+
+use std::collections::VecDeque;
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitCode, ExitStatus, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use clap::Parser;
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+use sonar_common::ipc::IpcArgs;
+use tracing::{error, info, warn};
+
+use crate::config::{PipelineFile, push_opt};
+
+/// How often the supervisor looks at its children.
+const SUPERVISE_PERIOD: Duration = Duration::from_millis(100);
+/// A process that exits with an error this soon after its start has a configuration problem, not
+/// a crash: restarting cannot help, so the pipeline stops and shows its log.
+const STARTUP_GRACE: Duration = Duration::from_secs(2);
+/// The window in which `max_restarts` restarts of one process mean a crash loop.
+const RESTART_WINDOW: Duration = Duration::from_secs(60);
+const DEFAULT_MAX_RESTARTS: u32 = 5;
+/// How long the simulator may take to open its pseudo-terminal.
+const SIMULATOR_READY_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long the processes get to exit after SIGTERM before they are killed.
+const SHUTDOWN_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Runs the sonar pipeline: simulator (or a real sensor head on --port), driver, fusion engine
+/// and terminal viewer, as separate processes over iceoryx2 shared memory.
+///
+/// Settings come from --config (see examples/sonar.toml), overridden by the flags below and
+/// their environment variables. Quit with `q` in the viewer, Ctrl-C, or SIGTERM: every process
+/// stops and nothing is left in shared memory. A process that dies is restarted.
+///
+/// Examples:
+///   sonar-pipeline                                   # the simulated room, in real time
+///   sonar-pipeline --scene obstacle --scan=-45..45 --speed 10
+///   sonar-pipeline --port /dev/ttyUSB0               # a real sensor head
+///   sonar-pipeline --config /etc/sonar.toml --no-viewer   # at boot, e.g. from systemd
+#[derive(Debug, Parser)]
+#[command(version, verbatim_doc_comment)]
+struct Args {
+    /// Pipeline configuration file (TOML).
+    #[arg(long, env = "SONAR_CONFIG")]
+    config: Option<PathBuf>,
+    /// Serial device of a real sensor head; without it, the simulator runs.
+    #[arg(long, env = "SONAR_PORT")]
+    port: Option<PathBuf>,
+    /// Simulator scene: room, corner, obstacle, two-obstacles, or a scene file.
+    #[arg(long, env = "SONAR_SCENE")]
+    scene: Option<String>,
+    /// Simulator speed: a factor (1 = real time) or `max`.
+    #[arg(long, env = "SONAR_SPEED")]
+    speed: Option<String>,
+    /// Simulator noise seed.
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Scan after the handshake: full, none, or FROM..TO degrees (write --scan=-30..30).
+    #[arg(long, env = "SONAR_SCAN")]
+    scan: Option<String>,
+    /// Fusion preset: paper or recommended (replaces the [fusion] model and rule).
+    #[arg(long, env = "SONAR_PRESET")]
+    preset: Option<String>,
+    /// Run without the terminal viewer (at boot, or to attach viewers separately).
+    #[arg(long)]
+    no_viewer: bool,
+    /// Viewer's first view: map, radar or split.
+    #[arg(long)]
+    view: Option<String>,
+    /// Directory for the processes' logs [default: $XDG_STATE_HOME/sonar, else ~/.local/state/sonar].
+    #[arg(long, env = "SONAR_LOG_DIR")]
+    log_dir: Option<PathBuf>,
+    /// Directory of the pipeline's programs [default: the one this program is in].
+    #[arg(long)]
+    bin_dir: Option<PathBuf>,
+    #[command(flatten)]
+    ipc: IpcArgs,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    match run(args) {
+        Ok(code) => code,
+        Err(e) => {
+            error!("{e:#}");
+            eprintln!("sonar-pipeline: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// One process of the pipeline: how to start it, and its current incarnation.
+struct Process {
+    name: &'static str,
+    args: Vec<String>,
+    /// The viewer: owns the terminal, and its exit ends the pipeline.
+    foreground: bool,
+    child: Option<Child>,
+    started: Instant,
+    restarts: VecDeque<Instant>,
+    restart_at: Option<Instant>,
+}
+
+/// Everything the pipeline's processes share.
+struct Pipeline {
+    bin_dir: PathBuf,
+    log_dir: PathBuf,
+    env: Vec<(&'static str, String)>,
+    /// The simulator's stable link to its pseudo-terminal, if the simulator runs.
+    sim_link: Option<PathBuf>,
+    max_restarts: u32,
+    processes: Vec<Process>,
+}
+
+fn default_log_dir() -> PathBuf {
+    if let Some(state) = std::env::var_os("XDG_STATE_HOME").filter(|s| !s.is_empty()) {
+        return PathBuf::from(state).join("sonar");
+    }
+    match std::env::var_os("HOME").filter(|s| !s.is_empty()) {
+        Some(home) => PathBuf::from(home).join(".local/state/sonar"),
+        None => std::env::temp_dir().join("sonar"),
+    }
+}
+
+fn run(args: Args) -> Result<ExitCode> {
+    let file = match &args.config {
+        Some(path) => PipelineFile::load(path)?,
+        None => PipelineFile::default(),
+    };
+    let log_dir = args
+        .log_dir
+        .clone()
+        .or(file.launcher.log_dir.clone())
+        .unwrap_or_else(default_log_dir);
+    std::fs::create_dir_all(&log_dir)
+        .with_context(|| format!("cannot create log directory {}", log_dir.display()))?;
+    let with_viewer = file.viewer.enabled && !args.no_viewer;
+    init_logging(&log_dir, with_viewer)?;
+
+    let mut pipeline = Pipeline::plan(&args, &file, log_dir, with_viewer)?;
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [
+        signal_hook::consts::SIGINT,
+        signal_hook::consts::SIGTERM,
+        signal_hook::consts::SIGHUP,
+    ] {
+        signal_hook::flag::register(signal, Arc::clone(&stop))
+            .context("cannot install signal handlers")?;
+    }
+
+    let outcome = pipeline
+        .start_all(&stop)
+        .and_then(|()| pipeline.supervise(&stop));
+    pipeline.stop_all();
+    pipeline.clean_shared_memory(&args.ipc, &file);
+    if let Some(link) = &pipeline.sim_link {
+        let _ = std::fs::remove_file(link);
+    }
+    let logs = pipeline.log_dir.display();
+    match outcome {
+        Ok(()) => {
+            info!("pipeline stopped");
+            if with_viewer {
+                eprintln!("sonar-pipeline: stopped; logs in {logs}");
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Err(e) => Err(e.context(format!("the pipeline stopped (logs in {logs})"))),
+    }
+}
+
+/// The launcher's own log: stderr, or a file while the viewer owns the terminal.
+fn init_logging(log_dir: &Path, to_file: bool) -> Result<()> {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let builder = tracing_subscriber::fmt().with_env_filter(filter);
+    if to_file {
+        let path = log_dir.join("sonar-pipeline.log");
+        let file = append(&path)?;
+        let _ = builder
+            .with_ansi(false)
+            .with_writer(std::sync::Mutex::new(file))
+            .try_init();
+    } else {
+        let _ = builder.with_writer(std::io::stderr).try_init();
+    }
+    Ok(())
+}
+
+fn append(path: &Path) -> Result<File> {
+    File::options()
+        .create(true)
+        .append(true)
+        .open(path)
+        .with_context(|| format!("cannot open log file {}", path.display()))
+}
+
+impl Pipeline {
+    /// The processes and their command lines, from the file and the flags.
+    fn plan(args: &Args, file: &PipelineFile, log_dir: PathBuf, with_viewer: bool) -> Result<Self> {
+        let bin_dir = match &args.bin_dir {
+            Some(dir) => dir.clone(),
+            None => std::env::current_exe()
+                .context("cannot locate this program")?
+                .parent()
+                .map(Path::to_owned)
+                .context("this program has no directory")?,
+        };
+        let mut env = Vec::new();
+        let iox = &file.iceoryx2;
+        let prefix = args.ipc.iox_prefix.clone().or(iox.prefix.clone());
+        let root = args.ipc.iox_root.clone().or(iox.root.clone());
+        let iox_config = args.ipc.iox_config.clone().or(iox.config.clone());
+        if let Some(p) = prefix {
+            env.push(("SONAR_IOX_PREFIX", p));
+        }
+        if let Some(r) = root {
+            env.push(("SONAR_IOX_ROOT", r.display().to_string()));
+        }
+        if let Some(c) = iox_config {
+            env.push(("SONAR_IOX_CONFIG", c.display().to_string()));
+        }
+
+        let mut processes = Vec::new();
+        let port = args.port.clone().or(file.serial.port.clone());
+        let sim_link = match &port {
+            Some(_) => None,
+            None => {
+                let link =
+                    std::env::temp_dir().join(format!("sonar-pipeline-{}.pty", std::process::id()));
+                let mut sim = vec!["--link".to_owned(), link.display().to_string()];
+                push_opt(
+                    &mut sim,
+                    "--scene",
+                    args.scene.clone().or(file.simulator.scene.clone()),
+                );
+                push_opt(
+                    &mut sim,
+                    "--speed",
+                    args.speed.clone().or(file.simulator.speed.clone()),
+                );
+                push_opt(&mut sim, "--seed", args.seed.or(file.simulator.seed));
+                push_opt(&mut sim, "--dialect", file.serial.dialect.clone());
+                push_opt(&mut sim, "--air-temperature", file.sensor.air_temperature_c);
+                processes.push(Process::new("sonar-sim", sim, false));
+                Some(link)
+            }
+        };
+        let port = port.or(sim_link.clone()).context("no serial port")?;
+        let mut driver = vec!["--port".to_owned(), port.display().to_string()];
+        push_opt(&mut driver, "--baud", file.serial.baud);
+        push_opt(&mut driver, "--dialect", file.serial.dialect.clone());
+        if let Some(scan) = args.scan.clone().or(file.serial.scan.clone()) {
+            // `=` keeps a segment such as -30..30 from reading as a flag.
+            driver.push(format!("--scan={scan}"));
+        }
+        push_opt(
+            &mut driver,
+            "--air-temperature",
+            file.sensor.air_temperature_c,
+        );
+        push_opt(
+            &mut driver,
+            "--beam-half-angle",
+            file.sensor.beam_half_angle_deg,
+        );
+        processes.push(Process::new("sonar-driver", driver, false));
+
+        let mut fusion = Vec::new();
+        push_opt(
+            &mut fusion,
+            "--config",
+            args.config.as_ref().map(|p| p.display()),
+        );
+        push_opt(&mut fusion, "--preset", args.preset.clone());
+        processes.push(Process::new("sonar-fusion", fusion, false));
+
+        if with_viewer {
+            let mut viewer = vec![
+                "--log-file".to_owned(),
+                log_dir.join("sonar-viewer.log").display().to_string(),
+            ];
+            push_opt(
+                &mut viewer,
+                "--view",
+                args.view.clone().or(file.viewer.view.clone()),
+            );
+            push_opt(&mut viewer, "--color", file.viewer.color.clone());
+            processes.push(Process::new("sonar-viewer", viewer, true));
+        }
+        for p in &processes {
+            let path = bin_dir.join(p.name);
+            if !path.exists() {
+                bail!(
+                    "{} is missing (build with `cargo build --release --workspace --bins`, or \
+                     point --bin-dir at the programs)",
+                    path.display()
+                );
+            }
+        }
+        Ok(Self {
+            bin_dir,
+            log_dir,
+            env,
+            sim_link,
+            max_restarts: file.launcher.max_restarts.unwrap_or(DEFAULT_MAX_RESTARTS),
+            processes,
+        })
+    }
+
+    fn start_all(&mut self, stop: &AtomicBool) -> Result<()> {
+        for i in 0..self.processes.len() {
+            if stop.load(Ordering::Relaxed) {
+                return Ok(());
+            }
+            self.start(i)?;
+        }
+        Ok(())
+    }
+
+    /// Starts process `i`; the simulator counts as started once its pseudo-terminal exists, so
+    /// the driver finds the port.
+    fn start(&mut self, i: usize) -> Result<()> {
+        let p = &self.processes[i];
+        let mut cmd = Command::new(self.bin_dir.join(p.name));
+        cmd.args(&p.args)
+            .envs(self.env.iter().map(|(k, v)| (*k, v)));
+        if !p.foreground {
+            let log = append(&self.log_dir.join(format!("{}.log", p.name)))?;
+            let log2 = log.try_clone().context("cannot share a log file")?;
+            cmd.stdin(Stdio::null()).stdout(log).stderr(log2);
+        }
+        if p.name == "sonar-sim"
+            && let Some(link) = &self.sim_link
+        {
+            // A stale link from a previous incarnation must not look like readiness.
+            let _ = std::fs::remove_file(link);
+        }
+        let child = cmd
+            .spawn()
+            .with_context(|| format!("cannot start {}", p.name))?;
+        info!(process = p.name, pid = child.id(), args = ?p.args, "started");
+        let p = &mut self.processes[i];
+        p.child = Some(child);
+        p.started = Instant::now();
+        p.restart_at = None;
+        if p.name == "sonar-sim"
+            && let Some(link) = self.sim_link.clone()
+        {
+            self.wait_for_simulator(i, &link)?;
+        }
+        Ok(())
+    }
+
+    fn wait_for_simulator(&mut self, i: usize, link: &Path) -> Result<()> {
+        let deadline = Instant::now() + SIMULATOR_READY_TIMEOUT;
+        while !link.exists() {
+            if let Some(child) = self.processes[i].child.as_mut()
+                && let Ok(Some(status)) = child.try_wait()
+            {
+                bail!(
+                    "sonar-sim exited at start ({status}):\n{}",
+                    self.log_tail("sonar-sim")
+                );
+            }
+            if Instant::now() > deadline {
+                bail!(
+                    "sonar-sim did not open its pseudo-terminal within {SIMULATOR_READY_TIMEOUT:?}"
+                );
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        Ok(())
+    }
+
+    /// Watches the processes until the viewer quits, a signal arrives, or a process cannot be
+    /// kept running.
+    fn supervise(&mut self, stop: &AtomicBool) -> Result<()> {
+        loop {
+            if stop.load(Ordering::Relaxed) {
+                info!("signal received: stopping");
+                return Ok(());
+            }
+            let now = Instant::now();
+            for i in 0..self.processes.len() {
+                let p = &mut self.processes[i];
+                let exited = match p.child.as_mut().map(Child::try_wait) {
+                    Some(Ok(Some(status))) => status,
+                    Some(Ok(None)) | None => {
+                        if p.restart_at.is_some_and(|t| t <= now) {
+                            self.start(i)?;
+                        }
+                        continue;
+                    }
+                    Some(Err(e)) => bail!("cannot watch {}: {e}", p.name),
+                };
+                p.child = None;
+                if p.foreground {
+                    info!(%exited, "viewer quit: stopping");
+                    return if exited.success() {
+                        Ok(())
+                    } else {
+                        Err(anyhow::anyhow!("sonar-viewer failed ({exited})"))
+                    };
+                }
+                if stop.load(Ordering::Relaxed) {
+                    return Ok(()); // it stopped for the same signal we got
+                }
+                self.schedule_restart(i, exited, now)?;
+            }
+            std::thread::sleep(SUPERVISE_PERIOD);
+        }
+    }
+
+    fn schedule_restart(&mut self, i: usize, exited: ExitStatus, now: Instant) -> Result<()> {
+        let name = self.processes[i].name;
+        let ran = now.duration_since(self.processes[i].started);
+        // An error exit (not a signal) right after the start is a configuration problem.
+        if ran < STARTUP_GRACE && exited.code().is_some_and(|c| c != 0) {
+            bail!(
+                "{name} failed at start ({exited}); its log:\n{}",
+                self.log_tail(name)
+            );
+        }
+        let p = &mut self.processes[i];
+        while p
+            .restarts
+            .front()
+            .is_some_and(|&t| now.duration_since(t) > RESTART_WINDOW)
+        {
+            p.restarts.pop_front();
+        }
+        if p.restarts.len() >= self.max_restarts as usize {
+            bail!(
+                "{name} died {} times within {RESTART_WINDOW:?}: giving up; its log:\n{}",
+                p.restarts.len() + 1,
+                self.log_tail(name)
+            );
+        }
+        p.restarts.push_back(now);
+        let delay = Duration::from_millis(500) * (1 << p.restarts.len().min(5));
+        warn!(process = name, %exited, ?delay, "process died: restarting");
+        p.restart_at = Some(now + delay);
+        Ok(())
+    }
+
+    /// The last lines of a process's log, for an error message.
+    fn log_tail(&self, name: &str) -> String {
+        let path = self.log_dir.join(format!("{name}.log"));
+        let text = std::fs::read_to_string(&path).unwrap_or_default();
+        let lines: Vec<&str> = text.lines().collect();
+        lines[lines.len().saturating_sub(10)..].join("\n")
+    }
+
+    /// SIGTERM to every process, the viewer first; SIGKILL to any still running after
+    /// [`SHUTDOWN_TIMEOUT`].
+    fn stop_all(&mut self) {
+        for p in self.processes.iter().rev() {
+            if let Some(child) = &p.child
+                && let Ok(pid) = i32::try_from(child.id())
+            {
+                let _ = kill(Pid::from_raw(pid), Signal::SIGTERM);
+            }
+        }
+        let deadline = Instant::now() + SHUTDOWN_TIMEOUT;
+        for p in self.processes.iter_mut().rev() {
+            let Some(child) = p.child.as_mut() else {
+                continue;
+            };
+            loop {
+                match child.try_wait() {
+                    Ok(Some(status)) => {
+                        info!(process = p.name, %status, "stopped");
+                        break;
+                    }
+                    Ok(None) if Instant::now() < deadline => {
+                        std::thread::sleep(Duration::from_millis(20));
+                    }
+                    _ => {
+                        warn!(process = p.name, "did not stop in time: killed");
+                        let _ = child.kill();
+                        let _ = child.wait();
+                        break;
+                    }
+                }
+            }
+            p.child = None;
+        }
+    }
+
+    /// Removes what processes that were killed or crashed left in shared memory: creating a node
+    /// cleans up dead nodes of the namespace (iceoryx2's default), and it is removed again on drop.
+    fn clean_shared_memory(&self, ipc: &IpcArgs, file: &PipelineFile) {
+        let args = IpcArgs {
+            iox_config: ipc.iox_config.clone().or(file.iceoryx2.config.clone()),
+            iox_prefix: ipc.iox_prefix.clone().or(file.iceoryx2.prefix.clone()),
+            iox_root: ipc.iox_root.clone().or(file.iceoryx2.root.clone()),
+        };
+        match args.node("sonar-pipeline") {
+            Ok(node) => drop(node),
+            Err(e) => warn!("cannot clean up shared memory: {e}"),
+        }
+    }
+}
+
+impl Process {
+    fn new(name: &'static str, args: Vec<String>, foreground: bool) -> Self {
+        Self {
+            name,
+            args,
+            foreground,
+            child: None,
+            started: Instant::now(),
+            restarts: VecDeque::new(),
+            restart_at: None,
+        }
+    }
+}
