@@ -1,0 +1,486 @@
+//! `sonar-record`: writes the pipeline's readings, commands and poses to an MCAP file.
+//!
+//! Two threads. The main thread sleeps in an iceoryx2 WaitSet on the readings' wake-up event (and
+//! the command services' wake-up events), plus a short interval for publishers that never notify
+//! and for the stop conditions; each wake-up drains every subscriber completely and hands plain
+//! copies of the payloads to the writer thread over an unbounded channel. The writer thread owns
+//! the file. So a slow disk delays only the writer: the subscriber's 256-reading buffer is
+//! emptied at every wake-up whatever the disk does, and the backlog waits in memory (104 B per
+//! reading) instead of being overwritten in shared memory.
+
+use std::collections::BTreeMap;
+use std::fmt::Debug;
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
+use std::thread;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, anyhow, bail};
+use clap::Parser;
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::service::ipc::Service as Ipc;
+use iceoryx2::waitset::WaitSetRunResult;
+use sonar_common::ipc::{self, IpcArgs, IpcError, PubSub, Reading};
+use sonar_recorder::format::{Message, RecordingWriter, Topic};
+use tracing::{debug, error, info, warn};
+
+/// How often the loop wakes without an event: polls subscribers whose publishers do not notify,
+/// and checks `--duration`.
+const POLL: Duration = Duration::from_millis(100);
+/// The writer closes a chunk and flushes at least this often while data comes in, so a recorder
+/// killed with SIGKILL loses at most about this much (`sonar-replay --allow-truncated`).
+const FLUSH_PERIOD: Duration = Duration::from_secs(1);
+/// Readings waiting for the disk before the progress log warns about it.
+const BACKLOG_WARNING: u64 = 10_000;
+
+/// Records `sonar/readings`, `sonar/commands`, `sonar/fusion_commands` and `robot/pose` to an MCAP
+/// file (one channel each; docs/recording.md), until Ctrl-C/SIGTERM, `--count` or `--duration`.
+///
+/// Examples:
+///   sonar-record run.mcap                          # until Ctrl-C
+///   sonar-record run.mcap --count 500              # the next 500 readings
+///   sonar-record run.mcap --duration 60 --force    # one minute, replacing run.mcap
+#[derive(Debug, Parser)]
+#[command(version, verbatim_doc_comment)]
+struct Args {
+    /// Output file (MCAP). Not replaced if it exists, unless `--force`.
+    file: PathBuf,
+    /// Replace the output file if it exists.
+    #[arg(long)]
+    force: bool,
+    /// Stop after this many readings.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    count: Option<u64>,
+    /// Stop after this many seconds.
+    #[arg(long, value_name = "SECONDS", value_parser = positive_seconds)]
+    duration: Option<Duration>,
+    /// Seconds between progress lines in the log.
+    #[arg(long, value_name = "SECONDS", default_value = "5", value_parser = positive_seconds)]
+    progress_interval: Duration,
+    #[command(flatten)]
+    ipc: IpcArgs,
+}
+
+fn positive_seconds(s: &str) -> Result<Duration, String> {
+    match s.parse::<f64>() {
+        Ok(x) if x.is_finite() && x > 0.0 && x < 1e9 => Ok(Duration::from_secs_f64(x)),
+        _ => Err(format!("{s:?} is not a positive number of seconds")),
+    }
+}
+
+fn main() -> std::process::ExitCode {
+    sonar_common::init_tracing();
+    match run(Args::parse()) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            error!("{e:#}");
+            eprintln!("sonar-record: error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+/// Counters the writer thread shares with the main thread.
+#[derive(Debug, Default)]
+struct Written {
+    messages: AtomicU64,
+}
+
+/// What the writer thread reports at the end.
+#[derive(Debug)]
+struct Finished {
+    counts: BTreeMap<Topic, u64>,
+    bytes: u64,
+}
+
+fn run(args: Args) -> Result<()> {
+    let node = args.ipc.node("sonar-record")?;
+    // iceoryx2 installs its SIGINT/SIGTERM handler on the first wait; until then a signal kills
+    // the process outright. Install it before subscribing, so that anyone who sees our
+    // subscription may stop us cleanly.
+    let signalled_early = node.wait(Duration::ZERO).is_err();
+    let ports = Ports::open(&node)?;
+
+    // The file after the ports: a failure to set those up leaves no file behind.
+    let started_ns = ipc::unix_time_ns();
+    let mut extra = BTreeMap::new();
+    extra.insert(
+        "recorder".to_owned(),
+        format!("sonar-record {}", env!("CARGO_PKG_VERSION")),
+    );
+    extra.insert("started_unix_ns".to_owned(), started_ns.to_string());
+    let writer = RecordingWriter::create(&args.file, args.force, &extra)
+        .with_context(|| format!("cannot create the recording {}", args.file.display()))
+        .map_err(|e| {
+            if args.file.exists() && !args.force {
+                e.context("the file exists: pass --force to replace it")
+            } else {
+                e
+            }
+        })?;
+
+    let written = Arc::new(Written::default());
+    let (tx, rx) = mpsc::channel::<(u64, Message)>();
+    let writer_thread = {
+        let written = Arc::clone(&written);
+        thread::Builder::new()
+            .name("recording-writer".into())
+            .spawn(move || write_loop(writer, rx, &written))
+            .context("start the writer thread")?
+    };
+
+    info!(
+        file = %args.file.display(),
+        count = ?args.count,
+        duration = ?args.duration,
+        "recording"
+    );
+    let mut recorder = Recorder {
+        tx,
+        readings: 0,
+        others: 0,
+        lost: 0,
+        last_seq: None,
+        limit: args.count,
+        writer_gone: false,
+    };
+    let outcome = if signalled_early {
+        info!("signal received before the recording started");
+        Ok(())
+    } else {
+        recorder.run(&ports, &node, &args, &written)
+    };
+
+    // Closing the channel tells the writer to write what is queued and finish the file.
+    let Recorder {
+        tx, readings, lost, ..
+    } = recorder;
+    drop(tx);
+    let finished = match writer_thread.join() {
+        Ok(result) => result,
+        Err(_) => Err(anyhow!("the writer thread panicked")),
+    };
+    // The writer's error, if any, is the cause; the loop's "writer stopped" only its echo.
+    let finished = finished
+        .and_then(|f| outcome.map(|()| f))
+        .with_context(|| {
+            format!(
+                "recording {} failed after {readings} readings",
+                args.file.display()
+            )
+        })?;
+    let count = |t| finished.counts.get(&t).copied().unwrap_or(0);
+    info!(
+        file = %args.file.display(),
+        readings = count(Topic::Readings),
+        scan_commands = count(Topic::ScanCommands),
+        fusion_commands = count(Topic::FusionCommands),
+        poses = count(Topic::Pose),
+        lost,
+        bytes = finished.bytes,
+        seconds = format_args!("{:.1}", (ipc::unix_time_ns() - started_ns) as f64 / 1e9),
+        "recording finished"
+    );
+    if lost > 0 {
+        warn!(
+            "{lost} readings were lost before they reached the recorder (see the warnings above)"
+        );
+    }
+    Ok(())
+}
+
+/// The subscriptions. Readings are required; the other services are recorded when a subscriber
+/// can be had (their QoS allows only two subscribers, e.g. the driver and one recorder).
+struct Ports {
+    readings: Subscriber<Ipc, Reading, ()>,
+    scan_commands: Option<Subscriber<Ipc, ipc::ScanCommand, ()>>,
+    fusion_commands: Option<Subscriber<Ipc, ipc::FusionCommand, ()>>,
+    pose: Option<Subscriber<Ipc, ipc::Pose2D, ()>>,
+    /// Wake-up events: the readings' (required), then those of the other services.
+    listeners: Vec<Listener<Ipc>>,
+}
+
+impl Ports {
+    fn open(node: &Node<Ipc>) -> Result<Self> {
+        let readings = ipc::readings_service(node)?
+            .subscriber_builder()
+            .create()
+            .map_err(|e| IpcError::new("create readings subscriber", e))?;
+        let mut listeners = vec![listener(node, ipc::READINGS_SERVICE)?];
+        let scan_commands = optional(node, ipc::commands_service, Topic::ScanCommands);
+        let fusion_commands = optional(node, ipc::fusion_commands_service, Topic::FusionCommands);
+        let pose = optional(node, ipc::pose_service, Topic::Pose);
+        for (present, topic) in [
+            (scan_commands.is_some(), Topic::ScanCommands),
+            (fusion_commands.is_some(), Topic::FusionCommands),
+            (pose.is_some(), Topic::Pose),
+        ] {
+            if present {
+                match listener(node, topic.service()) {
+                    Ok(l) => listeners.push(l),
+                    Err(e) => debug!("no wake-up listener for {topic} (polled instead): {e:#}"),
+                }
+            }
+        }
+        Ok(Self {
+            readings,
+            scan_commands,
+            fusion_commands,
+            pose,
+            listeners,
+        })
+    }
+}
+
+fn listener(node: &Node<Ipc>, name: &str) -> Result<Listener<Ipc>> {
+    Ok(ipc::wakeup_service(node, name)?
+        .listener_builder()
+        .create()
+        .map_err(|e| IpcError::new(format!("create {name} listener"), e))?)
+}
+
+fn optional<T: Debug + ZeroCopySend>(
+    node: &Node<Ipc>,
+    open: fn(&Node<Ipc>) -> Result<PubSub<T>, IpcError>,
+    topic: Topic,
+) -> Option<Subscriber<Ipc, T, ()>> {
+    let result = open(node).and_then(|service| {
+        service
+            .subscriber_builder()
+            .create()
+            .map_err(|e| IpcError::new("create subscriber", e))
+    });
+    match result {
+        Ok(sub) => Some(sub),
+        Err(e) => {
+            warn!("not recording {topic}: {e}");
+            None
+        }
+    }
+}
+
+struct Recorder {
+    tx: Sender<(u64, Message)>,
+    readings: u64,
+    others: u64,
+    lost: u64,
+    last_seq: Option<u64>,
+    limit: Option<u64>,
+    writer_gone: bool,
+}
+
+impl Recorder {
+    fn run(
+        &mut self,
+        ports: &Ports,
+        node: &Node<Ipc>,
+        args: &Args,
+        written: &Written,
+    ) -> Result<()> {
+        let waitset = WaitSetBuilder::new()
+            .create::<Ipc>()
+            .map_err(|e| IpcError::new("create waitset", e))?;
+        let mut _guards = Vec::new();
+        for l in &ports.listeners {
+            _guards.push(
+                waitset
+                    .attach_notification(l)
+                    .map_err(|e| IpcError::new("attach listener", e))?,
+            );
+        }
+        let _interval = waitset
+            .attach_interval(POLL)
+            .map_err(|e| IpcError::new("attach interval", e))?;
+
+        let start = Instant::now();
+        let mut next_progress = start + args.progress_interval;
+        let mut readings_at_progress = 0;
+        loop {
+            match waitset.wait_and_process_once(|_| CallbackProgression::Continue) {
+                Ok(WaitSetRunResult::Interrupt | WaitSetRunResult::TerminationRequest) => {
+                    info!("signal received: finishing the recording");
+                    // What was delivered before the signal still belongs in the file.
+                    self.drain_all(ports);
+                    return Ok(());
+                }
+                Ok(_) => {}
+                Err(e) => return Err(IpcError::new("wait for readings", e).into()),
+            }
+            for l in &ports.listeners {
+                let _ = l.try_wait(|_| {});
+            }
+            let done = self.drain_all(ports);
+            if self.writer_gone {
+                bail!("the writer stopped");
+            }
+            if done {
+                info!(readings = self.readings, "reached --count");
+                return Ok(());
+            }
+            if args.duration.is_some_and(|d| start.elapsed() >= d) {
+                info!(readings = self.readings, "reached --duration");
+                return Ok(());
+            }
+            let now = Instant::now();
+            if now >= next_progress {
+                let backlog = (self.readings + self.others)
+                    .saturating_sub(written.messages.load(Ordering::Relaxed));
+                let rate = (self.readings - readings_at_progress) as f64
+                    / args.progress_interval.as_secs_f64();
+                info!(
+                    readings = self.readings,
+                    rate = format_args!("{rate:.1}/s"),
+                    commands_and_poses = self.others,
+                    lost = self.lost,
+                    backlog,
+                    "recording"
+                );
+                if backlog > BACKLOG_WARNING {
+                    warn!(
+                        backlog,
+                        "the disk is slower than the readings; they wait in memory"
+                    );
+                }
+                readings_at_progress = self.readings;
+                next_progress = now + args.progress_interval;
+            }
+            if node.wait(Duration::ZERO).is_err() {
+                info!("signal received: finishing the recording");
+                self.drain_all(ports);
+                return Ok(());
+            }
+        }
+    }
+
+    /// Empties every subscriber (commands and poses first: they are usually older than the
+    /// readings found in the same wake-up); true once `--count` is reached.
+    fn drain_all(&mut self, ports: &Ports) -> bool {
+        let now = ipc::unix_time_ns();
+        if let Some(sub) = &ports.scan_commands {
+            self.drain(sub, Topic::ScanCommands, |c| Message::ScanCommand(*c), now);
+        }
+        if let Some(sub) = &ports.fusion_commands {
+            self.drain(
+                sub,
+                Topic::FusionCommands,
+                |c| Message::FusionCommand(*c),
+                now,
+            );
+        }
+        if let Some(sub) = &ports.pose {
+            self.drain(sub, Topic::Pose, |p| Message::Pose(*p), now);
+        }
+        self.drain_readings(&ports.readings)
+    }
+
+    fn send(&mut self, log_time_ns: u64, message: Message) {
+        if self.tx.send((log_time_ns, message)).is_err() {
+            self.writer_gone = true;
+        }
+    }
+
+    fn drain<T: Debug + ZeroCopySend>(
+        &mut self,
+        sub: &Subscriber<Ipc, T, ()>,
+        topic: Topic,
+        wrap: impl Fn(&T) -> Message,
+        now: u64,
+    ) {
+        loop {
+            match sub.receive() {
+                Ok(Some(sample)) => {
+                    let message = wrap(sample.payload());
+                    debug!(?message, "recorded");
+                    self.others += 1;
+                    self.send(now, message);
+                }
+                Ok(None) => return,
+                Err(e) => {
+                    warn!("receiving {topic} failed: {e:?}");
+                    return;
+                }
+            }
+        }
+    }
+
+    /// Takes every reading the subscriber holds; true once `--count` is reached.
+    fn drain_readings(&mut self, sub: &Subscriber<Ipc, Reading, ()>) -> bool {
+        loop {
+            if self.limit.is_some_and(|n| self.readings >= n) {
+                return true;
+            }
+            let reading = match sub.receive() {
+                Ok(Some(sample)) => *sample.payload(),
+                Ok(None) => return false,
+                Err(e) => {
+                    warn!("receiving readings failed: {e:?}");
+                    return false;
+                }
+            };
+            match self.last_seq {
+                Some(last) if reading.seq > last + 1 => {
+                    let gap = reading.seq - last - 1;
+                    self.lost += gap;
+                    warn!(
+                        gap,
+                        seq = reading.seq,
+                        "readings lost before the recorder got them (its buffer of 256 overflowed?)"
+                    );
+                }
+                Some(last) if reading.seq <= last => {
+                    info!(
+                        seq = reading.seq,
+                        "reading sequence restarted (a new driver?)"
+                    );
+                }
+                _ => {}
+            }
+            self.last_seq = Some(reading.seq);
+            self.readings += 1;
+            self.send(ipc::unix_time_ns(), Message::Reading(reading));
+        }
+    }
+}
+
+fn write_loop(
+    mut writer: RecordingWriter<BufWriter<File>>,
+    rx: Receiver<(u64, Message)>,
+    written: &Written,
+) -> Result<Finished> {
+    let mut last_flush = Instant::now();
+    let mut dirty = false;
+    loop {
+        match rx.recv_timeout(FLUSH_PERIOD) {
+            Ok((log_time, message)) => {
+                writer.write(log_time, &message)?;
+                written.messages.fetch_add(1, Ordering::Relaxed);
+                dirty = true;
+            }
+            Err(RecvTimeoutError::Timeout) => {}
+            Err(RecvTimeoutError::Disconnected) => break,
+        }
+        if dirty && last_flush.elapsed() >= FLUSH_PERIOD {
+            writer.flush()?;
+            dirty = false;
+            last_flush = Instant::now();
+        }
+    }
+    let counts = Topic::ALL
+        .into_iter()
+        .map(|t| (t, writer.count(t)))
+        .collect();
+    let file = writer
+        .finish()?
+        .into_inner()
+        .map_err(|e| e.into_error())
+        .context("write the end of the recording")?;
+    file.sync_all().context("sync the recording to disk")?;
+    let bytes = file.metadata().map(|m| m.len()).unwrap_or(0);
+    Ok(Finished { counts, bytes })
+}

@@ -1,0 +1,503 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::cell::RefCell;
+use std::io::{Cursor, Seek, SeekFrom, Write};
+use std::mem::offset_of;
+use std::rc::Rc;
+
+use proptest::prelude::*;
+use sonar_common::ipc::{FusionCommandKind, ScanCommandKind};
+
+use super::*;
+
+fn reading(seq: u64) -> Reading {
+    Reading {
+        seq,
+        host_stamp_ns: 1_700_000_000_000_000_000 + seq * 20_000_000,
+        layout_version: LAYOUT_VERSION,
+        device_seq: 7 + seq as u32,
+        device_time_ms: 1000 + 20 * seq as u32,
+        sweep_id: 3,
+        flags: ipc::flags::PINGS_REJECTED,
+        angle_deg: -147.0 + 6.0 * seq as f32,
+        beam_half_angle_deg: 30.0,
+        tof_us: 6990.5,
+        distance_m: f32::from_bits(0x3f99_999a), // 1.2000000476…
+        speed_of_sound_mps: 343.2,
+        min_range_m: 0.03,
+        max_range_m: 4.0,
+        echo_us: [6990, 6991, 0, 6989, 0, 0, 0, 0],
+        direction: -1,
+        mode: 1,
+        ping_count: 4,
+        pings_used: 3,
+        reserved: [0; 4],
+    }
+}
+
+fn sample_messages() -> Vec<(u64, Message)> {
+    let t = 1_700_000_000_000_000_000u64;
+    vec![
+        (
+            t,
+            Message::Pose(Pose2D {
+                stamp_ns: t - 5,
+                x_m: 0.5,
+                y_m: -0.25,
+                theta_rad: 0.1,
+                layout_version: LAYOUT_VERSION,
+            }),
+        ),
+        (t + 1, Message::Reading(reading(0))),
+        (
+            t + 2,
+            Message::ScanCommand(ScanCommand::new(ScanCommandKind::LocalScan, -30.0, 30.0)),
+        ),
+        (t + 3, Message::Reading(reading(1))),
+        (
+            t + 4,
+            Message::FusionCommand(FusionCommand::new(FusionCommandKind::Clear, 0)),
+        ),
+        (t + 5, Message::Reading(reading(2))),
+    ]
+}
+
+/// A `Write + Seek` sink whose bytes stay readable while a writer owns it.
+#[derive(Clone, Default)]
+struct Shared(Rc<RefCell<Cursor<Vec<u8>>>>);
+
+impl Shared {
+    fn bytes(&self) -> Vec<u8> {
+        self.0.borrow().get_ref().clone()
+    }
+}
+
+impl Write for Shared {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.0.borrow_mut().write(buf)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+impl Seek for Shared {
+    fn seek(&mut self, pos: SeekFrom) -> std::io::Result<u64> {
+        self.0.borrow_mut().seek(pos)
+    }
+}
+
+fn recording_bytes(messages: &[(u64, Message)]) -> Vec<u8> {
+    let mut extra = BTreeMap::new();
+    extra.insert("source".to_owned(), "unit test".to_owned());
+    let mut w = RecordingWriter::new(Cursor::new(Vec::new()), &extra).unwrap();
+    for (t, m) in messages {
+        w.write(*t, m).unwrap();
+    }
+    w.finish().unwrap().into_inner()
+}
+
+fn same_bits(a: &Message, b: &Message) -> bool {
+    a.topic() == b.topic() && a.encode() == b.encode()
+}
+
+// ---- the schema texts describe the bytes ------------------------------------------------------
+
+/// (name, byte offset, byte size) of each field of a ros1msg text with only primitive fields.
+fn schema_layout(text: &str) -> Vec<(String, usize, usize)> {
+    let mut offset = 0;
+    let mut fields = Vec::new();
+    for line in text.lines() {
+        let line = line.split('#').next().unwrap().trim();
+        if line.is_empty() {
+            continue;
+        }
+        let (ty, name) = line.split_once(' ').unwrap();
+        let (base, count) = match ty.split_once('[') {
+            Some((base, n)) => (base, n.trim_end_matches(']').parse::<usize>().unwrap()),
+            None => (ty, 1),
+        };
+        let size = match base {
+            "uint64" | "int64" | "float64" => 8,
+            "uint32" | "int32" | "float32" => 4,
+            "uint8" | "int8" => 1,
+            other => panic!("unexpected type {other}"),
+        } * count;
+        fields.push((name.trim().to_owned(), offset, size));
+        offset += size;
+    }
+    fields
+}
+
+macro_rules! assert_layout {
+    ($topic:expr, $ty:ty, [$($field:ident),* $(,)?]) => {{
+        let layout = schema_layout($topic.schema());
+        let rust: Vec<(String, usize)> =
+            vec![$((stringify!($field).to_owned(), offset_of!($ty, $field))),*];
+        assert_eq!(layout.len(), rust.len(), "{}: field count", $topic);
+        for ((name, off, _), (rname, roff)) in layout.iter().zip(&rust) {
+            assert_eq!((name, off), (rname, roff), "{}", $topic);
+        }
+        let (_, last_off, last_size) = layout.last().unwrap();
+        assert_eq!(last_off + last_size, size_of::<$ty>(), "{}: no tail padding", $topic);
+        assert_eq!(size_of::<$ty>(), $topic.message_size());
+    }};
+}
+
+#[test]
+fn schemas_match_the_rust_layouts_field_by_field() {
+    assert_layout!(
+        Topic::Readings,
+        Reading,
+        [
+            seq,
+            host_stamp_ns,
+            layout_version,
+            device_seq,
+            device_time_ms,
+            sweep_id,
+            flags,
+            angle_deg,
+            beam_half_angle_deg,
+            tof_us,
+            distance_m,
+            speed_of_sound_mps,
+            min_range_m,
+            max_range_m,
+            echo_us,
+            direction,
+            mode,
+            ping_count,
+            pings_used,
+            reserved,
+        ]
+    );
+    assert_layout!(
+        Topic::ScanCommands,
+        ScanCommand,
+        [kind, from_deg, to_deg, layout_version]
+    );
+    assert_layout!(Topic::FusionCommands, FusionCommand, [kind, value]);
+    assert_layout!(
+        Topic::Pose,
+        Pose2D,
+        [stamp_ns, x_m, y_m, theta_rad, layout_version]
+    );
+}
+
+/// On a little-endian machine the encoding is the payload's memory image, the bytes that travel
+/// in shared memory (the layouts have no padding, checked above).
+#[cfg(target_endian = "little")]
+#[test]
+fn encoding_is_the_shared_memory_image() {
+    fn image<T>(v: &T) -> Vec<u8> {
+        // SAFETY: T is one of the padding-free #[repr(C)] payloads (every byte initialised).
+        unsafe { std::slice::from_raw_parts((v as *const T).cast::<u8>(), size_of::<T>()) }.to_vec()
+    }
+    for (_, m) in sample_messages() {
+        let expected = match &m {
+            Message::Reading(r) => image(r),
+            Message::ScanCommand(c) => image(c),
+            Message::FusionCommand(c) => image(c),
+            Message::Pose(p) => image(p),
+        };
+        assert_eq!(m.encode(), expected, "{}", m.topic());
+    }
+}
+
+#[test]
+fn a_message_of_the_wrong_size_is_an_error() {
+    let bytes = Message::Reading(reading(1)).encode();
+    for len in [0, 1, 103, 105] {
+        let mut b = bytes.clone();
+        b.resize(len, 0);
+        assert!(matches!(
+            Message::decode(Topic::Readings, &b),
+            Err(FormatError::BadMessage { len: l, expected: 104, .. }) if l == len
+        ));
+    }
+}
+
+proptest! {
+    /// Any bytes of the right size decode and encode back to themselves: every bit of every field
+    /// (NaN payloads, negative zero, reserved bytes) survives.
+    #[test]
+    fn every_bit_round_trips(bytes in proptest::collection::vec(any::<u8>(), 104), which in 0usize..4) {
+        let topic = Topic::ALL[which];
+        let bytes = &bytes[..topic.message_size()];
+        let m = Message::decode(topic, bytes).unwrap();
+        prop_assert_eq!(m.encode(), bytes.to_vec());
+    }
+}
+
+// ---- whole files ------------------------------------------------------------------------------
+
+#[test]
+fn a_recording_reads_back_exactly() {
+    let messages = sample_messages();
+    let bytes = recording_bytes(&messages);
+    let rec = read(&bytes, ReadOptions::default()).unwrap();
+    assert!(!rec.truncated);
+    assert_eq!(rec.skipped, 0);
+    assert_eq!(
+        rec.metadata.get("format_version").map(String::as_str),
+        Some("1")
+    );
+    assert_eq!(
+        rec.metadata.get("source").map(String::as_str),
+        Some("unit test")
+    );
+    assert_eq!(rec.entries.len(), messages.len());
+    for (entry, (t, m)) in rec.entries.iter().zip(&messages) {
+        assert_eq!(entry.log_time_ns, *t);
+        assert!(same_bits(&entry.message, m), "{entry:?} vs {m:?}");
+    }
+    assert_eq!(rec.count(Topic::Readings), 3);
+    assert_eq!(rec.readings().map(|r| r.seq).collect::<Vec<_>>(), [0, 1, 2]);
+}
+
+#[test]
+fn an_empty_recording_is_valid() {
+    let rec = read(&recording_bytes(&[]), ReadOptions::default()).unwrap();
+    assert!(rec.entries.is_empty());
+}
+
+#[test]
+fn nan_and_odd_floats_keep_their_bits() {
+    let mut r = reading(5);
+    r.distance_m = f32::from_bits(0x7fc0_1234); // a NaN with a payload
+    r.tof_us = -0.0;
+    r.angle_deg = f32::INFINITY;
+    let bytes = recording_bytes(&[(1, Message::Reading(r))]);
+    let rec = read(&bytes, ReadOptions::default()).unwrap();
+    let Message::Reading(back) = rec.entries[0].message else {
+        panic!("not a reading")
+    };
+    assert_eq!(back.distance_m.to_bits(), 0x7fc0_1234);
+    assert_eq!(back.tof_us.to_bits(), (-0.0f32).to_bits());
+    assert_eq!(back.angle_deg, f32::INFINITY);
+}
+
+#[test]
+fn a_file_cut_anywhere_is_a_clear_error_and_salvageable() {
+    let messages = sample_messages();
+    let bytes = recording_bytes(&messages);
+    for len in 0..bytes.len() {
+        let cut = &bytes[..len];
+        match read(cut, ReadOptions::default()) {
+            Err(FormatError::Empty) => assert_eq!(len, 0),
+            Err(FormatError::Truncated { .. }) => {}
+            other => panic!("cut at {len} of {}: {other:?}", bytes.len()),
+        }
+        let salvage = ReadOptions {
+            allow_truncated: true,
+        };
+        if let Ok(rec) = read(cut, salvage) {
+            // Whatever comes back is a prefix of what was written.
+            assert!(rec.entries.len() <= messages.len());
+            for (e, (_, m)) in rec.entries.iter().zip(&messages) {
+                assert!(same_bits(&e.message, m));
+            }
+        }
+    }
+}
+
+#[test]
+fn a_killed_recorder_leaves_everything_up_to_its_last_flush() {
+    let sink = Shared::default();
+    let mut w = RecordingWriter::new(sink.clone(), &BTreeMap::new()).unwrap();
+    let messages = sample_messages();
+    for (t, m) in &messages[..4] {
+        w.write(*t, m).unwrap();
+    }
+    w.flush().unwrap();
+    for (t, m) in &messages[4..] {
+        w.write(*t, m).unwrap();
+    }
+    // The process dies here: the file holds what reached the sink.
+    let bytes = sink.bytes();
+    std::mem::forget(w);
+
+    let strict = read(&bytes, ReadOptions::default());
+    assert!(
+        matches!(strict, Err(FormatError::Truncated { messages: 4 })),
+        "{strict:?}"
+    );
+    let rec = read(
+        &bytes,
+        ReadOptions {
+            allow_truncated: true,
+        },
+    )
+    .unwrap();
+    assert!(rec.truncated);
+    assert_eq!(rec.entries.len(), 4);
+    for (e, (_, m)) in rec.entries.iter().zip(&messages) {
+        assert!(same_bits(&e.message, m));
+    }
+}
+
+#[test]
+fn damage_inside_a_chunk_is_caught_by_its_crc() {
+    let messages = sample_messages();
+    let bytes = recording_bytes(&messages);
+    let payload = Message::Reading(reading(1)).encode();
+    let at = bytes
+        .windows(payload.len())
+        .position(|w| w == payload)
+        .expect("the reading's bytes are in the file");
+    for offset in [0, 40, 103] {
+        let mut damaged = bytes.clone();
+        damaged[at + offset] ^= 0x10;
+        let err = read(
+            &damaged,
+            ReadOptions {
+                allow_truncated: true,
+            },
+        )
+        .unwrap_err();
+        assert!(
+            matches!(&err, FormatError::Corrupt { what, .. } if what.contains("CRC")),
+            "{err}"
+        );
+    }
+}
+
+#[test]
+fn damage_outside_the_chunks_is_caught_by_the_data_section_crc() {
+    let mut bytes = recording_bytes(&sample_messages());
+    let at = bytes
+        .windows(9)
+        .position(|w| w == b"unit test")
+        .expect("the metadata is in the file");
+    bytes[at] = b'U';
+    let err = read(&bytes, ReadOptions::default()).unwrap_err();
+    assert!(
+        matches!(&err, FormatError::Corrupt { what, .. } if what.contains("data section CRC")),
+        "{err}"
+    );
+}
+
+#[test]
+fn random_bytes_are_not_an_mcap_file() {
+    let bytes: Vec<u8> = (0..4096u32)
+        .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
+        .collect();
+    assert!(matches!(
+        read(&bytes, ReadOptions::default()),
+        Err(FormatError::NotMcap)
+    ));
+    assert!(matches!(
+        read(&[], ReadOptions::default()),
+        Err(FormatError::Empty)
+    ));
+}
+
+fn plain_mcap(metadata: Option<(&str, &str)>, schema_name: &str) -> Vec<u8> {
+    let mut w = mcap::Writer::new(Cursor::new(Vec::new())).unwrap();
+    if let Some((key, value)) = metadata {
+        w.write_metadata(&Metadata {
+            name: METADATA_NAME.into(),
+            metadata: [(key.to_owned(), value.to_owned())].into(),
+        })
+        .unwrap();
+    }
+    let schema = w
+        .add_schema(schema_name, SCHEMA_ENCODING, READING_SCHEMA.as_bytes())
+        .unwrap();
+    let channel = w
+        .add_channel(
+            schema,
+            ipc::READINGS_SERVICE,
+            MESSAGE_ENCODING,
+            &BTreeMap::new(),
+        )
+        .unwrap();
+    let other_schema = w
+        .add_schema("std_msgs/String", "ros1msg", b"string data")
+        .unwrap();
+    let other = w
+        .add_channel(other_schema, "/chatter", MESSAGE_ENCODING, &BTreeMap::new())
+        .unwrap();
+    for (ch, data) in [
+        (channel, Message::Reading(reading(0)).encode()),
+        (other, vec![0; 4]),
+    ] {
+        w.write_to_known_channel(
+            &MessageHeader {
+                channel_id: ch,
+                sequence: 0,
+                log_time: 1,
+                publish_time: 1,
+            },
+            &data,
+        )
+        .unwrap();
+    }
+    w.finish().unwrap();
+    w.into_inner().into_inner()
+}
+
+#[test]
+fn versions_and_schemas_are_checked() {
+    let ok = plain_mcap(Some(("format_version", "1")), "sonar/ReadingV1");
+    let rec = read(&ok, ReadOptions::default()).unwrap();
+    assert_eq!(
+        (rec.entries.len(), rec.skipped),
+        (1, 1),
+        "unknown channels are skipped"
+    );
+
+    let newer = plain_mcap(Some(("format_version", "2")), "sonar/ReadingV1");
+    let err = read(&newer, ReadOptions::default()).unwrap_err();
+    assert!(matches!(&err, FormatError::UnsupportedVersion { found } if found == "2"));
+    assert!(
+        err.to_string().contains("use a newer sonar-replay"),
+        "{err}"
+    );
+
+    let garbled = plain_mcap(Some(("format_version", "one")), "sonar/ReadingV1");
+    assert!(matches!(
+        read(&garbled, ReadOptions::default()),
+        Err(FormatError::UnsupportedVersion { .. })
+    ));
+
+    let foreign = plain_mcap(None, "sonar/ReadingV1");
+    assert!(matches!(
+        read(&foreign, ReadOptions::default()),
+        Err(FormatError::NotARecording)
+    ));
+
+    let v2 = plain_mcap(Some(("format_version", "1")), "sonar/ReadingV2");
+    let err = read(&v2, ReadOptions::default()).unwrap_err();
+    assert!(
+        matches!(&err, FormatError::UnsupportedSchema { found, .. } if found == "sonar/ReadingV2")
+    );
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    /// Garbage is an error, never a panic, whether or not it starts like an MCAP file.
+    #[test]
+    fn random_bytes_never_panic(tail in proptest::collection::vec(any::<u8>(), 0..2048), magic in any::<bool>()) {
+        let mut bytes = if magic { mcap::MAGIC.to_vec() } else { Vec::new() };
+        bytes.extend_from_slice(&tail);
+        prop_assert!(read(&bytes, ReadOptions::default()).is_err());
+        let _ = read(&bytes, ReadOptions { allow_truncated: true });
+    }
+
+    /// Damage anywhere in a real recording is reported (or, in bytes no reader checks, such as
+    /// the summary's statistics, tolerated), never a panic; damage inside a chunk is caught by its
+    /// CRC.
+    #[test]
+    fn flipped_bytes_never_panic(flips in proptest::collection::vec((any::<prop::sample::Index>(), 1u8..=255), 1..8)) {
+        let mut bytes = recording_bytes(&sample_messages());
+        for (at, xor) in &flips {
+            let i = at.index(bytes.len());
+            bytes[i] ^= xor;
+        }
+        let _ = read(&bytes, ReadOptions::default());
+        let _ = read(&bytes, ReadOptions { allow_truncated: true });
+    }
+}

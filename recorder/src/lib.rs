@@ -1,0 +1,16 @@
+//! Recording and replay of the sonar pipeline.
+//!
+//! - [`format`]: the recording file (MCAP, one channel per service, versioned), writer and reader.
+//! - [`pace`]: when the replay publishes each message (real time, a factor, or as fast as a rate
+//!   ceiling allows).
+//!
+//! The binaries `sonar-record` and `sonar-replay` do the I/O; `docs/recording.md` is the user
+//! documentation and the format specification.
+
+pub mod format;
+pub mod pace;
+
+pub use format::{
+    Entry, FormatError, Message, ReadOptions, Recording, RecordingWriter, Topic, read, read_file,
+};
+pub use pace::{Pacer, Speed};

@@ -1,0 +1,351 @@
+//! End to end: `sonar-record` on the live pipeline, `sonar-replay` of its file into a second
+//! namespace, and what each does with bad input.
+#![allow(clippy::unwrap_used, clippy::expect_used)] // helpers outside #[test] fns; a panic is a failure
+
+use std::path::{Path, PathBuf};
+use std::process::Output;
+use std::time::{Duration, Instant};
+
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::service::ipc::Service as Ipc;
+use sonar_common::ipc::{
+    self, FusionCommand, FusionCommandKind, Reading, ScanCommand, ScanCommandKind,
+};
+use sonar_e2e::{PATIENCE, Sandbox, collect_until};
+
+/// More than one subscriber buffer (256): a replay that did not pace itself at `--speed max`
+/// would overwrite readings before the test's subscriber (polling every 5 ms) takes them.
+const READINGS: usize = 300;
+
+fn readings_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, Reading, ()> {
+    ipc::readings_service(node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap()
+}
+
+/// Every bit of a reading, floats as their bit patterns (NaN compares equal to itself here).
+fn bits(r: &Reading) -> Vec<u64> {
+    let mut v = vec![
+        r.seq,
+        r.host_stamp_ns,
+        r.layout_version.into(),
+        r.device_seq.into(),
+        r.device_time_ms.into(),
+        r.sweep_id.into(),
+        r.flags.into(),
+    ];
+    v.extend(
+        [
+            r.angle_deg,
+            r.beam_half_angle_deg,
+            r.tof_us,
+            r.distance_m,
+            r.speed_of_sound_mps,
+            r.min_range_m,
+            r.max_range_m,
+        ]
+        .map(|f| u64::from(f.to_bits())),
+    );
+    v.extend(r.echo_us.map(u64::from));
+    v.extend([r.direction as u8, r.mode, r.ping_count, r.pings_used].map(u64::from));
+    v.extend(r.reserved.map(u64::from));
+    v
+}
+
+/// Waits until `count()` reaches `n` (a process has opened its ports).
+fn wait_until(node: &Node<Ipc>, what: &str, mut ready: impl FnMut() -> bool) {
+    let deadline = Instant::now() + PATIENCE;
+    while !ready() {
+        assert!(Instant::now() < deadline, "gave up waiting for {what}");
+        let _ = node.wait(Duration::from_millis(10));
+    }
+}
+
+fn readings_subscribers(node: &Node<Ipc>) -> usize {
+    ipc::readings_service(node)
+        .unwrap()
+        .dynamic_config()
+        .number_of_subscribers()
+}
+
+fn run(sandbox: &Sandbox, name: &str, args: &[&str]) -> Output {
+    sandbox
+        .command(name)
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("run {name}: {e}"))
+}
+
+fn path_str(p: &Path) -> &str {
+    p.to_str().expect("temp paths are UTF-8")
+}
+
+#[test]
+fn a_replay_publishes_exactly_what_the_live_pipeline_published() {
+    let live = Sandbox::new("rec_live");
+    let node = live.node("test-live");
+    let sub = readings_subscriber(&node);
+    let file: PathBuf = live.root.join("run.mcap");
+    let count = READINGS.to_string();
+    let recorder = live.spawn("sonar-record", &[path_str(&file), "--count", &count]);
+    // Both subscribers exist before the driver publishes its first reading.
+    wait_until(&node, "the recorder's subscription", || {
+        readings_subscribers(&node) >= 2
+    });
+    let (sim, pty) = live.spawn_sim(&["--scene", "room", "--speed", "100", "--seed", "3"]);
+    let driver = live.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+
+    let live_readings = collect_until(
+        &node,
+        || sub.receive().unwrap().map(|s| *s.payload()),
+        |got| got.len() >= READINGS,
+    );
+    let (status, stderr) = recorder.wait_exit();
+    assert!(status.success(), "sonar-record failed: {stderr}");
+    assert!(stderr.contains("reached --count"), "{stderr}");
+    assert!(driver.terminate().success(), "driver did not exit cleanly");
+    assert!(sim.terminate().success(), "simulator did not exit cleanly");
+
+    let info = run(&live, "sonar-replay", &[path_str(&file), "--info"]);
+    let info_out = String::from_utf8_lossy(&info.stdout);
+    assert!(info.status.success(), "{info:?}");
+    assert!(
+        info_out.contains(&format!(
+            "sonar/readings: {READINGS} (seq 0..={}, 0 gaps)",
+            READINGS - 1
+        )),
+        "{info_out}"
+    );
+    assert!(info_out.contains("complete: yes"), "{info_out}");
+
+    // A second pipeline, which never saw the live one, gets the same readings from the file.
+    let replay_box = Sandbox::new("rec_replay");
+    let replay_node = replay_box.node("test-replay");
+    let replay_sub = readings_subscriber(&replay_node);
+    let replay = replay_box.spawn(
+        "sonar-replay",
+        &[
+            path_str(&file),
+            "--speed",
+            "max",
+            "--wait-for-subscribers",
+            "1",
+        ],
+    );
+    let replayed = collect_until(
+        &replay_node,
+        || replay_sub.receive().unwrap().map(|s| *s.payload()),
+        |got| got.len() >= READINGS,
+    );
+    let (status, stderr) = replay.wait_exit();
+    assert!(status.success(), "sonar-replay failed: {stderr}");
+
+    assert_eq!(replayed.len(), live_readings.len());
+    for (k, (a, b)) in live_readings.iter().zip(&replayed).enumerate() {
+        assert_eq!(a.seq, k as u64, "the live run has no gaps");
+        assert_eq!(bits(a), bits(b), "reading {k} differs:\n{a:?}\n{b:?}");
+    }
+}
+
+fn test_reading(seq: u64) -> Reading {
+    Reading {
+        seq,
+        host_stamp_ns: 1_700_000_000_000_000_000 + seq * 25_000_000,
+        layout_version: ipc::LAYOUT_VERSION,
+        sweep_id: 1,
+        angle_deg: -147.0 + 6.0 * seq as f32,
+        beam_half_angle_deg: 30.0,
+        distance_m: if seq.is_multiple_of(2) { 1.2 } else { f32::NAN },
+        flags: if seq.is_multiple_of(2) {
+            0
+        } else {
+            ipc::flags::NO_ECHO
+        },
+        ping_count: 4,
+        pings_used: 4,
+        direction: 1,
+        mode: 1,
+        ..Default::default()
+    }
+}
+
+#[test]
+fn the_recorder_finishes_its_file_on_sigterm_with_the_commands() {
+    let sandbox = Sandbox::new("rec_term");
+    let node = sandbox.node("test-driver");
+    let file = sandbox.root.join("term.mcap");
+    let recorder = sandbox.spawn("sonar-record", &[path_str(&file)]);
+    let fusion = ipc::fusion_commands_service(&node).unwrap();
+    let commands = ipc::commands_service(&node).unwrap();
+    wait_until(&node, "the recorder's subscriptions", || {
+        readings_subscribers(&node) >= 1
+            && fusion.dynamic_config().number_of_subscribers() >= 1
+            && commands.dynamic_config().number_of_subscribers() >= 1
+    });
+
+    // The test stands in for the driver and a viewer.
+    let readings = ipc::readings_service(&node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    let wake = ipc::wakeup_service(&node, ipc::READINGS_SERVICE)
+        .unwrap()
+        .notifier_builder()
+        .create()
+        .unwrap();
+    let sent: Vec<Reading> = (0..20).map(test_reading).collect();
+    for r in &sent[..10] {
+        readings.send_copy(*r).unwrap();
+        wake.notify().unwrap();
+    }
+    let clear = FusionCommand::new(FusionCommandKind::Clear, 0);
+    let fusion_pub = fusion.publisher_builder().create().unwrap();
+    fusion_pub.send_copy(clear).unwrap();
+    let scan = ScanCommand::new(ScanCommandKind::LocalScan, -30.0, 30.0);
+    let commands_pub = commands.publisher_builder().create().unwrap();
+    commands_pub.send_copy(scan).unwrap();
+    for r in &sent[10..] {
+        readings.send_copy(*r).unwrap();
+        wake.notify().unwrap();
+    }
+    // Everything above sits in the recorder's queues (delivery is synchronous); SIGTERM now.
+    let status = recorder.terminate();
+    assert!(status.success(), "sonar-record did not exit cleanly");
+    drop((fusion_pub, commands_pub, readings, wake));
+
+    let info = run(&sandbox, "sonar-replay", &[path_str(&file), "--info"]);
+    let info_out = String::from_utf8_lossy(&info.stdout);
+    assert!(info.status.success(), "{info:?}");
+    for line in [
+        "sonar/readings: 20 (seq 0..=19, 0 gaps)",
+        "sonar/commands: 1",
+        "sonar/fusion_commands: 1",
+        "complete: yes",
+    ] {
+        assert!(info_out.contains(line), "{line:?} missing in\n{info_out}");
+    }
+
+    // Replayed with --restamp into another namespace: the fusion command comes along (the scan
+    // command stays in the file: it was for the driver), and only host_stamp_ns changes.
+    let replay_box = Sandbox::new("rec_term_replay");
+    let rnode = replay_box.node("test-consumer");
+    let rsub = readings_subscriber(&rnode);
+    let fsub = ipc::fusion_commands_service(&rnode)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let before = ipc::unix_time_ns();
+    let replay = replay_box.spawn(
+        "sonar-replay",
+        &[
+            path_str(&file),
+            "--speed",
+            "max",
+            "--restamp",
+            "--wait-for-subscribers",
+            "1",
+        ],
+    );
+    // Like a consumer, take whatever arrives on either service until both are complete.
+    let mut fusion_commands = Vec::new();
+    let got = collect_until(
+        &rnode,
+        || {
+            if let Some(c) = fsub.receive().unwrap() {
+                fusion_commands.push(*c.payload());
+            }
+            rsub.receive().unwrap().map(|s| *s.payload())
+        },
+        |got| got.len() >= sent.len(),
+    );
+    let (status, stderr) = replay.wait_exit();
+    assert!(status.success(), "sonar-replay failed: {stderr}");
+    for (a, b) in sent.iter().zip(&got) {
+        assert!(b.host_stamp_ns >= before, "not restamped: {b:?}");
+        let mut b = *b;
+        b.host_stamp_ns = a.host_stamp_ns;
+        assert_eq!(bits(a), bits(&b));
+    }
+    while let Some(c) = fsub.receive().unwrap() {
+        fusion_commands.push(*c.payload());
+    }
+    assert_eq!(fusion_commands, [clear]);
+
+    // A copy cut short, as a killed recorder might leave it: an error naming the problem, unless
+    // the user asks for what is there.
+    let bytes = std::fs::read(&file).unwrap();
+    let cut = sandbox.root.join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() - 100]).unwrap();
+    let out = run(
+        &sandbox,
+        "sonar-replay",
+        &[path_str(&cut), "--speed", "max"],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("truncated"), "{stderr}");
+    assert!(stderr.contains("--allow-truncated"), "{stderr}");
+    let out = run(
+        &sandbox,
+        "sonar-replay",
+        &[path_str(&cut), "--allow-truncated", "--info"],
+    );
+    assert!(out.status.success(), "{out:?}");
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("complete: no (truncated)"),
+        "{out:?}"
+    );
+}
+
+#[test]
+fn damaged_or_foreign_files_are_clear_errors() {
+    let sandbox = Sandbox::new("rec_bad");
+    let noise = sandbox.root.join("noise.mcap");
+    let bytes: Vec<u8> = (0..10_000u32)
+        .map(|i| (i.wrapping_mul(2_654_435_761) >> 11) as u8)
+        .collect();
+    std::fs::write(&noise, &bytes).unwrap();
+
+    let out = run(&sandbox, "sonar-replay", &[path_str(&noise)]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("not an MCAP file"), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+
+    // MCAP magic followed by noise.
+    let mut fake = b"\x89MCAP0\r\n".to_vec();
+    fake.extend_from_slice(&bytes);
+    std::fs::write(&noise, &fake).unwrap();
+    let out = run(&sandbox, "sonar-replay", &[path_str(&noise)]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("corrupt") || stderr.contains("truncated"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+
+    let missing = sandbox.root.join("missing.mcap");
+    let out = run(&sandbox, "sonar-replay", &[path_str(&missing)]);
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("missing.mcap"),
+        "{out:?}"
+    );
+
+    // The recorder does not overwrite a file by accident.
+    let out = run(
+        &sandbox,
+        "sonar-record",
+        &[path_str(&noise), "--count", "1"],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("--force"), "{stderr}");
+    assert_eq!(std::fs::read(&noise).unwrap(), fake, "the file was touched");
+}
