@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use crossterm::event::{KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
 use sonar_common::ipc::{
     DriverStatus, FusionCommand, FusionCommandKind, GridHeader, LAYOUT_VERSION, RADAR_MAX_BINS,
-    Radar, Reading, ScanCommand, ScanCommandKind, ScanMode, model_code, preset_code, rule_code,
+    Radar, Reading, ScanCommand, ScanCommandKind, ScanMode, preset_code,
 };
 use sonar_common::sensor::SensorConfig;
 
@@ -263,32 +263,10 @@ impl RateMeter {
     }
 }
 
-/// Names and codes of the fusion settings, as in `sonar_common::ipc`.
-pub const MODELS: &[(u32, &str)] = &[
-    (model_code::PAPER, "paper"),
-    (model_code::LOG_ODDS, "log-odds"),
-    (model_code::SMOOTH, "smooth"),
-];
-pub const RULES: &[(u32, &str)] = &[
-    (rule_code::BAYES, "Bayes"),
-    (rule_code::LOG_ODDS, "log-odds"),
-    (rule_code::DEMPSTER_SHAFER, "Dempster-Shafer"),
-    (rule_code::HIMM, "HIMM"),
-];
-/// "custom" is what the engine reports after a model or rule change; `p` never asks for it.
-pub const PRESETS: &[(u32, &str)] = &[
-    (preset_code::PAPER, "paper"),
-    (preset_code::RECOMMENDED, "recommended"),
-    (preset_code::CUSTOM, "custom"),
-];
-
-/// The name of `code` in `table`, or "#code" for one this viewer does not know.
-pub fn setting_name(table: &[(u32, &str)], code: u32) -> String {
-    table
-        .iter()
-        .find(|(c, _)| *c == code)
-        .map_or_else(|| format!("#{code}"), |(_, n)| (*n).to_owned())
-}
+/// Names and codes of the fusion settings, as in `sonar_common::ipc`; shared with the map files.
+/// "custom" (in `PRESETS`) is what the engine reports after a model or rule change; `p` never asks
+/// for it.
+pub use sonar_mapfiles::settings::{MODELS, PRESETS, RULES, setting_name};
 
 /// The code after `current` among `choices`, wrapping around; the first when `current` is not one.
 fn next_setting(choices: &[u32], current: u32) -> u32 {
@@ -707,6 +685,7 @@ fn scan(kind: ScanCommandKind, segment: Option<Segment>) -> Action {
 mod tests {
     use super::*;
     use crate::heatmap::ColorMode;
+    use sonar_common::ipc::{model_code, rule_code};
 
     fn key(code: KeyCode) -> KeyEvent {
         KeyEvent::new(code, KeyModifiers::NONE)

@@ -1,46 +1,21 @@
 //! Saving the probability map as a PNG: one pixel per grid cell, in the terminal view's colours,
 //! north (highest y) up, with the map's geometry in a text chunk so the picture can be placed in the
-//! world again.
+//! world again. The picture itself is `sonar_mapfiles`' (the same as `sonar-export --no-legend`);
+//! this module names and places the file.
 
 use std::fs::{File, OpenOptions};
 use std::io::{self, BufWriter, ErrorKind, Write};
 use std::path::{Path, PathBuf};
 
-use crate::app::{GridSnapshot, MODELS, RULES, setting_name};
-use crate::heatmap::cell_rgb;
+use sonar_mapfiles::picture::PngOptions;
+use sonar_mapfiles::{Map, MapError};
 
-/// Encodes `grid` as an 8-bit RGB PNG.
-pub fn write_png<W: Write>(out: W, grid: &GridSnapshot) -> Result<(), png::EncodingError> {
-    let (w, h) = (grid.width() as usize, grid.height() as usize);
-    let mut encoder = png::Encoder::new(out, grid.width(), grid.height());
-    encoder.set_color(png::ColorType::Rgb);
-    encoder.set_depth(png::BitDepth::Eight);
-    // Maps are mostly flat areas: the fast setting compresses them well, in a blink.
-    encoder.set_compression(png::Compression::Fast);
-    let hd = &grid.header;
-    encoder.add_text_chunk(
-        "Comment".to_owned(),
-        format!(
-            "sonar occupancy map {}x{}, cells of {} m, lower-left corner at ({}, {}) m, \
-             model {}, rule {}, {} readings fused; top row = highest y",
-            hd.width,
-            hd.height,
-            hd.resolution_m,
-            hd.origin_x_m,
-            hd.origin_y_m,
-            setting_name(MODELS, hd.model),
-            setting_name(RULES, hd.rule),
-            hd.readings_fused
-        ),
-    )?;
-    let mut writer = encoder.write_header()?;
-    let mut data = Vec::with_capacity(w * h * 3);
-    // Snapshot row 0 is the lowest y; image row 0 is the top.
-    for row in grid.cells.chunks_exact(w.max(1)).rev() {
-        data.extend(row.iter().flat_map(|&c| cell_rgb(c)));
-    }
-    writer.write_image_data(&data)?;
-    writer.finish()
+use crate::app::GridSnapshot;
+
+/// Encodes `grid` as an 8-bit RGB PNG, one pixel per cell (no legend).
+pub fn write_png<W: Write>(out: W, grid: &GridSnapshot) -> Result<(), MapError> {
+    let map = Map::new(&grid.header, &grid.cells)?;
+    sonar_mapfiles::picture::write_png(out, &map, &PngOptions { legend: false })
 }
 
 /// `sonar-map-YYYYMMDD-HHMMSS.png`, UTC.
@@ -109,6 +84,7 @@ fn civil_from_days(days: u64) -> (u64, u64, u64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::heatmap::cell_rgb;
     use sonar_common::ipc::{CELL_UNKNOWN, GridHeader, LAYOUT_VERSION};
 
     #[test]

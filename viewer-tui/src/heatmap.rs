@@ -246,29 +246,9 @@ impl ColorMode {
     }
 }
 
-/// Never-observed cells: a dark neutral grey, unlike any colour of the probability scale.
-pub const UNKNOWN_RGB: [u8; 3] = [48, 48, 48];
-/// The probability scale (after the paper's Fig. 7 colour code): free → even odds → occupied.
-const FREE_RGB: [u8; 3] = [25, 85, 200];
-const EVEN_RGB: [u8; 3] = [225, 225, 205];
-const OCCUPIED_RGB: [u8; 3] = [205, 25, 25];
-
-/// The colour of a snapshot cell value: blue (certainly free) through pale (even odds) to red
-/// (certainly occupied), and [`UNKNOWN_RGB`] for never observed. Shared by the terminal and the PNG.
-pub fn cell_rgb(cell: u8) -> [u8; 3] {
-    if cell == CELL_UNKNOWN {
-        return UNKNOWN_RGB;
-    }
-    let p = f32::from(cell) / 254.0;
-    let (from, to, t) = if p <= 0.5 {
-        (FREE_RGB, EVEN_RGB, p * 2.0)
-    } else {
-        (EVEN_RGB, OCCUPIED_RGB, (p - 0.5) * 2.0)
-    };
-    std::array::from_fn(|i| {
-        (f32::from(from[i]) + (f32::from(to[i]) - f32::from(from[i])) * t).round() as u8
-    })
-}
+// The colour code (blue free → pale even odds → red occupied, dark grey never observed) lives in
+// sonar-mapfiles, so the terminal and every saved picture share it.
+pub use sonar_mapfiles::colour::{UNKNOWN_RGB, cell_rgb};
 
 /// The colour of the xterm 256-colour palette (indices 16–255) nearest to `rgb`.
 pub fn nearest_xterm256(rgb: [u8; 3]) -> u8 {
@@ -327,6 +307,7 @@ impl Palette {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+    use sonar_mapfiles::colour::{EVEN_RGB, FREE_RGB, OCCUPIED_RGB};
 
     #[test]
     fn pool_rule_lets_occupied_win_then_the_majority() {

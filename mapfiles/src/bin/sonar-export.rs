@@ -1,0 +1,521 @@
+//! `sonar-export`: the occupancy map to files, from a running pipeline or from a recording.
+//!
+//! Live, it is one more consumer of `sonar/grid`: it sleeps on the grid's wake-up event, takes the
+//! first snapshot that satisfies `--wait-readings`/`--sweeps` (without them, the current map, which
+//! history 1 hands to a new subscriber; with `--sweeps`, the end-of-sweep snapshot, see [`Wanted`]),
+//! writes it and exits. Offline, it fuses a recording's
+//! readings with the fusion engine's own code, so the map is the one the live engine would have
+//! built from the same readings.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use clap::Parser;
+use iceoryx2::prelude::*;
+use iceoryx2::service::ipc::Service as Ipc;
+use iceoryx2::waitset::WaitSetRunResult;
+use sonar_common::ipc::{self, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION};
+use sonar_fusion::engine::Engine;
+use sonar_fusion::{FusionConfig, Preset};
+use sonar_mapfiles::{Format, Map, PngOptions, output};
+use sonar_recorder::{Message, ReadOptions, Recording};
+use tracing::{debug, info, warn};
+
+/// Readings the offline engine keeps for re-fusing on a recorded preset/model/rule switch; the
+/// same as `sonar-fusion --history`'s default, so both build the same map.
+const OFFLINE_HISTORY: usize = 20_000;
+/// How often the live wait looks at the clock (for --timeout) and for a missed wake-up.
+const TICK: Duration = Duration::from_millis(500);
+
+/// Writes the sonar occupancy map as files: a PNG in the viewer's colours with a scale bar, a ROS
+/// map_server map (PGM + YAML), the probabilities as CSV or as a NumPy .npy array.
+///
+/// Live (default): takes the map from sonar/grid of the running pipeline (same --iox-* settings as
+/// sonar-fusion), writes it and exits. Without --wait-readings/--sweeps that is the current map.
+///
+/// Offline (--from-recording): fuses the readings of a sonar-record file with the fusion engine
+/// (poses and fusion commands as recorded) and writes the final map.
+///
+/// Files are named after --out without its extension: STEM.png, STEM.pgm + STEM.yaml, STEM.csv,
+/// STEM.npy. Their paths are printed on standard output. See docs/export.md for the conventions.
+///
+/// Examples:
+///   sonar-export --format png --out room.png
+///   sonar-export --format all --out maps/room --sweeps 2
+///   sonar-export --format pgm --out map --from-recording run.mcap --preset paper
+///   ros2 run nav2_map_server map_server --ros-args -p yaml_filename:=map.yaml
+///
+/// Exit status: 0 written, 1 error, 130 interrupted (Ctrl-C/SIGTERM) before a map arrived.
+#[derive(Debug, Parser)]
+#[command(version, verbatim_doc_comment)]
+struct Args {
+    /// Formats, comma-separated: png, pgm (with its YAML), csv, npy, or all.
+    #[arg(long, value_delimiter = ',', default_value = "all", value_parser = parse_formats)]
+    format: Vec<Formats>,
+    /// Output path: the files' stem (an extension like .png is dropped), or an existing directory
+    /// (files named sonar-map.* in it). Existing files are replaced.
+    #[arg(long, default_value = "sonar-map", value_name = "PATH")]
+    out: PathBuf,
+    /// PNG without the legend strip (scale bar, colour ramp): exactly one pixel per cell.
+    #[arg(long)]
+    no_legend: bool,
+    /// Live: wait for a map with at least N readings fused.
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 0,
+        conflicts_with = "from_recording"
+    )]
+    wait_readings: u64,
+    /// Live: wait until N sweeps have ended (the one in progress at the start counts) and write
+    /// the map published at the end of the Nth, which shows once the next sweep begins.
+    #[arg(
+        long,
+        value_name = "N",
+        default_value_t = 0,
+        conflicts_with = "from_recording"
+    )]
+    sweeps: u32,
+    /// Live: give up (exit status 1) if no suitable map arrived within this many seconds.
+    #[arg(long, value_name = "SECONDS", conflicts_with = "from_recording")]
+    timeout: Option<f64>,
+    /// Offline: fuse the readings of this recording (sonar-record's MCAP file) instead.
+    #[arg(long, value_name = "FILE")]
+    from_recording: Option<PathBuf>,
+    /// Offline: fusion settings, `paper` or `recommended` (default, as sonar-fusion).
+    #[arg(long, value_parser = parse_preset, requires = "from_recording")]
+    preset: Option<Preset>,
+    /// Offline: ignore the recorded fusion commands (clear, preset/model/rule switches), so every
+    /// reading is fused with --preset.
+    #[arg(long, requires = "from_recording")]
+    ignore_fusion_commands: bool,
+    /// Offline: accept a recording that ends early (a recorder that was killed).
+    #[arg(long, requires = "from_recording")]
+    allow_truncated: bool,
+    #[command(flatten)]
+    ipc: IpcArgs,
+}
+
+/// One `--format` item: a format, or all of them.
+#[derive(Debug, Clone)]
+struct Formats(Vec<Format>);
+
+fn parse_formats(s: &str) -> Result<Formats, String> {
+    if s.eq_ignore_ascii_case("all") {
+        return Ok(Formats(Format::ALL.to_vec()));
+    }
+    s.parse()
+        .map(|f| Formats(vec![f]))
+        .map_err(|e| format!("{e}"))
+}
+
+fn parse_preset(s: &str) -> Result<Preset, String> {
+    s.parse().map_err(|e| format!("{e}"))
+}
+
+/// How a run ended without an error.
+enum Outcome {
+    Written(Vec<PathBuf>),
+    Interrupted,
+}
+
+fn main() -> ExitCode {
+    sonar_common::init_tracing();
+    let args = Args::parse();
+    match run(&args) {
+        Ok(Outcome::Written(paths)) => {
+            for path in paths {
+                println!("{}", path.display());
+            }
+            ExitCode::SUCCESS
+        }
+        Ok(Outcome::Interrupted) => {
+            eprintln!("sonar-export: interrupted before a map arrived; nothing written");
+            ExitCode::from(130)
+        }
+        Err(e) => {
+            tracing::error!("{e:#}");
+            eprintln!("sonar-export: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(args: &Args) -> Result<Outcome> {
+    let mut formats: Vec<Format> = args.format.iter().flat_map(|f| f.0.clone()).collect();
+    formats.sort();
+    formats.dedup();
+    if let Some(t) = args.timeout
+        && !(t.is_finite() && t > 0.0)
+    {
+        bail!("--timeout must be a positive number of seconds");
+    }
+    let (header, cells) = match &args.from_recording {
+        Some(file) => from_recording(file, args)?,
+        None => match live(args)? {
+            Some(snapshot) => snapshot,
+            None => return Ok(Outcome::Interrupted),
+        },
+    };
+    let map = Map::new(&header, &cells).context("the map is unusable")?;
+    let stem = output::stem(&args.out);
+    let png = PngOptions {
+        legend: !args.no_legend,
+    };
+    let written = sonar_mapfiles::write_map(&map, &stem, &formats, &png)?;
+    info!(
+        readings = header.readings_fused,
+        seq = header.seq,
+        files = written.len(),
+        "map written"
+    );
+    Ok(Outcome::Written(written))
+}
+
+/// Which snapshot [`Wanted::offer`] picks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Take {
+    Nothing,
+    /// The snapshot just offered.
+    Current,
+    /// The one offered before it: the map at the end of the sweep that just ended.
+    Previous,
+}
+
+/// Which live snapshot to export: the first map with at least `readings` readings fused and at least
+/// `sweeps` sweeps that ended while we watched (the one in progress at the start included).
+///
+/// The fusion engine publishes a snapshot at the end of every sweep, before it fuses the first
+/// reading of the next, and that snapshot still carries the old `sweep_id`: a sweep is seen to
+/// have ended only with the next snapshot. If no snapshot came between the two (consecutive
+/// `seq`), the earlier one is the map at the end of the sweep, without readings of the next one.
+#[derive(Debug, Default)]
+struct Wanted {
+    readings: u64,
+    sweeps: u32,
+    ended: u32,
+    /// Sequence number, sweep and readings of the previous snapshot.
+    last: Option<(u64, u32, u64)>,
+}
+
+impl Wanted {
+    fn new(readings: u64, sweeps: u32) -> Self {
+        Self {
+            readings,
+            sweeps,
+            ..Self::default()
+        }
+    }
+
+    /// Takes the next snapshot's header; says whether to write it, the previous one, or neither.
+    fn offer(&mut self, h: &GridHeader) -> Take {
+        let previous = self.last.replace((h.seq, h.sweep_id, h.readings_fused));
+        let mut sweep_ended = false;
+        if let Some((_, sweep, readings)) = previous {
+            if h.readings_fused < readings {
+                // The map was cleared: the sweeps seen so far are gone from it.
+                self.ended = 0;
+            } else if h.sweep_id != sweep && readings > 0 {
+                self.ended += 1;
+                sweep_ended = true;
+            }
+        }
+        if self.ended < self.sweeps {
+            return Take::Nothing;
+        }
+        if sweep_ended
+            && self.ended == self.sweeps
+            && let Some((seq, _, readings)) = previous
+            && seq.wrapping_add(1) == h.seq
+            && readings >= self.readings
+        {
+            return Take::Previous;
+        }
+        if h.readings_fused >= self.readings {
+            Take::Current
+        } else {
+            Take::Nothing
+        }
+    }
+}
+
+/// Waits for the wanted snapshot on `sonar/grid` and copies it out; `None` on SIGINT/SIGTERM.
+fn live(args: &Args) -> Result<Option<(GridHeader, Vec<u8>)>> {
+    let node = args.ipc.node("sonar-export")?;
+    let subscriber = ipc::grid_service(&node)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| IpcError::new("create grid subscriber", e))?;
+    let listener = ipc::wakeup_service(&node, ipc::GRID_SERVICE)?
+        .listener_builder()
+        .create()
+        .map_err(|e| IpcError::new("create grid listener", e))?;
+    let waitset = WaitSetBuilder::new()
+        .create::<Ipc>()
+        .map_err(|e| IpcError::new("create waitset", e))?;
+    let _wakeups = waitset
+        .attach_notification(&listener)
+        .map_err(|e| IpcError::new("attach grid listener", e))?;
+    let _tick = waitset
+        .attach_interval(TICK)
+        .map_err(|e| IpcError::new("attach interval", e))?;
+
+    let mut wanted = Wanted::new(args.wait_readings, args.sweeps);
+    let deadline = args
+        .timeout
+        .map(|t| Instant::now() + Duration::from_secs_f64(t));
+    info!(
+        wait_readings = args.wait_readings,
+        sweeps = args.sweeps,
+        "waiting for a map on {}",
+        ipc::GRID_SERVICE
+    );
+    let mut seen = 0u64;
+    // A copy of the previous snapshot, which may turn out to be the end of the last wanted sweep.
+    let mut previous: Option<(GridHeader, Vec<u8>)> = None;
+    loop {
+        // Every wake-up (event or tick) ends in the same check of the subscriber, so a missed
+        // event delays a snapshot by one tick at most.
+        let result = waitset
+            .wait_and_process_once(|_| CallbackProgression::Continue)
+            .map_err(|e| IpcError::new("wait", e))?;
+        if matches!(
+            result,
+            WaitSetRunResult::Interrupt | WaitSetRunResult::TerminationRequest
+        ) {
+            return Ok(None);
+        }
+        if let Err(e) = listener.try_wait(|_| {}) {
+            warn!("grid listener: {e:?}");
+        }
+        while let Some(sample) = subscriber
+            .receive()
+            .map_err(|e| IpcError::new("receive grid snapshot", e))?
+        {
+            let header = *sample.user_header();
+            if header.layout_version != LAYOUT_VERSION {
+                warn!(
+                    version = header.layout_version,
+                    "grid snapshot of another layout version ignored"
+                );
+                continue;
+            }
+            seen += 1;
+            debug!(
+                seq = header.seq,
+                sweep = header.sweep_id,
+                readings = header.readings_fused,
+                "snapshot"
+            );
+            match wanted.offer(&header) {
+                Take::Current => return Ok(Some((header, sample.payload().to_vec()))),
+                Take::Previous if previous.is_some() => return Ok(previous),
+                Take::Previous | Take::Nothing if args.sweeps > 0 => {
+                    previous = Some((header, sample.payload().to_vec()));
+                }
+                Take::Previous | Take::Nothing => {}
+            }
+        }
+        if let Some(deadline) = deadline
+            && Instant::now() >= deadline
+        {
+            bail!(
+                "no suitable map within --timeout ({seen} snapshots seen on {}): is sonar-fusion \
+                 running with the same --iox-prefix/--iox-root, and the sensor scanning?",
+                ipc::GRID_SERVICE
+            );
+        }
+    }
+}
+
+fn from_recording(file: &Path, args: &Args) -> Result<(GridHeader, Vec<u8>)> {
+    let recording = sonar_recorder::read_file(
+        file,
+        ReadOptions {
+            allow_truncated: args.allow_truncated,
+        },
+    )
+    .with_context(|| format!("cannot read the recording {}", file.display()))?;
+    if recording.truncated {
+        warn!("the recording ends early; fusing the messages before the cut");
+    }
+    let config = args
+        .preset
+        .map_or_else(FusionConfig::default, FusionConfig::preset);
+    fuse_recording(&recording, config, !args.ignore_fusion_commands)
+}
+
+/// Replays `recording` into a fusion engine: readings fused, poses taken, fusion commands applied
+/// (if `commands`), in recorded order; returns the final snapshot.
+fn fuse_recording(
+    recording: &Recording,
+    config: FusionConfig,
+    commands: bool,
+) -> Result<(GridHeader, Vec<u8>)> {
+    let mut engine = Engine::new(config, OFFLINE_HISTORY).context("invalid fusion settings")?;
+    let (mut fused, mut refused, mut stamp) = (0u64, 0u64, 0u64);
+    for entry in &recording.entries {
+        match &entry.message {
+            Message::Reading(r) if r.layout_version == LAYOUT_VERSION => {
+                if engine.fuse(r) {
+                    fused += 1;
+                } else {
+                    refused += 1;
+                }
+                stamp = r.host_stamp_ns;
+            }
+            Message::Reading(r) => warn!(
+                version = r.layout_version,
+                "reading of another layout version ignored"
+            ),
+            Message::Pose(p) => {
+                if !engine.set_pose(p) {
+                    warn!(pose = ?p, "pose refused: not finite");
+                }
+            }
+            Message::FusionCommand(c) if commands => {
+                if let Err(e) = engine.apply(c) {
+                    warn!(command = ?c, "recorded fusion command refused: {e}");
+                }
+            }
+            Message::FusionCommand(_) | Message::ScanCommand(_) => {}
+        }
+    }
+    if fused == 0 {
+        warn!("the recording holds no usable reading: the map is empty");
+    }
+    info!(fused, refused, "recording fused");
+    let mut cells = vec![0; engine.grid_len()];
+    let counts = engine.encode_grid(&mut cells);
+    Ok((engine.grid_header(1, stamp, counts), cells))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sonar_common::ipc::{FusionCommand, FusionCommandKind, Reading, ScanMode, preset_code};
+    use sonar_recorder::Entry;
+
+    /// Offers snapshots (seq, sweep, readings) in turn; the answer to each.
+    fn offers(mut w: Wanted, snapshots: &[(u64, u32, u64)]) -> Vec<Take> {
+        snapshots
+            .iter()
+            .map(|&(seq, sweep_id, readings_fused)| {
+                w.offer(&GridHeader {
+                    seq,
+                    sweep_id,
+                    readings_fused,
+                    ..GridHeader::default()
+                })
+            })
+            .collect()
+    }
+
+    use Take::{Current, Nothing, Previous};
+
+    #[test]
+    fn without_conditions_the_first_snapshot_is_taken() {
+        assert_eq!(offers(Wanted::new(0, 0), &[(9, 3, 120)]), [Current]);
+        assert_eq!(
+            offers(Wanted::new(100, 0), &[(9, 3, 60), (10, 3, 100)]),
+            [Nothing, Current]
+        );
+    }
+
+    #[test]
+    fn the_map_at_the_end_of_the_last_wanted_sweep_is_taken() {
+        // The empty map at the start, then one snapshot per sweep end (a fast scan).
+        let at_sweep_ends = [(1, 0, 0), (2, 1, 50), (3, 2, 100), (4, 3, 150)];
+        assert_eq!(
+            offers(Wanted::new(0, 2), &at_sweep_ends),
+            [Nothing, Nothing, Nothing, Previous]
+        );
+        // Snapshots within sweeps too: the one before the change is the end of the sweep.
+        let within = [(1, 1, 20), (2, 1, 50), (3, 2, 55), (4, 2, 100), (5, 3, 104)];
+        assert_eq!(
+            offers(Wanted::new(0, 2), &within),
+            [Nothing, Nothing, Nothing, Nothing, Previous]
+        );
+        // A snapshot was missed (seq 5): the previous one may lack the sweep's last readings.
+        let gap = [(1, 1, 20), (2, 1, 50), (3, 2, 55), (4, 2, 80), (6, 3, 104)];
+        assert_eq!(
+            offers(Wanted::new(0, 2), &gap),
+            [Nothing, Nothing, Nothing, Nothing, Current]
+        );
+    }
+
+    #[test]
+    fn a_cleared_map_starts_the_count_again_and_readings_are_checked_too() {
+        let cleared = [(1, 4, 200), (2, 4, 10), (3, 5, 20), (4, 5, 30)];
+        assert_eq!(
+            offers(Wanted::new(30, 1), &cleared),
+            [Nothing, Nothing, Nothing, Current]
+        );
+    }
+
+    fn reading(sweep_id: u32, angle_deg: f32, distance_m: f32) -> Reading {
+        Reading {
+            layout_version: LAYOUT_VERSION,
+            sweep_id,
+            angle_deg,
+            beam_half_angle_deg: 30.0,
+            distance_m,
+            min_range_m: 0.03,
+            max_range_m: 4.0,
+            direction: 1,
+            mode: ScanMode::Full as u8,
+            ..Reading::default()
+        }
+    }
+
+    /// A wall 1.2 m ahead, one sweep of 50 readings, then a clear, then another sweep.
+    fn recording() -> Recording {
+        let mut entries = Vec::new();
+        let mut push = |message| {
+            entries.push(Entry {
+                log_time_ns: entries.len() as u64,
+                message,
+            })
+        };
+        for sweep in 1..=2 {
+            for k in 0..50 {
+                let angle = -147.0 + 6.0 * k as f32;
+                let d = 1.2 / angle.to_radians().cos().abs().max(0.3);
+                push(Message::Reading(reading(sweep, angle, d.min(3.9))));
+            }
+            if sweep == 1 {
+                push(Message::FusionCommand(FusionCommand::new(
+                    FusionCommandKind::Clear,
+                    0,
+                )));
+            }
+        }
+        Recording {
+            entries,
+            ..Recording::default()
+        }
+    }
+
+    #[test]
+    fn a_recording_is_fused_with_its_commands_unless_told_otherwise() {
+        let rec = recording();
+        let (h, cells) = fuse_recording(&rec, FusionConfig::default(), true).unwrap();
+        assert_eq!(h.readings_fused, 50, "the clear dropped the first sweep");
+        assert_eq!(cells.len(), (h.width * h.height) as usize);
+        assert_eq!(h.preset, preset_code::RECOMMENDED);
+        let map = Map::new(&h, &cells).unwrap();
+        // The wall straight ahead is more likely occupied than not after one sweep.
+        let x = ((1.2 - h.origin_x_m) / h.resolution_m) as usize;
+        let y = ((0.0 - h.origin_y_m) / h.resolution_m) as usize;
+        let wall = (x - 2..=x + 2)
+            .filter_map(|x| map.probability(x, y))
+            .fold(0.0f32, f32::max);
+        assert!(wall > 0.5, "{wall}");
+
+        let (all, _) = fuse_recording(&rec, FusionConfig::preset(Preset::Paper), false).unwrap();
+        assert_eq!(all.readings_fused, 100);
+        assert_eq!(all.preset, preset_code::PAPER);
+    }
+}

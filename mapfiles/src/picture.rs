@@ -1,0 +1,309 @@
+//! The map as a PNG: one pixel per grid cell in the [`colour`](crate::colour) code, the highest y
+//! on top, the map's geometry in a `Comment` text chunk so the picture can be placed in the world
+//! again; optionally a legend strip below the map with a scale bar and the colour code.
+
+use std::io::Write;
+
+use crate::colour::{UNKNOWN_RGB, cell_rgb};
+use crate::settings::{MODELS, RULES, setting_name};
+use crate::{Map, MapError, font};
+
+/// Rows the legend adds below the map.
+pub const LEGEND_HEIGHT: u32 = 24;
+const MARGIN: u32 = 8;
+const TEXT_SCALE: u32 = 2;
+/// Top of the text and of the legend's swatches, from the top of the strip.
+const TEXT_TOP: u32 = 7;
+const TEXT_H: u32 = font::GLYPH_H * TEXT_SCALE;
+const RAMP_WIDTH: u32 = 64;
+const INK: [u8; 3] = [0, 0, 0];
+const PAPER: [u8; 3] = [255, 255, 255];
+
+/// What goes into the picture besides the map.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct PngOptions {
+    /// A [`LEGEND_HEIGHT`]-pixel strip below the map: a scale bar with its length, the colour ramp
+    /// from p = 0 to p = 1, and the colour of unknown cells. The picture is widened if the map is
+    /// narrower than the legend. Without it (the viewer's `s` key), the picture is exactly one
+    /// pixel per cell.
+    pub legend: bool,
+}
+
+/// The scale bar of a legend.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScaleBar {
+    /// Length in metres: 1, 2 or 5 times a power of ten.
+    pub metres: f64,
+    /// Length in pixels (= cells), rounded: off by at most half a pixel.
+    pub pixels: u32,
+    /// The length as text, e.g. `2 m`, `50 cm`.
+    pub label: String,
+}
+
+/// The longest round length (1, 2 or 5 × 10ⁿ m) that takes at most a third of the map's width, or
+/// 20 pixels on a very narrow map.
+pub fn scale_bar(resolution_m: f32, map_width_px: u32) -> ScaleBar {
+    let res = f64::from(resolution_m);
+    let max_m = (f64::from(map_width_px) / 3.0).max(20.0) * res;
+    let k = max_m.log10().floor() as i32;
+    let (mantissa, exponent) = [(5.0, k), (2.0, k), (1.0, k)]
+        .into_iter()
+        .find(|&(m, e)| m * 10f64.powi(e) <= max_m * (1.0 + 1e-9))
+        .unwrap_or((5.0, k - 1));
+    let metres = mantissa * 10f64.powi(exponent);
+    let (unit, unit_exp) = match exponent {
+        3.. => ("km", 3),
+        0.. => ("m", 0),
+        -2.. => ("cm", -2),
+        _ => ("mm", -3),
+    };
+    let number = mantissa * 10f64.powi(exponent - unit_exp);
+    ScaleBar {
+        metres,
+        pixels: ((metres / res).round() as u32).max(1),
+        label: format!("{number} {unit}"),
+    }
+}
+
+/// Encodes `map` as an 8-bit RGB PNG.
+pub fn write_png<W: Write>(out: W, map: &Map<'_>, options: &PngOptions) -> Result<(), MapError> {
+    let hd = map.header();
+    let bar = options.legend.then(|| scale_bar(hd.resolution_m, hd.width));
+    let mut comment = format!(
+        "sonar occupancy map {}x{}, cells of {} m, lower-left corner at ({}, {}) m, \
+         model {}, rule {}, {} readings fused; top row = highest y",
+        hd.width,
+        hd.height,
+        hd.resolution_m,
+        hd.origin_x_m,
+        hd.origin_y_m,
+        setting_name(MODELS, hd.model),
+        setting_name(RULES, hd.rule),
+        hd.readings_fused
+    );
+    let mut canvas = match &bar {
+        None => Canvas::new(hd.width, hd.height),
+        Some(bar) => {
+            comment.push_str(&format!(
+                "; below the map a {LEGEND_HEIGHT}-pixel legend: scale bar of {} ({} pixels), \
+                 colour ramp p = 0 to 1, unknown",
+                bar.label, bar.pixels
+            ));
+            let width = hd.width.max(legend_width(bar));
+            Canvas::new(width, hd.height + LEGEND_HEIGHT)
+        }
+    };
+    // Snapshot row 0 is the lowest y; image row 0 is the top.
+    for (y, row) in map.rows_top_down().enumerate() {
+        for (x, &cell) in row.iter().enumerate() {
+            canvas.set(x as u32, y as u32, cell_rgb(cell));
+        }
+    }
+    if let Some(bar) = &bar {
+        draw_legend(&mut canvas, hd.height, bar);
+    }
+
+    let mut encoder = png::Encoder::new(out, canvas.width, canvas.height);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    // Maps are mostly flat areas: the fast setting compresses them well, in a blink.
+    encoder.set_compression(png::Compression::Fast);
+    encoder.add_text_chunk("Comment".to_owned(), comment)?;
+    let mut writer = encoder.write_header()?;
+    writer.write_image_data(&canvas.rgb)?;
+    writer.finish()?;
+    Ok(())
+}
+
+/// An RGB picture, white where nothing is drawn.
+struct Canvas {
+    width: u32,
+    height: u32,
+    rgb: Vec<u8>,
+}
+
+impl Canvas {
+    fn new(width: u32, height: u32) -> Self {
+        Self {
+            width,
+            height,
+            rgb: PAPER.repeat(width as usize * height as usize),
+        }
+    }
+
+    fn set(&mut self, x: u32, y: u32, rgb: [u8; 3]) {
+        if x < self.width && y < self.height {
+            let i = (y as usize * self.width as usize + x as usize) * 3;
+            self.rgb[i..i + 3].copy_from_slice(&rgb);
+        }
+    }
+
+    fn fill(&mut self, x0: u32, y0: u32, w: u32, h: u32, rgb: [u8; 3]) {
+        for y in y0..y0 + h {
+            for x in x0..x0 + w {
+                self.set(x, y, rgb);
+            }
+        }
+    }
+
+    fn text(&mut self, text: &str, x: u32, y: u32) {
+        font::draw(text, x, y, TEXT_SCALE, |px, py| self.set(px, py, INK));
+    }
+}
+
+/// Left edges of the legend's parts: scale label, "0", ramp, "1", unknown swatch and its label;
+/// and the legend's total width.
+fn legend_layout(bar: &ScaleBar) -> [u32; 7] {
+    let digit = font::text_width("0", TEXT_SCALE);
+    let label = MARGIN + bar.pixels + 6;
+    let zero = label + font::text_width(&bar.label, TEXT_SCALE) + 16;
+    let ramp = zero + digit + 4;
+    let one = ramp + RAMP_WIDTH + 4;
+    let swatch = one + digit + 12;
+    let unknown = swatch + TEXT_H + 4;
+    let end = unknown + font::text_width("unknown", TEXT_SCALE) + MARGIN;
+    [label, zero, ramp, one, swatch, unknown, end]
+}
+
+fn legend_width(bar: &ScaleBar) -> u32 {
+    legend_layout(bar)[6]
+}
+
+/// Draws the legend into the strip starting at row `top`.
+fn draw_legend(canvas: &mut Canvas, top: u32, bar: &ScaleBar) {
+    let [label, zero, ramp, one, swatch, unknown, _] = legend_layout(bar);
+    let text_y = top + TEXT_TOP;
+    // The bar: 3 pixels thick, with end ticks the height of the text, exactly `pixels` wide.
+    canvas.fill(MARGIN, text_y + 4, bar.pixels, 3, INK);
+    canvas.fill(MARGIN, text_y, 1, TEXT_H, INK);
+    canvas.fill(MARGIN + bar.pixels - 1, text_y, 1, TEXT_H, INK);
+    canvas.text(&bar.label, label, text_y);
+
+    canvas.text("0", zero, text_y);
+    for i in 0..RAMP_WIDTH {
+        let cell = (f64::from(i) / f64::from(RAMP_WIDTH - 1) * 254.0).round() as u8;
+        canvas.fill(ramp + i, text_y, 1, TEXT_H, cell_rgb(cell));
+    }
+    canvas.text("1", one, text_y);
+    canvas.fill(swatch, text_y, TEXT_H, TEXT_H, UNKNOWN_RGB);
+    canvas.text("unknown", unknown, text_y);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_grid;
+    use sonar_common::ipc::CELL_UNKNOWN;
+
+    struct Decoded {
+        width: u32,
+        height: u32,
+        pixels: Vec<u8>,
+        comment: String,
+    }
+
+    impl Decoded {
+        fn px(&self, x: u32, y: u32) -> [u8; 3] {
+            let i = ((y * self.width + x) * 3) as usize;
+            [self.pixels[i], self.pixels[i + 1], self.pixels[i + 2]]
+        }
+    }
+
+    fn decode(bytes: &[u8]) -> Decoded {
+        let mut reader = png::Decoder::new(std::io::Cursor::new(bytes))
+            .read_info()
+            .unwrap();
+        let mut pixels = vec![0; reader.output_buffer_size().unwrap()];
+        let info = reader.next_frame(&mut pixels).unwrap();
+        let comment = reader.info().uncompressed_latin1_text[0].text.clone();
+        Decoded {
+            width: info.width,
+            height: info.height,
+            pixels,
+            comment,
+        }
+    }
+
+    fn png(options: PngOptions) -> Decoded {
+        let h = test_grid::header();
+        let map = Map::new(&h, &test_grid::CELLS).unwrap();
+        let mut bytes = Vec::new();
+        write_png(&mut bytes, &map, &options).unwrap();
+        decode(&bytes)
+    }
+
+    #[test]
+    fn one_pixel_per_cell_with_the_highest_row_on_top() {
+        let img = png(PngOptions::default());
+        assert_eq!((img.width, img.height), (3, 2));
+        assert_eq!(img.px(0, 1), cell_rgb(0));
+        assert_eq!(img.px(1, 1), cell_rgb(CELL_UNKNOWN));
+        assert_eq!(img.px(2, 1), cell_rgb(254));
+        assert_eq!(img.px(1, 0), cell_rgb(203));
+        assert_eq!(
+            img.comment,
+            "sonar occupancy map 3x2, cells of 0.05 m, lower-left corner at (-0.075, -0.05) m, \
+             model smooth, rule log-odds, 42 readings fused; top row = highest y"
+        );
+    }
+
+    #[test]
+    fn the_legend_adds_a_scale_bar_of_the_stated_length_below_the_unchanged_map() {
+        let img = png(PngOptions { legend: true });
+        let bar = scale_bar(0.05, 3);
+        // A 3-cell map is narrower than the legend: 20 pixels of 5 cm make 1 m.
+        assert_eq!(
+            (bar.metres, bar.pixels, bar.label.as_str()),
+            (1.0, 20, "1 m")
+        );
+        assert_eq!(img.width, legend_width(&bar));
+        assert_eq!(img.height, 2 + LEGEND_HEIGHT);
+        let plain = png(PngOptions::default());
+        for (x, y) in [(0, 0), (1, 0), (2, 0), (0, 1), (1, 1), (2, 1)] {
+            assert_eq!(img.px(x, y), plain.px(x, y));
+        }
+        assert_eq!(img.px(3, 0), PAPER, "right of a narrow map");
+        // The bar's middle row is ink over exactly `pixels` columns from the margin.
+        let row = 2 + TEXT_TOP + 5;
+        let inked: Vec<u32> = (0..img.width)
+            .take_while(|&x| x < legend_layout(&bar)[0])
+            .filter(|&x| img.px(x, row) == INK)
+            .collect();
+        assert_eq!(inked, (MARGIN..MARGIN + 20).collect::<Vec<_>>());
+        assert!(img.comment.ends_with(
+            "below the map a 24-pixel legend: scale bar of 1 m (20 pixels), colour ramp p = 0 to 1, unknown"
+        ));
+        // The ramp starts free and ends occupied; the swatch is the unknown colour.
+        let [_, _, ramp, one, swatch, ..] = legend_layout(&bar);
+        assert_eq!(img.px(ramp, row), cell_rgb(0));
+        assert_eq!(img.px(one - 5, row), cell_rgb(254));
+        assert_eq!(img.px(swatch + 1, row), UNKNOWN_RGB);
+    }
+
+    #[test]
+    fn scale_bars_are_round_lengths_up_to_a_third_of_the_map() {
+        let cases = [
+            (0.02, 400, 2.0, 100, "2 m"),
+            (0.05, 400, 5.0, 100, "5 m"),
+            (0.01, 800, 2.0, 200, "2 m"),
+            (0.01, 400, 1.0, 100, "1 m"),
+            (0.005, 400, 0.5, 100, "50 cm"),
+            (0.001, 300, 0.1, 100, "10 cm"),
+            (0.03, 400, 2.0, 67, "2 m"),
+            (0.0001, 100, 0.002, 20, "2 mm"),
+            (2.0, 3000, 2000.0, 1000, "2 km"),
+        ];
+        for (res, width, metres, pixels, label) in cases {
+            let bar = scale_bar(res, width);
+            assert!(
+                (bar.metres - metres).abs() < 1e-9 * metres,
+                "{res} {width}: {bar:?}"
+            );
+            assert_eq!(
+                (bar.pixels, bar.label.as_str()),
+                (pixels, label),
+                "{res} {width}"
+            );
+        }
+    }
+}

@@ -1,0 +1,453 @@
+//! End to end: the consumers of `sonar/grid` beside the viewer — `sonar-export` (live and from a
+//! recording), the nearest-obstacle alerter and the Python example — on the simulated room.
+//!
+//! The room (simulator scene `room`): the sensor at the centre of a 2.4 m square, walls 1.2 m away
+//! along the axes; the wall behind (x = −1.2) lies in the sweep's blind 60° and stays unseen.
+#![allow(clippy::unwrap_used, clippy::expect_used)] // helpers outside #[test] fns; a panic is a failure
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::Output;
+use std::time::Instant;
+
+use iceoryx2::prelude::*;
+use iceoryx2::service::ipc::Service as Ipc;
+use sonar_common::ipc::{self, GridHeader};
+use sonar_e2e::{PATIENCE, Proc, Sandbox, collect_until};
+
+/// Grid of the default fusion settings: 400 × 400 cells of 2 cm, centred on the sensor.
+const SIDE: usize = 400;
+const RES: f32 = 0.02;
+const ORIGIN: f32 = -4.0;
+
+/// Column and row (row 0 = lowest y) of the cell holding world point (`x`, `y`).
+fn cell_of(x: f32, y: f32) -> (usize, usize) {
+    (
+        ((x - ORIGIN) / RES).floor() as usize,
+        ((y - ORIGIN) / RES).floor() as usize,
+    )
+}
+
+/// The cells within `r` cells of (`x`, `y`).
+fn around(x: f32, y: f32, r: usize) -> impl Iterator<Item = (usize, usize)> {
+    let (cx, cy) = cell_of(x, y);
+    (cy - r..=cy + r).flat_map(move |j| (cx - r..=cx + r).map(move |i| (i, j)))
+}
+
+/// Simulator, driver (full scan) and fusion engine on the room, at 100× real time.
+fn start_room(sandbox: &Sandbox) -> Vec<Proc> {
+    let fusion = sandbox.spawn("sonar-fusion", &[]);
+    let (sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100", "--seed", "5"]);
+    let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+    vec![driver, sim, fusion]
+}
+
+fn run(sandbox: &Sandbox, name: &str, args: &[&str]) -> Output {
+    sandbox
+        .command(name)
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("run {name}: {e}"))
+}
+
+fn path_str(p: &Path) -> &str {
+    p.to_str().expect("temp paths are UTF-8")
+}
+
+fn check_ok(what: &str, out: &Output) -> String {
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "{what} failed: {:?}\n{stdout}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    stdout
+}
+
+/// A PGM as written by `map_saver`: P5, optional comment lines, "W H", "255", bytes.
+fn parse_pgm(bytes: &[u8]) -> (usize, usize, &[u8]) {
+    let mut rest = bytes;
+    let mut line = || {
+        let end = rest.iter().position(|&b| b == b'\n').unwrap();
+        let l = std::str::from_utf8(&rest[..end]).unwrap().to_owned();
+        rest = &rest[end + 1..];
+        l
+    };
+    assert_eq!(line(), "P5");
+    let mut size = line();
+    while size.starts_with('#') {
+        size = line();
+    }
+    let (w, h) = size.split_once(' ').unwrap();
+    assert_eq!(line(), "255");
+    let (w, h) = (w.parse().unwrap(), h.parse().unwrap());
+    assert_eq!(rest.len(), w * h, "one byte per pixel");
+    (w, h, rest)
+}
+
+/// A NumPy 1.0 `.npy` file of `<f4`: its header dictionary and its values.
+fn parse_npy(bytes: &[u8]) -> (String, Vec<f32>) {
+    assert_eq!(&bytes[..8], b"\x93NUMPY\x01\x00");
+    let len = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+    assert_eq!((10 + len) % 64, 0, "header aligned to 64 bytes");
+    let dict = std::str::from_utf8(&bytes[10..10 + len])
+        .unwrap()
+        .to_owned();
+    assert!(dict.ends_with('\n'));
+    let values = bytes[10 + len..]
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    (dict, values)
+}
+
+/// `key: value` lines of a flat YAML file (comments skipped).
+fn yaml_fields(text: &str) -> Vec<(String, String)> {
+    text.lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| {
+            let (k, v) = l.split_once(':').unwrap();
+            (k.trim().to_owned(), v.trim().to_owned())
+        })
+        .collect()
+}
+
+#[test]
+fn sonar_export_writes_the_live_room_as_png_ros_map_csv_and_npy() {
+    let sandbox = Sandbox::new("export");
+    let _pipeline = start_room(&sandbox);
+    let dir = sandbox.root.join("maps");
+    std::fs::create_dir_all(&dir).unwrap();
+    let stem = dir.join("room");
+    let out = run(
+        &sandbox,
+        "sonar-export",
+        &["--format", "all", "--out", path_str(&stem), "--sweeps", "2"],
+    );
+    let printed = check_ok("sonar-export", &out);
+    let files: Vec<&str> = printed.lines().collect();
+    let expected = ["png", "pgm", "yaml", "csv", "npy"].map(|e| format!("{}.{e}", stem.display()));
+    assert_eq!(files, expected, "the paths written, one per line");
+
+    // NPY: float32, (height, width), row 0 = lowest y, NaN = never observed.
+    let (dict, p) = parse_npy(&std::fs::read(stem.with_extension("npy")).unwrap());
+    assert!(dict.contains("'descr': '<f4'"), "{dict}");
+    assert!(dict.contains("'fortran_order': False"), "{dict}");
+    assert!(dict.contains("'shape': (400, 400)"), "{dict}");
+    assert_eq!(p.len(), SIDE * SIDE);
+    let at = |(x, y): (usize, usize)| p[y * SIDE + x];
+    let wall = around(1.2, 0.0, 2).map(at).fold(0.0f32, f32::max);
+    assert!(wall > 0.65, "wall at (1.2, 0) has p = {wall}");
+    let free = at(cell_of(0.6, 0.0));
+    assert!(free < 0.196, "free space at (0.6, 0) has p = {free}");
+    assert!(at(cell_of(3.5, 0.0)).is_nan(), "beyond the wall is unknown");
+
+    // PGM + YAML: a map_server map; its first row is the highest y.
+    let pgm_bytes = std::fs::read(stem.with_extension("pgm")).unwrap();
+    let (w, h, pgm) = parse_pgm(&pgm_bytes);
+    assert_eq!((w, h), (SIDE, SIDE));
+    let grey = |(x, y): (usize, usize)| pgm[(SIDE - 1 - y) * SIDE + x];
+    assert!(
+        around(1.2, 0.0, 2).any(|c| grey(c) == 0),
+        "a black cell on the wall at (1.2, 0)"
+    );
+    assert_eq!(grey(cell_of(0.6, 0.0)), 254, "(0.6, 0) is white");
+    assert_eq!(grey(cell_of(3.5, 0.0)), 205, "beyond the wall is grey");
+    // Every pixel is the trinary class of the same cell in the NPY (the flip included).
+    for y in 0..SIDE {
+        for x in 0..SIDE {
+            let v = at((x, y));
+            let class = if v.is_nan() || (0.196..=0.65).contains(&v) {
+                205
+            } else if v > 0.65 {
+                0
+            } else {
+                254
+            };
+            assert_eq!(grey((x, y)), class, "cell ({x}, {y}) with p = {v}");
+        }
+    }
+    let yaml = std::fs::read_to_string(stem.with_extension("yaml")).unwrap();
+    let fields = yaml_fields(&yaml);
+    let field = |k: &str| {
+        fields
+            .iter()
+            .find(|(key, _)| key == k)
+            .map(|(_, v)| v.as_str())
+            .unwrap_or_else(|| panic!("no {k} in\n{yaml}"))
+    };
+    assert_eq!(field("image"), "room.pgm");
+    assert_eq!(field("mode"), "trinary");
+    assert_eq!(field("resolution"), "0.02");
+    assert_eq!(field("origin"), "[-4.0, -4.0, 0.0]");
+    assert_eq!(field("negate"), "0");
+    assert_eq!(field("occupied_thresh"), "0.65");
+    assert_eq!(field("free_thresh"), "0.196");
+
+    // CSV: one line per grid row, lowest y first; empty fields for unknown.
+    let csv = std::fs::read_to_string(stem.with_extension("csv")).unwrap();
+    let rows: Vec<&str> = csv.lines().collect();
+    assert_eq!(rows.len(), SIDE);
+    for (y, row) in rows.iter().enumerate() {
+        let fields: Vec<&str> = row.split(',').collect();
+        assert_eq!(fields.len(), SIDE, "row {y}");
+        for (x, f) in fields.iter().enumerate() {
+            let v = at((x, y));
+            if v.is_nan() {
+                assert_eq!(*f, "", "({x}, {y})");
+            } else {
+                let csv_p: f32 = f.parse().unwrap();
+                assert!((csv_p - v).abs() < 6e-5, "({x}, {y}): {f} vs {v}");
+            }
+        }
+    }
+
+    // PNG: the map (highest y on top) above a legend strip, the readings in its comment.
+    let mut reader = png::Decoder::new(std::io::Cursor::new(
+        std::fs::read(stem.with_extension("png")).unwrap(),
+    ))
+    .read_info()
+    .unwrap();
+    let mut pixels = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut pixels).unwrap();
+    assert_eq!((info.width, info.height), (400, 400 + 24));
+    let rgb = |(x, y): (usize, usize)| {
+        let i = ((SIDE - 1 - y) * SIDE + x) * 3;
+        [pixels[i], pixels[i + 1], pixels[i + 2]]
+    };
+    let [r, _, b] = rgb(cell_of(0.6, 0.0));
+    assert!(b > r, "free space is blue");
+    assert!(
+        around(1.2, 0.0, 2).any(|c| {
+            let [r, _, b] = rgb(c);
+            r > b
+        }),
+        "the wall is red"
+    );
+    assert_eq!(rgb(cell_of(3.5, 0.0)), [48, 48, 48], "unknown is dark grey");
+    let comment = &reader.info().uncompressed_latin1_text[0].text;
+    let readings: u64 = comment
+        .split(" readings fused")
+        .next()
+        .and_then(|s| s.rsplit(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no readings count in {comment:?}"));
+    assert!(readings >= 100, "two full sweeps of 50 readings: {comment}");
+}
+
+fn readings_subscribers(node: &Node<Ipc>) -> usize {
+    ipc::readings_service(node)
+        .unwrap()
+        .dynamic_config()
+        .number_of_subscribers()
+}
+
+fn wait_until(node: &Node<Ipc>, what: &str, mut ready: impl FnMut() -> bool) {
+    let deadline = Instant::now() + PATIENCE;
+    while !ready() {
+        assert!(Instant::now() < deadline, "gave up waiting for {what}");
+        let _ = node.wait(std::time::Duration::from_millis(10));
+    }
+}
+
+/// The recorded readings, fused offline, give exactly the map the live engine built from them.
+#[test]
+fn an_export_from_a_recording_equals_the_live_map_of_the_same_readings() {
+    let sandbox = Sandbox::new("exportrec");
+    let node = sandbox.node("test-counter");
+    let grid = ipc::grid_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let readings = ipc::readings_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let file = sandbox.root.join("run.mcap");
+    // Fusion and recorder subscribe before the driver publishes its first reading.
+    let fusion = sandbox.spawn("sonar-fusion", &[]);
+    let recorder = sandbox.spawn("sonar-record", &[path_str(&file)]);
+    wait_until(&node, "fusion's and the recorder's subscriptions", || {
+        readings_subscribers(&node) >= 3
+    });
+    let (sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100", "--seed", "8"]);
+    let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+    let mut count = collect_until(
+        &node,
+        || readings.receive().unwrap().map(|s| s.payload().seq),
+        |got| got.len() >= 60,
+    )
+    .len();
+    assert!(driver.terminate().success(), "driver did not exit cleanly");
+    while readings.receive().unwrap().is_some() {
+        count += 1;
+    }
+    // The live engine has fused every reading the driver published.
+    collect_until(
+        &node,
+        || {
+            grid.receive()
+                .unwrap()
+                .map(|s| s.user_header().readings_fused)
+        },
+        |got| got.last() == Some(&(count as u64)),
+    );
+    assert!(
+        recorder.terminate().success(),
+        "sonar-record did not exit cleanly"
+    );
+
+    let live_stem = sandbox.root.join("live");
+    let offline_stem = sandbox.root.join("offline");
+    let live = run(
+        &sandbox,
+        "sonar-export",
+        &["--format", "npy,pgm", "--out", path_str(&live_stem)],
+    );
+    check_ok("live sonar-export", &live);
+    let offline = run(
+        &sandbox,
+        "sonar-export",
+        &[
+            "--format",
+            "npy,pgm",
+            "--out",
+            path_str(&offline_stem),
+            "--from-recording",
+            path_str(&file),
+        ],
+    );
+    check_ok("offline sonar-export", &offline);
+    let fused_in = |stem: &PathBuf| {
+        let yaml = std::fs::read_to_string(stem.with_extension("yaml")).unwrap();
+        yaml.split(" readings fused")
+            .next()
+            .and_then(|s| s.rsplit(' ').next())
+            .and_then(|n| n.parse::<u64>().ok())
+            .unwrap_or_else(|| panic!("no readings count in {yaml}"))
+    };
+    assert_eq!(fused_in(&live_stem), count as u64);
+    assert_eq!(
+        fused_in(&offline_stem),
+        count as u64,
+        "the recording holds every reading"
+    );
+    let npy = |stem: &PathBuf| std::fs::read(stem.with_extension("npy")).unwrap();
+    assert!(
+        npy(&live_stem) == npy(&offline_stem),
+        "live and offline maps differ"
+    );
+    let (_, p) = parse_npy(&npy(&offline_stem));
+    assert!(p.iter().any(|v| *v > 0.65), "the offline map has walls");
+
+    assert!(fusion.terminate().success());
+    assert!(sim.terminate().success());
+}
+
+/// Runs the alerter to its exit; returns its alert lines and its standard error.
+fn alerter(sandbox: &Sandbox, args: &[&str]) -> (Vec<String>, String) {
+    let out = run(sandbox, "sonar-nearest-obstacle", args);
+    let stdout = check_ok("sonar-nearest-obstacle", &out);
+    let lines = stdout.lines().map(str::to_owned).collect();
+    (lines, String::from_utf8_lossy(&out.stderr).into_owned())
+}
+
+/// `bearing <deg> distance <m>` → (deg, m).
+fn parse_alert(line: &str) -> (f32, f32) {
+    let f: Vec<&str> = line.split_whitespace().collect();
+    assert!(
+        f.len() == 4 && f[0] == "bearing" && f[2] == "distance",
+        "{line}"
+    );
+    (f[1].parse().unwrap(), f[3].parse().unwrap())
+}
+
+#[test]
+fn the_nearest_obstacle_alerter_reports_the_room_walls_and_stays_quiet_below_them() {
+    let sandbox = Sandbox::new("nearest");
+    let _pipeline = start_room(&sandbox);
+
+    let (alerts, _) = alerter(&sandbox, &["--threshold", "1.5", "--count", "1"]);
+    assert_eq!(alerts.len(), 1, "{alerts:?}");
+    let (bearing, distance) = parse_alert(&alerts[0]);
+    assert!((1.1..=1.3).contains(&distance), "{}", alerts[0]);
+    assert!((-180.0..180.0).contains(&bearing), "{}", alerts[0]);
+
+    // The walls are mapped now: every snapshot the next run sees holds them, 1.2 m away.
+    let (alerts, stderr) = alerter(&sandbox, &["--threshold", "0.5", "--snapshots", "3"]);
+    assert!(alerts.is_empty(), "{alerts:?}");
+    let summary = stderr
+        .lines()
+        .find_map(|l| l.split_once("3 snapshots, 0 alerts, nearest occupied cell "))
+        .unwrap_or_else(|| panic!("no summary in\n{stderr}"))
+        .1;
+    let nearest: f32 = summary.trim_end_matches(" m").trim().parse().unwrap();
+    assert!((1.1..=1.3).contains(&nearest), "{summary}");
+
+    // Without --count it runs until stopped, and stops cleanly.
+    let mut running = sandbox.spawn("sonar-nearest-obstacle", &["--threshold", "1.5"]);
+    let stdout = running.child.stdout.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut line = String::new();
+        let _ = BufReader::new(stdout).read_line(&mut line);
+        let _ = tx.send(line);
+    });
+    let first = rx.recv_timeout(PATIENCE).expect("an alert");
+    parse_alert(first.trim_end());
+    assert!(running.terminate().success(), "exit status after SIGTERM");
+}
+
+#[test]
+fn the_python_example_prints_the_occupied_fraction_of_the_room() {
+    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let python = std::env::var_os("SONAR_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace.join(".venv/bin/python3"));
+    assert!(
+        python.exists(),
+        "{} missing: python3 -m venv .venv && .venv/bin/pip install 'iceoryx2==0.10.*' (.ci/run does)",
+        python.display()
+    );
+    let sandbox = Sandbox::new("pyfraction");
+    let node = sandbox.node("test-grid");
+    let grid = ipc::grid_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let _pipeline = start_room(&sandbox);
+    // The script opens the service: it must exist (the fusion engine creates it).
+    collect_until(
+        &node,
+        || grid.receive().unwrap().map(|s| *s.user_header()),
+        |got: &[GridHeader]| !got.is_empty(),
+    );
+
+    let output = std::process::Command::new(python)
+        .arg(workspace.join("examples/python/print_occupied_fraction.py"))
+        .args(["--count", "1", "--min-readings", "100"])
+        .env("SONAR_IOX_PREFIX", &sandbox.prefix)
+        .env("SONAR_IOX_ROOT", &sandbox.root)
+        .output()
+        .unwrap();
+    let stdout = check_ok("print_occupied_fraction.py", &output);
+    let lines: Vec<&str> = stdout
+        .lines()
+        .filter(|l| l.starts_with("occupied fraction "))
+        .collect();
+    assert_eq!(lines.len(), 1, "{stdout}");
+    // occupied fraction <x> seq <seq> readings <n>
+    let f: Vec<&str> = lines[0].split_whitespace().collect();
+    let fraction: f64 = f[2].parse().unwrap();
+    let readings: u64 = f[6].parse().unwrap();
+    assert!(readings >= 100, "{}", lines[0]);
+    assert!(
+        fraction > 0.0 && fraction < 0.5,
+        "walls are a small part of the observed room: {}",
+        lines[0]
+    );
+}
