@@ -349,3 +349,100 @@ fn damaged_or_foreign_files_are_clear_errors() {
     assert!(stderr.contains("--force"), "{stderr}");
     assert_eq!(std::fs::read(&noise).unwrap(), fake, "the file was touched");
 }
+
+type GridSubscriber = Subscriber<Ipc, [u8], ipc::GridHeader>;
+
+fn grid_subscriber(node: &Node<Ipc>) -> GridSubscriber {
+    ipc::grid_service(node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap()
+}
+
+/// The first `sonar/grid` snapshot with exactly `readings` fused: its header and cells.
+fn map_after(node: &Node<Ipc>, grid: &GridSubscriber, readings: u64) -> (ipc::GridHeader, Vec<u8>) {
+    let got = collect_until(
+        node,
+        || {
+            grid.receive()
+                .unwrap()
+                .map(|s| (*s.user_header(), s.payload().to_vec()))
+        },
+        |got| {
+            got.last()
+                .is_some_and(|(h, _)| h.readings_fused == readings)
+        },
+    );
+    got.last().cloned().unwrap()
+}
+
+#[test]
+fn replaying_a_recording_into_the_fusion_engine_gives_the_live_map() {
+    const SWEEPS_2: u64 = 100;
+    let live = Sandbox::new("rec_map_live");
+    let node = live.node("test-live");
+    let file: PathBuf = live.root.join("run.mcap");
+    let recorder = live.spawn(
+        "sonar-record",
+        &[path_str(&file), "--count", &SWEEPS_2.to_string()],
+    );
+    // One snapshot a second at most, plus one at each sweep's end: the end of sweep 2 (100
+    // readings) is published on its own, before sweep 3 begins.
+    let fusion = live.spawn("sonar-fusion", &["--max-rate", "1"]);
+    wait_until(&node, "recorder and fusion subscribed", || {
+        readings_subscribers(&node) >= 2
+    });
+    let live_grid = grid_subscriber(&node);
+    let (sim, pty) = live.spawn_sim(&["--scene", "room", "--speed", "20", "--seed", "5"]);
+    let driver = live.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+    let (live_header, live_cells) = map_after(&node, &live_grid, SWEEPS_2);
+    let (status, stderr) = recorder.wait_exit();
+    assert!(status.success(), "sonar-record failed: {stderr}");
+    for p in [driver, sim, fusion] {
+        assert!(p.terminate().success());
+    }
+
+    let replay_box = Sandbox::new("rec_map_replay");
+    let replay_node = replay_box.node("test-replay");
+    let replay_grid = grid_subscriber(&replay_node);
+    let _fusion = replay_box.spawn("sonar-fusion", &["--max-rate", "1"]);
+    wait_until(&replay_node, "fusion subscribed", || {
+        readings_subscribers(&replay_node) >= 1
+    });
+    let _replay = replay_box.spawn(
+        "sonar-replay",
+        &[
+            path_str(&file),
+            "--speed",
+            "max",
+            "--wait-for-subscribers",
+            "1",
+        ],
+    );
+    let (header, cells) = map_after(&replay_node, &replay_grid, SWEEPS_2);
+
+    assert_eq!(cells.len(), live_cells.len());
+    let differing = cells
+        .iter()
+        .zip(&live_cells)
+        .filter(|(a, b)| a != b)
+        .count();
+    assert_eq!(
+        differing, 0,
+        "cells differ between the live and the replayed map"
+    );
+    assert!(live_header.occupied_cells > 100, "{live_header:?}");
+    assert_eq!(
+        (
+            header.occupied_cells,
+            header.free_cells,
+            header.unknown_cells
+        ),
+        (
+            live_header.occupied_cells,
+            live_header.free_cells,
+            live_header.unknown_cells
+        )
+    );
+}
