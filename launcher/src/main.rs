@@ -528,3 +528,21 @@ impl Process {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The example systemd unit starts the launcher with flags it has.
+    #[test]
+    fn the_systemd_unit_uses_existing_flags() {
+        let unit = include_str!("../../examples/systemd/sonar-pipeline.service");
+        let exec = unit
+            .lines()
+            .find_map(|l| l.strip_prefix("ExecStart="))
+            .expect("an ExecStart line");
+        let args = Args::try_parse_from(exec.split_whitespace()).unwrap();
+        assert!(args.no_viewer);
+        assert_eq!(args.config, Some(PathBuf::from("/etc/sonar/sonar.toml")));
+    }
+}
