@@ -8,6 +8,8 @@
 //!
 //! Nothing here does I/O except opening iceoryx2 services on behalf of the caller.
 
+use std::process::ExitCode;
+
 pub mod ipc;
 pub mod protocol;
 pub mod sensor;
@@ -21,4 +23,31 @@ pub fn init_tracing() {
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .try_init();
+}
+
+/// The end of a binary's `main`: [`ExitCode::SUCCESS`] for `Ok`; for an error, logs it and
+/// prints `<program>: error: <the chain of causes>` on one line of standard error (the user's
+/// message, also when the log goes elsewhere), and returns [`ExitCode::FAILURE`].
+pub fn report_exit(program: &str, result: anyhow::Result<()>) -> ExitCode {
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!("{e:#}");
+            // One line with the chain of causes, not a backtrace: these are user errors.
+            eprintln!("{program}: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn report_exit_maps_ok_to_success_and_errors_to_failure() {
+        assert_eq!(report_exit("test", Ok(())), ExitCode::SUCCESS);
+        let err = anyhow::anyhow!("inner cause").context("outer");
+        assert_eq!(report_exit("test", Err(err)), ExitCode::FAILURE);
+    }
 }

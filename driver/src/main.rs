@@ -26,7 +26,7 @@ use sonar_common::protocol::{
 use sonar_common::sensor::SensorConfig;
 use sonar_driver::averaging::PingPolicy;
 use sonar_driver::decoder::{Decoded, Decoder, Dialect};
-use tracing::{debug, error, info, warn};
+use tracing::{debug, info, warn};
 
 /// How long one read of the port may block: bounds the latency of commands and of shutdown.
 const READ_TIMEOUT: Duration = Duration::from_millis(50);
@@ -140,14 +140,7 @@ impl ScanRequest {
 
 fn main() -> std::process::ExitCode {
     sonar_common::init_tracing();
-    match run(Args::parse()) {
-        Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(e) => {
-            error!("{e:#}");
-            eprintln!("sonar-driver: error: {e:#}");
-            std::process::ExitCode::FAILURE
-        }
-    }
+    sonar_common::report_exit("sonar-driver", run(Args::parse()))
 }
 
 /// Why a session on an open port ended.

@@ -81,14 +81,7 @@ fn parse<T: std::str::FromStr<Err: std::fmt::Display>>(s: &str) -> Result<T, Str
 fn main() -> ExitCode {
     sonar_common::init_tracing();
     let args = Args::parse();
-    match run(&args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            tracing::error!("{e:#}");
-            eprintln!("sonar-fusion: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    sonar_common::report_exit("sonar-fusion", run(&args))
 }
 
 /// The configuration from the file, the preset and the flags, validated.

@@ -20,7 +20,7 @@ use clap::Parser;
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 use sonar_common::ipc::IpcArgs;
-use tracing::{error, info, warn};
+use tracing::{info, warn};
 
 use crate::config::{PipelineFile, push_opt};
 
@@ -91,14 +91,8 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    match run(args) {
-        Ok(code) => code,
-        Err(e) => {
-            error!("{e:#}");
-            eprintln!("sonar-pipeline: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    // `run` chooses the exit code itself (the viewer's); only its errors are reported here.
+    run(args).unwrap_or_else(|e| sonar_common::report_exit("sonar-pipeline", Err(e)))
 }
 
 /// One process of the pipeline: how to start it, and its current incarnation.

@@ -6,6 +6,7 @@
 //!
 //! - [`colour`]: the colour code of the maps (blue free → pale even odds → red occupied, dark grey
 //!   unknown), shared with the terminal viewer.
+//! - [`canvas`]: an RGB picture and its PNG encoding, shared with the evaluation's figures.
 //! - [`picture`]: PNG, one pixel per cell, highest y on top, optionally with a legend strip (scale
 //!   bar and colour ramp).
 //! - [`ros`]: a ROS `map_server` map, trinary PGM + YAML.
@@ -19,6 +20,7 @@ use std::path::PathBuf;
 
 use sonar_common::ipc::{GridHeader, decode_probability};
 
+pub mod canvas;
 pub mod colour;
 mod font;
 pub mod output;
@@ -47,6 +49,8 @@ pub enum MapError {
     },
     #[error(transparent)]
     Io(#[from] std::io::Error),
+    #[error("a {width} × {height}-pixel picture is too large for PNG")]
+    PictureSize { width: usize, height: usize },
     #[error("PNG encoding failed: {0}")]
     Png(#[from] png::EncodingError),
 }

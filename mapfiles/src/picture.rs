@@ -4,6 +4,7 @@
 
 use std::io::Write;
 
+use crate::canvas::Canvas;
 use crate::colour::{UNKNOWN_RGB, cell_rgb};
 use crate::settings::{MODELS, RULES, setting_name};
 use crate::{Map, MapError, font};
@@ -82,7 +83,7 @@ pub fn write_png<W: Write>(out: W, map: &Map<'_>, options: &PngOptions) -> Resul
         hd.readings_fused
     );
     let mut canvas = match &bar {
-        None => Canvas::new(hd.width, hd.height),
+        None => Canvas::new(hd.width as usize, hd.height as usize, PAPER),
         Some(bar) => {
             comment.push_str(&format!(
                 "; below the map a {LEGEND_HEIGHT}-pixel legend: scale bar of {} ({} pixels), \
@@ -90,65 +91,33 @@ pub fn write_png<W: Write>(out: W, map: &Map<'_>, options: &PngOptions) -> Resul
                 bar.label, bar.pixels
             ));
             let width = hd.width.max(legend_width(bar));
-            Canvas::new(width, hd.height + LEGEND_HEIGHT)
+            Canvas::new(width as usize, (hd.height + LEGEND_HEIGHT) as usize, PAPER)
         }
     };
     // Snapshot row 0 is the lowest y; image row 0 is the top.
     for (y, row) in map.rows_top_down().enumerate() {
         for (x, &cell) in row.iter().enumerate() {
-            canvas.set(x as u32, y as u32, cell_rgb(cell));
+            canvas.set(x, y, cell_rgb(cell));
         }
     }
     if let Some(bar) = &bar {
         draw_legend(&mut canvas, hd.height, bar);
     }
 
-    let mut encoder = png::Encoder::new(out, canvas.width, canvas.height);
-    encoder.set_color(png::ColorType::Rgb);
-    encoder.set_depth(png::BitDepth::Eight);
     // Maps are mostly flat areas: the fast setting compresses them well, in a blink.
-    encoder.set_compression(png::Compression::Fast);
-    encoder.add_text_chunk("Comment".to_owned(), comment)?;
-    let mut writer = encoder.write_header()?;
-    writer.write_image_data(&canvas.rgb)?;
-    writer.finish()?;
-    Ok(())
+    canvas.write_png(out, png::Compression::Fast, Some(&comment))
 }
 
-/// An RGB picture, white where nothing is drawn.
-struct Canvas {
-    width: u32,
-    height: u32,
-    rgb: Vec<u8>,
+/// Writes `text` in ink with its top-left corner at (`x`, `y`).
+fn draw_text(canvas: &mut Canvas, text: &str, x: u32, y: u32) {
+    font::draw(text, x, y, TEXT_SCALE, |px, py| {
+        canvas.set(px as usize, py as usize, INK);
+    });
 }
 
-impl Canvas {
-    fn new(width: u32, height: u32) -> Self {
-        Self {
-            width,
-            height,
-            rgb: PAPER.repeat(width as usize * height as usize),
-        }
-    }
-
-    fn set(&mut self, x: u32, y: u32, rgb: [u8; 3]) {
-        if x < self.width && y < self.height {
-            let i = (y as usize * self.width as usize + x as usize) * 3;
-            self.rgb[i..i + 3].copy_from_slice(&rgb);
-        }
-    }
-
-    fn fill(&mut self, x0: u32, y0: u32, w: u32, h: u32, rgb: [u8; 3]) {
-        for y in y0..y0 + h {
-            for x in x0..x0 + w {
-                self.set(x, y, rgb);
-            }
-        }
-    }
-
-    fn text(&mut self, text: &str, x: u32, y: u32) {
-        font::draw(text, x, y, TEXT_SCALE, |px, py| self.set(px, py, INK));
-    }
+/// [`Canvas::fill`] in the legend's `u32` coordinates.
+fn fill(canvas: &mut Canvas, x: u32, y: u32, w: u32, h: u32, rgb: [u8; 3]) {
+    canvas.fill(x as usize, y as usize, w as usize, h as usize, rgb);
 }
 
 /// Left edges of the legend's parts: scale label, "0", ramp, "1", unknown swatch and its label;
@@ -174,19 +143,19 @@ fn draw_legend(canvas: &mut Canvas, top: u32, bar: &ScaleBar) {
     let [label, zero, ramp, one, swatch, unknown, _] = legend_layout(bar);
     let text_y = top + TEXT_TOP;
     // The bar: 3 pixels thick, with end ticks the height of the text, exactly `pixels` wide.
-    canvas.fill(MARGIN, text_y + 4, bar.pixels, 3, INK);
-    canvas.fill(MARGIN, text_y, 1, TEXT_H, INK);
-    canvas.fill(MARGIN + bar.pixels - 1, text_y, 1, TEXT_H, INK);
-    canvas.text(&bar.label, label, text_y);
+    fill(canvas, MARGIN, text_y + 4, bar.pixels, 3, INK);
+    fill(canvas, MARGIN, text_y, 1, TEXT_H, INK);
+    fill(canvas, MARGIN + bar.pixels - 1, text_y, 1, TEXT_H, INK);
+    draw_text(canvas, &bar.label, label, text_y);
 
-    canvas.text("0", zero, text_y);
+    draw_text(canvas, "0", zero, text_y);
     for i in 0..RAMP_WIDTH {
         let cell = (f64::from(i) / f64::from(RAMP_WIDTH - 1) * 254.0).round() as u8;
-        canvas.fill(ramp + i, text_y, 1, TEXT_H, cell_rgb(cell));
+        fill(canvas, ramp + i, text_y, 1, TEXT_H, cell_rgb(cell));
     }
-    canvas.text("1", one, text_y);
-    canvas.fill(swatch, text_y, TEXT_H, TEXT_H, UNKNOWN_RGB);
-    canvas.text("unknown", unknown, text_y);
+    draw_text(canvas, "1", one, text_y);
+    fill(canvas, swatch, text_y, TEXT_H, TEXT_H, UNKNOWN_RGB);
+    draw_text(canvas, "unknown", unknown, text_y);
 }
 
 #[cfg(test)]

@@ -111,14 +111,7 @@ impl Drop for Symlink {
 fn main() -> ExitCode {
     let args = Args::parse();
     sonar_common::init_tracing();
-    match run(args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            // One line with the chain of causes, not a backtrace: these are user errors.
-            eprintln!("sonar-sim: error: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    sonar_common::report_exit("sonar-sim", run(args))
 }
 
 fn run(args: Args) -> Result<()> {

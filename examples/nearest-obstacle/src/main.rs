@@ -119,13 +119,7 @@ fn run(args: &Args) -> Result<()> {
 
 fn main() -> ExitCode {
     sonar_common::init_tracing();
-    match run(&Args::parse()) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("sonar-nearest-obstacle: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    sonar_common::report_exit("sonar-nearest-obstacle", run(&Args::parse()))
 }
 
 #[cfg(test)]

@@ -135,11 +135,7 @@ fn main() -> ExitCode {
             eprintln!("sonar-export: interrupted before a map arrived; nothing written");
             ExitCode::from(130)
         }
-        Err(e) => {
-            tracing::error!("{e:#}");
-            eprintln!("sonar-export: {e:#}");
-            ExitCode::FAILURE
-        }
+        Err(e) => sonar_common::report_exit("sonar-export", Err(e)),
     }
 }
 

@@ -28,7 +28,7 @@ use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::waitset::WaitSetRunResult;
 use sonar_common::ipc::{self, IpcArgs, IpcError, PubSub, Reading};
 use sonar_recorder::format::{Message, RecordingWriter, Topic};
-use tracing::{debug, error, info, warn};
+use tracing::{debug, info, warn};
 
 /// How often the loop wakes without an event: polls subscribers whose publishers do not notify,
 /// and checks `--duration`.
@@ -76,14 +76,7 @@ fn positive_seconds(s: &str) -> Result<Duration, String> {
 
 fn main() -> std::process::ExitCode {
     sonar_common::init_tracing();
-    match run(Args::parse()) {
-        Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(e) => {
-            error!("{e:#}");
-            eprintln!("sonar-record: error: {e:#}");
-            std::process::ExitCode::FAILURE
-        }
-    }
+    sonar_common::report_exit("sonar-record", run(Args::parse()))
 }
 
 /// Counters the writer thread shares with the main thread.

@@ -21,7 +21,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use sonar_common::ipc::{self, IpcArgs, IpcError, PubSub, Reading};
 use sonar_recorder::format::{Message, ReadOptions, Recording, Topic, read_file};
 use sonar_recorder::pace::{DEFAULT_BURST, DEFAULT_MAX_RATE, Pacer, Speed};
-use tracing::{error, info, warn};
+use tracing::{info, warn};
 
 /// Progress lines in the log when there is no progress bar (stderr is not a terminal).
 const PROGRESS_LOG_PERIOD: Duration = Duration::from_secs(5);
@@ -79,14 +79,7 @@ struct Args {
 
 fn main() -> std::process::ExitCode {
     sonar_common::init_tracing();
-    match run(Args::parse()) {
-        Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(e) => {
-            error!("{e:#}");
-            eprintln!("sonar-replay: error: {e:#}");
-            std::process::ExitCode::FAILURE
-        }
-    }
+    sonar_common::report_exit("sonar-replay", run(Args::parse()))
 }
 
 fn run(args: Args) -> Result<()> {
