@@ -350,3 +350,27 @@ pub fn is_running(pid: u32) -> bool {
         })
         .is_some_and(|zombie| !zombie)
 }
+
+/// Running processes of program `name` whose command line contains `needle` (e.g. a path unique
+/// to one test), by pid.
+pub fn pids_of(name: &str, needle: &str) -> Vec<u32> {
+    let Ok(dir) = std::fs::read_dir("/proc") else {
+        return Vec::new();
+    };
+    dir.filter_map(|e| e.ok())
+        .filter_map(|e| e.file_name().to_str()?.parse::<u32>().ok())
+        .filter(|pid| {
+            std::fs::read_to_string(format!("/proc/{pid}/comm")).is_ok_and(|c| c.trim() == name)
+                && std::fs::read(format!("/proc/{pid}/cmdline"))
+                    .is_ok_and(|c| String::from_utf8_lossy(&c).contains(needle))
+        })
+        .filter(|&pid| is_running(pid))
+        .collect()
+}
+
+impl Tmux {
+    /// Ends the terminal as a dropped SSH connection would: the tmux server and its terminals go.
+    pub fn hang_up(&self) {
+        let _ = self.cmd().arg("kill-server").status();
+    }
+}

@@ -2,8 +2,10 @@
 //! presses keys as a user would and reads the screen.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+use std::time::{Duration, Instant};
+
 use sonar_common::ipc::{self, ScanMode};
-use sonar_e2e::{Sandbox, Tmux, collect_until};
+use sonar_e2e::{PATIENCE, Sandbox, Tmux, collect_until, pids_of};
 
 /// Rows of the screen holding a horizontal run of at least `len` wall glyphs (`▄`, see the
 /// viewer's README), by row index.
@@ -93,4 +95,28 @@ fn the_viewer_shows_the_room_scans_on_keys_and_quits_cleanly() {
         !after.contains('▄') && !after.contains("driver   alive"),
         "{after}"
     );
+}
+
+#[test]
+fn the_viewer_exits_when_its_terminal_hangs_up() {
+    let sandbox = Sandbox::new("viewerhup");
+    let log = sandbox.root.join("viewer.log");
+    let log = log.to_str().unwrap();
+    let term = Tmux::start(&sandbox, "sonar-viewer", &["--log-file", log], 100, 30);
+    term.wait_for("the viewer", |s| s.contains("waiting for"));
+    assert_eq!(pids_of("sonar-viewer", log).len(), 1, "one viewer runs");
+
+    term.hang_up();
+    let deadline = Instant::now() + PATIENCE;
+    while !pids_of("sonar-viewer", log).is_empty() {
+        assert!(
+            Instant::now() < deadline,
+            "the viewer outlived its terminal"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let text = std::fs::read_to_string(log).unwrap();
+    assert!(text.contains("the terminal went away"), "{text}");
+    let left = sandbox.stale_shm_files();
+    assert!(left.is_empty(), "stale shared memory: {left:?}");
 }

@@ -263,6 +263,15 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
             last_draw = Some(now);
         }
         let timeout = next_poll.saturating_duration_since(Instant::now());
+        let timeout = match wait_for_input(timeout) {
+            Input::HungUp => {
+                warn!("the terminal went away (hang-up): quitting");
+                return Ok(());
+            }
+            // Waited on stdin already: crossterm only collects what is there (keys, resizes).
+            Input::Waited => Duration::ZERO,
+            Input::NotWaited => timeout,
+        };
         if event::poll(timeout).context("cannot read the terminal")? {
             // Take every queued event before drawing again, so held-down keys never lag behind.
             loop {
@@ -282,6 +291,46 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
     }
     info!("quit on a signal");
     Ok(())
+}
+
+/// What waiting for terminal input found.
+enum Input {
+    /// Input may be ready (or the wait was cut short): collect it without blocking.
+    Waited,
+    /// Not waited (stdin is not the terminal): let crossterm wait on /dev/tty.
+    NotWaited,
+    HungUp,
+}
+
+/// Waits up to `timeout` for input on the terminal, and tells whether it hung up (its tmux or SSH
+/// session ended). crossterm alone cannot be trusted with that: on a hung-up terminal its reader
+/// loops on end-of-file inside `event::poll` forever, at full CPU (seen with `tmux kill-server`),
+/// and the hang-up does not always signal us (the kernel sends SIGHUP to the session leader, the
+/// shell that started us). On a hung-up terminal `poll` reports POLLHUP and `tcgetpgrp` fails with
+/// EIO.
+fn wait_for_input(timeout: Duration) -> Input {
+    use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
+    use std::os::fd::AsFd;
+    let stdin = std::io::stdin();
+    if !stdin.is_terminal() {
+        return Input::NotWaited;
+    }
+    let mut fds = [PollFd::new(stdin.as_fd(), PollFlags::POLLIN)];
+    let timeout = PollTimeout::try_from(timeout).unwrap_or(PollTimeout::MAX);
+    if let Ok(n) = poll(&mut fds, timeout)
+        && n > 0
+    {
+        let gone = PollFlags::POLLHUP | PollFlags::POLLERR | PollFlags::POLLNVAL;
+        let hung_up = fds[0].revents().is_some_and(|r| r.intersects(gone))
+            || matches!(
+                nix::unistd::tcgetpgrp(std::io::stdin()),
+                Err(nix::errno::Errno::EIO)
+            );
+        if hung_up {
+            return Input::HungUp;
+        }
+    }
+    Input::Waited
 }
 
 /// Carries out an action and reports the outcome in the status line; true to quit.
