@@ -205,10 +205,12 @@ impl FusionConfig {
                 RuleConfig::Bayes,
                 false,
             ),
+            // No-echo readings are not cleared: a wall met beyond the specular cut-off is silent,
+            // and clearing through it erased half the visible walls in `docs/results.md`.
             Preset::Recommended => (
                 ModelConfig::Smooth(SmoothModel::default()),
                 RuleConfig::LogOdds(LogOddsRule::default()),
-                true,
+                false,
             ),
         };
         Self {
@@ -299,7 +301,7 @@ mod tests {
         assert_eq!(paper.rule.kind(), RuleKind::Bayes);
         assert!(!paper.clear_on_no_echo);
         let custom = FusionConfig {
-            clear_on_no_echo: false,
+            clear_on_no_echo: true,
             ..FusionConfig::default()
         };
         assert_eq!(custom.matching_preset(), None);
@@ -366,6 +368,30 @@ mod tests {
                 ..
             })
         ));
+    }
+
+    /// `docs/fusion.md` writes both presets out as `[fusion]` tables of a pipeline configuration
+    /// file; they must parse, and be the presets.
+    #[test]
+    fn the_presets_written_out_in_docs_fusion_md_are_the_presets() {
+        #[derive(Deserialize)]
+        struct File {
+            fusion: FusionConfig,
+        }
+        let doc = include_str!("../../docs/fusion.md");
+        let blocks: Vec<FusionConfig> = doc
+            .split("```toml")
+            .skip(1)
+            .map(|b| b.split("```").next().unwrap())
+            .map(|b| toml::from_str::<File>(b).unwrap().fusion)
+            .collect();
+        assert_eq!(
+            blocks,
+            [
+                FusionConfig::preset(Preset::Paper),
+                FusionConfig::preset(Preset::Recommended)
+            ]
+        );
     }
 
     #[test]

@@ -145,7 +145,7 @@ impl Mapper {
 mod tests {
     use super::*;
     use crate::config::{GridConfig, Preset};
-    use crate::model::{ModelConfig, ModelKind};
+    use crate::model::{AlphaSign, BeamWidth, ModelConfig, ModelKind, PaperModel};
     use crate::rule::{RuleConfig, RuleKind};
     use nalgebra::Vector2;
     use rand::{Rng, SeedableRng};
@@ -214,7 +214,22 @@ mod tests {
 
     #[test]
     fn fast_kernel_equals_the_whole_grid_pass_for_every_model_and_rule() {
-        for (seed, model) in ModelKind::ALL.into_iter().enumerate() {
+        // Every model with its defaults, and the paper's model with its other conventions for β
+        // and α (the signed α is asymmetric and clamped, so the spans must not assume symmetry).
+        let models = ModelKind::ALL
+            .map(ModelConfig::default_for)
+            .into_iter()
+            .chain([
+                ModelConfig::Paper(PaperModel {
+                    beam_width: BeamWidth::FullWidth,
+                    ..Default::default()
+                }),
+                ModelConfig::Paper(PaperModel {
+                    alpha: AlphaSign::Signed,
+                    ..Default::default()
+                }),
+            ]);
+        for (seed, model) in models.enumerate() {
             for rule in RuleKind::ALL {
                 for clear_on_no_echo in [false, true] {
                     // 3 m of grid each side, less than the 4 m range: the cone is clipped.
@@ -223,7 +238,7 @@ mod tests {
                             cells: 120,
                             resolution_m: 0.05,
                         },
-                        model: ModelConfig::default_for(model),
+                        model,
                         rule: RuleConfig::default_for(rule),
                         clear_on_no_echo,
                         ..FusionConfig::default()
@@ -233,16 +248,16 @@ mod tests {
                     for obs in random_observations(seed as u64) {
                         let a = fast.update_with(&obs, Kernel::Cone).unwrap();
                         let b = reference.update_with(&obs, Kernel::WholeGrid).unwrap();
-                        assert_eq!(a, b, "{model} {rule} {obs:?}");
+                        assert_eq!(a, b, "{model:?} {rule} {obs:?}");
                     }
                     let (a, b) = (cells(&fast), cells(&reference));
                     assert!(a.iter().any(|c| c.is_some()));
                     for (i, (a, b)) in a.iter().zip(&b).enumerate() {
                         match (a, b) {
                             (Some(a), Some(b)) => {
-                                assert!((a - b).abs() <= 1e-6, "{model} {rule} cell {i}: {a} {b}")
+                                assert!((a - b).abs() <= 1e-6, "{model:?} {rule} cell {i}: {a} {b}")
                             }
-                            _ => assert_eq!(a, b, "{model} {rule} cell {i}"),
+                            _ => assert_eq!(a, b, "{model:?} {rule} cell {i}"),
                         }
                     }
                 }
@@ -350,7 +365,11 @@ mod tests {
         assert_eq!(u.radar_bin, Some(30));
         assert_eq!(paper.readings_fused(), 1);
 
-        let mut m = Mapper::new(FusionConfig::default()).unwrap();
+        let mut m = Mapper::new(FusionConfig {
+            clear_on_no_echo: true,
+            ..FusionConfig::default()
+        })
+        .unwrap();
         for obs in [reading(33.0, None), reading(-33.0, Some(4.0))] {
             let u = m.update(&obs).unwrap();
             assert!(u.cells_updated > 1000);

@@ -19,6 +19,11 @@ use crate::observation::Beam;
 pub(crate) trait CellEvidence: Copy {
     /// Farthest range this reading updates.
     fn reach(&self) -> f32;
+    /// Farthest angle off the axis, radians, at which this reading can give evidence: cells
+    /// beyond it get none at any range, so the kernels need not visit them.
+    fn half_angle(&self) -> f32 {
+        f32::INFINITY
+    }
     /// P(occupied | this reading) for a cell at range `r`, `alpha` radians off the axis; NaN for
     /// no evidence.
     fn probability(&self, r: f32, alpha: f32) -> f32;
@@ -29,6 +34,13 @@ pub(crate) trait CellEvidence: Copy {
 /// ln(p / (1 − p)); ±∞ at 0 and 1, which the log-odds rule's clamping absorbs.
 pub(crate) fn logit(p: f32) -> f32 {
     (p / (1.0 - p)).ln()
+}
+
+/// max(v, 0), NaN to 0 (as f32::max), written as a comparison so that it compiles to a single
+/// vector max instruction.
+#[inline(always)]
+fn positive(v: f32) -> f32 {
+    if v > 0.0 { v } else { 0.0 }
 }
 
 /// 1 / (1 + e^(−l)).
@@ -131,6 +143,14 @@ impl ModelConfig {
             ModelConfig::Smooth(m) => max_range + m.band(max_range),
         }
     }
+
+    /// Farthest angle off the axis, radians, at which any reading can give evidence.
+    pub(crate) fn max_half_angle(&self) -> f32 {
+        match self {
+            ModelConfig::Paper(_) | ModelConfig::LogOdds(_) => f32::INFINITY,
+            ModelConfig::Smooth(m) => m.half_angle(),
+        }
+    }
 }
 
 /// Runs `$body` with `$m` bound to the concrete model inside a [`ModelConfig`], so the kernels are
@@ -149,7 +169,7 @@ pub(crate) use with_model;
 /// What the paper's β stands for.
 ///
 /// The paper calls β "the beam width" yet tests membership with ±30° (so the width is 60°), and
-/// its source [2] (Murphy) defines β as *half* the field of view. With β the half-angle the term
+/// its source \[2\] (Murphy) defines β as *half* the field of view. With β the half-angle the term
 /// (β − |α|)/β runs from 1 on the axis to 0 at the edge, like (R − r)/R runs from 1 at the sensor
 /// to 0 at the maximum range; with the full width it never falls below one half, so the cone's
 /// edge would count as much as the middle of a half-as-wide beam. We read β as the half-angle.
@@ -165,7 +185,7 @@ pub enum BeamWidth {
 ///
 /// The paper defines α = a − θ (signed) and writes (β − α)/β. Taken literally the model is not
 /// symmetric about the beam axis: one edge gets (β + β)/β = 2 and the probabilities leave [0, 1].
-/// Murphy's model (the paper's [2]) is symmetric; we use |α| and keep the literal form as an
+/// Murphy's model (the paper's \[2\]) is symmetric; we use |α| and keep the literal form as an
 /// option (its results are clamped to [0, 1]). α is counter-clockwise positive.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -404,12 +424,13 @@ impl CellEvidence for LogOddsReading {
 /// - occupied, d − w ≤ r < d + w: l = `occupied_log_odds` · γ(α; θ_occ) · f(r) · (1 − ((r − d)/w)²);
 /// - beyond: nothing.
 ///
-/// It never raises occupancy in front of the measured range, nor lowers it at the range.
+/// It never raises occupancy in front of the occupied band d ± w (the range's own uncertainty), nor
+/// lowers it within the band.
 ///
 /// ROS scales the probability's deviation from one half by the weights, with extremes 0 and 1
 /// (infinite log-odds on the axis); scaling log-odds keeps every reading's evidence finite, and
-/// the two separate angular widths let free-space evidence cover the cone while occupied evidence
-/// stays near the axis, where a small object is actually heard.
+/// the two separate angular widths let free-space evidence reach wider than occupied evidence,
+/// which stays near the axis, where a small object is actually heard.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SmoothModel {
@@ -434,9 +455,9 @@ impl Default for SmoothModel {
     fn default() -> Self {
         Self {
             occupied_log_odds: 1.0,
-            free_log_odds: -1.0,
-            occupied_half_angle_deg: 12.0,
-            free_half_angle_deg: 30.0,
+            free_log_odds: -1.5,
+            occupied_half_angle_deg: 4.0,
+            free_half_angle_deg: 14.0,
             band_fraction: 0.01,
             min_band_m: 0.025,
             fade_range_m: 3.0,
@@ -491,6 +512,13 @@ impl SmoothModel {
         self.min_band_m.max(self.band_fraction * d)
     }
 
+    /// The wider profile's half-angle, radians, 0.1 % wider: beyond it 1 − (α/θ)² rounds to below
+    /// zero for both profiles, so no cell there gets evidence.
+    pub(crate) fn half_angle(&self) -> f32 {
+        let widest = self.occupied_half_angle_deg.max(self.free_half_angle_deg);
+        widest.to_radians() * 1.001
+    }
+
     pub(crate) fn reading(&self, beam: &Beam) -> SmoothReading {
         let inv_sq = |deg: f32| {
             let t = deg.to_radians();
@@ -516,6 +544,7 @@ impl SmoothModel {
             inv_sq_occ: inv_sq(self.occupied_half_angle_deg),
             inv_sq_free: inv_sq(self.free_half_angle_deg),
             fade_range: self.fade_range_m,
+            half_angle: self.half_angle(),
         }
     }
 }
@@ -532,11 +561,16 @@ pub(crate) struct SmoothReading {
     inv_sq_occ: f32,
     inv_sq_free: f32,
     fade_range: f32,
+    half_angle: f32,
 }
 
 impl CellEvidence for SmoothReading {
     fn reach(&self) -> f32 {
         self.free_to.max(self.occupied_to)
+    }
+
+    fn half_angle(&self) -> f32 {
+        self.half_angle
     }
 
     #[inline(always)]
@@ -550,10 +584,11 @@ impl CellEvidence for SmoothReading {
         let a2 = alpha * alpha;
         let x = 2.0 * (r - self.fade_range);
         let trust = 0.5 - 0.5 * x / (1.0 + x * x).sqrt();
-        let t = ((r - self.ramp_from) * self.inv_band).max(0.0);
+        // `positive` rather than f32::max: the same values, one instruction in the loop.
+        let t = positive((r - self.ramp_from) * self.inv_band);
         let j = (r - self.d) * self.inv_band;
-        let free = self.l_free * (1.0 - a2 * self.inv_sq_free).max(0.0) * (1.0 - t * t);
-        let occupied = self.l_occ * (1.0 - a2 * self.inv_sq_occ).max(0.0) * (1.0 - j * j);
+        let free = self.l_free * positive(1.0 - a2 * self.inv_sq_free) * (1.0 - t * t);
+        let occupied = self.l_occ * positive(1.0 - a2 * self.inv_sq_occ) * (1.0 - j * j);
         let l = if r < self.free_to {
             free
         } else if r < self.occupied_to {
@@ -570,6 +605,7 @@ impl CellEvidence for SmoothReading {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rule::{BayesRule, Combine};
     use nalgebra::Vector2;
 
     fn beam(echo: Option<f32>) -> Beam {
@@ -602,6 +638,88 @@ mod tests {
         // Region III.
         assert!(m.probability(2.2, 0.0).is_nan());
         assert!(close(m.log_odds(1.0, 0.0), (0.125f32 / 0.875).ln()));
+    }
+
+    /// The smooth model with round parameters the hand-computed values below were worked out
+    /// with (the defaults are tuned on the simulator and may move).
+    fn round_smooth() -> SmoothModel {
+        SmoothModel {
+            occupied_log_odds: 1.0,
+            free_log_odds: -1.0,
+            occupied_half_angle_deg: 12.0,
+            free_half_angle_deg: 30.0,
+            ..SmoothModel::default()
+        }
+    }
+
+    /// The worked example of `docs/fusion.md`: one echo at 2 m straight ahead (R = 4 m, β = 30°),
+    /// five cells, the paper's model, the smooth model with round parameters and with the
+    /// recommended ones (the table in the document shows the first and the last).
+    #[test]
+    fn worked_example_of_the_eq2_flaw() {
+        let paper = PaperModel::default().reading(&beam(Some(2.0)));
+        let smooth = round_smooth().reading(&beam(Some(2.0)));
+        let recommended = SmoothModel::default().reading(&beam(Some(2.0)));
+        let deg = |a: f32| a.to_radians();
+        // (r, α) → eq. 1–2 value; smooth model's probability σ(l) (None: no evidence), with
+        // l = ∓1 · (1 − (α/θ)²) · f(r) and the radial trust f(r) = 0.985071 at 1 m, 0.961538 at
+        // 1.8 m, 0.947214 at 2 m; the same with the recommended −1.5 free evidence within 14°
+        // and occupied evidence within 4°.
+        let cells = [
+            // Region II on the axis: s = (0.75 + 1)/2 = 0.875, eq. 2: 0.125.
+            (1.0, 0.0, 0.125, Some(0.271_887), Some(0.185_789)),
+            // Region II near the edge: s = (0.75 + 5/30)/2 = 0.458333, eq. 2: 0.541667 > 0.5.
+            (1.0, 25.0, 0.541_667, Some(0.425_315), None),
+            // Closer to the echo: s = (0.55 + 5/30)/2 = 0.358333, eq. 2: 0.641667.
+            (1.8, 25.0, 0.641_667, Some(0.427_073), None),
+            // Region I on the axis: s = 0.75, eq. 1: 0.735.
+            (2.0, 0.0, 0.735, Some(0.720_554), Some(0.720_554)),
+            // Region I near the edge: s = 0.333333, eq. 1: 0.326667 < 0.5, free evidence at the
+            // echo; the smooth model's occupied evidence stops at 12° (4°).
+            (2.0, 25.0, 0.326_667, None, None),
+        ];
+        for (r, a, p, q, rec) in cells {
+            let got = paper.probability(r, deg(a));
+            assert!((got - p).abs() < 1e-5, "paper r {r} α {a}: {got}");
+            for (model, want) in [(&smooth, q), (&recommended, rec)] {
+                let got = model.probability(r, deg(a));
+                match want {
+                    Some(q) => assert!((got - q).abs() < 1e-5, "smooth r {r} α {a}: {got}"),
+                    None => assert!(got.is_nan(), "smooth r {r} α {a}: {got}"),
+                }
+            }
+        }
+        // The next reading of the sweep, at 6° with its echo also at 2 m, sees the cell
+        // (1.8 m, 25°) at α = 19°: s = (0.55 + 11/30)/2 = 0.458333, eq. 2: 0.541667, occupied
+        // again; eq. 6 fuses the two into 0.641667·0.541667 / (… + 0.358333·0.458333) = 0.679104.
+        let next = paper.probability(1.8, deg(19.0));
+        assert!((next - 0.541_667).abs() < 1e-5);
+        let mut cell = BayesRule::UNKNOWN;
+        BayesRule.fuse(&mut cell, paper.probability(1.8, deg(25.0)));
+        BayesRule.fuse(&mut cell, next);
+        assert!((cell - 0.679_104).abs() < 1e-5, "{cell}");
+        // The boundary of the flaw at r = 1.8: |α| = 7.5·(4 − 1.8) = 16.5° gives exactly 0.5.
+        assert!((paper.probability(1.8, deg(16.5)) - 0.5).abs() < 1e-5);
+        assert!(paper.probability(1.8, deg(16.0)) < 0.5);
+        assert!(paper.probability(1.8, deg(17.0)) > 0.5);
+        // β read as the full width (60°) moves the boundary to |α| = 15·(4 − r): beyond the beam
+        // (30°) for every r ≤ 2 m, so this echo's region II has no such cell.
+        let full = PaperModel {
+            beam_width: BeamWidth::FullWidth,
+            ..Default::default()
+        }
+        .reading(&beam(Some(2.0)));
+        for i in 0..190 {
+            let r = i as f32 * 0.01;
+            assert!(full.probability(r, deg(30.0)) <= 0.5, "r {r}");
+        }
+        // ... but an echo at 3.5 m has it again: r = 3.0, α = 20° > 15°.
+        let far = PaperModel {
+            beam_width: BeamWidth::FullWidth,
+            ..Default::default()
+        }
+        .reading(&beam(Some(3.5)));
+        assert!(far.probability(3.0, deg(20.0)) > 0.5);
     }
 
     #[test]
@@ -660,7 +778,7 @@ mod tests {
     fn smooth_model_never_raises_occupancy_in_front_nor_lowers_it_at_the_range() {
         let m = SmoothModel {
             fade_range_m: 100.0,
-            ..Default::default()
+            ..round_smooth()
         }
         .reading(&beam(Some(2.0)));
         for i in 0..400 {
@@ -687,8 +805,41 @@ mod tests {
     }
 
     #[test]
+    fn smooth_model_gives_no_evidence_beyond_its_half_angle() {
+        for (occ, free) in [
+            (4.0, 14.0),
+            (12.0, 30.0),
+            (30.0, 5.0),
+            (0.5, 89.0),
+            (17.3, 17.3),
+        ] {
+            let model = SmoothModel {
+                occupied_half_angle_deg: occ,
+                free_half_angle_deg: free,
+                ..Default::default()
+            };
+            let limit = model.half_angle();
+            assert!(limit > f32::max(occ, free).to_radians());
+            for echo in [Some(0.3), Some(2.0), Some(3.9), None] {
+                let m = model.reading(&beam(echo));
+                assert_eq!(m.half_angle(), limit);
+                for i in 0..=420 {
+                    let r = i as f32 * 0.01;
+                    for a in [limit, limit * 1.000_001, limit + 0.01, 3.1] {
+                        assert!(
+                            m.log_odds(r, a).is_nan(),
+                            "{occ} {free} {echo:?} r {r} α {a}"
+                        );
+                        assert!(m.log_odds(r, -a).is_nan());
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
     fn smooth_model_fades_with_range() {
-        let m = SmoothModel::default().reading(&beam(Some(3.5)));
+        let m = round_smooth().reading(&beam(Some(3.5)));
         // At the fade range the trust is one half.
         assert!(close(m.log_odds(3.0, 0.0), -0.5));
         assert!(m.log_odds(1.0, 0.0) < -0.98);

@@ -140,7 +140,7 @@ impl RuleConfig {
 
 /// The paper's eq. 6: P ← p·P / (p·P + (1 − p)(1 − P)), on f32 probabilities.
 ///
-/// Once rounding has taken a cell to exactly 0 or 1 (a few dozen consistent readings), p·P or
+/// Once rounding has taken a cell to exactly 0 or 1 (eight readings of 0.9 reach 1), p·P or
 /// (1 − p)(1 − P) vanishes and no later reading can move it: the map cannot forget a moved
 /// obstacle. That is the paper's rule; [`LogOddsRule`] clamps instead.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -216,8 +216,17 @@ impl Combine for LogOddsRule {
     #[inline(always)]
     fn fuse(&self, cell: &mut f32, l: f32) -> bool {
         let prior = if cell.is_nan() { 0.0 } else { *cell };
-        // max/min rather than clamp: ±∞ evidence (a model's p of 0 or 1) lands on the clamps.
-        let posterior = (prior + l).max(self.min_log_odds).min(self.max_log_odds);
+        // ±∞ evidence (a model's p of 0 or 1) lands on the clamps. Comparisons rather than
+        // f32::max/min, whose NaN handling costs instructions in the vectorised loop: a NaN sum
+        // (NaN evidence) is never stored.
+        let sum = prior + l;
+        let posterior = if sum < self.min_log_odds {
+            self.min_log_odds
+        } else if sum > self.max_log_odds {
+            self.max_log_odds
+        } else {
+            sum
+        };
         let fused = !l.is_nan();
         *cell = if fused { posterior } else { *cell };
         fused
@@ -389,9 +398,10 @@ mod tests {
     fn eq6_by_hand() {
         let mut c = BayesRule::UNKNOWN;
         assert_eq!(BayesRule.probability(c), None);
+        // From the prior 0.5 the posterior is the reading itself (eq. 4).
         BayesRule.fuse(&mut c, 0.8);
         assert!((c - 0.8).abs() < 1e-6);
-        // 0.8·0.3 / (0.8·0.3 + 0.2·0.7) = 0.24 / 0.38.
+        // 0.8·0.3 / (0.8·0.3 + 0.2·0.7) = 0.24 / 0.38, with P(s|¬H) = 1 − P(s|H) (eq. 5).
         BayesRule.fuse(&mut c, 0.3);
         assert!((c - 0.24 / 0.38).abs() < 1e-6);
         assert!(!BayesRule.fuse(&mut c, f32::NAN));
@@ -415,7 +425,9 @@ mod tests {
 
     #[test]
     fn bayes_saturates_and_never_recovers() {
-        let c = repeat(BayesRule, BayesRule::UNKNOWN, 0.9, 40);
+        // In f32, eight readings of 0.9 round the cell to exactly 1 (odds 9⁸ > 2²⁴).
+        assert!(repeat(BayesRule, BayesRule::UNKNOWN, 0.9, 7) < 1.0);
+        let c = repeat(BayesRule, BayesRule::UNKNOWN, 0.9, 8);
         assert_eq!(c, 1.0);
         let c = repeat(BayesRule, c, 0.02, 1000);
         assert_eq!(c, 1.0);
