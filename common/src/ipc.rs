@@ -597,6 +597,28 @@ pub fn wakeup_service(node: &Node<ipc::Service>, name: &str) -> Result<Event, Ip
         .map_err(|e| IpcError::new(format!("open event service {name}"), e))
 }
 
+/// A listener on the wake-up event of service `name`: what a consumer's waitset sleeps on.
+pub fn wakeup_listener(
+    node: &Node<ipc::Service>,
+    name: &str,
+) -> Result<iceoryx2::port::listener::Listener<ipc::Service>, IpcError> {
+    wakeup_service(node, name)?
+        .listener_builder()
+        .create()
+        .map_err(|e| IpcError::new(format!("create {name} listener"), e))
+}
+
+/// A notifier on the wake-up event of service `name`, for a producer to call after publishing.
+pub fn wakeup_notifier(
+    node: &Node<ipc::Service>,
+    name: &str,
+) -> Result<iceoryx2::port::notifier::Notifier<ipc::Service>, IpcError> {
+    wakeup_service(node, name)?
+        .notifier_builder()
+        .create()
+        .map_err(|e| IpcError::new(format!("create {name} notifier"), e))
+}
+
 /// Nanoseconds since the Unix epoch (0 if the clock is before it).
 pub fn unix_time_ns() -> u64 {
     std::time::SystemTime::now()

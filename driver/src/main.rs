@@ -267,10 +267,7 @@ impl Link {
             .publisher_builder()
             .create()
             .map_err(|e| ipc::IpcError::new("create readings publisher", e))?;
-        let notifier = ipc::wakeup_service(node, ipc::READINGS_SERVICE)?
-            .notifier_builder()
-            .create()
-            .map_err(|e| ipc::IpcError::new("create readings notifier", e))?;
+        let notifier = ipc::wakeup_notifier(node, ipc::READINGS_SERVICE)?;
         let commands = ipc::commands_service(node)?
             .subscriber_builder()
             .create()

@@ -246,13 +246,6 @@ struct Ports {
 
 type Listener = iceoryx2::port::listener::Listener<Ipc>;
 
-fn listener(node: &Node<Ipc>, service: &str) -> Result<Listener, IpcError> {
-    ipc::wakeup_service(node, service)?
-        .listener_builder()
-        .create()
-        .map_err(|e| IpcError::new(format!("create {service} listener"), e))
-}
-
 /// Consumes the pending wake-ups (all of them), so the waitset sleeps again.
 fn drain_wakeups(listener: &Listener) {
     if let Err(e) = listener.try_wait(|_| {}) {
@@ -262,23 +255,17 @@ fn drain_wakeups(listener: &Listener) {
 
 impl Ports {
     fn new(node: &Node<Ipc>, grid_cells: usize) -> Result<Self> {
-        let notifier = |name: &str| -> Result<Notifier<Ipc>, IpcError> {
-            ipc::wakeup_service(node, name)?
-                .notifier_builder()
-                .create()
-                .map_err(|e| IpcError::new(format!("create {name} notifier"), e))
-        };
         Ok(Self {
             readings: ipc::readings_service(node)?
                 .subscriber_builder()
                 .create()
                 .map_err(|e| IpcError::new("create readings subscriber", e))?,
-            readings_listener: listener(node, ipc::READINGS_SERVICE)?,
+            readings_listener: ipc::wakeup_listener(node, ipc::READINGS_SERVICE)?,
             commands: ipc::fusion_commands_service(node)?
                 .subscriber_builder()
                 .create()
                 .map_err(|e| IpcError::new("create fusion command subscriber", e))?,
-            commands_listener: listener(node, ipc::FUSION_COMMANDS_SERVICE)?,
+            commands_listener: ipc::wakeup_listener(node, ipc::FUSION_COMMANDS_SERVICE)?,
             pose: ipc::pose_service(node)?
                 .subscriber_builder()
                 .create()
@@ -290,12 +277,12 @@ impl Ports {
                 .map_err(|e| {
                     IpcError::new("create grid publisher (is another fusion running?)", e)
                 })?,
-            grid_notifier: notifier(ipc::GRID_SERVICE)?,
+            grid_notifier: ipc::wakeup_notifier(node, ipc::GRID_SERVICE)?,
             radar: ipc::radar_service(node)?
                 .publisher_builder()
                 .create()
                 .map_err(|e| IpcError::new("create radar publisher", e))?,
-            radar_notifier: notifier(ipc::RADAR_SERVICE)?,
+            radar_notifier: ipc::wakeup_notifier(node, ipc::RADAR_SERVICE)?,
         })
     }
 }

@@ -244,10 +244,7 @@ fn live(args: &Args) -> Result<Option<(GridHeader, Vec<u8>)>> {
         .subscriber_builder()
         .create()
         .map_err(|e| IpcError::new("create grid subscriber", e))?;
-    let listener = ipc::wakeup_service(&node, ipc::GRID_SERVICE)?
-        .listener_builder()
-        .create()
-        .map_err(|e| IpcError::new("create grid listener", e))?;
+    let listener = ipc::wakeup_listener(&node, ipc::GRID_SERVICE)?;
     let waitset = WaitSetBuilder::new()
         .create::<Ipc>()
         .map_err(|e| IpcError::new("create waitset", e))?;

@@ -205,7 +205,7 @@ impl Ports {
             .subscriber_builder()
             .create()
             .map_err(|e| IpcError::new("create readings subscriber", e))?;
-        let mut listeners = vec![listener(node, ipc::READINGS_SERVICE)?];
+        let mut listeners = vec![ipc::wakeup_listener(node, ipc::READINGS_SERVICE)?];
         let scan_commands = optional(node, ipc::commands_service, Topic::ScanCommands);
         let fusion_commands = optional(node, ipc::fusion_commands_service, Topic::FusionCommands);
         let pose = optional(node, ipc::pose_service, Topic::Pose);
@@ -215,7 +215,7 @@ impl Ports {
             (pose.is_some(), Topic::Pose),
         ] {
             if present {
-                match listener(node, topic.service()) {
+                match ipc::wakeup_listener(node, topic.service()) {
                     Ok(l) => listeners.push(l),
                     Err(e) => debug!("no wake-up listener for {topic} (polled instead): {e:#}"),
                 }
@@ -229,13 +229,6 @@ impl Ports {
             listeners,
         })
     }
-}
-
-fn listener(node: &Node<Ipc>, name: &str) -> Result<Listener<Ipc>> {
-    Ok(ipc::wakeup_service(node, name)?
-        .listener_builder()
-        .create()
-        .map_err(|e| IpcError::new(format!("create {name} listener"), e))?)
 }
 
 fn optional<T: Debug + ZeroCopySend>(

@@ -299,10 +299,7 @@ fn port<T: std::fmt::Debug + ZeroCopySend>(
         .publisher_builder()
         .create()
         .map_err(|e| IpcError::new(format!("create {name} publisher"), e))?;
-    let notifier = ipc::wakeup_service(node, name)?
-        .notifier_builder()
-        .create()
-        .map_err(|e| IpcError::new(format!("create {name} notifier"), e))?;
+    let notifier = ipc::wakeup_notifier(node, name)?;
     Ok((publisher, notifier))
 }
 
