@@ -13,6 +13,7 @@ use std::process::ExitCode;
 pub mod ipc;
 pub mod protocol;
 pub mod sensor;
+pub mod speed;
 
 /// Sets up `tracing` for a binary: level from `RUST_LOG` (default `info`), to standard error.
 pub fn init_tracing() {

@@ -11,42 +11,10 @@
 //!
 //! Pure: the caller passes the elapsed time, so tests need no clock.
 
-use std::str::FromStr;
 use std::time::Duration;
 
-/// How fast to replay.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Speed {
-    /// Recorded time divided by this factor (1 = real time).
-    Factor(f64),
-    /// As fast as the rate ceiling allows.
-    Max,
-}
-
-impl FromStr for Speed {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        if s.eq_ignore_ascii_case("max") {
-            return Ok(Speed::Max);
-        }
-        match s.parse::<f64>() {
-            Ok(f) if f.is_finite() && f > 0.0 => Ok(Speed::Factor(f)),
-            _ => Err(format!(
-                "{s:?} is not a speed: give a factor > 0 (1 = real time) or `max`"
-            )),
-        }
-    }
-}
-
-impl std::fmt::Display for Speed {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Speed::Factor(x) => write!(f, "{x}×"),
-            Speed::Max => f.write_str("max"),
-        }
-    }
-}
+/// How fast to replay (`Max`: as fast as the rate ceiling allows).
+pub use sonar_common::speed::Speed;
 
 /// Default rate ceiling, messages per second.
 pub const DEFAULT_MAX_RATE: f64 = 1000.0;
@@ -122,17 +90,6 @@ mod tests {
                 now
             })
             .collect()
-    }
-
-    #[test]
-    fn speeds_parse() {
-        assert_eq!("max".parse(), Ok(Speed::Max));
-        assert_eq!("MAX".parse(), Ok(Speed::Max));
-        assert_eq!("1".parse(), Ok(Speed::Factor(1.0)));
-        assert_eq!("2.5".parse(), Ok(Speed::Factor(2.5)));
-        for bad in ["0", "-1", "inf", "NaN", "fast", ""] {
-            assert!(bad.parse::<Speed>().is_err(), "{bad}");
-        }
     }
 
     #[test]

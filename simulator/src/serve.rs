@@ -16,7 +16,6 @@ use std::fs::File;
 use std::io::{self, ErrorKind, Read, Write};
 use std::os::fd::{AsFd, OwnedFd};
 use std::path::{Path, PathBuf};
-use std::str::FromStr;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
@@ -73,30 +72,8 @@ impl Pty {
     }
 }
 
-/// How fast simulated time runs against wall time.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Speed {
-    /// Simulated seconds per wall second (1 = real time).
-    Factor(f64),
-    /// As fast as the host reads.
-    Max,
-}
-
-impl FromStr for Speed {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, String> {
-        if s == "max" {
-            return Ok(Speed::Max);
-        }
-        match s.parse::<f64>() {
-            Ok(f) if f.is_finite() && f > 0.0 => Ok(Speed::Factor(f)),
-            _ => Err(format!(
-                "expected a positive factor (1 = real time) or `max`, got {s:?}"
-            )),
-        }
-    }
-}
+/// How fast simulated time runs against wall time (`Max`: as fast as the host reads).
+pub use sonar_common::speed::Speed;
 
 /// Something that talks over the line: the native firmware or the hobby sketch.
 pub trait Device {
@@ -370,16 +347,6 @@ pub fn serve(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn speed_parses_factors_and_max() {
-        assert_eq!("max".parse(), Ok(Speed::Max));
-        assert_eq!("20".parse(), Ok(Speed::Factor(20.0)));
-        assert_eq!("0.5".parse(), Ok(Speed::Factor(0.5)));
-        for bad in ["0", "-1", "fast", "inf", "NaN"] {
-            assert!(bad.parse::<Speed>().is_err(), "{bad}");
-        }
-    }
 
     #[test]
     fn pacing_maps_simulated_to_wall_time() {
