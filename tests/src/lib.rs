@@ -171,6 +171,14 @@ impl Sandbox {
         (sim, pty)
     }
 
+    /// Runs a workspace binary in this namespace to its end; its status and output.
+    pub fn run(&self, name: &str, args: &[&str]) -> std::process::Output {
+        self.command(name)
+            .args(args)
+            .output()
+            .unwrap_or_else(|e| panic!("run {name}: {e}"))
+    }
+
     /// Files this namespace has in /dev/shm.
     pub fn shm_files(&self) -> Vec<String> {
         std::fs::read_dir("/dev/shm")
@@ -373,4 +381,9 @@ impl Tmux {
     pub fn hang_up(&self) {
         let _ = self.cmd().arg("kill-server").status();
     }
+}
+
+/// A temporary path as the `&str` a command line takes.
+pub fn path_str(p: &std::path::Path) -> &str {
+    p.to_str().expect("temp paths are UTF-8")
 }

@@ -13,7 +13,7 @@ use std::time::Instant;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use sonar_common::ipc::{self, GridHeader};
-use sonar_e2e::{PATIENCE, Proc, Sandbox, collect_until};
+use sonar_e2e::{PATIENCE, Proc, Sandbox, collect_until, path_str};
 
 /// Grid of the default fusion settings: 400 × 400 cells of 2 cm, centred on the sensor.
 const SIDE: usize = 400;
@@ -40,18 +40,6 @@ fn start_room(sandbox: &Sandbox) -> Vec<Proc> {
     let (sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100", "--seed", "5"]);
     let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
     vec![driver, sim, fusion]
-}
-
-fn run(sandbox: &Sandbox, name: &str, args: &[&str]) -> Output {
-    sandbox
-        .command(name)
-        .args(args)
-        .output()
-        .unwrap_or_else(|e| panic!("run {name}: {e}"))
-}
-
-fn path_str(p: &Path) -> &str {
-    p.to_str().expect("temp paths are UTF-8")
 }
 
 fn check_ok(what: &str, out: &Output) -> String {
@@ -120,8 +108,7 @@ fn sonar_export_writes_the_live_room_as_png_ros_map_csv_and_npy() {
     let dir = sandbox.root.join("maps");
     std::fs::create_dir_all(&dir).unwrap();
     let stem = dir.join("room");
-    let out = run(
-        &sandbox,
+    let out = sandbox.run(
         "sonar-export",
         &["--format", "all", "--out", path_str(&stem), "--sweeps", "2"],
     );
@@ -302,14 +289,12 @@ fn an_export_from_a_recording_equals_the_live_map_of_the_same_readings() {
 
     let live_stem = sandbox.root.join("live");
     let offline_stem = sandbox.root.join("offline");
-    let live = run(
-        &sandbox,
+    let live = sandbox.run(
         "sonar-export",
         &["--format", "npy,pgm", "--out", path_str(&live_stem)],
     );
     check_ok("live sonar-export", &live);
-    let offline = run(
-        &sandbox,
+    let offline = sandbox.run(
         "sonar-export",
         &[
             "--format",
@@ -349,7 +334,7 @@ fn an_export_from_a_recording_equals_the_live_map_of_the_same_readings() {
 
 /// Runs the alerter to its exit; returns its alert lines and its standard error.
 fn alerter(sandbox: &Sandbox, args: &[&str]) -> (Vec<String>, String) {
-    let out = run(sandbox, "sonar-nearest-obstacle", args);
+    let out = sandbox.run("sonar-nearest-obstacle", args);
     let stdout = check_ok("sonar-nearest-obstacle", &out);
     let lines = stdout.lines().map(str::to_owned).collect();
     (lines, String::from_utf8_lossy(&out.stderr).into_owned())

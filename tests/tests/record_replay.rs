@@ -2,8 +2,7 @@
 //! namespace, and what each does with bad input.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // helpers outside #[test] fns; a panic is a failure
 
-use std::path::{Path, PathBuf};
-use std::process::Output;
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use iceoryx2::port::subscriber::Subscriber;
@@ -12,7 +11,7 @@ use iceoryx2::service::ipc::Service as Ipc;
 use sonar_common::ipc::{
     self, FusionCommand, FusionCommandKind, Reading, ScanCommand, ScanCommandKind,
 };
-use sonar_e2e::{PATIENCE, Sandbox, collect_until};
+use sonar_e2e::{PATIENCE, Sandbox, collect_until, path_str};
 
 /// More than one subscriber buffer (256): a replay that did not pace itself at `--speed max`
 /// would overwrite readings before the test's subscriber (polling every 5 ms) takes them.
@@ -71,18 +70,6 @@ fn readings_subscribers(node: &Node<Ipc>) -> usize {
         .number_of_subscribers()
 }
 
-fn run(sandbox: &Sandbox, name: &str, args: &[&str]) -> Output {
-    sandbox
-        .command(name)
-        .args(args)
-        .output()
-        .unwrap_or_else(|e| panic!("run {name}: {e}"))
-}
-
-fn path_str(p: &Path) -> &str {
-    p.to_str().expect("temp paths are UTF-8")
-}
-
 #[test]
 fn a_replay_publishes_exactly_what_the_live_pipeline_published() {
     let live = Sandbox::new("rec_live");
@@ -109,7 +96,7 @@ fn a_replay_publishes_exactly_what_the_live_pipeline_published() {
     assert!(driver.terminate().success(), "driver did not exit cleanly");
     assert!(sim.terminate().success(), "simulator did not exit cleanly");
 
-    let info = run(&live, "sonar-replay", &[path_str(&file), "--info"]);
+    let info = live.run("sonar-replay", &[path_str(&file), "--info"]);
     let info_out = String::from_utf8_lossy(&info.stdout);
     assert!(info.status.success(), "{info:?}");
     assert!(
@@ -217,7 +204,7 @@ fn the_recorder_finishes_its_file_on_sigterm_with_the_commands() {
     assert!(status.success(), "sonar-record did not exit cleanly");
     drop((fusion_pub, commands_pub, readings, wake));
 
-    let info = run(&sandbox, "sonar-replay", &[path_str(&file), "--info"]);
+    let info = sandbox.run("sonar-replay", &[path_str(&file), "--info"]);
     let info_out = String::from_utf8_lossy(&info.stdout);
     assert!(info.status.success(), "{info:?}");
     for line in [
@@ -281,17 +268,12 @@ fn the_recorder_finishes_its_file_on_sigterm_with_the_commands() {
     let bytes = std::fs::read(&file).unwrap();
     let cut = sandbox.root.join("cut.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() - 100]).unwrap();
-    let out = run(
-        &sandbox,
-        "sonar-replay",
-        &[path_str(&cut), "--speed", "max"],
-    );
+    let out = sandbox.run("sonar-replay", &[path_str(&cut), "--speed", "max"]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(stderr.contains("truncated"), "{stderr}");
     assert!(stderr.contains("--allow-truncated"), "{stderr}");
-    let out = run(
-        &sandbox,
+    let out = sandbox.run(
         "sonar-replay",
         &[path_str(&cut), "--allow-truncated", "--info"],
     );
@@ -311,7 +293,7 @@ fn damaged_or_foreign_files_are_clear_errors() {
         .collect();
     std::fs::write(&noise, &bytes).unwrap();
 
-    let out = run(&sandbox, "sonar-replay", &[path_str(&noise)]);
+    let out = sandbox.run("sonar-replay", &[path_str(&noise)]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(stderr.contains("not an MCAP file"), "{stderr}");
@@ -321,7 +303,7 @@ fn damaged_or_foreign_files_are_clear_errors() {
     let mut fake = b"\x89MCAP0\r\n".to_vec();
     fake.extend_from_slice(&bytes);
     std::fs::write(&noise, &fake).unwrap();
-    let out = run(&sandbox, "sonar-replay", &[path_str(&noise)]);
+    let out = sandbox.run("sonar-replay", &[path_str(&noise)]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(
@@ -331,7 +313,7 @@ fn damaged_or_foreign_files_are_clear_errors() {
     assert!(!stderr.contains("panicked"), "{stderr}");
 
     let missing = sandbox.root.join("missing.mcap");
-    let out = run(&sandbox, "sonar-replay", &[path_str(&missing)]);
+    let out = sandbox.run("sonar-replay", &[path_str(&missing)]);
     assert!(!out.status.success());
     assert!(
         String::from_utf8_lossy(&out.stderr).contains("missing.mcap"),
@@ -339,11 +321,7 @@ fn damaged_or_foreign_files_are_clear_errors() {
     );
 
     // The recorder does not overwrite a file by accident.
-    let out = run(
-        &sandbox,
-        "sonar-record",
-        &[path_str(&noise), "--count", "1"],
-    );
+    let out = sandbox.run("sonar-record", &[path_str(&noise), "--count", "1"]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(stderr.contains("--force"), "{stderr}");
