@@ -9,7 +9,7 @@
 #include <util/atomic.h>
 
 #define T2_TOP 124u       /* 125 counts per ms */
-#define T2_US_PER_COUNT 8u /* 128 / 16 MHz */
+#define T2_US_PER_COUNT CLOCK_US_RESOLUTION /* 128 / 16 MHz */
 
 static volatile uint32_t ms_count;
 

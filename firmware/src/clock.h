@@ -8,6 +8,9 @@
 
 #include <stdint.h>
 
+/* clock_us() counts in steps of this many µs. */
+#define CLOCK_US_RESOLUTION 8u
+
 void clock_init(void);
 /* Milliseconds since power-on (the RD time_ms). */
 uint32_t clock_ms(void);

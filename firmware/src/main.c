@@ -180,9 +180,10 @@ int main(void)
             break;
         case HEAD_ACT_PING:
             idle_since_us = now;
+            /* The clock has 8 µs steps: the margin keeps ≥ 50 ms between triggers for sure. */
             if (now - last_step_us >= SETTLE_MS * 1000UL &&
-                now - last_trigger_us >= PING_INTERVAL_MS * 1000UL) {
-                last_trigger_us = now;
+                now - last_trigger_us >= PING_INTERVAL_MS * 1000UL + 2 * CLOCK_US_RESOLUTION) {
+                last_trigger_us = clock_us();
                 sonar_trigger();
             }
             break;

@@ -10,12 +10,19 @@
 /* The configured motor: MOTOR_NUM / MOTOR_DEN microsteps per output revolution (config.h). */
 const motor_ratio MOTOR_RATIO = {MOTOR_NUM, MOTOR_DEN};
 
-/* Integer-only position arithmetic: q · NUM must fit 31 bits for every head position (the
- * 28BYJ-48 is the largest case: 402 × 1650688 ≈ 6.6e8), and so must HOMING_MAX_DEG · NUM. */
-_Static_assert((unsigned long long)(HEAD_MAX_UNITS + 2) * MOTOR_NUM < 0x80000000ULL,
+/* Integer-only position arithmetic in uint32 (the 28BYJ-48 is the largest case):
+ * - motion_motor_of: q · NUM + 240 · DEN for q ≤ 402 (≈ 6.6e8 for the 28BYJ-48);
+ * - motion_homing_limit: 380 · NUM;
+ * - motion_cdeg_of_motor: |m| · 480 · DEN with |m| up to the homing travel (380°), ≈ 507 · NUM. */
+_Static_assert((unsigned long long)(HEAD_MAX_UNITS + 2) * MOTOR_NUM + 240ULL * MOTOR_DEN < 0x100000000ULL,
                "q * MOTOR_NUM overflows 32 bits: use a smaller GEAR");
-_Static_assert((unsigned long long)HOMING_MAX_DEG * MOTOR_NUM < 0x80000000ULL,
+_Static_assert((unsigned long long)HOMING_MAX_DEG * MOTOR_NUM + 360ULL * MOTOR_DEN < 0x100000000ULL,
                "homing travel overflows 32 bits: use a smaller GEAR");
+_Static_assert(((unsigned long long)HOMING_MAX_DEG * HEAD_UNITS_PER_REV / 360 + 2) * MOTOR_NUM +
+                       (unsigned long long)HEAD_UNITS_PER_REV * MOTOR_DEN <
+                   0x100000000ULL,
+               "motor position to angle overflows 32 bits: use a smaller GEAR");
+/* Motor positions are int32 and every head position has its own microstep. */
 _Static_assert(MOTOR_NUM >= (unsigned long)HEAD_UNITS_PER_REV * MOTOR_DEN,
                "the motor must make at least one microstep per 0.75 degree");
 

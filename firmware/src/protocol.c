@@ -264,7 +264,7 @@ static uint8_t field_count(char *text, const char *tag_P, uint8_t expected, uint
     tb_str_P(&t, tag_P);
     tb_str_P(&t, FSTR(": expected "));
     tb_u32(&t, expected);
-    tb_str_P(&t, FSTR(" got "));
+    tb_str_P(&t, FSTR(", got "));
     tb_u32(&t, got);
     return ERR_SYNTAX;
 }
@@ -312,13 +312,13 @@ uint8_t proto_parse_command(const char *line, uint8_t len, proto_cmd *cmd, char 
     uint8_t tail_len = (uint8_t)(rest_len - star - 1);
     if (tail_len != 4) {
         /* Also a version-1 line, whose checksum is two XOR digits. */
-        return syntax_P(text, FSTR("checksum is not four hex digits"));
+        return syntax_P(text, FSTR("line check is not 4 hex digits (another protocol version?)"));
     }
     uint16_t declared = 0;
     for (uint8_t i = 0; i < 4; i++) {
         int8_t d = hex_value(tail[i]);
         if (d < 0) {
-            return syntax_P(text, FSTR("checksum is not four hex digits"));
+            return syntax_P(text, FSTR("line check is not 4 hex digits (another protocol version?)"));
         }
         declared = (uint16_t)((declared << 4) | (uint8_t)d);
     }
@@ -326,9 +326,9 @@ uint8_t proto_parse_command(const char *line, uint8_t len, proto_cmd *cmd, char 
     if (declared != computed) {
         tbuf t;
         tb_init(&t, text, PROTO_TEXT_MAX);
-        tb_str_P(&t, FSTR("checksum mismatch: line says "));
+        tb_str_P(&t, FSTR("check mismatch: line says "));
         tb_hex16(&t, declared);
-        tb_str_P(&t, FSTR(" body gives "));
+        tb_str_P(&t, FSTR(", body gives "));
         tb_hex16(&t, computed);
         return ERR_CHECKSUM;
     }

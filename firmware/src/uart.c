@@ -38,10 +38,11 @@ ISR(USART_UDRE_vect)
 
 void uart_init(void)
 {
-    /* Datasheet baud tables (sensor-facts): U2X with UBRR0 = 16 → 117647 baud, +2.1 %. */
+    /* Datasheet baud tables (sensor-facts): U2X with UBRR0 = 16 → 117647 baud, +2.1 %.
+     * U2X first: simavr computes its byte time when UBRR0L is written (the chip does not care). */
+    UCSR0A = UART_U2X ? _BV(U2X0) : 0;
     UBRR0H = (uint8_t)(UART_UBRR >> 8);
     UBRR0L = (uint8_t)UART_UBRR;
-    UCSR0A = UART_U2X ? _BV(U2X0) : 0;
     UCSR0C = _BV(UCSZ01) | _BV(UCSZ00); /* 8 data bits, no parity, 1 stop bit */
     UCSR0B = _BV(RXEN0) | _BV(TXEN0) | _BV(RXCIE0);
 }

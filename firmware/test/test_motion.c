@@ -136,6 +136,25 @@ static void motor_rounding_28byj48_no_drift_over_many_sweeps(void)
     CHECK_INT(m, 0);
 }
 
+static void angles_over_the_homing_range(void)
+{
+    /* While homing, the motor position runs from the assumed +150° down through 380° of travel:
+     * the angle arithmetic must hold there too (no 32-bit overflow), rounded to the centidegree. */
+    for (int k = 0; k < 3; k++) {
+        const motor_ratio *r = MOTORS[k];
+        int32_t top = motion_motor_of(r, HEAD_MAX_UNITS);
+        int32_t bottom = top - (int32_t)motion_homing_limit(r);
+        for (int32_t m = bottom; m <= top; m++) {
+            double exact = -15000.0 + (double)m * 36000.0 * r->den / r->num;
+            double got = motion_cdeg_of_motor(r, m);
+            if (got - exact > 0.5 || exact - got > 0.5) {
+                TT_FAIL("motor %d m %d: %g vs %g", k, m, got, exact);
+                break;
+            }
+        }
+    }
+}
+
 static void homing_limits(void)
 {
     CHECK_INT(motion_homing_limit(&BYJ48), 4303);  /* 380/360 × 4075.8 = 4302.3 */
@@ -198,6 +217,7 @@ void motion_tests(void)
     RUN(paper_motor_is_exact);
     RUN(motor_rounding_over_the_sweep);
     RUN(motor_rounding_28byj48_no_drift_over_many_sweeps);
+    RUN(angles_over_the_homing_range);
     RUN(homing_limits);
     RUN(reading_centres);
     RUN(ping_positions_both_directions);

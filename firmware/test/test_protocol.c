@@ -84,7 +84,7 @@ static void rejects_bad_crc(void)
     proto_cmd c;
     char text[PROTO_TEXT_MAX + 1];
     CHECK_INT(parse("$SCAN,FULM*36C7", &c, text), ERR_CHECKSUM);
-    CHECK(strstr(text, "36C7") != NULL);
+    CHECK_STR(text, "check mismatch: line says 36C7, body gives 26E6");
     CHECK_INT(parse("$STOP*AF2F", &c, text), ERR_CHECKSUM);
     /* Two bits flipped in the same position of two bytes: the XOR of version 1 missed this. */
     char line[32];
@@ -100,7 +100,7 @@ static void rejects_version1_framing_and_bad_frames(void)
     char text[PROTO_TEXT_MAX + 1];
     /* Version 1: two XOR digits ("$STOP*18" is docs/protocol.md's example). */
     CHECK_INT(parse("$STOP*18", &c, text), ERR_SYNTAX);
-    CHECK_STR(text, "checksum is not four hex digits");
+    CHECK_STR(text, "line check is not 4 hex digits (another protocol version?)");
     CHECK_INT(parse("$STOP*AF2E0", &c, text), ERR_SYNTAX);
     CHECK_INT(parse("$STOP*AG2E", &c, text), ERR_SYNTAX);
     CHECK_INT(parse("STOP*AF2E", &c, text), ERR_SYNTAX);
@@ -129,7 +129,7 @@ static void rejects_unknown_and_malformed_commands(void)
     CHECK_INT(parse(framed(""), &c, text), ERR_SYNTAX);
     CHECK_INT(parse(framed("stop"), &c, text), ERR_SYNTAX);
     CHECK_INT(parse(framed("STOP,1"), &c, text), ERR_SYNTAX);
-    CHECK_STR(text, "wrong number of fields for STOP: expected 1 got 2");
+    CHECK_STR(text, "wrong number of fields for STOP: expected 1, got 2");
     CHECK_INT(parse(framed("STATUS,"), &c, text), ERR_SYNTAX);
     CHECK_INT(parse(framed("HELLO"), &c, text), ERR_SYNTAX);
     CHECK_INT(parse(framed("HELLO,2,3"), &c, text), ERR_SYNTAX);
