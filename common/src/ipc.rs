@@ -187,6 +187,9 @@ pub enum LinkState {
     Connected = 1,
     /// The port went away; the driver retries with back-off.
     Disconnected = 2,
+    /// A different head answered on the port (protocol version 2 identity check); the driver does
+    /// not command it and tries the port again with back-off.
+    Refused = 3,
 }
 
 /// The driver's state and counters on [`DRIVER_STATUS_SERVICE`], published on change and once a
@@ -212,7 +215,8 @@ pub struct DriverStatus {
     /// +1 / -1 / 0.
     pub direction: i32,
     pub layout_version: u32,
-    pub reserved: u32,
+    /// Times the head announced itself while connected (it was reset) and the scan was resumed.
+    pub head_resets: u32,
 }
 
 const _: () = assert!(std::mem::size_of::<DriverStatus>() == 64);

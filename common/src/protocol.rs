@@ -1,18 +1,88 @@
 //! The line protocol between the microcontroller and the PC (see `docs/protocol.md`).
 //!
-//! Every line is `$BODY*HH\n`: `BODY` is comma-separated printable ASCII whose first field is the
-//! message tag, `HH` the XOR of all `BODY` bytes as two hex digits (the NMEA 0183 scheme, chosen
-//! because an 8-bit microcontroller computes it with one instruction per byte). Angles travel as
-//! signed integer centidegrees so that neither side ever parses a float.
+//! Every line is `$BODY*HHHH\n`: `BODY` is comma-separated printable ASCII whose first field is the
+//! message tag, `HHHH` the CRC-16/CCITT-FALSE of the `BODY` bytes as four hex digits. Angles travel
+//! as signed integer centidegrees so that neither side ever parses a float.
+//!
+//! Version 1 framed lines with `*HH`, the XOR of the body bytes (NMEA 0183). An XOR cannot see two
+//! flipped bits in the same bit position of two bytes, and serial noise does exactly that: a fault
+//! probe published every one of 200 such lines as a reading. Version 2 ([`ProtocolVersion::V2`])
+//! replaces it with a CRC-16, which sees every error of up to three bits in a line this short, and
+//! adds the head's identity to `HELLO`. Version 1 is still spoken on request; the two framings never
+//! mix (a receiver of one rejects the other's checksum width).
 //!
 //! Everything here is pure: [`encode_command`]/[`encode_device`] build lines, [`parse_command`] and
 //! [`parse_device`] read them back, and [`LineFramer`] cuts a byte stream into lines. Parsing never
-//! panics and rejects any line whose checksum does not match before looking at its fields.
+//! panics and rejects any line whose check does not match before looking at its fields.
 
 use std::fmt::Write as _;
 
-/// Version of this protocol, exchanged in the `HELLO` handshake.
-pub const PROTOCOL_VERSION: u32 = 1;
+/// A version of the line protocol: how lines are checked and what `HELLO` carries.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum ProtocolVersion {
+    /// XOR checksum `*HH`; `HELLO` without a head identity.
+    V1,
+    /// CRC-16/CCITT-FALSE `*HHHH`; `HELLO` with the head's identity, also sent unprompted at reset.
+    V2,
+}
+
+impl ProtocolVersion {
+    /// The number exchanged in `HELLO`.
+    pub fn number(self) -> u32 {
+        match self {
+            ProtocolVersion::V1 => 1,
+            ProtocolVersion::V2 => 2,
+        }
+    }
+
+    pub fn from_number(n: u32) -> Option<Self> {
+        match n {
+            1 => Some(ProtocolVersion::V1),
+            2 => Some(ProtocolVersion::V2),
+            _ => None,
+        }
+    }
+
+    /// Hex digits of the line check.
+    fn check_digits(self) -> usize {
+        match self {
+            ProtocolVersion::V1 => 2,
+            ProtocolVersion::V2 => 4,
+        }
+    }
+
+    /// The line check of a body.
+    pub fn check(self, body: &[u8]) -> u16 {
+        match self {
+            ProtocolVersion::V1 => u16::from(xor_checksum(body)),
+            ProtocolVersion::V2 => crc16_ccitt_false(body),
+        }
+    }
+}
+
+impl std::str::FromStr for ProtocolVersion {
+    type Err = String;
+
+    /// `1` or `2`, as on a command line.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        s.trim()
+            .parse()
+            .ok()
+            .and_then(Self::from_number)
+            .ok_or_else(|| format!("protocol version must be 1 or 2, got {s:?}"))
+    }
+}
+
+impl std::fmt::Display for ProtocolVersion {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.number())
+    }
+}
+
+/// The newest version, spoken unless told otherwise.
+pub const PROTOCOL_VERSION: ProtocolVersion = ProtocolVersion::V2;
+/// Longest head identity in `HELLO`.
+pub const MAX_HEAD_ID_LEN: usize = 32;
 /// Longest line either side accepts, terminator included; longer input is discarded as garbage.
 pub const MAX_LINE_LEN: usize = 160;
 /// Most pings one reading can carry on the wire (the paper uses four).
@@ -96,6 +166,8 @@ pub enum DeviceState {
     Idle,
     Full,
     Local,
+    /// Looking for the MIN limit switch after a reset (version 2).
+    Homing,
 }
 
 /// Error codes a device reports with `ERR`.
@@ -154,10 +226,13 @@ pub enum HostCommand {
 /// A message from the device to the PC.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum DeviceMessage {
-    /// Handshake reply with the device's geometry, so the PC can check its configuration.
+    /// Handshake reply with the device's identity and geometry, so the PC can check both. Version 2
+    /// devices also send it by themselves after a reset.
     Hello {
         version: u32,
         firmware: String,
+        /// Stays the same for the life of the head (empty in version 1, which has none).
+        head_id: String,
         step_cdeg: u32,
         pings_per_reading: u32,
         min_cdeg: i32,
@@ -220,10 +295,10 @@ pub enum ParseError {
     NoStart,
     #[error("line has no '*' checksum separator")]
     NoChecksum,
-    #[error("checksum mismatch: line says {declared:02X}, body gives {computed:02X}")]
-    ChecksumMismatch { declared: u8, computed: u8 },
-    #[error("checksum is not two hex digits")]
-    BadChecksumDigits,
+    #[error("check mismatch: line says {declared:04X}, body gives {computed:04X}")]
+    ChecksumMismatch { declared: u16, computed: u16 },
+    #[error("line check is not {0} hex digits (another protocol version?)")]
+    BadChecksumDigits(usize),
     #[error("line contains non-printable or non-ASCII bytes")]
     NotAscii,
     #[error("line longer than {MAX_LINE_LEN} bytes")]
@@ -240,18 +315,41 @@ pub enum ParseError {
     BadField(&'static str),
 }
 
-/// XOR of all bytes: the checksum of a line body.
-pub fn checksum(body: &[u8]) -> u8 {
+/// XOR of all bytes: the line check of version 1.
+pub fn xor_checksum(body: &[u8]) -> u8 {
     body.iter().fold(0, |acc, b| acc ^ b)
 }
 
-/// Wraps a body into a complete line, `$BODY*HH\n`.
-fn frame(body: &str) -> String {
-    format!("${body}*{:02X}\n", checksum(body.as_bytes()))
+/// CRC-16/CCITT-FALSE (polynomial 0x1021, initial 0xFFFF, no reflection, no final XOR): the line
+/// check of version 2. Bitwise, as the firmware computes it: a table would cost 512 bytes of flash
+/// for no gain at 115200 baud.
+pub fn crc16_ccitt_false(bytes: &[u8]) -> u16 {
+    let mut crc: u16 = 0xFFFF;
+    for &b in bytes {
+        crc ^= u16::from(b) << 8;
+        for _ in 0..8 {
+            crc = if crc & 0x8000 != 0 {
+                (crc << 1) ^ 0x1021
+            } else {
+                crc << 1
+            };
+        }
+    }
+    crc
 }
 
-/// Checks framing and checksum, returns the body's fields.
-fn unframe(line: &[u8]) -> Result<Vec<&str>, ParseError> {
+/// Wraps a body into a complete line, `$BODY*HHHH\n` (`*HH` in version 1).
+fn frame(body: &str, version: ProtocolVersion) -> String {
+    let width = version.check_digits();
+    format!(
+        "${body}*{:0width$X}\n",
+        version.check(body.as_bytes()),
+        width = width
+    )
+}
+
+/// Checks framing and line check, returns the body's fields.
+fn unframe(line: &[u8], version: ProtocolVersion) -> Result<Vec<&str>, ParseError> {
     let line = trim_line_end(line);
     if line.len() > MAX_LINE_LEN {
         return Err(ParseError::TooLong);
@@ -265,8 +363,9 @@ fn unframe(line: &[u8]) -> Result<Vec<&str>, ParseError> {
     if !body.iter().all(|b| (0x20..0x7f).contains(b)) {
         return Err(ParseError::NotAscii);
     }
-    let declared = parse_hex_byte(tail).ok_or(ParseError::BadChecksumDigits)?;
-    let computed = checksum(body);
+    let digits = version.check_digits();
+    let declared = parse_hex(tail, digits).ok_or(ParseError::BadChecksumDigits(digits))?;
+    let computed = version.check(body);
     if declared != computed {
         return Err(ParseError::ChecksumMismatch { declared, computed });
     }
@@ -283,12 +382,20 @@ fn trim_line_end(line: &[u8]) -> &[u8] {
     &line[..end]
 }
 
-fn parse_hex_byte(digits: &[u8]) -> Option<u8> {
-    if digits.len() != 2 {
+fn parse_hex(digits: &[u8], count: usize) -> Option<u16> {
+    if digits.len() != count || !digits.iter().all(u8::is_ascii_hexdigit) {
         return None;
     }
     let s = std::str::from_utf8(digits).ok()?;
-    u8::from_str_radix(s, 16).ok()
+    u16::from_str_radix(s, 16).ok()
+}
+
+/// A head identity: 1–[`MAX_HEAD_ID_LEN`] characters of `0-9 A-Z a-z - _`.
+pub fn is_valid_head_id(id: &str) -> bool {
+    (1..=MAX_HEAD_ID_LEN).contains(&id.len())
+        && id
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_')
 }
 
 fn expect_fields(fields: &[&str], tag: &'static str, expected: usize) -> Result<(), ParseError> {
@@ -326,7 +433,7 @@ fn sanitize_text(text: &str) -> String {
 }
 
 /// Encodes a PC command as a complete line.
-pub fn encode_command(cmd: &HostCommand) -> String {
+pub fn encode_command(cmd: &HostCommand, version: ProtocolVersion) -> String {
     let body = match cmd {
         HostCommand::Hello { version } => format!("HELLO,{version}"),
         HostCommand::FullScan => "SCAN,FULL".to_owned(),
@@ -336,12 +443,12 @@ pub fn encode_command(cmd: &HostCommand) -> String {
         HostCommand::Stop => "STOP".to_owned(),
         HostCommand::Status => "STATUS".to_owned(),
     };
-    frame(&body)
+    frame(&body, version)
 }
 
 /// Parses a line sent by the PC (the device's side of the protocol).
-pub fn parse_command(line: &[u8]) -> Result<HostCommand, ParseError> {
-    let f = unframe(line)?;
+pub fn parse_command(line: &[u8], version: ProtocolVersion) -> Result<HostCommand, ParseError> {
+    let f = unframe(line, version)?;
     match f[0] {
         "HELLO" => {
             expect_fields(&f, "HELLO", 2)?;
@@ -377,23 +484,27 @@ pub fn parse_command(line: &[u8]) -> Result<HostCommand, ParseError> {
     }
 }
 
-/// Encodes a device message as a complete line.
-pub fn encode_device(msg: &DeviceMessage) -> String {
+/// Encodes a device message as a complete line. A version-1 `HELLO` leaves out the head identity.
+pub fn encode_device(msg: &DeviceMessage, version: ProtocolVersion) -> String {
     let mut body = String::with_capacity(64);
     // Writing into a String cannot fail; the results are ignored for that reason only.
     match msg {
         DeviceMessage::Hello {
-            version,
+            version: announced,
             firmware,
+            head_id,
             step_cdeg,
             pings_per_reading,
             min_cdeg,
             max_cdeg,
         } => {
+            let _ = write!(body, "HELLO,{announced},{}", sanitize_text(firmware));
+            if version >= ProtocolVersion::V2 {
+                let _ = write!(body, ",{}", sanitize_text(head_id));
+            }
             let _ = write!(
                 body,
-                "HELLO,{version},{},{step_cdeg},{pings_per_reading},{min_cdeg},{max_cdeg}",
-                sanitize_text(firmware)
+                ",{step_cdeg},{pings_per_reading},{min_cdeg},{max_cdeg}"
             );
         }
         DeviceMessage::Ack { command } => {
@@ -447,6 +558,7 @@ pub fn encode_device(msg: &DeviceMessage) -> String {
                 DeviceState::Idle => "IDLE",
                 DeviceState::Full => "FULL",
                 DeviceState::Local => "LOCAL",
+                DeviceState::Homing => "HOMING",
             };
             let _ = write!(body, "ST,{state},{angle_cdeg},{},{sweep}", direction.wire());
         }
@@ -454,22 +566,36 @@ pub fn encode_device(msg: &DeviceMessage) -> String {
             let _ = write!(body, "ERR,{},{}", code.wire(), sanitize_text(text));
         }
     }
-    frame(&body)
+    frame(&body, version)
 }
 
 /// Parses a line sent by the device (the PC's side of the protocol).
-pub fn parse_device(line: &[u8]) -> Result<DeviceMessage, ParseError> {
-    let f = unframe(line)?;
+pub fn parse_device(line: &[u8], version: ProtocolVersion) -> Result<DeviceMessage, ParseError> {
+    let f = unframe(line, version)?;
     match f[0] {
         "HELLO" => {
-            expect_fields(&f, "HELLO", 7)?;
+            // Version 2 inserts the head identity after the firmware name.
+            let (head_id, geometry) = match version {
+                ProtocolVersion::V1 => {
+                    expect_fields(&f, "HELLO", 7)?;
+                    (String::new(), &f[3..])
+                }
+                ProtocolVersion::V2 => {
+                    expect_fields(&f, "HELLO", 8)?;
+                    if !is_valid_head_id(f[3]) {
+                        return Err(ParseError::BadField("head id"));
+                    }
+                    (f[3].to_owned(), &f[4..])
+                }
+            };
             Ok(DeviceMessage::Hello {
                 version: num(f[1], "version")?,
                 firmware: f[2].to_owned(),
-                step_cdeg: num(f[3], "step angle")?,
-                pings_per_reading: num(f[4], "pings per reading")?,
-                min_cdeg: num(f[5], "min angle")?,
-                max_cdeg: num(f[6], "max angle")?,
+                head_id,
+                step_cdeg: num(geometry[0], "step angle")?,
+                pings_per_reading: num(geometry[1], "pings per reading")?,
+                min_cdeg: num(geometry[2], "min angle")?,
+                max_cdeg: num(geometry[3], "max angle")?,
             })
         }
         "ACK" => {
@@ -512,6 +638,7 @@ pub fn parse_device(line: &[u8]) -> Result<DeviceMessage, ParseError> {
                 "IDLE" => DeviceState::Idle,
                 "FULL" => DeviceState::Full,
                 "LOCAL" => DeviceState::Local,
+                "HOMING" => DeviceState::Homing,
                 _ => return Err(ParseError::BadField("state")),
             };
             Ok(DeviceMessage::Status {
@@ -695,17 +822,59 @@ mod tests {
         }
     }
 
+    const BOTH: [ProtocolVersion; 2] = [ProtocolVersion::V1, ProtocolVersion::V2];
+
     #[test]
-    fn checksum_is_nmea_xor() {
+    fn version_1_check_is_nmea_xor() {
         // Known NMEA sentence: $GPGLL,5057.970,N,00146.110,E,142451,A*27
-        assert_eq!(checksum(b"GPGLL,5057.970,N,00146.110,E,142451,A"), 0x27);
-        assert_eq!(encode_command(&HostCommand::Stop), "$STOP*18\n");
+        assert_eq!(xor_checksum(b"GPGLL,5057.970,N,00146.110,E,142451,A"), 0x27);
+        assert_eq!(
+            encode_command(&HostCommand::Stop, ProtocolVersion::V1),
+            "$STOP*18\n"
+        );
+    }
+
+    #[test]
+    fn version_2_check_is_crc16_ccitt_false() {
+        // The catalogued check value of CRC-16/CCITT-FALSE.
+        assert_eq!(crc16_ccitt_false(b"123456789"), 0x29B1);
+        assert_eq!(crc16_ccitt_false(b""), 0xFFFF);
+        // The examples in docs/protocol.md (the firmware's host tests pin the same strings).
+        let v2 = ProtocolVersion::V2;
+        assert_eq!(encode_command(&HostCommand::Stop, v2), "$STOP*AF2E\n");
+        assert_eq!(
+            encode_command(&HostCommand::FullScan, v2),
+            "$SCAN,FULL*36C7\n"
+        );
+        assert_eq!(
+            encode_command(&HostCommand::Hello { version: 2 }, v2),
+            "$HELLO,2*4975\n"
+        );
+        assert_eq!(
+            parse_command(b"$SCAN,FULL*36c7", v2),
+            Ok(HostCommand::FullScan),
+            "lower-case hex digits are accepted"
+        );
+    }
+
+    #[test]
+    fn versions_never_mix() {
+        let v1 = encode_command(&HostCommand::FullScan, ProtocolVersion::V1);
+        let v2 = encode_command(&HostCommand::FullScan, ProtocolVersion::V2);
+        assert_eq!(
+            parse_command(v1.as_bytes(), ProtocolVersion::V2),
+            Err(ParseError::BadChecksumDigits(4))
+        );
+        assert_eq!(
+            parse_command(v2.as_bytes(), ProtocolVersion::V1),
+            Err(ParseError::BadChecksumDigits(2))
+        );
     }
 
     #[test]
     fn every_command_round_trips() {
         for cmd in [
-            HostCommand::Hello { version: 1 },
+            HostCommand::Hello { version: 2 },
             HostCommand::FullScan,
             HostCommand::LocalScan {
                 from_cdeg: -3000,
@@ -714,9 +883,46 @@ mod tests {
             HostCommand::Stop,
             HostCommand::Status,
         ] {
-            let line = encode_command(&cmd);
-            assert!(line.ends_with('\n'));
-            assert_eq!(parse_command(line.as_bytes()), Ok(cmd));
+            for v in BOTH {
+                let line = encode_command(&cmd, v);
+                assert!(line.ends_with('\n'));
+                assert_eq!(parse_command(line.as_bytes(), v), Ok(cmd.clone()));
+            }
+        }
+    }
+
+    #[test]
+    fn hello_carries_the_head_id_in_version_2_only() {
+        let hello = |head_id: &str| DeviceMessage::Hello {
+            version: 2,
+            firmware: "sonar-head 0.2.0".into(),
+            head_id: head_id.into(),
+            step_cdeg: 150,
+            pings_per_reading: 4,
+            min_cdeg: -15000,
+            max_cdeg: 15000,
+        };
+        let line = encode_device(&hello("3F2A9C0417B6E5D1"), ProtocolVersion::V2);
+        assert!(
+            line.starts_with("$HELLO,2,sonar-head 0.2.0,3F2A9C0417B6E5D1,150,4,-15000,15000*"),
+            "{line}"
+        );
+        let v1 = encode_device(&hello("3F2A9C0417B6E5D1"), ProtocolVersion::V1);
+        assert_eq!(
+            parse_device(v1.as_bytes(), ProtocolVersion::V1),
+            Ok(hello("")),
+            "{v1}"
+        );
+        for bad in ["", "has space", "a,b", &"X".repeat(MAX_HEAD_ID_LEN + 1)] {
+            let body = format!("HELLO,2,fw,{bad},150,4,-15000,15000");
+            assert!(
+                parse_device(
+                    frame(&body, ProtocolVersion::V2).as_bytes(),
+                    ProtocolVersion::V2
+                )
+                .is_err(),
+                "{body}"
+            );
         }
     }
 
@@ -724,8 +930,9 @@ mod tests {
     fn every_device_message_round_trips() {
         for msg in [
             DeviceMessage::Hello {
-                version: 1,
+                version: 2,
                 firmware: "sonar-sim 0.1.0".into(),
+                head_id: "sim-1_A".into(),
                 step_cdeg: 150,
                 pings_per_reading: 4,
                 min_cdeg: -15000,
@@ -751,38 +958,91 @@ mod tests {
                 direction: Direction::Cw,
                 sweep: 9,
             },
+            DeviceMessage::Status {
+                state: DeviceState::Homing,
+                angle_cdeg: 0,
+                direction: Direction::Cw,
+                sweep: 0,
+            },
             DeviceMessage::Error {
                 code: ErrorCode::Range,
                 text: "angle outside limits".into(),
             },
         ] {
-            let line = encode_device(&msg);
-            assert_eq!(parse_device(line.as_bytes()), Ok(msg), "{line}");
+            let line = encode_device(&msg, ProtocolVersion::V2);
+            assert_eq!(
+                parse_device(line.as_bytes(), ProtocolVersion::V2),
+                Ok(msg),
+                "{line}"
+            );
         }
     }
 
     #[test]
     fn reading_line_has_documented_shape() {
-        let line = encode_device(&DeviceMessage::Reading(reading(&[5800, 5830, 0, 5790])));
-        assert!(line.starts_with("$RD,7,123456,3,-,-14700,4,5800,5830,0,5790*"));
+        let msg = DeviceMessage::Reading(reading(&[5800, 5830, 0, 5790]));
+        let body = "RD,7,123456,3,-,-14700,4,5800,5830,0,5790";
+        assert_eq!(
+            encode_device(&msg, ProtocolVersion::V2),
+            format!("${body}*{:04X}\n", crc16_ccitt_false(body.as_bytes()))
+        );
+        assert!(encode_device(&msg, ProtocolVersion::V1).starts_with(&format!("${body}*")));
     }
 
     #[test]
     fn rejects_bad_checksum_and_framing() {
-        let good = encode_command(&HostCommand::FullScan);
-        let bad = good.replace("FULL", "FULM");
-        assert!(matches!(
-            parse_command(bad.as_bytes()),
-            Err(ParseError::ChecksumMismatch { .. })
-        ));
-        assert_eq!(parse_command(b"SCAN,FULL*00"), Err(ParseError::NoStart));
-        assert_eq!(parse_command(b"$SCAN,FULL"), Err(ParseError::NoChecksum));
+        for v in BOTH {
+            let good = encode_command(&HostCommand::FullScan, v);
+            let bad = good.replace("FULL", "FULM");
+            assert!(matches!(
+                parse_command(bad.as_bytes(), v),
+                Err(ParseError::ChecksumMismatch { .. })
+            ));
+            assert_eq!(
+                parse_command(b"SCAN,FULL*0000", v),
+                Err(ParseError::NoStart)
+            );
+            assert_eq!(parse_command(b"$SCAN,FULL", v), Err(ParseError::NoChecksum));
+            assert_eq!(
+                parse_command(b"$SCAN,FULL*G1", v),
+                Err(ParseError::BadChecksumDigits(v.check_digits()))
+            );
+            assert_eq!(parse_device(b"$\xff*FFFF", v), Err(ParseError::NotAscii));
+            assert_eq!(parse_device(&[b'$'; 400], v), Err(ParseError::TooLong));
+        }
+        // "+1F" parses as a number in Rust; it is not four hex digits.
         assert_eq!(
-            parse_command(b"$SCAN,FULL*G1"),
-            Err(ParseError::BadChecksumDigits)
+            parse_command(b"$STOP*+F2E", ProtocolVersion::V2),
+            Err(ParseError::BadChecksumDigits(4))
         );
-        assert_eq!(parse_device(b"$\xff*FF"), Err(ParseError::NotAscii));
-        assert_eq!(parse_device(&[b'$'; 400]), Err(ParseError::TooLong));
+    }
+
+    /// The failure that made version 2: two bits flipped in the same position of two bytes leave
+    /// the XOR unchanged. The CRC sees every such pair in every reading line.
+    #[test]
+    fn same_column_double_flips_pass_xor_but_never_the_crc() {
+        let msg = DeviceMessage::Reading(reading(&[18195, 18210, 18190, 18201]));
+        let mut slipped_past_xor = 0;
+        for v in BOTH {
+            let line = encode_device(&msg, v).into_bytes();
+            let star = line.iter().rposition(|&b| b == b'*').unwrap_or(0);
+            for i in 1..star {
+                for j in i + 1..star {
+                    for bit in 0..7 {
+                        let mut bad = line.clone();
+                        bad[i] ^= 1 << bit;
+                        bad[j] ^= 1 << bit;
+                        if let Ok(DeviceMessage::Reading(r)) = parse_device(&bad, v)
+                            && DeviceMessage::Reading(r) != msg
+                        {
+                            assert_eq!(v, ProtocolVersion::V1, "the CRC let a corrupt line pass");
+                            slipped_past_xor += 1;
+                        }
+                    }
+                }
+            }
+        }
+        assert!(slipped_past_xor > 100, "{slipped_past_xor}");
     }
 
     #[test]
@@ -794,9 +1054,15 @@ mod tests {
             "RD,1,2,3,+,100,1,-5",
             "WHAT,1",
         ] {
-            assert!(parse_device(frame(body).as_bytes()).is_err(), "{body}");
+            for v in BOTH {
+                assert!(
+                    parse_device(frame(body, v).as_bytes(), v).is_err(),
+                    "{body}"
+                );
+            }
         }
-        assert!(parse_command(frame("SCAN,LOCAL,300,100").as_bytes()).is_err());
+        let v2 = ProtocolVersion::V2;
+        assert!(parse_command(frame("SCAN,LOCAL,300,100", v2).as_bytes(), v2).is_err());
     }
 
     #[test]
@@ -866,21 +1132,27 @@ mod tests {
     proptest! {
         #[test]
         fn reading_round_trips(r in arb_reading()) {
-            let line = encode_device(&DeviceMessage::Reading(r));
-            prop_assert!(line.len() <= MAX_LINE_LEN);
-            prop_assert_eq!(parse_device(line.as_bytes()), Ok(DeviceMessage::Reading(r)));
+            for v in BOTH {
+                let line = encode_device(&DeviceMessage::Reading(r), v);
+                prop_assert!(line.len() <= MAX_LINE_LEN);
+                prop_assert_eq!(parse_device(line.as_bytes(), v), Ok(DeviceMessage::Reading(r)));
+            }
         }
 
         #[test]
         fn local_scan_round_trips(a in -36000i32..36000, len in 1i32..36000) {
             let cmd = HostCommand::LocalScan { from_cdeg: a, to_cdeg: a + len };
-            prop_assert_eq!(parse_command(encode_command(&cmd).as_bytes()), Ok(cmd));
+            for v in BOTH {
+                prop_assert_eq!(parse_command(encode_command(&cmd, v).as_bytes(), v), Ok(cmd.clone()));
+            }
         }
 
         #[test]
         fn arbitrary_bytes_never_panic(bytes in prop::collection::vec(any::<u8>(), 0..300)) {
-            let _ = parse_device(&bytes);
-            let _ = parse_command(&bytes);
+            for v in BOTH {
+                let _ = parse_device(&bytes, v);
+                let _ = parse_command(&bytes, v);
+            }
             let _ = parse_hobby(&bytes);
             let mut framer = LineFramer::new(Terminators::Hobby);
             framer.push(&bytes, |_| {});
@@ -891,11 +1163,13 @@ mod tests {
         fn nothing_accepted_without_matching_checksum(
             bytes in prop::collection::vec(any::<u8>(), 0..200),
         ) {
-            if parse_device(&bytes).is_ok() {
-                let line = trim_line_end(&bytes);
-                let star = line.iter().rposition(|&b| b == b'*').unwrap();
-                let declared = parse_hex_byte(&line[star + 1..]).unwrap();
-                prop_assert_eq!(declared, checksum(&line[1..star]));
+            for v in BOTH {
+                if parse_device(&bytes, v).is_ok() {
+                    let line = trim_line_end(&bytes);
+                    let star = line.iter().rposition(|&b| b == b'*').unwrap();
+                    let declared = parse_hex(&line[star + 1..], v.check_digits()).unwrap();
+                    prop_assert_eq!(declared, v.check(&line[1..star]));
+                }
             }
         }
 
@@ -904,10 +1178,29 @@ mod tests {
         fn single_byte_corruption_never_yields_a_different_reading(
             r in arb_reading(), pos in any::<prop::sample::Index>(), flip in 1u8..=255,
         ) {
-            let mut line = encode_device(&DeviceMessage::Reading(r)).into_bytes();
-            let i = pos.index(line.len());
-            line[i] ^= flip;
-            if let Ok(DeviceMessage::Reading(parsed)) = parse_device(&line) {
+            for v in BOTH {
+                let mut line = encode_device(&DeviceMessage::Reading(r), v).into_bytes();
+                let i = pos.index(line.len());
+                line[i] ^= flip;
+                if let Ok(DeviceMessage::Reading(parsed)) = parse_device(&line, v) {
+                    prop_assert_eq!(parsed, r);
+                }
+            }
+        }
+
+        /// Version 2: any two flipped bits anywhere in a reading line are detected or harmless.
+        #[test]
+        fn any_two_bit_flips_never_yield_a_different_reading(
+            r in arb_reading(),
+            a in any::<prop::sample::Index>(), b in any::<prop::sample::Index>(),
+            bit_a in 0u8..8, bit_b in 0u8..8,
+        ) {
+            let v = ProtocolVersion::V2;
+            let mut line = encode_device(&DeviceMessage::Reading(r), v).into_bytes();
+            let n = line.len() - 1; // keep the terminator: the framer cuts lines there
+            line[a.index(n)] ^= 1 << bit_a;
+            line[b.index(n)] ^= 1 << bit_b;
+            if let Ok(DeviceMessage::Reading(parsed)) = parse_device(&line, v) {
                 prop_assert_eq!(parsed, r);
             }
         }

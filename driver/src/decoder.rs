@@ -2,7 +2,8 @@
 
 use sonar_common::ipc::{LAYOUT_VERSION, MAX_PINGS, Reading, ScanMode, flags};
 use sonar_common::protocol::{
-    self, DeviceMessage, DeviceState, HobbyReading, ParseError, WireReading, WireScanMode,
+    self, DeviceMessage, DeviceState, HobbyReading, PROTOCOL_VERSION, ParseError, ProtocolVersion,
+    WireReading, WireScanMode,
 };
 use sonar_common::sensor::SensorConfig;
 
@@ -41,6 +42,8 @@ pub enum Decoded {
 #[derive(Debug)]
 pub struct Decoder {
     dialect: Dialect,
+    /// Version of the native protocol (the hobby dialect has none).
+    version: ProtocolVersion,
     sensor: SensorConfig,
     policy: PingPolicy,
     next_seq: u64,
@@ -78,6 +81,7 @@ impl Decoder {
     ) -> Self {
         Self {
             dialect,
+            version: PROTOCOL_VERSION,
             sensor,
             policy,
             next_seq: 0,
@@ -85,6 +89,16 @@ impl Decoder {
             hobby_angle_offset_deg,
             hobby: HobbySweep::default(),
         }
+    }
+
+    /// Reads the native protocol in `version` instead of the newest.
+    pub fn speaking(mut self, version: ProtocolVersion) -> Self {
+        self.version = version;
+        self
+    }
+
+    pub fn version(&self) -> ProtocolVersion {
+        self.version
     }
 
     pub fn sensor(&self) -> &SensorConfig {
@@ -118,7 +132,7 @@ impl Decoder {
     pub fn decode(&mut self, line: &[u8], now_ns: u64) -> Result<Decoded, ParseError> {
         match self.dialect {
             Dialect::Native => {
-                let msg = protocol::parse_device(line)?;
+                let msg = protocol::parse_device(line, self.version)?;
                 match msg {
                     DeviceMessage::Reading(wire) => {
                         Ok(Decoded::Reading(self.native(&wire, now_ns)))
@@ -146,7 +160,7 @@ impl Decoder {
             }
             DeviceMessage::Status { state, .. } => {
                 self.mode = match state {
-                    DeviceState::Idle => ScanMode::Idle,
+                    DeviceState::Idle | DeviceState::Homing => ScanMode::Idle,
                     DeviceState::Full => ScanMode::Full,
                     DeviceState::Local => ScanMode::Local,
                 };
@@ -272,8 +286,13 @@ mod tests {
             from_cdeg: -14700,
             to_cdeg: 14700,
         };
-        d.decode(encode_device(&start).trim_end().as_bytes(), 0)
-            .unwrap();
+        d.decode(
+            encode_device(&start, PROTOCOL_VERSION)
+                .trim_end()
+                .as_bytes(),
+            0,
+        )
+        .unwrap();
         let t = SensorConfig::default().echo_time_us(1.2).round() as u32;
         let wire = WireReading {
             seq: 10,
@@ -284,7 +303,7 @@ mod tests {
             ping_count: 4,
             echo_us: [t, t, t, 0, 0, 0, 0, 0],
         };
-        let line = encode_device(&DeviceMessage::Reading(wire));
+        let line = encode_device(&DeviceMessage::Reading(wire), PROTOCOL_VERSION);
         let Decoded::Reading(r) = d.decode(line.trim_end().as_bytes(), 42).unwrap() else {
             panic!("not a reading");
         };
@@ -304,7 +323,7 @@ mod tests {
     #[test]
     fn corrupt_native_line_is_an_error_and_consumes_no_sequence_number() {
         let mut d = native();
-        assert!(d.decode(b"$RD,1,2,3,+,100,1,5800*00", 0).is_err());
+        assert!(d.decode(b"$RD,1,2,3,+,100,1,5800*0000", 0).is_err());
         assert_eq!(d.readings_decoded(), 0);
     }
 

@@ -21,7 +21,8 @@ use sonar_common::ipc::{
     self, DriverStatus, IpcArgs, LinkState, Reading, ScanCommand, ScanCommandKind, ScanMode,
 };
 use sonar_common::protocol::{
-    DeviceMessage, FramedLine, HostCommand, LineFramer, PROTOCOL_VERSION, encode_command,
+    DeviceMessage, ErrorCode, FramedLine, HostCommand, LineFramer, MAX_HEAD_ID_LEN,
+    PROTOCOL_VERSION, ProtocolVersion, WireScanMode, encode_command, is_valid_head_id,
 };
 use sonar_common::sensor::SensorConfig;
 use sonar_driver::averaging::PingPolicy;
@@ -32,15 +33,24 @@ use tracing::{debug, info, warn};
 const READ_TIMEOUT: Duration = Duration::from_millis(50);
 const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(2);
 const HANDSHAKE_ATTEMPTS: u32 = 3;
+/// After the `HELLO` reply, lines are read this long before the scan is commanded, so that a head
+/// that announced itself at power-on just as we asked (two `HELLO`s) is not taken for reset twice.
+const HANDSHAKE_SETTLE: Duration = Duration::from_millis(200);
 const STATUS_PERIOD: Duration = Duration::from_secs(1);
 const MIN_BACKOFF: Duration = Duration::from_millis(250);
 
 /// Reads a sonar head (or its simulator) over a serial port and publishes each averaged 6° reading
 /// on the iceoryx2 service `sonar/readings`; takes scan commands on `sonar/commands`.
 ///
+/// The head is identified by its HELLO (protocol version 2): the driver serves the first head it
+/// meets (or the one --head-id names) and refuses a different one that later answers on the same
+/// path. A head that announces itself while connected was reset: the scan is sent again.
+///
 /// Examples:
-///   sonar-driver --port /dev/ttyUSB0
+///   sonar-driver --port /dev/serial/by-id/usb-Arduino_Uno_85736323-if00   # stable across replugs
 ///   sonar-driver --port /dev/pts/5                          # the `PTY <path>` that sonar-sim prints
+///   sonar-driver --port /dev/ttyACM0 --print               # check a freshly flashed head
+///   sonar-driver --port /dev/ttyUSB0 --protocol 1          # a head with version-1 firmware
 ///   sonar-driver --port /dev/ttyACM0 --dialect hobby       # an "Arduino radar" sketch at 9600 baud
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
@@ -60,6 +70,17 @@ struct Args {
     /// Serial format the device speaks.
     #[arg(long, value_enum, default_value_t = Dialect::Native)]
     dialect: Dialect,
+    /// Version of the native protocol: 2 (CRC-16 per line, head identity) or 1 (XOR checksum, no
+    /// identity: older firmware).
+    #[arg(long = "protocol", default_value_t = PROTOCOL_VERSION)]
+    protocol: ProtocolVersion,
+    /// Serve only the head with this identity (as its HELLO reports it) [default: the first head
+    /// that answers].
+    #[arg(long, value_parser = parse_head_id, conflicts_with = "any_head")]
+    head_id: Option<String>,
+    /// Accept whichever head answers, also a different one after a reconnect.
+    #[arg(long)]
+    any_head: bool,
     /// Scan to start after the handshake: `full`, `none`, or a local segment `FROM..TO` in degrees
     /// (e.g. `-30..30`). Restarted after a reconnect.
     #[arg(long, default_value = "full", value_parser = parse_scan, allow_hyphen_values = true)]
@@ -113,6 +134,16 @@ fn parse_scan(s: &str) -> Result<ScanRequest, String> {
     }
 }
 
+fn parse_head_id(s: &str) -> Result<String, String> {
+    if is_valid_head_id(s) {
+        Ok(s.to_owned())
+    } else {
+        Err(format!(
+            "a head id is 1–{MAX_HEAD_ID_LEN} characters of 0-9 A-Z a-z - _, got {s:?}"
+        ))
+    }
+}
+
 fn local_segment(from_deg: f32, to_deg: f32) -> Result<ScanRequest, String> {
     if !(from_deg.is_finite() && to_deg.is_finite() && from_deg < to_deg) {
         return Err(format!(
@@ -147,6 +178,8 @@ fn main() -> std::process::ExitCode {
 enum SessionEnd {
     Shutdown,
     PortLost(anyhow::Error),
+    /// A different head answered; it is left alone and the port tried again later.
+    WrongHead(String),
 }
 
 fn run(args: Args) -> Result<()> {
@@ -166,9 +199,16 @@ fn run(args: Args) -> Result<()> {
     loop {
         match link.session(&mut port, &node)? {
             SessionEnd::Shutdown => break,
-            SessionEnd::PortLost(e) => {
-                warn!("lost {}: {e:#}", args.port.display());
-                link.set_state(LinkState::Disconnected)?;
+            end @ (SessionEnd::PortLost(_) | SessionEnd::WrongHead(_)) => {
+                if let SessionEnd::WrongHead(why) = end {
+                    tracing::error!("refusing the head on {}: {why}", args.port.display());
+                    link.set_state(LinkState::Refused)?;
+                    // The right head may come back on this path; until then wait as after a loss.
+                    backoff = Duration::from_secs_f64(args.max_backoff);
+                } else if let SessionEnd::PortLost(e) = end {
+                    warn!("lost {}: {e:#}", args.port.display());
+                    link.set_state(LinkState::Disconnected)?;
+                }
                 drop(port);
                 port = loop {
                     if node.wait(backoff).is_err() {
@@ -190,7 +230,7 @@ fn run(args: Args) -> Result<()> {
     }
     if args.dialect == Dialect::Native {
         // Leave the motor idle when nobody is listening any more.
-        let _ = port.write_all(encode_command(&HostCommand::Stop).as_bytes());
+        let _ = port.write_all(encode_command(&HostCommand::Stop, args.protocol).as_bytes());
     }
     link.set_state(LinkState::Disconnected)?;
     info!(
@@ -256,8 +296,13 @@ struct Link {
     commands: Subscriber<Ipc, ScanCommand, ()>,
     status_publisher: Publisher<Ipc, DriverStatus, ()>,
     status: DriverStatus,
+    /// The latest `HELLO` not yet acted on: the handshake's reply, or a reset head's announcement.
     hello: Option<DeviceMessage>,
     version_rejected: bool,
+    version: ProtocolVersion,
+    /// The head this driver serves; `None` until the first handshake (or with `--any-head`).
+    head_id: Option<String>,
+    any_head: bool,
 }
 
 impl Link {
@@ -282,7 +327,8 @@ impl Link {
                 sensor,
                 PingPolicy::default(),
                 args.hobby_angle_offset,
-            ),
+            )
+            .speaking(args.protocol),
             dialect: args.dialect,
             print: args.print,
             scan: args.scan,
@@ -296,7 +342,43 @@ impl Link {
             },
             hello: None,
             version_rejected: false,
+            version: args.protocol,
+            head_id: args.head_id.clone(),
+            any_head: args.any_head,
         })
+    }
+
+    /// Takes a `HELLO`: the first head met becomes the one served; a different one is refused.
+    fn accept_head(&mut self, hello: &DeviceMessage) -> Result<(), String> {
+        let DeviceMessage::Hello {
+            head_id, firmware, ..
+        } = hello
+        else {
+            return Ok(());
+        };
+        if self.version < ProtocolVersion::V2 || self.any_head {
+            return Ok(());
+        }
+        match &self.head_id {
+            Some(served) if served != head_id => Err(format!(
+                "it is head {head_id} ({firmware}), this driver serves head {served} \
+                 (--head-id names the head to serve, --any-head accepts any)"
+            )),
+            Some(_) => Ok(()),
+            None => {
+                info!(head_id, firmware, "serving this head from now on");
+                self.head_id = Some(head_id.clone());
+                Ok(())
+            }
+        }
+    }
+
+    /// Sends the scan the head should be doing, if any.
+    fn command_scan(&mut self, port: &mut TTYPort) -> Result<()> {
+        match self.scan.host_command() {
+            Some(cmd) => send(port, &cmd, self.version),
+            None => Ok(()),
+        }
     }
 
     fn set_state(&mut self, state: LinkState) -> Result<()> {
@@ -336,12 +418,10 @@ impl Link {
                     )));
                 }
                 attempt += 1;
-                if let Err(e) = send(
-                    port,
-                    &HostCommand::Hello {
-                        version: PROTOCOL_VERSION,
-                    },
-                ) {
+                let hello = HostCommand::Hello {
+                    version: self.version.number(),
+                };
+                if let Err(e) = send(port, &hello, self.version) {
                     return Ok(SessionEnd::PortLost(e));
                 }
                 let deadline = Instant::now() + HANDSHAKE_TIMEOUT;
@@ -353,17 +433,30 @@ impl Link {
                         return Ok(SessionEnd::PortLost(e));
                     }
                     if self.version_rejected {
-                        bail!("the device does not speak protocol version {PROTOCOL_VERSION}");
+                        bail!(
+                            "the device does not speak protocol version {} (try --protocol 1 for \
+                             older firmware)",
+                            self.version
+                        );
                     }
                 }
             }
-            if let Some(hello) = &self.hello {
-                info!(?hello, "handshake done");
-                self.decoder.adopt_device_geometry(hello);
+            // A head that announced itself at power-on as we asked answers twice; both are this
+            // handshake.
+            let settle = Instant::now() + HANDSHAKE_SETTLE;
+            while Instant::now() < settle {
+                if let Err(e) = self.read_some(port, &mut framer, &mut buf)? {
+                    return Ok(SessionEnd::PortLost(e));
+                }
             }
-            if let Some(cmd) = self.scan.host_command()
-                && let Err(e) = send(port, &cmd)
-            {
+            if let Some(hello) = self.hello.take() {
+                if let Err(why) = self.accept_head(&hello) {
+                    return Ok(SessionEnd::WrongHead(why));
+                }
+                info!(?hello, "handshake done");
+                self.decoder.adopt_device_geometry(&hello);
+            }
+            if let Err(e) = self.command_scan(port) {
                 return Ok(SessionEnd::PortLost(e));
             }
         }
@@ -379,6 +472,22 @@ impl Link {
             }
             if let Err(e) = self.read_some(port, &mut framer, &mut buf)? {
                 return Ok(SessionEnd::PortLost(e));
+            }
+            if let Some(hello) = self.hello.take() {
+                // Unprompted: the head was reset (power, watchdog, its reset button) and is idle.
+                if let Err(why) = self.accept_head(&hello) {
+                    return Ok(SessionEnd::WrongHead(why));
+                }
+                self.status.head_resets += 1;
+                warn!(
+                    resets = self.status.head_resets,
+                    "the head announced itself: it was reset; sending the scan again"
+                );
+                self.decoder.adopt_device_geometry(&hello);
+                if let Err(e) = self.command_scan(port) {
+                    return Ok(SessionEnd::PortLost(e));
+                }
+                self.publish_status()?;
             }
             if Instant::now() >= next_status {
                 self.publish_status()?;
@@ -446,7 +555,7 @@ impl Link {
         match &msg {
             DeviceMessage::Hello { .. } => self.hello = Some(msg),
             DeviceMessage::Error { code, text } => {
-                if *code == sonar_common::protocol::ErrorCode::Version {
+                if *code == ErrorCode::Version {
                     self.version_rejected = true;
                 }
                 warn!(?code, text, "device reports an error");
@@ -460,8 +569,8 @@ impl Link {
                 self.status.sweep_id = *sweep;
                 self.status.direction = direction.sign();
                 self.status.mode = match mode {
-                    sonar_common::protocol::WireScanMode::Full => ScanMode::Full,
-                    sonar_common::protocol::WireScanMode::Local => ScanMode::Local,
+                    WireScanMode::Full => ScanMode::Full,
+                    WireScanMode::Local => ScanMode::Local,
                 } as u32;
                 debug!(?msg, "sweep start");
             }
@@ -537,13 +646,13 @@ impl Link {
                 }
                 None => HostCommand::Status,
             };
-            send(port, &host)?;
+            send(port, &host, self.version)?;
         }
     }
 }
 
-fn send(port: &mut TTYPort, cmd: &HostCommand) -> Result<()> {
-    port.write_all(encode_command(cmd).as_bytes())
+fn send(port: &mut TTYPort, cmd: &HostCommand, version: ProtocolVersion) -> Result<()> {
+    port.write_all(encode_command(cmd, version).as_bytes())
         .and_then(|()| port.flush())
         .with_context(|| format!("write {cmd:?}"))
 }

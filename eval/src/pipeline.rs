@@ -102,9 +102,12 @@ pub fn capture(scene: Scene, scan: Scan, sweeps: u32, seed: u64) -> Result<Captu
     // The driver's session: HELLO, adopt the device's geometry, request the scan.
     let mut out = Vec::new();
     device.receive(
-        encode_command(&HostCommand::Hello {
-            version: PROTOCOL_VERSION,
-        })
+        encode_command(
+            &HostCommand::Hello {
+                version: PROTOCOL_VERSION.number(),
+            },
+            PROTOCOL_VERSION,
+        )
         .as_bytes(),
         &mut out,
     );
@@ -115,7 +118,10 @@ pub fn capture(scene: Scene, scan: Scan, sweeps: u32, seed: u64) -> Result<Captu
         .context("the simulated device did not answer HELLO")?;
     host.decoder.adopt_device_geometry(&hello);
     out.clear();
-    device.receive(encode_command(&scan.command()).as_bytes(), &mut out);
+    device.receive(
+        encode_command(&scan.command(), PROTOCOL_VERSION).as_bytes(),
+        &mut out,
+    );
     host.feed(&out, device.now_us())?;
     if let Some(err) = &host.device_error {
         bail!("the device refused the scan {scan:?}: {err}");

@@ -234,7 +234,14 @@ impl Pipeline {
             None => {
                 let link =
                     std::env::temp_dir().join(format!("sonar-pipeline-{}.pty", std::process::id()));
-                let mut sim = vec!["--link".to_owned(), link.display().to_string()];
+                // One head identity for the pipeline's life: a restarted simulator plays the same
+                // head, which the driver accepts; another pipeline's simulator is another head.
+                let mut sim = vec![
+                    "--link".to_owned(),
+                    link.display().to_string(),
+                    "--head-id".to_owned(),
+                    format!("sim-{}", std::process::id()),
+                ];
                 push_opt(
                     &mut sim,
                     "--scene",

@@ -8,12 +8,14 @@
 
 use sonar_common::protocol::{
     DeviceMessage, DeviceState, Direction, ErrorCode, HostCommand, Limit, MAX_PINGS_PER_READING,
-    PROTOCOL_VERSION, ParseError, WireReading, WireScanMode, parse_command,
+    PROTOCOL_VERSION, ParseError, ProtocolVersion, WireReading, WireScanMode, parse_command,
 };
 use sonar_common::sensor::{SensorConfig, SensorConfigError};
 
 /// The firmware's name in the `HELLO` reply.
 pub const FIRMWARE_ID: &str = concat!("sonar-sim ", env!("CARGO_PKG_VERSION"));
+/// The head identity of a [`Firmware`] not given one with [`Firmware::speaking`].
+pub const DEFAULT_HEAD_ID: &str = "sonar-sim";
 
 /// The ranging sensor as the firmware sees it.
 pub trait Transducer {
@@ -88,6 +90,8 @@ pub struct Firmware<T> {
     echoes: [u32; MAX_PINGS_PER_READING],
     commands: u64,
     rejected_lines: u64,
+    version: ProtocolVersion,
+    head_id: String,
 }
 
 impl<T: Transducer> Firmware<T> {
@@ -119,7 +123,41 @@ impl<T: Transducer> Firmware<T> {
             echoes: [0; MAX_PINGS_PER_READING],
             commands: 0,
             rejected_lines: 0,
+            version: PROTOCOL_VERSION,
+            head_id: DEFAULT_HEAD_ID.to_owned(),
         })
+    }
+
+    /// The protocol version this head speaks (only that one) and the identity it announces.
+    pub fn speaking(mut self, version: ProtocolVersion, head_id: &str) -> Self {
+        self.version = version;
+        self.head_id = head_id.to_owned();
+        self
+    }
+
+    pub fn version(&self) -> ProtocolVersion {
+        self.version
+    }
+
+    /// What the head prints at power-on: a version-2 head announces itself with its `HELLO`, so a
+    /// driver that is already connected learns that the head was reset.
+    pub fn power_on(&self, out: &mut Vec<DeviceMessage>) {
+        if self.version >= ProtocolVersion::V2 {
+            out.push(self.hello());
+        }
+    }
+
+    fn hello(&self) -> DeviceMessage {
+        let (min_cdeg, max_cdeg) = self.limits_cdeg();
+        DeviceMessage::Hello {
+            version: self.version.number(),
+            firmware: FIRMWARE_ID.into(),
+            head_id: self.head_id.clone(),
+            step_cdeg: cdeg(self.cfg.step_deg.into()).unsigned_abs(),
+            pings_per_reading: u32::from(self.cfg.pings_per_reading),
+            min_cdeg,
+            max_cdeg,
+        }
     }
 
     /// Simulated time, µs since power-on.
@@ -161,7 +199,7 @@ impl<T: Transducer> Firmware<T> {
 
     /// One line from the host, terminator optional.
     pub fn handle_line(&mut self, line: &[u8], out: &mut Vec<DeviceMessage>) {
-        match parse_command(line) {
+        match parse_command(line, self.version) {
             Ok(cmd) => self.handle_command(cmd, out),
             Err(e) => {
                 self.rejected_lines += 1;
@@ -192,20 +230,15 @@ impl<T: Transducer> Firmware<T> {
             command: command.into(),
         };
         match cmd {
-            HostCommand::Hello { version } if version == PROTOCOL_VERSION => {
-                let (min_cdeg, max_cdeg) = self.limits_cdeg();
-                out.push(DeviceMessage::Hello {
-                    version: PROTOCOL_VERSION,
-                    firmware: FIRMWARE_ID.into(),
-                    step_cdeg: cdeg(self.cfg.step_deg.into()).unsigned_abs(),
-                    pings_per_reading: u32::from(self.cfg.pings_per_reading),
-                    min_cdeg,
-                    max_cdeg,
-                })
+            HostCommand::Hello { version } if version == self.version.number() => {
+                out.push(self.hello())
             }
             HostCommand::Hello { version } => out.push(DeviceMessage::Error {
                 code: ErrorCode::Version,
-                text: format!("host speaks version {version}; device speaks {PROTOCOL_VERSION}"),
+                text: format!(
+                    "host speaks version {version}; device speaks {}",
+                    self.version.number()
+                ),
             }),
             HostCommand::FullScan => {
                 out.push(ack("SCAN"));
@@ -474,7 +507,7 @@ fn cdeg(deg: f64) -> i32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use sonar_common::protocol::{checksum, encode_command};
+    use sonar_common::protocol::encode_command;
 
     /// Records where it was aimed; always hears something 1 m away.
     #[derive(Debug, Default)]
@@ -495,7 +528,7 @@ mod tests {
 
     fn command(fw: &mut Firmware<Probe>, cmd: HostCommand) -> Vec<DeviceMessage> {
         let mut out = Vec::new();
-        fw.handle_line(encode_command(&cmd).as_bytes(), &mut out);
+        fw.handle_line(encode_command(&cmd, PROTOCOL_VERSION).as_bytes(), &mut out);
         out
     }
 
@@ -521,20 +554,29 @@ mod tests {
     }
 
     #[test]
-    fn handshake_reports_the_geometry_or_refuses_the_version() {
-        let mut fw = firmware();
+    fn handshake_reports_identity_and_geometry_or_refuses_the_version() {
+        let mut fw = firmware().speaking(ProtocolVersion::V2, "HEAD-7");
+        let hello = DeviceMessage::Hello {
+            version: 2,
+            firmware: FIRMWARE_ID.into(),
+            head_id: "HEAD-7".into(),
+            step_cdeg: 150,
+            pings_per_reading: 4,
+            min_cdeg: -15000,
+            max_cdeg: 15000,
+        };
         assert_eq!(
-            command(&mut fw, HostCommand::Hello { version: 1 }),
-            [DeviceMessage::Hello {
-                version: 1,
-                firmware: FIRMWARE_ID.into(),
-                step_cdeg: 150,
-                pings_per_reading: 4,
-                min_cdeg: -15000,
-                max_cdeg: 15000,
-            }]
+            command(&mut fw, HostCommand::Hello { version: 2 }),
+            std::slice::from_ref(&hello)
         );
-        let reply = command(&mut fw, HostCommand::Hello { version: 2 });
+        let mut boot = Vec::new();
+        fw.power_on(&mut boot);
+        assert_eq!(
+            boot,
+            [hello],
+            "a version-2 head announces itself at power-on"
+        );
+        let reply = command(&mut fw, HostCommand::Hello { version: 1 });
         assert!(matches!(
             &reply[..],
             [DeviceMessage::Error {
@@ -543,6 +585,36 @@ mod tests {
             }]
         ));
         assert!(!fw.is_busy());
+    }
+
+    #[test]
+    fn a_version_1_head_speaks_only_version_1() {
+        let mut fw = firmware().speaking(ProtocolVersion::V1, "ignored");
+        let mut boot = Vec::new();
+        fw.power_on(&mut boot);
+        assert!(boot.is_empty(), "version 1 has no unprompted HELLO");
+        let mut out = Vec::new();
+        let hello = HostCommand::Hello { version: 1 };
+        fw.handle_line(
+            encode_command(&hello, ProtocolVersion::V1).as_bytes(),
+            &mut out,
+        );
+        assert!(
+            matches!(&out[..], [DeviceMessage::Hello { version: 1, .. }]),
+            "{out:?}"
+        );
+        out.clear();
+        fw.handle_line(
+            encode_command(&hello, ProtocolVersion::V2).as_bytes(),
+            &mut out,
+        );
+        assert!(matches!(
+            &out[..],
+            [DeviceMessage::Error {
+                code: ErrorCode::Syntax,
+                ..
+            }]
+        ));
     }
 
     #[test]
@@ -782,8 +854,14 @@ mod tests {
     #[test]
     fn bad_lines_are_answered_with_errors() {
         let mut fw = firmware();
-        let bad_checksum = encode_command(&HostCommand::FullScan).replace("FULL", "FULM");
-        let framed = |body: &str| format!("${body}*{:02X}", checksum(body.as_bytes()));
+        let bad_checksum =
+            encode_command(&HostCommand::FullScan, PROTOCOL_VERSION).replace("FULL", "FULM");
+        let framed = |body: &str| {
+            format!(
+                "${body}*{:04X}",
+                sonar_common::protocol::crc16_ccitt_false(body.as_bytes())
+            )
+        };
         let mut out = Vec::new();
         for line in [
             bad_checksum,

@@ -9,6 +9,9 @@ use std::sync::atomic::AtomicBool;
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, ValueEnum};
+use sonar_common::protocol::{
+    MAX_HEAD_ID_LEN, PROTOCOL_VERSION, ProtocolVersion, is_valid_head_id,
+};
 use sonar_common::sensor::SensorConfig;
 use sonar_sim::{
     Device, EchoModel, Firmware, HobbySketch, NativeDevice, Pty, Scene, Speed, Timing, serve,
@@ -61,6 +64,24 @@ struct Args {
     /// Simulated duration of one 1.5° stepper step, in ms.
     #[arg(long, default_value_t = Timing::default().step_time_ms)]
     step_time_ms: u32,
+    /// Protocol version the head speaks (1: XOR checksum, no identity; 2: CRC-16 and identity).
+    #[arg(long = "protocol", default_value_t = PROTOCOL_VERSION)]
+    protocol: ProtocolVersion,
+    /// The head's identity in its HELLO (1–32 of 0-9 A-Z a-z - _) [default: made at random, so
+    /// two simulators are two heads; give the same one to a restarted simulator that plays the
+    /// same head].
+    #[arg(long, value_parser = parse_head_id)]
+    head_id: Option<String>,
+}
+
+fn parse_head_id(s: &str) -> Result<String, String> {
+    if is_valid_head_id(s) {
+        Ok(s.to_owned())
+    } else {
+        Err(format!(
+            "a head id is 1–{MAX_HEAD_ID_LEN} characters of 0-9 A-Z a-z - _, got {s:?}"
+        ))
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -130,7 +151,16 @@ fn run(args: Args) -> Result<()> {
     let suggested = scene.scan;
     let model = EchoModel::new(scene, sensor, args.seed)?;
     let mut device: Box<dyn Device> = match args.dialect {
-        Dialect::Native => Box::new(NativeDevice::new(Firmware::new(sensor, timing, model)?)),
+        Dialect::Native => {
+            let head_id = args
+                .head_id
+                .clone()
+                .unwrap_or_else(|| format!("{:016X}", rand::random::<u64>()));
+            info!(head_id, protocol = %args.protocol, "head identity");
+            Box::new(NativeDevice::new(
+                Firmware::new(sensor, timing, model)?.speaking(args.protocol, &head_id),
+            ))
+        }
         Dialect::Hobby => Box::new(HobbySketch::new(model, sensor.echo_timeout_us)),
     };
 

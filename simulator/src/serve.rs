@@ -70,6 +70,12 @@ impl Pty {
     pub fn path(&self) -> &Path {
         &self.path
     }
+
+    /// The master side (non-blocking): what the device reads the host's bytes from and writes its
+    /// own to. For devices served by another loop, such as the firmware-in-the-loop simulator.
+    pub fn master(&self) -> &File {
+        &self.master
+    }
 }
 
 /// How fast simulated time runs against wall time (`Max`: as fast as the host reads).
@@ -77,6 +83,8 @@ pub use sonar_common::speed::Speed;
 
 /// Something that talks over the line: the native firmware or the hobby sketch.
 pub trait Device {
+    /// What it prints when powered on (complete lines).
+    fn power_on(&mut self, out: &mut Vec<String>);
     /// Bytes from the host; appends the replies (complete lines).
     fn receive(&mut self, bytes: &[u8], out: &mut Vec<String>);
     /// Performs the next timed action and appends what it prints; false when idle.
@@ -107,11 +115,17 @@ impl<T: Transducer> NativeDevice<T> {
     }
 
     fn flush(&mut self, out: &mut Vec<String>) {
-        out.extend(self.msgs.drain(..).map(|m| encode_device(&m)));
+        let version = self.firmware.version();
+        out.extend(self.msgs.drain(..).map(|m| encode_device(&m, version)));
     }
 }
 
 impl<T: Transducer> Device for NativeDevice<T> {
+    fn power_on(&mut self, out: &mut Vec<String>) {
+        self.firmware.power_on(&mut self.msgs);
+        self.flush(out);
+    }
+
     fn receive(&mut self, bytes: &[u8], out: &mut Vec<String>) {
         let Self {
             firmware,
@@ -152,6 +166,8 @@ impl<T: Transducer> Device for NativeDevice<T> {
 }
 
 impl<T: Transducer> Device for HobbySketch<T> {
+    fn power_on(&mut self, _out: &mut Vec<String>) {}
+
     fn receive(&mut self, bytes: &[u8], _out: &mut Vec<String>) {
         debug!(bytes = bytes.len(), "the hobby sketch reads no input");
     }
@@ -309,6 +325,10 @@ pub fn serve(
         sim0_us: device.now_us(),
     };
     let mut out = Vec::new();
+    device.power_on(&mut out);
+    for l in &out {
+        line.write_line(l)?;
+    }
     let mut input = Vec::new();
     while !stop.load(Ordering::Relaxed) {
         out.clear();

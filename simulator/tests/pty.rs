@@ -8,7 +8,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::time::Duration;
 
-use sonar_common::protocol::{DeviceMessage, HostCommand, encode_command, parse_device};
+use sonar_common::protocol::{
+    DeviceMessage, HostCommand, PROTOCOL_VERSION, encode_command, parse_device,
+};
 use sonar_common::sensor::SensorConfig;
 use sonar_sim::{EchoModel, Firmware, NativeDevice, Pty, Scene, Speed, Timing, serve};
 
@@ -43,22 +45,30 @@ fn a_host_on_the_slave_gets_the_handshake_and_readings() {
             }
         }
     });
-    let commands =
-        [HostCommand::Hello { version: 1 }, HostCommand::FullScan].map(|c| encode_command(&c));
+    let commands = [HostCommand::Hello { version: 2 }, HostCommand::FullScan]
+        .map(|c| encode_command(&c, PROTOCOL_VERSION));
     for cmd in &commands {
         port.write_all(cmd.as_bytes()).unwrap();
     }
 
-    let next = || parse_device(&rx.recv_timeout(PATIENCE).expect("device went silent"));
-    assert!(matches!(
-        next(),
-        Ok(DeviceMessage::Hello {
-            version: 1,
-            step_cdeg: 150,
-            pings_per_reading: 4,
-            ..
-        })
-    ));
+    let next = || {
+        parse_device(
+            &rx.recv_timeout(PATIENCE).expect("device went silent"),
+            PROTOCOL_VERSION,
+        )
+    };
+    // The head announces itself at power-on, then answers the handshake.
+    for _ in 0..2 {
+        assert!(matches!(
+            next(),
+            Ok(DeviceMessage::Hello {
+                version: 2,
+                step_cdeg: 150,
+                pings_per_reading: 4,
+                ..
+            })
+        ));
+    }
     assert_eq!(
         next(),
         Ok(DeviceMessage::Ack {

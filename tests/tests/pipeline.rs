@@ -12,7 +12,9 @@ use sonar_common::ipc::{
     self, DriverStatus, FusionCommand, FusionCommandKind, GridHeader, LinkState, Reading,
     ScanCommand, ScanCommandKind, ScanMode, flags,
 };
-use sonar_common::protocol::{DeviceMessage, Direction, WireReading, encode_device};
+use sonar_common::protocol::{
+    DeviceMessage, Direction, PROTOCOL_VERSION, WireReading, encode_device,
+};
 use sonar_e2e::{PATIENCE, Sandbox, collect_until};
 
 fn readings_subscriber(
@@ -29,6 +31,68 @@ fn receive_reading(
     sub: &iceoryx2::port::subscriber::Subscriber<iceoryx2::service::ipc::Service, Reading, ()>,
 ) -> Option<Reading> {
     sub.receive().unwrap().map(|s| *s.payload())
+}
+
+/// The test plays the microcontroller on a pseudo-terminal of its own.
+struct FakeHead {
+    master: std::fs::File,
+    /// Held open so the master never reads EIO while the driver reopens the slave.
+    _slave: std::os::fd::OwnedFd,
+    slave_path: String,
+    heard: String,
+}
+
+impl FakeHead {
+    fn new() -> Self {
+        let pty = openpty(None, None).unwrap();
+        let slave_path = nix::unistd::ttyname(pty.slave.as_fd()).unwrap();
+        let mut tio = nix::sys::termios::tcgetattr(pty.slave.as_fd()).unwrap();
+        nix::sys::termios::cfmakeraw(&mut tio);
+        nix::sys::termios::tcsetattr(pty.slave.as_fd(), nix::sys::termios::SetArg::TCSANOW, &tio)
+            .unwrap();
+        Self {
+            master: std::fs::File::from(pty.master),
+            _slave: pty.slave,
+            slave_path: slave_path.to_str().unwrap().to_owned(),
+            heard: String::new(),
+        }
+    }
+
+    /// Reads what the driver sends until `text` has come `times` times in all.
+    fn hear(&mut self, text: &str, times: usize) {
+        let deadline = Instant::now() + PATIENCE;
+        while self.heard.matches(text).count() < times {
+            assert!(
+                Instant::now() < deadline,
+                "waited for {times}× {text:?}, heard {:?}",
+                self.heard
+            );
+            let mut fds = [PollFd::new(self.master.as_fd(), PollFlags::POLLIN)];
+            if poll(&mut fds, PollTimeout::from(100u16)).unwrap() > 0 {
+                let mut buf = [0u8; 256];
+                let n = self.master.read(&mut buf).unwrap();
+                self.heard.push_str(&String::from_utf8_lossy(&buf[..n]));
+            }
+        }
+    }
+
+    fn say(&mut self, msg: &DeviceMessage) {
+        self.master
+            .write_all(encode_device(msg, PROTOCOL_VERSION).as_bytes())
+            .unwrap();
+    }
+}
+
+fn hello_from(head_id: &str) -> DeviceMessage {
+    DeviceMessage::Hello {
+        version: 2,
+        firmware: "test-device".into(),
+        head_id: head_id.into(),
+        step_cdeg: 150,
+        pings_per_reading: 4,
+        min_cdeg: -15000,
+        max_cdeg: 15000,
+    }
 }
 
 fn sweeps_of(readings: &[Reading], sweep: u32) -> Vec<Reading> {
@@ -243,6 +307,33 @@ fn the_hobby_radar_dialect_works_unchanged() {
     assert!(sweeps.len() >= 2, "direction reversals start new sweeps");
 }
 
+/// A head with version-1 firmware (XOR checksum, no identity) still works behind `--protocol 1`;
+/// the default version-2 driver does not mistake it for a version-2 head.
+#[test]
+fn version_1_heads_work_behind_the_option() {
+    let sandbox = Sandbox::new("v1");
+    let node = sandbox.node("test-consumer");
+    let sub = readings_subscriber(&node);
+    let (_sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100", "--protocol", "1"]);
+    let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--protocol", "1"]);
+    let readings = collect_until(&node, || receive_reading(&sub), |got| got.len() >= 10);
+    assert!(readings.iter().all(|r| r.ping_count == 4), "{readings:?}");
+    assert!(driver.terminate().success());
+    while receive_reading(&sub).is_some() {}
+
+    let (_sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100", "--protocol", "1"]);
+    let status = ipc::driver_status_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let _driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--max-backoff", "0.5"]);
+    // Each v2 HELLO is answered in v1 framing, which the v2 driver rejects: it never connects.
+    let s = wait_for_status(&node, &status, |s| s.lines_rejected >= 2);
+    assert_ne!(s.link_state, LinkState::Connected as u32);
+    assert!(receive_reading(&sub).is_none());
+}
+
 /// The test plays the microcontroller on a pseudo-terminal of its own and sends the driver every
 /// kind of damage a serial line does.
 #[test]
@@ -255,54 +346,40 @@ fn garbage_on_the_line_is_counted_and_never_published() {
         .subscriber_builder()
         .create()
         .unwrap();
-    let pty = openpty(None, None).unwrap();
-    let slave_path = nix::unistd::ttyname(pty.slave.as_fd()).unwrap();
-    let mut tio = nix::sys::termios::tcgetattr(pty.slave.as_fd()).unwrap();
-    nix::sys::termios::cfmakeraw(&mut tio);
-    nix::sys::termios::tcsetattr(pty.slave.as_fd(), nix::sys::termios::SetArg::TCSANOW, &tio)
-        .unwrap();
-    let mut master = std::fs::File::from(pty.master);
+    let mut head = FakeHead::new();
     let _driver = sandbox.spawn(
         "sonar-driver",
-        &["--port", slave_path.to_str().unwrap(), "--scan", "none"],
+        &["--port", &head.slave_path, "--scan", "none"],
     );
 
     // Answer the handshake.
-    let mut heard = String::new();
-    let deadline = Instant::now() + PATIENCE;
-    while !heard.contains("$HELLO,1*") {
-        assert!(Instant::now() < deadline, "no handshake, heard {heard:?}");
-        let mut fds = [PollFd::new(master.as_fd(), PollFlags::POLLIN)];
-        if poll(&mut fds, PollTimeout::from(100u16)).unwrap() > 0 {
-            let mut buf = [0u8; 256];
-            let n = master.read(&mut buf).unwrap();
-            heard.push_str(&String::from_utf8_lossy(&buf[..n]));
-        }
-    }
-    let hello = DeviceMessage::Hello {
-        version: 1,
-        firmware: "test-device".into(),
-        step_cdeg: 150,
-        pings_per_reading: 4,
-        min_cdeg: -15000,
-        max_cdeg: 15000,
-    };
-    master.write_all(encode_device(&hello).as_bytes()).unwrap();
+    head.hear("$HELLO,2*", 1);
+    head.say(&hello_from("TEST-HEAD"));
     wait_for_status(&node, &status, |s| {
         s.link_state == LinkState::Connected as u32
     });
 
     let t = 5831; // ≈ 1.00 m at 20 °C
     let good = |seq: u32, angle_cdeg: i32| {
-        encode_device(&DeviceMessage::Reading(WireReading {
-            seq,
-            time_ms: 1000 + seq,
-            sweep: 1,
-            direction: Direction::Ccw,
-            angle_cdeg,
-            ping_count: 4,
-            echo_us: [t, t, t, t, 0, 0, 0, 0],
-        }))
+        encode_device(
+            &DeviceMessage::Reading(WireReading {
+                seq,
+                time_ms: 1000 + seq,
+                sweep: 1,
+                direction: Direction::Ccw,
+                angle_cdeg,
+                ping_count: 4,
+                echo_us: [t, t, t, t, 0, 0, 0, 0],
+            }),
+            PROTOCOL_VERSION,
+        )
+    };
+    // Two bits flipped in the same position of two digits: version 1's XOR passed these.
+    let double_flip = {
+        let mut line = good(93, 9900).into_bytes();
+        line[7] ^= 0x04;
+        line[12] ^= 0x04;
+        String::from_utf8(line).unwrap()
     };
     let mut stream = Vec::new();
     stream.extend_from_slice(b"hello world\n"); // no frame
@@ -313,9 +390,10 @@ fn garbage_on_the_line_is_counted_and_never_published() {
     stream.push(b'\n');
     stream.extend_from_slice(b"\x00\xff\xfe$RD*\n"); // binary noise
     stream.extend_from_slice(good(0, -300).as_bytes());
-    stream.extend_from_slice(b"$RD,1,2,3,+,100,1*00\n"); // bad checksum, wrong fields
+    stream.extend_from_slice(b"$RD,1,2,3,+,100,1*0000\n"); // bad checksum, wrong fields
+    stream.extend_from_slice(double_flip.as_bytes());
     stream.extend_from_slice(good(1, 300).as_bytes());
-    master.write_all(&stream).unwrap();
+    head.master.write_all(&stream).unwrap();
 
     let readings = collect_until(&node, || receive_reading(&sub), |got| got.len() >= 2);
     assert_eq!(readings[0].device_seq, 0);
@@ -326,12 +404,66 @@ fn garbage_on_the_line_is_counted_and_never_published() {
         assert!((r.distance_m - 1.0).abs() < 0.005, "{r:?}");
         assert_eq!(r.flags, 0);
     }
-    let last = wait_for_status(&node, &status, |s| s.lines_rejected >= 6);
-    assert_eq!(last.lines_rejected, 6);
+    let last = wait_for_status(&node, &status, |s| s.lines_rejected >= 7);
+    assert_eq!(last.lines_rejected, 7);
     assert_eq!(last.lines_ok, 3); // HELLO and two readings
     // Nothing else was published.
     std::thread::sleep(Duration::from_millis(200));
     assert!(receive_reading(&sub).is_none());
+}
+
+/// A head that announces itself while connected was reset: the driver sends its scan again. A
+/// different head on the same port is refused, and never commanded.
+#[test]
+fn a_reset_head_is_sent_its_scan_again_and_a_different_head_is_refused() {
+    let sandbox = Sandbox::new("reset");
+    let node = sandbox.node("test-device");
+    let status = ipc::driver_status_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let mut head = FakeHead::new();
+    let _driver = sandbox.spawn(
+        "sonar-driver",
+        &[
+            "--port",
+            &head.slave_path,
+            "--scan",
+            "full",
+            "--max-backoff",
+            "0.5",
+        ],
+    );
+    head.hear("$HELLO,2*", 1);
+    head.say(&hello_from("HEAD-A"));
+    head.hear("$SCAN,FULL*", 1);
+    wait_for_status(&node, &status, |s| {
+        s.link_state == LinkState::Connected as u32
+    });
+
+    head.say(&hello_from("HEAD-A"));
+    head.hear("$SCAN,FULL*", 2);
+    let s = wait_for_status(&node, &status, |s| s.head_resets == 1);
+    assert_eq!(s.link_state, LinkState::Connected as u32);
+
+    head.say(&hello_from("HEAD-B"));
+    wait_for_status(&node, &status, |s| {
+        s.link_state == LinkState::Refused as u32
+    });
+    // The driver tries the port again and asks who is there; it never commands the stranger.
+    head.hear("$HELLO,2*", 2);
+    head.say(&hello_from("HEAD-B"));
+    std::thread::sleep(Duration::from_millis(500));
+    head.hear("$SCAN,FULL*", 2);
+    assert_eq!(head.heard.matches("$SCAN,").count(), 2, "{}", head.heard);
+    // Its own head comes back on the port: accepted, scanning again.
+    head.hear("$HELLO,2*", 3);
+    head.say(&hello_from("HEAD-A"));
+    head.hear("$SCAN,FULL*", 3);
+    wait_for_status(&node, &status, |s| {
+        s.link_state == LinkState::Connected as u32
+    });
 }
 
 #[test]
@@ -346,7 +478,17 @@ fn the_driver_reconnects_when_the_port_comes_back() {
         .subscriber_builder()
         .create()
         .unwrap();
-    let sim_args = ["--scene", "room", "--speed", "100", "--link", &link_str];
+    // The same head comes back, so it keeps its identity.
+    let sim_args = [
+        "--scene",
+        "room",
+        "--speed",
+        "100",
+        "--link",
+        &link_str,
+        "--head-id",
+        "HEAD-A",
+    ];
     let (sim, _) = sandbox.spawn_sim(&sim_args);
     let _driver = sandbox.spawn(
         "sonar-driver",

@@ -508,9 +508,13 @@ fn status_lines(app: &App, now: Instant) -> Vec<Line<'static>> {
         let link = match s.link_state {
             x if x == LinkState::Connected as u32 => "connected",
             x if x == LinkState::Disconnected as u32 => "port lost",
+            x if x == LinkState::Refused as u32 => "wrong head on the port",
             _ => "connecting",
         };
         driver.push(text(format!(" · {link}")));
+        if s.head_resets > 0 {
+            driver.push(text(format!(" · head reset ×{}", s.head_resets)));
+        }
     }
     lines.push(row("driver", driver));
     lines.push(row(
