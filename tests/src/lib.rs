@@ -10,11 +10,12 @@ use std::path::PathBuf;
 use std::process::{Child, ChildStdout, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
+use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
-use sonar_common::ipc::IpcArgs;
+use sonar_common::ipc::{self, DriverStatus, IpcArgs, Reading};
 
 /// Generous bound for anything a test waits for; only there so a broken build fails instead of
 /// hanging CI. No test asserts on how fast something happens.
@@ -157,18 +158,24 @@ impl Sandbox {
 
     /// Starts the simulator and returns it with the path of its pseudo-terminal.
     pub fn spawn_sim(&self, args: &[&str]) -> (Proc, String) {
-        let mut sim = Proc {
-            name: "sonar-sim".into(),
+        self.spawn_head("sonar-sim", args)
+    }
+
+    /// Starts a sensor head behind a pseudo-terminal (`sonar-sim` or `sonar-firmware-sim`, which
+    /// both print `PTY <path>` first) and returns it with that path.
+    pub fn spawn_head(&self, name: &str, args: &[&str]) -> (Proc, String) {
+        let mut head = Proc {
+            name: name.into(),
             child: self
-                .command("sonar-sim")
+                .command(name)
                 .args(args)
                 .stdout(Stdio::piped())
                 .stderr(Stdio::inherit())
                 .spawn()
-                .expect("start sonar-sim"),
+                .unwrap_or_else(|e| panic!("start {name}: {e}")),
         };
-        let pty = read_pty_line(sim.child.stdout.take().expect("sim stdout"));
-        (sim, pty)
+        let pty = read_pty_line(head.child.stdout.take().expect("head stdout"));
+        (head, pty)
     }
 
     /// Runs a workspace binary in this namespace to its end; its status and output.
@@ -386,4 +393,40 @@ impl Tmux {
 /// A temporary path as the `&str` a command line takes.
 pub fn path_str(p: &std::path::Path) -> &str {
     p.to_str().expect("temp paths are UTF-8")
+}
+
+/// A subscriber to `sonar/readings`; subscribe before the driver starts to miss nothing.
+pub fn readings_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, Reading, ()> {
+    ipc::readings_service(node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap()
+}
+
+pub fn receive_reading(sub: &Subscriber<Ipc, Reading, ()>) -> Option<Reading> {
+    sub.receive().unwrap().map(|s| *s.payload())
+}
+
+/// A subscriber to `sonar/driver_status`.
+pub fn driver_status_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, DriverStatus, ()> {
+    ipc::driver_status_service(node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap()
+}
+
+/// Waits for a driver status that satisfies `pred` and returns it.
+pub fn wait_for_status(
+    node: &Node<Ipc>,
+    sub: &Subscriber<Ipc, DriverStatus, ()>,
+    pred: impl Fn(&DriverStatus) -> bool,
+) -> DriverStatus {
+    let got = collect_until(
+        node,
+        || sub.receive().unwrap().map(|s| *s.payload()),
+        |got| got.last().is_some_and(&pred),
+    );
+    *got.last().unwrap()
 }

@@ -9,29 +9,16 @@ use std::time::{Duration, Instant};
 use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
 use nix::pty::openpty;
 use sonar_common::ipc::{
-    self, DriverStatus, FusionCommand, FusionCommandKind, GridHeader, LinkState, Reading,
-    ScanCommand, ScanCommandKind, ScanMode, flags,
+    self, FusionCommand, FusionCommandKind, GridHeader, LinkState, Reading, ScanCommand,
+    ScanCommandKind, ScanMode, flags,
 };
 use sonar_common::protocol::{
     DeviceMessage, Direction, PROTOCOL_VERSION, WireReading, encode_device,
 };
-use sonar_e2e::{PATIENCE, Sandbox, collect_until};
-
-fn readings_subscriber(
-    node: &iceoryx2::prelude::Node<iceoryx2::service::ipc::Service>,
-) -> iceoryx2::port::subscriber::Subscriber<iceoryx2::service::ipc::Service, Reading, ()> {
-    ipc::readings_service(node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap()
-}
-
-fn receive_reading(
-    sub: &iceoryx2::port::subscriber::Subscriber<iceoryx2::service::ipc::Service, Reading, ()>,
-) -> Option<Reading> {
-    sub.receive().unwrap().map(|s| *s.payload())
-}
+use sonar_e2e::{
+    PATIENCE, Sandbox, collect_until, driver_status_subscriber, readings_subscriber,
+    receive_reading, wait_for_status,
+};
 
 /// The test plays the microcontroller on a pseudo-terminal of its own.
 struct FakeHead {
@@ -196,11 +183,7 @@ fn a_missing_port_is_a_clear_error() {
 fn a_busy_port_is_a_clear_error() {
     let sandbox = Sandbox::new("busy");
     let node = sandbox.node("test-consumer");
-    let status = ipc::driver_status_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let status = driver_status_subscriber(&node);
     let (_sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "max"]);
     let _first = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "none"]);
     wait_for_status(&node, &status, |s| {
@@ -214,29 +197,12 @@ fn a_busy_port_is_a_clear_error() {
     assert!(stderr.contains("busy"), "{stderr}");
 }
 
-fn wait_for_status(
-    node: &iceoryx2::prelude::Node<iceoryx2::service::ipc::Service>,
-    sub: &iceoryx2::port::subscriber::Subscriber<iceoryx2::service::ipc::Service, DriverStatus, ()>,
-    pred: impl Fn(&DriverStatus) -> bool,
-) -> DriverStatus {
-    let got = collect_until(
-        node,
-        || sub.receive().unwrap().map(|s| *s.payload()),
-        |got| got.last().is_some_and(&pred),
-    );
-    *got.last().unwrap()
-}
-
 #[test]
 fn a_scan_command_from_any_process_starts_a_local_scan() {
     let sandbox = Sandbox::new("local");
     let node = sandbox.node("test-commander");
     let sub = readings_subscriber(&node);
-    let status = ipc::driver_status_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let status = driver_status_subscriber(&node);
     let (_sim, pty) = sandbox.spawn_sim(&["--scene", "obstacle", "--speed", "max"]);
     let _driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "none"]);
     wait_for_status(&node, &status, |s| {
@@ -322,11 +288,7 @@ fn version_1_heads_work_behind_the_option() {
     while receive_reading(&sub).is_some() {}
 
     let (_sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100", "--protocol", "1"]);
-    let status = ipc::driver_status_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let status = driver_status_subscriber(&node);
     let _driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--max-backoff", "0.5"]);
     // Each v2 HELLO is answered in v1 framing, which the v2 driver rejects: it never connects.
     let s = wait_for_status(&node, &status, |s| s.lines_rejected >= 2);
@@ -341,11 +303,7 @@ fn garbage_on_the_line_is_counted_and_never_published() {
     let sandbox = Sandbox::new("garbage");
     let node = sandbox.node("test-device");
     let sub = readings_subscriber(&node);
-    let status = ipc::driver_status_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let status = driver_status_subscriber(&node);
     let mut head = FakeHead::new();
     let _driver = sandbox.spawn(
         "sonar-driver",
@@ -418,11 +376,7 @@ fn garbage_on_the_line_is_counted_and_never_published() {
 fn a_reset_head_is_sent_its_scan_again_and_a_different_head_is_refused() {
     let sandbox = Sandbox::new("reset");
     let node = sandbox.node("test-device");
-    let status = ipc::driver_status_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let status = driver_status_subscriber(&node);
     let mut head = FakeHead::new();
     let _driver = sandbox.spawn(
         "sonar-driver",
@@ -473,11 +427,7 @@ fn the_driver_reconnects_when_the_port_comes_back() {
     let link_str = link.to_str().unwrap().to_owned();
     let node = sandbox.node("test-consumer");
     let sub = readings_subscriber(&node);
-    let status = ipc::driver_status_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let status = driver_status_subscriber(&node);
     // The same head comes back, so it keeps its identity.
     let sim_args = [
         "--scene",
@@ -535,11 +485,7 @@ fn a_python_consumer_reads_the_documented_layout() {
     );
     let sandbox = Sandbox::new("python");
     let node = sandbox.node("test-consumer");
-    let status = ipc::driver_status_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let status = driver_status_subscriber(&node);
     let (_sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "20"]);
     let _driver = sandbox.spawn("sonar-driver", &["--port", &pty]);
     wait_for_status(&node, &status, |s| {

@@ -11,19 +11,11 @@ use iceoryx2::service::ipc::Service as Ipc;
 use sonar_common::ipc::{
     self, FusionCommand, FusionCommandKind, Reading, ScanCommand, ScanCommandKind,
 };
-use sonar_e2e::{PATIENCE, Sandbox, collect_until, path_str};
+use sonar_e2e::{PATIENCE, Sandbox, collect_until, path_str, readings_subscriber};
 
 /// More than one subscriber buffer (256): a replay that did not pace itself at `--speed max`
 /// would overwrite readings before the test's subscriber (polling every 5 ms) takes them.
 const READINGS: usize = 300;
-
-fn readings_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, Reading, ()> {
-    ipc::readings_service(node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap()
-}
 
 /// Every bit of a reading, floats as their bit patterns (NaN compares equal to itself here).
 fn bits(r: &Reading) -> Vec<u64> {

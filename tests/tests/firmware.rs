@@ -1,0 +1,423 @@
+//! Firmware in the loop: the sensor head's C firmware, compiled for the ATmega328P exactly as it is
+//! flashed, runs in simavr under `sonar-firmware-sim`, which plays the stepper, the limit switches
+//! and the SRF05 from the simulator's scenes. The driver opens its pseudo-terminal as it opens a
+//! USB adapter. Build the image first: `make -C firmware` (`.ci/run` does).
+#![allow(clippy::unwrap_used, clippy::expect_used)] // helpers outside #[test] fns; a panic is a failure
+
+use std::collections::BTreeMap;
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::fs::OpenOptionsExt;
+use std::path::PathBuf;
+use std::sync::mpsc;
+
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+use sonar_common::ipc::{self, LinkState, Reading, ScanCommand, ScanCommandKind, ScanMode};
+use sonar_common::protocol::{
+    DeviceMessage, DeviceState, Direction, ErrorCode, HostCommand, Limit, PROTOCOL_VERSION,
+    WireScanMode, crc16_ccitt_false, encode_command, parse_device,
+};
+use sonar_e2e::{
+    PATIENCE, Proc, Sandbox, collect_until, driver_status_subscriber, readings_subscriber,
+    receive_reading, wait_for_status,
+};
+
+/// The image `make -C firmware` builds: the bytes that would be flashed, plus symbols.
+fn firmware_elf() -> String {
+    let elf = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../firmware/build/sonar-head.elf");
+    assert!(
+        elf.exists(),
+        "{} is missing: run `make -C firmware` first (.ci/run does)",
+        elf.display()
+    );
+    elf.to_str().unwrap().to_owned()
+}
+
+/// The emulated head at the emulator's full speed (about 5× real time), homing from 0°.
+fn spawn_firmware(sandbox: &Sandbox, scene: &str, seed: &str) -> (Proc, String) {
+    let elf = firmware_elf();
+    sandbox.spawn_head(
+        "sonar-firmware-sim",
+        &[
+            "--firmware",
+            &elf,
+            "--scene",
+            scene,
+            "--seed",
+            seed,
+            "--speed",
+            "max",
+        ],
+    )
+}
+
+fn by_sweep(readings: &[Reading]) -> BTreeMap<u32, Vec<Reading>> {
+    let mut sweeps: BTreeMap<u32, Vec<Reading>> = BTreeMap::new();
+    for r in readings {
+        sweeps.entry(r.sweep_id).or_default().push(*r);
+    }
+    sweeps
+}
+
+/// The reading centres of a full sweep: −147° … +147° every 6°.
+fn full_sweep_centres() -> Vec<f32> {
+    (0..50).map(|k| -147.0 + 6.0 * k as f32).collect()
+}
+
+#[test]
+fn the_firmware_homes_sweeps_the_room_and_takes_a_local_scan_through_the_driver() {
+    let sandbox = Sandbox::new("fw_room");
+    let node = sandbox.node("test-consumer");
+    let sub = readings_subscriber(&node);
+    let status = driver_status_subscriber(&node);
+    let (_head, pty) = spawn_firmware(&sandbox, "room", "3");
+    let _driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+
+    let readings = collect_until(
+        &node,
+        || receive_reading(&sub),
+        |got| got.iter().any(|r| r.sweep_id == 3),
+    );
+    let sweeps = by_sweep(&readings);
+    // Sweep 1 starts at the MIN switch after homing, sweep 2 comes back from the MAX switch.
+    for (sweep, direction) in [(1, 1), (2, -1)] {
+        let s = &sweeps[&sweep];
+        let mut centres = full_sweep_centres();
+        if direction < 0 {
+            centres.reverse();
+        }
+        let angles: Vec<f32> = s.iter().map(|r| r.angle_deg).collect();
+        assert_eq!(angles, centres, "sweep {sweep}: one reading every 6°");
+        for r in s {
+            assert_eq!(r.direction, direction, "{r:?}");
+            assert_eq!(r.ping_count, 4, "{r:?}");
+            assert_eq!(r.scan_mode(), ScanMode::Full);
+            // Facing a wall of the 2.4 m room (within the specular cut-off of its normal), the
+            // range is the perpendicular 1.20 m, within the SRF05's accuracy.
+            let off_normal = (r.angle_deg.rem_euclid(90.0) + 45.0).rem_euclid(90.0) - 45.0;
+            if off_normal.abs() <= 20.0 {
+                assert!(r.is_valid_range(), "{r:?}");
+                assert!((r.distance_m - 1.20).abs() <= 0.03, "{r:?}");
+            }
+        }
+    }
+    let s = wait_for_status(&node, &status, |s| {
+        s.link_state == LinkState::Connected as u32
+    });
+    assert_eq!(
+        s.lines_rejected, 0,
+        "every line of the firmware parsed: {s:?}"
+    );
+
+    // A local scan asked for by any process reaches the firmware through the driver.
+    let commands = ipc::commands_service(&node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    commands
+        .send_copy(ScanCommand::new(ScanCommandKind::LocalScan, -30.0, 30.0))
+        .unwrap();
+    let local = collect_until(
+        &node,
+        || receive_reading(&sub).filter(|r| r.scan_mode() == ScanMode::Local),
+        |got| got.len() >= 25,
+    );
+    let centres: Vec<f32> = (0..10).map(|k| -27.0 + 6.0 * k as f32).collect();
+    for r in &local {
+        assert!(
+            centres.iter().any(|c| (r.angle_deg - c).abs() < 1e-3),
+            "reading outside the segment: {r:?}"
+        );
+    }
+    let directions: std::collections::BTreeSet<i8> = local.iter().map(|r| r.direction).collect();
+    assert_eq!(directions.len(), 2, "a local scan goes back and forth");
+}
+
+/// The test plays the PC on the firmware's line: every command and every kind of bad line.
+#[test]
+fn the_firmware_answers_every_command_and_every_bad_line() {
+    let sandbox = Sandbox::new("fw_line");
+    let elf = firmware_elf();
+    let (_head, pty) = sandbox.spawn_head(
+        "sonar-firmware-sim",
+        &[
+            "--firmware",
+            &elf,
+            "--scene",
+            "obstacle",
+            "--speed",
+            "max",
+            "--head-id",
+            "00C0FFEE0000BEEF",
+        ],
+    );
+    let mut port = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .custom_flags(nix::fcntl::OFlag::O_NOCTTY.bits())
+        .open(&pty)
+        .unwrap();
+    let (tx, rx) = mpsc::channel();
+    let reader = BufReader::new(port.try_clone().unwrap());
+    std::thread::spawn(move || {
+        for line in reader.split(b'\n') {
+            if line.map(|l| tx.send(l)).is_err() {
+                break;
+            }
+        }
+    });
+    let mut heard = Vec::new();
+    // Skips readings and sweep events until a message that `pred` picks.
+    let mut next = |what: &str, pred: &dyn Fn(&DeviceMessage) -> bool| -> DeviceMessage {
+        loop {
+            let line = rx
+                .recv_timeout(PATIENCE)
+                .unwrap_or_else(|_| panic!("waiting for {what}, heard {heard:#?}"));
+            let msg = parse_device(&line, PROTOCOL_VERSION).unwrap_or_else(|e| {
+                panic!("{e}: {:?}", String::from_utf8_lossy(&line));
+            });
+            heard.push(msg.clone());
+            if pred(&msg) {
+                return msg;
+            }
+        }
+    };
+    let mut send = |line: &str| port.write_all(line.as_bytes()).unwrap();
+    let v2 = PROTOCOL_VERSION;
+
+    // Power-on: the head announces itself, with the identity kept in its EEPROM, and homes.
+    let hello = |m: &DeviceMessage| matches!(m, DeviceMessage::Hello { .. });
+    let DeviceMessage::Hello {
+        version,
+        head_id,
+        step_cdeg,
+        pings_per_reading,
+        min_cdeg,
+        max_cdeg,
+        ..
+    } = next("the power-on HELLO", &hello)
+    else {
+        unreachable!()
+    };
+    assert_eq!(
+        (version, head_id.as_str(), step_cdeg, pings_per_reading),
+        (2, "00C0FFEE0000BEEF", 150, 4)
+    );
+    assert_eq!((min_cdeg, max_cdeg), (-15000, 15000));
+    send(&encode_command(&HostCommand::Status, v2));
+    let homing = next("ST", &|m| matches!(m, DeviceMessage::Status { .. }));
+    assert!(
+        matches!(
+            homing,
+            DeviceMessage::Status {
+                state: DeviceState::Homing,
+                ..
+            }
+        ),
+        "{homing:?}"
+    );
+    next("LIM,MIN after homing", &|m| {
+        *m == DeviceMessage::LimitHit(Limit::Min)
+    });
+    send(&encode_command(&HostCommand::Status, v2));
+    assert_eq!(
+        next("ST", &|m| matches!(m, DeviceMessage::Status { .. })),
+        DeviceMessage::Status {
+            state: DeviceState::Idle,
+            angle_cdeg: -15000,
+            direction: Direction::Ccw,
+            sweep: 0,
+        }
+    );
+
+    // Bad lines: each answered with an error, none a hang.
+    let framed = |body: &str| format!("${body}*{:04X}\n", crc16_ccitt_false(body.as_bytes()));
+    let error = |m: &DeviceMessage| matches!(m, DeviceMessage::Error { .. });
+    let code_of = |m: DeviceMessage| match m {
+        DeviceMessage::Error { code, .. } => code,
+        other => panic!("{other:?}"),
+    };
+    for (line, code) in [
+        (
+            encode_command(&HostCommand::FullScan, v2).replace("FULL", "FULM"),
+            ErrorCode::Checksum,
+        ),
+        (framed("FOO,1"), ErrorCode::Syntax),
+        (format!("${}*0000\n", "X".repeat(300)), ErrorCode::Syntax),
+        ("$STOP*18\n".to_owned(), ErrorCode::Syntax), // version 1 framing
+        (framed("HELLO,1"), ErrorCode::Version),
+        (framed("SCAN,LOCAL,14000,16000"), ErrorCode::Range),
+    ] {
+        send(&line);
+        assert_eq!(code_of(next(&line, &error)), code, "{line:?}");
+    }
+    send(&encode_command(&HostCommand::Hello { version: 2 }, v2));
+    assert!(matches!(
+        next("HELLO reply", &hello),
+        DeviceMessage::Hello { version: 2, .. }
+    ));
+
+    // A local scan of −30°…+30°: the centres inside, back and forth, no limit switch.
+    send(&encode_command(
+        &HostCommand::LocalScan {
+            from_cdeg: -3000,
+            to_cdeg: 3000,
+        },
+        v2,
+    ));
+    assert_eq!(
+        next("ACK", &|m| matches!(m, DeviceMessage::Ack { .. })),
+        DeviceMessage::Ack {
+            command: "SCAN".into()
+        }
+    );
+    assert_eq!(
+        next("SWP,START", &|m| matches!(
+            m,
+            DeviceMessage::SweepStart { .. }
+        )),
+        DeviceMessage::SweepStart {
+            sweep: 1,
+            direction: Direction::Ccw,
+            mode: WireScanMode::Local,
+            from_cdeg: -2700,
+            to_cdeg: 2700,
+        }
+    );
+    // Readings up to the sweep's end; a limit switch here would fail the test.
+    let sweep_event = |m: &DeviceMessage| {
+        matches!(
+            m,
+            DeviceMessage::SweepEnd { .. } | DeviceMessage::Reading(_) | DeviceMessage::LimitHit(_)
+        )
+    };
+    let mut centres = Vec::new();
+    let mut msg = next("RD", &sweep_event);
+    while let DeviceMessage::Reading(r) = msg {
+        assert_eq!(r.ping_count, 4);
+        centres.push(r.angle_cdeg);
+        msg = next("SWP,END", &sweep_event);
+    }
+    assert_eq!(msg, DeviceMessage::SweepEnd { sweep: 1 });
+    assert_eq!(
+        centres,
+        (0..10).map(|k| -2700 + 600 * k).collect::<Vec<_>>()
+    );
+    send(&encode_command(&HostCommand::Status, v2));
+    assert!(matches!(
+        next("ST", &|m| matches!(m, DeviceMessage::Status { .. })),
+        DeviceMessage::Status {
+            state: DeviceState::Local,
+            direction: Direction::Cw,
+            sweep: 2,
+            ..
+        }
+    ));
+    send(&encode_command(&HostCommand::Stop, v2));
+    assert_eq!(
+        next("ACK,STOP", &|m| matches!(m, DeviceMessage::Ack { .. })),
+        DeviceMessage::Ack {
+            command: "STOP".into()
+        }
+    );
+    assert_eq!(
+        next("SWP,END", &|m| matches!(m, DeviceMessage::SweepEnd { .. })),
+        DeviceMessage::SweepEnd { sweep: 2 }
+    );
+    send(&encode_command(&HostCommand::Status, v2));
+    assert!(matches!(
+        next("ST", &|m| matches!(m, DeviceMessage::Status { .. })),
+        DeviceMessage::Status {
+            state: DeviceState::Idle,
+            sweep: 2,
+            ..
+        }
+    ));
+}
+
+/// The head's reset button pressed in the middle of a sweep: the firmware reboots, homes and
+/// announces itself; the driver sends the scan again and readings go on.
+#[test]
+fn a_reset_mid_sweep_is_recovered_by_the_driver() {
+    let sandbox = Sandbox::new("fw_reset");
+    let node = sandbox.node("test-consumer");
+    let sub = readings_subscriber(&node);
+    let status = driver_status_subscriber(&node);
+    let (head, pty) = spawn_firmware(&sandbox, "room", "1");
+    let _driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+    let before = collect_until(&node, || receive_reading(&sub), |got| got.len() >= 10);
+    assert_eq!(before[9].sweep_id, 1);
+
+    kill(Pid::from_raw(head.child.id() as i32), Signal::SIGUSR1).unwrap();
+    let s = wait_for_status(&node, &status, |s| s.head_resets >= 1);
+    assert_eq!(s.link_state, LinkState::Connected as u32);
+    // After the reset the head counts readings and sweeps from the start again.
+    let after = collect_until(
+        &node,
+        || receive_reading(&sub),
+        |got| got.iter().filter(|r| r.device_seq < 5).count() >= 5,
+    );
+    let restarted: Vec<&Reading> = after.iter().filter(|r| r.device_seq < 5).collect();
+    assert_eq!(restarted[0].device_seq, 0, "{restarted:?}");
+    assert_eq!(restarted[0].sweep_id, 1);
+    assert_eq!(
+        restarted[0].angle_deg, -147.0,
+        "a new sweep from the MIN switch"
+    );
+    let s = wait_for_status(&node, &status, |_| true);
+    assert_eq!(s.head_resets, 1);
+    assert_eq!(s.lines_rejected, 0, "{s:?}");
+}
+
+/// The same scene and seed through the Rust device model (`sonar-sim`) and through the firmware in
+/// the emulator: both ask the echo model for the same pings at the same angles, so the raw echo
+/// times agree to the firmware's timer resolution.
+#[test]
+fn the_rust_device_model_and_the_firmware_give_the_same_readings() {
+    let run = |name: &str, spawn: &dyn Fn(&Sandbox) -> (Proc, String)| {
+        let sandbox = Sandbox::new(name);
+        let node = sandbox.node("test-consumer");
+        let sub = readings_subscriber(&node);
+        let (_head, pty) = spawn(&sandbox);
+        let _driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+        let readings = collect_until(
+            &node,
+            || receive_reading(&sub),
+            |got| got.iter().any(|r| r.sweep_id == 3),
+        );
+        readings
+            .into_iter()
+            .filter(|r| r.sweep_id < 3)
+            .map(|r| ((r.sweep_id, (r.angle_deg * 100.0).round() as i32), r))
+            .collect::<BTreeMap<_, _>>()
+    };
+    let rust = run("fw_twin_rust", &|s: &Sandbox| {
+        s.spawn_sim(&["--scene", "room", "--seed", "5", "--speed", "100"])
+    });
+    let firmware = run("fw_twin_avr", &|s: &Sandbox| spawn_firmware(s, "room", "5"));
+    assert_eq!(rust.len(), 100, "two full sweeps");
+    let echoes = rust.values().filter(|r| r.is_valid_range()).count();
+    assert!(
+        echoes > 60,
+        "the room's walls answer most readings: {echoes}"
+    );
+    assert_eq!(
+        rust.keys().collect::<Vec<_>>(),
+        firmware.keys().collect::<Vec<_>>()
+    );
+    let mut worst_us = 0;
+    for (key, a) in &rust {
+        let b = &firmware[key];
+        assert_eq!(a.direction, b.direction, "{key:?}");
+        assert_eq!(a.flags, b.flags, "{key:?}: {a:?} {b:?}");
+        for (x, y) in a.echo_us[..4].iter().zip(&b.echo_us[..4]) {
+            // 0 (no echo) must be 0 on both; an echo within the timer's 0.5 µs tick and the
+            // emulated board's edge timing.
+            assert_eq!(*x == 0, *y == 0, "{key:?}: {a:?} {b:?}");
+            worst_us = worst_us.max(x.abs_diff(*y));
+        }
+        assert!((a.distance_m - b.distance_m).abs() < 0.002, "{key:?}");
+    }
+    assert!(worst_us <= 2, "largest echo time difference {worst_us} µs");
+}
