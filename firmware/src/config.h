@@ -31,6 +31,8 @@
 #define MOTOR_BASE_NUM 96UL /* 48 full steps × 2 half steps */
 #define MOTOR_DEN 1UL
 #define MOTOR_NAME "paper 7.5 deg + 1:5 gear"
+/* 480 half steps per turn: ±150° are whole half steps, the limits need no creeping (motion.h). */
+#define LIMIT_SEEK_MICROSTEPS 0
 #ifndef STEP_INTERVAL_US
 #define STEP_INTERVAL_US 5000UL /* 10 ms per 1.5° step, the Rust model's Timing::step_time_ms */
 #endif
@@ -45,6 +47,9 @@
 #define MOTOR_BASE_NUM 1650688UL /* 64 × 25792 */
 #define MOTOR_DEN 405UL
 #define MOTOR_NAME "28BYJ-48 half-stepped"
+/* 300° = 3396.48 half steps: the limit rounds half a step short, and homing's zero lies up to one
+ * half step beyond −150°; two more half steps (0.18°) reach a switch at exactly ±150°. */
+#define LIMIT_SEEK_MICROSTEPS 2
 #ifndef STEP_INTERVAL_US
 /* 500 half steps/s = 7.4 rpm at the output; sensor-facts: ~10–15 rpm at most. */
 #define STEP_INTERVAL_US 2000UL
@@ -59,6 +64,8 @@
 #define MOTOR_BASE_NUM 3200UL /* 200 × 16 */
 #define MOTOR_DEN 1UL
 #define MOTOR_NAME "NEMA 17 at 1/16 microstep"
+/* 300° = 2666.67 microsteps: as for the 28BYJ-48, up to two more (0.23°) reach the switch. */
+#define LIMIT_SEEK_MICROSTEPS 2
 #ifndef STEP_INTERVAL_US
 #define STEP_INTERVAL_US 500UL
 #endif

@@ -8,7 +8,7 @@
 #include <string.h>
 
 /* The configured motor: MOTOR_NUM / MOTOR_DEN microsteps per output revolution (config.h). */
-const motor_ratio MOTOR_RATIO = {MOTOR_NUM, MOTOR_DEN};
+const motor_ratio MOTOR_RATIO = {MOTOR_NUM, MOTOR_DEN, LIMIT_SEEK_MICROSTEPS};
 
 /* Integer-only position arithmetic in uint32 (the 28BYJ-48 is the largest case):
  * - motion_motor_of: q · NUM + 240 · DEN for q ≤ 402 (≈ 6.6e8 for the 28BYJ-48);
@@ -387,10 +387,18 @@ uint8_t head_next(head_t *h)
             h->moving = false;
             h->q = h->move_to;
             if (h->q == 0 || h->q == HEAD_MAX_UNITS) {
-                /* The motor reverses at the sweep limit, even if its switch did not close (then
-                 * there is no LIM: that comes only with the switch, see head_check_switches). */
-                h->dir = (int8_t)-h->dir;
+                /* At the sweep limit and its switch has not closed (else head_check_switches
+                 * would have ended the move): creep on a little to meet it, if the motor's
+                 * rounding allows it; then reverse. */
+                h->seek_left = h->ratio->limit_seek;
+                if (h->seek_left == 0) {
+                    h->dir = (int8_t)-h->dir; /* no LIM: that comes only with the switch */
+                }
             }
+        }
+        if (h->seek_left != 0) {
+            h->step_dir = h->dir;
+            return HEAD_ACT_STEP;
         }
         switch (h->activity) {
         case HEAD_HOMING:
@@ -439,6 +447,12 @@ void head_stepped(head_t *h)
     if (h->activity == HEAD_HOMING) {
         h->home_travel++;
     }
+    if (h->seek_left != 0 && --h->seek_left == 0) {
+        /* Crept on as far as allowed without meeting the switch: reverse without LIM (the motor
+         * position stays true; the next move starts from it). A switch closing on this very
+         * microstep is still seen by head_check_switches. */
+        h->dir = (int8_t)-h->dir;
+    }
 }
 
 bool head_check_switches(head_t *h, uint8_t closed, int8_t dir)
@@ -484,6 +498,7 @@ bool head_check_switches(head_t *h, uint8_t closed, int8_t dir)
     }
     send_lim(h, min ? LIMIT_MIN : LIMIT_MAX);
     h->moving = false;
+    h->seek_left = 0;
     h->q = limit;
     h->m = motion_motor_of(h->ratio, limit);
     h->dir = min ? 1 : -1;

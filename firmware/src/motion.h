@@ -9,7 +9,10 @@
  *
  * The state machine behaves on the wire like simulator/src/firmware.rs (the Rust model of this
  * head): the same messages in the same order, the same sweep ids, reading centres and ping
- * positions. It never waits: the caller (main.c, or a test) asks head_next() what to do — one
+ * positions. At a sweep limit whose switch is still open, a motor whose limit is not a whole
+ * number of microsteps creeps on by at most limit_seek microsteps to meet it (a switch at exactly
+ * ±150° is then always reached and reported); then it reverses, with or without the switch.
+ * It never waits: the caller (main.c, or a test) asks head_next() what to do — one
  * microstep, one ping, or nothing — does it when the hardware timing allows, and reports back.
  */
 #ifndef SONAR_MOTION_H
@@ -21,10 +24,12 @@
 #include <stdbool.h>
 #include <stdint.h>
 
-/* Microsteps per output revolution as an exact fraction. */
+/* Microsteps per output revolution as an exact fraction, and how far the head may creep on at a
+ * sweep limit whose switch has not closed yet (see head_next). */
 typedef struct {
     uint32_t num;
     uint32_t den;
+    uint8_t limit_seek; /* microsteps */
 } motor_ratio;
 
 /* The configured motor (config.h). */
@@ -85,6 +90,7 @@ typedef struct {
     int32_t m;    /* motor position, microsteps from MIN (while homing: from the assumed start) */
     int8_t dir;   /* direction of the last motion, +1 CCW (angle increasing), −1 CW */
     bool moving;  /* a move of at most one 1.5° step to move_to is under way */
+    uint8_t seek_left; /* at a limit with its switch open: microsteps left to creep on */
     int16_t move_to;
     int8_t step_dir; /* direction of the microstep head_next asked for */
 

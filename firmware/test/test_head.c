@@ -11,17 +11,19 @@
 
 #include <stdlib.h>
 
-static const motor_ratio PAPER = {96UL * 5, 1};
-static const motor_ratio BYJ48 = {1650688UL, 405};
-static const motor_ratio NEMA17 = {3200UL, 1};
+static const motor_ratio PAPER = {96UL * 5, 1, 0};
+static const motor_ratio BYJ48 = {1650688UL, 405, 2};
+static const motor_ratio NEMA17 = {3200UL, 1, 2};
 
 #define MAX_MSGS 4000
 #define MAX_AIMS 4000
 
 typedef struct {
     const motor_ratio *r;
-    int32_t m_true;        /* true motor position, microsteps from the MIN switch */
+    int32_t m_true;        /* true motor position, microsteps from 0° (the board's grid) */
+    int32_t m_zero;        /* where the MIN switch closes: the last microstep at or below −150° */
     bool switches;         /* the switches are wired */
+    bool max_missing;      /* the MAX switch never closes */
     bool silent;           /* the sensor never answers */
     uint32_t time_ms;
     int n_msgs;
@@ -50,16 +52,19 @@ static void record(void *ctx, const dev_msg *m)
     }
 }
 
+/* The switches close exactly at ±150° and beyond, compared exactly (like the emulated board):
+ * m · 360 · DEN against ±150 · NUM. */
 static uint8_t closed(const board *b)
 {
     if (!b->switches) {
         return 0;
     }
+    int64_t x = (int64_t)b->m_true * 360 * b->r->den;
     uint8_t m = 0;
-    if (b->m_true <= 0) {
+    if (x <= -150LL * b->r->num) {
         m |= HEAD_SW_MIN;
     }
-    if (b->m_true >= motion_motor_of(b->r, HEAD_MAX_UNITS)) {
+    if (x >= 150LL * b->r->num && !b->max_missing) {
         m |= HEAD_SW_MAX;
     }
     return m;
@@ -67,17 +72,30 @@ static uint8_t closed(const board *b)
 
 static int32_t true_cdeg(const board *b)
 {
-    return motion_cdeg_of_motor(b->r, b->m_true);
+    int64_t x = (int64_t)b->m_true * 36000 * b->r->den;
+    int64_t n = b->r->num;
+    return (int32_t)(x >= 0 ? (x + n / 2) / n : -((-x + n / 2) / n));
 }
 
-/* Power-on with the head at angle start_cdeg (true position). */
+/* Head position relative to the MIN switch, as the firmware counts it once homed. */
+static int32_t rel(void)
+{
+    return B.m_true - B.m_zero;
+}
+
+/* Power-on with the head at angle start_cdeg (true position, on the microstep grid). */
 static void boot(const motor_ratio *r, int32_t start_cdeg)
 {
     memset(&B, 0, sizeof B);
     B.r = r;
     B.switches = true;
-    B.m_true = (int32_t)(((int64_t)(start_cdeg + 15000) * r->num + 18000 * (int64_t)r->den) /
-                         (36000 * (int64_t)r->den));
+    int64_t x = (int64_t)start_cdeg * r->num;
+    int64_t d = 36000LL * r->den;
+    B.m_true = (int32_t)(x >= 0 ? (x + d / 2) / d : -((-x + d / 2) / d));
+    /* floor(−150° / microstep) */
+    int64_t z = -150LL * r->num;
+    int64_t zd = 360LL * r->den;
+    B.m_zero = (int32_t)(z >= 0 ? z / zd : -((-z + zd - 1) / zd));
     head_init(&H, r, "00112233AABBCCDD", record, &B);
 }
 
@@ -189,7 +207,7 @@ static void boot_homes_clockwise_to_the_min_switch(void)
     run(B.n_msgs, 1);
     CHECK_STR(msg(2), "LIM,MIN");
     CHECK_INT(B.steps, 240); /* 180° at 0.75° per half step */
-    CHECK_INT(B.m_true, 0);
+    CHECK_INT(rel(), 0);
     CHECK(!head_busy(&H));
     command("STATUS");
     CHECK_STR(msg(3), "ST,IDLE,-15000,+,0"); /* the Rust model's power-on state */
@@ -216,7 +234,7 @@ static void homing_gives_up_after_380_degrees_and_a_scan_retries(void)
     CHECK_STR(msg(1), "ST,IDLE,-15000,-,0");
     /* A scan is acknowledged and homes first; with the switch back it then runs. */
     B.switches = true;
-    B.m_true = motion_motor_of(&PAPER, 100);
+    B.m_true = B.m_zero + motion_motor_of(&PAPER, 100);
     command("SCAN,FULL");
     CHECK_STR(msg(2), "ACK,SCAN");
     command("STATUS");
@@ -259,7 +277,7 @@ static void stop_during_homing_drops_the_scan_but_homes(void)
     settle();
     CHECK_INT(B.n_msgs, 3);
     CHECK_STR(msg(2), "LIM,MIN");
-    CHECK_INT(B.m_true, 0);
+    CHECK_INT(rel(), 0);
 }
 
 /* ---- the Rust model's tests ------------------------------------------------------------------ */
@@ -294,7 +312,8 @@ static void full_sweeps_run_between_the_limits_for(const motor_ratio *r)
     /* Pings 1.5° apart around each centre, in the order of motion, within half a microstep. */
     const int32_t first[4] = {-14925, -14775, -14625, -14475};
     const int32_t back[4] = {14925, 14775, 14625, 14475};
-    int32_t tol = (int32_t)((18000LL * r->den + r->num - 1) / r->num) + 1;
+    /* Homing's zero lies up to a microstep below −150°, plus half a microstep of rounding. */
+    int32_t tol = (int32_t)((54000LL * r->den + r->num - 1) / r->num) + 1;
     for (int j = 0; j < 4; j++) {
         CHECK(labs(B.aims[j] - first[j]) <= tol);
         CHECK(labs(B.aims[200 + j] - back[j]) <= tol);
@@ -493,11 +512,11 @@ static void switch_closing_early_is_reported_and_corrects_the_position(void)
     CHECK_INT(rd_field(lim - 2, 5), -12900);
     CHECK_STR(msg(lim + 1), "SWP,END,2");
     CHECK_STR(msg(lim + 2), "SWP,START,3,+,F,-14700,14700");
-    CHECK_INT(B.m_true, 0); /* belief and truth agree again */
+    CHECK_INT(rel(), 0); /* belief and truth agree again */
     CHECK_INT(H.m, 0);
     int aims = B.n_aims;
     run(B.n_msgs, 2);
-    CHECK_INT(B.m_true, H.m);
+    CHECK_INT(rel(), H.m);
     CHECK_INT(B.aims[aims], -14925); /* the next sweep pings where it should */
     CHECK_INT(B.aims[aims + 3], -14475);
 }
@@ -539,7 +558,40 @@ static void max_switch_closing_early_during_a_travel(void)
     CHECK_STR(msg(2), "LIM,MAX");
     /* The travel goes on from the corrected position, to the segment end nearest to it. */
     CHECK_STR(msg(3), "SWP,START,1,-,L,2700,300");
-    CHECK_INT(B.m_true, H.m);
+    CHECK_INT(rel(), H.m);
+}
+
+static void at_a_limit_without_its_switch_the_head_creeps_on_then_reverses_for(const motor_ratio *r)
+{
+    homed(r);
+    B.max_missing = true;
+    command("SCAN,FULL");
+    int32_t top = B.m_zero + motion_motor_of(r, HEAD_MAX_UNITS);
+    int32_t highest = INT32_MIN;
+    for (long i = 0; i < 2000000 && B.n_msgs < 60; i++) {
+        act();
+        if (B.m_true > highest) {
+            highest = B.m_true;
+        }
+    }
+    /* No LIM: the sweep ends at the limit, the next one starts back. */
+    CHECK_STR(msg(0), "ACK,SCAN");
+    CHECK(starts(51, "RD,49,"));
+    CHECK_STR(msg(52), "SWP,END,1");
+    CHECK_STR(msg(53), "SWP,START,2,-,F,14700,-14700");
+    CHECK_INT(highest, top + r->limit_seek); /* crept on by limit_seek microsteps at most */
+    /* The way back pings where it should. */
+    int32_t tol = (int32_t)((54000LL * r->den + r->num - 1) / r->num) + 1;
+    CHECK(labs(B.aims[200] - 14925) <= tol);
+    CHECK(labs(B.aims[203] - 14475) <= tol);
+    CHECK_INT(rel(), H.m);
+}
+
+static void at_a_limit_without_its_switch_the_head_creeps_on_then_reverses(void)
+{
+    at_a_limit_without_its_switch_the_head_creeps_on_then_reverses_for(&PAPER);
+    at_a_limit_without_its_switch_the_head_creeps_on_then_reverses_for(&BYJ48);
+    at_a_limit_without_its_switch_the_head_creeps_on_then_reverses_for(&NEMA17);
 }
 
 static void silent_sensor_is_reported_once_per_sweep(void)
@@ -582,7 +634,7 @@ static void commands_mid_move_take_effect_after_the_step(void)
     settle();
     CHECK(!H.moving);
     CHECK_INT(H.m, motion_motor_of(&BYJ48, H.q));
-    CHECK_INT(B.m_true, H.m);
+    CHECK_INT(rel(), H.m);
     CHECK(H.q % 2 == 1);
 }
 
@@ -626,6 +678,7 @@ void head_tests(void)
     RUN(switch_closing_early_is_reported_and_corrects_the_position);
     RUN(switch_closing_within_a_step_of_its_limit_just_reverses);
     RUN(max_switch_closing_early_during_a_travel);
+    RUN(at_a_limit_without_its_switch_the_head_creeps_on_then_reverses);
     RUN(silent_sensor_is_reported_once_per_sweep);
     RUN(commands_mid_move_take_effect_after_the_step);
     RUN(hello_reply_and_version_refusal);

@@ -7,9 +7,9 @@
 
 #include <stdlib.h>
 
-static const motor_ratio PAPER = {96UL * 5, 1};      /* 7.5° motor half-stepped, 1:5 gear */
-static const motor_ratio BYJ48 = {1650688UL, 405};   /* 28BYJ-48 half-stepped */
-static const motor_ratio NEMA17 = {3200UL, 1};       /* 1.8° at 1/16 microstep */
+static const motor_ratio PAPER = {96UL * 5, 1, 0};      /* 7.5° motor half-stepped, 1:5 gear */
+static const motor_ratio BYJ48 = {1650688UL, 405, 2};   /* 28BYJ-48 half-stepped */
+static const motor_ratio NEMA17 = {3200UL, 1, 2};       /* 1.8° at 1/16 microstep */
 static const motor_ratio *const MOTORS[3] = {&PAPER, &BYJ48, &NEMA17};
 
 static void halfstep_sequence(void)
