@@ -180,6 +180,11 @@ int main(void)
             break;
         case HEAD_ACT_PING:
             idle_since_us = now;
+            if (stepper_released()) {
+                stepper_energise(); /* hold the head while it pings; settle first */
+                last_step_us = now;
+                break;
+            }
             /* The clock has 8 µs steps: the margin keeps ≥ 50 ms between triggers for sure. */
             if (now - last_step_us >= SETTLE_MS * 1000UL &&
                 now - last_trigger_us >= PING_INTERVAL_MS * 1000UL + 2 * CLOCK_US_RESOLUTION) {
