@@ -194,8 +194,8 @@ pub enum LinkState {
 
 /// The driver's state and counters on [`DRIVER_STATUS_SERVICE`], published on change and once a
 /// second.
-#[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("sonar::DriverStatusV1")]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("sonar::DriverStatusV2")]
 #[repr(C)]
 pub struct DriverStatus {
     pub stamp_ns: u64,
@@ -217,9 +217,74 @@ pub struct DriverStatus {
     pub layout_version: u32,
     /// Times the head announced itself while connected (it was reset) and the scan was resumed.
     pub head_resets: u32,
+    /// Times the head fell silent while connected and did not answer `STATUS`: the driver then
+    /// opened the port again and repeated the handshake.
+    pub silences: u32,
+    /// `ERR` lines from the head (a refused command, a hardware fault).
+    pub device_errors: u32,
+    /// The identity of the head served (protocol version 2), NUL-padded ASCII; empty before the
+    /// first handshake.
+    pub head_id: [u8; 32],
+    /// The latest `ERR` line's code and text, e.g. `RANGE: segment outside the limits`,
+    /// NUL-padded ASCII, cut to fit.
+    pub last_device_error: [u8; 64],
 }
 
-const _: () = assert!(std::mem::size_of::<DriverStatus>() == 64);
+const _: () = assert!(std::mem::size_of::<DriverStatus>() == 168);
+
+impl Default for DriverStatus {
+    fn default() -> Self {
+        Self {
+            stamp_ns: 0,
+            readings_published: 0,
+            lines_ok: 0,
+            lines_rejected: 0,
+            reconnects: 0,
+            link_state: 0,
+            mode: 0,
+            sweep_id: 0,
+            angle_deg: 0.0,
+            direction: 0,
+            layout_version: LAYOUT_VERSION,
+            head_resets: 0,
+            silences: 0,
+            device_errors: 0,
+            head_id: [0; 32],
+            last_device_error: [0; 64],
+        }
+    }
+}
+
+impl DriverStatus {
+    pub fn head_id(&self) -> &str {
+        padded_text(&self.head_id)
+    }
+
+    pub fn last_device_error(&self) -> &str {
+        padded_text(&self.last_device_error)
+    }
+}
+
+/// Writes ASCII text into a NUL-padded field, cut to fit (non-ASCII becomes `?`).
+pub fn set_padded_text(field: &mut [u8], text: &str) {
+    field.fill(0);
+    for (slot, c) in field.iter_mut().zip(text.chars()) {
+        *slot = if c.is_ascii() && c != '\0' {
+            c as u8
+        } else {
+            b'?'
+        };
+    }
+}
+
+/// The text of a NUL-padded field, up to the first NUL (or invalid UTF-8).
+pub fn padded_text(field: &[u8]) -> &str {
+    let end = field.iter().position(|&b| b == 0).unwrap_or(field.len());
+    match std::str::from_utf8(&field[..end]) {
+        Ok(text) => text,
+        Err(e) => std::str::from_utf8(&field[..e.valid_up_to()]).unwrap_or_default(),
+    }
+}
 
 /// Cell value of a grid snapshot for a cell no reading has touched yet.
 pub const CELL_UNKNOWN: u8 = 255;
@@ -649,6 +714,27 @@ mod tests {
         assert_eq!(offset_of!(Reading, echo_us), 64);
         assert_eq!(offset_of!(Reading, direction), 96);
         assert_eq!(offset_of!(Reading, pings_used), 99);
+    }
+
+    #[test]
+    fn driver_status_layout_matches_documentation() {
+        assert_eq!(offset_of!(DriverStatus, head_resets), 60);
+        assert_eq!(offset_of!(DriverStatus, silences), 64);
+        assert_eq!(offset_of!(DriverStatus, device_errors), 68);
+        assert_eq!(offset_of!(DriverStatus, head_id), 72);
+        assert_eq!(offset_of!(DriverStatus, last_device_error), 104);
+    }
+
+    #[test]
+    fn padded_text_round_trips_and_cuts_to_fit() {
+        let mut field = [0xFFu8; 8];
+        set_padded_text(&mut field, "HEAD-7");
+        assert_eq!(padded_text(&field), "HEAD-7");
+        set_padded_text(&mut field, "much too long for it");
+        assert_eq!(padded_text(&field), "much too");
+        set_padded_text(&mut field, "°C");
+        assert_eq!(padded_text(&field), "?C");
+        assert_eq!(padded_text(&[b'a', 0xFF, b'b']), "a");
     }
 
     #[test]

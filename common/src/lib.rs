@@ -5,6 +5,7 @@
 //! - [`sensor`]: the geometry of the rotating head and the physics of time of flight.
 //! - [`ipc`]: the `#[repr(C)]` payloads exchanged over iceoryx2, their service names, and one function
 //!   per service so every process opens it with the same quality of service.
+//! - [`speed`]: simulated time against wall time; [`throttle`]: rate limits for frequent log lines.
 //!
 //! Nothing here does I/O except opening iceoryx2 services on behalf of the caller.
 
@@ -14,6 +15,7 @@ pub mod ipc;
 pub mod protocol;
 pub mod sensor;
 pub mod speed;
+pub mod throttle;
 
 /// Sets up `tracing` for a binary: level from `RUST_LOG` (default `info`), to standard error.
 pub fn init_tracing() {

@@ -186,7 +186,8 @@ pub enum ErrorCode {
 }
 
 impl ErrorCode {
-    fn wire(self) -> &'static str {
+    /// The code as the line carries it, e.g. `RANGE`.
+    pub fn wire(self) -> &'static str {
         match self {
             ErrorCode::Checksum => "CHECKSUM",
             ErrorCode::Syntax => "SYNTAX",

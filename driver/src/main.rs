@@ -21,10 +21,11 @@ use sonar_common::ipc::{
     self, DriverStatus, IpcArgs, LinkState, Reading, ScanCommand, ScanCommandKind, ScanMode,
 };
 use sonar_common::protocol::{
-    DeviceMessage, ErrorCode, FramedLine, HostCommand, LineFramer, MAX_HEAD_ID_LEN,
+    DeviceMessage, DeviceState, ErrorCode, FramedLine, HostCommand, LineFramer, MAX_HEAD_ID_LEN,
     PROTOCOL_VERSION, ProtocolVersion, WireScanMode, encode_command, is_valid_head_id,
 };
 use sonar_common::sensor::SensorConfig;
+use sonar_common::throttle::Throttle;
 use sonar_driver::averaging::PingPolicy;
 use sonar_driver::decoder::{Decoded, Decoder, Dialect};
 use tracing::{debug, info, warn};
@@ -38,6 +39,8 @@ const HANDSHAKE_ATTEMPTS: u32 = 3;
 const HANDSHAKE_SETTLE: Duration = Duration::from_millis(200);
 const STATUS_PERIOD: Duration = Duration::from_secs(1);
 const MIN_BACKOFF: Duration = Duration::from_millis(250);
+/// Rejected lines are logged at most this often (each is counted in the status).
+const REJECT_LOG_PERIOD: Duration = Duration::from_secs(1);
 
 /// Reads a sonar head (or its simulator) over a serial port and publishes each averaged 6° reading
 /// on the iceoryx2 service `sonar/readings`; takes scan commands on `sonar/commands`.
@@ -100,6 +103,12 @@ struct Args {
     /// Longest wait between reconnection attempts, seconds.
     #[arg(long, default_value_t = 5.0)]
     max_backoff: f64,
+    /// Seconds without a line from the head before the driver asks it for STATUS; as long again
+    /// without an answer and the head counts as hung or gone: the port is opened again and the
+    /// handshake repeated, then the scan resumed. A head that answers but is idle while it
+    /// should scan is sent its scan again.
+    #[arg(long, default_value_t = 3.0, value_parser = parse_seconds)]
+    silence_timeout: f64,
     #[command(flatten)]
     ipc: IpcArgs,
 }
@@ -131,6 +140,13 @@ fn parse_scan(s: &str) -> Result<ScanRequest, String> {
             let to_deg: f32 = b.trim().parse().map_err(|_| format!("bad angle {b:?}"))?;
             local_segment(from_deg, to_deg)
         }
+    }
+}
+
+fn parse_seconds(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v <= 3600.0 => Ok(v),
+        _ => Err(format!("expected seconds between 0 and 3600, got {s:?}")),
     }
 }
 
@@ -303,6 +319,14 @@ struct Link {
     /// The head this driver serves; `None` until the first handshake (or with `--any-head`).
     head_id: Option<String>,
     any_head: bool,
+    silence_timeout: Duration,
+    /// When the last line that parsed came in.
+    last_line: Instant,
+    /// When a `STATUS` was sent because the head was quiet, until any line answers.
+    probe_sent: Option<Instant>,
+    /// The state in the latest `ST` line, until acted on.
+    head_state: Option<DeviceState>,
+    reject_log: Throttle,
 }
 
 impl Link {
@@ -345,7 +369,36 @@ impl Link {
             version: args.protocol,
             head_id: args.head_id.clone(),
             any_head: args.any_head,
+            silence_timeout: Duration::from_secs_f64(args.silence_timeout),
+            last_line: Instant::now(),
+            probe_sent: None,
+            head_state: None,
+            reject_log: Throttle::new(REJECT_LOG_PERIOD),
         })
+    }
+
+    /// The silence watchdog, once per loop while connected: a quiet head is asked for `STATUS`;
+    /// `Err` when it did not answer that either.
+    fn watch_silence(&mut self, port: &mut TTYPort) -> Result<Result<(), String>> {
+        let now = Instant::now();
+        match self.probe_sent {
+            None if now.duration_since(self.last_line) >= self.silence_timeout => {
+                debug!("the head is quiet: asking for its status");
+                send(port, &HostCommand::Status, self.version)?;
+                self.probe_sent = Some(now);
+            }
+            Some(sent) if now.duration_since(sent) >= self.silence_timeout => {
+                self.status.silences += 1;
+                return Ok(Err(format!(
+                    "the head fell silent: no line for {:.1} s and no answer to STATUS \
+                     (silences so far: {})",
+                    now.duration_since(self.last_line).as_secs_f64(),
+                    self.status.silences
+                )));
+            }
+            _ => {}
+        }
+        Ok(Ok(()))
     }
 
     /// Takes a `HELLO`: the first head met becomes the one served; a different one is refused.
@@ -364,10 +417,14 @@ impl Link {
                 "it is head {head_id} ({firmware}), this driver serves head {served} \
                  (--head-id names the head to serve, --any-head accepts any)"
             )),
-            Some(_) => Ok(()),
+            Some(_) => {
+                ipc::set_padded_text(&mut self.status.head_id, head_id);
+                Ok(())
+            }
             None => {
                 info!(head_id, firmware, "serving this head from now on");
                 self.head_id = Some(head_id.clone());
+                ipc::set_padded_text(&mut self.status.head_id, head_id);
                 Ok(())
             }
         }
@@ -460,6 +517,9 @@ impl Link {
                 return Ok(SessionEnd::PortLost(e));
             }
         }
+        self.last_line = Instant::now();
+        self.probe_sent = None;
+        self.head_state = None;
         self.set_state(LinkState::Connected)?;
 
         let mut next_status = Instant::now() + STATUS_PERIOD;
@@ -488,6 +548,16 @@ impl Link {
                     return Ok(SessionEnd::PortLost(e));
                 }
                 self.publish_status()?;
+            }
+            if self.dialect == Dialect::Native {
+                match self.watch_silence(port) {
+                    Err(e) => return Ok(SessionEnd::PortLost(e)),
+                    Ok(Err(why)) => return Ok(SessionEnd::PortLost(anyhow::anyhow!(why))),
+                    Ok(Ok(())) => {}
+                }
+            }
+            if let Err(e) = self.resume_idle_head(port) {
+                return Ok(SessionEnd::PortLost(e));
             }
             if Instant::now() >= next_status {
                 self.publish_status()?;
@@ -526,32 +596,41 @@ impl Link {
             FramedLine::Line(line) => line,
             FramedLine::Overflow => {
                 self.status.lines_rejected += 1;
-                warn!("discarded an overlong line (garbage on the serial line?)");
+                if let Some(left_out) = self.reject_log.allow(Instant::now()) {
+                    warn!(
+                        rejected = self.status.lines_rejected,
+                        left_out, "discarded an overlong line (garbage on the serial line?)"
+                    );
+                }
                 return Ok(());
             }
         };
-        match self.decoder.decode(line, ipc::unix_time_ns()) {
+        let decoded = self.decoder.decode(line, ipc::unix_time_ns());
+        if decoded.is_ok() {
+            self.status.lines_ok += 1;
+            self.last_line = Instant::now();
+            self.probe_sent = None;
+        }
+        match decoded {
             Err(e) => {
                 self.status.lines_rejected += 1;
-                warn!(
-                    line = %String::from_utf8_lossy(line),
-                    rejected = self.status.lines_rejected,
-                    "rejected line: {e}"
-                );
+                // Counted always; logged at most once a second (a noisy line makes thousands).
+                if let Some(left_out) = self.reject_log.allow(Instant::now()) {
+                    warn!(
+                        line = %String::from_utf8_lossy(line),
+                        rejected = self.status.lines_rejected,
+                        left_out,
+                        "rejected line: {e}"
+                    );
+                }
             }
-            Ok(Decoded::Reading(reading)) => {
-                self.status.lines_ok += 1;
-                self.publish(&reading)?;
-            }
-            Ok(Decoded::Message(msg)) => {
-                self.status.lines_ok += 1;
-                self.on_message(msg);
-            }
+            Ok(Decoded::Reading(reading)) => self.publish(&reading)?,
+            Ok(Decoded::Message(msg)) => self.on_message(msg)?,
         }
         Ok(())
     }
 
-    fn on_message(&mut self, msg: DeviceMessage) {
+    fn on_message(&mut self, msg: DeviceMessage) -> Result<()> {
         match &msg {
             DeviceMessage::Hello { .. } => self.hello = Some(msg),
             DeviceMessage::Error { code, text } => {
@@ -559,6 +638,16 @@ impl Link {
                     self.version_rejected = true;
                 }
                 warn!(?code, text, "device reports an error");
+                self.status.device_errors += 1;
+                ipc::set_padded_text(
+                    &mut self.status.last_device_error,
+                    &format!("{}: {text}", code.wire()),
+                );
+                self.publish_status()?;
+            }
+            DeviceMessage::Status { state, .. } => {
+                self.head_state = Some(*state);
+                debug!(?msg, "status");
             }
             DeviceMessage::SweepStart {
                 sweep,
@@ -576,6 +665,17 @@ impl Link {
             }
             other => debug!(msg = ?other, "device message"),
         }
+        Ok(())
+    }
+
+    /// A head that reports itself idle while it should scan lost our command (or was stopped by
+    /// something else): it is sent the scan again.
+    fn resume_idle_head(&mut self, port: &mut TTYPort) -> Result<()> {
+        if self.head_state.take() == Some(DeviceState::Idle) && self.scan.host_command().is_some() {
+            info!(scan = ?self.scan, "the head is idle but should scan: sending the scan again");
+            self.command_scan(port)?;
+        }
+        Ok(())
     }
 
     fn publish(&mut self, reading: &Reading) -> Result<()> {

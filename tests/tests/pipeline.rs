@@ -420,6 +420,71 @@ fn a_reset_head_is_sent_its_scan_again_and_a_different_head_is_refused() {
     });
 }
 
+/// A command the head refuses (a segment outside its limits) reaches every consumer of the
+/// driver's status, with the head's reason.
+#[test]
+fn a_refused_command_is_in_the_driver_status() {
+    let sandbox = Sandbox::new("refused");
+    let node = sandbox.node("test-consumer");
+    let status = driver_status_subscriber(&node);
+    let (_sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100"]);
+    let _driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan=100..200"]);
+    let s = wait_for_status(&node, &status, |s| s.device_errors >= 1);
+    assert!(
+        s.last_device_error().starts_with("RANGE: "),
+        "{}",
+        s.last_device_error()
+    );
+}
+
+/// A head that stops talking is asked for its status; one that answers idle while it should scan
+/// is sent the scan again; one that does not answer at all is handshaken again, and resumes.
+#[test]
+fn a_silent_head_is_probed_then_handshaken_again_and_resumes() {
+    let sandbox = Sandbox::new("silence");
+    let node = sandbox.node("test-device");
+    let status = driver_status_subscriber(&node);
+    let mut head = FakeHead::new();
+    let _driver = sandbox.spawn(
+        "sonar-driver",
+        &[
+            "--port",
+            &head.slave_path,
+            "--scan",
+            "full",
+            "--silence-timeout",
+            "0.5",
+            "--max-backoff",
+            "0.5",
+        ],
+    );
+    head.hear("$HELLO,2*", 1);
+    head.say(&hello_from("HEAD-A"));
+    head.hear("$SCAN,FULL*", 1);
+
+    // Quiet: the driver asks; the head says it is idle (it lost the command): the scan again.
+    head.hear("$STATUS*", 1);
+    head.say(&DeviceMessage::Status {
+        state: sonar_common::protocol::DeviceState::Idle,
+        angle_cdeg: -15000,
+        direction: Direction::Ccw,
+        sweep: 0,
+    });
+    head.hear("$SCAN,FULL*", 2);
+
+    // Silent even to STATUS: counted, the port opened again, the handshake repeated.
+    head.hear("$STATUS*", 2);
+    let s = wait_for_status(&node, &status, |s| s.silences == 1);
+    assert_eq!(s.head_id(), "HEAD-A");
+    head.hear("$HELLO,2*", 2);
+    head.say(&hello_from("HEAD-A"));
+    head.hear("$SCAN,FULL*", 3);
+    let s = wait_for_status(&node, &status, |s| {
+        s.link_state == LinkState::Connected as u32 && s.reconnects >= 1
+    });
+    assert_eq!(s.silences, 1);
+}
+
 #[test]
 fn the_driver_reconnects_when_the_port_comes_back() {
     let sandbox = Sandbox::new("reconnect");

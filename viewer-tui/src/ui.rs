@@ -573,6 +573,26 @@ fn status_lines(app: &App, now: Instant) -> Vec<Line<'static>> {
             rejected_style,
         )],
     ));
+    if let Some(s) = app.driver.as_ref().filter(|s| !s.head_id().is_empty()) {
+        let mut head = vec![text(s.head_id().to_owned())];
+        if s.silences > 0 {
+            head.push(Span::styled(
+                format!(" · silent ×{}", s.silences),
+                Style::new().fg(Color::Yellow),
+            ));
+        }
+        lines.push(row("head", head));
+    }
+    if let Some(s) = app.driver.as_ref().filter(|s| s.device_errors > 0) {
+        // A refused command (e.g. a local scan outside the limits) must reach the user.
+        lines.push(row(
+            "head err",
+            vec![Span::styled(
+                s.last_device_error().to_owned(),
+                Style::new().fg(Color::Red),
+            )],
+        ));
+    }
     for (i, r) in app.readings.iter().enumerate() {
         lines.push(row(
             if i == 0 { "last" } else { "" },

@@ -348,6 +348,32 @@ fn producers_that_stop_are_reported_gone() {
 }
 
 #[test]
+fn the_head_its_silences_and_its_latest_error_reach_the_status_panel() {
+    let t0 = Instant::now();
+    let mut app = live_app(t0);
+    let mut status = *app.driver.as_ref().unwrap();
+    sonar_common::ipc::set_padded_text(&mut status.head_id, "3F2A9C0417B6E5D1");
+    status.silences = 2;
+    status.device_errors = 1;
+    sonar_common::ipc::set_padded_text(
+        &mut status.last_device_error,
+        "RANGE: segment outside the limits -15000..15000",
+    );
+    status.stamp_ns += 1_000_000_000;
+    app.on_driver_status(&status, t0).unwrap();
+    let term = draw(&mut app, 160, 50, t0);
+    let screen = screen_text(term.backend().buffer());
+    // The panel wraps long values onto the next line.
+    for shown in [
+        "head     3F2A9C0417B6E5D1",
+        "silent ×2",
+        "head err RANGE: segment outside",
+    ] {
+        assert!(screen.contains(shown), "{shown:?} in {screen}");
+    }
+}
+
+#[test]
 fn local_scan_selection_is_drawn_on_the_radar() {
     let t0 = Instant::now();
     let mut app = live_app(t0);
