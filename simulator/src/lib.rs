@@ -15,7 +15,8 @@
 //! - [`scene`]: walls, polygons and posts from TOML/JSON files or the four built-in scenes (the
 //!   paper's Figs. 8–11), with their ground truth for evaluation.
 //! - [`serve`](mod@serve): the pseudo-terminal and the loop that paces simulated time against wall time.
-//!   [`hobby`] is the alternative firmware of the `--dialect hobby` mode.
+//!   [`hobby`] is the alternative firmware of the `--dialect hobby` mode; [`link`] the `--link`
+//!   symbolic link to the terminal.
 //!
 //! # Device behaviour (protocol version 1, `docs/protocol.md`)
 //!
@@ -73,6 +74,7 @@ pub mod echo;
 pub mod firmware;
 pub mod geometry;
 pub mod hobby;
+pub mod link;
 pub mod scene;
 pub mod serve;
 
@@ -80,6 +82,7 @@ pub use echo::{Echo, EchoModel, EchoParams, NoiseParams, Target};
 pub use firmware::{FIRMWARE_ID, Firmware, Timing, Transducer};
 pub use geometry::Vec2;
 pub use hobby::HobbySketch;
+pub use link::Symlink;
 pub use scene::{BUILTIN_NAMES, Post, Scene, SceneError, SuggestedScan, Surface, Vertex, Wall};
 pub use serve::{Device, NativeDevice, Pty, ServeStats, Speed, serve};
 #[doc(no_inline)]

@@ -2,21 +2,22 @@
 //! behaviour and the echo model.
 
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use clap::{Parser, ValueEnum};
 use sonar_common::protocol::{
     MAX_HEAD_ID_LEN, PROTOCOL_VERSION, ProtocolVersion, is_valid_head_id,
 };
 use sonar_common::sensor::SensorConfig;
 use sonar_sim::{
-    Device, EchoModel, Firmware, HobbySketch, NativeDevice, Pty, Scene, Speed, Timing, serve,
+    Device, EchoModel, Firmware, HobbySketch, NativeDevice, Pty, Scene, Speed, Symlink, Timing,
+    serve,
 };
-use tracing::{info, warn};
+use tracing::info;
 
 /// Simulated sonar head: an SRF05 on a stepper sweeping 300° between two limit switches, driven by
 /// a microcontroller that speaks the sonar protocol (docs/protocol.md) on a pseudo-terminal.
@@ -90,43 +91,6 @@ enum Dialect {
     Native,
     /// The HowToMechatronics "Arduino radar" sketch: servo 15°–165°, 1° steps, `angle,cm.` records.
     Hobby,
-}
-
-/// A symbolic link to the pseudo-terminal, removed when dropped.
-#[derive(Debug)]
-struct Symlink {
-    link: PathBuf,
-    target: PathBuf,
-}
-
-impl Symlink {
-    fn create(link: &Path, target: &Path) -> Result<Self> {
-        if let Ok(meta) = std::fs::symlink_metadata(link) {
-            if !meta.file_type().is_symlink() {
-                bail!("{} exists and is not a symbolic link", link.display());
-            }
-            // A stale link from an earlier run that did not exit cleanly.
-            std::fs::remove_file(link)
-                .with_context(|| format!("removing the old link {}", link.display()))?;
-        }
-        std::os::unix::fs::symlink(target, link)
-            .with_context(|| format!("linking {} to {}", link.display(), target.display()))?;
-        Ok(Self {
-            link: link.to_owned(),
-            target: target.to_owned(),
-        })
-    }
-}
-
-impl Drop for Symlink {
-    fn drop(&mut self) {
-        // Only our own link: another simulator may have taken the path over since.
-        if std::fs::read_link(&self.link).is_ok_and(|t| t == self.target)
-            && let Err(e) = std::fs::remove_file(&self.link)
-        {
-            warn!("cannot remove {}: {e}", self.link.display());
-        }
-    }
 }
 
 fn main() -> ExitCode {
