@@ -18,12 +18,14 @@
 //!   [`hobby`] is the alternative firmware of the `--dialect hobby` mode; [`link`] the `--link`
 //!   symbolic link to the terminal.
 //!
-//! # Device behaviour (protocol version 1, `docs/protocol.md`)
+//! # Device behaviour (protocol version 2, `docs/protocol.md`; version 1 with `--protocol 1`)
 //!
 //! - **Power-on**: the head has homed to the MIN limit (−150°); the switch reversed the motor, so
 //!   the direction is `+` (CCW). Idle; `ST,IDLE,-15000,+,0`.
-//! - `HELLO,v` → `HELLO,1,sonar-sim <version>,<step_cdeg>,<pings_per_reading>,<min_cdeg>,<max_cdeg>`
-//!   if `v` is 1, else `ERR,VERSION,…`. A scan under way goes on.
+//! - At power-on (version 2) the head announces itself with its `HELLO` line, unprompted.
+//! - `HELLO,v` → `HELLO,2,sonar-sim <version>,<head_id>,<step_cdeg>,<pings_per_reading>,<min_cdeg>,
+//!   <max_cdeg>` if `v` is the version the head speaks, else `ERR,VERSION,…` (`--head-id`, random
+//!   by default; version 1 leaves the identity out). A scan under way goes on.
 //! - `SCAN,FULL` → `ACK,SCAN`. At a limit, the sweep starts at once, away from it. Between the
 //!   limits the head first drives on (no pings) to the limit ahead in its current direction, which
 //!   reports `LIM,MIN|MAX` and reverses it. Each sweep is `SWP,START,<id>,<dir>,F,<first>,<last>`
