@@ -120,6 +120,18 @@ pub fn run<T: Transducer>(
     use crate::pins::{CYCLES_PER_US, Port};
     use crate::serial::SerialLine;
 
+    /// Moves what the firmware sent into the line's queue for the terminal.
+    fn uart_to_line(chip: &mut Chip, line: &mut SerialLine<'_>) {
+        let mut buf = [0u8; 256];
+        loop {
+            let n = chip.take_uart(&mut buf);
+            if n == 0 {
+                break;
+            }
+            line.send_to_host(&buf[..n]);
+        }
+    }
+
     let mut chip = Chip::load(&cfg.firmware)?;
     if let Some(id) = cfg.head_id {
         chip.eeprom_write(0, &id.record())?;
@@ -136,7 +148,6 @@ pub fn run<T: Transducer>(
     let mut resets = chip.resets();
     let power_on_resets = resets;
     let mut due = Vec::new();
-    let mut buf = [0u8; 256];
     let end = loop {
         if signals.stop.load(Ordering::Relaxed) {
             break End::Stopped;
@@ -182,13 +193,7 @@ pub fn run<T: Transducer>(
         }
         if now >= next_line {
             next_line = now + LINE_PERIOD_US * CYCLES_PER_US;
-            loop {
-                let n = chip.take_uart(&mut buf);
-                if n == 0 {
-                    break;
-                }
-                line.send_to_host(&buf[..n]);
-            }
+            uart_to_line(&mut chip, &mut line);
             line.read_host()?;
             while chip.uart_ready() {
                 let Some(byte) = line.next_for_chip() else {
@@ -205,6 +210,9 @@ pub fn run<T: Transducer>(
             }
         }
     };
+    // What the firmware sent last, for a host still reading.
+    uart_to_line(&mut chip, &mut line);
+    line.flush(Instant::now())?;
     let (lost_events, lost_bytes) = chip.lost();
     if lost_events + lost_bytes > 0 {
         warn!(lost_events, lost_bytes, "the shim's queues overflowed");

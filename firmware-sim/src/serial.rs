@@ -14,6 +14,9 @@ use sonar_sim::Pty;
 use sonar_sim::serve::WRITE_PATIENCE;
 use tracing::{info, warn};
 
+/// Most bytes from the host waiting for the chip's UART (about 0.4 s of 115200 baud).
+pub const HOST_QUEUE_MAX: usize = 4096;
+
 /// Byte counters of the line.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct LineStats {
@@ -50,11 +53,13 @@ impl<'a> SerialLine<'a> {
         }
     }
 
-    /// Queues for the chip whatever the host has sent; never waits.
+    /// Queues for the chip what the host has sent, up to [`HOST_QUEUE_MAX`] bytes waiting (the rest
+    /// stays in the terminal, whose writer then blocks: flow control); never waits.
     pub fn read_host(&mut self) -> io::Result<()> {
         let mut chunk = [0u8; 1024];
-        loop {
-            match self.pty.master().read(&mut chunk) {
+        while self.to_chip.len() < HOST_QUEUE_MAX {
+            let room = (HOST_QUEUE_MAX - self.to_chip.len()).min(chunk.len());
+            match self.pty.master().read(&mut chunk[..room]) {
                 Ok(0) => return Ok(()),
                 Ok(n) => {
                     self.to_chip.extend(&chunk[..n]);
@@ -65,6 +70,7 @@ impl<'a> SerialLine<'a> {
                 Err(e) => return Err(e),
             }
         }
+        Ok(())
     }
 
     /// The next byte the host sent, for the chip.
@@ -154,6 +160,32 @@ mod tests {
         host.read_exact(&mut buf).unwrap();
         assert_eq!(&buf, b"$ACK,STOP*1234\n");
         assert_eq!(line.stats().to_host, 15);
+    }
+
+    #[test]
+    fn the_host_is_held_back_when_the_chip_takes_nothing() {
+        let pty = Pty::open().unwrap();
+        let mut line = SerialLine::new(&pty);
+        let mut host = OpenOptions::new().write(true).open(pty.path()).unwrap();
+        host.write_all(&[b'x'; 3 * HOST_QUEUE_MAX / 2]).unwrap();
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while line.stats().from_host < HOST_QUEUE_MAX as u64 && Instant::now() < deadline {
+            line.read_host().unwrap();
+        }
+        assert_eq!(
+            line.stats().from_host,
+            HOST_QUEUE_MAX as u64,
+            "the rest waits"
+        );
+        assert!(line.next_for_chip().is_some());
+        while line.stats().from_host == HOST_QUEUE_MAX as u64 && Instant::now() < deadline {
+            line.read_host().unwrap();
+        }
+        assert_eq!(
+            line.stats().from_host,
+            HOST_QUEUE_MAX as u64 + 1,
+            "room for one more"
+        );
     }
 
     #[test]
