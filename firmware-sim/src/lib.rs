@@ -47,8 +47,8 @@
 //!   progress are ignored. The firmware times ECHO with Timer1's input capture (ICP1 = PB0), which
 //!   simavr emulates.
 //! - The UART: bytes from the host enter UART0 only while its receiver signals XON (simavr's
-//!   64-byte receive queue has room); they wait on the host side meanwhile, and reach the firmware
-//!   at the baud rate the firmware set. Bytes the firmware sends go to the terminal as soon as they
+//!   64-byte receive queue has room); they wait on the host side meanwhile (up to 4 KiB, then in
+//!   the terminal, whose writer blocks), and reach the firmware at the baud rate it set. Bytes the firmware sends go to the terminal as soon as they
 //!   are written to UDR0; when nobody reads, they are dropped and counted, as in `sonar-sim`.
 //! - The reset button (SIGUSR1): the chip restarts, the shaft stays where it is, the EEPROM keeps
 //!   its contents, and the head's pins keep their levels. A watchdog reset is simavr's.

@@ -27,23 +27,28 @@ use tracing::info;
 /// the chip's reset button (the shaft stays where it is).
 ///
 /// Time is the chip's cycle counter: --speed 1 keeps it to wall time, `max` runs as fast as simavr
-/// can (about 5× real time for an ATmega328P).
+/// can (a few times real time: Debian's simavr 1.6 emulates this firmware at 2–3× on a busy 2-core
+/// machine, more on a quiet fast one).
 ///
 /// Wiring: UART0 (PD0/PD1); SRF05 TRIG PB1, ECHO PB0 (ICP1); limit switches MIN PB2, MAX PB3
 /// (closed = low; at −150° and +150°, mechanical stops at ±160°); LED PB5; ULN2003 IN1..IN4 on
 /// PD4..PD7, or STEP PD4, DIR PD5, EN PD6 (low = enabled).
 ///
-/// Motors:
+/// Motors (--motor must match the firmware build, `make -C firmware MOTOR=...`):
 ///   paper     7.5° motor, 1:5 gear, ULN2003 half steps: 0.75° per half step
+///             firmware/build/sonar-head.elf
 ///   28byj48   28BYJ-48 on a ULN2003, half steps: about 0.088° per half step
+///             firmware/build/28byj48-uln2003-g1/sonar-head.elf
 ///   nema17    1.8° NEMA 17, A4988 at 1/16 microstep (STEP/DIR): 0.1125° per step
+///             firmware/build/nema17-stepdir-g1/sonar-head.elf
 ///
 /// Scenes: as sonar-sim (room, corner, obstacle, two-obstacles, or a .toml/.json file).
 ///
 /// Examples:
 ///   make -C firmware && sonar-firmware-sim --scene room
 ///   sonar-firmware-sim --speed max --link /tmp/sonar-tty --start-angle 40
-///   sonar-firmware-sim --motor 28byj48 --switch-bounce --head-id 3F2A9C0417B6E5D1
+///   sonar-firmware-sim --motor 28byj48 --firmware firmware/build/28byj48-uln2003-g1/sonar-head.elf
+///   sonar-firmware-sim --switch-bounce --head-id 3F2A9C0417B6E5D1
 ///   kill -USR1 <pid>        # press the reset button
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
@@ -63,7 +68,7 @@ struct Args {
     /// Air temperature in °C, which sets the speed of sound (331.3 + 0.606·T m/s).
     #[arg(long, default_value_t = 20.0, allow_hyphen_values = true)]
     air_temperature: f32,
-    /// The motor and its driver.
+    /// The motor and its driver (as the firmware was built for).
     #[arg(long, value_enum, default_value_t = Motor::Paper)]
     motor: Motor,
     /// Where the shaft stands at power-on, degrees (the firmware homes from there).
