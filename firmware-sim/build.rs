@@ -80,7 +80,11 @@ fn main() {
         }
     };
     let mut build = cc::Build::new();
-    build.file("src/board.c").std("gnu11").warnings(true);
+    build
+        .file("src/board.c")
+        .std("gnu11")
+        .warnings(true)
+        .extra_warnings(true);
     for dir in &flags.include {
         build.include(dir);
     }

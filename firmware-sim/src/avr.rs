@@ -37,7 +37,6 @@ unsafe extern "C" {
     fn board_cycle(b: *const RawBoard) -> u64;
     fn board_pc(b: *const RawBoard) -> u32;
     fn board_resets(b: *const RawBoard) -> u32;
-    fn board_state(b: *const RawBoard) -> c_int;
     fn board_run_until(b: *mut RawBoard, until: u64) -> c_int;
     fn board_watch_port(b: *mut RawBoard, port: c_char) -> c_int;
     fn board_next_event(b: *mut RawBoard, out: *mut RawEvent) -> c_int;
@@ -171,11 +170,6 @@ impl Chip {
     pub fn resets(&self) -> u32 {
         // SAFETY: as in `cycle`.
         unsafe { board_resets(self.raw.as_ptr()) }
-    }
-
-    pub fn state(&self) -> CpuState {
-        // SAFETY: as in `cycle`.
-        CpuState::from_raw(unsafe { board_state(self.raw.as_ptr()) })
     }
 
     /// Runs until cycle `until`, until a watched port changes (see [`Chip::next_event`]), or

@@ -5,8 +5,9 @@
  * around it; everything else of simavr stays behind this file (see src/avr.rs for the Rust side):
  *
  *   board_new / board_free           make a chip from an ELF at a clock frequency, free it
- *   board_run_until                  run until a cycle, a watched port changes, or the core stops
- *   board_cycle / board_pc / board_state / board_resets
+ *   board_run_until                  run until a cycle, a watched port changes, or the core stops;
+ *                                    returns the core's state (running, sleeping, done, crashed)
+ *   board_cycle / board_pc / board_resets
  *   board_watch_port / board_next_event
  *                                    queue every change of a port's pin levels (IOPORT_IRQ_PIN_ALL)
  *                                    with its cycle, instead of calling back into Rust mid-instruction
@@ -323,7 +324,7 @@ uint32_t board_resets(const board_t *b)
 	return b->resets;
 }
 
-int board_state(const board_t *b)
+static int board_state(const board_t *b)
 {
 	switch (b->avr->state) {
 	case cpu_Running:
