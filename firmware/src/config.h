@@ -91,6 +91,11 @@
 #define HEAD_SWITCH_TOLERANCE_UNITS 2
 /* Homing gives up after this much clockwise travel without the MIN switch (300° + margin). */
 #define HOMING_MAX_DEG 380UL
+/* Homing from on or beyond the MIN switch: leave it by at most 30° (a switch still closed after
+ * that is stuck), then go on 3° past the point where it opened, beyond its 1–10 ms bounce, before
+ * seeking it again (units of 0.75°). */
+#define HOME_LEAVE_MAX_UNITS 40
+#define HOME_CLEAR_UNITS 4
 
 /* ---- timing ---------------------------------------------------------------------------------- */
 

@@ -143,6 +143,7 @@ static void start_homing(head_t *h)
     h->m = motion_motor_of(h->ratio, HEAD_MAX_UNITS);
     h->dir = -1;
     h->home_travel = 0;
+    h->home_phase = HOME_SEEK;
 }
 
 void head_init(head_t *h, const motor_ratio *r, const char *head_id, head_emit_fn fn, void *ctx)
@@ -402,14 +403,24 @@ uint8_t head_next(head_t *h)
         }
         switch (h->activity) {
         case HEAD_HOMING:
+            if (h->home_phase == HOME_LEAVE &&
+                h->home_travel >= (uint32_t)motion_motor_of(h->ratio, HOME_LEAVE_MAX_UNITS)) {
+                h->activity = HEAD_IDLE;
+                h->pending = false;
+                send_err_P(h, ERR_HARDWARE, FSTR("MIN switch stuck closed"));
+                return HEAD_ACT_NONE;
+            }
             if (h->home_travel >= h->home_limit) {
                 h->activity = HEAD_IDLE;
                 h->pending = false;
                 send_err_P(h, ERR_HARDWARE, FSTR("MIN switch not found"));
                 return HEAD_ACT_NONE;
             }
-            h->dir = -1;
-            h->step_dir = -1;
+            if (h->home_phase == HOME_CLEAR && h->home_clear_left == 0) {
+                h->home_phase = HOME_SEEK;
+            }
+            h->dir = h->home_phase == HOME_SEEK ? -1 : 1;
+            h->step_dir = h->dir;
             return HEAD_ACT_STEP;
         case HEAD_TRAVEL:
             if (!h->planned) {
@@ -446,6 +457,9 @@ void head_stepped(head_t *h)
     h->m += h->step_dir;
     if (h->activity == HEAD_HOMING) {
         h->home_travel++;
+        if (h->home_phase == HOME_CLEAR && h->home_clear_left != 0) {
+            h->home_clear_left--;
+        }
     }
     if (h->seek_left != 0 && --h->seek_left == 0) {
         /* Crept on as far as allowed without meeting the switch: reverse without LIM (the motor
@@ -457,12 +471,25 @@ void head_stepped(head_t *h)
 
 bool head_check_switches(head_t *h, uint8_t closed, int8_t dir)
 {
+    if (h->activity == HEAD_HOMING && h->home_phase == HOME_LEAVE) {
+        if (!(closed & HEAD_SW_MIN)) {
+            /* Off the switch: a little further so its bounce is behind us, then back onto it. */
+            h->home_phase = HOME_CLEAR;
+            h->home_clear_left = (uint32_t)motion_motor_of(h->ratio, HOME_CLEAR_UNITS);
+        }
+        return false;
+    }
     if (!(closed & (dir < 0 ? HEAD_SW_MIN : HEAD_SW_MAX))) {
         return false; /* a switch behind the motion (leaving it, bouncing) is ignored */
     }
     if (h->activity == HEAD_HOMING) {
         if (dir > 0) {
             return false;
+        }
+        if (h->home_phase == HOME_SEEK && h->home_travel == 0) {
+            /* Closed before any step: at the switch or beyond it. Leave it first. */
+            h->home_phase = HOME_LEAVE;
+            return true;
         }
         h->homed = true;
         h->moving = false;

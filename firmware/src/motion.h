@@ -85,6 +85,8 @@ typedef struct {
     bool pending; /* a scan acknowledged during homing, started when homing ends */
     head_scan pending_scan;
     uint32_t home_travel;
+    uint8_t home_phase;       /* HOME_SEEK, HOME_LEAVE or HOME_CLEAR */
+    uint32_t home_clear_left; /* HOME_CLEAR: microsteps still to go past the opened switch */
 
     int16_t q;    /* head position, units of 0.75° from MIN (last position reached) */
     int32_t m;    /* motor position, microsteps from MIN (while homing: from the assumed start) */
@@ -109,6 +111,11 @@ typedef struct {
     uint32_t seq;        /* RD counter */
     uint16_t echoes[HEAD_PINGS];
 } head_t;
+
+/* Homing: seek clockwise until MIN closes. A MIN switch already closed before the first step says
+ * only that the head is at or beyond it (it may have powered on past the switch): leave it
+ * counter-clockwise until it opens, go on a little (bounce), then seek. */
+enum { HOME_SEEK, HOME_LEAVE, HOME_CLEAR };
 
 /* Power-on: not homed, homing (clockwise, from an assumed +150°). Sends nothing. */
 void head_init(head_t *h, const motor_ratio *r, const char *head_id, head_emit_fn emit, void *ctx);

@@ -24,6 +24,7 @@ typedef struct {
     int32_t m_zero;        /* where the MIN switch closes: the last microstep at or below −150° */
     bool switches;         /* the switches are wired */
     bool max_missing;      /* the MAX switch never closes */
+    bool min_stuck;        /* the MIN switch is always closed */
     bool silent;           /* the sensor never answers */
     uint32_t time_ms;
     int n_msgs;
@@ -61,7 +62,7 @@ static uint8_t closed(const board *b)
     }
     int64_t x = (int64_t)b->m_true * 360 * b->r->den;
     uint8_t m = 0;
-    if (x <= -150LL * b->r->num) {
+    if (x <= -150LL * b->r->num || b->min_stuck) {
         m |= HEAD_SW_MIN;
     }
     if (x >= 150LL * b->r->num && !b->max_missing) {
@@ -213,13 +214,41 @@ static void boot_homes_clockwise_to_the_min_switch(void)
     CHECK_STR(msg(3), "ST,IDLE,-15000,+,0"); /* the Rust model's power-on state */
 }
 
-static void boot_on_the_min_switch_is_home(void)
+static void boot_on_the_min_switch_leaves_it_and_comes_back(void)
 {
     boot(&PAPER, -15000);
     settle();
     CHECK_INT(B.n_msgs, 1);
     CHECK_STR(msg(0), "LIM,MIN");
-    CHECK_INT(B.steps, 0);
+    CHECK_INT(rel(), 0);
+    CHECK_INT(B.steps, 10); /* off by one half step, 4 more, 5 back */
+}
+
+static void boot_beyond_the_min_switch_homes_onto_it(void)
+{
+    /* Powered on 5° past the switch (moved by hand): the closed switch is not home. */
+    boot(&PAPER, -15500);
+    settle();
+    CHECK_INT(B.n_msgs, 1);
+    CHECK_STR(msg(0), "LIM,MIN");
+    CHECK_INT(rel(), 0);
+    command("SCAN,FULL");
+    run(B.n_msgs, 53); /* ACK, SWP,START, 50 RD, LIM,MAX (with what the same action sends) */
+    CHECK_STR(msg(53), "LIM,MAX"); /* at its place: the head knew where it was */
+    CHECK_INT(B.aims[0], -14925);  /* the first ping where it belongs */
+    for (int i = 0; i < B.n_msgs; i++) {
+        CHECK(!starts(i, "ERR"));
+    }
+}
+
+static void a_stuck_min_switch_is_a_hardware_error(void)
+{
+    boot(&PAPER, -15000);
+    B.min_stuck = true;
+    settle();
+    CHECK_INT(B.n_msgs, 1);
+    CHECK_STR(msg(0), "ERR,HARDWARE,MIN switch stuck closed");
+    CHECK_INT(B.steps, 40);
 }
 
 static void homing_gives_up_after_380_degrees_and_a_scan_retries(void)
@@ -662,7 +691,9 @@ static void unhomed_stop_and_status(void)
 void head_tests(void)
 {
     RUN(boot_homes_clockwise_to_the_min_switch);
-    RUN(boot_on_the_min_switch_is_home);
+    RUN(boot_on_the_min_switch_leaves_it_and_comes_back);
+    RUN(boot_beyond_the_min_switch_homes_onto_it);
+    RUN(a_stuck_min_switch_is_a_hardware_error);
     RUN(homing_gives_up_after_380_degrees_and_a_scan_retries);
     RUN(commands_during_homing);
     RUN(stop_during_homing_drops_the_scan_but_homes);

@@ -134,7 +134,7 @@ fn the_firmware_homes_sweeps_the_room_and_takes_a_local_scan_through_the_driver(
     assert_eq!(directions.len(), 2, "a local scan goes back and forth");
 }
 
-/// The test plays the PC on the firmware's line: every command and every kind of bad line.
+/// The test plays the PC on the firmware's line: homing, every command and every kind of bad line.
 #[test]
 fn the_firmware_answers_every_command_and_every_bad_line() {
     let sandbox = Sandbox::new("fw_line");
@@ -150,6 +150,10 @@ fn the_firmware_answers_every_command_and_every_bad_line() {
             "max",
             "--head-id",
             "00C0FFEE0000BEEF",
+            // Powered on 5° past the MIN switch, as a head turned by hand: the closed switch is
+            // not home; the firmware must leave it and come back (found by the board program).
+            "--start-angle",
+            "-155",
         ],
     );
     let mut port = std::fs::OpenOptions::new()
