@@ -391,6 +391,17 @@ fn parse_hex(digits: &[u8], count: usize) -> Option<u16> {
     u16::from_str_radix(s, 16).ok()
 }
 
+/// A head identity given on a command line (`--head-id`), checked as [`is_valid_head_id`] does.
+pub fn parse_head_id(s: &str) -> Result<String, String> {
+    if is_valid_head_id(s) {
+        Ok(s.to_owned())
+    } else {
+        Err(format!(
+            "a head id is 1–{MAX_HEAD_ID_LEN} characters of 0-9 A-Z a-z - _, got {s:?}"
+        ))
+    }
+}
+
 /// A head identity: 1–[`MAX_HEAD_ID_LEN`] characters of `0-9 A-Z a-z - _`.
 pub fn is_valid_head_id(id: &str) -> bool {
     (1..=MAX_HEAD_ID_LEN).contains(&id.len())

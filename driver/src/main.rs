@@ -21,8 +21,8 @@ use sonar_common::ipc::{
     self, DriverStatus, IpcArgs, LinkState, Reading, ScanCommand, ScanCommandKind, ScanMode,
 };
 use sonar_common::protocol::{
-    DeviceMessage, DeviceState, ErrorCode, FramedLine, HostCommand, LineFramer, MAX_HEAD_ID_LEN,
-    PROTOCOL_VERSION, ProtocolVersion, WireScanMode, encode_command, is_valid_head_id,
+    DeviceMessage, DeviceState, ErrorCode, FramedLine, HostCommand, LineFramer, PROTOCOL_VERSION,
+    ProtocolVersion, WireScanMode, encode_command, parse_head_id,
 };
 use sonar_common::sensor::SensorConfig;
 use sonar_common::throttle::Throttle;
@@ -147,16 +147,6 @@ fn parse_seconds(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 && v <= 3600.0 => Ok(v),
         _ => Err(format!("expected seconds between 0 and 3600, got {s:?}")),
-    }
-}
-
-fn parse_head_id(s: &str) -> Result<String, String> {
-    if is_valid_head_id(s) {
-        Ok(s.to_owned())
-    } else {
-        Err(format!(
-            "a head id is 1–{MAX_HEAD_ID_LEN} characters of 0-9 A-Z a-z - _, got {s:?}"
-        ))
     }
 }
 

@@ -1,7 +1,6 @@
 //! `sonar-firmware-sim`: the head's compiled firmware in simavr, with the hardware around the chip
 //! simulated, on a pseudo-terminal. See the crate docs for what is modelled.
 
-use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -14,7 +13,8 @@ use sonar_firmware_sim::bench::{self, BenchConfig, BenchError, End, Signals, WIT
 use sonar_firmware_sim::head::{Head, HeadConfig};
 use sonar_firmware_sim::headid::HeadId;
 use sonar_firmware_sim::motor::Motor;
-use sonar_sim::{EchoModel, Pty, Scene, Symlink};
+use sonar_sim::link::open_announced;
+use sonar_sim::{EchoModel, Scene};
 use tracing::info;
 
 /// Firmware in the loop: the sensor head's own ATmega328P firmware (the ELF, unchanged) runs in
@@ -133,18 +133,7 @@ fn run(args: Args) -> Result<()> {
     signal_hook::flag::register(signal_hook::consts::SIGUSR1, Arc::clone(&signals.reset))
         .context("installing the SIGUSR1 handler")?;
 
-    let pty = Pty::open().context("opening a pseudo-terminal")?;
-    // The link exists before anyone learns the path from standard output.
-    let _link = args
-        .link
-        .as_deref()
-        .map(|link| Symlink::create(link, pty.path()))
-        .transpose()?;
-    let mut stdout = std::io::stdout().lock();
-    writeln!(stdout, "PTY {}", pty.path().display())
-        .and_then(|()| stdout.flush())
-        .context("writing the PTY line to standard output")?;
-    drop(stdout);
+    let (pty, _link) = open_announced(args.link.as_deref())?;
 
     info!(
         pty = %pty.path().display(),

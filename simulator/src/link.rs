@@ -1,10 +1,12 @@
 //! `--link PATH`: a symbolic link to the pseudo-terminal at a fixed path, for hosts configured with
 //! one (shared by `sonar-sim` and `sonar-firmware-sim`).
 
-use std::io;
+use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 
 use tracing::warn;
+
+use crate::serve::Pty;
 
 /// Why the link could not be made.
 #[derive(Debug, thiserror::Error)]
@@ -19,6 +21,31 @@ pub enum SymlinkError {
         target: PathBuf,
         source: io::Error,
     },
+}
+
+/// Why a head's pseudo-terminal could not be opened and announced.
+#[derive(Debug, thiserror::Error)]
+pub enum AnnounceError {
+    #[error("opening a pseudo-terminal: {0}")]
+    Pty(io::Error),
+    #[error(transparent)]
+    Link(#[from] SymlinkError),
+    #[error("writing the PTY line to standard output: {0}")]
+    Stdout(io::Error),
+}
+
+/// Opens the head's pseudo-terminal as both simulators present it: the `--link` exists before
+/// anyone learns the path, which is then the first line on standard output, `PTY <path>`.
+pub fn open_announced(link: Option<&Path>) -> Result<(Pty, Option<Symlink>), AnnounceError> {
+    let pty = Pty::open().map_err(AnnounceError::Pty)?;
+    let link = link
+        .map(|link| Symlink::create(link, pty.path()))
+        .transpose()?;
+    let mut stdout = io::stdout().lock();
+    writeln!(stdout, "PTY {}", pty.path().display())
+        .and_then(|()| stdout.flush())
+        .map_err(AnnounceError::Stdout)?;
+    Ok((pty, link))
 }
 
 /// A symbolic link to the pseudo-terminal, removed when dropped.
