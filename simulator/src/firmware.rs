@@ -87,6 +87,10 @@ pub struct Firmware<T> {
     /// Id of the latest sweep started (0 before the first).
     last_sweep: u32,
     seq: u32,
+    /// Simulated time of the latest (re)boot: the device's ms clock in `RD` lines counts from it.
+    boot_us: u64,
+    /// Readings sent since the simulator started, across resets.
+    readings_sent: u64,
     echoes: [u32; MAX_PINGS_PER_READING],
     commands: u64,
     rejected_lines: u64,
@@ -120,6 +124,8 @@ impl<T: Transducer> Firmware<T> {
             activity: Activity::Idle,
             last_sweep: 0,
             seq: 0,
+            boot_us: 0,
+            readings_sent: 0,
             echoes: [0; MAX_PINGS_PER_READING],
             commands: 0,
             rejected_lines: 0,
@@ -145,6 +151,25 @@ impl<T: Transducer> Firmware<T> {
         if self.version >= ProtocolVersion::V2 {
             out.push(self.hello());
         }
+    }
+
+    /// Reboots the head, as a power cycle, its reset button or its watchdog would: what it keeps in
+    /// RAM starts over (idle, no sweep open, sweep ids and the reading counter from 0, the ms clock of
+    /// `RD` lines from 0), and it prints what it prints at power-on (a version-2 head its `HELLO`).
+    ///
+    /// The model homes instantly, as at power-on: it stands at the MIN limit at once, with no
+    /// `HOMING` state and no `LIM,MIN`, where the firmware reports `ST,HOMING` while it turns to find
+    /// the switch. The simulated clock runs on (it paces the simulation), and so do the simulator's
+    /// counters ([`Firmware::readings`], [`Firmware::command_counts`]).
+    pub fn reset(&mut self, out: &mut Vec<DeviceMessage>) {
+        self.pos_h = 0;
+        self.dir = Direction::Ccw;
+        self.activity = Activity::Idle;
+        self.last_sweep = 0;
+        self.seq = 0;
+        self.echoes = [0; MAX_PINGS_PER_READING];
+        self.boot_us = self.now_us;
+        self.power_on(out);
     }
 
     fn hello(&self) -> DeviceMessage {
@@ -183,9 +208,9 @@ impl<T: Transducer> Firmware<T> {
             + f64::from(self.pos_h) * f64::from(self.cfg.step_deg) / 2.0
     }
 
-    /// Readings sent so far.
-    pub fn readings(&self) -> u32 {
-        self.seq
+    /// Readings sent since the simulator started (resets included).
+    pub fn readings(&self) -> u64 {
+        self.readings_sent
     }
 
     /// Commands obeyed and lines rejected so far.
@@ -359,7 +384,7 @@ impl<T: Transducer> Firmware<T> {
                 }
                 out.push(DeviceMessage::Reading(WireReading {
                     seq: self.seq,
-                    time_ms: (self.now_us / 1000) as u32,
+                    time_ms: ((self.now_us - self.boot_us) / 1000) as u32,
                     sweep,
                     direction: self.dir,
                     angle_cdeg: self.centres_cdeg[reading],
@@ -367,6 +392,7 @@ impl<T: Transducer> Firmware<T> {
                     echo_us: self.echoes,
                 }));
                 self.seq = self.seq.wrapping_add(1);
+                self.readings_sent += 1;
                 if k < hi - lo {
                     self.activity = Activity::Sweep {
                         scan,
@@ -691,6 +717,49 @@ mod tests {
         let aims = &fw.transducer().aims;
         assert_eq!(aims[..4], [-149.25, -147.75, -146.25, -144.75]);
         assert_eq!(aims[200..204], [149.25, 147.75, 146.25, 144.75]);
+    }
+
+    #[test]
+    fn a_reset_mid_sweep_starts_over_as_at_power_on() {
+        let mut fw = firmware().speaking(ProtocolVersion::V2, "HEAD-7");
+        command(&mut fw, HostCommand::FullScan);
+        run(&mut fw, 3);
+        let mut power_on = Vec::new();
+        fw.power_on(&mut power_on);
+        let mut out = Vec::new();
+        fw.reset(&mut out);
+        assert_eq!(out, power_on, "the HELLO, unprompted");
+        assert!(!fw.act(&mut Vec::new()), "idle");
+        assert_eq!(
+            command(&mut fw, HostCommand::Status),
+            [DeviceMessage::Status {
+                state: DeviceState::Idle,
+                angle_cdeg: -15000,
+                direction: Direction::Ccw,
+                sweep: 0,
+            }],
+            "homed at once, at the MIN limit"
+        );
+        command(&mut fw, HostCommand::FullScan);
+        let msgs = run(&mut fw, 2);
+        assert!(matches!(
+            msgs[0],
+            DeviceMessage::SweepStart { sweep: 1, .. }
+        ));
+        let DeviceMessage::Reading(r) = msgs[1] else {
+            panic!("{msgs:?}")
+        };
+        // Counter and ms clock from 0 again, as the first reading after power-on.
+        assert_eq!(
+            (r.seq, r.sweep, r.angle_cdeg, r.time_ms),
+            (0, 1, -14700, 235)
+        );
+        assert_eq!(fw.readings(), 3, "the simulator's count goes on");
+
+        let mut v1 = firmware().speaking(ProtocolVersion::V1, "ignored");
+        let mut out = Vec::new();
+        v1.reset(&mut out);
+        assert!(out.is_empty(), "a version-1 head resets silently");
     }
 
     #[test]

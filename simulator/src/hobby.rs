@@ -16,6 +16,8 @@ const SETTLE_US: u64 = 30_000;
 pub struct HobbySketch<T> {
     transducer: T,
     step: u32,
+    /// The step at the latest (re)boot: the sweep starts over there.
+    boot_step: u32,
     now_us: u64,
     /// How long the echo line stays high when nothing returns (SRF05: 30 ms).
     echo_timeout_us: u32,
@@ -26,6 +28,7 @@ impl<T: Transducer> HobbySketch<T> {
         Self {
             transducer,
             step: 0,
+            boot_step: 0,
             now_us: 0,
             echo_timeout_us,
         }
@@ -33,6 +36,12 @@ impl<T: Transducer> HobbySketch<T> {
 
     pub fn now_us(&self) -> u64 {
         self.now_us
+    }
+
+    /// Reboots the Arduino: `setup()` runs again (it prints nothing) and the sweep starts over at
+    /// 15°. The clock and the count of records run on.
+    pub fn reset(&mut self) {
+        self.boot_step = self.step;
     }
 
     /// Records printed so far.
@@ -45,7 +54,7 @@ impl<T: Transducer> HobbySketch<T> {
         // `for (i = 15; i <= 165; i++)` then `for (i = 165; i > 15; i--)`: 165 is printed twice,
         // 15 once per cycle.
         let up = SERVO_MAX - SERVO_MIN + 1;
-        let k = self.step % (2 * up - 1);
+        let k = (self.step - self.boot_step) % (2 * up - 1);
         let servo = if k < up {
             SERVO_MIN + k
         } else {
@@ -98,5 +107,11 @@ mod tests {
 
         let mut silent = HobbySketch::new(Fixed(Vec::new(), 0), 30_000);
         assert_eq!(silent.step(), "15,510.");
+
+        sketch.step();
+        sketch.reset();
+        assert_eq!(sketch.step(), "15,118.", "a reset starts the sweep over");
+        assert_eq!(sketch.step(), "16,118.");
+        assert_eq!(sketch.records(), 305);
     }
 }

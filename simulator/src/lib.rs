@@ -17,12 +17,20 @@
 //! - [`serve`](mod@serve): the pseudo-terminal and the loop that paces simulated time against wall time.
 //!   [`hobby`] is the alternative firmware of the `--dialect hobby` mode; [`link`] the `--link`
 //!   symbolic link to the terminal.
+//! - [`faults`]: `--faults`, between the device and the terminal: damaged lines (garbage, bit flips,
+//!   same-column double flips, truncation, overlong lines, stray bytes), a reset mid-sweep and
+//!   silences, seeded and logged, to test a driver against a noisy line. Pure, like the model.
 //!
 //! # Device behaviour (protocol version 2, `docs/protocol.md`; version 1 with `--protocol 1`)
 //!
 //! - **Power-on**: the head has homed to the MIN limit (−150°); the switch reversed the motor, so
-//!   the direction is `+` (CCW). Idle; `ST,IDLE,-15000,+,0`.
+//!   the direction is `+` (CCW). Idle; `ST,IDLE,-15000,+,0`. The model homes instantly: no
+//!   `HOMING` state and no `LIM,MIN`, which the firmware (and `sonar-firmware-sim`) report while
+//!   the head turns to find its switch.
 //! - At power-on (version 2) the head announces itself with its `HELLO` line, unprompted.
+//! - **Reset** ([`Firmware::reset`], `--faults reset=…`): as at power-on, mid-sweep or not. A
+//!   version-2 head sends its `HELLO` unprompted; sweep ids, the reading counter and the ms clock of
+//!   `RD` lines start again from 0.
 //! - `HELLO,v` → `HELLO,2,sonar-sim <version>,<head_id>,<step_cdeg>,<pings_per_reading>,<min_cdeg>,
 //!   <max_cdeg>` if `v` is the version the head speaks, else `ERR,VERSION,…` (`--head-id`, random
 //!   by default; version 1 leaves the identity out). A scan under way goes on.
@@ -73,6 +81,7 @@
 //! evaluation) the true surfaces to rasterise.
 
 pub mod echo;
+pub mod faults;
 pub mod firmware;
 pub mod geometry;
 pub mod hobby;
@@ -81,6 +90,7 @@ pub mod scene;
 pub mod serve;
 
 pub use echo::{Echo, EchoModel, EchoParams, NoiseParams, Target};
+pub use faults::{FaultCounts, FaultInjector, FaultSpec, LineFault, SpecError};
 pub use firmware::{FIRMWARE_ID, Firmware, Timing, Transducer};
 pub use geometry::Vec2;
 pub use hobby::HobbySketch;

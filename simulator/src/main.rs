@@ -1,7 +1,8 @@
 //! `sonar-sim`: the simulated sonar head on a pseudo-terminal. See the crate docs for the device's
 //! behaviour and the echo model.
 
-use std::io::Write;
+use std::fs::File;
+use std::io::{BufWriter, Write};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -9,13 +10,12 @@ use std::sync::atomic::AtomicBool;
 
 use anyhow::{Context, Result};
 use clap::{Parser, ValueEnum};
-use sonar_common::protocol::{
-    MAX_HEAD_ID_LEN, PROTOCOL_VERSION, ProtocolVersion, is_valid_head_id,
-};
+use sonar_common::protocol::{PROTOCOL_VERSION, ProtocolVersion, parse_head_id};
 use sonar_common::sensor::SensorConfig;
+use sonar_sim::link::open_announced;
 use sonar_sim::{
-    Device, EchoModel, Firmware, HobbySketch, NativeDevice, Pty, Scene, Speed, Symlink, Timing,
-    serve,
+    Device, EchoModel, FaultInjector, FaultSpec, Firmware, HobbySketch, NativeDevice, Scene, Speed,
+    Timing, serve,
 };
 use tracing::info;
 
@@ -37,6 +37,7 @@ use tracing::info;
 ///   sonar-sim --scene room --speed 20
 ///   sonar-sim --scene my-lab.toml --link /tmp/sonar-tty
 ///   sonar-sim --dialect hobby        # an "Arduino radar" sketch: `angle,cm.` at once, no commands
+///   sonar-sim --speed 100 --faults bitflip=0.02,truncate=0.01,reset=60s --fault-log faults.jsonl
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
 struct Args {
@@ -73,16 +74,31 @@ struct Args {
     /// same head].
     #[arg(long, value_parser = parse_head_id)]
     head_id: Option<String>,
-}
-
-fn parse_head_id(s: &str) -> Result<String, String> {
-    if is_valid_head_id(s) {
-        Ok(s.to_owned())
-    } else {
-        Err(format!(
-            "a head id is 1–{MAX_HEAD_ID_LEN} characters of 0-9 A-Z a-z - _, got {s:?}"
-        ))
-    }
+    /// Damage the lines the head sends, and reset it or keep it silent at given times, to test a
+    /// driver. Comma-separated KEY=VALUE, e.g.
+    ///   bitflip=0.01,double-flip=0.01,truncate=0.005,garbage=0.01,overlong=0.002,stray=0.01,reset=30s,silence=20s:4s
+    /// Rates, a probability per line (0.01 or 1%; at most one fault per line, so they add up to
+    /// at most 1):
+    ///   garbage      a line of random bytes before the line
+    ///   bitflip      one bit of one byte flipped
+    ///   double-flip  the same bit flipped in two bytes (protocol 1's XOR cannot see it)
+    ///   truncate     the line cut short: it runs into the next one
+    ///   overlong     the line padded past 160 bytes
+    ///   stray        1–8 random bytes before the line
+    /// Events, on the simulated clock from the host's first bytes (nothing is damaged before
+    /// them); each may be given more than once:
+    ///   reset=T      the head reboots (HELLO, idle, at the MIN limit)
+    ///   silence=T:D  the head sends and hears nothing for D (it runs on, as if the cable were cut)
+    /// Durations: 500ms, 30s, 2min. HELLO lines are spared unless hello=damage.
+    #[arg(long, value_name = "SPEC", verbatim_doc_comment)]
+    faults: Option<FaultSpec>,
+    /// Seed of the faults; the same seed and the same traffic give the same faults.
+    #[arg(long, default_value_t = 1, requires = "faults")]
+    fault_seed: u64,
+    /// Log every line sent (intact or damaged, with the original) and every event of --faults
+    /// here, as JSON lines.
+    #[arg(long, value_name = "FILE", requires = "faults")]
+    fault_log: Option<PathBuf>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -128,6 +144,21 @@ fn run(args: Args) -> Result<()> {
         Dialect::Hobby => Box::new(HobbySketch::new(model, sensor.echo_timeout_us)),
     };
 
+    let mut faults = match &args.faults {
+        Some(spec) => {
+            let log = match &args.fault_log {
+                Some(path) => {
+                    let file = File::create(path)
+                        .with_context(|| format!("creating the fault log {}", path.display()))?;
+                    Some(Box::new(BufWriter::new(file)) as Box<dyn Write + Send>)
+                }
+                None => None,
+            };
+            Some(FaultInjector::new(spec.clone(), args.fault_seed, log))
+        }
+        None => None,
+    };
+
     // Before the PTY line, so that a signal sent as soon as it is read is already handled.
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
@@ -135,18 +166,7 @@ fn run(args: Args) -> Result<()> {
             .context("installing the signal handlers")?;
     }
 
-    let pty = Pty::open().context("opening a pseudo-terminal")?;
-    // The link exists before anyone learns the path from standard output.
-    let _link = args
-        .link
-        .as_deref()
-        .map(|link| Symlink::create(link, pty.path()))
-        .transpose()?;
-    let mut stdout = std::io::stdout().lock();
-    writeln!(stdout, "PTY {}", pty.path().display())
-        .and_then(|()| stdout.flush())
-        .context("writing the PTY line to standard output")?;
-    drop(stdout);
+    let (pty, _link) = open_announced(args.link.as_deref())?;
 
     info!(
         pty = %pty.path().display(),
@@ -157,13 +177,16 @@ fn run(args: Args) -> Result<()> {
         seed = args.seed,
         "simulator ready"
     );
-    let stats = serve(&pty, device.as_mut(), args.speed, &stop).context("serving the PTY")?;
+    let stats = serve(&pty, device.as_mut(), args.speed, &stop, faults.as_mut())
+        .context("serving the PTY")?;
+    let faults = faults.map(|f| format!("; faults: {}", f.counts()));
     info!(
         bytes_received = stats.bytes_received,
         lines_written = stats.lines_written,
         lines_dropped = stats.lines_dropped,
-        "stopped: {}",
-        device.summary()
+        "stopped: {}{}",
+        device.summary(),
+        faults.unwrap_or_default()
     );
     Ok(())
 }

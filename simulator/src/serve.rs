@@ -7,6 +7,10 @@
 //! `poll` on the master, so input, pacing and the stop flag (set by a signal handler) share one
 //! wait.
 //!
+//! With `--faults`, every line goes through a [`FaultInjector`] on its way out (and the host's bytes
+//! past it on their way in), which damages lines, resets the device and keeps it silent at the times
+//! it is told.
+//!
 //! Writes never block the loop for long: when the terminal's buffer is full (nobody reads the
 //! slave), a line waits up to [`WRITE_PATIENCE`] for room and is then dropped and counted, as bytes
 //! sent by a UART with no listener are lost. At `--speed max` that wait is the back-pressure that
@@ -27,6 +31,7 @@ use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
 use sonar_common::protocol::{DeviceMessage, FramedLine, LineFramer, Terminators, encode_device};
 use tracing::{debug, info, warn};
 
+use crate::faults::FaultInjector;
 use crate::firmware::{Firmware, Transducer};
 use crate::hobby::HobbySketch;
 
@@ -89,6 +94,8 @@ pub trait Device {
     fn receive(&mut self, bytes: &[u8], out: &mut Vec<String>);
     /// Performs the next timed action and appends what it prints; false when idle.
     fn act(&mut self, out: &mut Vec<String>) -> bool;
+    /// Reboots (power cycle, reset button, watchdog); appends what it prints when it comes up.
+    fn reset(&mut self, out: &mut Vec<String>);
     /// Simulated time, µs.
     fn now_us(&self) -> u64;
     /// Lets simulated time pass while idle.
@@ -148,6 +155,13 @@ impl<T: Transducer> Device for NativeDevice<T> {
         busy
     }
 
+    fn reset(&mut self, out: &mut Vec<String>) {
+        // A half-received command is lost with the UART's buffer.
+        self.framer = LineFramer::new(Terminators::Newline);
+        self.firmware.reset(&mut self.msgs);
+        self.flush(out);
+    }
+
     fn now_us(&self) -> u64 {
         self.firmware.now_us()
     }
@@ -175,6 +189,10 @@ impl<T: Transducer> Device for HobbySketch<T> {
     fn act(&mut self, out: &mut Vec<String>) -> bool {
         out.push(self.step());
         true
+    }
+
+    fn reset(&mut self, _out: &mut Vec<String>) {
+        HobbySketch::reset(self);
     }
 
     fn now_us(&self) -> u64 {
@@ -271,10 +289,11 @@ impl Line<'_> {
         Ok(buf.len() > before)
     }
 
-    /// Writes one line, or drops it after [`WRITE_PATIENCE`] without room.
-    fn write_line(&mut self, line: &str) -> io::Result<()> {
+    /// Writes the bytes of one line, or drops the rest after [`WRITE_PATIENCE`] without room;
+    /// returns how many were written.
+    fn write_line(&mut self, line: &[u8]) -> io::Result<usize> {
         let deadline = Instant::now() + WRITE_PATIENCE;
-        let mut rest = line.as_bytes();
+        let mut rest = line;
         while !rest.is_empty() {
             match (&*self.master).write(rest) {
                 Ok(n) => rest = &rest[n..],
@@ -287,7 +306,7 @@ impl Line<'_> {
                             warn!("nobody reads the port: dropping lines");
                             self.dropping = true;
                         }
-                        return Ok(());
+                        return Ok(line.len() - rest.len());
                     }
                     let mut fds = [PollFd::new(self.master.as_fd(), PollFlags::POLLOUT)];
                     match poll(&mut fds, poll_timeout(wait)) {
@@ -303,16 +322,35 @@ impl Line<'_> {
             self.dropping = false;
         }
         self.stats.lines_written += 1;
-        Ok(())
+        Ok(line.len())
+    }
+
+    /// Writes what the device printed at simulated time `now_us`, through the faults if any.
+    fn send(
+        &mut self,
+        lines: &[String],
+        faults: Option<&mut FaultInjector>,
+        now_us: u64,
+    ) -> io::Result<()> {
+        match faults {
+            None => lines
+                .iter()
+                .try_for_each(|l| self.write_line(l.as_bytes()).map(drop)),
+            Some(faults) => lines.iter().try_for_each(|l| {
+                faults.send(l.as_bytes(), now_us, |bytes| self.write_line(bytes))
+            }),
+        }
     }
 }
 
-/// Serves `device` on `pty` until `stop` is set.
+/// Serves `device` on `pty` until `stop` is set, its lines damaged, and the device reset and
+/// silenced, as `faults` say.
 pub fn serve(
     pty: &Pty,
     device: &mut dyn Device,
     speed: Speed,
     stop: &AtomicBool,
+    mut faults: Option<&mut FaultInjector>,
 ) -> io::Result<ServeStats> {
     let mut line = Line {
         master: &pty.master,
@@ -326,11 +364,16 @@ pub fn serve(
     };
     let mut out = Vec::new();
     device.power_on(&mut out);
-    for l in &out {
-        line.write_line(l)?;
-    }
+    line.send(&out, faults.as_deref_mut(), device.now_us())?;
     let mut input = Vec::new();
     while !stop.load(Ordering::Relaxed) {
+        if let Some(f) = faults.as_deref_mut()
+            && f.advance(device.now_us())?
+        {
+            out.clear();
+            device.reset(&mut out);
+            line.send(&out, Some(f), device.now_us())?;
+        }
         out.clear();
         let busy = device.act(&mut out);
         let due = if busy {
@@ -347,19 +390,23 @@ pub fn serve(
                 break;
             }
         }
-        for l in &out {
-            line.write_line(l)?;
-        }
+        line.send(&out, faults.as_deref_mut(), device.now_us())?;
         if !busy {
             device.idle_until(pacer.sim_now(device.now_us()));
         }
-        if !input.is_empty() {
+        let heard = match faults.as_deref_mut() {
+            _ if input.is_empty() => false,
+            Some(f) => f.hears(&input, device.now_us())?,
+            None => true,
+        };
+        if heard {
             out.clear();
             device.receive(&input, &mut out);
-            for l in &out {
-                line.write_line(l)?;
-            }
+            line.send(&out, faults.as_deref_mut(), device.now_us())?;
         }
+    }
+    if let Some(f) = faults {
+        f.flush()?;
     }
     Ok(line.stats)
 }

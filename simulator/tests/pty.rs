@@ -27,7 +27,15 @@ fn a_host_on_the_slave_gets_the_handshake_and_readings() {
     let stop = Arc::new(AtomicBool::new(false));
     let server = std::thread::spawn({
         let stop = Arc::clone(&stop);
-        move || serve(&pty, &mut NativeDevice::new(firmware), Speed::Max, &stop)
+        move || {
+            serve(
+                &pty,
+                &mut NativeDevice::new(firmware),
+                Speed::Max,
+                &stop,
+                None,
+            )
+        }
     });
 
     let mut port = std::fs::OpenOptions::new()
