@@ -1,0 +1,455 @@
+//! From regions of constant depth to targets: what reflected (plane, corner, point), where, and
+//! how sure we are.
+//!
+//! The only things a region tells are its range, its width and why each end ended. The width is
+//! the effective cone of the reflector at that range ([`crate::physics`]), which the echo physics
+//! predicts for each kind of reflector:
+//!
+//! - a **plane** is heard by every ping within the specular cut-off of its normal and by no other:
+//!   a run 2 × 28° wide whatever its range, centred on the normal, at the perpendicular distance;
+//! - a **corner** is heard over its whole effective cone, the beam's ±30° when near: wider than
+//!   any wall, at the vertex's range;
+//! - a **point** (post, edge) over a cone that narrows with range and weakens with thinness: for
+//!   the reference 5 cm post ±13.4° at 1 m, ±9.4° at 2 m.
+//!
+//! Both ends natural: the width is measured (to a step) and decides, against the expectations at
+//! the region's range with a tolerance of one step plus twice the cone's uncertainty:
+//! up to one reference point's cone → **point** at the centre; a plane's width → **plane**;
+//! a corner's → **corner**; wider than one point but at most two → **two points**, one half-cone in
+//! from each end (two equal targets at one range fill the union of their cones, whose ends are
+//! each target's cone edge); wider than two points but narrower than a plane → a single **point**
+//! stronger than the reference (a thick pillar; its bearing is still the centre).
+//!
+//! One end natural, the other hidden or at the scan's end: the width is only a lower bound. Wider
+//! than a point's cone, it is a **plane** (or, wider than a plane can be, a **corner**) placed from
+//! its natural end: the normal lies one cut-off inward from the cone's edge. Narrower, it could be
+//! anything partly seen: **unclassified**.
+//!
+//! A region hidden at an end by a nearer plane right beside it is tested as a **corner** of that
+//! plane: a concave corner is farther than the feet of its walls, so its walls, heard nearer,
+//! hide it on both sides (the room's corners). If the plane's line meets the region's range
+//! inside the region (at φ ± acos(d / r)), the region is that corner, at that bearing (the mean
+//! over both walls when both are heard) and at the region's range. Regions hidden on both sides
+//! that no plane explains stay unclassified.
+//!
+//! Uncertainties: a cone's edge lies somewhere in the step between the last ping that heard the
+//! target and the first that did not, uniformly: σ = step/√12 per edge, step/√24 for the centre of
+//! two. An estimate from one edge and a modelled half-cone adds the cone's σ. Ranges carry the
+//! jitter of their pings (independent between sweeps) and a systematic share for the speed of
+//! sound. The angular errors repeat in every sweep taken from the same place (the pings fall on
+//! the same angles), so they are reported as systematic, and merging does not shrink them.
+
+use crate::config::FeatureConfig;
+use crate::map::FeatureKind;
+use crate::physics::Reflector;
+use crate::rcd::{End, Rcd};
+
+/// What a region of constant depth was taken for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Class {
+    /// One point target (post, edge) at the region's centre.
+    Point,
+    /// Two equal point targets at the region's range, one half-cone in from each end.
+    TwoPoints,
+    Plane,
+    Corner,
+    /// Too little seen to tell (partly hidden, or wider than any one target).
+    Unclassified,
+}
+
+/// One target seen in one sweep, in the sensor's frame (polar).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Observation {
+    pub kind: FeatureKind,
+    /// Point, corner: range of the target. Plane: its perpendicular distance.
+    pub range_m: f64,
+    /// Point, corner: bearing of the target. Plane: bearing of its normal (towards the wall).
+    pub bearing_deg: f64,
+    /// Range error independent from sweep to sweep (the pings' jitter), 1σ.
+    pub range_sigma_random_m: f64,
+    /// Range error shared by every sweep (speed of sound), 1σ.
+    pub range_sigma_systematic_m: f64,
+    /// Bearing error, 1σ; shared by every sweep taken from the same place.
+    pub bearing_sigma_deg: f64,
+    /// Index of the region it came from.
+    pub rcd: usize,
+}
+
+/// The classes of a sweep's regions (one per region, same order) and the targets they gave.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Classification {
+    pub classes: Vec<Class>,
+    pub observations: Vec<Observation>,
+}
+
+/// A bearing estimate and its σ, degrees.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Bearing {
+    deg: f64,
+    sigma: f64,
+}
+
+/// The class by width, with the bearings of its targets.
+#[derive(Debug, Clone, PartialEq)]
+struct Hypothesis {
+    class: Class,
+    bearings: Vec<Bearing>,
+}
+
+impl Hypothesis {
+    fn unclassified() -> Self {
+        Self {
+            class: Class::Unclassified,
+            bearings: Vec::new(),
+        }
+    }
+
+    fn one(class: Class, deg: f64, sigma: f64) -> Self {
+        Self {
+            class,
+            bearings: vec![Bearing { deg, sigma }],
+        }
+    }
+}
+
+/// Half-angles of the cones a region at one range would show, degrees.
+#[derive(Debug, Clone, Copy)]
+struct Cones {
+    /// The reference point target; 0 where it would not be heard at all.
+    point: f64,
+    plane: Option<f64>,
+    corner: Option<f64>,
+}
+
+impl Cones {
+    fn at(range_m: f64, cfg: &FeatureConfig) -> Self {
+        let beam = f64::from(cfg.sensor.beam_half_angle_deg);
+        let cone = |r: Reflector| cfg.echo.cone_half_angle_deg(r, range_m, beam);
+        Self {
+            point: cone(cfg.echo.reference_point()).unwrap_or(0.0),
+            plane: cone(Reflector::Plane),
+            corner: cone(Reflector::Corner),
+        }
+    }
+}
+
+/// Classifies every region of one sweep (`rcds` in order of bearing, as [`crate::rcd::extract`]
+/// returns them) and estimates its targets.
+pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
+    let mut hypotheses: Vec<Hypothesis> = rcds.iter().map(|r| by_width(r, cfg)).collect();
+    // Corners are tested against the planes found by width, so in a second pass.
+    let corners: Vec<Option<Bearing>> = (0..rcds.len())
+        .map(|i| corner_of_planes(rcds, &hypotheses, i, cfg))
+        .collect();
+    for (h, c) in hypotheses.iter_mut().zip(corners) {
+        if let Some(b) = c {
+            *h = Hypothesis {
+                class: Class::Corner,
+                bearings: vec![b],
+            };
+        }
+    }
+    let observations = hypotheses
+        .iter()
+        .enumerate()
+        .flat_map(|(i, h)| {
+            let rcd = &rcds[i];
+            let kind = match h.class {
+                Class::Point | Class::TwoPoints => Some(FeatureKind::Point),
+                Class::Plane => Some(FeatureKind::Plane),
+                Class::Corner => Some(FeatureKind::Corner),
+                Class::Unclassified => None,
+            };
+            kind.into_iter().flat_map(move |kind| {
+                h.bearings.iter().map(move |b| Observation {
+                    kind,
+                    range_m: rcd.range_m,
+                    bearing_deg: crate::wrap_deg(b.deg),
+                    range_sigma_random_m: rcd.range_sigma_m,
+                    range_sigma_systematic_m: cfg.range_sigma_rel * rcd.range_m,
+                    bearing_sigma_deg: b.sigma,
+                    rcd: i,
+                })
+            })
+        })
+        .collect();
+    Classification {
+        classes: hypotheses.iter().map(|h| h.class).collect(),
+        observations,
+    }
+}
+
+/// The class a region's width and ends allow, before corners are tested.
+fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
+    let cones = Cones::at(rcd.range_m, cfg);
+    let w = rcd.width_deg();
+    let tol = cfg.width_tolerance_deg();
+    let step = rcd.step_deg;
+    // Both edges quantised to a step, independently: the centre's error is half their
+    // difference.
+    let centre_sigma = step / 24f64.sqrt();
+    // One edge quantised and a modelled half-cone.
+    let edge_sigma = (step * step / 12.0 + cfg.cone_sigma_deg.powi(2)).sqrt();
+    let fits = |half: Option<f64>| half.is_some_and(|h| (w - 2.0 * h).abs() <= tol);
+    let point = cones.point;
+    match (rcd.start.is_natural(), rcd.end.is_natural()) {
+        (true, true) => {
+            let centre = rcd.centre_deg();
+            if w <= 2.0 * point + tol {
+                Hypothesis::one(Class::Point, centre, centre_sigma)
+            } else if fits(cones.plane) {
+                Hypothesis::one(Class::Plane, centre, centre_sigma)
+            } else if fits(cones.corner) {
+                Hypothesis::one(Class::Corner, centre, centre_sigma)
+            } else if w <= 4.0 * point + tol {
+                let bearing = |deg| Bearing {
+                    deg,
+                    sigma: edge_sigma,
+                };
+                Hypothesis {
+                    class: Class::TwoPoints,
+                    bearings: vec![
+                        bearing(rcd.start_edge_deg() + point),
+                        bearing(rcd.end_edge_deg() - point),
+                    ],
+                }
+            } else if cones.plane.is_some_and(|h| w < 2.0 * h - tol) {
+                Hypothesis::one(Class::Point, centre, centre_sigma)
+            } else {
+                Hypothesis::unclassified()
+            }
+        }
+        (true, false) | (false, true) if w > 2.0 * point + tol => {
+            // The natural edge is the cone's edge; the reflector's axis lies one half-cone
+            // inward.
+            let inward = |half: f64| {
+                if rcd.start.is_natural() {
+                    rcd.start_edge_deg() + half
+                } else {
+                    rcd.end_edge_deg() - half
+                }
+            };
+            let within = |half: Option<f64>| half.filter(|h| w <= 2.0 * h + tol);
+            if let Some(h) = within(cones.plane) {
+                Hypothesis::one(Class::Plane, inward(h), edge_sigma)
+            } else if let Some(h) = within(cones.corner) {
+                Hypothesis::one(Class::Corner, inward(h), edge_sigma)
+            } else {
+                Hypothesis::unclassified()
+            }
+        }
+        _ => Hypothesis::unclassified(),
+    }
+}
+
+/// If region `i` is hidden at an end by a plane right beside it, and that plane's line meets the
+/// region's range inside the region, the corner's bearing (mean over both sides).
+fn corner_of_planes(
+    rcds: &[Rcd],
+    hypotheses: &[Hypothesis],
+    i: usize,
+    cfg: &FeatureConfig,
+) -> Option<Bearing> {
+    let rcd = &rcds[i];
+    if matches!(hypotheses[i].class, Class::Point | Class::TwoPoints) {
+        return None;
+    }
+    let step = rcd.step_deg;
+    let r = rcd.range_m;
+    let sigma_r2 = rcd.range_sigma_m.powi(2) + (cfg.range_sigma_rel * r).powi(2);
+    let corner_half = Cones::at(r, cfg).corner?;
+    // The plane beside an occluded end: its run starts (ends) at the next (previous) ping.
+    let beside = |side: End, toward_higher: bool| -> Option<Bearing> {
+        if side != End::Occluded {
+            return None;
+        }
+        let (j, plane) = rcds.iter().enumerate().find(|(_, p)| {
+            let next = if toward_higher {
+                p.first_deg - rcd.last_deg
+            } else {
+                rcd.first_deg - p.last_deg
+            };
+            (next - step).abs() < step / 2.0
+        })?;
+        if hypotheses[j].class != Class::Plane {
+            return None;
+        }
+        let normal = hypotheses[j].bearings.first()?;
+        let d = plane.range_m;
+        // A concave corner lies beyond the foot of its wall's perpendicular.
+        if d >= r {
+            return None;
+        }
+        let off = (d / r).acos().to_degrees();
+        // The corner lies on the region's side of the plane's normal.
+        let deg = if toward_higher {
+            normal.deg - off
+        } else {
+            normal.deg + off
+        };
+        let sigma_d2 = plane.range_sigma_m.powi(2) + (cfg.range_sigma_rel * d).powi(2);
+        let dacos2 = (sigma_d2 + (d / r).powi(2) * sigma_r2) / (r * r - d * d);
+        let dacos_deg2 = dacos2 * (180.0 / std::f64::consts::PI).powi(2);
+        let sigma = (normal.sigma.powi(2) + dacos_deg2).sqrt();
+        Some(Bearing { deg, sigma })
+    };
+    let estimates: Vec<Bearing> = [beside(rcd.start, false), beside(rcd.end, true)]
+        .into_iter()
+        .flatten()
+        // Inside the region, and the region inside the corner's cone around it.
+        .filter(|b| {
+            let margin = 3.0 * b.sigma + step / 2.0;
+            b.deg >= rcd.start_edge_deg() - margin
+                && b.deg <= rcd.end_edge_deg() + margin
+                && rcd.start_edge_deg() >= b.deg - corner_half - margin
+                && rcd.end_edge_deg() <= b.deg + corner_half + margin
+        })
+        .collect();
+    if estimates.is_empty() {
+        return None;
+    }
+    let weight: f64 = estimates.iter().map(|b| b.sigma.powi(-2)).sum();
+    let deg = estimates
+        .iter()
+        .map(|b| b.deg * b.sigma.powi(-2))
+        .sum::<f64>()
+        / weight;
+    Some(Bearing {
+        deg,
+        sigma: weight.powf(-0.5),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rcd::extract;
+    use crate::rcd::tests::{run, sweep};
+
+    fn classified(from_deg: f64, ranges: &[f64]) -> (Vec<Rcd>, Classification) {
+        let cfg = FeatureConfig::default();
+        let rcds = extract(&sweep(from_deg, ranges), &cfg);
+        let c = classify(&rcds, &cfg);
+        (rcds, c)
+    }
+
+    /// The detector's mean lateness (one cycle at 40 kHz), which the sensor adds to every range.
+    const LATE: f64 = 0.00429;
+
+    /// `n` pings from `from_deg` every 1.5°, each hearing the nearest of the `targets`
+    /// `(bearing, cone half-angle, true range)` whose cone it lies in, or nothing: ideal targets.
+    fn cone_sweep(from_deg: f64, n: usize, targets: &[(f64, f64, f64)]) -> Vec<f64> {
+        (0..n)
+            .map(|i| {
+                let b = from_deg + 1.5 * i as f64;
+                targets
+                    .iter()
+                    .filter(|(bearing, half, _)| (b - bearing).abs() <= *half)
+                    .map(|t| t.2 + LATE)
+                    .reduce(f64::min)
+                    .unwrap_or(0.0)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_post_is_a_point_at_the_centre_of_its_region() {
+        // A 5 cm post at 1 m, 2° off the ping grid's symmetry, heard within ±13.4°.
+        let ranges = cone_sweep(-45.75, 62, &[(2.0, 13.4, 0.975)]);
+        let (_, c) = classified(-45.75, &ranges);
+        assert_eq!(c.classes, [Class::Point]);
+        let o = c.observations[0];
+        assert_eq!(o.kind, FeatureKind::Point);
+        // The centre is within half a step of the truth.
+        assert!((o.bearing_deg - 2.0).abs() <= 0.75, "{o:?}");
+        assert!((o.range_m - 0.975).abs() < 0.001, "{o:?}");
+        assert!((o.bearing_sigma_deg - 1.5 / 24f64.sqrt()).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_wall_is_a_plane_along_its_normal() {
+        // A wall 1.2 m away with its normal at 10°: heard within the 28° cut-off.
+        let ranges = cone_sweep(-45.75, 62, &[(10.0, 28.0, 1.2)]);
+        let (_, c) = classified(-45.75, &ranges);
+        assert_eq!(c.classes, [Class::Plane]);
+        let o = c.observations[0];
+        assert!((o.bearing_deg - 10.0).abs() <= 0.75, "{o:?}");
+        assert!((o.range_m - 1.2).abs() < 0.001);
+    }
+
+    #[test]
+    fn a_wall_cut_by_the_end_of_the_scan_is_placed_from_its_natural_end() {
+        // Normal at 45°, the scan stops at 62.25°: only the edge at 17° is the cone's.
+        let ranges = cone_sweep(-9.75, 49, &[(45.0, 28.0, 0.85)]);
+        let (rcds, c) = classified(-9.75, &ranges);
+        assert_eq!(rcds[0].end, End::Unknown);
+        assert_eq!(c.classes, [Class::Plane]);
+        let o = c.observations[0];
+        assert!((o.bearing_deg - 45.0).abs() <= 0.75, "{o:?}");
+        assert!(
+            o.bearing_sigma_deg > 0.6,
+            "one edge and the cut-off's uncertainty"
+        );
+    }
+
+    #[test]
+    fn two_posts_at_one_range_are_two_points_a_half_cone_in_from_each_end() {
+        // Two 5 cm posts 20 cm apart at 1 m: bearings ±5.71°, cones of ±13.4° merged.
+        let b = (0.1f64).atan().to_degrees();
+        let targets = [(-b, 13.4, 0.98), (b, 13.4, 0.98), (0.0, 28.0, 2.0)];
+        let ranges = cone_sweep(-45.75, 62, &targets);
+        let (_, c) = classified(-45.75, &ranges);
+        let points: Vec<f64> = c
+            .observations
+            .iter()
+            .filter(|o| o.kind == FeatureKind::Point)
+            .map(|o| o.bearing_deg)
+            .collect();
+        assert_eq!(points.len(), 2, "{c:?}");
+        assert!(
+            (points[0] + b).abs() <= 0.8 && (points[1] - b).abs() <= 0.8,
+            "{points:?}"
+        );
+        // The wall behind, heard beside the posts out to its cut-off, is one plane.
+        assert!(c.classes.contains(&Class::TwoPoints) && c.classes.contains(&Class::Plane));
+    }
+
+    #[test]
+    fn room_corners_are_found_between_their_walls() {
+        // Walls 1.2 m away with normals at 0° and 90°, the corner between them at 1.7 m, 45°.
+        let ranges = cone_sweep(
+            -29.25,
+            100,
+            &[(0.0, 28.0, 1.2), (90.0, 28.0, 1.2), (45.0, 30.0, 1.7)],
+        );
+        let (_, c) = classified(-29.25, &ranges);
+        assert_eq!(c.classes, [Class::Plane, Class::Corner, Class::Plane]);
+        let corner = c
+            .observations
+            .iter()
+            .find(|o| o.kind == FeatureKind::Corner)
+            .unwrap();
+        assert!((corner.bearing_deg - 45.0).abs() < 0.75, "{corner:?}");
+        assert!((corner.range_m - 1.7).abs() < 0.001);
+    }
+
+    #[test]
+    fn partly_seen_narrow_regions_and_hidden_fragments_are_not_features() {
+        // A post's run cut by the end of the scan, and a wall seen only between two posts.
+        let cut = [run(4, 0.98), run(3, 0.0)].concat();
+        let (_, c) = classified(0.0, &cut);
+        assert_eq!(c.classes, [Class::Unclassified]);
+        assert!(c.observations.is_empty());
+        let between = [run(8, 0.98), run(4, 2.0), run(8, 0.98)].concat();
+        let (_, c) = classified(0.0, &between);
+        assert_eq!(c.classes[1], Class::Unclassified);
+    }
+
+    #[test]
+    fn wider_than_any_single_target_is_unclassified() {
+        // 90° of constant range with natural ends: no wall, corner or pair of posts does that.
+        let ranges = [run(2, 0.0), run(60, 1.0), run(2, 0.0)].concat();
+        let (_, c) = classified(0.0, &ranges);
+        assert_eq!(c.classes, [Class::Unclassified]);
+    }
+}

@@ -1,0 +1,307 @@
+//! Configuration: the echo physics the expected widths come from, and the thresholds of
+//! extraction, merging and segment assembly. Every default is documented with where it comes
+//! from; [`FeatureConfig::validate`] refuses values that cannot describe a sensor.
+
+use serde::{Deserialize, Serialize};
+use sonar_common::sensor::SensorConfig;
+
+use crate::FeatureError;
+
+/// The physics of the echo, as far as the widths of regions of constant depth depend on it.
+///
+/// The same model as the simulator's echo model (`simulator/src/echo.rs`, `EchoParams`), with the
+/// same defaults, so that the cones this crate expects are the cones the simulator produces; on a
+/// real sensor, measure them (a wall, a corner and a post at a few ranges) and set these. Levels in
+/// dB, 0 dB being a hard flat wall 0.5 m ahead on the axis:
+///
+/// ```text
+/// margin(r) = spreading(reflector, r) − 2·α·r + tvg·min(r, tvg_max) − threshold   (on the axis)
+/// cone half-angle = b₆ · √(margin / 6 dB)   (round-trip beam −6 dB at b₆, falling as θ²)
+/// ```
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EchoPhysics {
+    /// Carrier: the SRF05 sends 8 cycles at 40 kHz (sensor-facts). Sets the wavelength, hence
+    /// the detector's jitter.
+    pub frequency_hz: f64,
+    /// Off-axis angle where the round-trip beam is 6 dB down: 27° (sensor-facts: ≈ 55° full
+    /// width at −6 dB).
+    pub beam_6db_half_angle_deg: f64,
+    /// Largest incidence at which a flat wall still returns (sensor-facts: a card read correctly
+    /// to ≈ 25–30°; the simulator uses 28°). A wall is heard by every ping aimed within this of
+    /// its normal, and by no other.
+    pub specular_cutoff_deg: f64,
+    /// Air absorption at 40 kHz, one way (ISO 9613-1, 20 °C, 50 % RH).
+    pub absorption_db_per_m: f64,
+    /// The receiver's gain ramp per metre of range (fitted in the simulator to sensor-facts'
+    /// calibration points).
+    pub tvg_db_per_m: f64,
+    /// Range after which the gain ramp holds.
+    pub tvg_max_range_m: f64,
+    /// Detection threshold (fitted: a 5 cm post at 1 m is heard within ≈ ±13°).
+    pub threshold_db: f64,
+    /// A concave corner returns this much less than a flat wall at its range (finite aperture).
+    pub corner_loss_db: f64,
+    /// Radius of the reference point target, the one whose effective cone tells one target from
+    /// two: 2.5 cm, the paper's small obstacles. A thicker post is heard over a wider cone and
+    /// is reported as two targets (see the crate docs).
+    pub point_radius_m: f64,
+    /// The detector fires on the first to the `1 + late_cycles_max`-th cycle of the echo
+    /// (sensor-facts: jitter of about one wavelength); each late cycle adds half a wavelength of
+    /// range. Sets the range tolerance of a run and the bias removed from its mean.
+    pub late_cycles_max: u32,
+}
+
+impl Default for EchoPhysics {
+    fn default() -> Self {
+        Self {
+            frequency_hz: 40_000.0,
+            beam_6db_half_angle_deg: 27.0,
+            specular_cutoff_deg: 28.0,
+            absorption_db_per_m: 1.3,
+            tvg_db_per_m: 11.0,
+            tvg_max_range_m: 2.0,
+            threshold_db: -15.0,
+            corner_loss_db: 3.0,
+            point_radius_m: 0.025,
+            late_cycles_max: 2,
+        }
+    }
+}
+
+/// How observations are merged into the map and how unconfirmed features fade.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MergeConfig {
+    /// An observation refines a feature of its kind when the squared Mahalanobis distance of
+    /// their difference is below this (2 degrees of freedom; 13.8 = 99.9 %).
+    pub gate_chi2: f64,
+    /// Confidence of a feature seen once.
+    pub initial_confidence: f64,
+    /// Each confirmation moves the confidence this share of the way to 1.
+    pub confirm_gain: f64,
+    /// Each sweep whose ping at the feature's bearing heard farther or nothing multiplies the
+    /// confidence by this.
+    pub miss_factor: f64,
+    /// Features whose confidence falls below this are removed.
+    pub remove_below: f64,
+}
+
+impl Default for MergeConfig {
+    fn default() -> Self {
+        Self {
+            gate_chi2: 13.8,
+            initial_confidence: 0.5,
+            confirm_gain: 0.5,
+            // From 0.5, three misses in a row remove a feature seen once; a long-confirmed one
+            // (confidence near 1) goes after five.
+            miss_factor: 0.7,
+            remove_below: 0.2,
+        }
+    }
+}
+
+/// How partial planes are assembled into segments.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SegmentConfig {
+    /// A support point (an occupied grid cell) belongs to a plane when it lies this close to its
+    /// line: one and a half 2 cm cells.
+    pub support_tolerance_m: f64,
+    /// A segment grows along its line through support points no farther apart than this.
+    pub max_gap_m: f64,
+    /// A corner feature ends a plane when it lies this close to the plane's line.
+    pub corner_tolerance_m: f64,
+}
+
+impl Default for SegmentConfig {
+    fn default() -> Self {
+        Self {
+            support_tolerance_m: 0.03,
+            max_gap_m: 0.10,
+            corner_tolerance_m: 0.05,
+        }
+    }
+}
+
+/// Everything the feature pipeline needs.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FeatureConfig {
+    /// The head: step between pings (1.5°), beam half-angle (±30°), range limits and the air
+    /// temperature for readings that do not carry their speed of sound.
+    pub sensor: SensorConfig,
+    pub echo: EchoPhysics,
+    /// Fewest pings a region of constant depth needs to become a feature: a transient is one
+    /// ping, and even the weakest target the model hears (a 5 cm post at 2 m, ±9°) spans more
+    /// than three.
+    pub min_pings: u32,
+    /// Range tolerance of a run beyond the detector's own jitter (which is
+    /// `late_cycles_max` half-wavelengths, 8.6 mm): targets that are not perfectly round or flat,
+    /// rounding. The ranges of a run lie within jitter + margin of each other.
+    pub range_margin_m: f64,
+    /// Uncertainty (1σ) of every modelled cone half-angle: the specular cut-off and the effective
+    /// cones. The simulator's are exact; on a real head measure them and raise this (sensor-facts
+    /// only bounds the cut-off to 25–30°).
+    pub cone_sigma_deg: f64,
+    /// Relative systematic range error (1σ): the speed of sound's linear law is good to 0.2 %.
+    pub range_sigma_rel: f64,
+    pub merge: MergeConfig,
+    pub segments: SegmentConfig,
+}
+
+impl Default for FeatureConfig {
+    fn default() -> Self {
+        Self {
+            sensor: SensorConfig::default(),
+            echo: EchoPhysics::default(),
+            min_pings: 3,
+            range_margin_m: 0.01,
+            cone_sigma_deg: 0.5,
+            range_sigma_rel: 0.002,
+            merge: MergeConfig::default(),
+            segments: SegmentConfig::default(),
+        }
+    }
+}
+
+fn check(ok: bool, what: &str) -> Result<(), FeatureError> {
+    if ok {
+        Ok(())
+    } else {
+        Err(FeatureError::Config(what.to_owned()))
+    }
+}
+
+fn positive(value: f64, name: &str) -> Result<(), FeatureError> {
+    check(
+        value.is_finite() && value > 0.0,
+        &format!("{name} must be > 0"),
+    )
+}
+
+fn non_negative(value: f64, name: &str) -> Result<(), FeatureError> {
+    check(
+        value.is_finite() && value >= 0.0,
+        &format!("{name} must be >= 0"),
+    )
+}
+
+fn share(value: f64, name: &str) -> Result<(), FeatureError> {
+    check(
+        value > 0.0 && value < 1.0,
+        &format!("{name} must be in (0, 1)"),
+    )
+}
+
+impl FeatureConfig {
+    pub fn validate(&self) -> Result<(), FeatureError> {
+        self.sensor
+            .validate()
+            .map_err(|e| FeatureError::Config(e.to_string()))?;
+        let e = &self.echo;
+        positive(e.frequency_hz, "echo.frequency_hz")?;
+        check(
+            e.beam_6db_half_angle_deg > 0.0 && e.beam_6db_half_angle_deg < 90.0,
+            "echo.beam_6db_half_angle_deg must be in (0, 90)",
+        )?;
+        check(
+            e.specular_cutoff_deg > 0.0 && e.specular_cutoff_deg <= 90.0,
+            "echo.specular_cutoff_deg must be in (0, 90]",
+        )?;
+        non_negative(e.absorption_db_per_m, "echo.absorption_db_per_m")?;
+        non_negative(e.tvg_db_per_m, "echo.tvg_db_per_m")?;
+        non_negative(e.tvg_max_range_m, "echo.tvg_max_range_m")?;
+        check(
+            e.threshold_db.is_finite(),
+            "echo.threshold_db must be a number",
+        )?;
+        non_negative(e.corner_loss_db, "echo.corner_loss_db")?;
+        positive(e.point_radius_m, "echo.point_radius_m")?;
+        check(
+            e.late_cycles_max <= 16,
+            "echo.late_cycles_max must be at most 16",
+        )?;
+        check(self.min_pings >= 1, "min_pings must be at least 1")?;
+        non_negative(self.range_margin_m, "range_margin_m")?;
+        non_negative(self.cone_sigma_deg, "cone_sigma_deg")?;
+        non_negative(self.range_sigma_rel, "range_sigma_rel")?;
+        let m = &self.merge;
+        positive(m.gate_chi2, "merge.gate_chi2")?;
+        share(m.initial_confidence, "merge.initial_confidence")?;
+        share(m.confirm_gain, "merge.confirm_gain")?;
+        share(m.miss_factor, "merge.miss_factor")?;
+        check(
+            m.remove_below >= 0.0 && m.remove_below < m.initial_confidence,
+            "merge.remove_below must be >= 0 and below merge.initial_confidence",
+        )?;
+        let s = &self.segments;
+        positive(s.support_tolerance_m, "segments.support_tolerance_m")?;
+        positive(s.max_gap_m, "segments.max_gap_m")?;
+        positive(s.corner_tolerance_m, "segments.corner_tolerance_m")
+    }
+
+    /// The stepper's angle between two pings, degrees.
+    pub fn step_deg(&self) -> f64 {
+        f64::from(self.sensor.step_deg)
+    }
+
+    /// Speed of sound at the configured air temperature, for readings that carry none.
+    pub fn speed_of_sound_mps(&self) -> f64 {
+        f64::from(self.sensor.speed_of_sound_mps())
+    }
+
+    /// The ranges of one run lie within this of each other: the detector's jitter plus the
+    /// margin.
+    pub fn range_tolerance_m(&self) -> f64 {
+        self.echo.late_spread_m(self.speed_of_sound_mps()) + self.range_margin_m
+    }
+
+    /// Tolerance on a measured width: each end of a run is known to one step (the cone's edge
+    /// lies between the last ping that heard the target and the first that did not), and each
+    /// modelled cone edge to `cone_sigma_deg`, twice over for two ends.
+    pub fn width_tolerance_deg(&self) -> f64 {
+        self.step_deg() + 2.0 * self.cone_sigma_deg
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_defaults_are_valid_and_nonsense_is_refused() {
+        assert_eq!(FeatureConfig::default().validate(), Ok(()));
+        let mut bad = FeatureConfig::default();
+        bad.echo.point_radius_m = 0.0;
+        let err = bad.validate().unwrap_err().to_string();
+        assert!(err.contains("point_radius_m"), "{err}");
+        let mut bad = FeatureConfig::default();
+        bad.merge.remove_below = 0.6;
+        assert!(bad.validate().is_err());
+        let mut bad = FeatureConfig::default();
+        bad.sensor.step_deg = -1.0;
+        assert!(bad.validate().is_err());
+        let mut bad = FeatureConfig::default();
+        bad.echo.threshold_db = f64::NAN;
+        assert!(bad.validate().is_err());
+    }
+
+    #[test]
+    fn tolerances_follow_from_the_physics() {
+        let cfg = FeatureConfig::default();
+        // Two late cycles at 40 kHz and 343.4 m/s: 8.6 mm, plus the 1 cm margin.
+        assert!((cfg.range_tolerance_m() - 0.0186).abs() < 1e-4);
+        assert!((cfg.width_tolerance_deg() - 2.5).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_toml_section_overrides_single_fields() {
+        let cfg: FeatureConfig =
+            toml::from_str("min_pings = 4\n[echo]\nspecular_cutoff_deg = 25.0\n").unwrap();
+        assert_eq!(cfg.min_pings, 4);
+        assert_eq!(cfg.echo.specular_cutoff_deg, 25.0);
+        assert_eq!(cfg.echo.frequency_hz, 40_000.0);
+        assert!(toml::from_str::<FeatureConfig>("min_ping = 4\n").is_err());
+    }
+}

@@ -1,0 +1,692 @@
+//! The feature map: targets merged across sweeps and scan directions, refined when seen again,
+//! fading when they stop being confirmed.
+//!
+//! Each sweep's [`Observation`]s are moved into the map's frame with the sensor's pose for the
+//! sweep: points and corners as a position (x, y), planes in normal form (angle φ of the normal,
+//! distance d from the map's origin). An observation refines the feature of its kind whose
+//! estimate it matches (squared Mahalanobis distance under [`MergeConfig::gate_chi2`], each
+//! feature refined at most once per sweep, the closest pairs first); otherwise it starts a new one.
+//!
+//! **Refinement** is a Kalman update of the estimate. Its covariance is kept in two parts because
+//! the two kinds of error behave differently: the pings' jitter is independent from sweep to
+//! sweep and averages out (the Kalman update of that part), but the bearing's quantisation repeats
+//! in every sweep taken from the same place — the pings fall on the same angles whichever way the
+//! head turns — so that part is the average of the observations' (it does not shrink). Reported
+//! covariance = random part + systematic part. From a moving robot the quantisation differs from
+//! place to place, and the figure is then on the safe side.
+//!
+//! **Fading**: a feature not confirmed by a sweep loses confidence only when the sweep had a ping
+//! aimed at it (within half a step of its bearing, the plane's normal) that heard **farther or
+//! nothing**: a target there would have been heard on its axis. A nearer echo hides it (no
+//! change), and so does the same range without a classified region (something is still there).
+//! Confirmation moves the confidence towards 1, a miss multiplies it by
+//! [`MergeConfig::miss_factor`], and a feature below [`MergeConfig::remove_below`] is removed.
+
+use nalgebra::{Isometry2, Matrix2, Point2, Vector2};
+
+use crate::FeatureError;
+use crate::classify::{Classification, Observation, classify};
+use crate::config::{FeatureConfig, MergeConfig};
+use crate::pings::Sweep;
+use crate::rcd::{Rcd, extract};
+use crate::segment::{Segment, segments};
+
+/// What kind of target a feature is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum FeatureKind {
+    /// A post, pillar, table leg or wall edge: a small convex target.
+    Point,
+    /// A concave corner.
+    Corner,
+    /// A wall (a partial plane).
+    Plane,
+}
+
+/// Smallest bearing σ used for the independent part, so its covariance stays invertible (the
+/// bearing has no error independent between sweeps taken from one place).
+const BEARING_FLOOR_DEG: f64 = 0.01;
+
+/// A feature of the map.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Feature {
+    id: u64,
+    kind: FeatureKind,
+    /// Point, corner: (x, y). Plane: (φ in radians, d).
+    mean: Vector2<f64>,
+    /// Covariance of the Kalman recursion, which weighs each observation.
+    weights: Matrix2<f64>,
+    /// Covariance of the part of the error that averages out.
+    random: Matrix2<f64>,
+    /// Covariance of the part that repeats from sweep to sweep (mean over the observations).
+    systematic: Matrix2<f64>,
+    confidence: f64,
+    times_seen: u32,
+    first_seen: u64,
+    last_seen: u64,
+    /// Direction of the sensor's ray to the feature at its last sighting, degrees.
+    ray_deg: f64,
+    /// Plane: where the sensor's own perpendicular met the line, along the line (coordinate along
+    /// the direction 90° counter-clockwise of the normal, from the foot of the map origin's
+    /// perpendicular): the extent of direct evidence.
+    feet: (f64, f64),
+}
+
+impl Feature {
+    pub fn id(&self) -> u64 {
+        self.id
+    }
+
+    pub fn kind(&self) -> FeatureKind {
+        self.kind
+    }
+
+    /// Point: the echo point (the target's surface nearest the sensor). Corner: the vertex.
+    /// Plane: the foot of the perpendicular from the map's origin.
+    pub fn position(&self) -> Point2<f64> {
+        match self.kind {
+            FeatureKind::Plane => Point2::from(self.normal() * self.mean.y),
+            FeatureKind::Point | FeatureKind::Corner => Point2::from(self.mean),
+        }
+    }
+
+    /// Reported covariance of the estimate in its own coordinates: (x, y), or (φ, d) for a plane.
+    fn covariance_own(&self) -> Matrix2<f64> {
+        self.random + self.systematic
+    }
+
+    /// Covariance of [`Feature::position`], m².
+    pub fn covariance(&self) -> Matrix2<f64> {
+        let p = self.covariance_own();
+        match self.kind {
+            FeatureKind::Point | FeatureKind::Corner => p,
+            FeatureKind::Plane => {
+                // foot = d·n(φ): ∂/∂φ = d·n'(φ), ∂/∂d = n(φ).
+                let n = self.normal();
+                let j = Matrix2::new(-n.y * self.mean.y, n.x, n.x * self.mean.y, n.y);
+                j * p * j.transpose()
+            }
+        }
+    }
+
+    /// Unit normal of a plane (meaningless for other kinds).
+    pub(crate) fn normal(&self) -> Vector2<f64> {
+        Vector2::new(self.mean.x.cos(), self.mean.x.sin())
+    }
+
+    /// Plane: direction of its normal from the map's origin towards the wall, degrees.
+    pub fn normal_deg(&self) -> Option<f64> {
+        (self.kind == FeatureKind::Plane).then(|| self.mean.x.to_degrees())
+    }
+
+    /// Plane: σ of the normal's direction, degrees.
+    pub fn normal_sigma_deg(&self) -> Option<f64> {
+        (self.kind == FeatureKind::Plane).then(|| self.covariance_own()[(0, 0)].sqrt().to_degrees())
+    }
+
+    /// Plane: perpendicular distance from the map's origin, metres.
+    pub fn distance_m(&self) -> Option<f64> {
+        (self.kind == FeatureKind::Plane).then_some(self.mean.y)
+    }
+
+    /// Plane: σ of that distance, metres.
+    pub fn distance_sigma_m(&self) -> Option<f64> {
+        (self.kind == FeatureKind::Plane).then(|| self.covariance_own()[(1, 1)].sqrt())
+    }
+
+    /// Plane: direction along its line (the normal turned 90° counter-clockwise).
+    pub(crate) fn direction(&self) -> Option<Vector2<f64>> {
+        (self.kind == FeatureKind::Plane).then(|| {
+            let n = self.normal();
+            Vector2::new(-n.y, n.x)
+        })
+    }
+
+    /// Plane: the extent along its line over which the sensor's perpendiculars met it.
+    pub(crate) fn feet(&self) -> (f64, f64) {
+        self.feet
+    }
+
+    /// In [0, 1]: how well recent sweeps confirmed it.
+    pub fn confidence(&self) -> f64 {
+        self.confidence
+    }
+
+    /// Sweeps that observed it.
+    pub fn times_seen(&self) -> u32 {
+        self.times_seen
+    }
+
+    /// Sweep numbers (from 1, counted by the map) of its first and latest sighting.
+    pub fn first_seen(&self) -> u64 {
+        self.first_seen
+    }
+
+    pub fn last_seen(&self) -> u64 {
+        self.last_seen
+    }
+
+    /// Direction of the sensor's ray to the target at its latest sighting, degrees (for a plane,
+    /// the normal as the sensor saw it).
+    pub fn ray_deg(&self) -> f64 {
+        self.ray_deg
+    }
+}
+
+/// An observation in the map's frame.
+#[derive(Debug, Clone, Copy)]
+struct Placed {
+    kind: FeatureKind,
+    mean: Vector2<f64>,
+    random: Matrix2<f64>,
+    systematic: Matrix2<f64>,
+    ray_deg: f64,
+    /// Plane: the sensor's foot along the line.
+    foot: f64,
+}
+
+impl Placed {
+    fn new(o: &Observation, pose: &Isometry2<f64>) -> Self {
+        let theta = pose.rotation.angle();
+        let t = pose.translation.vector;
+        let beta = o.bearing_deg.to_radians();
+        let random = Matrix2::from_diagonal(&Vector2::new(
+            o.range_sigma_random_m.powi(2),
+            BEARING_FLOOR_DEG.to_radians().powi(2),
+        ));
+        let systematic = Matrix2::from_diagonal(&Vector2::new(
+            o.range_sigma_systematic_m.powi(2),
+            o.bearing_sigma_deg.to_radians().powi(2),
+        ));
+        match o.kind {
+            FeatureKind::Point | FeatureKind::Corner => {
+                let local = Point2::new(o.range_m * beta.cos(), o.range_m * beta.sin());
+                let world = pose * local;
+                // (r, β) → (x, y), then rotated into the map.
+                let j = pose.rotation.to_rotation_matrix().matrix()
+                    * Matrix2::new(
+                        beta.cos(),
+                        -o.range_m * beta.sin(),
+                        beta.sin(),
+                        o.range_m * beta.cos(),
+                    );
+                Self {
+                    kind: o.kind,
+                    mean: world.coords,
+                    random: j * random * j.transpose(),
+                    systematic: j * systematic * j.transpose(),
+                    ray_deg: crate::wrap_deg((beta + theta).to_degrees()),
+                    foot: 0.0,
+                }
+            }
+            FeatureKind::Plane => {
+                // Normal form in the map: φ = β + θ, d = d_s + t·n(φ); a negative d turns the
+                // normal round.
+                let phi = beta + theta;
+                let n = Vector2::new(phi.cos(), phi.sin());
+                let d = o.range_m + t.dot(&n);
+                let sign = if d < 0.0 { -1.0 } else { 1.0 };
+                let phi_map = if d < 0.0 {
+                    phi + std::f64::consts::PI
+                } else {
+                    phi
+                };
+                let dn = Vector2::new(-phi.sin(), phi.cos());
+                // (β, d_s) → (φ, d)
+                let j = Matrix2::new(1.0, 0.0, sign * t.dot(&dn), sign);
+                let swap = |m: Matrix2<f64>| Matrix2::new(m[(1, 1)], 0.0, 0.0, m[(0, 0)]);
+                let along = Vector2::new(-phi_map.sin(), phi_map.cos());
+                Self {
+                    kind: o.kind,
+                    mean: Vector2::new(crate::wrap_rad(phi_map), d.abs()),
+                    random: j * swap(random) * j.transpose(),
+                    systematic: j * swap(systematic) * j.transpose(),
+                    ray_deg: crate::wrap_deg(phi.to_degrees()),
+                    foot: t.dot(&along),
+                }
+            }
+        }
+    }
+}
+
+/// What one sweep did to the map.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SweepReport {
+    /// The sweep's regions of constant depth.
+    pub rcds: Vec<Rcd>,
+    /// Their classes and the targets they gave.
+    pub classification: Classification,
+    /// Features started by this sweep.
+    pub added: usize,
+    /// Features refined.
+    pub refined: usize,
+    /// Features that lost confidence (aimed at, not heard).
+    pub missed: usize,
+    /// Features removed.
+    pub removed: usize,
+}
+
+/// The feature map.
+#[derive(Debug, Clone)]
+pub struct FeatureMap {
+    cfg: FeatureConfig,
+    features: Vec<Feature>,
+    next_id: u64,
+    sweeps: u64,
+}
+
+impl FeatureMap {
+    pub fn new(cfg: FeatureConfig) -> Result<Self, FeatureError> {
+        cfg.validate()?;
+        Ok(Self {
+            cfg,
+            features: Vec::new(),
+            next_id: 1,
+            sweeps: 0,
+        })
+    }
+
+    pub fn config(&self) -> &FeatureConfig {
+        &self.cfg
+    }
+
+    /// The features, in order of creation.
+    pub fn features(&self) -> &[Feature] {
+        &self.features
+    }
+
+    /// Sweeps merged so far.
+    pub fn sweeps(&self) -> u64 {
+        self.sweeps
+    }
+
+    /// Forgets every feature (the sweep count and feature ids go on).
+    pub fn clear(&mut self) {
+        self.features.clear();
+    }
+
+    /// The whole pipeline for one sweep taken at `pose` (the sensor in the map's frame): regions
+    /// of constant depth, classification, merging and fading.
+    pub fn update(&mut self, sweep: &Sweep, pose: &Isometry2<f64>) -> SweepReport {
+        let rcds = extract(sweep, &self.cfg);
+        let classification = classify(&rcds, &self.cfg);
+        let mut report = self.merge(&classification.observations, sweep, pose);
+        report.rcds = rcds;
+        report.classification = classification;
+        report
+    }
+
+    /// Merges one sweep's observations (taken at `pose`), and fades the features `sweep` aimed at
+    /// without hearing them. The report's `rcds` and `classification` are left empty.
+    pub fn merge(
+        &mut self,
+        observations: &[Observation],
+        sweep: &Sweep,
+        pose: &Isometry2<f64>,
+    ) -> SweepReport {
+        self.sweeps += 1;
+        let stamp = self.sweeps;
+        let placed: Vec<Placed> = observations.iter().map(|o| Placed::new(o, pose)).collect();
+        let gate = self.cfg.merge.gate_chi2;
+        // Every admissible pair, closest first; each side used once.
+        let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
+        for (i, z) in placed.iter().enumerate() {
+            for (j, f) in self.features.iter().enumerate() {
+                if let Some(d2) = mahalanobis2(f, z).filter(|&d2| d2 <= gate) {
+                    pairs.push((d2, i, j));
+                }
+            }
+        }
+        pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut obs_used = vec![false; placed.len()];
+        let mut feature_used = vec![false; self.features.len()];
+        let mut report = SweepReport::default();
+        for (_, i, j) in pairs {
+            if obs_used[i] || feature_used[j] {
+                continue;
+            }
+            obs_used[i] = true;
+            feature_used[j] = true;
+            refine(&mut self.features[j], &placed[i], stamp, &self.cfg.merge);
+            report.refined += 1;
+        }
+        let tolerance = self.cfg.range_tolerance_m();
+        let merge_cfg = self.cfg.merge;
+        for (f, used) in self.features.iter_mut().zip(&feature_used) {
+            if !used && heard_past(f, sweep, pose, tolerance) {
+                f.confidence *= merge_cfg.miss_factor;
+                report.missed += 1;
+            }
+        }
+        let before = self.features.len();
+        self.features
+            .retain(|f| f.confidence >= merge_cfg.remove_below);
+        report.removed = before - self.features.len();
+        for (z, _) in placed.iter().zip(&obs_used).filter(|(_, used)| !**used) {
+            self.features.push(Feature {
+                id: self.next_id,
+                kind: z.kind,
+                mean: z.mean,
+                weights: z.random + z.systematic,
+                random: z.random,
+                systematic: z.systematic,
+                confidence: merge_cfg.initial_confidence,
+                times_seen: 1,
+                first_seen: stamp,
+                last_seen: stamp,
+                ray_deg: z.ray_deg,
+                feet: (z.foot, z.foot),
+            });
+            self.next_id += 1;
+            report.added += 1;
+        }
+        report
+    }
+
+    /// The partial planes as segments; `support` are points known to be occupied (the grid's
+    /// occupied cells, in the map's frame) that let a plane grow beyond its feet.
+    pub fn segments(&self, support: &[Point2<f64>]) -> Vec<Segment> {
+        segments(&self.features, support, &self.cfg.segments)
+    }
+
+    /// Every feature as one flat record, its segment attached: what a fixed-size publication
+    /// record carries.
+    pub fn summaries(&self, support: &[Point2<f64>]) -> Vec<FeatureSummary> {
+        let segments = self.segments(support);
+        self.features
+            .iter()
+            .map(|f| {
+                let p = f.position();
+                let c = f.covariance();
+                FeatureSummary {
+                    id: f.id,
+                    kind: f.kind,
+                    x: p.x,
+                    y: p.y,
+                    cov_xx: c[(0, 0)],
+                    cov_xy: c[(0, 1)],
+                    cov_yy: c[(1, 1)],
+                    angle_deg: f.normal_deg().unwrap_or(f.ray_deg),
+                    angle_sigma_deg: f.normal_sigma_deg(),
+                    confidence: f.confidence,
+                    times_seen: f.times_seen,
+                    last_seen: f.last_seen,
+                    segment: segments
+                        .iter()
+                        .find(|s| s.plane_id == f.id)
+                        .map(|s| [s.a, s.b]),
+                }
+            })
+            .collect()
+    }
+}
+
+/// One feature flattened for publication: every field a fixed-size record needs (`Option`s map to
+/// NaN, the kind to a small integer).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FeatureSummary {
+    pub id: u64,
+    pub kind: FeatureKind,
+    /// [`Feature::position`].
+    pub x: f64,
+    pub y: f64,
+    /// [`Feature::covariance`].
+    pub cov_xx: f64,
+    pub cov_xy: f64,
+    pub cov_yy: f64,
+    /// Plane: its normal's direction; point, corner: the sensor's ray at the latest sighting.
+    pub angle_deg: f64,
+    /// Plane: σ of the normal's direction.
+    pub angle_sigma_deg: Option<f64>,
+    pub confidence: f64,
+    pub times_seen: u32,
+    pub last_seen: u64,
+    /// Plane: end points of its segment.
+    pub segment: Option<[Point2<f64>; 2]>,
+}
+
+/// Difference observation − feature, the plane's angle wrapped.
+fn innovation(f: &Feature, z: &Placed) -> Vector2<f64> {
+    let mut v = z.mean - f.mean;
+    if f.kind == FeatureKind::Plane {
+        v.x = crate::wrap_rad(v.x);
+    }
+    v
+}
+
+/// Squared Mahalanobis distance between a feature and an observation of the same kind.
+fn mahalanobis2(f: &Feature, z: &Placed) -> Option<f64> {
+    if f.kind != z.kind {
+        return None;
+    }
+    let v = innovation(f, z);
+    let s = f.covariance_own() + z.random + z.systematic;
+    s.try_inverse().map(|inv| (v.transpose() * inv * v)[(0, 0)])
+}
+
+/// The Kalman update of `f` by `z`.
+fn refine(f: &mut Feature, z: &Placed, stamp: u64, cfg: &MergeConfig) {
+    let v = innovation(f, z);
+    let r = z.random + z.systematic;
+    let Some(inv) = (f.weights + r).try_inverse() else {
+        return;
+    };
+    let k = f.weights * inv;
+    let i_k = Matrix2::identity() - k;
+    f.mean += k * v;
+    if f.kind == FeatureKind::Plane {
+        f.mean.x = crate::wrap_rad(f.mean.x);
+    }
+    f.weights = i_k * f.weights;
+    // Joseph form: the random part of the estimate under the gains actually used.
+    f.random = i_k * f.random * i_k.transpose() + k * z.random * k.transpose();
+    f.times_seen += 1;
+    f.systematic += (z.systematic - f.systematic) / f64::from(f.times_seen);
+    f.confidence += cfg.confirm_gain * (1.0 - f.confidence);
+    f.last_seen = stamp;
+    f.ray_deg = z.ray_deg;
+    if f.kind == FeatureKind::Plane {
+        f.feet = (f.feet.0.min(z.foot), f.feet.1.max(z.foot));
+    }
+}
+
+/// Whether `sweep`, taken at `pose`, aimed a ping at the feature and heard farther or nothing.
+fn heard_past(f: &Feature, sweep: &Sweep, pose: &Isometry2<f64>, tolerance: f64) -> bool {
+    let inverse = pose.inverse();
+    let (bearing_deg, range) = match f.kind {
+        FeatureKind::Point | FeatureKind::Corner => {
+            let local = inverse * f.position();
+            (local.y.atan2(local.x).to_degrees(), local.coords.norm())
+        }
+        FeatureKind::Plane => {
+            let n = f.normal();
+            let d = f.mean.y - pose.translation.vector.dot(&n);
+            if d <= 0.0 {
+                // The sensor stands behind the wall's line.
+                return false;
+            }
+            let phi = f.mean.x - pose.rotation.angle();
+            (phi.to_degrees(), d)
+        }
+    };
+    let sigma = match f.direction() {
+        Some(_) => f.covariance_own()[(1, 1)].sqrt(),
+        None => f.covariance().trace().sqrt(),
+    };
+    sweep.ping_at(bearing_deg).is_some_and(|p| {
+        p.range_m
+            .is_none_or(|r| r > range + tolerance + 3.0 * sigma)
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pings::tests::reading;
+    use sonar_common::ipc::Reading;
+
+    /// Readings of one sweep from -45° to 45° (pings -47.25° … 47.25°) in `direction`, each ping
+    /// hearing `range_at(bearing)` (0 = nothing).
+    fn sweep_readings(direction: i8, range_at: impl Fn(f64) -> f64) -> Vec<Reading> {
+        let mut centres: Vec<f32> = (0..16).map(|k| -45.0 + 6.0 * k as f32).collect();
+        if direction < 0 {
+            centres.reverse();
+        }
+        centres
+            .into_iter()
+            .map(|c| {
+                let offsets = [-2.25, -0.75, 0.75, 2.25];
+                let ranges: Vec<f64> = offsets
+                    .iter()
+                    .map(|o| range_at(f64::from(c) + f64::from(direction) * o))
+                    .collect();
+                reading(c, direction, &ranges)
+            })
+            .collect()
+    }
+
+    /// A post at `bearing` heard within ±13.4° at 0.979 m (its true range, 0.975, plus the
+    /// mean lateness), and a wall 2 m away facing the sensor, within its cut-off.
+    fn post_scene(bearing: f64) -> impl Fn(f64) -> f64 {
+        move |b: f64| {
+            if (b - bearing).abs() <= 13.4 {
+                0.975 + 0.0043
+            } else if b.abs() <= 28.0 {
+                2.0 + 0.0043
+            } else {
+                0.0
+            }
+        }
+    }
+
+    fn map() -> FeatureMap {
+        FeatureMap::new(FeatureConfig::default()).unwrap()
+    }
+
+    fn update(m: &mut FeatureMap, readings: &[Reading]) -> SweepReport {
+        let sweep = Sweep::from_readings(readings, m.config());
+        m.update(&sweep, &Isometry2::identity())
+    }
+
+    fn of_kind(m: &FeatureMap, kind: FeatureKind) -> Vec<&Feature> {
+        m.features().iter().filter(|f| f.kind() == kind).collect()
+    }
+
+    #[test]
+    fn a_post_seen_in_both_directions_is_one_feature_refined() {
+        let mut m = map();
+        let truth = Point2::new(
+            0.975 * 2f64.to_radians().cos(),
+            0.975 * 2f64.to_radians().sin(),
+        );
+        let first = update(&mut m, &sweep_readings(1, post_scene(2.0)));
+        assert_eq!((first.added, first.refined), (2, 0), "{first:?}");
+        for k in 0..5 {
+            let dir = if k % 2 == 0 { -1 } else { 1 };
+            let r = update(&mut m, &sweep_readings(dir, post_scene(2.0)));
+            assert_eq!((r.added, r.refined, r.missed), (0, 2, 0), "{r:?}");
+        }
+        let posts = of_kind(&m, FeatureKind::Point);
+        assert_eq!(posts.len(), 1);
+        let p = posts[0];
+        assert_eq!(p.times_seen(), 6);
+        assert!(p.confidence() > 0.95);
+        let err = (p.position() - truth).norm();
+        assert!(err < 0.015, "{err}");
+        // The bearing's quantisation repeats in every sweep: the reported uncertainty does not
+        // shrink below one sweep's.
+        let sigma_across = (p.covariance().trace()).sqrt();
+        assert!(sigma_across > 0.003, "{sigma_across}");
+        let walls = of_kind(&m, FeatureKind::Plane);
+        assert_eq!(walls.len(), 1);
+        assert!((walls[0].distance_m().unwrap() - 2.0).abs() < 0.003);
+        assert!(walls[0].normal_deg().unwrap().abs() < 0.8);
+    }
+
+    #[test]
+    fn a_post_that_is_taken_away_fades_and_is_removed() {
+        let mut m = map();
+        for _ in 0..3 {
+            update(&mut m, &sweep_readings(1, post_scene(0.0)));
+        }
+        let id = of_kind(&m, FeatureKind::Point)[0].id();
+        // Now the pings at the post's bearing hear the wall behind.
+        let empty = |b: f64| if b.abs() <= 28.0 { 2.0043 } else { 0.0 };
+        let mut confidences = Vec::new();
+        let mut removed = false;
+        for _ in 0..8 {
+            let r = update(&mut m, &sweep_readings(-1, empty));
+            match m.features().iter().find(|f| f.id() == id) {
+                Some(f) => {
+                    assert_eq!(r.missed, 1);
+                    confidences.push(f.confidence());
+                }
+                None => {
+                    removed = true;
+                    break;
+                }
+            }
+        }
+        assert!(removed, "{confidences:?}");
+        assert!(confidences.windows(2).all(|w| w[1] < w[0]));
+        // The wall stays.
+        assert_eq!(of_kind(&m, FeatureKind::Plane).len(), 1);
+    }
+
+    #[test]
+    fn a_hidden_feature_does_not_fade_and_one_outside_the_sweep_neither() {
+        let mut m = map();
+        update(&mut m, &sweep_readings(1, post_scene(0.0)));
+        // Something nearer stands in front of the post: no evidence against it.
+        let nearer = |b: f64| if b.abs() <= 20.0 { 0.5043 } else { 0.0 };
+        let r = update(&mut m, &sweep_readings(1, nearer));
+        assert_eq!(r.missed, 0);
+        // A sweep elsewhere says nothing about it.
+        let elsewhere = Sweep::from_pings(
+            vec![crate::pings::Ping {
+                bearing_deg: 90.0,
+                range_m: None,
+            }],
+            1.5,
+        )
+        .unwrap();
+        let r = m.update(&elsewhere, &Isometry2::identity());
+        assert_eq!(r.missed, 0);
+    }
+
+    #[test]
+    fn features_are_placed_with_the_pose() {
+        let mut m = map();
+        // The sensor stands at (1, 2) turned 90°: its 0° looks along the map's +y.
+        let pose = Isometry2::new(Vector2::new(1.0, 2.0), std::f64::consts::FRAC_PI_2);
+        let sweep = Sweep::from_readings(&sweep_readings(1, post_scene(0.0)), m.config());
+        m.update(&sweep, &pose);
+        let post = of_kind(&m, FeatureKind::Point)[0];
+        assert!((post.position() - Point2::new(1.0, 2.975)).norm() < 0.015);
+        let wall = of_kind(&m, FeatureKind::Plane)[0];
+        assert!((wall.normal_deg().unwrap() - 90.0).abs() < 0.8);
+        assert!((wall.distance_m().unwrap() - 4.0).abs() < 0.003);
+        // The same wall seen from the far side of the origin: a negative distance turns the normal
+        // round, and the feet extend along the line.
+        let pose = Isometry2::new(Vector2::new(-0.5, 2.0), std::f64::consts::FRAC_PI_2);
+        let sweep = Sweep::from_readings(&sweep_readings(1, post_scene(0.0)), m.config());
+        let r = m.update(&sweep, &pose);
+        assert_eq!(r.refined, 1, "the wall (the post moved with the sensor)");
+        let wall = of_kind(&m, FeatureKind::Plane)[0];
+        let (a, b) = wall.feet();
+        assert!((b - a - 1.5).abs() < 1e-6, "{a} {b}");
+    }
+
+    #[test]
+    fn summaries_carry_what_a_record_needs() {
+        let mut m = map();
+        update(&mut m, &sweep_readings(1, post_scene(0.0)));
+        let s = m.summaries(&[]);
+        assert_eq!(s.len(), 2);
+        let wall = s.iter().find(|s| s.kind == FeatureKind::Plane).unwrap();
+        assert!(wall.angle_sigma_deg.is_some() && wall.segment.is_some());
+        let post = s.iter().find(|s| s.kind == FeatureKind::Point).unwrap();
+        assert!(post.angle_sigma_deg.is_none() && post.segment.is_none());
+        assert!(post.cov_xx > 0.0 && post.cov_yy > 0.0);
+        assert_eq!((post.times_seen, post.last_seen), (1, 1));
+    }
+}

@@ -1,0 +1,147 @@
+//! The expected widths: over which angle a reflector is heard, from the echo model's physics.
+//!
+//! A ping hears a reflector when the echo's level reaches the detection threshold. On the axis the
+//! level exceeds the threshold by a margin that depends on the reflector and its range; off the
+//! axis the round-trip beam takes 6 dB · (θ / b₆)² of it, so the reflector is heard within the
+//! **effective cone** θ ≤ b₆ · √(margin / 6 dB), never beyond the beam's half-angle, and a flat
+//! wall never beyond the specular cut-off (it returns only from the foot of the perpendicular).
+//! A region of constant depth is the run of pings whose axes fall inside that cone; its width is
+//! the cone's full width, to within one step of the stepper.
+
+use crate::config::EchoPhysics;
+
+/// Level drop at [`EchoPhysics::beam_6db_half_angle_deg`].
+const BEAM_REFERENCE_DB: f64 = 6.0;
+
+/// The three reflector shapes the model knows.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Reflector {
+    /// A flat wall: a mirror, heard only at normal incidence within the specular cut-off.
+    Plane,
+    /// A concave corner: a retro-reflector, heard from anywhere in the beam, a little weaker than
+    /// a wall at its range.
+    Corner,
+    /// A vertical cylinder (a post, or an edge, which diffracts like a thin one): curved in one
+    /// plane, so its echo spreads by a further radius / range.
+    Cylinder { radius_m: f64 },
+}
+
+impl EchoPhysics {
+    /// Spreading loss: a flat mirror images the transducer 2r away (0 dB at 0.5 m); a cylinder
+    /// of radius a loses a further 10·log₁₀(a/r); a corner returns like a wall, less its loss.
+    fn spreading_db(&self, reflector: Reflector, range_m: f64) -> f64 {
+        let plane = -20.0 * (2.0 * range_m).log10();
+        match reflector {
+            Reflector::Plane => plane,
+            Reflector::Corner => plane - self.corner_loss_db,
+            Reflector::Cylinder { radius_m } => plane + 10.0 * (radius_m / range_m).log10(),
+        }
+    }
+
+    /// How far above the detection threshold the echo of `reflector` at `range_m` arrives on the
+    /// beam axis, dB: spreading, absorption both ways, the receiver's gain ramp.
+    pub fn axis_margin_db(&self, reflector: Reflector, range_m: f64) -> f64 {
+        self.spreading_db(reflector, range_m) - 2.0 * self.absorption_db_per_m * range_m
+            + self.tvg_db_per_m * range_m.min(self.tvg_max_range_m)
+            - self.threshold_db
+    }
+
+    /// Half-angle of the effective cone in which `reflector` at `range_m` is heard, degrees;
+    /// `None` when it is not heard even on the axis.
+    pub fn cone_half_angle_deg(
+        &self,
+        reflector: Reflector,
+        range_m: f64,
+        beam_half_angle_deg: f64,
+    ) -> Option<f64> {
+        let margin = self.axis_margin_db(reflector, range_m);
+        if !(range_m > 0.0 && margin >= 0.0) {
+            return None;
+        }
+        let cone = self.beam_6db_half_angle_deg * (margin / BEAM_REFERENCE_DB).sqrt();
+        let cone = cone.min(beam_half_angle_deg);
+        Some(match reflector {
+            Reflector::Plane => cone.min(self.specular_cutoff_deg),
+            Reflector::Corner | Reflector::Cylinder { .. } => cone,
+        })
+    }
+
+    /// The reference point target (a post of [`EchoPhysics::point_radius_m`]).
+    pub fn reference_point(&self) -> Reflector {
+        Reflector::Cylinder {
+            radius_m: self.point_radius_m,
+        }
+    }
+
+    /// Range of one late cycle of the detector: half a wavelength.
+    fn cycle_range_m(&self, speed_of_sound_mps: f64) -> f64 {
+        speed_of_sound_mps / (2.0 * self.frequency_hz)
+    }
+
+    /// Widest spread of one target's ranges: `late_cycles_max` half-wavelengths.
+    pub fn late_spread_m(&self, speed_of_sound_mps: f64) -> f64 {
+        f64::from(self.late_cycles_max) * self.cycle_range_m(speed_of_sound_mps)
+    }
+
+    /// Mean lateness of the detector, metres of range: it fires equally often on each of the
+    /// first `1 + late_cycles_max` cycles, so on average `late_cycles_max / 2` cycles late. The
+    /// true range is the mean of the pings less this.
+    pub fn late_bias_m(&self, speed_of_sound_mps: f64) -> f64 {
+        self.late_spread_m(speed_of_sound_mps) / 2.0
+    }
+
+    /// Standard deviation of one ping's range from the detector's lateness: a discrete uniform
+    /// distribution over `1 + late_cycles_max` cycles.
+    pub fn late_sigma_m(&self, speed_of_sound_mps: f64) -> f64 {
+        let n = f64::from(self.late_cycles_max + 1);
+        ((n * n - 1.0) / 12.0).sqrt() * self.cycle_range_m(speed_of_sound_mps)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const BEAM: f64 = 30.0;
+    const V: f64 = 343.42;
+
+    fn cone(reflector: Reflector, r: f64) -> Option<f64> {
+        EchoPhysics::default().cone_half_angle_deg(reflector, r, BEAM)
+    }
+
+    #[test]
+    fn a_5_cm_post_at_1_m_is_heard_within_13_degrees() {
+        let post = EchoPhysics::default().reference_point();
+        // Its near face is 0.975 m away (sensor-facts: ±10–15°; the simulator: ±13.4°).
+        let h = cone(post, 0.975).unwrap();
+        assert!((h - 13.4).abs() < 0.05, "{h}");
+        // Farther, fainter, narrower; beyond ≈ 2.2 m not heard at all.
+        let h2 = cone(post, 2.0).unwrap();
+        assert!(h2 > 8.0 && h2 < 10.0, "{h2}");
+        assert_eq!(cone(post, 2.5), None);
+        // A thicker post is heard over a wider cone.
+        let thick = cone(Reflector::Cylinder { radius_m: 0.05 }, 0.975).unwrap();
+        assert!(thick > h + 3.0, "{thick}");
+    }
+
+    #[test]
+    fn walls_stop_at_the_cutoff_and_corners_fill_the_beam() {
+        for r in [0.5, 1.2, 2.0, 3.5] {
+            assert_eq!(cone(Reflector::Plane, r), Some(28.0), "{r}");
+        }
+        assert_eq!(cone(Reflector::Corner, 1.7), Some(30.0));
+        // At 4 m the corner's echo no longer fills the beam.
+        let far = cone(Reflector::Corner, 4.0).unwrap();
+        assert!(far < 30.0 && far > 20.0, "{far}");
+    }
+
+    #[test]
+    fn the_detector_is_late_by_one_cycle_on_average() {
+        let p = EchoPhysics::default();
+        // λ/2 at 40 kHz: 4.29 mm.
+        assert!((p.late_bias_m(V) - 0.00429).abs() < 1e-5);
+        assert!((p.late_spread_m(V) - 0.00859).abs() < 1e-5);
+        // Uniform over {0, 1, 2} cycles: σ = √(2/3) cycles.
+        assert!((p.late_sigma_m(V) - 0.00429 * (2.0f64 / 3.0).sqrt()).abs() < 1e-5);
+    }
+}

@@ -1,0 +1,234 @@
+//! The raw pings of one sweep, each at its own angle.
+//!
+//! A [`Reading`] carries the echo times of its pings in the order the head took them
+//! (`docs/protocol.md`, "Geometry of a reading"): ping j of P sits at
+//! centre + (j − (P − 1)/2) · step **in the direction of motion**, so −2.25°, −0.75°, +0.75°,
+//! +2.25° going counter-clockwise and the reverse going clockwise. Both directions sample the same
+//! angles. A [`Sweep`] holds the pings of one sweep sorted by bearing, so that everything after it
+//! is the same whichever way the head turned.
+
+use sonar_common::ipc::{Reading, flags};
+
+use crate::FeatureError;
+use crate::config::FeatureConfig;
+
+/// One ping: where the head pointed, and the range of the first echo it heard.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ping {
+    /// Bearing of the beam axis, degrees counter-clockwise from the sensor's forward axis.
+    pub bearing_deg: f64,
+    /// Range of the first echo, metres; `None` for no echo (or one outside the sensor's range).
+    pub range_m: Option<f64>,
+}
+
+/// The pings of one sweep (one pass in one direction), sorted by bearing.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Sweep {
+    pings: Vec<Ping>,
+    step_deg: f64,
+    skipped_readings: usize,
+}
+
+/// Two neighbouring pings farther apart than this many steps have lost readings between them.
+const GAP_STEPS: f64 = 1.5;
+
+impl Sweep {
+    /// The pings of `readings` (one sweep's, in any order). Readings whose pings cannot be placed
+    /// are skipped and counted ([`Sweep::skipped_readings`]): those of a source without raw pings
+    /// (`NO_RAW_PINGS`, the hobby dialect) and those with several pings but no direction of motion.
+    pub fn from_readings<'a>(
+        readings: impl IntoIterator<Item = &'a Reading>,
+        cfg: &FeatureConfig,
+    ) -> Self {
+        let step = cfg.step_deg();
+        let mut pings = Vec::new();
+        let mut skipped = 0;
+        for r in readings {
+            match placed_pings(r, cfg) {
+                Some(p) => pings.extend(p),
+                None => skipped += 1,
+            }
+        }
+        let mut sweep = Self {
+            pings,
+            step_deg: step,
+            skipped_readings: skipped,
+        };
+        sweep.sort();
+        sweep
+    }
+
+    /// A sweep from pings already placed (tests, other sources). Bearings must be finite, ranges
+    /// finite and positive, `step_deg` positive.
+    pub fn from_pings(pings: Vec<Ping>, step_deg: f64) -> Result<Self, FeatureError> {
+        if !(step_deg.is_finite() && step_deg > 0.0) {
+            return Err(FeatureError::Config(format!(
+                "the step between pings must be > 0, got {step_deg}"
+            )));
+        }
+        if let Some((index, p)) = pings.iter().enumerate().find(|(_, p)| {
+            !p.bearing_deg.is_finite() || p.range_m.is_some_and(|r| !(r.is_finite() && r > 0.0))
+        }) {
+            return Err(FeatureError::BadPing {
+                index,
+                bearing_deg: p.bearing_deg,
+                range_m: p.range_m,
+            });
+        }
+        let mut sweep = Self {
+            pings,
+            step_deg,
+            skipped_readings: 0,
+        };
+        sweep.sort();
+        Ok(sweep)
+    }
+
+    fn sort(&mut self) {
+        self.pings
+            .sort_by(|a, b| a.bearing_deg.total_cmp(&b.bearing_deg));
+    }
+
+    pub fn pings(&self) -> &[Ping] {
+        &self.pings
+    }
+
+    pub fn step_deg(&self) -> f64 {
+        self.step_deg
+    }
+
+    /// Readings left out because their pings' angles are unknown.
+    pub fn skipped_readings(&self) -> usize {
+        self.skipped_readings
+    }
+
+    /// Whether readings are missing between ping `i − 1` and ping `i` (lost lines): then neither
+    /// knows what its neighbour would have heard.
+    pub fn gap_before(&self, i: usize) -> bool {
+        i > 0
+            && i < self.pings.len()
+            && self.pings[i].bearing_deg - self.pings[i - 1].bearing_deg > GAP_STEPS * self.step_deg
+    }
+
+    /// The ping aimed within half a step of `bearing_deg` (compared modulo 360°), if any.
+    pub fn ping_at(&self, bearing_deg: f64) -> Option<&Ping> {
+        self.pings
+            .iter()
+            .map(|p| (crate::wrap_deg(p.bearing_deg - bearing_deg).abs(), p))
+            .filter(|(off, _)| *off <= self.step_deg / 2.0 + 1e-9)
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, p)| p)
+    }
+}
+
+/// The pings of one reading at their angles, or `None` when their angles are unknown.
+fn placed_pings(r: &Reading, cfg: &FeatureConfig) -> Option<impl Iterator<Item = Ping>> {
+    let n = usize::from(r.ping_count).min(r.echo_us.len());
+    let direction = f64::from(r.direction.signum());
+    if r.has(flags::NO_RAW_PINGS) || (n > 1 && direction == 0.0) || !r.angle_deg.is_finite() {
+        return None;
+    }
+    let finite_positive = |v: f32| (v.is_finite() && v > 0.0).then_some(f64::from(v));
+    let speed = finite_positive(r.speed_of_sound_mps).unwrap_or_else(|| cfg.speed_of_sound_mps());
+    let min = f64::from(r.min_range_m)
+        .max(0.0)
+        .min(f64::from(cfg.sensor.max_range_m));
+    let max = finite_positive(r.max_range_m).unwrap_or(f64::from(cfg.sensor.max_range_m));
+    let step = cfg.step_deg();
+    let centre = f64::from(r.angle_deg);
+    let middle = (n as f64 - 1.0) / 2.0;
+    Some(r.echo_us[..n].iter().enumerate().map(move |(j, &us)| {
+        let range = speed * f64::from(us) * 1e-6 / 2.0;
+        Ping {
+            bearing_deg: centre + direction * step * (j as f64 - middle),
+            // 0 µs is no echo; an echo outside [min, max] is set aside as the driver does.
+            range_m: (us > 0 && (min..=max).contains(&range)).then_some(range),
+        }
+    }))
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// A reading centred at `centre_deg`, moving in `direction`, with these ranges (metres; 0 =
+    /// no echo) in the order the head took them.
+    pub(crate) fn reading(centre_deg: f32, direction: i8, ranges_m: &[f64]) -> Reading {
+        let cfg = FeatureConfig::default();
+        let v = cfg.speed_of_sound_mps();
+        let mut r = Reading {
+            angle_deg: centre_deg,
+            direction,
+            ping_count: ranges_m.len() as u8,
+            speed_of_sound_mps: v as f32,
+            min_range_m: cfg.sensor.min_range_m,
+            max_range_m: cfg.sensor.max_range_m,
+            ..Reading::default()
+        };
+        for (slot, &m) in r.echo_us.iter_mut().zip(ranges_m) {
+            *slot = (2.0 * m / v * 1e6).round() as u32;
+        }
+        r
+    }
+
+    #[test]
+    fn pings_sit_at_their_own_angles_in_either_direction() {
+        let cfg = FeatureConfig::default();
+        let ranges = [1.0, 1.1, 1.2, 1.3];
+        let ccw = Sweep::from_readings(&[reading(3.0, 1, &ranges)], &cfg);
+        let cw = Sweep::from_readings(&[reading(3.0, -1, &ranges)], &cfg);
+        let bearings = |s: &Sweep| s.pings().iter().map(|p| p.bearing_deg).collect::<Vec<_>>();
+        assert_eq!(bearings(&ccw), [0.75, 2.25, 3.75, 5.25]);
+        assert_eq!(bearings(&cw), [0.75, 2.25, 3.75, 5.25]);
+        let range_at = |s: &Sweep, b: f64| s.ping_at(b).unwrap().range_m.unwrap();
+        // Counter-clockwise the first ping is the lowest angle; clockwise the highest.
+        assert!((range_at(&ccw, 0.75) - 1.0).abs() < 1e-3);
+        assert!((range_at(&cw, 0.75) - 1.3).abs() < 1e-3);
+        assert!((range_at(&cw, 5.25) - 1.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn no_echo_and_out_of_range_pings_have_no_range() {
+        let cfg = FeatureConfig::default();
+        // 5 m is past the 4 m maximum, 1 cm short of the 3 cm minimum.
+        let r = reading(0.0, 1, &[0.0, 1.0, 5.0, 0.01]);
+        let s = Sweep::from_readings(&[r], &cfg);
+        let ranges: Vec<bool> = s.pings().iter().map(|p| p.range_m.is_some()).collect();
+        assert_eq!(ranges, [false, true, false, false]);
+    }
+
+    #[test]
+    fn readings_without_placeable_pings_are_skipped() {
+        let cfg = FeatureConfig::default();
+        let mut hobby = reading(0.0, 1, &[1.0]);
+        hobby.flags |= flags::NO_RAW_PINGS;
+        let unknown = reading(6.0, 0, &[1.0, 1.0, 1.0, 1.0]);
+        let single = reading(12.0, 0, &[1.0]);
+        let s = Sweep::from_readings(&[hobby, unknown, single], &cfg);
+        assert_eq!(s.skipped_readings(), 2);
+        assert_eq!(s.pings().len(), 1);
+        assert_eq!(s.pings()[0].bearing_deg, 12.0);
+    }
+
+    #[test]
+    fn gaps_and_bad_pings() {
+        let p = |b: f64| Ping {
+            bearing_deg: b,
+            range_m: Some(1.0),
+        };
+        let s = Sweep::from_pings(vec![p(3.0), p(0.0), p(1.5), p(7.5)], 1.5).unwrap();
+        assert!(!s.gap_before(1) && !s.gap_before(2) && s.gap_before(3));
+        assert_eq!(s.ping_at(7.0).map(|p| p.bearing_deg), Some(7.5));
+        assert_eq!(s.ping_at(5.0), None);
+        assert!(Sweep::from_pings(vec![p(f64::NAN)], 1.5).is_err());
+        let bad_range = Ping {
+            bearing_deg: 0.0,
+            range_m: Some(-1.0),
+        };
+        assert!(matches!(
+            Sweep::from_pings(vec![p(0.0), bad_range], 1.5),
+            Err(FeatureError::BadPing { index: 1, .. })
+        ));
+        assert!(Sweep::from_pings(vec![], 0.0).is_err());
+    }
+}

@@ -1,0 +1,441 @@
+//! Regions of constant depth (Leonard & Durrant-Whyte): runs of neighbouring pings that heard the
+//! same range.
+//!
+//! A sonar reports the range of the first echo above its threshold. While the head turns across a
+//! reflector, every ping whose axis lies inside the reflector's effective cone hears it, and hears
+//! it at the **same** range: the wall's perpendicular distance, the corner's vertex, the post's
+//! nearest point, whatever the angle of the ping. A target therefore shows as a run of pings of
+//! constant depth, as wide as its cone, centred on its bearing; the ping just beyond each end of
+//! the run says why the run ended ([`End`]).
+//!
+//! The extraction, over the pings of one sweep sorted by bearing:
+//!
+//! 1. **Runs**: grow a run while the next ping's range keeps the run's spread within the range
+//!    tolerance (the detector's jitter of `late_cycles_max` half-wavelengths plus a margin). One
+//!    ping that breaks a run by hearing **nearer** (a transient: the SRF05's spurious echoes end a
+//!    ping early) or **nothing** (a dropout), when the ping after it continues the run, is bridged
+//!    and counted as an outlier. A ping that hears **farther** is never bridged: the beam went past
+//!    the target there, which is evidence of a gap (two posts with a way between them).
+//! 2. **Ends**: [`End::Natural`] when the next ping heard farther or nothing (the target left the
+//!    cone there), [`End::Occluded`] when it heard nearer (a nearer target may hide the rest of this
+//!    one), [`End::Unknown`] at the end of the scan, at lost readings, or at an ambiguous neighbour.
+//! 3. **Joining**: two runs at the same range, separated only by pings that heard nearer, are one
+//!    target partly hidden (the wall behind a post): they are joined, the hidden pings counted.
+//! 4. Runs of fewer than `min_pings` pings are dropped; the rest become [`Rcd`]s, their range the
+//!    mean of their pings less the detector's mean lateness.
+
+use crate::config::FeatureConfig;
+use crate::pings::Sweep;
+
+/// Why a region of constant depth ends where it does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum End {
+    /// The next ping heard something farther, or nothing: the target left its cone there, so the
+    /// end marks the edge of its effective cone.
+    Natural,
+    /// The next ping heard something nearer, which may hide the rest of this target.
+    Occluded,
+    /// The scan ended, readings were lost, or the neighbour's range was too close to tell.
+    Unknown,
+}
+
+impl End {
+    /// Whether the end marks the edge of the target's cone.
+    pub fn is_natural(self) -> bool {
+        self == End::Natural
+    }
+}
+
+/// A region of constant depth.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rcd {
+    /// Range of the target: the mean of the pings less the detector's mean lateness, metres.
+    pub range_m: f64,
+    /// Standard error of that mean from the pings' jitter (independent from sweep to sweep).
+    pub range_sigma_m: f64,
+    /// Bearing of the first (lowest-angle) ping of the run, degrees.
+    pub first_deg: f64,
+    /// Bearing of the last ping of the run.
+    pub last_deg: f64,
+    /// Step between pings, degrees.
+    pub step_deg: f64,
+    /// Pings that heard the target.
+    pub pings: u32,
+    /// Pings bridged inside the run (transients, dropouts).
+    pub outliers: u32,
+    /// Pings inside the run that heard a nearer target (joined runs).
+    pub hidden: u32,
+    /// End at the lower bearing.
+    pub start: End,
+    /// End at the higher bearing.
+    pub end: End,
+}
+
+impl Rcd {
+    /// Angular width: from half a step before the first ping to half a step after the last, the
+    /// best estimate of the cone's width (each edge lies between a ping that heard the target and
+    /// one that did not).
+    pub fn width_deg(&self) -> f64 {
+        self.last_deg - self.first_deg + self.step_deg
+    }
+
+    /// Middle of the run: the target's bearing when both ends are natural.
+    pub fn centre_deg(&self) -> f64 {
+        (self.first_deg + self.last_deg) / 2.0
+    }
+
+    /// Estimated edge of the cone at the lower bearing.
+    pub fn start_edge_deg(&self) -> f64 {
+        self.first_deg - self.step_deg / 2.0
+    }
+
+    /// Estimated edge of the cone at the higher bearing.
+    pub fn end_edge_deg(&self) -> f64 {
+        self.last_deg + self.step_deg / 2.0
+    }
+}
+
+/// Running statistics of a run's ranges.
+#[derive(Debug, Clone, Copy)]
+struct Stats {
+    n: u32,
+    sum: f64,
+    sum_sq: f64,
+    lo: f64,
+    hi: f64,
+}
+
+impl Stats {
+    fn new(r: f64) -> Self {
+        Self {
+            n: 1,
+            sum: r,
+            sum_sq: r * r,
+            lo: r,
+            hi: r,
+        }
+    }
+
+    fn fits(&self, r: f64, tol: f64) -> bool {
+        self.hi.max(r) - self.lo.min(r) <= tol
+    }
+
+    fn add(&mut self, r: f64) {
+        self.n += 1;
+        self.sum += r;
+        self.sum_sq += r * r;
+        self.lo = self.lo.min(r);
+        self.hi = self.hi.max(r);
+    }
+
+    fn merge(&mut self, o: &Stats) {
+        self.n += o.n;
+        self.sum += o.sum;
+        self.sum_sq += o.sum_sq;
+        self.lo = self.lo.min(o.lo);
+        self.hi = self.hi.max(o.hi);
+    }
+
+    fn mean(&self) -> f64 {
+        self.sum / f64::from(self.n)
+    }
+
+    fn sample_sd(&self) -> f64 {
+        if self.n < 2 {
+            return 0.0;
+        }
+        let n = f64::from(self.n);
+        ((self.sum_sq - self.sum * self.sum / n) / (n - 1.0))
+            .max(0.0)
+            .sqrt()
+    }
+}
+
+/// A run of pings: indices of its first and last ping, its ranges and ends.
+#[derive(Debug, Clone, Copy)]
+struct Run {
+    first: usize,
+    last: usize,
+    stats: Stats,
+    outliers: u32,
+    hidden: u32,
+    start: End,
+    end: End,
+}
+
+/// The regions of constant depth of one sweep, in order of bearing.
+pub fn extract(sweep: &Sweep, cfg: &FeatureConfig) -> Vec<Rcd> {
+    let tol = cfg.range_tolerance_m();
+    let mut runs = find_runs(sweep, tol);
+    for run in &mut runs {
+        run.start = end_kind(sweep, run, tol, Side::Start);
+        run.end = end_kind(sweep, run, tol, Side::End);
+    }
+    let runs = join_hidden(sweep, runs, tol);
+    let speed = cfg.speed_of_sound_mps();
+    let bias = cfg.echo.late_bias_m(speed);
+    let ping_sigma = cfg.echo.late_sigma_m(speed);
+    let pings = sweep.pings();
+    runs.into_iter()
+        .filter(|r| r.stats.n >= cfg.min_pings)
+        .map(|r| Rcd {
+            range_m: r.stats.mean() - bias,
+            // The model's jitter is a floor: a few pings can agree by chance; a wider sample
+            // spread (a transient absorbed into the run) is kept.
+            range_sigma_m: r.stats.sample_sd().max(ping_sigma) / f64::from(r.stats.n).sqrt(),
+            first_deg: pings[r.first].bearing_deg,
+            last_deg: pings[r.last].bearing_deg,
+            step_deg: sweep.step_deg(),
+            pings: r.stats.n,
+            outliers: r.outliers,
+            hidden: r.hidden,
+            start: r.start,
+            end: r.end,
+        })
+        .collect()
+}
+
+/// Maximal runs of constant depth, single transients and dropouts bridged.
+fn find_runs(sweep: &Sweep, tol: f64) -> Vec<Run> {
+    let pings = sweep.pings();
+    let mut runs = Vec::new();
+    let mut i = 0;
+    while i < pings.len() {
+        let Some(r0) = pings[i].range_m else {
+            i += 1;
+            continue;
+        };
+        let mut stats = Stats::new(r0);
+        let (mut last, mut outliers) = (i, 0);
+        let mut j = i + 1;
+        while j < pings.len() && !sweep.gap_before(j) {
+            match pings[j].range_m {
+                Some(r) if stats.fits(r, tol) => {
+                    stats.add(r);
+                    last = j;
+                    j += 1;
+                }
+                other => {
+                    let bridgeable = other.is_none_or(|r| r < stats.lo - tol);
+                    let resumes = j + 1 < pings.len()
+                        && !sweep.gap_before(j + 1)
+                        && pings[j + 1].range_m.is_some_and(|r| stats.fits(r, tol));
+                    if bridgeable && resumes {
+                        outliers += 1;
+                        j += 1;
+                    } else {
+                        break;
+                    }
+                }
+            }
+        }
+        runs.push(Run {
+            first: i,
+            last,
+            stats,
+            outliers,
+            hidden: 0,
+            start: End::Unknown,
+            end: End::Unknown,
+        });
+        i = last + 1;
+    }
+    runs
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Side {
+    Start,
+    End,
+}
+
+/// What the ping just outside a run's end says about it.
+fn end_kind(sweep: &Sweep, run: &Run, tol: f64, side: Side) -> End {
+    let pings = sweep.pings();
+    let neighbour = match side {
+        Side::Start => run
+            .first
+            .checked_sub(1)
+            .filter(|_| !sweep.gap_before(run.first)),
+        Side::End => Some(run.last + 1).filter(|&k| k < pings.len() && !sweep.gap_before(k)),
+    };
+    let Some(k) = neighbour else {
+        return End::Unknown;
+    };
+    match pings[k].range_m {
+        None => End::Natural,
+        Some(r) if r > run.stats.hi + tol => End::Natural,
+        Some(r) if r < run.stats.lo - tol => End::Occluded,
+        Some(_) => End::Unknown,
+    }
+}
+
+/// Joins runs at the same range separated only by pings that heard nearer: one target, partly
+/// hidden by a nearer one.
+fn join_hidden(sweep: &Sweep, runs: Vec<Run>, tol: f64) -> Vec<Run> {
+    let pings = sweep.pings();
+    let mut out: Vec<Run> = Vec::with_capacity(runs.len());
+    let mut consumed = vec![false; runs.len()];
+    for a in 0..runs.len() {
+        if consumed[a] {
+            continue;
+        }
+        let mut joined = runs[a];
+        // Each step looks past the pings that heard nearer, for a run at the same range.
+        while joined.end == End::Occluded {
+            let level = joined.stats.lo - tol;
+            let mut k = joined.last + 1;
+            while k < pings.len()
+                && !sweep.gap_before(k)
+                && pings[k].range_m.is_some_and(|r| r < level)
+            {
+                k += 1;
+            }
+            let next = runs
+                .iter()
+                .enumerate()
+                .skip(a + 1)
+                .find(|(b, r)| !consumed[*b] && r.first == k);
+            match next {
+                Some((b, r))
+                    if k < pings.len() && !sweep.gap_before(k) && r.start == End::Occluded && {
+                        let mut s = joined.stats;
+                        s.merge(&r.stats);
+                        s.hi - s.lo <= tol
+                    } =>
+                {
+                    joined.hidden += (k - joined.last - 1) as u32 + r.hidden;
+                    joined.stats.merge(&r.stats);
+                    joined.outliers += r.outliers;
+                    joined.last = r.last;
+                    joined.end = r.end;
+                    consumed[b] = true;
+                }
+                _ => break,
+            }
+        }
+        out.push(joined);
+    }
+    out
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::pings::Ping;
+
+    /// A sweep of pings 1.5° apart from `from_deg`, with these ranges (0 = no echo).
+    pub(crate) fn sweep(from_deg: f64, ranges: &[f64]) -> Sweep {
+        let pings = ranges
+            .iter()
+            .enumerate()
+            .map(|(i, &r)| Ping {
+                bearing_deg: from_deg + 1.5 * i as f64,
+                range_m: (r > 0.0).then_some(r),
+            })
+            .collect();
+        Sweep::from_pings(pings, 1.5).unwrap()
+    }
+
+    /// `n` pings at `r`.
+    pub(crate) fn run(n: usize, r: f64) -> Vec<f64> {
+        vec![r; n]
+    }
+
+    fn cat(parts: &[Vec<f64>]) -> Vec<f64> {
+        parts.concat()
+    }
+
+    fn rcds(from_deg: f64, ranges: &[f64]) -> Vec<Rcd> {
+        extract(&sweep(from_deg, ranges), &FeatureConfig::default())
+    }
+
+    #[test]
+    fn a_post_is_a_run_with_natural_ends_centred_on_its_bearing() {
+        // 18 pings at 0.98 m between no-echo pings: a 5 cm post at 1 m.
+        let ranges = cat(&[run(3, 0.0), run(18, 0.98), run(3, 0.0)]);
+        let r = rcds(-30.0, &ranges);
+        assert_eq!(r.len(), 1);
+        let r = r[0];
+        assert_eq!((r.start, r.end), (End::Natural, End::Natural));
+        assert_eq!(r.pings, 18);
+        assert!((r.width_deg() - 27.0).abs() < 1e-9);
+        // Pings from -25.5 to 0: centre -12.75.
+        assert!((r.centre_deg() + 12.75).abs() < 1e-9);
+        // The detector's mean lateness (4.3 mm) is taken off.
+        assert!((r.range_m - (0.98 - 0.0043)).abs() < 1e-4, "{}", r.range_m);
+        assert!(r.range_sigma_m > 0.0 && r.range_sigma_m < 0.002);
+    }
+
+    #[test]
+    fn jitter_within_the_tolerance_stays_one_run_and_a_step_in_range_splits() {
+        let jitter = [1.0, 1.004, 1.0086, 1.0, 1.0043, 1.0086, 1.0, 1.0043];
+        let r = rcds(0.0, &jitter);
+        assert_eq!(r.len(), 1);
+        assert_eq!(r[0].pings, 8);
+        let steps = cat(&[run(5, 1.0), run(5, 1.05)]);
+        let r = rcds(0.0, &steps);
+        assert_eq!(r.len(), 2);
+        assert_eq!(r[0].end, End::Natural);
+        assert_eq!(r[1].start, End::Occluded);
+    }
+
+    #[test]
+    fn one_transient_or_dropout_is_bridged_but_a_farther_ping_is_a_gap() {
+        let transient = cat(&[run(6, 1.0), vec![0.4], run(6, 1.0)]);
+        let r = rcds(0.0, &transient);
+        assert_eq!(r.len(), 1);
+        assert_eq!((r[0].pings, r[0].outliers), (12, 1));
+        let dropout = cat(&[run(6, 1.0), vec![0.0], run(6, 1.0)]);
+        assert_eq!(rcds(0.0, &dropout)[0].outliers, 1);
+        // Two pings in a row are no outlier.
+        let two = cat(&[run(6, 1.0), vec![0.0, 0.0], run(6, 1.0)]);
+        assert_eq!(rcds(0.0, &two).len(), 2);
+        // One ping that heard past the target: two targets with a way between them.
+        let gap = cat(&[run(6, 1.0), vec![2.0], run(6, 1.0)]);
+        let r = rcds(0.0, &gap);
+        assert_eq!(r.len(), 2);
+        assert_eq!((r[0].end, r[1].start), (End::Natural, End::Natural));
+    }
+
+    #[test]
+    fn a_wall_behind_a_post_is_joined_across_it() {
+        // Wall at 2 m, a post at 1 m hides its middle.
+        let ranges = cat(&[
+            run(2, 0.0),
+            run(6, 2.0),
+            run(10, 0.98),
+            run(6, 2.0),
+            run(2, 0.0),
+        ]);
+        let r = rcds(-20.0, &ranges);
+        assert_eq!(r.len(), 2, "{r:?}");
+        let post = r.iter().find(|r| r.range_m < 1.5).unwrap();
+        let wall = r.iter().find(|r| r.range_m > 1.5).unwrap();
+        assert_eq!((post.start, post.end), (End::Natural, End::Natural));
+        assert_eq!((wall.start, wall.end), (End::Natural, End::Natural));
+        assert_eq!((wall.pings, wall.hidden), (12, 10));
+        assert!((wall.width_deg() - 22.0 * 1.5).abs() < 1e-9);
+        // Not across a farther ping, nor across lost readings.
+        let far = cat(&[run(6, 2.0), run(3, 0.98), vec![3.0], run(6, 2.0)]);
+        // The lone 3 m ping is too short a run to keep: two walls and the post.
+        assert_eq!(rcds(0.0, &far).len(), 3);
+    }
+
+    #[test]
+    fn short_runs_are_dropped_and_scan_ends_are_unknown() {
+        let ranges = cat(&[run(2, 1.0), vec![0.0], run(5, 1.5)]);
+        let r = rcds(0.0, &ranges);
+        assert_eq!(r.len(), 1);
+        assert_eq!((r[0].start, r[0].end), (End::Natural, End::Unknown));
+        // Lost readings end a run like the end of the scan.
+        let mut pings: Vec<Ping> = sweep(0.0, &run(6, 1.0)).pings().to_vec();
+        for p in &mut pings[3..] {
+            p.bearing_deg += 6.0;
+        }
+        let gapped = Sweep::from_pings(pings, 1.5).unwrap();
+        let r = extract(&gapped, &FeatureConfig::default());
+        assert_eq!(r.len(), 2);
+        assert_eq!((r[0].end, r[1].start), (End::Unknown, End::Unknown));
+    }
+}
