@@ -31,6 +31,8 @@ pub const FUSION_COMMANDS_SERVICE: &str = "sonar/fusion_commands";
 /// The robot's pose in the world, from odometry or localisation (optional; static at the origin
 /// without it).
 pub const POSE_SERVICE: &str = "robot/pose";
+/// The fusion engine's counters: readings received, fused and lost, snapshots, map saves (history 1).
+pub const FUSION_STATUS_SERVICE: &str = "sonar/fusion_status";
 
 /// Bits of [`Reading::flags`].
 pub mod flags {
@@ -470,6 +472,82 @@ pub struct Pose2D {
 
 const _: () = assert!(std::mem::size_of::<Pose2D>() == 24);
 
+/// The fusion engine's counters on [`FUSION_STATUS_SERVICE`], published once a second and at
+/// once when a loss, a restart of the readings' sequence or a save is counted. Counters run from
+/// the process's start, except `readings_fused`, which is the map's (as in [`GridHeader`]).
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("sonar::FusionStatusV1")]
+#[repr(C)]
+pub struct FusionStatus {
+    pub stamp_ns: u64,
+    /// Readings taken from `sonar/readings`.
+    pub readings_received: u64,
+    /// Readings in the map since it was last cleared, those of a restored map included.
+    pub readings_fused: u64,
+    /// Readings the driver published that never arrived: gaps in [`Reading::seq`] (the
+    /// subscriber's buffer overflowed and dropped its oldest, or the fusion was not running).
+    pub readings_lost: u64,
+    /// Times [`Reading::seq`] went backwards or repeated: a restarted driver counts from 0 again.
+    /// Counted as a restart, never as a loss.
+    pub readings_out_of_order: u64,
+    /// Readings received but not fused: another layout version, or refused by the kernels.
+    pub readings_rejected: u64,
+    /// `seq` of the latest reading received (or of the restored map's last); [`Self::NO_SEQ`]
+    /// before any.
+    pub last_seq: u64,
+    pub snapshots_published: u64,
+    /// Snapshots not published because every shared-memory sample was held by subscribers.
+    pub snapshots_skipped: u64,
+    /// Maps written to the state file by this process.
+    pub saves: u64,
+    /// When the latest save was taken (ns since the Unix epoch); 0 before any.
+    pub last_save_ns: u64,
+    /// `readings_fused` of the map in the latest save.
+    pub saved_readings_fused: u64,
+    /// Saves that failed; the previous file is then left as it was.
+    pub save_failures: u32,
+    /// How long the latest save held up the readings loop (copying the map), µs.
+    pub last_save_copy_us: u32,
+    /// How long the latest save took to encode, write, fsync and rename off that loop, µs.
+    pub last_save_write_us: u32,
+    /// 1 if the map was restored from the state file at start, else 0.
+    pub restored: u32,
+    pub layout_version: u32,
+    pub reserved: u32,
+}
+
+const _: () = assert!(std::mem::size_of::<FusionStatus>() == 120);
+
+impl FusionStatus {
+    /// [`Self::last_seq`] before any reading.
+    pub const NO_SEQ: u64 = u64::MAX;
+}
+
+impl Default for FusionStatus {
+    fn default() -> Self {
+        Self {
+            stamp_ns: 0,
+            readings_received: 0,
+            readings_fused: 0,
+            readings_lost: 0,
+            readings_out_of_order: 0,
+            readings_rejected: 0,
+            last_seq: Self::NO_SEQ,
+            snapshots_published: 0,
+            snapshots_skipped: 0,
+            saves: 0,
+            last_save_ns: 0,
+            saved_readings_fused: 0,
+            save_failures: 0,
+            last_save_copy_us: 0,
+            last_save_write_us: 0,
+            restored: 0,
+            layout_version: LAYOUT_VERSION,
+            reserved: 0,
+        }
+    }
+}
+
 /// A failure to set up or use an iceoryx2 resource, with what was being done.
 #[derive(Debug, thiserror::Error)]
 #[error("{context}: {message}")]
@@ -658,6 +736,19 @@ pub fn pose_service(node: &Node<ipc::Service>) -> Result<PubSub<Pose2D>, IpcErro
         .map_err(|e| IpcError::new(format!("open {POSE_SERVICE}"), e))
 }
 
+/// `sonar/fusion_status`, with the policy of the driver's status: history 1 so a viewer that
+/// starts late sees the counters at once.
+pub fn fusion_status_service(node: &Node<ipc::Service>) -> Result<PubSub<FusionStatus>, IpcError> {
+    node.service_builder(&service_name(FUSION_STATUS_SERVICE)?)
+        .publish_subscribe::<FusionStatus>()
+        .max_publishers(1)
+        .max_subscribers(8)
+        .subscriber_max_buffer_size(1)
+        .history_size(1)
+        .open_or_create()
+        .map_err(|e| IpcError::new(format!("open {FUSION_STATUS_SERVICE}"), e))
+}
+
 /// The event service that wakes the consumers of the publish-subscribe service of the same name.
 pub fn wakeup_service(node: &Node<ipc::Service>, name: &str) -> Result<Event, IpcError> {
     node.service_builder(&service_name(name)?)
@@ -723,6 +814,29 @@ mod tests {
         assert_eq!(offset_of!(DriverStatus, device_errors), 68);
         assert_eq!(offset_of!(DriverStatus, head_id), 72);
         assert_eq!(offset_of!(DriverStatus, last_device_error), 104);
+    }
+
+    #[test]
+    fn fusion_status_layout_matches_documentation() {
+        assert_eq!(offset_of!(FusionStatus, stamp_ns), 0);
+        assert_eq!(offset_of!(FusionStatus, readings_received), 8);
+        assert_eq!(offset_of!(FusionStatus, readings_fused), 16);
+        assert_eq!(offset_of!(FusionStatus, readings_lost), 24);
+        assert_eq!(offset_of!(FusionStatus, readings_out_of_order), 32);
+        assert_eq!(offset_of!(FusionStatus, readings_rejected), 40);
+        assert_eq!(offset_of!(FusionStatus, last_seq), 48);
+        assert_eq!(offset_of!(FusionStatus, snapshots_published), 56);
+        assert_eq!(offset_of!(FusionStatus, snapshots_skipped), 64);
+        assert_eq!(offset_of!(FusionStatus, saves), 72);
+        assert_eq!(offset_of!(FusionStatus, last_save_ns), 80);
+        assert_eq!(offset_of!(FusionStatus, saved_readings_fused), 88);
+        assert_eq!(offset_of!(FusionStatus, save_failures), 96);
+        assert_eq!(offset_of!(FusionStatus, last_save_copy_us), 100);
+        assert_eq!(offset_of!(FusionStatus, last_save_write_us), 104);
+        assert_eq!(offset_of!(FusionStatus, restored), 108);
+        assert_eq!(offset_of!(FusionStatus, layout_version), 112);
+        assert_eq!(offset_of!(FusionStatus, reserved), 116);
+        assert_eq!(std::mem::align_of::<FusionStatus>(), 8);
     }
 
     #[test]

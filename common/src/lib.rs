@@ -9,6 +9,7 @@
 //!
 //! Nothing here does I/O except opening iceoryx2 services on behalf of the caller.
 
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 pub mod ipc;
@@ -26,6 +27,20 @@ pub fn init_tracing() {
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .try_init();
+}
+
+/// Where the pipeline keeps what outlives a process (the launcher's logs, the fusion's saved map):
+/// `$XDG_STATE_HOME/sonar`, else `~/.local/state/sonar` (the XDG default), else `<tmp>/sonar`
+/// for a user without a home.
+pub fn state_dir() -> PathBuf {
+    let non_empty = |name| std::env::var_os(name).filter(|v| !v.is_empty());
+    if let Some(state) = non_empty("XDG_STATE_HOME") {
+        return PathBuf::from(state).join("sonar");
+    }
+    match non_empty("HOME") {
+        Some(home) => PathBuf::from(home).join(".local/state/sonar"),
+        None => std::env::temp_dir().join("sonar"),
+    }
 }
 
 /// The end of a binary's `main`: [`ExitCode::SUCCESS`] for `Ok`; for an error, logs it and
