@@ -608,9 +608,15 @@ impl IpcArgs {
         Ok(cfg)
     }
 
-    /// Creates this process's node; also removes what crashed processes of the pipeline left behind.
+    /// Creates this process's node. First removes what processes of the namespace killed at the
+    /// wrong moment left behind, which would otherwise make creating the node or opening a service
+    /// hang or fail (see [`crate::namespace`]); then iceoryx2 finds no dead node left to clean.
     pub fn node(&self, name: &str) -> Result<Node<ipc::Service>, IpcError> {
         let cfg = self.config()?;
+        crate::namespace::recover(&cfg).map_err(|e| IpcError {
+            context: "recover the iceoryx2 namespace".into(),
+            message: e.to_string(),
+        })?;
         let node_name = NodeName::new(name).map_err(|e| IpcError::new("node name", e))?;
         NodeBuilder::new()
             .name(&node_name)

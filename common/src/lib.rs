@@ -5,14 +5,17 @@
 //! - [`sensor`]: the geometry of the rotating head and the physics of time of flight.
 //! - [`ipc`]: the `#[repr(C)]` payloads exchanged over iceoryx2, their service names, and one function
 //!   per service so every process opens it with the same quality of service.
+//! - [`namespace`]: removes what processes killed while creating iceoryx2 resources left behind.
 //! - [`speed`]: simulated time against wall time; [`throttle`]: rate limits for frequent log lines.
 //!
-//! Nothing here does I/O except opening iceoryx2 services on behalf of the caller.
+//! Nothing here does I/O except opening iceoryx2 services on behalf of the caller, and removing
+//! what killed processes left in their namespace before that.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 pub mod ipc;
+pub mod namespace;
 pub mod protocol;
 pub mod sensor;
 pub mod speed;
