@@ -6,9 +6,13 @@
 //! and handed to `sonar-fusion` as the same file.
 
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use serde::Deserialize;
 use sonar_fusion::FusionConfig;
+
+/// How long a process that died waits for its first restart.
+pub const DEFAULT_RESTART_DELAY: Duration = Duration::from_secs(1);
 
 /// A configuration file the pipeline cannot start with.
 #[derive(Debug, thiserror::Error)]
@@ -109,6 +113,9 @@ pub struct LauncherSection {
     pub log_dir: Option<PathBuf>,
     /// Restarts of one process within a minute before the launcher gives up.
     pub max_restarts: Option<u32>,
+    /// Seconds before a process that died is started again; each further restart of it within a
+    /// minute waits twice as long as the one before, up to 16 times this.
+    pub restart_delay: Option<f64>,
 }
 
 impl PipelineFile {
@@ -131,7 +138,24 @@ impl PipelineFile {
                 path: path.to_owned(),
                 source,
             })?;
+        file.launcher
+            .restart_delay()
+            .map_err(|message| ConfigError::Parse {
+                path: path.to_owned(),
+                message,
+            })?;
         Ok(file)
+    }
+}
+
+impl LauncherSection {
+    /// The first restart's delay, [`DEFAULT_RESTART_DELAY`] unless set.
+    pub fn restart_delay(&self) -> Result<Duration, String> {
+        self.restart_delay.map_or(Ok(DEFAULT_RESTART_DELAY), |s| {
+            Duration::try_from_secs_f64(s).map_err(|_| {
+                format!("[launcher] restart_delay = {s} is not a number of seconds >= 0")
+            })
+        })
     }
 }
 
@@ -172,6 +196,11 @@ mod tests {
         );
         let bad = PipelineFile::parse("[fusion.grid]\nresolution_m = -1.0\n", Path::new("x.toml"));
         assert!(matches!(bad, Err(ConfigError::Fusion { .. })), "{bad:?}");
+        let bad = PipelineFile::parse("[launcher]\nrestart_delay = -1\n", Path::new("x.toml"));
+        assert!(
+            matches!(&bad, Err(ConfigError::Parse { message, .. }) if message.contains("restart_delay")),
+            "{bad:?}"
+        );
     }
 
     #[test]

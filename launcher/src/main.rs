@@ -4,11 +4,14 @@
 //! terminal viewer as separate OS processes sharing one configuration and one iceoryx2 namespace,
 //! restarts a process that dies, and stops them all when the viewer quits (`q`), on Ctrl-C or on
 //! SIGTERM. The viewer owns the terminal; the other processes log to files in the log directory.
+//! The processes die with the launcher, even with a `kill -9` of it (Linux's parent-death signal).
 
 mod config;
+mod terminal;
 
 use std::collections::VecDeque;
 use std::fs::File;
+use std::os::unix::process::{CommandExt, ExitStatusExt};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitCode, ExitStatus, Stdio};
 use std::sync::Arc;
@@ -17,12 +20,14 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::Parser;
+use nix::errno::Errno;
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 use sonar_common::ipc::IpcArgs;
 use tracing::{info, warn};
 
 use crate::config::{PipelineFile, push_opt};
+use crate::terminal::Terminal;
 
 /// How often the supervisor looks at its children.
 const SUPERVISE_PERIOD: Duration = Duration::from_millis(100);
@@ -115,7 +120,11 @@ struct Pipeline {
     /// The simulator's stable link to its pseudo-terminal, if the simulator runs.
     sim_link: Option<PathBuf>,
     max_restarts: u32,
+    /// Before the first restart of a process; doubled for each further one within a minute.
+    restart_delay: Duration,
     processes: Vec<Process>,
+    /// The terminal as it was before the viewer took it over.
+    terminal: Terminal,
 }
 
 fn default_log_dir() -> PathBuf {
@@ -317,7 +326,9 @@ impl Pipeline {
             env,
             sim_link,
             max_restarts: file.launcher.max_restarts.unwrap_or(DEFAULT_MAX_RESTARTS),
+            restart_delay: file.launcher.restart_delay().map_err(anyhow::Error::msg)?,
             processes,
+            terminal: Terminal::capture(),
         })
     }
 
@@ -342,6 +353,21 @@ impl Pipeline {
             let log = append(&self.log_dir.join(format!("{}.log", p.name)))?;
             let log2 = log.try_clone().context("cannot share a log file")?;
             cmd.stdin(Stdio::null()).stdout(log).stderr(log2);
+        }
+        let launcher = std::process::id();
+        // SAFETY: the closure runs in the child between fork and exec, where only
+        // async-signal-safe calls are allowed: it makes two system calls and allocates nothing.
+        unsafe {
+            cmd.pre_exec(move || {
+                // SIGTERM (a clean stop) when the launcher dies, also of SIGKILL, which it cannot
+                // handle. The signal follows the thread that forks: the launcher's main thread.
+                nix::sys::prctl::set_pdeathsig(Signal::SIGTERM)?;
+                // The launcher may have died before the prctl; then no signal ever comes.
+                if std::os::unix::process::parent_id() != launcher {
+                    return Err(Errno::ESRCH.into());
+                }
+                Ok(())
+            });
         }
         if p.name == "sonar-sim"
             && let Some(link) = &self.sim_link
@@ -371,6 +397,10 @@ impl Pipeline {
             if let Some(child) = self.processes[i].child.as_mut()
                 && let Ok(Some(status)) = child.try_wait()
             {
+                if status.signal().is_some() {
+                    // Killed, not failed: `supervise` restarts it like any process that dies.
+                    return Ok(());
+                }
                 bail!(
                     "sonar-sim exited at start ({status}):\n{}",
                     self.log_tail("sonar-sim")
@@ -409,12 +439,17 @@ impl Pipeline {
                 };
                 p.child = None;
                 if p.foreground {
-                    info!(%exited, "viewer quit: stopping");
-                    return if exited.success() {
-                        Ok(())
-                    } else {
-                        Err(anyhow::anyhow!("sonar-viewer failed ({exited})"))
-                    };
+                    self.viewer_ended(exited);
+                    // An exit of its own is the user's `q`, or an error to report. Killed by a
+                    // signal (a crash, the OOM killer, kill -9), it is restarted like the others.
+                    if exited.signal().is_none() {
+                        info!(%exited, "viewer quit: stopping");
+                        return if exited.success() {
+                            Ok(())
+                        } else {
+                            Err(anyhow::anyhow!("sonar-viewer failed ({exited})"))
+                        };
+                    }
                 }
                 if stop.load(Ordering::Relaxed) {
                     return Ok(()); // it stopped for the same signal we got
@@ -422,6 +457,15 @@ impl Pipeline {
                 self.schedule_restart(i, exited, now)?;
             }
             std::thread::sleep(SUPERVISE_PERIOD);
+        }
+    }
+
+    /// A viewer killed by a signal could not restore the terminal (raw mode, alternate screen,
+    /// hidden cursor): done here, before a new viewer or an error is shown on it. One that exited
+    /// restored it itself, and restoring again would move the cursor back over what followed.
+    fn viewer_ended(&self, status: ExitStatus) {
+        if status.signal().is_some() {
+            self.terminal.restore();
         }
     }
 
@@ -451,7 +495,7 @@ impl Pipeline {
             );
         }
         p.restarts.push_back(now);
-        let delay = Duration::from_millis(500) * (1 << p.restarts.len().min(5));
+        let delay = self.restart_delay * (1 << (p.restarts.len() - 1).min(4));
         warn!(process = name, %exited, ?delay, "process died: restarting");
         p.restart_at = Some(now + delay);
         Ok(())
@@ -476,15 +520,16 @@ impl Pipeline {
             }
         }
         let deadline = Instant::now() + SHUTDOWN_TIMEOUT;
+        let mut viewer = None;
         for p in self.processes.iter_mut().rev() {
             let Some(child) = p.child.as_mut() else {
                 continue;
             };
-            loop {
+            let status = loop {
                 match child.try_wait() {
                     Ok(Some(status)) => {
                         info!(process = p.name, %status, "stopped");
-                        break;
+                        break Some(status);
                     }
                     Ok(None) if Instant::now() < deadline => {
                         std::thread::sleep(Duration::from_millis(20));
@@ -492,17 +537,23 @@ impl Pipeline {
                     _ => {
                         warn!(process = p.name, "did not stop in time: killed");
                         let _ = child.kill();
-                        let _ = child.wait();
-                        break;
+                        break child.wait().ok();
                     }
                 }
+            };
+            if p.foreground {
+                viewer = status;
             }
             p.child = None;
+        }
+        if let Some(status) = viewer {
+            self.viewer_ended(status);
         }
     }
 
     /// Removes what processes that were killed or crashed left in shared memory: creating a node
-    /// cleans up dead nodes of the namespace (iceoryx2's default), and it is removed again on drop.
+    /// first recovers the namespace (`sonar_common::namespace`: dead nodes, half-created and
+    /// half-removed services), and the node is removed again on drop.
     fn clean_shared_memory(&self, ipc: &IpcArgs, file: &PipelineFile) {
         let args = IpcArgs {
             iox_config: ipc.iox_config.clone().or(file.iceoryx2.config.clone()),
