@@ -208,6 +208,27 @@ impl Sandbox {
     }
 }
 
+impl Sandbox {
+    /// iceoryx2's files and node directories left under the root (in its `nodes/` and `services/`)
+    /// once every process of the namespace has gone; a test may keep its own files beside them.
+    pub fn stale_root_files(&self) -> Vec<PathBuf> {
+        fn walk(dir: &std::path::Path, found: &mut Vec<PathBuf>) {
+            for entry in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+                let path = entry.path();
+                if path.is_dir() {
+                    walk(&path, found);
+                }
+                found.push(path);
+            }
+        }
+        let mut found = Vec::new();
+        for dir in ["nodes", "services"] {
+            walk(&self.root.join(dir), &mut found);
+        }
+        found
+    }
+}
+
 impl Drop for Sandbox {
     fn drop(&mut self) {
         for f in self.shm_files() {
@@ -353,6 +374,22 @@ pub fn children_of(pid: u32) -> Vec<(u32, String)> {
             (ppid == pid).then_some((child, comm))
         })
         .collect()
+}
+
+/// Waits until process `pid` has a running child named `name` other than `not` (e.g. the one
+/// just killed); returns its pid.
+pub fn child_named(pid: u32, name: &str, not: Option<u32>) -> u32 {
+    let deadline = Instant::now() + PATIENCE;
+    loop {
+        if let Some((child, _)) = children_of(pid)
+            .into_iter()
+            .find(|(c, comm)| comm == name && Some(*c) != not && is_running(*c))
+        {
+            return child;
+        }
+        assert!(Instant::now() < deadline, "{name} never started");
+        std::thread::sleep(Duration::from_millis(20));
+    }
 }
 
 /// Whether process `pid` still exists (a zombie counts as gone).

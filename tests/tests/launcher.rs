@@ -1,27 +1,13 @@
 //! End to end: `sonar-pipeline` starts, supervises and stops the whole pipeline.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+use std::os::unix::process::ExitStatusExt;
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 use sonar_common::ipc::{self, GridHeader};
-use sonar_e2e::{PATIENCE, Sandbox, Tmux, children_of, collect_until, is_running};
-
-/// Waits until the launcher `pid` has a child running `name`; returns its pid.
-fn child_named(pid: u32, name: &str, not: Option<u32>) -> u32 {
-    let deadline = Instant::now() + PATIENCE;
-    loop {
-        if let Some((child, _)) = children_of(pid)
-            .into_iter()
-            .find(|(c, comm)| comm == name && Some(*c) != not && is_running(*c))
-        {
-            return child;
-        }
-        assert!(Instant::now() < deadline, "{name} never started");
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
+use sonar_e2e::{PATIENCE, Sandbox, Tmux, child_named, collect_until, is_running, pids_of};
 
 #[test]
 fn the_launcher_restarts_a_dead_process_and_stops_everything_cleanly() {
@@ -140,6 +126,107 @@ fn the_first_command_shows_the_room_and_q_stops_every_process() {
     let after = term.wait_for("the pipeline's exit", |s| s.contains("EXIT="));
     assert!(after.contains("EXIT=0"), "{after}");
     assert!(after.contains("sonar-pipeline: stopped"), "{after}");
+    let left = sandbox.stale_shm_files();
+    assert!(left.is_empty(), "stale shared memory: {left:?}");
+}
+
+#[test]
+fn a_kill_9_of_the_launcher_stops_every_process_and_leaves_nothing() {
+    let sandbox = Sandbox::new("launchkill");
+    let node = sandbox.node("test-consumer");
+    let grid = ipc::grid_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let logs = sandbox.root.join("logs");
+    let launcher = sandbox.spawn(
+        "sonar-pipeline",
+        &[
+            "--no-viewer",
+            "--speed",
+            "100",
+            "--log-dir",
+            logs.to_str().unwrap(),
+        ],
+    );
+    let pid = launcher.child.id();
+    collect_until(
+        &node,
+        || grid.receive().unwrap().map(|s| *s.user_header()),
+        |got| !got.is_empty(),
+    );
+    let children: Vec<u32> = ["sonar-sim", "sonar-driver", "sonar-fusion"]
+        .iter()
+        .map(|name| child_named(pid, name, None))
+        .collect();
+
+    // SIGKILL: the launcher cannot stop anything itself; the kernel tells the processes.
+    kill(Pid::from_raw(pid as i32), Signal::SIGKILL).unwrap();
+    let (status, _) = launcher.wait_exit();
+    assert_eq!(status.signal(), Some(Signal::SIGKILL as i32));
+    let deadline = Instant::now() + PATIENCE;
+    while let Some(alive) = children.iter().find(|&&c| is_running(c)) {
+        assert!(
+            Instant::now() < deadline,
+            "process {alive} outlived the launcher"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // They stopped cleanly (SIGTERM), so they took their shared memory with them.
+    drop((grid, node));
+    let left = sandbox.stale_shm_files();
+    assert!(left.is_empty(), "stale shared memory: {left:?}");
+    let left = sandbox.stale_root_files();
+    assert!(left.is_empty(), "stale iceoryx2 files: {left:?}");
+}
+
+#[test]
+fn a_killed_viewer_is_restarted_in_a_restored_terminal_and_the_pipeline_goes_on() {
+    let sandbox = Sandbox::new("viewkill");
+    let logs = sandbox.root.join("logs");
+    let logs = logs.to_str().unwrap();
+    let term = Tmux::start(
+        &sandbox,
+        "sonar-pipeline",
+        &["--speed", "20", "--view", "map", "--log-dir", logs],
+        140,
+        50,
+    );
+    let up = |s: &str| s.contains("driver   alive") && s.contains("fusion   alive");
+    term.wait_for("the pipeline in the viewer", up);
+    let launcher = *pids_of("sonar-pipeline", logs)
+        .first()
+        .expect("the launcher runs");
+    let viewer = child_named(launcher, "sonar-viewer", None);
+    let others: Vec<u32> = ["sonar-sim", "sonar-driver", "sonar-fusion"]
+        .iter()
+        .map(|name| child_named(launcher, name, None))
+        .collect();
+
+    kill(Pid::from_raw(viewer as i32), Signal::SIGKILL).unwrap();
+    child_named(launcher, "sonar-viewer", Some(viewer));
+    // The dead viewer's screen went with the alternate screen the launcher left: this is the new
+    // viewer's.
+    term.wait_for("the new viewer", up);
+    for (name, pid) in ["sonar-sim", "sonar-driver", "sonar-fusion"]
+        .iter()
+        .zip(&others)
+    {
+        assert_eq!(
+            child_named(launcher, name, None),
+            *pid,
+            "{name} was restarted"
+        );
+    }
+
+    term.send_keys(&["q"]);
+    let after = term.wait_for("the pipeline's exit", |s| s.contains("EXIT="));
+    assert!(after.contains("sonar-pipeline: stopped"), "{after}");
+    // Had the launcher not switched raw mode off before the new viewer started, that viewer would
+    // have taken raw mode for the terminal's normal state and left it so: lines would not return to
+    // the first column.
+    assert!(after.lines().any(|l| l.starts_with("EXIT=0")), "{after}");
     let left = sandbox.stale_shm_files();
     assert!(left.is_empty(), "stale shared memory: {left:?}");
 }
