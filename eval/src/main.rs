@@ -6,8 +6,9 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use sonar_eval::image;
+use sonar_eval::features::{self, FeatureSettings};
 use sonar_eval::report::{self, Settings};
+use sonar_eval::{feature_report, image};
 use sonar_sim::{BUILTIN_NAMES, Scene};
 use tracing::info;
 
@@ -17,6 +18,11 @@ use tracing::info;
 /// Everything runs in this process on the simulator's virtual clock: the simulated device writes
 /// protocol lines, the driver's decoder turns them into readings, the fusion library builds the
 /// maps with the `paper` and `recommended` presets. Same seed and sweeps, same figures.
+///
+/// Then evaluates the features of `sonar-features` (walls, corners, posts from the raw pings)
+/// on the same scenes rotated to every --feature-bearings, with every --feature-seeds, next to
+/// the two grid presets on the same runs: a 5 cm post, two posts at --feature-spacings, the room,
+/// the corner, a slanted wall and a 10 cm post.
 ///
 /// Writes <OUT>/<scene>.png for each scene (basic | probability | actual setup; top row the
 /// `paper` preset, bottom row `recommended`) and prints the figures as Markdown tables on
@@ -47,6 +53,20 @@ struct Args {
     /// Write the Markdown tables to this file instead of standard output.
     #[arg(long)]
     report: Option<PathBuf>,
+    /// Rotations of every scene for the feature evaluation, degrees: comma-separated values or
+    /// ranges FROM..TO:STEP, or `none` to skip it. The default covers a 6° reading period at
+    /// 0.375°, four phases of the 1.5° ping grid.
+    #[arg(long, default_value = "0..5.625:0.375", value_parser = parse_bearings)]
+    feature_bearings: Values,
+    /// Seeds of the feature evaluation: comma-separated values or ranges FROM..TO:STEP.
+    #[arg(long, default_value = "1..3:1", value_parser = parse_seeds)]
+    feature_seeds: Values,
+    /// Centre spacings of the feature evaluation's two-post scenes, in cm (as --spacings).
+    #[arg(long, default_value = "10..60:5", value_parser = parse_spacings)]
+    feature_spacings: Spacings,
+    /// Only the feature evaluation (no pictures, no grid tables of the paper's scenes).
+    #[arg(long)]
+    features_only: bool,
 }
 
 fn main() -> ExitCode {
@@ -59,36 +79,82 @@ fn main() -> ExitCode {
 #[derive(Debug, Clone, PartialEq, Eq)]
 struct Spacings(Vec<u32>);
 
+/// Numbers from the command line, in the order given.
+#[derive(Debug, Clone, PartialEq)]
+struct Values(Vec<f64>);
+
+/// `V|FROM..TO:STEP[,…]`, or `none` (empty); every value checked by `ok` (whose message says
+/// what is allowed).
+fn parse_values(s: &str, ok: impl Fn(f64) -> Result<(), String>) -> Result<Vec<f64>, String> {
+    if s.trim() == "none" {
+        return Ok(Vec::new());
+    }
+    let mut out = Vec::new();
+    for part in s.split(',') {
+        let bad = || format!("expected a number or FROM..TO:STEP, got {part:?}");
+        let num = |v: &str| v.trim().parse::<f64>().map_err(|_| bad());
+        let Some((range, step)) = part.split_once(':') else {
+            let v = num(part)?;
+            ok(v)?;
+            out.push(v);
+            continue;
+        };
+        let (from, to) = range.split_once("..").ok_or_else(bad)?;
+        let (from, to, step) = (num(from)?, num(to)?, num(step)?);
+        if !(step > 0.0 && step.is_finite()) {
+            return Err(format!("the step must be a positive number, got {part:?}"));
+        }
+        if from > to {
+            return Err(format!("FROM must not exceed TO, got {part:?}"));
+        }
+        ok(from)?;
+        ok(to)?;
+        // Whole steps, with a little slack for decimal steps such as 0.375.
+        let n = ((to - from) / step + 1e-9).floor() as usize;
+        out.extend((0..=n).map(|k| from + step * k as f64));
+    }
+    Ok(out)
+}
+
 /// `FROM..TO:STEP[,FROM..TO:STEP…]` in cm, or `none`.
 fn parse_spacings(s: &str) -> Result<Spacings, String> {
-    if s.trim() == "none" {
-        return Ok(Spacings(Vec::new()));
-    }
-    let mut out: Vec<u32> = Vec::new();
-    for part in s.split(',') {
-        let bad = || format!("expected FROM..TO:STEP in cm (e.g. 10..80:2), got {part:?}");
-        let (range, step) = part.split_once(':').ok_or_else(bad)?;
-        let (from, to) = range.split_once("..").ok_or_else(bad)?;
-        let num = |v: &str| v.trim().parse::<f64>().map_err(|_| bad());
-        let (from, to, step) = (num(from)?, num(to)?, num(step)?);
-        if !(from > 5.0 && from <= to && to <= 200.0) {
-            return Err(format!(
-                "spacings must satisfy 5 cm < FROM <= TO <= 200 cm (the posts are 5 cm wide), \
-                 got {part:?}"
-            ));
+    let cm = parse_values(s, |v| {
+        if v > 5.0 && v <= 200.0 {
+            Ok(())
+        } else {
+            Err(format!(
+                "spacings must lie in (5, 200] cm (the posts are 5 cm wide), got {v}"
+            ))
         }
-        if !(step > 0.0 && step.is_finite()) {
-            return Err(format!(
-                "the step must be a positive number of cm, got {part:?}"
-            ));
+    })?;
+    let mut mm: Vec<u32> = cm.iter().map(|v| (v * 10.0).round() as u32).collect();
+    mm.sort_unstable();
+    mm.dedup();
+    Ok(Spacings(mm))
+}
+
+/// Bearings in degrees, within ±180.
+fn parse_bearings(s: &str) -> Result<Values, String> {
+    parse_values(s, |v| {
+        if (-180.0..=180.0).contains(&v) {
+            Ok(())
+        } else {
+            Err(format!("bearings must lie within ±180°, got {v}"))
         }
-        let mm = |cm: f64| (cm * 10.0).round() as u32;
-        let step = mm(step).max(1) as usize;
-        out.extend((mm(from)..=mm(to)).step_by(step));
-    }
-    out.sort_unstable();
-    out.dedup();
-    Ok(Spacings(out))
+    })
+    .map(Values)
+}
+
+/// Seeds: whole numbers ≥ 0.
+fn parse_seeds(s: &str) -> Result<Values, String> {
+    parse_values(s, |v| {
+        if v >= 0.0 && v.fract() == 0.0 && v < 2f64.powi(53) {
+            Ok(())
+        } else {
+            Err(format!("seeds are whole numbers >= 0, got {v}"))
+        }
+    })
+    .map(Values)
 }
 
 fn run(args: Args) -> Result<()> {
@@ -98,19 +164,35 @@ fn run(args: Args) -> Result<()> {
         spacings_mm: args.spacings.0,
         scale: usize::from(args.scale),
     };
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating the output directory {}", args.out.display()))?;
-    let mut scenes = Vec::new();
-    for name in BUILTIN_NAMES {
-        let scene = Scene::builtin(name).with_context(|| format!("loading scene {name}"))?;
-        let (result, picture) = report::evaluate_scene(&scene, &settings)?;
-        let path = args.out.join(format!("{name}.png"));
-        image::write_png(&picture, &path)?;
-        info!(scene = name, picture = %path.display(), readings = result.readings, "scene done");
-        scenes.push(result);
+    let mut text = String::new();
+    if !args.features_only {
+        std::fs::create_dir_all(&args.out)
+            .with_context(|| format!("creating the output directory {}", args.out.display()))?;
+        let mut scenes = Vec::new();
+        for name in BUILTIN_NAMES {
+            let scene = Scene::builtin(name).with_context(|| format!("loading scene {name}"))?;
+            let (result, picture) = report::evaluate_scene(&scene, &settings)?;
+            let path = args.out.join(format!("{name}.png"));
+            image::write_png(&picture, &path)?;
+            info!(scene = name, picture = %path.display(), readings = result.readings, "scene done");
+            scenes.push(result);
+        }
+        let sweep = report::spacing_sweep(&settings)?;
+        text += &report::markdown(&settings, &scenes, &sweep);
     }
-    let sweep = report::spacing_sweep(&settings)?;
-    let text = report::markdown(&settings, &scenes, &sweep);
+    if !args.feature_bearings.0.is_empty() {
+        let feature_settings = FeatureSettings {
+            bearings_deg: args.feature_bearings.0,
+            seeds: args.feature_seeds.0.iter().map(|&s| s as u64).collect(),
+            sweeps: args.sweeps,
+            spacings_mm: args.feature_spacings.0,
+        };
+        let results = features::evaluate(&feature_settings)?;
+        if !text.is_empty() {
+            text.push('\n');
+        }
+        text += &feature_report::markdown(&feature_settings, &results);
+    }
     match &args.report {
         Some(path) => std::fs::write(path, &text)
             .with_context(|| format!("writing the report {}", path.display()))?,
@@ -136,6 +218,7 @@ mod tests {
             [100, 120, 130, 135, 140]
         );
         assert_eq!(p("none").unwrap(), Vec::<u32>::new());
+        assert_eq!(p("12").unwrap(), [120]);
         for bad in [
             "4..80:2",
             "30..20:2",
@@ -149,9 +232,25 @@ mod tests {
     }
 
     #[test]
+    fn bearings_and_seeds_take_values_and_decimal_ranges() {
+        let b = |s| parse_bearings(s).map(|v| v.0);
+        assert_eq!(b("0..1.5:0.375").unwrap(), [0.0, 0.375, 0.75, 1.125, 1.5]);
+        assert_eq!(b("0, 4.5, -3").unwrap(), [0.0, 4.5, -3.0]);
+        assert_eq!(b("none").unwrap(), Vec::<f64>::new());
+        assert!(b("0..200:1").is_err());
+        let seeds = |s| parse_seeds(s).map(|v| v.0);
+        assert_eq!(seeds("1..3:1").unwrap(), [1.0, 2.0, 3.0]);
+        assert!(seeds("1.5").is_err() && seeds("-1").is_err());
+    }
+
+    #[test]
     fn the_command_line_parses() {
         let a = Args::try_parse_from(["sonar-eval", "--out", "x", "--sweeps", "4"]).unwrap();
         assert_eq!((a.sweeps, a.seed, a.scale), (4, 1, 3));
+        assert_eq!(a.feature_bearings.0.len(), 16);
+        assert_eq!(a.feature_seeds.0, [1.0, 2.0, 3.0]);
+        assert_eq!(a.feature_spacings.0.len(), 11);
+        assert!(!a.features_only);
         assert!(Args::try_parse_from(["sonar-eval", "--sweeps", "0"]).is_err());
     }
 }

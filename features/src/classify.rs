@@ -33,8 +33,8 @@
 //! that no plane explains stay unclassified.
 //!
 //! Uncertainties: a cone's edge lies somewhere in the step between the last ping that heard the
-//! target and the first that did not, uniformly: σ = step/√12 per edge, step/√24 for the centre of
-//! two. An estimate from one edge and a modelled half-cone adds the cone's σ. Ranges carry the
+//! target and the first that did not, uniformly: σ = step/√12 per edge (two steps when that ping
+//! was a transient, which may have heard the target too), step/√24 for the centre of two. An estimate from one edge and a modelled half-cone adds the cone's σ. Ranges carry the
 //! jitter of their pings (independent between sweeps) and a systematic share for the speed of
 //! sound. The angular errors repeat in every sweep taken from the same place (the pings fall on
 //! the same angles), so they are reported as systematic, and merging does not shrink them.
@@ -183,13 +183,12 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
 fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
     let cones = Cones::at(rcd.range_m, cfg);
     let w = rcd.width_deg();
-    let tol = cfg.width_tolerance_deg();
-    let step = rcd.step_deg;
-    // Both edges quantised to a step, independently: the centre's error is half their
-    // difference.
-    let centre_sigma = step / 24f64.sqrt();
-    // One edge quantised and a modelled half-cone.
-    let edge_sigma = (step * step / 12.0 + cfg.cone_sigma_deg.powi(2)).sqrt();
+    let tol = rcd.width_tolerance_deg(cfg.cone_sigma_deg);
+    let (start_sigma, end_sigma) = (rcd.start_edge_sigma_deg(), rcd.end_edge_sigma_deg());
+    // Both edges quantised, independently: the centre's error is half their difference.
+    let centre_sigma = start_sigma.hypot(end_sigma) / 2.0;
+    // One edge quantised, and a modelled half-cone.
+    let from_edge = |edge_sigma: f64| edge_sigma.hypot(cfg.cone_sigma_deg);
     let fits = |half: Option<f64>| half.is_some_and(|h| (w - 2.0 * h).abs() <= tol);
     let point = cones.point;
     match (rcd.start.is_natural(), rcd.end.is_natural()) {
@@ -202,15 +201,17 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
             } else if fits(cones.corner) {
                 Hypothesis::one(Class::Corner, centre, centre_sigma)
             } else if w <= 4.0 * point + tol {
-                let bearing = |deg| Bearing {
-                    deg,
-                    sigma: edge_sigma,
-                };
                 Hypothesis {
                     class: Class::TwoPoints,
                     bearings: vec![
-                        bearing(rcd.start_edge_deg() + point),
-                        bearing(rcd.end_edge_deg() - point),
+                        Bearing {
+                            deg: rcd.start_edge_deg() + point,
+                            sigma: from_edge(start_sigma),
+                        },
+                        Bearing {
+                            deg: rcd.end_edge_deg() - point,
+                            sigma: from_edge(end_sigma),
+                        },
                     ],
                 }
             } else if cones.plane.is_some_and(|h| w < 2.0 * h - tol) {
@@ -222,18 +223,17 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
         (true, false) | (false, true) if w > 2.0 * point + tol => {
             // The natural edge is the cone's edge; the reflector's axis lies one half-cone
             // inward.
-            let inward = |half: f64| {
-                if rcd.start.is_natural() {
-                    rcd.start_edge_deg() + half
-                } else {
-                    rcd.end_edge_deg() - half
-                }
+            let (inward, sigma) = if rcd.start.is_natural() {
+                ((rcd.start_edge_deg(), 1.0), from_edge(start_sigma))
+            } else {
+                ((rcd.end_edge_deg(), -1.0), from_edge(end_sigma))
             };
+            let axis = |half: f64| inward.0 + inward.1 * half;
             let within = |half: Option<f64>| half.filter(|h| w <= 2.0 * h + tol);
             if let Some(h) = within(cones.plane) {
-                Hypothesis::one(Class::Plane, inward(h), edge_sigma)
+                Hypothesis::one(Class::Plane, axis(h), sigma)
             } else if let Some(h) = within(cones.corner) {
-                Hypothesis::one(Class::Corner, inward(h), edge_sigma)
+                Hypothesis::one(Class::Corner, axis(h), sigma)
             } else {
                 Hypothesis::unclassified()
             }

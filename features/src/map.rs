@@ -688,5 +688,11 @@ mod tests {
         assert!(post.angle_sigma_deg.is_none() && post.segment.is_none());
         assert!(post.cov_xx > 0.0 && post.cov_yy > 0.0);
         assert_eq!((post.times_seen, post.last_seen), (1, 1));
+        // Clearing forgets the features; sweeps and ids go on.
+        m.clear();
+        assert!(m.features().is_empty());
+        update(&mut m, &sweep_readings(1, post_scene(0.0)));
+        assert_eq!(m.sweeps(), 2);
+        assert!(m.features().iter().all(|f| f.id() > 2 && f.first_seen() == 2));
     }
 }

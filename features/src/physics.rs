@@ -66,6 +66,18 @@ impl EchoPhysics {
         })
     }
 
+    /// The widest region of constant depth one target can make at `range_m`, degrees: a wall's
+    /// or a corner's cone, or the union of two reference points' (see [`crate::classify`]).
+    pub fn widest_region_deg(&self, range_m: f64, beam_half_angle_deg: f64) -> f64 {
+        let cone = |r: Reflector| {
+            self.cone_half_angle_deg(r, range_m, beam_half_angle_deg)
+                .unwrap_or(0.0)
+        };
+        2.0 * cone(Reflector::Plane)
+            .max(cone(Reflector::Corner))
+            .max(2.0 * cone(self.reference_point()))
+    }
+
     /// The reference point target (a post of [`EchoPhysics::point_radius_m`]).
     pub fn reference_point(&self) -> Reflector {
         Reflector::Cylinder {
@@ -133,6 +145,10 @@ mod tests {
         // At 4 m the corner's echo no longer fills the beam.
         let far = cone(Reflector::Corner, 4.0).unwrap();
         assert!(far < 30.0 && far > 20.0, "{far}");
+        // Near, two posts' union is the widest; from 1.2 m on, a corner's cone.
+        let p = EchoPhysics::default();
+        assert!(p.widest_region_deg(0.5, BEAM) > 100.0);
+        assert_eq!(p.widest_region_deg(1.7, BEAM), 60.0);
     }
 
     #[test]

@@ -12,15 +12,18 @@
 //!
 //! 1. **Runs**: grow a run while the next ping's range keeps the run's spread within the range
 //!    tolerance (the detector's jitter of `late_cycles_max` half-wavelengths plus a margin). One
-//!    ping that breaks a run by hearing **nearer** (a transient: the SRF05's spurious echoes end a
-//!    ping early) or **nothing** (a dropout), when the ping after it continues the run, is bridged
-//!    and counted as an outlier. A ping that hears **farther** is never bridged: the beam went past
+//!    ping that breaks a run by hearing **nearer** than all of it (a transient: the SRF05's
+//!    spurious echoes end a ping early, by any amount) or **nothing** (a dropout), when the ping
+//!    after it continues the run, is bridged and counted as an outlier. A ping that hears **farther** is never bridged: the beam went past
 //!    the target there, which is evidence of a gap (two posts with a way between them).
 //! 2. **Ends**: [`End::Natural`] when the next ping heard farther or nothing (the target left the
 //!    cone there), [`End::Occluded`] when it heard nearer (a nearer target may hide the rest of this
 //!    one), [`End::Unknown`] at the end of the scan, at lost readings, or at an ambiguous neighbour.
+//!    A lone nearer ping followed by farther or nothing is a transient: the end is natural.
 //! 3. **Joining**: two runs at the same range, separated only by pings that heard nearer, are one
-//!    target partly hidden (the wall behind a post): they are joined, the hidden pings counted.
+//!    target partly hidden (the wall behind a post): they are joined, the hidden pings counted —
+//!    unless together they would be wider than any one target's region at that range (the four
+//!    corners of a square room, all at one range between the nearer walls, stay four).
 //! 4. Runs of fewer than `min_pings` pings are dropped; the rest become [`Rcd`]s, their range the
 //!    mean of their pings less the detector's mean lateness.
 
@@ -69,29 +72,48 @@ pub struct Rcd {
     pub start: End,
     /// End at the higher bearing.
     pub end: End,
+    /// Span of bearings in which the cone's edge at the start lies: one step (between the first
+    /// ping that heard the target and the one before), two when the one before was a transient,
+    /// which may have heard it too.
+    pub start_interval_deg: f64,
+    /// The same at the end.
+    pub end_interval_deg: f64,
 }
 
 impl Rcd {
-    /// Angular width: from half a step before the first ping to half a step after the last, the
-    /// best estimate of the cone's width (each edge lies between a ping that heard the target and
-    /// one that did not).
-    pub fn width_deg(&self) -> f64 {
-        self.last_deg - self.first_deg + self.step_deg
-    }
-
-    /// Middle of the run: the target's bearing when both ends are natural.
-    pub fn centre_deg(&self) -> f64 {
-        (self.first_deg + self.last_deg) / 2.0
-    }
-
-    /// Estimated edge of the cone at the lower bearing.
+    /// Estimated edge of the cone at the lower bearing: the middle of its interval.
     pub fn start_edge_deg(&self) -> f64 {
-        self.first_deg - self.step_deg / 2.0
+        self.first_deg - self.start_interval_deg / 2.0
     }
 
     /// Estimated edge of the cone at the higher bearing.
     pub fn end_edge_deg(&self) -> f64 {
-        self.last_deg + self.step_deg / 2.0
+        self.last_deg + self.end_interval_deg / 2.0
+    }
+
+    /// σ of the edge estimates: uniform over their intervals.
+    pub fn start_edge_sigma_deg(&self) -> f64 {
+        self.start_interval_deg / 12f64.sqrt()
+    }
+
+    pub fn end_edge_sigma_deg(&self) -> f64 {
+        self.end_interval_deg / 12f64.sqrt()
+    }
+
+    /// Angular width: from edge to edge, the best estimate of the cone's full width.
+    pub fn width_deg(&self) -> f64 {
+        self.end_edge_deg() - self.start_edge_deg()
+    }
+
+    /// Middle between the edges: the target's bearing when both ends are natural.
+    pub fn centre_deg(&self) -> f64 {
+        (self.start_edge_deg() + self.end_edge_deg()) / 2.0
+    }
+
+    /// How far the measured width may lie from a modelled one: half of each edge's interval, and
+    /// each modelled cone edge's σ (`cone_sigma_deg`) twice.
+    pub fn width_tolerance_deg(&self, cone_sigma_deg: f64) -> f64 {
+        (self.start_interval_deg + self.end_interval_deg) / 2.0 + 2.0 * cone_sigma_deg
     }
 }
 
@@ -161,6 +183,9 @@ struct Run {
     hidden: u32,
     start: End,
     end: End,
+    /// Edge intervals in steps (see [`Rcd::start_interval_deg`]).
+    start_steps: f64,
+    end_steps: f64,
 }
 
 /// The regions of constant depth of one sweep, in order of bearing.
@@ -168,10 +193,10 @@ pub fn extract(sweep: &Sweep, cfg: &FeatureConfig) -> Vec<Rcd> {
     let tol = cfg.range_tolerance_m();
     let mut runs = find_runs(sweep, tol);
     for run in &mut runs {
-        run.start = end_kind(sweep, run, tol, Side::Start);
-        run.end = end_kind(sweep, run, tol, Side::End);
+        (run.start, run.start_steps) = end_kind(sweep, run, tol, Side::Start);
+        (run.end, run.end_steps) = end_kind(sweep, run, tol, Side::End);
     }
-    let runs = join_hidden(sweep, runs, tol);
+    let runs = join_hidden(sweep, runs, cfg);
     let speed = cfg.speed_of_sound_mps();
     let bias = cfg.echo.late_bias_m(speed);
     let ping_sigma = cfg.echo.late_sigma_m(speed);
@@ -191,6 +216,8 @@ pub fn extract(sweep: &Sweep, cfg: &FeatureConfig) -> Vec<Rcd> {
             hidden: r.hidden,
             start: r.start,
             end: r.end,
+            start_interval_deg: r.start_steps * sweep.step_deg(),
+            end_interval_deg: r.end_steps * sweep.step_deg(),
         })
         .collect()
 }
@@ -216,7 +243,9 @@ fn find_runs(sweep: &Sweep, tol: f64) -> Vec<Run> {
                     j += 1;
                 }
                 other => {
-                    let bridgeable = other.is_none_or(|r| r < stats.lo - tol);
+                    // Nearer than the whole run (a transient ends a ping early by any amount),
+                    // or nothing; never farther.
+                    let bridgeable = other.is_none_or(|r| r < stats.lo);
                     let resumes = j + 1 < pings.len()
                         && !sweep.gap_before(j + 1)
                         && pings[j + 1].range_m.is_some_and(|r| stats.fits(r, tol));
@@ -237,6 +266,8 @@ fn find_runs(sweep: &Sweep, tol: f64) -> Vec<Run> {
             hidden: 0,
             start: End::Unknown,
             end: End::Unknown,
+            start_steps: 1.0,
+            end_steps: 1.0,
         });
         i = last + 1;
     }
@@ -249,30 +280,43 @@ enum Side {
     End,
 }
 
-/// What the ping just outside a run's end says about it.
-fn end_kind(sweep: &Sweep, run: &Run, tol: f64, side: Side) -> End {
+/// What the ping just outside a run's end says about it, and the span (in steps) in which the
+/// cone's edge lies.
+fn end_kind(sweep: &Sweep, run: &Run, tol: f64, side: Side) -> (End, f64) {
     let pings = sweep.pings();
-    let neighbour = match side {
-        Side::Start => run
-            .first
-            .checked_sub(1)
-            .filter(|_| !sweep.gap_before(run.first)),
-        Side::End => Some(run.last + 1).filter(|&k| k < pings.len() && !sweep.gap_before(k)),
+    // The ping `steps` beyond the run on `side`, if no readings are lost on the way.
+    let outside = |steps: usize| match side {
+        Side::Start => (0..steps).try_fold(run.first, |k, _| {
+            k.checked_sub(1).filter(|_| !sweep.gap_before(k))
+        }),
+        Side::End => (0..steps).try_fold(run.last, |k, _| {
+            Some(k + 1).filter(|&j| j < pings.len() && !sweep.gap_before(j))
+        }),
     };
-    let Some(k) = neighbour else {
-        return End::Unknown;
+    let Some(k) = outside(1) else {
+        return (End::Unknown, 1.0);
     };
+    let past = |r: Option<f64>| r.is_none_or(|r| r > run.stats.hi + tol);
     match pings[k].range_m {
-        None => End::Natural,
-        Some(r) if r > run.stats.hi + tol => End::Natural,
-        Some(r) if r < run.stats.lo - tol => End::Occluded,
-        Some(_) => End::Unknown,
+        r if past(r) => (End::Natural, 1.0),
+        Some(r) if r < run.stats.lo => {
+            // A lone nearer ping with nothing or something farther beyond it is a transient, not
+            // a target hiding this one: the run ended there or one ping later.
+            if outside(2).is_some_and(|j| past(pings[j].range_m)) {
+                (End::Natural, 2.0)
+            } else {
+                (End::Occluded, 1.0)
+            }
+        }
+        _ => (End::Unknown, 1.0),
     }
 }
 
 /// Joins runs at the same range separated only by pings that heard nearer: one target, partly
-/// hidden by a nearer one.
-fn join_hidden(sweep: &Sweep, runs: Vec<Run>, tol: f64) -> Vec<Run> {
+/// hidden by a nearer one, if no wider than one target's region can be.
+fn join_hidden(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig) -> Vec<Run> {
+    let tol = cfg.range_tolerance_m();
+    let beam = f64::from(cfg.sensor.beam_half_angle_deg);
     let pings = sweep.pings();
     let mut out: Vec<Run> = Vec::with_capacity(runs.len());
     let mut consumed = vec![false; runs.len()];
@@ -296,19 +340,29 @@ fn join_hidden(sweep: &Sweep, runs: Vec<Run>, tol: f64) -> Vec<Run> {
                 .enumerate()
                 .skip(a + 1)
                 .find(|(b, r)| !consumed[*b] && r.first == k);
+            // One target: ranges within the tolerance, no wider than one target can be.
+            let one_target = |r: &Run| {
+                let mut s = joined.stats;
+                s.merge(&r.stats);
+                let width =
+                    pings[r.last].bearing_deg - pings[joined.first].bearing_deg + sweep.step_deg();
+                s.hi - s.lo <= tol
+                    && width
+                        <= cfg.echo.widest_region_deg(s.mean(), beam) + cfg.width_tolerance_deg()
+            };
             match next {
                 Some((b, r))
-                    if k < pings.len() && !sweep.gap_before(k) && r.start == End::Occluded && {
-                        let mut s = joined.stats;
-                        s.merge(&r.stats);
-                        s.hi - s.lo <= tol
-                    } =>
+                    if k < pings.len()
+                        && !sweep.gap_before(k)
+                        && r.start == End::Occluded
+                        && one_target(r) =>
                 {
                     joined.hidden += (k - joined.last - 1) as u32 + r.hidden;
                     joined.stats.merge(&r.stats);
                     joined.outliers += r.outliers;
                     joined.last = r.last;
                     joined.end = r.end;
+                    joined.end_steps = r.end_steps;
                     consumed[b] = true;
                 }
                 _ => break,
@@ -386,12 +440,23 @@ pub(crate) mod tests {
         let r = rcds(0.0, &transient);
         assert_eq!(r.len(), 1);
         assert_eq!((r[0].pings, r[0].outliers), (12, 1));
+        // Also one that ended just short of the target, too short to count as jitter.
+        let slight = cat(&[run(6, 1.0086), vec![0.985], run(6, 1.0)]);
+        assert_eq!(rcds(0.0, &slight).len(), 1);
         let dropout = cat(&[run(6, 1.0), vec![0.0], run(6, 1.0)]);
         assert_eq!(rcds(0.0, &dropout)[0].outliers, 1);
         // Two pings in a row are no outlier.
         let two = cat(&[run(6, 1.0), vec![0.0, 0.0], run(6, 1.0)]);
         assert_eq!(rcds(0.0, &two).len(), 2);
         // One ping that heard past the target: two targets with a way between them.
+        // A transient just past the end of a run does not make it look hidden.
+        let r = rcds(0.0, &cat(&[run(6, 1.0), vec![0.5, 0.0], run(6, 2.0)]));
+        assert_eq!(r[0].end, End::Natural);
+        // It may have heard the target: the edge lies within two steps, the width is one more.
+        assert_eq!(r[0].end_interval_deg, 3.0);
+        assert!((r[0].width_deg() - 9.75).abs() < 1e-9);
+        let r = rcds(0.0, &cat(&[run(6, 1.0), vec![0.5, 0.5], run(6, 2.0)]));
+        assert_eq!(r[0].end, End::Occluded);
         let gap = cat(&[run(6, 1.0), vec![2.0], run(6, 1.0)]);
         let r = rcds(0.0, &gap);
         assert_eq!(r.len(), 2);
@@ -416,6 +481,15 @@ pub(crate) mod tests {
         assert_eq!((wall.start, wall.end), (End::Natural, End::Natural));
         assert_eq!((wall.pings, wall.hidden), (12, 10));
         assert!((wall.width_deg() - 22.0 * 1.5).abs() < 1e-9);
+        // Four corners of a room, at one range between nearer walls, are not one target.
+        let room = cat(&[
+            run(20, 1.7),
+            run(37, 1.2),
+            run(22, 1.7),
+            run(37, 1.2),
+            run(20, 1.7),
+        ]);
+        assert_eq!(rcds(0.0, &room).len(), 5);
         // Not across a farther ping, nor across lost readings.
         let far = cat(&[run(6, 2.0), run(3, 0.98), vec![3.0], run(6, 2.0)]);
         // The lone 3 m ping is too short a run to keep: two walls and the post.
