@@ -79,6 +79,18 @@ pub fn wall_errors(family: &Family, when: When) -> (Option<Spread>, Option<Sprea
     )
 }
 
+/// Coverage of their walls (worst = least) and overreach (worst = most) of the expected walls'
+/// segments after all sweeps.
+pub fn segment_fits(family: &Family) -> (Option<Spread>, Option<Spread>) {
+    let fits = || family.runs.iter().flat_map(|r| r.all.segments.iter());
+    let coverage = Spread::of(fits().map(|f| -f.coverage)).map(|s| Spread {
+        median: -s.median,
+        worst: -s.worst,
+        count: s.count,
+    });
+    (coverage, Spread::of(fits().map(|f| f.overreach_m)))
+}
+
 /// Position errors of the expected corners, and how many were missed.
 pub fn corner_errors(family: &Family, when: When) -> (Option<Spread>, usize) {
     let all = family
@@ -190,6 +202,17 @@ fn spread_cm(s: Option<Spread>) -> String {
     })
 }
 
+/// Feature errors are millimetres: two decimals of a centimetre.
+fn fine_cm(m: f64) -> String {
+    format!("{:.2} cm", m * 100.0)
+}
+
+fn spread_fine(s: Option<Spread>) -> String {
+    s.map_or("–".into(), |s| {
+        format!("{} / {}", fine_cm(s.median), fine_cm(s.worst))
+    })
+}
+
 fn spread_deg(s: Option<Spread>) -> String {
     s.map_or("–".into(), |s| {
         format!("{:.2}° / {:.2}°", s.median, s.worst)
@@ -254,9 +277,9 @@ pub fn markdown(settings: &FeatureSettings, r: &FeatureResults) -> String {
         s,
         "| 5 cm post at 1 m: position error ≤ 3 cm median, ≤ 5 cm worst | {} after {} sweeps \
          ({} after one); missed in {post_missed} of {runs} runs | {} |",
-        spread_cm(post_all),
+        spread_fine(post_all),
         settings.sweeps,
-        spread_cm(post_first),
+        spread_fine(post_first),
         verdict(post_ok)
     );
     let _ = writeln!(
@@ -277,8 +300,8 @@ pub fn markdown(settings: &FeatureSettings, r: &FeatureResults) -> String {
             "| {name}: walls' angle ≤ 2°, perpendicular distance ≤ 2 cm; corners ≤ 3 cm | walls \
              {} and {} (missed {missed}); corners {} (missed {corner_missed}) | {} |",
             spread_deg(*angle),
-            spread_cm(*dist),
-            spread_cm(*corner),
+            spread_fine(*dist),
+            spread_fine(*corner),
             verdict(
                 *missed == 0
                     && *corner_missed == 0
@@ -297,6 +320,30 @@ pub fn markdown(settings: &FeatureSettings, r: &FeatureResults) -> String {
         )),
         verdict(slanted_ok)
     );
+
+    // Partial planes.
+    let _ = writeln!(
+        s,
+        "Partial planes: each found wall's segment (from the feet of the perpendiculars to the \
+         corners on its line, grown through the `recommended` grid's occupied cells), against the \
+         true wall:\n\n| scene | share of the wall covered (median / least) | reach beyond the \
+         wall's ends (median / most) |\n|---|---|---|"
+    );
+    for f in [&r.room, &r.corner] {
+        let (coverage, overreach) = segment_fits(f);
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} |",
+            f.name,
+            coverage.map_or("–".into(), |c| format!(
+                "{:.0} % / {:.0} %",
+                c.median * 100.0,
+                c.worst * 100.0
+            )),
+            spread_fine(overreach)
+        );
+    }
+    let _ = writeln!(s);
 
     // Two posts, per spacing, features against both grid presets.
     let _ = writeln!(
@@ -319,7 +366,7 @@ pub fn markdown(settings: &FeatureSettings, r: &FeatureResults) -> String {
             s,
             "| {} | {ok} of {n} | {} | {} | {} of {} | {} of {} |",
             mm_cm(*mm),
-            spread_cm(post_errors(f, When::All).0),
+            spread_fine(post_errors(f, When::All).0),
             false_features(f, When::All).map_or("–".into(), |x| format!(
                 "{:.0} / {:.0}",
                 x.median, x.worst
@@ -360,7 +407,7 @@ pub fn markdown(settings: &FeatureSettings, r: &FeatureResults) -> String {
          | features: position error of the point feature | {} |\n",
         width(paper_w),
         width(rec_w),
-        spread_cm(post_all)
+        spread_fine(post_all)
     );
 
     // Per bearing: the grid's width depends on where the post falls on the 6° reading grid.
@@ -387,7 +434,7 @@ pub fn markdown(settings: &FeatureSettings, r: &FeatureResults) -> String {
             runs.iter()
                 .filter_map(|run| run.all.posts.first().copied().flatten()),
         )
-        .map_or("–".into(), |e| cm(e.median));
+        .map_or("–".into(), |e| fine_cm(e.median));
         let _ = writeln!(s, "| {b}° | {} | {} | {error} |", width(0), width(1));
     }
     let _ = writeln!(s);
@@ -477,8 +524,8 @@ pub fn markdown(settings: &FeatureSettings, r: &FeatureResults) -> String {
                 s,
                 "| {name} | {} | {} | {} | {:.2} | {:.0} % | {:.0} % |",
                 h.features,
-                cm(h.median_error_m),
-                cm(h.median_sigma_m),
+                fine_cm(h.median_error_m),
+                fine_cm(h.median_sigma_m),
                 h.rms_normalised,
                 h.within_1sigma * 100.0,
                 h.within_95 * 100.0

@@ -155,6 +155,9 @@ pub struct WallTruth {
     pub distance_m: f64,
     /// The scan's pings reach its foot's bearing, in the line of sight.
     pub expected: bool,
+    /// Its ends.
+    pub a: Vec2,
+    pub b: Vec2,
 }
 
 /// What a scene holds, in the terms features are measured in.
@@ -220,6 +223,8 @@ impl Truth {
                     normal_deg: foot.angle_deg(),
                     distance_m: foot.norm(),
                     expected: reached(foot),
+                    a: w.a,
+                    b: w.b,
                 });
             }
         }
@@ -249,6 +254,30 @@ pub struct WallError {
     pub distance_m: f64,
 }
 
+/// How a plane's segment lies on its true wall.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SegmentFit {
+    /// Share of the wall's length the segment covers.
+    pub coverage: f64,
+    /// How far the segment reaches beyond the wall's ends, metres (0 inside).
+    pub overreach_m: f64,
+}
+
+impl SegmentFit {
+    /// The segment `a`–`b` against the wall `wall` (both on nearly the same line).
+    pub fn of(a: Point2<f64>, b: Point2<f64>, wall: &WallTruth) -> Self {
+        let (wa, wb) = (point(wall.a), point(wall.b));
+        let length = (wb - wa).norm();
+        let dir = (wb - wa) / length;
+        let (ta, tb) = ((a - wa).dot(&dir), (b - wa).dot(&dir));
+        let (lo, hi) = (ta.min(tb), ta.max(tb));
+        Self {
+            coverage: ((hi.min(length) - lo.max(0.0)) / length).max(0.0),
+            overreach_m: (-lo).max(hi - length).max(0.0),
+        }
+    }
+}
+
 /// A feature map measured against the truth.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Scored {
@@ -258,6 +287,8 @@ pub struct Scored {
     pub corners: Vec<Option<f64>>,
     /// Per expected wall.
     pub walls: Vec<Option<WallError>>,
+    /// Per expected wall found: its segment's fit.
+    pub segments: Vec<SegmentFit>,
     /// Features matching nothing (or a truth already matched): kind and position.
     pub false_features: Vec<(FeatureKind, Point2<f64>)>,
     /// Point features within [`CROWD_M`] of a post other than the one matched to it.
@@ -277,10 +308,11 @@ fn mahalanobis2(e: Vector2<f64>, c: Matrix2<f64>) -> Option<f64> {
     c.try_inverse().map(|inv| (e.transpose() * inv * e)[(0, 0)])
 }
 
-/// Scores `map` against `truth`.
-pub fn score(map: &FeatureMap, truth: &Truth) -> Scored {
+/// Scores `map` against `truth`; `support` (occupied grid cells) lets the planes' segments grow.
+pub fn score(map: &FeatureMap, truth: &Truth, support: &[Point2<f64>]) -> Scored {
     let mut out = Scored::default();
     let features = map.features();
+    let segments = map.segments(support);
     let mut used = vec![false; features.len()];
     // Points: posts first (their errors are reported), then edges.
     let nearest = |target: Point2<f64>, kind: FeatureKind, used: &mut Vec<bool>| {
@@ -350,6 +382,11 @@ pub fn score(map: &FeatureMap, truth: &Truth) -> Scored {
         if let Some((i, e)) = best {
             used[i] = true;
             let f = &features[i];
+            if let Some(seg) = segments.iter().find(|g| g.plane_id == f.id())
+                && w.expected
+            {
+                out.segments.push(SegmentFit::of(seg.a, seg.b, w));
+            }
             if let (Some(sa), Some(sd)) = (f.normal_sigma_deg(), f.distance_sigma_m()) {
                 let d2 = (e.angle_deg / sa).powi(2) + (e.distance_m / sd).powi(2);
                 out.mahalanobis2.push((FeatureKind::Plane, d2));
@@ -445,8 +482,29 @@ pub struct Family {
     pub runs: Vec<Run>,
 }
 
-/// Runs `base` at every bearing and seed; `with_grid` also fuses the grid presets.
-fn family(name: &str, base: &Scene, settings: &FeatureSettings, with_grid: bool) -> Result<Family> {
+/// What a family of runs takes from the grid presets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum GridUse {
+    None,
+    /// The presets' figures for posts.
+    Figures,
+    /// The recommended preset's occupied cells as support for the planes' segments.
+    Support,
+}
+
+/// The recommended preset's occupied cell centres.
+fn occupied_cells(readings: &[Reading]) -> Result<Vec<Point2<f64>>> {
+    let map = Maps::fuse(readings, Preset::Recommended)?.probability();
+    let n = map.geometry().cells_per_side();
+    Ok((0..n)
+        .flat_map(|y| (0..n).map(move |x| (x, y)))
+        .filter(|&(x, y)| map.is_occupied(x, y))
+        .map(|(x, y)| point(map.centre(x, y)))
+        .collect())
+}
+
+/// Runs `base` at every bearing and seed.
+fn family(name: &str, base: &Scene, settings: &FeatureSettings, grid: GridUse) -> Result<Family> {
     let mut runs = Vec::new();
     for &bearing in &settings.bearings_deg {
         let scene = rotated(base, bearing)?;
@@ -456,15 +514,19 @@ fn family(name: &str, base: &Scene, settings: &FeatureSettings, with_grid: bool)
             let cap = capture(scene.clone(), scan, settings.sweeps, seed)
                 .with_context(|| format!("simulating {} at {bearing}° with seed {seed}", name))?;
             let maps = feature_maps(&cap.readings)?;
+            let support = match grid {
+                GridUse::Support => occupied_cells(&cap.readings)?,
+                GridUse::None | GridUse::Figures => Vec::new(),
+            };
             runs.push(Run {
                 bearing_deg: bearing,
                 seed,
-                first: score(&maps.first, &truth),
-                all: score(&maps.all, &truth),
-                grid: if with_grid {
-                    Some(grid_figures(&scene, &cap.readings)?)
-                } else {
-                    None
+                // The grid of all sweeps would not match the map of the first.
+                first: score(&maps.first, &truth, &[]),
+                all: score(&maps.all, &truth, &support),
+                grid: match grid {
+                    GridUse::Figures => Some(grid_figures(&scene, &cap.readings)?),
+                    GridUse::None | GridUse::Support => None,
                 },
             });
         }
@@ -490,22 +552,35 @@ pub struct FeatureResults {
 }
 
 pub fn evaluate(settings: &FeatureSettings) -> Result<FeatureResults> {
-    let post = family("obstacle", &Scene::builtin("obstacle")?, settings, true)?;
+    let post = family(
+        "obstacle",
+        &Scene::builtin("obstacle")?,
+        settings,
+        GridUse::Figures,
+    )?;
     let spacings = settings
         .spacings_mm
         .iter()
         .map(|&mm| {
             let scene = two_posts(f64::from(mm) / 1000.0)?;
-            Ok((mm, family(&scene.name.clone(), &scene, settings, true)?))
+            Ok((
+                mm,
+                family(&scene.name.clone(), &scene, settings, GridUse::Figures)?,
+            ))
         })
         .collect::<Result<Vec<_>>>()?;
     Ok(FeatureResults {
         post,
         spacings,
-        room: family("room", &Scene::builtin("room")?, settings, false)?,
-        corner: family("corner", &Scene::builtin("corner")?, settings, false)?,
-        slanted: family("slanted-wall", &slanted_wall()?, settings, false)?,
-        thick_post: family("thick-post", &thick_post(0.05)?, settings, false)?,
+        room: family("room", &Scene::builtin("room")?, settings, GridUse::Support)?,
+        corner: family(
+            "corner",
+            &Scene::builtin("corner")?,
+            settings,
+            GridUse::Support,
+        )?,
+        slanted: family("slanted-wall", &slanted_wall()?, settings, GridUse::None)?,
+        thick_post: family("thick-post", &thick_post(0.05)?, settings, GridUse::None)?,
     })
 }
 
@@ -642,6 +717,20 @@ mod tests {
         assert!((t.posts[0].x - 0.975).abs() < 1e-12);
     }
 
+    #[test]
+    fn a_segment_is_measured_along_its_wall() {
+        let wall = WallTruth {
+            normal_deg: 0.0,
+            distance_m: 1.0,
+            expected: true,
+            a: Vec2::new(1.0, -1.0),
+            b: Vec2::new(1.0, 1.0),
+        };
+        let fit = SegmentFit::of(Point2::new(1.0, 1.1), Point2::new(1.0, 0.0), &wall);
+        assert!((fit.coverage - 0.5).abs() < 1e-12);
+        assert!((fit.overreach_m - 0.1).abs() < 1e-12);
+    }
+
     fn observation(kind: FeatureKind, range_m: f64, bearing_deg: f64) -> Observation {
         Observation {
             kind,
@@ -668,12 +757,15 @@ mod tests {
             observation(FeatureKind::Corner, 1.5, 20.0),
         ];
         map.merge(&obs, &Sweep::default(), &Isometry2::identity());
-        let s = score(&map, &truth);
+        let s = score(&map, &truth, &[]);
         let post = s.posts[0].unwrap();
         assert!((post - 0.975 * 0.5f64.to_radians()).abs() < 1e-3, "{post}");
         assert_eq!(s.walls.len(), 1);
         let wall = s.walls[0].unwrap();
         assert!((wall.angle_deg + 0.4).abs() < 1e-9 && (wall.distance_m - 0.002).abs() < 1e-9);
+        // The wall was seen at its foot only: a point of it.
+        assert_eq!(s.segments.len(), 1);
+        assert!(s.segments[0].coverage < 1e-9 && s.segments[0].overreach_m == 0.0);
         let kinds: Vec<FeatureKind> = s.false_features.iter().map(|f| f.0).collect();
         assert_eq!(kinds, [FeatureKind::Point, FeatureKind::Corner]);
         assert_eq!(s.crowding, 1);

@@ -62,7 +62,7 @@ struct Args {
     #[arg(long, default_value = "1..3:1", value_parser = parse_seeds)]
     feature_seeds: Values,
     /// Centre spacings of the feature evaluation's two-post scenes, in cm (as --spacings).
-    #[arg(long, default_value = "10..60:5", value_parser = parse_spacings)]
+    #[arg(long, default_value = "10..70:5", value_parser = parse_spacings)]
     feature_spacings: Spacings,
     /// Only the feature evaluation (no pictures, no grid tables of the paper's scenes).
     #[arg(long)]
@@ -249,7 +249,7 @@ mod tests {
         assert_eq!((a.sweeps, a.seed, a.scale), (4, 1, 3));
         assert_eq!(a.feature_bearings.0.len(), 16);
         assert_eq!(a.feature_seeds.0, [1.0, 2.0, 3.0]);
-        assert_eq!(a.feature_spacings.0.len(), 11);
+        assert_eq!(a.feature_spacings.0.len(), 13);
         assert!(!a.features_only);
         assert!(Args::try_parse_from(["sonar-eval", "--sweeps", "0"]).is_err());
     }
