@@ -3,11 +3,13 @@
 use std::fmt;
 use std::str::FromStr;
 
-use serde::{Deserialize, Serialize};
+use serde::de::Error as _;
+use serde::{Deserialize, Deserializer, Serialize};
 use sonar_common::sensor::SensorConfig;
 
 use crate::model::{ModelConfig, PaperModel, SmoothModel};
 use crate::observation::Limits;
+use crate::persist::PersistConfig;
 use crate::radar::RadarConfig;
 use crate::rule::{LogOddsRule, RuleConfig};
 
@@ -277,6 +279,33 @@ impl FusionConfig {
     }
 }
 
+/// The `[fusion]` table of a pipeline configuration file: the engine's settings and, in the same
+/// table, where and how often its map is saved (the keys of [`PersistConfig`]). Unknown keys are
+/// errors, as everywhere in the file.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FusionSection {
+    pub engine: FusionConfig,
+    pub persistence: PersistConfig,
+}
+
+impl<'de> Deserialize<'de> for FusionSection {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        // serde's `flatten` cannot be combined with `deny_unknown_fields`, so the table is split
+        // by key and each part read with its own type, which refuses what it does not know.
+        let mut engine = toml::Table::deserialize(deserializer)?;
+        let mut persistence = toml::Table::new();
+        for key in PersistConfig::KEYS {
+            if let Some(value) = engine.remove(key) {
+                persistence.insert(key.to_owned(), value);
+            }
+        }
+        Ok(Self {
+            engine: engine.try_into().map_err(D::Error::custom)?,
+            persistence: persistence.try_into().map_err(D::Error::custom)?,
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -392,6 +421,81 @@ mod tests {
                 FusionConfig::preset(Preset::Recommended)
             ]
         );
+    }
+
+    #[test]
+    fn the_fusion_table_holds_the_engine_and_the_persistence_keys() {
+        let section: FusionSection = toml::from_str(
+            "clear_on_no_echo = true\nstate_file = \"/var/lib/sonar/map.bin\"\nsave_period = 2.5\n\
+             persist = false\n[grid]\ncells = 100\n",
+        )
+        .unwrap();
+        assert!(section.engine.clear_on_no_echo);
+        assert_eq!(section.engine.grid.cells, 100);
+        assert_eq!(
+            section.persistence,
+            PersistConfig {
+                persist: false,
+                state_file: Some("/var/lib/sonar/map.bin".into()),
+                save_period: 2.5,
+            }
+        );
+        let empty: FusionSection = toml::from_str("").unwrap();
+        assert_eq!(empty, FusionSection::default());
+        for bad in [
+            "save_periode = 1.0",
+            "[grid]\nsize = 3",
+            "persist = \"yes\"",
+        ] {
+            assert!(toml::from_str::<FusionSection>(bad).is_err(), "{bad}");
+        }
+        // Every persistence key is split off, and no engine setting shares a name with one.
+        let keys: Vec<String> = toml::Table::try_from(PersistConfig {
+            state_file: Some("x".into()),
+            ..PersistConfig::default()
+        })
+        .unwrap()
+        .keys()
+        .cloned()
+        .collect();
+        let mut expected = PersistConfig::KEYS.map(str::to_owned).to_vec();
+        expected.sort();
+        assert_eq!(keys, expected);
+        let engine_keys = toml::Table::try_from(FusionConfig::default()).unwrap();
+        assert!(
+            PersistConfig::KEYS
+                .iter()
+                .all(|k| !engine_keys.contains_key(*k))
+        );
+    }
+
+    /// `examples/sonar.toml` shows the persistence keys commented out; uncommented, they are the
+    /// keys `sonar-fusion` reads.
+    #[test]
+    fn the_persistence_keys_of_the_example_configuration_parse() {
+        #[derive(Deserialize)]
+        struct File {
+            fusion: FusionSection,
+        }
+        let example = include_str!("../../examples/sonar.toml");
+        let uncommented: String = example
+            .lines()
+            .map(|line| match line.strip_prefix("# ") {
+                Some(rest) if PersistConfig::KEYS.iter().any(|k| rest.starts_with(k)) => rest,
+                _ => line,
+            })
+            .flat_map(|line| [line, "\n"])
+            .collect();
+        let section = toml::from_str::<File>(&uncommented).unwrap().fusion;
+        assert_eq!(
+            section.persistence,
+            PersistConfig {
+                persist: true,
+                state_file: Some("/var/lib/sonar/fusion-map.bin".into()),
+                save_period: 5.0,
+            }
+        );
+        assert_eq!(section.engine, FusionConfig::default());
     }
 
     #[test]

@@ -11,6 +11,7 @@
 use std::collections::VecDeque;
 
 use nalgebra::{Isometry2, Vector2};
+use serde::{Deserialize, Serialize};
 use sonar_common::ipc::{
     FusionCommand, FusionCommandKind, GridHeader, LAYOUT_VERSION, Pose2D, RADAR_MAX_BINS, Radar,
     Reading, preset_code,
@@ -22,6 +23,7 @@ use crate::mapper::Mapper;
 use crate::model::{ModelConfig, ModelKind};
 use crate::observation::Observation;
 use crate::rule::{RuleConfig, RuleKind};
+use crate::state::{MapState, SavedMap, SavedObservation, StateError};
 
 /// A command the engine refuses; the maps are unchanged.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -35,8 +37,8 @@ pub enum CommandError {
 }
 
 /// What the latest reading said about the scan, for the snapshots' headers.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-struct ScanState {
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub(crate) struct ScanState {
     sweep_id: u32,
     direction: i8,
     mode: u8,
@@ -51,6 +53,9 @@ pub struct Engine {
     scan: Option<ScanState>,
     pose: Isometry2<f32>,
     rejected_readings: u64,
+    last_seq: Option<u64>,
+    /// Bumped by every change of the state, so a saver knows whether there is anything new.
+    revision: u64,
 }
 
 impl Engine {
@@ -63,7 +68,70 @@ impl Engine {
             scan: None,
             pose: Isometry2::identity(),
             rejected_readings: 0,
+            last_seq: None,
+            revision: 0,
         })
+    }
+
+    /// The engine a saved state describes, under `config` (the settings it was saved with), with
+    /// the latest `history_limit` of its kept observations.
+    pub fn restore(
+        config: FusionConfig,
+        history_limit: usize,
+        state: MapState,
+    ) -> Result<Self, StateError> {
+        let skip = state.history.len().saturating_sub(history_limit);
+        Ok(Self {
+            mapper: Mapper::restore(config, state.maps)?,
+            history: state
+                .history
+                .into_iter()
+                .skip(skip)
+                .map(Into::into)
+                .collect(),
+            history_limit,
+            scan: state.scan,
+            pose: state.robot_pose.into(),
+            rejected_readings: state.rejected_readings,
+            last_seq: state.last_seq,
+            revision: 0,
+        })
+    }
+
+    /// A copy of everything the engine holds, with its settings, for saving. A copy of the cells
+    /// and nothing more (no encoding), so the process takes it between readings and writes it
+    /// elsewhere.
+    pub fn capture(&self) -> SavedMap {
+        let mut map = SavedMap::default();
+        self.capture_into(&mut map);
+        map
+    }
+
+    /// [`Self::capture`] into an earlier copy, reusing its memory: for a large grid, a fresh
+    /// copy's page faults cost more than the copying itself.
+    pub fn capture_into(&self, map: &mut SavedMap) {
+        map.settings = *self.mapper.config();
+        let state = &mut map.state;
+        self.mapper.save_into(&mut state.maps);
+        state.history.clear();
+        state
+            .history
+            .extend(self.history.iter().map(SavedObservation::from));
+        state.scan = self.scan;
+        state.robot_pose = self.pose.into();
+        state.rejected_readings = self.rejected_readings;
+        state.last_seq = self.last_seq;
+    }
+
+    /// `seq` of the last reading taken by [`Self::fuse`], fused or refused.
+    pub fn last_seq(&self) -> Option<u64> {
+        self.last_seq
+    }
+
+    /// A number that changes whenever anything [`Self::capture`] copies does: equal revisions of
+    /// one engine hold the same state, so a map saved at this revision needs no new save.
+    pub fn revision(&self) -> u64 {
+        self.revision
     }
 
     pub fn mapper(&self) -> &Mapper {
@@ -81,6 +149,7 @@ impl Engine {
         let finite = pose.x_m.is_finite() && pose.y_m.is_finite() && pose.theta_rad.is_finite();
         if finite {
             self.pose = Isometry2::new(Vector2::new(pose.x_m, pose.y_m), pose.theta_rad);
+            self.revision += 1;
         }
         finite
     }
@@ -94,6 +163,8 @@ impl Engine {
     /// Fuses `reading` at the current pose into both maps; `false` if the kernels refused it.
     pub fn fuse(&mut self, reading: &Reading) -> bool {
         let obs = Observation::from_reading(reading, self.pose);
+        self.last_seq = Some(reading.seq);
+        self.revision += 1;
         self.scan = Some(ScanState {
             sweep_id: reading.sweep_id,
             direction: reading.direction,
@@ -127,6 +198,7 @@ impl Engine {
             FusionCommandKind::Clear => {
                 self.mapper.clear();
                 self.history.clear();
+                self.revision += 1;
                 return Ok(());
             }
             FusionCommandKind::SetPreset => {
@@ -165,6 +237,7 @@ impl Engine {
             let _ = mapper.update(obs);
         }
         self.mapper = mapper;
+        self.revision += 1;
         Ok(())
     }
 

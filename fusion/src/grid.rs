@@ -8,6 +8,7 @@ use crate::geometry::GridGeometry;
 use crate::rule::{
     BayesRule, Combine, DempsterShaferRule, HimmRule, LogOddsRule, RuleConfig, RuleKind,
 };
+use crate::state::{SavedCells, StateError, check_len};
 
 /// The cells of one rule, with the rule's parameters.
 pub(crate) struct Layer<R: Combine> {
@@ -154,6 +155,49 @@ impl OccupancyGrid {
             }
         });
         counts
+    }
+
+    /// Copies the cells into `out`, for saving; into its own allocation if it already holds this
+    /// rule's cells (a recycled copy: no page of it is new, so no page faults).
+    pub(crate) fn save_cells_into(&self, out: &mut SavedCells) {
+        fn copy<T: Copy>(out: &mut Vec<T>, cells: &[T]) {
+            out.clear();
+            out.extend_from_slice(cells);
+        }
+        match (&self.store, out) {
+            (CellStore::Bayes(l), SavedCells::Bayes(v)) => copy(v, &l.cells),
+            (CellStore::LogOdds(l), SavedCells::LogOdds(v)) => copy(v, &l.cells),
+            (CellStore::DempsterShafer(l), SavedCells::DempsterShafer(v)) => copy(v, &l.cells),
+            (CellStore::Himm(l), SavedCells::Himm(v)) => copy(v, &l.cells),
+            (store, out) => {
+                *out = match store {
+                    CellStore::Bayes(l) => SavedCells::Bayes(l.cells.clone()),
+                    CellStore::LogOdds(l) => SavedCells::LogOdds(l.cells.clone()),
+                    CellStore::DempsterShafer(l) => SavedCells::DempsterShafer(l.cells.clone()),
+                    CellStore::Himm(l) => SavedCells::Himm(l.cells.clone()),
+                }
+            }
+        }
+    }
+
+    /// Takes saved cells back, if they are this grid's rule's and one per cell.
+    pub(crate) fn restore_cells(&mut self, saved: SavedCells) -> Result<(), StateError> {
+        fn put<R: Combine>(layer: &mut Layer<R>, cells: Vec<R::Cell>) -> Result<(), StateError> {
+            check_len("the grid", layer.cells.len(), cells.len())?;
+            layer.cells = cells;
+            Ok(())
+        }
+        let expected = self.rule_kind();
+        match (&mut self.store, saved) {
+            (CellStore::Bayes(l), SavedCells::Bayes(c)) => put(l, c),
+            (CellStore::LogOdds(l), SavedCells::LogOdds(c)) => put(l, c),
+            (CellStore::DempsterShafer(l), SavedCells::DempsterShafer(c)) => put(l, c),
+            (CellStore::Himm(l), SavedCells::Himm(c)) => put(l, c),
+            (_, saved) => Err(StateError::Rule {
+                expected,
+                found: saved.rule_kind(),
+            }),
+        }
     }
 
     /// Every cell back to unknown.

@@ -12,6 +12,7 @@ use crate::model::with_model;
 use crate::observation::{Beam, Observation, ObservationError};
 use crate::radar::RadarMap;
 use crate::reference::PaperArrays;
+use crate::state::{MapperState, StateError};
 
 /// Which kernel fuses a reading into the grid. Both give the same grid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -131,6 +132,24 @@ impl Mapper {
             radar_bin,
             cells_updated,
         })
+    }
+
+    /// Copies both maps and the counters into `out`, for saving (into its allocations).
+    pub(crate) fn save_into(&self, out: &mut MapperState) {
+        out.readings_fused = self.readings;
+        out.last_pose = self.pose.into();
+        self.grid.save_cells_into(&mut out.cells);
+        self.radar.save_into(&mut out.radar);
+    }
+
+    /// The maps of `config` holding a saved state, if it fits `config`.
+    pub(crate) fn restore(config: FusionConfig, saved: MapperState) -> Result<Self, StateError> {
+        let mut mapper = Self::new(config)?;
+        mapper.grid.restore_cells(saved.cells)?;
+        mapper.radar.restore(saved.radar)?;
+        mapper.readings = saved.readings_fused;
+        mapper.pose = saved.last_pose.into();
+        Ok(mapper)
     }
 
     /// Forgets everything: the grid back to the prior, the radar empty. The kernels' caches stay.

@@ -8,6 +8,7 @@ use sonar_common::sensor::SensorConfig;
 use crate::config::{ConfigError, check};
 use crate::geometry::{GridGeometry, wrap_angle};
 use crate::observation::Observation;
+use crate::state::{SavedRadar, StateError, check_len};
 
 /// The angle bins of the radar array, in the sensor's frame.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -114,6 +115,20 @@ impl RadarMap {
             .unwrap_or(f32::INFINITY);
         self.current_angle_deg = Some(deg);
         Some(bin)
+    }
+
+    /// Copies the array into `out`, for saving (into its allocation).
+    pub(crate) fn save_into(&self, out: &mut SavedRadar) {
+        out.distances_m.clone_from(&self.distances);
+        out.current_angle_deg = self.current_angle_deg;
+    }
+
+    /// Takes a saved array back, if it has one value per bin.
+    pub(crate) fn restore(&mut self, saved: SavedRadar) -> Result<(), StateError> {
+        check_len("the radar", self.distances.len(), saved.distances_m.len())?;
+        self.distances = saved.distances_m;
+        self.current_angle_deg = saved.current_angle_deg;
+        Ok(())
     }
 
     pub fn clear(&mut self) {
