@@ -27,7 +27,7 @@
 //!    farther or nothing: the cone's edge), **occluded** (nearer: hidden) or unknown (scan end,
 //!    lost readings); runs at one range separated only by nearer pings joined (the wall behind a
 //!    post). [`Rcd`]: range, centre, width, pings, ends, with uncertainties.
-//! 3. [`classify`]: the width against the cones the physics predicts at that range
+//! 3. [`classify()`]: the width against the cones the physics predicts at that range
 //!    ([`physics`], from [`EchoPhysics`], the simulator's model with its defaults): a wall is
 //!    heard over twice its specular cut-off (56°), a corner over its whole cone (60° when near), a
 //!    reference 5 cm post over ±13.4° at 1 m. A region **wider than one point's cone but at most
@@ -42,6 +42,28 @@
 //!    occupied grid cells passed in as support points.
 //! 6. [`FeatureMap::summaries`]: every feature as one flat record (kind, position, covariance,
 //!    angle, confidence, times seen, segment), what a fixed-size publication record carries.
+//!
+//! ```
+//! use nalgebra::Isometry2;
+//! use sonar_features::{FeatureConfig, FeatureKind, FeatureMap, Ping, Sweep};
+//! # fn main() -> Result<(), sonar_features::FeatureError> {
+//! let cfg = FeatureConfig::default();
+//! let mut map = FeatureMap::new(cfg)?;
+//! // A 5 cm post 1 m ahead, heard within ±13.4° at its near face (0.975 m, plus the detector's
+//! // mean lateness); from readings, `Sweep::from_readings(&one_sweep, &cfg)`.
+//! let pings = (0..40)
+//!     .map(|i| {
+//!         let bearing_deg = -29.25 + 1.5 * f64::from(i);
+//!         Ping { bearing_deg, range_m: (bearing_deg.abs() <= 13.4).then_some(0.979) }
+//!     })
+//!     .collect();
+//! map.update(&Sweep::from_pings(pings, 1.5)?, &Isometry2::identity());
+//! let post = &map.summaries(&[])[0];
+//! assert_eq!(post.kind, FeatureKind::Point);
+//! assert!((post.x - 0.975).abs() < 0.001 && post.y.abs() < 0.001);
+//! # Ok(())
+//! # }
+//! ```
 //!
 //! # What the readings allow, and what they do not
 //!

@@ -693,6 +693,10 @@ mod tests {
         assert!(m.features().is_empty());
         update(&mut m, &sweep_readings(1, post_scene(0.0)));
         assert_eq!(m.sweeps(), 2);
-        assert!(m.features().iter().all(|f| f.id() > 2 && f.first_seen() == 2));
+        assert!(
+            m.features()
+                .iter()
+                .all(|f| f.id() > 2 && f.first_seen() == 2)
+        );
     }
 }

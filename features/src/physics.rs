@@ -67,7 +67,7 @@ impl EchoPhysics {
     }
 
     /// The widest region of constant depth one target can make at `range_m`, degrees: a wall's
-    /// or a corner's cone, or the union of two reference points' (see [`crate::classify`]).
+    /// or a corner's cone, or the union of two reference points' (see [`mod@crate::classify`]).
     pub fn widest_region_deg(&self, range_m: f64, beam_half_angle_deg: f64) -> f64 {
         let cone = |r: Reflector| {
             self.cone_half_angle_deg(r, range_m, beam_half_angle_deg)
