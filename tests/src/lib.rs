@@ -15,7 +15,7 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
-use sonar_common::ipc::{self, DriverStatus, IpcArgs, Reading};
+use sonar_common::ipc::{self, DriverStatus, FusionStatus, IpcArgs, Reading};
 
 /// Generous bound for anything a test waits for; only there so a broken build fails instead of
 /// hanging CI. No test asserts on how fast something happens.
@@ -53,6 +53,15 @@ impl Proc {
             let _ = self.child.kill();
             panic!("{} did not exit after SIGTERM", self.name)
         });
+        std::mem::forget(self);
+        status
+    }
+
+    /// Kills the process with SIGKILL, as a crash or the OOM killer would (no handler runs, nothing
+    /// is cleaned up), and reaps it.
+    pub fn kill9(mut self) -> ExitStatus {
+        let _ = self.child.kill();
+        let status = self.child.wait().expect("reap a killed child");
         std::mem::forget(self);
         status
     }
@@ -105,15 +114,25 @@ fn wait_timeout(child: &mut Child) -> Option<ExitStatus> {
 pub struct Sandbox {
     pub prefix: String,
     pub root: PathBuf,
+    /// The processes' `$XDG_STATE_HOME`: what they keep between runs (the fusion's saved map, the
+    /// launcher's logs) stays in the test, never in the user's home.
+    pub state: PathBuf,
 }
 
 impl Sandbox {
     pub fn new(test: &str) -> Self {
         let tag = format!("sonar_t{}_{test}_", std::process::id());
         let root = std::env::temp_dir().join(format!("{tag}root"));
-        let _ = std::fs::remove_dir_all(&root);
-        std::fs::create_dir_all(&root).unwrap();
-        Self { prefix: tag, root }
+        let state = std::env::temp_dir().join(format!("{tag}state"));
+        for dir in [&root, &state] {
+            let _ = std::fs::remove_dir_all(dir);
+            std::fs::create_dir_all(dir).unwrap();
+        }
+        Self {
+            prefix: tag,
+            root,
+            state,
+        }
     }
 
     pub fn ipc_args(&self) -> IpcArgs {
@@ -134,6 +153,7 @@ impl Sandbox {
         let mut cmd = Command::new(bin(name));
         cmd.env("SONAR_IOX_PREFIX", &self.prefix)
             .env("SONAR_IOX_ROOT", &self.root)
+            .env("XDG_STATE_HOME", &self.state)
             .env(
                 "RUST_LOG",
                 std::env::var("RUST_LOG").unwrap_or_else(|_| "info".into()),
@@ -235,6 +255,7 @@ impl Drop for Sandbox {
             let _ = std::fs::remove_file(format!("/dev/shm/{f}"));
         }
         let _ = std::fs::remove_dir_all(&self.root);
+        let _ = std::fs::remove_dir_all(&self.state);
     }
 }
 
@@ -288,9 +309,10 @@ impl Tmux {
     pub fn start(sandbox: &Sandbox, name: &str, args: &[&str], cols: u16, rows: u16) -> Self {
         let socket = sandbox.root.join("tmux.sock");
         let mut line = format!(
-            "SONAR_IOX_PREFIX={} SONAR_IOX_ROOT={} {}",
+            "SONAR_IOX_PREFIX={} SONAR_IOX_ROOT={} XDG_STATE_HOME={} {}",
             sandbox.prefix,
             sandbox.root.display(),
+            sandbox.state.display(),
             bin(name).display()
         );
         for a in args {
@@ -454,12 +476,21 @@ pub fn driver_status_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, DriverStatu
         .unwrap()
 }
 
-/// Waits for a driver status that satisfies `pred` and returns it.
-pub fn wait_for_status(
+/// A subscriber to `sonar/fusion_status`.
+pub fn fusion_status_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, FusionStatus, ()> {
+    ipc::fusion_status_service(node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap()
+}
+
+/// Waits for a status (the driver's or the fusion's) that satisfies `pred` and returns it.
+pub fn wait_for_status<T: std::fmt::Debug + Copy + ZeroCopySend>(
     node: &Node<Ipc>,
-    sub: &Subscriber<Ipc, DriverStatus, ()>,
-    pred: impl Fn(&DriverStatus) -> bool,
-) -> DriverStatus {
+    sub: &Subscriber<Ipc, T, ()>,
+    pred: impl Fn(&T) -> bool,
+) -> T {
     let got = collect_until(
         node,
         || sub.receive().unwrap().map(|s| *s.payload()),
