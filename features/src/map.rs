@@ -508,9 +508,10 @@ fn heard_past(f: &Feature, sweep: &Sweep, pose: &Isometry2<f64>, tolerance: f64)
             (phi.to_degrees(), d)
         }
     };
-    let sigma = match f.direction() {
-        Some(_) => f.covariance_own()[(1, 1)].sqrt(),
-        None => f.covariance().trace().sqrt(),
+    // How far the feature's own range may be off: a plane's distance σ, a position's total σ.
+    let sigma = match f.kind {
+        FeatureKind::Plane => f.covariance_own()[(1, 1)].sqrt(),
+        FeatureKind::Point | FeatureKind::Corner => f.covariance().trace().sqrt(),
     };
     sweep.ping_at(bearing_deg).is_some_and(|p| {
         p.range_m
