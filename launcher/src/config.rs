@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use serde::Deserialize;
-use sonar_fusion::FusionConfig;
+use sonar_fusion::{FusionConfig, FusionSection};
 
 /// How long a process that died waits for its first restart.
 pub const DEFAULT_RESTART_DELAY: Duration = Duration::from_secs(1);
@@ -40,7 +40,7 @@ pub struct PipelineFile {
     pub sensor: SensorSection,
     pub simulator: SimulatorSection,
     /// `sonar-fusion` reads this table from the same file.
-    pub fusion: FusionConfig,
+    pub fusion: FusionSection,
     pub viewer: ViewerSection,
     pub launcher: LauncherSection,
 }
@@ -133,6 +133,7 @@ impl PipelineFile {
             message: e.to_string(),
         })?;
         file.fusion
+            .engine
             .validate()
             .map_err(|source| ConfigError::Fusion {
                 path: path.to_owned(),
@@ -177,7 +178,7 @@ mod tests {
         let file = PipelineFile::load(&path).unwrap();
         assert_eq!(file.simulator.scene.as_deref(), Some("room"));
         assert!(file.viewer.enabled);
-        assert_eq!(file.fusion, FusionConfig::default());
+        assert_eq!(file.fusion.engine, FusionConfig::default());
     }
 
     #[test]
@@ -196,6 +197,9 @@ mod tests {
         );
         let bad = PipelineFile::parse("[fusion.grid]\nresolution_m = -1.0\n", Path::new("x.toml"));
         assert!(matches!(bad, Err(ConfigError::Fusion { .. })), "{bad:?}");
+        // The map's persistence keys belong to [fusion] too.
+        let persist = "[fusion]\nsave_period = 2.0\npersist = true\n";
+        assert!(PipelineFile::parse(persist, Path::new("x.toml")).is_ok());
         let bad = PipelineFile::parse("[launcher]\nrestart_delay = -1\n", Path::new("x.toml"));
         assert!(
             matches!(&bad, Err(ConfigError::Parse { message, .. }) if message.contains("restart_delay")),
