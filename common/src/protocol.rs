@@ -422,9 +422,19 @@ fn expect_fields(fields: &[&str], tag: &'static str, expected: usize) -> Result<
     }
 }
 
-/// Parses a decimal integer field; rejects signs where the type has none, spaces and overflow.
+/// Parses a decimal integer field in its one spelling (`0`, `7`, `-15000`): no `+`, no leading
+/// zeros, no `-0`, no spaces, no sign where the type has none, no overflow. With one spelling per
+/// value a line that is taken reads back as itself (the fuzz target in `fuzz/` checks it): `RD,007`
+/// is not a second way to write `RD,7`.
 fn num<T: std::str::FromStr>(s: &str, what: &'static str) -> Result<T, ParseError> {
-    if s.is_empty() || s.starts_with('+') || s.contains(' ') {
+    let digits = s.strip_prefix('-').unwrap_or(s);
+    let canonical = match digits.as_bytes() {
+        [] => false,
+        [b'0'] => digits.len() == s.len(),
+        [b'0', ..] => false,
+        d => d.iter().all(u8::is_ascii_digit),
+    };
+    if !canonical {
         return Err(ParseError::BadField(what));
     }
     s.parse().map_err(|_| ParseError::BadField(what))
@@ -1075,6 +1085,47 @@ mod tests {
         }
         let v2 = ProtocolVersion::V2;
         assert!(parse_command(frame("SCAN,LOCAL,300,100", v2).as_bytes(), v2).is_err());
+    }
+
+    /// Found by the fuzz target: `-07050` and `000` were taken for `-7050` and `0`, so a line
+    /// could be spelt two ways (and in version 1 the XOR of `00` is 0: `$SCAN,LOCAL,000,3000*4D`
+    /// carries the same check as `$SCAN,LOCAL,0,3000`).
+    #[test]
+    fn numbers_have_one_spelling() {
+        for v in BOTH {
+            for bad in [
+                "007", "-07050", "-0", "00", "+7", " 7", "7 ", "", "-", "0x10", "1_0",
+            ] {
+                let body = format!("RD,{bad},2,3,+,100,1,5");
+                assert_eq!(
+                    parse_device(frame(&body, v).as_bytes(), v),
+                    Err(ParseError::BadField("sequence")),
+                    "{body}"
+                );
+                let body = format!("SCAN,LOCAL,{bad},30000");
+                assert!(
+                    parse_command(frame(&body, v).as_bytes(), v).is_err(),
+                    "{body}"
+                );
+            }
+            for (good, value) in [
+                ("0", 0),
+                ("7", 7),
+                ("-15000", -15000),
+                ("-2147483648", i32::MIN),
+            ] {
+                let body = format!("SCAN,LOCAL,{good},2147483647");
+                assert_eq!(
+                    parse_command(frame(&body, v).as_bytes(), v),
+                    Ok(HostCommand::LocalScan {
+                        from_cdeg: value,
+                        to_cdeg: i32::MAX
+                    }),
+                    "{body}"
+                );
+            }
+        }
+        assert!(parse_command(b"$SCAN,LOCAL,000,3000*4D", ProtocolVersion::V1).is_err());
     }
 
     #[test]
