@@ -10,6 +10,9 @@
 //! ```
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+use std::fs::File;
+use std::path::Path;
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::{Signal, kill};
@@ -17,7 +20,7 @@ use nix::unistd::Pid;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use sonar_common::ipc::{self, unix_time_ns};
-use sonar_e2e::{PATIENCE, Sandbox, child_named, readings_subscriber, receive_reading};
+use sonar_e2e::{PATIENCE, Proc, Sandbox, child_named, readings_subscriber, receive_reading};
 
 const CHILDREN: [&str; 3] = ["sonar-sim", "sonar-driver", "sonar-fusion"];
 /// Kills in CI; the documented run uses 1,000.
@@ -53,32 +56,36 @@ fn kill_9_at_random_moments_never_leaves_the_namespace_unusable() {
         .subscriber_builder()
         .create()
         .unwrap();
-    let logs = sandbox.root.join("logs");
+    // Outside the root, which the sandbox removes: kept for a post-mortem when the test fails.
+    let logs = std::env::temp_dir().join(format!("{}logs", sandbox.prefix));
+    std::fs::create_dir_all(&logs).unwrap();
+    let _diagnostics = Diagnostics { logs: &logs, seed };
     // The kills are deliberate: no crash-loop limit may end the run, and no back-off slow it.
-    let config = sandbox.root.join("pipeline.toml");
+    let config = logs.join("pipeline.toml");
     std::fs::write(
         &config,
         "[launcher]\nmax_restarts = 1000000\nrestart_delay = 0.05\n",
     )
     .unwrap();
-    let launcher = sandbox.spawn(
-        "sonar-pipeline",
-        &[
-            "--no-viewer",
-            "--speed",
-            "100",
-            "--config",
-            config.to_str().unwrap(),
-            "--log-dir",
-            logs.to_str().unwrap(),
-        ],
-    );
-    let pid = launcher.child.id();
-    let log_tail = |name: &str| {
-        let text = std::fs::read_to_string(logs.join(format!("{name}.log"))).unwrap_or_default();
-        let lines: Vec<&str> = text.lines().collect();
-        lines[lines.len().saturating_sub(15)..].join("\n")
+    let launcher = Proc {
+        name: "sonar-pipeline".into(),
+        child: sandbox
+            .command("sonar-pipeline")
+            .args([
+                "--no-viewer",
+                "--speed",
+                "100",
+                "--config",
+                config.to_str().unwrap(),
+                "--log-dir",
+                logs.to_str().unwrap(),
+            ])
+            .stdout(Stdio::null())
+            .stderr(File::create(logs.join("sonar-pipeline.log")).unwrap())
+            .spawn()
+            .unwrap(),
     };
+    let pid = launcher.child.id();
 
     // Usable: readings reach a subscriber that stayed, and the fusion publishes grids, both made
     // after `since` (ns since the epoch), i.e. by the processes running now.
@@ -95,10 +102,7 @@ fn kill_9_at_random_moments_never_leaves_the_namespace_unusable() {
             assert!(
                 Instant::now() < deadline,
                 "{what}: the pipeline did not come back ({fresh_readings} new readings, new grid: \
-                 {fresh_grid}; seed {seed})\nlauncher:\n{}\ndriver:\n{}\nfusion:\n{}",
-                log_tail("sonar-pipeline"),
-                log_tail("sonar-driver"),
-                log_tail("sonar-fusion"),
+                 {fresh_grid})"
             );
             let _ = node.wait(Duration::from_millis(10));
         }
@@ -133,21 +137,39 @@ fn kill_9_at_random_moments_never_leaves_the_namespace_unusable() {
 
     // A clean stop: nothing of the namespace is left but iceoryx2's per-prefix node counter.
     kill(Pid::from_raw(pid as i32), Signal::SIGTERM).unwrap();
-    let (status, stderr) = launcher.wait_exit();
-    assert!(status.success(), "{stderr}");
+    let (status, _) = launcher.wait_exit();
+    assert!(status.success(), "the launcher failed ({status})");
     drop((readings, grid, node));
     let left = sandbox.stale_shm_files();
-    assert!(
-        left.is_empty(),
-        "stale shared memory: {left:?} (seed {seed})"
-    );
+    assert!(left.is_empty(), "stale shared memory: {left:?}");
     let left = sandbox.stale_root_files();
-    assert!(
-        left.is_empty(),
-        "stale iceoryx2 files: {left:?} (seed {seed})"
-    );
+    assert!(left.is_empty(), "stale iceoryx2 files: {left:?}");
     eprintln!(
         "kill loop: {loops} kills survived, {in_start_up} more during a restarted process's \
          start-up (seed {seed})"
     );
+    std::fs::remove_dir_all(&logs).unwrap();
+}
+
+/// On a failure, says how to repeat the run and shows the end of every process's log.
+struct Diagnostics<'a> {
+    logs: &'a Path,
+    seed: u64,
+}
+
+impl Drop for Diagnostics<'_> {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            return;
+        }
+        let (logs, seed) = (self.logs.display(), self.seed);
+        eprintln!("kill loop failed: SONAR_KILL_SEED={seed} repeats it; the logs are in {logs}");
+        for name in ["sonar-pipeline"].iter().chain(&CHILDREN) {
+            let text = std::fs::read_to_string(self.logs.join(format!("{name}.log")));
+            let text = text.unwrap_or_default();
+            let lines: Vec<&str> = text.lines().collect();
+            let tail = lines[lines.len().saturating_sub(20)..].join("\n");
+            eprintln!("--- the end of {name}.log:\n{tail}");
+        }
+    }
 }
