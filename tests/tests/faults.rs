@@ -468,7 +468,7 @@ fn json_string(chars: &mut Peekable<Chars<'_>>) -> String {
 }
 
 #[test]
-fn the_log_reader_reads_what_serde_json_writes() {
+fn the_log_reader_reads_json_escapes_and_latin1_bytes() {
     let entry = parse_entry(
         r#"{"sim_ms":12,"kind":"stray","line":"$RD,1*AB\n","sent":"\u0000ÿ\"\\$RD,1*AB\n","joined":true}"#,
     );
