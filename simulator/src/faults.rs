@@ -18,7 +18,7 @@
 //!
 //! Nothing is damaged and no clock runs before the host's first bytes: until then nobody listens,
 //! and a driver flushes what was queued before its handshake. Timed events count simulated time
-//! from that moment. A silence drops every line the head sends and every byte it receives; the model
+//! from that moment (from the start for the hobby sketch, which nobody speaks to). A silence drops every line the head sends and every byte it receives; the model
 //! itself runs on, as if the cable were cut.
 //!
 //! # The log (`--fault-log`)
@@ -27,7 +27,7 @@
 //! strings with one character per byte (U+0000–U+00FF, i.e. Latin-1), so any byte survives:
 //!
 //! ```text
-//! {"sim_ms":5,"event":"host"}                                   the host's first bytes: faults start
+//! {"sim_ms":5,"event":"start"}                                  the host's first bytes: faults start
 //! {"sim_ms":240,"kind":"intact","line":"$RD,…*1A2B\n"}
 //! {"sim_ms":480,"kind":"truncate","line":"$RD,…*77C1\n","sent":"$RD,1,4"}
 //! {"sim_ms":720,"kind":"merged","line":"$RD,…*0F3E\n","joined":true}
@@ -343,13 +343,21 @@ impl FaultInjector {
         self.silent_until_us.is_some()
     }
 
-    /// The host sent `input` at `now_us`: the first time, faults and event clocks start. Returns
-    /// whether the head hears it (not during a silence).
-    pub fn hears(&mut self, input: &[u8], now_us: u64) -> io::Result<bool> {
-        if self.start_us.is_none() {
-            self.start_us = Some(now_us);
-            self.record(&Entry::event(now_us, "host"))?;
+    /// Starts the faults and the event clocks at `now_us`, unless they run already: at the host's
+    /// first bytes, or at once for a device that talks unasked (the hobby sketch), to whom a host
+    /// never speaks. Logged as the event `start`.
+    pub fn start(&mut self, now_us: u64) -> io::Result<()> {
+        if self.start_us.is_some() {
+            return Ok(());
         }
+        self.start_us = Some(now_us);
+        self.record(&Entry::event(now_us, "start"))
+    }
+
+    /// The host sent `input` at `now_us`; the first time, the faults start. Returns whether the
+    /// head hears it (not during a silence).
+    pub fn hears(&mut self, input: &[u8], now_us: u64) -> io::Result<bool> {
+        self.start(now_us)?;
         if self.is_silent() {
             self.record(&Entry {
                 input: Some(latin1(input)),
@@ -821,8 +829,10 @@ mod tests {
         let hello = b"$HELLO,2,sonar-sim 0.1.0,X,150,4,-15000,15000*1234\n";
         assert_eq!(send(&mut faults, hello, 20), hello);
         let mut damaging = FaultInjector::new(spec("garbage=1,hello=damage"), 1, None);
-        damaging.hears(b"x", 0).unwrap();
+        damaging.start(0).unwrap();
         assert_ne!(send(&mut damaging, hello, 20), hello);
+        assert!(damaging.hears(b"x", 30).unwrap());
+        assert_eq!(damaging.start_us, Some(0), "started once");
     }
 
     #[test]
@@ -837,7 +847,7 @@ mod tests {
         assert_eq!(send(&mut faults, hello, 3000), [b"\n", &hello[..]].concat());
 
         let entries = tape.entries();
-        assert_eq!(entries[0], json!({"sim_ms": 0, "event": "host"}));
+        assert_eq!(entries[0], json!({"sim_ms": 0, "event": "start"}));
         assert_eq!(entries[1]["kind"], "truncate");
         assert_eq!(entries[1]["sim_ms"], 1);
         assert_eq!(entries[1]["line"], latin1(LINE));
@@ -900,7 +910,7 @@ mod tests {
         assert_eq!(
             events,
             [
-                "host@0",
+                "start@0",
                 "reset@1000",
                 "silence@2000",
                 "silenced@2100",

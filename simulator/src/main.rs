@@ -86,7 +86,7 @@ struct Args {
     ///   overlong     the line padded past 160 bytes
     ///   stray        1–8 random bytes before the line
     /// Events, on the simulated clock from the host's first bytes (nothing is damaged before
-    /// them); each may be given more than once:
+    /// them; with --dialect hobby from the start); each may be given more than once:
     ///   reset=T      the head reboots (HELLO, idle, at the MIN limit)
     ///   silence=T:D  the head sends and hears nothing for D (it runs on, as if the cable were cut)
     /// Durations: 500ms, 30s, 2min. HELLO lines are spared unless hello=damage.
@@ -154,7 +154,11 @@ fn run(args: Args) -> Result<()> {
                 }
                 None => None,
             };
-            Some(FaultInjector::new(spec.clone(), args.fault_seed, log))
+            let mut faults = FaultInjector::new(spec.clone(), args.fault_seed, log);
+            if args.dialect == Dialect::Hobby {
+                faults.start(0).context("writing the fault log")?;
+            }
+            Some(faults)
         }
         None => None,
     };

@@ -370,7 +370,7 @@ impl Replay {
             if let Some(event) = entry.get("event") {
                 *replay.events.entry(event.clone()).or_default() += 1;
                 match event.as_str() {
-                    "host" => started = true,
+                    "start" => started = true,
                     "reset" => replay.reset_at.push(replay.framed.len()),
                     // The driver reconnects during the silence, with a new framer.
                     "silence" => framer = LineFramer::new(Terminators::Newline),
