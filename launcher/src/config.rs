@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use serde::Deserialize;
-use sonar_fusion::{FusionConfig, FusionSection};
+use sonar_fusion::FusionSection;
 
 /// How long a process that died waits for its first restart.
 pub const DEFAULT_RESTART_DELAY: Duration = Duration::from_secs(1);
@@ -171,6 +171,7 @@ pub fn push_opt<T: ToString>(args: &mut Vec<String>, flag: &str, value: Option<T
 #[cfg(test)]
 mod tests {
     use super::*;
+    use sonar_fusion::FusionConfig;
 
     #[test]
     fn the_example_configuration_parses() {

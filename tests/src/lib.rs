@@ -409,7 +409,10 @@ pub fn child_named(pid: u32, name: &str, not: Option<u32>) -> u32 {
         {
             return child;
         }
-        assert!(is_running(pid), "process {pid}, the parent of {name}, has exited");
+        assert!(
+            is_running(pid),
+            "process {pid}, the parent of {name}, has exited"
+        );
         assert!(Instant::now() < deadline, "{name} never started");
         std::thread::sleep(Duration::from_millis(20));
     }
