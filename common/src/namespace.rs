@@ -42,10 +42,12 @@
 //! reused by a later process does not count); and a node writes its service or port tag before it
 //! creates or joins what the tag names, and removes it only after leaving it.
 //!
-//! 1. An unfinished shared-memory object is removed when none of the processes named in it can
-//!    still run: nobody else ever finishes it. The `.global_mgmt` counter names no creator: it is
-//!    waited for, and removed once unfinished for longer than [`GLOBAL_MGMT_GRACE`] (its creator
-//!    sizes it a microsecond after creating it).
+//! 1. An unfinished shared-memory object is removed once a process named in it cannot run any
+//!    more. A `.dynamic`, `.data` or `.event_mgmt` names only its creator, and nobody else ever
+//!    finishes it; a `.connection` names both its ports, either of which may have been creating
+//!    it, and with one of them gone it is of no use: a live other side would only spin on it. The
+//!    `.global_mgmt` counter names no creator: it is waited for, and removed once unfinished for
+//!    longer than [`GLOBAL_MGMT_GRACE`] (its creator sizes it a microsecond after creating it).
 //! 2. An unfinished `.service` is removed when no live node holds its tag: a live creator always
 //!    does, and an opener writes its tag only once the record is finished. A waiting opener then
 //!    finds no service and creates it.
@@ -403,12 +405,13 @@ impl<'a> Namespace<'a> {
                 debug!("unfinished {} names no creator: left alone", path.display());
                 continue;
             }
-            match ids.into_iter().find(|&id| creator_may_run(id)) {
-                Some(id) => busy.push(Busy {
+            if ids.iter().all(|&id| creator_may_run(id)) {
+                busy.push(Busy {
                     file: path,
-                    pid: Some(pid_of(id)),
-                }),
-                None => remove_stale(&path, "left unfinished by a killed process")?,
+                    pid: Some(pid_of(ids[0])),
+                });
+            } else {
+                remove_stale(&path, "left unfinished by a killed process")?;
             }
         }
         Ok(())

@@ -152,6 +152,23 @@ fn a_service_half_removed_by_its_killed_last_member_is_removed() {
 }
 
 #[test]
+fn an_unfinished_connection_to_a_killed_port_is_removed_though_its_other_side_runs() {
+    let ns = Namespace::new("connection");
+    ns.readings_service_files();
+    // Between a killed publisher and a subscriber of this process, which runs: the subscriber
+    // would spin on it, and it connects to nothing.
+    let connection = PathBuf::from(format!(
+        "/dev/shm/{}0354a209029e7d094a819e2d4030ea331e6caaf0_{}_{}.connection",
+        ns.prefix,
+        id_of_a_dead_process(),
+        id_now(std::process::id())
+    ));
+    write(&connection, "", 0o200);
+    namespace::recover(&ns.args.config().unwrap()).unwrap();
+    assert!(!connection.exists());
+}
+
+#[test]
 fn a_file_a_live_process_leaves_unfinished_is_waited_for_then_named_in_an_error() {
     let ns = Namespace::new("stuck");
     let (_, _, dynamic) = ns.readings_service_files();
