@@ -31,8 +31,8 @@ use crate::terminal::Terminal;
 
 /// How often the supervisor looks at its children.
 const SUPERVISE_PERIOD: Duration = Duration::from_millis(100);
-/// A process that exits with an error this soon after its start has a configuration problem, not
-/// a crash: restarting cannot help, so the pipeline stops and shows its log.
+/// A process that exits with an error this soon after its first start has a configuration
+/// problem, not a crash: restarting cannot help, so the pipeline stops and shows its log.
 const STARTUP_GRACE: Duration = Duration::from_secs(2);
 /// The window in which `max_restarts` restarts of one process mean a crash loop.
 const RESTART_WINDOW: Duration = Duration::from_secs(60);
@@ -108,6 +108,8 @@ struct Process {
     foreground: bool,
     child: Option<Child>,
     started: Instant,
+    /// Whether the current incarnation is a restart (then an early error is no configuration's).
+    restarted: bool,
     restarts: VecDeque<Instant>,
     restart_at: Option<Instant>,
 }
@@ -472,8 +474,14 @@ impl Pipeline {
     fn schedule_restart(&mut self, i: usize, exited: ExitStatus, now: Instant) -> Result<()> {
         let name = self.processes[i].name;
         let ran = now.duration_since(self.processes[i].started);
-        // An error exit (not a signal) right after the start is a configuration problem.
-        if ran < STARTUP_GRACE && exited.code().is_some_and(|c| c != 0) {
+        // An error exit (not a signal) right after the first start is a configuration problem.
+        // After a restart it is more likely the aftermath of the death (a peer killed while it
+        // was creating something, a device that went away): another death, under the back-off
+        // and the crash-loop limit like any.
+        if ran < STARTUP_GRACE
+            && exited.code().is_some_and(|c| c != 0)
+            && !self.processes[i].restarted
+        {
             bail!(
                 "{name} failed at start ({exited}); its log:\n{}",
                 self.log_tail(name)
@@ -498,6 +506,7 @@ impl Pipeline {
         let delay = self.restart_delay * (1 << (p.restarts.len() - 1).min(4));
         warn!(process = name, %exited, ?delay, "process died: restarting");
         p.restart_at = Some(now + delay);
+        p.restarted = true;
         Ok(())
     }
 
@@ -575,6 +584,7 @@ impl Process {
             foreground,
             child: None,
             started: Instant::now(),
+            restarted: false,
             restarts: VecDeque::new(),
             restart_at: None,
         }
