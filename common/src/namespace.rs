@@ -69,9 +69,11 @@
 //! run only in a pass that found nothing in progress, since iceoryx2's clean-up opens the services
 //! a dead node used and would wait on memory its live creator has not sized yet.
 //!
-//! Left to iceoryx2: a creator killed while *another* process is already opening the same service
-//! (both inside the same millisecond of start-up) can still make that opener spin; the next start
-//! recovers.
+//! Left to iceoryx2: a process that is already opening or connecting to an object when its creator
+//! is killed in the microseconds before sizing it (a subscriber connecting to a restarted
+//! publisher that is killed while creating their connection, say) spins in iceoryx2's open loop
+//! until the next process of the namespace starts, whose recovery removes the object; under the
+//! launcher that is the killed process's successor, a restart delay later.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::ffi::OsStr;
