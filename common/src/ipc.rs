@@ -33,6 +33,8 @@ pub const FUSION_COMMANDS_SERVICE: &str = "sonar/fusion_commands";
 pub const POSE_SERVICE: &str = "robot/pose";
 /// The fusion engine's counters: readings received, fused and lost, snapshots, map saves (history 1).
 pub const FUSION_STATUS_SERVICE: &str = "sonar/fusion_status";
+/// Walls, corners and posts found in the raw pings, once per sweep.
+pub const FEATURES_SERVICE: &str = "sonar/features";
 
 /// Bits of [`Reading::flags`].
 pub mod flags {
@@ -548,6 +550,85 @@ impl Default for FusionStatus {
     }
 }
 
+/// Most features one `sonar/features` snapshot carries; a map with more publishes the most
+/// confident ones.
+pub const MAX_FEATURES: usize = 256;
+
+/// [`FeatureRecord::kind`] codes.
+pub mod feature_kind {
+    /// A post, pillar, table leg or wall edge: a small convex target.
+    pub const POINT: u32 = 1;
+    /// A concave corner.
+    pub const CORNER: u32 = 2;
+    /// A wall: a partial plane.
+    pub const PLANE: u32 = 3;
+}
+
+/// The fixed part of a `sonar/features` snapshot; the payload is `feature_count`
+/// [`FeatureRecord`]s. Positions are in the grid's frame (metres from the sensor's start).
+#[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("sonar::FeaturesHeaderV1")]
+#[repr(C)]
+pub struct FeaturesHeader {
+    pub seq: u64,
+    /// When the snapshot was taken, ns since the Unix epoch.
+    pub stamp_ns: u64,
+    /// Sweeps merged into the feature map since it was last cleared.
+    pub sweeps: u64,
+    pub layout_version: u32,
+    pub feature_count: u32,
+    /// `sweep_id` of the readings of the latest sweep merged.
+    pub last_sweep_id: u32,
+    /// Regions of constant depth found in that sweep.
+    pub last_sweep_rcds: u32,
+    /// Its observations that refined a feature, that became new features, and features removed
+    /// after it (faded: aimed at but no longer heard).
+    pub last_sweep_refined: u32,
+    pub last_sweep_added: u32,
+    pub last_sweep_removed: u32,
+    /// Features left out because the map holds more than [`MAX_FEATURES`].
+    pub features_left_out: u32,
+}
+
+const _: () = assert!(std::mem::size_of::<FeaturesHeader>() == 56);
+
+/// One feature of a `sonar/features` snapshot. Absent values are NaN.
+#[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("sonar::FeatureRecordV1")]
+#[repr(C)]
+pub struct FeatureRecord {
+    /// Stable while the feature lives: a feature seen again keeps its id.
+    pub id: u64,
+    /// [`feature_kind`].
+    pub kind: u32,
+    /// Sweeps it was seen in.
+    pub times_seen: u32,
+    /// Point, corner: the target's position. Plane: the foot of the perpendicular from the
+    /// origin. Metres.
+    pub x_m: f32,
+    pub y_m: f32,
+    /// Covariance of (x, y), m².
+    pub cov_xx: f32,
+    pub cov_xy: f32,
+    pub cov_yy: f32,
+    /// Plane: direction of its normal (towards the sensor). Point, corner: direction of the
+    /// sensor's ray at the latest sighting. Degrees counter-clockwise from +x.
+    pub angle_deg: f32,
+    /// Plane: σ of the normal's direction, degrees; NaN otherwise.
+    pub angle_sigma_deg: f32,
+    /// In (0, 1): grows each time the feature is seen, shrinks each time it is aimed at and not.
+    pub confidence: f32,
+    /// Plane: its extent as a segment from (ax, ay) to (bx, by); NaN for the others.
+    pub segment_ax_m: f32,
+    pub segment_ay_m: f32,
+    pub segment_bx_m: f32,
+    pub segment_by_m: f32,
+    /// Sweep (counted from the last clear) it was last seen in.
+    pub last_seen_sweep: u64,
+}
+
+const _: () = assert!(std::mem::size_of::<FeatureRecord>() == 72);
+
 /// A failure to set up or use an iceoryx2 resource, with what was being done.
 #[derive(Debug, thiserror::Error)]
 #[error("{context}: {message}")]
@@ -755,6 +836,25 @@ pub fn fusion_status_service(node: &Node<ipc::Service>) -> Result<PubSub<FusionS
         .map_err(|e| IpcError::new(format!("open {FUSION_STATUS_SERVICE}"), e))
 }
 
+pub type FeaturesService =
+    publish_subscribe::PortFactory<ipc::Service, [FeatureRecord], FeaturesHeader>;
+
+/// `sonar/features`, with the grid's policy: history 1 so a late joiner gets the current features
+/// at once, a buffer of one (the latest snapshot replaces an unread one). Small: at most
+/// [`MAX_FEATURES`] × 72 B a snapshot.
+pub fn features_service(node: &Node<ipc::Service>) -> Result<FeaturesService, IpcError> {
+    node.service_builder(&service_name(FEATURES_SERVICE)?)
+        .publish_subscribe::<[FeatureRecord]>()
+        .user_header::<FeaturesHeader>()
+        .max_publishers(1)
+        .max_subscribers(GRID_MAX_SUBSCRIBERS)
+        .subscriber_max_buffer_size(GRID_SUBSCRIBER_BUFFER)
+        .subscriber_max_borrowed_samples(GRID_SUBSCRIBER_BORROWED)
+        .history_size(GRID_HISTORY)
+        .open_or_create()
+        .map_err(|e| IpcError::new(format!("open {FEATURES_SERVICE}"), e))
+}
+
 /// The event service that wakes the consumers of the publish-subscribe service of the same name.
 pub fn wakeup_service(node: &Node<ipc::Service>, name: &str) -> Result<Event, IpcError> {
     node.service_builder(&service_name(name)?)
@@ -843,6 +943,36 @@ mod tests {
         assert_eq!(offset_of!(FusionStatus, layout_version), 112);
         assert_eq!(offset_of!(FusionStatus, reserved), 116);
         assert_eq!(std::mem::align_of::<FusionStatus>(), 8);
+    }
+
+    #[test]
+    fn features_layout_matches_documentation() {
+        assert_eq!(offset_of!(FeaturesHeader, seq), 0);
+        assert_eq!(offset_of!(FeaturesHeader, stamp_ns), 8);
+        assert_eq!(offset_of!(FeaturesHeader, sweeps), 16);
+        assert_eq!(offset_of!(FeaturesHeader, layout_version), 24);
+        assert_eq!(offset_of!(FeaturesHeader, feature_count), 28);
+        assert_eq!(offset_of!(FeaturesHeader, last_sweep_id), 32);
+        assert_eq!(offset_of!(FeaturesHeader, last_sweep_rcds), 36);
+        assert_eq!(offset_of!(FeaturesHeader, last_sweep_refined), 40);
+        assert_eq!(offset_of!(FeaturesHeader, last_sweep_added), 44);
+        assert_eq!(offset_of!(FeaturesHeader, last_sweep_removed), 48);
+        assert_eq!(offset_of!(FeaturesHeader, features_left_out), 52);
+        assert_eq!(offset_of!(FeatureRecord, id), 0);
+        assert_eq!(offset_of!(FeatureRecord, kind), 8);
+        assert_eq!(offset_of!(FeatureRecord, times_seen), 12);
+        assert_eq!(offset_of!(FeatureRecord, x_m), 16);
+        assert_eq!(offset_of!(FeatureRecord, y_m), 20);
+        assert_eq!(offset_of!(FeatureRecord, cov_xx), 24);
+        assert_eq!(offset_of!(FeatureRecord, cov_xy), 28);
+        assert_eq!(offset_of!(FeatureRecord, cov_yy), 32);
+        assert_eq!(offset_of!(FeatureRecord, angle_deg), 36);
+        assert_eq!(offset_of!(FeatureRecord, angle_sigma_deg), 40);
+        assert_eq!(offset_of!(FeatureRecord, confidence), 44);
+        assert_eq!(offset_of!(FeatureRecord, segment_ax_m), 48);
+        assert_eq!(offset_of!(FeatureRecord, segment_by_m), 60);
+        assert_eq!(offset_of!(FeatureRecord, last_seen_sweep), 64);
+        assert_eq!(std::mem::align_of::<FeatureRecord>(), 8);
     }
 
     #[test]

@@ -6,6 +6,7 @@ use std::str::FromStr;
 use serde::de::Error as _;
 use serde::{Deserialize, Deserializer, Serialize};
 use sonar_common::sensor::SensorConfig;
+use sonar_features::FeatureConfig;
 
 use crate::model::{ModelConfig, PaperModel, SmoothModel};
 use crate::observation::Limits;
@@ -306,6 +307,43 @@ impl<'de> Deserialize<'de> for FusionSection {
     }
 }
 
+/// The `[features]` table of a pipeline configuration file: `enabled` (default true) and every
+/// parameter of [`FeatureConfig`] (its fields, as nested tables: `[features.echo]`, …).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FeaturesSection {
+    /// Whether `sonar-fusion` extracts features and publishes `sonar/features`.
+    pub enabled: bool,
+    pub config: FeatureConfig,
+}
+
+impl Default for FeaturesSection {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            config: FeatureConfig::default(),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for FeaturesSection {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        // As for [`FusionSection`]: `flatten` would lose `deny_unknown_fields`.
+        let mut table = toml::Table::deserialize(deserializer)?;
+        let enabled = match table.remove("enabled") {
+            None => true,
+            Some(toml::Value::Boolean(b)) => b,
+            Some(other) => {
+                return Err(D::Error::custom(format!(
+                    "features.enabled must be true or false, got {other}"
+                )));
+            }
+        };
+        let config: FeatureConfig = table.try_into().map_err(D::Error::custom)?;
+        config.validate().map_err(D::Error::custom)?;
+        Ok(Self { enabled, config })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -541,5 +579,19 @@ mod tests {
         ] {
             assert!(toml::from_str::<FusionConfig>(bad).is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn the_features_table_is_checked_and_enabled_by_default() {
+        let parse = |text: &str| toml::from_str::<FeaturesSection>(text);
+        assert_eq!(parse("").unwrap(), FeaturesSection::default());
+        let off = parse("enabled = false\nmin_pings = 4\n").unwrap();
+        assert!(!off.enabled);
+        assert_eq!(off.config.min_pings, 4);
+        let typo = parse("min_ping = 4\n").unwrap_err().to_string();
+        assert!(typo.contains("min_ping"), "{typo}");
+        assert!(parse("enabled = 1\n").is_err());
+        let invalid = parse("range_margin_m = -1.0\n").unwrap_err().to_string();
+        assert!(invalid.contains("range_margin_m"), "{invalid}");
     }
 }

@@ -143,6 +143,11 @@ impl Engine {
         self.rejected_readings
     }
 
+    /// The robot's latest pose: where the next reading is placed.
+    pub fn pose(&self) -> &Isometry2<f32> {
+        &self.pose
+    }
+
     /// Takes the robot's latest pose; readings fused from now on are placed there. A pose that is
     /// not finite is refused (`false`) and the previous one kept.
     pub fn set_pose(&mut self, pose: &Pose2D) -> bool {

@@ -169,6 +169,7 @@
 
 pub mod config;
 pub mod engine;
+pub mod features;
 pub mod geometry;
 pub mod grid;
 pub mod kernel;
@@ -183,8 +184,10 @@ pub mod state;
 pub mod status;
 
 pub use config::{
-    ConfigError, FusionConfig, FusionSection, GridConfig, Preset, SensorLimits, UnknownName,
+    ConfigError, FeaturesSection, FusionConfig, FusionSection, GridConfig, Preset, SensorLimits,
+    UnknownName,
 };
+pub use features::{FeatureTracker, SweepOutcome};
 pub use geometry::GridGeometry;
 pub use grid::{CellCounts, OccupancyGrid};
 pub use mapper::{Kernel, Mapper, Update};

@@ -29,8 +29,9 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::waitset::WaitSetRunResult;
 use sonar_common::ipc::{
-    self, FusionCommand, FusionStatus, GRID_SEGMENT_SLOTS, GridHeader, IpcArgs, IpcError,
-    LAYOUT_VERSION, Radar, unix_time_ns,
+    self, FeatureRecord, FeaturesHeader, FusionCommand, FusionCommandKind, FusionStatus,
+    GRID_SEGMENT_SLOTS, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, MAX_FEATURES, Radar,
+    unix_time_ns,
 };
 use sonar_common::throttle::Throttle;
 use sonar_fusion::engine::Engine;
@@ -38,8 +39,8 @@ use sonar_fusion::persist::{self, Restore, SaveReport, Saver};
 use sonar_fusion::state::SavedMap;
 use sonar_fusion::status::{Ledger, SeqStep};
 use sonar_fusion::{
-    FusionConfig, FusionSection, ModelConfig, ModelKind, PersistConfig, Preset, RuleConfig,
-    RuleKind,
+    FeatureTracker, FeaturesSection, FusionConfig, FusionSection, ModelConfig, ModelKind,
+    PersistConfig, Preset, RuleConfig, RuleKind,
 };
 use tracing::{debug, info, warn};
 
@@ -49,6 +50,9 @@ const REFRESH_PERIOD: Duration = Duration::from_secs(1);
 const STATUS_PERIOD: Duration = Duration::from_secs(1);
 /// Least time between two log lines about one kind of lost or rejected reading.
 const LOG_PERIOD: Duration = Duration::from_secs(1);
+/// Quiet time after which the readings of an unfinished sweep are merged into the features: the
+/// scan stopped (a sweep of the paper's head takes seconds, its readings come every ~0.1 s).
+const SWEEP_IDLE: Duration = Duration::from_secs(2);
 
 /// Builds the paper's two maps from `sonar/readings` and publishes them on `sonar/grid` (the
 /// probability method's occupancy grid) and `sonar/radar` (the basic method's latest distance per
@@ -67,6 +71,10 @@ const LOG_PERIOD: Duration = Duration::from_secs(1);
 ///
 /// Readings that never arrive (gaps in their sequence numbers: the subscriber buffer overflowed)
 /// are counted and published with the saves on sonar/fusion_status.
+///
+/// After each sweep, the walls, corners and posts found in its raw pings are merged into a
+/// feature map and published on sonar/features (docs/features.md); the `[features]` table of
+/// --config sets them up, --no-features turns them off. A clear command clears them too.
 ///
 /// Examples:
 ///   sonar-fusion                                  # recommended preset, 400² cells of 2 cm
@@ -115,6 +123,9 @@ struct Args {
     /// Neither restore nor save the map.
     #[arg(long)]
     no_persist: bool,
+    /// Do not extract walls, corners and posts (no `sonar/features`).
+    #[arg(long)]
+    no_features: bool,
     #[command(flatten)]
     ipc: IpcArgs,
 }
@@ -130,14 +141,17 @@ fn main() -> ExitCode {
 }
 
 /// The configuration from the file, the preset and the flags, validated; and the file's
-/// persistence settings.
-fn fusion_config(args: &Args) -> Result<(FusionConfig, PersistConfig)> {
-    let FusionSection {
-        engine: mut config,
-        persistence,
+/// persistence and feature settings.
+fn fusion_config(args: &Args) -> Result<(FusionConfig, PersistConfig, FeaturesSection)> {
+    let File {
+        fusion: FusionSection {
+            engine: mut config,
+            persistence,
+        },
+        features,
     } = match &args.config {
         Some(path) => load_config(path)?,
-        None => FusionSection::default(),
+        None => File::default(),
     };
     if let Some(preset) = args.preset {
         let p = FusionConfig::preset(preset);
@@ -161,20 +175,22 @@ fn fusion_config(args: &Args) -> Result<(FusionConfig, PersistConfig)> {
         config.clear_on_no_echo = clear;
     }
     config.validate().context("invalid fusion settings")?;
-    Ok((config, persistence))
+    Ok((config, persistence, features))
 }
 
-fn load_config(path: &Path) -> Result<FusionSection> {
+/// The tables of the pipeline's configuration file that the fusion reads.
+#[derive(Default, serde::Deserialize)]
+struct File {
+    #[serde(default)]
+    fusion: FusionSection,
+    #[serde(default)]
+    features: FeaturesSection,
+}
+
+fn load_config(path: &Path) -> Result<File> {
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("cannot read config file {}", path.display()))?;
-    #[derive(serde::Deserialize)]
-    struct File {
-        #[serde(default)]
-        fusion: FusionSection,
-    }
-    let file: File =
-        toml::from_str(&text).with_context(|| format!("invalid config file {}", path.display()))?;
-    Ok(file.fusion)
+    toml::from_str(&text).with_context(|| format!("invalid config file {}", path.display()))
 }
 
 /// Where and how often to save, from the file's `[fusion]` keys and the flags; `None` with
@@ -255,7 +271,11 @@ fn run(args: &Args) -> Result<()> {
     if !(args.max_rate.is_finite() && args.max_rate > 0.0) {
         bail!("--max-rate must be a positive number of snapshots per second");
     }
-    let (config, persist_config) = fusion_config(args)?;
+    let (config, persist_config, features) = fusion_config(args)?;
+    let tracker = (features.enabled && !args.no_features)
+        .then(|| FeatureTracker::new(features.config))
+        .transpose()
+        .context("invalid [features] settings")?;
     let persistence = persistence(args, persist_config)?;
     let (mut engine, restored) = match &persistence {
         Some((path, _)) => open_engine(config, args.history, path)?,
@@ -274,6 +294,7 @@ fn run(args: &Args) -> Result<()> {
         clear_on_no_echo = config.clear_on_no_echo,
         shm_mib = footprint as f64 / f64::from(1 << 20),
         state_file = persistence.as_ref().map(|(p, _)| p.display().to_string()),
+        features = tracker.is_some(),
         "fusion engine ready"
     );
     let mut saving = persistence
@@ -282,6 +303,9 @@ fn run(args: &Args) -> Result<()> {
 
     let node = args.ipc.node("sonar-fusion")?;
     let ports = Ports::new(&node, engine.grid_len())?;
+    let mut features = tracker
+        .map(|tracker| Features::new(&node, tracker))
+        .transpose()?;
     let waitset = WaitSetBuilder::new()
         .create::<Ipc>()
         .map_err(|e| IpcError::new("create waitset", e))?;
@@ -329,7 +353,7 @@ fn run(args: &Args) -> Result<()> {
         }
         if commands {
             drain_wakeups(&out.ports.commands_listener);
-            out.handle_commands(&mut engine)?;
+            out.handle_commands(&mut engine, features.as_mut())?;
         }
         // The interval also ends up here: readings are drained whenever the process is awake, so
         // a lost wake-up can delay a reading by one tick at most.
@@ -337,8 +361,11 @@ fn run(args: &Args) -> Result<()> {
             drain_wakeups(&out.ports.readings_listener);
         }
         out.take_pose(&mut engine)?;
-        out.fuse_readings(&mut engine)?;
+        out.fuse_readings(&mut engine, features.as_mut())?;
         let now = Instant::now();
+        if let Some(features) = &mut features {
+            features.finish_idle_sweep(&engine, now);
+        }
         out.publish_if_due(&engine, now)?;
         if let Some(saving) = &mut saving {
             saving.tick(&engine, &mut out.ledger, now);
@@ -448,6 +475,86 @@ impl Saving {
     }
 }
 
+/// The feature map and its publisher on `sonar/features`: a snapshot after every sweep merged
+/// and after a clear.
+struct Features {
+    tracker: FeatureTracker,
+    publisher: Publisher<Ipc, [FeatureRecord], FeaturesHeader>,
+    notifier: Notifier<Ipc>,
+    seq: u64,
+    last_reading: Instant,
+}
+
+impl Features {
+    fn new(node: &Node<Ipc>, tracker: FeatureTracker) -> Result<Self> {
+        Ok(Self {
+            tracker,
+            publisher: ipc::features_service(node)?
+                .publisher_builder()
+                .initial_max_slice_len(MAX_FEATURES)
+                .create()
+                .map_err(|e| IpcError::new("create features publisher", e))?,
+            notifier: ipc::wakeup_notifier(node, ipc::FEATURES_SERVICE)?,
+            seq: 0,
+            last_reading: Instant::now(),
+        })
+    }
+
+    /// Adds a reading; publishes when it ended a sweep.
+    fn push(&mut self, reading: &sonar_common::ipc::Reading, engine: &Engine) {
+        self.last_reading = Instant::now();
+        if let Some(outcome) = self.tracker.push(reading, engine.pose()) {
+            debug!(
+                ?outcome,
+                features = self.tracker.len(),
+                "sweep merged into the features"
+            );
+            self.publish(engine);
+        }
+    }
+
+    /// Merges a sweep whose readings stopped coming [`SWEEP_IDLE`] ago.
+    fn finish_idle_sweep(&mut self, engine: &Engine, now: Instant) {
+        if self.tracker.has_pending() && now.duration_since(self.last_reading) >= SWEEP_IDLE {
+            if let Some(outcome) = self.tracker.finish_sweep() {
+                debug!(?outcome, "quiet sweep merged into the features");
+                self.publish(engine);
+            }
+        }
+    }
+
+    fn clear(&mut self, engine: &Engine) {
+        self.tracker.clear();
+        self.publish(engine);
+    }
+
+    fn publish(&mut self, engine: &Engine) {
+        self.seq += 1;
+        let (header, records) =
+            self.tracker
+                .snapshot(engine.mapper().grid(), self.seq, unix_time_ns());
+        let sent = self
+            .publisher
+            .loan_slice_uninit(records.len())
+            .map_err(|e| format!("loan: {e:?}"))
+            .and_then(|mut sample| {
+                *sample.user_header_mut() = header;
+                sample
+                    .write_from_slice(&records)
+                    .send()
+                    .map_err(|e| format!("send: {e:?}"))
+            });
+        match sent {
+            Ok(_) => {
+                if let Err(e) = self.notifier.notify() {
+                    warn!("notify features: {e:?}");
+                }
+            }
+            Err(e) => warn!("features snapshot not published: {e}"),
+        }
+    }
+}
+
 /// The process's iceoryx2 ports. Dropped before the node, leaving nothing in /dev/shm.
 struct Ports {
     readings: iceoryx2::port::subscriber::Subscriber<Ipc, sonar_common::ipc::Reading, ()>,
@@ -527,7 +634,11 @@ struct Output<'a> {
 }
 
 impl Output<'_> {
-    fn handle_commands(&mut self, engine: &mut Engine) -> Result<()> {
+    fn handle_commands(
+        &mut self,
+        engine: &mut Engine,
+        mut features: Option<&mut Features>,
+    ) -> Result<()> {
         while let Some(sample) = self
             .ports
             .commands
@@ -538,6 +649,11 @@ impl Output<'_> {
             match engine.apply(&command) {
                 Ok(()) => {
                     info!(?command, "fusion command");
+                    if let (Some(FusionCommandKind::Clear), Some(features)) =
+                        (command.kind(), features.as_deref_mut())
+                    {
+                        features.clear(engine);
+                    }
                     self.dirty = true;
                     // A command's effect shows at once, whatever the rate limit.
                     self.publish(engine)?;
@@ -562,7 +678,11 @@ impl Output<'_> {
         Ok(())
     }
 
-    fn fuse_readings(&mut self, engine: &mut Engine) -> Result<()> {
+    fn fuse_readings(
+        &mut self,
+        engine: &mut Engine,
+        mut features: Option<&mut Features>,
+    ) -> Result<()> {
         while let Some(sample) = self
             .ports
             .readings
@@ -585,6 +705,9 @@ impl Output<'_> {
             if engine.starts_new_sweep(&reading) && self.dirty {
                 // The finished sweep's maps, before the next sweep's first reading.
                 self.publish(engine)?;
+            }
+            if let Some(features) = features.as_deref_mut() {
+                features.push(&reading, engine);
             }
             if !engine.fuse(&reading) {
                 self.ledger.rejected();

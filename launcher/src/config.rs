@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use serde::Deserialize;
-use sonar_fusion::FusionSection;
+use sonar_fusion::{FeaturesSection, FusionSection};
 
 /// How long a process that died waits for its first restart.
 pub const DEFAULT_RESTART_DELAY: Duration = Duration::from_secs(1);
@@ -41,6 +41,8 @@ pub struct PipelineFile {
     pub simulator: SimulatorSection,
     /// `sonar-fusion` reads this table from the same file.
     pub fusion: FusionSection,
+    /// `sonar-fusion` reads this table too (walls, corners and posts; validated as it is read).
+    pub features: FeaturesSection,
     pub viewer: ViewerSection,
     pub launcher: LauncherSection,
 }
@@ -201,6 +203,11 @@ mod tests {
         // The map's persistence keys belong to [fusion] too.
         let persist = "[fusion]\nsave_period = 2.0\npersist = true\n";
         assert!(PipelineFile::parse(persist, Path::new("x.toml")).is_ok());
+        let features = PipelineFile::parse("[features]\nmin_pings = 0\n", Path::new("x.toml"));
+        assert!(
+            matches!(&features, Err(ConfigError::Parse { message, .. }) if message.contains("min_pings")),
+            "{features:?}"
+        );
         let bad = PipelineFile::parse("[launcher]\nrestart_delay = -1\n", Path::new("x.toml"));
         assert!(
             matches!(&bad, Err(ConfigError::Parse { message, .. }) if message.contains("restart_delay")),

@@ -9,8 +9,8 @@ use std::time::{Duration, Instant};
 use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
 use nix::pty::openpty;
 use sonar_common::ipc::{
-    self, FusionCommand, FusionCommandKind, GridHeader, LinkState, Reading, ScanCommand,
-    ScanCommandKind, ScanMode, flags,
+    self, FeatureRecord, FusionCommand, FusionCommandKind, GridHeader, LinkState, Reading,
+    ScanCommand, ScanCommandKind, ScanMode, feature_kind, flags,
 };
 use sonar_common::protocol::{
     DeviceMessage, Direction, PROTOCOL_VERSION, WireReading, encode_device,
@@ -782,4 +782,90 @@ fn bad_fusion_settings_are_clear_errors() {
         assert!(!status.success(), "{args:?}");
         assert!(stderr.contains(expected), "{args:?}: {stderr}");
     }
+}
+
+/// The obstacle scene (a 5 cm post 1 m ahead, a wall 2 m ahead) through simulator, driver and
+/// fusion: `sonar/features` carries the post as a point and the wall as a plane, and a clear
+/// command empties it.
+#[test]
+fn the_fusion_publishes_walls_and_posts_and_clears_them() {
+    let sandbox = Sandbox::new("features");
+    let node = sandbox.node("test-features");
+    let features = ipc::features_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let readings = readings_subscriber(&node);
+    // Fast, but not so fast that a debug-build fusion falls behind and loses readings: a sweep
+    // with readings missing hides its regions' ends.
+    let (_sim, pty) = sandbox.spawn_sim(&["--scene", "obstacle", "--speed", "20"]);
+    let driver = sandbox.spawn("sonar-driver", &["--port", &pty]);
+    let _fusion = sandbox.spawn("sonar-fusion", &["--no-persist"]);
+    let receive = || {
+        features
+            .receive()
+            .unwrap()
+            .map(|s| (*s.user_header(), s.payload().to_vec()))
+    };
+    let found = |records: &[FeatureRecord], kind: u32, pred: &dyn Fn(&FeatureRecord) -> bool| {
+        records.iter().any(|r| r.kind == kind && pred(r))
+    };
+    let got = collect_until(&node, receive, |got| {
+        got.last().is_some_and(|(header, records)| {
+            header.sweeps >= 3
+                && found(records, feature_kind::POINT, &|r| {
+                    (r.x_m - 0.975).abs() < 0.03 && r.y_m.abs() < 0.03
+                })
+                && found(records, feature_kind::PLANE, &|r| {
+                    (r.x_m - 2.0).abs() < 0.03 && r.y_m.abs() < 0.03
+                })
+        })
+    });
+    let (header, records) = got.last().unwrap();
+    assert_eq!(header.layout_version, ipc::LAYOUT_VERSION);
+    assert_eq!(header.feature_count as usize, records.len());
+    let wall = records
+        .iter()
+        .find(|r| r.kind == feature_kind::PLANE && (r.x_m - 2.0).abs() < 0.03)
+        .unwrap();
+    assert!(
+        wall.angle_deg.abs() < 2.0,
+        "the wall's normal is along x: {wall:?}"
+    );
+    assert!(
+        wall.times_seen >= 2,
+        "seen again, refined, not duplicated: {wall:?}"
+    );
+
+    // Stop the head, let the last readings drain, then clear: the features go with the grid.
+    let commands = ipc::commands_service(&node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    commands
+        .send_copy(ScanCommand::new(ScanCommandKind::Stop, 0.0, 0.0))
+        .unwrap();
+    let mut last_reading = Instant::now();
+    while last_reading.elapsed() < Duration::from_secs(3) {
+        if receive_reading(&readings).is_some() {
+            last_reading = Instant::now();
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // Held until the end: a departed publisher's samples are dropped before they are read.
+    let fusion_commands = ipc::fusion_commands_service(&node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    fusion_commands
+        .send_copy(FusionCommand::new(FusionCommandKind::Clear, 0))
+        .unwrap();
+    collect_until(&node, receive, |got| {
+        got.last()
+            .is_some_and(|(h, records)| h.feature_count == 0 && records.is_empty())
+    });
+    drop(driver);
 }
