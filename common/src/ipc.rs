@@ -573,7 +573,7 @@ pub struct FeaturesHeader {
     pub seq: u64,
     /// When the snapshot was taken, ns since the Unix epoch.
     pub stamp_ns: u64,
-    /// Sweeps merged into the feature map since it was last cleared.
+    /// Sweeps merged into the feature map since the fusion process started (a clear keeps counting).
     pub sweeps: u64,
     pub layout_version: u32,
     pub feature_count: u32,
