@@ -10,7 +10,7 @@
 
 use std::collections::VecDeque;
 
-use nalgebra::{Isometry2, Vector2};
+use nalgebra::Isometry2;
 use serde::{Deserialize, Serialize};
 use sonar_common::ipc::{
     FusionCommand, FusionCommandKind, GridHeader, LAYOUT_VERSION, Pose2D, RADAR_MAX_BINS, Radar,
@@ -22,6 +22,7 @@ use crate::grid::CellCounts;
 use crate::mapper::Mapper;
 use crate::model::{ModelConfig, ModelKind};
 use crate::observation::Observation;
+use crate::poses::{PlacedPose, PoseError, PoseKind, PoseTrack};
 use crate::rule::{RuleConfig, RuleKind};
 use crate::state::{MapState, SavedMap, SavedObservation, StateError};
 
@@ -51,7 +52,12 @@ pub struct Engine {
     history: VecDeque<Observation>,
     history_limit: usize,
     scan: Option<ScanState>,
+    /// The robot's recent poses: each reading is placed at its own instant.
+    poses: PoseTrack,
+    /// Where the latest reading was placed.
     pose: Isometry2<f32>,
+    /// Readings placed with a pose more than [`crate::poses::STALE_AFTER_NS`] old.
+    stale_pose_readings: u64,
     rejected_readings: u64,
     last_seq: Option<u64>,
     /// Bumped by every change of the state, so a saver knows whether there is anything new.
@@ -66,7 +72,9 @@ impl Engine {
             history: VecDeque::new(),
             history_limit,
             scan: None,
+            poses: PoseTrack::new(Isometry2::identity()),
             pose: Isometry2::identity(),
+            stale_pose_readings: 0,
             rejected_readings: 0,
             last_seq: None,
             revision: 0,
@@ -91,7 +99,9 @@ impl Engine {
                 .collect(),
             history_limit,
             scan: state.scan,
+            poses: PoseTrack::new(state.robot_pose.into()),
             pose: state.robot_pose.into(),
+            stale_pose_readings: 0,
             rejected_readings: state.rejected_readings,
             last_seq: state.last_seq,
             revision: 0,
@@ -118,7 +128,7 @@ impl Engine {
             .history
             .extend(self.history.iter().map(SavedObservation::from));
         state.scan = self.scan;
-        state.robot_pose = self.pose.into();
+        state.robot_pose = self.poses.latest().into();
         state.rejected_readings = self.rejected_readings;
         state.last_seq = self.last_seq;
     }
@@ -143,20 +153,23 @@ impl Engine {
         self.rejected_readings
     }
 
-    /// The robot's latest pose: where the next reading is placed.
+    /// Where the latest reading was placed (the robot's pose at its instant).
     pub fn pose(&self) -> &Isometry2<f32> {
         &self.pose
     }
 
-    /// Takes the robot's latest pose; readings fused from now on are placed there. A pose that is
-    /// not finite is refused (`false`) and the previous one kept.
-    pub fn set_pose(&mut self, pose: &Pose2D) -> bool {
-        let finite = pose.x_m.is_finite() && pose.y_m.is_finite() && pose.theta_rad.is_finite();
-        if finite {
-            self.pose = Isometry2::new(Vector2::new(pose.x_m, pose.y_m), pose.theta_rad);
-            self.revision += 1;
-        }
-        finite
+    /// Readings placed with a stale pose: the pose stream had stopped or lagged by more than
+    /// [`crate::poses::STALE_AFTER_NS`].
+    pub fn stale_pose_readings(&self) -> u64 {
+        self.stale_pose_readings
+    }
+
+    /// Takes a pose of the robot (`robot/pose`); readings are placed at the pose interpolated at
+    /// their own stamp ([`crate::poses`]). A non-finite or out-of-order pose is refused.
+    pub fn set_pose(&mut self, pose: &Pose2D) -> Result<(), PoseError> {
+        self.poses.push(*pose)?;
+        self.revision += 1;
+        Ok(())
     }
 
     /// Whether `reading` starts a new sweep after readings of another one: the moment to publish
@@ -167,7 +180,12 @@ impl Engine {
 
     /// Fuses `reading` at the current pose into both maps; `false` if the kernels refused it.
     pub fn fuse(&mut self, reading: &Reading) -> bool {
-        let obs = Observation::from_reading(reading, self.pose);
+        let PlacedPose { pose, kind } = self.poses.at(reading.host_stamp_ns);
+        if kind == PoseKind::Stale {
+            self.stale_pose_readings += 1;
+        }
+        self.pose = pose;
+        let obs = Observation::from_reading(reading, pose);
         self.last_seq = Some(reading.seq);
         self.revision += 1;
         self.scan = Some(ScanState {
@@ -491,23 +509,39 @@ mod tests {
     }
 
     #[test]
-    fn readings_are_placed_at_the_latest_pose_and_bad_poses_are_refused() {
+    fn readings_are_placed_at_the_pose_of_their_instant_and_bad_poses_are_refused() {
         let mut engine = Engine::new(FusionConfig::default(), 10).unwrap();
-        let pose = Pose2D {
-            x_m: 0.5,
+        let at = |stamp_ns, x_m| Pose2D {
+            stamp_ns,
+            x_m,
             y_m: -0.25,
             theta_rad: 0.3,
             ..Pose2D::default()
         };
-        assert!(engine.set_pose(&pose));
-        assert!(!engine.set_pose(&Pose2D {
-            x_m: f32::NAN,
-            ..pose
-        }));
-        engine.fuse(&reading(1, 0.0, 1.0));
+        engine.set_pose(&at(1_000_000_000, 0.5)).unwrap();
+        engine.set_pose(&at(1_200_000_000, 0.7)).unwrap();
+        assert_eq!(
+            engine.set_pose(&Pose2D {
+                x_m: f32::NAN,
+                ..at(1_300_000_000, 0.0)
+            }),
+            Err(PoseError::NotFinite)
+        );
+        let mut r = reading(1, 0.0, 1.0);
+        r.host_stamp_ns = 1_100_000_000;
+        engine.fuse(&r);
         let h = engine.grid_header(1, 0, CellCounts::default());
-        assert_eq!((h.pose_x_m, h.pose_y_m), (0.5, -0.25));
+        assert!(
+            (h.pose_x_m - 0.6).abs() < 1e-6 && h.pose_y_m == -0.25,
+            "{h:?}"
+        );
         assert!((h.pose_theta_rad - 0.3).abs() < 1e-6);
+        assert_eq!(engine.stale_pose_readings(), 0);
+        // A second after the latest pose: held there, and counted.
+        r.host_stamp_ns = 2_200_000_000;
+        engine.fuse(&r);
+        assert_eq!(engine.pose().translation.x, 0.7);
+        assert_eq!(engine.stale_pose_readings(), 1);
     }
 
     #[test]

@@ -177,6 +177,7 @@ pub mod mapper;
 pub mod model;
 pub mod observation;
 pub mod persist;
+pub mod poses;
 pub mod radar;
 pub mod reference;
 pub mod rule;

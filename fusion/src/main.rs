@@ -333,6 +333,7 @@ fn run(args: &Args) -> Result<()> {
         lost_log: Throttle::new(LOG_PERIOD),
         restart_log: Throttle::new(LOG_PERIOD),
         rejected_log: Throttle::new(LOG_PERIOD),
+        pose_log: Throttle::new(LOG_PERIOD),
     };
     loop {
         let (mut readings, mut commands) = (false, false);
@@ -515,11 +516,11 @@ impl Features {
 
     /// Merges a sweep whose readings stopped coming [`SWEEP_IDLE`] ago.
     fn finish_idle_sweep(&mut self, engine: &Engine, now: Instant) {
-        if self.tracker.has_pending() && now.duration_since(self.last_reading) >= SWEEP_IDLE {
-            if let Some(outcome) = self.tracker.finish_sweep() {
-                debug!(?outcome, "quiet sweep merged into the features");
-                self.publish(engine);
-            }
+        if now.duration_since(self.last_reading) >= SWEEP_IDLE
+            && let Some(outcome) = self.tracker.finish_sweep()
+        {
+            debug!(?outcome, "quiet sweep merged into the features");
+            self.publish(engine);
         }
     }
 
@@ -631,6 +632,7 @@ struct Output<'a> {
     lost_log: Throttle,
     restart_log: Throttle,
     rejected_log: Throttle,
+    pose_log: Throttle,
 }
 
 impl Output<'_> {
@@ -671,8 +673,10 @@ impl Output<'_> {
             .receive()
             .map_err(|e| IpcError::new("receive pose", e))?
         {
-            if !engine.set_pose(sample.payload()) {
-                warn!(pose = ?sample.payload(), "pose refused: not finite");
+            if let Err(e) = engine.set_pose(sample.payload())
+                && let Some(left_out) = self.pose_log.allow(Instant::now())
+            {
+                warn!(pose = ?sample.payload(), left_out, "pose refused: {e}");
             }
         }
         Ok(())
@@ -706,14 +710,26 @@ impl Output<'_> {
                 // The finished sweep's maps, before the next sweep's first reading.
                 self.publish(engine)?;
             }
-            if let Some(features) = features.as_deref_mut() {
-                features.push(&reading, engine);
-            }
+            let stale_before = engine.stale_pose_readings();
             if !engine.fuse(&reading) {
                 self.ledger.rejected();
                 if let Some(left_out) = self.rejected_log.allow(Instant::now()) {
                     warn!(?reading, left_out, "reading refused by the kernels");
                 }
+            }
+            if engine.stale_pose_readings() > stale_before
+                && let Some(left_out) = self.pose_log.allow(Instant::now())
+            {
+                warn!(
+                    total = engine.stale_pose_readings(),
+                    left_out,
+                    "reading placed at a pose more than 0.5 s older than itself: robot/pose \
+                     stopped or lags"
+                );
+            }
+            // After fusing: the features place the sweep where the fusion placed its reading.
+            if let Some(features) = features.as_deref_mut() {
+                features.push(&reading, engine);
             }
             self.dirty = true;
         }

@@ -677,12 +677,14 @@ mod tests {
     fn feed(engine: &mut Engine, first: u64, count: u64) {
         for seq in first..first + count {
             if seq.is_multiple_of(20) {
-                engine.set_pose(&Pose2D {
-                    x_m: 0.01 * seq as f32,
-                    y_m: -0.02 * seq as f32,
-                    theta_rad: 0.1 * seq as f32,
-                    ..Pose2D::default()
-                });
+                engine
+                    .set_pose(&Pose2D {
+                        x_m: 0.01 * seq as f32,
+                        y_m: -0.02 * seq as f32,
+                        theta_rad: 0.1 * seq as f32,
+                        ..Pose2D::default()
+                    })
+                    .unwrap();
             }
             let angle = -147.0 + 6.0 * (seq % 50) as f32;
             let d = 1.2 / angle.to_radians().cos().abs().max(0.3);

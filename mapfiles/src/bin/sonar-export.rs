@@ -364,8 +364,8 @@ fn fuse_recording(
                 "reading of another layout version ignored"
             ),
             Message::Pose(p) => {
-                if !engine.set_pose(p) {
-                    warn!(pose = ?p, "pose refused: not finite");
+                if let Err(e) = engine.set_pose(p) {
+                    warn!(pose = ?p, "pose refused: {e}");
                 }
             }
             Message::FusionCommand(c) if commands => {

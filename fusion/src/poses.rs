@@ -1,0 +1,313 @@
+//! The robot's pose at a reading's instant, from the stream on `robot/pose`.
+//!
+//! A reading is taken while the robot moves; fusing it at whatever pose arrived last places it up
+//! to one pose period (and any delay of the pose stream) off. So the engine keeps the recent poses
+//! and places each reading at the pose **interpolated at the reading's `host_stamp_ns`**.
+//!
+//! # Clocks
+//!
+//! Both stamps are the host's wall clock in ns since the Unix epoch: the driver stamps a reading
+//! when its line arrives (a few ms after the last of its pings), the pose's publisher stamps the
+//! instant the pose describes. On one machine they are one clock; a pose source on another machine
+//! must be synchronised to it (NTP/PTP) — an offset shows as readings placed where the robot was
+//! that much earlier or later.
+//!
+//! # Policy
+//!
+//! - **Between two poses**: linear in position, along the shorter arc in heading.
+//! - **After the latest pose** (the pose stream lags): extrapolated at the last two poses'
+//!   velocity for at most [`MAX_EXTRAPOLATION_NS`], then held. A reading more than
+//!   [`STALE_AFTER_NS`] after the latest pose is placed there too, and counted as fused with a
+//!   *stale* pose: the pose source stopped or is late.
+//! - **Before the oldest pose kept** (a late reading): the oldest pose.
+//! - **No pose ever**: the pose the engine started with (the origin, or the restored map's).
+//! - A pose older than the newest kept is out of order and refused; a pose *jump* (a
+//!   localisation's correction) is taken as it comes: readings after it are placed from it,
+//!   readings between the two stamps are interpolated across it.
+//! - At most [`KEPT_POSES`] poses within [`KEPT_NS`] are kept: enough for the readings' delay, a
+//!   bounded memory whatever the pose rate.
+
+use std::collections::VecDeque;
+
+use nalgebra::{Isometry2, Vector2};
+use sonar_common::ipc::Pose2D;
+
+/// Longest time a pose is carried forward at the robot's last velocity.
+pub const MAX_EXTRAPOLATION_NS: u64 = 100_000_000;
+/// A reading this long after the latest pose is placed with a stale pose.
+pub const STALE_AFTER_NS: u64 = 500_000_000;
+/// Most poses kept.
+pub const KEPT_POSES: usize = 512;
+/// Poses older than this before the newest are dropped.
+pub const KEPT_NS: u64 = 5_000_000_000;
+
+/// Where a reading was placed, and how the pose for it was found.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlacedPose {
+    pub pose: Isometry2<f32>,
+    pub kind: PoseKind,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PoseKind {
+    /// No pose has arrived: the engine's initial pose.
+    Initial,
+    /// Interpolated between two poses, or exactly one.
+    Interpolated,
+    /// Past the latest pose, within [`STALE_AFTER_NS`].
+    Extrapolated,
+    /// Past the latest pose by more than [`STALE_AFTER_NS`].
+    Stale,
+    /// Before the oldest pose kept.
+    Early,
+}
+
+/// A refused pose.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum PoseError {
+    #[error("pose is not finite")]
+    NotFinite,
+    #[error("pose stamped {stamp_ns} ns is older than the latest ({latest_ns} ns)")]
+    OutOfOrder { stamp_ns: u64, latest_ns: u64 },
+}
+
+/// The recent poses.
+#[derive(Debug, Clone)]
+pub struct PoseTrack {
+    initial: Isometry2<f32>,
+    poses: VecDeque<Pose2D>,
+}
+
+impl PoseTrack {
+    /// A track that places readings at `initial` until a pose arrives.
+    pub fn new(initial: Isometry2<f32>) -> Self {
+        Self {
+            initial,
+            poses: VecDeque::new(),
+        }
+    }
+
+    /// The newest pose received, else the initial one.
+    pub fn latest(&self) -> Isometry2<f32> {
+        self.poses.back().map_or(self.initial, isometry)
+    }
+
+    /// Adds a pose; refuses a non-finite one or one older than the newest kept.
+    pub fn push(&mut self, pose: Pose2D) -> Result<(), PoseError> {
+        if !(pose.x_m.is_finite() && pose.y_m.is_finite() && pose.theta_rad.is_finite()) {
+            return Err(PoseError::NotFinite);
+        }
+        if let Some(last) = self.poses.back()
+            && pose.stamp_ns < last.stamp_ns
+        {
+            return Err(PoseError::OutOfOrder {
+                stamp_ns: pose.stamp_ns,
+                latest_ns: last.stamp_ns,
+            });
+        }
+        self.poses.push_back(pose);
+        let newest = pose.stamp_ns;
+        while self.poses.len() > KEPT_POSES
+            || self
+                .poses
+                .front()
+                .is_some_and(|p| newest - p.stamp_ns > KEPT_NS && self.poses.len() > 2)
+        {
+            self.poses.pop_front();
+        }
+        Ok(())
+    }
+
+    /// The pose at `stamp_ns`, by the policy of the module docs.
+    pub fn at(&self, stamp_ns: u64) -> PlacedPose {
+        let placed = |pose, kind| PlacedPose { pose, kind };
+        let (Some(first), Some(last)) = (self.poses.front(), self.poses.back()) else {
+            return placed(self.initial, PoseKind::Initial);
+        };
+        if stamp_ns < first.stamp_ns {
+            return placed(isometry(first), PoseKind::Early);
+        }
+        if stamp_ns == last.stamp_ns {
+            return placed(isometry(last), PoseKind::Interpolated);
+        }
+        if stamp_ns > last.stamp_ns {
+            let late = stamp_ns - last.stamp_ns;
+            if late > STALE_AFTER_NS {
+                return placed(isometry(last), PoseKind::Stale);
+            }
+            let pose = match self.poses.len() {
+                1 => isometry(last),
+                n => {
+                    let before = &self.poses[n - 2];
+                    let ahead = late.min(MAX_EXTRAPOLATION_NS);
+                    interpolate(before, last, last.stamp_ns + ahead)
+                }
+            };
+            return placed(pose, PoseKind::Extrapolated);
+        }
+        // The first pose stamped after `stamp_ns` (there is one, and one before it): of poses
+        // with equal stamps, the latest counts.
+        let i = self.poses.partition_point(|p| p.stamp_ns <= stamp_ns);
+        let pose = interpolate(&self.poses[i - 1], &self.poses[i], stamp_ns);
+        placed(pose, PoseKind::Interpolated)
+    }
+}
+
+fn isometry(p: &Pose2D) -> Isometry2<f32> {
+    Isometry2::new(Vector2::new(p.x_m, p.y_m), p.theta_rad)
+}
+
+/// The pose at `stamp_ns` on the straight line through `a` and `b` (beyond `b` too), the heading
+/// turning the shorter way.
+fn interpolate(a: &Pose2D, b: &Pose2D, stamp_ns: u64) -> Isometry2<f32> {
+    let span = b.stamp_ns.saturating_sub(a.stamp_ns);
+    if span == 0 {
+        return isometry(b);
+    }
+    let s = (stamp_ns as f64 - a.stamp_ns as f64) / span as f64;
+    let s = s as f32;
+    let turn = wrap_pi(b.theta_rad - a.theta_rad);
+    Isometry2::new(
+        Vector2::new(a.x_m + s * (b.x_m - a.x_m), a.y_m + s * (b.y_m - a.y_m)),
+        a.theta_rad + s * turn,
+    )
+}
+
+/// `angle` in (−π, π].
+fn wrap_pi(angle: f32) -> f32 {
+    use std::f32::consts::{PI, TAU};
+    let a = angle.rem_euclid(TAU);
+    if a > PI { a - TAU } else { a }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f32::consts::PI;
+
+    const MS: u64 = 1_000_000;
+
+    fn pose(stamp_ms: u64, x: f32, y: f32, theta: f32) -> Pose2D {
+        Pose2D {
+            stamp_ns: stamp_ms * MS,
+            x_m: x,
+            y_m: y,
+            theta_rad: theta,
+            layout_version: 1,
+        }
+    }
+
+    fn close(a: Isometry2<f32>, x: f32, y: f32, theta: f32) -> bool {
+        (a.translation.x - x).abs() < 1e-4
+            && (a.translation.y - y).abs() < 1e-4
+            && wrap_pi(a.rotation.angle() - theta).abs() < 1e-4
+    }
+
+    #[test]
+    fn without_poses_readings_stay_at_the_initial_pose() {
+        let start = Isometry2::new(Vector2::new(1.0, 2.0), 0.5);
+        let track = PoseTrack::new(start);
+        assert_eq!(track.at(123).kind, PoseKind::Initial);
+        assert_eq!(track.at(123).pose, start);
+        assert_eq!(track.latest(), start);
+    }
+
+    #[test]
+    fn a_reading_between_two_poses_is_interpolated() {
+        let mut track = PoseTrack::new(Isometry2::identity());
+        track.push(pose(1000, 0.0, 0.0, 0.0)).unwrap();
+        track.push(pose(1100, 0.2, -0.1, 0.4)).unwrap();
+        let at = track.at(1025 * MS);
+        assert_eq!(at.kind, PoseKind::Interpolated);
+        assert!(close(at.pose, 0.05, -0.025, 0.1), "{at:?}");
+        assert!(close(track.at(1100 * MS).pose, 0.2, -0.1, 0.4));
+        assert!(close(track.at(1000 * MS).pose, 0.0, 0.0, 0.0));
+    }
+
+    #[test]
+    fn the_heading_turns_the_shorter_way_across_pi() {
+        let mut track = PoseTrack::new(Isometry2::identity());
+        track.push(pose(0, 0.0, 0.0, PI - 0.1)).unwrap();
+        track.push(pose(100, 0.0, 0.0, -PI + 0.1)).unwrap();
+        // Half-way is at ±π, not at 0.
+        let mid = track.at(50 * MS).pose.rotation.angle();
+        assert!((mid.abs() - PI).abs() < 1e-4, "{mid}");
+    }
+
+    #[test]
+    fn of_poses_with_one_stamp_the_latest_counts() {
+        let mut track = PoseTrack::new(Isometry2::identity());
+        track.push(pose(0, 0.0, 0.0, 0.0)).unwrap();
+        track.push(pose(0, 1.0, 0.0, 0.0)).unwrap();
+        assert!(close(track.at(0).pose, 1.0, 0.0, 0.0));
+        track.push(pose(100, 2.0, 0.0, 0.0)).unwrap();
+        assert!(close(track.at(0).pose, 1.0, 0.0, 0.0));
+        assert!(close(track.at(50 * MS).pose, 1.5, 0.0, 0.0));
+    }
+
+    #[test]
+    fn a_late_pose_stream_is_extrapolated_for_a_bounded_time_then_stale() {
+        let mut track = PoseTrack::new(Isometry2::identity());
+        track.push(pose(0, 0.0, 0.0, 0.0)).unwrap();
+        track.push(pose(100, 0.1, 0.0, 0.0)).unwrap(); // 1 m/s along x
+        let soon = track.at(150 * MS);
+        assert_eq!(soon.kind, PoseKind::Extrapolated);
+        assert!(close(soon.pose, 0.15, 0.0, 0.0), "{soon:?}");
+        // Carried forward at most 100 ms.
+        let later = track.at(400 * MS);
+        assert_eq!(later.kind, PoseKind::Extrapolated);
+        assert!(close(later.pose, 0.2, 0.0, 0.0), "{later:?}");
+        let stale = track.at(700 * MS);
+        assert_eq!(stale.kind, PoseKind::Stale);
+        assert!(
+            close(stale.pose, 0.1, 0.0, 0.0),
+            "held at the latest: {stale:?}"
+        );
+    }
+
+    #[test]
+    fn one_pose_is_held_and_early_readings_take_the_oldest() {
+        let mut track = PoseTrack::new(Isometry2::identity());
+        track.push(pose(1000, 1.0, 1.0, 1.0)).unwrap();
+        let after = track.at(1050 * MS);
+        assert_eq!(after.kind, PoseKind::Extrapolated);
+        assert!(close(after.pose, 1.0, 1.0, 1.0));
+        let early = track.at(900 * MS);
+        assert_eq!(early.kind, PoseKind::Early);
+        assert!(close(early.pose, 1.0, 1.0, 1.0));
+    }
+
+    #[test]
+    fn bad_and_out_of_order_poses_are_refused() {
+        let mut track = PoseTrack::new(Isometry2::identity());
+        track.push(pose(100, 0.0, 0.0, 0.0)).unwrap();
+        assert_eq!(
+            track.push(pose(50, 1.0, 0.0, 0.0)),
+            Err(PoseError::OutOfOrder {
+                stamp_ns: 50 * MS,
+                latest_ns: 100 * MS
+            })
+        );
+        assert_eq!(
+            track.push(pose(200, f32::NAN, 0.0, 0.0)),
+            Err(PoseError::NotFinite)
+        );
+        assert!(close(track.latest(), 0.0, 0.0, 0.0));
+    }
+
+    #[test]
+    fn memory_is_bounded_in_count_and_time() {
+        let mut track = PoseTrack::new(Isometry2::identity());
+        for k in 0..2000 {
+            track.push(pose(k, k as f32, 0.0, 0.0)).unwrap();
+        }
+        assert_eq!(track.poses.len(), KEPT_POSES);
+        let mut sparse = PoseTrack::new(Isometry2::identity());
+        for k in 0..20 {
+            sparse.push(pose(k * 1000, k as f32, 0.0, 0.0)).unwrap();
+        }
+        // 5 s kept: the poses of 14 s … 19 s.
+        assert_eq!(sparse.poses.len(), 6);
+        assert_eq!(sparse.at(0).kind, PoseKind::Early);
+    }
+}
