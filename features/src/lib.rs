@@ -80,6 +80,7 @@
 
 pub mod classify;
 pub mod config;
+pub mod localize;
 pub mod map;
 pub mod physics;
 pub mod pings;
@@ -88,6 +89,7 @@ pub mod segment;
 
 pub use classify::{Class, Classification, Observation, classify};
 pub use config::{EchoPhysics, FeatureConfig, MergeConfig, SegmentConfig};
+pub use localize::PoseFix;
 pub use map::{Feature, FeatureKind, FeatureMap, FeatureSummary, SweepReport};
 pub use physics::Reflector;
 pub use pings::{Ping, Sweep};

@@ -90,7 +90,7 @@ impl Feature {
     }
 
     /// Reported covariance of the estimate in its own coordinates: (x, y), or (φ, d) for a plane.
-    fn covariance_own(&self) -> Matrix2<f64> {
+    pub(crate) fn covariance_own(&self) -> Matrix2<f64> {
         self.random + self.systematic
     }
 
@@ -174,7 +174,7 @@ impl Feature {
 
 /// An observation in the map's frame.
 #[derive(Debug, Clone, Copy)]
-struct Placed {
+pub(crate) struct Placed {
     kind: FeatureKind,
     mean: Vector2<f64>,
     random: Matrix2<f64>,
@@ -185,7 +185,12 @@ struct Placed {
 }
 
 impl Placed {
-    fn new(o: &Observation, pose: &Isometry2<f64>) -> Self {
+    /// Covariance of the observation in the map's coordinates, both parts.
+    pub(crate) fn covariance(&self) -> Matrix2<f64> {
+        self.random + self.systematic
+    }
+
+    pub(crate) fn new(o: &Observation, pose: &Isometry2<f64>) -> Self {
         let theta = pose.rotation.angle();
         let t = pose.translation.vector;
         let beta = o.bearing_deg.to_radians();
@@ -304,11 +309,18 @@ impl FeatureMap {
         self.features.clear();
     }
 
+    /// A sweep's regions of constant depth and what they are, in the sensor's frame: what
+    /// [`Self::localize`] matches and [`Self::merge`] merges.
+    pub fn observe(&self, sweep: &Sweep) -> (Vec<Rcd>, Classification) {
+        let rcds = extract(sweep, &self.cfg);
+        let classification = classify(&rcds, &self.cfg);
+        (rcds, classification)
+    }
+
     /// The whole pipeline for one sweep taken at `pose` (the sensor in the map's frame): regions
     /// of constant depth, classification, merging and fading.
     pub fn update(&mut self, sweep: &Sweep, pose: &Isometry2<f64>) -> SweepReport {
-        let rcds = extract(sweep, &self.cfg);
-        let classification = classify(&rcds, &self.cfg);
+        let (rcds, classification) = self.observe(sweep);
         let mut report = self.merge(&classification.observations, sweep, pose);
         report.rcds = rcds;
         report.classification = classification;
@@ -445,7 +457,7 @@ pub struct FeatureSummary {
 }
 
 /// Difference observation − feature, the plane's angle wrapped.
-fn innovation(f: &Feature, z: &Placed) -> Vector2<f64> {
+pub(crate) fn innovation(f: &Feature, z: &Placed) -> Vector2<f64> {
     let mut v = z.mean - f.mean;
     if f.kind == FeatureKind::Plane {
         v.x = crate::wrap_rad(v.x);

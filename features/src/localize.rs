@@ -1,0 +1,298 @@
+//! Sonar localisation: one sweep's observations matched against the feature map built so far, to
+//! correct a pose predicted by odometry.
+//!
+//! The robot's odometry drifts (a wheel's scale error, a heading that creeps); the features of
+//! the map do not move. A sweep taken at an odometry pose sees the walls, corners and posts a
+//! little off from where the map has them; the pose that puts them back is the correction.
+//!
+//! # The estimate
+//!
+//! A maximum a-posteriori pose by Gauss–Newton over x = (x, y, θ):
+//!
+//! ```text
+//! minimise  (x − x₀)ᵀ P₀⁻¹ (x − x₀)  +  Σᵢ vᵢ(x)ᵀ Sᵢ⁻¹ vᵢ(x)
+//! ```
+//!
+//! where x₀ is the predicted pose with covariance P₀ (the odometry's uncertainty since the last
+//! fix), vᵢ the innovation of observation i placed at x against its matched feature — the same
+//! innovation the map merges with: (x, y) for points and corners, (φ, d) for planes — and Sᵢ the
+//! feature's covariance plus the observation's. The Jacobians of vᵢ are taken numerically, so every
+//! kind uses the one placement function the merging uses. The posterior covariance is the inverse
+//! of the final normal matrix.
+//!
+//! A wall constrains only the distance across it and the heading; a point or corner the position.
+//! Directions no match constrains stay at the prediction (the prior term), with its uncertainty:
+//! in a long corridor with no corners the estimate along the corridor is odometry's.
+//!
+//! # Association
+//!
+//! Each observation goes to the nearest confirmed feature (seen in two sweeps or more) of its kind
+//! within the merge gate (χ² of [`crate::MergeConfig::gate_chi2`]), with the pose's own
+//! uncertainty added to the gate: a prediction 5 cm off must still find its wall. Associations are
+//! made again at each iteration, from the current estimate.
+
+use nalgebra::{Isometry2, Matrix2, Matrix3, Matrix3x2, Vector2, Vector3};
+
+use crate::classify::Observation;
+use crate::map::{Feature, FeatureMap, Placed, innovation};
+
+/// Most Gauss–Newton iterations.
+const MAX_ITERATIONS: usize = 10;
+/// An update smaller than this (metres and radians) ends the iterations.
+const CONVERGED: f64 = 1e-6;
+/// Step of the numerical Jacobians.
+const STEP: f64 = 1e-6;
+/// Times a feature must have been seen to anchor the pose.
+const CONFIRMED: u32 = 2;
+
+/// A corrected pose.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoseFix {
+    /// The sensor's pose in the map.
+    pub pose: Isometry2<f64>,
+    /// Covariance of (x, y, θ): m², m·rad, rad².
+    pub covariance: Matrix3<f64>,
+    /// Observations matched to a feature.
+    pub matched: usize,
+    pub iterations: usize,
+}
+
+fn to_vector(pose: &Isometry2<f64>) -> Vector3<f64> {
+    Vector3::new(
+        pose.translation.x,
+        pose.translation.y,
+        pose.rotation.angle(),
+    )
+}
+
+fn to_pose(x: &Vector3<f64>) -> Isometry2<f64> {
+    Isometry2::new(Vector2::new(x.x, x.y), x.z)
+}
+
+/// Innovation of `o` placed at `x` against `f`, and its Jacobian with respect to `x`.
+fn linearise(f: &Feature, o: &Observation, x: &Vector3<f64>) -> (Vector2<f64>, Matrix3x2<f64>) {
+    let v = innovation(f, &Placed::new(o, &to_pose(x)));
+    let mut jt = Matrix3x2::zeros();
+    for k in 0..3 {
+        let mut moved = *x;
+        moved[k] += STEP;
+        let dv = innovation(f, &Placed::new(o, &to_pose(&moved))) - v;
+        // The plane's angle is wrapped: a step never crosses more than a tiny arc.
+        let dv = Vector2::new(crate::wrap_rad(dv.x), dv.y);
+        jt.set_row(k, &(dv / STEP).transpose());
+    }
+    (v, jt)
+}
+
+impl FeatureMap {
+    /// The pose at which `observations` (one sweep's, in the sensor's frame) fit the map best,
+    /// starting from `prior` with covariance `prior_covariance` (of x, y, θ). `None` when no
+    /// observation matches a confirmed feature, or the prior covariance is not invertible.
+    pub fn localize(
+        &self,
+        observations: &[Observation],
+        prior: &Isometry2<f64>,
+        prior_covariance: &Matrix3<f64>,
+    ) -> Option<PoseFix> {
+        let prior_information = prior_covariance.try_inverse()?;
+        let x0 = to_vector(prior);
+        let gate = self.config().merge.gate_chi2;
+        let anchors: Vec<&Feature> = self
+            .features()
+            .iter()
+            .filter(|f| f.times_seen() >= CONFIRMED)
+            .collect();
+        let mut x = x0;
+        let mut covariance = *prior_covariance;
+        let mut matched = 0;
+        let mut iterations = 0;
+        while iterations < MAX_ITERATIONS {
+            iterations += 1;
+            let mut h = prior_information;
+            let mut d = x - x0;
+            d.z = crate::wrap_rad(d.z);
+            let mut g = prior_information * d;
+            matched = 0;
+            for o in observations {
+                let best = anchors
+                    .iter()
+                    .filter(|f| f.kind() == o.kind)
+                    .filter_map(|f| {
+                        let (v, jt) = linearise(f, o, &x);
+                        let s = f.covariance_own() + Placed::new(o, &to_pose(&x)).covariance();
+                        let gated: Matrix2<f64> = s + jt.transpose() * covariance * jt;
+                        let d2 = (v.transpose() * gated.try_inverse()? * v)[(0, 0)];
+                        (d2 <= gate).then_some((d2, v, jt, s))
+                    })
+                    .min_by(|a, b| a.0.total_cmp(&b.0));
+                let Some((_, v, jt, s)) = best else { continue };
+                let Some(w) = s.try_inverse() else { continue };
+                h += jt * w * jt.transpose();
+                g += jt * w * v;
+                matched += 1;
+            }
+            if matched == 0 {
+                return None;
+            }
+            let h_inv = h.try_inverse()?;
+            let step = -(h_inv * g);
+            x += step;
+            x.z = crate::wrap_rad(x.z);
+            covariance = h_inv;
+            if step.norm() < CONVERGED {
+                break;
+            }
+        }
+        Some(PoseFix {
+            pose: to_pose(&x),
+            covariance,
+            matched,
+            iterations,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{FeatureConfig, FeatureKind, Sweep};
+    use nalgebra::Point2;
+
+    /// What a sensor at `pose` observes of: a wall x = 2 (normal +x), a wall y = 1.5 (normal
+    /// +y), a post at (1, −0.8) and a corner at (2, 1.5).
+    fn observe(pose: &Isometry2<f64>, with: &[FeatureKind]) -> Vec<Observation> {
+        let theta = pose.rotation.angle();
+        let t = pose.translation.vector;
+        let mut out = Vec::new();
+        let polar = |kind, p: Point2<f64>| {
+            let local = pose.inverse() * p;
+            Observation {
+                kind,
+                range_m: local.coords.norm(),
+                bearing_deg: local.y.atan2(local.x).to_degrees(),
+                range_sigma_random_m: 0.003,
+                range_sigma_systematic_m: 0.002,
+                bearing_sigma_deg: 0.4,
+                rcd: 0,
+            }
+        };
+        for kind in with {
+            match kind {
+                FeatureKind::Plane => {
+                    for (normal_deg, d) in [(0.0_f64, 2.0), (90.0, 1.5)] {
+                        let n = Vector2::new(
+                            normal_deg.to_radians().cos(),
+                            normal_deg.to_radians().sin(),
+                        );
+                        out.push(Observation {
+                            kind: FeatureKind::Plane,
+                            range_m: d - t.dot(&n),
+                            bearing_deg: crate::wrap_deg(normal_deg - theta.to_degrees()),
+                            range_sigma_random_m: 0.003,
+                            range_sigma_systematic_m: 0.002,
+                            bearing_sigma_deg: 0.4,
+                            rcd: 0,
+                        });
+                    }
+                }
+                FeatureKind::Point => out.push(polar(FeatureKind::Point, Point2::new(1.0, -0.8))),
+                FeatureKind::Corner => out.push(polar(FeatureKind::Corner, Point2::new(2.0, 1.5))),
+            }
+        }
+        out
+    }
+
+    const ALL: [FeatureKind; 3] = [FeatureKind::Plane, FeatureKind::Point, FeatureKind::Corner];
+
+    /// A map of the scene built from two places, each seen twice (confirmed).
+    fn built_map() -> FeatureMap {
+        let mut map = FeatureMap::new(FeatureConfig::default()).unwrap();
+        let no_pings = Sweep::from_pings(Vec::new(), 1.5).unwrap();
+        for pose in [
+            Isometry2::new(Vector2::new(0.0, 0.0), 0.0),
+            Isometry2::new(Vector2::new(0.3, 0.2), 0.5),
+        ] {
+            for _ in 0..2 {
+                map.merge(&observe(&pose, &ALL), &no_pings, &pose);
+            }
+        }
+        assert_eq!(map.features().len(), 4, "{:?}", map.features());
+        map
+    }
+
+    fn prior_covariance() -> Matrix3<f64> {
+        Matrix3::from_diagonal(&Vector3::new(
+            0.1_f64.powi(2),
+            0.1_f64.powi(2),
+            5.0_f64.to_radians().powi(2),
+        ))
+    }
+
+    #[test]
+    fn a_drifted_pose_is_pulled_back_onto_the_map() {
+        let map = built_map();
+        let truth = Isometry2::new(Vector2::new(0.6, 0.1), -0.3);
+        let drifted = Isometry2::new(Vector2::new(0.65, 0.06), -0.3 + 3.0_f64.to_radians());
+        let fix = map
+            .localize(&observe(&truth, &ALL), &drifted, &prior_covariance())
+            .expect("a fix");
+        let err = truth.inverse() * fix.pose;
+        assert!(err.translation.vector.norm() < 0.005, "{fix:?}");
+        assert!(err.rotation.angle().abs() < 0.2_f64.to_radians(), "{fix:?}");
+        assert_eq!(fix.matched, 4);
+        // The fix is far more certain than the prediction.
+        assert!(
+            fix.covariance[(0, 0)] < 0.01 * prior_covariance()[(0, 0)],
+            "{fix:?}"
+        );
+    }
+
+    #[test]
+    fn one_wall_corrects_only_across_it_and_the_heading() {
+        let map = built_map();
+        let truth = Isometry2::new(Vector2::new(0.6, 0.1), 0.0);
+        let drifted = Isometry2::new(Vector2::new(0.65, 0.16), 2.0_f64.to_radians());
+        // Only the wall x = 2 is seen.
+        let obs: Vec<Observation> = observe(&truth, &[FeatureKind::Plane])
+            .into_iter()
+            .take(1)
+            .collect();
+        let fix = map
+            .localize(&obs, &drifted, &prior_covariance())
+            .expect("a fix");
+        assert!(
+            (fix.pose.translation.x - 0.6).abs() < 0.005,
+            "across: {fix:?}"
+        );
+        assert!(
+            fix.pose.rotation.angle().abs() < 0.2_f64.to_radians(),
+            "{fix:?}"
+        );
+        // Along the wall nothing is known beyond the prediction.
+        assert!(
+            (fix.pose.translation.y - 0.16).abs() < 0.005,
+            "along: {fix:?}"
+        );
+        assert!(
+            fix.covariance[(1, 1)] > 0.9 * prior_covariance()[(1, 1)],
+            "{fix:?}"
+        );
+    }
+
+    #[test]
+    fn nothing_matched_is_no_fix() {
+        let map = built_map();
+        let far = Isometry2::new(Vector2::new(0.6, 0.1), 0.0);
+        let obs = observe(&far, &ALL);
+        // A prediction a metre off and certain of itself finds nothing within the gate.
+        let wrong = Isometry2::new(Vector2::new(-0.6, -1.0), 1.0);
+        let tight = Matrix3::from_diagonal(&Vector3::new(1e-6, 1e-6, 1e-6));
+        assert_eq!(map.localize(&obs, &wrong, &tight), None);
+        assert_eq!(map.localize(&[], &far, &prior_covariance()), None);
+        // Unconfirmed features anchor nothing.
+        let mut young = FeatureMap::new(FeatureConfig::default()).unwrap();
+        let no_pings = Sweep::from_pings(Vec::new(), 1.5).unwrap();
+        young.merge(&obs, &no_pings, &far);
+        assert_eq!(young.localize(&obs, &far, &prior_covariance()), None);
+    }
+}
