@@ -22,7 +22,8 @@ use std::path::{Path, PathBuf};
 use mcap::records::{MessageHeader, Metadata, Record};
 use mcap::{McapError, WriteOptions};
 use sonar_common::ipc::{
-    self, FusionCommand, LAYOUT_VERSION, MAX_PINGS, Pose2D, Reading, ScanCommand,
+    self, FeatureRecord, FeaturesHeader, FusionCommand, LAYOUT_VERSION, MAX_PINGS, Pose2D, Reading,
+    ScanCommand,
 };
 
 /// Version of the recording format this crate writes and the newest it reads.
@@ -89,6 +90,47 @@ float32 theta_rad
 uint32 layout_version
 ";
 
+/// `sonar::FeaturesHeaderV1` followed by its `sonar::FeatureRecordV1`s. ROS 1 writes a
+/// variable-length array as a `uint32` count and the elements, so the message is the 56-byte
+/// header, the number of records, then 72 bytes a record; the record type follows the separator
+/// line, as `ros1msg` carries dependent types.
+pub const FEATURES_SCHEMA: &str = "\
+# sonar::FeaturesHeaderV1 + [sonar::FeatureRecordV1] (docs/ipc.md): 56 + 4 + 72 bytes a record
+uint64 seq
+uint64 stamp_ns
+uint64 sweeps
+uint32 layout_version
+uint32 feature_count
+uint32 last_sweep_id
+uint32 last_sweep_rcds
+uint32 last_sweep_refined
+uint32 last_sweep_added
+uint32 last_sweep_removed
+uint32 features_left_out
+sonar/FeatureRecordV1[] features
+================================================================================
+MSG: sonar/FeatureRecordV1
+uint64 id
+uint32 kind
+uint32 times_seen
+float32 x_m
+float32 y_m
+float32 cov_xx
+float32 cov_xy
+float32 cov_yy
+float32 angle_deg
+float32 angle_sigma_deg
+float32 confidence
+float32 segment_ax_m
+float32 segment_ay_m
+float32 segment_bx_m
+float32 segment_by_m
+uint64 last_seen_sweep
+";
+
+/// Bytes of a features message before its records: the header and the records' count.
+pub const FEATURES_PREFIX_SIZE: usize = size_of::<FeaturesHeader>() + 4;
+
 /// A recorded service: one MCAP channel each.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Topic {
@@ -100,14 +142,18 @@ pub enum Topic {
     FusionCommands,
     /// `robot/pose`, [`Pose2D`].
     Pose,
+    /// `sonar/features`, [`FeatureSnapshot`]: recorded, never replayed (the fusion derives the
+    /// features from the readings).
+    Features,
 }
 
 impl Topic {
-    pub const ALL: [Topic; 4] = [
+    pub const ALL: [Topic; 5] = [
         Topic::Readings,
         Topic::ScanCommands,
         Topic::FusionCommands,
         Topic::Pose,
+        Topic::Features,
     ];
 
     /// The iceoryx2 service name, which is also the MCAP topic.
@@ -117,6 +163,7 @@ impl Topic {
             Topic::ScanCommands => ipc::COMMANDS_SERVICE,
             Topic::FusionCommands => ipc::FUSION_COMMANDS_SERVICE,
             Topic::Pose => ipc::POSE_SERVICE,
+            Topic::Features => ipc::FEATURES_SERVICE,
         }
     }
 
@@ -127,6 +174,7 @@ impl Topic {
             Topic::ScanCommands => "sonar/ScanCommandV1",
             Topic::FusionCommands => "sonar/FusionCommandV1",
             Topic::Pose => "sonar/Pose2DV1",
+            Topic::Features => "sonar/FeaturesV1",
         }
     }
 
@@ -137,17 +185,37 @@ impl Topic {
             Topic::ScanCommands => SCAN_COMMAND_SCHEMA,
             Topic::FusionCommands => FUSION_COMMAND_SCHEMA,
             Topic::Pose => POSE_SCHEMA,
+            Topic::Features => FEATURES_SCHEMA,
         }
     }
 
-    /// Size of every message on this channel, bytes.
-    pub fn message_size(self) -> usize {
+    /// Size of every message on this channel, bytes; `None` for [`Topic::Features`], whose size
+    /// depends on its number of records ([`FEATURES_PREFIX_SIZE`] + 72 bytes a record).
+    pub fn message_size(self) -> Option<usize> {
         match self {
-            Topic::Readings => size_of::<Reading>(),
-            Topic::ScanCommands => size_of::<ScanCommand>(),
-            Topic::FusionCommands => size_of::<FusionCommand>(),
-            Topic::Pose => size_of::<Pose2D>(),
+            Topic::Readings => Some(size_of::<Reading>()),
+            Topic::ScanCommands => Some(size_of::<ScanCommand>()),
+            Topic::FusionCommands => Some(size_of::<FusionCommand>()),
+            Topic::Pose => Some(size_of::<Pose2D>()),
+            Topic::Features => None,
         }
+    }
+
+    /// The size a message on this channel must have, judged from its first bytes (a features
+    /// message names its number of records after the header).
+    fn expected_size(self, bytes: &[u8]) -> usize {
+        if let Some(size) = self.message_size() {
+            return size;
+        }
+        let count = bytes
+            .get(FEATURES_PREFIX_SIZE - 4..FEATURES_PREFIX_SIZE)
+            .and_then(|b| <[u8; 4]>::try_from(b).ok())
+            .map_or(0, u32::from_le_bytes);
+        usize::try_from(count)
+            .ok()
+            .and_then(|n| n.checked_mul(size_of::<FeatureRecord>()))
+            .and_then(|n| n.checked_add(FEATURES_PREFIX_SIZE))
+            .unwrap_or(usize::MAX)
     }
 
     fn from_service(name: &str) -> Option<Self> {
@@ -165,13 +233,21 @@ impl std::fmt::Display for Topic {
     }
 }
 
+/// One `sonar/features` snapshot: the header and a copy of its records.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FeatureSnapshot {
+    pub header: FeaturesHeader,
+    pub records: Vec<FeatureRecord>,
+}
+
 /// One recorded payload.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum Message {
     Reading(Reading),
     ScanCommand(ScanCommand),
     FusionCommand(FusionCommand),
     Pose(Pose2D),
+    Features(FeatureSnapshot),
 }
 
 impl Message {
@@ -181,12 +257,20 @@ impl Message {
             Message::ScanCommand(_) => Topic::ScanCommands,
             Message::FusionCommand(_) => Topic::FusionCommands,
             Message::Pose(_) => Topic::Pose,
+            Message::Features(_) => Topic::Features,
         }
     }
 
-    /// The message's bytes in the file: the payload's fields in declaration order, little-endian.
+    /// The message's bytes in the file: the payload's fields in declaration order, little-endian
+    /// (a features message: the header, the number of records as `u32`, the records).
     pub fn encode(&self) -> Vec<u8> {
-        let mut e = Encoder(Vec::with_capacity(self.topic().message_size()));
+        let size = match self {
+            Message::Features(f) => {
+                FEATURES_PREFIX_SIZE + f.records.len() * size_of::<FeatureRecord>()
+            }
+            _ => self.topic().message_size().unwrap_or_default(),
+        };
+        let mut e = Encoder(Vec::with_capacity(size));
         match self {
             Message::Reading(r) => encode_reading(&mut e, r),
             Message::ScanCommand(c) => {
@@ -206,17 +290,20 @@ impl Message {
                 e.f32(p.theta_rad);
                 e.u32(p.layout_version);
             }
+            Message::Features(f) => encode_features(&mut e, f),
         }
         e.0
     }
 
-    /// The inverse of [`encode`](Self::encode); the length must be the topic's message size.
+    /// The inverse of [`encode`](Self::encode); the length must be the topic's message size (for
+    /// features: that of the number of records the message names).
     pub fn decode(topic: Topic, bytes: &[u8]) -> Result<Self, FormatError> {
-        if bytes.len() != topic.message_size() {
+        let expected = topic.expected_size(bytes);
+        if bytes.len() != expected {
             return Err(FormatError::BadMessage {
                 topic,
                 len: bytes.len(),
-                expected: topic.message_size(),
+                expected,
             });
         }
         let mut d = Decoder(bytes);
@@ -239,14 +326,17 @@ impl Message {
                 theta_rad: d.f32(),
                 layout_version: d.u32(),
             }),
+            Topic::Features => Message::Features(decode_features(&mut d)),
         })
     }
 
-    /// The payload's own time stamp, if it has one (readings: `host_stamp_ns`, poses: `stamp_ns`).
+    /// The payload's own time stamp, if it has one (readings: `host_stamp_ns`, poses and
+    /// features: `stamp_ns`).
     pub fn stamp_ns(&self) -> Option<u64> {
         match self {
             Message::Reading(r) => Some(r.host_stamp_ns),
             Message::Pose(p) => Some(p.stamp_ns),
+            Message::Features(f) => Some(f.header.stamp_ns),
             Message::ScanCommand(_) | Message::FusionCommand(_) => None,
         }
     }
@@ -299,6 +389,92 @@ fn decode_reading(d: &mut Decoder) -> Reading {
         pings_used: d.u8(),
         reserved: d.take(),
     }
+}
+
+fn encode_features(e: &mut Encoder, f: &FeatureSnapshot) {
+    let h = &f.header;
+    e.u64(h.seq);
+    e.u64(h.stamp_ns);
+    e.u64(h.sweeps);
+    for v in [
+        h.layout_version,
+        h.feature_count,
+        h.last_sweep_id,
+        h.last_sweep_rcds,
+        h.last_sweep_refined,
+        h.last_sweep_added,
+        h.last_sweep_removed,
+        h.features_left_out,
+    ] {
+        e.u32(v);
+    }
+    // At most `MAX_FEATURES` records come from shared memory; a longer vector cannot be written
+    // as a ROS 1 array anyway, and is cut rather than written with a wrong count.
+    let count = u32::try_from(f.records.len()).unwrap_or(u32::MAX);
+    e.u32(count);
+    for r in f.records.iter().take(count as usize) {
+        e.u64(r.id);
+        e.u32(r.kind);
+        e.u32(r.times_seen);
+        for v in [
+            r.x_m,
+            r.y_m,
+            r.cov_xx,
+            r.cov_xy,
+            r.cov_yy,
+            r.angle_deg,
+            r.angle_sigma_deg,
+            r.confidence,
+            r.segment_ax_m,
+            r.segment_ay_m,
+            r.segment_bx_m,
+            r.segment_by_m,
+        ] {
+            e.f32(v);
+        }
+        e.u64(r.last_seen_sweep);
+    }
+}
+
+/// Only called with a buffer whose length matches the count it names.
+fn decode_features(d: &mut Decoder) -> FeatureSnapshot {
+    let header = FeaturesHeader {
+        seq: d.u64(),
+        stamp_ns: d.u64(),
+        sweeps: d.u64(),
+        layout_version: d.u32(),
+        feature_count: d.u32(),
+        last_sweep_id: d.u32(),
+        last_sweep_rcds: d.u32(),
+        last_sweep_refined: d.u32(),
+        last_sweep_added: d.u32(),
+        last_sweep_removed: d.u32(),
+        features_left_out: d.u32(),
+    };
+    let count = d.u32() as usize;
+    let records = (0..count)
+        .map_while(|_| {
+            (d.0.len() >= size_of::<FeatureRecord>()).then(|| FeatureRecord {
+                id: d.u64(),
+                kind: d.u32(),
+                times_seen: d.u32(),
+                x_m: d.f32(),
+                y_m: d.f32(),
+                cov_xx: d.f32(),
+                cov_xy: d.f32(),
+                cov_yy: d.f32(),
+                angle_deg: d.f32(),
+                angle_sigma_deg: d.f32(),
+                confidence: d.f32(),
+                segment_ax_m: d.f32(),
+                segment_ay_m: d.f32(),
+                segment_bx_m: d.f32(),
+                segment_by_m: d.f32(),
+                last_seen_sweep: d.u64(),
+            })
+        })
+        .collect();
+    FeatureSnapshot { header, records }
 }
 
 struct Encoder(Vec<u8>);
@@ -529,7 +705,7 @@ impl<W: Write + Seek> RecordingWriter<W> {
 }
 
 /// One message read back.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Entry {
     /// When the recorder received it, ns since the Unix epoch.
     pub log_time_ns: u64,

@@ -11,6 +11,7 @@ pub mod format;
 pub mod pace;
 
 pub use format::{
-    Entry, FormatError, Message, ReadOptions, Recording, RecordingWriter, Topic, read, read_file,
+    Entry, FeatureSnapshot, FormatError, Message, ReadOptions, Recording, RecordingWriter, Topic,
+    read, read_file,
 };
 pub use pace::{Pacer, Speed};

@@ -99,6 +99,8 @@ fn a_replay_publishes_exactly_what_the_live_pipeline_published() {
         "{info_out}"
     );
     assert!(info_out.contains("complete: yes"), "{info_out}");
+    // No fusion engine ran: the features channel is there, empty.
+    assert!(info_out.contains("\nsonar/features: 0\n"), "{info_out}");
 
     // A second pipeline, which never saw the live one, gets the same readings from the file.
     let replay_box = Sandbox::new("rec_replay");
@@ -372,6 +374,16 @@ fn replaying_a_recording_into_the_fusion_engine_gives_the_live_map() {
     for p in [driver, sim, fusion] {
         assert!(p.terminate().success());
     }
+    // The fusion published the features of sweep 1 when sweep 2 began; the recorder has them.
+    let info = live.run("sonar-replay", &[path_str(&file), "--info"]);
+    let info_out = String::from_utf8_lossy(&info.stdout);
+    assert!(info.status.success(), "{info:?}");
+    let features: usize = info_out
+        .lines()
+        .find_map(|l| l.strip_prefix("sonar/features: "))
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no sonar/features line in\n{info_out}"));
+    assert!(features >= 1, "{info_out}");
 
     let replay_box = Sandbox::new("rec_map_replay");
     let replay_node = replay_box.node("test-replay");

@@ -373,7 +373,7 @@ fn fuse_recording(
                     warn!(command = ?c, "recorded fusion command refused: {e}");
                 }
             }
-            Message::FusionCommand(_) | Message::ScanCommand(_) => {}
+            Message::FusionCommand(_) | Message::ScanCommand(_) | Message::Features(_) => {}
         }
     }
     if fused == 0 {

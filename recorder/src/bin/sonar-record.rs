@@ -1,4 +1,4 @@
-//! `sonar-record`: writes the pipeline's readings, commands and poses to an MCAP file.
+//! `sonar-record`: writes the pipeline's readings, commands, poses and features to an MCAP file.
 //!
 //! Two threads. The main thread sleeps in an iceoryx2 WaitSet on the readings' wake-up event (and
 //! the command services' wake-up events), plus a short interval for publishers that never notify
@@ -21,13 +21,14 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Parser;
+use iceoryx2::port::ReceiveError;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::waitset::WaitSetRunResult;
-use sonar_common::ipc::{self, IpcArgs, IpcError, PubSub, Reading};
-use sonar_recorder::format::{Message, RecordingWriter, Topic};
+use sonar_common::ipc::{self, FeatureRecord, FeaturesHeader, IpcArgs, IpcError, PubSub, Reading};
+use sonar_recorder::format::{FeatureSnapshot, Message, RecordingWriter, Topic};
 use tracing::{debug, info, warn};
 
 /// How often the loop wakes without an event: polls subscribers whose publishers do not notify,
@@ -39,8 +40,9 @@ const FLUSH_PERIOD: Duration = Duration::from_secs(1);
 /// Readings waiting for the disk before the progress log warns about it.
 const BACKLOG_WARNING: u64 = 10_000;
 
-/// Records `sonar/readings`, `sonar/commands`, `sonar/fusion_commands` and `robot/pose` to an MCAP
-/// file (one channel each; docs/recording.md), until Ctrl-C/SIGTERM, `--count` or `--duration`.
+/// Records `sonar/readings`, `sonar/commands`, `sonar/fusion_commands`, `robot/pose` and
+/// `sonar/features` to an MCAP file (one channel each; docs/recording.md), until Ctrl-C/SIGTERM,
+/// `--count` or `--duration`.
 ///
 /// Examples:
 ///   sonar-record run.mcap                          # until Ctrl-C
@@ -175,6 +177,7 @@ fn run(args: Args) -> Result<()> {
         scan_commands = count(Topic::ScanCommands),
         fusion_commands = count(Topic::FusionCommands),
         poses = count(Topic::Pose),
+        features = count(Topic::Features),
         lost,
         bytes = finished.bytes,
         seconds = format_args!("{:.1}", (ipc::unix_time_ns() - started_ns) as f64 / 1e9),
@@ -189,12 +192,13 @@ fn run(args: Args) -> Result<()> {
 }
 
 /// The subscriptions. Readings are required; the other services are recorded when a subscriber
-/// can be had (their QoS allows only two subscribers, e.g. the driver and one recorder).
+/// can be had (the commands' QoS allows only two subscribers, e.g. the driver and one recorder).
 struct Ports {
     readings: Subscriber<Ipc, Reading, ()>,
     scan_commands: Option<Subscriber<Ipc, ipc::ScanCommand, ()>>,
     fusion_commands: Option<Subscriber<Ipc, ipc::FusionCommand, ()>>,
     pose: Option<Subscriber<Ipc, ipc::Pose2D, ()>>,
+    features: Option<Subscriber<Ipc, [FeatureRecord], FeaturesHeader>>,
     /// Wake-up events: the readings' (required), then those of the other services.
     listeners: Vec<Listener<Ipc>>,
 }
@@ -209,10 +213,20 @@ impl Ports {
         let scan_commands = optional(node, ipc::commands_service, Topic::ScanCommands);
         let fusion_commands = optional(node, ipc::fusion_commands_service, Topic::FusionCommands);
         let pose = optional(node, ipc::pose_service, Topic::Pose);
+        let features = ipc::features_service(node)
+            .and_then(|service| {
+                service
+                    .subscriber_builder()
+                    .create()
+                    .map_err(|e| IpcError::new("create subscriber", e))
+            })
+            .inspect_err(|e| warn!("not recording {}: {e}", Topic::Features))
+            .ok();
         for (present, topic) in [
             (scan_commands.is_some(), Topic::ScanCommands),
             (fusion_commands.is_some(), Topic::FusionCommands),
             (pose.is_some(), Topic::Pose),
+            (features.is_some(), Topic::Features),
         ] {
             if present {
                 match ipc::wakeup_listener(node, topic.service()) {
@@ -226,6 +240,7 @@ impl Ports {
             scan_commands,
             fusion_commands,
             pose,
+            features,
             listeners,
         })
     }
@@ -322,7 +337,7 @@ impl Recorder {
                 info!(
                     readings = self.readings,
                     rate = format_args!("{rate:.1}/s"),
-                    commands_and_poses = self.others,
+                    commands_poses_features = self.others,
                     lost = self.lost,
                     backlog,
                     "recording"
@@ -344,23 +359,33 @@ impl Recorder {
         }
     }
 
-    /// Empties every subscriber (commands and poses first: they are usually older than the
-    /// readings found in the same wake-up); true once `--count` is reached.
+    /// Empties every subscriber (commands, poses and features first: they are usually older than
+    /// the readings found in the same wake-up); true once `--count` is reached.
     fn drain_all(&mut self, ports: &Ports) -> bool {
         let now = ipc::unix_time_ns();
         if let Some(sub) = &ports.scan_commands {
-            self.drain(sub, Topic::ScanCommands, |c| Message::ScanCommand(*c), now);
+            let next = || Ok::<_, ReceiveError>(sub.receive()?.map(|s| Message::ScanCommand(*s)));
+            self.drain(Topic::ScanCommands, next, now);
         }
         if let Some(sub) = &ports.fusion_commands {
-            self.drain(
-                sub,
-                Topic::FusionCommands,
-                |c| Message::FusionCommand(*c),
-                now,
-            );
+            let next = || Ok::<_, ReceiveError>(sub.receive()?.map(|s| Message::FusionCommand(*s)));
+            self.drain(Topic::FusionCommands, next, now);
         }
         if let Some(sub) = &ports.pose {
-            self.drain(sub, Topic::Pose, |p| Message::Pose(*p), now);
+            let next = || Ok::<_, ReceiveError>(sub.receive()?.map(|s| Message::Pose(*s)));
+            self.drain(Topic::Pose, next, now);
+        }
+        if let Some(sub) = &ports.features {
+            // History 1 and one snapshot a sweep: rarely more than one per wake-up.
+            let next = || {
+                Ok::<_, ReceiveError>(sub.receive()?.map(|s| {
+                    Message::Features(FeatureSnapshot {
+                        header: *s.user_header(),
+                        records: s.payload().to_vec(),
+                    })
+                }))
+            };
+            self.drain(Topic::Features, next, now);
         }
         self.drain_readings(&ports.readings)
     }
@@ -371,17 +396,17 @@ impl Recorder {
         }
     }
 
-    fn drain<T: Debug + ZeroCopySend>(
+    /// Takes every message `next` yields: a subscriber's `receive`, the payload copied out of
+    /// shared memory.
+    fn drain<E: Debug>(
         &mut self,
-        sub: &Subscriber<Ipc, T, ()>,
         topic: Topic,
-        wrap: impl Fn(&T) -> Message,
+        mut next: impl FnMut() -> Result<Option<Message>, E>,
         now: u64,
     ) {
         loop {
-            match sub.receive() {
-                Ok(Some(sample)) => {
-                    let message = wrap(sample.payload());
+            match next() {
+                Ok(Some(message)) => {
                     debug!(?message, "recorded");
                     self.others += 1;
                     self.send(now, message);

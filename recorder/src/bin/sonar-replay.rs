@@ -4,8 +4,9 @@
 //! with a clear message instead of half a replay. Readings go out on `sonar/readings` exactly as
 //! recorded (unless `--restamp`), each followed by a notification on its wake-up event, like the
 //! driver does; recorded fusion commands and poses go out on their services at their recorded
-//! places in the stream. Scan commands are in the file for the record but are not replayed: they
-//! were addressed to the driver, which a replay stands in for.
+//! places in the stream. Scan commands and feature snapshots are in the file for the record but
+//! are not replayed: the scan commands were addressed to the driver, which a replay stands in for,
+//! and the features are what a fusion engine derives from the replayed readings.
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -128,7 +129,8 @@ fn run(args: Args) -> Result<()> {
         .iter()
         .filter(|e| match e.message.topic() {
             Topic::Readings => true,
-            Topic::ScanCommands => false,
+            // Addressed to the driver, or derived by the fusion from the readings.
+            Topic::ScanCommands | Topic::Features => false,
             Topic::FusionCommands | Topic::Pose => !args.readings_only,
         })
         .collect();
@@ -285,7 +287,7 @@ impl Ports {
                 Some(port) => send(port, *p, ipc::POSE_SERVICE),
                 None => Ok(()),
             },
-            Message::ScanCommand(_) => Ok(()),
+            Message::ScanCommand(_) | Message::Features(_) => Ok(()),
         }
     }
 }

@@ -59,7 +59,56 @@ fn sample_messages() -> Vec<(u64, Message)> {
             Message::FusionCommand(FusionCommand::new(FusionCommandKind::Clear, 0)),
         ),
         (t + 5, Message::Reading(reading(2))),
+        (t + 6, Message::Features(features(2))),
     ]
+}
+
+/// A features snapshot of `n` records: posts, except every third a wall with its segment.
+fn features(n: usize) -> FeatureSnapshot {
+    let records = (0..n)
+        .map(|k| {
+            let wall = k % 3 == 2;
+            let nan_unless_wall = |v: f32| if wall { v } else { f32::NAN };
+            FeatureRecord {
+                id: 40 + k as u64,
+                kind: if wall {
+                    ipc::feature_kind::PLANE
+                } else {
+                    ipc::feature_kind::POINT
+                },
+                times_seen: 3 + k as u32,
+                x_m: 0.975 + k as f32,
+                y_m: -0.01,
+                cov_xx: 1e-4,
+                cov_xy: -2e-6,
+                cov_yy: 3e-4,
+                angle_deg: 179.5,
+                angle_sigma_deg: nan_unless_wall(0.8),
+                confidence: 0.9,
+                segment_ax_m: nan_unless_wall(2.0),
+                segment_ay_m: nan_unless_wall(-0.5),
+                segment_bx_m: nan_unless_wall(2.0),
+                segment_by_m: nan_unless_wall(0.5),
+                last_seen_sweep: 6,
+            }
+        })
+        .collect::<Vec<_>>();
+    FeatureSnapshot {
+        header: FeaturesHeader {
+            seq: 4,
+            stamp_ns: 1_700_000_000_000_000_123,
+            sweeps: 6,
+            layout_version: LAYOUT_VERSION,
+            feature_count: records.len() as u32,
+            last_sweep_id: 9,
+            last_sweep_rcds: 5,
+            last_sweep_refined: 2,
+            last_sweep_added: 1,
+            last_sweep_removed: 0,
+            features_left_out: 0,
+        },
+        records,
+    }
 }
 
 /// A `Write + Seek` sink whose bytes stay readable while a writer owns it.
@@ -129,25 +178,26 @@ fn schema_layout(text: &str) -> Vec<(String, usize, usize)> {
     fields
 }
 
+/// The fields of schema text `$text` are those of `$ty`, at the same offsets, without padding.
 macro_rules! assert_layout {
-    ($topic:expr, $ty:ty, [$($field:ident),* $(,)?]) => {{
-        let layout = schema_layout($topic.schema());
+    ($text:expr, $ty:ty, [$($field:ident),* $(,)?]) => {{
+        let what = stringify!($ty);
+        let layout = schema_layout($text);
         let rust: Vec<(String, usize)> =
             vec![$((stringify!($field).to_owned(), offset_of!($ty, $field))),*];
-        assert_eq!(layout.len(), rust.len(), "{}: field count", $topic);
+        assert_eq!(layout.len(), rust.len(), "{what}: field count");
         for ((name, off, _), (rname, roff)) in layout.iter().zip(&rust) {
-            assert_eq!((name, off), (rname, roff), "{}", $topic);
+            assert_eq!((name, off), (rname, roff), "{what}");
         }
         let (_, last_off, last_size) = layout.last().unwrap();
-        assert_eq!(last_off + last_size, size_of::<$ty>(), "{}: no tail padding", $topic);
-        assert_eq!(size_of::<$ty>(), $topic.message_size());
+        assert_eq!(last_off + last_size, size_of::<$ty>(), "{what}: no tail padding");
     }};
 }
 
 #[test]
 fn schemas_match_the_rust_layouts_field_by_field() {
     assert_layout!(
-        Topic::Readings,
+        Topic::Readings.schema(),
         Reading,
         [
             seq,
@@ -173,16 +223,75 @@ fn schemas_match_the_rust_layouts_field_by_field() {
         ]
     );
     assert_layout!(
-        Topic::ScanCommands,
+        Topic::ScanCommands.schema(),
         ScanCommand,
         [kind, from_deg, to_deg, layout_version]
     );
-    assert_layout!(Topic::FusionCommands, FusionCommand, [kind, value]);
+    assert_layout!(Topic::FusionCommands.schema(), FusionCommand, [kind, value]);
     assert_layout!(
-        Topic::Pose,
+        Topic::Pose.schema(),
         Pose2D,
         [stamp_ns, x_m, y_m, theta_rad, layout_version]
     );
+    let sizes = [
+        size_of::<Reading>(),
+        size_of::<ScanCommand>(),
+        size_of::<FusionCommand>(),
+        size_of::<Pose2D>(),
+    ];
+    for (topic, size) in Topic::ALL.into_iter().zip(sizes) {
+        assert_eq!(topic.message_size(), Some(size), "{topic}");
+    }
+
+    // Features: the header's fields, the array of records (a ROS 1 uint32 count), then the
+    // record type after the separator line.
+    let (header, rest) = Topic::Features
+        .schema()
+        .split_once("sonar/FeatureRecordV1[] features\n")
+        .unwrap();
+    let (separator, record) = rest.split_once("MSG: sonar/FeatureRecordV1\n").unwrap();
+    assert_eq!(separator, format!("{}\n", "=".repeat(80)));
+    assert_layout!(
+        header,
+        FeaturesHeader,
+        [
+            seq,
+            stamp_ns,
+            sweeps,
+            layout_version,
+            feature_count,
+            last_sweep_id,
+            last_sweep_rcds,
+            last_sweep_refined,
+            last_sweep_added,
+            last_sweep_removed,
+            features_left_out,
+        ]
+    );
+    assert_layout!(
+        record,
+        FeatureRecord,
+        [
+            id,
+            kind,
+            times_seen,
+            x_m,
+            y_m,
+            cov_xx,
+            cov_xy,
+            cov_yy,
+            angle_deg,
+            angle_sigma_deg,
+            confidence,
+            segment_ax_m,
+            segment_ay_m,
+            segment_bx_m,
+            segment_by_m,
+            last_seen_sweep,
+        ]
+    );
+    assert_eq!(Topic::Features.message_size(), None);
+    assert_eq!(FEATURES_PREFIX_SIZE, 56 + 4);
 }
 
 /// On a little-endian machine the encoding is the payload's memory image, the bytes that travel
@@ -200,6 +309,14 @@ fn encoding_is_the_shared_memory_image() {
             Message::ScanCommand(c) => image(c),
             Message::FusionCommand(c) => image(c),
             Message::Pose(p) => image(p),
+            Message::Features(f) => {
+                let mut bytes = image(&f.header);
+                bytes.extend_from_slice(&(f.records.len() as u32).to_le_bytes());
+                for r in &f.records {
+                    bytes.extend(image(r));
+                }
+                bytes
+            }
         };
         assert_eq!(m.encode(), expected, "{}", m.topic());
     }
@@ -218,14 +335,63 @@ fn a_message_of_the_wrong_size_is_an_error() {
     }
 }
 
+#[test]
+fn a_features_message_must_hold_the_records_it_counts() {
+    let bytes = Message::Features(features(2)).encode();
+    assert_eq!(bytes.len(), 60 + 2 * 72);
+    for len in [0, 59, 60, 60 + 72, 60 + 2 * 72 - 1] {
+        assert!(
+            matches!(
+                Message::decode(Topic::Features, &bytes[..len]),
+                Err(FormatError::BadMessage { .. })
+            ),
+            "{len} bytes"
+        );
+    }
+    let mut three = bytes.clone();
+    three[56..60].copy_from_slice(&3u32.to_le_bytes());
+    assert!(matches!(
+        Message::decode(Topic::Features, &three),
+        Err(FormatError::BadMessage {
+            len: 204,
+            expected: 276,
+            ..
+        })
+    ));
+    // A count no file could hold is an error, not an allocation.
+    let mut huge = bytes.clone();
+    huge[56..60].copy_from_slice(&u32::MAX.to_le_bytes());
+    assert!(matches!(
+        Message::decode(Topic::Features, &huge),
+        Err(FormatError::BadMessage { len: 204, .. })
+    ));
+    let empty = Message::Features(features(0));
+    assert_eq!(
+        Message::decode(Topic::Features, &empty.encode()).unwrap(),
+        empty
+    );
+}
+
 proptest! {
     /// Any bytes of the right size decode and encode back to themselves: every bit of every field
     /// (NaN payloads, negative zero, reserved bytes) survives.
     #[test]
     fn every_bit_round_trips(bytes in proptest::collection::vec(any::<u8>(), 104), which in 0usize..4) {
         let topic = Topic::ALL[which];
-        let bytes = &bytes[..topic.message_size()];
+        let bytes = &bytes[..topic.message_size().unwrap()];
         let m = Message::decode(topic, bytes).unwrap();
+        prop_assert_eq!(m.encode(), bytes.to_vec());
+    }
+
+    /// The same for features messages of any number of records.
+    #[test]
+    fn every_bit_of_features_round_trips(
+        mut bytes in proptest::collection::vec(any::<u8>(), 60 + 3 * 72),
+        count in 0usize..=3,
+    ) {
+        bytes[56..60].copy_from_slice(&(count as u32).to_le_bytes());
+        let bytes = &bytes[..60 + count * 72];
+        let m = Message::decode(Topic::Features, bytes).unwrap();
         prop_assert_eq!(m.encode(), bytes.to_vec());
     }
 }
@@ -270,7 +436,7 @@ fn nan_and_odd_floats_keep_their_bits() {
     r.angle_deg = f32::INFINITY;
     let bytes = recording_bytes(&[(1, Message::Reading(r))]);
     let rec = read(&bytes, ReadOptions::default()).unwrap();
-    let Message::Reading(back) = rec.entries[0].message else {
+    let Message::Reading(back) = rec.entries[0].message.clone() else {
         panic!("not a reading")
     };
     assert_eq!(back.distance_m.to_bits(), 0x7fc0_1234);
@@ -447,6 +613,8 @@ fn versions_and_schemas_are_checked() {
         (1, 1),
         "unknown channels are skipped"
     );
+    // Like a recording made before `sonar/features` was recorded: the channel is simply absent.
+    assert_eq!(rec.count(Topic::Features), 0);
 
     let newer = plain_mcap(Some(("format_version", "2")), "sonar/ReadingV1");
     let err = read(&newer, ReadOptions::default()).unwrap_err();
