@@ -31,10 +31,15 @@ pub const FUSION_COMMANDS_SERVICE: &str = "sonar/fusion_commands";
 /// The robot's pose in the world, from odometry or localisation (optional; static at the origin
 /// without it).
 pub const POSE_SERVICE: &str = "robot/pose";
+/// The robot's true pose, where a simulator knows it (`sonar-sim` with a moving robot): ground
+/// truth to measure odometry and localisation against. Same type as [`POSE_SERVICE`].
+pub const TRUE_POSE_SERVICE: &str = "robot/true_pose";
 /// The fusion engine's counters: readings received, fused and lost, snapshots, map saves (history 1).
 pub const FUSION_STATUS_SERVICE: &str = "sonar/fusion_status";
 /// Walls, corners and posts found in the raw pings, once per sweep.
 pub const FEATURES_SERVICE: &str = "sonar/features";
+/// The robot's pose as sonar localisation corrected it, once per sweep (`sonar-fusion --localize`).
+pub const LOCALIZED_POSE_SERVICE: &str = "sonar/localized_pose";
 
 /// Bits of [`Reading::flags`].
 pub mod flags {
@@ -629,6 +634,39 @@ pub struct FeatureRecord {
 
 const _: () = assert!(std::mem::size_of::<FeatureRecord>() == 72);
 
+/// Sonar localisation's pose of the sensor in the map after a sweep, on
+/// [`LOCALIZED_POSE_SERVICE`], with its uncertainty and what it rests on.
+#[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("sonar::LocalizedPoseV1")]
+#[repr(C)]
+pub struct LocalizedPose {
+    /// `host_stamp_ns` of the sweep's first reading: the instant the pose is for.
+    pub stamp_ns: u64,
+    pub x_m: f32,
+    pub y_m: f32,
+    pub theta_rad: f32,
+    pub layout_version: u32,
+    /// Covariance of (x, y, θ): m², m·rad, rad².
+    pub cov_xx: f32,
+    pub cov_xy: f32,
+    pub cov_xtheta: f32,
+    pub cov_yy: f32,
+    pub cov_ytheta: f32,
+    pub cov_thetatheta: f32,
+    /// Observations of the sweep matched to features of the map; 0: no fix, the pose is the
+    /// odometry's with the previous correction.
+    pub matched: u32,
+    /// Sweeps localised since the process started.
+    pub fixes: u32,
+    /// The odometry pose of the same instant, from `robot/pose`: the difference is the drift.
+    pub odometry_x_m: f32,
+    pub odometry_y_m: f32,
+    pub odometry_theta_rad: f32,
+    pub reserved: u32,
+}
+
+const _: () = assert!(std::mem::size_of::<LocalizedPose>() == 72);
+
 /// A failure to set up or use an iceoryx2 resource, with what was being done.
 #[derive(Debug, thiserror::Error)]
 #[error("{context}: {message}")]
@@ -823,6 +861,19 @@ pub fn pose_service(node: &Node<ipc::Service>) -> Result<PubSub<Pose2D>, IpcErro
         .map_err(|e| IpcError::new(format!("open {POSE_SERVICE}"), e))
 }
 
+/// `robot/true_pose`, with the policy of [`pose_service`]: the simulator publishes the truth beside
+/// its odometry, at the same instants.
+pub fn true_pose_service(node: &Node<ipc::Service>) -> Result<PubSub<Pose2D>, IpcError> {
+    node.service_builder(&service_name(TRUE_POSE_SERVICE)?)
+        .publish_subscribe::<Pose2D>()
+        .max_publishers(2)
+        .max_subscribers(8)
+        .subscriber_max_buffer_size(16)
+        .history_size(1)
+        .open_or_create()
+        .map_err(|e| IpcError::new(format!("open {TRUE_POSE_SERVICE}"), e))
+}
+
 /// `sonar/fusion_status`, with the policy of the driver's status: history 1 so a viewer that
 /// starts late sees the counters at once.
 pub fn fusion_status_service(node: &Node<ipc::Service>) -> Result<PubSub<FusionStatus>, IpcError> {
@@ -853,6 +904,21 @@ pub fn features_service(node: &Node<ipc::Service>) -> Result<FeaturesService, Ip
         .history_size(GRID_HISTORY)
         .open_or_create()
         .map_err(|e| IpcError::new(format!("open {FEATURES_SERVICE}"), e))
+}
+
+/// `sonar/localized_pose`, with the driver status's policy: history 1 so a late joiner sees the
+/// latest fix at once.
+pub fn localized_pose_service(
+    node: &Node<ipc::Service>,
+) -> Result<PubSub<LocalizedPose>, IpcError> {
+    node.service_builder(&service_name(LOCALIZED_POSE_SERVICE)?)
+        .publish_subscribe::<LocalizedPose>()
+        .max_publishers(1)
+        .max_subscribers(8)
+        .subscriber_max_buffer_size(16)
+        .history_size(1)
+        .open_or_create()
+        .map_err(|e| IpcError::new(format!("open {LOCALIZED_POSE_SERVICE}"), e))
 }
 
 /// The event service that wakes the consumers of the publish-subscribe service of the same name.
@@ -973,6 +1039,21 @@ mod tests {
         assert_eq!(offset_of!(FeatureRecord, segment_by_m), 60);
         assert_eq!(offset_of!(FeatureRecord, last_seen_sweep), 64);
         assert_eq!(std::mem::align_of::<FeatureRecord>(), 8);
+    }
+
+    #[test]
+    fn localized_pose_layout_matches_documentation() {
+        assert_eq!(offset_of!(LocalizedPose, stamp_ns), 0);
+        assert_eq!(offset_of!(LocalizedPose, x_m), 8);
+        assert_eq!(offset_of!(LocalizedPose, theta_rad), 16);
+        assert_eq!(offset_of!(LocalizedPose, layout_version), 20);
+        assert_eq!(offset_of!(LocalizedPose, cov_xx), 24);
+        assert_eq!(offset_of!(LocalizedPose, cov_thetatheta), 44);
+        assert_eq!(offset_of!(LocalizedPose, matched), 48);
+        assert_eq!(offset_of!(LocalizedPose, fixes), 52);
+        assert_eq!(offset_of!(LocalizedPose, odometry_x_m), 56);
+        assert_eq!(offset_of!(LocalizedPose, odometry_theta_rad), 64);
+        assert_eq!(offset_of!(LocalizedPose, reserved), 68);
     }
 
     #[test]

@@ -313,6 +313,9 @@ impl<'de> Deserialize<'de> for FusionSection {
 pub struct FeaturesSection {
     /// Whether `sonar-fusion` extracts features and publishes `sonar/features`.
     pub enabled: bool,
+    /// Whether each sweep is localised against the features to correct the odometry of
+    /// `robot/pose` (needs `enabled`).
+    pub localize: bool,
     pub config: FeatureConfig,
 }
 
@@ -320,6 +323,7 @@ impl Default for FeaturesSection {
     fn default() -> Self {
         Self {
             enabled: true,
+            localize: false,
             config: FeatureConfig::default(),
         }
     }
@@ -329,18 +333,22 @@ impl<'de> Deserialize<'de> for FeaturesSection {
     fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
         // As for [`FusionSection`]: `flatten` would lose `deny_unknown_fields`.
         let mut table = toml::Table::deserialize(deserializer)?;
-        let enabled = match table.remove("enabled") {
-            None => true,
-            Some(toml::Value::Boolean(b)) => b,
-            Some(other) => {
-                return Err(D::Error::custom(format!(
-                    "features.enabled must be true or false, got {other}"
-                )));
-            }
+        let mut switch = |key: &str, default: bool| match table.remove(key) {
+            None => Ok(default),
+            Some(toml::Value::Boolean(b)) => Ok(b),
+            Some(other) => Err(D::Error::custom(format!(
+                "features.{key} must be true or false, got {other}"
+            ))),
         };
+        let enabled = switch("enabled", true)?;
+        let localize = switch("localize", false)?;
         let config: FeatureConfig = table.try_into().map_err(D::Error::custom)?;
         config.validate().map_err(D::Error::custom)?;
-        Ok(Self { enabled, config })
+        Ok(Self {
+            enabled,
+            localize,
+            config,
+        })
     }
 }
 
@@ -585,8 +593,8 @@ mod tests {
     fn the_features_table_is_checked_and_enabled_by_default() {
         let parse = |text: &str| toml::from_str::<FeaturesSection>(text);
         assert_eq!(parse("").unwrap(), FeaturesSection::default());
-        let off = parse("enabled = false\nmin_pings = 4\n").unwrap();
-        assert!(!off.enabled);
+        let off = parse("enabled = false\nmin_pings = 4\nlocalize = true\n").unwrap();
+        assert!(!off.enabled && off.localize);
         assert_eq!(off.config.min_pings, 4);
         let typo = parse("min_ping = 4\n").unwrap_err().to_string();
         assert!(typo.contains("min_ping"), "{typo}");

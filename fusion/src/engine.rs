@@ -56,6 +56,8 @@ pub struct Engine {
     poses: PoseTrack,
     /// Where the latest reading was placed.
     pose: Isometry2<f32>,
+    /// Map ← odometry: what localisation found the poses of `robot/pose` to be off by.
+    correction: Isometry2<f32>,
     /// Readings placed with a pose more than [`crate::poses::STALE_AFTER_NS`] old.
     stale_pose_readings: u64,
     rejected_readings: u64,
@@ -74,6 +76,7 @@ impl Engine {
             scan: None,
             poses: PoseTrack::new(Isometry2::identity()),
             pose: Isometry2::identity(),
+            correction: Isometry2::identity(),
             stale_pose_readings: 0,
             rejected_readings: 0,
             last_seq: None,
@@ -101,6 +104,7 @@ impl Engine {
             scan: state.scan,
             poses: PoseTrack::new(state.robot_pose.into()),
             pose: state.robot_pose.into(),
+            correction: Isometry2::identity(),
             stale_pose_readings: 0,
             rejected_readings: state.rejected_readings,
             last_seq: state.last_seq,
@@ -164,6 +168,12 @@ impl Engine {
         self.stale_pose_readings
     }
 
+    /// Places every reading from now on at `correction` × its odometry pose: localisation's
+    /// latest estimate of the odometry's drift (map ← odometry).
+    pub fn set_correction(&mut self, correction: Isometry2<f32>) {
+        self.correction = correction;
+    }
+
     /// Takes a pose of the robot (`robot/pose`); readings are placed at the pose interpolated at
     /// their own stamp ([`crate::poses`]). A non-finite or out-of-order pose is refused.
     pub fn set_pose(&mut self, pose: &Pose2D) -> Result<(), PoseError> {
@@ -184,8 +194,8 @@ impl Engine {
         if kind == PoseKind::Stale {
             self.stale_pose_readings += 1;
         }
-        self.pose = pose;
-        let obs = Observation::from_reading(reading, pose);
+        self.pose = self.correction * pose;
+        let obs = Observation::from_reading(reading, self.pose);
         self.last_seq = Some(reading.seq);
         self.revision += 1;
         self.scan = Some(ScanState {

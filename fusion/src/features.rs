@@ -4,30 +4,79 @@
 //! A sweep ends when a reading of the next one arrives ([`FeatureTracker::push`]) or when the
 //! process has heard nothing for a while and asks for it ([`FeatureTracker::finish_sweep`]): a
 //! stopped scan's last sweep still counts. Each sweep is placed at the robot's pose of its first
-//! reading: the regions of constant depth need the pings of one place, and a head that scans
-//! while the robot drives would need each ping's own pose (the motion issue).
+//! reading: the regions of constant depth need the pings of one place, so a robot that scans while
+//! it drives blurs them by the distance it covers in a sweep; stop and scan is exact.
+//!
+//! # Localisation
+//!
+//! With localisation on ([`FeatureTracker::with_localization`]), each finished sweep is first
+//! matched against the confirmed features ([`FeatureMap::localize`]) from the pose the fusion
+//! placed it at, and merged at the corrected pose. The correction (map ← odometry) is kept and
+//! handed to the engine, so the next readings are placed with it: a sweep's own readings are in
+//! the grid at the pose predicted before its fix. The prediction's uncertainty grows with the
+//! distance the odometry reports since the last fix: σ = 1 cm + 5 % of it across, 1° + 3°/m in
+//! heading — wide enough for a wheel-odometry's scale error and heading drift to be found.
 
-use nalgebra::{Isometry2, Point2, Vector2};
+use nalgebra::{Isometry2, Matrix3, Point2, Vector2, Vector3};
 use sonar_common::ipc::Reading;
 use sonar_common::ipc::{
     FeatureRecord, FeaturesHeader, LAYOUT_VERSION, MAX_FEATURES, feature_kind,
 };
-use sonar_features::{FeatureConfig, FeatureError, FeatureKind, FeatureMap, FeatureSummary, Sweep};
+use sonar_features::{
+    FeatureConfig, FeatureError, FeatureKind, FeatureMap, FeatureSummary, PoseFix, Sweep,
+};
 
 use crate::grid::OccupancyGrid;
 
 /// Occupancy probability from which a grid cell lends its position to a wall's segment.
 const SUPPORT_PROBABILITY: f32 = 0.8;
 
+/// Position uncertainty of a prediction right after a fix, m.
+const PRIOR_SIGMA_M: f64 = 0.01;
+/// … growing by this fraction of the distance travelled.
+const PRIOR_SIGMA_PER_M: f64 = 0.05;
+/// Heading uncertainty right after a fix, degrees …
+const PRIOR_SIGMA_DEG: f64 = 1.0;
+/// … growing by this much per metre travelled.
+const PRIOR_SIGMA_DEG_PER_M: f64 = 3.0;
+
 /// What one finished sweep did to the feature map.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct SweepOutcome {
     pub sweep_id: u32,
+    /// `host_stamp_ns` of its first reading.
+    pub stamp_ns: u64,
     pub readings: usize,
     pub rcds: usize,
     pub refined: usize,
     pub added: usize,
     pub removed: usize,
+    /// Where the sweep was placed before localisation.
+    pub predicted: Isometry2<f64>,
+    /// Localisation's fix, when it is on and the sweep matched the map.
+    pub fix: Option<PoseFix>,
+}
+
+/// The odometry's drift as localisation found it.
+#[derive(Debug, Clone, Copy)]
+struct Localization {
+    /// Map ← odometry.
+    correction: Isometry2<f64>,
+    /// Where the latest fix was, in the map.
+    last_fix: Option<Point2<f64>>,
+    fixes: u32,
+}
+
+impl Localization {
+    /// The prediction's covariance at `predicted`: grows with the distance since the last fix.
+    fn prior(&self, predicted: &Isometry2<f64>) -> Matrix3<f64> {
+        let travelled = self
+            .last_fix
+            .map_or(0.0, |p| (predicted.translation.vector - p.coords).norm());
+        let xy = PRIOR_SIGMA_M + PRIOR_SIGMA_PER_M * travelled;
+        let theta = (PRIOR_SIGMA_DEG + PRIOR_SIGMA_DEG_PER_M * travelled).to_radians();
+        Matrix3::from_diagonal(&Vector3::new(xy * xy, xy * xy, theta * theta))
+    }
 }
 
 /// Collects one sweep's readings and merges each finished sweep into the feature map.
@@ -38,6 +87,7 @@ pub struct FeatureTracker {
     /// Where the pending sweep is taken from.
     pose: Isometry2<f64>,
     last: Option<SweepOutcome>,
+    localization: Option<Localization>,
 }
 
 impl FeatureTracker {
@@ -47,7 +97,37 @@ impl FeatureTracker {
             pending: Vec::new(),
             pose: Isometry2::identity(),
             last: None,
+            localization: None,
         })
+    }
+
+    /// The tracker with localisation: every sweep is matched against the map before it is
+    /// merged, and [`Self::correction`] follows the odometry's drift.
+    pub fn with_localization(cfg: FeatureConfig) -> Result<Self, FeatureError> {
+        let mut tracker = Self::new(cfg)?;
+        tracker.localization = Some(Localization {
+            correction: Isometry2::identity(),
+            last_fix: None,
+            fixes: 0,
+        });
+        Ok(tracker)
+    }
+
+    /// Map ← odometry: what the poses of `robot/pose` are off by, as the latest fix found
+    /// (identity without localisation or before a fix).
+    pub fn correction(&self) -> Isometry2<f32> {
+        let c = self
+            .localization
+            .map_or(Isometry2::identity(), |l| l.correction);
+        Isometry2::new(
+            Vector2::new(c.translation.x as f32, c.translation.y as f32),
+            c.rotation.angle() as f32,
+        )
+    }
+
+    /// Sweeps localised so far.
+    pub fn fixes(&self) -> u32 {
+        self.localization.map_or(0, |l| l.fixes)
     }
 
     /// Adds `reading`, taken with the sensor at `pose`. When it starts a new sweep, the finished
@@ -76,14 +156,35 @@ impl FeatureTracker {
     pub fn finish_sweep(&mut self) -> Option<SweepOutcome> {
         let first = *self.pending.first()?;
         let sweep = Sweep::from_readings(&self.pending, self.map.config());
-        let report = self.map.update(&sweep, &self.pose);
+        let (rcds, classification) = self.map.observe(&sweep);
+        let predicted = self.pose;
+        let mut pose = predicted;
+        let mut fix = None;
+        if let Some(loc) = &mut self.localization
+            && let Some(found) = self.map.localize(
+                &classification.observations,
+                &predicted,
+                &loc.prior(&predicted),
+            )
+        {
+            // map ← odometry, from the odometry's pose of the sweep (the prediction undone).
+            loc.correction = found.pose * predicted.inverse() * loc.correction;
+            loc.last_fix = Some(Point2::from(found.pose.translation.vector));
+            loc.fixes += 1;
+            pose = found.pose;
+            fix = Some(found);
+        }
+        let report = self.map.merge(&classification.observations, &sweep, &pose);
         let outcome = SweepOutcome {
             sweep_id: first.sweep_id,
+            stamp_ns: first.host_stamp_ns,
             readings: self.pending.len(),
-            rcds: report.rcds.len(),
+            rcds: rcds.len(),
             refined: report.refined,
             added: report.added,
             removed: report.removed,
+            predicted,
+            fix,
         };
         self.pending.clear();
         self.last = Some(outcome);
@@ -290,6 +391,59 @@ mod tests {
         assert!(
             (post.x_m - 2.0).abs() < 0.005 && (post.y_m - -0.025).abs() < 0.005,
             "{post:?}"
+        );
+    }
+
+    /// Three sweeps from the origin, then three more from the same place while the odometry
+    /// drifts to (4 cm, −3 cm, 3°): the pose each sweep is placed at, as the engine would with the
+    /// tracker's correction.
+    fn drifting_run(tracker: &mut FeatureTracker) -> Vec<SweepOutcome> {
+        let drifted = Isometry2::new(Vector2::new(0.04_f32, -0.03), 3.0_f32.to_radians());
+        let mut outcomes = Vec::new();
+        for sweep_id in 1..=7 {
+            let odometry = if sweep_id <= 3 {
+                Isometry2::identity()
+            } else {
+                drifted
+            };
+            for r in &sweep(sweep_id) {
+                let placed = tracker.correction() * odometry;
+                outcomes.extend(tracker.push(r, &placed));
+            }
+        }
+        outcomes
+    }
+
+    #[test]
+    fn localisation_finds_the_odometry_drift_and_keeps_the_post_in_place() {
+        let mut plain = FeatureTracker::new(FeatureConfig::default()).unwrap();
+        drifting_run(&mut plain);
+        // Without localisation the drifted sweeps see the post 4 cm off: a second post.
+        assert_eq!(plain.len(), 2, "{:?}", plain.map.features());
+
+        let mut tracker = FeatureTracker::with_localization(FeatureConfig::default()).unwrap();
+        let outcomes = drifting_run(&mut tracker);
+        assert_eq!(outcomes.len(), 6);
+        assert!(
+            outcomes[..2].iter().all(|o| o.fix.is_none()),
+            "nothing confirmed yet"
+        );
+        let fix = outcomes[3]
+            .fix
+            .expect("the first drifted sweep is localised");
+        // The post is heard 0.979 m ahead: the fix puts that echo back where the map has it.
+        let post = fix.pose * Point2::new(0.979, 0.0);
+        assert!((post - Point2::new(0.979, 0.0)).norm() < 0.005, "{fix:?}");
+        assert_eq!(tracker.len(), 1, "refined, not duplicated");
+        assert!(tracker.fixes() >= 3, "{outcomes:?}");
+        // The sweeps after the first fix are already placed with the correction.
+        let later = outcomes[5].fix.expect("a fix");
+        assert!(
+            (later.pose.inverse() * outcomes[5].predicted)
+                .translation
+                .vector
+                .norm()
+                < 0.005
         );
     }
 

@@ -30,8 +30,8 @@ use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::waitset::WaitSetRunResult;
 use sonar_common::ipc::{
     self, FeatureRecord, FeaturesHeader, FusionCommand, FusionCommandKind, FusionStatus,
-    GRID_SEGMENT_SLOTS, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, MAX_FEATURES, Radar,
-    unix_time_ns,
+    GRID_SEGMENT_SLOTS, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, LocalizedPose, MAX_FEATURES,
+    Radar, unix_time_ns,
 };
 use sonar_common::throttle::Throttle;
 use sonar_fusion::engine::Engine;
@@ -40,7 +40,7 @@ use sonar_fusion::state::SavedMap;
 use sonar_fusion::status::{Ledger, SeqStep};
 use sonar_fusion::{
     FeatureTracker, FeaturesSection, FusionConfig, FusionSection, ModelConfig, ModelKind,
-    PersistConfig, Preset, RuleConfig, RuleKind,
+    PersistConfig, Preset, RuleConfig, RuleKind, SweepOutcome,
 };
 use tracing::{debug, info, warn};
 
@@ -75,6 +75,11 @@ const SWEEP_IDLE: Duration = Duration::from_secs(2);
 /// After each sweep, the walls, corners and posts found in its raw pings are merged into a
 /// feature map and published on sonar/features (docs/features.md); the `[features]` table of
 /// --config sets them up, --no-features turns them off. A clear command clears them too.
+///
+/// Readings are placed at the robot's pose from robot/pose, interpolated at each reading's
+/// stamp. With --localize, each sweep is also matched against the features to find how far that
+/// odometry has drifted; the corrected pose goes out on sonar/localized_pose and the readings
+/// that follow are placed with the correction.
 ///
 /// Examples:
 ///   sonar-fusion                                  # recommended preset, 400² cells of 2 cm
@@ -124,8 +129,12 @@ struct Args {
     #[arg(long)]
     no_persist: bool,
     /// Do not extract walls, corners and posts (no `sonar/features`).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "localize")]
     no_features: bool,
+    /// Correct the odometry of robot/pose by matching each sweep's features against the map
+    /// (publishes sonar/localized_pose); `[features] localize = true` does the same.
+    #[arg(long)]
+    localize: bool,
     #[command(flatten)]
     ipc: IpcArgs,
 }
@@ -272,8 +281,19 @@ fn run(args: &Args) -> Result<()> {
         bail!("--max-rate must be a positive number of snapshots per second");
     }
     let (config, persist_config, features) = fusion_config(args)?;
-    let tracker = (features.enabled && !args.no_features)
-        .then(|| FeatureTracker::new(features.config))
+    let localize = args.localize || features.localize;
+    let extract = features.enabled && !args.no_features;
+    if localize && !extract {
+        bail!("localisation needs the features: they are turned off");
+    }
+    let tracker = extract
+        .then(|| {
+            if localize {
+                FeatureTracker::with_localization(features.config)
+            } else {
+                FeatureTracker::new(features.config)
+            }
+        })
         .transpose()
         .context("invalid [features] settings")?;
     let persistence = persistence(args, persist_config)?;
@@ -295,6 +315,7 @@ fn run(args: &Args) -> Result<()> {
         shm_mib = footprint as f64 / f64::from(1 << 20),
         state_file = persistence.as_ref().map(|(p, _)| p.display().to_string()),
         features = tracker.is_some(),
+        localize,
         "fusion engine ready"
     );
     let mut saving = persistence
@@ -304,7 +325,7 @@ fn run(args: &Args) -> Result<()> {
     let node = args.ipc.node("sonar-fusion")?;
     let ports = Ports::new(&node, engine.grid_len())?;
     let mut features = tracker
-        .map(|tracker| Features::new(&node, tracker))
+        .map(|tracker| Features::new(&node, tracker, localize))
         .transpose()?;
     let waitset = WaitSetBuilder::new()
         .create::<Ipc>()
@@ -365,7 +386,7 @@ fn run(args: &Args) -> Result<()> {
         out.fuse_readings(&mut engine, features.as_mut())?;
         let now = Instant::now();
         if let Some(features) = &mut features {
-            features.finish_idle_sweep(&engine, now);
+            features.finish_idle_sweep(&mut engine, now);
         }
         out.publish_if_due(&engine, now)?;
         if let Some(saving) = &mut saving {
@@ -482,14 +503,25 @@ struct Features {
     tracker: FeatureTracker,
     publisher: Publisher<Ipc, [FeatureRecord], FeaturesHeader>,
     notifier: Notifier<Ipc>,
+    /// With --localize: where the corrected poses go.
+    localized: Option<Publisher<Ipc, LocalizedPose, ()>>,
     seq: u64,
     last_reading: Instant,
 }
 
 impl Features {
-    fn new(node: &Node<Ipc>, tracker: FeatureTracker) -> Result<Self> {
+    fn new(node: &Node<Ipc>, tracker: FeatureTracker, localize: bool) -> Result<Self> {
+        let localized = localize
+            .then(|| {
+                ipc::localized_pose_service(node)?
+                    .publisher_builder()
+                    .create()
+                    .map_err(|e| IpcError::new("create localized pose publisher", e))
+            })
+            .transpose()?;
         Ok(Self {
             tracker,
+            localized,
             publisher: ipc::features_service(node)?
                 .publisher_builder()
                 .initial_max_slice_len(MAX_FEATURES)
@@ -502,26 +534,37 @@ impl Features {
     }
 
     /// Adds a reading; publishes when it ended a sweep.
-    fn push(&mut self, reading: &sonar_common::ipc::Reading, engine: &Engine) {
+    fn push(&mut self, reading: &sonar_common::ipc::Reading, engine: &mut Engine) {
         self.last_reading = Instant::now();
         if let Some(outcome) = self.tracker.push(reading, engine.pose()) {
-            debug!(
-                ?outcome,
-                features = self.tracker.len(),
-                "sweep merged into the features"
-            );
-            self.publish(engine);
+            self.sweep_done(&outcome, engine);
         }
     }
 
     /// Merges a sweep whose readings stopped coming [`SWEEP_IDLE`] ago.
-    fn finish_idle_sweep(&mut self, engine: &Engine, now: Instant) {
+    fn finish_idle_sweep(&mut self, engine: &mut Engine, now: Instant) {
         if now.duration_since(self.last_reading) >= SWEEP_IDLE
             && let Some(outcome) = self.tracker.finish_sweep()
         {
-            debug!(?outcome, "quiet sweep merged into the features");
-            self.publish(engine);
+            self.sweep_done(&outcome, engine);
         }
+    }
+
+    /// After a sweep: the new correction to the engine, the corrected pose and the features out.
+    fn sweep_done(&mut self, outcome: &SweepOutcome, engine: &mut Engine) {
+        debug!(
+            ?outcome,
+            features = self.tracker.len(),
+            "sweep merged into the features"
+        );
+        if let Some(publisher) = &self.localized {
+            engine.set_correction(self.tracker.correction());
+            let pose = localized_pose(outcome, self.tracker.correction(), self.tracker.fixes());
+            if let Err(e) = publisher.send_copy(pose) {
+                warn!("send localized pose: {e:?}");
+            }
+        }
+        self.publish(engine);
     }
 
     fn clear(&mut self, engine: &Engine) {
@@ -553,6 +596,44 @@ impl Features {
             }
             Err(e) => warn!("features snapshot not published: {e}"),
         }
+    }
+}
+
+/// The record of a sweep's pose: the fix if there is one, else the prediction (`matched` 0, the
+/// covariance NaN); the odometry's pose of the same instant is the pose with the correction undone.
+fn localized_pose(
+    outcome: &SweepOutcome,
+    correction: nalgebra::Isometry2<f32>,
+    fixes: u32,
+) -> LocalizedPose {
+    let (pose, covariance, matched) = match &outcome.fix {
+        Some(fix) => (fix.pose, fix.covariance, fix.matched),
+        None => (
+            outcome.predicted,
+            nalgebra::Matrix3::from_element(f64::NAN),
+            0,
+        ),
+    };
+    let odometry = correction.cast::<f64>().inverse() * pose;
+    let c = |i, j| covariance[(i, j)] as f32;
+    LocalizedPose {
+        stamp_ns: outcome.stamp_ns,
+        x_m: pose.translation.x as f32,
+        y_m: pose.translation.y as f32,
+        theta_rad: pose.rotation.angle() as f32,
+        layout_version: LAYOUT_VERSION,
+        cov_xx: c(0, 0),
+        cov_xy: c(0, 1),
+        cov_xtheta: c(0, 2),
+        cov_yy: c(1, 1),
+        cov_ytheta: c(1, 2),
+        cov_thetatheta: c(2, 2),
+        matched: u32::try_from(matched).unwrap_or(u32::MAX),
+        fixes,
+        odometry_x_m: odometry.translation.x as f32,
+        odometry_y_m: odometry.translation.y as f32,
+        odometry_theta_rad: odometry.rotation.angle() as f32,
+        reserved: 0,
     }
 }
 
