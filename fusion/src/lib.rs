@@ -140,6 +140,16 @@
 //! and without echoes) through both for every model and rule and compares the grids to 1e-6.
 //! `docs/benchmarks.md` has the figures.
 //!
+//! # A moving robot, and the features beside the grid
+//!
+//! [`poses`] keeps the recent poses of `robot/pose` and places each reading at the pose
+//! interpolated at its own stamp (bounded extrapolation when the pose stream lags; stale poses
+//! counted). [`features`] groups the readings by sweep for the feature map of the
+//! `sonar-features` crate (walls, corners, posts: `sonar/features`) and, with localisation on,
+//! matches each sweep against it to estimate the odometry's drift; the engine then places the
+//! readings that follow at that correction times the odometry's pose
+//! ([`engine::Engine::set_correction`]).
+//!
 //! # Surviving a restart, and knowing what was missed
 //!
 //! [`engine::Engine::capture`] takes the engine's whole state ([`state`]: the cells in the rule's
