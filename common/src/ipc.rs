@@ -34,9 +34,6 @@ pub const POSE_SERVICE: &str = "robot/pose";
 /// The robot's true pose, where a simulator knows it (`sonar-sim` with a moving robot): ground
 /// truth to measure odometry and localisation against. Same type as [`POSE_SERVICE`].
 pub const TRUE_POSE_SERVICE: &str = "robot/true_pose";
-/// The robot's true pose, where a simulator knows it (`sonar-sim` with a moving robot): ground
-/// truth to measure odometry and localisation against. Same type as [`POSE_SERVICE`].
-pub const TRUE_POSE_SERVICE: &str = "robot/true_pose";
 /// The fusion engine's counters: readings received, fused and lost, snapshots, map saves (history 1).
 pub const FUSION_STATUS_SERVICE: &str = "sonar/fusion_status";
 /// Walls, corners and posts found in the raw pings, once per sweep.
@@ -862,19 +859,6 @@ pub fn pose_service(node: &Node<ipc::Service>) -> Result<PubSub<Pose2D>, IpcErro
         .history_size(1)
         .open_or_create()
         .map_err(|e| IpcError::new(format!("open {POSE_SERVICE}"), e))
-}
-
-/// `robot/true_pose`, with the policy of [`pose_service`]: the simulator publishes the truth beside
-/// its odometry, at the same instants.
-pub fn true_pose_service(node: &Node<ipc::Service>) -> Result<PubSub<Pose2D>, IpcError> {
-    node.service_builder(&service_name(TRUE_POSE_SERVICE)?)
-        .publish_subscribe::<Pose2D>()
-        .max_publishers(2)
-        .max_subscribers(8)
-        .subscriber_max_buffer_size(16)
-        .history_size(1)
-        .open_or_create()
-        .map_err(|e| IpcError::new(format!("open {TRUE_POSE_SERVICE}"), e))
 }
 
 /// `robot/true_pose`, with the policy of [`pose_service`]: the simulator publishes the truth beside
