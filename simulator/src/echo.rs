@@ -1,5 +1,10 @@
 //! The echo model: which echo an SRF05 aimed at `aim_deg` hears first, and how noisy its time is.
 //!
+//! The sensor stands at the model's [`Pose`] ([`EchoModel::set_pose`]; the origin facing +x by
+//! default): `aim_deg` counts from its heading, and every range, angle and line of sight below is
+//! taken from its position. The simulator moves it before each action of the head, so every ping
+//! is taken from the robot's pose at its own instant.
+//!
 //! Levels are in dB; 0 dB is the echo of a hard flat wall 0.5 m ahead on the beam axis, before air
 //! absorption and receiver gain. An echo is heard when its level reaches [`EchoParams::threshold_db`];
 //! the SRF05 reports the **first** (nearest) echo heard, or times out. The level of an echo is
@@ -57,7 +62,7 @@ use serde::{Deserialize, Serialize};
 use sonar_common::sensor::SensorConfig;
 
 use crate::firmware::Transducer;
-use crate::geometry::{Vec2, angle_diff_deg};
+use crate::geometry::{Pose, Vec2, angle_diff_deg};
 use crate::scene::{Scene, SceneError, Surface};
 
 /// Level drop at [`EchoParams::beam_6db_half_angle_deg`].
@@ -199,7 +204,7 @@ impl NoiseParams {
     }
 }
 
-/// What returned an echo (indices into the scene's walls, vertices and posts).
+/// What returned an echo (indices into the scene's walls, joints and posts).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Target {
     Wall(usize),
@@ -223,6 +228,7 @@ pub struct EchoModel {
     scene: Scene,
     sensor: SensorConfig,
     rng: ChaCha8Rng,
+    pose: Pose,
 }
 
 impl EchoModel {
@@ -238,7 +244,17 @@ impl EchoModel {
             scene,
             sensor,
             rng: ChaCha8Rng::seed_from_u64(seed),
+            pose: Pose::default(),
         })
+    }
+
+    /// Places the sensor: the pings that follow are taken from `pose`.
+    pub fn set_pose(&mut self, pose: Pose) {
+        self.pose = pose;
+    }
+
+    pub fn pose(&self) -> Pose {
+        self.pose
     }
 
     fn speed_of_sound_mps(&self) -> f64 {
@@ -272,13 +288,19 @@ impl EchoModel {
         Self::plane_db(r) + 10.0 * (a / r).log10()
     }
 
-    /// Every echo a ping aimed at `aim_deg` receives, audible or not, in no order. Returns whose line
-    /// of sight is blocked are left out.
+    /// Every echo a ping aimed at `aim_deg` (from the sensor's heading) receives, audible or not,
+    /// in no order. Returns whose line of sight is blocked are left out.
     pub fn echoes(&self, aim_deg: f64) -> Vec<Echo> {
         let p = &self.scene.echo;
+        // Geometry relative to the sensor (translated, not rotated: the heading turns the aim
+        // instead). At the origin facing +x every number is exactly what it was before the sensor
+        // could move: x − 0 and 0 + aim are exact.
+        let sensor = self.pose.at;
+        let aim_deg = self.pose.heading_rad.to_degrees() + aim_deg;
         let mut out = Vec::new();
-        // A return from `at`, `level` dB before beam and receiver gains, heard only within `cone`
-        // degrees of the axis (a wall's specular cut-off; else the beam alone limits it).
+        // A return from `at` (relative to the sensor), `level` dB before beam and receiver gains,
+        // heard only within `cone` degrees of the axis (a wall's specular cut-off; else the beam
+        // alone limits it).
         let mut hear = |target: Target, at: Vec2, range: f64, level: f64, cone: f64| {
             let off = angle_diff_deg(at.angle_deg(), aim_deg);
             if off.abs() > cone {
@@ -295,31 +317,37 @@ impl EchoModel {
             }
         };
         for (i, w) in self.scene.walls().iter().enumerate() {
+            let a = w.a - sensor;
             let e = w.b - w.a;
-            let t = -w.a.dot(e) / e.dot(e);
-            let foot = w.a + e * t;
+            let t = -a.dot(e) / e.dot(e);
+            let foot = a + e * t;
             let r = foot.norm();
             if (0.0..=1.0).contains(&t) && r > 1e-6 {
                 let level = Self::plane_db(r) - p.surface_loss_db(w.surface);
                 hear(Target::Wall(i), foot, r, level, p.specular_cutoff_deg);
             }
         }
-        for (i, v) in self.scene.vertices().iter().enumerate() {
-            let r = v.at.norm();
+        for (i, j) in self.scene.joints().iter().enumerate() {
+            let Some(v) = j.seen_from(sensor) else {
+                continue;
+            };
+            let at = v.at - sensor;
+            let r = at.norm();
             let [s1, s2] = v.surfaces.map(|s| p.surface_loss_db(s));
             if v.opening_deg < 180.0 - FLAT_JOINT_DEG && v.opening_deg <= p.corner_max_opening_deg {
                 // Two bounces: both walls' losses.
                 let level = Self::plane_db(r) - p.corner_loss_db - s1 - s2;
-                hear(Target::Corner(i), v.at, r, level, f64::INFINITY);
+                hear(Target::Corner(i), at, r, level, f64::INFINITY);
             } else if v.opening_deg > 180.0 + FLAT_JOINT_DEG {
                 let level = Self::cylinder_db(r, p.edge_radius_m) - s1.min(s2);
-                hear(Target::Edge(i), v.at, r, level, f64::INFINITY);
+                hear(Target::Edge(i), at, r, level, f64::INFINITY);
             }
         }
         for (i, c) in self.scene.posts().iter().enumerate() {
-            let d = c.centre.norm();
+            let centre = c.centre - sensor;
+            let d = centre.norm();
             let r = d - c.radius;
-            let nearest = c.centre * (r / d);
+            let nearest = centre * (r / d);
             let level = Self::cylinder_db(r, c.radius) - p.surface_loss_db(c.surface);
             hear(Target::Post(i), nearest, r, level, f64::INFINITY);
         }
@@ -334,9 +362,10 @@ impl EchoModel {
             .min_by(|a, b| a.range_m.total_cmp(&b.range_m))
     }
 
-    /// Whether the straight path from the sensor to `at` is blocked: by any wall it crosses, or by a
-    /// post wider than the first Fresnel zone where the path passes it.
+    /// Whether the straight path from the sensor to `at` (relative to the sensor) is blocked: by
+    /// any wall it crosses, or by a post wider than the first Fresnel zone where the path passes it.
     fn occluded(&self, at: Vec2) -> bool {
+        let sensor = self.pose.at;
         let dist = at.norm();
         let dir = at * (1.0 / dist);
         let reach = dist - SELF_OCCLUSION_M;
@@ -357,16 +386,23 @@ impl EchoModel {
             let fresnel = (lambda * s * (dist - s) / dist).sqrt();
             miss < radius - fresnel
         };
-        self.scene.walls().iter().any(|w| crosses(w.a, w.b))
+        self.scene
+            .walls()
+            .iter()
+            .any(|w| crosses(w.a - sensor, w.b - sensor))
             || self
                 .scene
                 .posts()
                 .iter()
-                .any(|c| shadows(c.centre, c.radius))
+                .any(|c| shadows(c.centre - sensor, c.radius))
     }
 }
 
 impl Transducer for EchoModel {
+    fn set_pose(&mut self, pose: Pose) {
+        EchoModel::set_pose(self, pose);
+    }
+
     /// One ping with noise, as the SRF05's echo line reports it: round-trip µs, 0 = no echo.
     fn ping(&mut self, aim_deg: f64) -> u32 {
         let min = f64::from(self.sensor.min_range_m);
@@ -631,6 +667,83 @@ mod tests {
             m.ping(0.0),
             SensorConfig::default().echo_time_us(0.03).round() as u32
         );
+    }
+
+    #[test]
+    fn a_wall_from_a_moved_sensor() {
+        let mut m = model(vec![facing_wall(3.0)], vec![]);
+        // Translated: 2 m from the wall, whatever the offset along it.
+        m.set_pose(Pose::new(1.0, 0.5, 0.0));
+        let e = m.first_echo(0.0).expect("wall ahead");
+        assert!((e.range_m - 2.0).abs() < 1e-12, "{e:?}");
+        // Turned to face +y: the head's 0° looks along the wall, its −90° at it.
+        m.set_pose(Pose::new(1.0, 0.5, 90f64.to_radians()));
+        assert_eq!(m.first_echo(0.0), None);
+        let e = m.first_echo(-90.0).expect("wall to the right");
+        assert!((e.range_m - 2.0).abs() < 1e-12, "{e:?}");
+        // Turned 30° at the origin: straight ahead meets the wall past the specular cut-off, the
+        // head's −30° meets it square.
+        m.set_pose(Pose::new(0.0, 0.0, 30f64.to_radians()));
+        assert_eq!(m.first_echo(0.0), None);
+        assert!((m.first_echo(-30.0).unwrap().range_m - 3.0).abs() < 1e-12);
+        // With noise, through the transducer as the firmware fires it.
+        let mut noisy = model(vec![facing_wall(3.0)], vec![]);
+        Transducer::set_pose(&mut noisy, Pose::new(2.0, -1.0, 0.0));
+        for _ in 0..50 {
+            assert!((range_of(noisy.ping(0.0)) - 1.0).abs() <= 0.02);
+        }
+        // A post behind the robot, seen when it turns round.
+        let mut post = model(vec![], vec![post(1.0, 1.0, 0.025)]);
+        post.set_pose(Pose::new(2.0, 1.0, 0.0));
+        assert_eq!(post.first_echo(0.0), None);
+        post.set_pose(Pose::new(2.0, 1.0, std::f64::consts::PI));
+        assert!((post.first_echo(0.0).unwrap().range_m - 0.975).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_moved_sensor_hears_what_the_scene_moved_the_other_way_gives_at_the_origin() {
+        // The room with a post, seen from a pose off centre and turned; the same room expressed in
+        // that pose's frame, seen from the origin: the same echoes, corners and edges included.
+        // Off round numbers, so that no aim falls on a cut-off where rounding would decide.
+        let pose = Pose::new(0.35, -0.2, 37.3f64.to_radians());
+        let to_sensor_frame = |p: Vec2| crate::geometry::rotate(p - pose.at, -pose.heading_rad);
+        let room = Scene::builtin("room").unwrap();
+        let mut walls = room.walls().to_vec();
+        walls.push(wall([0.6, -0.9], [0.9, -0.3])); // a free-standing board: two edges
+        let posts = vec![post(-0.5, 0.6, 0.05)];
+        let mut moved = model(walls.clone(), posts.clone());
+        moved.set_pose(pose);
+        let framed = model(
+            walls
+                .iter()
+                .map(|w| Wall {
+                    a: to_sensor_frame(w.a),
+                    b: to_sensor_frame(w.b),
+                    surface: w.surface,
+                })
+                .collect(),
+            posts
+                .iter()
+                .map(|p| Post {
+                    centre: to_sensor_frame(p.centre),
+                    ..*p
+                })
+                .collect(),
+        );
+        let mut heard = 0;
+        for k in 0..720 {
+            let aim = -180.0 + 0.5 * f64::from(k);
+            match (moved.first_echo(aim), framed.first_echo(aim)) {
+                (Some(a), Some(b)) => {
+                    assert_eq!(a.target, b.target, "{aim}°: {a:?} {b:?}");
+                    assert!((a.range_m - b.range_m).abs() < 1e-9, "{aim}°: {a:?} {b:?}");
+                    assert!((a.margin_db - b.margin_db).abs() < 1e-6, "{aim}°");
+                    heard += 1;
+                }
+                (a, b) => assert_eq!(a, b, "{aim}°"),
+            }
+        }
+        assert!(heard > 300, "{heard}");
     }
 
     #[test]

@@ -12,6 +12,8 @@ use sonar_common::protocol::{
 };
 use sonar_common::sensor::{SensorConfig, SensorConfigError};
 
+use crate::geometry::Pose;
+
 /// The firmware's name in the `HELLO` reply.
 pub const FIRMWARE_ID: &str = concat!("sonar-sim ", env!("CARGO_PKG_VERSION"));
 /// The head identity of a [`Firmware`] not given one with [`Firmware::speaking`].
@@ -21,6 +23,10 @@ pub const DEFAULT_HEAD_ID: &str = "sonar-sim";
 pub trait Transducer {
     /// Fires one ping with the head at `aim_deg`; returns the echo time in µs, 0 for no echo.
     fn ping(&mut self, aim_deg: f64) -> u32;
+
+    /// The robot carrying the head moved: later pings are taken from `pose`. A transducer with no
+    /// world around it (a test probe, a bench) has nothing to move.
+    fn set_pose(&mut self, _pose: Pose) {}
 }
 
 /// How long the hardware takes, in simulated time.
@@ -220,6 +226,10 @@ impl<T: Transducer> Firmware<T> {
 
     pub fn transducer(&self) -> &T {
         &self.transducer
+    }
+
+    pub fn transducer_mut(&mut self) -> &mut T {
+        &mut self.transducer
     }
 
     /// One line from the host, terminator optional.

@@ -73,6 +73,57 @@ impl Mul<f64> for Vec2 {
     }
 }
 
+/// Where the sensor's rotation axis stands in the scene and where its 0° points: `heading_rad`
+/// counter-clockwise from +x (the robot's heading; the head's angles count from it). The default is
+/// the fixed head: at the origin, facing +x.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Pose {
+    pub at: Vec2,
+    pub heading_rad: f64,
+}
+
+impl Pose {
+    pub const fn new(x: f64, y: f64, heading_rad: f64) -> Self {
+        Self {
+            at: Vec2::new(x, y),
+            heading_rad,
+        }
+    }
+
+    pub fn is_finite(self) -> bool {
+        self.at.is_finite() && self.heading_rad.is_finite()
+    }
+}
+
+/// `a − b` wrapped into (−π, π], radians: how far direction `a` lies counter-clockwise of `b`.
+pub fn angle_diff_rad(a: f64, b: f64) -> f64 {
+    let tau = std::f64::consts::TAU;
+    let d = (a - b).rem_euclid(tau);
+    if d > std::f64::consts::PI { d - tau } else { d }
+}
+
+/// `v` turned counter-clockwise by `rad`.
+pub fn rotate(v: Vec2, rad: f64) -> Vec2 {
+    let (s, c) = rad.sin_cos();
+    Vec2::new(c * v.x - s * v.y, s * v.x + c * v.y)
+}
+
+/// Whether segments `a`–`b` and `c`–`d` cross or touch (collinear overlaps count as touching).
+pub fn segments_intersect(a: Vec2, b: Vec2, c: Vec2, d: Vec2) -> bool {
+    let (r, s) = (b - a, d - c);
+    let denom = r.cross(s);
+    if denom.abs() < 1e-12 {
+        // Parallel: they meet only if collinear and overlapping.
+        return (c - a).cross(r).abs() < 1e-12
+            && (distance_to_segment(a, b, c) < 1e-9
+                || distance_to_segment(a, b, d) < 1e-9
+                || distance_to_segment(c, d, a) < 1e-9);
+    }
+    let t = (c - a).cross(s) / denom;
+    let u = (c - a).cross(r) / denom;
+    (0.0..=1.0).contains(&t) && (0.0..=1.0).contains(&u)
+}
+
 /// `a − b` wrapped into (−180, 180]: how far direction `a` lies counter-clockwise of `b`.
 pub fn angle_diff_deg(a: f64, b: f64) -> f64 {
     let d = (a - b).rem_euclid(360.0);
@@ -114,5 +165,37 @@ mod tests {
         assert!((distance_to_segment(a, b, Vec2::default()) - 1.0).abs() < 1e-12);
         assert!((distance_to_segment(a, b, Vec2::new(1.0, 3.0)) - 2.0).abs() < 1e-12);
         assert_eq!(Vec2::new(1.0, 0.0).cross(Vec2::new(0.0, 1.0)), 1.0);
+    }
+
+    #[test]
+    fn rotations_and_crossings() {
+        let v = rotate(Vec2::new(1.0, 0.0), std::f64::consts::FRAC_PI_2);
+        assert!((v - Vec2::new(0.0, 1.0)).norm() < 1e-12);
+        assert!((angle_diff_rad(-3.0, 3.0) - (std::f64::consts::TAU - 6.0)).abs() < 1e-12);
+        let (a, b) = (Vec2::new(0.0, 0.0), Vec2::new(2.0, 0.0));
+        assert!(segments_intersect(
+            a,
+            b,
+            Vec2::new(1.0, -1.0),
+            Vec2::new(1.0, 1.0)
+        ));
+        assert!(!segments_intersect(
+            a,
+            b,
+            Vec2::new(3.0, -1.0),
+            Vec2::new(3.0, 1.0)
+        ));
+        assert!(segments_intersect(
+            a,
+            b,
+            Vec2::new(1.5, 0.0),
+            Vec2::new(4.0, 0.0)
+        ));
+        assert!(!segments_intersect(
+            a,
+            b,
+            Vec2::new(0.0, 1.0),
+            Vec2::new(2.0, 1.0)
+        ));
     }
 }

@@ -21,6 +21,8 @@ pub struct HobbySketch<T> {
     now_us: u64,
     /// How long the echo line stays high when nothing returns (SRF05: 30 ms).
     echo_timeout_us: u32,
+    /// Passes (15° → 165° or back) completed.
+    passes: u64,
 }
 
 impl<T: Transducer> HobbySketch<T> {
@@ -31,7 +33,17 @@ impl<T: Transducer> HobbySketch<T> {
             boot_step: 0,
             now_us: 0,
             echo_timeout_us,
+            passes: 0,
         }
+    }
+
+    /// Passes of the servo completed (each way counts): the sketch's sweeps.
+    pub fn passes(&self) -> u64 {
+        self.passes
+    }
+
+    pub fn transducer_mut(&mut self) -> &mut T {
+        &mut self.transducer
     }
 
     pub fn now_us(&self) -> u64 {
@@ -60,6 +72,10 @@ impl<T: Transducer> HobbySketch<T> {
         } else {
             SERVO_MAX - (k - up)
         };
+        // The last record of each `for` loop: 165 going up, 16 coming down.
+        if k == up - 1 || k == 2 * up - 2 {
+            self.passes += 1;
+        }
         self.step += 1;
         self.now_us += SETTLE_US;
         let echo_us = self.transducer.ping(f64::from(servo) - SERVO_FORWARD);
@@ -101,6 +117,7 @@ mod tests {
         assert_eq!(records[151], "165,118.");
         assert_eq!(records[300], "16,118.");
         assert_eq!(records[301], "15,118.");
+        assert_eq!(sketch.passes(), 2);
         assert_eq!(sketch.transducer.0[75], 0.0);
         assert_eq!(sketch.transducer.0[0], -75.0);
         assert_eq!(sketch.now_us(), 302 * (30_000 + 6989));

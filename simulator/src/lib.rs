@@ -12,8 +12,13 @@
 //! - [`echo`]: the physics. For a ping aimed at an angle, every echo the scene returns, its range
 //!   and level; the first one above the detection threshold is what the SRF05 reports, with seeded
 //!   noise.
-//! - [`scene`]: walls, polygons and posts from TOML/JSON files or the four built-in scenes (the
-//!   paper's Figs. 8–11), with their ground truth for evaluation.
+//! - [`scene`]: walls, polygons and posts from TOML/JSON files or the built-in scenes (the
+//!   paper's Figs. 8–11, and two with a robot touring them), with their ground truth for
+//!   evaluation.
+//! - [`robot`]: the robot carrying the head along the scene's `[robot]` path, on the simulated
+//!   clock (driving on or stopping for a sweep at each waypoint), and its wheel odometry with
+//!   seeded errors. `sonar-sim` publishes the odometry on `robot/pose` and the truth on
+//!   `robot/true_pose`; each ping is taken from the pose of its own instant.
 //! - [`serve`](mod@serve): the pseudo-terminal and the loop that paces simulated time against wall time.
 //!   [`hobby`] is the alternative firmware of the `--dialect hobby` mode; [`link`] the `--link`
 //!   symbolic link to the terminal.
@@ -86,16 +91,20 @@ pub mod firmware;
 pub mod geometry;
 pub mod hobby;
 pub mod link;
+pub mod robot;
 pub mod scene;
 pub mod serve;
 
 pub use echo::{Echo, EchoModel, EchoParams, NoiseParams, Target};
 pub use faults::{FaultCounts, FaultInjector, FaultSpec, LineFault, SpecError};
 pub use firmware::{FIRMWARE_ID, Firmware, Timing, Transducer};
-pub use geometry::Vec2;
+pub use geometry::{Pose, Vec2};
 pub use hobby::HobbySketch;
 pub use link::Symlink;
-pub use scene::{BUILTIN_NAMES, Post, Scene, SceneError, SuggestedScan, Surface, Vertex, Wall};
-pub use serve::{Device, NativeDevice, Pty, ServeStats, Speed, serve};
+pub use robot::{Mode, Odometry, OdometryParams, PoseSample, Robot, RobotSpec, Rover, Trajectory};
+pub use scene::{
+    BUILTIN_NAMES, Joint, Post, Scene, SceneError, SuggestedScan, Surface, Vertex, Wall,
+};
+pub use serve::{Carrier, Device, NativeDevice, Pty, ServeStats, Speed, SweepCounts, serve};
 #[doc(no_inline)]
 pub use sonar_common::protocol::DeviceMessage;

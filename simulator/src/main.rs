@@ -1,5 +1,10 @@
 //! `sonar-sim`: the simulated sonar head on a pseudo-terminal. See the crate docs for the device's
 //! behaviour and the echo model.
+//!
+//! With a scene that has a `[robot]`, also an iceoryx2 node publishing the odometry on `robot/pose`
+//! and the truth on `robot/true_pose`. The node never waits on iceoryx2, so iceoryx2 installs no
+//! signal handler of its own: SIGINT/SIGTERM stay with the flag below, the serve loop ends, and
+//! the publishers and the node are dropped, which removes their shared memory.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -7,17 +12,28 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
+use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use clap::{Parser, ValueEnum};
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::prelude::*;
+use iceoryx2::service::ipc::Service as Ipc;
+use sonar_common::ipc::{self, IpcArgs, Pose2D};
 use sonar_common::protocol::{PROTOCOL_VERSION, ProtocolVersion, parse_head_id};
 use sonar_common::sensor::SensorConfig;
+use sonar_common::throttle::Throttle;
 use sonar_sim::link::open_announced;
 use sonar_sim::{
-    Device, EchoModel, FaultInjector, FaultSpec, Firmware, HobbySketch, NativeDevice, Scene, Speed,
-    Timing, serve,
+    Carrier, Device, EchoModel, FaultInjector, FaultSpec, Firmware, HobbySketch, NativeDevice,
+    OdometryParams, Pose, PoseSample, Rover, Scene, Speed, Timing, serve,
 };
-use tracing::info;
+use tracing::{info, warn};
+
+/// Failed publications are logged at most this often.
+const PUBLISH_WARN_PERIOD: Duration = Duration::from_secs(1);
+/// Highest --pose-rate: far above any wheel odometry, and it bounds the work per simulated second.
+const MAX_POSE_RATE_HZ: f64 = 1000.0;
 
 /// Simulated sonar head: an SRF05 on a stepper sweeping 300° between two limit switches, driven by
 /// a microcontroller that speaks the sonar protocol (docs/protocol.md) on a pseudo-terminal.
@@ -31,7 +47,14 @@ use tracing::info;
 ///   corner         two walls meeting in a 90° corner 1.2 m ahead (local scan)
 ///   obstacle       a 5 cm post 1.0 m ahead of a wall at 2.0 m (local scan)
 ///   two-obstacles  two 5 cm posts 0.30 m apart at 1.0 m, wall at 2.0 m (local scan)
+/// with a robot carrying the head (angle 0 along its heading):
+///   room-tour      the room, toured round a 1.2 m square, scanning while driving
+///   corridor       6 m × 1.2 m corridor, doorways into two 3 m × 3 m rooms, stop-and-scan tour
 /// or a .toml/.json file in the format of simulator/scenes/*.toml.
+///
+/// With a robot, its odometry (with the scene's [odometry] errors, or the --odom-* flags) is
+/// published on the iceoryx2 service robot/pose and its true pose on robot/true_pose, at
+/// --pose-rate per simulated second, stamped with the host's clock at the pose's instant.
 ///
 /// Examples:
 ///   sonar-sim --scene room --speed 20
@@ -48,7 +71,8 @@ struct Args {
     /// (never sleep; runs as fast as the host reads).
     #[arg(long, default_value = "1")]
     speed: Speed,
-    /// Seed of the ranging noise; the same seed and commands give the same readings.
+    /// Seed of the ranging noise and of the odometry's; the same seed and commands give the same
+    /// readings and poses.
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Which firmware to run.
@@ -99,6 +123,141 @@ struct Args {
     /// here, as JSON lines.
     #[arg(long, value_name = "FILE", requires = "faults")]
     fault_log: Option<PathBuf>,
+    /// Poses published per second of simulated time (so --speed 20 publishes 20× as many per
+    /// second of wall time), when the scene has a robot.
+    #[arg(long, default_value_t = 20.0, value_parser = parse_pose_rate)]
+    pose_rate: f64,
+    /// Odometry: fraction by which distance is misreported (0.03: 3 % long) [default: the scene's
+    /// [odometry] scale_error, else 0].
+    #[arg(long, allow_hyphen_values = true)]
+    odom_scale_error: Option<f64>,
+    /// Odometry: heading error per metre driven, degrees, counter-clockwise positive [default:
+    /// the scene's, else 0].
+    #[arg(long, allow_hyphen_values = true)]
+    odom_heading_drift: Option<f64>,
+    /// Odometry: σ of white noise on each step's distance, metres [default: the scene's, else 0].
+    #[arg(long)]
+    odom_noise_m: Option<f64>,
+    /// Odometry: σ of white noise on each step's heading change, degrees [default: the scene's,
+    /// else 0].
+    #[arg(long)]
+    odom_noise_deg: Option<f64>,
+    #[command(flatten)]
+    ipc: IpcArgs,
+}
+
+fn parse_pose_rate(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v <= MAX_POSE_RATE_HZ => Ok(v),
+        _ => Err(format!(
+            "expected poses per second in (0, {MAX_POSE_RATE_HZ}], got {s:?}"
+        )),
+    }
+}
+
+impl Args {
+    /// The scene's odometry errors with the flags given on top.
+    fn odometry(&self, scene: OdometryParams) -> Result<OdometryParams> {
+        let flags = [
+            self.odom_scale_error,
+            self.odom_heading_drift,
+            self.odom_noise_m,
+            self.odom_noise_deg,
+        ];
+        let params = OdometryParams {
+            scale_error: self.odom_scale_error.unwrap_or(scene.scale_error),
+            heading_drift_deg_per_m: self
+                .odom_heading_drift
+                .unwrap_or(scene.heading_drift_deg_per_m),
+            noise_m: self.odom_noise_m.unwrap_or(scene.noise_m),
+            noise_deg: self.odom_noise_deg.unwrap_or(scene.noise_deg),
+        };
+        if flags.iter().any(Option::is_some) {
+            params
+                .validate()
+                .map_err(|e| anyhow::anyhow!("--odom-*: {e}"))?;
+        }
+        Ok(params)
+    }
+}
+
+/// The robot's poses on iceoryx2: odometry on `robot/pose`, truth on `robot/true_pose`.
+struct PosePublisher {
+    rover: Rover,
+    odometry: Publisher<Ipc, Pose2D, ()>,
+    truth: Publisher<Ipc, Pose2D, ()>,
+    /// Samples of one advance, kept to reuse the allocation.
+    samples: Vec<PoseSample>,
+    warn: Throttle,
+    published: u64,
+    // Declared last: the node outlives its publishers when this is dropped.
+    _node: Node<Ipc>,
+}
+
+impl PosePublisher {
+    fn new(ipc_args: &IpcArgs, rover: Rover) -> Result<Self> {
+        let node = ipc_args.node("sonar-sim")?;
+        let odometry = ipc::pose_service(&node)?
+            .publisher_builder()
+            .create()
+            .map_err(|e| ipc::IpcError::new("create robot/pose publisher", e))?;
+        let truth = ipc::true_pose_service(&node)?
+            .publisher_builder()
+            .create()
+            .map_err(|e| ipc::IpcError::new("create robot/true_pose publisher", e))?;
+        Ok(Self {
+            rover,
+            odometry,
+            truth,
+            samples: Vec::new(),
+            warn: Throttle::new(PUBLISH_WARN_PERIOD),
+            published: 0,
+            _node: node,
+        })
+    }
+
+    fn publish(&mut self, sample: PoseSample, stamp_ns: u64) {
+        let wire = |p: Pose| Pose2D {
+            stamp_ns,
+            x_m: p.at.x as f32,
+            y_m: p.at.y as f32,
+            theta_rad: p.heading_rad as f32,
+            layout_version: ipc::LAYOUT_VERSION,
+        };
+        let sent = self
+            .odometry
+            .send_copy(wire(sample.odometry))
+            .and_then(|_| self.truth.send_copy(wire(sample.truth)));
+        match sent {
+            Ok(_) => self.published += 1,
+            // A consumer holding every sample costs poses, never the head's pace.
+            Err(e) => {
+                if let Some(suppressed) = self.warn.allow(Instant::now()) {
+                    warn!(suppressed, "publishing the robot's pose: {e:?}");
+                }
+            }
+        }
+    }
+}
+
+impl Carrier for PosePublisher {
+    fn advance(&mut self, now_us: u64, unix_ns: &dyn Fn(u64) -> u64) -> std::io::Result<Pose> {
+        let mut samples = std::mem::take(&mut self.samples);
+        let pose = self.rover.advance(now_us, |s| samples.push(s));
+        for s in samples.drain(..) {
+            self.publish(s, unix_ns(s.t_us));
+        }
+        self.samples = samples;
+        Ok(pose)
+    }
+
+    fn sweep_started(&mut self) {
+        self.rover.sweep_started();
+    }
+
+    fn sweep_ended(&mut self, now_us: u64) {
+        self.rover.sweep_ended(now_us);
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -129,6 +288,25 @@ fn run(args: Args) -> Result<()> {
     };
     let scene_name = scene.name.clone();
     let suggested = scene.scan;
+    let odometry = args.odometry(scene.odometry)?;
+    let rover = match &scene.robot {
+        Some(robot) => {
+            info!(
+                waypoints = robot.waypoints.len(),
+                mode = ?robot.mode,
+                looped = robot.looped,
+                speed_mps = robot.speed_mps,
+                pose_rate = args.pose_rate,
+                ?odometry,
+                "the head rides a robot"
+            );
+            Some(Rover::new(robot, odometry, args.pose_rate, args.seed))
+        }
+        None if odometry != OdometryParams::default() => {
+            bail!("--odom-* needs a scene with a [robot]: scene {scene_name} has a fixed head")
+        }
+        None => None,
+    };
     let model = EchoModel::new(scene, sensor, args.seed)?;
     let mut device: Box<dyn Device> = match args.dialect {
         Dialect::Native => {
@@ -170,6 +348,11 @@ fn run(args: Args) -> Result<()> {
             .context("installing the signal handlers")?;
     }
 
+    // Before the PTY line, so that whoever reads it finds the pose services already there.
+    let mut poses = rover
+        .map(|rover| PosePublisher::new(&args.ipc, rover))
+        .transpose()?;
+
     let (pty, _link) = open_announced(args.link.as_deref())?;
 
     info!(
@@ -181,8 +364,18 @@ fn run(args: Args) -> Result<()> {
         seed = args.seed,
         "simulator ready"
     );
-    let stats = serve(&pty, device.as_mut(), args.speed, &stop, faults.as_mut())
-        .context("serving the PTY")?;
+    let stats = serve(
+        &pty,
+        device.as_mut(),
+        args.speed,
+        &stop,
+        faults.as_mut(),
+        poses.as_mut().map(|p| p as &mut dyn Carrier),
+    )
+    .context("serving the PTY")?;
+    if let Some(p) = &poses {
+        info!(poses_published = p.published, "robot stopped");
+    }
     let faults = faults.map(|f| format!("; faults: {}", f.counts()));
     info!(
         bytes_received = stats.bytes_received,

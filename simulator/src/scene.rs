@@ -1,7 +1,8 @@
 //! Scenes: the walls and posts around the sensor, loaded from TOML or JSON, plus the built-in scenes
 //! after the paper's Figs. 8–11.
 //!
-//! The sensor stands at the origin and its 0° axis is +x; angles grow counter-clockwise. A file:
+//! Without a `[robot]` the sensor stands at the origin and its 0° axis is +x; angles grow
+//! counter-clockwise. A file:
 //!
 //! ```toml
 //! name = "obstacle"                      # optional, default: the file stem
@@ -24,20 +25,42 @@
 //! threshold_db = -15.0
 //! [noise]                                # optional: any field of NoiseParams
 //! spurious_probability = 0.0
+//!
+//! [robot]                                # optional: the head rides a robot along a path
+//! waypoints = [[-0.6, -0.6], [0.6, -0.6], [0.6, 0.6]]   # metres, at least 2; starts at the
+//!                                        # first, heading towards the second
+//! speed_mps = 0.2                        # optional, default 0.2
+//! turn_rate_dps = 45                     # optional, default 45: turns in place at a waypoint
+//! mode = "scan-while-driving"            # default; or "stop-and-scan": stop at the start and
+//!                                        # at each waypoint for one full sweep of the head
+//! loop = false                           # optional: back to the first waypoint, round again
+//!
+//! [odometry]                             # optional, needs [robot]: errors of the reported pose
+//! scale_error = 0.03                     # distance reported 3 % long
+//! heading_drift_deg_per_m = 0.5          # heading error per metre driven, CCW positive
+//! noise_m = 0.001                        # white noise per step (pose sample), metres
+//! noise_deg = 0.05                       # and degrees
 //! ```
+//!
+//! With a `[robot]`, angle 0 of the head points along the robot's heading and each ping is taken
+//! from the pose of its own instant (see [`crate::robot`]). The path must not cross a wall or
+//! run through a post.
 //!
 //! Corners and edges are not written in the file: they are found from the geometry. Wall ends that
 //! coincide (within 1 mm), or lie on another wall, are joined; at each joint the sensor looks into one
 //! wedge of free space between two walls, whose opening angle tells a concave corner (a room corner
 //! seen from inside, a retro-reflector) from a convex edge (a box corner seen from outside) or a
-//! straight joint. A wall end joined to nothing is an edge.
+//! straight joint. A wall end joined to nothing is an edge. Which wedge that is depends on where
+//! the sensor stands ([`Joint::seen_from`]): where one wall ends on another, the sensor sees a
+//! straight joint from one side and a corner from the other.
 
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
 use crate::echo::{EchoParams, NoiseParams};
-use crate::geometry::{Vec2, distance_to_segment};
+use crate::geometry::{Vec2, distance_to_segment, segments_intersect};
+use crate::robot::{OdometryParams, RobotSpec};
 
 /// Ends closer than this are one joint; shorter walls are rejected as degenerate.
 pub const JOIN_TOLERANCE_M: f64 = 1e-3;
@@ -104,8 +127,17 @@ pub enum SceneError {
     Invalid { origin: String, message: String },
 }
 
+/// A wall end or meeting of walls with the walls leaving it: a [`Vertex`] once the sensor's
+/// position picks the wedge it looks into.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Joint {
+    pub at: Vec2,
+    /// Direction (degrees) and surface of each wall leaving the joint.
+    arms: Vec<(f64, Surface)>,
+}
+
 /// Scene files shipped with the crate, compiled in so `--scene room` needs no files at run time.
-const BUILTIN: [(&str, &str); 4] = [
+const BUILTIN: [(&str, &str); 6] = [
     ("room", include_str!("../scenes/room.toml")),
     ("corner", include_str!("../scenes/corner.toml")),
     ("obstacle", include_str!("../scenes/obstacle.toml")),
@@ -113,10 +145,19 @@ const BUILTIN: [(&str, &str); 4] = [
         "two-obstacles",
         include_str!("../scenes/two-obstacles.toml"),
     ),
+    ("room-tour", include_str!("../scenes/room-tour.toml")),
+    ("corridor", include_str!("../scenes/corridor.toml")),
 ];
 
 /// Names of the built-in scenes.
-pub const BUILTIN_NAMES: [&str; 4] = ["room", "corner", "obstacle", "two-obstacles"];
+pub const BUILTIN_NAMES: [&str; 6] = [
+    "room",
+    "corner",
+    "obstacle",
+    "two-obstacles",
+    "room-tour",
+    "corridor",
+];
 
 /// A validated scene: geometry plus the echo and noise parameters to simulate it with.
 #[derive(Debug, Clone)]
@@ -126,8 +167,13 @@ pub struct Scene {
     pub scan: Option<SuggestedScan>,
     pub echo: EchoParams,
     pub noise: NoiseParams,
+    /// The robot carrying the head; `None`: the head stands at the origin.
+    pub robot: Option<RobotSpec>,
+    /// Errors of the robot's odometry (all 0 by default).
+    pub odometry: OdometryParams,
     walls: Vec<Wall>,
     posts: Vec<Post>,
+    joints: Vec<Joint>,
     vertices: Vec<Vertex>,
 }
 
@@ -148,6 +194,8 @@ struct SceneFile {
     echo: EchoParams,
     #[serde(default)]
     noise: NoiseParams,
+    robot: Option<RobotSpec>,
+    odometry: Option<OdometryParams>,
 }
 
 #[derive(Deserialize)]
@@ -177,8 +225,20 @@ struct CircleSpec {
 }
 
 impl Scene {
-    /// A scene from walls and posts, with default echo and noise parameters.
+    /// A scene from walls and posts around a head fixed at the origin, with default echo and noise
+    /// parameters.
     pub fn new(name: &str, walls: Vec<Wall>, posts: Vec<Post>) -> Result<Self, SceneError> {
+        Self::build(name, walls, posts, None)
+    }
+
+    /// As [`Scene::new`], with the head on `robot` (validated here), whose path must stay clear
+    /// of the walls and posts.
+    fn build(
+        name: &str,
+        walls: Vec<Wall>,
+        posts: Vec<Post>,
+        robot: Option<RobotSpec>,
+    ) -> Result<Self, SceneError> {
         let invalid = |message: String| SceneError::Invalid {
             origin: name.to_owned(),
             message,
@@ -207,28 +267,55 @@ impl Scene {
                     p.radius
                 )));
             }
-            if p.centre.norm() <= p.radius {
+            if robot.is_none() && p.centre.norm() <= p.radius {
                 return Err(invalid(format!(
                     "circle {}: the sensor at the origin lies inside it",
                     i + 1
                 )));
             }
         }
-        let vertices = find_vertices(&walls);
+        if let Some(robot) = &robot {
+            robot.validate().map_err(&invalid)?;
+            for (k, (from, to)) in robot.legs().enumerate() {
+                let n = robot.waypoints.len();
+                let leg = format!(
+                    "robot: the path from waypoint {} to {}",
+                    k + 1,
+                    (k + 1) % n + 1
+                );
+                if let Some(i) = walls
+                    .iter()
+                    .position(|w| segments_intersect(from, to, w.a, w.b))
+                {
+                    return Err(invalid(format!("{leg} crosses wall {}", i + 1)));
+                }
+                if let Some(i) = posts
+                    .iter()
+                    .position(|p| distance_to_segment(from, to, p.centre) <= p.radius)
+                {
+                    return Err(invalid(format!("{leg} runs through circle {}", i + 1)));
+                }
+            }
+        }
+        let joints = find_joints(&walls);
+        let origin = Vec2::default();
+        let vertices = joints.iter().filter_map(|j| j.seen_from(origin)).collect();
         Ok(Self {
             name: name.to_owned(),
             description: String::new(),
             scan: None,
             echo: EchoParams::default(),
             noise: NoiseParams::default(),
+            robot,
+            odometry: OdometryParams::default(),
             walls,
             posts,
+            joints,
             vertices,
         })
     }
 
-    /// A built-in scene (`room`, `corner`, `obstacle`, `two-obstacles`) or else a `.toml`/`.json`
-    /// file.
+    /// A built-in scene ([`BUILTIN_NAMES`]) or else a `.toml`/`.json` file.
     pub fn resolve(name_or_path: &str) -> Result<Self, SceneError> {
         match BUILTIN.iter().find(|(name, _)| *name == name_or_path) {
             Some((name, text)) => Self::from_toml_str(text, name),
@@ -324,8 +411,15 @@ impl Scene {
                 "scan: need -180 <= from_deg < to_deg <= 180, got {from_deg}..{to_deg}"
             )));
         }
+        if file.robot.is_none() && file.odometry.is_some() {
+            return Err(invalid(
+                "[odometry] needs a [robot]: a head fixed at the origin has none".into(),
+            ));
+        }
+        let odometry = file.odometry.unwrap_or_default();
+        odometry.validate().map_err(&invalid)?;
         let name = file.name.unwrap_or_else(|| default_name.to_owned());
-        let mut scene = Self::new(&name, walls, posts).map_err(|e| match e {
+        let mut scene = Self::build(&name, walls, posts, file.robot).map_err(|e| match e {
             SceneError::Invalid { message, .. } => invalid(message),
             other => other,
         })?;
@@ -333,6 +427,7 @@ impl Scene {
         scene.scan = file.scan;
         scene.echo = file.echo;
         scene.noise = file.noise;
+        scene.odometry = odometry;
         Ok(scene)
     }
 
@@ -346,9 +441,15 @@ impl Scene {
         &self.posts
     }
 
-    /// Wall ends and joints as seen from the sensor (corners and edges).
+    /// Wall ends and joints as seen from a sensor at the origin (corners and edges): the ground
+    /// truth of a fixed head.
     pub fn vertices(&self) -> &[Vertex] {
         &self.vertices
+    }
+
+    /// Every wall end and joint, to be seen from wherever the sensor stands.
+    pub fn joints(&self) -> &[Joint] {
+        &self.joints
     }
 
     /// Distance from `p` to the nearest surface, metres (0 inside a post, which is solid): rasterise
@@ -370,8 +471,8 @@ fn parse_error(origin: &str, e: impl std::fmt::Display) -> SceneError {
     }
 }
 
-/// Finds every wall end and joint and the wedge of free space the sensor (at the origin) sees there.
-fn find_vertices(walls: &[Wall]) -> Vec<Vertex> {
+/// Finds every wall end and joint and the walls leaving it.
+fn find_joints(walls: &[Wall]) -> Vec<Joint> {
     let near = |p: Vec2, q: Vec2| (p - q).norm() < JOIN_TOLERANCE_M;
     let mut points: Vec<Vec2> = Vec::new();
     for p in walls.iter().flat_map(|w| [w.a, w.b]) {
@@ -381,7 +482,6 @@ fn find_vertices(walls: &[Wall]) -> Vec<Vertex> {
     }
     points
         .into_iter()
-        .filter(|p| p.norm() >= JOIN_TOLERANCE_M)
         .map(|p| {
             // The walls leaving p ("arms"): from a wall end, towards the other end; through a wall's
             // interior (a T-junction), both ways.
@@ -395,44 +495,58 @@ fn find_vertices(walls: &[Wall]) -> Vec<Vertex> {
                     arms.push(((w.a - p).angle_deg(), w.surface));
                 }
             }
-            // The wedge containing the direction to the sensor is bounded by the nearest arm on
-            // each side of it.
-            let to_sensor = (Vec2::default() - p).angle_deg();
-            let gap = |from: f64, to: f64| {
-                let g = (to - from).rem_euclid(360.0);
-                if g == 0.0 { 360.0 } else { g }
-            };
-            let nearest = |ccw: bool| {
-                arms.iter()
-                    .map(|&(deg, s)| {
-                        let g = if ccw {
-                            gap(to_sensor, deg)
-                        } else {
-                            gap(deg, to_sensor)
-                        };
-                        (g, s)
-                    })
-                    .fold(
-                        (360.0, Surface::Hard),
-                        |best, x| {
-                            if x.0 < best.0 { x } else { best }
-                        },
-                    )
-            };
-            let (ccw_gap, ccw_surface) = nearest(true);
-            let (cw_gap, cw_surface) = nearest(false);
-            Vertex {
-                at: p,
-                opening_deg: (ccw_gap + cw_gap).min(360.0),
-                surfaces: [cw_surface, ccw_surface],
-            }
+            Joint { at: p, arms }
         })
         .collect()
+}
+
+impl Joint {
+    /// The joint as a sensor at `sensor` sees it: the wedge of free space it looks into; `None`
+    /// when the sensor stands on it.
+    pub fn seen_from(&self, sensor: Vec2) -> Option<Vertex> {
+        let p = self.at;
+        if (p - sensor).norm() < JOIN_TOLERANCE_M {
+            return None;
+        }
+        // The wedge containing the direction to the sensor is bounded by the nearest arm on
+        // each side of it.
+        let to_sensor = (sensor - p).angle_deg();
+        let gap = |from: f64, to: f64| {
+            let g = (to - from).rem_euclid(360.0);
+            if g == 0.0 { 360.0 } else { g }
+        };
+        let nearest = |ccw: bool| {
+            self.arms
+                .iter()
+                .map(|&(deg, s)| {
+                    let g = if ccw {
+                        gap(to_sensor, deg)
+                    } else {
+                        gap(deg, to_sensor)
+                    };
+                    (g, s)
+                })
+                .fold(
+                    (360.0, Surface::Hard),
+                    |best, x| {
+                        if x.0 < best.0 { x } else { best }
+                    },
+                )
+        };
+        let (ccw_gap, ccw_surface) = nearest(true);
+        let (cw_gap, cw_surface) = nearest(false);
+        Some(Vertex {
+            at: p,
+            opening_deg: (ccw_gap + cw_gap).min(360.0),
+            surfaces: [cw_surface, ccw_surface],
+        })
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::robot::Mode;
 
     #[test]
     fn builtin_scenes_load_and_match_the_paper() {
@@ -524,6 +638,31 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
+    #[test]
+    fn robot_scenes_load_with_their_tours() {
+        let tour = Scene::builtin("room-tour").unwrap();
+        let robot = tour.robot.as_ref().unwrap();
+        assert_eq!(robot.waypoints.len(), 4);
+        assert!(robot.looped);
+        assert_eq!(robot.mode, Mode::ScanWhileDriving);
+        assert!(tour.odometry.scale_error > 0.0);
+        let corridor = Scene::builtin("corridor").unwrap();
+        assert_eq!(corridor.robot.as_ref().unwrap().mode, Mode::StopAndScan);
+        // Where the rooms' partition meets the corridor wall: a straight joint from the corridor,
+        // a 90° corner from inside a room.
+        let tee = corridor
+            .joints()
+            .iter()
+            .find(|j| (j.at - Vec2::new(3.0, 0.6)).norm() < 1e-9)
+            .unwrap();
+        let from_corridor = tee.seen_from(Vec2::new(1.5, 0.0)).unwrap();
+        let from_room = tee.seen_from(Vec2::new(1.5, 2.1)).unwrap();
+        assert!((from_corridor.opening_deg - 180.0).abs() < 1e-9);
+        assert!((from_room.opening_deg - 90.0).abs() < 1e-9);
+        // No robot: the head at the origin, nothing to report.
+        assert!(Scene::builtin("room").unwrap().robot.is_none());
+    }
+
     fn error_of(toml_text: &str) -> String {
         match Scene::from_toml_str(toml_text, "bad") {
             Ok(_) => panic!("accepted: {toml_text}"),
@@ -576,6 +715,43 @@ mod tests {
             (
                 "scan = { mode = \"local\", from_deg = 30, to_deg = -30 }\n",
                 "scan: need",
+            ),
+            ("[robot]\nwaypoints = [[0, 0]]\n", "need at least 2"),
+            (
+                "[robot]\nwaypoints = [[0, 0], [1, 0]]\nspeed_mps = -1\n",
+                "robot.speed_mps must be a number > 0, got -1",
+            ),
+            (
+                "[robot]\nwaypoints = [[0, 0], [1, 0]]\nturn_rate_dps = 0\n",
+                "robot.turn_rate_dps must be a number > 0",
+            ),
+            (
+                "[robot]\nwaypoints = [[0, 0], [inf, 0]]\n",
+                "robot.waypoints[2]: coordinate is not a finite number",
+            ),
+            (
+                "[robot]\nwaypoints = [[0, 0], [1, 0]]\nmode = \"teleport\"\n",
+                "unknown variant `teleport`",
+            ),
+            (
+                "[robot]\nwaypoints = [[0, 0], [1, 0]]\nspeed = 1\n",
+                "unknown field `speed`",
+            ),
+            (
+                "[[segments]]\nfrom = [2, -1]\nto = [2, 1]\n[robot]\nwaypoints = [[0, 0], [1, 0], [3, 0]]\n",
+                "robot: the path from waypoint 2 to 3 crosses wall 1",
+            ),
+            (
+                "[[circles]]\ncentre = [1, 1]\nradius = 0.1\n[robot]\nwaypoints = [[0, 0], [2, 0], [2, 2]]\nloop = true\n",
+                "robot: the path from waypoint 3 to 1 runs through circle 1",
+            ),
+            (
+                "[odometry]\nscale_error = 0.1\n",
+                "[odometry] needs a [robot]",
+            ),
+            (
+                "[robot]\nwaypoints = [[0, 0], [1, 0]]\n[odometry]\nnoise_deg = -1\n",
+                "odometry.noise_deg must be >= 0",
             ),
         ];
         for (text, expected) in cases {

@@ -7,6 +7,11 @@
 //! `poll` on the master, so input, pacing and the stop flag (set by a signal handler) share one
 //! wait.
 //!
+//! With a robot ([`Carrier`]), the robot is moved to the device's clock before each action, so the
+//! action's pings are taken from the pose of their instant, and it hears when sweeps begin and end
+//! (a stop-and-scan robot waits for them). Its poses are stamped with the host time at which their
+//! simulated instant happens, the clock the driver stamps readings with.
+//!
 //! With `--faults`, every line goes through a [`FaultInjector`] on its way out (and the host's bytes
 //! past it on their way in), which damages lines, resets the device and keeps it silent at the times
 //! it is told.
@@ -28,11 +33,13 @@ use nix::fcntl::{FcntlArg, OFlag, fcntl};
 use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
 use nix::pty::openpty;
 use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
+use sonar_common::ipc::unix_time_ns;
 use sonar_common::protocol::{DeviceMessage, FramedLine, LineFramer, Terminators, encode_device};
 use tracing::{debug, info, warn};
 
 use crate::faults::FaultInjector;
 use crate::firmware::{Firmware, Transducer};
+use crate::geometry::Pose;
 use crate::hobby::HobbySketch;
 
 /// How long a line may wait for room in the terminal's buffer before it is dropped.
@@ -102,6 +109,28 @@ pub trait Device {
     fn idle_until(&mut self, t_us: u64);
     /// What it did, for the log.
     fn summary(&self) -> String;
+    /// Places the sensor for the actions that follow: the robot carrying the head moved.
+    fn set_pose(&mut self, pose: Pose);
+    /// Sweeps begun and ended so far.
+    fn sweeps(&self) -> SweepCounts;
+}
+
+/// Sweeps a device has begun and ended since it was made (across resets).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SweepCounts {
+    pub started: u64,
+    pub ended: u64,
+}
+
+/// What moves on the simulated clock besides the head: the robot carrying it.
+pub trait Carrier {
+    /// Moves to simulated time `now_us` and returns the sensor's pose there. `unix_ns` gives the
+    /// host's Unix-epoch time of a simulated instant up to `now_us`, to stamp what is published.
+    fn advance(&mut self, now_us: u64, unix_ns: &dyn Fn(u64) -> u64) -> io::Result<Pose>;
+    /// The head began a sweep.
+    fn sweep_started(&mut self);
+    /// The head ended a sweep at simulated time `now_us`.
+    fn sweep_ended(&mut self, now_us: u64);
 }
 
 /// Our firmware behind its UART: cuts the byte stream into lines, encodes the messages.
@@ -110,6 +139,7 @@ pub struct NativeDevice<T> {
     firmware: Firmware<T>,
     framer: LineFramer,
     msgs: Vec<DeviceMessage>,
+    sweeps: SweepCounts,
 }
 
 impl<T: Transducer> NativeDevice<T> {
@@ -118,11 +148,19 @@ impl<T: Transducer> NativeDevice<T> {
             firmware,
             framer: LineFramer::new(Terminators::Newline),
             msgs: Vec::new(),
+            sweeps: SweepCounts::default(),
         }
     }
 
     fn flush(&mut self, out: &mut Vec<String>) {
         let version = self.firmware.version();
+        for m in &self.msgs {
+            match m {
+                DeviceMessage::SweepStart { .. } => self.sweeps.started += 1,
+                DeviceMessage::SweepEnd { .. } => self.sweeps.ended += 1,
+                _ => {}
+            }
+        }
         out.extend(self.msgs.drain(..).map(|m| encode_device(&m, version)));
     }
 }
@@ -138,6 +176,7 @@ impl<T: Transducer> Device for NativeDevice<T> {
             firmware,
             framer,
             msgs,
+            ..
         } = self;
         framer.push(bytes, |line| match line {
             FramedLine::Line(l) => {
@@ -177,6 +216,14 @@ impl<T: Transducer> Device for NativeDevice<T> {
             self.firmware.readings()
         )
     }
+
+    fn set_pose(&mut self, pose: Pose) {
+        self.firmware.transducer_mut().set_pose(pose);
+    }
+
+    fn sweeps(&self) -> SweepCounts {
+        self.sweeps
+    }
 }
 
 impl<T: Transducer> Device for HobbySketch<T> {
@@ -204,6 +251,18 @@ impl<T: Transducer> Device for HobbySketch<T> {
     fn summary(&self) -> String {
         format!("{} records", self.records())
     }
+
+    fn set_pose(&mut self, pose: Pose) {
+        self.transducer_mut().set_pose(pose);
+    }
+
+    fn sweeps(&self) -> SweepCounts {
+        // The sketch always sweeps: the next pass begins as one ends.
+        SweepCounts {
+            started: self.passes() + 1,
+            ended: self.passes(),
+        }
+    }
 }
 
 /// Counters of the line.
@@ -219,6 +278,8 @@ pub struct ServeStats {
 struct Pacer {
     speed: Speed,
     wall0: Instant,
+    /// `wall0` on the host's Unix-epoch clock, ns.
+    unix0_ns: u64,
     sim0_us: u64,
 }
 
@@ -233,11 +294,22 @@ impl Pacer {
             + Duration::from_secs_f64(sim_us.saturating_sub(self.sim0_us) as f64 / 1e6 / f);
         if now > due + MAX_LAG {
             self.wall0 = now;
+            self.unix0_ns = unix_time_ns();
             self.sim0_us = sim_us;
             now
         } else {
             due
         }
+    }
+
+    /// The host's Unix-epoch time, ns, at which simulated time `sim_us` happens (now, at `max`).
+    fn unix_ns_at(&self, sim_us: u64) -> u64 {
+        let Speed::Factor(f) = self.speed else {
+            return unix_time_ns();
+        };
+        let sim_ns = (i128::from(sim_us) - i128::from(self.sim0_us)) * 1000;
+        let stamp = i128::from(self.unix0_ns) + (sim_ns as f64 / f) as i128;
+        u64::try_from(stamp.max(0)).unwrap_or(u64::MAX)
     }
 
     /// Simulated time now, for an idle device whose clock stands at `current_us`.
@@ -343,14 +415,34 @@ impl Line<'_> {
     }
 }
 
+/// Tells `carrier` the sweeps the device began and ended since `seen`: ends first, as a device
+/// ends a sweep before it begins the next.
+fn report_sweeps<'c>(
+    device: &dyn Device,
+    carrier: Option<&mut (dyn Carrier + 'c)>,
+    seen: &mut SweepCounts,
+) {
+    let now = device.sweeps();
+    if let Some(c) = carrier {
+        if now.ended > seen.ended {
+            c.sweep_ended(device.now_us());
+        }
+        if now.started > seen.started {
+            c.sweep_started();
+        }
+    }
+    *seen = now;
+}
+
 /// Serves `device` on `pty` until `stop` is set, its lines damaged, and the device reset and
-/// silenced, as `faults` say.
+/// silenced, as `faults` say; the head rides on `carrier` if given.
 pub fn serve(
     pty: &Pty,
     device: &mut dyn Device,
     speed: Speed,
     stop: &AtomicBool,
     mut faults: Option<&mut FaultInjector>,
+    mut carrier: Option<&mut dyn Carrier>,
 ) -> io::Result<ServeStats> {
     let mut line = Line {
         master: &pty.master,
@@ -360,12 +452,14 @@ pub fn serve(
     let mut pacer = Pacer {
         speed,
         wall0: Instant::now(),
+        unix0_ns: unix_time_ns(),
         sim0_us: device.now_us(),
     };
     let mut out = Vec::new();
     device.power_on(&mut out);
     line.send(&out, faults.as_deref_mut(), device.now_us())?;
     let mut input = Vec::new();
+    let mut sweeps = device.sweeps();
     while !stop.load(Ordering::Relaxed) {
         if let Some(f) = faults.as_deref_mut()
             && f.advance(device.now_us())?
@@ -374,8 +468,13 @@ pub fn serve(
             device.reset(&mut out);
             line.send(&out, Some(f), device.now_us())?;
         }
+        if let Some(c) = carrier.as_deref_mut() {
+            let pose = c.advance(device.now_us(), &|t| pacer.unix_ns_at(t))?;
+            device.set_pose(pose);
+        }
         out.clear();
         let busy = device.act(&mut out);
+        report_sweeps(device, carrier.as_deref_mut(), &mut sweeps);
         let due = if busy {
             pacer.wall_at(device.now_us())
         } else {
@@ -402,6 +501,7 @@ pub fn serve(
         if heard {
             out.clear();
             device.receive(&input, &mut out);
+            report_sweeps(device, carrier.as_deref_mut(), &mut sweeps);
             line.send(&out, faults.as_deref_mut(), device.now_us())?;
         }
     }
@@ -422,10 +522,15 @@ mod tests {
         let mut pacer = Pacer {
             speed: Speed::Factor(10.0),
             wall0,
+            unix0_ns: 1_000_000_000,
             sim0_us: 1_000_000,
         };
         assert_eq!(pacer.wall_at(1_500_000) - wall0, Duration::from_millis(50));
         assert_eq!(pacer.sim_now(0), 1_000_000);
+        // Stamps: 0.5 s of simulated time is 50 ms of host time at 10×.
+        assert_eq!(pacer.unix_ns_at(1_000_000), 1_000_000_000);
+        assert_eq!(pacer.unix_ns_at(1_500_000), 1_050_000_000);
+        assert_eq!(pacer.unix_ns_at(500_000), 950_000_000);
         assert_eq!(pacer.sim_now(2_000_000), 2_000_000);
         assert_eq!(
             poll_timeout(Duration::from_micros(1)),

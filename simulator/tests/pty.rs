@@ -34,6 +34,7 @@ fn a_host_on_the_slave_gets_the_handshake_and_readings() {
                 Speed::Max,
                 &stop,
                 None,
+                None,
             )
         }
     });
@@ -115,4 +116,120 @@ fn a_host_on_the_slave_gets_the_handshake_and_readings() {
         stats.bytes_received as usize,
         commands.iter().map(String::len).sum::<usize>()
     );
+}
+
+/// Records what the serve loop tells the robot, and stops the loop after `until_us` simulated.
+struct Recorder {
+    rover: sonar_sim::Rover,
+    samples: Vec<sonar_sim::PoseSample>,
+    sweeps_ended: Vec<u64>,
+    until_us: u64,
+    stop: Arc<AtomicBool>,
+}
+
+impl sonar_sim::Carrier for Recorder {
+    fn advance(
+        &mut self,
+        now_us: u64,
+        unix_ns: &dyn Fn(u64) -> u64,
+    ) -> std::io::Result<sonar_sim::Pose> {
+        let samples = &mut self.samples;
+        let pose = self.rover.advance(now_us, |s| samples.push(s));
+        assert!(unix_ns(now_us) > 0);
+        if now_us >= self.until_us {
+            self.stop.store(true, Ordering::Relaxed);
+        }
+        Ok(pose)
+    }
+
+    fn sweep_started(&mut self) {
+        self.rover.sweep_started();
+    }
+
+    fn sweep_ended(&mut self, now_us: u64) {
+        self.sweeps_ended.push(now_us);
+        self.rover.sweep_ended(now_us);
+    }
+}
+
+#[test]
+fn a_stop_and_scan_robot_waits_for_each_sweep_of_the_served_head() {
+    let pty = Pty::open().unwrap();
+    let path = pty.path().to_owned();
+    let sensor = SensorConfig::default();
+    let scene = Scene::builtin("corridor").unwrap();
+    let robot = scene.robot.clone().unwrap();
+    let rover = sonar_sim::Rover::new(&robot, scene.odometry, 20.0, 1);
+    let model = EchoModel::new(scene, sensor, 1).unwrap();
+    let firmware = Firmware::new(sensor, Timing::default(), model).unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let mut recorder = Recorder {
+        rover,
+        samples: Vec::new(),
+        sweeps_ended: Vec::new(),
+        until_us: 60_000_000,
+        stop: Arc::clone(&stop),
+    };
+    let server = std::thread::spawn({
+        let stop = Arc::clone(&stop);
+        move || {
+            let stats = serve(
+                &pty,
+                &mut NativeDevice::new(firmware),
+                Speed::Max,
+                &stop,
+                None,
+                Some(&mut recorder),
+            );
+            (stats, recorder)
+        }
+    });
+    let mut port = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .custom_flags(nix::fcntl::OFlag::O_NOCTTY.bits())
+        .open(&path)
+        .unwrap();
+    // Drain what the head says, so the loop never waits for room in the terminal.
+    let reader = port.try_clone().unwrap();
+    std::thread::spawn(move || std::io::copy(&mut BufReader::new(reader), &mut std::io::sink()));
+    port.write_all(encode_command(&HostCommand::FullScan, PROTOCOL_VERSION).as_bytes())
+        .unwrap();
+    let (stats, recorder) = server.join().unwrap();
+    stats.unwrap();
+
+    // It stands at the start through the first whole sweep, then drives 1 m east to the second
+    // waypoint (5 s), arriving during the second sweep; that one was begun on the move, so it
+    // stands there through the third.
+    let start = robot.waypoints[0];
+    let second = robot.waypoints[1];
+    let ends = &recorder.sweeps_ended;
+    assert!(ends.len() >= 3, "{ends:?}");
+    let arrived = ends[0] + 5_000_000;
+    assert!(ends[1] > arrived, "{ends:?}");
+    let stands = |at: sonar_sim::Vec2, from_us: u64, to_us: u64| {
+        for s in recorder.samples.iter() {
+            if (from_us..=to_us).contains(&s.t_us) {
+                assert!((s.truth.at - at).norm() < 1e-9, "{s:?}");
+            }
+        }
+    };
+    stands(start, 0, ends[0]);
+    stands(second, arrived + 50_000, ends[2]);
+    let moves_after = |t_us: u64| {
+        recorder
+            .samples
+            .iter()
+            .find(|s| s.t_us > t_us)
+            .is_some_and(|s| s.truth != recorder.samples[0].truth)
+    };
+    assert!(moves_after(ends[0]));
+    let after_third = recorder
+        .samples
+        .iter()
+        .find(|s| s.t_us > ends[2] + 50_000)
+        .expect("samples after the third sweep");
+    // Turning towards the first room (north) at the second waypoint.
+    assert!((after_third.truth.at - second).norm() < 1e-9);
+    assert!(after_third.truth.heading_rad > 0.0, "{after_third:?}");
 }
