@@ -10,8 +10,9 @@ use std::time::{Duration, Instant};
 
 use crossterm::event::{KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
 use sonar_common::ipc::{
-    DriverStatus, FusionCommand, FusionCommandKind, GridHeader, LAYOUT_VERSION, RADAR_MAX_BINS,
-    Radar, Reading, ScanCommand, ScanCommandKind, ScanMode, preset_code,
+    DriverStatus, FeatureRecord, FeaturesHeader, FusionCommand, FusionCommandKind, GridHeader,
+    LAYOUT_VERSION, MAX_FEATURES, RADAR_MAX_BINS, Radar, Reading, ScanCommand, ScanCommandKind,
+    ScanMode, preset_code,
 };
 use sonar_common::sensor::SensorConfig;
 
@@ -158,6 +159,31 @@ pub fn check_grid(header: &GridHeader, payload_len: usize) -> Result<(), String>
     Ok(())
 }
 
+/// A private copy of one `sonar/features` snapshot.
+#[derive(Debug, Clone, Default)]
+pub struct FeaturesSnapshot {
+    pub header: FeaturesHeader,
+    /// `header.feature_count` records, as published.
+    pub records: Vec<FeatureRecord>,
+}
+
+/// Why a features snapshot cannot be shown; `Ok` when header and payload agree.
+pub fn check_features(header: &FeaturesHeader, payload_len: usize) -> Result<(), String> {
+    if header.layout_version != LAYOUT_VERSION {
+        return Err(format!(
+            "features layout version {} (this viewer reads {LAYOUT_VERSION})",
+            header.layout_version
+        ));
+    }
+    let count = header.feature_count as usize;
+    if count != payload_len || count > MAX_FEATURES {
+        return Err(format!(
+            "{count} features announced, {payload_len} arrived (at most {MAX_FEATURES})"
+        ));
+    }
+    Ok(())
+}
+
 /// Why a radar snapshot cannot be shown.
 pub fn check_radar(radar: &Radar) -> Result<(), String> {
     if radar.layout_version != LAYOUT_VERSION {
@@ -289,6 +315,7 @@ pub const KEYS: &[(&str, &str)] = &[
     ("+  -  0", "zoom in / out / whole map"),
     ("Tab 1 2 3", "next view / map / radar / split"),
     ("w", "radar arcs: bin width / beam width"),
+    ("o", "walls, corners, posts on the map: on / off"),
     ("s", "save the map as a PNG"),
     ("?", "show or hide this help"),
     ("q  Ctrl-C", "quit"),
@@ -391,6 +418,10 @@ pub struct App {
     /// Bumped with every new grid copy, so the renderer knows when to pool again.
     pub grid_generation: u64,
     pub radar: Option<Radar>,
+    /// The latest walls, corners and posts; `None` until fusion publishes them (it may not).
+    pub features: Option<FeaturesSnapshot>,
+    /// Draw the features over the map.
+    pub show_features: bool,
     pub driver: Option<DriverStatus>,
     pub driver_peer: Peer,
     pub fusion_peer: Peer,
@@ -424,6 +455,8 @@ impl App {
             grid: None,
             grid_generation: 0,
             radar: None,
+            features: None,
+            show_features: true,
             driver: None,
             driver_peer: Peer::default(),
             fusion_peer: Peer::default(),
@@ -475,6 +508,22 @@ impl App {
         self.fusion_peer.seen(now);
         check_radar(radar)?;
         self.radar = Some(*radar);
+        Ok(())
+    }
+
+    /// Takes a copy of a features snapshot (header and records as read from shared memory).
+    pub fn on_features(
+        &mut self,
+        header: &FeaturesHeader,
+        records: &[FeatureRecord],
+        now: Instant,
+    ) -> Result<(), String> {
+        self.fusion_peer.seen(now);
+        check_features(header, records.len())?;
+        let features = self.features.get_or_insert_with(FeaturesSnapshot::default);
+        features.header = *header;
+        features.records.clear();
+        features.records.extend_from_slice(records);
         Ok(())
     }
 
@@ -582,6 +631,7 @@ impl App {
             }
             KeyCode::Char('s') => return Some(Action::SaveMap),
             KeyCode::Char('w') => self.beam_arcs = !self.beam_arcs,
+            KeyCode::Char('o') => self.show_features = !self.show_features,
             KeyCode::Tab => self.view = self.view.next(),
             KeyCode::Char('1') => self.view = View::Map,
             KeyCode::Char('2') => self.view = View::Radar,
@@ -916,6 +966,66 @@ mod tests {
             ..Radar::default()
         };
         assert!(app.on_radar(&radar, t).is_err());
+    }
+
+    fn features_header(count: u32) -> FeaturesHeader {
+        FeaturesHeader {
+            layout_version: LAYOUT_VERSION,
+            feature_count: count,
+            sweeps: 4,
+            ..FeaturesHeader::default()
+        }
+    }
+
+    #[test]
+    fn features_are_copied_and_bad_ones_refused() {
+        let mut app = app();
+        let t = Instant::now();
+        let post = FeatureRecord {
+            kind: sonar_common::ipc::feature_kind::POINT,
+            x_m: 1.0,
+            y_m: 0.5,
+            ..FeatureRecord::default()
+        };
+        // Fewer records than announced, and more than announced.
+        assert!(app.on_features(&features_header(2), &[post], t).is_err());
+        assert!(app.on_features(&features_header(0), &[post], t).is_err());
+        let mut old = features_header(1);
+        old.layout_version = 0;
+        assert!(app.on_features(&old, &[post], t).is_err());
+        let too_many = vec![post; MAX_FEATURES + 1];
+        let count = u32::try_from(too_many.len()).unwrap();
+        assert!(
+            app.on_features(&features_header(count), &too_many, t)
+                .is_err()
+        );
+        assert!(app.features.is_none());
+        assert_eq!(app.fusion_peer.liveness(t), Liveness::Alive);
+
+        app.on_features(&features_header(1), &[post], t).unwrap();
+        let copy = app.features.as_ref().unwrap();
+        assert_eq!(
+            (copy.header.sweeps, copy.records.as_slice()),
+            (4, &[post][..])
+        );
+        // A clear publishes an empty snapshot: nothing is left over from before.
+        app.on_features(&features_header(0), &[], t).unwrap();
+        assert!(app.features.as_ref().unwrap().records.is_empty());
+    }
+
+    #[test]
+    fn o_toggles_the_features_overlay() {
+        let mut app = app();
+        assert!(app.show_features, "on by default");
+        assert_eq!(app.on_key(key(KeyCode::Char('o'))), None);
+        assert!(!app.show_features);
+        app.on_key(key(KeyCode::Char('o')));
+        assert!(app.show_features);
+        // While the help is open the key only closes it.
+        app.show_help = true;
+        app.on_key(key(KeyCode::Char('o')));
+        assert!(app.show_features && !app.show_help);
+        assert!(key_help_text().contains("o            walls, corners, posts"));
     }
 
     #[test]

@@ -9,7 +9,8 @@
 //! - [`heatmap`]: pure pixel work. Which grid cells each pixel covers (zoom, pan), the max-pool that
 //!   turns a block of cells into one pixel without ever hiding an occupied cell, and the colour
 //!   code (blue free → pale even odds → red occupied, dark grey never observed) for truecolor or
-//!   the 256-colour palette.
+//!   the 256-colour palette; and which pixels show the walls, corners and posts of
+//!   `sonar/features` over the map.
 //! - [`app`]: the state and the key handling, free of I/O: snapshots come in as copies, key presses
 //!   come in as crossterm events, and what must happen outside comes out as an [`app::Action`].
 //! - [`ui`]: rendering of that state into a ratatui buffer, the map drawn two pixels per cell with

@@ -26,7 +26,8 @@ use iceoryx2::service::dynamic_config::publish_subscribe::PublisherDetails;
 use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::service::port_factory::PortFactory;
 use sonar_common::ipc::{
-    self, DriverStatus, FusionCommand, GridHeader, IpcError, PubSub, Radar, Reading, ScanCommand,
+    self, DriverStatus, FeatureRecord, FeaturesHeader, FusionCommand, GridHeader, IpcError, PubSub,
+    Radar, Reading, ScanCommand,
 };
 use tracing::{info, warn};
 
@@ -85,12 +86,17 @@ impl<T> Lazy<T> {
 
 type Sub<T> = (PubSub<T>, Subscriber<Ipc, T, ()>);
 type GridSub = (ipc::GridService, Subscriber<Ipc, [u8], GridHeader>);
+type FeaturesSub = (
+    ipc::FeaturesService,
+    Subscriber<Ipc, [FeatureRecord], FeaturesHeader>,
+);
 type CommandPort<T> = (Publisher<Ipc, T, ()>, Notifier<Ipc>);
 
 /// All iceoryx2 resources of the viewer.
 pub struct Source {
     grid: Lazy<GridSub>,
     radar: Lazy<Sub<Radar>>,
+    features: Lazy<FeaturesSub>,
     status: Lazy<Sub<DriverStatus>>,
     readings: Lazy<Sub<Reading>>,
     commands: Lazy<CommandPort<ScanCommand>>,
@@ -114,6 +120,7 @@ impl Source {
         Self {
             grid: Lazy::new(ipc::GRID_SERVICE),
             radar: Lazy::new(ipc::RADAR_SERVICE),
+            features: Lazy::new(ipc::FEATURES_SERVICE),
             status: Lazy::new(ipc::DRIVER_STATUS_SERVICE),
             readings: Lazy::new(ipc::READINGS_SERVICE),
             commands: Lazy::new(ipc::COMMANDS_SERVICE),
@@ -128,6 +135,7 @@ impl Source {
         [
             &self.grid.error,
             &self.radar.error,
+            &self.features.error,
             &self.status.error,
             &self.readings.error,
             &self.commands.error,
@@ -174,6 +182,26 @@ impl Source {
                 }
                 Ok(None) => {}
                 Err(e) => self.radar.fail(now, format!("receive: {e:?}")),
+            }
+        }
+
+        if let Some((_, sub)) = self.features.get(now, || {
+            let service = ipc::features_service(node)?;
+            let sub = service
+                .subscriber_builder()
+                .create()
+                .map_err(|e| IpcError::new("create features subscriber", e))?;
+            Ok((service, sub))
+        }) {
+            match newest(|| sub.receive()) {
+                Ok(Some(sample)) => {
+                    changed = true;
+                    if let Err(e) = app.on_features(sample.user_header(), sample.payload(), now) {
+                        reject(app, "features", &e);
+                    }
+                }
+                Ok(None) => {}
+                Err(e) => self.features.fail(now, format!("receive: {e:?}")),
             }
         }
 
@@ -224,6 +252,9 @@ impl Source {
                     s.dynamic_config().list_publishers(&mut *f);
                 }
                 if let Some((s, _)) = &self.radar.port {
+                    s.dynamic_config().list_publishers(&mut *f);
+                }
+                if let Some((s, _)) = &self.features.port {
                     s.dynamic_config().list_publishers(f);
                 }
             });

@@ -8,6 +8,7 @@
 //! Text without colour (what `tmux capture-pane -p` returns) still tells the map apart: in the map,
 //! `▄` marks a terminal cell holding an occupied pixel (a wall), `▀` observed space without walls,
 //! a blank never-observed space or the outside of the grid, `+` the cursor and `@` the sensor.
+//! Over it, in green, the features: walls as lines of `─ │ ╱ ╲`, corners `◆`, posts `●`.
 
 use std::time::Instant;
 
@@ -20,13 +21,15 @@ use ratatui::text::{Line, Span};
 use ratatui::widgets::canvas::{Canvas, Circle, Context, Line as CanvasLine, Points};
 use ratatui::widgets::{Block, Clear, Paragraph, Widget, Wrap};
 use sonar_common::ipc::{
-    CELL_UNKNOWN, LinkState, Radar, Reading, ScanMode, decode_probability, flags,
+    CELL_UNKNOWN, LinkState, Radar, Reading, ScanMode, decode_probability, feature_kind, flags,
 };
 
 use crate::app::{
     App, KEYS, Liveness, MODELS, PRESETS, RULES, Segment, View, setting_name, sweep_progress,
 };
-use crate::heatmap::{Palette, Pooled, Viewport, cell_rgb, is_occupied};
+use crate::heatmap::{
+    FeatureMark, Palette, Pooled, Slope, Viewport, cell_rgb, feature_pixels, is_occupied,
+};
 
 /// Width of the status panel, borders included.
 pub const PANEL_WIDTH: u16 = 34;
@@ -40,6 +43,8 @@ const WALL_GLYPH: char = '▄';
 const OBSERVED_GLYPH: char = '▀';
 const CURSOR_GLYPH: char = '+';
 const SENSOR_GLYPH: char = '@';
+/// Most confident features listed in the status panel, when there is room.
+const LISTED_FEATURES: usize = 5;
 
 /// The pooled map picture and what it was computed from.
 #[derive(Debug, Default)]
@@ -96,10 +101,12 @@ pub fn render(
         }
     }
     if let Some(panel) = panel {
+        let block = Block::bordered().title(" status ");
+        let inner = block.inner(panel);
         // Wrapped so that a long IPC problem is readable in full.
-        Paragraph::new(status_lines(app, now))
+        Paragraph::new(status_lines(app, now, inner.width, inner.height))
             .wrap(Wrap { trim: false })
-            .block(Block::bordered().title(" status "))
+            .block(block)
             .render(panel, buf);
     }
     Paragraph::new(bottom_line(app)).render(bottom, buf);
@@ -184,6 +191,15 @@ fn render_map(
         cache.key = Some(key);
     }
     paint_pixels(inner, buf, &cache.pooled, &app.palette);
+    if let Some(features) = app.features.as_ref().filter(|_| app.show_features) {
+        paint_features(
+            inner,
+            buf,
+            &feature_pixels(&features.records, &grid.header, &vp),
+            &cache.pooled,
+            &app.palette,
+        );
+    }
 
     let mut mark = |cell: Option<(u32, u32)>, glyph: char| {
         let Some((px, py)) = cell.and_then(|(x, y)| vp.pixel_of(x, y, grid.height())) else {
@@ -208,6 +224,43 @@ fn render_map(
     mark(grid.sensor_cell(), SENSOR_GLYPH);
     mark(app.map.cursor, CURSOR_GLYPH);
     (w, h)
+}
+
+/// The features over the heatmap: each marked pixel's terminal cell gets the feature's glyph in
+/// the overlay colour, on the colour of that pixel, so the map under it still shows.
+fn paint_features(
+    area: Rect,
+    buf: &mut Buffer,
+    marks: &[(u32, u32, FeatureMark)],
+    pooled: &Pooled,
+    palette: &Palette,
+) {
+    let style = Style::new()
+        .fg(palette.feature())
+        .add_modifier(Modifier::BOLD);
+    for &(px, py, mark) in marks {
+        let (Ok(col), Ok(row)) = (u16::try_from(px), u16::try_from(py / 2)) else {
+            continue;
+        };
+        if col >= area.width || row >= area.height {
+            continue;
+        }
+        if let Some(cell) = buf.cell_mut((area.x + col, area.y + row)) {
+            cell.set_char(feature_glyph(mark))
+                .set_style(style.bg(palette.color(pooled.get(px, py))));
+        }
+    }
+}
+
+fn feature_glyph(mark: FeatureMark) -> char {
+    match mark {
+        FeatureMark::Wall(Slope::Flat) => '─',
+        FeatureMark::Wall(Slope::Steep) => '│',
+        FeatureMark::Wall(Slope::Rising) => '╱',
+        FeatureMark::Wall(Slope::Falling) => '╲',
+        FeatureMark::Corner => '◆',
+        FeatureMark::Post => '●',
+    }
 }
 
 /// Two pixels per terminal cell, upper and lower, drawn with half blocks.
@@ -499,8 +552,125 @@ fn progress_bar(fraction: f32, cells: usize) -> String {
     format!("{}{}", "█".repeat(full), "░".repeat(cells - full))
 }
 
-/// The status panel.
-fn status_lines(app: &App, now: Instant) -> Vec<Line<'static>> {
+/// "1 wall", "2 walls".
+fn count_of(n: usize, one: &str, many: &str) -> String {
+    format!("{n} {}", if n == 1 { one } else { many })
+}
+
+/// Terminal rows `line` takes in a panel `width` columns wide, wrapped.
+fn rows_of(line: &Line, width: u16) -> usize {
+    line.width().div_ceil(usize::from(width.max(1))).max(1)
+}
+
+/// Counts per kind and sweeps merged.
+fn feature_summary(app: &App) -> Vec<Line<'static>> {
+    let Some(f) = &app.features else {
+        return vec![row("features", vec![text("–")])];
+    };
+    let of_kind = |kind: u32| f.records.iter().filter(|r| r.kind == kind).count();
+    let mut merged = vec![text(count_of(
+        usize::try_from(f.header.sweeps).unwrap_or(usize::MAX),
+        "sweep",
+        "sweeps",
+    ))];
+    if f.header.features_left_out > 0 {
+        merged.push(Span::styled(
+            format!(" · {} not sent", f.header.features_left_out),
+            Style::new().fg(Color::Yellow),
+        ));
+    }
+    if !app.show_features {
+        merged.push(Span::styled(" · hidden (o)", LABEL));
+    }
+    vec![
+        row(
+            "features",
+            vec![text(format!(
+                "{} · {}",
+                count_of(of_kind(feature_kind::PLANE), "wall", "walls"),
+                count_of(of_kind(feature_kind::CORNER), "corner", "corners"),
+            ))],
+        ),
+        row(
+            "",
+            vec![text(count_of(
+                of_kind(feature_kind::POINT),
+                "post",
+                "posts",
+            ))],
+        ),
+        row("merged", merged),
+    ]
+}
+
+/// Up to `n` features, most confident first: kind, position and confidence, with the glyph the
+/// map uses for it (so the list doubles as the overlay's legend).
+fn confident_features(app: &App, n: usize) -> Vec<Line<'static>> {
+    let Some(f) = &app.features else {
+        return Vec::new();
+    };
+    let mut known: Vec<_> = f
+        .records
+        .iter()
+        .filter(|r| {
+            [
+                feature_kind::PLANE,
+                feature_kind::CORNER,
+                feature_kind::POINT,
+            ]
+            .contains(&r.kind)
+        })
+        .collect();
+    // A NaN confidence (fusion publishes none, but shared memory is not trusted) sorts last.
+    known.sort_by(|a, b| {
+        let key = |c: f32| if c.is_nan() { f32::NEG_INFINITY } else { c };
+        key(b.confidence).total_cmp(&key(a.confidence))
+    });
+    let green = Style::new()
+        .fg(app.palette.feature())
+        .add_modifier(Modifier::BOLD);
+    known
+        .into_iter()
+        .take(n)
+        .map(|r| {
+            let segment = [
+                r.segment_ax_m,
+                r.segment_ay_m,
+                r.segment_bx_m,
+                r.segment_by_m,
+            ];
+            let wall = FeatureMark::Wall(Slope::Flat);
+            let (name, mark, (x, y)) = match r.kind {
+                // A wall's (x, y) is the foot of the perpendicular from the origin, which may lie
+                // off the part that was seen: its segment's middle is where to look on the map.
+                feature_kind::PLANE if segment.iter().all(|v| v.is_finite()) => (
+                    "wall",
+                    wall,
+                    (
+                        (r.segment_ax_m + r.segment_bx_m) / 2.0,
+                        (r.segment_ay_m + r.segment_by_m) / 2.0,
+                    ),
+                ),
+                feature_kind::PLANE => ("wall", wall, (r.x_m, r.y_m)),
+                feature_kind::CORNER => ("corner", FeatureMark::Corner, (r.x_m, r.y_m)),
+                _ => ("post", FeatureMark::Post, (r.x_m, r.y_m)),
+            };
+            row(
+                name,
+                vec![
+                    Span::styled(feature_glyph(mark).to_string(), green),
+                    text(format!(
+                        " {x:+.2}, {y:+.2} m {:>3.0}%",
+                        r.confidence * 100.0
+                    )),
+                ],
+            )
+        })
+        .collect()
+}
+
+/// The status panel, for an inner area of `width` × `height` cells.
+fn status_lines(app: &App, now: Instant, width: u16, height: u16) -> Vec<Line<'static>> {
     let mut lines = Vec::new();
     let driver_live = app.driver_peer.liveness(now);
     let mut driver = vec![liveness_span(driver_live, "driver")];
@@ -649,12 +819,20 @@ fn status_lines(app: &App, now: Instant) -> Vec<Line<'static>> {
         }
         None => lines.push(row("grid", vec![text("–")])),
     }
-    if let Some(problem) = &app.ipc_problem {
-        lines.push(row(
+    let ipc = app.ipc_problem.as_ref().map(|problem| {
+        row(
             "ipc",
             vec![Span::styled(problem.clone(), Style::new().fg(Color::Red))],
-        ));
-    }
+        )
+    });
+    lines.extend(feature_summary(app));
+    // The list takes what room is left, so the IPC problem below it is never pushed out.
+    let used: usize = lines.iter().chain(&ipc).map(|l| rows_of(l, width)).sum();
+    let room = usize::from(height)
+        .saturating_sub(used)
+        .min(LISTED_FEATURES);
+    lines.extend(confident_features(app, room));
+    lines.extend(ipc);
     lines
 }
 

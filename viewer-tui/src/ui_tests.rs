@@ -4,17 +4,20 @@
 
 use std::time::{Duration, Instant};
 
+use crossterm::event::{KeyCode, KeyEvent, KeyModifiers};
 use ratatui::Terminal;
 use ratatui::backend::TestBackend;
 use ratatui::buffer::Buffer;
 use sonar_common::ipc::{
-    CELL_UNKNOWN, DriverStatus, GridHeader, LAYOUT_VERSION, LinkState, Radar, Reading, ScanMode,
-    encode_probability, flags, model_code, preset_code, rule_code,
+    CELL_UNKNOWN, DriverStatus, FeatureRecord, FeaturesHeader, GridHeader, LAYOUT_VERSION,
+    LinkState, Radar, Reading, ScanMode, encode_probability, flags, model_code, preset_code,
+    rule_code,
 };
 
 use super::*;
 use crate::app::{App, Segment, View};
 use crate::heatmap::{ColorMode, Palette, Viewport};
+use sonar_common::ipc::feature_kind;
 
 const FREE: u8 = 20;
 const WALL: u8 = 230;
@@ -207,6 +210,166 @@ fn map_view_shows_walls_free_and_unknown_apart() {
     // The sensor sits at the origin.
     let (sensor, _) = cell_of(&app, inner, 60, 40);
     assert_eq!(buf[sensor].symbol(), "@");
+}
+
+/// What fusion would find in [`room_grid`]: the north wall seen in part, the west wall without
+/// extent yet, the south-east corner and the post. Positions are cell centres (x = -3 + 0.05·(cx +
+/// 0.5) m).
+fn room_features() -> (FeaturesHeader, Vec<FeatureRecord>) {
+    let none = FeatureRecord {
+        angle_sigma_deg: f32::NAN,
+        segment_ax_m: f32::NAN,
+        segment_ay_m: f32::NAN,
+        segment_bx_m: f32::NAN,
+        segment_by_m: f32::NAN,
+        ..FeatureRecord::default()
+    };
+    let north = FeatureRecord {
+        id: 1,
+        kind: feature_kind::PLANE,
+        x_m: 0.0,
+        y_m: 1.525,
+        angle_deg: -90.0,
+        angle_sigma_deg: 2.0,
+        confidence: 0.9,
+        segment_ax_m: -1.475, // cell 30
+        segment_ay_m: 1.525,  // row 70
+        segment_bx_m: 1.525,  // cell 90
+        segment_by_m: 1.525,
+        ..none
+    };
+    let west = FeatureRecord {
+        id: 2,
+        kind: feature_kind::PLANE,
+        x_m: -2.475, // cell 10
+        y_m: 0.025,
+        angle_deg: 0.0,
+        angle_sigma_deg: 8.0,
+        confidence: 0.4,
+        ..none
+    };
+    let corner = FeatureRecord {
+        id: 3,
+        kind: feature_kind::CORNER,
+        x_m: 2.025,  // cell 100
+        y_m: -1.475, // row 10
+        angle_deg: -37.0,
+        confidence: 0.7,
+        ..none
+    };
+    let post = FeatureRecord {
+        id: 4,
+        kind: feature_kind::POINT,
+        x_m: 1.075, // cell 81
+        y_m: 0.575, // row 51
+        angle_deg: 28.0,
+        confidence: 0.8,
+        ..none
+    };
+    let records = vec![west, corner, north, post];
+    let header = FeaturesHeader {
+        seq: 5,
+        sweeps: 12,
+        layout_version: LAYOUT_VERSION,
+        feature_count: records.len() as u32,
+        ..FeaturesHeader::default()
+    };
+    (header, records)
+}
+
+/// The text of the cells inside `area`.
+fn area_text(buf: &Buffer, area: Rect) -> String {
+    (area.top()..area.bottom())
+        .map(|y| {
+            (area.left()..area.right())
+                .map(|x| buf[(x, y)].symbol())
+                .collect::<String>()
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+#[test]
+fn walls_corners_and_posts_are_drawn_over_the_map() {
+    let t0 = Instant::now();
+    let mut app = live_app(t0);
+    let (header, records) = room_features();
+    app.on_features(&header, &records, t0).unwrap();
+    app.view = View::Map;
+    app.map.cursor = Some((30, 30));
+    let terminal = draw(&mut app, 64, 24, t0);
+    insta::assert_snapshot!(terminal.backend());
+
+    let buf = terminal.backend().buffer();
+    let inner = Rect::new(1, 1, 62, 21);
+    let green = app.palette.feature();
+    let (corner, _) = cell_of(&app, inner, 100, 10);
+    assert_eq!((buf[corner].symbol(), buf[corner].fg), ("◆", green));
+    let (post, _) = cell_of(&app, inner, 81, 51);
+    assert_eq!((buf[post].symbol(), buf[post].fg), ("●", green));
+    // The north wall from cell 30 to 90 of row 70, the room's wall glyphs on either side.
+    let (from, _) = cell_of(&app, inner, 30, 70);
+    let (to, _) = cell_of(&app, inner, 90, 70);
+    for x in from.0..=to.0 {
+        assert_eq!(
+            (buf[(x, from.1)].symbol(), buf[(x, from.1)].fg),
+            ("─", green)
+        );
+    }
+    assert_eq!(buf[(from.0 - 2, from.1)].symbol(), "▄");
+    assert_eq!(buf[(to.0 + 2, to.1)].symbol(), "▄");
+    // The west wall without extent: a short vertical tick on its foot point.
+    let (foot, _) = cell_of(&app, inner, 10, 40);
+    assert_eq!((buf[foot].symbol(), buf[foot].fg), ("│", green));
+    let ticks = area_text(buf, inner).matches('│').count();
+    assert!((2..=5).contains(&ticks), "{ticks} tick cells");
+    // Sensor and cursor stay on top.
+    let (sensor, _) = cell_of(&app, inner, 60, 40);
+    assert_eq!(buf[sensor].symbol(), "@");
+
+    // `o` hides them, and the plain map is back.
+    app.on_key(KeyEvent::new(KeyCode::Char('o'), KeyModifiers::NONE));
+    let hidden = draw(&mut app, 64, 24, t0);
+    let text = area_text(hidden.backend().buffer(), inner);
+    assert!(!text.contains(['─', '│', '◆', '●']), "{text}");
+    assert_eq!(hidden.backend().buffer()[corner].symbol(), "▄");
+}
+
+#[test]
+fn the_status_panel_counts_the_features_and_lists_the_most_confident() {
+    let t0 = Instant::now();
+    let mut app = live_app(t0);
+    let (header, records) = room_features();
+    app.on_features(&header, &records, t0).unwrap();
+    let terminal = draw(&mut app, 120, 32, t0);
+    let text = screen_text(terminal.backend().buffer());
+    for expected in [
+        "features 2 walls · 1 corner",
+        "         1 post",
+        "merged   12 sweeps",
+        // Most confident first; a wall at the middle of its segment.
+        "wall     ─ +0.02, +1.52 m  90%",
+        "post     ● +1.08, +0.57 m  80%",
+        "corner   ◆ +2.03, -1.48 m  70%",
+        "wall     ─ -2.47, +0.03 m  40%",
+    ] {
+        assert!(text.contains(expected), "missing {expected:?} in\n{text}");
+    }
+    let order: Vec<usize> = ["90%", "80%", "70%", "40%"]
+        .iter()
+        .filter_map(|c| text.find(c))
+        .collect();
+    assert!(order.is_sorted() && order.len() == 4, "{order:?}");
+
+    // A shorter panel lists fewer, and the IPC problem still fits under them.
+    app.ipc_problem = Some("open sonar/radar: incompatible types".to_owned());
+    app.show_features = false;
+    let terminal = draw(&mut app, 120, 28, t0);
+    let text = screen_text(terminal.backend().buffer());
+    assert!(text.contains("12 sweeps · hidden (o)"), "{text}");
+    assert!(text.contains("wall     ─ +0.02, +1.52 m  90%"), "{text}");
+    assert!(!text.contains("40%"), "{text}");
+    assert!(text.contains("ipc      open sonar/radar"), "{text}");
 }
 
 #[test]

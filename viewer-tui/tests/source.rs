@@ -8,7 +8,8 @@ use std::time::{Duration, Instant};
 
 use iceoryx2::port::update_connections::UpdateConnections;
 use sonar_common::ipc::{
-    self, DriverStatus, GridHeader, IpcArgs, LAYOUT_VERSION, Radar, ScanCommand, ScanCommandKind,
+    self, DriverStatus, FeatureRecord, FeaturesHeader, GridHeader, IpcArgs, LAYOUT_VERSION, Radar,
+    ScanCommand, ScanCommandKind, feature_kind,
 };
 use sonar_viewer::app::{App, Liveness, PEER_TIMEOUT, View};
 use sonar_viewer::heatmap::{ColorMode, Palette};
@@ -166,4 +167,52 @@ fn commands_reach_the_driver_and_say_when_nobody_listens() {
     assert_eq!(source.send_scan(local, t0), Ok(1));
     let received = commands.receive().unwrap().map(|s| *s.payload());
     assert_eq!(received, Some(local));
+}
+
+#[test]
+fn features_arrive_and_a_snapshot_that_disagrees_with_its_header_is_refused() {
+    let ns = Namespace::new("d");
+    let t0 = Instant::now();
+    let mut app = app();
+    let mut source = Source::new(ns.args.node("viewer").unwrap(), t0);
+    source.poll(&mut app, t0);
+
+    let fusion = ns.args.node("fusion").unwrap();
+    let features = ipc::features_service(&fusion)
+        .unwrap()
+        .publisher_builder()
+        .initial_max_slice_len(ipc::MAX_FEATURES)
+        .create()
+        .unwrap();
+    let post = FeatureRecord {
+        id: 5,
+        kind: feature_kind::POINT,
+        x_m: 1.0,
+        y_m: -0.5,
+        confidence: 0.8,
+        ..FeatureRecord::default()
+    };
+    let publish = |count: u32, len: usize| {
+        let mut sample = features.loan_slice_uninit(len).unwrap();
+        *sample.user_header_mut() = FeaturesHeader {
+            layout_version: LAYOUT_VERSION,
+            feature_count: count,
+            sweeps: 3,
+            ..FeaturesHeader::default()
+        };
+        sample.write_from_fn(|_| post).send().unwrap();
+    };
+    publish(1, 1);
+    assert!(source.poll(&mut app, t0));
+    let copy = app.features.as_ref().unwrap();
+    assert_eq!(copy.records, vec![post]);
+    assert_eq!(copy.header.sweeps, 3);
+
+    // Two records under a header that announces three: refused, the previous copy stays.
+    publish(3, 2);
+    source.poll(&mut app, t0);
+    assert_eq!(app.features.as_ref().unwrap().records.len(), 1);
+    let message = app.message.clone().unwrap_or_default();
+    assert!(message.contains("ignored a features snapshot"), "{message}");
+    assert_eq!(source.problem(), None);
 }
