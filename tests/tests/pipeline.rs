@@ -869,3 +869,122 @@ fn the_fusion_publishes_walls_and_posts_and_clears_them() {
     });
     drop(driver);
 }
+
+/// Distance from `(x, y)` to the room tour's path: the square of side 1.2 m round the centre.
+fn off_the_room_tour(x: f32, y: f32) -> f32 {
+    let (ax, ay) = (x.abs(), y.abs());
+    if ax <= 0.6 && ay <= 0.6 {
+        0.6 - ax.max(ay)
+    } else {
+        (ax - 0.6).max(0.0).hypot((ay - 0.6).max(0.0))
+    }
+}
+
+#[test]
+fn the_simulated_robot_tours_the_room_publishing_its_odometry_and_its_true_pose() {
+    let sandbox = Sandbox::new("tour");
+    let node = sandbox.node("test-consumer");
+    let readings = readings_subscriber(&node);
+    let subscribe =
+        |service: ipc::PubSub<ipc::Pose2D>| service.subscriber_builder().create().unwrap();
+    let odometry = subscribe(ipc::pose_service(&node).unwrap());
+    let truth = subscribe(ipc::true_pose_service(&node).unwrap());
+    let started_ns = ipc::unix_time_ns();
+    // Odometry 5 % long with 2°/m of drift: far from the truth within one round.
+    let (sim, pty) = sandbox.spawn_sim(&[
+        "--scene",
+        "room-tour",
+        "--speed",
+        "20",
+        "--seed",
+        "3",
+        "--odom-scale-error",
+        "0.05",
+        "--odom-heading-drift",
+        "2",
+    ]);
+    let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+
+    // Poses until the truth has been round the tour once (32 s simulated, 1.6 s here), the
+    // odometry beside it; both keep coming while the readings do.
+    let mut odometry_poses = Vec::new();
+    let true_poses = collect_until(
+        &node,
+        || {
+            while let Some(p) = odometry.receive().unwrap() {
+                odometry_poses.push(*p.payload());
+            }
+            truth.receive().unwrap().map(|s| *s.payload())
+        },
+        |got| {
+            let near = |cx: f32, cy: f32| got.iter().any(|p| (p.x_m - cx).hypot(p.y_m - cy) < 0.05);
+            got.len() > 100
+                && near(0.6, -0.6)
+                && near(0.6, 0.6)
+                && near(-0.6, 0.6)
+                && got.iter().rev().take(20).any(|p| p.y_m < -0.55)
+        },
+    );
+    let sweep_readings = collect_until(&node, || receive_reading(&readings), |got| got.len() >= 10);
+    let now_ns = ipc::unix_time_ns();
+
+    // The truth: on the tour, heading along it, stamped in order with the host's clock.
+    for p in &true_poses {
+        assert_eq!(p.layout_version, ipc::LAYOUT_VERSION);
+        assert!(
+            off_the_room_tour(p.x_m, p.y_m) < 1e-3,
+            "off the tour: {p:?}"
+        );
+        assert!((started_ns..=now_ns).contains(&p.stamp_ns), "{p:?}");
+    }
+    for pair in true_poses.windows(2) {
+        assert!(pair[1].stamp_ns > pair[0].stamp_ns, "{pair:?}");
+    }
+    // 20 poses per simulated second at 20×: 2.5 ms of host time apart (more where one was lost).
+    for pair in true_poses.windows(2) {
+        let gap_ms = (pair[1].stamp_ns - pair[0].stamp_ns) as f64 / 1e6;
+        assert!(gap_ms > 2.49, "{gap_ms} ms between poses");
+    }
+    // It starts at the first waypoint heading for the second (east); up the east side it heads
+    // north.
+    let first = true_poses[0];
+    assert!(
+        (first.y_m + 0.6).abs() < 1e-3 && first.x_m < -0.4 && first.theta_rad.abs() < 1e-3,
+        "{first:?}"
+    );
+    let east_side: Vec<_> = true_poses
+        .iter()
+        .filter(|p| (p.x_m - 0.6).abs() < 1e-3 && p.y_m.abs() < 0.5)
+        .collect();
+    assert!(!east_side.is_empty());
+    for p in east_side {
+        assert!(
+            (p.theta_rad - std::f32::consts::FRAC_PI_2).abs() < 1e-3,
+            "{p:?}"
+        );
+    }
+
+    // The odometry: the same instants, drifting away from the truth.
+    assert!(!odometry_poses.is_empty());
+    let mut worst = 0.0f32;
+    let mut paired = 0;
+    for o in &odometry_poses {
+        if let Some(t) = true_poses.iter().find(|t| t.stamp_ns == o.stamp_ns) {
+            paired += 1;
+            worst = worst.max((o.x_m - t.x_m).hypot(o.y_m - t.y_m));
+        }
+    }
+    assert!(
+        paired > 50,
+        "only {paired} odometry poses matched a true one"
+    );
+    assert!(worst > 0.1, "odometry stays within {worst} m of the truth");
+    assert!(!sweep_readings.is_empty());
+
+    assert!(driver.terminate().success(), "driver did not exit cleanly");
+    assert!(sim.terminate().success(), "simulator did not exit cleanly");
+    drop((odometry, truth, readings));
+    drop(node);
+    let left = sandbox.stale_shm_files();
+    assert!(left.is_empty(), "stale shared memory: {left:?}");
+}
