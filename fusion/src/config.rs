@@ -81,7 +81,9 @@ pub(crate) fn check(
     }
 }
 
-/// The probability grid: square, centred on the world origin.
+/// The probability grid: square, centred on (`centre_x_m`, `centre_y_m`) of the world (the
+/// sensor's start, or the odometry's origin, by default). A robot that drives needs a grid over
+/// where it goes: its extent is fixed, so a tour's area is given here.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct GridConfig {
@@ -89,6 +91,9 @@ pub struct GridConfig {
     pub cells: u32,
     /// Cell edge, metres.
     pub resolution_m: f32,
+    /// World position of the grid's centre, metres.
+    pub centre_x_m: f32,
+    pub centre_y_m: f32,
 }
 
 impl Default for GridConfig {
@@ -97,6 +102,8 @@ impl Default for GridConfig {
         Self {
             cells: 400,
             resolution_m: 0.02,
+            centre_x_m: 0.0,
+            centre_y_m: 0.0,
         }
     }
 }
@@ -250,6 +257,12 @@ impl FusionConfig {
                 cells: self.grid.cells,
                 max: MAX_CELLS_PER_SIDE,
             });
+        }
+        for (name, value) in [
+            ("grid.centre_x_m", self.grid.centre_x_m),
+            ("grid.centre_y_m", self.grid.centre_y_m),
+        ] {
+            check(name, value, value.is_finite(), "a finite number of metres")?;
         }
         let s = &self.sensor;
         check(
@@ -406,10 +419,25 @@ mod tests {
             };
             assert!(matches!(cfg.validate(), Err(ConfigError::GridSize { .. })));
         }
+        let far = FusionConfig {
+            grid: GridConfig {
+                centre_x_m: f32::INFINITY,
+                ..base.grid
+            },
+            ..base
+        };
+        assert!(matches!(
+            far.validate(),
+            Err(ConfigError::InvalidParameter {
+                name: "grid.centre_x_m",
+                ..
+            })
+        ));
         let fine = FusionConfig {
             grid: GridConfig {
                 cells: 400,
                 resolution_m: 0.001,
+                ..base.grid
             },
             ..base
         };

@@ -23,11 +23,16 @@ impl GridGeometry {
     /// The grid of `cells` cells per side of `resolution` metres. The caller has validated both
     /// (see [`crate::GridConfig`]).
     pub fn new(cells: usize, resolution: f32) -> Self {
+        Self::centred_at(cells, resolution, Vector2::zeros())
+    }
+
+    /// [`Self::new`] with the grid's centre at `centre` instead of the world's origin.
+    pub fn centred_at(cells: usize, resolution: f32, centre: Vector2<f32>) -> Self {
         let half = cells as f32 * resolution / 2.0;
         Self {
             cells,
             resolution,
-            origin: Vector2::new(-half, -half),
+            origin: centre - Vector2::new(half, half),
         }
     }
 
@@ -144,6 +149,15 @@ mod tests {
         assert_eq!(g.cell_at(Point2::new(4.1, 0.0)), None);
         let c = g.cell_centre(200, 199);
         assert!((c.x - 0.01).abs() < 1e-6 && (c.y + 0.01).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_grid_centred_elsewhere_is_shifted_whole() {
+        let g = GridGeometry::centred_at(400, 0.02, Vector2::new(3.0, 1.5));
+        assert_eq!(g.origin(), Vector2::new(-1.0, -2.5));
+        assert_eq!(g.cell_at(Point2::new(3.001, 1.501)), Some((200, 200)));
+        assert_eq!(g.cell_at(Point2::new(-1.01, 0.0)), None);
+        assert_eq!(g.cell_at(Point2::new(6.99, 5.49)), Some((399, 399)));
     }
 
     #[test]

@@ -2,7 +2,7 @@
 
 use std::fmt;
 
-use nalgebra::Isometry2;
+use nalgebra::{Isometry2, Vector2};
 
 use crate::config::{ConfigError, FusionConfig};
 use crate::geometry::GridGeometry;
@@ -58,7 +58,11 @@ impl Mapper {
     /// Empty maps for `config`, once it validates.
     pub fn new(config: FusionConfig) -> Result<Self, ConfigError> {
         config.validate()?;
-        let geometry = GridGeometry::new(config.grid.cells as usize, config.grid.resolution_m);
+        let geometry = GridGeometry::centred_at(
+            config.grid.cells as usize,
+            config.grid.resolution_m,
+            Vector2::new(config.grid.centre_x_m, config.grid.centre_y_m),
+        );
         Ok(Self {
             grid: OccupancyGrid::new(geometry, &config.rule),
             radar: RadarMap::new(config.radar)?,
@@ -251,11 +255,19 @@ mod tests {
         for (seed, model) in models.enumerate() {
             for rule in RuleKind::ALL {
                 for clear_on_no_echo in [false, true] {
-                    // 3 m of grid each side, less than the 4 m range: the cone is clipped.
+                    // 3 m of grid each side, less than the 4 m range: the cone is clipped. Every
+                    // other model on a grid whose centre is off the origin by fractions of a cell.
+                    let (centre_x_m, centre_y_m) = if seed % 2 == 1 {
+                        (0.37, -0.613)
+                    } else {
+                        (0.0, 0.0)
+                    };
                     let config = FusionConfig {
                         grid: GridConfig {
                             cells: 120,
                             resolution_m: 0.05,
+                            centre_x_m,
+                            centre_y_m,
                         },
                         model,
                         rule: RuleConfig::default_for(rule),

@@ -645,6 +645,7 @@ mod tests {
             grid: GridConfig {
                 cells: 24,
                 resolution_m: 0.25,
+                ..GridConfig::default()
             },
             rule: RuleConfig::default_for(rule),
             clear_on_no_echo: true,
