@@ -67,6 +67,7 @@ fn config(cells: u32, resolution_m: f32, model: ModelKind, rule: RuleKind) -> Fu
         grid: GridConfig {
             cells,
             resolution_m,
+            ..GridConfig::default()
         },
         model: ModelConfig::default_for(model),
         rule: RuleConfig::default_for(rule),

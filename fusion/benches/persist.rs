@@ -58,6 +58,7 @@ fn bench(c: &mut Criterion) {
                 grid: GridConfig {
                     cells,
                     resolution_m,
+                    ..GridConfig::default()
                 },
                 rule: RuleConfig::default_for(rule),
                 ..FusionConfig::default()
