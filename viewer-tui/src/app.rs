@@ -11,8 +11,8 @@ use std::time::{Duration, Instant};
 use crossterm::event::{KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
 use sonar_common::ipc::{
     DriverStatus, FeatureRecord, FeaturesHeader, FusionCommand, FusionCommandKind, GridHeader,
-    LAYOUT_VERSION, MAX_FEATURES, RADAR_MAX_BINS, Radar, Reading, ScanCommand, ScanCommandKind,
-    ScanMode, preset_code,
+    LAYOUT_VERSION, LocalizedPose, MAX_FEATURES, RADAR_MAX_BINS, Radar, Reading, ScanCommand,
+    ScanCommandKind, ScanMode, preset_code,
 };
 use sonar_common::sensor::SensorConfig;
 
@@ -30,6 +30,11 @@ pub const SEGMENT_STEP_DEG: f32 = 6.0;
 pub const SEGMENT_MIN_WIDTH_DEG: f32 = 12.0;
 /// Cursor steps per key press with Shift.
 const FAST_STEPS: i64 = 8;
+/// Positions the robot's trail keeps: a room tour's worth at one per cell moved.
+pub const TRAIL_LEN: usize = 500;
+/// Once the robot is this far from where the viewer first saw it, the map follows it (unless `t`
+/// was pressed): a fixed head never moves, so it keeps today's view, a robot gets followed.
+pub const AUTO_FOLLOW_M: f32 = 0.5;
 
 /// What the main area shows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -135,6 +140,77 @@ impl GridSnapshot {
     /// The cell under the sensor at the last fused reading.
     pub fn sensor_cell(&self) -> Option<(u32, u32)> {
         self.cell_at_m(self.header.pose_x_m, self.header.pose_y_m)
+    }
+
+    /// The sensor's pose at the last fused reading, as the fusion placed it (corrected when it
+    /// localises); `None` when shared memory brought a non-finite one.
+    pub fn pose(&self) -> Option<Pose> {
+        let h = &self.header;
+        [h.pose_x_m, h.pose_y_m, h.pose_theta_rad]
+            .iter()
+            .all(|v| v.is_finite())
+            .then_some(Pose {
+                x_m: h.pose_x_m,
+                y_m: h.pose_y_m,
+                theta_rad: h.pose_theta_rad,
+            })
+    }
+
+    /// Continuous grid coordinates (cells, y up) of the world point (`x_m`, `y_m`), as the
+    /// viewport's centre takes them.
+    pub fn grid_point(&self, x_m: f32, y_m: f32) -> (f64, f64) {
+        let h = &self.header;
+        (
+            f64::from((x_m - h.origin_x_m) / h.resolution_m),
+            f64::from((y_m - h.origin_y_m) / h.resolution_m),
+        )
+    }
+}
+
+/// A sensor pose in the world: position of the rotation axis, metres, and heading (the sensor's
+/// 0°), radians counter-clockwise from the x axis.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    pub x_m: f32,
+    pub y_m: f32,
+    pub theta_rad: f32,
+}
+
+/// Where the robot has been: the last [`TRAIL_LEN`] positions that lie more than a cell apart, in
+/// world metres (so a grid that is resized or moves its origin does not shift them).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Trail {
+    points: VecDeque<(f32, f32)>,
+}
+
+impl Trail {
+    /// Appends (`x_m`, `y_m`) if it lies more than `min_step_m` from the last position kept, so a
+    /// robot standing still (or a fixed head) adds nothing; beyond [`TRAIL_LEN`] the oldest goes.
+    /// Non-finite positions are ignored. True when appended.
+    pub fn push(&mut self, x_m: f32, y_m: f32, min_step_m: f32) -> bool {
+        if !(x_m.is_finite() && y_m.is_finite()) {
+            return false;
+        }
+        let moved = self
+            .points
+            .back()
+            .is_none_or(|&(x, y)| (x_m - x).hypot(y_m - y) > min_step_m);
+        if moved {
+            if self.points.len() >= TRAIL_LEN {
+                self.points.pop_front();
+            }
+            self.points.push_back((x_m, y_m));
+        }
+        moved
+    }
+
+    pub fn clear(&mut self) {
+        self.points.clear();
+    }
+
+    /// Oldest first.
+    pub fn points(&self) -> impl Iterator<Item = (f32, f32)> + '_ {
+        self.points.iter().copied()
     }
 }
 
@@ -313,6 +389,8 @@ pub const KEYS: &[(&str, &str)] = &[
     ("m  r  p", "next sensor model / rule / preset"),
     ("arrows", "move the cursor (Shift: faster)"),
     ("+  -  0", "zoom in / out / whole map"),
+    ("t", "zoomed in, follow the robot: on / off"),
+    ("", "(on by itself once it has moved 0.5 m)"),
     ("Tab 1 2 3", "next view / map / radar / split"),
     ("w", "radar arcs: bin width / beam width"),
     ("o", "walls, corners, posts on the map: on / off"),
@@ -383,6 +461,9 @@ pub struct MapView {
     pub center: (f64, f64),
     /// The cell whose coordinates and probability the status panel shows.
     pub cursor: Option<(u32, u32)>,
+    /// Zoomed in, keep the robot in the middle (`center` is moved to it with every grid). The
+    /// whole map (zoom 0) shows the robot anyway, and stays the whole map.
+    pub follow: bool,
 }
 
 impl MapView {
@@ -443,6 +524,14 @@ pub struct App {
     pub ipc_problem: Option<String>,
     /// Angles the head can reach, for the local-scan selection and the sweep progress.
     pub sweep_limits: Segment,
+    /// Where the robot has been since the map was last cleared.
+    pub trail: Trail,
+    /// The latest `sonar/localized_pose`; `None` until the fusion localises (it may not).
+    pub localized: Option<LocalizedPose>,
+    /// `t` was pressed: the user decides about following, no more automatic switching on.
+    pub follow_by_key: bool,
+    /// The first position the viewer saw, from which [`AUTO_FOLLOW_M`] is measured.
+    pub start_position: Option<(f32, f32)>,
 }
 
 impl App {
@@ -473,6 +562,10 @@ impl App {
                 from_deg: sensor.sweep_min_deg,
                 to_deg: sensor.sweep_max_deg,
             },
+            trail: Trail::default(),
+            localized: None,
+            follow_by_key: false,
+            start_position: None,
         }
     }
 
@@ -485,11 +578,18 @@ impl App {
     ) -> Result<(), String> {
         self.fusion_peer.seen(now);
         check_grid(header, cells.len())?;
+        // Fewer readings than before: the map was cleared (by anyone) or the fusion started afresh,
+        // and the path drawn so far belongs to the old map.
+        let cleared = self
+            .grid
+            .as_ref()
+            .is_some_and(|g| header.readings_fused < g.header.readings_fused);
         let grid = self.grid.get_or_insert_with(GridSnapshot::default);
         let resized = (grid.header.width, grid.header.height) != (header.width, header.height);
         grid.header = *header;
         grid.cells.clear();
         grid.cells.extend_from_slice(cells);
+        let pose = grid.pose();
         self.grid_generation += 1;
         if resized || self.map.cursor.is_none() {
             // A new (or re-sized) map: show all of it, cursor on the sensor.
@@ -498,9 +598,34 @@ impl App {
                 .unwrap_or((header.width / 2, header.height / 2));
             self.map = MapView {
                 cursor: Some(cursor),
+                follow: self.map.follow,
                 ..MapView::default()
             };
         }
+        if cleared {
+            self.trail.clear();
+        }
+        if let Some(p) = pose {
+            self.trail.push(p.x_m, p.y_m, header.resolution_m);
+            let (x0, y0) = *self.start_position.get_or_insert((p.x_m, p.y_m));
+            if !self.follow_by_key && (p.x_m - x0).hypot(p.y_m - y0) > AUTO_FOLLOW_M {
+                self.map.follow = true;
+            }
+        }
+        self.keep_robot_centred();
+        Ok(())
+    }
+
+    /// Takes a copy of a `sonar/localized_pose` sample.
+    pub fn on_localized_pose(&mut self, fix: &LocalizedPose, now: Instant) -> Result<(), String> {
+        self.fusion_peer.seen(now);
+        if fix.layout_version != LAYOUT_VERSION {
+            return Err(format!(
+                "localized pose layout version {} (this viewer reads {LAYOUT_VERSION})",
+                fix.layout_version
+            ));
+        }
+        self.localized = Some(*fix);
         Ok(())
     }
 
@@ -614,6 +739,8 @@ impl App {
                 }
             }
             KeyCode::Char('C') => {
+                // At once, not when the emptied map arrives: it may not (no fusion listening).
+                self.trail.clear();
                 return Some(Action::Fusion(FusionCommand::new(
                     FusionCommandKind::Clear,
                     0,
@@ -639,6 +766,7 @@ impl App {
             KeyCode::Char('+' | '=') => self.zoom(true),
             KeyCode::Char('-') => self.zoom(false),
             KeyCode::Char('0') => self.map.zoom = 0,
+            KeyCode::Char('t') => self.toggle_follow(),
             KeyCode::Left => self.move_cursor(-1, 0, fast),
             KeyCode::Right => self.move_cursor(1, 0, fast),
             KeyCode::Up => self.move_cursor(0, 1, fast),
@@ -684,6 +812,35 @@ impl App {
         Some(Action::Fusion(FusionCommand::new(kind, value)))
     }
 
+    /// `t`: follow the robot or stop following it. Switching it on over the whole map zooms in
+    /// once, as following shows nothing new there.
+    fn toggle_follow(&mut self) {
+        self.follow_by_key = true;
+        self.map.follow = !self.map.follow;
+        if self.map.follow && self.map.zoom == 0 {
+            self.zoom(true);
+        }
+        self.keep_robot_centred();
+        self.message = Some(
+            if self.map.follow {
+                "following the robot (t: stop)"
+            } else {
+                "not following the robot (t: follow)"
+            }
+            .to_owned(),
+        );
+    }
+
+    /// While following and zoomed in, puts the robot in the middle of the view.
+    fn keep_robot_centred(&mut self) {
+        if !(self.map.follow && self.map.zoom > 0) {
+            return;
+        }
+        if let Some((grid, pose)) = self.grid.as_ref().and_then(|g| g.pose().map(|p| (g, p))) {
+            self.map.center = grid.grid_point(pose.x_m, pose.y_m);
+        }
+    }
+
     fn zoom(&mut self, closer: bool) {
         let Some(grid) = &self.grid else { return };
         let (w, h) = self.map_px;
@@ -696,6 +853,7 @@ impl App {
                 if let Some(c) = self.map.cursor_center() {
                     self.map.center = c;
                 }
+                self.keep_robot_centred();
             }
         } else {
             self.map.zoom = self.map.zoom.saturating_sub(1);
@@ -703,7 +861,7 @@ impl App {
     }
 
     /// Moves the cursor by `steps` pixels (at least one cell); when it leaves the picture the view
-    /// re-centres on it, which is how the map pans.
+    /// re-centres on it, which is how the map pans (and panning ends following the robot).
     fn move_cursor(&mut self, dx: i64, dy: i64, steps: i64) {
         let Some(grid) = &self.grid else { return };
         let (gw, gh) = (grid.width(), grid.height());
@@ -721,6 +879,11 @@ impl App {
             && vp.pixel_of(cursor.0, cursor.1, gh).is_none()
             && let Some(c) = self.map.cursor_center()
         {
+            if self.map.follow {
+                self.map.follow = false;
+                self.follow_by_key = true;
+                self.message = Some("not following the robot (t: follow)".to_owned());
+            }
             self.map.center = c;
         }
     }
@@ -1052,6 +1215,171 @@ mod tests {
         assert!(near(sweep_progress(0.0, 1, limits), 0.5));
         assert!(near(sweep_progress(90.0, -1, limits), 0.2));
         assert_eq!(sweep_progress(0.0, 0, limits), None);
+    }
+
+    /// A 4 m × 4 m grid of 5 cm cells around the origin with the sensor at (`x`, `y`), `theta`.
+    fn grid_at(x: f32, y: f32, theta: f32, fused: u64) -> GridHeader {
+        GridHeader {
+            pose_x_m: x,
+            pose_y_m: y,
+            pose_theta_rad: theta,
+            readings_fused: fused,
+            ..grid_header(80, 80)
+        }
+    }
+
+    #[test]
+    fn the_trail_keeps_positions_a_cell_apart_and_the_last_500() {
+        let mut trail = Trail::default();
+        assert!(trail.push(0.0, 0.0, 0.05));
+        // Standing still, or moving within a cell: nothing new.
+        assert!(!trail.push(0.0, 0.0, 0.05));
+        assert!(!trail.push(0.03, 0.03, 0.05));
+        assert!(trail.push(0.06, 0.0, 0.05));
+        assert!(!trail.push(f32::NAN, 0.0, 0.05));
+        assert!(!trail.push(0.0, f32::INFINITY, 0.05));
+        assert_eq!(
+            trail.points().collect::<Vec<_>>(),
+            [(0.0, 0.0), (0.06, 0.0)]
+        );
+        for i in 0..TRAIL_LEN {
+            trail.push(1.0 + 0.1 * i as f32, 0.0, 0.05);
+        }
+        let points: Vec<_> = trail.points().collect();
+        assert_eq!(points.len(), TRAIL_LEN);
+        assert_eq!(points.first(), Some(&(1.0, 0.0)), "the oldest went");
+        trail.clear();
+        assert_eq!(trail.points().count(), 0);
+    }
+
+    #[test]
+    fn the_trail_grows_with_the_grids_pose_and_is_cleared_with_the_map() {
+        let mut app = app();
+        let t = Instant::now();
+        let cells = vec![0; 80 * 80];
+        for (i, x) in [0.0, 0.02, 0.1, 0.2, 0.3].into_iter().enumerate() {
+            app.on_grid(&grid_at(x, 0.0, 0.0, 10 * i as u64), &cells, t)
+                .unwrap();
+        }
+        let xs: Vec<f32> = app.trail.points().map(|p| p.0).collect();
+        assert_eq!(xs, [0.0, 0.1, 0.2, 0.3], "0.02 m is within a cell");
+        // Fewer readings fused than before: the map was cleared, the path starts again.
+        app.on_grid(&grid_at(0.4, 0.0, 0.0, 5), &cells, t).unwrap();
+        assert_eq!(app.trail.points().collect::<Vec<_>>(), [(0.4, 0.0)]);
+        // A non-finite pose adds nothing and draws no marker.
+        app.on_grid(&grid_at(f32::NAN, 0.0, 0.0, 6), &cells, t)
+            .unwrap();
+        assert_eq!(app.trail.points().count(), 1);
+        assert_eq!(app.grid.as_ref().unwrap().pose(), None);
+        // `C` clears it at once, before the emptied map arrives.
+        app.on_grid(&grid_at(0.6, 0.0, 0.0, 7), &cells, t).unwrap();
+        assert_eq!(app.trail.points().count(), 2);
+        assert!(matches!(
+            app.on_key(key(KeyCode::Char('C'))),
+            Some(Action::Fusion(_))
+        ));
+        assert_eq!(app.trail.points().count(), 0);
+    }
+
+    #[test]
+    fn t_keeps_the_robot_in_the_middle_of_the_zoomed_map() {
+        let mut app = app();
+        let t = Instant::now();
+        let cells = vec![0; 80 * 80];
+        app.on_grid(&grid_at(0.0, 0.0, 0.0, 1), &cells, t).unwrap();
+        app.map_px = (40, 40); // 2 cells per pixel at the fitting zoom
+        assert!(!app.map.follow, "a fixed head is not followed");
+        // Over the whole map, following zooms in once, around the robot: cell (40, 40) at the
+        // origin, continuous grid point (40, 40).
+        assert_eq!(app.on_key(key(KeyCode::Char('t'))), None);
+        assert!(app.map.follow);
+        assert_eq!(app.map.zoom, 1);
+        assert_eq!(app.map.center, (40.0, 40.0));
+        assert!(app.message.as_deref().unwrap().starts_with("following"));
+        // Each grid moves the view with the robot.
+        app.on_grid(&grid_at(0.5, -0.25, 1.0, 2), &cells, t)
+            .unwrap();
+        assert_eq!(app.map.center, (50.0, 35.0));
+        // Zooming in further stays on the robot, not on the cursor.
+        app.on_key(key(KeyCode::Char('+')));
+        assert_eq!((app.map.zoom, app.map.center), (2, (50.0, 35.0)));
+        // Off: the view stays where it is while the robot drives on.
+        app.on_key(key(KeyCode::Char('t')));
+        assert!(!app.map.follow);
+        app.on_grid(&grid_at(1.0, 0.0, 1.0, 3), &cells, t).unwrap();
+        assert_eq!(app.map.center, (50.0, 35.0));
+        assert!(key_help_text().contains("t            zoomed in, follow the robot"));
+    }
+
+    #[test]
+    fn panning_away_ends_following() {
+        let mut app = app();
+        let t = Instant::now();
+        let cells = vec![0; 80 * 80];
+        app.on_grid(&grid_at(0.0, 0.0, 0.0, 1), &cells, t).unwrap();
+        app.map_px = (40, 40);
+        app.on_key(key(KeyCode::Char('t')));
+        app.on_key(key(KeyCode::Char('+')));
+        // Within the picture the cursor moves and the view stays on the robot.
+        app.on_key(key(KeyCode::Right));
+        assert!(app.map.follow);
+        for _ in 0..10 {
+            app.on_key(KeyEvent::new(KeyCode::Right, KeyModifiers::SHIFT));
+        }
+        assert!(!app.map.follow, "the user took the view over");
+        assert_ne!(app.map.center, (40.0, 40.0));
+        app.on_grid(&grid_at(0.5, 0.0, 0.0, 2), &cells, t).unwrap();
+        assert!(!app.map.follow, "and it does not switch on again by itself");
+    }
+
+    #[test]
+    fn a_robot_that_moves_half_a_metre_is_followed_unless_t_said_otherwise() {
+        let cells = vec![0; 80 * 80];
+        let t = Instant::now();
+        let mut robot = app();
+        robot
+            .on_grid(&grid_at(1.0, 1.0, 0.0, 1), &cells, t)
+            .unwrap();
+        robot
+            .on_grid(&grid_at(1.3, 1.3, 0.0, 2), &cells, t)
+            .unwrap();
+        assert!(!robot.map.follow, "0.42 m from the start");
+        robot
+            .on_grid(&grid_at(1.4, 1.4, 0.0, 3), &cells, t)
+            .unwrap();
+        assert!(robot.map.follow, "0.57 m from the start");
+        assert_eq!(robot.map.zoom, 0, "the whole map stays the whole map");
+
+        let mut by_hand = app();
+        by_hand
+            .on_grid(&grid_at(1.0, 1.0, 0.0, 1), &cells, t)
+            .unwrap();
+        by_hand.on_key(key(KeyCode::Char('t')));
+        by_hand.on_key(key(KeyCode::Char('t')));
+        by_hand
+            .on_grid(&grid_at(2.0, 1.0, 0.0, 2), &cells, t)
+            .unwrap();
+        assert!(!by_hand.map.follow, "switched off by hand");
+    }
+
+    #[test]
+    fn localized_poses_are_copied_and_other_layouts_refused() {
+        let mut app = app();
+        let t = Instant::now();
+        let fix = LocalizedPose {
+            layout_version: LAYOUT_VERSION,
+            matched: 3,
+            ..LocalizedPose::default()
+        };
+        let old = LocalizedPose {
+            layout_version: 0,
+            ..fix
+        };
+        assert!(app.on_localized_pose(&old, t).is_err());
+        assert_eq!(app.localized, None);
+        assert_eq!(app.fusion_peer.liveness(t), Liveness::Alive);
+        app.on_localized_pose(&fix, t).unwrap();
+        assert_eq!(app.localized, Some(fix));
     }
 
     #[test]

@@ -480,12 +480,16 @@ pub fn nearest_xterm256(rgb: [u8; 3]) -> u8 {
 /// The colour of the features overlay: green, a hue the colour code (blue, pale, red, grey)
 /// never uses, bright enough for dark and light cells alike.
 pub const FEATURE_RGB: [u8; 3] = [60, 255, 60];
+/// The colour of the robot's trail: violet, another hue the colour code never uses and apart from
+/// the features' green, so the path reads as neither map nor wall.
+pub const TRAIL_RGB: [u8; 3] = [200, 130, 255];
 
-/// Cell value → terminal colour, precomputed for one [`ColorMode`], and the overlay's colour.
+/// Cell value → terminal colour, precomputed for one [`ColorMode`], and the overlays' colours.
 #[derive(Debug, Clone)]
 pub struct Palette {
     colors: [Color; 256],
     feature: Color,
+    trail: Color,
 }
 
 impl Palette {
@@ -497,7 +501,13 @@ impl Palette {
         Self {
             colors: std::array::from_fn(|v| color(cell_rgb(v as u8))),
             feature: color(FEATURE_RGB),
+            trail: color(TRAIL_RGB),
         }
+    }
+
+    /// The colour of the robot's trail.
+    pub fn trail(&self) -> Color {
+        self.trail
     }
 
     /// The colour of walls, corners and posts drawn over the map.

@@ -26,8 +26,8 @@ use iceoryx2::service::dynamic_config::publish_subscribe::PublisherDetails;
 use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::service::port_factory::PortFactory;
 use sonar_common::ipc::{
-    self, DriverStatus, FeatureRecord, FeaturesHeader, FusionCommand, GridHeader, IpcError, PubSub,
-    Radar, Reading, ScanCommand,
+    self, DriverStatus, FeatureRecord, FeaturesHeader, FusionCommand, GridHeader, IpcError,
+    LocalizedPose, PubSub, Radar, Reading, ScanCommand,
 };
 use tracing::{info, warn};
 
@@ -97,6 +97,7 @@ pub struct Source {
     grid: Lazy<GridSub>,
     radar: Lazy<Sub<Radar>>,
     features: Lazy<FeaturesSub>,
+    localized: Lazy<Sub<LocalizedPose>>,
     status: Lazy<Sub<DriverStatus>>,
     readings: Lazy<Sub<Reading>>,
     commands: Lazy<CommandPort<ScanCommand>>,
@@ -121,6 +122,7 @@ impl Source {
             grid: Lazy::new(ipc::GRID_SERVICE),
             radar: Lazy::new(ipc::RADAR_SERVICE),
             features: Lazy::new(ipc::FEATURES_SERVICE),
+            localized: Lazy::new(ipc::LOCALIZED_POSE_SERVICE),
             status: Lazy::new(ipc::DRIVER_STATUS_SERVICE),
             readings: Lazy::new(ipc::READINGS_SERVICE),
             commands: Lazy::new(ipc::COMMANDS_SERVICE),
@@ -136,6 +138,7 @@ impl Source {
             &self.grid.error,
             &self.radar.error,
             &self.features.error,
+            &self.localized.error,
             &self.status.error,
             &self.readings.error,
             &self.commands.error,
@@ -202,6 +205,22 @@ impl Source {
                 }
                 Ok(None) => {}
                 Err(e) => self.features.fail(now, format!("receive: {e:?}")),
+            }
+        }
+
+        if let Some((_, sub)) = self
+            .localized
+            .get(now, || subscribe(node, ipc::localized_pose_service))
+        {
+            match newest(|| sub.receive()) {
+                Ok(Some(sample)) => {
+                    changed = true;
+                    if let Err(e) = app.on_localized_pose(sample.payload(), now) {
+                        reject(app, "localized pose", &e);
+                    }
+                }
+                Ok(None) => {}
+                Err(e) => self.localized.fail(now, format!("receive: {e:?}")),
             }
         }
 

@@ -7,8 +7,9 @@
 //!
 //! Text without colour (what `tmux capture-pane -p` returns) still tells the map apart: in the map,
 //! `▄` marks a terminal cell holding an occupied pixel (a wall), `▀` observed space without walls,
-//! a blank never-observed space or the outside of the grid, `+` the cursor and `@` the sensor.
-//! Over it, in green, the features: walls as lines of `─ │ ╱ ╲`, corners `◆`, posts `●`.
+//! a blank never-observed space or the outside of the grid, `+` the cursor and an arrow the sensor,
+//! pointing along its heading (`@` if the heading is unknown); `·` the robot's trail. Over it, in
+//! green, the features: walls as lines of `─ │ ╱ ╲`, corners `◆`, posts `●`.
 
 use std::time::Instant;
 
@@ -21,11 +22,13 @@ use ratatui::text::{Line, Span};
 use ratatui::widgets::canvas::{Canvas, Circle, Context, Line as CanvasLine, Points};
 use ratatui::widgets::{Block, Clear, Paragraph, Widget, Wrap};
 use sonar_common::ipc::{
-    CELL_UNKNOWN, LinkState, Radar, Reading, ScanMode, decode_probability, feature_kind, flags,
+    CELL_UNKNOWN, LinkState, LocalizedPose, Radar, Reading, ScanMode, decode_probability,
+    feature_kind, flags,
 };
 
 use crate::app::{
-    App, KEYS, Liveness, MODELS, PRESETS, RULES, Segment, View, setting_name, sweep_progress,
+    App, GridSnapshot, KEYS, Liveness, MODELS, PRESETS, RULES, Segment, View, setting_name,
+    sweep_progress,
 };
 use crate::heatmap::{
     FeatureMark, Palette, Pooled, Slope, Viewport, cell_rgb, feature_pixels, is_occupied,
@@ -42,7 +45,11 @@ const LABEL: Style = Style::new().fg(Color::DarkGray);
 const WALL_GLYPH: char = '▄';
 const OBSERVED_GLYPH: char = '▀';
 const CURSOR_GLYPH: char = '+';
+/// The sensor by its heading's octant, counter-clockwise from east (the map's x axis).
+const HEADING_GLYPHS: [char; 8] = ['→', '↗', '↑', '↖', '←', '↙', '↓', '↘'];
+/// The sensor when its heading is not a number.
 const SENSOR_GLYPH: char = '@';
+const TRAIL_GLYPH: char = '·';
 /// Most confident features listed in the status panel, when there is room.
 const LISTED_FEATURES: usize = 5;
 
@@ -158,8 +165,11 @@ fn render_map(
             } else {
                 format!(" · zoom ×{}", 1u64 << app.map.zoom.min(63))
             };
+            // Also over the whole map, where following only shows once zoomed in: `t` toggles
+            // a state the user should be able to see.
+            let follow = if app.map.follow { " · following" } else { "" };
             format!(
-                " map {}×{} · {}{zoom} ",
+                " map {}×{} · {}{zoom}{follow} ",
                 g.width(),
                 g.height(),
                 format_length(g.header.resolution_m)
@@ -191,6 +201,7 @@ fn render_map(
         cache.key = Some(key);
     }
     paint_pixels(inner, buf, &cache.pooled, &app.palette);
+    paint_trail(inner, buf, app, grid, &vp, &cache.pooled);
     if let Some(features) = app.features.as_ref().filter(|_| app.show_features) {
         paint_features(
             inner,
@@ -221,9 +232,59 @@ fn render_map(
                 .set_style(Modifier::BOLD);
         }
     };
-    mark(grid.sensor_cell(), SENSOR_GLYPH);
+    mark(
+        grid.sensor_cell(),
+        heading_glyph(grid.header.pose_theta_rad),
+    );
     mark(app.map.cursor, CURSOR_GLYPH);
     (w, h)
+}
+
+/// The arrow pointing nearest to `theta_rad` (counter-clockwise from the map's x axis); `@` when
+/// the heading is not a number.
+fn heading_glyph(theta_rad: f32) -> char {
+    if !theta_rad.is_finite() {
+        return SENSOR_GLYPH;
+    }
+    let octant = (f64::from(theta_rad).to_degrees() / 45.0)
+        .round()
+        .rem_euclid(8.0);
+    HEADING_GLYPHS
+        .get(octant as usize)
+        .copied()
+        .unwrap_or(SENSOR_GLYPH)
+}
+
+/// The robot's trail, a faint dot on the terminal cell of each position, drawn before the features
+/// and markers so they stay on top. A cell showing a wall keeps its `▄`: the path must never hide
+/// an occupied cell.
+fn paint_trail(
+    area: Rect,
+    buf: &mut Buffer,
+    app: &App,
+    grid: &GridSnapshot,
+    vp: &Viewport,
+    pooled: &Pooled,
+) {
+    let style = Style::new().fg(app.palette.trail());
+    let wall = WALL_GLYPH.to_string();
+    for (x, y) in app.trail.points() {
+        let Some((px, py)) = grid
+            .cell_at_m(x, y)
+            .and_then(|(cx, cy)| vp.pixel_of(cx, cy, grid.height()))
+        else {
+            continue;
+        };
+        let (Ok(col), Ok(row)) = (u16::try_from(px), u16::try_from(py / 2)) else {
+            continue;
+        };
+        if let Some(cell) = buf.cell_mut((area.x + col, area.y + row))
+            && cell.symbol() != wall
+        {
+            cell.set_char(TRAIL_GLYPH)
+                .set_style(style.bg(app.palette.color(pooled.get(px, py))));
+        }
+    }
 }
 
 /// The features over the heatmap: each marked pixel's terminal cell gets the feature's glyph in
@@ -298,8 +359,9 @@ fn half_block(upper: Option<u8>, lower: Option<u8>, palette: &Palette) -> (char,
 }
 
 /// The basic method's display: arcs at the latest range per angle, range rings, the sweep line and
-/// the local-scan segment being chosen. Angles as in the readings: 0° along the sensor's forward
-/// axis, drawn to the right like the map's x axis, counter-clockwise positive.
+/// the local-scan segment being chosen. Drawn in the world's frame like the map (x to the right, y
+/// up): the sensor's 0° points along the robot's heading, counter-clockwise positive; for a fixed
+/// head (heading 0) that is to the right.
 fn render_radar(area: Rect, buf: &mut Buffer, app: &App, now: Instant) {
     let title = match &app.radar {
         Some(r) => format!(
@@ -335,14 +397,15 @@ fn render_radar(area: Rect, buf: &mut Buffer, app: &App, now: Instant) {
     let label_cell = 2.0 * hx / w;
     let selection = app.selection;
     let beam_arcs = app.beam_arcs;
+    let heading = Heading::of(app);
     Canvas::default()
         .marker(Marker::Braille)
         .x_bounds([-hx, hx])
         .y_bounds([-hy, hy])
         .paint(|ctx| {
-            paint_rings(ctx, range, label_cell);
+            paint_rings(ctx, range, label_cell, heading);
             ctx.layer();
-            let (echoes, silent) = radar_points(radar, range, dot, beam_arcs);
+            let (echoes, silent) = radar_points(radar, range, dot, beam_arcs, heading);
             ctx.draw(&Points {
                 coords: &silent,
                 color: Color::DarkGray,
@@ -353,11 +416,11 @@ fn render_radar(area: Rect, buf: &mut Buffer, app: &App, now: Instant) {
             });
             ctx.layer();
             if radar.current_angle_deg.is_finite() {
-                let (x, y) = polar(range, f64::from(radar.current_angle_deg));
+                let (x, y) = heading.turn(polar(range, f64::from(radar.current_angle_deg)));
                 ctx.draw(&CanvasLine::new(0.0, 0.0, x, y, Color::Green));
             }
             if let Some(s) = selection {
-                paint_selection(ctx, s, range, dot);
+                paint_selection(ctx, s, range, dot, heading);
             }
         })
         .render(inner, buf);
@@ -377,18 +440,55 @@ fn polar(r: f64, deg: f64) -> (f64, f64) {
     (r * a.cos(), r * a.sin())
 }
 
+/// The rotation from the sensor's frame (the radar's angles) into the world's (the map's).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Heading {
+    sin: f64,
+    cos: f64,
+}
+
+impl Heading {
+    fn new(theta_rad: f64) -> Self {
+        let (sin, cos) = theta_rad.sin_cos();
+        Self { sin, cos }
+    }
+
+    /// The heading of the pose the fusion used last; 0 (no turn) without one.
+    fn of(app: &App) -> Self {
+        let theta = app
+            .grid
+            .as_ref()
+            .and_then(GridSnapshot::pose)
+            .map_or(0.0, |p| f64::from(p.theta_rad));
+        Self::new(theta)
+    }
+
+    /// The sensor-frame point `p` in the world's frame. Exact for heading 0 (sin 0, cos 1), so a
+    /// fixed head's radar is drawn exactly as before.
+    fn turn(self, (x, y): (f64, f64)) -> (f64, f64) {
+        (self.cos * x - self.sin * y, self.sin * x + self.cos * y)
+    }
+}
+
 /// Canvas coordinates of points to draw.
 type Dots = Vec<(f64, f64)>;
 
-/// Points `dot` apart along the arc of radius `r` from `from_deg` to `to_deg`.
-fn arc(r: f64, from_deg: f64, to_deg: f64, dot: f64, out: &mut Dots) {
+/// Points `dot` apart along the arc of radius `r` from `from_deg` to `to_deg` (sensor angles),
+/// turned into the world by `heading`.
+fn arc(r: f64, from_deg: f64, to_deg: f64, dot: f64, heading: Heading, out: &mut Dots) {
     let span = (to_deg - from_deg).to_radians().abs();
     let n = ((r * span / dot.max(1e-9)).ceil() as usize).clamp(1, 10_000);
-    out.extend((0..=n).map(|i| polar(r, from_deg + (to_deg - from_deg) * i as f64 / n as f64)));
+    out.extend((0..=n).map(|i| {
+        heading.turn(polar(
+            r,
+            from_deg + (to_deg - from_deg) * i as f64 / n as f64,
+        ))
+    }));
 }
 
-/// Rings at round distances, labelled in metres along the blind side behind the sensor (180°).
-fn paint_rings(ctx: &mut Context, range: f64, label_cell: f64) {
+/// Rings at round distances, labelled in metres along the blind side behind the sensor (180°);
+/// the sensor's 0° and 90° marked where they point.
+fn paint_rings(ctx: &mut Context, range: f64, label_cell: f64, heading: Heading) {
     let step = ring_step(range);
     let rings = (range / step + 1e-6).floor() as usize;
     // Label every k-th ring so the labels (up to 6 cells) never overlap.
@@ -402,11 +502,14 @@ fn paint_rings(ctx: &mut Context, range: f64, label_cell: f64) {
             color: Color::DarkGray,
         });
         if k % every == 0 || k == rings {
-            ctx.print(-r, 0.0, Span::styled(format_length(r as f32), LABEL));
+            let (x, y) = heading.turn((-r, 0.0));
+            ctx.print(x, y, Span::styled(format_length(r as f32), LABEL));
         }
     }
-    ctx.print(range, 0.0, Span::styled("0°", LABEL));
-    ctx.print(0.0, range, Span::styled("90°", LABEL));
+    let (x, y) = heading.turn((range, 0.0));
+    ctx.print(x, y, Span::styled("0°", LABEL));
+    let (x, y) = heading.turn((0.0, range));
+    ctx.print(x, y, Span::styled("90°", LABEL));
 }
 
 /// The largest round step that still gives at least three rings.
@@ -419,8 +522,15 @@ fn ring_step(range: f64) -> f64 {
 }
 
 /// Arcs of the radar array: echoes at their range; bins whose latest reading heard nothing as a
-/// faint arc at the edge, so covered-but-empty sectors differ from never-scanned ones.
-fn radar_points(radar: &Radar, range: f64, dot: f64, beam_arcs: bool) -> (Dots, Dots) {
+/// faint arc at the edge, so covered-but-empty sectors differ from never-scanned ones. In the
+/// world's frame, turned by `heading`.
+fn radar_points(
+    radar: &Radar,
+    range: f64,
+    dot: f64,
+    beam_arcs: bool,
+    heading: Heading,
+) -> (Dots, Dots) {
     let (mut echoes, mut silent) = (Vec::new(), Vec::new());
     let bins = (radar.bin_count as usize).min(radar.distances_m.len());
     let width = f64::from(radar.bin_width_deg);
@@ -433,13 +543,14 @@ fn radar_points(radar: &Radar, range: f64, dot: f64, beam_arcs: bool) -> (Dots, 
         let center = f64::from(radar.first_bin_deg) + i as f64 * width;
         let d = f64::from(d);
         if d.is_finite() && d > 0.0 && d <= range {
-            arc(d, center - half, center + half, dot, &mut echoes);
+            arc(d, center - half, center + half, dot, heading, &mut echoes);
         } else if d == f64::INFINITY {
             arc(
                 range,
                 center - width / 2.0,
                 center + width / 2.0,
                 dot,
+                heading,
                 &mut silent,
             );
         }
@@ -447,19 +558,19 @@ fn radar_points(radar: &Radar, range: f64, dot: f64, beam_arcs: bool) -> (Dots, 
     (echoes, silent)
 }
 
-fn paint_selection(ctx: &mut Context, s: Segment, range: f64, dot: f64) {
+fn paint_selection(ctx: &mut Context, s: Segment, range: f64, dot: f64, heading: Heading) {
     let (from, to) = (f64::from(s.from_deg), f64::from(s.to_deg));
     for edge in [from, to] {
-        let (x, y) = polar(range, edge);
+        let (x, y) = heading.turn(polar(range, edge));
         ctx.draw(&CanvasLine::new(0.0, 0.0, x, y, Color::Yellow));
     }
     let mut points = Vec::new();
-    arc(range, from, to, dot, &mut points);
+    arc(range, from, to, dot, heading, &mut points);
     ctx.draw(&Points {
         coords: &points,
         color: Color::Yellow,
     });
-    let (x, y) = polar(range * 0.5, (from + to) / 2.0);
+    let (x, y) = heading.turn(polar(range * 0.5, (from + to) / 2.0));
     ctx.print(
         x,
         y,
@@ -819,6 +930,27 @@ fn status_lines(app: &App, now: Instant, width: u16, height: u16) -> Vec<Line<'s
         }
         None => lines.push(row("grid", vec![text("–")])),
     }
+    // Exactly the origin, heading 0, is where the fusion maps without a pose source: a fixed
+    // head, whose pose line would only take a row from the features' list.
+    if let Some(p) = app
+        .grid
+        .as_ref()
+        .and_then(GridSnapshot::pose)
+        .filter(|p| (p.x_m, p.y_m, p.theta_rad) != (0.0, 0.0, 0.0))
+    {
+        lines.push(row(
+            "pose",
+            vec![text(format!(
+                "{:+.2}, {:+.2} m {:+4.0}°",
+                p.x_m,
+                p.y_m,
+                degrees_180(f64::from(p.theta_rad))
+            ))],
+        ));
+    }
+    if let Some(fix) = &app.localized {
+        lines.extend(fix_lines(fix));
+    }
     let ipc = app.ipc_problem.as_ref().map(|problem| {
         row(
             "ipc",
@@ -833,6 +965,54 @@ fn status_lines(app: &App, now: Instant, width: u16, height: u16) -> Vec<Line<'s
         .min(LISTED_FEATURES);
     lines.extend(confident_features(app, room));
     lines.extend(ipc);
+    lines
+}
+
+/// An angle in degrees within [-180, 180).
+fn degrees_180(rad: f64) -> f64 {
+    (rad.to_degrees() + 180.0).rem_euclid(360.0) - 180.0
+}
+
+/// The latest sonar fix: how many observations it matched, its σ per axis, and how far the
+/// odometry has drifted from it. Shared memory is not trusted: a value that is not a number (as
+/// the covariance is without a fix) shows as "–".
+fn fix_lines(fix: &LocalizedPose) -> Vec<Line<'static>> {
+    let or_dash = |v: f64, digits: usize| {
+        if v.is_finite() {
+            format!("{v:.digits$}")
+        } else {
+            "–".to_owned()
+        }
+    };
+    // √ of a negative variance is NaN, which shows as "–" too.
+    let sigma = |variance: f32| f64::from(variance).sqrt();
+    let mut lines = Vec::new();
+    if fix.matched == 0 {
+        lines.push(row(
+            "fix",
+            vec![Span::styled("no fix", Style::new().fg(Color::Yellow))],
+        ));
+    } else {
+        lines.push(row("fix", vec![text(format!("{} matched", fix.matched))]));
+        lines.push(row(
+            "σ x,y,θ",
+            vec![text(format!(
+                "{}, {} cm, {}°",
+                or_dash(100.0 * sigma(fix.cov_xx), 1),
+                or_dash(100.0 * sigma(fix.cov_yy), 1),
+                or_dash(sigma(fix.cov_thetatheta).to_degrees(), 1),
+            ))],
+        ));
+    }
+    let distance =
+        f64::from(fix.x_m - fix.odometry_x_m).hypot(f64::from(fix.y_m - fix.odometry_y_m));
+    let turn = degrees_180(f64::from(fix.theta_rad - fix.odometry_theta_rad));
+    let drift = if distance.is_finite() && turn.is_finite() {
+        format!("{} · {turn:+.1}°", format_length(distance as f32))
+    } else {
+        "–".to_owned()
+    };
+    lines.push(row("drift", vec![text(drift)]));
     lines
 }
 

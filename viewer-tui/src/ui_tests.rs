@@ -10,8 +10,8 @@ use ratatui::backend::TestBackend;
 use ratatui::buffer::Buffer;
 use sonar_common::ipc::{
     CELL_UNKNOWN, DriverStatus, FeatureRecord, FeaturesHeader, GridHeader, LAYOUT_VERSION,
-    LinkState, Radar, Reading, ScanMode, encode_probability, flags, model_code, preset_code,
-    rule_code,
+    LinkState, LocalizedPose, Radar, Reading, ScanMode, encode_probability, flags, model_code,
+    preset_code, rule_code,
 };
 
 use super::*;
@@ -207,9 +207,9 @@ fn map_view_shows_walls_free_and_unknown_apart() {
     // The shadow behind the post is never observed either, though inside the room.
     let (shadow, _) = cell_of(&app, inner, 92, 56);
     assert_eq!(buf[shadow].symbol(), " ");
-    // The sensor sits at the origin.
+    // The sensor sits at the origin, its arrow along its 0°: a fixed head's heading is 0.
     let (sensor, _) = cell_of(&app, inner, 60, 40);
-    assert_eq!(buf[sensor].symbol(), "@");
+    assert_eq!(buf[sensor].symbol(), "→");
 }
 
 /// What fusion would find in [`room_grid`]: the north wall seen in part, the west wall without
@@ -325,7 +325,7 @@ fn walls_corners_and_posts_are_drawn_over_the_map() {
     assert!((2..=5).contains(&ticks), "{ticks} tick cells");
     // Sensor and cursor stay on top.
     let (sensor, _) = cell_of(&app, inner, 60, 40);
-    assert_eq!(buf[sensor].symbol(), "@");
+    assert_eq!(buf[sensor].symbol(), "→");
 
     // `o` hides them, and the plain map is back.
     app.on_key(KeyEvent::new(KeyCode::Char('o'), KeyModifiers::NONE));
@@ -620,4 +620,199 @@ fn ring_steps_and_lengths() {
     assert_eq!(format_count(9999), "9999");
     assert_eq!(format_count(12_345), "12.3k");
     assert_eq!(format_count(4_194_304), "4.2M");
+}
+
+#[test]
+fn the_sensor_arrow_points_along_the_heading_octant() {
+    let deg = |d: f32| heading_glyph(d.to_radians());
+    assert_eq!(deg(0.0), '→');
+    assert_eq!(deg(22.0), '→');
+    assert_eq!(deg(23.0), '↗');
+    assert_eq!(deg(90.0), '↑');
+    assert_eq!(deg(135.0), '↖');
+    assert_eq!(deg(180.0), '←');
+    assert_eq!(deg(-180.0), '←');
+    assert_eq!(deg(-135.0), '↙');
+    assert_eq!(deg(-90.0), '↓');
+    assert_eq!(deg(-44.0), '↘');
+    assert_eq!(deg(350.0), '→', "a heading past a full turn");
+    assert_eq!(deg(-630.0), '↑');
+    assert_eq!(heading_glyph(f32::NAN), '@');
+    assert_eq!(heading_glyph(f32::INFINITY), '@');
+    // Absurd but finite: still an arrow, no panic.
+    assert!(HEADING_GLYPHS.contains(&heading_glyph(1e30)));
+}
+
+#[test]
+fn the_radar_turns_with_the_heading() {
+    let mut radar = Radar {
+        layout_version: LAYOUT_VERSION,
+        bin_count: 2,
+        first_bin_deg: 0.0,
+        bin_width_deg: 6.0,
+        beam_half_angle_deg: 30.0,
+        max_range_m: 4.0,
+        ..Radar::default()
+    };
+    radar.distances_m[0] = 2.0;
+    radar.distances_m[1] = f32::INFINITY;
+    let (fixed, fixed_silent) = radar_points(&radar, 4.0, 0.05, false, Heading::new(0.0));
+    let quarter = Heading::new(std::f64::consts::FRAC_PI_2);
+    let (turned, turned_silent) = radar_points(&radar, 4.0, 0.05, false, quarter);
+    assert!(!fixed.is_empty() && !fixed_silent.is_empty());
+    assert_eq!(
+        (fixed.len(), fixed_silent.len()),
+        (turned.len(), turned_silent.len())
+    );
+    // Heading 90°: what a fixed head draws at (x, y) is drawn at (-y, x), the echo at 0° of the
+    // sensor now north of it, as on the map.
+    for (&(x, y), &(tx, ty)) in fixed
+        .iter()
+        .chain(&fixed_silent)
+        .zip(turned.iter().chain(&turned_silent))
+    {
+        assert!(
+            (tx + y).abs() < 1e-9 && (ty - x).abs() < 1e-9,
+            "({x}, {y}) → ({tx}, {ty})"
+        );
+    }
+    let (x, y) = turned[turned.len() / 2];
+    assert!((y.atan2(x).to_degrees() - 90.0).abs() < 1.0, "({x}, {y})");
+    // Heading 0 is no turn at all, so a fixed head's radar is exactly what it was.
+    assert_eq!(Heading::new(0.0).turn((1.5, -0.25)), (1.5, -0.25));
+}
+
+/// Range from (`x`, `y`) to the walls of [`room_grid`]'s room along world angle `deg`.
+fn room_range_from(x: f32, y: f32, deg: f32) -> f32 {
+    let (s, c) = deg.to_radians().sin_cos();
+    let tx = if c > 0.0 {
+        (2.0 - x) / c
+    } else {
+        (-2.5 - x) / c
+    };
+    let ty = if s > 0.0 {
+        (1.5 - y) / s
+    } else {
+        (-1.5 - y) / s
+    };
+    tx.abs().min(ty.abs())
+}
+
+/// The robot's path in [`room_grid`]: east from the origin to x = 0.525 m heading 0, then north to
+/// y = 0.825 m heading 90°, a grid snapshot every 10 cm (cell centres, so the cells are exact).
+fn drive_through_the_room(app: &mut App, t0: Instant) {
+    let (header, cells) = room_grid();
+    let east = (0..=5).map(|i| (0.025 + 0.1 * i as f32, 0.025, 0.0));
+    let north = (1..=8).map(|j| (0.525, 0.025 + 0.1 * j as f32, std::f32::consts::FRAC_PI_2));
+    for (i, (x, y, theta)) in east.chain(north).enumerate() {
+        let header = GridHeader {
+            seq: header.seq + i as u64,
+            readings_fused: header.readings_fused + 10 * i as u64,
+            pose_x_m: x,
+            pose_y_m: y,
+            pose_theta_rad: theta,
+            ..header
+        };
+        app.on_grid(&header, &cells, t0).unwrap();
+    }
+    // The sweep seen from there, in the sensor's angles: 0° is north now.
+    let mut radar = room_radar();
+    for i in 0..50 {
+        let deg = -147.0 + 6.0 * i as f32;
+        if deg <= 45.0 {
+            radar.distances_m[i] = room_range_from(0.525, 0.825, deg + 90.0);
+        }
+    }
+    app.on_radar(&radar, t0).unwrap();
+}
+
+#[test]
+fn a_moving_robot_is_drawn_with_its_heading_its_trail_and_its_fix() {
+    let t0 = Instant::now();
+    let mut app = live_app(t0);
+    drive_through_the_room(&mut app, t0);
+    app.map.cursor = Some((30, 30));
+    let fix = LocalizedPose {
+        layout_version: LAYOUT_VERSION,
+        x_m: 0.525,
+        y_m: 0.825,
+        theta_rad: std::f32::consts::FRAC_PI_2,
+        cov_xx: 0.0004,
+        cov_yy: 0.0009,
+        cov_thetatheta: 1f32.to_radians().powi(2),
+        matched: 6,
+        fixes: 4,
+        odometry_x_m: 0.585,
+        odometry_y_m: 0.745,
+        odometry_theta_rad: std::f32::consts::FRAC_PI_2 - 2f32.to_radians(),
+        ..LocalizedPose::default()
+    };
+    app.on_localized_pose(&fix, t0).unwrap();
+    assert!(app.map.follow, "moved 0.94 m: followed (when zoomed in)");
+    let terminal = draw(&mut app, 120, 32, t0);
+    insta::assert_snapshot!(terminal.backend());
+
+    let buf = terminal.backend().buffer();
+    let map = Rect::new(1, 1, 41, 29);
+    // The arrow on the robot's cell, north; the trail from the start to it, in its colour.
+    let (robot, _) = cell_of(&app, map, 71, 56);
+    assert_eq!(buf[robot].symbol(), "↑");
+    let (start, _) = cell_of(&app, map, 60, 40);
+    assert_eq!(
+        (buf[start].symbol(), buf[start].fg),
+        ("·", app.palette.trail())
+    );
+    let dots = area_text(buf, map).matches('·').count();
+    assert!((4..=14).contains(&dots), "{dots} trail cells");
+    assert!(!area_text(buf, map).contains('@'));
+
+    let text = screen_text(buf);
+    for expected in [
+        "pose     +0.52, +0.82 m  +90°",
+        "fix      6 matched",
+        "σ x,y,θ  2.0, 3.0 cm, 1.0°",
+        "drift    10 cm · +2.0°",
+    ] {
+        assert!(text.contains(expected), "missing {expected:?} in\n{text}");
+    }
+
+    // The radar in the world's frame: every echo lies on the room's walls as seen from the robot
+    // (within a terminal cell, ≈ 0.21 m × 0.42 m here). Unturned, the northern echoes would lie
+    // east of the robot, inside the room.
+    let radar = Rect::new(44, 1, 41, 29);
+    let echoes: Vec<(f64, f64)> = (radar.top()..radar.bottom())
+        .flat_map(|y| (radar.left()..radar.right()).map(move |x| (x, y)))
+        .filter(|&(x, y)| buf[(x, y)].fg == Color::LightRed)
+        .map(|(x, y)| radar_world(radar, 4.0, x, y))
+        .collect();
+    assert!(echoes.len() >= 10, "{echoes:?}");
+    for (x, y) in echoes {
+        let (wx, wy) = (0.525 + x, 0.825 + y);
+        let off_wall = [
+            (wx - 2.0).abs(),
+            (wx + 2.5).abs(),
+            (wy - 1.5).abs(),
+            (wy + 1.5).abs(),
+        ]
+        .into_iter()
+        .fold(f64::INFINITY, f64::min);
+        assert!(
+            off_wall < 0.45,
+            "echo at ({wx:.2}, {wy:.2}) m, {off_wall:.2} m off the walls"
+        );
+    }
+
+    // Without a fix the panel says so, and still how far the odometry drifted.
+    let no_fix = LocalizedPose {
+        matched: 0,
+        cov_xx: f32::NAN,
+        cov_yy: f32::NAN,
+        cov_thetatheta: f32::NAN,
+        ..fix
+    };
+    app.on_localized_pose(&no_fix, t0).unwrap();
+    let text = screen_text(draw(&mut app, 120, 32, t0).backend().buffer());
+    assert!(text.contains("fix      no fix"), "{text}");
+    assert!(!text.contains("σ x,y,θ"), "{text}");
+    assert!(text.contains("drift    10 cm · +2.0°"), "{text}");
 }
