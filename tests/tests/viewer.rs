@@ -7,22 +7,32 @@ use std::time::{Duration, Instant};
 use sonar_common::ipc::{self, ScanMode};
 use sonar_e2e::{PATIENCE, Sandbox, Tmux, collect_until, pids_of};
 
-/// Rows of the screen holding a horizontal run of at least `len` wall glyphs (`▄`, see the
-/// viewer's README), by row index.
+/// Rows of the screen holding a horizontal run of at least `len` wall glyphs, by row index: `▄`
+/// for the grid's occupied cells and `─` for a wall of `sonar/features` drawn over them (see the
+/// viewer's README). Only inside the map's frame: after its left border `│` and before its right
+/// one, which the status panel's left border follows (`││`); the frame's top and bottom rows
+/// (`┌─…`, `└─…`) are not inside.
 fn wall_rows(screen: &str, len: usize) -> Vec<usize> {
     screen
         .lines()
         .enumerate()
         .filter(|(_, line)| {
+            let Some(inside) = line.strip_prefix('│') else {
+                return false;
+            };
+            let map = inside.split("││").next().unwrap_or(inside);
             let mut run = 0;
-            line.chars().any(|c| {
-                run = if c == '▄' { run + 1 } else { 0 };
+            map.chars().any(|c| {
+                run = if c == '▄' || c == '─' { run + 1 } else { 0 };
                 run >= len
             })
         })
         .map(|(i, _)| i)
         .collect()
 }
+
+/// The sensor on the map: an arrow along its heading, `@` without one (see the viewer's README).
+const SENSOR_GLYPHS: [char; 9] = ['→', '↗', '↑', '↖', '←', '↙', '↓', '↘', '@'];
 
 #[test]
 fn the_viewer_shows_the_room_scans_on_keys_and_quits_cleanly() {
@@ -62,12 +72,12 @@ fn the_viewer_shows_the_room_scans_on_keys_and_quits_cleanly() {
         rows.len() >= 2 && rows[rows.len() - 1] - rows[0] >= 8
     });
     let rows = wall_rows(&screen, 8);
-    // The sensor is `@`, under the cursor `+` until the cursor moves; the status panel (right of
-    // `││`) has `+` signs of its own.
+    // The sensor is an arrow (a fixed head's points along its 0°, →), under the cursor `+` until
+    // the cursor moves; the status panel (right of `││`) has `+` signs of its own.
     let sensor_row = screen
         .lines()
         .map(|l| l.split("││").next().unwrap_or(l))
-        .position(|map| map.contains('@') || map.contains('+'))
+        .position(|map| map.contains(SENSOR_GLYPHS) || map.contains('+'))
         .unwrap_or_else(|| panic!("the sensor is drawn:\n{screen}"));
     assert!(
         rows[0] < sensor_row && sensor_row < rows[rows.len() - 1],
