@@ -12,6 +12,7 @@
 //! - [`ros`]: a ROS `map_server` map, trinary PGM + YAML.
 //! - [`table`]: the probabilities as CSV and as a NumPy `.npy` array (`float32`, NaN = unknown).
 //! - [`output`]: formats, file names, and writing files so that no half-written map is ever seen.
+//! - [`features`]: the walls, corners and posts of a `sonar/features` snapshot as CSV and JSON.
 //! - [`settings`]: names of the model, rule and preset codes of a snapshot header.
 //!
 //! `docs/export.md` documents the formats and their conventions for users.
@@ -22,6 +23,7 @@ use sonar_common::ipc::{GridHeader, decode_probability};
 
 pub mod canvas;
 pub mod colour;
+pub mod features;
 mod font;
 pub mod output;
 pub mod picture;
@@ -29,6 +31,7 @@ pub mod ros;
 pub mod settings;
 pub mod table;
 
+pub use features::{FeatureFormat, write_features};
 pub use output::{Format, write_map};
 pub use picture::PngOptions;
 

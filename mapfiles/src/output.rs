@@ -64,20 +64,28 @@ impl FromStr for Format {
 }
 
 /// Extensions [`stem`] removes, so `--out map.png` writes `map.png`, not `map.png.png`.
-const MAP_EXTENSIONS: [&str; 6] = ["png", "pgm", "yaml", "yml", "csv", "npy"];
+const MAP_EXTENSIONS: [&str; 7] = ["png", "pgm", "yaml", "yml", "csv", "npy", "json"];
 
-/// The stem the files of `out` are named after: `out` without a map file extension, or
-/// `out/sonar-map` if `out` is an existing directory.
+/// The stem the files of `out` are named after: `out` without a map file extension (and without
+/// the `.features` of a features file's name), or `out/sonar-map` if `out` is an existing
+/// directory.
 pub fn stem(out: &Path) -> PathBuf {
     if out.is_dir() {
         return out.join("sonar-map");
     }
-    match out.extension().and_then(|e| e.to_str()) {
-        Some(ext) if MAP_EXTENSIONS.iter().any(|m| m.eq_ignore_ascii_case(ext)) => {
-            out.with_extension("")
+    let has = |path: &Path, extensions: &[&str]| {
+        path.extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|ext| extensions.iter().any(|m| m.eq_ignore_ascii_case(ext)))
+    };
+    let mut stem = out.to_owned();
+    if has(&stem, &MAP_EXTENSIONS) {
+        stem.set_extension("");
+        if has(&stem, &["features"]) {
+            stem.set_extension("");
         }
-        _ => out.to_owned(),
     }
+    stem
 }
 
 /// Writes `map` in each of `formats` next to `stem` ([`Format::paths`]); returns the files written,
@@ -177,6 +185,14 @@ mod tests {
         assert_eq!(stem(Path::new("x/map.png")), PathBuf::from("x/map"));
         assert_eq!(stem(Path::new("x/map.YAML")), PathBuf::from("x/map"));
         assert_eq!(stem(Path::new("x/map.v2")), PathBuf::from("x/map.v2"));
+        assert_eq!(
+            stem(Path::new("x/map.features.json")),
+            PathBuf::from("x/map")
+        );
+        assert_eq!(
+            stem(Path::new("x/map.features")),
+            PathBuf::from("x/map.features")
+        );
         let dir = scratch("stem");
         assert_eq!(stem(&dir), dir.join("sonar-map"));
         std::fs::remove_dir_all(&dir).unwrap();

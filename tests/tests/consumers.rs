@@ -1,5 +1,6 @@
-//! End to end: the consumers of `sonar/grid` beside the viewer — `sonar-export` (live and from a
-//! recording), the nearest-obstacle alerter and the Python example — on the simulated room.
+//! End to end: the consumers of `sonar/grid` and `sonar/features` beside the viewer —
+//! `sonar-export` (live and from a recording), the nearest-obstacle alerter and the Python
+//! examples — on the simulated room (and the obstacle scene for the features from Python).
 //!
 //! The room (simulator scene `room`): the sensor at the centre of a 2.4 m square, walls 1.2 m away
 //! along the axes; the wall behind (x = −1.2) lies in the sweep's blind 60° and stays unseen.
@@ -12,7 +13,7 @@ use std::time::Instant;
 
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
-use sonar_common::ipc::{self, GridHeader};
+use sonar_common::ipc::{self, FeatureRecord, FeaturesHeader, GridHeader, feature_kind};
 use sonar_e2e::{PATIENCE, Proc, Sandbox, collect_until, path_str};
 
 /// Grid of the default fusion settings: 400 × 400 cells of 2 cm, centred on the sensor.
@@ -101,6 +102,66 @@ fn yaml_fields(text: &str) -> Vec<(String, String)> {
         .collect()
 }
 
+/// The columns of `sonar-export`'s features CSV (docs/export.md).
+const FEATURE_COLUMNS: &str = "id,kind,x_m,y_m,cov_xx,cov_xy,cov_yy,angle_deg,angle_sigma_deg,\
+                               confidence,times_seen,last_seen_sweep,segment_ax_m,segment_ay_m,\
+                               segment_bx_m,segment_by_m";
+
+/// The rows of a features CSV below its header line, split into fields.
+fn feature_rows(csv: &str) -> Vec<Vec<String>> {
+    let mut lines = csv.lines();
+    assert_eq!(lines.next(), Some(FEATURE_COLUMNS), "{csv}");
+    lines
+        .map(|l| {
+            let fields: Vec<String> = l.split(',').map(str::to_owned).collect();
+            assert_eq!(fields.len(), 16, "{l}");
+            fields
+        })
+        .collect()
+}
+
+/// A numeric CSV field; empty is an absent value (NaN).
+fn field_f32(f: &str) -> f32 {
+    if f.is_empty() {
+        f32::NAN
+    } else {
+        f.parse().unwrap()
+    }
+}
+
+/// A features CSV row says exactly what the record says: every float with its bits (the CSV
+/// writes the shortest text that reads back as the same `f32`), NaN as an empty field.
+fn row_is_record(row: &[String], r: &FeatureRecord) -> bool {
+    let kind = match r.kind {
+        feature_kind::POINT => "point",
+        feature_kind::CORNER => "corner",
+        feature_kind::PLANE => "plane",
+        _ => "?",
+    };
+    let floats = [
+        (2, r.x_m),
+        (3, r.y_m),
+        (4, r.cov_xx),
+        (5, r.cov_xy),
+        (6, r.cov_yy),
+        (7, r.angle_deg),
+        (8, r.angle_sigma_deg),
+        (9, r.confidence),
+        (12, r.segment_ax_m),
+        (13, r.segment_ay_m),
+        (14, r.segment_bx_m),
+        (15, r.segment_by_m),
+    ];
+    row[0] == r.id.to_string()
+        && row[1] == kind
+        && row[10] == r.times_seen.to_string()
+        && row[11] == r.last_seen_sweep.to_string()
+        && floats.iter().all(|&(i, v)| {
+            let f = field_f32(&row[i]);
+            f.to_bits() == v.to_bits() || (f.is_nan() && v.is_nan())
+        })
+}
+
 #[test]
 fn sonar_export_writes_the_live_room_as_png_ros_map_csv_and_npy() {
     let sandbox = Sandbox::new("export");
@@ -110,12 +171,47 @@ fn sonar_export_writes_the_live_room_as_png_ros_map_csv_and_npy() {
     let stem = dir.join("room");
     let out = sandbox.run(
         "sonar-export",
-        &["--format", "all", "--out", path_str(&stem), "--sweeps", "2"],
+        &[
+            "--format",
+            "all,features-csv,features-json",
+            "--out",
+            path_str(&stem),
+            "--sweeps",
+            "2",
+        ],
     );
     let printed = check_ok("sonar-export", &out);
     let files: Vec<&str> = printed.lines().collect();
-    let expected = ["png", "pgm", "yaml", "csv", "npy"].map(|e| format!("{}.{e}", stem.display()));
+    let expected = [
+        "png",
+        "pgm",
+        "yaml",
+        "csv",
+        "npy",
+        "features.csv",
+        "features.json",
+    ]
+    .map(|e| format!("{}.{e}", stem.display()));
     assert_eq!(files, expected, "the paths written, one per line");
+
+    // Features: the walls 1.2 m away, as planes (the foot of the perpendicular from the sensor),
+    // the same in both files.
+    let csv = std::fs::read_to_string(format!("{}.features.csv", stem.display())).unwrap();
+    let rows = feature_rows(&csv);
+    assert!(
+        rows.iter().any(|r| {
+            let (x, y) = (field_f32(&r[2]), field_f32(&r[3]));
+            r[1] == "plane" && (x.hypot(y) - 1.2).abs() < 0.05
+        }),
+        "a wall 1.2 m away:\n{csv}"
+    );
+    let json = std::fs::read_to_string(format!("{}.features.json", stem.display())).unwrap();
+    assert!(json.starts_with("{\n  \"seq\": "), "{json}");
+    assert!(
+        json.contains(&format!("\"feature_count\": {},", rows.len())),
+        "{json}"
+    );
+    assert_eq!(json.matches("{\"id\": ").count(), rows.len(), "{json}");
 
     // NPY: float32, (height, width), row 0 = lowest y, NaN = never observed.
     let (dict, p) = parse_npy(&std::fs::read(stem.with_extension("npy")).unwrap());
@@ -238,12 +334,18 @@ fn wait_until(node: &Node<Ipc>, what: &str, mut ready: impl FnMut() -> bool) {
     }
 }
 
-/// The recorded readings, fused offline, give exactly the map the live engine built from them.
+/// The recorded readings, fused offline, give exactly the map and the features the live engine
+/// built from them.
 #[test]
 fn an_export_from_a_recording_equals_the_live_map_of_the_same_readings() {
     let sandbox = Sandbox::new("exportrec");
     let node = sandbox.node("test-counter");
     let grid = ipc::grid_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let features = ipc::features_service(&node)
         .unwrap()
         .subscriber_builder()
         .create()
@@ -262,15 +364,16 @@ fn an_export_from_a_recording_equals_the_live_map_of_the_same_readings() {
     });
     let (sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100", "--seed", "8"]);
     let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
-    let mut count = collect_until(
+    let got = collect_until(
         &node,
-        || readings.receive().unwrap().map(|s| s.payload().seq),
+        || readings.receive().unwrap().map(|s| s.payload().sweep_id),
         |got| got.len() >= 60,
-    )
-    .len();
+    );
+    let (mut count, mut last_sweep) = (got.len(), got.last().copied().unwrap());
     assert!(driver.terminate().success(), "driver did not exit cleanly");
-    while readings.receive().unwrap().is_some() {
+    while let Some(sample) = readings.receive().unwrap() {
         count += 1;
+        last_sweep = sample.payload().sweep_id;
     }
     // The live engine has fused every reading the driver published.
     collect_until(
@@ -282,6 +385,24 @@ fn an_export_from_a_recording_equals_the_live_map_of_the_same_readings() {
         },
         |got| got.last() == Some(&(count as u64)),
     );
+    // The fusion merges the last, unfinished sweep into the features once the readings stopped
+    // (2 s): that snapshot holds every reading, as the offline export's does.
+    let live_features = collect_until(
+        &node,
+        || {
+            features
+                .receive()
+                .unwrap()
+                .map(|s| (*s.user_header(), s.payload().to_vec()))
+        },
+        |got: &[(FeaturesHeader, Vec<FeatureRecord>)]| {
+            got.last()
+                .is_some_and(|(h, _)| h.last_sweep_id == last_sweep)
+        },
+    )
+    .pop()
+    .unwrap()
+    .1;
     assert!(
         recorder.terminate().success(),
         "sonar-record did not exit cleanly"
@@ -298,7 +419,7 @@ fn an_export_from_a_recording_equals_the_live_map_of_the_same_readings() {
         "sonar-export",
         &[
             "--format",
-            "npy,pgm",
+            "npy,pgm,features-csv",
             "--out",
             path_str(&offline_stem),
             "--from-recording",
@@ -306,6 +427,16 @@ fn an_export_from_a_recording_equals_the_live_map_of_the_same_readings() {
         ],
     );
     check_ok("offline sonar-export", &offline);
+    let csv = std::fs::read_to_string(offline_stem.with_extension("features.csv")).unwrap();
+    let rows = feature_rows(&csv);
+    assert!(!live_features.is_empty(), "the room has walls");
+    assert_eq!(rows.len(), live_features.len(), "{csv}\n{live_features:?}");
+    for (row, record) in rows.iter().zip(&live_features) {
+        assert!(
+            row_is_record(row, record),
+            "offline {row:?}\nlive    {record:?}"
+        );
+    }
     let fused_in = |stem: &PathBuf| {
         let yaml = std::fs::read_to_string(stem.with_extension("yaml")).unwrap();
         yaml.split(" readings fused")

@@ -1,11 +1,13 @@
-//! `sonar-export`: the occupancy map to files, from a running pipeline or from a recording.
+//! `sonar-export`: the occupancy map and the features to files, from a running pipeline or from a
+//! recording.
 //!
 //! Live, it is one more consumer of `sonar/grid`: it sleeps on the grid's wake-up event, takes the
 //! first snapshot that satisfies `--wait-readings`/`--sweeps` (without them, the current map, which
 //! history 1 hands to a new subscriber; with `--sweeps`, the end-of-sweep snapshot, see [`Wanted`]),
-//! writes it and exits. Offline, it fuses a recording's
-//! readings with the fusion engine's own code, so the map is the one the live engine would have
-//! built from the same readings.
+//! writes it and exits. Asked for the features, it also takes the latest `sonar/features` snapshot
+//! by then (or the next one, if none has come yet). Offline, it fuses a recording's readings with
+//! the fusion engine's own code (grid and feature tracker), so map and features are the ones the
+//! live engine would have built from the same readings. Both paths end in the same writers.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -16,11 +18,11 @@ use clap::Parser;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::waitset::WaitSetRunResult;
-use sonar_common::ipc::{self, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION};
+use sonar_common::ipc::{self, FusionCommandKind, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION};
 use sonar_fusion::engine::Engine;
-use sonar_fusion::{FusionConfig, Preset};
-use sonar_mapfiles::{Format, Map, PngOptions, output};
-use sonar_recorder::{Message, ReadOptions, Recording};
+use sonar_fusion::{FeatureTracker, FeaturesSection, FusionConfig, Preset};
+use sonar_mapfiles::{FeatureFormat, Format, Map, PngOptions, output, write_features};
+use sonar_recorder::{FeatureSnapshot, Message, ReadOptions, Recording};
 use tracing::{debug, info, warn};
 
 /// Readings the offline engine keeps for re-fusing on a recorded preset/model/rule switch; the
@@ -30,32 +32,39 @@ const OFFLINE_HISTORY: usize = 20_000;
 const TICK: Duration = Duration::from_millis(500);
 
 /// Writes the sonar occupancy map as files: a PNG in the viewer's colours with a scale bar, a ROS
-/// map_server map (PGM + YAML), the probabilities as CSV or as a NumPy .npy array.
+/// map_server map (PGM + YAML), the probabilities as CSV or as a NumPy .npy array; and, when asked
+/// for, the walls, corners and posts of sonar/features as CSV or JSON.
 ///
 /// Live (default): takes the map from sonar/grid of the running pipeline (same --iox-* settings as
 /// sonar-fusion), writes it and exits. Without --wait-readings/--sweeps that is the current map.
+/// The features are the latest sonar/features snapshot by then, or the next one (the fusion
+/// publishes one per sweep).
 ///
 /// Offline (--from-recording): fuses the readings of a sonar-record file with the fusion engine
-/// (poses and fusion commands as recorded) and writes the final map.
+/// (poses and fusion commands as recorded) and writes the final map and features.
 ///
 /// Files are named after --out without its extension: STEM.png, STEM.pgm + STEM.yaml, STEM.csv,
-/// STEM.npy. Their paths are printed on standard output. See docs/export.md for the conventions.
+/// STEM.npy, STEM.features.csv, STEM.features.json; missing directories are created. Their paths
+/// are printed on standard output. See docs/export.md for the conventions.
 ///
 /// Examples:
 ///   sonar-export --format png --out room.png
 ///   sonar-export --format all --out maps/room --sweeps 2
 ///   sonar-export --format pgm --out map --from-recording run.mcap --preset paper
+///   sonar-export --format features-csv,features-json --out maps/room
 ///   ros2 run nav2_map_server map_server --ros-args -p yaml_filename:=map.yaml
 ///
 /// Exit status: 0 written, 1 error, 130 interrupted (Ctrl-C/SIGTERM) before a map arrived.
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
 struct Args {
-    /// Formats, comma-separated: png, pgm (with its YAML), csv, npy, or all.
+    /// Formats, comma-separated: png, pgm (with its YAML), csv, npy, or all (these four map
+    /// formats); features-csv, features-json (the features, only when named).
     #[arg(long, value_delimiter = ',', default_value = "all", value_parser = parse_formats)]
     format: Vec<Formats>,
-    /// Output path: the files' stem (an extension like .png is dropped), or an existing directory
-    /// (files named sonar-map.* in it). Existing files are replaced.
+    /// Output path: the files' stem (an extension like .png or .features.csv is dropped), or an
+    /// existing directory (files named sonar-map.* in it). Existing files are replaced, missing
+    /// directories created.
     #[arg(long, default_value = "sonar-map", value_name = "PATH")]
     out: PathBuf,
     /// PNG without the legend strip (scale bar, colour ramp): exactly one pixel per cell.
@@ -98,17 +107,46 @@ struct Args {
     ipc: IpcArgs,
 }
 
-/// One `--format` item: a format, or all of them.
-#[derive(Debug, Clone)]
-struct Formats(Vec<Format>);
+/// What `--format` asks for: map formats and features formats (one item, or all of them).
+#[derive(Debug, Clone, Default)]
+struct Formats {
+    maps: Vec<Format>,
+    features: Vec<FeatureFormat>,
+}
 
 fn parse_formats(s: &str) -> Result<Formats, String> {
     if s.eq_ignore_ascii_case("all") {
-        return Ok(Formats(Format::ALL.to_vec()));
+        return Ok(Formats {
+            maps: Format::ALL.to_vec(),
+            features: Vec::new(),
+        });
     }
-    s.parse()
-        .map(|f| Formats(vec![f]))
-        .map_err(|e| format!("{e}"))
+    if let Ok(f) = s.parse::<Format>() {
+        return Ok(Formats {
+            maps: vec![f],
+            features: Vec::new(),
+        });
+    }
+    s.parse::<FeatureFormat>()
+        .map(|f| Formats {
+            maps: Vec::new(),
+            features: vec![f],
+        })
+        .map_err(|_| {
+            format!(
+                "unknown format {s:?}: expected png, pgm, csv, npy, all, features-csv or \
+                 features-json"
+            )
+        })
+}
+
+/// A grid snapshot: its header and cells.
+type Grid = (GridHeader, Vec<u8>);
+
+/// What is exported: the map, and the features if they were asked for.
+struct Snapshot {
+    grid: Grid,
+    features: Option<FeatureSnapshot>,
 }
 
 fn parse_preset(s: &str) -> Result<Preset, String> {
@@ -140,33 +178,62 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args) -> Result<Outcome> {
-    let mut formats: Vec<Format> = args.format.iter().flat_map(|f| f.0.clone()).collect();
-    formats.sort();
-    formats.dedup();
+    let mut formats = Formats::default();
+    for f in &args.format {
+        formats.maps.extend(&f.maps);
+        formats.features.extend(&f.features);
+    }
+    formats.maps.sort();
+    formats.maps.dedup();
+    formats.features.sort();
+    formats.features.dedup();
     if let Some(t) = args.timeout
         && !(t.is_finite() && t > 0.0)
     {
         bail!("--timeout must be a positive number of seconds");
     }
-    let (header, cells) = match &args.from_recording {
-        Some(file) => from_recording(file, args)?,
-        None => match live(args)? {
+    let with_features = !formats.features.is_empty();
+    let snapshot = match &args.from_recording {
+        Some(file) => from_recording(file, args, with_features)?,
+        None => match live(args, with_features)? {
             Some(snapshot) => snapshot,
             None => return Ok(Outcome::Interrupted),
         },
     };
-    let map = Map::new(&header, &cells).context("the map is unusable")?;
     let stem = output::stem(&args.out);
-    let png = PngOptions {
-        legend: !args.no_legend,
-    };
-    let written = sonar_mapfiles::write_map(&map, &stem, &formats, &png)?;
-    info!(
-        readings = header.readings_fused,
-        seq = header.seq,
-        files = written.len(),
-        "map written"
-    );
+    if let Some(dir) = stem.parent()
+        && !dir.as_os_str().is_empty()
+    {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create the output directory {}", dir.display()))?;
+    }
+    let mut written = Vec::new();
+    let (header, cells) = &snapshot.grid;
+    if !formats.maps.is_empty() {
+        let map = Map::new(header, cells).context("the map is unusable")?;
+        let png = PngOptions {
+            legend: !args.no_legend,
+        };
+        written.extend(sonar_mapfiles::write_map(&map, &stem, &formats.maps, &png)?);
+        info!(
+            readings = header.readings_fused,
+            seq = header.seq,
+            "map written"
+        );
+    }
+    if let Some(features) = &snapshot.features {
+        written.extend(write_features(
+            &features.header,
+            &features.records,
+            &stem,
+            &formats.features,
+        )?);
+        info!(
+            features = features.records.len(),
+            sweeps = features.header.sweeps,
+            "features written"
+        );
+    }
     Ok(Outcome::Written(written))
 }
 
@@ -237,20 +304,33 @@ impl Wanted {
     }
 }
 
-/// Waits for the wanted snapshot on `sonar/grid` and copies it out; `None` on SIGINT/SIGTERM.
-fn live(args: &Args) -> Result<Option<(GridHeader, Vec<u8>)>> {
+/// Waits for the wanted snapshot on `sonar/grid` (and, `with_features`, for a `sonar/features`
+/// snapshot) and copies it out; `None` on SIGINT/SIGTERM.
+fn live(args: &Args, with_features: bool) -> Result<Option<Snapshot>> {
     let node = args.ipc.node("sonar-export")?;
     let subscriber = ipc::grid_service(&node)?
         .subscriber_builder()
         .create()
         .map_err(|e| IpcError::new("create grid subscriber", e))?;
-    let listener = ipc::wakeup_listener(&node, ipc::GRID_SERVICE)?;
+    let mut listeners = vec![ipc::wakeup_listener(&node, ipc::GRID_SERVICE)?];
+    let features = if with_features {
+        let subscriber = ipc::features_service(&node)?
+            .subscriber_builder()
+            .create()
+            .map_err(|e| IpcError::new("create features subscriber", e))?;
+        listeners.push(ipc::wakeup_listener(&node, ipc::FEATURES_SERVICE)?);
+        Some(subscriber)
+    } else {
+        None
+    };
     let waitset = WaitSetBuilder::new()
         .create::<Ipc>()
         .map_err(|e| IpcError::new("create waitset", e))?;
-    let _wakeups = waitset
-        .attach_notification(&listener)
-        .map_err(|e| IpcError::new("attach grid listener", e))?;
+    let _wakeups = listeners
+        .iter()
+        .map(|l| waitset.attach_notification(l))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| IpcError::new("attach listener", e))?;
     let _tick = waitset
         .attach_interval(TICK)
         .map_err(|e| IpcError::new("attach interval", e))?;
@@ -262,14 +342,17 @@ fn live(args: &Args) -> Result<Option<(GridHeader, Vec<u8>)>> {
     info!(
         wait_readings = args.wait_readings,
         sweeps = args.sweeps,
+        with_features,
         "waiting for a map on {}",
         ipc::GRID_SERVICE
     );
     let mut seen = 0u64;
     // A copy of the previous snapshot, which may turn out to be the end of the last wanted sweep.
-    let mut previous: Option<(GridHeader, Vec<u8>)> = None;
+    let mut previous: Option<Grid> = None;
+    let mut map: Option<Grid> = None;
+    let mut latest_features: Option<FeatureSnapshot> = None;
     loop {
-        // Every wake-up (event or tick) ends in the same check of the subscriber, so a missed
+        // Every wake-up (event or tick) ends in the same check of the subscribers, so a missed
         // event delays a snapshot by one tick at most.
         let result = waitset
             .wait_and_process_once(|_| CallbackProgression::Continue)
@@ -280,12 +363,35 @@ fn live(args: &Args) -> Result<Option<(GridHeader, Vec<u8>)>> {
         ) {
             return Ok(None);
         }
-        if let Err(e) = listener.try_wait(|_| {}) {
-            warn!("grid listener: {e:?}");
+        for listener in &listeners {
+            if let Err(e) = listener.try_wait(|_| {}) {
+                warn!("listener: {e:?}");
+            }
         }
-        while let Some(sample) = subscriber
-            .receive()
-            .map_err(|e| IpcError::new("receive grid snapshot", e))?
+        if let Some(features) = &features {
+            while let Some(sample) = features
+                .receive()
+                .map_err(|e| IpcError::new("receive features snapshot", e))?
+            {
+                let header = *sample.user_header();
+                if header.layout_version != LAYOUT_VERSION {
+                    warn!(
+                        version = header.layout_version,
+                        "features snapshot of another layout version ignored"
+                    );
+                    continue;
+                }
+                debug!(seq = header.seq, sweeps = header.sweeps, "features");
+                latest_features = Some(FeatureSnapshot {
+                    header,
+                    records: sample.payload().to_vec(),
+                });
+            }
+        }
+        while map.is_none()
+            && let Some(sample) = subscriber
+                .receive()
+                .map_err(|e| IpcError::new("receive grid snapshot", e))?
         {
             let header = *sample.user_header();
             if header.layout_version != LAYOUT_VERSION {
@@ -303,27 +409,42 @@ fn live(args: &Args) -> Result<Option<(GridHeader, Vec<u8>)>> {
                 "snapshot"
             );
             match wanted.offer(&header) {
-                Take::Current => return Ok(Some((header, sample.payload().to_vec()))),
-                Take::Previous if previous.is_some() => return Ok(previous),
+                Take::Current => map = Some((header, sample.payload().to_vec())),
+                Take::Previous if previous.is_some() => map = previous.take(),
                 Take::Previous | Take::Nothing if args.sweeps > 0 => {
                     previous = Some((header, sample.payload().to_vec()));
                 }
                 Take::Previous | Take::Nothing => {}
             }
         }
+        if map.is_some() && (!with_features || latest_features.is_some()) {
+            return Ok(map.map(|grid| Snapshot {
+                grid,
+                features: latest_features,
+            }));
+        }
         if let Some(deadline) = deadline
             && Instant::now() >= deadline
         {
+            if map.is_none() {
+                bail!(
+                    "no suitable map within --timeout ({seen} snapshots seen on {}): is \
+                     sonar-fusion running with the same --iox-prefix/--iox-root, and the sensor \
+                     scanning?",
+                    ipc::GRID_SERVICE
+                );
+            }
             bail!(
-                "no suitable map within --timeout ({seen} snapshots seen on {}): is sonar-fusion \
-                 running with the same --iox-prefix/--iox-root, and the sensor scanning?",
-                ipc::GRID_SERVICE
+                "no features within --timeout: sonar-fusion publishes them on {} at the end of \
+                 each sweep (is the sensor scanning? does sonar-fusion run without \
+                 --no-features?)",
+                ipc::FEATURES_SERVICE
             );
         }
     }
 }
 
-fn from_recording(file: &Path, args: &Args) -> Result<(GridHeader, Vec<u8>)> {
+fn from_recording(file: &Path, args: &Args, with_features: bool) -> Result<Snapshot> {
     let recording = sonar_recorder::read_file(
         file,
         ReadOptions {
@@ -337,21 +458,37 @@ fn from_recording(file: &Path, args: &Args) -> Result<(GridHeader, Vec<u8>)> {
     let config = args
         .preset
         .map_or_else(FusionConfig::default, FusionConfig::preset);
-    fuse_recording(&recording, config, !args.ignore_fusion_commands)
+    fuse_recording(
+        &recording,
+        config,
+        !args.ignore_fusion_commands,
+        with_features,
+    )
 }
 
-/// Replays `recording` into a fusion engine: readings fused, poses taken, fusion commands applied
-/// (if `commands`), in recorded order; returns the final snapshot.
+/// Replays `recording` into a fusion engine as `sonar-fusion` runs it: readings fused, poses
+/// taken, fusion commands applied (if `commands`), in recorded order; with `with_features`, each
+/// reading also goes to a feature tracker with `sonar-fusion`'s default `[features]` settings
+/// (before the engine fuses it, and cleared with the map, as there). Returns the final snapshot;
+/// the last sweep's features are merged at the end, as the fusion does when the readings stop.
 fn fuse_recording(
     recording: &Recording,
     config: FusionConfig,
     commands: bool,
-) -> Result<(GridHeader, Vec<u8>)> {
+    with_features: bool,
+) -> Result<Snapshot> {
     let mut engine = Engine::new(config, OFFLINE_HISTORY).context("invalid fusion settings")?;
+    let mut tracker = with_features
+        .then(|| FeatureTracker::new(FeaturesSection::default().config))
+        .transpose()
+        .context("invalid feature settings")?;
     let (mut fused, mut refused, mut stamp) = (0u64, 0u64, 0u64);
     for entry in &recording.entries {
         match &entry.message {
             Message::Reading(r) if r.layout_version == LAYOUT_VERSION => {
+                if let Some(tracker) = &mut tracker {
+                    tracker.push(r, engine.pose());
+                }
                 if engine.fuse(r) {
                     fused += 1;
                 } else {
@@ -368,11 +505,17 @@ fn fuse_recording(
                     warn!(pose = ?p, "pose refused: {e}");
                 }
             }
-            Message::FusionCommand(c) if commands => {
-                if let Err(e) = engine.apply(c) {
-                    warn!(command = ?c, "recorded fusion command refused: {e}");
+            Message::FusionCommand(c) if commands => match engine.apply(c) {
+                Ok(()) => {
+                    if let (Some(FusionCommandKind::Clear), Some(tracker)) =
+                        (c.kind(), &mut tracker)
+                    {
+                        tracker.clear();
+                    }
                 }
-            }
+                Err(e) => warn!(command = ?c, "recorded fusion command refused: {e}"),
+            },
+            // Recorded features are the live fusion's; these are computed anew from the readings.
             Message::FusionCommand(_) | Message::ScanCommand(_) | Message::Features(_) => {}
         }
     }
@@ -382,7 +525,15 @@ fn fuse_recording(
     info!(fused, refused, "recording fused");
     let mut cells = vec![0; engine.grid_len()];
     let counts = engine.encode_grid(&mut cells);
-    Ok((engine.grid_header(1, stamp, counts), cells))
+    let features = tracker.map(|mut tracker| {
+        tracker.finish_sweep();
+        let (header, records) = tracker.snapshot(engine.mapper().grid(), 1, stamp);
+        FeatureSnapshot { header, records }
+    });
+    Ok(Snapshot {
+        grid: (engine.grid_header(1, stamp, counts), cells),
+        features,
+    })
 }
 
 #[cfg(test)]
@@ -494,7 +645,9 @@ mod tests {
     #[test]
     fn a_recording_is_fused_with_its_commands_unless_told_otherwise() {
         let rec = recording();
-        let (h, cells) = fuse_recording(&rec, FusionConfig::default(), true).unwrap();
+        let snapshot = fuse_recording(&rec, FusionConfig::default(), true, false).unwrap();
+        assert!(snapshot.features.is_none(), "not asked for");
+        let (h, cells) = snapshot.grid;
         assert_eq!(h.readings_fused, 50, "the clear dropped the first sweep");
         assert_eq!(cells.len(), (h.width * h.height) as usize);
         assert_eq!(h.preset, preset_code::RECOMMENDED);
@@ -507,8 +660,91 @@ mod tests {
             .fold(0.0f32, f32::max);
         assert!(wall > 0.5, "{wall}");
 
-        let (all, _) = fuse_recording(&rec, FusionConfig::preset(Preset::Paper), false).unwrap();
-        assert_eq!(all.readings_fused, 100);
-        assert_eq!(all.preset, preset_code::PAPER);
+        let all = fuse_recording(&rec, FusionConfig::preset(Preset::Paper), false, false).unwrap();
+        assert_eq!(all.grid.0.readings_fused, 100);
+        assert_eq!(all.grid.0.preset, preset_code::PAPER);
+    }
+
+    /// A reading whose four pings, 1.5° apart, hear a 5 cm post 1 m ahead within ±13.4°.
+    fn post_reading(sweep_id: u32, centre_deg: f32) -> Reading {
+        let v = 343.2_f32;
+        let mut r = Reading {
+            speed_of_sound_mps: v,
+            ping_count: 4,
+            pings_used: 4,
+            ..reading(sweep_id, centre_deg, 0.979)
+        };
+        for j in 0..4 {
+            let bearing = centre_deg + 1.5 * (j as f32 - 1.5);
+            if bearing.abs() <= 13.4 {
+                r.echo_us[j] = (2.0 * 0.979 / v * 1e6).round() as u32;
+            }
+        }
+        r
+    }
+
+    /// Three sweeps of the post, a clear after the first.
+    fn post_recording() -> Recording {
+        let mut entries = Vec::new();
+        let mut push = |message| {
+            entries.push(Entry {
+                log_time_ns: entries.len() as u64,
+                message,
+            })
+        };
+        for sweep in 1..=3 {
+            for k in 0..50 {
+                push(Message::Reading(post_reading(
+                    sweep,
+                    -147.0 + 6.0 * k as f32,
+                )));
+            }
+            if sweep == 1 {
+                push(Message::FusionCommand(FusionCommand::new(
+                    FusionCommandKind::Clear,
+                    0,
+                )));
+            }
+        }
+        Recording {
+            entries,
+            ..Recording::default()
+        }
+    }
+
+    #[test]
+    fn the_features_of_a_recording_are_tracked_like_the_fusion_does_and_cleared_with_the_map() {
+        let rec = post_recording();
+        let features = |commands| {
+            fuse_recording(&rec, FusionConfig::default(), commands, true)
+                .unwrap()
+                .features
+                .expect("asked for")
+        };
+        // The clear forgot sweep 1; sweeps 2 and 3 (the last merged at the end) saw the post.
+        let cleared = features(true);
+        assert_eq!(cleared.header.feature_count, 1);
+        assert_eq!(cleared.header.last_sweep_id, 3);
+        let post = cleared.records[0];
+        assert_eq!((post.kind, post.times_seen), (ipc::feature_kind::POINT, 2));
+        assert!(
+            (post.x_m - 0.975).abs() < 0.005 && post.y_m.abs() < 0.005,
+            "{post:?}"
+        );
+        assert!(post.segment_ax_m.is_nan());
+        let all = features(false);
+        assert_eq!(all.records[0].times_seen, 3, "without the clear");
+    }
+
+    #[test]
+    fn formats_are_map_or_feature_formats() {
+        let f = parse_formats("all").unwrap();
+        assert_eq!((f.maps, f.features), (Format::ALL.to_vec(), vec![]));
+        let f = parse_formats("features-json").unwrap();
+        assert_eq!((f.maps, f.features), (vec![], vec![FeatureFormat::Json]));
+        let f = parse_formats("NPY").unwrap();
+        assert_eq!((f.maps, f.features), (vec![Format::Npy], vec![]));
+        let err = parse_formats("features").unwrap_err();
+        assert!(err.contains("features-csv or features-json"), "{err}");
     }
 }
