@@ -567,3 +567,86 @@ fn the_python_example_prints_the_occupied_fraction_of_the_room() {
         lines[0]
     );
 }
+
+/// `feature <id> <kind> x <m> y <m> …` → (kind, x, y).
+fn parse_feature_line(line: &str) -> (String, f32, f32) {
+    let f: Vec<&str> = line.split_whitespace().collect();
+    assert!(
+        f.len() >= 7 && f[0] == "feature" && f[3] == "x" && f[5] == "y",
+        "{line}"
+    );
+    (
+        f[2].to_owned(),
+        f[4].parse().unwrap(),
+        f[6].parse().unwrap(),
+    )
+}
+
+/// The features from Python: the obstacle scene (a 5 cm post 1 m ahead, a wall 2 m ahead) through
+/// simulator, driver and fusion, as `the_fusion_publishes_walls_and_posts_and_clears_them` runs
+/// it; the script finds the post as a point and the wall as a plane.
+#[test]
+fn the_python_example_prints_the_post_and_the_wall_of_the_obstacle_scene() {
+    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let python = std::env::var_os("SONAR_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace.join(".venv/bin/python3"));
+    assert!(
+        python.exists(),
+        "{} missing: python3 -m venv .venv && .venv/bin/pip install 'iceoryx2==0.10.*' (.ci/run does)",
+        python.display()
+    );
+    let sandbox = Sandbox::new("pyfeatures");
+    let node = sandbox.node("test-features");
+    let features = ipc::features_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    // Fast, but not so fast that a debug-build fusion falls behind and loses readings.
+    let (_sim, pty) = sandbox.spawn_sim(&["--scene", "obstacle", "--speed", "20"]);
+    let _driver = sandbox.spawn("sonar-driver", &["--port", &pty]);
+    let _fusion = sandbox.spawn("sonar-fusion", &["--no-persist"]);
+    // The script opens the services: they must exist (the fusion engine creates them).
+    collect_until(
+        &node,
+        || features.receive().unwrap().map(|s| *s.user_header()),
+        |got: &[FeaturesHeader]| !got.is_empty(),
+    );
+
+    // One snapshot a sweep (0.5 s at this speed): the post and the wall are found by the third.
+    let output = std::process::Command::new(python)
+        .arg(workspace.join("examples/python/print_features.py"))
+        .args(["--count", "6"])
+        .env("SONAR_IOX_PREFIX", &sandbox.prefix)
+        .env("SONAR_IOX_ROOT", &sandbox.root)
+        .output()
+        .unwrap();
+    let stdout = check_ok("print_features.py", &output);
+    let snapshots: Vec<&str> = stdout
+        .split("\nsnapshot ")
+        .skip(1)
+        .filter(|block| !block.trim().is_empty())
+        .collect();
+    assert_eq!(snapshots.len(), 6, "{stdout}");
+    let found = snapshots.iter().any(|block| {
+        let features: Vec<_> = block
+            .lines()
+            .filter(|l| l.starts_with("feature "))
+            .map(parse_feature_line)
+            .collect();
+        let count: usize = block
+            .split_whitespace()
+            .nth(4)
+            .and_then(|n| n.parse().ok())
+            .unwrap_or_else(|| panic!("no feature count in {block}"));
+        assert_eq!(count, features.len(), "{block}");
+        let near = |kind: &str, x: f32| {
+            features
+                .iter()
+                .any(|(k, fx, fy)| k == kind && (fx - x).abs() < 0.03 && fy.abs() < 0.03)
+        };
+        near("point", 0.975) && near("plane", 2.0)
+    });
+    assert!(found, "no snapshot with the post and the wall:\n{stdout}");
+}
