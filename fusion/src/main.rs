@@ -387,6 +387,7 @@ fn run(args: &Args) -> Result<()> {
         let now = Instant::now();
         if let Some(features) = &mut features {
             features.finish_idle_sweep(&mut engine, now);
+            features.refresh(now);
         }
         out.publish_if_due(&engine, now)?;
         if let Some(saving) = &mut saving {
@@ -507,6 +508,7 @@ struct Features {
     localized: Option<Publisher<Ipc, LocalizedPose, ()>>,
     seq: u64,
     last_reading: Instant,
+    last_refresh: Instant,
 }
 
 impl Features {
@@ -530,6 +532,7 @@ impl Features {
             notifier: ipc::wakeup_notifier(node, ipc::FEATURES_SERVICE)?,
             seq: 0,
             last_reading: Instant::now(),
+            last_refresh: Instant::now(),
         })
     }
 
@@ -547,6 +550,27 @@ impl Features {
             && let Some(outcome) = self.tracker.finish_sweep()
         {
             self.sweep_done(&outcome, engine);
+        }
+    }
+
+    /// Offers the latest snapshots to subscribers that joined since, once per [`REFRESH_PERIOD`]:
+    /// they would otherwise wait for the next sweep, for ever while the head is stopped.
+    fn refresh(&mut self, now: Instant) {
+        if now.duration_since(self.last_refresh) < REFRESH_PERIOD {
+            return;
+        }
+        self.last_refresh = now;
+        let localized = self.localized.as_ref().map(|p| p.update_connections());
+        for result in [Some(self.publisher.update_connections()), localized]
+            .into_iter()
+            .flatten()
+        {
+            if let Err(e) = result {
+                warn!("update connections: {e:?}");
+            }
+        }
+        if let Err(e) = self.notifier.notify() {
+            warn!("notify features: {e:?}");
         }
     }
 

@@ -867,6 +867,17 @@ fn the_fusion_publishes_walls_and_posts_and_clears_them() {
         got.last()
             .is_some_and(|(h, records)| h.feature_count == 0 && records.is_empty())
     });
+    // A consumer that joins while the head stands still still gets the current snapshot.
+    let late = ipc::features_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    collect_until(
+        &node,
+        || late.receive().unwrap().map(|s| *s.user_header()),
+        |got| got.last().is_some_and(|h| h.feature_count == 0),
+    );
     drop(driver);
 }
 
