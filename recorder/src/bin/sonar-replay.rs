@@ -53,8 +53,9 @@ struct Args {
     /// `sonar/readings`.
     #[arg(long, value_name = "N", default_value_t = 0)]
     wait_for_subscribers: usize,
-    /// Replace each reading's host_stamp_ns by the time it is published (the other bytes stay as
-    /// recorded).
+    /// Replace each reading's host_stamp_ns, and each pose's stamp_ns, by the time it is
+    /// published (the other bytes stay as recorded): the fusion places a reading at the pose of
+    /// its stamp, so both move to the replay's clock.
     #[arg(long)]
     restamp: bool,
     /// Publish only the readings, not the recorded fusion commands and poses.
@@ -284,7 +285,15 @@ impl Ports {
                 None => Ok(()),
             },
             Message::Pose(p) => match &self.pose {
-                Some(port) => send(port, *p, ipc::POSE_SERVICE),
+                Some(port) => {
+                    // The fusion places readings at the pose of their own stamp: both move to
+                    // the replay's clock, or none.
+                    let mut p = *p;
+                    if restamp {
+                        p.stamp_ns = ipc::unix_time_ns();
+                    }
+                    send(port, p, ipc::POSE_SERVICE)
+                }
                 None => Ok(()),
             },
             Message::ScanCommand(_) | Message::Features(_) => Ok(()),
