@@ -182,6 +182,13 @@ mod tests {
         assert_eq!(file.simulator.scene.as_deref(), Some("room"));
         assert!(file.viewer.enabled);
         assert_eq!(file.fusion.engine, FusionConfig::default());
+        assert!(file.features.enabled && !file.features.localize);
+
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/corridor.toml");
+        let tour = PipelineFile::load(&path).unwrap();
+        assert_eq!(tour.simulator.scene.as_deref(), Some("corridor"));
+        assert!(tour.features.localize);
+        assert_eq!(tour.fusion.engine.grid.centre_x_m, 3.0);
     }
 
     #[test]
