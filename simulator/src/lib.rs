@@ -105,6 +105,9 @@ pub use robot::{Mode, Odometry, OdometryParams, PoseSample, Robot, RobotSpec, Ro
 pub use scene::{
     BUILTIN_NAMES, Joint, Post, Scene, SceneError, SuggestedScan, Surface, Vertex, Wall,
 };
-pub use serve::{Carrier, Device, NativeDevice, Pty, ServeStats, Speed, SweepCounts, serve};
+pub use serve::{
+    Carrier, Device, NativeDevice, Pty, ServeStats, Speed, SweepCounts, act_carried,
+    report_sweeps, serve,
+};
 #[doc(no_inline)]
 pub use sonar_common::protocol::DeviceMessage;

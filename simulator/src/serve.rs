@@ -416,8 +416,9 @@ impl Line<'_> {
 }
 
 /// Tells `carrier` the sweeps the device began and ended since `seen`: ends first, as a device
-/// ends a sweep before it begins the next.
-fn report_sweeps<'c>(
+/// ends a sweep before it begins the next. [`serve`] calls it after every action and every
+/// command; a host that drives a device without a terminal (the evaluation) does the same.
+pub fn report_sweeps<'c>(
     device: &dyn Device,
     carrier: Option<&mut (dyn Carrier + 'c)>,
     seen: &mut SweepCounts,
@@ -432,6 +433,26 @@ fn report_sweeps<'c>(
         }
     }
     *seen = now;
+}
+
+/// One action of `device` riding `carrier`, as [`serve`] performs each: the carrier moved to the
+/// device's clock and the sensor placed at its pose (so the action's pings are taken from there),
+/// the action (its lines appended to `out`), then the sweeps it began and ended reported to the
+/// carrier. `unix_ns` stamps the carrier's poses ([`Carrier::advance`]). `false` when idle.
+pub fn act_carried<'c>(
+    device: &mut dyn Device,
+    mut carrier: Option<&mut (dyn Carrier + 'c)>,
+    unix_ns: &dyn Fn(u64) -> u64,
+    seen: &mut SweepCounts,
+    out: &mut Vec<String>,
+) -> io::Result<bool> {
+    if let Some(c) = carrier.as_deref_mut() {
+        let pose = c.advance(device.now_us(), unix_ns)?;
+        device.set_pose(pose);
+    }
+    let busy = device.act(out);
+    report_sweeps(device, carrier, seen);
+    Ok(busy)
 }
 
 /// Serves `device` on `pty` until `stop` is set, its lines damaged, and the device reset and
@@ -468,13 +489,14 @@ pub fn serve(
             device.reset(&mut out);
             line.send(&out, Some(f), device.now_us())?;
         }
-        if let Some(c) = carrier.as_deref_mut() {
-            let pose = c.advance(device.now_us(), &|t| pacer.unix_ns_at(t))?;
-            device.set_pose(pose);
-        }
         out.clear();
-        let busy = device.act(&mut out);
-        report_sweeps(device, carrier.as_deref_mut(), &mut sweeps);
+        let busy = act_carried(
+            device,
+            carrier.as_deref_mut(),
+            &|t| pacer.unix_ns_at(t),
+            &mut sweeps,
+            &mut out,
+        )?;
         let due = if busy {
             pacer.wall_at(device.now_us())
         } else {
