@@ -116,13 +116,16 @@ impl FeatureTracker {
     /// Map ← odometry: what the poses of `robot/pose` are off by, as the latest fix found
     /// (identity without localisation or before a fix).
     pub fn correction(&self) -> Isometry2<f32> {
-        let c = self
-            .localization
-            .map_or(Isometry2::identity(), |l| l.correction);
+        let c = self.correction_f64();
         Isometry2::new(
             Vector2::new(c.translation.x as f32, c.translation.y as f32),
             c.rotation.angle() as f32,
         )
+    }
+
+    fn correction_f64(&self) -> Isometry2<f64> {
+        self.localization
+            .map_or(Isometry2::identity(), |l| l.correction)
     }
 
     /// Sweeps localised so far.
@@ -130,18 +133,25 @@ impl FeatureTracker {
         self.localization.map_or(0, |l| l.fixes)
     }
 
-    /// Adds `reading`, taken with the sensor at `pose`. When it starts a new sweep, the finished
+    /// Adds `reading`, taken with the sensor at `pose` (the odometry's pose with
+    /// [`Self::correction`] as it was before this call). When it starts a new sweep, the finished
     /// one is merged first and what that did is returned.
     pub fn push(&mut self, reading: &Reading, pose: &Isometry2<f32>) -> Option<SweepOutcome> {
+        let before = self.correction_f64();
         let finished = match self.pending.first() {
             Some(first) if first.sweep_id != reading.sweep_id => self.finish_sweep(),
             _ => None,
         };
         if self.pending.is_empty() {
-            self.pose = Isometry2::new(
+            let pose = Isometry2::new(
                 Vector2::new(f64::from(pose.translation.x), f64::from(pose.translation.y)),
                 f64::from(pose.rotation.angle()),
             );
+            // The new sweep's first reading came placed with the correction from before the
+            // finished sweep's fix: the sweep is placed with the new one, as the engine places
+            // the readings that follow. (Placing it with the old one predicted every sweep from
+            // a correction one fix stale.)
+            self.pose = self.correction_f64() * before.inverse() * pose;
         }
         self.pending.push(*reading);
         finished
