@@ -36,5 +36,6 @@ pub mod feature_report;
 pub mod features;
 pub mod image;
 pub mod metrics;
+pub mod motion;
 pub mod pipeline;
 pub mod report;

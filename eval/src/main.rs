@@ -7,6 +7,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result};
 use clap::Parser;
 use sonar_eval::features::{self, FeatureSettings};
+use sonar_eval::motion::{self, MotionSettings};
 use sonar_eval::report::{self, Settings};
 use sonar_eval::{feature_report, image};
 use sonar_sim::{BUILTIN_NAMES, Scene};
@@ -24,9 +25,15 @@ use tracing::info;
 /// the two grid presets on the same runs: a 5 cm post, two posts at --feature-spacings, the room,
 /// the corner, a slanted wall and a 10 cm post.
 ///
+/// Last, drives the tour scenes (corridor, room-tour) with a drifting odometry (3 % scale, 2°/m)
+/// for --motion-metres with every --motion-seeds, and fuses each tour at the true poses, at the
+/// odometry, and at the odometry corrected by sonar localisation.
+///
 /// Writes <OUT>/<scene>.png for each scene (basic | probability | actual setup; top row the
-/// `paper` preset, bottom row `recommended`) and prints the figures as Markdown tables on
-/// standard output (or to --report). Progress goes to standard error (level from RUST_LOG).
+/// `paper` preset, bottom row `recommended`), <OUT>/<scene>-motion.png for each tour scene (the
+/// first seed's maps: true poses | odometry | localised | actual setup), and prints the figures
+/// as Markdown tables on standard output (or to --report). Progress goes to standard error
+/// (level from RUST_LOG).
 ///
 /// Example:
 ///   cargo run -p sonar-eval --release -- --out docs/results
@@ -64,9 +71,20 @@ struct Args {
     /// Centre spacings of the feature evaluation's two-post scenes, in cm (as --spacings).
     #[arg(long, default_value = "10..70:5", value_parser = parse_spacings)]
     feature_spacings: Spacings,
-    /// Only the feature evaluation (no pictures, no grid tables of the paper's scenes).
-    #[arg(long)]
+    /// Only the feature evaluation (no pictures, no grid tables of the paper's scenes, no tours).
+    #[arg(long, conflicts_with = "motion_only")]
     features_only: bool,
+    /// Seeds of the motion evaluation (the tour scenes driven with a drifting odometry, fused at
+    /// the true poses, the odometry's, and the odometry's with localisation): comma-separated
+    /// values or ranges FROM..TO:STEP, or `none` to skip it.
+    #[arg(long, default_value = "1..3:1", value_parser = parse_seeds)]
+    motion_seeds: Values,
+    /// Length of each tour of the motion evaluation, metres driven.
+    #[arg(long, default_value_t = 20.0, value_parser = parse_metres)]
+    motion_metres: f64,
+    /// Only the motion evaluation.
+    #[arg(long)]
+    motion_only: bool,
 }
 
 fn main() -> ExitCode {
@@ -157,6 +175,14 @@ fn parse_seeds(s: &str) -> Result<Values, String> {
     .map(Values)
 }
 
+/// A tour's length: more than 0 and at most 1 km.
+fn parse_metres(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v > 0.0 && v <= 1000.0 => Ok(v),
+        _ => Err(format!("expected metres in (0, 1000], got {s:?}")),
+    }
+}
+
 fn run(args: Args) -> Result<()> {
     let settings = Settings {
         sweeps: args.sweeps,
@@ -165,7 +191,7 @@ fn run(args: Args) -> Result<()> {
         scale: usize::from(args.scale),
     };
     let mut text = String::new();
-    if !args.features_only {
+    if !args.features_only && !args.motion_only {
         std::fs::create_dir_all(&args.out)
             .with_context(|| format!("creating the output directory {}", args.out.display()))?;
         let mut scenes = Vec::new();
@@ -180,7 +206,7 @@ fn run(args: Args) -> Result<()> {
         let sweep = report::spacing_sweep(&settings)?;
         text += &report::markdown(&settings, &scenes, &sweep);
     }
-    if !args.feature_bearings.0.is_empty() {
+    if !args.feature_bearings.0.is_empty() && !args.motion_only {
         let feature_settings = FeatureSettings {
             bearings_deg: args.feature_bearings.0,
             seeds: args.feature_seeds.0.iter().map(|&s| s as u64).collect(),
@@ -192,6 +218,27 @@ fn run(args: Args) -> Result<()> {
             text.push('\n');
         }
         text += &feature_report::markdown(&feature_settings, &results);
+    }
+    if !args.motion_seeds.0.is_empty() && !args.features_only {
+        let motion_settings = MotionSettings::drifting(
+            args.motion_seeds.0.iter().map(|&s| s as u64).collect(),
+            args.motion_metres,
+            usize::from(args.scale),
+        );
+        let scenes = motion::evaluate(&motion_settings)?;
+        std::fs::create_dir_all(&args.out)
+            .with_context(|| format!("creating the output directory {}", args.out.display()))?;
+        for scene in &scenes {
+            if let Some(picture) = &scene.picture {
+                let path = args.out.join(format!("{}-motion.png", scene.name));
+                image::write_png(picture, &path)?;
+                info!(scene = scene.name, picture = %path.display(), "tour pictured");
+            }
+        }
+        if !text.is_empty() {
+            text.push('\n');
+        }
+        text += &motion::markdown(&motion_settings, &scenes);
     }
     match &args.report {
         Some(path) => std::fs::write(path, &text)
@@ -250,7 +297,10 @@ mod tests {
         assert_eq!(a.feature_bearings.0.len(), 16);
         assert_eq!(a.feature_seeds.0, [1.0, 2.0, 3.0]);
         assert_eq!(a.feature_spacings.0.len(), 13);
-        assert!(!a.features_only);
+        assert!(!a.features_only && !a.motion_only);
+        assert_eq!((a.motion_seeds.0.len(), a.motion_metres), (3, 20.0));
         assert!(Args::try_parse_from(["sonar-eval", "--sweeps", "0"]).is_err());
+        assert!(Args::try_parse_from(["sonar-eval", "--motion-metres", "0"]).is_err());
+        assert!(Args::try_parse_from(["sonar-eval", "--motion-only", "--features-only"]).is_err());
     }
 }

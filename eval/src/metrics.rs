@@ -24,6 +24,9 @@
 //!   is, it also counts the occupied cells lying behind a wall (where no ping can pass to clear
 //!   them), the median over the others, and the share of the visible walls whose own cell the
 //!   map calls free.
+//! - [`scene_walls`]: the same distances for a map taken from a moving sensor, and the share of
+//!   every wall's whole length (no single viewpoint decides what is visible) with an occupied cell
+//!   centre within a tolerance.
 //! - Diagnostics: [`peak_near`], the highest value near a post (how close an undetected post
 //!   came), and [`passing_readings`], the readings aimed between two posts that heard past them
 //!   (the only direct evidence of a gap).
@@ -362,8 +365,6 @@ pub fn wall_fit(
     };
     let d = sorted(|_| true);
     let in_front = sorted(|behind| !behind);
-    let quantile =
-        |d: &[f64], q: f64| (!d.is_empty()).then(|| d[((d.len() - 1) as f64 * q).round() as usize]);
     let (mut visible, mut covered, mut free) = (0.0, 0.0, 0.0);
     for (i, w) in walls.iter().enumerate() {
         let len = (w.b - w.a).norm();
@@ -403,6 +404,65 @@ pub fn wall_fit(
         visible_m: visible,
         coverage: share(covered),
         marked_free: share(free),
+    }
+}
+
+/// The value at quantile `q` of `sorted` (nearest rank); `None` when empty.
+pub fn quantile(sorted: &[f64], q: f64) -> Option<f64> {
+    (!sorted.is_empty()).then(|| sorted[((sorted.len() - 1) as f64 * q).round() as usize])
+}
+
+/// How well a map drawn from many places draws every wall of its scene.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SceneWalls {
+    pub occupied_cells: usize,
+    /// Median distance from the occupied cells' centres to the nearest true surface, metres;
+    /// `None` without occupied cells.
+    pub median_distance_m: Option<f64>,
+    /// 90th percentile of the same.
+    pub p90_distance_m: Option<f64>,
+    /// Share of the scene's whole wall length with an occupied cell centre within the tolerance.
+    pub coverage: f64,
+}
+
+/// [`wall_fit`] for a map taken from a moving sensor: no single viewpoint decides what is
+/// visible, so the coverage is of every wall's whole length (sampled every cell), with an
+/// occupied cell centre within `tolerance_m`.
+pub fn scene_walls(
+    map: &MapView,
+    walls: &[Wall],
+    distance: impl Fn(Vec2) -> f64,
+    tolerance_m: f64,
+) -> SceneWalls {
+    let n = map.geometry.cells_per_side();
+    let res = map.resolution();
+    let mut d: Vec<f64> = (0..n)
+        .flat_map(|y| (0..n).map(move |x| (x, y)))
+        .filter(|&(x, y)| map.is_occupied(x, y))
+        .map(|(x, y)| distance(map.centre(x, y)))
+        .collect();
+    d.sort_by(f64::total_cmp);
+    let (mut length, mut covered) = (0.0, 0.0);
+    for w in walls {
+        let len = (w.b - w.a).norm();
+        let pieces = (len / res).round().max(1.0) as usize;
+        let piece = len / pieces as f64;
+        for k in 0..pieces {
+            let p = w.a + (w.b - w.a) * ((k as f64 + 0.5) / pieces as f64);
+            length += piece;
+            if map
+                .cells_near(p, tolerance_m)
+                .any(|(x, y)| map.is_occupied(x, y))
+            {
+                covered += piece;
+            }
+        }
+    }
+    SceneWalls {
+        occupied_cells: d.len(),
+        median_distance_m: quantile(&d, 0.5),
+        p90_distance_m: quantile(&d, 0.9),
+        coverage: if length > 0.0 { covered / length } else { 0.0 },
     }
 }
 
@@ -635,6 +695,33 @@ mod tests {
         to_deg: 180.0,
         max_range_m: 4.0,
     };
+
+    #[test]
+    fn scene_walls_cover_the_whole_length_of_every_wall() {
+        let scene = room();
+        let mut m = map(MapKind::Probability, Some(0.2));
+        for k in 0..60 {
+            set(
+                &mut m,
+                Vec2::new(1.19, -0.59 + 0.02 * f64::from(k)),
+                Some(0.9),
+            );
+        }
+        let fit = scene_walls(&m, scene.walls(), |p| scene.distance_to_surface(p), 0.04);
+        assert_eq!(fit.occupied_cells, 60);
+        assert!((fit.median_distance_m.unwrap() - 0.01).abs() < 1e-6);
+        // As in wall_fit: 1.24 m of the 9.6 m of wall, whatever a viewpoint would see.
+        assert!((fit.coverage * 9.6 - 1.24).abs() < 1e-6, "{fit:?}");
+        let empty = map(MapKind::Probability, None);
+        let none = scene_walls(
+            &empty,
+            scene.walls(),
+            |p| scene.distance_to_surface(p),
+            0.04,
+        );
+        assert_eq!((none.occupied_cells, none.median_distance_m), (0, None));
+        assert_eq!(none.coverage, 0.0);
+    }
 
     #[test]
     fn wall_fit_measures_distance_to_the_truth_and_coverage_of_the_walls() {

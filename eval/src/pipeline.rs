@@ -21,7 +21,8 @@ use sonar_driver::averaging::PingPolicy;
 use sonar_driver::decoder::{Decoded, Decoder, Dialect};
 use sonar_fusion::{FusionConfig, Mapper, Observation, Preset};
 use sonar_sim::{
-    Device, EchoModel, Firmware, NativeDevice, Post, Scene, Surface, Timing, Vec2, Wall,
+    Carrier, Device, EchoModel, Firmware, NativeDevice, OdometryParams, Pose, PoseSample, Post,
+    Rover, Scene, Surface, Timing, Vec2, Wall, act_carried, report_sweeps,
 };
 
 use crate::metrics::{MapKind, MapView};
@@ -91,6 +92,109 @@ pub struct Capture {
 /// sweeps of `scan`, with the echo noise seeded by `seed`.
 pub fn capture(scene: Scene, scan: Scan, sweeps: u32, seed: u64) -> Result<Capture> {
     ensure!(sweeps > 0, "at least one sweep is needed");
+    run_device(scene, scan, seed, Until::Sweeps(sweeps), None)
+}
+
+/// A capture with the head on the scene's robot, and the robot's poses.
+#[derive(Debug, Clone)]
+pub struct TourCapture {
+    pub capture: Capture,
+    /// The true and odometry poses at the pose rate, from simulated time 0 to the end; the
+    /// readings' `host_stamp_ns` and these `t_us` are the same virtual clock (ns = µs × 1000).
+    pub poses: Vec<PoseSample>,
+    /// Distance the robot truly drove, metres.
+    pub driven_m: f64,
+}
+
+/// Runs `scene` with its `[robot]` touring, as `sonar-sim` does ([`act_carried`] around a
+/// [`Rover`]: each action's pings from the robot's true pose of that instant, the robot told of
+/// every sweep begun and ended), until the first sweep to end once the robot has driven
+/// `metres`; the odometry with `odometry`'s errors, sampled at `pose_rate_hz` of simulated time.
+/// `seed` seeds both the echo noise and the odometry's, as `sonar-sim --seed` does.
+pub fn capture_tour(
+    scene: Scene,
+    scan: Scan,
+    metres: f64,
+    odometry: OdometryParams,
+    pose_rate_hz: f64,
+    seed: u64,
+) -> Result<TourCapture> {
+    ensure!(
+        metres.is_finite() && metres > 0.0,
+        "a tour must be longer than 0 m, got {metres}"
+    );
+    ensure!(
+        pose_rate_hz.is_finite() && pose_rate_hz > 0.0,
+        "the pose rate must be a positive number, got {pose_rate_hz}"
+    );
+    odometry
+        .validate()
+        .map_err(|e| anyhow::anyhow!("odometry: {e}"))?;
+    let spec = scene
+        .robot
+        .clone()
+        .with_context(|| format!("scene {} has no [robot] to tour with", scene.name))?;
+    let mut robot = Robot {
+        rover: Rover::new(&spec, odometry, pose_rate_hz, seed),
+        poses: Vec::new(),
+        driven_m: 0.0,
+    };
+    let capture = run_device(scene, scan, seed, Until::Driven(metres), Some(&mut robot))?;
+    Ok(TourCapture {
+        capture,
+        poses: robot.poses,
+        driven_m: robot.driven_m,
+    })
+}
+
+/// The robot of a tour as `sonar-sim` drives it, keeping every pose sample it takes.
+struct Robot {
+    rover: Rover,
+    poses: Vec<PoseSample>,
+    driven_m: f64,
+}
+
+impl Carrier for Robot {
+    fn advance(&mut self, now_us: u64, _unix_ns: &dyn Fn(u64) -> u64) -> std::io::Result<Pose> {
+        let Self {
+            rover,
+            poses,
+            driven_m,
+        } = self;
+        Ok(rover.advance(now_us, |sample| {
+            if let Some(last) = poses.last() {
+                *driven_m += (sample.truth.at - last.truth.at).norm();
+            }
+            poses.push(sample);
+        }))
+    }
+
+    fn sweep_started(&mut self) {
+        self.rover.sweep_started();
+    }
+
+    fn sweep_ended(&mut self, now_us: u64) {
+        self.rover.sweep_ended(now_us);
+    }
+}
+
+/// When a capture ends.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Until {
+    /// After this many complete sweeps.
+    Sweeps(u32),
+    /// At the first sweep to end once the robot has driven this many metres.
+    Driven(f64),
+}
+
+/// The simulated device (on `robot`, if any) and the driver's side of the line until `until`.
+fn run_device(
+    scene: Scene,
+    scan: Scan,
+    seed: u64,
+    until: Until,
+    mut robot: Option<&mut Robot>,
+) -> Result<Capture> {
     let sensor = SensorConfig::default();
     let name = scene.name.clone();
     let model = EchoModel::new(scene, sensor, seed).context("setting up the echo model")?;
@@ -98,6 +202,9 @@ pub fn capture(scene: Scene, scan: Scan, sweeps: u32, seed: u64) -> Result<Captu
         Firmware::new(sensor, Timing::default(), model).context("setting up the firmware")?;
     let mut device = NativeDevice::new(firmware);
     let mut host = Host::new(sensor);
+    // The virtual clock stamps the robot's poses as it stamps the readings.
+    let virtual_ns = |t_us: u64| t_us * 1000;
+    let mut sweeps_seen = device.sweeps();
 
     // The driver's session: HELLO, adopt the device's geometry, request the scan.
     let mut out = Vec::new();
@@ -122,19 +229,39 @@ pub fn capture(scene: Scene, scan: Scan, sweeps: u32, seed: u64) -> Result<Captu
         encode_command(&scan.command(), PROTOCOL_VERSION).as_bytes(),
         &mut out,
     );
+    report_sweeps(&device, carrier(&mut robot), &mut sweeps_seen);
     host.feed(&out, device.now_us())?;
     if let Some(err) = &host.device_error {
         bail!("the device refused the scan {scan:?}: {err}");
     }
 
-    // Then the device's actions (one motor step or ping each) until enough sweeps have ended. A
-    // full sweep is about 400 actions; the bound only guards against a device that never ends one.
-    let limit = 10_000 * u64::from(sweeps);
+    // Then the device's actions (one motor step or ping each) until `until`. A full sweep is
+    // about 400 actions, a metre of a tour under 2 000 (5 s driving, a sweep standing); the bound
+    // only guards against a device that never ends a sweep or a robot that never gets there.
+    let limit = match until {
+        Until::Sweeps(sweeps) => 10_000 * u64::from(sweeps),
+        Until::Driven(metres) => 10_000 + (metres * 4_000.0) as u64,
+    };
+    let mut done = false;
     for _ in 0..limit {
         out.clear();
-        let busy = device.act(&mut out);
+        let busy = act_carried(
+            &mut device,
+            carrier(&mut robot),
+            &virtual_ns,
+            &mut sweeps_seen,
+            &mut out,
+        )?;
+        let ended_before = host.sweeps_ended;
         host.feed(&out, device.now_us())?;
-        if host.sweeps_ended >= sweeps {
+        done = match until {
+            Until::Sweeps(sweeps) => host.sweeps_ended >= sweeps,
+            Until::Driven(metres) => {
+                host.sweeps_ended > ended_before
+                    && robot.as_ref().is_some_and(|r| r.driven_m >= metres)
+            }
+        };
+        if done {
             break;
         }
         ensure!(
@@ -144,17 +271,22 @@ pub fn capture(scene: Scene, scan: Scan, sweeps: u32, seed: u64) -> Result<Captu
         );
     }
     ensure!(
-        host.sweeps_ended >= sweeps,
-        "scene {name}: only {} of {sweeps} sweeps in {limit} device actions",
+        done,
+        "scene {name}: {until:?} not reached in {limit} device actions ({} sweeps)",
         host.sweeps_ended
     );
     host.readings.truncate(host.readings_at_last_end);
     Ok(Capture {
         readings: host.readings,
-        sweeps,
+        sweeps: host.sweeps_ended,
         lines: host.lines,
         duration_s: device.now_us() as f64 / 1e6,
     })
+}
+
+/// The robot as the simulator's [`Carrier`], if there is one.
+fn carrier<'a>(robot: &'a mut Option<&mut Robot>) -> Option<&'a mut dyn Carrier> {
+    robot.as_deref_mut().map(|r| r as &mut dyn Carrier)
 }
 
 /// The driver's side of the line, without the port and iceoryx2.
@@ -256,14 +388,7 @@ impl Maps {
 
     /// The probability grid, for the metrics.
     pub fn probability(&self) -> MapView {
-        let grid = self.mapper.grid();
-        let g = *grid.geometry();
-        let n = g.cells_per_side();
-        let cells = (0..n)
-            .flat_map(|y| (0..n).map(move |x| (x, y)))
-            .map(|(x, y)| grid.probability(x, y))
-            .collect();
-        MapView::new(g, MapKind::Probability, cells)
+        probability_view(&self.mapper)
     }
 
     /// The basic method's display: the radar array drawn as arcs across the beam, as
@@ -283,6 +408,18 @@ impl Maps {
             .collect();
         MapView::new(g, MapKind::Basic, cells)
     }
+}
+
+/// A mapper's probability grid as a [`MapView`], for the metrics.
+pub fn probability_view(mapper: &Mapper) -> MapView {
+    let grid = mapper.grid();
+    let g = *grid.geometry();
+    let n = g.cells_per_side();
+    let cells = (0..n)
+        .flat_map(|y| (0..n).map(move |x| (x, y)))
+        .map(|(x, y)| grid.probability(x, y))
+        .collect();
+    MapView::new(g, MapKind::Probability, cells)
 }
 
 /// Post radius of the paper's small obstacles: 5 cm across.
