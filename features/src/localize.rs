@@ -26,10 +26,17 @@
 //!
 //! # Association
 //!
-//! Each observation goes to the nearest confirmed feature (seen in two sweeps or more) of its kind
+//! Each observation goes to the nearest feature of its kind (one sweep's sighting is enough: a
+//! robot that stops once at each place sees most features from one stop only)
 //! within the merge gate (χ² of [`crate::MergeConfig::gate_chi2`]), with the pose's own
 //! uncertainty added to the gate: a prediction 5 cm off must still find its wall. Associations are
 //! made again at each iteration, from the current estimate.
+//!
+//! # Refusing a fix
+//!
+//! A fix resting on fewer than two matches, or lying farther from the prediction than the
+//! prediction's own uncertainty allows (χ² of 3 degrees of freedom at 99.9 %), is refused: the
+//! sweep is then placed at the prediction. Both are wrong associations more often than drift.
 
 use nalgebra::{Isometry2, Matrix2, Matrix3, Matrix3x2, Vector2, Vector3};
 
@@ -42,8 +49,12 @@ const MAX_ITERATIONS: usize = 10;
 const CONVERGED: f64 = 1e-6;
 /// Step of the numerical Jacobians.
 const STEP: f64 = 1e-6;
-/// Times a feature must have been seen to anchor the pose.
-const CONFIRMED: u32 = 2;
+/// Fewest matched observations a fix rests on: one post leaves the heading to the prior's
+/// linearisation, and one wrong association turns the robot.
+const MIN_MATCHES: usize = 2;
+/// Largest squared Mahalanobis distance of a fix from its prediction, χ² of 3 degrees of freedom
+/// at 99.9 %: a fix farther than the odometry can have drifted is a wrong association.
+const FIX_GATE: f64 = 16.27;
 
 /// A corrected pose.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -87,7 +98,8 @@ fn linearise(f: &Feature, o: &Observation, x: &Vector3<f64>) -> (Vector2<f64>, M
 impl FeatureMap {
     /// The pose at which `observations` (one sweep's, in the sensor's frame) fit the map best,
     /// starting from `prior` with covariance `prior_covariance` (of x, y, θ). `None` when no
-    /// observation matches a confirmed feature, or the prior covariance is not invertible.
+    /// two observations match a feature, the fix lies beyond what the prior allows, or the prior
+    /// covariance is not invertible.
     pub fn localize(
         &self,
         observations: &[Observation],
@@ -97,11 +109,7 @@ impl FeatureMap {
         let prior_information = prior_covariance.try_inverse()?;
         let x0 = to_vector(prior);
         let gate = self.config().merge.gate_chi2;
-        let anchors: Vec<&Feature> = self
-            .features()
-            .iter()
-            .filter(|f| f.times_seen() >= CONFIRMED)
-            .collect();
+        let anchors = self.features();
         let mut x = x0;
         let mut covariance = *prior_covariance;
         let mut matched = 0;
@@ -143,7 +151,10 @@ impl FeatureMap {
                 break;
             }
         }
-        Some(PoseFix {
+        let mut d = x - x0;
+        d.z = crate::wrap_rad(d.z);
+        let d2 = (d.transpose() * prior_information * d)[(0, 0)];
+        (matched >= MIN_MATCHES && d2 <= FIX_GATE).then_some(PoseFix {
             pose: to_pose(&x),
             covariance,
             matched,
@@ -204,7 +215,7 @@ mod tests {
 
     const ALL: [FeatureKind; 3] = [FeatureKind::Plane, FeatureKind::Point, FeatureKind::Corner];
 
-    /// A map of the scene built from two places, each seen twice (confirmed).
+    /// A map of the scene built from two places, each seen twice.
     fn built_map() -> FeatureMap {
         let mut map = FeatureMap::new(FeatureConfig::default()).unwrap();
         let no_pings = Sweep::from_pings(Vec::new(), 1.5).unwrap();
@@ -248,35 +259,44 @@ mod tests {
     }
 
     #[test]
-    fn one_wall_corrects_only_across_it_and_the_heading() {
+    fn a_single_match_is_no_fix() {
         let map = built_map();
         let truth = Isometry2::new(Vector2::new(0.6, 0.1), 0.0);
         let drifted = Isometry2::new(Vector2::new(0.65, 0.16), 2.0_f64.to_radians());
-        // Only the wall x = 2 is seen.
-        let obs: Vec<Observation> = observe(&truth, &[FeatureKind::Plane])
+        // Only the wall x = 2 is seen: across it and the heading would be found, but one wrong
+        // association would turn the robot: refused.
+        let wall: Vec<Observation> = observe(&truth, &[FeatureKind::Plane])
             .into_iter()
             .take(1)
             .collect();
+        assert_eq!(map.localize(&wall, &drifted, &prior_covariance()), None);
+        // With the post beside it, the fix stands.
+        let both: Vec<Observation> = wall
+            .into_iter()
+            .chain(observe(&truth, &[FeatureKind::Point]))
+            .collect();
         let fix = map
-            .localize(&obs, &drifted, &prior_covariance())
+            .localize(&both, &drifted, &prior_covariance())
             .expect("a fix");
+        assert_eq!(fix.matched, 2);
         assert!(
-            (fix.pose.translation.x - 0.6).abs() < 0.005,
-            "across: {fix:?}"
-        );
-        assert!(
-            fix.pose.rotation.angle().abs() < 0.2_f64.to_radians(),
+            (truth.inverse() * fix.pose).translation.vector.norm() < 0.005,
             "{fix:?}"
         );
-        // Along the wall nothing is known beyond the prediction.
-        assert!(
-            (fix.pose.translation.y - 0.16).abs() < 0.005,
-            "along: {fix:?}"
-        );
-        assert!(
-            fix.covariance[(1, 1)] > 0.9 * prior_covariance()[(1, 1)],
-            "{fix:?}"
-        );
+    }
+
+    #[test]
+    fn a_fix_farther_than_the_drift_allows_is_refused() {
+        let map = built_map();
+        let truth = Isometry2::new(Vector2::new(0.6, 0.1), 0.0);
+        let drifted = Isometry2::new(Vector2::new(0.65, 0.16), 2.0_f64.to_radians());
+        // A prediction that claims to be good to 5 mm and 0.2° but is 8 cm off.
+        let tight = Matrix3::from_diagonal(&Vector3::new(
+            0.005_f64.powi(2),
+            0.005_f64.powi(2),
+            0.2_f64.to_radians().powi(2),
+        ));
+        assert_eq!(map.localize(&observe(&truth, &ALL), &drifted, &tight), None);
     }
 
     #[test]
@@ -289,10 +309,5 @@ mod tests {
         let tight = Matrix3::from_diagonal(&Vector3::new(1e-6, 1e-6, 1e-6));
         assert_eq!(map.localize(&obs, &wrong, &tight), None);
         assert_eq!(map.localize(&[], &far, &prior_covariance()), None);
-        // Unconfirmed features anchor nothing.
-        let mut young = FeatureMap::new(FeatureConfig::default()).unwrap();
-        let no_pings = Sweep::from_pings(Vec::new(), 1.5).unwrap();
-        young.merge(&obs, &no_pings, &far);
-        assert_eq!(young.localize(&obs, &far, &prior_covariance()), None);
     }
 }

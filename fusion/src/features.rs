@@ -14,8 +14,9 @@
 //! placed it at, and merged at the corrected pose. The correction (map ← odometry) is kept and
 //! handed to the engine, so the next readings are placed with it: a sweep's own readings are in
 //! the grid at the pose predicted before its fix. The prediction's uncertainty grows with the
-//! distance the odometry reports since the last fix: σ = 1 cm + 5 % of it across, 1° + 3°/m in
-//! heading — wide enough for a wheel-odometry's scale error and heading drift to be found.
+//! path the odometry reports since the last fix: σ = 1 cm + 5 % of it in position, 1° + 3°/m
+//! plus 5 % of every turn in heading — wide enough for a wheel-odometry's scale error and heading
+//! drift to be found. Only sweeps taken standing still are localised and merged.
 
 use nalgebra::{Isometry2, Matrix3, Point2, Vector2, Vector3};
 use sonar_common::ipc::Reading;
@@ -31,14 +32,20 @@ use crate::grid::OccupancyGrid;
 /// Occupancy probability from which a grid cell lends its position to a wall's segment.
 const SUPPORT_PROBABILITY: f32 = 0.8;
 
+/// A sweep during which the sensor moved more than this (m, degrees) is a sweep on the move.
+const STILL_M: f64 = 0.01;
+const STILL_DEG: f64 = 0.5;
+
 /// Position uncertainty of a prediction right after a fix, m.
 const PRIOR_SIGMA_M: f64 = 0.01;
 /// … growing by this fraction of the distance travelled.
 const PRIOR_SIGMA_PER_M: f64 = 0.05;
 /// Heading uncertainty right after a fix, degrees …
 const PRIOR_SIGMA_DEG: f64 = 1.0;
-/// … growing by this much per metre travelled.
+/// … growing by this much per metre travelled …
 const PRIOR_SIGMA_DEG_PER_M: f64 = 3.0;
+/// … and by this fraction of every turn.
+const PRIOR_SIGMA_PER_TURN: f64 = 0.05;
 
 /// What one finished sweep did to the feature map.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -55,6 +62,8 @@ pub struct SweepOutcome {
     pub predicted: Isometry2<f64>,
     /// Localisation's fix, when it is on and the sweep matched the map.
     pub fix: Option<PoseFix>,
+    /// The sensor moved during the sweep: it was neither localised nor merged.
+    pub moving: bool,
 }
 
 /// The odometry's drift as localisation found it.
@@ -62,19 +71,31 @@ pub struct SweepOutcome {
 struct Localization {
     /// Map ← odometry.
     correction: Isometry2<f64>,
-    /// Where the latest fix was, in the map.
-    last_fix: Option<Point2<f64>>,
+    /// Path length (m) and turns (rad) the odometry reported since the last fix (or the start).
+    travelled_m: f64,
+    turned_rad: f64,
+    /// The pose of the latest reading, to measure the next step from.
+    last_pose: Option<Isometry2<f64>>,
     fixes: u32,
 }
 
 impl Localization {
-    /// The prediction's covariance at `predicted`: grows with the distance since the last fix.
-    fn prior(&self, predicted: &Isometry2<f64>) -> Matrix3<f64> {
-        let travelled = self
-            .last_fix
-            .map_or(0.0, |p| (predicted.translation.vector - p.coords).norm());
-        let xy = PRIOR_SIGMA_M + PRIOR_SIGMA_PER_M * travelled;
-        let theta = (PRIOR_SIGMA_DEG + PRIOR_SIGMA_DEG_PER_M * travelled).to_radians();
+    /// Accumulates the odometry's motion up to `pose`.
+    fn moved_to(&mut self, pose: &Isometry2<f64>) {
+        if let Some(last) = self.last_pose {
+            let step = last.inverse() * pose;
+            self.travelled_m += step.translation.vector.norm();
+            self.turned_rad += step.rotation.angle().abs();
+        }
+        self.last_pose = Some(*pose);
+    }
+
+    /// The prediction's covariance: grows with the path and the turns since the last fix (a
+    /// robot that drove out and back is as uncertain as one that drove on).
+    fn prior(&self) -> Matrix3<f64> {
+        let xy = PRIOR_SIGMA_M + PRIOR_SIGMA_PER_M * self.travelled_m;
+        let theta = (PRIOR_SIGMA_DEG + PRIOR_SIGMA_DEG_PER_M * self.travelled_m).to_radians()
+            + PRIOR_SIGMA_PER_TURN * self.turned_rad;
         Matrix3::from_diagonal(&Vector3::new(xy * xy, xy * xy, theta * theta))
     }
 }
@@ -84,6 +105,8 @@ impl Localization {
 pub struct FeatureTracker {
     map: FeatureMap,
     pending: Vec<Reading>,
+    /// Whether the sensor moved during the pending sweep.
+    moving: bool,
     /// Where the pending sweep is taken from.
     pose: Isometry2<f64>,
     last: Option<SweepOutcome>,
@@ -95,6 +118,7 @@ impl FeatureTracker {
         Ok(Self {
             map: FeatureMap::new(cfg)?,
             pending: Vec::new(),
+            moving: false,
             pose: Isometry2::identity(),
             last: None,
             localization: None,
@@ -107,7 +131,9 @@ impl FeatureTracker {
         let mut tracker = Self::new(cfg)?;
         tracker.localization = Some(Localization {
             correction: Isometry2::identity(),
-            last_fix: None,
+            travelled_m: 0.0,
+            turned_rad: 0.0,
+            last_pose: None,
             fixes: 0,
         });
         Ok(tracker)
@@ -152,6 +178,18 @@ impl FeatureTracker {
             // the readings that follow. (Placing it with the old one predicted every sweep from
             // a correction one fix stale.)
             self.pose = self.correction_f64() * before.inverse() * pose;
+            self.moving = false;
+        } else {
+            // The correction changes only between sweeps: within one, poses compare directly.
+            let first = self.correction_f64().inverse() * self.pose;
+            let now = before.inverse() * pose.cast::<f64>();
+            let step = first.inverse() * now;
+            self.moving |= step.translation.vector.norm() > STILL_M
+                || step.rotation.angle().abs() > STILL_DEG.to_radians();
+        }
+        if let Some(loc) = &mut self.localization {
+            // In the odometry's own frame: a fix moves the placed poses, not the robot.
+            loc.moved_to(&(before.inverse() * pose.cast::<f64>()));
         }
         self.pending.push(*reading);
         finished
@@ -165,21 +203,35 @@ impl FeatureTracker {
     /// Merges the pending sweep now (the scan stopped, or went quiet).
     pub fn finish_sweep(&mut self) -> Option<SweepOutcome> {
         let first = *self.pending.first()?;
+        if self.moving {
+            // Regions of constant depth need the pings of one place: a sweep taken on the move
+            // smears every target, so it neither localises nor adds features.
+            let outcome = SweepOutcome {
+                sweep_id: first.sweep_id,
+                stamp_ns: first.host_stamp_ns,
+                readings: self.pending.len(),
+                predicted: self.pose,
+                moving: true,
+                ..SweepOutcome::default()
+            };
+            self.pending.clear();
+            self.last = Some(outcome);
+            return Some(outcome);
+        }
         let sweep = Sweep::from_readings(&self.pending, self.map.config());
         let (rcds, classification) = self.map.observe(&sweep);
         let predicted = self.pose;
         let mut pose = predicted;
         let mut fix = None;
         if let Some(loc) = &mut self.localization
-            && let Some(found) = self.map.localize(
-                &classification.observations,
-                &predicted,
-                &loc.prior(&predicted),
-            )
+            && let Some(found) =
+                self.map
+                    .localize(&classification.observations, &predicted, &loc.prior())
         {
             // map ← odometry, from the odometry's pose of the sweep (the prediction undone).
             loc.correction = found.pose * predicted.inverse() * loc.correction;
-            loc.last_fix = Some(Point2::from(found.pose.translation.vector));
+            loc.travelled_m = 0.0;
+            loc.turned_rad = 0.0;
             loc.fixes += 1;
             pose = found.pose;
             fix = Some(found);
@@ -195,6 +247,7 @@ impl FeatureTracker {
             removed: report.removed,
             predicted,
             fix,
+            moving: false,
         };
         self.pending.clear();
         self.last = Some(outcome);
@@ -319,6 +372,11 @@ mod tests {
     /// A reading of sweep `sweep_id` centred at `centre_deg` (moving counter-clockwise), its four
     /// pings 1.5° apart hearing a 5 cm post 1 m ahead within ±13.4° at its near face.
     fn post_reading(sweep_id: u32, centre_deg: f32) -> Reading {
+        reading_of(sweep_id, centre_deg, false)
+    }
+
+    /// [`post_reading`], with a wall 2 m ahead heard within ±28° where the post does not hide it.
+    fn reading_of(sweep_id: u32, centre_deg: f32, wall: bool) -> Reading {
         let v = 343.2_f32;
         let mut r = Reading {
             layout_version: LAYOUT_VERSION,
@@ -337,6 +395,8 @@ mod tests {
             let bearing = centre_deg + 1.5 * (j as f32 - 1.5);
             if bearing.abs() <= 13.4 {
                 r.echo_us[j] = (2.0 * 0.979 / v * 1e6).round() as u32;
+            } else if wall && bearing.abs() <= 28.0 {
+                r.echo_us[j] = (2.0 * 2.0043 / v * 1e6).round() as u32;
             }
         }
         r
@@ -386,15 +446,14 @@ mod tests {
     }
 
     #[test]
-    fn the_sweep_is_placed_at_the_pose_of_its_first_reading() {
+    fn a_still_sweep_is_placed_at_its_pose_and_one_on_the_move_is_left_out() {
         let mut tracker = FeatureTracker::new(FeatureConfig::default()).unwrap();
         let moved = Isometry2::new(Vector2::new(2.0, -1.0), std::f32::consts::FRAC_PI_2);
-        for (k, r) in sweep(1).iter().enumerate() {
-            // A pose arriving mid-sweep does not move the sweep's pings.
-            let pose = if k == 0 { moved } else { Isometry2::identity() };
-            tracker.push(r, &pose);
+        for r in &sweep(1) {
+            tracker.push(r, &moved);
         }
-        tracker.finish_sweep();
+        let still = tracker.finish_sweep().unwrap();
+        assert!(!still.moving && still.added == 1, "{still:?}");
         let mapper = Mapper::new(FusionConfig::default()).unwrap();
         let (_, records) = tracker.snapshot(mapper.grid(), 0, 0);
         let post = records[0];
@@ -402,6 +461,15 @@ mod tests {
             (post.x_m - 2.0).abs() < 0.005 && (post.y_m - -0.025).abs() < 0.005,
             "{post:?}"
         );
+        // The robot drives 2 cm during the next sweep: its pings come from two places.
+        for (k, r) in sweep(2).iter().enumerate() {
+            let step = if k < 25 { 0.0 } else { 0.02 };
+            tracker.push(r, &(Isometry2::translation(step, 0.0) * moved));
+        }
+        let smeared = tracker.finish_sweep().unwrap();
+        assert!(smeared.moving, "{smeared:?}");
+        assert_eq!((smeared.added, smeared.refined, smeared.rcds), (0, 0, 0));
+        assert_eq!(tracker.len(), 1);
     }
 
     /// Three sweeps from the origin, then three more from the same place while the odometry
@@ -416,9 +484,10 @@ mod tests {
             } else {
                 drifted
             };
-            for r in &sweep(sweep_id) {
+            for k in 0..50 {
+                let r = reading_of(sweep_id, -147.0 + 6.0 * k as f32, true);
                 let placed = tracker.correction() * odometry;
-                outcomes.extend(tracker.push(r, &placed));
+                outcomes.extend(tracker.push(&r, &placed));
             }
         }
         outcomes
@@ -428,23 +497,34 @@ mod tests {
     fn localisation_finds_the_odometry_drift_and_keeps_the_post_in_place() {
         let mut plain = FeatureTracker::new(FeatureConfig::default()).unwrap();
         drifting_run(&mut plain);
-        // Without localisation the drifted sweeps see the post 4 cm off: a second post.
-        assert_eq!(plain.len(), 2, "{:?}", plain.map.features());
+        // Without localisation the drifted sweeps see the post and the wall off: a second of each.
+        assert_eq!(plain.len(), 4, "{:?}", plain.map.features());
 
         let mut tracker = FeatureTracker::with_localization(FeatureConfig::default()).unwrap();
         let outcomes = drifting_run(&mut tracker);
         assert_eq!(outcomes.len(), 6);
-        assert!(
-            outcomes[..2].iter().all(|o| o.fix.is_none()),
-            "nothing confirmed yet"
-        );
+        assert!(outcomes[0].fix.is_none(), "the map was empty");
         let fix = outcomes[3]
             .fix
             .expect("the first drifted sweep is localised");
-        // The post is heard 0.979 m ahead: the fix puts that echo back where the map has it.
-        let post = fix.pose * Point2::new(0.979, 0.0);
-        assert!((post - Point2::new(0.979, 0.0)).norm() < 0.005, "{fix:?}");
-        assert_eq!(tracker.len(), 1, "refined, not duplicated");
+        // The robot never moved: the fix takes back most of the 5 cm and 3° of drift, and what is
+        // left lies within three of its own standard deviations.
+        let (x, y, theta) = (
+            fix.pose.translation.x,
+            fix.pose.translation.y,
+            fix.pose.rotation.angle(),
+        );
+        assert!(
+            x.hypot(y) < 0.02 && theta.abs() < 1.0_f64.to_radians(),
+            "{fix:?}"
+        );
+        for (i, err) in [x, y, theta].into_iter().enumerate() {
+            assert!(
+                err.abs() <= 3.0 * fix.covariance[(i, i)].sqrt(),
+                "{i}: {fix:?}"
+            );
+        }
+        assert_eq!(tracker.len(), 2, "refined, not duplicated");
         assert!(tracker.fixes() >= 3, "{outcomes:?}");
         // The sweeps after the first fix are already placed with the correction.
         let later = outcomes[5].fix.expect("a fix");
