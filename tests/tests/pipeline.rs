@@ -999,3 +999,95 @@ fn the_simulated_robot_tours_the_room_publishing_its_odometry_and_its_true_pose(
     let left = sandbox.stale_shm_files();
     assert!(left.is_empty(), "stale shared memory: {left:?}");
 }
+
+/// The corridor tour through simulator, driver and a localising fusion: the back wall that both
+/// rooms share is mapped where the scene has it, seen from each room, and sweeps are localised
+/// against the features (odometry without errors, so the map is the robot's path's own).
+#[test]
+fn a_touring_robot_maps_both_rooms_in_one_frame_and_is_localised() {
+    let sandbox = Sandbox::new("corridor");
+    let node = sandbox.node("test-consumer");
+    let grid = ipc::grid_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let localized = ipc::localized_pose_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let config = std::env::temp_dir().join(format!("sonar_t{}_corridor.toml", std::process::id()));
+    std::fs::write(
+        &config,
+        "[fusion.grid]\ncells = 450\nresolution_m = 0.02\ncentre_x_m = 3.0\ncentre_y_m = 1.5\n",
+    )
+    .unwrap();
+    let (_sim, pty) = sandbox.spawn_sim(&[
+        "--scene",
+        "corridor",
+        "--speed",
+        "40",
+        "--odom-scale-error",
+        "0",
+        "--odom-heading-drift",
+        "0",
+        "--odom-noise-m",
+        "0",
+        "--odom-noise-deg",
+        "0",
+    ]);
+    let _driver = sandbox.spawn("sonar-driver", &["--port", &pty]);
+    let _fusion = sandbox.spawn(
+        "sonar-fusion",
+        &[
+            "--config",
+            config.to_str().unwrap(),
+            "--no-persist",
+            "--localize",
+        ],
+    );
+
+    // Occupied cells (p ≥ 0.8) within 6 cm of the rooms' back wall (y = 3.6), beside each
+    // room's waypoint (x = 1.5 and x = 4.5).
+    let wall_seen_at = |header: &GridHeader, cells: &[u8], x_m: f32| {
+        let res = header.resolution_m;
+        let mut hits = 0;
+        for dy in -3..=3 {
+            for dx in -15..=15 {
+                let (x, y) = (x_m + dx as f32 * res, 3.6 + dy as f32 * res);
+                let col = ((x - header.origin_x_m) / res) as usize;
+                let row = ((y - header.origin_y_m) / res) as usize;
+                if cells[row * header.width as usize + col] >= 203 {
+                    hits += 1;
+                }
+            }
+        }
+        hits >= 5
+    };
+    collect_until(
+        &node,
+        || {
+            grid.receive().unwrap().map(|s| {
+                let h = *s.user_header();
+                (
+                    h,
+                    wall_seen_at(&h, s.payload(), 1.5) && wall_seen_at(&h, s.payload(), 4.5),
+                )
+            })
+        },
+        |got| got.last().is_some_and(|(_, both)| *both),
+    );
+    let fixes = collect_until(
+        &node,
+        || localized.receive().unwrap().map(|s| *s.payload()),
+        |got| got.iter().any(|p| p.matched >= 2),
+    );
+    let fix = fixes.iter().find(|p| p.matched >= 2).unwrap();
+    assert_eq!(fix.layout_version, ipc::LAYOUT_VERSION);
+    // Odometry without errors: the fix agrees with it.
+    let off = (fix.x_m - fix.odometry_x_m).hypot(fix.y_m - fix.odometry_y_m);
+    assert!(off < 0.05, "{fix:?}");
+    assert!(fix.cov_xx.is_finite() && fix.cov_xx > 0.0, "{fix:?}");
+    let _ = std::fs::remove_file(&config);
+}
