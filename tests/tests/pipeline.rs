@@ -1091,3 +1091,26 @@ fn a_touring_robot_maps_both_rooms_in_one_frame_and_is_localised() {
     assert!(fix.cov_xx.is_finite() && fix.cov_xx > 0.0, "{fix:?}");
     let _ = std::fs::remove_file(&config);
 }
+
+/// `--version` names the program the user ran, not the crate it is built from.
+#[test]
+fn every_program_names_itself_in_its_version() {
+    let sandbox = Sandbox::new("version");
+    for name in [
+        "sonar-sim",
+        "sonar-driver",
+        "sonar-fusion",
+        "sonar-viewer",
+        "sonar-pipeline",
+        "sonar-record",
+        "sonar-replay",
+        "sonar-export",
+        "sonar-firmware-sim",
+        "sonar-nearest-obstacle",
+    ] {
+        let out = sandbox.run(name, &["--version"]);
+        assert!(out.status.success(), "{name}");
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(text.starts_with(&format!("{name} ")), "{name}: {text}");
+    }
+}

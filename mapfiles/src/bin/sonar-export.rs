@@ -56,7 +56,7 @@ const TICK: Duration = Duration::from_millis(500);
 ///
 /// Exit status: 0 written, 1 error, 130 interrupted (Ctrl-C/SIGTERM) before a map arrived.
 #[derive(Debug, Parser)]
-#[command(version, verbatim_doc_comment)]
+#[command(name = "sonar-export", version, verbatim_doc_comment)]
 struct Args {
     /// Formats, comma-separated: png, pgm (with its YAML), csv, npy, or all (these four map
     /// formats); features-csv, features-json (the features, only when named).

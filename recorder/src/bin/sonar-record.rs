@@ -49,7 +49,7 @@ const BACKLOG_WARNING: u64 = 10_000;
 ///   sonar-record run.mcap --count 500              # the next 500 readings
 ///   sonar-record run.mcap --duration 60 --force    # one minute, replacing run.mcap
 #[derive(Debug, Parser)]
-#[command(version, verbatim_doc_comment)]
+#[command(name = "sonar-record", version, verbatim_doc_comment)]
 struct Args {
     /// Output file (MCAP). Not replaced if it exists, unless `--force`.
     file: PathBuf,

@@ -37,7 +37,7 @@ const PROGRESS_LOG_PERIOD: Duration = Duration::from_secs(5);
 ///   sonar-replay run.mcap --speed max --wait-for-subscribers 1
 ///   sonar-replay run.mcap --info                            # what is in the file
 #[derive(Debug, Parser)]
-#[command(version, verbatim_doc_comment)]
+#[command(name = "sonar-replay", version, verbatim_doc_comment)]
 struct Args {
     /// Recording to replay (MCAP, as sonar-record writes it).
     file: PathBuf,
