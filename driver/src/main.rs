@@ -247,12 +247,23 @@ fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
+/// What is wrong with a path that is no serial port.
+const NOT_A_PORT: &str = "is not a serial port (not a terminal device): give the adapter's \
+                          device, e.g. /dev/ttyUSB0, /dev/ttyACM0 or its /dev/serial/by-id/… name";
+
 fn open_port(args: &Args) -> Result<TTYPort> {
     let path = args.port.to_string_lossy().into_owned();
     if !Path::new(&path).exists() {
         bail!(
             "serial port {path} does not exist (is the device plugged in, or the simulator running?)"
         );
+    }
+    // Not opened to find out: opening a USB adapter resets the microcontroller behind it.
+    let is_device = std::fs::metadata(&path)
+        .map(|m| std::os::unix::fs::FileTypeExt::is_char_device(&m.file_type()))
+        .unwrap_or(true); // unreadable: the open below says why
+    if !is_device {
+        bail!("{path} {NOT_A_PORT}");
     }
     let baud = args.baud.unwrap_or(match args.dialect {
         Dialect::Native => 115_200,
@@ -278,6 +289,11 @@ fn open_port(args: &Args) -> Result<TTYPort> {
         .timeout(READ_TIMEOUT)
         .open_native()
         .map_err(|e| {
+            // A character device that is no terminal (/dev/null): ENOTTY, whose text is the
+            // only trace serialport keeps of it.
+            if e.description.contains("typewriter") || e.description.contains("ioctl") {
+                return anyhow::anyhow!("{path} {NOT_A_PORT}");
+            }
             let hint = match e.kind() {
                 serialport::ErrorKind::NoDevice => " (busy: another program has it open?)",
                 serialport::ErrorKind::Io(ErrorKind::PermissionDenied) => {

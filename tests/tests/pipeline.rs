@@ -177,6 +177,15 @@ fn a_missing_port_is_a_clear_error() {
         stderr.contains("/dev/ttyDOESNOTEXIST does not exist"),
         "{stderr}"
     );
+    // A file, or a device that is not a terminal.
+    let file = std::env::temp_dir().join(format!("sonar_t{}_not_a_port", std::process::id()));
+    std::fs::write(&file, b"").unwrap();
+    for path in [file.to_str().unwrap(), "/dev/null"] {
+        let (status, stderr) = sandbox.spawn("sonar-driver", &["--port", path]).wait_exit();
+        assert!(!status.success());
+        assert!(stderr.contains("is not a serial port"), "{stderr}");
+    }
+    let _ = std::fs::remove_file(&file);
 }
 
 #[test]
