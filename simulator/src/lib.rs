@@ -106,8 +106,8 @@ pub use scene::{
     BUILTIN_NAMES, Joint, Post, Scene, SceneError, SuggestedScan, Surface, Vertex, Wall,
 };
 pub use serve::{
-    Carrier, Device, NativeDevice, Pty, ServeStats, Speed, SweepCounts, act_carried,
-    report_sweeps, serve,
+    Carrier, Device, NativeDevice, Pty, ServeStats, Speed, SweepCounts, act_carried, report_sweeps,
+    serve,
 };
 #[doc(no_inline)]
 pub use sonar_common::protocol::DeviceMessage;
