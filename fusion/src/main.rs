@@ -3,8 +3,9 @@
 //! It sleeps on the readings' wake-up event, fuses every reading into both of the paper's maps
 //! (see the crate docs), and publishes them as snapshots on `sonar/grid` (header + one byte per
 //! cell, written straight into the loaned shared-memory sample) and `sonar/radar`, at most
-//! `--max-rate` times a second (readings in between are coalesced) and always at the end of a
-//! sweep. Commands on `sonar/fusion_commands` clear the maps or switch model, rule or preset.
+//! `--max-rate` times a second (readings in between are coalesced), and at the end of a sweep
+//! unless sweeps end faster than that (see [`Pace`]). Commands on `sonar/fusion_commands` clear
+//! the maps or switch model, rule or preset.
 //!
 //! Two things keep what it does from being lost unnoticed:
 //!
@@ -53,6 +54,9 @@ const LOG_PERIOD: Duration = Duration::from_secs(1);
 /// Quiet time after which the readings of an unfinished sweep are merged into the features: the
 /// scan stopped (a sweep of the paper's head takes seconds, its readings come every ~0.1 s).
 const SWEEP_IDLE: Duration = Duration::from_secs(2);
+/// Readings fused per turn of the loop at most: one subscriber buffer's worth. Under overload the
+/// buffer never empties, and commands, status, saves and held-back snapshots must still get turns.
+const READINGS_PER_TURN: usize = 256;
 
 /// Builds the paper's two maps from `sonar/readings` and publishes them on `sonar/grid` (the
 /// probability method's occupancy grid) and `sonar/radar` (the basic method's latest distance per
@@ -324,8 +328,9 @@ fn run(args: &Args) -> Result<()> {
 
     let node = args.ipc.node("sonar-fusion")?;
     let ports = Ports::new(&node, engine.grid_len())?;
+    let min_interval = Duration::from_secs_f64(1.0 / args.max_rate);
     let mut features = tracker
-        .map(|tracker| Features::new(&node, tracker, localize))
+        .map(|tracker| Features::new(&node, tracker, localize, min_interval))
         .transpose()?;
     let waitset = WaitSetBuilder::new()
         .create::<Ipc>()
@@ -336,7 +341,6 @@ fn run(args: &Args) -> Result<()> {
     let commands_guard = waitset
         .attach_notification(&ports.commands_listener)
         .map_err(|e| IpcError::new("attach commands listener", e))?;
-    let min_interval = Duration::from_secs_f64(1.0 / args.max_rate);
     let tick = min_interval.clamp(Duration::from_millis(10), REFRESH_PERIOD);
     let tick_guard = waitset
         .attach_interval(tick)
@@ -346,9 +350,9 @@ fn run(args: &Args) -> Result<()> {
         ports: &ports,
         seq: 0,
         dirty: true, // publish the empty maps at once, so a viewer knows fusion is there
-        last_publish: None,
+        pace: Pace::new(min_interval),
+        sweep_end_pace: Pace::new(min_interval),
         last_refresh: Instant::now(),
-        min_interval,
         ledger: Ledger::new(restored, engine.last_seq()),
         status_published: None,
         lost_log: Throttle::new(LOG_PERIOD),
@@ -356,14 +360,35 @@ fn run(args: &Args) -> Result<()> {
         rejected_log: Throttle::new(LOG_PERIOD),
         pose_log: Throttle::new(LOG_PERIOD),
     };
+    // Readings were left in the buffer at the end of the last turn.
+    let mut more = false;
     loop {
         let (mut readings, mut commands) = (false, false);
+        // No sleep while readings wait; else until something arrives, the tick, or the moment a
+        // held-back snapshot may go out (so it goes out then, not up to a tick later).
+        let now = Instant::now();
+        let timeout = if more {
+            Duration::ZERO
+        } else {
+            [
+                out.held_back(now),
+                features.as_ref().and_then(|f| f.held_back(now)),
+            ]
+            .into_iter()
+            .flatten()
+            .min()
+            .unwrap_or(Duration::MAX)
+        };
         let result = waitset
-            .wait_and_process_once(|id| {
-                readings |= id.has_event_from(&readings_guard);
-                commands |= id.has_event_from(&commands_guard) || id.has_event_from(&tick_guard);
-                CallbackProgression::Continue
-            })
+            .wait_and_process_once_with_timeout(
+                |id| {
+                    readings |= id.has_event_from(&readings_guard);
+                    commands |=
+                        id.has_event_from(&commands_guard) || id.has_event_from(&tick_guard);
+                    CallbackProgression::Continue
+                },
+                timeout,
+            )
             .map_err(|e| IpcError::new("wait", e))?;
         match result {
             WaitSetRunResult::TerminationRequest => break,
@@ -383,10 +408,11 @@ fn run(args: &Args) -> Result<()> {
             drain_wakeups(&out.ports.readings_listener);
         }
         out.take_pose(&mut engine)?;
-        out.fuse_readings(&mut engine, features.as_mut())?;
+        more = out.fuse_readings(&mut engine, features.as_mut())?;
         let now = Instant::now();
         if let Some(features) = &mut features {
             features.finish_idle_sweep(&mut engine, now);
+            features.publish_if_due(&engine, now);
             features.refresh(now);
         }
         out.publish_if_due(&engine, now)?;
@@ -499,7 +525,11 @@ impl Saving {
 }
 
 /// The feature map and its publisher on `sonar/features`: a snapshot after every sweep merged
-/// and after a clear.
+/// (at most one per [`Pace`], as the grid's sweep ends) and after a clear.
+///
+/// The pace matters when sweeps fragment (an overflowing buffer, see [`Pace`]): each fragment is
+/// merged as a sweep, and a snapshot walks the whole grid for the walls' support cells — at
+/// 1024² cells that cost as much as a grid snapshot, once per reading.
 struct Features {
     tracker: FeatureTracker,
     publisher: Publisher<Ipc, [FeatureRecord], FeaturesHeader>,
@@ -507,12 +537,20 @@ struct Features {
     /// With --localize: where the corrected poses go.
     localized: Option<Publisher<Ipc, LocalizedPose, ()>>,
     seq: u64,
+    /// A sweep was merged since the last snapshot.
+    dirty: bool,
+    pace: Pace,
     last_reading: Instant,
     last_refresh: Instant,
 }
 
 impl Features {
-    fn new(node: &Node<Ipc>, tracker: FeatureTracker, localize: bool) -> Result<Self> {
+    fn new(
+        node: &Node<Ipc>,
+        tracker: FeatureTracker,
+        localize: bool,
+        min_interval: Duration,
+    ) -> Result<Self> {
         let localized = localize
             .then(|| {
                 ipc::localized_pose_service(node)?
@@ -531,6 +569,8 @@ impl Features {
                 .map_err(|e| IpcError::new("create features publisher", e))?,
             notifier: ipc::wakeup_notifier(node, ipc::FEATURES_SERVICE)?,
             seq: 0,
+            dirty: false,
+            pace: Pace::new(min_interval),
             last_reading: Instant::now(),
             last_refresh: Instant::now(),
         })
@@ -574,7 +614,8 @@ impl Features {
         }
     }
 
-    /// After a sweep: the new correction to the engine, the corrected pose and the features out.
+    /// After a sweep: the new correction to the engine, the corrected pose out, and the features
+    /// when the pace allows (else by [`Self::publish_if_due`]).
     fn sweep_done(&mut self, outcome: &SweepOutcome, engine: &mut Engine) {
         debug!(
             ?outcome,
@@ -588,7 +629,19 @@ impl Features {
                 warn!("send localized pose: {e:?}");
             }
         }
-        self.publish(engine);
+        self.dirty = true;
+        self.publish_if_due(engine, Instant::now());
+    }
+
+    fn publish_if_due(&mut self, engine: &Engine, now: Instant) {
+        if self.dirty && self.pace.allows(now) {
+            self.publish(engine);
+        }
+    }
+
+    /// How long until a merged sweep held back by the pace may be published.
+    fn held_back(&self, now: Instant) -> Option<Duration> {
+        self.dirty.then(|| self.pace.wait(now))
     }
 
     fn clear(&mut self, engine: &Engine) {
@@ -597,6 +650,8 @@ impl Features {
     }
 
     fn publish(&mut self, engine: &Engine) {
+        self.dirty = false;
+        self.pace.sent(Instant::now());
         self.seq += 1;
         let (header, records) =
             self.tracker
@@ -722,15 +777,58 @@ impl Ports {
     }
 }
 
+/// At most one snapshot of a kind per `min_interval` (1 / `--max-rate`).
+///
+/// The grid keeps two: one for all its snapshots, which coalesces the readings in between, and
+/// one for the snapshots at the end of a sweep. A sweep's end publishes the finished sweep's map
+/// before the next sweep's first reading is fused (`sonar-export --sweeps` and the viewer show
+/// each sweep's own map), unless the last sweep-end snapshot was less than an interval ago; a
+/// map held back that way goes out when the first pace allows, at most one interval later.
+/// Uncapped, sweep ends cost the engine everything once it fell behind: its buffer overflows,
+/// consecutive readings belong to different sweeps, and each forced a snapshot (at 1024² cells,
+/// offered 9 k readings/s, it fused 105/s). Capped, a fragmenting stream costs at most two
+/// snapshots per interval, and sweeps that end less often than `--max-rate` keep every one.
+#[derive(Debug, Clone, Copy)]
+struct Pace {
+    min_interval: Duration,
+    last: Option<Instant>,
+}
+
+impl Pace {
+    fn new(min_interval: Duration) -> Self {
+        Self {
+            min_interval,
+            last: None,
+        }
+    }
+
+    fn allows(&self, now: Instant) -> bool {
+        self.wait(now).is_zero()
+    }
+
+    /// How long until the next one is allowed.
+    fn wait(&self, now: Instant) -> Duration {
+        self.last.map_or(Duration::ZERO, |t| {
+            (t + self.min_interval).saturating_duration_since(now)
+        })
+    }
+
+    fn sent(&mut self, now: Instant) {
+        self.last = Some(now);
+    }
+}
+
 /// Publishing state: what is new since the last snapshot, and when that was; the counters and
 /// their rate-limited log lines.
 struct Output<'a> {
     ports: &'a Ports,
     seq: u64,
     dirty: bool,
-    last_publish: Option<Instant>,
+    /// Every grid snapshot.
+    pace: Pace,
+    /// Snapshots brought forward by a sweep's end.
+    sweep_end_pace: Pace,
     last_refresh: Instant,
-    min_interval: Duration,
     ledger: Ledger,
     /// The latest status published, and when.
     status_published: Option<(FusionStatus, Instant)>,
@@ -787,17 +885,21 @@ impl Output<'_> {
         Ok(())
     }
 
+    /// Fuses up to [`READINGS_PER_TURN`] readings; true when it stopped there (more may wait).
     fn fuse_readings(
         &mut self,
         engine: &mut Engine,
         mut features: Option<&mut Features>,
-    ) -> Result<()> {
-        while let Some(sample) = self
-            .ports
-            .readings
-            .receive()
-            .map_err(|e| IpcError::new("receive reading", e))?
-        {
+    ) -> Result<bool> {
+        for _ in 0..READINGS_PER_TURN {
+            let Some(sample) = self
+                .ports
+                .readings
+                .receive()
+                .map_err(|e| IpcError::new("receive reading", e))?
+            else {
+                return Ok(false);
+            };
             let reading = *sample.payload();
             drop(sample);
             self.count_seq(reading.seq);
@@ -812,8 +914,12 @@ impl Output<'_> {
                 continue;
             }
             if engine.starts_new_sweep(&reading) && self.dirty {
-                // The finished sweep's maps, before the next sweep's first reading.
-                self.publish(engine)?;
+                let now = Instant::now();
+                if self.sweep_end_pace.allows(now) {
+                    // The finished sweep's maps, before the next sweep's first reading.
+                    self.sweep_end_pace.sent(now);
+                    self.publish(engine)?;
+                }
             }
             let stale_before = engine.stale_pose_readings();
             if !engine.fuse(&reading) {
@@ -838,7 +944,7 @@ impl Output<'_> {
             }
             self.dirty = true;
         }
-        Ok(())
+        Ok(true)
     }
 
     /// Counts a received reading's number: a gap is readings lost (iceoryx2 overwrote the oldest
@@ -891,11 +997,13 @@ impl Output<'_> {
         self.status_published = Some((status, now));
     }
 
+    /// How long until a map held back by the pace may be published.
+    fn held_back(&self, now: Instant) -> Option<Duration> {
+        self.dirty.then(|| self.pace.wait(now))
+    }
+
     fn publish_if_due(&mut self, engine: &Engine, now: Instant) -> Result<()> {
-        let due = self
-            .last_publish
-            .is_none_or(|t| now.duration_since(t) >= self.min_interval);
-        if self.dirty && due {
+        if self.dirty && self.pace.allows(now) {
             self.publish(engine)?;
         } else if now.duration_since(self.last_refresh) >= REFRESH_PERIOD {
             // Late joiners get the history sample only on a send or an explicit update.
@@ -941,7 +1049,7 @@ impl Output<'_> {
         debug!(seq = self.seq, "snapshot published");
         let now = Instant::now();
         self.dirty = false;
-        self.last_publish = Some(now);
+        self.pace.sent(now);
         self.last_refresh = now;
         Ok(())
     }

@@ -1,8 +1,10 @@
-//! End to end: the fusion's map survives `kill -9` (saved periodically, restored at start), and
-//! readings that never reach the fusion are counted on `sonar/fusion_status`.
+//! End to end: the fusion's map survives `kill -9` (saved periodically, restored at start),
+//! readings that never reach the fusion are counted on `sonar/fusion_status`, and a fusion offered
+//! more than it can fuse keeps fusing.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // helpers outside #[test] fns; a panic is a failure
 
 use std::path::Path;
+use std::time::Instant;
 
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
@@ -12,7 +14,7 @@ use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 use sonar_common::ipc::{self, FusionStatus, GridHeader, LAYOUT_VERSION, Radar, Reading};
 use sonar_e2e::{
-    Proc, Sandbox, collect_until, fusion_status_subscriber, path_str, wait_for_status,
+    PATIENCE, Proc, Sandbox, collect_until, fusion_status_subscriber, path_str, wait_for_status,
 };
 use sonar_fusion::engine::Engine;
 
@@ -256,6 +258,87 @@ fn readings_lost_to_gaps_and_a_full_buffer_are_counted_and_a_driver_restart_is_n
 
     assert!(fusion.terminate().success(), "fusion did not exit cleanly");
     drop((readings, wake, status, node));
+    let left = sandbox.stale_shm_files();
+    assert!(left.is_empty(), "stale shared memory: {left:?}");
+}
+
+/// Readings of a local scan of the narrowest segment (two readings a sweep) offered far faster
+/// than the fusion fuses them: its buffer overflows, so nearly every reading it gets starts a new
+/// sweep. A sweep's end used to force a snapshot each time, whatever `--max-rate`, and the engine
+/// spent itself on them (at 1024² cells, offered 9 k readings/s, it fused 105/s). Now it keeps
+/// fusing, publishes at most two snapshots per rate interval (the periodic one and one at a
+/// sweep's end), counts every reading it did not get, and the last map still appears.
+#[test]
+fn an_overloaded_fusion_keeps_fusing_within_its_snapshot_rate_and_counts_the_loss() {
+    const MAX_RATE: f64 = 5.0;
+    let sandbox = Sandbox::new("overload");
+    let node = sandbox.node("test-driver");
+    let readings = ipc::readings_service(&node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    let wake = ipc::wakeup_notifier(&node, ipc::READINGS_SERVICE).unwrap();
+    let status = fusion_status_subscriber(&node);
+    let grid = grid_subscriber(&node);
+    let started = Instant::now();
+    let fusion = sandbox.spawn(
+        "sonar-fusion",
+        &["--no-persist", "--max-rate", &MAX_RATE.to_string()],
+    );
+    fusion_status(&node, &status);
+    readings.update_connections().unwrap();
+    let fragment = |seq: u64| Reading {
+        sweep_id: u32::try_from(seq / 2).unwrap(),
+        ..reading(seq)
+    };
+    // The first reading on its own: readings lost before the first one received are not seen.
+    readings.send_copy(fragment(0)).unwrap();
+    wake.notify().unwrap();
+    wait_for_status(&node, &status, |s| s.readings_received == 1);
+
+    // Bursts of sixteen buffers' worth, until the fusion has been seen losing readings and its
+    // count of fused ones rising three times: it fuses on through the overload.
+    let mut sent = 1;
+    let mut fused_while_losing: Vec<u64> = Vec::new();
+    let deadline = Instant::now() + PATIENCE;
+    while fused_while_losing.len() < 4 {
+        assert!(
+            Instant::now() < deadline,
+            "the fusion stopped fusing under overload: {fused_while_losing:?}"
+        );
+        for _ in 0..4096 {
+            readings.send_copy(fragment(sent)).unwrap();
+            sent += 1;
+        }
+        wake.notify().unwrap();
+        while let Some(sample) = status.receive().unwrap() {
+            let s = *sample.payload();
+            if s.readings_lost > 0 && fused_while_losing.last() != Some(&s.readings_fused) {
+                fused_while_losing.push(s.readings_fused);
+            }
+        }
+    }
+
+    // The newest readings stay in the buffer, so the last one sent arrives, and every reading
+    // before it was either received or counted lost.
+    let s = wait_for_status(&node, &status, |s| s.last_seq == sent - 1);
+    assert_eq!(s.readings_received + s.readings_lost, sent, "{s:?}");
+    assert_eq!(s.readings_fused, s.readings_received, "{s:?}");
+    assert!(s.readings_lost > 0, "{s:?}");
+    // An upper bound, so it holds on a machine of any speed: per interval of 1/MAX_RATE, one
+    // snapshot paced by the rate and one brought forward by a sweep's end.
+    let intervals = (started.elapsed().as_secs_f64() * MAX_RATE).ceil() as u64 + 1;
+    assert!(
+        s.snapshots_published <= 2 * intervals,
+        "{} snapshots in {intervals} intervals: {s:?}",
+        s.snapshots_published
+    );
+    // The map of the last readings is published once the pace allows.
+    next_snapshot(&node, &grid, |h| h.readings_fused == s.readings_fused);
+
+    assert!(fusion.terminate().success(), "fusion did not exit cleanly");
+    drop((readings, wake, status, grid, node));
     let left = sandbox.stale_shm_files();
     assert!(left.is_empty(), "stale shared memory: {left:?}");
 }

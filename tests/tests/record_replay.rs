@@ -11,7 +11,7 @@ use iceoryx2::service::ipc::Service as Ipc;
 use sonar_common::ipc::{
     self, FusionCommand, FusionCommandKind, Reading, ScanCommand, ScanCommandKind,
 };
-use sonar_e2e::{PATIENCE, Sandbox, collect_until, path_str, readings_subscriber};
+use sonar_e2e::{PATIENCE, Sandbox, collect_until, path_str, readings_subscriber, receive_reading};
 
 /// More than one subscriber buffer (256): a replay that did not pace itself at `--speed max`
 /// would overwrite readings before the test's subscriber (polling every 5 ms) takes them.
@@ -351,33 +351,41 @@ fn map_after(node: &Node<Ipc>, grid: &GridSubscriber, readings: u64) -> (ipc::Gr
 
 #[test]
 fn replaying_a_recording_into_the_fusion_engine_gives_the_live_map() {
-    const SWEEPS_2: u64 = 100;
     let live = Sandbox::new("rec_map_live");
     let node = live.node("test-live");
+    let readings = readings_subscriber(&node);
     let file: PathBuf = live.root.join("run.mcap");
-    let recorder = live.spawn(
-        "sonar-record",
-        &[path_str(&file), "--count", &SWEEPS_2.to_string()],
-    );
-    // One snapshot a second at most, plus one at each sweep's end: the end of sweep 2 (100
-    // readings) is published on its own, before sweep 3 begins.
-    let fusion = live.spawn("sonar-fusion", &["--max-rate", "1"]);
+    let recorder = live.spawn("sonar-record", &[path_str(&file)]);
+    let fusion = live.spawn("sonar-fusion", &[]);
     wait_until(&node, "recorder and fusion subscribed", || {
-        readings_subscribers(&node) >= 2
+        readings_subscribers(&node) >= 3
     });
     let live_grid = grid_subscriber(&node);
     let (sim, pty) = live.spawn_sim(&["--scene", "room", "--speed", "20", "--seed", "5"]);
     let driver = live.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
-    let (live_header, live_cells) = map_after(&node, &live_grid, SWEEPS_2);
-    let (status, stderr) = recorder.wait_exit();
-    assert!(status.success(), "sonar-record failed: {stderr}");
-    for p in [driver, sim, fusion] {
+    // More than two sweeps (50 readings each), then the head stops: the live map is the one of
+    // every reading published, whenever the fusion publishes it.
+    let mut count =
+        collect_until(&node, || receive_reading(&readings), |got| got.len() >= 101).len() as u64;
+    assert!(driver.terminate().success(), "driver did not exit cleanly");
+    while receive_reading(&readings).is_some() {
+        count += 1;
+    }
+    let (live_header, live_cells) = map_after(&node, &live_grid, count);
+    for p in [recorder, sim, fusion] {
         assert!(p.terminate().success());
     }
     // The fusion published the features of sweep 1 when sweep 2 began; the recorder has them.
     let info = live.run("sonar-replay", &[path_str(&file), "--info"]);
     let info_out = String::from_utf8_lossy(&info.stdout);
     assert!(info.status.success(), "{info:?}");
+    assert!(
+        info_out.contains(&format!(
+            "sonar/readings: {count} (seq 0..={}, 0 gaps)",
+            count - 1
+        )),
+        "{info_out}"
+    );
     let features: usize = info_out
         .lines()
         .find_map(|l| l.strip_prefix("sonar/features: "))
@@ -388,7 +396,7 @@ fn replaying_a_recording_into_the_fusion_engine_gives_the_live_map() {
     let replay_box = Sandbox::new("rec_map_replay");
     let replay_node = replay_box.node("test-replay");
     let replay_grid = grid_subscriber(&replay_node);
-    let _fusion = replay_box.spawn("sonar-fusion", &["--max-rate", "1"]);
+    let _fusion = replay_box.spawn("sonar-fusion", &[]);
     wait_until(&replay_node, "fusion subscribed", || {
         readings_subscribers(&replay_node) >= 1
     });
@@ -402,7 +410,7 @@ fn replaying_a_recording_into_the_fusion_engine_gives_the_live_map() {
             "1",
         ],
     );
-    let (header, cells) = map_after(&replay_node, &replay_grid, SWEEPS_2);
+    let (header, cells) = map_after(&replay_node, &replay_grid, count);
 
     assert_eq!(cells.len(), live_cells.len());
     let differing = cells
