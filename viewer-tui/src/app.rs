@@ -67,6 +67,16 @@ pub enum Liveness {
     Gone(Duration),
 }
 
+impl Liveness {
+    /// As the status panel words it: "gone for N s" in whole seconds.
+    fn as_shown(self) -> Self {
+        match self {
+            Liveness::Gone(d) => Liveness::Gone(Duration::from_secs(d.as_secs())),
+            other => other,
+        }
+    }
+}
+
 /// When a producer was last seen: a sample from it, or its publisher with a live node.
 #[derive(Debug, Default, Clone, Copy)]
 pub struct Peer {
@@ -452,6 +462,17 @@ impl Action {
     }
 }
 
+/// What a drawn frame showed, as far as it can change without a terminal event: compared with
+/// the app's state now by [`App::needs_redraw`], so an idle viewer draws nothing.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Drawn {
+    revision: u64,
+    message: Option<String>,
+    ipc_problem: Option<String>,
+    driver: Liveness,
+    fusion: Liveness,
+}
+
 /// Zoom, pan and cursor of the map.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct MapView {
@@ -498,6 +519,8 @@ pub struct App {
     pub grid: Option<GridSnapshot>,
     /// Bumped with every new grid copy, so the renderer knows when to pool again.
     pub grid_generation: u64,
+    /// Bumped whenever something shown changed: a snapshot, a status, a reading, a key.
+    revision: u64,
     pub radar: Option<Radar>,
     /// The latest walls, corners and posts; `None` until fusion publishes them (it may not).
     pub features: Option<FeaturesSnapshot>,
@@ -543,6 +566,7 @@ impl App {
             palette,
             grid: None,
             grid_generation: 0,
+            revision: 0,
             radar: None,
             features: None,
             show_features: true,
@@ -578,6 +602,7 @@ impl App {
     ) -> Result<(), String> {
         self.fusion_peer.seen(now);
         check_grid(header, cells.len())?;
+        self.revision += 1;
         // Fewer readings than before: the map was cleared (by anyone) or the fusion started afresh,
         // and the path drawn so far belongs to the old map.
         let cleared = self
@@ -626,6 +651,7 @@ impl App {
             ));
         }
         self.localized = Some(*fix);
+        self.revision += 1;
         Ok(())
     }
 
@@ -633,6 +659,7 @@ impl App {
         self.fusion_peer.seen(now);
         check_radar(radar)?;
         self.radar = Some(*radar);
+        self.revision += 1;
         Ok(())
     }
 
@@ -649,6 +676,7 @@ impl App {
         features.header = *header;
         features.records.clear();
         features.records.extend_from_slice(records);
+        self.revision += 1;
         Ok(())
     }
 
@@ -660,8 +688,15 @@ impl App {
                 status.layout_version
             ));
         }
+        // The driver repeats its status every second; one that says nothing new (only its stamp
+        // moved) must not cost an idle viewer a frame.
+        let unstamped = |s: &DriverStatus| DriverStatus { stamp_ns: 0, ..*s };
+        let shown = (self.driver.as_ref().map(unstamped), self.rate.per_second());
         self.rate.update(status.stamp_ns, status.readings_published);
         self.driver = Some(*status);
+        if (self.driver.as_ref().map(unstamped), self.rate.per_second()) != shown {
+            self.revision += 1;
+        }
         Ok(())
     }
 
@@ -669,6 +704,25 @@ impl App {
         self.driver_peer.seen(now);
         self.readings.push_front(*reading);
         self.readings.truncate(LAST_READINGS);
+        self.revision += 1;
+    }
+
+    /// What a frame drawn at `now` shows, for [`Self::needs_redraw`] to compare with later.
+    pub fn drawn(&self, now: Instant) -> Drawn {
+        Drawn {
+            revision: self.revision,
+            message: self.message.clone(),
+            ipc_problem: self.ipc_problem.clone(),
+            driver: self.driver_peer.liveness(now).as_shown(),
+            fusion: self.fusion_peer.liveness(now).as_shown(),
+        }
+    }
+
+    /// Whether a frame drawn at `now` would differ from `last` (none drawn yet: it would). A
+    /// terminal event (key, resize) is not app state: the caller draws after one regardless.
+    /// While a producer is gone its "gone for N s" ticks, so that costs a frame a second.
+    pub fn needs_redraw(&self, now: Instant, last: Option<&Drawn>) -> bool {
+        last.is_none_or(|last| *last != self.drawn(now))
     }
 
     /// Which producers have a publisher whose process is alive.
@@ -703,6 +757,8 @@ impl App {
         if key.kind == KeyEventKind::Release {
             return None;
         }
+        // Nearly every key changes what is shown; the few that do not cost one frame.
+        self.revision += 1;
         // Raw mode delivers Ctrl-C as a key, not as SIGINT.
         if key.modifiers.contains(KeyModifiers::CONTROL) && key.code == KeyCode::Char('c') {
             return Some(Action::Quit);
@@ -1392,5 +1448,109 @@ mod tests {
         let (x, y) = grid.cell_center_m(10, 70);
         assert_eq!(grid.cell_at_m(x, y), Some((10, 70)));
         assert_eq!(grid.cell_at_m(100.0, 0.0), None);
+    }
+
+    /// An idle viewer draws nothing: only what would change the picture asks for a frame.
+    #[test]
+    fn a_frame_is_needed_only_when_what_it_shows_changed() {
+        let t0 = Instant::now();
+        let mut viewer = app();
+        assert!(viewer.needs_redraw(t0, None), "the first frame");
+        let status = DriverStatus {
+            layout_version: LAYOUT_VERSION,
+            stamp_ns: 1_000_000_000,
+            readings_published: 40,
+            ..DriverStatus::default()
+        };
+        viewer.on_driver_status(&status, t0).unwrap();
+        viewer.on_publishers(true, true, t0);
+        let drawn = viewer.drawn(t0);
+        assert!(!viewer.needs_redraw(t0, Some(&drawn)));
+
+        // The driver repeats its status a second later, nothing else new; the liveness check
+        // finds both producers alive: nothing to draw.
+        let t1 = t0 + Duration::from_secs(1);
+        let repeated = DriverStatus {
+            stamp_ns: 2_000_000_000,
+            ..status
+        };
+        viewer.on_driver_status(&repeated, t1).unwrap();
+        viewer.on_publishers(true, true, t1);
+        let drawn = viewer.drawn(t1);
+        let t2 = t1 + Duration::from_secs(1);
+        viewer
+            .on_driver_status(
+                &DriverStatus {
+                    stamp_ns: 3_000_000_000,
+                    ..status
+                },
+                t2,
+            )
+            .unwrap();
+        viewer.on_publishers(true, true, t2);
+        assert!(!viewer.needs_redraw(t2, Some(&drawn)));
+
+        // A status that says something new does.
+        let scanning = DriverStatus {
+            stamp_ns: 4_000_000_000,
+            sweep_id: 3,
+            ..status
+        };
+        viewer.on_driver_status(&scanning, t2).unwrap();
+        assert!(viewer.needs_redraw(t2, Some(&drawn)));
+        let drawn = viewer.drawn(t2);
+
+        // So does every snapshot, reading and key, and a new message or IPC problem.
+        let changes: [&dyn Fn(&mut App); 8] = [
+            &|a| a.on_grid(&grid_header(4, 4), &[0; 16], t2).unwrap(),
+            &|a| {
+                a.on_radar(
+                    &Radar {
+                        layout_version: LAYOUT_VERSION,
+                        ..Radar::default()
+                    },
+                    t2,
+                )
+                .unwrap()
+            },
+            &|a| {
+                let header = FeaturesHeader {
+                    layout_version: LAYOUT_VERSION,
+                    ..FeaturesHeader::default()
+                };
+                a.on_features(&header, &[], t2).unwrap();
+            },
+            &|a| {
+                let fix = LocalizedPose {
+                    layout_version: LAYOUT_VERSION,
+                    ..LocalizedPose::default()
+                };
+                a.on_localized_pose(&fix, t2).unwrap();
+            },
+            &|a| a.on_reading(&Reading::default(), t2),
+            &|a| {
+                a.on_key(key(KeyCode::Tab));
+            },
+            &|a| a.message = Some("saved".to_owned()),
+            &|a| a.ipc_problem = Some("open sonar/grid: incompatible".to_owned()),
+        ];
+        for (i, change) in changes.iter().enumerate() {
+            let mut changed = app();
+            changed.on_driver_status(&scanning, t2).unwrap();
+            changed.on_publishers(true, true, t2);
+            let before = changed.drawn(t2);
+            change(&mut changed);
+            assert!(changed.needs_redraw(t2, Some(&before)), "change {i}");
+        }
+
+        // A producer falls silent: a frame when it turns "gone", then one per second as its
+        // "gone for N s" counts, none in between.
+        let silent_from = t2;
+        let gone = silent_from + PEER_TIMEOUT + Duration::from_millis(100);
+        assert!(!viewer.needs_redraw(silent_from + PEER_TIMEOUT, Some(&drawn)));
+        assert!(viewer.needs_redraw(gone, Some(&drawn)));
+        let drawn = viewer.drawn(gone);
+        assert!(!viewer.needs_redraw(gone + Duration::from_millis(800), Some(&drawn)));
+        assert!(viewer.needs_redraw(gone + Duration::from_secs(1), Some(&drawn)));
     }
 }

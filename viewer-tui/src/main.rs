@@ -2,9 +2,11 @@
 //! shows and every decision about keys lives in the library; see its documentation.
 //!
 //! One thread: each turn of the loop takes the newest snapshots (at most `--fps` times a second),
-//! draws if anything changed, and waits for terminal input until the next frame is due. Keys are
-//! handled as soon as they arrive and drawn at once, so the viewer stays responsive while shared
-//! memory is read only at the frame rate.
+//! draws if what it would show changed (`App::needs_redraw`: a snapshot, a status, a key, a
+//! producer's liveness; a terminal resize), and waits for terminal input until the next frame is
+//! due. Keys are handled as soon as they arrive and drawn at once, so the viewer stays responsive
+//! while shared memory is read only at the frame rate. An idle viewer draws nothing, except once
+//! a second while a producer is gone (its "gone for N s" ticks).
 
 use std::fmt;
 use std::fs::OpenOptions;
@@ -28,15 +30,12 @@ use iceoryx2_log::{Log, LogLevel};
 use ratatui::Terminal;
 use ratatui::backend::CrosstermBackend;
 use sonar_common::ipc::{IpcArgs, unix_time_ns};
-use sonar_viewer::app::{Action, App, View, key_help_text};
+use sonar_viewer::app::{Action, App, Drawn, View, key_help_text};
 use sonar_viewer::export;
 use sonar_viewer::heatmap::{ColorMode, Palette};
 use sonar_viewer::source::Source;
 use sonar_viewer::ui::{self, DrawInfo, MapCache};
 use tracing::{error, info, warn};
-
-/// Redraw at least this often, so "gone for N s" keeps counting while nothing arrives.
-const IDLE_REDRAW: Duration = Duration::from_secs(1);
 
 /// Terminal viewer of the sonar pipeline: the probability map, the radar display and the state of
 /// the driver and the fusion engine. Its keys send scan and fusion commands over iceoryx2.
@@ -245,22 +244,23 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
 
     let frame = Duration::from_secs(1) / args.fps;
     let mut next_poll = Instant::now();
-    let mut last_draw: Option<Instant> = None;
-    let mut dirty = true;
+    let mut drawn: Option<Drawn> = None;
+    // The terminal was resized: not app state, so `needs_redraw` cannot know.
+    let mut resized = false;
     while !quit.load(Ordering::Relaxed) {
         let now = Instant::now();
         if now >= next_poll {
-            dirty |= source.poll(&mut app, now);
+            source.poll(&mut app, now);
             next_poll = now + frame;
         }
-        if dirty || last_draw.is_none_or(|t| now.duration_since(t) >= IDLE_REDRAW) {
+        if resized || app.needs_redraw(now, drawn.as_ref()) {
             let mut info = DrawInfo::default();
             tui.terminal
                 .draw(|f| info = ui::draw(f, &app, &mut cache, now))
                 .context("cannot draw")?;
             app.map_px = info.map_px;
-            dirty = false;
-            last_draw = Some(now);
+            drawn = Some(app.drawn(now));
+            resized = false;
         }
         let timeout = next_poll.saturating_duration_since(Instant::now());
         let timeout = match wait_for_input(timeout) {
@@ -275,18 +275,22 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
         if event::poll(timeout).context("cannot read the terminal")? {
             // Take every queued event before drawing again, so held-down keys never lag behind.
             loop {
-                if let Event::Key(key) = event::read().context("cannot read the terminal")?
-                    && let Some(action) = app.on_key(key)
-                    && perform(action, &mut app, &mut source, &args)
-                {
-                    info!("quit");
-                    return Ok(());
+                match event::read().context("cannot read the terminal")? {
+                    Event::Key(key) => {
+                        if let Some(action) = app.on_key(key)
+                            && perform(action, &mut app, &mut source, &args)
+                        {
+                            info!("quit");
+                            return Ok(());
+                        }
+                    }
+                    Event::Resize(..) => resized = true,
+                    _ => {}
                 }
                 if !event::poll(Duration::ZERO).context("cannot read the terminal")? {
                     break;
                 }
             }
-            dirty = true;
         }
     }
     info!("quit on a signal");
@@ -316,7 +320,10 @@ fn wait_for_input(timeout: Duration) -> Input {
         return Input::NotWaited;
     }
     let mut fds = [PollFd::new(stdin.as_fd(), PollFlags::POLLIN)];
-    let timeout = PollTimeout::try_from(timeout).unwrap_or(PollTimeout::MAX);
+    // Whole milliseconds, rounded up: rounded down, the wait ended just before the frame was due
+    // and the loop spun through the rest of that millisecond, every frame (2 % of a core, idle).
+    let timeout =
+        PollTimeout::try_from(timeout.as_micros().div_ceil(1000)).unwrap_or(PollTimeout::MAX);
     if let Ok(n) = poll(&mut fds, timeout)
         && n > 0
     {

@@ -150,10 +150,9 @@ impl Source {
         .cloned()
     }
 
-    /// Takes the newest of everything into `app`; true when something arrived.
-    pub fn poll(&mut self, app: &mut App, now: Instant) -> bool {
+    /// Takes the newest of everything into `app`.
+    pub fn poll(&mut self, app: &mut App, now: Instant) {
         let node = &self.node;
-        let mut changed = false;
 
         if let Some((_, sub)) = self.grid.get(now, || {
             let service = ipc::grid_service(node)?;
@@ -165,7 +164,6 @@ impl Source {
         }) {
             match newest(|| sub.receive()) {
                 Ok(Some(sample)) => {
-                    changed = true;
                     if let Err(e) = app.on_grid(sample.user_header(), sample.payload(), now) {
                         reject(app, "grid", &e);
                     }
@@ -178,7 +176,6 @@ impl Source {
         if let Some((_, sub)) = self.radar.get(now, || subscribe(node, ipc::radar_service)) {
             match newest(|| sub.receive()) {
                 Ok(Some(sample)) => {
-                    changed = true;
                     if let Err(e) = app.on_radar(sample.payload(), now) {
                         reject(app, "radar", &e);
                     }
@@ -198,7 +195,6 @@ impl Source {
         }) {
             match newest(|| sub.receive()) {
                 Ok(Some(sample)) => {
-                    changed = true;
                     if let Err(e) = app.on_features(sample.user_header(), sample.payload(), now) {
                         reject(app, "features", &e);
                     }
@@ -214,7 +210,6 @@ impl Source {
         {
             match newest(|| sub.receive()) {
                 Ok(Some(sample)) => {
-                    changed = true;
                     if let Err(e) = app.on_localized_pose(sample.payload(), now) {
                         reject(app, "localized pose", &e);
                     }
@@ -230,7 +225,6 @@ impl Source {
         {
             match newest(|| sub.receive()) {
                 Ok(Some(sample)) => {
-                    changed = true;
                     if let Err(e) = app.on_driver_status(sample.payload(), now) {
                         reject(app, "driver status", &e);
                     }
@@ -247,7 +241,6 @@ impl Source {
             for _ in 0..MAX_READINGS_PER_POLL {
                 match sub.receive() {
                     Ok(Some(sample)) => {
-                        changed = true;
                         app.on_reading(sample.payload(), now);
                     }
                     Ok(None) => break,
@@ -278,10 +271,8 @@ impl Source {
                 }
             });
             app.on_publishers(driver, fusion, now);
-            changed = true;
         }
         app.ipc_problem = self.problem();
-        changed
     }
 
     /// Whether any publisher that `list` reports belongs to a live process. A publisher of a

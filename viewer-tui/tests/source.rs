@@ -99,7 +99,9 @@ fn viewer_first_then_fusion_then_fusion_leaves() {
         })
         .unwrap();
     let t1 = t0 + Duration::from_secs(1);
-    assert!(source.poll(&mut app, t1));
+    let drawn = app.drawn(t1);
+    source.poll(&mut app, t1);
+    assert!(app.needs_redraw(t1, Some(&drawn)), "what arrived is drawn");
     let copy = app.grid.as_ref().unwrap();
     assert_eq!(copy.header.seq, 2);
     assert_eq!(copy.cells, (0..16).collect::<Vec<u8>>());
@@ -203,7 +205,9 @@ fn features_arrive_and_a_snapshot_that_disagrees_with_its_header_is_refused() {
         sample.write_from_fn(|_| post).send().unwrap();
     };
     publish(1, 1);
-    assert!(source.poll(&mut app, t0));
+    let drawn = app.drawn(t0);
+    source.poll(&mut app, t0);
+    assert!(app.needs_redraw(t0, Some(&drawn)), "what arrived is drawn");
     let copy = app.features.as_ref().unwrap();
     assert_eq!(copy.records, vec![post]);
     assert_eq!(copy.header.sweeps, 3);
