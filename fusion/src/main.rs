@@ -311,12 +311,13 @@ fn run(args: &Args) -> Result<()> {
     let footprint = check_shared_memory(engine.grid_len())?;
     info!(
         cells = config.grid.cells,
-        resolution_m = config.grid.resolution_m,
+        // As given: an f32 recorded as f64 would print 0.019999999552965164.
+        resolution_m = %config.grid.resolution_m,
         model = config.model.kind().name(),
         rule = config.rule.kind().name(),
         preset = config.matching_preset().map_or("custom", Preset::name),
         clear_on_no_echo = config.clear_on_no_echo,
-        shm_mib = footprint as f64 / f64::from(1 << 20),
+        shm_mib = format_args!("{:.1}", footprint as f64 / f64::from(1 << 20)),
         state_file = persistence.as_ref().map(|(p, _)| p.display().to_string()),
         features = tracker.is_some(),
         localize,
