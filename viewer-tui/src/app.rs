@@ -763,12 +763,13 @@ impl App {
         if key.modifiers.contains(KeyModifiers::CONTROL) && key.code == KeyCode::Char('c') {
             return Some(Action::Quit);
         }
-        if key.code == KeyCode::Char('q') {
-            return Some(Action::Quit);
-        }
+        // The help says any key closes it: `q` too, not the pipeline behind it.
         if self.show_help {
             self.show_help = false;
             return None;
+        }
+        if key.code == KeyCode::Char('q') {
+            return Some(Action::Quit);
         }
         if let Some(selection) = self.selection {
             return self.on_selection_key(selection, key.code);
@@ -1114,9 +1115,13 @@ mod tests {
         assert_eq!(app.view, View::Radar);
         app.on_key(key(KeyCode::Char('?')));
         assert!(app.show_help);
-        // Any key closes the help without acting.
+        // Any key closes the help without acting, `q` included.
         assert_eq!(app.on_key(key(KeyCode::Char('f'))), None);
         assert!(!app.show_help);
+        app.on_key(key(KeyCode::Char('?')));
+        assert_eq!(app.on_key(key(KeyCode::Char('q'))), None);
+        assert!(!app.show_help);
+        assert_eq!(app.on_key(key(KeyCode::Char('q'))), Some(Action::Quit));
     }
 
     #[test]
