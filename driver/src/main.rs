@@ -654,6 +654,9 @@ impl Link {
             DeviceMessage::Status { state, .. } => {
                 self.head_state = Some(*state);
                 debug!(?msg, "status");
+                if *state == DeviceState::Idle {
+                    self.scan_stopped()?;
+                }
             }
             DeviceMessage::SweepStart {
                 sweep,
@@ -753,7 +756,20 @@ impl Link {
                 None => HostCommand::Status,
             };
             send(port, &host, self.version)?;
+            if host == HostCommand::Stop {
+                self.scan_stopped()?;
+            }
         }
+    }
+
+    /// The head stands still: the status says so at once, not the last sweep's mode for ever.
+    fn scan_stopped(&mut self) -> Result<()> {
+        if self.status.mode != ScanMode::Idle as u32 {
+            self.status.mode = ScanMode::Idle as u32;
+            self.status.direction = 0;
+            self.publish_status()?;
+        }
+        Ok(())
     }
 }
 

@@ -853,9 +853,14 @@ fn the_fusion_publishes_walls_and_posts_and_clears_them() {
         .publisher_builder()
         .create()
         .unwrap();
+    let driver_status = driver_status_subscriber(&node);
     commands
         .send_copy(ScanCommand::new(ScanCommandKind::Stop, 0.0, 0.0))
         .unwrap();
+    // The driver's status says the scan stopped (it kept the last sweep's mode before).
+    wait_for_status(&node, &driver_status, |s| {
+        s.mode == ScanMode::Idle as u32 && s.direction == 0
+    });
     let mut last_reading = Instant::now();
     while last_reading.elapsed() < Duration::from_secs(3) {
         if receive_reading(&readings).is_some() {
