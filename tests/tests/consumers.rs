@@ -512,13 +512,26 @@ fn the_nearest_obstacle_alerter_reports_the_room_walls_and_stays_quiet_below_the
     let stdout = running.child.stdout.take().unwrap();
     let (tx, rx) = std::sync::mpsc::channel();
     std::thread::spawn(move || {
+        let mut reader = BufReader::new(stdout);
         let mut line = String::new();
-        let _ = BufReader::new(stdout).read_line(&mut line);
+        let _ = reader.read_line(&mut line);
         let _ = tx.send(line);
+        // Keep reading: the alerter is stopped by the signal, not by a closed pipe.
+        let _ = std::io::copy(&mut reader, &mut std::io::sink());
     });
     let first = rx.recv_timeout(PATIENCE).expect("an alert");
     parse_alert(first.trim_end());
     assert!(running.terminate().success(), "exit status after SIGTERM");
+
+    // A reader that stops reading (`| head -1`) ends it quietly, as it would `head`'s input.
+    let mut head = sandbox.spawn("sonar-nearest-obstacle", &["--threshold", "1.5"]);
+    let mut first = String::new();
+    BufReader::new(head.child.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    parse_alert(first.trim_end());
+    let (status, stderr) = head.wait_exit();
+    assert!(status.success(), "{status:?}: {stderr}");
 }
 
 #[test]

@@ -11,9 +11,10 @@
 //! axis (the robot's heading `pose_theta_rad`; 0° straight ahead, +90° to the left), in
 //! [-180, 180), and its distance from the sensor. Logs go to stderr, alerts alone to stdout.
 
+use std::io::Write;
 use std::process::ExitCode;
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use clap::Parser;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
@@ -83,7 +84,8 @@ fn run(args: &Args) -> Result<()> {
         (args.count > 0 && alerts >= args.count)
             || (args.snapshots > 0 && snapshots >= args.snapshots)
     };
-    while !done(alerts, snapshots) {
+    let mut out = std::io::stdout().lock();
+    'watch: while !done(alerts, snapshots) {
         let result = waitset
             .wait_and_process_once(|_| CallbackProgression::Continue)
             .map_err(|e| IpcError::new("wait", e))?;
@@ -104,8 +106,14 @@ fn run(args: &Args) -> Result<()> {
             snapshots += 1;
             closest = nearest(sample.user_header(), sample.payload(), args.occupied_above);
             if let Some((bearing, distance)) = closest.filter(|&(_, d)| d < args.threshold) {
-                println!("bearing {bearing:.1} distance {distance:.3}");
-                alerts += 1;
+                let written = writeln!(out, "bearing {bearing:.1} distance {distance:.3}")
+                    .and_then(|()| out.flush());
+                match written {
+                    Ok(()) => alerts += 1,
+                    // The reader is gone (`| head -1`): nobody is left to alert, as for `head`.
+                    Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => break 'watch,
+                    Err(e) => return Err(e).context("write an alert to standard output"),
+                }
             }
         }
     }
