@@ -986,8 +986,12 @@ mod tests {
         assert_eq!(app.on_key(key(KeyCode::Char('q'))), Some(Action::Quit));
         let ctrl_c = KeyEvent::new(KeyCode::Char('c'), KeyModifiers::CONTROL);
         assert_eq!(app.on_key(ctrl_c), Some(Action::Quit));
+        // With the help open, `q` closes the help (it says any key does); Ctrl-C still quits.
         app.show_help = true;
-        assert_eq!(app.on_key(key(KeyCode::Char('q'))), Some(Action::Quit));
+        assert_eq!(app.on_key(key(KeyCode::Char('q'))), None);
+        assert!(!app.show_help);
+        app.show_help = true;
+        assert_eq!(app.on_key(ctrl_c), Some(Action::Quit));
     }
 
     #[test]
