@@ -18,7 +18,7 @@
 //! plus 5 % of every turn in heading — wide enough for a wheel-odometry's scale error and heading
 //! drift to be found. Only sweeps taken standing still are localised and merged.
 
-use nalgebra::{Isometry2, Matrix3, Point2, Vector2, Vector3};
+use nalgebra::{Isometry2, Matrix3, Point2, Vector3};
 use sonar_common::ipc::Reading;
 use sonar_common::ipc::{
     FeatureRecord, FeaturesHeader, LAYOUT_VERSION, MAX_FEATURES, feature_kind,
@@ -142,11 +142,7 @@ impl FeatureTracker {
     /// Map ← odometry: what the poses of `robot/pose` are off by, as the latest fix found
     /// (identity without localisation or before a fix).
     pub fn correction(&self) -> Isometry2<f32> {
-        let c = self.correction_f64();
-        Isometry2::new(
-            Vector2::new(c.translation.x as f32, c.translation.y as f32),
-            c.rotation.angle() as f32,
-        )
+        self.correction_f64().cast::<f32>()
     }
 
     fn correction_f64(&self) -> Isometry2<f64> {
@@ -168,28 +164,25 @@ impl FeatureTracker {
             Some(first) if first.sweep_id != reading.sweep_id => self.finish_sweep(),
             _ => None,
         };
+        let placed = pose.cast::<f64>();
+        // The odometry's own pose: a fix moves the placed poses, not the robot.
+        let odometry = before.inverse() * placed;
         if self.pending.is_empty() {
-            let pose = Isometry2::new(
-                Vector2::new(f64::from(pose.translation.x), f64::from(pose.translation.y)),
-                f64::from(pose.rotation.angle()),
-            );
             // The new sweep's first reading came placed with the correction from before the
             // finished sweep's fix: the sweep is placed with the new one, as the engine places
             // the readings that follow. (Placing it with the old one predicted every sweep from
             // a correction one fix stale.)
-            self.pose = self.correction_f64() * before.inverse() * pose;
+            self.pose = self.correction_f64() * odometry;
             self.moving = false;
         } else {
-            // The correction changes only between sweeps: within one, poses compare directly.
-            let first = self.correction_f64().inverse() * self.pose;
-            let now = before.inverse() * pose.cast::<f64>();
-            let step = first.inverse() * now;
+            // The correction changes only between sweeps: within one, placed poses compare
+            // directly.
+            let step = self.pose.inverse() * placed;
             self.moving |= step.translation.vector.norm() > STILL_M
                 || step.rotation.angle().abs() > STILL_DEG.to_radians();
         }
         if let Some(loc) = &mut self.localization {
-            // In the odometry's own frame: a fix moves the placed poses, not the robot.
-            loc.moved_to(&(before.inverse() * pose.cast::<f64>()));
+            loc.moved_to(&odometry);
         }
         self.pending.push(*reading);
         finished
@@ -366,6 +359,7 @@ fn record(s: &FeatureSummary) -> FeatureRecord {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Vector2;
     use crate::{FusionConfig, Mapper};
     use sonar_common::ipc::ScanMode;
 
