@@ -359,8 +359,8 @@ fn record(s: &FeatureSummary) -> FeatureRecord {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::Vector2;
     use crate::{FusionConfig, Mapper};
+    use nalgebra::Vector2;
     use sonar_common::ipc::ScanMode;
 
     /// A reading of sweep `sweep_id` centred at `centre_deg` (moving counter-clockwise), its four
