@@ -810,16 +810,29 @@ pub const GRID_SEGMENT_SLOTS: usize = GRID_MAX_SUBSCRIBERS
 /// while it reads the next: [`GRID_SEGMENT_SLOTS`] = 6 × (1 + 2) + 1 + 2 = 21 snapshots of shared
 /// memory (sparse: only written pages are committed).
 pub fn grid_service(node: &Node<ipc::Service>) -> Result<GridService, IpcError> {
-    node.service_builder(&service_name(GRID_SERVICE)?)
-        .publish_subscribe::<[u8]>()
-        .user_header::<GridHeader>()
+    latest_snapshot_service(node, GRID_SERVICE)
+}
+
+/// A service of snapshots (a header and a slice) of which consumers want the latest, never a
+/// backlog: the grid's policy, shared by `sonar/features`.
+fn latest_snapshot_service<T, H>(
+    node: &Node<ipc::Service>,
+    name: &str,
+) -> Result<publish_subscribe::PortFactory<ipc::Service, [T], H>, IpcError>
+where
+    T: std::fmt::Debug + ZeroCopySend + 'static,
+    H: std::fmt::Debug + ZeroCopySend + 'static,
+{
+    node.service_builder(&service_name(name)?)
+        .publish_subscribe::<[T]>()
+        .user_header::<H>()
         .max_publishers(1)
         .max_subscribers(GRID_MAX_SUBSCRIBERS)
         .subscriber_max_buffer_size(GRID_SUBSCRIBER_BUFFER)
         .subscriber_max_borrowed_samples(GRID_SUBSCRIBER_BORROWED)
         .history_size(GRID_HISTORY)
         .open_or_create()
-        .map_err(|e| IpcError::new(format!("open {GRID_SERVICE}"), e))
+        .map_err(|e| IpcError::new(format!("open {name}"), e))
 }
 
 /// `sonar/radar`, with the same policy as the grid.
@@ -894,16 +907,7 @@ pub type FeaturesService =
 /// at once, a buffer of one (the latest snapshot replaces an unread one). Small: at most
 /// [`MAX_FEATURES`] × 72 B a snapshot.
 pub fn features_service(node: &Node<ipc::Service>) -> Result<FeaturesService, IpcError> {
-    node.service_builder(&service_name(FEATURES_SERVICE)?)
-        .publish_subscribe::<[FeatureRecord]>()
-        .user_header::<FeaturesHeader>()
-        .max_publishers(1)
-        .max_subscribers(GRID_MAX_SUBSCRIBERS)
-        .subscriber_max_buffer_size(GRID_SUBSCRIBER_BUFFER)
-        .subscriber_max_borrowed_samples(GRID_SUBSCRIBER_BORROWED)
-        .history_size(GRID_HISTORY)
-        .open_or_create()
-        .map_err(|e| IpcError::new(format!("open {FEATURES_SERVICE}"), e))
+    latest_snapshot_service(node, FEATURES_SERVICE)
 }
 
 /// `sonar/localized_pose`, with the driver status's policy: history 1 so a late joiner sees the
