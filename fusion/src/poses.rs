@@ -32,6 +32,8 @@ use std::collections::VecDeque;
 use nalgebra::{Isometry2, Vector2};
 use sonar_common::ipc::Pose2D;
 
+use crate::geometry::wrap_angle;
+
 /// Longest time a pose is carried forward at the robot's last velocity.
 pub const MAX_EXTRAPOLATION_NS: u64 = 100_000_000;
 /// A reading this long after the latest pose is placed with a stale pose.
@@ -166,18 +168,11 @@ fn interpolate(a: &Pose2D, b: &Pose2D, stamp_ns: u64) -> Isometry2<f32> {
     }
     let s = (stamp_ns as f64 - a.stamp_ns as f64) / span as f64;
     let s = s as f32;
-    let turn = wrap_pi(b.theta_rad - a.theta_rad);
+    let turn = wrap_angle(b.theta_rad - a.theta_rad);
     Isometry2::new(
         Vector2::new(a.x_m + s * (b.x_m - a.x_m), a.y_m + s * (b.y_m - a.y_m)),
         a.theta_rad + s * turn,
     )
-}
-
-/// `angle` in (−π, π].
-fn wrap_pi(angle: f32) -> f32 {
-    use std::f32::consts::{PI, TAU};
-    let a = angle.rem_euclid(TAU);
-    if a > PI { a - TAU } else { a }
 }
 
 #[cfg(test)]
@@ -200,7 +195,7 @@ mod tests {
     fn close(a: Isometry2<f32>, x: f32, y: f32, theta: f32) -> bool {
         (a.translation.x - x).abs() < 1e-4
             && (a.translation.y - y).abs() < 1e-4
-            && wrap_pi(a.rotation.angle() - theta).abs() < 1e-4
+            && wrap_angle(a.rotation.angle() - theta).abs() < 1e-4
     }
 
     #[test]
