@@ -80,19 +80,38 @@ fn to_pose(x: &Vector3<f64>) -> Isometry2<f64> {
     Isometry2::new(Vector2::new(x.x, x.y), x.z)
 }
 
-/// Innovation of `o` placed at `x` against `f`, and its Jacobian with respect to `x`.
-fn linearise(f: &Feature, o: &Observation, x: &Vector3<f64>) -> (Vector2<f64>, Matrix3x2<f64>) {
-    let v = innovation(f, &Placed::new(o, &to_pose(x)));
-    let mut jt = Matrix3x2::zeros();
-    for k in 0..3 {
-        let mut moved = *x;
-        moved[k] += STEP;
-        let dv = innovation(f, &Placed::new(o, &to_pose(&moved))) - v;
-        // The plane's angle is wrapped: a step never crosses more than a tiny arc.
-        let dv = Vector2::new(crate::wrap_rad(dv.x), dv.y);
-        jt.set_row(k, &(dv / STEP).transpose());
+/// An observation placed at the estimate `x`, and at `x` moved by [`STEP`] along each of its three
+/// coordinates: all the placements its innovations and their Jacobians need, against any feature.
+struct Placements {
+    at: Placed,
+    moved: [Placed; 3],
+}
+
+impl Placements {
+    fn new(o: &Observation, x: &Vector3<f64>) -> Self {
+        let moved = |k: usize| {
+            let mut m = *x;
+            m[k] += STEP;
+            Placed::new(o, &to_pose(&m))
+        };
+        Self {
+            at: Placed::new(o, &to_pose(x)),
+            moved: [moved(0), moved(1), moved(2)],
+        }
     }
-    (v, jt)
+
+    /// The innovation against `f`, and its Jacobian with respect to `x`.
+    fn linearise(&self, f: &Feature) -> (Vector2<f64>, Matrix3x2<f64>) {
+        let v = innovation(f, &self.at);
+        let mut jt = Matrix3x2::zeros();
+        for (k, moved) in self.moved.iter().enumerate() {
+            let dv = innovation(f, moved) - v;
+            // The plane's angle is wrapped: a step never crosses more than a tiny arc.
+            let dv = Vector2::new(crate::wrap_rad(dv.x), dv.y);
+            jt.set_row(k, &(dv / STEP).transpose());
+        }
+        (v, jt)
+    }
 }
 
 impl FeatureMap {
@@ -122,12 +141,14 @@ impl FeatureMap {
             let mut g = prior_information * d;
             matched = 0;
             for o in observations {
+                let placements = Placements::new(o, &x);
+                let observed = placements.at.covariance();
                 let best = anchors
                     .iter()
                     .filter(|f| f.kind() == o.kind)
                     .filter_map(|f| {
-                        let (v, jt) = linearise(f, o, &x);
-                        let s = f.covariance_own() + Placed::new(o, &to_pose(&x)).covariance();
+                        let (v, jt) = placements.linearise(f);
+                        let s = f.covariance_own() + observed;
                         let gated: Matrix2<f64> = s + jt.transpose() * covariance * jt;
                         let d2 = (v.transpose() * gated.try_inverse()? * v)[(0, 0)];
                         (d2 <= gate).then_some((d2, v, jt, s))
