@@ -571,6 +571,8 @@ pub enum FormatError {
     },
     #[error("a message refers to channel {0}, which the file never declared")]
     UndeclaredChannel(u16),
+    #[error("an extra channel cannot take {0:?}, one of the recording's own topics")]
+    ReservedTopic(String),
     #[error("writing the recording failed: {0}")]
     Write(#[source] McapError),
 }
@@ -689,6 +691,51 @@ impl<W: Write + Seek> RecordingWriter<W> {
         self.mcap.flush().map_err(FormatError::Write)
     }
 
+    /// Declares a channel beside the recording's own (Foxglove's or ROS 2's well-known schemas):
+    /// readers of recordings skip it like any channel they do not know.
+    pub fn add_channel(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+        schema_encoding: &str,
+        schema: &[u8],
+        message_encoding: &str,
+    ) -> Result<ExtraChannel, FormatError> {
+        if Topic::from_service(topic).is_some() {
+            return Err(FormatError::ReservedTopic(topic.to_owned()));
+        }
+        let schema = self
+            .mcap
+            .add_schema(schema_name, schema_encoding, schema)
+            .map_err(FormatError::Write)?;
+        let id = self
+            .mcap
+            .add_channel(schema, topic, message_encoding, &BTreeMap::new())
+            .map_err(FormatError::Write)?;
+        Ok(ExtraChannel { id, sequence: 0 })
+    }
+
+    /// Appends a message on a channel of [`add_channel`](Self::add_channel).
+    pub fn write_extra(
+        &mut self,
+        channel: &mut ExtraChannel,
+        log_time_ns: u64,
+        publish_time_ns: u64,
+        data: &[u8],
+    ) -> Result<(), FormatError> {
+        let header = MessageHeader {
+            channel_id: channel.id,
+            sequence: channel.sequence,
+            log_time: log_time_ns,
+            publish_time: publish_time_ns,
+        };
+        self.mcap
+            .write_to_known_channel(&header, data)
+            .map_err(FormatError::Write)?;
+        channel.sequence = channel.sequence.wrapping_add(1);
+        Ok(())
+    }
+
     /// Messages written per topic.
     pub fn count(&self, topic: Topic) -> u64 {
         self.counts[topic.index()]
@@ -702,6 +749,13 @@ impl<W: Write + Seek> RecordingWriter<W> {
             .map_err(|e| FormatError::Write(McapError::Io(e)))?;
         Ok(sink)
     }
+}
+
+/// A channel of a recording outside its own topics, from [`RecordingWriter::add_channel`].
+#[derive(Debug)]
+pub struct ExtraChannel {
+    id: u16,
+    sequence: u32,
 }
 
 /// One message read back.

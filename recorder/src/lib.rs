@@ -11,7 +11,7 @@ pub mod format;
 pub mod pace;
 
 pub use format::{
-    Entry, FeatureSnapshot, FormatError, Message, ReadOptions, Recording, RecordingWriter, Topic,
-    read, read_file,
+    Entry, ExtraChannel, FeatureSnapshot, FormatError, Message, ReadOptions, Recording,
+    RecordingWriter, Topic, read, read_file,
 };
 pub use pace::{Pacer, Speed};

@@ -21,6 +21,26 @@ use sonar_common::ipc::{self, DriverStatus, FusionStatus, IpcArgs, Reading};
 /// hanging CI. No test asserts on how fast something happens.
 pub const PATIENCE: Duration = Duration::from_secs(60);
 
+/// The workspace's root directory.
+pub fn workspace() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// The Python interpreter with the packages the tests use (`SONAR_PYTHON`, else the workspace's
+/// `.venv`, which `.ci/run` sets up).
+pub fn python() -> PathBuf {
+    let python = std::env::var_os("SONAR_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace().join(".venv/bin/python3"));
+    assert!(
+        python.exists(),
+        "{} missing: run .ci/run once (it makes .venv and installs iceoryx2, mcap, \
+         mcap-protobuf-support and mcap-ros2-support)",
+        python.display()
+    );
+    python
+}
+
 /// Path of a workspace binary next to the running test executable.
 pub fn bin(name: &str) -> PathBuf {
     let exe = std::env::current_exe().expect("test executable path");

@@ -7,14 +7,14 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // helpers outside #[test] fns; a panic is a failure
 
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::Output;
 use std::time::Instant;
 
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use sonar_common::ipc::{self, FeatureRecord, FeaturesHeader, GridHeader, feature_kind};
-use sonar_e2e::{PATIENCE, Proc, Sandbox, collect_until, path_str};
+use sonar_e2e::{PATIENCE, Proc, Sandbox, collect_until, path_str, python, workspace};
 
 /// Grid of the default fusion settings: 400 × 400 cells of 2 cm, centred on the sensor.
 const SIDE: usize = 400;
@@ -536,15 +536,8 @@ fn the_nearest_obstacle_alerter_reports_the_room_walls_and_stays_quiet_below_the
 
 #[test]
 fn the_python_example_prints_the_occupied_fraction_of_the_room() {
-    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let python = std::env::var_os("SONAR_PYTHON")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| workspace.join(".venv/bin/python3"));
-    assert!(
-        python.exists(),
-        "{} missing: python3 -m venv .venv && .venv/bin/pip install 'iceoryx2==0.10.*' (.ci/run does)",
-        python.display()
-    );
+    let workspace = workspace();
+    let python = python();
     let sandbox = Sandbox::new("pyfraction");
     let node = sandbox.node("test-grid");
     let grid = ipc::grid_service(&node)
@@ -604,15 +597,8 @@ fn parse_feature_line(line: &str) -> (String, f32, f32) {
 /// it; the script finds the post as a point and the wall as a plane.
 #[test]
 fn the_python_example_prints_the_post_and_the_wall_of_the_obstacle_scene() {
-    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let python = std::env::var_os("SONAR_PYTHON")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| workspace.join(".venv/bin/python3"));
-    assert!(
-        python.exists(),
-        "{} missing: python3 -m venv .venv && .venv/bin/pip install 'iceoryx2==0.10.*' (.ci/run does)",
-        python.display()
-    );
+    let workspace = workspace();
+    let python = python();
     let sandbox = Sandbox::new("pyfeatures");
     let node = sandbox.node("test-features");
     let features = ipc::features_service(&node)

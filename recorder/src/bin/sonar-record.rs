@@ -7,6 +7,10 @@
 //! the file. So a slow disk delays only the writer: the subscriber's 256-reading buffer is
 //! emptied at every wake-up whatever the disk does, and the backlog waits in memory (104 B per
 //! reading) instead of being overwritten in shared memory.
+//!
+//! Beside its own channels the writer thread also writes the well-known ones Foxglove (and, with
+//! `--ros2`, ROS 2 tools) draw: the map from `sonar/grid`, each sweep as a laser scan, the sensor's
+//! pose as transforms and the features as a scene (`sonar_wellknown`; `docs/foxglove.md`).
 
 use std::collections::BTreeMap;
 use std::fmt::Debug;
@@ -27,8 +31,12 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::waitset::WaitSetRunResult;
-use sonar_common::ipc::{self, FeatureRecord, FeaturesHeader, IpcArgs, IpcError, PubSub, Reading};
-use sonar_recorder::format::{FeatureSnapshot, Message, RecordingWriter, Topic};
+use sonar_common::ipc::{
+    self, FeatureRecord, FeaturesHeader, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, PubSub,
+    Reading,
+};
+use sonar_recorder::format::{ExtraChannel, FeatureSnapshot, Message, RecordingWriter, Topic};
+use sonar_wellknown::{Channel, Options as WellKnownOptions, WellKnown};
 use tracing::{debug, info, warn};
 
 /// How often the loop wakes without an event: polls subscribers whose publishers do not notify,
@@ -42,12 +50,16 @@ const BACKLOG_WARNING: u64 = 10_000;
 
 /// Records `sonar/readings`, `sonar/commands`, `sonar/fusion_commands`, `robot/pose` and
 /// `sonar/features` to an MCAP file (one channel each; docs/recording.md), until Ctrl-C/SIGTERM,
-/// `--count` or `--duration`.
+/// `--count` or `--duration`. Beside them it writes what Foxglove draws by itself: the map
+/// (`sonar/grid`) as foxglove.Grid, each sweep as foxglove.LaserScan, the sensor's pose as
+/// foxglove.FrameTransform and the features as foxglove.SceneUpdate (docs/foxglove.md); with
+/// `--ros2` also /map, /scan and /tf as ROS 2 messages. sonar-replay skips those.
 ///
 /// Examples:
 ///   sonar-record run.mcap                          # until Ctrl-C
 ///   sonar-record run.mcap --count 500              # the next 500 readings
 ///   sonar-record run.mcap --duration 60 --force    # one minute, replacing run.mcap
+///   sonar-record run.mcap --ros2                   # also for ros2 bag play and RViz
 #[derive(Debug, Parser)]
 #[command(name = "sonar-record", version, verbatim_doc_comment)]
 struct Args {
@@ -65,6 +77,17 @@ struct Args {
     /// Seconds between progress lines in the log.
     #[arg(long, value_name = "SECONDS", default_value = "5", value_parser = positive_seconds)]
     progress_interval: Duration,
+    /// Only the pipeline's own channels: no map, scans, transforms or scene for Foxglove.
+    #[arg(long, conflicts_with = "ros2")]
+    no_foxglove: bool,
+    /// Also the ROS 2 messages /map (nav_msgs/msg/OccupancyGrid), /scan (sensor_msgs/msg/LaserScan)
+    /// and /tf (tf2_msgs/msg/TFMessage), CDR-encoded, for `ros2 bag play` and RViz.
+    #[arg(long)]
+    ros2: bool,
+    /// Seconds between the maps written for Foxglove (and ROS 2); the latest is always written
+    /// at the end. A 400 × 400 map takes 800 KB as foxglove.Grid (+160 KB with --ros2).
+    #[arg(long, value_name = "SECONDS", default_value = "5", value_parser = positive_seconds)]
+    grid_period: Duration,
     #[command(flatten)]
     ipc: IpcArgs,
 }
@@ -91,6 +114,8 @@ struct Written {
 #[derive(Debug)]
 struct Finished {
     counts: BTreeMap<Topic, u64>,
+    /// Messages on the well-known channels (Foxglove, ROS 2).
+    well_known: u64,
     bytes: u64,
 }
 
@@ -100,7 +125,7 @@ fn run(args: Args) -> Result<()> {
     // the process outright. Install it before subscribing, so that anyone who sees our
     // subscription may stop us cleanly.
     let signalled_early = node.wait(Duration::ZERO).is_err();
-    let ports = Ports::open(&node)?;
+    let ports = Ports::open(&node, !args.no_foxglove)?;
 
     // The file after the ports: a failure to set those up leaves no file behind.
     let started_ns = ipc::unix_time_ns();
@@ -120,13 +145,19 @@ fn run(args: Args) -> Result<()> {
             }
         })?;
 
+    let well_known = (!args.no_foxglove).then(|| {
+        WellKnown::new(WellKnownOptions {
+            ros2: args.ros2,
+            grid_period_ns: u64::try_from(args.grid_period.as_nanos()).unwrap_or(u64::MAX),
+        })
+    });
     let written = Arc::new(Written::default());
-    let (tx, rx) = mpsc::channel::<(u64, Message)>();
+    let (tx, rx) = mpsc::channel::<(u64, Item)>();
     let writer_thread = {
         let written = Arc::clone(&written);
         thread::Builder::new()
             .name("recording-writer".into())
-            .spawn(move || write_loop(writer, rx, &written))
+            .spawn(move || write_loop(writer, well_known, rx, &written))
             .context("start the writer thread")?
     };
 
@@ -178,6 +209,7 @@ fn run(args: Args) -> Result<()> {
         fusion_commands = count(Topic::FusionCommands),
         poses = count(Topic::Pose),
         features = count(Topic::Features),
+        well_known = finished.well_known,
         lost,
         bytes = finished.bytes,
         seconds = format_args!("{:.1}", (ipc::unix_time_ns() - started_ns) as f64 / 1e9),
@@ -199,12 +231,14 @@ struct Ports {
     fusion_commands: Option<Subscriber<Ipc, ipc::FusionCommand, ()>>,
     pose: Option<Subscriber<Ipc, ipc::Pose2D, ()>>,
     features: Option<Subscriber<Ipc, [FeatureRecord], FeaturesHeader>>,
+    /// The map, for the well-known channels only (not replayed: the fusion derives it).
+    grid: Option<Subscriber<Ipc, [u8], GridHeader>>,
     /// Wake-up events: the readings' (required), then those of the other services.
     listeners: Vec<Listener<Ipc>>,
 }
 
 impl Ports {
-    fn open(node: &Node<Ipc>) -> Result<Self> {
+    fn open(node: &Node<Ipc>, with_grid: bool) -> Result<Self> {
         let readings = ipc::readings_service(node)?
             .subscriber_builder()
             .create()
@@ -222,16 +256,30 @@ impl Ports {
             })
             .inspect_err(|e| warn!("not recording {}: {e}", Topic::Features))
             .ok();
-        for (present, topic) in [
-            (scan_commands.is_some(), Topic::ScanCommands),
-            (fusion_commands.is_some(), Topic::FusionCommands),
-            (pose.is_some(), Topic::Pose),
-            (features.is_some(), Topic::Features),
+        let grid = if with_grid {
+            ipc::grid_service(node)
+                .and_then(|service| {
+                    service
+                        .subscriber_builder()
+                        .create()
+                        .map_err(|e| IpcError::new("create subscriber", e))
+                })
+                .inspect_err(|e| warn!("no map for Foxglove ({}): {e}", ipc::GRID_SERVICE))
+                .ok()
+        } else {
+            None
+        };
+        for (present, service) in [
+            (scan_commands.is_some(), Topic::ScanCommands.service()),
+            (fusion_commands.is_some(), Topic::FusionCommands.service()),
+            (pose.is_some(), Topic::Pose.service()),
+            (features.is_some(), Topic::Features.service()),
+            (grid.is_some(), ipc::GRID_SERVICE),
         ] {
             if present {
-                match ipc::wakeup_listener(node, topic.service()) {
+                match ipc::wakeup_listener(node, service) {
                     Ok(l) => listeners.push(l),
-                    Err(e) => debug!("no wake-up listener for {topic} (polled instead): {e:#}"),
+                    Err(e) => debug!("no wake-up listener for {service} (polled instead): {e:#}"),
                 }
             }
         }
@@ -241,6 +289,7 @@ impl Ports {
             fusion_commands,
             pose,
             features,
+            grid,
             listeners,
         })
     }
@@ -266,8 +315,17 @@ fn optional<T: Debug + ZeroCopySend>(
     }
 }
 
+/// What the main thread hands the writer thread.
+#[derive(Debug)]
+enum Item {
+    /// A message of the recording's own channels.
+    Recorded(Message),
+    /// A map snapshot, for the well-known channels.
+    Grid(GridHeader, Vec<u8>),
+}
+
 struct Recorder {
-    tx: Sender<(u64, Message)>,
+    tx: Sender<(u64, Item)>,
     readings: u64,
     others: u64,
     lost: u64,
@@ -387,13 +445,53 @@ impl Recorder {
             };
             self.drain(Topic::Features, next, now);
         }
+        if let Some(sub) = &ports.grid {
+            self.drain_grid(sub, now);
+        }
         self.drain_readings(&ports.readings)
     }
 
     fn send(&mut self, log_time_ns: u64, message: Message) {
-        if self.tx.send((log_time_ns, message)).is_err() {
+        self.send_item(log_time_ns, Item::Recorded(message));
+    }
+
+    fn send_item(&mut self, log_time_ns: u64, item: Item) {
+        if self.tx.send((log_time_ns, item)).is_err() {
             self.writer_gone = true;
         }
+    }
+
+    /// Hands the newest map snapshot, if one came, to the writer (it keeps one every
+    /// `--grid-period`); a snapshot of another layout or whose size disagrees with its header is
+    /// left out.
+    fn drain_grid(&mut self, sub: &Subscriber<Ipc, [u8], GridHeader>, now: u64) {
+        let mut newest = None;
+        loop {
+            match sub.receive() {
+                Ok(Some(sample)) => newest = Some(sample),
+                Ok(None) => break,
+                Err(e) => {
+                    warn!("receiving {} failed: {e:?}", ipc::GRID_SERVICE);
+                    break;
+                }
+            }
+        }
+        let Some(sample) = newest else { return };
+        let header = *sample.user_header();
+        let cells = sample.payload();
+        if header.layout_version != LAYOUT_VERSION
+            || (header.width as usize).checked_mul(header.height as usize) != Some(cells.len())
+        {
+            warn!(
+                layout_version = header.layout_version,
+                width = header.width,
+                height = header.height,
+                cells = cells.len(),
+                "map snapshot left out: another layout, or its size disagrees with its header"
+            );
+            return;
+        }
+        self.send_item(now, Item::Grid(header, cells.to_vec()));
     }
 
     /// Takes every message `next` yields: a subscriber's `receive`, the payload copied out of
@@ -459,18 +557,93 @@ impl Recorder {
     }
 }
 
+/// The well-known channels of a recording and what feeds them.
+struct WellKnownChannels {
+    converter: WellKnown,
+    channels: BTreeMap<Channel, ExtraChannel>,
+    written: u64,
+}
+
+impl WellKnownChannels {
+    fn declare(
+        writer: &mut RecordingWriter<BufWriter<File>>,
+        converter: WellKnown,
+    ) -> Result<Self> {
+        let mut channels = BTreeMap::new();
+        for channel in converter.channels() {
+            let spec = channel.spec();
+            let extra = writer
+                .add_channel(
+                    spec.topic,
+                    &spec.schema_name,
+                    &spec.schema_encoding,
+                    &spec.schema,
+                    &spec.message_encoding,
+                )
+                .with_context(|| format!("declare {}", spec.topic))?;
+            channels.insert(channel, extra);
+        }
+        Ok(Self {
+            converter,
+            channels,
+            written: 0,
+        })
+    }
+
+    /// Converts an item and writes what it gives.
+    fn take(
+        &mut self,
+        writer: &mut RecordingWriter<BufWriter<File>>,
+        log_time: u64,
+        item: &Item,
+    ) -> Result<()> {
+        let outputs = match item {
+            Item::Recorded(Message::Reading(r)) => self.converter.reading(r),
+            Item::Recorded(Message::Pose(p)) => self.converter.pose(p),
+            Item::Recorded(Message::Features(f)) => self.converter.features(&f.header, &f.records),
+            Item::Recorded(_) => Vec::new(),
+            Item::Grid(header, cells) => self.converter.grid(header, cells),
+        };
+        self.write(writer, log_time, outputs)
+    }
+
+    fn write(
+        &mut self,
+        writer: &mut RecordingWriter<BufWriter<File>>,
+        log_time: u64,
+        outputs: Vec<sonar_wellknown::Output>,
+    ) -> Result<()> {
+        for out in outputs {
+            if let Some(channel) = self.channels.get_mut(&out.channel) {
+                writer.write_extra(channel, log_time, out.stamp_ns, &out.data)?;
+                self.written += 1;
+            }
+        }
+        Ok(())
+    }
+}
+
 fn write_loop(
     mut writer: RecordingWriter<BufWriter<File>>,
-    rx: Receiver<(u64, Message)>,
+    well_known: Option<WellKnown>,
+    rx: Receiver<(u64, Item)>,
     written: &Written,
 ) -> Result<Finished> {
+    let mut well_known = well_known
+        .map(|converter| WellKnownChannels::declare(&mut writer, converter))
+        .transpose()?;
     let mut last_flush = Instant::now();
     let mut dirty = false;
     loop {
         match rx.recv_timeout(FLUSH_PERIOD) {
-            Ok((log_time, message)) => {
-                writer.write(log_time, &message)?;
-                written.messages.fetch_add(1, Ordering::Relaxed);
+            Ok((log_time, item)) => {
+                if let Item::Recorded(message) = &item {
+                    writer.write(log_time, message)?;
+                    written.messages.fetch_add(1, Ordering::Relaxed);
+                }
+                if let Some(w) = &mut well_known {
+                    w.take(&mut writer, log_time, &item)?;
+                }
                 dirty = true;
             }
             Err(RecvTimeoutError::Timeout) => {}
@@ -482,6 +655,15 @@ fn write_loop(
             last_flush = Instant::now();
         }
     }
+    // The map kept back and the sweep in progress.
+    let well_known = match &mut well_known {
+        Some(w) => {
+            let outputs = w.converter.finish();
+            w.write(&mut writer, ipc::unix_time_ns(), outputs)?;
+            w.written
+        }
+        None => 0,
+    };
     let counts = Topic::ALL
         .into_iter()
         .map(|t| (t, writer.count(t)))
@@ -493,5 +675,9 @@ fn write_loop(
         .context("write the end of the recording")?;
     file.sync_all().context("sync the recording to disk")?;
     let bytes = file.metadata().map(|m| m.len()).unwrap_or(0);
-    Ok(Finished { counts, bytes })
+    Ok(Finished {
+        counts,
+        well_known,
+        bytes,
+    })
 }

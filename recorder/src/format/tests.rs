@@ -423,6 +423,38 @@ fn a_recording_reads_back_exactly() {
 }
 
 #[test]
+fn extra_channels_are_written_beside_ours_and_skipped_on_reading() {
+    let messages = sample_messages();
+    let mut w = RecordingWriter::new(Cursor::new(Vec::new()), &BTreeMap::new()).unwrap();
+    let mut grid = w
+        .add_channel(
+            "/foxglove/map",
+            "foxglove.Grid",
+            "protobuf",
+            b"descriptor",
+            "protobuf",
+        )
+        .unwrap();
+    assert!(matches!(
+        w.add_channel("sonar/readings", "x", "protobuf", b"", "protobuf"),
+        Err(FormatError::ReservedTopic(_))
+    ));
+    for (i, (t, m)) in messages.iter().enumerate() {
+        w.write(*t, m).unwrap();
+        if i % 2 == 0 {
+            w.write_extra(&mut grid, *t, *t, &[1, 2, 3]).unwrap();
+        }
+    }
+    let bytes = w.finish().unwrap().into_inner();
+    let rec = read(&bytes, ReadOptions::default()).unwrap();
+    assert_eq!(rec.skipped, messages.len().div_ceil(2) as u64);
+    assert_eq!(rec.entries.len(), messages.len());
+    for (entry, (_, m)) in rec.entries.iter().zip(&messages) {
+        assert!(same_bits(&entry.message, m), "{entry:?} vs {m:?}");
+    }
+}
+
+#[test]
 fn an_empty_recording_is_valid() {
     let rec = read(&recording_bytes(&[]), ReadOptions::default()).unwrap();
     assert!(rec.entries.is_empty());

@@ -1,0 +1,209 @@
+#!/usr/bin/env python3
+"""Checks the well-known channels of a sonar-record file with independent decoders.
+
+Reads the MCAP file with the `mcap` package and decodes Foxglove's protobuf messages with
+`mcap-protobuf-support` (from the schemas in the file) and the ROS 2 ones with
+`mcap-ros2-support` (CDR, from the ros2msg definitions in the file), then compares them with what
+the pipeline itself says:
+
+- the last foxglove.Grid (and nav_msgs/msg/OccupancyGrid) against the map exported by
+  `sonar-export --format npy,pgm` (values, size, resolution, origin);
+- every foxglove.LaserScan (and sensor_msgs/msg/LaserScan) against the recording's own
+  `sonar/readings` channel, decoded from the byte layout of docs/recording.md;
+- that transforms and the features' scene are there.
+
+Usage: check_wellknown_mcap.py RECORDING.mcap MAP_STEM [--ros2]
+(MAP_STEM.npy and MAP_STEM.yaml as sonar-export writes them). Prints one summary line; exits 1
+with the first mismatch.
+"""
+
+import argparse
+import math
+import re
+import struct
+import sys
+
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
+from mcap_ros2.decoder import DecoderFactory as Ros2DecoderFactory
+
+READING = struct.Struct("<QQ5I7f8IbBBB4s")  # sonar::ReadingV1, 104 bytes
+NO_ECHO, OUT_OF_RANGE = 1, 2
+CELL_UNKNOWN = 255
+
+
+class Mismatch(Exception):
+    pass
+
+
+def check(ok, what):
+    if not ok:
+        raise Mismatch(what)
+
+
+def close(a, b, tol=1e-6):
+    return abs(a - b) <= tol
+
+
+def load_map(stem):
+    """(height, width, cells as bytes 0..254/255, resolution, origin x, origin y)."""
+    with open(stem + ".npy", "rb") as f:
+        raw = f.read()
+    check(raw[:8] == b"\x93NUMPY\x01\x00", "not an NPY 1.0 file")
+    (hlen,) = struct.unpack_from("<H", raw, 8)
+    header = raw[10 : 10 + hlen].decode()
+    shape = re.search(r"'shape': \((\d+), (\d+)\)", header)
+    height, width = int(shape.group(1)), int(shape.group(2))
+    values = struct.unpack_from(f"<{height * width}f", raw, 10 + hlen)
+    # The NPY holds p = byte / 254 (NaN never observed): the byte comes back exactly.
+    cells = bytes(CELL_UNKNOWN if math.isnan(p) else round(p * 254) for p in values)
+    yaml = open(stem + ".yaml").read()
+    resolution = float(re.search(r"^resolution: (\S+)", yaml, re.M).group(1))
+    origin = re.search(r"^origin: \[(\S+), (\S+), ", yaml, re.M)
+    return height, width, cells, resolution, float(origin.group(1)), float(origin.group(2))
+
+
+def occupancy(cell):
+    """The ROS convention the channels use: -1 unknown, else percent rounded half up."""
+    return -1 if cell == CELL_UNKNOWN else (cell * 100 + 127) // 254
+
+
+def sweeps_of(readings):
+    """Readings grouped by sweep, in recorded order (a sweep ends when the next begins)."""
+    sweeps = []
+    for r in readings:
+        if not sweeps or sweeps[-1][0]["sweep_id"] != r["sweep_id"]:
+            sweeps.append([])
+        sweeps[-1].append(r)
+    return sweeps
+
+
+def check_scan(scan, sweep, start, end, ranges, what):
+    """The readings of `sweep` lie on the scan's bearings with their ranges."""
+    n = len(ranges)
+    step = (end - start) / (n - 1) if n > 1 else 0.0
+    filled = set()
+    for r in sweep:
+        a = math.radians(r["angle_deg"])
+        i = round((a - start) / step) if step else 0
+        check(0 <= i < n, f"{what}: reading at {r['angle_deg']}° outside the scan")
+        check(
+            close(start + i * step, a, 1e-4),
+            f"{what}: bearing {start + i * step} rad for a reading at {a} rad",
+        )
+        if r["flags"] & (NO_ECHO | OUT_OF_RANGE):
+            check(math.isinf(ranges[i]), f"{what}: a reading without echo is not +inf")
+        else:
+            check(
+                close(ranges[i], r["distance_m"], 1e-6),
+                f"{what}: range {ranges[i]} for a reading of {r['distance_m']} m",
+            )
+        filled.add(i)
+    for i, v in enumerate(ranges):
+        if i not in filled:
+            check(math.isnan(v), f"{what}: bin {i} has {v} but no reading")
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("recording")
+    parser.add_argument("map_stem")
+    parser.add_argument("--ros2", action="store_true", help="expect and check the ROS 2 channels")
+    args = parser.parse_args()
+
+    height, width, cells, resolution, ox, oy = load_map(args.map_stem)
+    expected = [occupancy(c) for c in cells]
+
+    readings = []
+    decoded = {}
+    with open(args.recording, "rb") as f:
+        reader = make_reader(
+            f, decoder_factories=[ProtobufDecoderFactory(), Ros2DecoderFactory()]
+        )
+        schemas = {c.topic: reader.get_summary().schemas[c.schema_id] for c in reader.get_summary().channels.values()}
+        for _, _, message in reader.iter_messages(topics=["sonar/readings"]):
+            f_ = READING.unpack(message.data)
+            readings.append(
+                {"sweep_id": f_[5], "flags": f_[6], "angle_deg": f_[7], "distance_m": f_[10]}
+            )
+        topics = ["/foxglove/map", "/foxglove/scan", "/foxglove/tf", "/foxglove/features"]
+        if args.ros2:
+            topics += ["/map", "/scan", "/tf"]
+        for _, channel, _, msg in reader.iter_decoded_messages(topics=topics):
+            decoded.setdefault(channel.topic, []).append(msg)
+
+    check(schemas["/foxglove/map"].name == "foxglove.Grid", "grid schema")
+    check(schemas["/foxglove/map"].encoding == "protobuf", "grid schema encoding")
+    for topic in topics:
+        check(decoded.get(topic), f"no message on {topic}")
+
+    # The map: the last Grid is the map the pipeline ended with.
+    grid = decoded["/foxglove/map"][-1]
+    rows = len(grid.data) // grid.row_stride
+    check((grid.column_count, rows) == (width, height), f"grid {grid.column_count}×{rows}")
+    check(grid.cell_stride == 5 and grid.row_stride == 5 * width, "grid strides")
+    check(close(grid.cell_size.x, resolution) and close(grid.cell_size.y, resolution), "cell size")
+    check(close(grid.pose.position.x, ox) and close(grid.pose.position.y, oy), "grid origin")
+    check(grid.frame_id == "map", "grid frame")
+    fields = {f.name: f.offset for f in grid.fields}
+    occ = fields["occupancy"]
+    values = [struct.unpack_from("b", grid.data, i * 5 + occ)[0] for i in range(width * height)]
+    bad = [i for i in range(width * height) if values[i] != expected[i]]
+    check(not bad, f"{len(bad)} grid cells differ from the map, first {bad[:1]}")
+    alpha = fields["alpha"]
+    check(
+        all((grid.data[i * 5 + alpha] == 0) == (cells[i] == CELL_UNKNOWN) for i in range(width * height)),
+        "unknown cells are not exactly the transparent ones",
+    )
+    known = sum(c != CELL_UNKNOWN for c in cells)
+    check(known > 0, "the map has observed cells")
+
+    # The scans: one per sweep, each holding its sweep's readings.
+    sweeps = sweeps_of(readings)
+    scans = decoded["/foxglove/scan"]
+    check(len(scans) == len(sweeps), f"{len(scans)} scans for {len(sweeps)} sweeps")
+    for k, (scan, sweep) in enumerate(zip(scans, sweeps)):
+        check(scan.frame_id == "sonar", "scan frame")
+        check_scan(scan, sweep, scan.start_angle, scan.end_angle, list(scan.ranges), f"scan {k}")
+
+    check(decoded["/foxglove/tf"][0].child_frame_id == "sonar", "transform child frame")
+    walls = sum(len(e.lines) for e in decoded["/foxglove/features"][-1].entities)
+    summary = (
+        f"grid {width}x{height} res {resolution} cells {width * height} known {known} "
+        f"scans {len(scans)} readings {len(readings)} transforms {len(decoded['/foxglove/tf'])} "
+        f"wall_lines {walls}"
+    )
+
+    if args.ros2:
+        check(schemas["/map"].name == "nav_msgs/msg/OccupancyGrid", "map schema")
+        check(schemas["/map"].encoding == "ros2msg", "map schema encoding")
+        og = decoded["/map"][-1]
+        info = og.info
+        check((info.width, info.height) == (width, height), "occupancy grid size")
+        check(close(info.resolution, resolution), "occupancy grid resolution")
+        check(close(info.origin.position.x, ox) and close(info.origin.position.y, oy), "origin")
+        check(close(info.origin.orientation.w, 1.0), "origin orientation")
+        check(og.header.frame_id == "map", "occupancy grid frame")
+        check(list(og.data) == expected, "occupancy grid data differ from the map")
+        ros_scans = decoded["/scan"]
+        check(len(ros_scans) == len(sweeps), f"{len(ros_scans)} ROS scans for {len(sweeps)} sweeps")
+        for k, (scan, sweep) in enumerate(zip(ros_scans, sweeps)):
+            n = len(scan.ranges)
+            check(
+                n == 1 or close(scan.angle_min + (n - 1) * scan.angle_increment, scan.angle_max, 1e-5),
+                f"ROS scan {k}: angle_max",
+            )
+            check_scan(scan, sweep, scan.angle_min, scan.angle_max, list(scan.ranges), f"ROS scan {k}")
+        tf = decoded["/tf"][0].transforms[0]
+        check((tf.header.frame_id, tf.child_frame_id) == ("map", "sonar"), "ROS transform frames")
+        summary += f" ros2_maps {len(decoded['/map'])} ros2_scans {len(ros_scans)}"
+
+    print(summary)
+
+
+if __name__ == "__main__":
+    try:
+        main()
+    except Mismatch as e:
+        print(f"mismatch: {e}", file=sys.stderr)
+        sys.exit(1)

@@ -1,0 +1,223 @@
+//! The pipeline's payloads as Foxglove's well-known messages (`foxglove::messages`, protobuf).
+
+use foxglove::Encode;
+use foxglove::messages::{
+    Color, CubePrimitive, FrameTransform, Grid, LaserScan, LinePrimitive, PackedElementField,
+    Point3, Pose, Quaternion, SceneEntity, SceneUpdate, SpherePrimitive, Timestamp, Vector2,
+    Vector3, line_primitive, packed_element_field::NumericType,
+};
+use sonar_common::ipc::{
+    FeatureRecord, FeaturesHeader, GridHeader, decode_probability, feature_kind,
+};
+
+use crate::scan::Scan;
+use crate::{MAP_FRAME, SENSOR_FRAME, SchemaParts, Transform, occupancy, yaw_quaternion};
+
+/// The schema of a Foxglove message type as its SDK defines it.
+pub(crate) fn schema<T: Encode>() -> SchemaParts {
+    let (name, encoding, data) = T::get_schema()
+        .map(|s| (s.name, s.encoding, s.data.into_owned()))
+        .unwrap_or_default();
+    (name, encoding, data, T::get_message_encoding())
+}
+
+/// Protobuf bytes of a message.
+pub fn encode<T: Encode>(message: &T) -> Vec<u8> {
+    let mut buf = Vec::with_capacity(message.encoded_len().unwrap_or(64));
+    // A Vec grows as needed: encoding into it cannot run out of room.
+    if let Err(e) = message.encode(&mut buf) {
+        unreachable!("protobuf encoding into a Vec failed: {e}");
+    }
+    buf
+}
+
+/// ns since the Unix epoch as Foxglove's timestamp (saturating in 2106).
+pub fn timestamp(stamp_ns: u64) -> Timestamp {
+    let sec = u32::try_from(stamp_ns / 1_000_000_000).unwrap_or(u32::MAX);
+    Timestamp::new_checked(sec, (stamp_ns % 1_000_000_000) as u32).unwrap_or(Timestamp::MAX)
+}
+
+fn planar_pose(x: f64, y: f64, theta: f64) -> Pose {
+    let (z, w) = yaw_quaternion(theta);
+    Pose {
+        position: Some(Vector3 { x, y, z: 0.0 }),
+        orientation: Some(Quaternion {
+            x: 0.0,
+            y: 0.0,
+            z,
+            w,
+        }),
+    }
+}
+
+/// Bytes per cell of the map: `occupancy` (int8: −1 unknown, 0–100) and `red`, `green`, `blue`,
+/// `alpha` (uint8), so Foxglove draws it in colour without settings (its 3D panel picks the RGBA
+/// fields by itself): free white, occupied black, grey between, as ROS maps look; never-observed
+/// cells transparent.
+pub const GRID_CELL_STRIDE: u32 = 5;
+
+/// The grey of a cell (`None`: transparent).
+fn cell_grey(cell: u8) -> Option<u8> {
+    decode_probability(cell).map(|p| (255.0 * (1.0 - p.clamp(0.0, 1.0))).round() as u8)
+}
+
+/// The map as `foxglove.Grid` in frame `map`, row 0 at the lowest y as in the snapshot.
+pub fn grid(header: &GridHeader, cells: &[u8]) -> Grid {
+    let field = |name: &str, offset: u32, kind: NumericType| PackedElementField {
+        name: name.into(),
+        offset,
+        r#type: kind as i32,
+    };
+    let mut data = Vec::with_capacity(cells.len() * GRID_CELL_STRIDE as usize);
+    for &cell in cells {
+        data.push(occupancy(cell) as u8);
+        match cell_grey(cell) {
+            Some(g) => data.extend([g, g, g, 255]),
+            None => data.extend([0, 0, 0, 0]),
+        }
+    }
+    Grid {
+        timestamp: Some(timestamp(header.stamp_ns)),
+        frame_id: MAP_FRAME.into(),
+        pose: Some(planar_pose(
+            f64::from(header.origin_x_m),
+            f64::from(header.origin_y_m),
+            0.0,
+        )),
+        column_count: header.width,
+        cell_size: Some(Vector2 {
+            x: f64::from(header.resolution_m),
+            y: f64::from(header.resolution_m),
+        }),
+        row_stride: header.width * GRID_CELL_STRIDE,
+        cell_stride: GRID_CELL_STRIDE,
+        fields: vec![
+            field("occupancy", 0, NumericType::Int8),
+            field("red", 1, NumericType::Uint8),
+            field("green", 2, NumericType::Uint8),
+            field("blue", 3, NumericType::Uint8),
+            field("alpha", 4, NumericType::Uint8),
+        ],
+        data: data.into(),
+    }
+}
+
+/// A sweep as `foxglove.LaserScan` in frame `sonar`.
+pub fn laser_scan(scan: &Scan) -> LaserScan {
+    LaserScan {
+        timestamp: Some(timestamp(scan.stamp_ns)),
+        frame_id: SENSOR_FRAME.into(),
+        pose: Some(planar_pose(0.0, 0.0, 0.0)),
+        start_angle: scan.start_rad,
+        end_angle: scan.end_rad(),
+        ranges: scan.ranges.clone(),
+        intensities: Vec::new(),
+    }
+}
+
+/// A transform as `foxglove.FrameTransform`.
+pub fn frame_transform(t: &Transform) -> FrameTransform {
+    let pose = planar_pose(t.x, t.y, t.theta);
+    FrameTransform {
+        timestamp: Some(timestamp(t.stamp_ns)),
+        parent_frame_id: t.parent.into(),
+        child_frame_id: t.child.into(),
+        translation: pose.position,
+        rotation: pose.orientation,
+    }
+}
+
+const WALL: Color = Color {
+    r: 0.95,
+    g: 0.55,
+    b: 0.1,
+    a: 1.0,
+};
+const CORNER: Color = Color {
+    r: 0.2,
+    g: 0.8,
+    b: 0.3,
+    a: 1.0,
+};
+const POST: Color = Color {
+    r: 0.2,
+    g: 0.6,
+    b: 1.0,
+    a: 1.0,
+};
+/// Edge of a corner's cube and diameter of a post's sphere, metres.
+const MARKER_SIZE: f64 = 0.08;
+/// Thickness of a wall's line, metres.
+const WALL_THICKNESS: f64 = 0.03;
+
+/// A features snapshot as one `foxglove.SceneUpdate` entity `features` in frame `map` (replacing the
+/// previous snapshot's): walls as line segments, corners as cubes, posts as spheres.
+pub fn features(header: &FeaturesHeader, records: &[FeatureRecord]) -> SceneUpdate {
+    let size = Some(Vector3 {
+        x: MARKER_SIZE,
+        y: MARKER_SIZE,
+        z: MARKER_SIZE,
+    });
+    let at = |r: &FeatureRecord| Some(planar_pose(f64::from(r.x_m), f64::from(r.y_m), 0.0));
+    let point = |x: f32, y: f32| Point3 {
+        x: f64::from(x),
+        y: f64::from(y),
+        z: 0.0,
+    };
+    let mut walls = Vec::new();
+    let mut cubes = Vec::new();
+    let mut spheres = Vec::new();
+    for r in records {
+        match r.kind {
+            feature_kind::PLANE => {
+                let ends = [
+                    r.segment_ax_m,
+                    r.segment_ay_m,
+                    r.segment_bx_m,
+                    r.segment_by_m,
+                ];
+                if ends.iter().all(|v| v.is_finite()) {
+                    walls.push(point(r.segment_ax_m, r.segment_ay_m));
+                    walls.push(point(r.segment_bx_m, r.segment_by_m));
+                }
+            }
+            feature_kind::CORNER => cubes.push(CubePrimitive {
+                pose: at(r),
+                size,
+                color: Some(CORNER),
+            }),
+            feature_kind::POINT => spheres.push(SpherePrimitive {
+                pose: at(r),
+                size,
+                color: Some(POST),
+            }),
+            _ => {}
+        }
+    }
+    let lines = if walls.is_empty() {
+        Vec::new()
+    } else {
+        vec![LinePrimitive {
+            r#type: line_primitive::Type::LineList as i32,
+            pose: Some(planar_pose(0.0, 0.0, 0.0)),
+            thickness: WALL_THICKNESS,
+            scale_invariant: false,
+            points: walls,
+            color: Some(WALL),
+            colors: Vec::new(),
+            indices: Vec::new(),
+        }]
+    };
+    SceneUpdate {
+        deletions: Vec::new(),
+        entities: vec![SceneEntity {
+            timestamp: Some(timestamp(header.stamp_ns)),
+            frame_id: MAP_FRAME.into(),
+            id: "features".into(),
+            lines,
+            cubes,
+            spheres,
+            ..SceneEntity::default()
+        }],
+    }
+}

@@ -1,0 +1,206 @@
+use foxglove::Decode;
+use foxglove::messages::{FrameTransform, Grid, LaserScan, SceneUpdate};
+use sonar_common::ipc::feature_kind;
+
+use super::*;
+
+const SECOND: u64 = 1_000_000_000;
+
+fn options(ros2: bool) -> Options {
+    Options {
+        ros2,
+        grid_period_ns: 2 * SECOND,
+    }
+}
+
+fn header(stamp_ns: u64) -> GridHeader {
+    GridHeader {
+        seq: stamp_ns,
+        stamp_ns,
+        width: 3,
+        height: 2,
+        resolution_m: 0.05,
+        origin_x_m: -0.1,
+        origin_y_m: -0.05,
+        pose_x_m: 0.5,
+        pose_y_m: 0.25,
+        pose_theta_rad: 0.3,
+        ..GridHeader::default()
+    }
+}
+
+const CELLS: [u8; 6] = [0, 127, 254, CELL_UNKNOWN, 1, 253];
+
+fn channels(out: &[Output]) -> Vec<Channel> {
+    out.iter().map(|o| o.channel).collect()
+}
+
+#[test]
+fn occupancy_is_percent_rounded_half_up_and_unknown_is_minus_one() {
+    assert_eq!(occupancy(0), 0);
+    assert_eq!(occupancy(127), 50);
+    assert_eq!(occupancy(254), 100);
+    assert_eq!(occupancy(CELL_UNKNOWN), -1);
+    // 1.27 → 1 (p = 1/254 = 0.39 %), 3.5 → 4 (7/254 = 2.76 %)
+    assert_eq!(occupancy(3), 1);
+    assert_eq!(occupancy(7), 3);
+    for c in 0..=254u8 {
+        let exact = f64::from(c) * 100.0 / 254.0;
+        assert!((f64::from(occupancy(c)) - exact).abs() <= 0.5, "{c}");
+    }
+}
+
+#[test]
+fn the_grid_keeps_size_origin_rows_and_values_of_the_snapshot() {
+    let grid =
+        Grid::decode(&foxglove_msgs::encode(&foxglove_msgs::grid(&header(7), &CELLS))[..]).unwrap();
+    assert_eq!(grid.frame_id, MAP_FRAME);
+    assert_eq!(grid.column_count, 3);
+    assert_eq!(grid.cell_stride, 5);
+    assert_eq!(grid.row_stride, 15);
+    assert_eq!(grid.data.len(), 30, "two rows");
+    let cell = grid.cell_size.unwrap();
+    assert_eq!((cell.x, cell.y), (f64::from(0.05f32), f64::from(0.05f32)));
+    let origin = grid.pose.unwrap().position.unwrap();
+    assert_eq!(
+        (origin.x, origin.y),
+        (f64::from(-0.1f32), f64::from(-0.05f32))
+    );
+    let values: Vec<i8> = grid.data.chunks(5).map(|c| c[0] as i8).collect();
+    assert_eq!(values, CELLS.map(occupancy));
+    // Free white, occupied black, unknown transparent.
+    assert_eq!(&grid.data[1..5], &[255, 255, 255, 255]);
+    assert_eq!(&grid.data[11..15], &[0, 0, 0, 255]);
+    assert_eq!(&grid.data[16..20], &[0, 0, 0, 0]);
+    let names: Vec<&str> = grid.fields.iter().map(|f| f.name.as_str()).collect();
+    assert_eq!(names, ["occupancy", "red", "green", "blue", "alpha"]);
+}
+
+#[test]
+fn maps_come_at_most_once_a_period_and_the_last_one_at_the_end() {
+    let mut w = WellKnown::new(options(false));
+    // A fixed head: each map brings the sensor's transform from the snapshot.
+    assert_eq!(
+        channels(&w.grid(&header(10 * SECOND), &CELLS)),
+        [Channel::FoxgloveMap, Channel::FoxgloveTransform]
+    );
+    assert!(w.grid(&header(11 * SECOND), &CELLS).is_empty());
+    assert!(w.grid(&header(11 * SECOND + 5), &CELLS).is_empty());
+    let out = w.grid(&header(12 * SECOND), &CELLS);
+    assert_eq!(out[0].stamp_ns, 12 * SECOND);
+    assert!(w.grid(&header(13 * SECOND), &CELLS).is_empty());
+    let end = w.finish();
+    assert_eq!(end[0].channel, Channel::FoxgloveMap);
+    assert_eq!(end[0].stamp_ns, 13 * SECOND, "the newest kept snapshot");
+    assert!(w.finish().is_empty(), "given once");
+    assert!(
+        w.grid(&header(20 * SECOND), &CELLS[1..]).is_empty(),
+        "cells missing"
+    );
+}
+
+#[test]
+fn with_a_pose_source_transforms_follow_it_at_most_twenty_a_second() {
+    let mut w = WellKnown::new(options(true));
+    let pose = |stamp_ns| Pose2D {
+        stamp_ns,
+        x_m: 1.0,
+        y_m: -2.0,
+        theta_rad: std::f32::consts::FRAC_PI_2,
+        layout_version: 1,
+    };
+    let out = w.pose(&pose(SECOND));
+    assert_eq!(
+        channels(&out),
+        [Channel::FoxgloveTransform, Channel::Ros2Transform]
+    );
+    let t = FrameTransform::decode(&out[0].data[..]).unwrap();
+    assert_eq!(
+        (t.parent_frame_id.as_str(), t.child_frame_id.as_str()),
+        ("map", "sonar")
+    );
+    let q = t.rotation.unwrap();
+    assert!((q.z - 0.5f64.sqrt()).abs() < 1e-6 && (q.w - 0.5f64.sqrt()).abs() < 1e-6);
+    assert_eq!(t.translation.unwrap().y, -2.0);
+    assert!(w.pose(&pose(SECOND + 49_000_000)).is_empty());
+    assert_eq!(w.pose(&pose(SECOND + 50_000_000)).len(), 2);
+    // The map no longer brings a transform of its own.
+    assert_eq!(
+        channels(&w.grid(&header(2 * SECOND), &CELLS)),
+        [Channel::FoxgloveMap, Channel::Ros2Map]
+    );
+}
+
+#[test]
+fn a_sweep_becomes_a_scan_when_the_next_begins_and_the_last_at_the_end() {
+    let mut w = WellKnown::new(options(false));
+    let reading = |sweep_id, angle_deg| Reading {
+        sweep_id,
+        angle_deg,
+        distance_m: 1.0,
+        host_stamp_ns: 5,
+        ..Reading::default()
+    };
+    assert!(w.reading(&reading(1, 0.0)).is_empty());
+    assert!(w.reading(&reading(1, 6.0)).is_empty());
+    let out = w.reading(&reading(2, 6.0));
+    assert_eq!(channels(&out), [Channel::FoxgloveScan]);
+    let scan = LaserScan::decode(&out[0].data[..]).unwrap();
+    assert_eq!(scan.frame_id, SENSOR_FRAME);
+    assert_eq!(scan.ranges, [f64::from(1.0f32); 2]);
+    assert!((scan.end_angle - 6f64.to_radians()).abs() < 1e-9);
+    assert_eq!(channels(&w.finish()), [Channel::FoxgloveScan]);
+}
+
+#[test]
+fn features_become_lines_cubes_and_spheres() {
+    let record = |kind, x| FeatureRecord {
+        kind,
+        x_m: x,
+        segment_ax_m: f32::NAN,
+        segment_ay_m: f32::NAN,
+        segment_bx_m: f32::NAN,
+        segment_by_m: f32::NAN,
+        ..FeatureRecord::default()
+    };
+    let mut wall = record(feature_kind::PLANE, 1.0);
+    (
+        wall.segment_ax_m,
+        wall.segment_ay_m,
+        wall.segment_bx_m,
+        wall.segment_by_m,
+    ) = (1.0, -1.0, 1.0, 1.0);
+    let records = [
+        wall,
+        record(feature_kind::CORNER, 2.0),
+        record(feature_kind::POINT, 3.0),
+        record(feature_kind::PLANE, 4.0), // without extent: not drawn
+    ];
+    let mut w = WellKnown::new(options(false));
+    let out = w.features(&FeaturesHeader::default(), &records);
+    let scene = SceneUpdate::decode(&out[0].data[..]).unwrap();
+    let entity = &scene.entities[0];
+    assert_eq!(entity.id, "features");
+    assert_eq!(entity.lines.len(), 1);
+    assert_eq!(entity.lines[0].points.len(), 2);
+    assert_eq!(entity.cubes.len(), 1);
+    assert_eq!(entity.spheres.len(), 1);
+    assert_eq!(entity.spheres[0].pose.unwrap().position.unwrap().x, 3.0);
+}
+
+#[test]
+fn channel_specs_carry_foxglove_s_protobuf_schemas_and_ros2_definitions() {
+    let grid = Channel::FoxgloveMap.spec();
+    assert_eq!(grid.schema_name, "foxglove.Grid");
+    assert_eq!(grid.schema_encoding, "protobuf");
+    assert_eq!(grid.message_encoding, "protobuf");
+    assert!(!grid.schema.is_empty());
+    let map = Channel::Ros2Map.spec();
+    assert_eq!(map.schema_name, "nav_msgs/msg/OccupancyGrid");
+    assert_eq!(
+        (map.schema_encoding.as_str(), map.message_encoding.as_str()),
+        ("ros2msg", "cdr")
+    );
+    assert_eq!(WellKnown::new(options(false)).channels(), Channel::FOXGLOVE);
+    assert_eq!(WellKnown::new(options(true)).channels().len(), 7);
+}
