@@ -15,7 +15,7 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
-use sonar_common::ipc::{self, DriverStatus, FusionStatus, IpcArgs, Reading};
+use sonar_common::ipc::{self, DriverStatus, FusionStatus, GridHeader, IpcArgs, Reading};
 
 /// Generous bound for anything a test waits for; only there so a broken build fails instead of
 /// hanging CI. No test asserts on how fast something happens.
@@ -39,6 +39,35 @@ pub fn python() -> PathBuf {
         python.display()
     );
     python
+}
+
+/// Subscribers of `sonar/readings` now.
+pub fn readings_subscribers(node: &Node<Ipc>) -> usize {
+    ipc::readings_service(node)
+        .unwrap()
+        .dynamic_config()
+        .number_of_subscribers()
+}
+
+/// Waits (at most [`PATIENCE`]) until `ready`, e.g. until processes have opened their ports.
+pub fn wait_until(node: &Node<Ipc>, what: &str, mut ready: impl FnMut() -> bool) {
+    let deadline = Instant::now() + PATIENCE;
+    while !ready() {
+        assert!(Instant::now() < deadline, "gave up waiting for {what}");
+        let _ = node.wait(Duration::from_millis(10));
+    }
+}
+
+/// The standard output of a finished command that must have succeeded.
+pub fn check_ok(what: &str, out: &std::process::Output) -> String {
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "{what} failed: {:?}\n{stdout}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    stdout
 }
 
 /// Path of a workspace binary next to the running test executable.
@@ -479,6 +508,14 @@ pub fn path_str(p: &std::path::Path) -> &str {
 }
 
 /// A subscriber to `sonar/readings`; subscribe before the driver starts to miss nothing.
+pub fn grid_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, [u8], GridHeader> {
+    ipc::grid_service(node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap()
+}
+
 pub fn readings_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, Reading, ()> {
     ipc::readings_service(node)
         .unwrap()

@@ -8,13 +8,12 @@
 
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
-use std::process::Output;
-use std::time::Instant;
 
-use iceoryx2::prelude::*;
-use iceoryx2::service::ipc::Service as Ipc;
 use sonar_common::ipc::{self, FeatureRecord, FeaturesHeader, GridHeader, feature_kind};
-use sonar_e2e::{PATIENCE, Proc, Sandbox, collect_until, path_str, python, workspace};
+use sonar_e2e::{
+    PATIENCE, Proc, Sandbox, check_ok, collect_until, grid_subscriber, path_str, python,
+    readings_subscribers, wait_until, workspace,
+};
 
 /// Grid of the default fusion settings: 400 × 400 cells of 2 cm, centred on the sensor.
 const SIDE: usize = 400;
@@ -41,17 +40,6 @@ fn start_room(sandbox: &Sandbox) -> Vec<Proc> {
     let (sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100", "--seed", "5"]);
     let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
     vec![driver, sim, fusion]
-}
-
-fn check_ok(what: &str, out: &Output) -> String {
-    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(
-        out.status.success(),
-        "{what} failed: {:?}\n{stdout}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    stdout
 }
 
 /// A PGM as written by `map_saver`: P5, optional comment lines, "W H", "255", bytes.
@@ -323,32 +311,13 @@ fn sonar_export_writes_the_live_room_as_png_ros_map_csv_and_npy() {
     assert!(readings >= 100, "two full sweeps of 50 readings: {comment}");
 }
 
-fn readings_subscribers(node: &Node<Ipc>) -> usize {
-    ipc::readings_service(node)
-        .unwrap()
-        .dynamic_config()
-        .number_of_subscribers()
-}
-
-fn wait_until(node: &Node<Ipc>, what: &str, mut ready: impl FnMut() -> bool) {
-    let deadline = Instant::now() + PATIENCE;
-    while !ready() {
-        assert!(Instant::now() < deadline, "gave up waiting for {what}");
-        let _ = node.wait(std::time::Duration::from_millis(10));
-    }
-}
-
 /// The recorded readings, fused offline, give exactly the map and the features the live engine
 /// built from them.
 #[test]
 fn an_export_from_a_recording_equals_the_live_map_of_the_same_readings() {
     let sandbox = Sandbox::new("exportrec");
     let node = sandbox.node("test-counter");
-    let grid = ipc::grid_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let grid = grid_subscriber(&node);
     let features = ipc::features_service(&node)
         .unwrap()
         .subscriber_builder()
@@ -540,11 +509,7 @@ fn the_python_example_prints_the_occupied_fraction_of_the_room() {
     let python = python();
     let sandbox = Sandbox::new("pyfraction");
     let node = sandbox.node("test-grid");
-    let grid = ipc::grid_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let grid = grid_subscriber(&node);
     let _pipeline = start_room(&sandbox);
     // The script opens the service: it must exist (the fusion engine creates it).
     collect_until(

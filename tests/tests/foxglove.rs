@@ -4,30 +4,10 @@
 //! `sonar-replay` reading such a file as before.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // a panic is a failure
 
-use std::time::Instant;
-
-use iceoryx2::prelude::*;
-use iceoryx2::service::ipc::Service as Ipc;
-use sonar_common::ipc;
-use sonar_e2e::{PATIENCE, Sandbox, collect_until, path_str, python, workspace};
-
-fn readings_subscribers(node: &Node<Ipc>) -> usize {
-    ipc::readings_service(node)
-        .unwrap()
-        .dynamic_config()
-        .number_of_subscribers()
-}
-
-fn check_ok(what: &str, out: &std::process::Output) -> String {
-    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(
-        out.status.success(),
-        "{what} failed: {:?}\n{stdout}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    stdout
-}
+use sonar_e2e::{
+    Sandbox, check_ok, collect_until, grid_subscriber, path_str, python, readings_subscriber,
+    readings_subscribers, wait_until, workspace,
+};
 
 /// The room through simulator, driver and fusion, recorded with `--ros2`; the driver stops, the
 /// fusion fuses the last reading, the recorder stops: its last map is the pipeline's final map,
@@ -36,30 +16,17 @@ fn check_ok(what: &str, out: &std::process::Output) -> String {
 fn a_recording_s_grid_scans_and_ros2_messages_decode_to_the_map_and_the_readings() {
     let sandbox = Sandbox::new("foxrec");
     let node = sandbox.node("test-counter");
-    let grid = ipc::grid_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
-    let readings = ipc::readings_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let grid = grid_subscriber(&node);
+    let readings = readings_subscriber(&node);
     let file = sandbox.root.join("run.mcap");
     let fusion = sandbox.spawn("sonar-fusion", &["--no-persist"]);
     let recorder = sandbox.spawn(
         "sonar-record",
         &[path_str(&file), "--ros2", "--grid-period", "0.5"],
     );
-    let deadline = Instant::now() + PATIENCE;
-    while readings_subscribers(&node) < 3 {
-        assert!(
-            Instant::now() < deadline,
-            "fusion and recorder never subscribed"
-        );
-        let _ = node.wait(std::time::Duration::from_millis(10));
-    }
+    wait_until(&node, "fusion's and the recorder's subscriptions", || {
+        readings_subscribers(&node) >= 3
+    });
     let (sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100", "--seed", "3"]);
     let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
     // Three sweeps and a part (50 readings a sweep).

@@ -3,7 +3,6 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // helpers outside #[test] fns; a panic is a failure
 
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
 
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
@@ -11,7 +10,10 @@ use iceoryx2::service::ipc::Service as Ipc;
 use sonar_common::ipc::{
     self, FusionCommand, FusionCommandKind, Reading, ScanCommand, ScanCommandKind,
 };
-use sonar_e2e::{PATIENCE, Sandbox, collect_until, path_str, readings_subscriber, receive_reading};
+use sonar_e2e::{
+    Sandbox, collect_until, path_str, readings_subscriber, readings_subscribers, receive_reading,
+    wait_until,
+};
 
 /// More than one subscriber buffer (256): a replay that did not pace itself at `--speed max`
 /// would overwrite readings before the test's subscriber (polling every 5 ms) takes them.
@@ -44,22 +46,6 @@ fn bits(r: &Reading) -> Vec<u64> {
     v.extend([r.direction as u8, r.mode, r.ping_count, r.pings_used].map(u64::from));
     v.extend(r.reserved.map(u64::from));
     v
-}
-
-/// Waits until `count()` reaches `n` (a process has opened its ports).
-fn wait_until(node: &Node<Ipc>, what: &str, mut ready: impl FnMut() -> bool) {
-    let deadline = Instant::now() + PATIENCE;
-    while !ready() {
-        assert!(Instant::now() < deadline, "gave up waiting for {what}");
-        let _ = node.wait(Duration::from_millis(10));
-    }
-}
-
-fn readings_subscribers(node: &Node<Ipc>) -> usize {
-    ipc::readings_service(node)
-        .unwrap()
-        .dynamic_config()
-        .number_of_subscribers()
 }
 
 #[test]

@@ -30,6 +30,7 @@ use iceoryx2::port::listener::Listener;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use iceoryx2::waitset::WaitSetRunResult;
 use sonar_common::ipc::{
     self, FeatureRecord, FeaturesHeader, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, PubSub,
@@ -247,23 +248,11 @@ impl Ports {
         let scan_commands = optional(node, ipc::commands_service, Topic::ScanCommands);
         let fusion_commands = optional(node, ipc::fusion_commands_service, Topic::FusionCommands);
         let pose = optional(node, ipc::pose_service, Topic::Pose);
-        let features = ipc::features_service(node)
-            .and_then(|service| {
-                service
-                    .subscriber_builder()
-                    .create()
-                    .map_err(|e| IpcError::new("create subscriber", e))
-            })
+        let features = snapshot_subscriber(ipc::features_service(node))
             .inspect_err(|e| warn!("not recording {}: {e}", Topic::Features))
             .ok();
         let grid = if with_grid {
-            ipc::grid_service(node)
-                .and_then(|service| {
-                    service
-                        .subscriber_builder()
-                        .create()
-                        .map_err(|e| IpcError::new("create subscriber", e))
-                })
+            snapshot_subscriber(ipc::grid_service(node))
                 .inspect_err(|e| warn!("no map for Foxglove ({}): {e}", ipc::GRID_SERVICE))
                 .ok()
         } else {
@@ -293,6 +282,16 @@ impl Ports {
             listeners,
         })
     }
+}
+
+/// A subscriber of a snapshot service (`sonar/features`, `sonar/grid`).
+fn snapshot_subscriber<T: Debug + ZeroCopySend + 'static, H: Debug + ZeroCopySend + 'static>(
+    service: Result<PortFactory<Ipc, [T], H>, IpcError>,
+) -> Result<Subscriber<Ipc, [T], H>, IpcError> {
+    service?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| IpcError::new("create subscriber", e))
 }
 
 fn optional<T: Debug + ZeroCopySend>(
