@@ -6,7 +6,21 @@
 //! +2.25° going counter-clockwise and the reverse going clockwise. Both directions sample the same
 //! angles. A [`Sweep`] holds the pings of one sweep sorted by bearing, so that everything after it
 //! is the same whichever way the head turned.
+//!
+//! # Sweeps taken on the move
+//!
+//! A robot that scans while it drives takes each reading from its own pose.
+//! [`Sweep::from_readings_at`] brings every ping to the sweep's reference pose (its first
+//! reading's, say) before anything else looks at them: the bearing turns by the heading the sensor
+//! has gained, and the range becomes the echo's position projected on the beam's direction from
+//! the reference, i.e. the range grows by the sensor's displacement along the beam. That is exact
+//! for a wall heard square on and first order for everything else: what it drops is the
+//! displacement across the beam, which shifts a point target's bearing by (offset / range), never
+//! a wall's (a wall is heard around its normal from anywhere in front of it). Bearings stay on the
+//! stepper's grid (turned as a whole), so the widths of the regions of constant depth keep the
+//! meaning the classification gives them.
 
+use nalgebra::{Isometry2, Vector2};
 use sonar_common::ipc::{Reading, flags};
 
 use crate::FeatureError;
@@ -40,11 +54,24 @@ impl Sweep {
         readings: impl IntoIterator<Item = &'a Reading>,
         cfg: &FeatureConfig,
     ) -> Self {
+        Self::from_readings_at(
+            readings.into_iter().map(|r| (r, Isometry2::identity())),
+            cfg,
+        )
+    }
+
+    /// The pings of one sweep's readings, each reading with the sensor's pose when it was taken
+    /// relative to the sweep's reference pose: every ping brought to the reference (module docs,
+    /// "Sweeps taken on the move"). A ping whose range would end up behind the reference has none.
+    pub fn from_readings_at<'a>(
+        readings: impl IntoIterator<Item = (&'a Reading, Isometry2<f64>)>,
+        cfg: &FeatureConfig,
+    ) -> Self {
         let step = cfg.step_deg();
         let mut pings = Vec::new();
         let mut skipped = 0;
-        for r in readings {
-            match placed_pings(r, cfg) {
+        for (r, pose) in readings {
+            match placed_pings(r, cfg).map(|p| p.map(|ping| at_reference(ping, &pose))) {
                 Some(p) => pings.extend(p),
                 None => skipped += 1,
             }
@@ -121,6 +148,18 @@ impl Sweep {
     }
 }
 
+/// `ping`, taken at `pose` (relative to the reference), as seen from the reference: bearing turned
+/// by the pose's heading, range plus the pose's displacement along the beam.
+fn at_reference(ping: Ping, pose: &Isometry2<f64>) -> Ping {
+    let bearing_deg = ping.bearing_deg + pose.rotation.angle().to_degrees();
+    let (sin, cos) = bearing_deg.to_radians().sin_cos();
+    let along = pose.translation.vector.dot(&Vector2::new(cos, sin));
+    Ping {
+        bearing_deg,
+        range_m: ping.range_m.map(|r| r + along).filter(|r| *r > 0.0),
+    }
+}
+
 /// The pings of one reading at their angles, or `None` when their angles are unknown.
 fn placed_pings(r: &Reading, cfg: &FeatureConfig) -> Option<impl Iterator<Item = Ping>> {
     let n = usize::from(r.ping_count).min(r.echo_us.len());
@@ -185,6 +224,66 @@ pub(crate) mod tests {
         assert!((range_at(&ccw, 0.75) - 1.0).abs() < 1e-3);
         assert!((range_at(&cw, 0.75) - 1.3).abs() < 1e-3);
         assert!((range_at(&cw, 5.25) - 1.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn pings_taken_on_the_move_are_brought_to_the_reference_pose() {
+        let cfg = FeatureConfig::default();
+        let r = |centre: f32, range: f64| reading(centre, 1, &[range; 4]);
+        // A wall 1 m ahead of the reference: the first reading is taken at the reference, the
+        // second 20 cm nearer the wall and turned 3° left (the wall's foot 0.8 m away), the third
+        // 30 cm to the left (its foot 1 m away).
+        let nearer = Isometry2::new(Vector2::new(0.2, 0.0), 3.0_f64.to_radians());
+        let aside = Isometry2::translation(0.0, 0.3);
+        let s = Sweep::from_readings_at(
+            [
+                (&r(-6.0, 1.0), Isometry2::identity()),
+                (&r(-3.0, 0.8), nearer),
+                (&r(6.0, 1.0), aside),
+            ],
+            &cfg,
+        );
+        let placed: Vec<(f64, f64)> = s
+            .pings()
+            .iter()
+            .map(|p| (p.bearing_deg, p.range_m.unwrap()))
+            .collect();
+        // Bearings: the turned reading's pings sit 3° further on, still on the 1.5° grid.
+        let bearings: Vec<f64> = placed.iter().map(|p| p.0).collect();
+        let grid: Vec<f64> = (0..12).map(|k| -8.25 + 1.5 * f64::from(k)).collect();
+        assert!(
+            bearings
+                .iter()
+                .zip(&grid)
+                .all(|(b, g)| (b - g).abs() < 1e-9),
+            "{bearings:?}"
+        );
+        for &(bearing, range) in &placed {
+            let (sin, cos) = bearing.to_radians().sin_cos();
+            let expected = if bearing < -3.0 {
+                1.0
+            } else if bearing < 3.0 {
+                0.8 + 0.2 * cos
+            } else {
+                1.0 + 0.3 * sin
+            };
+            assert!((range - expected).abs() < 5e-4, "{placed:?}");
+        }
+        // Approached square on, the wall keeps its constant depth: within 1 mm of 1 m.
+        assert!(
+            placed[..8].iter().all(|p| (p.1 - 1.0).abs() < 1e-3),
+            "{placed:?}"
+        );
+        // The identity pose is the plain sweep.
+        let plain = r(0.0, 1.0);
+        assert_eq!(
+            Sweep::from_readings_at([(&plain, Isometry2::identity())], &cfg),
+            Sweep::from_readings(&[plain], &cfg)
+        );
+        // A ping whose range lands behind the reference has none.
+        let behind =
+            Sweep::from_readings_at([(&r(0.0, 0.5), Isometry2::translation(-1.0, 0.0))], &cfg);
+        assert!(behind.pings().iter().all(|p| p.range_m.is_none()));
     }
 
     #[test]

@@ -145,8 +145,10 @@
 //! [`poses`] keeps the recent poses of `robot/pose` and places each reading at the pose
 //! interpolated at its own stamp (bounded extrapolation when the pose stream lags; stale poses
 //! counted). [`features`] groups the readings by sweep for the feature map of the
-//! `sonar-features` crate (walls, corners, posts: `sonar/features`) and, with localisation on,
-//! matches each sweep against it to estimate the odometry's drift; the engine then places the
+//! `sonar-features` crate (walls, corners, posts: `sonar/features`), each reading's pings brought
+//! from the pose of its instant to the sweep's first reading's, and, with localisation on, matches
+//! each sweep (taken still or on the move) against it to estimate the odometry's drift; only
+//! sweeps taken still are merged into it. The engine then places the
 //! readings that follow at that correction times the odometry's pose
 //! ([`engine::Engine::set_correction`]).
 //!
