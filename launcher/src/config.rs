@@ -45,6 +45,9 @@ pub struct PipelineFile {
     pub features: FeaturesSection,
     pub viewer: ViewerSection,
     pub launcher: LauncherSection,
+    /// `sonar-bridge` reads and validates this table from the same file (zenoh stays out of the
+    /// launcher); the launcher only looks at `enabled`.
+    pub bridge: toml::Table,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -141,6 +144,11 @@ impl PipelineFile {
                 path: path.to_owned(),
                 source,
             })?;
+        file.bridge_enabled()
+            .map_err(|message| ConfigError::Parse {
+                path: path.to_owned(),
+                message,
+            })?;
         file.launcher
             .restart_delay()
             .map_err(|message| ConfigError::Parse {
@@ -148,6 +156,17 @@ impl PipelineFile {
                 message,
             })?;
         Ok(file)
+    }
+}
+
+impl PipelineFile {
+    /// Whether `[bridge] enabled = true`: then the launcher starts `sonar-bridge` too.
+    pub fn bridge_enabled(&self) -> Result<bool, String> {
+        match self.bridge.get("enabled") {
+            None => Ok(false),
+            Some(toml::Value::Boolean(on)) => Ok(*on),
+            Some(other) => Err(format!("[bridge] enabled = {other} is not true or false")),
+        }
     }
 }
 
@@ -215,6 +234,12 @@ mod tests {
             matches!(&features, Err(ConfigError::Parse { message, .. }) if message.contains("min_pings")),
             "{features:?}"
         );
+        let bridge = PipelineFile::parse(
+            "[bridge]\nenabled = true\nrobot = \"r1\"\n",
+            Path::new("x.toml"),
+        );
+        assert_eq!(bridge.unwrap().bridge_enabled(), Ok(true));
+        assert!(PipelineFile::parse("[bridge]\nenabled = 1\n", Path::new("x.toml")).is_err());
         let bad = PipelineFile::parse("[launcher]\nrestart_delay = -1\n", Path::new("x.toml"));
         assert!(
             matches!(&bad, Err(ConfigError::Parse { message, .. }) if message.contains("restart_delay")),

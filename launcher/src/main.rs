@@ -299,6 +299,16 @@ impl Pipeline {
         push_opt(&mut fusion, "--preset", args.preset.clone());
         processes.push(Process::new("sonar-fusion", fusion, false));
 
+        if file.bridge_enabled().map_err(anyhow::Error::msg)? {
+            // The bridge takes its [bridge] table from the same file.
+            let config = args
+                .config
+                .as_ref()
+                .context("[bridge] enabled needs the file given with --config")?;
+            let bridge = vec!["--config".to_owned(), config.display().to_string()];
+            processes.push(Process::new("sonar-bridge", bridge, false));
+        }
+
         if with_viewer {
             let mut viewer = vec![
                 "--log-file".to_owned(),

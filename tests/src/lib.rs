@@ -166,6 +166,8 @@ pub struct Sandbox {
     /// The processes' `$XDG_STATE_HOME`: what they keep between runs (the fusion's saved map, the
     /// launcher's logs) stays in the test, never in the user's home.
     pub state: PathBuf,
+    /// A network namespace its processes run in (`ip netns exec`), if any.
+    pub netns: Option<String>,
 }
 
 impl Sandbox {
@@ -181,7 +183,15 @@ impl Sandbox {
             prefix: tag,
             root,
             state,
+            netns: None,
         }
+    }
+
+    /// The same, with its processes in network namespace `netns` (which the test made).
+    pub fn in_netns(test: &str, netns: &str) -> Self {
+        let mut sandbox = Self::new(test);
+        sandbox.netns = Some(netns.to_owned());
+        sandbox
     }
 
     pub fn ipc_args(&self) -> IpcArgs {
@@ -199,7 +209,15 @@ impl Sandbox {
 
     /// A command for a workspace binary with this namespace in its environment and logs on stderr.
     pub fn command(&self, name: &str) -> Command {
-        let mut cmd = Command::new(bin(name));
+        let mut cmd = match &self.netns {
+            Some(netns) => {
+                // `ip netns exec` execs the program: its pid is the program's, signals reach it.
+                let mut cmd = Command::new("ip");
+                cmd.args(["netns", "exec", netns]).arg(bin(name));
+                cmd
+            }
+            None => Command::new(bin(name)),
+        };
         cmd.env("SONAR_IOX_PREFIX", &self.prefix)
             .env("SONAR_IOX_ROOT", &self.root)
             .env("XDG_STATE_HOME", &self.state)

@@ -1,0 +1,618 @@
+//! `sonar-bridge`: carries the pipeline's iceoryx2 services over zenoh (see the crate docs and
+//! `docs/bridge.md`).
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, anyhow, bail};
+use clap::Parser;
+use iceoryx2::prelude::*;
+use sonar_bridge::channel::{self, Channel};
+use sonar_bridge::config::{BridgeSection, Mode, Overrides, Settings};
+use sonar_bridge::ports::{self, Reader, WriteError, Writer};
+use sonar_common::ipc::IpcArgs;
+use sonar_common::throttle::Throttle;
+use tracing::{debug, info, warn};
+use zenoh::Wait;
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::key_expr::KeyExpr;
+use zenoh::qos::{CongestionControl, Priority};
+use zenoh::query::{Query, Reply};
+use zenoh::sample::{Sample, SampleKind};
+
+/// How often the loop looks at both sides: bounds the latency the bridge adds, and its idle CPU.
+const POLL_PERIOD: Duration = Duration::from_millis(5);
+/// How often idle local publishers hand their latest sample to new subscribers.
+const REFRESH_PERIOD: Duration = Duration::from_secs(1);
+/// How often the counters are logged (when they changed).
+const STATS_PERIOD: Duration = Duration::from_secs(30);
+/// How long `--list-robots` (and a remote without `--robot`) listens for robots.
+const DISCOVERY_TIME: Duration = Duration::from_secs(3);
+/// How long a query for the robot's latest states may take.
+const QUERY_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// Carries the sonar pipeline's services between a robot and other machines over zenoh.
+///
+/// On the robot (--mode robot) it publishes readings, driver status, grid (LZ4-compressed,
+/// rate-limited), radar, features, poses and fusion status to the keys `sonar/<robot>/<service>`
+/// and forwards commands from those keys into the robot's iceoryx2. On a laptop (--mode remote)
+/// it does the mirror image into the laptop's own iceoryx2, where the unchanged sonar-viewer,
+/// sonar-export, sonar-record and Python scripts then run.
+///
+/// Settings come from the [bridge] table of --config, overridden by the flags below.
+///
+/// Examples:
+///   sonar-bridge --robot r1                                    # on the robot, listens on :7447
+///   sonar-bridge --mode remote --connect tcp/192.168.1.20:7447 # on the laptop, then sonar-viewer
+///   sonar-bridge --mode remote --connect tcp/10.0.0.5:7447 --list-robots
+#[derive(Debug, Parser)]
+#[command(version, verbatim_doc_comment)]
+struct Args {
+    /// Pipeline configuration file (TOML) with a [bridge] table.
+    #[arg(long, env = "SONAR_CONFIG")]
+    config: Option<PathBuf>,
+    /// robot: this machine's services out, commands in; remote: the mirror image [default: robot].
+    #[arg(long, env = "SONAR_BRIDGE_MODE", value_enum)]
+    mode: Option<Mode>,
+    /// This robot's name (robot mode), or the robot to watch (remote mode; without it, the only
+    /// robot seen).
+    #[arg(long, env = "SONAR_ROBOT")]
+    robot: Option<String>,
+    /// zenoh endpoints to listen on, comma-separated [default: tcp/0.0.0.0:7447 on a robot, none
+    /// on a remote].
+    #[arg(long, env = "SONAR_BRIDGE_LISTEN", value_delimiter = ',')]
+    listen: Vec<String>,
+    /// zenoh endpoints to connect to, comma-separated, e.g. tcp/192.168.1.20:7447.
+    #[arg(long, env = "SONAR_BRIDGE_CONNECT", value_delimiter = ',')]
+    connect: Vec<String>,
+    /// Services to carry, comma-separated: readings, driver_status, grid, radar, features,
+    /// fusion_status, pose, localized_pose, commands, fusion_commands [default: all].
+    #[arg(long, value_delimiter = ',')]
+    services: Vec<String>,
+    /// Most grid snapshots per second on the link (0: every one) [default: 2].
+    #[arg(long, value_name = "HZ")]
+    grid_max_rate: Option<f64>,
+    /// Print the robots whose bridges are reachable, one name a line, and exit.
+    #[arg(long)]
+    list_robots: bool,
+    #[command(flatten)]
+    ipc: IpcArgs,
+}
+
+fn main() -> ExitCode {
+    sonar_common::init_tracing();
+    let args = Args::parse();
+    sonar_common::report_exit("sonar-bridge", run(args))
+}
+
+fn run(args: Args) -> Result<()> {
+    let file = match &args.config {
+        Some(path) => BridgeSection::load(path)?,
+        None => BridgeSection::default(),
+    };
+    let flags = Overrides {
+        mode: args.mode.or(args.list_robots.then_some(Mode::Remote)),
+        robot: args.robot.clone(),
+        listen: args.listen.clone(),
+        connect: args.connect.clone(),
+        services: args.services.clone(),
+        grid_max_rate_hz: args.grid_max_rate,
+    };
+    let settings = Settings::resolve(&file, &flags)?;
+    let session = open_session(&settings)?;
+    if args.list_robots {
+        for robot in robots_seen(&session)? {
+            println!("{robot}");
+        }
+        return close(session);
+    }
+    let robot = match &settings.robot {
+        Some(robot) => robot.clone(),
+        None => choose_robot(&session)?,
+    };
+    let node = args
+        .ipc
+        .node(&format!("sonar-bridge-{robot}"))
+        .context("iceoryx2")?;
+    info!(
+        mode = ?settings.mode,
+        robot,
+        listen = ?settings.listen,
+        connect = ?settings.connect,
+        channels = ?settings.channels,
+        "bridge running"
+    );
+    let mut bridge = Bridge::new(&session, &node, &settings, &robot)?;
+    bridge.run(&node);
+    bridge.log_stats(true);
+    drop(bridge);
+    close(session)
+}
+
+fn close(session: zenoh::Session) -> Result<()> {
+    session
+        .close()
+        .wait()
+        .map_err(|e| anyhow!("close the zenoh session: {e}"))
+}
+
+/// A zenoh peer with exactly the configured endpoints: no multicast scouting, so it reaches only
+/// the machines it is told of (and those they know of), and retries them for ever.
+fn open_session(settings: &Settings) -> Result<zenoh::Session> {
+    let mut config = zenoh::Config::default();
+    let json = |v: &[String]| serde_json_list(v);
+    let entries = [
+        ("mode", "\"peer\"".to_owned()),
+        ("listen/endpoints", json(&settings.listen)),
+        ("connect/endpoints", json(&settings.connect)),
+        ("scouting/multicast/enabled", "false".to_owned()),
+        // Keep retrying a robot that is not (yet) there instead of failing at start.
+        ("connect/timeout_ms", "-1".to_owned()),
+        ("connect/exit_on_failure", "false".to_owned()),
+    ];
+    for (key, value) in entries {
+        config
+            .insert_json5(key, &value)
+            .map_err(|e| anyhow!("zenoh setting {key} = {value}: {e}"))?;
+    }
+    zenoh::open(config)
+        .wait()
+        .map_err(|e| anyhow!("open the zenoh session (listen {:?}): {e}", settings.listen))
+}
+
+/// A JSON list of strings (endpoints hold no quotes or backslashes, but escape anyway).
+fn serde_json_list(items: &[String]) -> String {
+    let quoted: Vec<String> = items
+        .iter()
+        .map(|s| format!("\"{}\"", s.replace('\\', "\\\\").replace('"', "\\\"")))
+        .collect();
+    format!("[{}]", quoted.join(","))
+}
+
+/// The names of the robots whose bridges are seen within [`DISCOVERY_TIME`], sorted. Watches
+/// the robots' tokens for that long, since the connections to the endpoints may still be forming.
+fn robots_seen(session: &zenoh::Session) -> Result<Vec<String>> {
+    let tokens = session
+        .liveliness()
+        .declare_subscriber(channel::ALL_ROBOT_TOKENS)
+        .history(true)
+        .wait()
+        .map_err(|e| anyhow!("watch for robots: {e}"))?;
+    let deadline = Instant::now() + DISCOVERY_TIME;
+    let mut robots = std::collections::BTreeSet::new();
+    while let Some(left) = deadline.checked_duration_since(Instant::now()) {
+        let Ok(Some(sample)) = tokens.recv_timeout(left) else {
+            break;
+        };
+        if let Some(robot) = channel::robot_of_token(sample.key_expr().as_str()) {
+            match sample.kind() {
+                SampleKind::Put => robots.insert(robot.to_owned()),
+                SampleKind::Delete => robots.remove(robot),
+            };
+        }
+    }
+    Ok(robots.into_iter().collect())
+}
+
+fn choose_robot(session: &zenoh::Session) -> Result<String> {
+    let robots = robots_seen(session)?;
+    match robots.as_slice() {
+        [one] => {
+            info!(robot = one, "the only robot seen");
+            Ok(one.clone())
+        }
+        [] => bail!("no robot seen within {DISCOVERY_TIME:?}: give --robot NAME"),
+        many => bail!(
+            "{} robots seen ({}): choose one with --robot NAME",
+            many.len(),
+            many.join(", ")
+        ),
+    }
+}
+
+/// What happened on one channel since the start.
+#[derive(Debug, Default, Clone, PartialEq)]
+struct Counts {
+    messages: u64,
+    bytes: u64,
+    /// Held back by the rate limit and replaced by a newer one before it could go.
+    dropped_for_rate: u64,
+    /// Another layout version: refused.
+    version_mismatches: u64,
+    /// Damaged frames, or the local publication failed.
+    failures: u64,
+}
+
+/// A local service whose samples go out on the link.
+struct Outbound {
+    channel: Channel,
+    read: Reader,
+    publisher: zenoh::pubsub::Publisher<'static>,
+    min_interval: Option<Duration>,
+    last_sent: Option<Instant>,
+    /// A message the rate limit holds back; a newer one replaces it.
+    pending: Option<Vec<u8>>,
+    /// The latest message sent of a state channel, for late joiners' queries.
+    latest: Option<Vec<u8>>,
+    counts: Counts,
+}
+
+/// A key whose messages go into a local service.
+struct Inbound {
+    channel: Channel,
+    write: Writer,
+    subscriber: zenoh::pubsub::Subscriber<FifoChannelHandler<Sample>>,
+    /// The last message published locally, so a query's answer does not repeat it.
+    last_written: Option<Vec<u8>>,
+    counts: Counts,
+    refused_log: Throttle,
+}
+
+struct Bridge {
+    mode: Mode,
+    robot: String,
+    outbound: Vec<Outbound>,
+    inbound: Vec<Inbound>,
+    /// Robot: answers queries for the latest states.
+    queryable: Option<zenoh::query::Queryable<FifoChannelHandler<Query>>>,
+    /// Remote: the robot's token (the link); robot: the remotes' tokens.
+    peers: zenoh::pubsub::Subscriber<FifoChannelHandler<Sample>>,
+    _token: zenoh::liveliness::LivelinessToken,
+    /// Remote: outstanding queries for the robot's latest states.
+    queries: Vec<FifoChannelHandler<Reply>>,
+    session: zenoh::Session,
+    link_up: bool,
+    link_ups: u64,
+    link_downs: u64,
+    last_refresh: Instant,
+    last_stats: Instant,
+    logged: BTreeMap<Channel, Counts>,
+}
+
+fn zerr(what: String) -> impl FnOnce(zenoh::Error) -> anyhow::Error {
+    move |e| anyhow!("{what}: {e}")
+}
+
+impl Bridge {
+    fn new(
+        session: &zenoh::Session,
+        node: &Node<iceoryx2::service::ipc::Service>,
+        settings: &Settings,
+        robot: &str,
+    ) -> Result<Self> {
+        let mut outbound = Vec::new();
+        let mut inbound = Vec::new();
+        for &channel in &settings.channels {
+            let key = channel.key(robot);
+            // Telemetry goes out from the robot, commands from the remote.
+            let goes_out = channel.is_command() == (settings.mode == Mode::Remote);
+            if goes_out {
+                let key_expr = KeyExpr::try_from(key.clone()).map_err(zerr(key.clone()))?;
+                let publisher = session
+                    .declare_publisher(key_expr)
+                    // A dead link must not stall the loop: drop rather than block.
+                    .congestion_control(CongestionControl::Drop)
+                    .priority(if channel.is_command() {
+                        Priority::InteractiveHigh
+                    } else {
+                        Priority::Data
+                    })
+                    .wait()
+                    .map_err(zerr(format!("declare publisher {key}")))?;
+                outbound.push(Outbound {
+                    channel,
+                    read: ports::reader(node, channel)?,
+                    publisher,
+                    min_interval: settings.min_interval.get(&channel).copied(),
+                    last_sent: None,
+                    pending: None,
+                    latest: None,
+                    counts: Counts::default(),
+                });
+            } else {
+                let subscriber = session
+                    .declare_subscriber(key.clone())
+                    .wait()
+                    .map_err(zerr(format!("declare subscriber {key}")))?;
+                inbound.push(Inbound {
+                    channel,
+                    write: ports::writer(node, channel)?,
+                    subscriber,
+                    last_written: None,
+                    counts: Counts::default(),
+                    refused_log: Throttle::new(Duration::from_secs(10)),
+                });
+            }
+        }
+        let liveliness = session.liveliness();
+        let (token_key, watched) = match settings.mode {
+            Mode::Robot => (channel::robot_token(robot), channel::remote_tokens(robot)),
+            Mode::Remote => (
+                channel::remote_token(robot, &session.zid().to_string()),
+                channel::robot_token(robot),
+            ),
+        };
+        let token = liveliness
+            .declare_token(token_key.clone())
+            .wait()
+            .map_err(zerr(format!("declare token {token_key}")))?;
+        let peers = liveliness
+            .declare_subscriber(watched.clone())
+            .history(true)
+            .wait()
+            .map_err(zerr(format!("watch {watched}")))?;
+        let queryable = match settings.mode {
+            Mode::Robot => {
+                let all = format!("{}/{robot}/**", channel::KEY_ROOT);
+                Some(
+                    session
+                        .declare_queryable(all.clone())
+                        .wait()
+                        .map_err(zerr(format!("declare queryable {all}")))?,
+                )
+            }
+            Mode::Remote => None,
+        };
+        let now = Instant::now();
+        Ok(Self {
+            mode: settings.mode,
+            robot: robot.to_owned(),
+            outbound,
+            inbound,
+            queryable,
+            peers,
+            _token: token,
+            queries: Vec::new(),
+            session: session.clone(),
+            link_up: false,
+            link_ups: 0,
+            link_downs: 0,
+            last_refresh: now,
+            last_stats: now,
+            logged: BTreeMap::new(),
+        })
+    }
+
+    /// Until Ctrl-C or SIGTERM.
+    fn run(&mut self, node: &Node<iceoryx2::service::ipc::Service>) {
+        loop {
+            let now = Instant::now();
+            self.watch_peers();
+            self.pump_out(now);
+            self.pump_in();
+            self.answer_queries();
+            self.take_replies();
+            if now.duration_since(self.last_refresh) >= REFRESH_PERIOD {
+                self.last_refresh = now;
+                for inbound in &mut self.inbound {
+                    inbound.write.refresh();
+                }
+            }
+            if now.duration_since(self.last_stats) >= STATS_PERIOD {
+                self.last_stats = now;
+                self.log_stats(false);
+            }
+            if node.wait(POLL_PERIOD).is_err() {
+                info!("stopping on a signal");
+                return;
+            }
+        }
+    }
+
+    /// Link up and down: the robot's token seen from a remote, the remotes' tokens from a robot.
+    fn watch_peers(&mut self) {
+        while let Ok(Some(sample)) = self.peers.try_recv() {
+            let key = sample.key_expr().as_str();
+            match (self.mode, sample.kind()) {
+                (Mode::Remote, SampleKind::Put) => {
+                    self.link_up = true;
+                    self.link_ups += 1;
+                    info!(
+                        robot = self.robot,
+                        ups = self.link_ups,
+                        "link up: robot reachable"
+                    );
+                    self.ask_latest();
+                }
+                (Mode::Remote, SampleKind::Delete) => {
+                    self.link_up = false;
+                    self.link_downs += 1;
+                    warn!(
+                        robot = self.robot,
+                        downs = self.link_downs,
+                        "link down: robot unreachable; retrying"
+                    );
+                }
+                (Mode::Robot, SampleKind::Put) => {
+                    self.link_ups += 1;
+                    info!(remote = key, "remote bridge connected");
+                }
+                (Mode::Robot, SampleKind::Delete) => {
+                    self.link_downs += 1;
+                    warn!(remote = key, "remote bridge gone (left or link down)");
+                }
+            }
+        }
+    }
+
+    /// Local samples onto the link, within each channel's rate.
+    fn pump_out(&mut self, now: Instant) {
+        let link_up = self.link_up || self.mode == Mode::Robot;
+        for out in &mut self.outbound {
+            loop {
+                match (out.read)() {
+                    Ok(Some(frame)) => {
+                        if out.pending.replace(frame).is_some() {
+                            out.counts.dropped_for_rate += 1;
+                        }
+                        // Streams go at once, message by message.
+                        if out.min_interval.is_none() {
+                            out.send(now, link_up);
+                        }
+                    }
+                    Ok(None) => break,
+                    Err(e) => {
+                        out.counts.failures += 1;
+                        warn!(channel = %out.channel, "{e}");
+                        break;
+                    }
+                }
+            }
+            let due = match (out.min_interval, out.last_sent) {
+                (Some(interval), Some(last)) => now.duration_since(last) >= interval,
+                _ => true,
+            };
+            if due {
+                out.send(now, link_up);
+            }
+        }
+    }
+
+    /// Messages from the link into local services.
+    fn pump_in(&mut self) {
+        for inbound in &mut self.inbound {
+            while let Ok(Some(sample)) = inbound.subscriber.try_recv() {
+                let frame = sample.payload().to_bytes();
+                inbound.take(&frame);
+            }
+        }
+    }
+
+    /// Robot: a late joiner asks for the latest states; each is answered from memory.
+    fn answer_queries(&mut self) {
+        let Some(queryable) = &self.queryable else {
+            return;
+        };
+        while let Ok(Some(query)) = queryable.try_recv() {
+            for out in &self.outbound {
+                let Some(latest) = &out.latest else { continue };
+                let key = out.publisher.key_expr();
+                if query.key_expr().intersects(key)
+                    && let Err(e) = query.reply(key.clone(), latest.clone()).wait()
+                {
+                    debug!(channel = %out.channel, "reply to a query: {e}");
+                }
+            }
+        }
+    }
+
+    /// Remote: asks the robot for its latest states (at start and after the link came back).
+    fn ask_latest(&mut self) {
+        let all = format!("{}/{}/**", channel::KEY_ROOT, self.robot);
+        match self.session.get(all).timeout(QUERY_TIMEOUT).wait() {
+            Ok(replies) => self.queries.push(replies),
+            Err(e) => warn!("ask the robot for its latest states: {e}"),
+        }
+    }
+
+    fn take_replies(&mut self) {
+        let inbound = &mut self.inbound;
+        self.queries.retain(|replies| {
+            loop {
+                match replies.try_recv() {
+                    Ok(Some(reply)) => {
+                        let Ok(sample) = reply.result() else { continue };
+                        let key = sample.key_expr().as_str();
+                        if let Some(i) =
+                            inbound.iter_mut().find(|i| key.ends_with(i.channel.name()))
+                        {
+                            i.take(&sample.payload().to_bytes());
+                        }
+                    }
+                    Ok(None) => return true,
+                    Err(_) => return false,
+                }
+            }
+        });
+    }
+
+    /// Logs every channel's counts (only those that changed since the last time, unless `all`).
+    fn log_stats(&mut self, all: bool) {
+        let channels = self
+            .outbound
+            .iter()
+            .map(|o| (o.channel, &o.counts, "out"))
+            .chain(self.inbound.iter().map(|i| (i.channel, &i.counts, "in")));
+        for (channel, counts, direction) in channels {
+            if all || self.logged.get(&channel) != Some(counts) {
+                info!(
+                    %channel,
+                    direction,
+                    messages = counts.messages,
+                    bytes = counts.bytes,
+                    dropped_for_rate = counts.dropped_for_rate,
+                    version_mismatches = counts.version_mismatches,
+                    failures = counts.failures,
+                    "counts"
+                );
+                self.logged.insert(channel, counts.clone());
+            }
+        }
+        if all {
+            info!(
+                link_ups = self.link_ups,
+                link_downs = self.link_downs,
+                "link"
+            );
+        }
+    }
+}
+
+impl Outbound {
+    /// Sends the pending message, if any.
+    fn send(&mut self, now: Instant, link_up: bool) {
+        let Some(frame) = self.pending.take() else {
+            return;
+        };
+        self.last_sent = Some(now);
+        self.counts.messages += 1;
+        self.counts.bytes += frame.len() as u64;
+        if !link_up {
+            // A command while the robot is unreachable goes nowhere: say so.
+            warn!(channel = %self.channel, "the robot is unreachable: message dropped");
+        }
+        let kept = self.channel.is_state().then(|| frame.clone());
+        if let Err(e) = self.publisher.put(frame).wait() {
+            self.counts.failures += 1;
+            warn!(channel = %self.channel, "publish: {e}");
+        }
+        if kept.is_some() {
+            self.latest = kept;
+        }
+    }
+}
+
+impl Inbound {
+    /// Publishes a frame locally, unless it repeats the last one or is refused.
+    fn take(&mut self, frame: &[u8]) {
+        if self.channel.is_state() && self.last_written.as_deref() == Some(frame) {
+            return;
+        }
+        match self.write.write(frame) {
+            Ok(()) => {
+                self.counts.messages += 1;
+                self.counts.bytes += frame.len() as u64;
+                if self.channel.is_state() {
+                    self.last_written = Some(frame.to_vec());
+                }
+            }
+            Err(e) => {
+                let mismatch = matches!(&e, WriteError::Frame(f) if f.is_version_mismatch());
+                if mismatch {
+                    self.counts.version_mismatches += 1;
+                } else {
+                    self.counts.failures += 1;
+                }
+                if let Some(left_out) = self.refused_log.allow(Instant::now()) {
+                    warn!(
+                        channel = %self.channel,
+                        left_out,
+                        "refused a message: {e}"
+                    );
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,221 @@
+//! The iceoryx2 ends of the bridge: a [`Reader`] takes samples of a local service and frames them
+//! for the link; a [`Writer`] publishes framed samples from the link into a local service. The same
+//! two serve both directions (telemetry out of a robot, commands into it).
+
+use std::fmt::Debug;
+
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
+use sonar_common::ipc::{self, IpcError, PubSub};
+
+use crate::channel::Channel;
+use crate::wire::{self, Codec, FrameError, Plain, read_plain};
+
+type Ipc = iceoryx2::service::ipc::Service;
+
+/// Takes the next sample of a local service, framed; `Ok(None)` when there is none.
+pub type Reader = Box<dyn FnMut() -> Result<Option<Vec<u8>>, IpcError>>;
+
+/// Why a frame from the link was not published.
+#[derive(Debug, thiserror::Error)]
+pub enum WriteError {
+    #[error(transparent)]
+    Frame(#[from] FrameError),
+    #[error(transparent)]
+    Ipc(#[from] IpcError),
+}
+
+type WriteFn = Box<dyn FnMut(&[u8]) -> Result<(), WriteError>>;
+
+/// Publishes one framed sample into a local service.
+pub struct Writer {
+    write: WriteFn,
+    /// Hands the latest sample (history 1) to subscribers that joined since: a publisher that
+    /// idles must do this itself (`docs/ipc.md`, late joiners).
+    refresh: Box<dyn FnMut()>,
+}
+
+impl std::fmt::Debug for Writer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Writer")
+    }
+}
+
+impl Writer {
+    pub fn write(&mut self, frame: &[u8]) -> Result<(), WriteError> {
+        (self.write)(frame)
+    }
+
+    pub fn refresh(&mut self) {
+        (self.refresh)()
+    }
+}
+
+/// A reader of `channel`'s local service.
+pub fn reader(node: &Node<Ipc>, channel: Channel) -> Result<Reader, IpcError> {
+    match channel {
+        Channel::Readings => fixed_reader(node, ipc::readings_service),
+        Channel::DriverStatus => fixed_reader(node, ipc::driver_status_service),
+        Channel::Radar => fixed_reader(node, ipc::radar_service),
+        Channel::FusionStatus => fixed_reader(node, ipc::fusion_status_service),
+        Channel::Pose => fixed_reader(node, ipc::pose_service),
+        Channel::LocalizedPose => fixed_reader(node, ipc::localized_pose_service),
+        Channel::Commands => fixed_reader(node, ipc::commands_service),
+        Channel::FusionCommands => fixed_reader(node, ipc::fusion_commands_service),
+        Channel::Grid => slice_reader(ipc::grid_service(node)?, channel, Codec::Lz4),
+        Channel::Features => slice_reader(ipc::features_service(node)?, channel, Codec::Raw),
+    }
+}
+
+/// A writer into `channel`'s local service (notifying its wake-up event where it has one).
+pub fn writer(node: &Node<Ipc>, channel: Channel) -> Result<Writer, IpcError> {
+    let notifier = if channel.has_wakeup() {
+        Some(ipc::wakeup_notifier(node, channel.service())?)
+    } else {
+        None
+    };
+    match channel {
+        Channel::Readings => fixed_writer(node, ipc::readings_service, notifier),
+        Channel::DriverStatus => fixed_writer(node, ipc::driver_status_service, notifier),
+        Channel::Radar => fixed_writer(node, ipc::radar_service, notifier),
+        Channel::FusionStatus => fixed_writer(node, ipc::fusion_status_service, notifier),
+        Channel::Pose => fixed_writer(node, ipc::pose_service, notifier),
+        Channel::LocalizedPose => fixed_writer(node, ipc::localized_pose_service, notifier),
+        Channel::Commands => fixed_writer(node, ipc::commands_service, notifier),
+        Channel::FusionCommands => fixed_writer(node, ipc::fusion_commands_service, notifier),
+        // 400² cells to start with; a larger grid grows the segment (power-of-two steps).
+        Channel::Grid => slice_writer(ipc::grid_service(node)?, channel, 400 * 400, notifier),
+        Channel::Features => slice_writer(
+            ipc::features_service(node)?,
+            channel,
+            ipc::MAX_FEATURES,
+            notifier,
+        ),
+    }
+}
+
+fn fixed_reader<T: Plain + Debug>(
+    node: &Node<Ipc>,
+    open: fn(&Node<Ipc>) -> Result<PubSub<T>, IpcError>,
+) -> Result<Reader, IpcError> {
+    let service = open(node)?;
+    let subscriber = service
+        .subscriber_builder()
+        .create()
+        .map_err(|e| IpcError::new("create subscriber", e))?;
+    let tag = wire::tag::<T>(None);
+    Ok(Box::new(move || match subscriber.receive() {
+        Ok(Some(sample)) => Ok(Some(wire::encode(
+            &tag,
+            wire::bytes_of(sample.payload()),
+            &[],
+            Codec::Raw,
+        ))),
+        Ok(None) => Ok(None),
+        Err(e) => Err(IpcError::new("receive", e)),
+    }))
+}
+
+fn slice_reader<H: Plain + Debug, E: Plain + Debug>(
+    service: PortFactory<Ipc, [E], H>,
+    channel: Channel,
+    codec: Codec,
+) -> Result<Reader, IpcError> {
+    let subscriber = service
+        .subscriber_builder()
+        .create()
+        .map_err(|e| IpcError::new(format!("create {channel} subscriber"), e))?;
+    let tag = wire::tag::<H>(Some(E::tag()));
+    Ok(Box::new(move || match subscriber.receive() {
+        Ok(Some(sample)) => Ok(Some(wire::encode(
+            &tag,
+            wire::bytes_of(sample.user_header()),
+            wire::slice_bytes(sample.payload()),
+            codec,
+        ))),
+        Ok(None) => Ok(None),
+        Err(e) => Err(IpcError::new(format!("receive {channel}"), e)),
+    }))
+}
+
+fn notify(notifier: &Option<Notifier<Ipc>>) -> Result<(), IpcError> {
+    match notifier {
+        Some(n) => n.notify().map(drop).map_err(|e| IpcError::new("notify", e)),
+        None => Ok(()),
+    }
+}
+
+fn fixed_writer<T: Plain + Debug>(
+    node: &Node<Ipc>,
+    open: fn(&Node<Ipc>) -> Result<PubSub<T>, IpcError>,
+    notifier: Option<Notifier<Ipc>>,
+) -> Result<Writer, IpcError> {
+    let publisher = std::rc::Rc::new(
+        open(node)?
+            .publisher_builder()
+            .create()
+            .map_err(|e| IpcError::new("create publisher", e))?,
+    );
+    let tag = wire::tag::<T>(None);
+    let refresher = publisher.clone();
+    Ok(Writer {
+        write: Box::new(move |frame| {
+            let decoded = wire::decode(frame, &tag, size_of::<T>(), 1)?;
+            let value = match (read_plain::<T>(decoded.header), decoded.slice.is_empty()) {
+                (Some(value), true) => value,
+                _ => return Err(FrameError::Truncated("fixed-size payload").into()),
+            };
+            publisher
+                .send_copy(value)
+                .map_err(|e| IpcError::new("publish", e))?;
+            Ok(notify(&notifier)?)
+        }),
+        refresh: Box::new(move || {
+            let _ = refresher.update_connections();
+        }),
+    })
+}
+
+fn slice_writer<H: Plain + Debug + Default, E: Plain + Debug + Default>(
+    service: PortFactory<Ipc, [E], H>,
+    channel: Channel,
+    initial_len: usize,
+    notifier: Option<Notifier<Ipc>>,
+) -> Result<Writer, IpcError> {
+    let publisher = std::rc::Rc::new(
+        service
+            .publisher_builder()
+            .initial_max_slice_len(initial_len)
+            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            .create()
+            .map_err(|e| IpcError::new(format!("create {channel} publisher"), e))?,
+    );
+    let tag = wire::tag::<H>(Some(E::tag()));
+    let refresher = publisher.clone();
+    let element = size_of::<E>();
+    Ok(Writer {
+        write: Box::new(move |frame| {
+            let decoded = wire::decode(frame, &tag, size_of::<H>(), element)?;
+            let header =
+                read_plain::<H>(decoded.header).ok_or(FrameError::Truncated("slice header"))?;
+            let len = decoded.slice.len() / element;
+            let mut sample = publisher
+                .loan_slice_uninit(len)
+                .map_err(|e| IpcError::new(format!("loan {channel} sample of {len}"), e))?;
+            *sample.user_header_mut() = header;
+            let slice = &decoded.slice;
+            let sample = sample.write_from_fn(|i| {
+                read_plain::<E>(&slice[i * element..(i + 1) * element]).unwrap_or_default()
+            });
+            sample
+                .send()
+                .map_err(|e| IpcError::new(format!("publish {channel}"), e))?;
+            Ok(notify(&notifier)?)
+        }),
+        refresh: Box::new(move || {
+            let _ = refresher.update_connections();
+        }),
+    })
+}

@@ -1,0 +1,386 @@
+//! End to end over a network: a robot and a laptop in two network namespaces joined by a veth
+//! pair, each with its own iceoryx2 namespace. The robot runs the simulator, driver, fusion and
+//! `sonar-bridge`; the laptop runs `sonar-bridge --mode remote`, and the test reads both sides'
+//! shared memory (network namespaces do not separate /dev/shm). The grid must arrive byte for byte,
+//! a command from the laptop must reach the robot's driver, and the map must resume after the link
+//! was cut for 10 s.
+//!
+//! Needs root and iproute2 (`ip`); CI has both. Without them the test says SKIPPED and passes.
+#![allow(clippy::unwrap_used, clippy::expect_used)] // helpers outside #[test] fns; a panic is a failure
+
+use std::collections::BTreeMap;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::service::ipc::Service as Ipc;
+use sonar_common::ipc::{self, GridHeader, ScanCommand, ScanCommandKind, ScanMode};
+use sonar_e2e::{PATIENCE, Proc, Sandbox, driver_status_subscriber, wait_for_status};
+
+const ROBOT_ADDR: &str = "10.77.0.1";
+const LAPTOP_ADDR: &str = "10.77.0.2";
+const LINK_CUT: Duration = Duration::from_secs(10);
+
+/// Two network namespaces and the veth pair between them; deleted when dropped, also when the
+/// test fails half-way (deleting a namespace deletes its end of the pair, and with it the other).
+struct Netns {
+    robot: String,
+    laptop: String,
+    robot_if: String,
+}
+
+fn ip(args: &[&str]) {
+    let status = Command::new("ip").args(args).status().unwrap();
+    assert!(status.success(), "ip {} failed: {status}", args.join(" "));
+}
+
+impl Netns {
+    /// `tag` (one letter) keeps the namespaces of two tests of this process apart.
+    fn new(tag: &str) -> Self {
+        let id = std::process::id();
+        let net = Self {
+            robot: format!("sonar-robot{tag}-{id}"),
+            laptop: format!("sonar-laptop{tag}-{id}"),
+            // Interface names have at most 15 bytes.
+            robot_if: format!("sr{tag}{}", id % 1_000_000),
+        };
+        let laptop_if = format!("sl{tag}{}", id % 1_000_000);
+        ip(&["netns", "add", &net.robot]);
+        ip(&["netns", "add", &net.laptop]);
+        ip(&[
+            "link",
+            "add",
+            &net.robot_if,
+            "netns",
+            &net.robot,
+            "type",
+            "veth",
+            "peer",
+            "name",
+            &laptop_if,
+            "netns",
+            &net.laptop,
+        ]);
+        for (ns, dev, addr) in [
+            (&net.robot, &net.robot_if, ROBOT_ADDR),
+            (&net.laptop, &laptop_if, LAPTOP_ADDR),
+        ] {
+            let cidr = format!("{addr}/24");
+            ip(&["-n", ns, "addr", "add", &cidr, "dev", dev]);
+            ip(&["-n", ns, "link", "set", dev, "up"]);
+            ip(&["-n", ns, "link", "set", "lo", "up"]);
+        }
+        net
+    }
+
+    /// Bytes the robot's end of the link sent and received so far.
+    fn robot_link_bytes(&self) -> u64 {
+        let out = Command::new("ip")
+            .args(["-n", &self.robot, "-s", "link", "show", "dev", &self.robot_if])
+            .output()
+            .unwrap();
+        // `ip -s link`: a header line, then a line of numbers after "RX:" and after "TX:".
+        let text = String::from_utf8(out.stdout).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        let bytes_after = |label: &str| -> u64 {
+            let i = lines.iter().position(|l| l.trim_start().starts_with(label)).unwrap();
+            lines[i + 1].split_whitespace().next().unwrap().parse().unwrap()
+        };
+        bytes_after("RX:") + bytes_after("TX:")
+    }
+
+    fn set_robot_link(&self, up: bool) {
+        let state = if up { "up" } else { "down" };
+        ip(&["-n", &self.robot, "link", "set", &self.robot_if, state]);
+    }
+}
+
+impl Drop for Netns {
+    fn drop(&mut self) {
+        for ns in [&self.robot, &self.laptop] {
+            let _ = Command::new("ip").args(["netns", "del", ns]).status();
+        }
+    }
+}
+
+/// Why the test cannot run here, if it cannot.
+fn missing_privileges() -> Option<&'static str> {
+    let uid = Command::new("id").arg("-u").output();
+    if !uid.is_ok_and(|out| out.stdout.trim_ascii() == b"0") {
+        return Some("needs root to make network namespaces");
+    }
+    if Command::new("ip").arg("-V").output().is_err() {
+        return Some("needs iproute2 (`ip`)");
+    }
+    None
+}
+
+type GridSubscriber = Subscriber<Ipc, [u8], GridHeader>;
+
+fn grid_subscriber(node: &Node<Ipc>) -> GridSubscriber {
+    ipc::grid_service(node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap()
+}
+
+/// Every grid snapshot a subscriber holds: header and cells.
+fn receive_grids(sub: &GridSubscriber, into: &mut BTreeMap<u64, (GridHeader, Vec<u8>)>) {
+    while let Some(sample) = sub.receive().unwrap() {
+        let header = *sample.user_header();
+        into.insert(header.seq, (header, sample.payload().to_vec()));
+    }
+    // Keep the memory bounded: the latest snapshots are the ones compared.
+    while into.len() > 64 {
+        into.pop_first();
+    }
+}
+
+/// Watches both sides until the laptop shows a snapshot newer than `after_seq` that is the
+/// robot's snapshot of the same number byte for byte; returns its number.
+fn wait_for_identical_grid(
+    node: &Node<Ipc>,
+    robot: &GridSubscriber,
+    laptop: &GridSubscriber,
+    robot_grids: &mut BTreeMap<u64, (GridHeader, Vec<u8>)>,
+    after_seq: u64,
+) -> u64 {
+    let deadline = Instant::now() + PATIENCE;
+    let mut laptop_grids = BTreeMap::new();
+    loop {
+        receive_grids(robot, robot_grids);
+        receive_grids(laptop, &mut laptop_grids);
+        for (seq, remote) in laptop_grids.range(after_seq + 1..) {
+            if let Some(local) = robot_grids.get(seq) {
+                assert_eq!(local.0, remote.0, "header of snapshot {seq}");
+                assert!(local.1 == remote.1, "cells of snapshot {seq} differ");
+                assert!(remote.1.len() == (remote.0.width * remote.0.height) as usize);
+                return *seq;
+            }
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no laptop snapshot after {after_seq} matched the robot's (laptop has {:?})",
+            laptop_grids.keys().collect::<Vec<_>>()
+        );
+        let _ = node.wait(Duration::from_millis(2));
+    }
+}
+
+fn still_running(procs: &mut [&mut Proc]) {
+    for p in procs {
+        assert!(
+            p.child.try_wait().unwrap().is_none(),
+            "{} exited during the test",
+            p.name
+        );
+    }
+}
+
+#[test]
+fn a_laptop_watches_and_commands_the_robot_over_zenoh_through_a_cut_link() {
+    if let Some(why) = missing_privileges() {
+        eprintln!("SKIPPED the bridge test: {why}");
+        return;
+    }
+    let net = Netns::new("t");
+    let robot = Sandbox::in_netns("bridge_robot", &net.robot);
+    let laptop = Sandbox::in_netns("bridge_laptop", &net.laptop);
+    let robot_node = robot.node("test-robot-side");
+    let laptop_node = laptop.node("test-laptop-side");
+    let robot_grid = grid_subscriber(&robot_node);
+    let laptop_grid = grid_subscriber(&laptop_node);
+    let robot_status = driver_status_subscriber(&robot_node);
+    let laptop_status = driver_status_subscriber(&laptop_node);
+
+    let fusion = robot.spawn("sonar-fusion", &["--no-persist"]);
+    let (sim, pty) = robot.spawn_sim(&["--scene", "room", "--speed", "20", "--seed", "3"]);
+    let mut driver = robot.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+    let listen = format!("tcp/{ROBOT_ADDR}:7447");
+    let mut robot_bridge = robot.spawn("sonar-bridge", &["--robot", "r1", "--listen", &listen]);
+    let mut laptop_bridge = laptop.spawn(
+        "sonar-bridge",
+        &["--mode", "remote", "--robot", "r1", "--connect", &listen],
+    );
+
+    // The map arrives on the laptop as the robot published it.
+    let mut robot_grids = BTreeMap::new();
+    let first =
+        wait_for_identical_grid(&robot_node, &robot_grid, &laptop_grid, &mut robot_grids, 0);
+
+    // A local scan asked for on the laptop starts on the robot, and the laptop sees it start.
+    let commands = ipc::commands_service(&laptop_node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    let local_scan = ScanCommand::new(ScanCommandKind::LocalScan, -30.0, 30.0);
+    let deadline = Instant::now() + PATIENCE;
+    let mut robot_local = None;
+    while robot_local.is_none() {
+        assert!(Instant::now() < deadline, "the robot never scanned locally");
+        commands.send_copy(local_scan).unwrap();
+        let until = Instant::now() + Duration::from_secs(2);
+        while Instant::now() < until && robot_local.is_none() {
+            while let Some(s) = robot_status.receive().unwrap() {
+                if ScanMode::from_u8(s.payload().mode as u8) == ScanMode::Local {
+                    robot_local = Some(*s.payload());
+                }
+            }
+            let _ = robot_node.wait(Duration::from_millis(20));
+        }
+    }
+    wait_for_status(&laptop_node, &laptop_status, |s| {
+        ScanMode::from_u8(s.mode as u8) == ScanMode::Local
+    });
+
+    // The link goes down for 10 s and comes back: both bridges live on and the map resumes.
+    let before_cut = wait_for_identical_grid(
+        &robot_node,
+        &robot_grid,
+        &laptop_grid,
+        &mut robot_grids,
+        first,
+    );
+    net.set_robot_link(false);
+    let cut_until = Instant::now() + LINK_CUT;
+    while Instant::now() < cut_until {
+        receive_grids(&robot_grid, &mut robot_grids);
+        let _ = robot_node.wait(Duration::from_millis(20));
+    }
+    still_running(&mut [&mut robot_bridge, &mut laptop_bridge]);
+    let robot_seq_at_restore = *robot_grids.keys().last().unwrap();
+    assert!(
+        robot_seq_at_restore > before_cut,
+        "the robot's map did not go on while the link was down"
+    );
+    net.set_robot_link(true);
+    let resumed = wait_for_identical_grid(
+        &robot_node,
+        &robot_grid,
+        &laptop_grid,
+        &mut robot_grids,
+        robot_seq_at_restore,
+    );
+    assert!(resumed > robot_seq_at_restore);
+    still_running(&mut [&mut robot_bridge, &mut laptop_bridge, &mut driver]);
+
+    // Both bridges stop cleanly on SIGTERM and leave nothing in shared memory.
+    drop(commands);
+    for bridge in [laptop_bridge, robot_bridge] {
+        let name = bridge.name.clone();
+        let status = bridge.terminate();
+        assert!(status.success(), "{name} exited with {status}");
+    }
+    for p in [driver, fusion, sim] {
+        p.terminate();
+    }
+    drop((robot_grid, laptop_grid, robot_status, laptop_status));
+    drop((robot_node, laptop_node));
+    for side in [&robot, &laptop] {
+        assert!(
+            side.stale_shm_files().is_empty(),
+            "stale shared memory: {:?}",
+            side.stale_shm_files()
+        );
+    }
+}
+
+/// CPU time (user + system) a process has used so far.
+fn cpu_time(pid: u32) -> Duration {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap();
+    // Fields after the command name (which ends with ')'): utime and stime are the 12th and 13th.
+    let fields: Vec<&str> = stat.rsplit_once(')').unwrap().1.split_whitespace().collect();
+    let ticks: u64 = fields[11].parse::<u64>().unwrap() + fields[12].parse::<u64>().unwrap();
+    Duration::from_secs_f64(ticks as f64 / 100.0) // USER_HZ is 100 on Linux
+}
+
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    sorted[((sorted.len() - 1) as f64 * p).round() as usize]
+}
+
+/// The figures of `docs/benchmarks.md` ("Bridge"): bytes on the link, grid latency robot → laptop
+/// subscriber, CPU of both bridges, per condition. Not a check: run by hand with
+/// `cargo test -p sonar-e2e --test bridge -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn bridge_link_figures() {
+    if let Some(why) = missing_privileges() {
+        eprintln!("SKIPPED the bridge benchmark: {why}");
+        return;
+    }
+    const WINDOW: Duration = Duration::from_secs(30);
+    // (label, simulator speed, driver's scan, --grid-max-rate)
+    let conditions = [
+        ("idle (no readings)", "1", "none", "2"),
+        ("sensor rate (speed 1)", "1", "full", "2"),
+        ("replay speed 20", "20", "full", "2"),
+        ("replay speed 20, grid not rate-limited", "20", "full", "0"),
+    ];
+    println!("| condition | link bytes/s | grids | grid latency p50 / p99 ms | robot bridge CPU % | laptop bridge CPU % |");
+    println!("|---|---|---|---|---|---|");
+    for (label, speed, scan, rate) in conditions {
+        let net = Netns::new("b");
+        let robot = Sandbox::in_netns("bridge_bench_robot", &net.robot);
+        let laptop = Sandbox::in_netns("bridge_bench_laptop", &net.laptop);
+        let laptop_node = laptop.node("bench-laptop-side");
+        let laptop_grid = grid_subscriber(&laptop_node);
+        let fusion = robot.spawn("sonar-fusion", &["--no-persist"]);
+        let (sim, pty) = robot.spawn_sim(&["--scene", "room", "--speed", speed, "--seed", "3"]);
+        let driver = robot.spawn("sonar-driver", &["--port", &pty, "--scan", scan]);
+        let listen = format!("tcp/{ROBOT_ADDR}:7447");
+        let robot_bridge = robot.spawn(
+            "sonar-bridge",
+            &["--robot", "r1", "--listen", &listen, "--grid-max-rate", rate],
+        );
+        let laptop_bridge = laptop.spawn(
+            "sonar-bridge",
+            &["--mode", "remote", "--robot", "r1", "--connect", &listen],
+        );
+        // Settle: connections made, the first snapshots through.
+        std::thread::sleep(Duration::from_secs(5));
+        while laptop_grid.receive().unwrap().is_some() {}
+        let bytes0 = net.robot_link_bytes();
+        let cpu0 = (
+            cpu_time(robot_bridge.child.id()),
+            cpu_time(laptop_bridge.child.id()),
+        );
+        let start = Instant::now();
+        let mut latencies_ms = Vec::new();
+        while start.elapsed() < WINDOW {
+            while let Some(sample) = laptop_grid.receive().unwrap() {
+                let now = ipc::unix_time_ns();
+                latencies_ms.push(now.saturating_sub(sample.user_header().stamp_ns) as f64 / 1e6);
+            }
+            let _ = laptop_node.wait(Duration::from_millis(1));
+        }
+        let secs = start.elapsed().as_secs_f64();
+        let bytes = net.robot_link_bytes() - bytes0;
+        let cpu_pct = |pid: u32, before: Duration| {
+            (cpu_time(pid) - before).as_secs_f64() / secs * 100.0
+        };
+        let robot_cpu = cpu_pct(robot_bridge.child.id(), cpu0.0);
+        let laptop_cpu = cpu_pct(laptop_bridge.child.id(), cpu0.1);
+        latencies_ms.sort_by(f64::total_cmp);
+        let latency = if latencies_ms.is_empty() {
+            "–".to_owned()
+        } else {
+            format!(
+                "{:.1} / {:.1}",
+                percentile(&latencies_ms, 0.5),
+                percentile(&latencies_ms, 0.99)
+            )
+        };
+        println!(
+            "| {label} | {:.0} | {} | {latency} | {robot_cpu:.1} | {laptop_cpu:.1} |",
+            bytes as f64 / secs,
+            latencies_ms.len()
+        );
+        drop(laptop_grid);
+        for p in [laptop_bridge, robot_bridge, driver, fusion, sim] {
+            p.terminate();
+        }
+    }
+}
