@@ -16,7 +16,9 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use sonar_common::ipc::{self, GridHeader, ScanCommand, ScanCommandKind, ScanMode};
-use sonar_e2e::{PATIENCE, Proc, Sandbox, driver_status_subscriber, wait_for_status};
+use sonar_e2e::{
+    PATIENCE, Proc, Sandbox, driver_status_subscriber, grid_subscriber, wait_for_status,
+};
 
 const ROBOT_ADDR: &str = "10.77.0.1";
 const LAPTOP_ADDR: &str = "10.77.0.2";
@@ -77,15 +79,31 @@ impl Netns {
     /// Bytes the robot's end of the link sent and received so far.
     fn robot_link_bytes(&self) -> u64 {
         let out = Command::new("ip")
-            .args(["-n", &self.robot, "-s", "link", "show", "dev", &self.robot_if])
+            .args([
+                "-n",
+                &self.robot,
+                "-s",
+                "link",
+                "show",
+                "dev",
+                &self.robot_if,
+            ])
             .output()
             .unwrap();
         // `ip -s link`: a header line, then a line of numbers after "RX:" and after "TX:".
         let text = String::from_utf8(out.stdout).unwrap();
         let lines: Vec<&str> = text.lines().collect();
         let bytes_after = |label: &str| -> u64 {
-            let i = lines.iter().position(|l| l.trim_start().starts_with(label)).unwrap();
-            lines[i + 1].split_whitespace().next().unwrap().parse().unwrap()
+            let i = lines
+                .iter()
+                .position(|l| l.trim_start().starts_with(label))
+                .unwrap();
+            lines[i + 1]
+                .split_whitespace()
+                .next()
+                .unwrap()
+                .parse()
+                .unwrap()
         };
         bytes_after("RX:") + bytes_after("TX:")
     }
@@ -117,14 +135,6 @@ fn missing_privileges() -> Option<&'static str> {
 }
 
 type GridSubscriber = Subscriber<Ipc, [u8], GridHeader>;
-
-fn grid_subscriber(node: &Node<Ipc>) -> GridSubscriber {
-    ipc::grid_service(node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap()
-}
 
 /// Every grid snapshot a subscriber holds: header and cells.
 fn receive_grids(sub: &GridSubscriber, into: &mut BTreeMap<u64, (GridHeader, Vec<u8>)>) {
@@ -292,7 +302,12 @@ fn a_laptop_watches_and_commands_the_robot_over_zenoh_through_a_cut_link() {
 fn cpu_time(pid: u32) -> Duration {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap();
     // Fields after the command name (which ends with ')'): utime and stime are the 12th and 13th.
-    let fields: Vec<&str> = stat.rsplit_once(')').unwrap().1.split_whitespace().collect();
+    let fields: Vec<&str> = stat
+        .rsplit_once(')')
+        .unwrap()
+        .1
+        .split_whitespace()
+        .collect();
     let ticks: u64 = fields[11].parse::<u64>().unwrap() + fields[12].parse::<u64>().unwrap();
     Duration::from_secs_f64(ticks as f64 / 100.0) // USER_HZ is 100 on Linux
 }
@@ -319,7 +334,9 @@ fn bridge_link_figures() {
         ("replay speed 20", "20", "full", "2"),
         ("replay speed 20, grid not rate-limited", "20", "full", "0"),
     ];
-    println!("| condition | link bytes/s | grids | grid latency p50 / p99 ms | robot bridge CPU % | laptop bridge CPU % |");
+    println!(
+        "| condition | link bytes/s | grids | grid latency p50 / p99 ms | robot bridge CPU % | laptop bridge CPU % |"
+    );
     println!("|---|---|---|---|---|---|");
     for (label, speed, scan, rate) in conditions {
         let net = Netns::new("b");
@@ -333,7 +350,14 @@ fn bridge_link_figures() {
         let listen = format!("tcp/{ROBOT_ADDR}:7447");
         let robot_bridge = robot.spawn(
             "sonar-bridge",
-            &["--robot", "r1", "--listen", &listen, "--grid-max-rate", rate],
+            &[
+                "--robot",
+                "r1",
+                "--listen",
+                &listen,
+                "--grid-max-rate",
+                rate,
+            ],
         );
         let laptop_bridge = laptop.spawn(
             "sonar-bridge",
@@ -358,9 +382,8 @@ fn bridge_link_figures() {
         }
         let secs = start.elapsed().as_secs_f64();
         let bytes = net.robot_link_bytes() - bytes0;
-        let cpu_pct = |pid: u32, before: Duration| {
-            (cpu_time(pid) - before).as_secs_f64() / secs * 100.0
-        };
+        let cpu_pct =
+            |pid: u32, before: Duration| (cpu_time(pid) - before).as_secs_f64() / secs * 100.0;
         let robot_cpu = cpu_pct(robot_bridge.child.id(), cpu0.0);
         let laptop_cpu = cpu_pct(laptop_bridge.child.id(), cpu0.1);
         latencies_ms.sort_by(f64::total_cmp);
