@@ -314,6 +314,12 @@ impl Engine {
         self.mapper.grid().encode_into(out)
     }
 
+    /// The grid's cells in the snapshot encoding and their counts, as kept up to date while
+    /// fusing ([`crate::OccupancyGrid::encoded`]).
+    pub fn encoded_grid(&self) -> (&[u8], CellCounts) {
+        self.mapper.grid().encoded()
+    }
+
     /// Cells per snapshot.
     pub fn grid_len(&self) -> usize {
         self.mapper.grid().geometry().len()

@@ -116,6 +116,11 @@ impl SensorCell {
         ((dx * dx + dy * dy).sqrt() * self.resolution, dy.atan2(dx))
     }
 
+    /// Cell edge, metres.
+    pub fn resolution(&self) -> f32 {
+        self.resolution
+    }
+
     /// Bit pattern of the sub-cell position: equal for positions a whole number of cells apart.
     pub fn fraction_bits(&self) -> [u32; 2] {
         self.to_centre.map(f32::to_bits)

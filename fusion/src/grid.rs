@@ -2,26 +2,95 @@
 
 use std::fmt;
 
-use sonar_common::ipc::{CELL_UNKNOWN, encode_probability};
+use std::ops::Range;
 
+use sonar_common::ipc::CELL_UNKNOWN;
+
+use crate::encoding::KeyEncoder;
 use crate::geometry::GridGeometry;
 use crate::rule::{
     BayesRule, Combine, DempsterShaferRule, HimmRule, LogOddsRule, RuleConfig, RuleKind,
 };
 use crate::state::{SavedCells, StateError, check_len};
 
-/// The cells of one rule, with the rule's parameters.
+/// The cells of one rule, with the rule's parameters, and the cells in the snapshot encoding with
+/// their counts, kept up to date ([`crate::encoding`]).
 pub(crate) struct Layer<R: Combine> {
     pub rule: R,
-    pub cells: Vec<R::Cell>,
+    cells: Vec<R::Cell>,
+    encoder: KeyEncoder,
+    bytes: Vec<u8>,
+    counts: CellCounts,
 }
 
 impl<R: Combine> Layer<R> {
     fn new(rule: R, len: usize) -> Self {
         Self {
+            encoder: KeyEncoder::new(&rule),
             rule,
             cells: vec![R::UNKNOWN; len],
+            bytes: vec![CELL_UNKNOWN; len],
+            counts: CellCounts {
+                unknown: len as u32,
+                ..CellCounts::default()
+            },
         }
+    }
+
+    /// The cells of `run`, for a kernel to fuse into, with the counts of what they read as
+    /// before; hand both back to [`Self::end_run`] with how many cells changed. (Two calls rather
+    /// than one taking the kernel as a closure: a closure is not inlined into the kernel's AVX2
+    /// build, and the kernel's loop would lose its vectors.)
+    #[inline(always)]
+    pub fn begin_run(&mut self, run: Range<usize>) -> (&R, &mut [R::Cell], [u32; 3]) {
+        let cells = &mut self.cells[run];
+        let rule = &self.rule;
+        let before = self.encoder.classes(cells.iter().map(|&c| rule.key(c)));
+        (rule, cells, before)
+    }
+
+    /// Brings the snapshot bytes of `run` and the counts up to date after a kernel updated
+    /// `updated` of its cells, which read as `before` ([`Self::begin_run`]). Branch-free counts;
+    /// the bytes are re-encoded only if a cell changed.
+    #[inline(always)]
+    pub fn end_run(&mut self, run: Range<usize>, before: [u32; 3], updated: usize) {
+        if updated == 0 {
+            return;
+        }
+        let rule = self.rule;
+        let cells = &self.cells[run.clone()];
+        let after = self.encoder.classes(cells.iter().map(|&c| rule.key(c)));
+        self.counts.apply(before, after);
+        for (byte, &cell) in self.bytes[run].iter_mut().zip(cells) {
+            *byte = self.encoder.byte(&rule, rule.key(cell));
+        }
+    }
+
+    /// Lets `fuse` change any cells, then encodes them all anew: for the whole-grid pass.
+    pub fn update_all(&mut self, fuse: impl FnOnce(&R, &mut [R::Cell]) -> usize) -> usize {
+        let updated = fuse(&self.rule, &mut self.cells);
+        self.encode_all();
+        updated
+    }
+
+    fn encode_all(&mut self) {
+        let rule = self.rule;
+        let [occupied, free, unknown] = self
+            .encoder
+            .classes(self.cells.iter().map(|&c| rule.key(c)));
+        self.counts = CellCounts {
+            occupied,
+            free,
+            unknown,
+        };
+        for (byte, &cell) in self.bytes.iter_mut().zip(&self.cells) {
+            *byte = self.encoder.byte(&rule, rule.key(cell));
+        }
+    }
+
+    fn set_cells(&mut self, cells: Vec<R::Cell>) {
+        self.cells = cells;
+        self.encode_all();
     }
 }
 
@@ -131,29 +200,19 @@ impl OccupancyGrid {
     }
 
     /// Every cell in the snapshot encoding of `sonar_common::ipc` (0 = free … 254 = occupied,
-    /// 127 = even odds, [`CELL_UNKNOWN`] = 255 for never observed), row-major; returns the counts
-    /// for the snapshot header.
+    /// 127 = even odds, [`CELL_UNKNOWN`] = 255 for never observed), row-major, and the counts for
+    /// the snapshot header. Kept up to date as the grid is fused: this costs nothing.
+    pub fn encoded(&self) -> (&[u8], CellCounts) {
+        with_layer!(&self.store, l => (&l.bytes, l.counts))
+    }
+
+    /// [`Self::encoded`] copied into `out`; returns the counts.
     ///
     /// # Panics
     /// If `out` does not hold one byte per cell.
     pub fn encode_into(&self, out: &mut [u8]) -> CellCounts {
-        assert_eq!(out.len(), self.geometry.len(), "one byte per cell");
-        let mut counts = CellCounts::default();
-        with_layer!(&self.store, l => {
-            for (o, &c) in out.iter_mut().zip(&l.cells) {
-                *o = match l.rule.probability(c) {
-                    None => {
-                        counts.unknown += 1;
-                        CELL_UNKNOWN
-                    }
-                    Some(p) => {
-                        counts.occupied += u32::from(p > 0.5);
-                        counts.free += u32::from(p < 0.5);
-                        encode_probability(p)
-                    }
-                };
-            }
-        });
+        let (bytes, counts) = self.encoded();
+        out.copy_from_slice(bytes);
         counts
     }
 
@@ -184,7 +243,7 @@ impl OccupancyGrid {
     pub(crate) fn restore_cells(&mut self, saved: SavedCells) -> Result<(), StateError> {
         fn put<R: Combine>(layer: &mut Layer<R>, cells: Vec<R::Cell>) -> Result<(), StateError> {
             check_len("the grid", layer.cells.len(), cells.len())?;
-            layer.cells = cells;
+            layer.set_cells(cells);
             Ok(())
         }
         let expected = self.rule_kind();
@@ -204,15 +263,37 @@ impl OccupancyGrid {
     pub fn clear(&mut self) {
         fn reset<R: Combine>(l: &mut Layer<R>) {
             l.cells.fill(R::UNKNOWN);
+            l.encode_all();
         }
         with_layer!(&mut self.store, l => reset(l));
     }
+}
+
+/// The snapshot encoding of every cell worked out afresh from the cells' probabilities, as the
+/// snapshots were once encoded: what the bytes and counts kept up to date must equal.
+#[cfg(test)]
+pub(crate) fn reference_encoding(grid: &OccupancyGrid) -> (Vec<u8>, CellCounts) {
+    use sonar_common::ipc::encode_probability;
+    let mut counts = CellCounts::default();
+    let bytes = with_layer!(&grid.store, l => l.cells.iter().map(|&c| match l.rule.probability(c) {
+        None => {
+            counts.unknown += 1;
+            CELL_UNKNOWN
+        }
+        Some(p) => {
+            counts.occupied += u32::from(p > 0.5);
+            counts.free += u32::from(p < 0.5);
+            encode_probability(p)
+        }
+    }).collect());
+    (bytes, counts)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::rule::LogOddsRule;
+    use sonar_common::ipc::encode_probability;
 
     #[test]
     fn a_new_grid_is_unknown_and_encodes_as_such() {
@@ -245,11 +326,10 @@ mod tests {
         let CellStore::LogOdds(l) = &mut g.parts_mut().1 else {
             unreachable!()
         };
-        l.cells[0] = -2.0;
-        l.cells[1] = 0.0;
-        l.cells[2] = 3.5;
+        l.set_cells(vec![-2.0, 0.0, 3.5, f32::NAN]);
         let mut bytes = [0u8; 4];
         let counts = g.encode_into(&mut bytes);
+        assert_eq!(reference_encoding(&g), (bytes.to_vec(), counts));
         assert_eq!(
             bytes,
             [

@@ -12,7 +12,10 @@
 //! - **Row spans per beam angle.** The stepper's angles are discrete (reading centres every 6°,
 //!   pings every 1.5°), so per beam direction, quantised to [`ANGLE_STEP`], the cache keeps for
 //!   each stencil row the first and last column inside the cone (widened by half a step and a
-//!   rounding margin), worked out on first use. A reading clips those spans to its own reach and
+//!   rounding margin), worked out on first use by testing only the cells near the ends of each
+//!   row's stretch across the cone (a new direction costs a few cells per row, not the whole
+//!   stencil: the first sweep of a new mapper at 1 cm cells no longer costs a scan of 645 k cells
+//!   per direction). A reading clips those spans to its own reach and
 //!   to the grid and runs along contiguous row slices of cells and stencil values: no gathers, no
 //!   branches in the loop (models and rules are written with selects), so it vectorises; and the
 //!   exact cone test in the loop makes the result independent of the quantisation. The cone is the
@@ -92,6 +95,9 @@ pub(crate) fn fuse_run<R: Combine, E: CellEvidence>(
 /// Range and bearing of the cells around a sensor's cell, row-major, `side` = 2·radius + 1.
 struct Stencil {
     fraction: [u32; 2],
+    /// From the sensor to the centre of its cell, cells ([`SensorCell`]).
+    to_centre: [f32; 2],
+    resolution: f32,
     radius: i64,
     side: usize,
     range: Vec<f32>,
@@ -112,6 +118,8 @@ impl Stencil {
         }
         Self {
             fraction: sensor.fraction_bits(),
+            to_centre: sensor.to_centre,
+            resolution: sensor.resolution(),
             radius,
             side,
             range,
@@ -132,19 +140,42 @@ struct Spans {
 }
 
 impl Spans {
+    /// The spans of the cone of half-angle `cone` around `axis`, up to `reach`: per row, the first
+    /// and last cell for which the stencil's own range and bearing pass the cone test (the same
+    /// test the eager scan of every stencil cell made, so the spans are the same). Only a few
+    /// cells per row are tested: those near the ends of the row's stretch across the cone, worked
+    /// out in f64 for a cone a little wider and longer than the test's (by far more than the f32
+    /// values' rounding), scanning inwards from each end to the first cell that passes.
     fn new(stencil: &Stencil, axis: f32, cone: f32, reach: f32) -> Self {
-        let margin = cone + ANGLE_STEP / 2.0 + 1e-4;
+        let window = RowWindows::new(stencil, axis, cone_margin(cone), reach);
+        Self::from_rows(stencil, axis, cone, reach, |oy, inside| {
+            let [from, to] = window.at(oy);
+            match (from..=to).find(|&ox| inside(ox)) {
+                Some(lo) => [lo, (lo..=to).rev().find(|&ox| inside(ox)).unwrap_or(lo)],
+                None => [i64::MAX, i64::MIN],
+            }
+        })
+    }
+
+    /// The spans whose row `oy` is `span(oy, inside)`, where `inside(ox)` is the cone test of the
+    /// cell (`ox`, `oy`), from the first row with a cell on (so `first_row` is that row's).
+    fn from_rows(
+        stencil: &Stencil,
+        axis: f32,
+        cone: f32,
+        reach: f32,
+        span: impl Fn(i64, &dyn Fn(i64) -> bool) -> [i64; 2],
+    ) -> Self {
+        let margin = cone_margin(cone);
         let k = stencil.radius;
         let mut first_row = None;
         let mut rows = Vec::new();
         for oy in -k..=k {
-            let mut span = [i64::MAX, i64::MIN];
-            for ox in -k..=k {
+            let inside = |ox: i64| {
                 let i = stencil.at(ox, oy);
-                if stencil.range[i] <= reach && off_axis(stencil.bearing[i], axis).abs() <= margin {
-                    span = [span[0].min(ox), span[1].max(ox)];
-                }
-            }
+                stencil.range[i] <= reach && off_axis(stencil.bearing[i], axis).abs() <= margin
+            };
+            let span = span(oy, &inside);
             if span[0] <= span[1] || first_row.is_some() {
                 first_row.get_or_insert(oy);
                 rows.push(span);
@@ -158,6 +189,76 @@ impl Spans {
             first_row: first_row.unwrap_or(0),
             rows,
         }
+    }
+}
+
+/// The cone of the spans: the cone widened by half an [`ANGLE_STEP`] (they serve every direction
+/// that rounds to theirs) and a rounding margin.
+fn cone_margin(cone: f32) -> f32 {
+    cone + ANGLE_STEP / 2.0 + 1e-4
+}
+
+/// Where along each stencil row a cone can hold cells: the row's stretch across a sector a little
+/// wider and longer than the cone, in column offsets, clipped to the stencil.
+struct RowWindows {
+    radius: i64,
+    to_centre: [f64; 2],
+    /// The sector's radius, cells.
+    reach: f64,
+    /// Its two edges, as unit vectors: the sector is the set left of `edges[0]` and right of
+    /// `edges[1]` (< 180° wide), or `None` for a sector of 180° or more (then the window is the
+    /// whole row within reach).
+    edges: Option<[[f64; 2]; 2]>,
+}
+
+/// How much wider than the cone the sector is, radians: far more than the f32 bearing's rounding
+/// (about 1e-7 rad), so no cell the cone test passes lies outside it.
+const WINDOW_ANGLE_SLACK: f64 = 1e-5;
+/// How much longer, cells (the test compares ranges in f32 metres).
+const WINDOW_REACH_SLACK: f64 = 2.0;
+/// Cells added at each end of a row's window for rounding the stretch to columns.
+const WINDOW_CELL_SLACK: i64 = 2;
+
+impl RowWindows {
+    fn new(stencil: &Stencil, axis: f32, margin: f32, reach: f32) -> Self {
+        let half = f64::from(margin) + WINDOW_ANGLE_SLACK;
+        let axis = f64::from(axis);
+        let edge = |a: f64| [a.cos(), a.sin()];
+        Self {
+            radius: stencil.radius,
+            to_centre: stencil.to_centre.map(f64::from),
+            reach: f64::from(reach) / f64::from(stencil.resolution) + WINDOW_REACH_SLACK,
+            edges: (half < std::f64::consts::FRAC_PI_2 - 1e-6)
+                .then(|| [edge(axis - half), edge(axis + half)]),
+        }
+    }
+
+    /// The window of row `oy`: columns `[from, to]`, empty if `from > to`.
+    fn at(&self, oy: i64) -> [i64; 2] {
+        let dy = oy as f64 + self.to_centre[1];
+        let chord = self.reach * self.reach - dy * dy;
+        if chord < 0.0 {
+            return [1, 0];
+        }
+        let chord = chord.sqrt();
+        // The stretch in x (relative to the sensor) of the sector's points on the line y = dy.
+        let (mut lo, mut hi) = (-chord, chord);
+        if let Some([d1, d2]) = self.edges {
+            // Left of edge 1: d1.x·dy − d1.y·x ≥ 0; right of edge 2: x·d2.y − dy·d2.x ≥ 0.
+            for (normal, offset) in [(-d1[1], d1[0] * dy), (d2[1], -dy * d2[0])] {
+                // normal·x + offset ≥ 0
+                if normal > 0.0 {
+                    lo = lo.max(-offset / normal);
+                } else if normal < 0.0 {
+                    hi = hi.min(-offset / normal);
+                } else if offset < 0.0 {
+                    return [1, 0];
+                }
+            }
+        }
+        let from = (lo - self.to_centre[0]).ceil() as i64 - WINDOW_CELL_SLACK;
+        let to = (hi - self.to_centre[0]).floor() as i64 + WINDOW_CELL_SLACK;
+        [from.max(-self.radius), to.min(self.radius)]
     }
 }
 
@@ -321,14 +422,11 @@ fn fuse_rows<R: Combine, E: CellEvidence>(
             .iter()
             .copied()
             .zip(stencil.bearing[s..s + len].iter().copied());
-        updated += fuse_run(
-            &layer.rule,
-            evidence,
-            axis,
-            cone,
-            &mut layer.cells[first..first + len],
-            polar,
-        );
+        let run = first..first + len;
+        let (rule, cells, before) = layer.begin_run(run.clone());
+        let changed = fuse_run(rule, evidence, axis, cone, cells, polar);
+        layer.end_run(run, before, changed);
+        updated += changed;
     }
     updated
 }
@@ -409,14 +507,12 @@ fn bounding_box<R: Combine, E: CellEvidence>(
     for oy in y0..=y1 {
         let first = ((sensor.cell[1] + oy) * n + sensor.cell[0] + x0) as usize;
         let len = (x1 - x0 + 1) as usize;
-        updated += fuse_run(
-            &layer.rule,
-            evidence,
-            beam.axis,
-            cone,
-            &mut layer.cells[first..first + len],
-            (x0..=x1).map(|ox| sensor.polar(ox, oy)),
-        );
+        let run = first..first + len;
+        let (rule, cells, before) = layer.begin_run(run.clone());
+        let polar = (x0..=x1).map(|ox| sensor.polar(ox, oy));
+        let changed = fuse_run(rule, evidence, beam.axis, cone, cells, polar);
+        layer.end_run(run, before, changed);
+        updated += changed;
     }
     updated
 }
@@ -424,6 +520,63 @@ fn bounding_box<R: Combine, E: CellEvidence>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::GridGeometry;
+    use nalgebra::Vector2;
+
+    /// The spans as first written: every stencil cell tested.
+    fn eager_spans(stencil: &Stencil, axis: f32, cone: f32, reach: f32) -> Spans {
+        let k = stencil.radius;
+        Spans::from_rows(stencil, axis, cone, reach, |_, inside| {
+            let mut span = [i64::MAX, i64::MIN];
+            for ox in (-k..=k).filter(|&ox| inside(ox)) {
+                span = [span[0].min(ox), span[1].max(ox)];
+            }
+            span
+        })
+    }
+
+    #[test]
+    fn spans_equal_those_of_a_scan_of_the_whole_stencil() {
+        // 5 cm cells and a 4 m reach (a stencil of 161² cells; the test is the same at 1 cm, only
+        // slower); sensors on a corner, a centre and odd fractions of a cell; every eleventh
+        // direction key and the four axes; the cones of HIMM, the smooth model, the beam, and
+        // one of 90° and more (where the windows give up and scan whole rows).
+        let geometry = GridGeometry::new(200, 0.05);
+        let positions = [
+            Vector2::new(0.0, 0.0),
+            Vector2::new(0.025, 0.025),
+            Vector2::new(0.0137, -0.0411),
+            Vector2::new(-0.049, 0.0001),
+        ];
+        let keys = (0..ANGLE_KEYS).step_by(11).chain([
+            0,
+            ANGLE_KEYS / 4,
+            ANGLE_KEYS / 2,
+            3 * ANGLE_KEYS / 4,
+        ]);
+        let keys: Vec<usize> = keys.collect();
+        let mut compared = 0;
+        for position in positions {
+            let stencil = Stencil::new(&geometry.sensor_cell(position), 81);
+            for cone_deg in [3.0f32, 14.0, 30.0, 89.9, 120.0] {
+                for reach in [0.4f32, 2.0, 4.0] {
+                    for &key in &keys {
+                        let axis = key as f32 * ANGLE_STEP - PI;
+                        let cone = cone_deg.to_radians();
+                        let lazy = Spans::new(&stencil, axis, cone, reach);
+                        let eager = eager_spans(&stencil, axis, cone, reach);
+                        assert_eq!(
+                            (lazy.first_row, &lazy.rows),
+                            (eager.first_row, &eager.rows),
+                            "{position:?} cone {cone_deg}° reach {reach} key {key}"
+                        );
+                        compared += usize::from(!eager.rows.is_empty());
+                    }
+                }
+            }
+        }
+        assert!(compared > 1000, "{compared}");
+    }
 
     #[test]
     fn runs_are_widened_to_whole_vectors_within_bounds() {

@@ -180,6 +180,7 @@
 //! from one save to the next.
 
 pub mod config;
+mod encoding;
 pub mod engine;
 pub mod features;
 pub mod geometry;

@@ -1024,10 +1024,13 @@ impl Output<'_> {
 
     fn publish(&mut self, engine: &Engine) -> Result<()> {
         self.seq += 1;
-        let stamp = unix_time_ns();
-        match self.ports.grid.loan_slice(engine.grid_len()) {
-            Ok(mut sample) => {
-                let counts = engine.encode_grid(sample.payload_mut());
+        // The engine keeps the cells encoded as it fuses: a snapshot is a copy into a sample that
+        // need not be zeroed first. Stamped once the sample is complete, just before it goes.
+        let (cells, counts) = engine.encoded_grid();
+        let stamp = match self.ports.grid.loan_slice_uninit(cells.len()) {
+            Ok(sample) => {
+                let mut sample = sample.write_from_slice(cells);
+                let stamp = unix_time_ns();
                 *sample.user_header_mut() = engine.grid_header(self.seq, stamp, counts);
                 match sample.send() {
                     Ok(_) => self.ledger.snapshot_published(),
@@ -1036,13 +1039,15 @@ impl Output<'_> {
                         warn!("send grid: {e:?}");
                     }
                 }
+                stamp
             }
             // Every slot held by slow subscribers: skip this snapshot, the next one comes.
             Err(e) => {
                 self.ledger.snapshot_skipped();
                 warn!("loan grid sample: {e:?}");
+                unix_time_ns()
             }
-        }
+        };
         if let Err(e) = self.ports.radar.send_copy(engine.radar(self.seq, stamp)) {
             warn!("send radar: {e:?}");
         }

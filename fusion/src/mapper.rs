@@ -281,6 +281,16 @@ mod tests {
                         let b = reference.update_with(&obs, Kernel::WholeGrid).unwrap();
                         assert_eq!(a, b, "{model:?} {rule} {obs:?}");
                     }
+                    // The snapshot bytes and counts, kept up to date run by run by the fast
+                    // kernel and anew after each whole-grid pass, as if encoded afresh.
+                    for m in [&fast, &reference] {
+                        let (bytes, counts) = m.grid().encoded();
+                        let expected = crate::grid::reference_encoding(m.grid());
+                        assert!(
+                            (bytes, counts) == (&expected.0[..], expected.1),
+                            "{model:?} {rule}"
+                        );
+                    }
                     let (a, b) = (cells(&fast), cells(&reference));
                     assert!(a.iter().any(|c| c.is_some()));
                     for (i, (a, b)) in a.iter().zip(&b).enumerate() {

@@ -44,20 +44,22 @@ impl PaperArrays {
         for (u, &a) in self.angle_inside.iter_mut().zip(&self.grid_angles) {
             *u = u8::from(off_axis(a, beam.axis).abs() <= cone);
         }
-        let mut updated = 0;
-        for (i, cell) in layer.cells.iter_mut().enumerate() {
-            if self.angle_inside[i] == 1 {
-                let e = cell_evidence::<R, E>(
-                    evidence,
-                    beam.axis,
-                    cone,
-                    self.grid_length[i],
-                    self.grid_angles[i],
-                );
-                updated += usize::from(layer.rule.fuse(cell, e));
+        layer.update_all(|rule, cells| {
+            let mut updated = 0;
+            for (i, cell) in cells.iter_mut().enumerate() {
+                if self.angle_inside[i] == 1 {
+                    let e = cell_evidence::<R, E>(
+                        evidence,
+                        beam.axis,
+                        cone,
+                        self.grid_length[i],
+                        self.grid_angles[i],
+                    );
+                    updated += usize::from(rule.fuse(cell, e));
+                }
             }
-        }
-        updated
+            updated
+        })
     }
 
     fn fill(&mut self, geometry: &GridGeometry, sensor: SensorCell) {

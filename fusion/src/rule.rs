@@ -38,8 +38,22 @@ pub(crate) trait Combine: Copy {
     /// over a row of cells vectorises.
     fn fuse(&self, cell: &mut Self::Cell, evidence: f32) -> bool;
 
+    /// The number a cell's probability rises with ([`Self::key_probability`]); NaN for a cell no
+    /// reading has reached. What the snapshot encoding is a table over ([`crate::encoding`]).
+    fn key(&self, cell: Self::Cell) -> f32;
+
+    /// The occupancy probability of a cell with `key`, non-decreasing in it.
+    fn key_probability(&self, key: f32) -> f32;
+
+    /// The keys a fused cell can have, `[lowest, highest]`.
+    fn key_range(&self) -> [f32; 2];
+
     /// Occupancy probability of a cell; `None` if no reading has reached it.
-    fn probability(&self, cell: Self::Cell) -> Option<f32>;
+    #[inline(always)]
+    fn probability(&self, cell: Self::Cell) -> Option<f32> {
+        let key = self.key(cell);
+        (!key.is_nan()).then(|| self.key_probability(key))
+    }
 }
 
 /// The names a rule goes by in configuration files and on command lines.
@@ -164,8 +178,18 @@ impl Combine for BayesRule {
         fused
     }
 
-    fn probability(&self, cell: f32) -> Option<f32> {
-        (!cell.is_nan()).then_some(cell)
+    #[inline(always)]
+    fn key(&self, cell: f32) -> f32 {
+        cell
+    }
+
+    #[inline(always)]
+    fn key_probability(&self, p: f32) -> f32 {
+        p
+    }
+
+    fn key_range(&self) -> [f32; 2] {
+        [0.0, 1.0]
     }
 }
 
@@ -232,8 +256,18 @@ impl Combine for LogOddsRule {
         fused
     }
 
-    fn probability(&self, cell: f32) -> Option<f32> {
-        (!cell.is_nan()).then(|| crate::model::sigmoid(cell))
+    #[inline(always)]
+    fn key(&self, cell: f32) -> f32 {
+        cell
+    }
+
+    #[inline(always)]
+    fn key_probability(&self, l: f32) -> f32 {
+        crate::model::sigmoid(l)
+    }
+
+    fn key_range(&self) -> [f32; 2] {
+        [self.min_log_odds, self.max_log_odds]
     }
 }
 
@@ -277,8 +311,19 @@ impl Combine for DempsterShaferRule {
         fused
     }
 
-    fn probability(&self, [o, e]: [f32; 2]) -> Option<f32> {
-        (!o.is_nan()).then_some(0.5 * (1.0 + o - e))
+    /// The pignistic probability (NaN masses: NaN).
+    #[inline(always)]
+    fn key(&self, [o, e]: [f32; 2]) -> f32 {
+        0.5 * (1.0 + o - e)
+    }
+
+    #[inline(always)]
+    fn key_probability(&self, p: f32) -> f32 {
+        p
+    }
+
+    fn key_range(&self) -> [f32; 2] {
+        [0.0, 1.0]
     }
 }
 
@@ -368,8 +413,23 @@ impl Combine for HimmRule {
         fused
     }
 
-    fn probability(&self, cell: u8) -> Option<f32> {
-        (cell != HIMM_UNKNOWN).then(|| f32::from(cell) / f32::from(self.max_count))
+    /// The counter.
+    #[inline(always)]
+    fn key(&self, cell: u8) -> f32 {
+        if cell == HIMM_UNKNOWN {
+            f32::NAN
+        } else {
+            f32::from(cell)
+        }
+    }
+
+    #[inline(always)]
+    fn key_probability(&self, count: f32) -> f32 {
+        count / f32::from(self.max_count)
+    }
+
+    fn key_range(&self) -> [f32; 2] {
+        [0.0, f32::from(self.max_count)]
     }
 }
 
