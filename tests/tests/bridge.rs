@@ -20,16 +20,20 @@ use sonar_e2e::{
     PATIENCE, Proc, Sandbox, driver_status_subscriber, grid_subscriber, wait_for_status,
 };
 
-const ROBOT_ADDR: &str = "10.77.0.1";
-const LAPTOP_ADDR: &str = "10.77.0.2";
 const LINK_CUT: Duration = Duration::from_secs(10);
 
-/// Two network namespaces and the veth pair between them; deleted when dropped, also when the
-/// test fails half-way (deleting a namespace deletes its end of the pair, and with it the other).
+/// The robot at the end of link `i`; the laptop is `10.77.<i>.2` on that link.
+fn robot_addr(i: usize) -> String {
+    format!("10.77.{i}.1")
+}
+
+/// A laptop's network namespace and robots' namespaces, each robot joined to the laptop by a veth
+/// pair of its own; deleted when dropped, also when the test fails half-way (deleting a namespace
+/// deletes its end of a pair, and with it the other).
 struct Netns {
-    robot: String,
     laptop: String,
-    robot_if: String,
+    /// Each robot's namespace and its end of the link.
+    robots: Vec<(String, String)>,
 }
 
 fn ip(args: &[&str]) {
@@ -39,41 +43,51 @@ fn ip(args: &[&str]) {
 
 impl Netns {
     /// `tag` (one letter) keeps the namespaces of two tests of this process apart.
-    fn new(tag: &str) -> Self {
+    fn new(tag: &str, robots: usize) -> Self {
         let id = std::process::id();
-        let net = Self {
-            robot: format!("sonar-robot{tag}-{id}"),
+        let mut net = Self {
             laptop: format!("sonar-laptop{tag}-{id}"),
-            // Interface names have at most 15 bytes.
-            robot_if: format!("sr{tag}{}", id % 1_000_000),
+            robots: Vec::new(),
         };
-        let laptop_if = format!("sl{tag}{}", id % 1_000_000);
-        ip(&["netns", "add", &net.robot]);
         ip(&["netns", "add", &net.laptop]);
-        ip(&[
-            "link",
-            "add",
-            &net.robot_if,
-            "netns",
-            &net.robot,
-            "type",
-            "veth",
-            "peer",
-            "name",
-            &laptop_if,
-            "netns",
-            &net.laptop,
-        ]);
-        for (ns, dev, addr) in [
-            (&net.robot, &net.robot_if, ROBOT_ADDR),
-            (&net.laptop, &laptop_if, LAPTOP_ADDR),
-        ] {
-            let cidr = format!("{addr}/24");
-            ip(&["-n", ns, "addr", "add", &cidr, "dev", dev]);
-            ip(&["-n", ns, "link", "set", dev, "up"]);
-            ip(&["-n", ns, "link", "set", "lo", "up"]);
+        ip(&["-n", &net.laptop, "link", "set", "lo", "up"]);
+        for i in 0..robots {
+            let robot = format!("sonar-robot{tag}{i}-{id}");
+            // Interface names have at most 15 bytes.
+            let robot_if = format!("sr{tag}{i}{}", id % 1_000_000);
+            let laptop_if = format!("sl{tag}{i}{}", id % 1_000_000);
+            ip(&["netns", "add", &robot]);
+            net.robots.push((robot.clone(), robot_if.clone()));
+            ip(&[
+                "link",
+                "add",
+                &robot_if,
+                "netns",
+                &robot,
+                "type",
+                "veth",
+                "peer",
+                "name",
+                &laptop_if,
+                "netns",
+                &net.laptop,
+            ]);
+            let laptop_addr = format!("10.77.{i}.2");
+            for (ns, dev, addr) in [
+                (&robot, &robot_if, robot_addr(i)),
+                (&net.laptop, &laptop_if, laptop_addr),
+            ] {
+                let cidr = format!("{addr}/24");
+                ip(&["-n", ns, "addr", "add", &cidr, "dev", dev]);
+                ip(&["-n", ns, "link", "set", dev, "up"]);
+                ip(&["-n", ns, "link", "set", "lo", "up"]);
+            }
         }
         net
+    }
+
+    fn robot(&self, i: usize) -> &str {
+        &self.robots[i].0
     }
 
     /// Bytes the robot's end of the link sent and received so far.
@@ -81,12 +95,12 @@ impl Netns {
         let out = Command::new("ip")
             .args([
                 "-n",
-                &self.robot,
+                self.robot(0),
                 "-s",
                 "link",
                 "show",
                 "dev",
-                &self.robot_if,
+                &self.robots[0].1,
             ])
             .output()
             .unwrap();
@@ -110,13 +124,15 @@ impl Netns {
 
     fn set_robot_link(&self, up: bool) {
         let state = if up { "up" } else { "down" };
-        ip(&["-n", &self.robot, "link", "set", &self.robot_if, state]);
+        let (robot, dev) = &self.robots[0];
+        ip(&["-n", robot, "link", "set", dev, state]);
     }
 }
 
 impl Drop for Netns {
     fn drop(&mut self) {
-        for ns in [&self.robot, &self.laptop] {
+        let robots = self.robots.iter().map(|(ns, _)| ns);
+        for ns in robots.chain([&self.laptop]) {
             let _ = Command::new("ip").args(["netns", "del", ns]).status();
         }
     }
@@ -195,8 +211,8 @@ fn a_laptop_watches_and_commands_the_robot_over_zenoh_through_a_cut_link() {
         eprintln!("SKIPPED the bridge test: {why}");
         return;
     }
-    let net = Netns::new("t");
-    let robot = Sandbox::in_netns("bridge_robot", &net.robot);
+    let net = Netns::new("t", 1);
+    let robot = Sandbox::in_netns("bridge_robot", net.robot(0));
     let laptop = Sandbox::in_netns("bridge_laptop", &net.laptop);
     let robot_node = robot.node("test-robot-side");
     let laptop_node = laptop.node("test-laptop-side");
@@ -208,7 +224,7 @@ fn a_laptop_watches_and_commands_the_robot_over_zenoh_through_a_cut_link() {
     let fusion = robot.spawn("sonar-fusion", &["--no-persist"]);
     let (sim, pty) = robot.spawn_sim(&["--scene", "room", "--speed", "20", "--seed", "3"]);
     let mut driver = robot.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
-    let listen = format!("tcp/{ROBOT_ADDR}:7447");
+    let listen = format!("tcp/{}:7447", robot_addr(0));
     let mut robot_bridge = robot.spawn("sonar-bridge", &["--robot", "r1", "--listen", &listen]);
     let mut laptop_bridge = laptop.spawn(
         "sonar-bridge",
@@ -298,6 +314,85 @@ fn a_laptop_watches_and_commands_the_robot_over_zenoh_through_a_cut_link() {
     }
 }
 
+/// Two robots on two links to one laptop: the laptop lists both by name, and a remote bridge for
+/// one of them brings that robot's services only.
+#[test]
+fn two_robots_are_told_apart() {
+    if let Some(why) = missing_privileges() {
+        eprintln!("SKIPPED the two-robot bridge test: {why}");
+        return;
+    }
+    let net = Netns::new("m", 2);
+    let mut robots = Vec::new();
+    let mut connect = Vec::new();
+    for (i, name) in ["alpha", "beta"].into_iter().enumerate() {
+        let side = Sandbox::in_netns(&format!("bridge_{name}"), net.robot(i));
+        let head = format!("HEAD-{name}");
+        let (sim, pty) = side.spawn_sim(&["--scene", "room", "--speed", "5", "--head-id", &head]);
+        let driver = side.spawn("sonar-driver", &["--port", &pty, "--scan", "none"]);
+        let listen = format!("tcp/{}:7447", robot_addr(i));
+        let bridge = side.spawn(
+            "sonar-bridge",
+            &[
+                "--robot",
+                name,
+                "--listen",
+                &listen,
+                "--services",
+                "driver_status",
+            ],
+        );
+        connect.push(listen);
+        robots.push((side, [bridge, driver, sim]));
+    }
+    let connect = connect.join(",");
+    let laptop = Sandbox::in_netns("bridge_two_laptop", &net.laptop);
+    let deadline = Instant::now() + PATIENCE;
+    loop {
+        let out = laptop.run(
+            "sonar-bridge",
+            &["--mode", "remote", "--connect", &connect, "--list-robots"],
+        );
+        assert!(out.status.success(), "--list-robots failed: {out:?}");
+        if String::from_utf8_lossy(&out.stdout) == "alpha\nbeta\n" {
+            break;
+        }
+        assert!(Instant::now() < deadline, "robots listed: {out:?}");
+    }
+
+    let laptop_node = laptop.node("test-laptop-side");
+    let status = driver_status_subscriber(&laptop_node);
+    let bridge = laptop.spawn(
+        "sonar-bridge",
+        &["--mode", "remote", "--robot", "beta", "--connect", &connect],
+    );
+    let mut heads = Vec::new();
+    sonar_e2e::collect_until(
+        &laptop_node,
+        || {
+            status
+                .receive()
+                .unwrap()
+                .map(|s| s.payload().head_id().to_owned())
+        },
+        |got| {
+            heads = got.to_vec();
+            got.len() >= 3
+        },
+    );
+    assert!(
+        heads.iter().all(|h| h == "HEAD-beta"),
+        "the laptop's driver status came from {heads:?}"
+    );
+    drop(status);
+    assert!(bridge.terminate().success());
+    for (_, procs) in robots {
+        for p in procs {
+            p.terminate();
+        }
+    }
+}
+
 /// CPU time (user + system) a process has used so far.
 fn cpu_time(pid: u32) -> Duration {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap();
@@ -339,15 +434,15 @@ fn bridge_link_figures() {
     );
     println!("|---|---|---|---|---|---|");
     for (label, speed, scan, rate) in conditions {
-        let net = Netns::new("b");
-        let robot = Sandbox::in_netns("bridge_bench_robot", &net.robot);
+        let net = Netns::new("b", 1);
+        let robot = Sandbox::in_netns("bridge_bench_robot", net.robot(0));
         let laptop = Sandbox::in_netns("bridge_bench_laptop", &net.laptop);
         let laptop_node = laptop.node("bench-laptop-side");
         let laptop_grid = grid_subscriber(&laptop_node);
         let fusion = robot.spawn("sonar-fusion", &["--no-persist"]);
         let (sim, pty) = robot.spawn_sim(&["--scene", "room", "--speed", speed, "--seed", "3"]);
         let driver = robot.spawn("sonar-driver", &["--port", &pty, "--scan", scan]);
-        let listen = format!("tcp/{ROBOT_ADDR}:7447");
+        let listen = format!("tcp/{}:7447", robot_addr(0));
         let robot_bridge = robot.spawn(
             "sonar-bridge",
             &[
