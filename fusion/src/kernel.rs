@@ -537,16 +537,16 @@ mod tests {
 
     #[test]
     fn spans_equal_those_of_a_scan_of_the_whole_stencil() {
-        // 5 cm cells and a 4 m reach (a stencil of 161² cells; the test is the same at 1 cm, only
-        // slower); sensors on a corner, a centre and odd fractions of a cell; every eleventh
+        // 10 cm cells and a 4 m reach (a stencil of 83² cells; the test is the same at 1 cm, only
+        // slower); sensors on a corner, a centre and odd fractions of a cell; every 29th
         // direction key and the four axes; the cones of HIMM, the smooth model, the beam, and
         // one of 90° and more (where the windows give up and scan whole rows).
-        let geometry = GridGeometry::new(200, 0.05);
+        let geometry = GridGeometry::new(100, 0.1);
         let positions = [
             Vector2::new(0.0, 0.0),
-            Vector2::new(0.025, 0.025),
+            Vector2::new(0.05, 0.05),
             Vector2::new(0.0137, -0.0411),
-            Vector2::new(-0.049, 0.0001),
+            Vector2::new(-0.099, 0.0001),
         ];
         let keys = (0..ANGLE_KEYS).step_by(11).chain([
             0,
@@ -557,9 +557,9 @@ mod tests {
         let keys: Vec<usize> = keys.collect();
         let mut compared = 0;
         for position in positions {
-            let stencil = Stencil::new(&geometry.sensor_cell(position), 81);
+            let stencil = Stencil::new(&geometry.sensor_cell(position), 41);
             for cone_deg in [3.0f32, 14.0, 30.0, 89.9, 120.0] {
-                for reach in [0.4f32, 2.0, 4.0] {
+                for reach in [0.4f32, 4.0] {
                     for &key in &keys {
                         let axis = key as f32 * ANGLE_STEP - PI;
                         let cone = cone_deg.to_radians();
@@ -575,7 +575,7 @@ mod tests {
                 }
             }
         }
-        assert!(compared > 1000, "{compared}");
+        assert!(compared > 500, "{compared}");
     }
 
     #[test]
