@@ -732,16 +732,26 @@ impl IpcArgs {
     /// hang or fail (see [`crate::namespace`]); then iceoryx2 finds no dead node left to clean.
     pub fn node(&self, name: &str) -> Result<Node<ipc::Service>, IpcError> {
         let cfg = self.config()?;
-        crate::namespace::recover(&cfg).map_err(|e| IpcError {
-            context: "recover the iceoryx2 namespace".into(),
-            message: e.to_string(),
+        // An access problem explains a failure below better than iceoryx2's `InternalError`.
+        let explained = |err: IpcError| match crate::namespace::access_problem(&cfg) {
+            Some(why) => IpcError {
+                context: format!("cannot enter the pipeline's iceoryx2 namespace as {name}"),
+                message: why,
+            },
+            None => err,
+        };
+        crate::namespace::recover(&cfg).map_err(|e| {
+            explained(IpcError {
+                context: "recover the iceoryx2 namespace".into(),
+                message: e.to_string(),
+            })
         })?;
         let node_name = NodeName::new(name).map_err(|e| IpcError::new("node name", e))?;
         NodeBuilder::new()
             .name(&node_name)
             .config(&cfg)
             .create::<ipc::Service>()
-            .map_err(|e| IpcError::new(format!("create iceoryx2 node {name}"), e))
+            .map_err(|e| explained(IpcError::new(format!("create iceoryx2 node {name}"), e)))
     }
 }
 

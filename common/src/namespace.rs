@@ -684,6 +684,66 @@ impl Tags {
     }
 }
 
+/// Why this process cannot use the namespace, if the cause is access: a root directory it cannot
+/// write (or create), or shared memory of the prefix it may not open. iceoryx2 reports these as
+/// an opaque `InternalError`; this names the file, its owner and mode, and the fix.
+pub fn access_problem(cfg: &Config) -> Option<String> {
+    let root = to_path(cfg.global.root_path());
+    // The root, or the nearest ancestor that exists when the root has to be created.
+    let existing = root.ancestors().find(|p| p.exists())?;
+    let rwx = nix::unistd::AccessFlags::R_OK
+        | nix::unistd::AccessFlags::W_OK
+        | nix::unistd::AccessFlags::X_OK;
+    if nix::unistd::access(existing, rwx).is_err() {
+        let what = if existing == root {
+            format!("the iceoryx2 root {}", root.display())
+        } else {
+            format!(
+                "{} (to create the iceoryx2 root {})",
+                existing.display(),
+                root.display()
+            )
+        };
+        return Some(format!(
+            "{what} is not writable by this user ({}): run as the pipeline's user, or give a \
+             root of this user's with --iox-root and the same to every process of the pipeline",
+            owner_and_mode(existing)
+        ));
+    }
+    let prefix = cfg.global.prefix.as_bytes();
+    let rw = nix::unistd::AccessFlags::R_OK | nix::unistd::AccessFlags::W_OK;
+    let dir = fs::read_dir(SHM_DIR).ok()?;
+    dir.flatten()
+        .map(|entry| entry.path())
+        .filter(|path| {
+            path.file_name()
+                .is_some_and(|n| n.as_bytes().starts_with(prefix))
+        })
+        .find(|path| nix::unistd::access(path.as_path(), rw).is_err())
+        .map(|path| {
+            format!(
+                "the pipeline's shared memory {} may not be opened by this user ({}; iceoryx2 \
+                 makes it owner-only): run as the user the pipeline runs as",
+                path.display(),
+                owner_and_mode(&path)
+            )
+        })
+}
+
+/// `owner uid 1001, mode 0700`, as far as it can be read.
+fn owner_and_mode(path: &StdPath) -> String {
+    use std::os::unix::fs::MetadataExt;
+    match fs::metadata(path) {
+        Ok(m) => format!(
+            "owner uid {}, mode {:04o}; this user is uid {}",
+            m.uid(),
+            m.mode() & 0o7777,
+            nix::unistd::geteuid()
+        ),
+        Err(e) => format!("unreadable: {e}"),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

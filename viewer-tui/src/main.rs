@@ -8,13 +8,12 @@
 //! while shared memory is read only at the frame rate. An idle viewer draws nothing, except once
 //! a second while a producer is gone (its "gone for N s" ticks).
 
-use std::fmt;
 use std::fs::OpenOptions;
 use std::io::{IsTerminal, Stdout, stdout};
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
@@ -26,16 +25,16 @@ use crossterm::terminal::{
 use crossterm::{cursor, execute};
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
-use iceoryx2_log::{Log, LogLevel};
 use ratatui::Terminal;
 use ratatui::backend::CrosstermBackend;
 use sonar_common::ipc::{IpcArgs, unix_time_ns};
+use sonar_common::logging::{self, LogTo};
 use sonar_viewer::app::{Action, App, Drawn, View, key_help_text};
 use sonar_viewer::export;
 use sonar_viewer::heatmap::{ColorMode, Palette};
 use sonar_viewer::source::Source;
 use sonar_viewer::ui::{self, DrawInfo, MapCache};
-use tracing::{error, info, warn};
+use tracing::{info, warn};
 
 /// Terminal viewer of the sonar pipeline: the probability map, the radar display and the state of
 /// the driver and the fusion engine. Its keys send scan and fusion commands over iceoryx2.
@@ -62,8 +61,8 @@ struct Args {
     /// Directory where `s` saves the map as PNG.
     #[arg(long, default_value = ".", value_name = "DIR")]
     save_dir: PathBuf,
-    /// Log file [default: $XDG_STATE_HOME/sonar-viewer.log, else /tmp/sonar-viewer.log]; the
-    /// level comes from RUST_LOG (default info), iceoryx2's from IOX2_LOG_LEVEL (default warn).
+    /// Log file [default: sonar-viewer.log in $XDG_STATE_HOME/sonar, else ~/.local/state/sonar,
+    /// as sonar-pipeline's]; the level comes from RUST_LOG (default info, iceoryx2's at error).
     #[arg(long, value_name = "FILE")]
     log_file: Option<PathBuf>,
     #[command(flatten)]
@@ -98,63 +97,31 @@ enum ColorArg {
 fn main() -> ExitCode {
     let args = Args::parse();
     let log = init_logging(args.log_file.clone());
-    match run(args, log) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            // The terminal is restored by now: the message lands on the user's screen.
-            error!("{e:#}");
-            eprintln!("sonar-viewer: error: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    // The terminal is restored when `run` returns: the message lands on the user's screen.
+    sonar_common::report_exit("sonar-viewer", run(args, log))
 }
-
-/// Forwards iceoryx2's log messages to `tracing`. Its default logger writes to standard error,
-/// which is the terminal the viewer draws on.
-struct IceoryxToTracing;
-
-impl Log for IceoryxToTracing {
-    fn log(&self, level: LogLevel, origin: fmt::Arguments, message: fmt::Arguments) {
-        match level {
-            LogLevel::Trace => tracing::trace!(%origin, "{message}"),
-            LogLevel::Debug => tracing::debug!(%origin, "{message}"),
-            LogLevel::Info => tracing::info!(%origin, "{message}"),
-            LogLevel::Warn => tracing::warn!(%origin, "{message}"),
-            LogLevel::Error | LogLevel::Fatal => tracing::error!(%origin, "{message}"),
-        }
-    }
-}
-
-static ICEORYX_TO_TRACING: IceoryxToTracing = IceoryxToTracing;
 
 fn default_log_path() -> PathBuf {
-    match std::env::var_os("XDG_STATE_HOME") {
-        Some(dir) if !dir.is_empty() => PathBuf::from(dir).join("sonar-viewer.log"),
-        _ => PathBuf::from("/tmp/sonar-viewer.log"),
-    }
+    sonar_common::state_dir().join("sonar-viewer.log")
 }
 
 /// Logs to a file; on failure the viewer runs without a log and says why in its status line.
+/// Either way iceoryx2's messages go through `tracing`, never over the picture.
 fn init_logging(path: Option<PathBuf>) -> Result<PathBuf, String> {
-    // Before anything of iceoryx2 runs: its logger can be set only once, and the default one would
-    // scribble over the picture.
-    iceoryx2_log::set_logger(&ICEORYX_TO_TRACING);
-    iceoryx2_log::set_log_level_from_env_or(LogLevel::Warn);
     let path = path.unwrap_or_else(default_log_path);
-    let file = OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(&path)
-        .map_err(|e| format!("not logging: {}: {e}", path.display()))?;
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(Mutex::new(file))
-        .with_ansi(false)
-        .try_init()
-        .map_err(|e| format!("not logging: {e}"))?;
-    Ok(path)
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        let _ = std::fs::create_dir_all(dir);
+    }
+    match OpenOptions::new().create(true).append(true).open(&path) {
+        Ok(file) => {
+            logging::init(LogTo::File(file));
+            Ok(path)
+        }
+        Err(e) => {
+            logging::init(LogTo::Nowhere);
+            Err(format!("not logging: {}: {e}", path.display()))
+        }
+    }
 }
 
 /// Sets the returned flag on SIGTERM, SIGINT, SIGHUP (the SSH session went away) and SIGQUIT.
