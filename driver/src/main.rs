@@ -20,6 +20,7 @@ use serialport::{DataBits, Parity, SerialPort, StopBits, TTYPort};
 use sonar_common::ipc::{
     self, DriverStatus, IpcArgs, LinkState, Reading, ScanCommand, ScanCommandKind, ScanMode,
 };
+use sonar_common::logging::Misconfigured;
 use sonar_common::protocol::{
     DeviceMessage, DeviceState, ErrorCode, FramedLine, HostCommand, LineFramer, PROTOCOL_VERSION,
     ProtocolVersion, WireScanMode, encode_command, parse_head_id,
@@ -64,10 +65,13 @@ struct Args {
     /// Baud rate [default: 115200 for native, 9600 for hobby].
     #[arg(long)]
     baud: Option<u32>,
+    /// Parity bit of each character on the line (the head's firmware and the simulator: none).
     #[arg(long, value_enum, default_value_t = ParityArg::None)]
     parity: ParityArg,
+    /// Data bits per character, 5 to 8 (8 for the head: the protocol is ASCII over 8N1).
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u8).range(5..=8))]
     data_bits: u8,
+    /// Stop bits per character, 1 or 2.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
     stop_bits: u8,
     /// Serial format the device speaks.
@@ -172,6 +176,31 @@ impl ScanRequest {
                 to_cdeg: (to_deg * 100.0).round() as i32,
             }),
         }
+    }
+
+    /// Why this scan cannot run on a head whose `HELLO` reports its limit switches; `None` when
+    /// it can, or when the head reports no limits (version 1).
+    fn outside_limits(self, hello: &DeviceMessage) -> Option<String> {
+        let (
+            Some(HostCommand::LocalScan { from_cdeg, to_cdeg }),
+            DeviceMessage::Hello {
+                min_cdeg, max_cdeg, ..
+            },
+        ) = (self.host_command(), hello)
+        else {
+            return None;
+        };
+        let limits_known = min_cdeg < max_cdeg;
+        (limits_known && (from_cdeg < *min_cdeg || to_cdeg > *max_cdeg)).then(|| {
+            format!(
+                "the local scan {}..{}° lies outside this head's limit switches, {}..{}°: \
+                 give --scan=FROM..TO within them (or --scan=full)",
+                from_cdeg as f32 / 100.0,
+                to_cdeg as f32 / 100.0,
+                *min_cdeg as f32 / 100.0,
+                *max_cdeg as f32 / 100.0
+            )
+        })
     }
 }
 
@@ -518,6 +547,14 @@ impl Link {
                 }
                 info!(?hello, "handshake done");
                 self.decoder.adopt_device_geometry(&hello);
+                if let Some(why) = self.scan.outside_limits(&hello) {
+                    // The scan of the command line: the head would refuse it for ever. (One asked
+                    // for later, from the viewer, is refused by the head, which the viewer shows.)
+                    if self.status.reconnects == 0 && self.status.head_resets == 0 {
+                        return Err(Misconfigured(why).into());
+                    }
+                    warn!("{why}");
+                }
             }
             if let Err(e) = self.command_scan(port) {
                 return Ok(SessionEnd::PortLost(e));

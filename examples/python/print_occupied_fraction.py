@@ -61,8 +61,10 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--count", type=int, default=0, help="stop after N snapshots printed (0: run until Ctrl-C)")
     parser.add_argument("--min-readings", type=int, default=0, help="skip snapshots with fewer readings fused")
-    parser.add_argument("--prefix", default=os.environ.get("SONAR_IOX_PREFIX"))
-    parser.add_argument("--root", default=os.environ.get("SONAR_IOX_ROOT"))
+    parser.add_argument("--iox-prefix", "--prefix", dest="prefix", default=os.environ.get("SONAR_IOX_PREFIX"),
+                        help="the pipeline's iceoryx2 prefix, as the Rust programs' --iox-prefix [env SONAR_IOX_PREFIX]")
+    parser.add_argument("--iox-root", "--root", dest="root", default=os.environ.get("SONAR_IOX_ROOT"),
+                        help="the pipeline's iceoryx2 root directory, as the Rust programs' --iox-root [env SONAR_IOX_ROOT]")
     args = parser.parse_args()
     assert ctypes.sizeof(GridHeader) == 88 and ctypes.alignment(GridHeader) == 8, "layout drifted from docs/ipc.md"
 

@@ -422,6 +422,12 @@ fn run(args: &Args) -> Result<()> {
         }
         out.publish_status(&engine, now);
     }
+    // Stopping: the readings already delivered are fused and the map they make is published
+    // (pace or not), so a replay's last readings reach the saved map and its subscribers.
+    while out.fuse_readings(&mut engine, features.as_mut())? {}
+    if out.dirty {
+        out.publish(&engine)?;
+    }
     if let Some(saving) = saving {
         saving.finish(&engine, &mut out.ledger);
     }

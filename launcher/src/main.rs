@@ -11,6 +11,7 @@ mod terminal;
 
 use std::collections::VecDeque;
 use std::fs::File;
+use std::io::{Read, Seek, SeekFrom};
 use std::os::unix::process::{CommandExt, ExitStatusExt};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitCode, ExitStatus, Stdio};
@@ -24,6 +25,7 @@ use nix::errno::Errno;
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 use sonar_common::ipc::IpcArgs;
+use sonar_common::logging::{self, LogTo};
 use tracing::{info, warn};
 
 use crate::config::{PipelineFile, push_opt};
@@ -53,6 +55,7 @@ const SHUTDOWN_TIMEOUT: Duration = Duration::from_secs(10);
 ///   sonar-pipeline                                   # the simulated room, in real time
 ///   sonar-pipeline --scene obstacle --scan=-45..45 --speed 10
 ///   sonar-pipeline --port /dev/ttyUSB0               # a real sensor head
+///   sonar-pipeline --replay run.mcap --speed 5       # a recording (sonar-record's), no head
 ///   sonar-pipeline --config /etc/sonar.toml --no-viewer   # at boot, e.g. from systemd
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
@@ -61,28 +64,44 @@ struct Args {
     #[arg(long, env = "SONAR_CONFIG")]
     config: Option<PathBuf>,
     /// Serial device of a real sensor head; without it, the simulator runs.
-    #[arg(long, env = "SONAR_PORT")]
+    #[arg(long, env = "SONAR_PORT", conflicts_with = "replay")]
     port: Option<PathBuf>,
-    /// Simulator scene: room, corner, obstacle, two-obstacles, or a scene file.
+    /// Baud rate of --port [default: [serial] baud of --config, else the driver's: 115200 for
+    /// the native protocol, 9600 for hobby].
+    #[arg(long, env = "SONAR_BAUD", conflicts_with = "replay")]
+    baud: Option<u32>,
+    /// Serial format of the head: native or hobby (an "Arduino radar" sketch) [default: [serial]
+    /// dialect of --config, else native]. The simulator speaks it too.
+    #[arg(long, env = "SONAR_DIALECT", value_parser = ["native", "hobby"], conflicts_with = "replay")]
+    dialect: Option<String>,
+    /// Replay a recording made by sonar-record instead of running a head: the fusion and the
+    /// viewer show it, --speed sets the pace. Without the viewer the pipeline stops at its end.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["scene", "seed", "scan"])]
+    replay: Option<PathBuf>,
+    /// Simulator scene: room, corner, obstacle, two-obstacles, corridor, room-tour, or a scene
+    /// file [default: [simulator] scene of --config, else room].
     #[arg(long, env = "SONAR_SCENE")]
     scene: Option<String>,
-    /// Simulator speed: a factor (1 = real time) or `max`.
-    #[arg(long, env = "SONAR_SPEED")]
+    /// Simulator's (or the replay's) speed: a factor (1 = real time) or `max` [default:
+    /// [simulator] speed of --config, else 1].
+    #[arg(long, env = "SONAR_SPEED", allow_hyphen_values = true)]
     speed: Option<String>,
-    /// Simulator noise seed.
+    /// Simulator noise seed [default: [simulator] seed of --config, else 1].
     #[arg(long)]
     seed: Option<u64>,
-    /// Scan after the handshake: full, none, or FROM..TO degrees (write --scan=-30..30).
-    #[arg(long, env = "SONAR_SCAN")]
+    /// Scan after the handshake: full, none, or FROM..TO degrees (write --scan=-30..30)
+    /// [default: [serial] scan of --config, else full].
+    #[arg(long, env = "SONAR_SCAN", allow_hyphen_values = true)]
     scan: Option<String>,
-    /// Fusion preset: paper or recommended (replaces the [fusion] model and rule).
-    #[arg(long, env = "SONAR_PRESET")]
+    /// Fusion preset: paper or recommended, replacing the [fusion] model and rule [default: those
+    /// of --config, else recommended].
+    #[arg(long, env = "SONAR_PRESET", value_parser = ["paper", "recommended"])]
     preset: Option<String>,
     /// Run without the terminal viewer (at boot, or to attach viewers separately).
     #[arg(long)]
     no_viewer: bool,
-    /// Viewer's first view: map, radar or split.
-    #[arg(long)]
+    /// Viewer's first view: map, radar or split [default: [viewer] view of --config, else split].
+    #[arg(long, value_parser = ["map", "radar", "split"])]
     view: Option<String>,
     /// Directory for the processes' logs [default: $XDG_STATE_HOME/sonar, else ~/.local/state/sonar].
     #[arg(long, env = "SONAR_LOG_DIR")]
@@ -106,10 +125,15 @@ struct Process {
     args: Vec<String>,
     /// The viewer: owns the terminal, and its exit ends the pipeline.
     foreground: bool,
+    /// A replay: runs once to its end and is not restarted; a failure stops the pipeline (a
+    /// second run would feed the map every reading again).
+    until_done: bool,
     child: Option<Child>,
     started: Instant,
     /// Whether the current incarnation is a restart (then an early error is no configuration's).
     restarted: bool,
+    /// Length of its log file when the current incarnation started.
+    log_start: u64,
     restarts: VecDeque<Instant>,
     restart_at: Option<Instant>,
 }
@@ -129,16 +153,6 @@ struct Pipeline {
     terminal: Terminal,
 }
 
-fn default_log_dir() -> PathBuf {
-    if let Some(state) = std::env::var_os("XDG_STATE_HOME").filter(|s| !s.is_empty()) {
-        return PathBuf::from(state).join("sonar");
-    }
-    match std::env::var_os("HOME").filter(|s| !s.is_empty()) {
-        Some(home) => PathBuf::from(home).join(".local/state/sonar"),
-        None => std::env::temp_dir().join("sonar"),
-    }
-}
-
 fn run(args: Args) -> Result<ExitCode> {
     let file = match &args.config {
         Some(path) => PipelineFile::load(path)?,
@@ -148,7 +162,7 @@ fn run(args: Args) -> Result<ExitCode> {
         .log_dir
         .clone()
         .or(file.launcher.log_dir.clone())
-        .unwrap_or_else(default_log_dir);
+        .unwrap_or_else(sonar_common::state_dir);
     std::fs::create_dir_all(&log_dir)
         .with_context(|| format!("cannot create log directory {}", log_dir.display()))?;
     let with_viewer = file.viewer.enabled && !args.no_viewer;
@@ -188,19 +202,12 @@ fn run(args: Args) -> Result<ExitCode> {
 
 /// The launcher's own log: stderr, or a file while the viewer owns the terminal.
 fn init_logging(log_dir: &Path, to_file: bool) -> Result<()> {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    let builder = tracing_subscriber::fmt().with_env_filter(filter);
-    if to_file {
-        let path = log_dir.join("sonar-pipeline.log");
-        let file = append(&path)?;
-        let _ = builder
-            .with_ansi(false)
-            .with_writer(std::sync::Mutex::new(file))
-            .try_init();
+    let to = if to_file {
+        LogTo::File(append(&log_dir.join("sonar-pipeline.log"))?)
     } else {
-        let _ = builder.with_writer(std::io::stderr).try_init();
-    }
+        LogTo::Stderr
+    };
+    logging::init(to);
     Ok(())
 }
 
@@ -239,56 +246,74 @@ impl Pipeline {
         }
 
         let mut processes = Vec::new();
-        let port = args.port.clone().or(file.serial.port.clone());
-        let sim_link = match &port {
-            Some(_) => None,
-            None => {
-                let link =
-                    std::env::temp_dir().join(format!("sonar-pipeline-{}.pty", std::process::id()));
-                // One head identity for the pipeline's life: a restarted simulator plays the same
-                // head, which the driver accepts; another pipeline's simulator is another head.
-                let mut sim = vec![
-                    "--link".to_owned(),
-                    link.display().to_string(),
-                    "--head-id".to_owned(),
-                    format!("sim-{}", std::process::id()),
-                ];
-                push_opt(
-                    &mut sim,
-                    "--scene",
-                    args.scene.clone().or(file.simulator.scene.clone()),
-                );
-                push_opt(
-                    &mut sim,
-                    "--speed",
-                    args.speed.clone().or(file.simulator.speed.clone()),
-                );
-                push_opt(&mut sim, "--seed", args.seed.or(file.simulator.seed));
-                push_opt(&mut sim, "--dialect", file.serial.dialect.clone());
-                push_opt(&mut sim, "--air-temperature", file.sensor.air_temperature_c);
-                processes.push(Process::new("sonar-sim", sim, false));
-                Some(link)
+        let sim_link = if let Some(recording) = &args.replay {
+            if !recording.is_file() {
+                bail!("cannot replay {}: no such file", recording.display());
             }
+            // Nothing is published before the fusion listens, so the map gets every reading.
+            let mut replay = vec![
+                recording.display().to_string(),
+                "--wait-for-subscribers".to_owned(),
+                "1".to_owned(),
+                "--no-progress".to_owned(),
+            ];
+            push_opt(&mut replay, "--speed", args.speed.clone());
+            processes.push(Process::new("sonar-replay", replay, false).until_done());
+            None
+        } else {
+            let port = args.port.clone().or(file.serial.port.clone());
+            let dialect = args.dialect.clone().or(file.serial.dialect.clone());
+            let sim_link = match &port {
+                Some(_) => None,
+                None => {
+                    let link = std::env::temp_dir()
+                        .join(format!("sonar-pipeline-{}.pty", std::process::id()));
+                    // One head identity for the pipeline's life: a restarted simulator plays the same
+                    // head, which the driver accepts; another pipeline's simulator is another head.
+                    let mut sim = vec![
+                        "--link".to_owned(),
+                        link.display().to_string(),
+                        "--head-id".to_owned(),
+                        format!("sim-{}", std::process::id()),
+                    ];
+                    push_opt(
+                        &mut sim,
+                        "--scene",
+                        args.scene.clone().or(file.simulator.scene.clone()),
+                    );
+                    push_opt(
+                        &mut sim,
+                        "--speed",
+                        args.speed.clone().or(file.simulator.speed.clone()),
+                    );
+                    push_opt(&mut sim, "--seed", args.seed.or(file.simulator.seed));
+                    push_opt(&mut sim, "--dialect", dialect.clone());
+                    push_opt(&mut sim, "--air-temperature", file.sensor.air_temperature_c);
+                    processes.push(Process::new("sonar-sim", sim, false));
+                    Some(link)
+                }
+            };
+            let port = port.or(sim_link.clone()).context("no serial port")?;
+            let mut driver = vec!["--port".to_owned(), port.display().to_string()];
+            push_opt(&mut driver, "--baud", args.baud.or(file.serial.baud));
+            push_opt(&mut driver, "--dialect", dialect);
+            if let Some(scan) = args.scan.clone().or(file.serial.scan.clone()) {
+                // `=` keeps a segment such as -30..30 from reading as a flag.
+                driver.push(format!("--scan={scan}"));
+            }
+            push_opt(
+                &mut driver,
+                "--air-temperature",
+                file.sensor.air_temperature_c,
+            );
+            push_opt(
+                &mut driver,
+                "--beam-half-angle",
+                file.sensor.beam_half_angle_deg,
+            );
+            processes.push(Process::new("sonar-driver", driver, false));
+            sim_link
         };
-        let port = port.or(sim_link.clone()).context("no serial port")?;
-        let mut driver = vec!["--port".to_owned(), port.display().to_string()];
-        push_opt(&mut driver, "--baud", file.serial.baud);
-        push_opt(&mut driver, "--dialect", file.serial.dialect.clone());
-        if let Some(scan) = args.scan.clone().or(file.serial.scan.clone()) {
-            // `=` keeps a segment such as -30..30 from reading as a flag.
-            driver.push(format!("--scan={scan}"));
-        }
-        push_opt(
-            &mut driver,
-            "--air-temperature",
-            file.sensor.air_temperature_c,
-        );
-        push_opt(
-            &mut driver,
-            "--beam-half-angle",
-            file.sensor.beam_half_angle_deg,
-        );
-        processes.push(Process::new("sonar-driver", driver, false));
 
         let mut fusion = Vec::new();
         push_opt(
@@ -361,8 +386,11 @@ impl Pipeline {
         let mut cmd = Command::new(self.bin_dir.join(p.name));
         cmd.args(&p.args)
             .envs(self.env.iter().map(|(k, v)| (*k, v)));
+        let log_path = self.log_path(p.name);
+        // Logs are appended across runs: an error message quotes this incarnation's part only.
+        let log_start = std::fs::metadata(&log_path).map_or(0, |m| m.len());
         if !p.foreground {
-            let log = append(&self.log_dir.join(format!("{}.log", p.name)))?;
+            let log = append(&log_path)?;
             let log2 = log.try_clone().context("cannot share a log file")?;
             cmd.stdin(Stdio::null()).stdout(log).stderr(log2);
         }
@@ -393,6 +421,7 @@ impl Pipeline {
         info!(process = p.name, pid = child.id(), args = ?p.args, "started");
         let p = &mut self.processes[i];
         p.child = Some(child);
+        p.log_start = log_start;
         p.started = Instant::now();
         p.restart_at = None;
         if p.name == "sonar-sim"
@@ -431,6 +460,7 @@ impl Pipeline {
     /// Watches the processes until the viewer quits, a signal arrives, or a process cannot be
     /// kept running.
     fn supervise(&mut self, stop: &AtomicBool) -> Result<()> {
+        let with_viewer = self.processes.iter().any(|p| p.foreground);
         loop {
             if stop.load(Ordering::Relaxed) {
                 info!("signal received: stopping");
@@ -450,6 +480,7 @@ impl Pipeline {
                     Some(Err(e)) => bail!("cannot watch {}: {e}", p.name),
                 };
                 p.child = None;
+                let (name, until_done) = (p.name, p.until_done);
                 if p.foreground {
                     self.viewer_ended(exited);
                     // An exit of its own is the user's `q`, or an error to report. Killed by a
@@ -465,6 +496,19 @@ impl Pipeline {
                 }
                 if stop.load(Ordering::Relaxed) {
                     return Ok(()); // it stopped for the same signal we got
+                }
+                if until_done {
+                    if !exited.success() {
+                        bail!(
+                            "{name} failed ({exited}); its log:\n{}",
+                            self.log_tail(name)
+                        );
+                    }
+                    info!(process = name, "finished");
+                    if !with_viewer {
+                        return Ok(()); // nothing more will come, and nobody watches
+                    }
+                    continue;
                 }
                 self.schedule_restart(i, exited, now)?;
             }
@@ -488,6 +532,12 @@ impl Pipeline {
         // After a restart it is more likely the aftermath of the death (a peer killed while it
         // was creating something, a device that went away): another death, under the back-off
         // and the crash-loop limit like any.
+        if exited.code() == Some(i32::from(logging::EXIT_MISCONFIGURED)) {
+            bail!(
+                "{name} stopped: its settings cannot work; its log:\n{}",
+                self.log_tail(name)
+            );
+        }
         if ran < STARTUP_GRACE
             && exited.code().is_some_and(|c| c != 0)
             && !self.processes[i].restarted
@@ -520,11 +570,19 @@ impl Pipeline {
         Ok(())
     }
 
-    /// The last lines of a process's log, for an error message.
+    fn log_path(&self, name: &str) -> PathBuf {
+        self.log_dir.join(format!("{name}.log"))
+    }
+
+    /// The last lines its current incarnation wrote to a process's log, for an error message.
     fn log_tail(&self, name: &str) -> String {
-        let path = self.log_dir.join(format!("{name}.log"));
-        let text = std::fs::read_to_string(&path).unwrap_or_default();
-        let lines: Vec<&str> = text.lines().collect();
+        let start = self
+            .processes
+            .iter()
+            .find(|p| p.name == name)
+            .map_or(0, |p| p.log_start);
+        let text = read_from(&self.log_path(name), start);
+        let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
         lines[lines.len().saturating_sub(10)..].join("\n")
     }
 
@@ -586,15 +644,35 @@ impl Pipeline {
     }
 }
 
+/// A file's text from byte `start` on; empty if it cannot be read.
+fn read_from(path: &Path, start: u64) -> String {
+    let mut text = Vec::new();
+    if let Ok(mut file) = File::open(path)
+        && file.seek(SeekFrom::Start(start)).is_ok()
+    {
+        let _ = file.read_to_end(&mut text);
+    }
+    String::from_utf8_lossy(&text).into_owned()
+}
+
 impl Process {
+    fn until_done(self) -> Self {
+        Self {
+            until_done: true,
+            ..self
+        }
+    }
+
     fn new(name: &'static str, args: Vec<String>, foreground: bool) -> Self {
         Self {
             name,
             args,
             foreground,
+            until_done: false,
             child: None,
             started: Instant::now(),
             restarted: false,
+            log_start: 0,
             restarts: VecDeque::new(),
             restart_at: None,
         }
@@ -616,5 +694,32 @@ mod tests {
         let args = Args::try_parse_from(exec.split_whitespace()).unwrap();
         assert!(args.no_viewer);
         assert_eq!(args.config, Some(PathBuf::from("/etc/sonar/sonar.toml")));
+    }
+
+    #[test]
+    fn flags_are_checked_before_anything_starts() {
+        let parse = |args: &[&str]| Args::try_parse_from([&["sonar-pipeline"], args].concat());
+        // A negative speed reaches the simulator, which says what a speed is, instead of clap's
+        // "unexpected argument '-1'"; a segment starting below zero is a value too.
+        assert_eq!(
+            parse(&["--speed", "-1"]).unwrap().speed.as_deref(),
+            Some("-1")
+        );
+        assert_eq!(
+            parse(&["--scan", "-30..30"]).unwrap().scan.as_deref(),
+            Some("-30..30")
+        );
+        // Checked even when the viewer does not run.
+        let err = parse(&["--no-viewer", "--view", "bogus"]).unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("[possible values: map, radar, split]"),
+            "{err}"
+        );
+        assert!(parse(&["--preset", "papper"]).is_err());
+        // A replay has no head to scan or simulate.
+        let err = parse(&["--replay", "run.mcap", "--scene", "room"]).unwrap_err();
+        assert!(err.to_string().contains("cannot be used with"), "{err}");
+        assert!(parse(&["--replay", "run.mcap", "--port", "/dev/ttyUSB0"]).is_err());
     }
 }

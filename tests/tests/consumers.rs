@@ -7,6 +7,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // helpers outside #[test] fns; a panic is a failure
 
 use std::io::{BufRead, BufReader};
+use std::os::unix::process::CommandExt;
 use std::path::PathBuf;
 
 use sonar_common::ipc::{self, FeatureRecord, FeaturesHeader, GridHeader, feature_kind};
@@ -475,6 +476,12 @@ fn the_nearest_obstacle_alerter_reports_the_room_walls_and_stays_quiet_below_the
         .1;
     let nearest: f32 = summary.trim_end_matches(" m").trim().parse().unwrap();
     assert!((1.1..=1.3).contains(&nearest), "{summary}");
+    // Quiet on stdout, but it says on stderr what it sees and what the threshold is.
+    assert!(
+        stderr.contains("nearest occupied cell: bearing ")
+            && stderr.contains("(alerts below 0.5 m)"),
+        "{stderr}"
+    );
 
     // Without --count it runs until stopped, and stops cleanly.
     let mut running = sandbox.spawn("sonar-nearest-obstacle", &["--threshold", "1.5"]);
@@ -617,4 +624,44 @@ fn the_python_example_prints_the_post_and_the_wall_of_the_obstacle_scene() {
         near("point", 0.975) && near("plane", 2.0)
     });
     assert!(found, "no snapshot with the post and the wall:\n{stdout}");
+}
+
+/// A consumer started by another user (the systemd example runs the pipeline as its own user)
+/// cannot enter the namespace: the error says which file, whose it is, and what to do, instead of
+/// iceoryx2's `InternalError`.
+#[test]
+fn a_consumer_of_another_user_is_told_why_it_cannot_enter_the_namespace() {
+    if !nix::unistd::geteuid().is_root() {
+        eprintln!("SKIPPED: needs root to start a process as another user");
+        return;
+    }
+    let sandbox = Sandbox::new("otheruser");
+    let _node = sandbox.node("test-owner"); // the namespace exists, made by root (mode 0755)
+    // The build directory may be closed to other users (a checkout under /root): run a copy.
+    let bin_dir = sandbox.state.join("bin");
+    std::fs::create_dir_all(&bin_dir).unwrap();
+    let program = bin_dir.join("sonar-nearest-obstacle");
+    std::fs::copy(sonar_e2e::bin("sonar-nearest-obstacle"), &program).unwrap();
+    for dir in [&sandbox.state, &bin_dir] {
+        std::fs::set_permissions(dir, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
+    }
+    let nobody = 65534;
+    let out = std::process::Command::new(&program)
+        .args(["--snapshots", "1"])
+        .env("SONAR_IOX_PREFIX", &sandbox.prefix)
+        .env("SONAR_IOX_ROOT", &sandbox.root)
+        .env("HOME", &sandbox.state)
+        .uid(nobody)
+        .gid(nobody)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("cannot enter the pipeline's iceoryx2 namespace")
+            && stderr.contains("is not writable by this user (owner uid 0, mode 0755")
+            && stderr.contains("run as the pipeline's user"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("InternalError"), "{stderr}");
 }

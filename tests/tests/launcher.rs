@@ -101,6 +101,46 @@ fn a_process_that_fails_at_start_stops_the_pipeline_with_its_error() {
     assert!(stderr.contains("unknown field `buad`"), "{stderr}");
 }
 
+/// A scan outside the head's limit switches stops the pipeline with the reason (the head would
+/// refuse it for ever, and the pipeline ran with 0 readings); a later run's error quotes that run
+/// only, once, in plain text, without iceoryx2's chatter.
+#[test]
+fn a_scan_outside_the_limits_stops_the_pipeline_and_errors_quote_their_own_run_once() {
+    let sandbox = Sandbox::new("launchscan");
+    let logs = sandbox.root.join("logs");
+    let logs = logs.to_str().unwrap();
+    let run = |args: &[&str]| {
+        let mut all = vec!["--no-viewer", "--log-dir", logs];
+        all.extend_from_slice(args);
+        let (status, stderr) = sandbox.spawn("sonar-pipeline", &all).wait_exit();
+        assert!(!status.success(), "{stderr}");
+        assert!(!stderr.contains('\x1b'), "colour codes in {stderr:?}");
+        assert!(!stderr.contains("No config file was loaded"), "{stderr}");
+        assert_eq!(
+            stderr.matches("sonar-pipeline: error:").count(),
+            1,
+            "{stderr}"
+        );
+        stderr
+    };
+
+    let stderr = run(&["--scan=100..200", "--speed", "10"]);
+    assert!(stderr.contains("sonar-driver stopped"), "{stderr}");
+    assert!(
+        stderr.contains("lies outside this head's limit switches, -150..150°"),
+        "{stderr}"
+    );
+    let driver_log = std::fs::read_to_string(sandbox.root.join("logs/sonar-driver.log")).unwrap();
+    assert!(!driver_log.contains('\x1b'), "colour codes in the log file");
+
+    let stderr = run(&["--speed", "abc"]);
+    assert!(stderr.contains("is not a speed"), "{stderr}");
+    assert!(
+        !stderr.contains("limit switches"),
+        "an earlier run's error: {stderr}"
+    );
+}
+
 #[test]
 fn the_first_command_shows_the_room_and_q_stops_every_process() {
     let sandbox = Sandbox::new("launchtui");

@@ -262,6 +262,22 @@ fn the_recorder_finishes_its_file_on_sigterm_with_the_commands() {
         String::from_utf8_lossy(&out.stdout).contains("complete: no (truncated)"),
         "{out:?}"
     );
+
+    // Into a namespace where a driver still publishes readings, a replay would mix both streams
+    // in the map: refused, saying what to do.
+    let driver = ipc::readings_service(&node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    let out = sandbox.run("sonar-replay", &[path_str(&file), "--speed", "max"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("already publishes sonar/readings"),
+        "{stderr}"
+    );
+    drop(driver);
 }
 
 #[test]
@@ -379,24 +395,22 @@ fn replaying_a_recording_into_the_fusion_engine_gives_the_live_map() {
         .unwrap_or_else(|| panic!("no sonar/features line in\n{info_out}"));
     assert!(features >= 1, "{info_out}");
 
+    // Replayed with the one command (`sonar-pipeline --replay`: fusion on the recording, no
+    // driver), which stops by itself at the end of the recording when there is no viewer.
     let replay_box = Sandbox::new("rec_map_replay");
     let replay_node = replay_box.node("test-replay");
     let replay_grid = grid_subscriber(&replay_node);
-    let _fusion = replay_box.spawn("sonar-fusion", &[]);
-    wait_until(&replay_node, "fusion subscribed", || {
-        readings_subscribers(&replay_node) >= 1
-    });
-    let _replay = replay_box.spawn(
-        "sonar-replay",
-        &[
-            path_str(&file),
-            "--speed",
-            "max",
-            "--wait-for-subscribers",
-            "1",
-        ],
+    let pipeline = replay_box.spawn(
+        "sonar-pipeline",
+        &["--no-viewer", "--replay", path_str(&file), "--speed", "max"],
     );
     let (header, cells) = map_after(&replay_node, &replay_grid, count);
+    let (status, stderr) = pipeline.wait_exit();
+    assert!(status.success(), "{stderr}");
+    assert!(
+        stderr.contains("finished process=\"sonar-replay\""),
+        "{stderr}"
+    );
 
     assert_eq!(cells.len(), live_cells.len());
     let differing = cells

@@ -9,10 +9,13 @@
 //!
 //! once per snapshot: the bearing of the cell's centre counter-clockwise from the sensor's forward
 //! axis (the robot's heading `pose_theta_rad`; 0° straight ahead, +90° to the left), in
-//! [-180, 180), and its distance from the sensor. Logs go to stderr, alerts alone to stdout.
+//! [-180, 180), and its distance from the sensor. Logs go to stderr, alerts alone to stdout; the
+//! nearest occupied cell is logged once a second whether it alerts or not, so a quiet terminal
+//! means nothing is near, not that nothing works.
 
 use std::io::Write;
 use std::process::ExitCode;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::Parser;
@@ -20,16 +23,21 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::waitset::WaitSetRunResult;
 use sonar_common::ipc::{self, GridHeader, IpcArgs, IpcError, decode_probability};
+use sonar_common::throttle::Throttle;
+
+/// How often the nearest occupied cell is logged.
+const PROGRESS_PERIOD: Duration = Duration::from_secs(1);
 
 /// Prints `bearing <deg> distance <m>` whenever the closest occupied cell of the sonar map is
 /// nearer than --threshold (once per map snapshot). Bearing: degrees counter-clockwise from the
 /// sensor's forward axis. Runs until Ctrl-C/SIGTERM, --count alerts or --snapshots snapshots.
+/// Once a second the nearest occupied cell is logged on stderr, alert or not.
 ///
 /// Example: sonar-nearest-obstacle --threshold 0.8
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
 struct Args {
-    /// Alert distance, metres.
+    /// Alert distance, metres: a snapshot whose nearest occupied cell is nearer prints an alert.
     #[arg(long, default_value_t = 0.5)]
     threshold: f32,
     /// A cell counts as occupied when its probability is above this.
@@ -85,6 +93,7 @@ fn run(args: &Args) -> Result<()> {
             || (args.snapshots > 0 && snapshots >= args.snapshots)
     };
     let mut out = std::io::stdout().lock();
+    let mut progress = Throttle::new(PROGRESS_PERIOD);
     'watch: while !done(alerts, snapshots) {
         let result = waitset
             .wait_and_process_once(|_| CallbackProgression::Continue)
@@ -105,6 +114,16 @@ fn run(args: &Args) -> Result<()> {
             };
             snapshots += 1;
             closest = nearest(sample.user_header(), sample.payload(), args.occupied_above);
+            if progress.allow(Instant::now()).is_some() {
+                match closest {
+                    Some((bearing, distance)) => tracing::info!(
+                        "nearest occupied cell: bearing {bearing:.1}°, distance {distance:.2} m \
+                         (alerts below {} m)",
+                        args.threshold
+                    ),
+                    None => tracing::info!("no occupied cell in the map yet"),
+                }
+            }
             if let Some((bearing, distance)) = closest.filter(|&(_, d)| d < args.threshold) {
                 let written = writeln!(out, "bearing {bearing:.1} distance {distance:.3}")
                     .and_then(|()| out.flush());

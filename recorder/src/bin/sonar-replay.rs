@@ -224,6 +224,15 @@ impl Ports {
     fn open(node: &Node<Ipc>, recording: &Recording, readings_only: bool) -> Result<Self> {
         let readings_service = ipc::readings_service(node)?;
         let readings = port(node, &readings_service, ipc::READINGS_SERVICE)?;
+        if readings_service.dynamic_config().number_of_publishers() > 1 {
+            anyhow::bail!(
+                "another process (a sonar-driver, or another sonar-replay) already publishes {} \
+                 in this namespace, and the fusion would mix both streams into one map: stop it \
+                 (a pipeline with a driver: sonar-pipeline --replay FILE replays without one), \
+                 or replay into another namespace (--iox-prefix)",
+                ipc::READINGS_SERVICE
+            );
+        }
         let wanted = |t| !readings_only && recording.count(t) > 0;
         let fusion_commands = if wanted(Topic::FusionCommands) {
             let service = ipc::fusion_commands_service(node)?;
