@@ -38,6 +38,8 @@ use crate::heatmap::{
 pub const PANEL_WIDTH: u16 = 34;
 /// Narrower terminals show only the view(s) and the status line.
 pub const PANEL_MIN_TERMINAL_WIDTH: u16 = 72;
+/// The radar's inside below which its labels would run into each other (columns, rows).
+const RADAR_LABELS_MIN: (u16, u16) = (16, 6);
 /// Radar range when the snapshot does not give one (the SRF05's 4 m).
 const DEFAULT_RADAR_RANGE_M: f64 = 4.0;
 
@@ -116,7 +118,7 @@ pub fn render(
             .block(block)
             .render(panel, buf);
     }
-    Paragraph::new(bottom_line(app)).render(bottom, buf);
+    Paragraph::new(bottom_line(app, panel.is_none())).render(bottom, buf);
     if app.show_help {
         render_help(area, buf);
     }
@@ -168,11 +170,15 @@ fn render_map(
             // Also over the whole map, where following only shows once zoomed in: `t` toggles
             // a state the user should be able to see.
             let follow = if app.map.follow { " · following" } else { "" };
-            format!(
-                " map {}×{} · {}{zoom}{follow} ",
-                g.width(),
-                g.height(),
-                format_length(g.header.resolution_m)
+            let cells = format!("{}×{}", g.width(), g.height());
+            let resolution = format_length(g.header.resolution_m);
+            fitting_title(
+                &[
+                    format!(" map {cells} · {resolution}{zoom}{follow} "),
+                    format!(" map {resolution}{zoom}{follow} "),
+                    format!(" map{zoom}{follow} "),
+                ],
+                area.width,
             )
         }
         None => " map ".to_owned(),
@@ -364,12 +370,17 @@ fn half_block(upper: Option<u8>, lower: Option<u8>, palette: &Palette) -> (char,
 /// head (heading 0) that is to the right.
 fn render_radar(area: Rect, buf: &mut Buffer, app: &App, now: Instant) {
     let title = match &app.radar {
-        Some(r) => format!(
-            " radar · {} · sweep {} {} ",
-            format_length(radar_range(r) as f32),
-            r.sweep_id,
-            direction_name(r.direction)
-        ),
+        Some(r) => {
+            let range = format_length(radar_range(r) as f32);
+            let sweep = format!("sweep {} {}", r.sweep_id, direction_name(r.direction));
+            fitting_title(
+                &[
+                    format!(" radar · {range} · {sweep} "),
+                    format!(" radar · {range} "),
+                ],
+                area.width,
+            )
+        }
         None => " radar ".to_owned(),
     };
     let block = Block::bordered().title(title);
@@ -395,6 +406,7 @@ fn render_radar(area: Rect, buf: &mut Buffer, app: &App, now: Instant) {
     // Canvas resolution (braille: 2 × 4 dots per cell), to space the points of the arcs.
     let dot = (2.0 * hx / (2.0 * w)).min(2.0 * hy / (4.0 * f64::from(inner.height)));
     let label_cell = 2.0 * hx / w;
+    let labels = inner.width >= RADAR_LABELS_MIN.0 && inner.height >= RADAR_LABELS_MIN.1;
     let selection = app.selection;
     let beam_arcs = app.beam_arcs;
     let heading = Heading::of(app);
@@ -403,7 +415,7 @@ fn render_radar(area: Rect, buf: &mut Buffer, app: &App, now: Instant) {
         .x_bounds([-hx, hx])
         .y_bounds([-hy, hy])
         .paint(|ctx| {
-            paint_rings(ctx, range, label_cell, heading);
+            paint_rings(ctx, range, label_cell, labels, heading);
             ctx.layer();
             let (echoes, silent) = radar_points(radar, range, dot, beam_arcs, heading);
             ctx.draw(&Points {
@@ -486,12 +498,24 @@ fn arc(r: f64, from_deg: f64, to_deg: f64, dot: f64, heading: Heading, out: &mut
     }));
 }
 
+/// The first of `titles` (longest first) that fits a block `width` wide, else the last.
+fn fitting_title(titles: &[String], width: u16) -> String {
+    titles
+        .iter()
+        .find(|t| t.chars().count() + 2 <= usize::from(width))
+        .or(titles.last())
+        .cloned()
+        .unwrap_or_default()
+}
+
 /// Rings at round distances, labelled in metres along the blind side behind the sensor (180°);
-/// the sensor's 0° and 90° marked where they point.
-fn paint_rings(ctx: &mut Context, range: f64, label_cell: f64, heading: Heading) {
+/// the sensor's 0° and 90° marked where they point. No labels in a canvas too small to hold them
+/// apart.
+fn paint_rings(ctx: &mut Context, range: f64, label_cell: f64, labels: bool, heading: Heading) {
     let step = ring_step(range);
     let rings = (range / step + 1e-6).floor() as usize;
-    // Label every k-th ring so the labels (up to 6 cells) never overlap.
+    // Label every k-th ring counted from the outermost, which is always labelled, so the labels
+    // (up to 6 cells) never overlap.
     let every = ((6.0 * label_cell / step).ceil() as usize).max(1);
     for k in 1..=rings {
         let r = k as f64 * step;
@@ -501,10 +525,13 @@ fn paint_rings(ctx: &mut Context, range: f64, label_cell: f64, heading: Heading)
             radius: r,
             color: Color::DarkGray,
         });
-        if k % every == 0 || k == rings {
+        if labels && (rings - k).is_multiple_of(every) {
             let (x, y) = heading.turn((-r, 0.0));
             ctx.print(x, y, Span::styled(format_length(r as f32), LABEL));
         }
+    }
+    if !labels {
+        return;
     }
     let (x, y) = heading.turn((range, 0.0));
     ctx.print(x, y, Span::styled("0°", LABEL));
@@ -1016,7 +1043,9 @@ fn fix_lines(fix: &LocalizedPose) -> Vec<Line<'static>> {
     lines
 }
 
-fn bottom_line(app: &App) -> Line<'static> {
+/// The keys, or the selection's or a message's line; says so when the terminal is too narrow for
+/// the status panel, which would otherwise vanish without a word.
+fn bottom_line(app: &App, panel_hidden: bool) -> Line<'static> {
     let key = Style::new().fg(Color::Cyan).add_modifier(Modifier::BOLD);
     if let Some(s) = app.selection {
         return Line::from(vec![
@@ -1044,6 +1073,12 @@ fn bottom_line(app: &App) -> Line<'static> {
         ]);
     }
     let mut spans = vec![text(" ")];
+    if panel_hidden {
+        spans.push(Span::styled(
+            format!("status from {PANEL_MIN_TERMINAL_WIDTH} cols  "),
+            Style::new().fg(Color::Yellow),
+        ));
+    }
     for (k, what) in [
         ("f", "full scan"),
         ("l", "local"),

@@ -816,3 +816,39 @@ fn a_moving_robot_is_drawn_with_its_heading_its_trail_and_its_fix() {
     assert!(!text.contains("σ x,y,θ"), "{text}");
     assert!(text.contains("drift    10 cm · +2.0°"), "{text}");
 }
+
+/// Issue 16, #10: at 80×24 the radar's ring labels do not run into each other and the titles fit;
+/// narrower, the bottom line says why the status panel is gone; tiny, no label is cut into `90°°`.
+#[test]
+fn small_terminals_keep_labels_apart_and_say_when_the_panel_is_hidden() {
+    let t0 = Instant::now();
+    let labels_touch = |screen: &str| {
+        let chars: Vec<char> = screen.chars().collect();
+        // "… m" directly followed by a digit: two labels run together ("4 m3 m").
+        chars
+            .windows(3)
+            .any(|w| w[0] == ' ' && w[1] == 'm' && w[2].is_ascii_digit())
+    };
+    for (w, h) in [(80, 24), (100, 30), (120, 40)] {
+        for view in [View::Radar, View::Split] {
+            let mut app = live_app(t0);
+            app.view = view;
+            let screen = screen_text(draw(&mut app, w, h, t0).backend().buffer());
+            assert!(!labels_touch(&screen), "{w}×{h}:\n{screen}");
+            assert!(screen.contains("radar ·"), "{w}×{h}:\n{screen}");
+            assert!(!screen.contains("status from"), "{w}×{h}:\n{screen}");
+        }
+    }
+    let mut app = live_app(t0);
+    let screen = screen_text(draw(&mut app, 60, 20, t0).backend().buffer());
+    assert!(screen.contains("status from 72 cols"), "{screen}");
+    for (w, h) in [(20, 5), (24, 8), (30, 10)] {
+        let mut app = live_app(t0);
+        app.view = View::Radar;
+        let screen = screen_text(draw(&mut app, w, h, t0).backend().buffer());
+        assert!(
+            !screen.contains("°°") && !labels_touch(&screen),
+            "{w}×{h}:\n{screen}"
+        );
+    }
+}
