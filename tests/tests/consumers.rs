@@ -665,3 +665,45 @@ fn a_consumer_of_another_user_is_told_why_it_cannot_enter_the_namespace() {
     );
     assert!(!stderr.contains("InternalError"), "{stderr}");
 }
+
+/// `sonar services`, `sonar echo`, `sonar hz` on the running room: the pipeline's services with
+/// the processes attached, readings decoded in order, a rate.
+#[test]
+fn the_sonar_command_lists_services_echoes_readings_and_measures_a_rate() {
+    let sandbox = Sandbox::new("sonarcli");
+    let _pipeline = start_room(&sandbox);
+
+    let out = sandbox.run("sonar", &["echo", "readings", "--count", "5"]);
+    let echoed = check_ok("sonar echo", &out);
+    let lines: Vec<&str> = echoed.lines().collect();
+    assert_eq!(lines.len(), 5, "{lines:?}");
+    let seqs: Vec<u64> = lines
+        .iter()
+        .map(|l| {
+            assert!(l.contains(" angle ") && l.contains(" tof "), "{l}");
+            l.split_whitespace().nth(1).unwrap().parse().unwrap()
+        })
+        .collect();
+    assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1), "{seqs:?}");
+
+    let out = sandbox.run("sonar", &["services"]);
+    let services = check_ok("sonar services", &out);
+    let readings = services
+        .lines()
+        .find(|l| l.starts_with("sonar/readings ") && l.contains("PublishSubscribe"))
+        .unwrap_or_else(|| panic!("no sonar/readings line in\n{services}"));
+    assert!(
+        readings.contains("sonar-driver (pid ") && readings.contains("sonar-fusion (pid "),
+        "{readings}"
+    );
+    assert!(services.contains("sonar/grid "), "{services}");
+
+    let out = sandbox.run("sonar", &["hz", "grid", "--count", "1"]);
+    let hz = check_ok("sonar hz", &out);
+    let rate: f64 = hz
+        .strip_prefix("sonar/grid: ")
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|r| r.parse().ok())
+        .unwrap_or_else(|| panic!("no rate in {hz:?}"));
+    assert!(rate > 0.0, "{hz}");
+}

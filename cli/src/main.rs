@@ -1,0 +1,400 @@
+//! `sonar`: the tools people know from `ros2` and `iox2`, for this pipeline's services.
+//!
+//! - `sonar services`: every iceoryx2 service of the namespace, its messaging pattern, and the
+//!   processes attached to it (their node names and pids), from iceoryx2's own records.
+//! - `sonar echo TOPIC`: each message of a service decoded on one line (the layouts are
+//!   `sonar_common::ipc`'s, so the tool never disagrees with the pipeline about them).
+//! - `sonar hz TOPIC`: messages per second, once a second.
+//!
+//! It is an ordinary consumer: it subscribes like the viewer does and costs the pipeline nothing
+//! but a subscriber slot. It polls every [`POLL`] (a shell tool, not part of the pipeline), and
+//! stops on Ctrl-C, SIGTERM, or after `--count`.
+
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand, ValueEnum};
+use iceoryx2::node::NodeView;
+use iceoryx2::prelude::*;
+use iceoryx2::service::ipc::Service as Ipc;
+use sonar_common::ipc::{
+    self, DriverStatus, GridHeader, IpcArgs, IpcError, LinkState, Pose2D, Reading, ScanMode,
+};
+
+/// How often `echo` and `hz` look for new messages.
+const POLL: Duration = Duration::from_millis(5);
+
+/// The pipeline's services from a shell: which exist and who is attached, their messages
+/// decoded, their rates. Takes the pipeline's --iox-* settings (or SONAR_IOX_*) like every other
+/// program.
+///
+/// Examples:
+///   sonar services
+///   sonar echo readings --count 10
+///   sonar hz grid
+#[derive(Debug, Parser)]
+#[command(name = "sonar", version, verbatim_doc_comment)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+    #[command(flatten)]
+    ipc: IpcArgs,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Every service of the namespace, its pattern, and the processes attached to it.
+    Services,
+    /// Prints each message of a service, decoded, one per line (standard output).
+    Echo {
+        topic: Topic,
+        /// Stop after N messages (default: until Ctrl-C).
+        #[arg(long, value_name = "N")]
+        count: Option<u64>,
+    },
+    /// Prints the messages per second of a service, once a second (standard output).
+    Hz {
+        topic: Topic,
+        /// Stop after N reports (default: until Ctrl-C).
+        #[arg(long, value_name = "N")]
+        count: Option<u64>,
+    },
+}
+
+/// The services `echo` and `hz` know how to decode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum Topic {
+    /// sonar/readings: one line per reading.
+    Readings,
+    /// sonar/driver_status: the link, the scan, the counters.
+    DriverStatus,
+    /// sonar/grid: the snapshot headers (not the cells).
+    Grid,
+    /// robot/pose: the odometry.
+    Pose,
+}
+
+impl Topic {
+    fn service(self) -> &'static str {
+        match self {
+            Topic::Readings => ipc::READINGS_SERVICE,
+            Topic::DriverStatus => ipc::DRIVER_STATUS_SERVICE,
+            Topic::Grid => ipc::GRID_SERVICE,
+            Topic::Pose => ipc::POSE_SERVICE,
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    sonar_common::init_tracing();
+    sonar_common::report_exit("sonar", run(Cli::parse()))
+}
+
+fn run(cli: Cli) -> Result<()> {
+    let node = cli.ipc.node("sonar-cli")?;
+    match cli.command {
+        Command::Services => services(&cli.ipc),
+        Command::Echo { topic, count } => {
+            let mut out = Lines::new(count);
+            receive(&node, topic, |line| out.print(line))
+        }
+        Command::Hz { topic, count } => hz(&node, topic, count),
+    }
+}
+
+/// `services`: one line per service, sorted by name.
+fn services(args: &IpcArgs) -> Result<()> {
+    let cfg = args.config()?;
+    let mut rows = Vec::new();
+    Ipc::list(&cfg, |service| {
+        let name = service.static_details.name().to_string();
+        let pattern = format!("{}", service.static_details.messaging_pattern());
+        let mut attached: Vec<String> = service
+            .dynamic_details
+            .iter()
+            .flat_map(|d| &d.nodes)
+            .filter_map(|n| match n {
+                iceoryx2::node::NodeState::Alive(view) => view
+                    .details()
+                    .as_ref()
+                    .map(|d| format!("{} (pid {})", d.name(), d.process_id().value())),
+                iceoryx2::node::NodeState::Dead(_) => Some("a dead process".to_owned()),
+                _ => None,
+            })
+            .collect();
+        attached.sort();
+        attached.dedup();
+        rows.push((name, pattern, attached));
+        CallbackProgression::Continue
+    })
+    .map_err(|e| IpcError::new("list the services", e))?;
+    rows.sort();
+    let mut text = String::new();
+    for (name, pattern, attached) in &rows {
+        let who = if attached.is_empty() {
+            "nobody attached".to_owned()
+        } else {
+            attached.join(", ")
+        };
+        let _ = writeln!(text, "{name:<24} {pattern:<16} {who}");
+    }
+    if rows.is_empty() {
+        text.push_str("no services: is the pipeline running with these --iox-* settings?\n");
+    }
+    std::io::stdout()
+        .write_all(text.as_bytes())
+        .context("write to standard output")
+}
+
+/// Stops after `limit` lines; a closed standard output (`| head`) ends it quietly.
+struct Lines {
+    limit: Option<u64>,
+    printed: u64,
+    out: std::io::Stdout,
+}
+
+impl Lines {
+    fn new(limit: Option<u64>) -> Self {
+        Self {
+            limit,
+            printed: 0,
+            out: std::io::stdout(),
+        }
+    }
+
+    /// False when no more lines are wanted.
+    fn print(&mut self, line: String) -> Result<bool> {
+        if self.limit.is_some_and(|n| self.printed >= n) {
+            return Ok(false);
+        }
+        match writeln!(self.out.lock(), "{line}") {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => return Ok(false),
+            Err(e) => return Err(e).context("write to standard output"),
+        }
+        self.printed += 1;
+        Ok(self.limit.is_none_or(|n| self.printed < n))
+    }
+}
+
+/// `hz`: counts what arrives and prints the rate once a second.
+fn hz(node: &Node<Ipc>, topic: Topic, count: Option<u64>) -> Result<()> {
+    let mut out = Lines::new(count);
+    let mut window = (Instant::now(), 0u64);
+    receive_or_tick(node, topic, |line| {
+        if line.is_some() {
+            window.1 += 1;
+        }
+        let elapsed = window.0.elapsed();
+        if elapsed < Duration::from_secs(1) {
+            return Ok(true);
+        }
+        let rate = window.1 as f64 / elapsed.as_secs_f64();
+        let report = format!(
+            "{}: {rate:.1} messages/s ({} in {:.2} s)",
+            topic.service(),
+            window.1,
+            elapsed.as_secs_f64()
+        );
+        window = (Instant::now(), 0);
+        out.print(report)
+    })
+}
+
+/// `echo`: each message decoded; `each` returns false to stop.
+fn receive(
+    node: &Node<Ipc>,
+    topic: Topic,
+    mut each: impl FnMut(String) -> Result<bool>,
+) -> Result<()> {
+    receive_or_tick(node, topic, |line| match line {
+        Some(line) => each(line),
+        None => Ok(true),
+    })
+}
+
+/// Subscribes to `topic` and calls `each` with every message decoded, and with `None` after each
+/// poll; stops when it returns false, or on a signal.
+fn receive_or_tick(
+    node: &Node<Ipc>,
+    topic: Topic,
+    mut each: impl FnMut(Option<String>) -> Result<bool>,
+) -> Result<()> {
+    let subscriber_error = |e| IpcError::new(format!("subscribe to {}", topic.service()), e);
+    let receive_error = |e| IpcError::new(format!("receive from {}", topic.service()), e);
+    match topic {
+        Topic::Readings => {
+            let sub = ipc::readings_service(node)?
+                .subscriber_builder()
+                .create()
+                .map_err(subscriber_error)?;
+            poll(node, &mut each, || {
+                Ok(sub
+                    .receive()
+                    .map_err(receive_error)?
+                    .map(|s| reading_line(s.payload())))
+            })
+        }
+        Topic::DriverStatus => {
+            let sub = ipc::driver_status_service(node)?
+                .subscriber_builder()
+                .create()
+                .map_err(subscriber_error)?;
+            poll(node, &mut each, || {
+                Ok(sub
+                    .receive()
+                    .map_err(receive_error)?
+                    .map(|s| driver_status_line(s.payload())))
+            })
+        }
+        Topic::Grid => {
+            let sub = ipc::grid_service(node)?
+                .subscriber_builder()
+                .create()
+                .map_err(subscriber_error)?;
+            poll(node, &mut each, || {
+                Ok(sub
+                    .receive()
+                    .map_err(receive_error)?
+                    .map(|s| grid_line(s.user_header(), s.payload().len())))
+            })
+        }
+        Topic::Pose => {
+            let sub = ipc::pose_service(node)?
+                .subscriber_builder()
+                .create()
+                .map_err(subscriber_error)?;
+            poll(node, &mut each, || {
+                Ok(sub
+                    .receive()
+                    .map_err(receive_error)?
+                    .map(|s| pose_line(s.payload())))
+            })
+        }
+    }
+}
+
+/// Takes everything waiting, then sleeps [`POLL`] on the node (which also notices signals).
+fn poll(
+    node: &Node<Ipc>,
+    each: &mut impl FnMut(Option<String>) -> Result<bool>,
+    mut next: impl FnMut() -> Result<Option<String>>,
+) -> Result<()> {
+    loop {
+        while let Some(line) = next()? {
+            if !each(Some(line))? {
+                return Ok(());
+            }
+        }
+        if !each(None)? || node.wait(POLL).is_err() {
+            return Ok(());
+        }
+    }
+}
+
+fn reading_line(r: &Reading) -> String {
+    let range = if r.flags & ipc::flags::NO_ECHO != 0 {
+        "no echo".to_owned()
+    } else {
+        format!("{:.3} m", r.distance_m)
+    };
+    format!(
+        "seq {} sweep {} angle {:+.1}° {range} tof {:.0} µs flags {:#x}",
+        r.seq, r.sweep_id, r.angle_deg, r.tof_us, r.flags
+    )
+}
+
+fn driver_status_line(s: &DriverStatus) -> String {
+    let link = match s.link_state {
+        x if x == LinkState::Connecting as u32 => "connecting",
+        x if x == LinkState::Connected as u32 => "connected",
+        x if x == LinkState::Disconnected as u32 => "disconnected",
+        x if x == LinkState::Refused as u32 => "refused",
+        _ => "unknown",
+    };
+    let mode = match s.mode {
+        x if x == ScanMode::Full as u32 => "full",
+        x if x == ScanMode::Local as u32 => "local",
+        x if x == ScanMode::Idle as u32 => "stopped",
+        _ => "unknown",
+    };
+    let mut line = format!(
+        "{link} scan {mode} sweep {} angle {:+.1}° readings {} rejected {} reconnects {}",
+        s.sweep_id, s.angle_deg, s.readings_published, s.lines_rejected, s.reconnects
+    );
+    if s.device_errors > 0 {
+        let _ = write!(
+            line,
+            " device errors {} (last: {})",
+            s.device_errors,
+            s.last_device_error()
+        );
+    }
+    line
+}
+
+fn grid_line(h: &GridHeader, cells: usize) -> String {
+    format!(
+        "seq {} readings {} {}×{} of {:.3} m ({cells} cells) occupied {} free {} unknown {}",
+        h.seq,
+        h.readings_fused,
+        h.width,
+        h.height,
+        h.resolution_m,
+        h.occupied_cells,
+        h.free_cells,
+        h.unknown_cells
+    )
+}
+
+fn pose_line(p: &Pose2D) -> String {
+    format!(
+        "stamp {} x {:+.3} m y {:+.3} m heading {:+.1}°",
+        p.stamp_ns,
+        p.x_m,
+        p.y_m,
+        p.theta_rad.to_degrees()
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lines_are_decoded_with_their_units() {
+        let r = Reading {
+            seq: 7,
+            sweep_id: 2,
+            angle_deg: -12.5,
+            distance_m: 1.2341,
+            tof_us: 7190.0,
+            ..Reading::default()
+        };
+        assert_eq!(
+            reading_line(&r),
+            "seq 7 sweep 2 angle -12.5° 1.234 m tof 7190 µs flags 0x0"
+        );
+        let silent = Reading {
+            flags: ipc::flags::NO_ECHO,
+            ..r
+        };
+        assert!(reading_line(&silent).contains("no echo"));
+        let mut s = DriverStatus {
+            link_state: LinkState::Connected as u32,
+            mode: ScanMode::Idle as u32,
+            device_errors: 1,
+            ..DriverStatus::default()
+        };
+        ipc::set_padded_text(&mut s.last_device_error, "RANGE: outside");
+        let line = driver_status_line(&s);
+        assert!(line.starts_with("connected scan stopped"), "{line}");
+        assert!(
+            line.ends_with("device errors 1 (last: RANGE: outside)"),
+            "{line}"
+        );
+    }
+}
