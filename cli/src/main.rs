@@ -18,8 +18,10 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
 use iceoryx2::node::NodeView;
+use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use sonar_common::ipc::{
     self, DriverStatus, GridHeader, IpcArgs, IpcError, LinkState, Pose2D, Reading, ScanMode,
 };
@@ -223,58 +225,61 @@ fn receive_or_tick(
     topic: Topic,
     mut each: impl FnMut(Option<String>) -> Result<bool>,
 ) -> Result<()> {
-    let subscriber_error = |e| IpcError::new(format!("subscribe to {}", topic.service()), e);
-    let receive_error = |e| IpcError::new(format!("receive from {}", topic.service()), e);
+    let service = topic.service();
     match topic {
-        Topic::Readings => {
-            let sub = ipc::readings_service(node)?
-                .subscriber_builder()
-                .create()
-                .map_err(subscriber_error)?;
-            poll(node, &mut each, || {
-                Ok(sub
-                    .receive()
-                    .map_err(receive_error)?
-                    .map(|s| reading_line(s.payload())))
-            })
-        }
-        Topic::DriverStatus => {
-            let sub = ipc::driver_status_service(node)?
-                .subscriber_builder()
-                .create()
-                .map_err(subscriber_error)?;
-            poll(node, &mut each, || {
-                Ok(sub
-                    .receive()
-                    .map_err(receive_error)?
-                    .map(|s| driver_status_line(s.payload())))
-            })
-        }
+        Topic::Readings => each_message(
+            node,
+            &ipc::readings_service(node)?,
+            service,
+            reading_line,
+            each,
+        ),
+        Topic::DriverStatus => each_message(
+            node,
+            &ipc::driver_status_service(node)?,
+            service,
+            driver_status_line,
+            each,
+        ),
+        Topic::Pose => each_message(node, &ipc::pose_service(node)?, service, pose_line, each),
         Topic::Grid => {
-            let sub = ipc::grid_service(node)?
-                .subscriber_builder()
-                .create()
-                .map_err(subscriber_error)?;
+            let sub = subscribe(&ipc::grid_service(node)?, service)?;
             poll(node, &mut each, || {
                 Ok(sub
                     .receive()
-                    .map_err(receive_error)?
+                    .map_err(|e| IpcError::new(format!("receive from {service}"), e))?
                     .map(|s| grid_line(s.user_header(), s.payload().len())))
             })
         }
-        Topic::Pose => {
-            let sub = ipc::pose_service(node)?
-                .subscriber_builder()
-                .create()
-                .map_err(subscriber_error)?;
-            poll(node, &mut each, || {
-                Ok(sub
-                    .receive()
-                    .map_err(receive_error)?
-                    .map(|s| pose_line(s.payload())))
-            })
-        }
     }
+}
+
+/// [`receive_or_tick`] for a service of fixed-size messages, each decoded by `line`.
+fn each_message<T: std::fmt::Debug + ZeroCopySend + 'static>(
+    node: &Node<Ipc>,
+    port: &ipc::PubSub<T>,
+    service: &str,
+    line: fn(&T) -> String,
+    mut each: impl FnMut(Option<String>) -> Result<bool>,
+) -> Result<()> {
+    let sub = subscribe(port, service)?;
+    poll(node, &mut each, || {
+        Ok(sub
+            .receive()
+            .map_err(|e| IpcError::new(format!("receive from {service}"), e))?
+            .map(|s| line(s.payload())))
+    })
+}
+
+fn subscribe<P, H>(port: &PortFactory<Ipc, P, H>, service: &str) -> Result<Subscriber<Ipc, P, H>>
+where
+    P: std::fmt::Debug + IceoryxSend + ?Sized + 'static,
+    H: std::fmt::Debug + ZeroCopySend + 'static,
+{
+    Ok(port
+        .subscriber_builder()
+        .create()
+        .map_err(|e| IpcError::new(format!("subscribe to {service}"), e))?)
 }
 
 /// Takes everything waiting, then sleeps [`POLL`] on the node (which also notices signals).
