@@ -42,3 +42,12 @@ pub fn state_dir() -> PathBuf {
         None => std::env::temp_dir().join("sonar"),
     }
 }
+
+/// A command-line value of seconds: a positive finite number (fractions allowed), for clap's
+/// `value_parser`.
+pub fn parse_positive_seconds(s: &str) -> Result<std::time::Duration, String> {
+    match s.parse::<f64>() {
+        Ok(x) if x.is_finite() && x > 0.0 && x < 1e9 => Ok(std::time::Duration::from_secs_f64(x)),
+        _ => Err(format!("{s:?} is not a positive number of seconds")),
+    }
+}

@@ -57,6 +57,7 @@ const SHUTDOWN_TIMEOUT: Duration = Duration::from_secs(10);
 ///   sonar-pipeline --port /dev/ttyUSB0               # a real sensor head
 ///   sonar-pipeline --replay run.mcap --speed 5       # a recording (sonar-record's), no head
 ///   sonar-pipeline --config /etc/sonar.toml --no-viewer   # at boot, e.g. from systemd
+///   sonar-pipeline --foxglove --no-viewer            # live in Foxglove at ws://127.0.0.1:8765
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
 struct Args {
@@ -103,6 +104,17 @@ struct Args {
     /// Viewer's first view: map, radar or split [default: [viewer] view of --config, else split].
     #[arg(long, value_parser = ["map", "radar", "split"])]
     view: Option<String>,
+    /// Also start sonar-foxglove: the pipeline live in Foxglove (docs/foxglove.md), on
+    /// ws://127.0.0.1:8765 unless --foxglove-host/--foxglove-port say otherwise.
+    #[arg(long)]
+    foxglove: bool,
+    /// Address sonar-foxglove listens on (0.0.0.0: every interface; the protocol has no
+    /// authentication).
+    #[arg(long, value_name = "HOST", requires = "foxglove")]
+    foxglove_host: Option<String>,
+    /// Port sonar-foxglove listens on.
+    #[arg(long, value_name = "PORT", requires = "foxglove")]
+    foxglove_port: Option<u16>,
     /// Directory for the processes' logs [default: $XDG_STATE_HOME/sonar, else ~/.local/state/sonar].
     #[arg(long, env = "SONAR_LOG_DIR")]
     log_dir: Option<PathBuf>,
@@ -332,6 +344,13 @@ impl Pipeline {
                 .context("[bridge] enabled needs the file given with --config")?;
             let bridge = vec!["--config".to_owned(), config.display().to_string()];
             processes.push(Process::new("sonar-bridge", bridge, false));
+        }
+
+        if args.foxglove {
+            let mut foxglove = Vec::new();
+            push_opt(&mut foxglove, "--host", args.foxglove_host.clone());
+            push_opt(&mut foxglove, "--port", args.foxglove_port);
+            processes.push(Process::new("sonar-foxglove", foxglove, false));
         }
 
         if with_viewer {

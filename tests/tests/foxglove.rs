@@ -1,11 +1,16 @@
 //! End to end: the well-known channels of a recording (Foxglove's protobuf schemas and ROS 2's
 //! CDR messages), decoded by independent readers (Python `mcap`, `mcap-protobuf-support`,
 //! `mcap-ros2-support`, installed by `.ci/run`) and compared with the map and the readings; and
-//! `sonar-replay` reading such a file as before.
+//! `sonar-replay` reading such a file as before. And `sonar-foxglove` serving the same channels
+//! live to a WebSocket client (Python `websockets`) inside a network namespace of the test's own.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // a panic is a failure
 
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
+
+use sonar_common::ipc;
 use sonar_e2e::{
-    Sandbox, check_ok, collect_until, grid_subscriber, path_str, python, readings_subscriber,
+    Proc, Sandbox, check_ok, collect_until, grid_subscriber, path_str, python, readings_subscriber,
     readings_subscribers, wait_until, workspace,
 };
 
@@ -98,4 +103,107 @@ fn a_recording_s_grid_scans_and_ros2_messages_decode_to_the_map_and_the_readings
 
     assert!(fusion.terminate().success());
     assert!(sim.terminate().success());
+}
+
+/// A network namespace of the test's own with only its loopback up, removed when dropped: the
+/// live server and its client talk inside it, never on the machine's own interfaces.
+struct Netns(String);
+
+impl Netns {
+    fn new(tag: &str) -> Self {
+        let name = format!("sonar-{tag}-{}", std::process::id());
+        let ip = |args: &[&str]| {
+            let out = Command::new("ip").args(args).output().unwrap();
+            check_ok(&format!("ip {}", args.join(" ")), &out);
+        };
+        ip(&["netns", "add", &name]);
+        let ns = Self(name);
+        ip(&["-n", &ns.0, "link", "set", "lo", "up"]);
+        ns
+    }
+
+    /// `command`, run inside the namespace with the same arguments and environment.
+    fn wrap(&self, command: &Command) -> Command {
+        let mut wrapped = Command::new("ip");
+        wrapped
+            .args(["netns", "exec", &self.0])
+            .arg(command.get_program())
+            .args(command.get_args());
+        for (key, value) in command.get_envs() {
+            if let Some(value) = value {
+                wrapped.env(key, value);
+            }
+        }
+        wrapped
+    }
+}
+
+impl Drop for Netns {
+    fn drop(&mut self) {
+        let _ = Command::new("ip").args(["netns", "del", &self.0]).status();
+    }
+}
+
+/// sonar-foxglove serves the running room to a Foxglove WebSocket client: the four channels with
+/// their protobuf schemas, and a map that decodes to the fusion's grid.
+#[test]
+fn sonar_foxglove_serves_the_live_map_to_a_websocket_client() {
+    let sandbox = Sandbox::new("foxlive");
+    let node = sandbox.node("test-grid");
+    let grid = grid_subscriber(&node);
+    let fusion = sandbox.spawn("sonar-fusion", &["--no-persist"]);
+    let (sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "20", "--seed", "4"]);
+    let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+    let headers = collect_until(
+        &node,
+        || grid.receive().unwrap().map(|s| *s.user_header()),
+        |got: &[ipc::GridHeader]| got.last().is_some_and(|h| h.readings_fused >= 50),
+    );
+    let expected = *headers.last().unwrap();
+
+    let netns = Netns::new("fox");
+    let mut server = netns.wrap(sandbox.command("sonar-foxglove").args(["--port", "8765"]));
+    let mut server = server
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut url = String::new();
+    BufReader::new(server.stdout.take().unwrap())
+        .read_line(&mut url)
+        .unwrap();
+    let server = Proc {
+        name: "sonar-foxglove".into(),
+        child: server,
+    };
+    assert_eq!(url.trim(), "ws://127.0.0.1:8765", "the default host");
+
+    let mut client = Command::new(python());
+    client
+        .arg(workspace().join("tests/python/check_foxglove_live.py"))
+        .arg(url.trim());
+    let out = netns.wrap(&client).output().unwrap();
+    let line = check_ok("check_foxglove_live.py", &out);
+    // channels 4 grid 400x400 cell 0.0200 known N frame map
+    let words: Vec<&str> = line.split_whitespace().collect();
+    assert_eq!(words[1], "4", "{line}");
+    assert_eq!(
+        words[3],
+        format!("{}x{}", expected.width, expected.height),
+        "{line}"
+    );
+    assert_eq!(words[5], format!("{:.4}", expected.resolution_m), "{line}");
+    assert!(
+        words[7].parse::<u64>().unwrap() > 0,
+        "observed cells: {line}"
+    );
+    assert_eq!(words[9], "map", "{line}");
+
+    assert!(
+        server.terminate().success(),
+        "sonar-foxglove did not exit cleanly"
+    );
+    assert!(driver.terminate().success());
+    assert!(sim.terminate().success());
+    assert!(fusion.terminate().success());
 }

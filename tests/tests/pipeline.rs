@@ -1121,6 +1121,7 @@ fn every_program_names_itself_in_its_version() {
         "sonar-export",
         "sonar-firmware-sim",
         "sonar-nearest-obstacle",
+        "sonar-foxglove",
     ] {
         let out = sandbox.run(name, &["--version"]);
         assert!(out.status.success(), "{name}");

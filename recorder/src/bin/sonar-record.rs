@@ -73,10 +73,10 @@ struct Args {
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     count: Option<u64>,
     /// Stop after this many seconds.
-    #[arg(long, value_name = "SECONDS", value_parser = positive_seconds)]
+    #[arg(long, value_name = "SECONDS", value_parser = sonar_common::parse_positive_seconds)]
     duration: Option<Duration>,
     /// Seconds between progress lines in the log.
-    #[arg(long, value_name = "SECONDS", default_value = "5", value_parser = positive_seconds)]
+    #[arg(long, value_name = "SECONDS", default_value = "5", value_parser = sonar_common::parse_positive_seconds)]
     progress_interval: Duration,
     /// Only the pipeline's own channels: no map, scans, transforms or scene for Foxglove.
     #[arg(long, conflicts_with = "ros2")]
@@ -87,17 +87,10 @@ struct Args {
     ros2: bool,
     /// Seconds between the maps written for Foxglove (and ROS 2); the latest is always written
     /// at the end. A 400 × 400 map takes 800 KB as foxglove.Grid (+160 KB with --ros2).
-    #[arg(long, value_name = "SECONDS", default_value = "5", value_parser = positive_seconds)]
+    #[arg(long, value_name = "SECONDS", default_value = "5", value_parser = sonar_common::parse_positive_seconds)]
     grid_period: Duration,
     #[command(flatten)]
     ipc: IpcArgs,
-}
-
-fn positive_seconds(s: &str) -> Result<Duration, String> {
-    match s.parse::<f64>() {
-        Ok(x) if x.is_finite() && x > 0.0 && x < 1e9 => Ok(Duration::from_secs_f64(x)),
-        _ => Err(format!("{s:?} is not a positive number of seconds")),
-    }
 }
 
 fn main() -> std::process::ExitCode {

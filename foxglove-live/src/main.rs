@@ -1,0 +1,211 @@
+//! `sonar-foxglove`: serves the pipeline live to Foxglove over Foxglove's WebSocket protocol as the
+//! `foxglove` crate 0.30 speaks it (subprotocols `foxglove.sdk.v1` and `.v1.1`; it refuses clients
+//! that offer only the older `foxglove.websocket.v1`, such as Lichtblick), with the same
+//! well-known channels a recording carries
+//! (`docs/foxglove.md`): the map as `foxglove.Grid`, each sweep as `foxglove.LaserScan`, the
+//! sensor's pose as `foxglove.FrameTransform`, the features as `foxglove.SceneUpdate`.
+//!
+//! One more consumer of the pipeline's services: it polls its subscribers every 20 ms, converts
+//! with `sonar_wellknown` (the recorder's conversion) and hands the bytes to the `foxglove` crate's
+//! server, which runs its own tokio runtime on its own threads; nothing async is written here.
+//! Bound to 127.0.0.1 by default: the protocol has no authentication, so exposing it on a network
+//! (`--host 0.0.0.0`) is a choice to make knowingly.
+
+use std::collections::BTreeMap;
+use std::fmt::Debug;
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use foxglove::{ChannelBuilder, PartialMetadata, RawChannel, Schema, WebSocketServer};
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::service::ipc::Service as Ipc;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
+use sonar_common::ipc::{
+    self, FeatureRecord, FeaturesHeader, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, Pose2D,
+    Reading,
+};
+use sonar_wellknown::{Channel, Options, Output, WellKnown};
+use tracing::{info, warn};
+
+/// How often the subscribers are emptied. The readings' buffer holds 256, so even the simulator
+/// at 100× real time (about 500 readings a second) loses none.
+const POLL: Duration = Duration::from_millis(20);
+
+/// Serves the running pipeline to Foxglove over its WebSocket protocol: the map (sonar/grid) as
+/// foxglove.Grid on /foxglove/map, each sweep as foxglove.LaserScan on /foxglove/scan, the
+/// sensor's pose as foxglove.FrameTransform on /foxglove/tf and the features as
+/// foxglove.SceneUpdate on /foxglove/features. In Foxglove: Open connection → Foxglove WebSocket →
+/// ws://127.0.0.1:8765 (docs/foxglove.md). Prints that address on standard output when ready.
+///
+/// Examples:
+///   sonar-foxglove                              # ws://127.0.0.1:8765
+///   sonar-foxglove --host 0.0.0.0 --port 9000   # reachable from other machines (no authentication!)
+#[derive(Debug, Parser)]
+#[command(name = "sonar-foxglove", version, verbatim_doc_comment)]
+struct Args {
+    /// Address to listen on. The default serves only this machine.
+    #[arg(long, default_value = "127.0.0.1")]
+    host: String,
+    /// TCP port (0: any free one, printed at start).
+    #[arg(long, default_value_t = 8765)]
+    port: u16,
+    /// Seconds between maps sent (the newest snapshot each time; a client that connects gets the
+    /// next one).
+    #[arg(long, value_name = "SECONDS", default_value = "1", value_parser = sonar_common::parse_positive_seconds)]
+    grid_period: Duration,
+    #[command(flatten)]
+    ipc: IpcArgs,
+}
+
+fn main() -> std::process::ExitCode {
+    sonar_common::init_tracing();
+    sonar_common::report_exit("sonar-foxglove", run(Args::parse()))
+}
+
+/// The pipeline's services this process reads; the optional ones are left out with a warning
+/// when their QoS has no room for another subscriber.
+struct Ports {
+    readings: Subscriber<Ipc, Reading, ()>,
+    grid: Option<Subscriber<Ipc, [u8], GridHeader>>,
+    pose: Option<Subscriber<Ipc, Pose2D, ()>>,
+    features: Option<Subscriber<Ipc, [FeatureRecord], FeaturesHeader>>,
+}
+
+fn snapshot_subscriber<T: Debug + ZeroCopySend + 'static, H: Debug + ZeroCopySend + 'static>(
+    service: Result<PortFactory<Ipc, [T], H>, IpcError>,
+    name: &str,
+) -> Option<Subscriber<Ipc, [T], H>> {
+    service
+        .and_then(|s| {
+            s.subscriber_builder()
+                .create()
+                .map_err(|e| IpcError::new("create subscriber", e))
+        })
+        .inspect_err(|e| warn!("not serving {name}: {e}"))
+        .ok()
+}
+
+/// Each sample a subscriber holds (a failed receive is logged and ends the round).
+macro_rules! for_each_sample {
+    ($sub:expr, $name:expr, |$sample:ident| $body:expr) => {
+        loop {
+            match $sub.receive() {
+                Ok(Some($sample)) => $body,
+                Ok(None) => break,
+                Err(e) => {
+                    warn!("receiving {} failed: {e:?}", $name);
+                    break;
+                }
+            }
+        }
+    };
+}
+
+impl Ports {
+    fn open(node: &Node<Ipc>) -> Result<Self> {
+        let readings = ipc::readings_service(node)?
+            .subscriber_builder()
+            .create()
+            .map_err(|e| IpcError::new("create readings subscriber", e))?;
+        let pose = ipc::pose_service(node)
+            .and_then(|s| {
+                s.subscriber_builder()
+                    .create()
+                    .map_err(|e| IpcError::new("create subscriber", e))
+            })
+            .inspect_err(|e| warn!("not serving {}: {e}", ipc::POSE_SERVICE))
+            .ok();
+        Ok(Self {
+            readings,
+            grid: snapshot_subscriber(ipc::grid_service(node), ipc::GRID_SERVICE),
+            pose,
+            features: snapshot_subscriber(ipc::features_service(node), ipc::FEATURES_SERVICE),
+        })
+    }
+
+    /// Everything that arrived since the last call, converted.
+    fn drain(&self, converter: &mut WellKnown) -> Vec<Output> {
+        let mut out = Vec::new();
+        if let Some(sub) = &self.pose {
+            for_each_sample!(sub, ipc::POSE_SERVICE, |sample| {
+                out.extend(converter.pose(sample.payload()))
+            });
+        }
+        if let Some(sub) = &self.features {
+            for_each_sample!(sub, ipc::FEATURES_SERVICE, |sample| {
+                out.extend(converter.features(sample.user_header(), sample.payload()))
+            });
+        }
+        if let Some(sub) = &self.grid {
+            for_each_sample!(sub, ipc::GRID_SERVICE, |sample| {
+                let header = sample.user_header();
+                if header.layout_version == LAYOUT_VERSION {
+                    out.extend(converter.grid(header, sample.payload()));
+                } else {
+                    warn!(
+                        layout_version = header.layout_version,
+                        "map snapshot of another layout left out"
+                    );
+                }
+            });
+        }
+        for_each_sample!(self.readings, ipc::READINGS_SERVICE, |sample| {
+            out.extend(converter.reading(sample.payload()))
+        });
+        out
+    }
+}
+
+fn run(args: Args) -> Result<()> {
+    let node = args.ipc.node("sonar-foxglove")?;
+    // iceoryx2 installs its SIGINT/SIGTERM handler on the first wait: before subscribing, so that
+    // anyone who sees us can stop us cleanly.
+    if node.wait(Duration::ZERO).is_err() {
+        info!("signal received before start");
+        return Ok(());
+    }
+    let ports = Ports::open(&node)?;
+    let mut converter = WellKnown::new(Options {
+        ros2: false,
+        grid_period_ns: u64::try_from(args.grid_period.as_nanos()).unwrap_or(u64::MAX),
+    });
+    let server = WebSocketServer::new()
+        .name("sonar-foxglove")
+        .bind(args.host.clone(), args.port)
+        .start_blocking()
+        .with_context(|| format!("cannot serve on {}:{}", args.host, args.port))?;
+    let mut channels: BTreeMap<Channel, Arc<RawChannel>> = BTreeMap::new();
+    for channel in converter.channels() {
+        let spec = channel.spec();
+        let raw = ChannelBuilder::new(spec.topic)
+            .schema(Schema::new(
+                spec.schema_name,
+                spec.schema_encoding,
+                spec.schema,
+            ))
+            .message_encoding(spec.message_encoding)
+            .build_raw()
+            .with_context(|| format!("create channel {}", spec.topic))?;
+        channels.insert(channel, raw);
+    }
+    let url = format!("ws://{}:{}", args.host, server.port());
+    info!(%url, "serving the pipeline to Foxglove");
+    // The address on standard output, for scripts and tests that asked for any free port.
+    println!("{url}");
+
+    let mut sent = 0u64;
+    while node.wait(POLL).is_ok() {
+        for out in ports.drain(&mut converter) {
+            if let Some(channel) = channels.get(&out.channel) {
+                channel.log_with_meta(&out.data, PartialMetadata::with_log_time(out.stamp_ns));
+                sent += 1;
+            }
+        }
+    }
+    info!(messages = sent, "signal received: stopping");
+    server.stop().wait_blocking();
+    Ok(())
+}
