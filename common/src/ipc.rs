@@ -872,13 +872,15 @@ pub fn fusion_commands_service(
         .map_err(|e| IpcError::new(format!("open {FUSION_COMMANDS_SERVICE}"), e))
 }
 
-/// `robot/pose`, history 1 so the fusion engine starts from the latest pose.
+/// `robot/pose`, history 1 so the fusion engine starts from the latest pose; a buffer of 256 like
+/// the readings', so a fusion busy with a burst of readings (a replay, a fast simulation) loses
+/// none of the poses that place them.
 pub fn pose_service(node: &Node<ipc::Service>) -> Result<PubSub<Pose2D>, IpcError> {
     node.service_builder(&service_name(POSE_SERVICE)?)
         .publish_subscribe::<Pose2D>()
         .max_publishers(2)
         .max_subscribers(8)
-        .subscriber_max_buffer_size(16)
+        .subscriber_max_buffer_size(256)
         .history_size(1)
         .open_or_create()
         .map_err(|e| IpcError::new(format!("open {POSE_SERVICE}"), e))

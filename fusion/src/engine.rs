@@ -60,6 +60,8 @@ pub struct Engine {
     correction: Isometry2<f32>,
     /// Readings placed with a pose more than [`crate::poses::STALE_AFTER_NS`] old.
     stale_pose_readings: u64,
+    /// Readings placed past the latest pose (within [`crate::poses::STALE_AFTER_NS`]).
+    extrapolated_pose_readings: u64,
     rejected_readings: u64,
     last_seq: Option<u64>,
     /// Bumped by every change of the state, so a saver knows whether there is anything new.
@@ -78,6 +80,7 @@ impl Engine {
             pose: Isometry2::identity(),
             correction: Isometry2::identity(),
             stale_pose_readings: 0,
+            extrapolated_pose_readings: 0,
             rejected_readings: 0,
             last_seq: None,
             revision: 0,
@@ -106,6 +109,7 @@ impl Engine {
             pose: state.robot_pose.into(),
             correction: Isometry2::identity(),
             stale_pose_readings: 0,
+            extrapolated_pose_readings: 0,
             rejected_readings: state.rejected_readings,
             last_seq: state.last_seq,
             revision: 0,
@@ -168,6 +172,18 @@ impl Engine {
         self.stale_pose_readings
     }
 
+    /// Readings placed past the latest pose, at the robot's last velocity: the pose covering
+    /// their instant had not arrived (and was not waited for, [`Self::awaits_pose`]).
+    pub fn extrapolated_pose_readings(&self) -> u64 {
+        self.extrapolated_pose_readings
+    }
+
+    /// Whether a pose stream exists and no pose at or after `stamp_ns` has arrived yet: the one
+    /// that places a reading of that instant by interpolation is still to come.
+    pub fn awaits_pose(&self, stamp_ns: u64) -> bool {
+        self.poses.awaits(stamp_ns)
+    }
+
     /// Places every reading from now on at `correction` × its odometry pose: localisation's
     /// latest estimate of the odometry's drift (map ← odometry).
     pub fn set_correction(&mut self, correction: Isometry2<f32>) {
@@ -191,8 +207,10 @@ impl Engine {
     /// Fuses `reading` at the current pose into both maps; `false` if the kernels refused it.
     pub fn fuse(&mut self, reading: &Reading) -> bool {
         let PlacedPose { pose, kind } = self.poses.at(reading.host_stamp_ns);
-        if kind == PoseKind::Stale {
-            self.stale_pose_readings += 1;
+        match kind {
+            PoseKind::Stale => self.stale_pose_readings += 1,
+            PoseKind::Extrapolated => self.extrapolated_pose_readings += 1,
+            PoseKind::Initial | PoseKind::Interpolated | PoseKind::Early => {}
         }
         self.pose = self.correction * pose;
         let obs = Observation::from_reading(reading, self.pose);

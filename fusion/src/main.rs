@@ -32,11 +32,12 @@ use iceoryx2::waitset::WaitSetRunResult;
 use sonar_common::ipc::{
     self, FeatureRecord, FeaturesHeader, FusionCommand, FusionCommandKind, FusionStatus,
     GRID_SEGMENT_SLOTS, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, LocalizedPose, MAX_FEATURES,
-    Radar, unix_time_ns,
+    Radar, Reading, unix_time_ns,
 };
 use sonar_common::throttle::Throttle;
 use sonar_fusion::engine::Engine;
 use sonar_fusion::persist::{self, Restore, SaveReport, Saver};
+use sonar_fusion::poses::MAX_POSE_WAIT;
 use sonar_fusion::state::SavedMap;
 use sonar_fusion::status::{Ledger, SeqStep};
 use sonar_fusion::{
@@ -57,6 +58,8 @@ const SWEEP_IDLE: Duration = Duration::from_secs(2);
 /// Readings fused per turn of the loop at most: one subscriber buffer's worth. Under overload the
 /// buffer never empties, and commands, status, saves and held-back snapshots must still get turns.
 const READINGS_PER_TURN: usize = 256;
+/// How often robot/pose is looked at while a reading waits for its pose (poses bring no wake-up).
+const POSE_POLL: Duration = Duration::from_millis(1);
 
 /// Builds the paper's two maps from `sonar/readings` and publishes them on `sonar/grid` (the
 /// probability method's occupancy grid) and `sonar/radar` (the basic method's latest distance per
@@ -360,6 +363,7 @@ fn run(args: &Args) -> Result<()> {
         restart_log: Throttle::new(LOG_PERIOD),
         rejected_log: Throttle::new(LOG_PERIOD),
         pose_log: Throttle::new(LOG_PERIOD),
+        waiting: None,
     };
     // Readings were left in the buffer at the end of the last turn.
     let mut more = false;
@@ -370,6 +374,8 @@ fn run(args: &Args) -> Result<()> {
         let now = Instant::now();
         let timeout = if more {
             Duration::ZERO
+        } else if out.waiting.is_some() {
+            POSE_POLL
         } else {
             [
                 out.held_back(now),
@@ -409,7 +415,7 @@ fn run(args: &Args) -> Result<()> {
             drain_wakeups(&out.ports.readings_listener);
         }
         out.take_pose(&mut engine)?;
-        more = out.fuse_readings(&mut engine, features.as_mut())?;
+        more = out.fuse_readings(&mut engine, features.as_mut(), PoseWait::Bounded)?;
         let now = Instant::now();
         if let Some(features) = &mut features {
             features.finish_idle_sweep(&mut engine, now);
@@ -424,7 +430,7 @@ fn run(args: &Args) -> Result<()> {
     }
     // Stopping: the readings already delivered are fused and the map they make is published
     // (pace or not), so a replay's last readings reach the saved map and its subscribers.
-    while out.fuse_readings(&mut engine, features.as_mut())? {}
+    while out.fuse_readings(&mut engine, features.as_mut(), PoseWait::None)? {}
     if out.dirty {
         out.publish(&engine)?;
     }
@@ -434,6 +440,8 @@ fn run(args: &Args) -> Result<()> {
     let status = out.ledger.status(engine.mapper().readings_fused(), 0);
     info!(
         readings = status.readings_fused,
+        extrapolated_pose = engine.extrapolated_pose_readings(),
+        stale_pose = engine.stale_pose_readings(),
         received = status.readings_received,
         lost = status.readings_lost,
         snapshots = out.seq,
@@ -825,6 +833,15 @@ impl Pace {
     }
 }
 
+/// Whether a reading newer than the newest pose waits for its pose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum PoseWait {
+    /// Up to [`MAX_POSE_WAIT`]: while running.
+    Bounded,
+    /// Not at all: when stopping, everything delivered is fused with the poses there are.
+    None,
+}
+
 /// Publishing state: what is new since the last snapshot, and when that was; the counters and
 /// their rate-limited log lines.
 struct Output<'a> {
@@ -843,6 +860,9 @@ struct Output<'a> {
     restart_log: Throttle,
     rejected_log: Throttle,
     pose_log: Throttle,
+    /// A reading waiting for the pose that covers its instant, and when it was received
+    /// ([`sonar_fusion::poses::MAX_POSE_WAIT`]); the readings after it wait in the buffer.
+    waiting: Option<(Reading, Instant)>,
 }
 
 impl Output<'_> {
@@ -892,33 +912,30 @@ impl Output<'_> {
         Ok(())
     }
 
-    /// Fuses up to [`READINGS_PER_TURN`] readings; true when it stopped there (more may wait).
+    /// Fuses up to [`READINGS_PER_TURN`] readings; true when it stopped there (more may wait),
+    /// false when the buffer is empty or a reading waits for its pose (`out.waiting`).
     fn fuse_readings(
         &mut self,
         engine: &mut Engine,
         mut features: Option<&mut Features>,
+        pose_wait: PoseWait,
     ) -> Result<bool> {
         for _ in 0..READINGS_PER_TURN {
-            let Some(sample) = self
-                .ports
-                .readings
-                .receive()
-                .map_err(|e| IpcError::new("receive reading", e))?
-            else {
-                return Ok(false);
+            let (reading, received) = match self.waiting.take() {
+                Some(waiting) => waiting,
+                None => match self.receive_reading()? {
+                    Some(reading) => (reading, Instant::now()),
+                    None => return Ok(false),
+                },
             };
-            let reading = *sample.payload();
-            drop(sample);
-            self.count_seq(reading.seq);
-            if reading.layout_version != LAYOUT_VERSION {
-                self.ledger.rejected();
-                if let Some(left_out) = self.rejected_log.allow(Instant::now()) {
-                    warn!(
-                        version = reading.layout_version,
-                        left_out, "reading of another layout version ignored"
-                    );
-                }
-                continue;
+            // The pose policy of `sonar_fusion::poses`: a reading newer than the newest pose
+            // waits for the pose that covers it, for a bounded time.
+            if pose_wait == PoseWait::Bounded
+                && engine.awaits_pose(reading.host_stamp_ns)
+                && received.elapsed() < MAX_POSE_WAIT
+            {
+                self.waiting = Some((reading, received));
+                return Ok(false);
             }
             if engine.starts_new_sweep(&reading) && self.dirty {
                 let now = Instant::now();
@@ -952,6 +969,31 @@ impl Output<'_> {
             self.dirty = true;
         }
         Ok(true)
+    }
+
+    /// The next reading of the buffer that can be fused (of this layout version), counted.
+    fn receive_reading(&mut self) -> Result<Option<Reading>> {
+        while let Some(sample) = self
+            .ports
+            .readings
+            .receive()
+            .map_err(|e| IpcError::new("receive reading", e))?
+        {
+            let reading = *sample.payload();
+            drop(sample);
+            self.count_seq(reading.seq);
+            if reading.layout_version == LAYOUT_VERSION {
+                return Ok(Some(reading));
+            }
+            self.ledger.rejected();
+            if let Some(left_out) = self.rejected_log.allow(Instant::now()) {
+                warn!(
+                    version = reading.layout_version,
+                    left_out, "reading of another layout version ignored"
+                );
+            }
+        }
+        Ok(None)
     }
 
     /// Counts a received reading's number: a gap is readings lost (iceoryx2 overwrote the oldest

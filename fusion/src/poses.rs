@@ -15,7 +15,13 @@
 //! # Policy
 //!
 //! - **Between two poses**: linear in position, along the shorter arc in heading.
-//! - **After the latest pose** (the pose stream lags): extrapolated at the last two poses'
+//! - **Newer than the newest pose**: while a pose stream exists ([`PoseTrack::awaits`]), the
+//!   fusion process holds the reading (and the readings after it) until a pose at or after its
+//!   stamp arrives, for at most [`MAX_POSE_WAIT`]: the pose covering a reading is usually published
+//!   a few ms after it, and a replay's burst may deliver many readings before their poses are
+//!   taken. So a reading is interpolated whatever the delivery's timing, and a replay places it
+//!   where the live run did. Without any pose (a fixed head) readings never wait.
+//! - **After the latest pose** once the wait is over (the pose stream lags or stopped): extrapolated at the last two poses'
 //!   velocity for at most [`MAX_EXTRAPOLATION_NS`], then held. A reading more than
 //!   [`STALE_AFTER_NS`] after the latest pose is placed there too, and counted as fused with a
 //!   *stale* pose: the pose source stopped or is late.
@@ -38,6 +44,9 @@ use crate::geometry::wrap_angle;
 pub const MAX_EXTRAPOLATION_NS: u64 = 100_000_000;
 /// A reading this long after the latest pose is placed with a stale pose.
 pub const STALE_AFTER_NS: u64 = 500_000_000;
+/// Longest a reading newer than the newest pose waits for the pose that covers its instant,
+/// after which it is placed as today (extrapolated, or stale).
+pub const MAX_POSE_WAIT: std::time::Duration = std::time::Duration::from_millis(100);
 /// Most poses kept.
 pub const KEPT_POSES: usize = 512;
 /// Poses older than this before the newest are dropped.
@@ -92,6 +101,12 @@ impl PoseTrack {
     /// The newest pose received, else the initial one.
     pub fn latest(&self) -> Isometry2<f32> {
         self.poses.back().map_or(self.initial, isometry)
+    }
+
+    /// Whether a pose at or after `stamp_ns` is still to come: there are poses and the newest is
+    /// older. Without any pose (a fixed head, no pose stream) nothing is awaited.
+    pub fn awaits(&self, stamp_ns: u64) -> bool {
+        self.poses.back().is_some_and(|p| p.stamp_ns < stamp_ns)
     }
 
     /// Adds a pose; refuses a non-finite one or one older than the newest kept.
@@ -258,6 +273,20 @@ mod tests {
             close(stale.pose, 0.1, 0.0, 0.0),
             "held at the latest: {stale:?}"
         );
+    }
+
+    #[test]
+    fn a_reading_awaits_a_pose_at_or_after_it_only_when_poses_come() {
+        let mut track = PoseTrack::new(Isometry2::identity());
+        // A fixed head: no pose stream, nothing to wait for.
+        assert!(!track.awaits(5 * MS));
+        track.push(pose(100, 0.0, 0.0, 0.0)).unwrap();
+        assert!(track.awaits(101 * MS));
+        assert!(!track.awaits(100 * MS));
+        assert!(!track.awaits(50 * MS));
+        track.push(pose(150, 0.1, 0.0, 0.0)).unwrap();
+        assert!(!track.awaits(101 * MS));
+        assert_eq!(track.at(101 * MS).kind, PoseKind::Interpolated);
     }
 
     #[test]

@@ -115,6 +115,12 @@ impl Proc {
         status
     }
 
+    /// Sends SIGTERM and waits for the exit; returns its status and standard error.
+    pub fn terminate_with_stderr(self) -> (ExitStatus, String) {
+        sigterm(&self.child);
+        self.wait_exit()
+    }
+
     /// Waits for the process to exit by itself; returns its status and standard error.
     pub fn wait_exit(mut self) -> (ExitStatus, String) {
         let status = wait_timeout(&mut self.child).unwrap_or_else(|| {
@@ -576,4 +582,39 @@ pub fn wait_for_status<T: std::fmt::Debug + Copy + ZeroCopySend>(
         |got| got.last().is_some_and(&pred),
     );
     *got.last().unwrap()
+}
+
+/// The corridor scene's grid for a fusion (`--config`): 450 cells of 2 cm around its middle, so
+/// both rooms and the corridor fit. Written to a file of the sandbox's test, which the caller
+/// removes.
+pub fn corridor_grid_config(test: &str) -> PathBuf {
+    let config = std::env::temp_dir().join(format!("sonar_t{}_{test}.toml", std::process::id()));
+    std::fs::write(
+        &config,
+        "[fusion.grid]\ncells = 450\nresolution_m = 0.02\ncentre_x_m = 3.0\ncentre_y_m = 1.5\n",
+    )
+    .unwrap();
+    config
+}
+
+/// Whether a `sonar/grid` snapshot (`header`, `cells`) has at least 5 occupied cells (p ≥ 0.8)
+/// within 6 cm of the corridor scene's back wall (y = 3.6 m) and 30 cm of `x_m`: the wall seen from
+/// the room below it.
+pub fn back_wall_seen_at(header: &GridHeader, cells: &[u8], x_m: f32) -> bool {
+    let res = header.resolution_m;
+    let mut hits = 0;
+    for dy in -3..=3 {
+        for dx in -15..=15 {
+            let (x, y) = (x_m + dx as f32 * res, 3.6 + dy as f32 * res);
+            let col = ((x - header.origin_x_m) / res) as usize;
+            let row = ((y - header.origin_y_m) / res) as usize;
+            if cells
+                .get(row * header.width as usize + col)
+                .is_some_and(|&c| c >= 203)
+            {
+                hits += 1;
+            }
+        }
+    }
+    hits >= 5
 }

@@ -16,8 +16,8 @@ use sonar_common::protocol::{
     DeviceMessage, Direction, PROTOCOL_VERSION, WireReading, encode_device,
 };
 use sonar_e2e::{
-    PATIENCE, Sandbox, collect_until, driver_status_subscriber, readings_subscriber,
-    receive_reading, wait_for_status,
+    PATIENCE, Sandbox, back_wall_seen_at, collect_until, corridor_grid_config,
+    driver_status_subscriber, readings_subscriber, receive_reading, wait_for_status,
 };
 
 /// The test plays the microcontroller on a pseudo-terminal of its own.
@@ -1031,12 +1031,7 @@ fn a_touring_robot_maps_both_rooms_in_one_frame_and_is_localised() {
         .subscriber_builder()
         .create()
         .unwrap();
-    let config = std::env::temp_dir().join(format!("sonar_t{}_corridor.toml", std::process::id()));
-    std::fs::write(
-        &config,
-        "[fusion.grid]\ncells = 450\nresolution_m = 0.02\ncentre_x_m = 3.0\ncentre_y_m = 1.5\n",
-    )
-    .unwrap();
+    let config = corridor_grid_config("corridor");
     let (_sim, pty) = sandbox.spawn_sim(&[
         "--scene",
         "corridor",
@@ -1062,23 +1057,7 @@ fn a_touring_robot_maps_both_rooms_in_one_frame_and_is_localised() {
         ],
     );
 
-    // Occupied cells (p ≥ 0.8) within 6 cm of the rooms' back wall (y = 3.6), beside each
-    // room's waypoint (x = 1.5 and x = 4.5).
-    let wall_seen_at = |header: &GridHeader, cells: &[u8], x_m: f32| {
-        let res = header.resolution_m;
-        let mut hits = 0;
-        for dy in -3..=3 {
-            for dx in -15..=15 {
-                let (x, y) = (x_m + dx as f32 * res, 3.6 + dy as f32 * res);
-                let col = ((x - header.origin_x_m) / res) as usize;
-                let row = ((y - header.origin_y_m) / res) as usize;
-                if cells[row * header.width as usize + col] >= 203 {
-                    hits += 1;
-                }
-            }
-        }
-        hits >= 5
-    };
+    // The rooms' back wall, seen from each room's waypoint (x = 1.5 and x = 4.5).
     collect_until(
         &node,
         || {
@@ -1086,7 +1065,8 @@ fn a_touring_robot_maps_both_rooms_in_one_frame_and_is_localised() {
                 let h = *s.user_header();
                 (
                     h,
-                    wall_seen_at(&h, s.payload(), 1.5) && wall_seen_at(&h, s.payload(), 4.5),
+                    back_wall_seen_at(&h, s.payload(), 1.5)
+                        && back_wall_seen_at(&h, s.payload(), 4.5),
                 )
             })
         },

@@ -11,8 +11,8 @@ use sonar_common::ipc::{
     self, FusionCommand, FusionCommandKind, Reading, ScanCommand, ScanCommandKind,
 };
 use sonar_e2e::{
-    Sandbox, collect_until, path_str, readings_subscriber, readings_subscribers, receive_reading,
-    wait_until,
+    Sandbox, collect_until, corridor_grid_config, path_str, readings_subscriber,
+    readings_subscribers, receive_reading, wait_until,
 };
 
 /// More than one subscriber buffer (256): a replay that did not pace itself at `--speed max`
@@ -435,4 +435,115 @@ fn replaying_a_recording_into_the_fusion_engine_gives_the_live_map() {
             live_header.unknown_cells
         )
     );
+}
+
+/// Readings of the corridor tour, sweeps of 50: past the robot's stop in the second room.
+const TOUR_READINGS: usize = 850;
+
+/// The corridor tour recorded with its odometry on `robot/pose`, replayed at the pace it was
+/// recorded at into a fresh fusion: the map of the tour again, cell for cell.
+#[test]
+fn replaying_a_recorded_tour_gives_the_live_map() {
+    let config = corridor_grid_config("rec_tour");
+    let fusion_args = ["--config", config.to_str().unwrap(), "--no-persist"];
+    let live = Sandbox::new("rec_tour_live");
+    let node = live.node("test-live");
+    let readings = readings_subscriber(&node);
+    let file: PathBuf = live.root.join("tour.mcap");
+    let recorder = live.spawn("sonar-record", &[path_str(&file)]);
+    let fusion = live.spawn("sonar-fusion", &fusion_args);
+    wait_until(&node, "recorder and fusion subscribed", || {
+        readings_subscribers(&node) >= 3
+    });
+    let live_grid = grid_subscriber(&node);
+    // Odometry without errors: the map is where the scene has its walls.
+    let (sim, pty) = live.spawn_sim(&[
+        "--scene",
+        "corridor",
+        "--speed",
+        "40",
+        "--seed",
+        "5",
+        "--odom-scale-error",
+        "0",
+        "--odom-heading-drift",
+        "0",
+    ]);
+    let driver = live.spawn("sonar-driver", &["--port", &pty]);
+    let mut count = collect_until(
+        &node,
+        || receive_reading(&readings),
+        |got| got.len() >= TOUR_READINGS,
+    )
+    .len() as u64;
+    assert!(driver.terminate().success(), "driver did not exit cleanly");
+    while receive_reading(&readings).is_some() {
+        count += 1;
+    }
+    let (live_header, live_cells) = map_after(&node, &live_grid, count);
+    for p in [recorder, sim] {
+        assert!(p.terminate().success());
+    }
+    let live_log = stopped_line(fusion);
+    // The fusion placed the readings at the robot's poses: the last snapshot's is in the second
+    // room's half of the corridor, 3 m and more from the start.
+    assert!(live_header.pose_x_m > 3.0, "{live_header:?}");
+    assert!(live_header.occupied_cells > 500, "{live_header:?}");
+    let info = live.run("sonar-replay", &[path_str(&file), "--info"]);
+    let info_out = String::from_utf8_lossy(&info.stdout);
+    assert!(info.status.success(), "{info:?}");
+    let poses: usize = info_out
+        .lines()
+        .find_map(|l| l.strip_prefix("robot/pose: "))
+        .and_then(|n| n.split_whitespace().next()?.parse().ok())
+        .unwrap_or_else(|| panic!("no robot/pose line in\n{info_out}"));
+    assert!(poses > 100, "{info_out}");
+
+    let replay_box = Sandbox::new("rec_tour_replay");
+    let replay_node = replay_box.node("test-replay");
+    let replay_grid = grid_subscriber(&replay_node);
+    let fusion = replay_box.spawn("sonar-fusion", &fusion_args);
+    wait_until(&replay_node, "fusion subscribed", || {
+        readings_subscribers(&replay_node) >= 1
+    });
+    let replay = replay_box.spawn(
+        "sonar-replay",
+        &[
+            path_str(&file),
+            "--speed",
+            "40",
+            "--wait-for-subscribers",
+            "1",
+        ],
+    );
+    let (header, cells) = map_after(&replay_node, &replay_grid, count);
+    let _ = std::fs::remove_file(&config);
+    assert!(replay.wait_exit().0.success());
+    let replay_log = stopped_line(fusion);
+
+    assert_eq!(cells.len(), live_cells.len());
+    let differing = cells
+        .iter()
+        .zip(&live_cells)
+        .filter(|(a, b)| a != b)
+        .count();
+    assert_eq!(
+        differing, 0,
+        "cells differ between the live and the replayed tour's map ({header:?})\n\
+         live: {live_log}\nreplay: {replay_log}"
+    );
+}
+
+/// Stops a fusion and returns its last log line, the one with its counters (readings, and those
+/// placed past the latest pose).
+fn stopped_line(fusion: sonar_e2e::Proc) -> String {
+    let (status, stderr) = fusion.terminate_with_stderr();
+    assert!(status.success(), "{stderr}");
+    let line = stderr
+        .lines()
+        .find(|l| l.contains("fusion stopped"))
+        .unwrap_or_else(|| panic!("no stop line in\n{stderr}"))
+        .to_owned();
+    eprintln!("{line}");
+    line
 }
