@@ -437,7 +437,20 @@ fn a_refused_command_is_in_the_driver_status() {
     let node = sandbox.node("test-consumer");
     let status = driver_status_subscriber(&node);
     let (_sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100"]);
-    let _driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan=100..200"]);
+    // A scan outside the limits asked at run time, as the viewer or a script may (one given on
+    // the command line stops the driver before it is sent: launcher.rs tests that).
+    let _driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+    wait_for_status(&node, &status, |s| {
+        s.link_state == LinkState::Connected as u32
+    });
+    let commands = ipc::commands_service(&node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    commands
+        .send_copy(ScanCommand::new(ScanCommandKind::LocalScan, 100.0, 200.0))
+        .unwrap();
     let s = wait_for_status(&node, &status, |s| s.device_errors >= 1);
     assert!(
         s.last_device_error().starts_with("RANGE: "),
