@@ -562,6 +562,23 @@ pub fn driver_status_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, DriverStatu
 }
 
 /// A subscriber to `sonar/fusion_status`.
+/// Sends one scan command on `sonar/commands`, as the viewer or any script does. Keep the
+/// publisher until the command has had its effect: iceoryx2 drops a departed publisher's samples
+/// that no subscriber has taken yet.
+#[must_use = "dropping the publisher may drop the command before the driver takes it"]
+pub fn send_scan_command(
+    node: &Node<Ipc>,
+    command: ipc::ScanCommand,
+) -> iceoryx2::port::publisher::Publisher<Ipc, ipc::ScanCommand, ()> {
+    let publisher = ipc::commands_service(node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    publisher.send_copy(command).unwrap();
+    publisher
+}
+
 pub fn fusion_status_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, FusionStatus, ()> {
     ipc::fusion_status_service(node)
         .unwrap()

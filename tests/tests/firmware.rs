@@ -12,14 +12,14 @@ use std::sync::mpsc;
 
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
-use sonar_common::ipc::{self, LinkState, Reading, ScanCommand, ScanCommandKind, ScanMode};
+use sonar_common::ipc::{LinkState, Reading, ScanCommand, ScanCommandKind, ScanMode};
 use sonar_common::protocol::{
     DeviceMessage, DeviceState, Direction, ErrorCode, HostCommand, Limit, PROTOCOL_VERSION,
     WireScanMode, crc16_ccitt_false, encode_command, parse_device,
 };
 use sonar_e2e::{
     PATIENCE, Proc, Sandbox, collect_until, driver_status_subscriber, readings_subscriber,
-    receive_reading, wait_for_status,
+    receive_reading, send_scan_command, wait_for_status,
 };
 
 /// The image `make -C firmware` builds: the bytes that would be flashed, plus symbols.
@@ -110,14 +110,10 @@ fn the_firmware_homes_sweeps_the_room_and_takes_a_local_scan_through_the_driver(
     );
 
     // A local scan asked for by any process reaches the firmware through the driver.
-    let commands = ipc::commands_service(&node)
-        .unwrap()
-        .publisher_builder()
-        .create()
-        .unwrap();
-    commands
-        .send_copy(ScanCommand::new(ScanCommandKind::LocalScan, -30.0, 30.0))
-        .unwrap();
+    let _commands = send_scan_command(
+        &node,
+        ScanCommand::new(ScanCommandKind::LocalScan, -30.0, 30.0),
+    );
     let local = collect_until(
         &node,
         || receive_reading(&sub).filter(|r| r.scan_mode() == ScanMode::Local),

@@ -17,7 +17,8 @@ use sonar_common::protocol::{
 };
 use sonar_e2e::{
     PATIENCE, Sandbox, back_wall_seen_at, collect_until, corridor_grid_config,
-    driver_status_subscriber, readings_subscriber, receive_reading, wait_for_status,
+    driver_status_subscriber, readings_subscriber, receive_reading, send_scan_command,
+    wait_for_status,
 };
 
 /// The test plays the microcontroller on a pseudo-terminal of its own.
@@ -218,14 +219,10 @@ fn a_scan_command_from_any_process_starts_a_local_scan() {
         s.link_state == LinkState::Connected as u32
     });
 
-    let commands = ipc::commands_service(&node)
-        .unwrap()
-        .publisher_builder()
-        .create()
-        .unwrap();
-    commands
-        .send_copy(ScanCommand::new(ScanCommandKind::LocalScan, -30.0, 30.0))
-        .unwrap();
+    let _commands = send_scan_command(
+        &node,
+        ScanCommand::new(ScanCommandKind::LocalScan, -30.0, 30.0),
+    );
 
     let readings = collect_until(&node, || receive_reading(&sub), |got| got.len() >= 40);
     let centres: Vec<f32> = (0..10).map(|k| -27.0 + 6.0 * k as f32).collect();
@@ -443,14 +440,10 @@ fn a_refused_command_is_in_the_driver_status() {
     wait_for_status(&node, &status, |s| {
         s.link_state == LinkState::Connected as u32
     });
-    let commands = ipc::commands_service(&node)
-        .unwrap()
-        .publisher_builder()
-        .create()
-        .unwrap();
-    commands
-        .send_copy(ScanCommand::new(ScanCommandKind::LocalScan, 100.0, 200.0))
-        .unwrap();
+    let _commands = send_scan_command(
+        &node,
+        ScanCommand::new(ScanCommandKind::LocalScan, 100.0, 200.0),
+    );
     let s = wait_for_status(&node, &status, |s| s.device_errors >= 1);
     assert!(
         s.last_device_error().starts_with("RANGE: "),

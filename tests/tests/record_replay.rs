@@ -412,16 +412,7 @@ fn replaying_a_recording_into_the_fusion_engine_gives_the_live_map() {
         "{stderr}"
     );
 
-    assert_eq!(cells.len(), live_cells.len());
-    let differing = cells
-        .iter()
-        .zip(&live_cells)
-        .filter(|(a, b)| a != b)
-        .count();
-    assert_eq!(
-        differing, 0,
-        "cells differ between the live and the replayed map"
-    );
+    assert_same_cells(&live_cells, &cells, "");
     assert!(live_header.occupied_cells > 100, "{live_header:?}");
     assert_eq!(
         (
@@ -521,16 +512,10 @@ fn replaying_a_recorded_tour_gives_the_live_map() {
     assert!(replay.wait_exit().0.success());
     let replay_log = stopped_line(fusion);
 
-    assert_eq!(cells.len(), live_cells.len());
-    let differing = cells
-        .iter()
-        .zip(&live_cells)
-        .filter(|(a, b)| a != b)
-        .count();
-    assert_eq!(
-        differing, 0,
-        "cells differ between the live and the replayed tour's map ({header:?})\n\
-         live: {live_log}\nreplay: {replay_log}"
+    assert_same_cells(
+        &live_cells,
+        &cells,
+        &format!("({header:?})\nlive: {live_log}\nreplay: {replay_log}"),
     );
 }
 
@@ -546,4 +531,14 @@ fn stopped_line(fusion: sonar_e2e::Proc) -> String {
         .to_owned();
     eprintln!("{line}");
     line
+}
+
+/// The live and the replayed map hold the same cells; `context` goes into the failure message.
+fn assert_same_cells(live: &[u8], replayed: &[u8], context: &str) {
+    assert_eq!(replayed.len(), live.len());
+    let differing = replayed.iter().zip(live).filter(|(a, b)| a != b).count();
+    assert_eq!(
+        differing, 0,
+        "cells differ between the live and the replayed map {context}"
+    );
 }
