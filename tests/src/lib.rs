@@ -562,6 +562,23 @@ pub fn driver_status_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, DriverStatu
 }
 
 /// A subscriber to `sonar/fusion_status`.
+/// What a test needs to stand in for the driver: the `sonar/readings` publisher and the notifier
+/// of its wake-up event (send a reading, then notify, as the driver does).
+pub fn driver_ports(
+    node: &Node<Ipc>,
+) -> (
+    iceoryx2::port::publisher::Publisher<Ipc, Reading, ()>,
+    iceoryx2::port::notifier::Notifier<Ipc>,
+) {
+    let readings = ipc::readings_service(node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    let wake = ipc::wakeup_notifier(node, ipc::READINGS_SERVICE).unwrap();
+    (readings, wake)
+}
+
 /// Sends one scan command on `sonar/commands`, as the viewer or any script does. Keep the
 /// publisher until the command has had its effect: iceoryx2 drops a departed publisher's samples
 /// that no subscriber has taken yet.

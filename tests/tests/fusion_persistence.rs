@@ -14,7 +14,8 @@ use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 use sonar_common::ipc::{self, FusionStatus, GridHeader, LAYOUT_VERSION, Radar, Reading};
 use sonar_e2e::{
-    PATIENCE, Proc, Sandbox, collect_until, fusion_status_subscriber, path_str, wait_for_status,
+    PATIENCE, Proc, Sandbox, collect_until, driver_ports, fusion_status_subscriber, path_str,
+    wait_for_status,
 };
 use sonar_fusion::engine::Engine;
 
@@ -197,12 +198,7 @@ fn readings_lost_to_gaps_and_a_full_buffer_are_counted_and_a_driver_restart_is_n
     let sandbox = Sandbox::new("loss");
     // The test is the driver.
     let node = sandbox.node("test-driver");
-    let readings = ipc::readings_service(&node)
-        .unwrap()
-        .publisher_builder()
-        .create()
-        .unwrap();
-    let wake = ipc::wakeup_notifier(&node, ipc::READINGS_SERVICE).unwrap();
+    let (readings, wake) = driver_ports(&node);
     let status = fusion_status_subscriber(&node);
     let fusion = sandbox.spawn("sonar-fusion", &["--no-persist"]);
     // Its first status comes once its subscriber exists.
@@ -273,12 +269,7 @@ fn an_overloaded_fusion_keeps_fusing_within_its_snapshot_rate_and_counts_the_los
     const MAX_RATE: f64 = 5.0;
     let sandbox = Sandbox::new("overload");
     let node = sandbox.node("test-driver");
-    let readings = ipc::readings_service(&node)
-        .unwrap()
-        .publisher_builder()
-        .create()
-        .unwrap();
-    let wake = ipc::wakeup_notifier(&node, ipc::READINGS_SERVICE).unwrap();
+    let (readings, wake) = driver_ports(&node);
     let status = fusion_status_subscriber(&node);
     let grid = grid_subscriber(&node);
     let started = Instant::now();

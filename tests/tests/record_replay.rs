@@ -11,7 +11,7 @@ use sonar_common::ipc::{
     self, FusionCommand, FusionCommandKind, Reading, ScanCommand, ScanCommandKind,
 };
 use sonar_e2e::{
-    Sandbox, collect_until, corridor_grid_config, path_str, readings_subscriber,
+    Sandbox, collect_until, corridor_grid_config, driver_ports, path_str, readings_subscriber,
     readings_subscribers, receive_reading, wait_until,
 };
 
@@ -154,16 +154,7 @@ fn the_recorder_finishes_its_file_on_sigterm_with_the_commands() {
     });
 
     // The test stands in for the driver and a viewer.
-    let readings = ipc::readings_service(&node)
-        .unwrap()
-        .publisher_builder()
-        .create()
-        .unwrap();
-    let wake = ipc::wakeup_service(&node, ipc::READINGS_SERVICE)
-        .unwrap()
-        .notifier_builder()
-        .create()
-        .unwrap();
+    let (readings, wake) = driver_ports(&node);
     let sent: Vec<Reading> = (0..20).map(test_reading).collect();
     for r in &sent[..10] {
         readings.send_copy(*r).unwrap();
