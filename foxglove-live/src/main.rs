@@ -1,13 +1,14 @@
-//! `sonar-foxglove`: serves the pipeline live to Foxglove over Foxglove's WebSocket protocol as the
-//! `foxglove` crate 0.30 speaks it (subprotocols `foxglove.sdk.v1` and `.v1.1`; it refuses clients
-//! that offer only the older `foxglove.websocket.v1`, such as Lichtblick), with the same
-//! well-known channels a recording carries
+//! `sonar-foxglove`: serves the pipeline live to Foxglove over Foxglove's WebSocket protocol, with
+//! the subprotocols the `foxglove` crate 0.30 speaks (`foxglove.sdk.v1`, `.v1.1`) and, through a
+//! thin front of this process's own (`front`), the older `foxglove.websocket.v1` that Lichtblick
+//! and older Foxglove offer; with the same well-known channels a recording carries
 //! (`docs/foxglove.md`): the map as `foxglove.Grid`, each sweep as `foxglove.LaserScan`, the
 //! sensor's pose as `foxglove.FrameTransform`, the features as `foxglove.SceneUpdate`.
 //!
 //! One more consumer of the pipeline's services: it polls its subscribers every 20 ms, converts
 //! with `sonar_wellknown` (the recorder's conversion) and hands the bytes to the `foxglove` crate's
-//! server, which runs its own tokio runtime on its own threads; nothing async is written here.
+//! server, which runs its own tokio runtime on its own threads on 127.0.0.1 at a free port; the
+//! front owns the public address and relays each client to it. Nothing async is written here.
 //! Bound to 127.0.0.1 by default: the protocol has no authentication, so exposing it on a network
 //! (`--host 0.0.0.0`) is a choice to make knowingly.
 
@@ -28,7 +29,9 @@ use sonar_common::ipc::{
     Reading,
 };
 use sonar_wellknown::{Channel, Options, Output, WellKnown};
-use tracing::{info, warn};
+use tracing::{debug, info, warn};
+
+mod front;
 
 /// How often the subscribers are emptied. The readings' buffer holds 256, so even the simulator
 /// at 100× real time (about 500 readings a second) loses none.
@@ -174,8 +177,12 @@ fn run(args: Args) -> Result<()> {
     });
     let server = WebSocketServer::new()
         .name("sonar-foxglove")
-        .bind(args.host.clone(), args.port)
+        .bind("127.0.0.1", 0)
         .start_blocking()
+        .context("cannot start the WebSocket server on 127.0.0.1")?;
+    let inner = std::net::SocketAddr::from(([127, 0, 0, 1], server.port()));
+    debug!(%inner, "the foxglove crate's server");
+    let front = front::Front::bind(&args.host, args.port, inner)
         .with_context(|| format!("cannot serve on {}:{}", args.host, args.port))?;
     let mut channels: BTreeMap<Channel, Arc<RawChannel>> = BTreeMap::new();
     for channel in converter.channels() {
@@ -191,13 +198,14 @@ fn run(args: Args) -> Result<()> {
             .with_context(|| format!("create channel {}", spec.topic))?;
         channels.insert(channel, raw);
     }
-    let url = format!("ws://{}:{}", args.host, server.port());
+    let url = format!("ws://{}:{}", args.host, front.port()?);
     info!(%url, "serving the pipeline to Foxglove");
     // The address on standard output, for scripts and tests that asked for any free port.
     println!("{url}");
 
     let mut sent = 0u64;
     while node.wait(POLL).is_ok() {
+        front.accept_waiting();
         for out in ports.drain(&mut converter) {
             if let Some(channel) = channels.get(&out.channel) {
                 channel.log_with_meta(&out.data, PartialMetadata::with_log_time(out.stamp_ns));

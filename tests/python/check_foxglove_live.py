@@ -1,14 +1,16 @@
 #!/usr/bin/env python3
 """A Foxglove WebSocket client for the test of sonar-foxglove.
 
-Connects with the `foxglove.sdk.v1` subprotocol (the Python `websockets` package) — the one the
-`foxglove` crate 0.30 serves (it refuses the older `foxglove.websocket.v1` with HTTP 400) and in
-which channel advertisements carry their schemas inline — reads the
-server's advertisements, checks that the four well-known channels are there with their protobuf
-schemas, subscribes to the map, decodes the first foxglove.Grid it receives with the schema the
-server advertised (`mcap-protobuf-support` builds the decoder from the FileDescriptorSet) and prints
-one line: `channels <n> grid <columns>x<rows> cell <m> known <cells observed> frame <id>`.
-Exits 1 on a missing channel, a wrong schema or no map within the timeout.
+Connects once for each `--subprotocol` given (the Python `websockets` package), offering exactly
+that one — `foxglove.websocket.v1`, the ws-protocol's name that Lichtblick and older Foxglove offer,
+or `foxglove.sdk.v1`, the `foxglove` crate's name for the same wire format; both carry the schemas
+inline in the advertisements — and checks the server agreed to it. Then reads the server's
+advertisements, checks that the well-known channels are there with their protobuf schemas,
+subscribes to the map, decodes the first foxglove.Grid it receives with the schema the server
+advertised (`mcap-protobuf-support` builds the decoder from the FileDescriptorSet) and prints one
+line per connection:
+`<subprotocol> channels <n> grid <columns>x<rows> cell <m> known <cells observed> frame <id>`.
+Exits 1 on a refused subprotocol, a missing channel, a wrong schema or no map within the timeout.
 """
 
 import argparse
@@ -28,7 +30,6 @@ EXPECTED = {
     "/foxglove/tf": "foxglove.FrameTransform",
     "/foxglove/features": "foxglove.SceneUpdate",
 }
-SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01  # server → client binary opcode
 
 
@@ -40,17 +41,21 @@ def fail(what):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("url")
+    parser.add_argument("--subprotocol", action="append", required=True)
     parser.add_argument("--timeout", type=float, default=30.0)
     args = parser.parse_args()
+    for subprotocol in args.subprotocol:
+        print(subprotocol, check_connection(args.url, subprotocol, args.timeout), flush=True)
 
-    deadline = time.monotonic() + args.timeout
+
+def check_connection(url, subprotocol, timeout):
+    """The summary of one connection offering only `subprotocol`."""
+    deadline = time.monotonic() + timeout
     channels = {}
     # proxy=None: a proxy from the environment cannot reach a server on loopback.
-    with connect(
-        args.url, subprotocols=[SUBPROTOCOL], open_timeout=args.timeout, proxy=None
-    ) as ws:
-        if ws.subprotocol != SUBPROTOCOL:
-            fail(f"subprotocol {ws.subprotocol!r}")
+    with connect(url, subprotocols=[subprotocol], open_timeout=timeout, proxy=None) as ws:
+        if ws.subprotocol != subprotocol:
+            fail(f"subprotocol {ws.subprotocol!r} instead of {subprotocol}")
         subscribed = False
         while time.monotonic() < deadline:
             try:
@@ -94,11 +99,10 @@ def main():
             rows = len(grid.data) // grid.row_stride
             alpha = {f.name: f.offset for f in grid.fields}["alpha"]
             known = sum(grid.data[i * grid.cell_stride + alpha] != 0 for i in range(grid.column_count * rows))
-            print(
+            return (
                 f"channels {len(channels)} grid {grid.column_count}x{rows} "
                 f"cell {grid.cell_size.x:.4f} known {known} frame {grid.frame_id}"
             )
-            return
     missing = [t for t in EXPECTED if t not in channels]
     fail(f"missing channels {missing}" if missing else "no map within the timeout")
 

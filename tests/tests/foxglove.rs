@@ -144,7 +144,8 @@ impl Drop for Netns {
     }
 }
 
-/// sonar-foxglove serves the running room to a Foxglove WebSocket client: the four channels with
+/// sonar-foxglove serves the running room to a Foxglove WebSocket client that offers only
+/// `foxglove.websocket.v1`, and to one that offers only `foxglove.sdk.v1`: the four channels with
 /// their protobuf schemas, and a map that decodes to the fusion's grid.
 #[test]
 fn sonar_foxglove_serves_the_live_map_to_a_websocket_client() {
@@ -178,26 +179,40 @@ fn sonar_foxglove_serves_the_live_map_to_a_websocket_client() {
     };
     assert_eq!(url.trim(), "ws://127.0.0.1:8765", "the default host");
 
+    // First exactly the ws-protocol's subprotocol (Lichtblick, older Foxglove), then the crate's.
     let mut client = Command::new(python());
     client
         .arg(workspace().join("tests/python/check_foxglove_live.py"))
-        .arg(url.trim());
+        .arg(url.trim())
+        .args(["--subprotocol", "foxglove.websocket.v1"])
+        .args(["--subprotocol", "foxglove.sdk.v1"]);
     let out = netns.wrap(&client).output().unwrap();
-    let line = check_ok("check_foxglove_live.py", &out);
-    // channels 4 grid 400x400 cell 0.0200 known N frame map
-    let words: Vec<&str> = line.split_whitespace().collect();
-    assert_eq!(words[1], "4", "{line}");
+    let lines = check_ok("check_foxglove_live.py", &out);
+    let subprotocols: Vec<&str> = lines
+        .lines()
+        .map(|l| l.split(' ').next().unwrap())
+        .collect();
     assert_eq!(
-        words[3],
-        format!("{}x{}", expected.width, expected.height),
-        "{line}"
+        subprotocols,
+        ["foxglove.websocket.v1", "foxglove.sdk.v1"],
+        "{lines}"
     );
-    assert_eq!(words[5], format!("{:.4}", expected.resolution_m), "{line}");
-    assert!(
-        words[7].parse::<u64>().unwrap() > 0,
-        "observed cells: {line}"
-    );
-    assert_eq!(words[9], "map", "{line}");
+    for line in lines.lines() {
+        // <subprotocol> channels 4 grid 400x400 cell 0.0200 known N frame map
+        let words: Vec<&str> = line.split_whitespace().collect();
+        assert_eq!(words[2], "4", "{line}");
+        assert_eq!(
+            words[4],
+            format!("{}x{}", expected.width, expected.height),
+            "{line}"
+        );
+        assert_eq!(words[6], format!("{:.4}", expected.resolution_m), "{line}");
+        assert!(
+            words[8].parse::<u64>().unwrap() > 0,
+            "observed cells: {line}"
+        );
+        assert_eq!(words[10], "map", "{line}");
+    }
 
     assert!(
         server.terminate().success(),
