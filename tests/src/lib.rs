@@ -381,8 +381,14 @@ impl Tmux {
     /// and what the terminal looked like afterwards.
     pub fn start(sandbox: &Sandbox, name: &str, args: &[&str], cols: u16, rows: u16) -> Self {
         let socket = sandbox.root.join("tmux.sock");
+        // In the sandbox's network namespace, if it has one, as its other processes.
+        let netns = sandbox
+            .netns
+            .as_ref()
+            .map(|ns| format!("ip netns exec {ns} "))
+            .unwrap_or_default();
         let mut line = format!(
-            "SONAR_IOX_PREFIX={} SONAR_IOX_ROOT={} XDG_STATE_HOME={} {}",
+            "SONAR_IOX_PREFIX={} SONAR_IOX_ROOT={} XDG_STATE_HOME={} {netns}{}",
             sandbox.prefix,
             sandbox.root.display(),
             sandbox.state.display(),
@@ -445,6 +451,30 @@ impl Tmux {
             std::thread::sleep(Duration::from_millis(100));
         }
     }
+}
+
+/// Rows of the screen holding a horizontal run of at least `len` wall glyphs, by row index: `▄`
+/// for the grid's occupied cells and `─` for a wall of `sonar/features` drawn over them (see the
+/// viewer's README). Only inside the map's frame: after its left border `│` and before its right
+/// one, which the status panel's left border follows (`││`); the frame's top and bottom rows
+/// (`┌─…`, `└─…`) are not inside.
+pub fn map_wall_rows(screen: &str, len: usize) -> Vec<usize> {
+    screen
+        .lines()
+        .enumerate()
+        .filter(|(_, line)| {
+            let Some(inside) = line.strip_prefix('│') else {
+                return false;
+            };
+            let map = inside.split("││").next().unwrap_or(inside);
+            let mut run = 0;
+            map.chars().any(|c| {
+                run = if c == '▄' || c == '─' { run + 1 } else { 0 };
+                run >= len
+            })
+        })
+        .map(|(i, _)| i)
+        .collect()
 }
 
 impl Drop for Tmux {

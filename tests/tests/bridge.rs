@@ -1,9 +1,10 @@
 //! End to end over a network: a robot and a laptop in two network namespaces joined by a veth
 //! pair, each with its own iceoryx2 namespace. The robot runs the simulator, driver, fusion and
-//! `sonar-bridge`; the laptop runs `sonar-bridge --mode remote`, and the test reads both sides'
-//! shared memory (network namespaces do not separate /dev/shm). The grid must arrive byte for byte,
-//! a command from the laptop must reach the robot's driver, and the map must resume after the link
-//! was cut for 10 s.
+//! `sonar-bridge`; the laptop runs `sonar-bridge --mode remote` and the unchanged `sonar-viewer` in
+//! tmux, and the test reads both sides' shared memory (network namespaces do not separate
+//! /dev/shm). The grid must arrive byte for byte, the viewer must draw the room, a key pressed in
+//! it must start a local scan on the robot's driver, and the map must resume after the link was
+//! cut for 10 s.
 //!
 //! Needs root and iproute2 (`ip`); CI has both. Without them the test says SKIPPED and passes.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // helpers outside #[test] fns; a panic is a failure
@@ -15,9 +16,10 @@ use std::time::{Duration, Instant};
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
-use sonar_common::ipc::{self, GridHeader, ScanCommand, ScanCommandKind, ScanMode};
+use sonar_common::ipc::{self, GridHeader, ScanMode};
 use sonar_e2e::{
-    PATIENCE, Proc, Sandbox, driver_status_subscriber, grid_subscriber, wait_for_status,
+    PATIENCE, Proc, Sandbox, Tmux, driver_status_subscriber, grid_subscriber, map_wall_rows,
+    path_str, wait_for_status,
 };
 
 const LINK_CUT: Duration = Duration::from_secs(10);
@@ -236,18 +238,29 @@ fn a_laptop_watches_and_commands_the_robot_over_zenoh_through_a_cut_link() {
     let first =
         wait_for_identical_grid(&robot_node, &robot_grid, &laptop_grid, &mut robot_grids, 0);
 
-    // A local scan asked for on the laptop starts on the robot, and the laptop sees it start.
-    let commands = ipc::commands_service(&laptop_node)
-        .unwrap()
-        .publisher_builder()
-        .create()
-        .unwrap();
-    let local_scan = ScanCommand::new(ScanCommandKind::LocalScan, -30.0, 30.0);
+    // The unchanged viewer on the laptop, in a terminal in the laptop's namespace, draws the room.
+    let viewer_log = laptop.root.join("viewer.log");
+    let term = Tmux::start(
+        &laptop,
+        "sonar-viewer",
+        &["--view", "map", "--log-file", path_str(&viewer_log)],
+        140,
+        50,
+    );
+    term.wait_for("the room's walls on the laptop's viewer", |s| {
+        let rows = map_wall_rows(s, 8);
+        rows.len() >= 2 && rows[rows.len() - 1] - rows[0] >= 8
+    });
+
+    // `l` then Enter on the laptop's viewer: a local scan starts on the robot, and the laptop's
+    // viewer shows it. Keys are pressed again while the robot has not switched (a command sent
+    // before the bridges have matched their ends of the command channel would go nowhere).
     let deadline = Instant::now() + PATIENCE;
     let mut robot_local = None;
     while robot_local.is_none() {
         assert!(Instant::now() < deadline, "the robot never scanned locally");
-        commands.send_copy(local_scan).unwrap();
+        term.send_keys(&["l"]);
+        term.send_keys(&["Enter"]);
         let until = Instant::now() + Duration::from_secs(2);
         while Instant::now() < until && robot_local.is_none() {
             while let Some(s) = robot_status.receive().unwrap() {
@@ -260,6 +273,9 @@ fn a_laptop_watches_and_commands_the_robot_over_zenoh_through_a_cut_link() {
     }
     wait_for_status(&laptop_node, &laptop_status, |s| {
         ScanMode::from_u8(s.mode as u8) == ScanMode::Local
+    });
+    term.wait_for("the local scan on the laptop's viewer", |s| {
+        s.contains("scan     local")
     });
 
     // The link goes down for 10 s and comes back: both bridges live on and the map resumes.
@@ -293,8 +309,12 @@ fn a_laptop_watches_and_commands_the_robot_over_zenoh_through_a_cut_link() {
     assert!(resumed > robot_seq_at_restore);
     still_running(&mut [&mut robot_bridge, &mut laptop_bridge, &mut driver]);
 
+    // The laptop's viewer lived through the cut and quits cleanly on `q`.
+    term.send_keys(&["q"]);
+    let after = term.wait_for("the viewer's exit", |s| s.contains("EXIT="));
+    assert!(after.contains("EXIT=0"), "the viewer's exit:\n{after}");
+
     // Both bridges stop cleanly on SIGTERM and leave nothing in shared memory.
-    drop(commands);
     for bridge in [laptop_bridge, robot_bridge] {
         let name = bridge.name.clone();
         let status = bridge.terminate();

@@ -5,31 +5,7 @@
 use std::time::{Duration, Instant};
 
 use sonar_common::ipc::{self, ScanMode};
-use sonar_e2e::{PATIENCE, Sandbox, Tmux, collect_until, pids_of};
-
-/// Rows of the screen holding a horizontal run of at least `len` wall glyphs, by row index: `▄`
-/// for the grid's occupied cells and `─` for a wall of `sonar/features` drawn over them (see the
-/// viewer's README). Only inside the map's frame: after its left border `│` and before its right
-/// one, which the status panel's left border follows (`││`); the frame's top and bottom rows
-/// (`┌─…`, `└─…`) are not inside.
-fn wall_rows(screen: &str, len: usize) -> Vec<usize> {
-    screen
-        .lines()
-        .enumerate()
-        .filter(|(_, line)| {
-            let Some(inside) = line.strip_prefix('│') else {
-                return false;
-            };
-            let map = inside.split("││").next().unwrap_or(inside);
-            let mut run = 0;
-            map.chars().any(|c| {
-                run = if c == '▄' || c == '─' { run + 1 } else { 0 };
-                run >= len
-            })
-        })
-        .map(|(i, _)| i)
-        .collect()
-}
+use sonar_e2e::{PATIENCE, Sandbox, Tmux, collect_until, map_wall_rows, pids_of};
 
 /// The sensor on the map: an arrow along its heading, `@` without one (see the viewer's README).
 const SENSOR_GLYPHS: [char; 9] = ['→', '↗', '↑', '↖', '←', '↙', '↓', '↘', '@'];
@@ -60,7 +36,7 @@ fn the_viewer_shows_the_room_scans_on_keys_and_quits_cleanly() {
         s.contains("driver   alive") && s.contains("fusion   alive")
     });
     assert!(
-        wall_rows(&term.capture(), 8).is_empty(),
+        map_wall_rows(&term.capture(), 8).is_empty(),
         "no scan, no walls"
     );
 
@@ -68,10 +44,10 @@ fn the_viewer_shows_the_room_scans_on_keys_and_quits_cleanly() {
     // appear above and below the sensor.
     term.send_keys(&["f"]);
     let screen = term.wait_for("the room's walls", |s| {
-        let rows = wall_rows(s, 8);
+        let rows = map_wall_rows(s, 8);
         rows.len() >= 2 && rows[rows.len() - 1] - rows[0] >= 8
     });
-    let rows = wall_rows(&screen, 8);
+    let rows = map_wall_rows(&screen, 8);
     // The sensor is an arrow (a fixed head's points along its 0°, →), under the cursor `+` until
     // the cursor moves; the status panel (right of `││`) has `+` signs of its own.
     let sensor_row = screen
