@@ -16,7 +16,7 @@ use sonar_common::ipc::{
 };
 use sonar_common::sensor::SensorConfig;
 
-use crate::heatmap::{MAX_PIXELS_PER_CELL, Palette, Viewport};
+use crate::heatmap::{CellBox, MAX_PIXELS_PER_CELL, Palette, Viewport, seen_box};
 
 /// How long a producer may go without a sample or a live publisher before it counts as gone. The
 /// driver publishes its status every second and publishers are checked every second, so three
@@ -35,6 +35,9 @@ pub const TRAIL_LEN: usize = 500;
 /// Once the robot is this far from where the viewer first saw it, the map follows it (unless `t`
 /// was pressed): a fixed head never moves, so it keeps today's view, a robot gets followed.
 pub const AUTO_FOLLOW_M: f32 = 0.5;
+/// The view framing what has been seen is at least this wide and tall, metres: a few observed
+/// cells around a fresh start are not blown up to fill the screen.
+pub const MIN_FRAME_M: f32 = 2.0;
 
 /// What the main area shows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -109,6 +112,8 @@ pub struct GridSnapshot {
     pub header: GridHeader,
     /// `width × height` cells, row 0 at the lowest y, as published.
     pub cells: Vec<u8>,
+    /// The smallest box holding every observed cell; `None` before any was observed.
+    pub seen: Option<CellBox>,
 }
 
 impl GridSnapshot {
@@ -164,6 +169,23 @@ impl GridSnapshot {
                 y_m: h.pose_y_m,
                 theta_rad: h.pose_theta_rad,
             })
+    }
+
+    /// What the map shows by default: the observed cells and the sensor, with a margin of a
+    /// twentieth of the larger side (at least two cells), at least [`MIN_FRAME_M`] per side; the
+    /// whole grid while nothing was observed.
+    pub fn seen_frame(&self) -> CellBox {
+        let (w, h) = (self.width(), self.height());
+        let Some(seen) = self.seen else {
+            return CellBox::whole(w, h);
+        };
+        let seen = match self.sensor_cell() {
+            Some((x, y)) => seen.including(x, y),
+            None => seen,
+        };
+        let margin = (seen.width().max(seen.height()) / 20.0).max(2.0);
+        let min_side = f64::from(MIN_FRAME_M / self.header.resolution_m);
+        seen.padded(margin, min_side, w, h)
     }
 
     /// Continuous grid coordinates (cells, y up) of the world point (`x_m`, `y_m`), as the
@@ -398,7 +420,8 @@ pub const KEYS: &[(&str, &str)] = &[
     ("C", "clear the map"),
     ("m  r  p", "next sensor model / rule / preset"),
     ("arrows", "move the cursor (Shift: faster)"),
-    ("+  -  0", "zoom in / out / whole map"),
+    ("+  -", "zoom in (around the cursor) / out"),
+    ("0  z", "whole grid / fit to what was seen"),
     ("t", "zoomed in, follow the robot: on / off"),
     ("", "(on by itself once it has moved 0.5 m)"),
     ("Tab 1 2 3", "next view / map / radar / split"),
@@ -473,35 +496,58 @@ pub struct Drawn {
     fusion: Liveness,
 }
 
+/// What the map shows when the user has not zoomed or panned.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Framing {
+    /// What has been seen ([`GridSnapshot::seen_frame`]), growing with the map: the default.
+    #[default]
+    Seen,
+    /// The whole grid (`0`).
+    Whole,
+}
+
 /// Zoom, pan and cursor of the map.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct MapView {
-    /// Halvings of the fitting scale; 0 shows the whole grid.
-    pub zoom: u32,
+    /// Cells per pixel the user zoomed or panned to; `None`: the framing decides.
+    pub scale: Option<f64>,
+    pub framing: Framing,
     /// Grid point (x right, y up) in the middle of the picture when zoomed in.
     pub center: (f64, f64),
     /// The cell whose coordinates and probability the status panel shows.
     pub cursor: Option<(u32, u32)>,
     /// Zoomed in, keep the robot in the middle (`center` is moved to it with every grid). The
-    /// whole map (zoom 0) shows the robot anyway, and stays the whole map.
+    /// framed map shows the robot anyway, and stays framed.
     pub follow: bool,
 }
 
 impl MapView {
-    pub fn viewport(&self, grid_w: u32, grid_h: u32, width_px: u32, height_px: u32) -> Viewport {
-        if self.zoom == 0 {
-            return Viewport::fit(grid_w, grid_h, width_px, height_px);
+    pub fn viewport(&self, grid: &GridSnapshot, width_px: u32, height_px: u32) -> Viewport {
+        match self.scale {
+            Some(scale) => Viewport::centred(
+                self.center.0,
+                self.center.1,
+                scale,
+                grid.height(),
+                width_px,
+                height_px,
+            ),
+            None => self.framed(grid, width_px, height_px),
         }
-        let fit = Viewport::fit_scale(grid_w, grid_h, width_px, height_px);
-        let scale = (fit / f64::from(1u32 << self.zoom.min(30))).max(1.0 / MAX_PIXELS_PER_CELL);
-        Viewport::centred(
-            self.center.0,
-            self.center.1,
-            scale,
-            grid_h,
-            width_px,
-            height_px,
-        )
+    }
+
+    /// The picture of the framing alone, whatever the zoom.
+    fn framed(&self, grid: &GridSnapshot, width_px: u32, height_px: u32) -> Viewport {
+        let frame = match self.framing {
+            Framing::Seen => grid.seen_frame(),
+            Framing::Whole => CellBox::whole(grid.width(), grid.height()),
+        };
+        Viewport::framing(&frame, grid.height(), width_px, height_px)
+    }
+
+    /// Zoomed or panned by the user.
+    pub fn zoomed(&self) -> bool {
+        self.scale.is_some()
     }
 
     fn cursor_center(&self) -> Option<(f64, f64)> {
@@ -614,6 +660,7 @@ impl App {
         grid.header = *header;
         grid.cells.clear();
         grid.cells.extend_from_slice(cells);
+        grid.seen = seen_box(cells, header.width as usize, header.height as usize);
         let pose = grid.pose();
         self.grid_generation += 1;
         if resized || self.map.cursor.is_none() {
@@ -822,7 +869,8 @@ impl App {
             KeyCode::Char('3') => self.view = View::Split,
             KeyCode::Char('+' | '=') => self.zoom(true),
             KeyCode::Char('-') => self.zoom(false),
-            KeyCode::Char('0') => self.map.zoom = 0,
+            KeyCode::Char('0') => self.frame(Framing::Whole),
+            KeyCode::Char('z') => self.frame(Framing::Seen),
             KeyCode::Char('t') => self.toggle_follow(),
             KeyCode::Left => self.move_cursor(-1, 0, fast),
             KeyCode::Right => self.move_cursor(1, 0, fast),
@@ -874,7 +922,7 @@ impl App {
     fn toggle_follow(&mut self) {
         self.follow_by_key = true;
         self.map.follow = !self.map.follow;
-        if self.map.follow && self.map.zoom == 0 {
+        if self.map.follow && !self.map.zoomed() {
             self.zoom(true);
         }
         self.keep_robot_centred();
@@ -890,7 +938,7 @@ impl App {
 
     /// While following and zoomed in, puts the robot in the middle of the view.
     fn keep_robot_centred(&mut self) {
-        if !(self.map.follow && self.map.zoom > 0) {
+        if !(self.map.follow && self.map.zoomed()) {
             return;
         }
         if let Some((grid, pose)) = self.grid.as_ref().and_then(|g| g.pose().map(|p| (g, p))) {
@@ -898,32 +946,72 @@ impl App {
         }
     }
 
+    /// The map's picture as the last frame laid it out; `None` without a grid.
+    pub fn viewport(&self) -> Option<Viewport> {
+        let grid = self.grid.as_ref()?;
+        Some(self.map.viewport(grid, self.map_px.0, self.map_px.1))
+    }
+
+    /// `0` and `z`: back to a framing, unzoomed.
+    fn frame(&mut self, framing: Framing) {
+        self.map.scale = None;
+        self.map.framing = framing;
+    }
+
+    /// `+` and `-`: zooms in around the cursor, or out.
     fn zoom(&mut self, closer: bool) {
-        let Some(grid) = &self.grid else { return };
-        let (w, h) = self.map_px;
-        if closer {
-            let fit = Viewport::fit_scale(grid.width(), grid.height(), w, h);
-            let next = self.map.zoom + 1;
-            // Stop where one cell fills MAX_PIXELS_PER_CELL pixels.
-            if next <= 30 && fit / f64::from(1u32 << next) >= 1.0 / MAX_PIXELS_PER_CELL {
-                self.map.zoom = next;
-                if let Some(c) = self.map.cursor_center() {
-                    self.map.center = c;
-                }
-                self.keep_robot_centred();
-            }
+        let anchor = if closer {
+            self.map.cursor_center()
         } else {
-            self.map.zoom = self.map.zoom.saturating_sub(1);
-        }
+            None
+        };
+        self.zoom_at(closer, anchor, true);
+    }
+
+    /// Zooms by a factor of two: in, to at most [`MAX_PIXELS_PER_CELL`] pixels a cell, or out,
+    /// back to the framing once it shows more; zoomed out there, from what was seen to the whole
+    /// grid. With `anchor` (a grid point) in the middle if `centred`, else where it is on screen
+    /// (the mouse wheel's zoom).
+    fn zoom_at(&mut self, closer: bool, anchor: Option<(f64, f64)>, centred: bool) {
+        let (w, h) = self.map_px;
+        let (Some(grid), Some(vp)) = (self.grid.as_ref(), self.viewport()) else {
+            return;
+        };
+        let (cx, cy) = vp.center(grid.height());
+        let finest = 1.0 / MAX_PIXELS_PER_CELL;
+        let scale = if closer {
+            if vp.scale <= finest * (1.0 + 1e-9) {
+                return;
+            }
+            (vp.scale / 2.0).max(finest)
+        } else {
+            let framed = self.map.framed(grid, w, h).scale;
+            if vp.scale * 2.0 >= framed * (1.0 - 1e-9) {
+                if !self.map.zoomed() && self.map.framing == Framing::Seen {
+                    self.map.framing = Framing::Whole;
+                }
+                self.map.scale = None;
+                return;
+            }
+            vp.scale * 2.0
+        };
+        let ratio = scale / vp.scale;
+        self.map.center = match anchor {
+            Some(p) if centred => p,
+            Some((px, py)) => (px + (cx - px) * ratio, py + (cy - py) * ratio),
+            None => (cx, cy),
+        };
+        self.map.scale = Some(scale);
+        self.keep_robot_centred();
     }
 
     /// Moves the cursor by `steps` pixels (at least one cell); when it leaves the picture the view
     /// re-centres on it, which is how the map pans (and panning ends following the robot).
     fn move_cursor(&mut self, dx: i64, dy: i64, steps: i64) {
-        let Some(grid) = &self.grid else { return };
+        let (Some(grid), Some(vp)) = (self.grid.as_ref(), self.viewport()) else {
+            return;
+        };
         let (gw, gh) = (grid.width(), grid.height());
-        let (w, h) = self.map_px;
-        let vp = self.map.viewport(gw, gh, w, h);
         let cells_per_step = (vp.scale.round() as i64).max(1) * steps;
         let (x, y) = self.map.cursor.unwrap_or((gw / 2, gh / 2));
         let clamp = |v: i64, n: u32| v.clamp(0, i64::from(n) - 1) as u32;
@@ -932,16 +1020,22 @@ impl App {
             clamp(i64::from(y) + dy * cells_per_step, gh),
         );
         self.map.cursor = Some(cursor);
-        if self.map.zoom > 0
-            && vp.pixel_of(cursor.0, cursor.1, gh).is_none()
+        if vp.pixel_of(cursor.0, cursor.1, gh).is_none()
             && let Some(c) = self.map.cursor_center()
         {
-            if self.map.follow {
-                self.map.follow = false;
-                self.follow_by_key = true;
-                self.message = Some("not following the robot (t: follow)".to_owned());
-            }
+            self.stop_following();
+            // Out of the framed picture too: the view takes over at its scale and pans.
+            self.map.scale = Some(vp.scale);
             self.map.center = c;
+        }
+    }
+
+    /// The user took the view over: following ends, and does not switch itself on again.
+    fn stop_following(&mut self) {
+        if self.map.follow {
+            self.map.follow = false;
+            self.follow_by_key = true;
+            self.message = Some("not following the robot (t: follow)".to_owned());
         }
     }
 }
@@ -955,7 +1049,7 @@ fn scan(kind: ScanCommandKind, segment: Option<Segment>) -> Action {
 mod tests {
     use super::*;
     use crate::heatmap::ColorMode;
-    use sonar_common::ipc::{model_code, rule_code};
+    use sonar_common::ipc::{CELL_UNKNOWN, model_code, rule_code};
 
     fn key(code: KeyCode) -> KeyEvent {
         KeyEvent::new(code, KeyModifiers::NONE)
@@ -1141,22 +1235,89 @@ mod tests {
         app.on_key(KeyEvent::new(KeyCode::Up, KeyModifiers::SHIFT));
         assert_eq!(app.map.cursor, Some((204, 132)));
         app.on_key(key(KeyCode::Char('+')));
-        assert_eq!(app.map.zoom, 1);
+        assert_eq!(app.map.scale, Some(2.0));
         assert_eq!(app.map.center, (204.5, 132.5));
         // Far to the left, out of the zoomed picture: the view follows.
         for _ in 0..20 {
             app.on_key(KeyEvent::new(KeyCode::Left, KeyModifiers::SHIFT));
         }
         assert_eq!(app.map.cursor, Some((0, 132)));
-        let vp = app.map.viewport(400, 200, 100, 50);
+        let vp = app.viewport().unwrap();
         assert!(vp.pixel_of(0, 132, 200).is_some(), "{vp:?}");
         // Zooming stops at MAX_PIXELS_PER_CELL pixels per cell: fit 4 → 1/8 is 5 halvings.
         for _ in 0..10 {
             app.on_key(key(KeyCode::Char('+')));
         }
-        assert_eq!(app.map.zoom, 5);
+        assert_eq!(app.map.scale, Some(0.125));
         app.on_key(key(KeyCode::Char('0')));
-        assert_eq!(app.map.zoom, 0);
+        assert_eq!((app.map.scale, app.map.framing), (None, Framing::Whole));
+    }
+
+    /// Issue 16: the map frames what has been seen (and the sensor), not the whole grid; `-`
+    /// goes on to the whole grid, `z` back, `0` to the whole grid at once.
+    #[test]
+    fn the_map_frames_what_was_seen_until_asked_for_the_whole_grid() {
+        let mut viewer = app();
+        let t = Instant::now();
+        let (w, h) = (400usize, 200usize);
+        let mut cells = vec![CELL_UNKNOWN; w * h];
+        for y in 50..70 {
+            cells[y * w + 100..y * w + 140].fill(0);
+        }
+        viewer.on_grid(&grid_header(400, 200), &cells, t).unwrap();
+        viewer.map_px = (100, 50); // 4 cells per pixel for the whole grid
+        let seen = viewer.grid.as_ref().unwrap().seen.unwrap();
+        assert_eq!(
+            (seen.x0, seen.y0, seen.x1, seen.y1),
+            (100.0, 50.0, 140.0, 70.0)
+        );
+        let vp = viewer.viewport().unwrap();
+        assert!(
+            vp.scale < 1.3,
+            "the seen part and the sensor fill the picture: {vp:?}"
+        );
+        for (x, y) in [(100, 50), (139, 69), (200, 100)] {
+            assert!(
+                vp.pixel_of(x, y, 200).is_some(),
+                "cell ({x}, {y}) shown: {vp:?}"
+            );
+        }
+        // `-` from the framing: the whole grid; further out there is nothing.
+        viewer.on_key(key(KeyCode::Char('-')));
+        assert_eq!(
+            (viewer.map.scale, viewer.map.framing),
+            (None, Framing::Whole)
+        );
+        assert_eq!(viewer.viewport().unwrap().scale, 4.0);
+        viewer.on_key(key(KeyCode::Char('-')));
+        assert_eq!(viewer.viewport().unwrap().scale, 4.0);
+        // `z` frames the seen part again; `+` zooms in from there, `-` comes back to it.
+        viewer.on_key(key(KeyCode::Char('z')));
+        assert_eq!(viewer.viewport().unwrap(), vp);
+        viewer.on_key(key(KeyCode::Char('+')));
+        assert_eq!(viewer.map.scale, Some(vp.scale / 2.0));
+        viewer.on_key(key(KeyCode::Char('-')));
+        assert_eq!(
+            (viewer.map.scale, viewer.map.framing),
+            (None, Framing::Seen)
+        );
+        viewer.on_key(key(KeyCode::Char('0')));
+        assert_eq!(viewer.viewport().unwrap().scale, 4.0);
+        assert!(key_help_text().contains("0  z         whole grid / fit to what was seen"));
+
+        // Nothing seen yet: the whole grid; a couple of cells: at least MIN_FRAME_M across.
+        let mut fresh = app();
+        let mut cells = vec![CELL_UNKNOWN; w * h];
+        fresh.on_grid(&grid_header(400, 200), &cells, t).unwrap();
+        fresh.map_px = (100, 50);
+        assert_eq!(fresh.viewport().unwrap().scale, 4.0);
+        cells[100 * w + 201] = 0;
+        fresh.on_grid(&grid_header(400, 200), &cells, t).unwrap();
+        let vp = fresh.viewport().unwrap();
+        assert!(
+            (vp.scale - 40.0 / 50.0).abs() < 1e-9,
+            "2 m of 5 cm cells in 50 px: {vp:?}"
+        );
     }
 
     #[test]
@@ -1358,7 +1519,7 @@ mod tests {
         // origin, continuous grid point (40, 40).
         assert_eq!(app.on_key(key(KeyCode::Char('t'))), None);
         assert!(app.map.follow);
-        assert_eq!(app.map.zoom, 1);
+        assert_eq!(app.map.scale, Some(1.0));
         assert_eq!(app.map.center, (40.0, 40.0));
         assert!(app.message.as_deref().unwrap().starts_with("following"));
         // Each grid moves the view with the robot.
@@ -1367,7 +1528,7 @@ mod tests {
         assert_eq!(app.map.center, (50.0, 35.0));
         // Zooming in further stays on the robot, not on the cursor.
         app.on_key(key(KeyCode::Char('+')));
-        assert_eq!((app.map.zoom, app.map.center), (2, (50.0, 35.0)));
+        assert_eq!((app.map.scale, app.map.center), (Some(0.5), (50.0, 35.0)));
         // Off: the view stays where it is while the robot drives on.
         app.on_key(key(KeyCode::Char('t')));
         assert!(!app.map.follow);
@@ -1413,7 +1574,7 @@ mod tests {
             .on_grid(&grid_at(1.4, 1.4, 0.0, 3), &cells, t)
             .unwrap();
         assert!(robot.map.follow, "0.57 m from the start");
-        assert_eq!(robot.map.zoom, 0, "the whole map stays the whole map");
+        assert_eq!(robot.map.scale, None, "the framed map stays framed");
 
         let mut by_hand = app();
         by_hand
@@ -1452,6 +1613,7 @@ mod tests {
         let grid = GridSnapshot {
             header: grid_header(100, 80),
             cells: vec![0; 8000],
+            seen: None,
         };
         assert_eq!(grid.sensor_cell(), Some((50, 40)));
         let (x, y) = grid.cell_center_m(10, 70);

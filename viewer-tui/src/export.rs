@@ -105,6 +105,7 @@ mod tests {
                 ..GridHeader::default()
             },
             cells: vec![0, CELL_UNKNOWN, 254, 0, 0, 0],
+            seen: None,
         }
     }
 

@@ -41,9 +41,7 @@ pub struct Viewport {
 impl Viewport {
     /// The scale at which the whole grid fits the picture.
     pub fn fit_scale(grid_w: u32, grid_h: u32, width_px: u32, height_px: u32) -> f64 {
-        let sx = f64::from(grid_w) / f64::from(width_px.max(1));
-        let sy = f64::from(grid_h) / f64::from(height_px.max(1));
-        sx.max(sy).max(1.0 / MAX_PIXELS_PER_CELL)
+        Self::fit(grid_w, grid_h, width_px, height_px).scale
     }
 
     /// The picture showing the grid point (`center_x`, `center_y`) (grid coordinates, y up) in its
@@ -68,14 +66,31 @@ impl Viewport {
 
     /// The whole grid, centred.
     pub fn fit(grid_w: u32, grid_h: u32, width_px: u32, height_px: u32) -> Self {
-        let scale = Self::fit_scale(grid_w, grid_h, width_px, height_px);
-        Self::centred(
-            f64::from(grid_w) / 2.0,
-            f64::from(grid_h) / 2.0,
-            scale,
-            grid_h,
-            width_px,
-            height_px,
+        Self::framing(&CellBox::whole(grid_w, grid_h), grid_h, width_px, height_px)
+    }
+
+    /// The smallest picture showing all of `frame` (grid coordinates), centred on it.
+    pub fn framing(frame: &CellBox, grid_h: u32, width_px: u32, height_px: u32) -> Self {
+        let sx = frame.width() / f64::from(width_px.max(1));
+        let sy = frame.height() / f64::from(height_px.max(1));
+        let scale = sx.max(sy).max(1.0 / MAX_PIXELS_PER_CELL);
+        let (cx, cy) = frame.center();
+        Self::centred(cx, cy, scale, grid_h, width_px, height_px)
+    }
+
+    /// The grid point (x right, y up) in the middle of the picture.
+    pub fn center(&self, grid_h: u32) -> (f64, f64) {
+        (
+            self.left + f64::from(self.width_px) * self.scale / 2.0,
+            f64::from(grid_h) - (self.top + f64::from(self.height_px) * self.scale / 2.0),
+        )
+    }
+
+    /// The grid point (continuous, y up) under the middle of pixel (`px`, `py`).
+    pub fn grid_point(&self, px: u32, py: u32, grid_h: u32) -> (f64, f64) {
+        (
+            self.left + (f64::from(px) + 0.5) * self.scale,
+            f64::from(grid_h) - (self.top + (f64::from(py) + 0.5) * self.scale),
         )
     }
 
@@ -87,6 +102,91 @@ impl Viewport {
         let py = pixel_index(i64::from(flipped), self.top, self.scale, self.height_px)?;
         Some((px, py))
     }
+}
+
+/// A rectangle of the grid in continuous grid coordinates (cells, y up): [x0, x1) × [y0, y1).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CellBox {
+    pub x0: f64,
+    pub y0: f64,
+    pub x1: f64,
+    pub y1: f64,
+}
+
+impl CellBox {
+    pub fn whole(grid_w: u32, grid_h: u32) -> Self {
+        Self {
+            x0: 0.0,
+            y0: 0.0,
+            x1: f64::from(grid_w),
+            y1: f64::from(grid_h),
+        }
+    }
+
+    pub fn width(&self) -> f64 {
+        self.x1 - self.x0
+    }
+
+    pub fn height(&self) -> f64 {
+        self.y1 - self.y0
+    }
+
+    pub fn center(&self) -> (f64, f64) {
+        ((self.x0 + self.x1) / 2.0, (self.y0 + self.y1) / 2.0)
+    }
+
+    /// Grown to take in cell (`x`, `y`).
+    pub fn including(self, x: u32, y: u32) -> Self {
+        let (x, y) = (f64::from(x), f64::from(y));
+        Self {
+            x0: self.x0.min(x),
+            y0: self.y0.min(y),
+            x1: self.x1.max(x + 1.0),
+            y1: self.y1.max(y + 1.0),
+        }
+    }
+
+    /// Widened by `margin` cells on every side and to at least `min_side` cells per side (around
+    /// its centre), then clipped to a `grid_w × grid_h` grid.
+    pub fn padded(self, margin: f64, min_side: f64, grid_w: u32, grid_h: u32) -> Self {
+        let (cx, cy) = self.center();
+        let half_w = (self.width() / 2.0 + margin).max(min_side / 2.0);
+        let half_h = (self.height() / 2.0 + margin).max(min_side / 2.0);
+        Self {
+            x0: (cx - half_w).max(0.0),
+            y0: (cy - half_h).max(0.0),
+            x1: (cx + half_w).min(f64::from(grid_w)),
+            y1: (cy + half_h).min(f64::from(grid_h)),
+        }
+    }
+}
+
+/// The smallest box holding every observed cell of `cells` (`grid_w × grid_h`, row 0 at the
+/// lowest y); `None` when no cell was observed (or the slice has the wrong length).
+pub fn seen_box(cells: &[u8], grid_w: usize, grid_h: usize) -> Option<CellBox> {
+    if grid_w == 0 || grid_w.checked_mul(grid_h) != Some(cells.len()) {
+        return None;
+    }
+    let mut seen: Option<(usize, usize, usize, usize)> = None;
+    for (y, row) in cells.chunks_exact(grid_w).enumerate() {
+        let Some(first) = row.iter().position(|&v| v != CELL_UNKNOWN) else {
+            continue;
+        };
+        let last = row
+            .iter()
+            .rposition(|&v| v != CELL_UNKNOWN)
+            .unwrap_or(first);
+        seen = Some(match seen {
+            None => (first, y, last, y),
+            Some((x0, y0, x1, _)) => (x0.min(first), y0, x1.max(last), y),
+        });
+    }
+    seen.map(|(x0, y0, x1, y1)| CellBox {
+        x0: x0 as f64,
+        y0: y0 as f64,
+        x1: (x1 + 1) as f64,
+        y1: (y1 + 1) as f64,
+    })
 }
 
 /// The cells pixel `i` covers, unclipped: [floor(start + i·s), floor(start + (i+1)·s)), at least

@@ -27,8 +27,8 @@ use sonar_common::ipc::{
 };
 
 use crate::app::{
-    App, GridSnapshot, KEYS, Liveness, MODELS, PRESETS, RULES, Segment, View, setting_name,
-    sweep_progress,
+    App, Framing, GridSnapshot, KEYS, Liveness, MODELS, PRESETS, RULES, Segment, View,
+    setting_name, sweep_progress,
 };
 use crate::heatmap::{
     FeatureMark, Palette, Pooled, Slope, Viewport, cell_rgb, feature_pixels, is_occupied,
@@ -162,11 +162,7 @@ fn render_map(
 ) -> (u32, u32) {
     let title = match &app.grid {
         Some(g) => {
-            let zoom = if app.map.zoom == 0 {
-                String::new()
-            } else {
-                format!(" · zoom ×{}", 1u64 << app.map.zoom.min(63))
-            };
+            let zoom = zoom_label(app, g, area);
             // Also over the whole map, where following only shows once zoomed in: `t` toggles
             // a state the user should be able to see.
             let follow = if app.map.follow { " · following" } else { "" };
@@ -195,7 +191,7 @@ fn render_map(
     if w == 0 || h == 0 {
         return (w, h);
     }
-    let vp = app.map.viewport(grid.width(), grid.height(), w, h);
+    let vp = app.map.viewport(grid, w, h);
     let key = (app.grid_generation, vp);
     if cache.key != Some(key) {
         cache.pooled.pool(
@@ -244,6 +240,27 @@ fn render_map(
     );
     mark(app.map.cursor, CURSOR_GLYPH);
     (w, h)
+}
+
+/// How the map is framed, for its title: " · seen" (what was seen, the default), nothing for the
+/// whole grid, else the zoom relative to the whole grid (" · zoom ×4", " · zoom ×2.5").
+fn zoom_label(app: &App, grid: &GridSnapshot, area: Rect) -> String {
+    let (w, h) = (
+        u32::from(area.width.saturating_sub(2)),
+        2 * u32::from(area.height.saturating_sub(2)),
+    );
+    match (app.map.scale, app.map.framing) {
+        (None, Framing::Seen) => " · seen".to_owned(),
+        (None, Framing::Whole) => String::new(),
+        (Some(scale), _) => {
+            let factor = Viewport::fit_scale(grid.width(), grid.height(), w, h) / scale;
+            if (factor - factor.round()).abs() < 0.05 || factor >= 10.0 {
+                format!(" · zoom ×{factor:.0}")
+            } else {
+                format!(" · zoom ×{factor:.1}")
+            }
+        }
+    }
 }
 
 /// The arrow pointing nearest to `theta_rad` (counter-clockwise from the map's x axis); `@` when
