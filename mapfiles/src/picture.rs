@@ -25,8 +25,8 @@ const PAPER: [u8; 3] = [255, 255, 255];
 pub struct PngOptions {
     /// A [`LEGEND_HEIGHT`]-pixel strip below the map: a scale bar with its length, the colour ramp
     /// from p = 0 to p = 1, and the colour of unknown cells. The picture is widened if the map is
-    /// narrower than the legend. Without it (the viewer's `s` key), the picture is exactly one
-    /// pixel per cell.
+    /// narrower than the legend. Without it (`sonar-export --no-legend`), the picture is exactly
+    /// one pixel per cell.
     pub legend: bool,
 }
 

@@ -1,8 +1,9 @@
 //! Saving the probability map as a PNG: one pixel per grid cell, in the terminal view's colours,
 //! north (highest y) up, with the map's geometry in a text chunk so the picture can be placed in the
-//! world again. The picture itself is `sonar_mapfiles`' (the same as `sonar-export --no-legend`);
-//! this module names and places the file.
+//! world again, and below it the legend (scale bar and colour code). The picture itself is
+//! `sonar_mapfiles`', the very one `sonar-export` writes; this module names and places the file.
 
+use std::ffi::OsString;
 use std::fs::{File, OpenOptions};
 use std::io::{self, BufWriter, ErrorKind, Write};
 use std::path::{Path, PathBuf};
@@ -12,10 +13,22 @@ use sonar_mapfiles::{Map, MapError};
 
 use crate::app::GridSnapshot;
 
-/// Encodes `grid` as an 8-bit RGB PNG, one pixel per cell (no legend).
+/// Encodes `grid` as an 8-bit RGB PNG, one pixel per cell, with the legend below, as
+/// `sonar-export` does.
 pub fn write_png<W: Write>(out: W, grid: &GridSnapshot) -> Result<(), MapError> {
     let map = Map::new(&grid.header, &grid.cells)?;
-    sonar_mapfiles::picture::write_png(out, &map, &PngOptions { legend: false })
+    sonar_mapfiles::picture::write_png(out, &map, &PngOptions { legend: true })
+}
+
+/// Where `s` saves maps unless `--save-dir` says otherwise: `$XDG_DATA_HOME/sonar/maps`, else
+/// `~/.local/share/sonar/maps` (the XDG default), else `sonar/maps` in the temporary directory.
+/// Given the two variables' values, so that it can be tested without touching the environment.
+pub fn default_save_dir(xdg_data_home: Option<OsString>, home: Option<OsString>) -> PathBuf {
+    let non_empty = |v: Option<OsString>| v.filter(|v| !v.is_empty()).map(PathBuf::from);
+    let data = non_empty(xdg_data_home)
+        .or_else(|| non_empty(home).map(|home| home.join(".local/share")))
+        .unwrap_or_else(std::env::temp_dir);
+    data.join("sonar/maps")
 }
 
 /// `sonar-map-YYYYMMDD-HHMMSS.png`, UTC.
@@ -30,8 +43,11 @@ pub fn file_stem(unix_secs: u64) -> String {
     )
 }
 
-/// Saves `grid` into `dir` under a timestamped name that no existing file has; returns the path.
+/// Saves `grid` into `dir` (created if missing) under a timestamped name that no existing file
+/// has; returns the path.
 pub fn save_png(dir: &Path, grid: &GridSnapshot, unix_secs: u64) -> io::Result<PathBuf> {
+    std::fs::create_dir_all(dir)
+        .map_err(|e| io::Error::new(e.kind(), format!("{}: {e}", dir.display())))?;
     let stem = file_stem(unix_secs);
     let (path, file) = create_unique(dir, &stem)?;
     let mut out = BufWriter::new(file);
@@ -86,6 +102,7 @@ mod tests {
     use super::*;
     use crate::heatmap::cell_rgb;
     use sonar_common::ipc::{CELL_UNKNOWN, GridHeader, LAYOUT_VERSION};
+    use sonar_mapfiles::picture::LEGEND_HEIGHT;
 
     #[test]
     fn file_names_carry_the_utc_time() {
@@ -110,7 +127,7 @@ mod tests {
     }
 
     #[test]
-    fn png_has_one_pixel_per_cell_with_the_highest_row_on_top() {
+    fn png_has_one_pixel_per_cell_with_the_highest_row_on_top_and_the_legend_below() {
         let mut bytes = Vec::new();
         write_png(&mut bytes, &grid()).unwrap();
         let mut reader = png::Decoder::new(std::io::Cursor::new(bytes))
@@ -118,21 +135,46 @@ mod tests {
             .unwrap();
         let mut pixels = vec![0; reader.output_buffer_size().unwrap()];
         let info = reader.next_frame(&mut pixels).unwrap();
-        assert_eq!((info.width, info.height), (3, 2));
-        let px = |x: usize, y: usize| &pixels[(y * 3 + x) * 3..(y * 3 + x) * 3 + 3];
+        // As `sonar-export` writes it: widened for the legend strip below the map.
+        assert_eq!(info.height, 2 + LEGEND_HEIGHT);
+        assert!(info.width > 3);
+        let width = info.width as usize;
+        let px = |x: usize, y: usize| &pixels[(y * width + x) * 3..(y * width + x) * 3 + 3];
         assert_eq!(px(0, 0), cell_rgb(0));
         assert_eq!(px(1, 1), cell_rgb(CELL_UNKNOWN));
         assert_eq!(px(2, 1), cell_rgb(254));
     }
 
     #[test]
-    fn saving_twice_in_a_second_keeps_both() {
-        let dir = std::env::temp_dir().join(format!("sonar-viewer-test-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+    fn saving_twice_in_a_second_keeps_both_in_a_directory_it_creates() {
+        let top = std::env::temp_dir().join(format!("sonar-viewer-test-{}", std::process::id()));
+        let dir = top.join("sonar/maps");
+        assert!(!dir.exists());
         let a = save_png(&dir, &grid(), 0).unwrap();
         let b = save_png(&dir, &grid(), 0).unwrap();
-        assert_eq!(a.file_name().unwrap(), "sonar-map-19700101-000000.png");
-        assert_eq!(b.file_name().unwrap(), "sonar-map-19700101-000000-2.png");
-        std::fs::remove_dir_all(&dir).unwrap();
+        assert_eq!(a, dir.join("sonar-map-19700101-000000.png"));
+        assert_eq!(b, dir.join("sonar-map-19700101-000000-2.png"));
+        // A directory that cannot be made (a file is in the way) is an error naming it.
+        let blocked = a.join("maps");
+        let e = save_png(&blocked, &grid(), 0).unwrap_err();
+        assert!(e.to_string().contains(&*blocked.to_string_lossy()), "{e}");
+        std::fs::remove_dir_all(&top).unwrap();
+    }
+
+    #[test]
+    fn maps_go_to_the_xdg_data_directory() {
+        let os = |s: &str| Some(OsString::from(s));
+        assert_eq!(
+            default_save_dir(os("/data"), os("/home/u")),
+            PathBuf::from("/data/sonar/maps")
+        );
+        assert_eq!(
+            default_save_dir(os(""), os("/home/u")),
+            PathBuf::from("/home/u/.local/share/sonar/maps")
+        );
+        assert_eq!(
+            default_save_dir(None, None),
+            std::env::temp_dir().join("sonar/maps")
+        );
     }
 }

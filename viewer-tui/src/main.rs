@@ -58,9 +58,10 @@ struct Args {
     /// Frames per second at most; snapshots arriving faster are skipped, never queued.
     #[arg(long, default_value_t = 25, value_parser = clap::value_parser!(u32).range(1..=60))]
     fps: u32,
-    /// Directory where `s` saves the map as PNG.
-    #[arg(long, default_value = ".", value_name = "DIR")]
-    save_dir: PathBuf,
+    /// Directory where `s` saves the map as PNG (with its legend, as sonar-export's), created if
+    /// missing [default: $XDG_DATA_HOME/sonar/maps, else ~/.local/share/sonar/maps].
+    #[arg(long, value_name = "DIR")]
+    save_dir: Option<PathBuf>,
     /// Log file [default: sonar-viewer.log in $XDG_STATE_HOME/sonar, else ~/.local/state/sonar,
     /// as sonar-pipeline's]; the level comes from RUST_LOG (default info, iceoryx2's at error).
     #[arg(long, value_name = "FILE")]
@@ -317,7 +318,7 @@ fn perform(action: Action, app: &mut App, source: &mut Source, args: &Args) -> b
         Action::Fusion(cmd) => delivery(source.send_fusion(cmd, now), "fusion engine"),
         Action::SaveMap => match &app.grid {
             None => Err("no map yet".to_owned()),
-            Some(grid) => export::save_png(&args.save_dir, grid, unix_time_ns() / 1_000_000_000)
+            Some(grid) => export::save_png(&save_dir(args), grid, unix_time_ns() / 1_000_000_000)
                 .map(|path| format!("saved {}", path.display()))
                 .map_err(|e| e.to_string()),
         },
@@ -333,6 +334,12 @@ fn perform(action: Action, app: &mut App, source: &mut Source, args: &Args) -> b
         }
     });
     false
+}
+
+fn save_dir(args: &Args) -> PathBuf {
+    args.save_dir.clone().unwrap_or_else(|| {
+        export::default_save_dir(std::env::var_os("XDG_DATA_HOME"), std::env::var_os("HOME"))
+    })
 }
 
 fn delivery(sent: Result<usize, String>, receiver: &str) -> Result<String, String> {
