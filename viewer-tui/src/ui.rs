@@ -2,8 +2,10 @@
 //! kept between frames is the pooled map picture in [`MapCache`], which is recomputed only when a
 //! new grid arrives or the view moves.
 //!
-//! Layout: the view(s) on the left, the status panel on the right (when the terminal is at least
-//! [`PANEL_MIN_TERMINAL_WIDTH`] wide), one status line at the bottom, the key help on top when asked.
+//! Layout: the view(s) on the left, the status panel on the right, one status line at the bottom,
+//! the key help on top when asked. A terminal narrower than [`PANEL_MIN_TERMINAL_WIDTH`] or lower
+//! than [`PANEL_MIN_TERMINAL_HEIGHT`] gets the compact layout instead: the essentials of the panel
+//! (liveness, errors, scan, cursor, rate) in one line above the status line.
 //!
 //! Text without colour (what `tmux capture-pane -p` returns) still tells the map apart: in the map,
 //! `▄` marks a terminal cell holding an occupied pixel (a wall), `▀` observed space without walls,
@@ -38,6 +40,8 @@ use crate::heatmap::{
 pub const PANEL_WIDTH: u16 = 34;
 /// Narrower terminals show only the view(s) and the status line.
 pub const PANEL_MIN_TERMINAL_WIDTH: u16 = 72;
+/// Lower terminals show the compact line instead of the panel, which would be cut short.
+pub const PANEL_MIN_TERMINAL_HEIGHT: u16 = 16;
 /// The radar's inside below which its labels would run into each other (columns, rows).
 const RADAR_LABELS_MIN: (u16, u16) = (16, 6);
 /// Radar range when the snapshot does not give one (the SRF05's 4 m).
@@ -89,13 +93,19 @@ pub fn render(
     cache: &mut MapCache,
     now: Instant,
 ) -> DrawInfo {
-    let [main, bottom] = Layout::vertical([Constraint::Min(1), Constraint::Length(1)]).areas(area);
-    let (views, panel) = if main.width >= PANEL_MIN_TERMINAL_WIDTH {
+    let compact = area.width < PANEL_MIN_TERMINAL_WIDTH || area.height < PANEL_MIN_TERMINAL_HEIGHT;
+    let [main, summary, bottom] = Layout::vertical([
+        Constraint::Min(1),
+        Constraint::Length(u16::from(compact && area.height >= 3)),
+        Constraint::Length(1),
+    ])
+    .areas(area);
+    let (views, panel) = if compact {
+        (main, None)
+    } else {
         let [views, panel] =
             Layout::horizontal([Constraint::Min(1), Constraint::Length(PANEL_WIDTH)]).areas(main);
         (views, Some(panel))
-    } else {
-        (main, None)
     };
     let mut info = DrawInfo::default();
     match app.view {
@@ -118,7 +128,10 @@ pub fn render(
             .block(block)
             .render(panel, buf);
     }
-    Paragraph::new(bottom_line(app, panel.is_none())).render(bottom, buf);
+    if summary.height > 0 {
+        Paragraph::new(compact_line(app, now)).render(summary, buf);
+    }
+    Paragraph::new(bottom_line(app)).render(bottom, buf);
     if app.show_help {
         render_help(area, buf);
     }
@@ -847,12 +860,13 @@ fn status_lines(app: &App, now: Instant, width: u16, height: u16) -> Vec<Line<'s
         vec![liveness_span(app.fusion_peer.liveness(now), "fusion")],
     ));
 
-    let mode = app.scan_mode();
-    let (sweep_id, angle, direction) = match (&app.driver, &app.radar) {
-        (Some(s), _) => (s.sweep_id, s.angle_deg, s.direction),
-        (None, Some(r)) => (r.sweep_id, r.current_angle_deg, r.direction),
-        (None, None) => (0, f32::NAN, 0),
-    };
+    let Sweep {
+        mode,
+        sweep_id,
+        angle,
+        direction,
+        progress,
+    } = Sweep::of(app);
     let mut scan = match mode {
         ScanMode::Unknown if app.driver.is_none() && app.radar.is_none() => vec![text("–")],
         _ => vec![text(mode_name(mode))],
@@ -864,9 +878,6 @@ fn status_lines(app: &App, now: Instant, width: u16, height: u16) -> Vec<Line<'s
         )));
     }
     lines.push(row("scan", scan));
-    let progress = app
-        .sweep_segment()
-        .and_then(|s| sweep_progress(angle, direction, s));
     let mut sweep = Vec::new();
     if let Some(f) = progress {
         sweep.push(Span::styled(
@@ -880,10 +891,7 @@ fn status_lines(app: &App, now: Instant, width: u16, height: u16) -> Vec<Line<'s
     }
     lines.push(row("sweep", sweep));
 
-    let rate = match (driver_live, app.rate.per_second()) {
-        (Liveness::Alive, Some(r)) => format!("{r:.1} readings/s"),
-        _ => "–".to_owned(),
-    };
+    let rate = rate_text(app, now).unwrap_or_else(|| "–".to_owned());
     lines.push(row("rate", vec![text(rate)]));
     let rejected = app.driver.map_or(0, |s| s.lines_rejected);
     let rejected_style = if rejected > 0 {
@@ -908,15 +916,9 @@ fn status_lines(app: &App, now: Instant, width: u16, height: u16) -> Vec<Line<'s
         }
         lines.push(row("head", head));
     }
-    if let Some(s) = app.driver.as_ref().filter(|s| s.device_errors > 0) {
+    if let Some(error) = device_error(app) {
         // A refused command (e.g. a local scan outside the limits) must reach the user.
-        lines.push(row(
-            "head err",
-            vec![Span::styled(
-                s.last_device_error().to_owned(),
-                Style::new().fg(Color::Red),
-            )],
-        ));
+        lines.push(row("head err", vec![error]));
     }
     for (i, r) in app.readings.iter().enumerate() {
         lines.push(row(
@@ -962,13 +964,8 @@ fn status_lines(app: &App, now: Instant, width: u16, height: u16) -> Vec<Line<'s
                 "",
                 vec![text(format!("{} unknown", format_count(h.unknown_cells)))],
             ));
-            if let Some((x, y)) = app.map.cursor {
-                let (wx, wy) = g.cell_center_m(x, y);
-                lines.push(row("cursor", vec![text(format!("{wx:+.2}, {wy:+.2} m"))]));
-                let p = match g.cell(x, y).and_then(decode_probability) {
-                    Some(p) => format!("p = {p:.2} {}", if p > 0.5 { "occupied" } else { "free" }),
-                    None => "never observed".to_owned(),
-                };
+            if let Some((position, p)) = cursor_text(app) {
+                lines.push(row("cursor", vec![text(position)]));
                 lines.push(row("", vec![text(p)]));
             }
         }
@@ -1010,6 +1007,107 @@ fn status_lines(app: &App, now: Instant, width: u16, height: u16) -> Vec<Line<'s
     lines.extend(confident_features(app, room));
     lines.extend(ipc);
     lines
+}
+
+/// Where the scan is, from the driver's status (or the radar when the driver has not said).
+struct Sweep {
+    mode: ScanMode,
+    sweep_id: u32,
+    angle: f32,
+    direction: i32,
+    /// 0 at the start of the pass, 1 at its end; `None` when not known.
+    progress: Option<f32>,
+}
+
+impl Sweep {
+    fn of(app: &App) -> Self {
+        let (sweep_id, angle, direction) = match (&app.driver, &app.radar) {
+            (Some(s), _) => (s.sweep_id, s.angle_deg, s.direction),
+            (None, Some(r)) => (r.sweep_id, r.current_angle_deg, r.direction),
+            (None, None) => (0, f32::NAN, 0),
+        };
+        Self {
+            mode: app.scan_mode(),
+            sweep_id,
+            angle,
+            direction,
+            progress: app
+                .sweep_segment()
+                .and_then(|s| sweep_progress(angle, direction, s)),
+        }
+    }
+}
+
+/// Readings per second while the driver is alive and a rate is known.
+fn rate_text(app: &App, now: Instant) -> Option<String> {
+    match (app.driver_peer.liveness(now), app.rate.per_second()) {
+        (Liveness::Alive, Some(r)) => Some(format!("{r:.1} readings/s")),
+        _ => None,
+    }
+}
+
+/// The head's latest refusal, in red; `None` when it refused nothing.
+fn device_error(app: &App) -> Option<Span<'static>> {
+    app.driver
+        .as_ref()
+        .filter(|s| s.device_errors > 0)
+        .map(|s| {
+            Span::styled(
+                s.last_device_error().to_owned(),
+                Style::new().fg(Color::Red),
+            )
+        })
+}
+
+/// The cursor's position in metres and its cell's probability ("p = 0.08 free", "never
+/// observed"); `None` without a map or a cursor.
+fn cursor_text(app: &App) -> Option<(String, String)> {
+    let g = app.grid.as_ref()?;
+    let (x, y) = app.map.cursor?;
+    let (wx, wy) = g.cell_center_m(x, y);
+    let p = match g.cell(x, y).and_then(decode_probability) {
+        Some(p) => format!("p = {p:.2} {}", if p > 0.5 { "occupied" } else { "free" }),
+        None => "never observed".to_owned(),
+    };
+    Some((format!("{wx:+.2}, {wy:+.2} m"), p))
+}
+
+/// The compact layout's one line: what the status panel would say first, most urgent first —
+/// the producers' liveness, a refused command, an IPC problem, the scan and its progress, the
+/// cursor, the rate. Whatever does not fit the terminal's width is cut at the end.
+fn compact_line(app: &App, now: Instant) -> Line<'static> {
+    let mut parts: Vec<Vec<Span<'static>>> = Vec::new();
+    for (name, peer) in [("driver", &app.driver_peer), ("fusion", &app.fusion_peer)] {
+        let liveness = peer.liveness(now);
+        parts.push(match liveness {
+            Liveness::Waiting => vec![liveness_span(liveness, name)],
+            _ => vec![text(format!("{name} ")), liveness_span(liveness, name)],
+        });
+    }
+    parts.extend(device_error(app).map(|e| vec![e]));
+    parts.extend(app.ipc_problem.as_ref().map(|problem| {
+        vec![Span::styled(
+            format!("ipc {problem}"),
+            Style::new().fg(Color::Red),
+        )]
+    }));
+    if app.driver.is_some() || app.radar.is_some() {
+        let sweep = Sweep::of(app);
+        let progress = sweep
+            .progress
+            .map_or_else(String::new, |f| format!(" {:.0}%", f * 100.0));
+        parts.push(vec![text(format!("{}{progress}", mode_name(sweep.mode)))]);
+    }
+    parts.extend(cursor_text(app).map(|(position, p)| vec![text(format!("+ {position} {p}"))]));
+    parts.extend(rate_text(app, now).map(|rate| vec![text(rate)]));
+    let mut spans = vec![text(" ")];
+    for (i, part) in parts.into_iter().enumerate() {
+        if i > 0 {
+            spans.push(Span::styled(" · ", LABEL));
+        }
+        spans.extend(part);
+    }
+    Line::from(spans)
 }
 
 /// An angle in degrees within [-180, 180).
@@ -1060,9 +1158,8 @@ fn fix_lines(fix: &LocalizedPose) -> Vec<Line<'static>> {
     lines
 }
 
-/// The keys, or the selection's or a message's line; says so when the terminal is too narrow for
-/// the status panel, which would otherwise vanish without a word.
-fn bottom_line(app: &App, panel_hidden: bool) -> Line<'static> {
+/// The keys, or the selection's or a message's line.
+fn bottom_line(app: &App) -> Line<'static> {
     let key = Style::new().fg(Color::Cyan).add_modifier(Modifier::BOLD);
     if let Some(s) = app.selection {
         return Line::from(vec![
@@ -1090,12 +1187,6 @@ fn bottom_line(app: &App, panel_hidden: bool) -> Line<'static> {
         ]);
     }
     let mut spans = vec![text(" ")];
-    if panel_hidden {
-        spans.push(Span::styled(
-            format!("status from {PANEL_MIN_TERMINAL_WIDTH} cols  "),
-            Style::new().fg(Color::Yellow),
-        ));
-    }
     for (k, what) in [
         ("f", "full scan"),
         ("l", "local"),

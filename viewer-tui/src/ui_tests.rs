@@ -189,7 +189,7 @@ fn map_view_shows_walls_free_and_unknown_apart() {
     insta::assert_snapshot!(terminal.backend());
 
     let buf = terminal.backend().buffer();
-    let inner = Rect::new(1, 1, 62, 21);
+    let inner = Rect::new(1, 1, 62, 20);
     let palette = Palette::new(ColorMode::TrueColor);
     // The east wall (x = 100) at mid height.
     let (pos, _) = cell_of(&app, inner, 100, 40);
@@ -305,7 +305,7 @@ fn walls_corners_and_posts_are_drawn_over_the_map() {
     insta::assert_snapshot!(terminal.backend());
 
     let buf = terminal.backend().buffer();
-    let inner = Rect::new(1, 1, 62, 21);
+    let inner = Rect::new(1, 1, 62, 20);
     let green = app.palette.feature();
     let (corner, _) = cell_of(&app, inner, 100, 10);
     assert_eq!((buf[corner].symbol(), buf[corner].fg), ("◆", green));
@@ -402,7 +402,7 @@ fn downsampling_keeps_a_single_occupied_cell_visible() {
     let buf = terminal.backend().buffer();
     let text = screen_text(buf);
     assert_eq!(text.matches('▄').count(), 1, "{text}");
-    let (pos, upper) = cell_of(&app, Rect::new(1, 1, 38, 11), x, y);
+    let (pos, upper) = cell_of(&app, Rect::new(1, 1, 38, 10), x, y);
     assert_eq!(buf[pos].symbol(), "▄");
     let occupied = Palette::new(ColorMode::Indexed256).color(Some(encode_probability(0.9)));
     let shown = if upper { buf[pos].bg } else { buf[pos].fg };
@@ -538,6 +538,43 @@ fn the_head_its_silences_and_its_latest_error_reach_the_status_panel() {
     ] {
         assert!(screen.contains(shown), "{shown:?} in {screen}");
     }
+}
+
+/// Issue 16: a terminal too small for the status panel gets its essentials in one line, the
+/// cursor's cell included; problems come first, so they are never the part cut off.
+#[test]
+fn a_small_terminal_shows_the_essentials_in_one_line() {
+    let t0 = Instant::now();
+    let mut app = live_app(t0);
+    let terminal = draw(&mut app, 70, 14, t0);
+    insta::assert_snapshot!(terminal.backend());
+    let screen = screen_text(terminal.backend().buffer());
+    let line = screen.lines().nth(12).unwrap();
+    assert_eq!(
+        line.trim_end(),
+        " driver alive · fusion alive · full 65% · + +0.03, +0.03 m p = 0.08 fr"
+    );
+    // Low but wide: compact too (the panel would be cut short).
+    let screen = screen_text(draw(&mut app, 120, 12, t0).backend().buffer());
+    assert!(
+        screen.contains("p = 0.08 free · 5.0 readings/s"),
+        "{screen}"
+    );
+
+    // A producer gone and the head's refusal lead the line.
+    let mut status = *app.driver.as_ref().unwrap();
+    status.device_errors = 1;
+    status.stamp_ns += 1_000_000_000;
+    sonar_common::ipc::set_padded_text(&mut status.last_device_error, "RANGE: 100..200");
+    app.on_driver_status(&status, t0).unwrap();
+    let later = t0 + Duration::from_secs(5);
+    app.on_publishers(true, false, later);
+    let screen = screen_text(draw(&mut app, 70, 14, later).backend().buffer());
+    let line = screen.lines().nth(12).unwrap();
+    assert!(
+        line.starts_with(" driver alive · fusion gone for 5 s · RANGE: 100..200 · full"),
+        "{line}"
+    );
 }
 
 #[test]
@@ -822,7 +859,7 @@ fn a_moving_robot_is_drawn_with_its_heading_its_trail_and_its_fix() {
 }
 
 /// Issue 16, #10: at 80×24 the radar's ring labels do not run into each other and the titles fit;
-/// narrower, the bottom line says why the status panel is gone; tiny, no label is cut into `90°°`.
+/// narrower, the compact line stands in for the status panel; tiny, no label is cut into `90°°`.
 #[test]
 fn small_terminals_keep_labels_apart_and_say_when_the_panel_is_hidden() {
     let t0 = Instant::now();
@@ -840,12 +877,16 @@ fn small_terminals_keep_labels_apart_and_say_when_the_panel_is_hidden() {
             let screen = screen_text(draw(&mut app, w, h, t0).backend().buffer());
             assert!(!labels_touch(&screen), "{w}×{h}:\n{screen}");
             assert!(screen.contains("radar ·"), "{w}×{h}:\n{screen}");
-            assert!(!screen.contains("status from"), "{w}×{h}:\n{screen}");
+            assert!(screen.contains("┌ status"), "{w}×{h}:\n{screen}");
         }
     }
     let mut app = live_app(t0);
     let screen = screen_text(draw(&mut app, 60, 20, t0).backend().buffer());
-    assert!(screen.contains("status from 72 cols"), "{screen}");
+    assert!(!screen.contains("┌ status"), "{screen}");
+    assert!(
+        screen.contains(" driver alive · fusion alive · full 65% · + "),
+        "{screen}"
+    );
     for (w, h) in [(20, 5), (24, 8), (30, 10)] {
         let mut app = live_app(t0);
         app.view = View::Radar;
