@@ -9,7 +9,9 @@
 use std::ops::Range;
 
 use ratatui::style::Color;
-use sonar_common::ipc::{CELL_UNKNOWN, FeatureRecord, GridHeader, feature_kind};
+use sonar_common::ipc::{
+    CELL_UNKNOWN, FeatureRecord, GridHeader, decode_probability, feature_kind,
+};
 
 /// Cells with a value above this have p > 0.5, the threshold `GridHeader::occupied_cells` uses.
 pub const OCCUPIED_ABOVE: u8 = 127;
@@ -531,17 +533,69 @@ pub enum ColorMode {
     /// The xterm 256-colour palette (its 6×6×6 cube and grey ramp; the 16 themeable colours are
     /// avoided because users redefine them).
     Indexed256,
+    /// The 16 ANSI colours: the colour code in bands ([`ansi16`]).
+    Ansi16,
+    /// No colour at all (`NO_COLOR`): the map's glyphs carry the probability ([`mono_glyph`]).
+    Mono,
 }
 
 impl ColorMode {
-    /// Truecolor when `COLORTERM` says so (the de-facto convention), else 256 colours.
-    pub fn detect(colorterm: Option<&str>) -> Self {
-        match colorterm {
-            Some(v) if v.eq_ignore_ascii_case("truecolor") || v.eq_ignore_ascii_case("24bit") => {
-                ColorMode::TrueColor
-            }
-            _ => ColorMode::Indexed256,
+    /// From the environment's conventions: `NO_COLOR` set and not empty (no-color.org) or
+    /// `TERM=dumb`: none; `COLORTERM` `truecolor`/`24bit`: truecolor; a `TERM` of the Linux
+    /// console, a VT or ANSI terminal or one named `*-color`, `*-8color`, `*-16color`: the 16 ANSI
+    /// colours; else (`*-256color`, `xterm`, `screen`, `tmux`, unset) the 256-colour palette.
+    pub fn detect(colorterm: Option<&str>, term: Option<&str>, no_color: Option<&str>) -> Self {
+        let term = term.unwrap_or("").to_ascii_lowercase();
+        if no_color.is_some_and(|v| !v.is_empty()) || term == "dumb" {
+            return ColorMode::Mono;
         }
+        if colorterm
+            .is_some_and(|v| v.eq_ignore_ascii_case("truecolor") || v.eq_ignore_ascii_case("24bit"))
+        {
+            return ColorMode::TrueColor;
+        }
+        let few = ["linux", "vt", "ansi", "cons"]
+            .iter()
+            .any(|p| term.starts_with(p))
+            || ["-color", "-8color", "-16color"]
+                .iter()
+                .any(|s| term.ends_with(s));
+        if few && !term.contains("256") {
+            ColorMode::Ansi16
+        } else {
+            ColorMode::Indexed256
+        }
+    }
+}
+
+/// The colour code in the 16 ANSI colours, by bands of probability: blue (p < 0.2), light blue,
+/// grey around even odds (0.4–0.6), light red, red (p ≥ 0.8); dark grey never observed.
+pub fn ansi16(cell: u8) -> Color {
+    match decode_probability(cell) {
+        None => Color::DarkGray,
+        Some(p) if p < 0.2 => Color::Blue,
+        Some(p) if p < 0.4 => Color::LightBlue,
+        Some(p) if p < 0.6 => Color::Gray,
+        Some(p) if p < 0.8 => Color::LightRed,
+        Some(_) => Color::Red,
+    }
+}
+
+/// Without colours, the glyph of a terminal cell showing two pixels: the darker the more likely
+/// occupied, by the higher of their probabilities (so a wall pixel is never lost): `█` p > 0.75,
+/// `▓` p > 0.5 (both occupied), `▒` p > 0.25, `░` free, a blank never observed or outside.
+pub fn mono_glyph(upper: Option<u8>, lower: Option<u8>) -> char {
+    let p = [upper, lower]
+        .into_iter()
+        .flatten()
+        .filter_map(decode_probability)
+        .reduce(f32::max);
+    match p {
+        None => ' ',
+        Some(p) if p > 0.75 => '█',
+        Some(p) if p > 0.5 => '▓',
+        Some(p) if p > 0.25 => '▒',
+        Some(_) => '░',
     }
 }
 
@@ -587,6 +641,7 @@ pub const TRAIL_RGB: [u8; 3] = [200, 130, 255];
 /// Cell value → terminal colour, precomputed for one [`ColorMode`], and the overlays' colours.
 #[derive(Debug, Clone)]
 pub struct Palette {
+    mode: ColorMode,
     colors: [Color; 256],
     feature: Color,
     trail: Color,
@@ -594,15 +649,27 @@ pub struct Palette {
 
 impl Palette {
     pub fn new(mode: ColorMode) -> Self {
-        let color = |rgb: [u8; 3]| match mode {
+        let color = |rgb: [u8; 3], ansi: Color| match mode {
             ColorMode::TrueColor => Color::Rgb(rgb[0], rgb[1], rgb[2]),
             ColorMode::Indexed256 => Color::Indexed(nearest_xterm256(rgb)),
+            ColorMode::Ansi16 => ansi,
+            ColorMode::Mono => Color::Reset,
         };
         Self {
-            colors: std::array::from_fn(|v| color(cell_rgb(v as u8))),
-            feature: color(FEATURE_RGB),
-            trail: color(TRAIL_RGB),
+            mode,
+            colors: std::array::from_fn(|v| color(cell_rgb(v as u8), ansi16(v as u8))),
+            feature: color(FEATURE_RGB, Color::LightGreen),
+            trail: color(TRAIL_RGB, Color::LightMagenta),
         }
+    }
+
+    pub fn mode(&self) -> ColorMode {
+        self.mode
+    }
+
+    /// No colours: shapes alone must tell things apart.
+    pub fn is_mono(&self) -> bool {
+        self.mode == ColorMode::Mono
     }
 
     /// The colour of the robot's trail.
@@ -947,9 +1014,64 @@ mod tests {
 
     #[test]
     fn colour_mode_detection() {
-        assert_eq!(ColorMode::detect(Some("truecolor")), ColorMode::TrueColor);
-        assert_eq!(ColorMode::detect(Some("24bit")), ColorMode::TrueColor);
-        assert_eq!(ColorMode::detect(Some("")), ColorMode::Indexed256);
-        assert_eq!(ColorMode::detect(None), ColorMode::Indexed256);
+        use ColorMode::*;
+        let xterm = Some("xterm-256color");
+        assert_eq!(ColorMode::detect(Some("truecolor"), xterm, None), TrueColor);
+        assert_eq!(ColorMode::detect(Some("24bit"), None, None), TrueColor);
+        assert_eq!(ColorMode::detect(Some(""), xterm, None), Indexed256);
+        assert_eq!(ColorMode::detect(None, None, None), Indexed256);
+        assert_eq!(ColorMode::detect(None, Some("screen"), None), Indexed256);
+        // NO_COLOR wins over everything, unless empty (no-color.org).
+        assert_eq!(ColorMode::detect(Some("truecolor"), xterm, Some("1")), Mono);
+        assert_eq!(ColorMode::detect(None, xterm, Some("")), Indexed256);
+        assert_eq!(ColorMode::detect(None, Some("dumb"), None), Mono);
+        for few in [
+            "linux",
+            "vt220",
+            "ansi",
+            "xterm-color",
+            "rxvt-16color",
+            "screen-8color",
+        ] {
+            assert_eq!(ColorMode::detect(None, Some(few), None), Ansi16, "{few}");
+        }
+        assert_eq!(
+            ColorMode::detect(None, Some("rxvt-unicode-256color"), None),
+            Indexed256
+        );
+    }
+
+    /// 16 colours: the code in bands, each band apart from its neighbours and from "never
+    /// observed"; no colours: glyphs as dark as the cell is likely occupied.
+    #[test]
+    fn sixteen_colours_and_none_keep_the_classes_apart() {
+        let p16 = Palette::new(ColorMode::Ansi16);
+        let bands: Vec<Color> = [0.0, 0.3, 0.5, 0.7, 1.0]
+            .iter()
+            .map(|&p| p16.color(Some(sonar_common::ipc::encode_probability(p))))
+            .collect();
+        assert_eq!(
+            bands,
+            [
+                Color::Blue,
+                Color::LightBlue,
+                Color::Gray,
+                Color::LightRed,
+                Color::Red
+            ]
+        );
+        assert_eq!(p16.color(Some(CELL_UNKNOWN)), Color::DarkGray);
+        assert!(!bands.contains(&p16.feature()) && !bands.contains(&p16.trail()));
+
+        let mono = Palette::new(ColorMode::Mono);
+        assert!(mono.is_mono());
+        assert!((0..=255).all(|v| mono.color(Some(v)) == Color::Reset));
+        let cell = |p: f32| Some(sonar_common::ipc::encode_probability(p));
+        assert_eq!(mono_glyph(cell(0.1), cell(0.1)), '░');
+        assert_eq!(mono_glyph(cell(0.4), None), '▒');
+        assert_eq!(mono_glyph(cell(0.6), cell(0.1)), '▓');
+        assert_eq!(mono_glyph(Some(CELL_UNKNOWN), cell(0.95)), '█');
+        assert_eq!(mono_glyph(Some(CELL_UNKNOWN), None), ' ');
+        assert_eq!(mono_glyph(None, None), ' ');
     }
 }

@@ -52,7 +52,9 @@ struct Args {
     /// View at start: map, radar or split (both).
     #[arg(long, value_enum, default_value_t = ViewArg::Split)]
     view: ViewArg,
-    /// Colours: auto (truecolor if COLORTERM is truecolor or 24bit, else 256), truecolor, 256.
+    /// Colours: auto, truecolor, 256, 16 (the ANSI colours) or none (shapes only). Auto: none if
+    /// NO_COLOR is set (not empty) or TERM is dumb, truecolor if COLORTERM is truecolor or 24bit,
+    /// 16 for TERM=linux, vt*, ansi*, *-color, *-16color, else 256.
     #[arg(long, value_enum, default_value_t = ColorArg::Auto)]
     color: ColorArg,
     /// Frames per second at most; snapshots arriving faster are skipped, never queued.
@@ -93,6 +95,9 @@ enum ColorArg {
     Truecolor,
     #[value(name = "256")]
     Ansi256,
+    #[value(name = "16")]
+    Ansi16,
+    None,
 }
 
 fn main() -> ExitCode {
@@ -197,9 +202,18 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
         .context("cannot join the iceoryx2 pipeline")?;
     let quit = quit_on_signals(&node)?;
     let mode = match args.color {
-        ColorArg::Auto => ColorMode::detect(std::env::var("COLORTERM").ok().as_deref()),
+        ColorArg::Auto => {
+            let var = |name| std::env::var(name).ok();
+            ColorMode::detect(
+                var("COLORTERM").as_deref(),
+                var("TERM").as_deref(),
+                var("NO_COLOR").as_deref(),
+            )
+        }
         ColorArg::Truecolor => ColorMode::TrueColor,
         ColorArg::Ansi256 => ColorMode::Indexed256,
+        ColorArg::Ansi16 => ColorMode::Ansi16,
+        ColorArg::None => ColorMode::Mono,
     };
     let mut app = App::new(Palette::new(mode), args.view.into());
     match &log {

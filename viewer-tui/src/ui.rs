@@ -34,6 +34,7 @@ use crate::app::{
 };
 use crate::heatmap::{
     FeatureMark, Palette, Pooled, Slope, Viewport, cell_rgb, feature_pixels, is_occupied,
+    mono_glyph,
 };
 
 /// Width of the status panel, borders included.
@@ -134,6 +135,13 @@ pub fn render(
     Paragraph::new(bottom_line(app)).render(bottom, buf);
     if app.show_help {
         render_help(area, buf);
+    }
+    if app.palette.is_mono() {
+        // NO_COLOR: not one colour anywhere, the labels' and warnings' included; every glyph
+        // was chosen to carry its meaning without.
+        for cell in &mut buf.content {
+            cell.set_fg(Color::Reset).set_bg(Color::Reset);
+        }
     }
     info
 }
@@ -360,13 +368,18 @@ fn feature_glyph(mark: FeatureMark) -> char {
     }
 }
 
-/// Two pixels per terminal cell, upper and lower, drawn with half blocks.
+/// Two pixels per terminal cell, upper and lower, drawn with half blocks; without colours, one
+/// shade glyph for both ([`mono_glyph`]).
 fn paint_pixels(area: Rect, buf: &mut Buffer, pooled: &Pooled, palette: &Palette) {
     for row in 0..area.height {
         for col in 0..area.width {
             let upper = pooled.get(u32::from(col), 2 * u32::from(row));
             let lower = pooled.get(u32::from(col), 2 * u32::from(row) + 1);
-            let (glyph, fg, bg) = half_block(upper, lower, palette);
+            let (glyph, fg, bg) = if palette.is_mono() {
+                (mono_glyph(upper, lower), Color::Reset, Color::Reset)
+            } else {
+                half_block(upper, lower, palette)
+            };
             if let Some(cell) = buf.cell_mut((area.x + col, area.y + row)) {
                 cell.set_char(glyph).set_fg(fg).set_bg(bg);
             }
@@ -440,12 +453,14 @@ fn render_radar(area: Rect, buf: &mut Buffer, app: &App, now: Instant) {
     let selection = app.selection;
     let beam_arcs = app.beam_arcs;
     let heading = Heading::of(app);
+    // Without colours rings and echoes would look alike: the rings are drawn dotted.
+    let dotted_rings = app.palette.is_mono().then_some(6.0 * dot);
     Canvas::default()
         .marker(Marker::Braille)
         .x_bounds([-hx, hx])
         .y_bounds([-hy, hy])
         .paint(|ctx| {
-            paint_rings(ctx, range, label_cell, labels, heading);
+            paint_rings(ctx, range, label_cell, labels, heading, dotted_rings);
             ctx.layer();
             let (echoes, silent) = radar_points(radar, range, dot, beam_arcs, heading);
             ctx.draw(&Points {
@@ -540,8 +555,15 @@ fn fitting_title(titles: &[String], width: u16) -> String {
 
 /// Rings at round distances, labelled in metres along the blind side behind the sensor (180°);
 /// the sensor's 0° and 90° marked where they point. No labels in a canvas too small to hold them
-/// apart.
-fn paint_rings(ctx: &mut Context, range: f64, label_cell: f64, labels: bool, heading: Heading) {
+/// apart. With `dotted`, the rings are dots that far apart instead of lines.
+fn paint_rings(
+    ctx: &mut Context,
+    range: f64,
+    label_cell: f64,
+    labels: bool,
+    heading: Heading,
+    dotted: Option<f64>,
+) {
     let step = ring_step(range);
     let rings = (range / step + 1e-6).floor() as usize;
     // Label every k-th ring counted from the outermost, which is always labelled, so the labels
@@ -549,12 +571,22 @@ fn paint_rings(ctx: &mut Context, range: f64, label_cell: f64, labels: bool, hea
     let every = ((6.0 * label_cell / step).ceil() as usize).max(1);
     for k in 1..=rings {
         let r = k as f64 * step;
-        ctx.draw(&Circle {
-            x: 0.0,
-            y: 0.0,
-            radius: r,
-            color: Color::DarkGray,
-        });
+        match dotted {
+            Some(spacing) => {
+                let mut dots = Vec::new();
+                arc(r, -180.0, 180.0, spacing, heading, &mut dots);
+                ctx.draw(&Points {
+                    coords: &dots,
+                    color: Color::DarkGray,
+                });
+            }
+            None => ctx.draw(&Circle {
+                x: 0.0,
+                y: 0.0,
+                radius: r,
+                color: Color::DarkGray,
+            }),
+        }
         if labels && (rings - k).is_multiple_of(every) {
             let (x, y) = heading.turn((-r, 0.0));
             ctx.print(x, y, Span::styled(format_length(r as f32), LABEL));

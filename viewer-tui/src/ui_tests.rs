@@ -577,6 +577,42 @@ fn a_small_terminal_shows_the_essentials_in_one_line() {
     );
 }
 
+/// Issue 16: `NO_COLOR` draws not one colour, the map's classes told apart by shade glyphs and the
+/// radar's rings dotted; 16 colours use only the ANSI ones.
+#[test]
+fn no_colour_and_sixteen_colours() {
+    let t0 = Instant::now();
+    let mut app = live_app(t0);
+    app.palette = Palette::new(ColorMode::Mono);
+    app.map.cursor = Some((30, 30));
+    let terminal = draw(&mut app, 120, 32, t0);
+    insta::assert_snapshot!(terminal.backend());
+    let buf = terminal.backend().buffer();
+    assert!(
+        buf.content()
+            .iter()
+            .all(|c| c.fg == Color::Reset && c.bg == Color::Reset)
+    );
+    let map = Rect::new(1, 1, 41, 29);
+    for ((x, y), glyph) in [((100, 40), "█"), ((40, 40), "░"), ((104, 40), " ")] {
+        let (pos, _) = cell_of(&app, map, x, y);
+        assert_eq!(buf[pos].symbol(), glyph, "cell ({x}, {y})");
+    }
+
+    app.palette = Palette::new(ColorMode::Ansi16);
+    let terminal = draw(&mut app, 120, 32, t0);
+    let buf = terminal.backend().buffer();
+    assert!(
+        buf.content()
+            .iter()
+            .all(|c| !matches!(c.fg, Color::Rgb(..) | Color::Indexed(_))
+                && !matches!(c.bg, Color::Rgb(..) | Color::Indexed(_)))
+    );
+    let (wall, upper) = cell_of(&app, map, 100, 40);
+    let shown = if upper { buf[wall].bg } else { buf[wall].fg };
+    assert_eq!((buf[wall].symbol(), shown), ("▄", Color::Red));
+}
+
 #[test]
 fn local_scan_selection_is_drawn_on_the_radar() {
     let t0 = Instant::now();
