@@ -25,8 +25,9 @@ use ratatui::widgets::canvas::{Canvas, Circle, Context, Line as CanvasLine, Poin
 use ratatui::widgets::{Block, Clear, Paragraph, Widget, Wrap};
 use sonar_common::ipc::{
     CELL_UNKNOWN, LinkState, LocalizedPose, Radar, Reading, ScanMode, decode_probability,
-    feature_kind, flags,
+    encode_probability, feature_kind, flags,
 };
+use sonar_mapfiles::picture::scale_bar;
 
 use crate::app::{
     App, Framing, GridSnapshot, KEYS, Liveness, MODELS, PRESETS, RULES, Segment, View,
@@ -49,6 +50,8 @@ const RADAR_LABELS_MIN: (u16, u16) = (16, 6);
 const DEFAULT_RADAR_RANGE_M: f64 = 4.0;
 
 const LABEL: Style = Style::new().fg(Color::DarkGray);
+/// The segment of a local scan that runs (the one being chosen is yellow).
+const LOCAL_SCAN_COLOR: Color = Color::Cyan;
 const WALL_GLYPH: char = '▄';
 const OBSERVED_GLYPH: char = '▀';
 const CURSOR_GLYPH: char = '+';
@@ -200,11 +203,16 @@ fn render_map(
         }
         None => " map ".to_owned(),
     };
-    let block = Block::bordered().title(title);
+    let mut block = Block::bordered().title(title);
     let inner = block.inner(area);
-    block.render(area, buf);
     let (w, h) = (u32::from(inner.width), 2 * u32::from(inner.height));
-    let Some(grid) = &app.grid else {
+    let shown = app.grid.as_ref().map(|g| (g, app.map.viewport(g, w, h)));
+    if let Some((grid, vp)) = &shown {
+        let (bar, legend) = map_legend(&app.palette, grid.header.resolution_m, vp, inner.width);
+        block = block.title_bottom(bar).title_bottom(legend.right_aligned());
+    }
+    block.render(area, buf);
+    let Some((grid, vp)) = shown else {
         let (text, style) = waiting_note(app, now, "map");
         render_note(inner, buf, text, style);
         return (w, h);
@@ -212,7 +220,6 @@ fn render_map(
     if w == 0 || h == 0 {
         return (w, h);
     }
-    let vp = app.map.viewport(grid, w, h);
     let key = (app.grid_generation, vp);
     if cache.key != Some(key) {
         cache.pooled.pool(
@@ -261,6 +268,91 @@ fn render_map(
     );
     mark(app.map.cursor, CURSOR_GLYPH);
     (w, h)
+}
+
+/// Probabilities the legend's colour ramp shows, free to occupied.
+const LEGEND_RAMP: [f32; 5] = [0.0, 0.3, 0.5, 0.7, 1.0];
+
+/// The map's bottom border: on the left a scale bar (`├───┤ 1 m`: a round length of at most a
+/// third of the picture's width, chosen as the saved PNG's), on the right the colour code from
+/// free to occupied and the colour of never-observed cells (without colours, the shade glyphs).
+/// Each only where the border has room for it.
+fn map_legend(
+    palette: &Palette,
+    resolution_m: f32,
+    vp: &Viewport,
+    width: u16,
+) -> (Line<'static>, Line<'static>) {
+    let width = usize::from(width);
+    let metres_per_column = vp.scale * f64::from(resolution_m);
+    let bar = scale_bar(metres_per_column as f32, u32::try_from(width).unwrap_or(0));
+    let columns = usize::try_from(bar.pixels).unwrap_or(usize::MAX);
+    let bar_line = if columns >= 2 && columns + bar.label.chars().count() + 2 <= width {
+        Line::from(vec![
+            Span::styled(
+                format!("├{}┤", "─".repeat(columns - 2)),
+                Style::new().add_modifier(Modifier::BOLD),
+            ),
+            text(format!(" {} ", bar.label)),
+        ])
+    } else {
+        Line::default()
+    };
+    let swatch = |cell: u8| {
+        if palette.is_mono() {
+            text(mono_glyph(Some(cell), None).to_string())
+        } else {
+            Span::styled("█", Style::new().fg(palette.color(Some(cell))))
+        }
+    };
+    let ramp = |occupied: &str| {
+        let mut spans = vec![text(" free ")];
+        spans.extend(LEGEND_RAMP.iter().map(|&p| swatch(encode_probability(p))));
+        spans.push(text(format!(" {occupied} ")));
+        spans
+    };
+    let mut full = ramp("occupied");
+    if !palette.is_mono() {
+        full.extend([swatch(CELL_UNKNOWN), text(" unseen ")]);
+    }
+    // Between the corners, with a column of border left between the two parts.
+    let room = width.saturating_sub(bar_line.width() + 1);
+    let legend = [full, ramp("occupied"), ramp("occ")]
+        .into_iter()
+        .map(Line::from)
+        .find(|l| l.width() <= room)
+        .unwrap_or_default();
+    (bar_line, legend)
+}
+
+/// The radar's bottom border: what its marks mean, as far as the border's width allows. Without
+/// colours, echoes are told from rings by the rings being dotted.
+fn radar_legend(app: &App, local_scan: bool, width: u16) -> Line<'static> {
+    let mark = |glyph: &str, color: Color, what: &str| {
+        vec![
+            Span::styled(glyph.to_owned(), Style::new().fg(color)),
+            text(format!(" {what} ")),
+        ]
+    };
+    let mut parts = if app.palette.is_mono() {
+        vec![vec![text(" ⣿ echo ")], vec![text("⠁⠈ ring ")]]
+    } else {
+        vec![
+            vec![text(" ")],
+            mark("⣿", Color::LightRed, "echo"),
+            mark("⣿", Color::DarkGray, "silent"),
+            mark("─", Color::Green, "sweep"),
+        ]
+    };
+    if local_scan {
+        parts.push(mark("⣿", LOCAL_SCAN_COLOR, "local scan"));
+    }
+    let line = Line::from(parts.concat());
+    if line.width() <= usize::from(width) {
+        line
+    } else {
+        Line::default()
+    }
 }
 
 /// How the map is framed, for its title: " · seen" (what was seen, the default), nothing for the
@@ -426,8 +518,14 @@ fn render_radar(area: Rect, buf: &mut Buffer, app: &App, now: Instant) {
         }
         None => " radar ".to_owned(),
     };
+    // While a local scan runs, its segment stays on the radar (the one being chosen replaces it).
+    let running = app
+        .local_segment
+        .filter(|_| app.selection.is_none() && app.scan_mode() == ScanMode::Local);
     let block = Block::bordered().title(title);
     let inner = block.inner(area);
+    let block =
+        block.title_bottom(radar_legend(app, running.is_some(), inner.width).right_aligned());
     block.render(area, buf);
     let Some(radar) = &app.radar else {
         let (text, style) = waiting_note(app, now, "radar");
@@ -477,7 +575,9 @@ fn render_radar(area: Rect, buf: &mut Buffer, app: &App, now: Instant) {
                 ctx.draw(&CanvasLine::new(0.0, 0.0, x, y, Color::Green));
             }
             if let Some(s) = selection {
-                paint_selection(ctx, s, range, dot, heading);
+                paint_segment(ctx, s, range, dot, heading, Color::Yellow, "scan");
+            } else if let Some(s) = running {
+                paint_segment(ctx, s, range, dot, heading, LOCAL_SCAN_COLOR, "local");
             }
         })
         .render(inner, buf);
@@ -647,26 +747,33 @@ fn radar_points(
     (echoes, silent)
 }
 
-fn paint_selection(ctx: &mut Context, s: Segment, range: f64, dot: f64, heading: Heading) {
+/// A local-scan segment: its edges, its arc at the edge of the range and `label` inside it; in
+/// yellow while it is being chosen, in [`LOCAL_SCAN_COLOR`] while the scan runs.
+fn paint_segment(
+    ctx: &mut Context,
+    s: Segment,
+    range: f64,
+    dot: f64,
+    heading: Heading,
+    color: Color,
+    label: &'static str,
+) {
     let (from, to) = (f64::from(s.from_deg), f64::from(s.to_deg));
     for edge in [from, to] {
         let (x, y) = heading.turn(polar(range, edge));
-        ctx.draw(&CanvasLine::new(0.0, 0.0, x, y, Color::Yellow));
+        ctx.draw(&CanvasLine::new(0.0, 0.0, x, y, color));
     }
     let mut points = Vec::new();
     arc(range, from, to, dot, heading, &mut points);
     ctx.draw(&Points {
         coords: &points,
-        color: Color::Yellow,
+        color,
     });
     let (x, y) = heading.turn(polar(range * 0.5, (from + to) / 2.0));
     ctx.print(
         x,
         y,
-        Span::styled(
-            "scan",
-            Style::new().fg(Color::Yellow).add_modifier(Modifier::BOLD),
-        ),
+        Span::styled(label, Style::new().fg(color).add_modifier(Modifier::BOLD)),
     );
 }
 

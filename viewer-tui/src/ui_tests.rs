@@ -449,7 +449,7 @@ fn radar_shows_a_wall_as_an_arc_at_its_range() {
     insta::assert_snapshot!(terminal.backend());
 
     let buf = terminal.backend().buffer();
-    let inner = Rect::new(1, 1, 58, 23);
+    let inner = Rect::new(1, 1, 58, 22);
     let echoes: Vec<(f64, f64)> = (inner.top()..inner.bottom())
         .flat_map(|y| (inner.left()..inner.right()).map(move |x| (x, y)))
         .filter(|&(x, y)| buf[(x, y)].fg == Color::LightRed)
@@ -611,6 +611,90 @@ fn no_colour_and_sixteen_colours() {
     let (wall, upper) = cell_of(&app, map, 100, 40);
     let shown = if upper { buf[wall].bg } else { buf[wall].fg };
     assert_eq!((buf[wall].symbol(), shown), ("▄", Color::Red));
+}
+
+/// Issue 16: a scale bar and the colour code under the map, what the marks mean under the radar.
+#[test]
+fn the_map_has_a_scale_bar_and_a_colour_code_and_the_radar_a_key() {
+    let t0 = Instant::now();
+    let mut app = live_app(t0);
+    let terminal = draw(&mut app, 120, 32, t0);
+    insta::assert_snapshot!(terminal.backend());
+    let buf = terminal.backend().buffer();
+    // The map's bottom border (row 30, columns 0..43).
+    let border: Vec<&str> = (0..43).map(|x| buf[(x, 30)].symbol()).collect();
+    let from = border.iter().position(|&c| c == "├").unwrap();
+    let to = border.iter().position(|&c| c == "┤").unwrap();
+    let label: String = border[to + 2..].concat();
+    let label = label
+        .split("  ")
+        .next()
+        .unwrap_or("")
+        .trim_end_matches('─')
+        .trim();
+    let (number, unit) = label.split_once(' ').unwrap();
+    let metres = number.parse::<f64>().unwrap() * if unit == "cm" { 0.01 } else { 1.0 };
+    // The bar's columns are that many metres, to half a column.
+    let per_column = app.viewport().unwrap().scale * 0.05;
+    let columns = (to - from + 1) as f64;
+    assert!(
+        (columns * per_column - metres).abs() <= per_column / 2.0 + 1e-9,
+        "{columns} columns of {per_column} m for {label}"
+    );
+    let text = border.concat();
+    assert!(text.contains(" free █████ occ "), "{text}");
+    // The ramp's ends in the map's colours.
+    let swatch = border.iter().position(|&c| c == "█").unwrap();
+    assert_eq!(buf[(swatch as u16, 30)].fg, app.palette.color(Some(0)));
+    assert_eq!(
+        buf[(swatch as u16 + 4, 30)].fg,
+        app.palette.color(Some(254))
+    );
+    let radar_border: String = (43..86).map(|x| buf[(x, 30)].symbol()).collect();
+    for mark in ["echo", "silent", "sweep"] {
+        assert!(radar_border.contains(mark), "{radar_border}");
+    }
+}
+
+/// Issue 16: while a local scan runs, its segment stays on the radar (cyan), not only while it is
+/// being chosen (yellow).
+#[test]
+fn a_running_local_scan_keeps_its_segment_on_the_radar() {
+    let t0 = Instant::now();
+    let mut app = live_app(t0);
+    app.view = View::Radar;
+    app.local_segment = Some(Segment {
+        from_deg: -30.0,
+        to_deg: 30.0,
+    });
+    let inner = Rect::new(1, 1, 44, 21);
+    let cyan = |buf: &Buffer| -> Vec<(f64, f64)> {
+        (inner.top()..inner.bottom())
+            .flat_map(|y| (inner.left()..inner.right()).map(move |x| (x, y)))
+            .filter(|&(x, y)| buf[(x, y)].fg == Color::Cyan && buf[(x, y)].symbol() != " ")
+            .map(|(x, y)| radar_world(inner, 4.0, x, y))
+            .collect()
+    };
+    // The driver still sweeps fully: no segment.
+    let terminal = draw(&mut app, 80, 24, t0);
+    assert!(cyan(terminal.backend().buffer()).is_empty());
+
+    let mut status = *app.driver.as_ref().unwrap();
+    status.mode = ScanMode::Local as u32;
+    status.stamp_ns += 1_000_000_000;
+    app.on_driver_status(&status, t0).unwrap();
+    let terminal = draw(&mut app, 80, 24, t0);
+    insta::assert_snapshot!(terminal.backend());
+    let buf = terminal.backend().buffer();
+    let marks = cyan(buf);
+    assert!(marks.len() >= 10, "{marks:?}");
+    for (x, y) in marks.into_iter().filter(|(x, y)| x.hypot(*y) > 0.8) {
+        let a = y.atan2(x).to_degrees();
+        assert!((-40.0..=40.0).contains(&a), "a mark at {a:.0}°");
+    }
+    let screen = screen_text(buf);
+    assert!(screen.contains("local scan"), "{screen}");
+    assert!(screen.contains("local"), "{screen}");
 }
 
 #[test]
