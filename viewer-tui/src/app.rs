@@ -8,7 +8,9 @@
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
-use crossterm::event::{KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
+use crossterm::event::{
+    KeyCode, KeyEvent, KeyEventKind, KeyModifiers, MouseButton, MouseEvent, MouseEventKind,
+};
 use sonar_common::ipc::{
     DriverStatus, FeatureRecord, FeaturesHeader, FusionCommand, FusionCommandKind, GridHeader,
     LAYOUT_VERSION, LocalizedPose, MAX_FEATURES, RADAR_MAX_BINS, Radar, Reading, ScanCommand,
@@ -422,6 +424,7 @@ pub const KEYS: &[(&str, &str)] = &[
     ("arrows", "move the cursor (Shift: faster)"),
     ("+  -", "zoom in (around the cursor) / out"),
     ("0  z", "whole grid / fit to what was seen"),
+    ("mouse", "click: inspect a cell, wheel: zoom, drag: pan"),
     ("t", "zoomed in, follow the robot: on / off"),
     ("", "(on by itself once it has moved 0.5 m)"),
     ("Tab 1 2 3", "next view / map / radar / split"),
@@ -581,6 +584,10 @@ pub struct App {
     pub map: MapView,
     /// Pixels of the map picture at the last frame (0 × 0 when no map is shown).
     pub map_px: (u32, u32),
+    /// The terminal cell showing the map picture's top-left pixel at the last frame.
+    pub map_origin: (u16, u16),
+    /// Where the left button last was while dragging the map (terminal column, row).
+    pub drag_from: Option<(u16, u16)>,
     /// The local-scan segment being chosen, while `l` mode is on.
     pub selection: Option<Segment>,
     /// The last local scan asked for from here (its limits give the sweep progress).
@@ -623,6 +630,8 @@ impl App {
             rate: RateMeter::default(),
             map: MapView::default(),
             map_px: (0, 0),
+            map_origin: (0, 0),
+            drag_from: None,
             selection: None,
             local_segment: None,
             beam_arcs: false,
@@ -879,6 +888,59 @@ impl App {
             _ => {}
         }
         None
+    }
+
+    /// The mouse over the map: a click puts the cursor on the cell under it (the status panel
+    /// shows its position and probability), the wheel zooms around it, a drag pans the map.
+    pub fn on_mouse(&mut self, mouse: MouseEvent) {
+        let at = (mouse.column, mouse.row);
+        match mouse.kind {
+            MouseEventKind::Down(MouseButton::Left) => {
+                let Some((x, y)) = self.under_pointer(at) else {
+                    return;
+                };
+                let inside = self.grid.as_ref().is_some_and(|g| {
+                    x >= 0.0 && y >= 0.0 && x < f64::from(g.width()) && y < f64::from(g.height())
+                });
+                if inside {
+                    self.map.cursor = Some((x as u32, y as u32));
+                }
+                self.drag_from = Some(at);
+            }
+            MouseEventKind::Drag(MouseButton::Left) => {
+                let (Some(from), Some(vp), Some(grid)) =
+                    (self.drag_from, self.viewport(), self.grid.as_ref())
+                else {
+                    return;
+                };
+                let (cx, cy) = vp.center(grid.height());
+                let dx = f64::from(at.0) - f64::from(from.0);
+                // Two pixels a row; the map follows the pointer, so the view moves against it.
+                let dy = 2.0 * (f64::from(at.1) - f64::from(from.1));
+                self.map.scale = Some(vp.scale);
+                self.map.center = (cx - dx * vp.scale, cy + dy * vp.scale);
+                self.drag_from = Some(at);
+                self.stop_following();
+            }
+            MouseEventKind::Up(_) => self.drag_from = None,
+            MouseEventKind::ScrollUp | MouseEventKind::ScrollDown => {
+                if let Some(point) = self.under_pointer(at) {
+                    self.zoom_at(mouse.kind == MouseEventKind::ScrollUp, Some(point), false);
+                }
+            }
+            _ => return,
+        }
+        self.revision += 1;
+    }
+
+    /// The grid point (continuous, y up) under terminal cell `at` of the map picture; `None` off
+    /// the picture or without a map.
+    fn under_pointer(&self, (col, row): (u16, u16)) -> Option<(f64, f64)> {
+        let (grid, vp) = (self.grid.as_ref()?, self.viewport()?);
+        let px = u32::from(col.checked_sub(self.map_origin.0)?);
+        // The upper of the terminal cell's two pixels.
+        let py = 2 * u32::from(row.checked_sub(self.map_origin.1)?);
+        (px < self.map_px.0 && py < self.map_px.1).then(|| vp.grid_point(px, py, grid.height()))
     }
 
     fn on_selection_key(&mut self, selection: Segment, code: KeyCode) -> Option<Action> {
@@ -1318,6 +1380,65 @@ mod tests {
             (vp.scale - 40.0 / 50.0).abs() < 1e-9,
             "2 m of 5 cm cells in 50 px: {vp:?}"
         );
+    }
+
+    fn mouse(kind: MouseEventKind, column: u16, row: u16) -> MouseEvent {
+        MouseEvent {
+            kind,
+            column,
+            row,
+            modifiers: KeyModifiers::NONE,
+        }
+    }
+
+    /// Issue 16: a click inspects the cell under the pointer, the wheel zooms around the pointer,
+    /// a drag pans the map.
+    #[test]
+    fn the_mouse_inspects_zooms_and_pans() {
+        let mut viewer = app();
+        let t = Instant::now();
+        viewer
+            .on_grid(&grid_header(400, 200), &vec![0; 400 * 200], t)
+            .unwrap();
+        viewer.map_px = (100, 50);
+        viewer.map_origin = (2, 1);
+        let vp = viewer.viewport().unwrap();
+        // Column 52, row 13: pixel (50, 24).
+        let (gx, gy) = vp.grid_point(50, 24, 200);
+        viewer.on_mouse(mouse(MouseEventKind::Down(MouseButton::Left), 52, 13));
+        viewer.on_mouse(mouse(MouseEventKind::Up(MouseButton::Left), 52, 13));
+        assert_eq!(viewer.map.cursor, Some((gx as u32, gy as u32)));
+        // Off the picture (its border, the other view): nothing moves.
+        viewer.on_mouse(mouse(MouseEventKind::Down(MouseButton::Left), 1, 0));
+        viewer.on_mouse(mouse(MouseEventKind::Down(MouseButton::Left), 102, 13));
+        viewer.on_mouse(mouse(MouseEventKind::ScrollUp, 60, 40));
+        assert_eq!(viewer.map.cursor, Some((gx as u32, gy as u32)));
+        assert_eq!(viewer.viewport(), Some(vp));
+
+        // The wheel zooms in by two, the point under the pointer staying under it.
+        viewer.on_mouse(mouse(MouseEventKind::ScrollUp, 52, 13));
+        let zoomed = viewer.viewport().unwrap();
+        assert_eq!(zoomed.scale, vp.scale / 2.0);
+        let (zx, zy) = zoomed.grid_point(50, 24, 200);
+        assert!((zx - gx).abs() < 1e-9 && (zy - gy).abs() < 1e-9);
+
+        // Dragged 5 columns right and 2 rows down, the map moves with the pointer.
+        let (cx, cy) = zoomed.center(200);
+        viewer.on_mouse(mouse(MouseEventKind::Down(MouseButton::Left), 52, 13));
+        viewer.on_mouse(mouse(MouseEventKind::Drag(MouseButton::Left), 55, 14));
+        viewer.on_mouse(mouse(MouseEventKind::Drag(MouseButton::Left), 57, 15));
+        viewer.on_mouse(mouse(MouseEventKind::Up(MouseButton::Left), 57, 15));
+        let (px, py) = viewer.viewport().unwrap().center(200);
+        let s = zoomed.scale;
+        assert!((px - (cx - 5.0 * s)).abs() < 1e-9, "{px} {cx}");
+        assert!((py - (cy + 4.0 * s)).abs() < 1e-9, "{py} {cy}");
+        // A drag without a press first does nothing.
+        viewer.on_mouse(mouse(MouseEventKind::Drag(MouseButton::Left), 80, 20));
+        assert_eq!(viewer.viewport().unwrap().center(200), (px, py));
+
+        // The wheel back out returns to the framing.
+        viewer.on_mouse(mouse(MouseEventKind::ScrollDown, 52, 13));
+        assert_eq!(viewer.map.scale, None);
     }
 
     #[test]

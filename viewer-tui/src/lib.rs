@@ -12,7 +12,7 @@
 //!   the 256-colour palette; and which pixels show the walls, corners and posts of
 //!   `sonar/features` over the map.
 //! - [`app`]: the state and the key handling, free of I/O: snapshots come in as copies, key presses
-//!   come in as crossterm events, and what must happen outside comes out as an [`app::Action`].
+//!   and mouse events come in as crossterm events, and what must happen outside comes out as an [`app::Action`].
 //! - [`ui`]: rendering of that state into a ratatui buffer, the map drawn two pixels per cell with
 //!   half-block glyphs chosen so that even colourless text shows the walls.
 //! - [`source`]: the iceoryx2 ports: opened lazily and retried, drained to the newest sample once

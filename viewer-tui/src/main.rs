@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, ValueEnum};
-use crossterm::event::{self, Event};
+use crossterm::event::{self, DisableMouseCapture, EnableMouseCapture, Event};
 use crossterm::terminal::{
     EnterAlternateScreen, LeaveAlternateScreen, disable_raw_mode, enable_raw_mode,
 };
@@ -156,7 +156,12 @@ static TERMINAL_ACTIVE: AtomicBool = AtomicBool::new(false);
 fn restore_terminal() {
     if TERMINAL_ACTIVE.swap(false, Ordering::SeqCst) {
         let _ = disable_raw_mode();
-        let _ = execute!(stdout(), LeaveAlternateScreen, cursor::Show);
+        let _ = execute!(
+            stdout(),
+            DisableMouseCapture,
+            LeaveAlternateScreen,
+            cursor::Show
+        );
     }
 }
 
@@ -174,7 +179,14 @@ impl Tui {
         }));
         TERMINAL_ACTIVE.store(true, Ordering::SeqCst);
         let terminal = enable_raw_mode()
-            .and_then(|()| execute!(stdout(), EnterAlternateScreen, cursor::Hide))
+            .and_then(|()| {
+                execute!(
+                    stdout(),
+                    EnterAlternateScreen,
+                    EnableMouseCapture,
+                    cursor::Hide
+                )
+            })
             .and_then(|()| Terminal::new(CrosstermBackend::new(stdout())));
         match terminal {
             Ok(terminal) => Ok(Self { terminal }),
@@ -241,6 +253,7 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
                 .draw(|f| info = ui::draw(f, &app, &mut cache, now))
                 .context("cannot draw")?;
             app.map_px = info.map_px;
+            app.map_origin = info.map_origin;
             drawn = Some(app.drawn(now));
             resized = false;
         }
@@ -266,6 +279,7 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
                             return Ok(());
                         }
                     }
+                    Event::Mouse(mouse) => app.on_mouse(mouse),
                     Event::Resize(..) => resized = true,
                     _ => {}
                 }

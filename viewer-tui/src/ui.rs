@@ -82,6 +82,8 @@ impl MapCache {
 pub struct DrawInfo {
     /// Pixels of the map picture (0 × 0 when the map is not shown).
     pub map_px: (u32, u32),
+    /// The terminal cell (column, row) showing the map's top-left pixel, for the mouse.
+    pub map_origin: (u16, u16),
 }
 
 pub fn draw(frame: &mut Frame, app: &App, cache: &mut MapCache, now: Instant) -> DrawInfo {
@@ -113,13 +115,13 @@ pub fn render(
     };
     let mut info = DrawInfo::default();
     match app.view {
-        View::Map => info.map_px = render_map(views, buf, app, cache, now),
+        View::Map => info = render_map(views, buf, app, cache, now),
         View::Radar => render_radar(views, buf, app, now),
         View::Split => {
             let [left, right] =
                 Layout::horizontal([Constraint::Percentage(50), Constraint::Percentage(50)])
                     .areas(views);
-            info.map_px = render_map(left, buf, app, cache, now);
+            info = render_map(left, buf, app, cache, now);
             render_radar(right, buf, app, now);
         }
     }
@@ -176,14 +178,14 @@ fn waiting_note(app: &App, now: Instant, what: &str) -> (String, Style) {
     }
 }
 
-/// The probability map; returns the picture's size in pixels.
+/// The probability map; returns where the picture is and its size in pixels.
 fn render_map(
     area: Rect,
     buf: &mut Buffer,
     app: &App,
     cache: &mut MapCache,
     now: Instant,
-) -> (u32, u32) {
+) -> DrawInfo {
     let title = match &app.grid {
         Some(g) => {
             let zoom = zoom_label(app, g, area);
@@ -206,6 +208,10 @@ fn render_map(
     let mut block = Block::bordered().title(title);
     let inner = block.inner(area);
     let (w, h) = (u32::from(inner.width), 2 * u32::from(inner.height));
+    let info = DrawInfo {
+        map_px: (w, h),
+        map_origin: (inner.x, inner.y),
+    };
     let shown = app.grid.as_ref().map(|g| (g, app.map.viewport(g, w, h)));
     if let Some((grid, vp)) = &shown {
         let (bar, legend) = map_legend(&app.palette, grid.header.resolution_m, vp, inner.width);
@@ -215,10 +221,10 @@ fn render_map(
     let Some((grid, vp)) = shown else {
         let (text, style) = waiting_note(app, now, "map");
         render_note(inner, buf, text, style);
-        return (w, h);
+        return info;
     };
     if w == 0 || h == 0 {
-        return (w, h);
+        return info;
     }
     let key = (app.grid_generation, vp);
     if cache.key != Some(key) {
@@ -267,7 +273,7 @@ fn render_map(
         heading_glyph(grid.header.pose_theta_rad),
     );
     mark(app.map.cursor, CURSOR_GLYPH);
-    (w, h)
+    info
 }
 
 /// Probabilities the legend's colour ramp shows, free to occupied.

@@ -148,6 +148,7 @@ fn draw(app: &mut App, width: u16, height: u16, now: Instant) -> Terminal<TestBa
         .draw(|f| info = draw_frame(f, app, &mut cache, now))
         .unwrap();
     app.map_px = info.map_px;
+    app.map_origin = info.map_origin;
     terminal
 }
 
