@@ -64,7 +64,7 @@ impl FromStr for Format {
 }
 
 /// Extensions [`stem`] removes, so `--out map.png` writes `map.png`, not `map.png.png`.
-const MAP_EXTENSIONS: [&str; 7] = ["png", "pgm", "yaml", "yml", "csv", "npy", "json"];
+const MAP_EXTENSIONS: [&str; 8] = ["png", "pgm", "yaml", "yml", "csv", "npy", "json", "mcap"];
 
 /// The stem the files of `out` are named after: `out` without a map file extension (and without
 /// the `.features` of a features file's name), or `out/sonar-map` if `out` is an existing

@@ -98,7 +98,9 @@ def check_connection(url, subprotocol, timeout):
             grid = decode(message[1 + 4 + 8 :])
             rows = len(grid.data) // grid.row_stride
             alpha = {f.name: f.offset for f in grid.fields}["alpha"]
-            known = sum(grid.data[i * grid.cell_stride + alpha] != 0 for i in range(grid.column_count * rows))
+            # One copy: protobuf hands out a new bytes object at each access of the field.
+            data = grid.data
+            known = sum(data[i * grid.cell_stride + alpha] != 0 for i in range(grid.column_count * rows))
             return (
                 f"channels {len(channels)} grid {grid.column_count}x{rows} "
                 f"cell {grid.cell_size.x:.4f} known {known} frame {grid.frame_id}"

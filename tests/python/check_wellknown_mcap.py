@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Checks the well-known channels of a sonar-record file with independent decoders.
+"""Checks the well-known channels of a sonar-record or sonar-export --mcap file with independent decoders.
 
 Reads the MCAP file with the `mcap` package and decodes Foxglove's protobuf messages with
 `mcap-protobuf-support` (from the schemas in the file) and the ROS 2 ones with
@@ -9,10 +9,12 @@ the pipeline itself says:
 - the last foxglove.Grid (and nav_msgs/msg/OccupancyGrid) against the map exported by
   `sonar-export --format npy,pgm` (values, size, resolution, origin);
 - every foxglove.LaserScan (and sensor_msgs/msg/LaserScan) against the recording's own
-  `sonar/readings` channel, decoded from the byte layout of docs/recording.md;
+  `sonar/readings` channel (or that of `--readings-from`, the recording a `sonar-export --mcap`
+  file was made from), decoded from the byte layout of docs/recording.md: one scan per sweep
+  (none for a live export's snapshot, which has no readings);
 - that transforms and the features' scene are there.
 
-Usage: check_wellknown_mcap.py RECORDING.mcap MAP_STEM [--ros2]
+Usage: check_wellknown_mcap.py FILE.mcap MAP_STEM [--ros2] [--readings-from RECORDING.mcap]
 (MAP_STEM.npy and MAP_STEM.yaml as sonar-export writes them). Prints one summary line; exits 1
 with the first mismatch.
 """
@@ -109,23 +111,25 @@ def main():
     parser.add_argument("recording")
     parser.add_argument("map_stem")
     parser.add_argument("--ros2", action="store_true", help="expect and check the ROS 2 channels")
+    parser.add_argument("--readings-from", help="the recording whose readings the scans show")
     args = parser.parse_args()
 
     height, width, cells, resolution, ox, oy = load_map(args.map_stem)
     expected = [occupancy(c) for c in cells]
 
     readings = []
+    with open(args.readings_from or args.recording, "rb") as f:
+        for _, _, message in make_reader(f).iter_messages(topics=["sonar/readings"]):
+            f_ = READING.unpack(message.data)
+            readings.append(
+                {"sweep_id": f_[5], "flags": f_[6], "angle_deg": f_[7], "distance_m": f_[10]}
+            )
     decoded = {}
     with open(args.recording, "rb") as f:
         reader = make_reader(
             f, decoder_factories=[ProtobufDecoderFactory(), Ros2DecoderFactory()]
         )
         schemas = {c.topic: reader.get_summary().schemas[c.schema_id] for c in reader.get_summary().channels.values()}
-        for _, _, message in reader.iter_messages(topics=["sonar/readings"]):
-            f_ = READING.unpack(message.data)
-            readings.append(
-                {"sweep_id": f_[5], "flags": f_[6], "angle_deg": f_[7], "distance_m": f_[10]}
-            )
         topics = ["/foxglove/map", "/foxglove/scan", "/foxglove/tf", "/foxglove/features"]
         if args.ros2:
             topics += ["/map", "/scan", "/tf"]
@@ -135,7 +139,9 @@ def main():
     check(schemas["/foxglove/map"].name == "foxglove.Grid", "grid schema")
     check(schemas["/foxglove/map"].encoding == "protobuf", "grid schema encoding")
     for topic in topics:
-        check(decoded.get(topic), f"no message on {topic}")
+        # The scans are counted against the sweeps below.
+        if not topic.endswith("/scan"):
+            check(decoded.get(topic), f"no message on {topic}")
 
     # The map: the last Grid is the map the pipeline ended with.
     grid = decoded["/foxglove/map"][-1]
@@ -147,12 +153,14 @@ def main():
     check(grid.frame_id == "map", "grid frame")
     fields = {f.name: f.offset for f in grid.fields}
     occ = fields["occupancy"]
-    values = [struct.unpack_from("b", grid.data, i * 5 + occ)[0] for i in range(width * height)]
+    # One copy: protobuf hands out a new bytes object at each access of the field.
+    data = grid.data
+    values = [struct.unpack_from("b", data, i * 5 + occ)[0] for i in range(width * height)]
     bad = [i for i in range(width * height) if values[i] != expected[i]]
     check(not bad, f"{len(bad)} grid cells differ from the map, first {bad[:1]}")
     alpha = fields["alpha"]
     check(
-        all((grid.data[i * 5 + alpha] == 0) == (cells[i] == CELL_UNKNOWN) for i in range(width * height)),
+        all((data[i * 5 + alpha] == 0) == (cells[i] == CELL_UNKNOWN) for i in range(width * height)),
         "unknown cells are not exactly the transparent ones",
     )
     known = sum(c != CELL_UNKNOWN for c in cells)
@@ -160,7 +168,7 @@ def main():
 
     # The scans: one per sweep, each holding its sweep's readings.
     sweeps = sweeps_of(readings)
-    scans = decoded["/foxglove/scan"]
+    scans = decoded.get("/foxglove/scan", [])
     check(len(scans) == len(sweeps), f"{len(scans)} scans for {len(sweeps)} sweeps")
     for k, (scan, sweep) in enumerate(zip(scans, sweeps)):
         check(scan.frame_id == "sonar", "scan frame")
@@ -185,7 +193,7 @@ def main():
         check(close(info.origin.orientation.w, 1.0), "origin orientation")
         check(og.header.frame_id == "map", "occupancy grid frame")
         check(list(og.data) == expected, "occupancy grid data differ from the map")
-        ros_scans = decoded["/scan"]
+        ros_scans = decoded.get("/scan", [])
         check(len(ros_scans) == len(sweeps), f"{len(ros_scans)} ROS scans for {len(sweeps)} sweeps")
         for k, (scan, sweep) in enumerate(zip(ros_scans, sweeps)):
             n = len(scan.ranges)

@@ -6,6 +6,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // a panic is a failure
 
 use std::io::{BufRead, BufReader};
+use std::path::Path;
 use std::process::{Command, Stdio};
 
 use sonar_common::ipc;
@@ -58,31 +59,68 @@ fn a_recording_s_grid_scans_and_ros2_messages_decode_to_the_map_and_the_readings
         recorder.terminate().success(),
         "sonar-record did not exit cleanly"
     );
+    // The final map as files, and as the live snapshot's MCAP (sonar-export --mcap).
     let stem = sandbox.root.join("final");
-    check_ok(
-        "sonar-export",
-        &sandbox.run(
-            "sonar-export",
-            &["--format", "npy,pgm", "--out", path_str(&stem)],
-        ),
-    );
+    let args = [
+        "--format",
+        "npy,pgm",
+        "--mcap",
+        "--ros2",
+        "--out",
+        path_str(&stem),
+    ];
+    check_ok("sonar-export", &sandbox.run("sonar-export", &args));
 
-    let out = std::process::Command::new(python())
-        .arg(workspace().join("tests/python/check_wellknown_mcap.py"))
-        .args([path_str(&file), path_str(&stem), "--ros2"])
-        .output()
-        .unwrap();
-    let summary = check_ok("check_wellknown_mcap.py", &out);
-    // grid 400x400 … scans N readings M …
-    let field = |name: &str| -> u64 {
-        let words: Vec<&str> = summary.split_whitespace().collect();
-        let i = words.iter().position(|w| *w == name).unwrap();
-        words[i + 1].parse().unwrap()
+    let check = |mcap: &Path, stem: &Path, readings_from: Option<&Path>| {
+        let mut command = Command::new(python());
+        command
+            .arg(workspace().join("tests/python/check_wellknown_mcap.py"))
+            .args([path_str(mcap), path_str(stem), "--ros2"]);
+        if let Some(recording) = readings_from {
+            command.args(["--readings-from", path_str(recording)]);
+        }
+        let summary = check_ok("check_wellknown_mcap.py", &command.output().unwrap());
+        // grid 400x400 … scans N readings M …
+        move |name: &str| -> u64 {
+            let words: Vec<&str> = summary.split_whitespace().collect();
+            let i = words.iter().position(|w| *w == name).unwrap();
+            words[i + 1].parse().unwrap()
+        }
     };
-    assert_eq!(field("readings"), count as u64, "{summary}");
-    assert!(field("scans") >= 4, "three sweeps and a part: {summary}");
-    assert!(field("known") > 1000, "the room is mapped: {summary}");
-    assert!(field("wall_lines") >= 1, "the room's walls: {summary}");
+    let field = check(&file, &stem, None);
+    assert_eq!(field("readings"), count as u64);
+    assert!(field("scans") >= 4, "three sweeps and a part");
+    assert!(field("known") > 1000, "the room is mapped");
+    assert!(field("wall_lines") >= 1, "the room's walls");
+
+    // The live snapshot's MCAP: the same map, no readings, so no scans.
+    let snapshot = check(&stem.with_extension("mcap"), &stem, None);
+    assert_eq!((snapshot("known"), snapshot("scans")), (field("known"), 0));
+
+    // The recording converted afterwards: the scans of the same readings, and the final map of
+    // the offline fusion (written as files by the same run).
+    let offline = sandbox.root.join("offline");
+    let args = [
+        "--from-recording",
+        path_str(&file),
+        "--mcap",
+        "--ros2",
+        "--grid-period",
+        "0.5",
+        "--format",
+        "npy,pgm",
+        "--out",
+        path_str(&offline),
+    ];
+    let printed = check_ok(
+        "sonar-export --from-recording",
+        &sandbox.run("sonar-export", &args),
+    );
+    assert!(printed.contains("offline.mcap"), "{printed}");
+    let converted = check(&offline.with_extension("mcap"), &offline, Some(&file));
+    for name in ["readings", "scans", "known", "ros2_scans"] {
+        assert_eq!(converted(name), field(name), "{name}");
+    }
 
     // The replay reads its own channels and skips these.
     let info = check_ok(
@@ -99,7 +137,7 @@ fn a_recording_s_grid_scans_and_ros2_messages_decode_to_the_map_and_the_readings
         .unwrap_or_else(|| panic!("no skipped channels in {info}"))
         .parse()
         .unwrap();
-    assert!(skipped >= field("scans") * 2, "{info}\n{summary}");
+    assert!(skipped >= field("scans") * 2, "{info}");
 
     assert!(fusion.terminate().success());
     assert!(sim.terminate().success());

@@ -8,7 +8,16 @@
 //! by then (or the next one, if none has come yet). Offline, it fuses a recording's readings with
 //! the fusion engine's own code (grid and feature tracker), so map and features are the ones the
 //! live engine would have built from the same readings. Both paths end in the same writers.
+//!
+//! With `--mcap` it also writes STEM.mcap with the channels Foxglove and ROS 2 tools draw, through
+//! the recorder's own writer of them ([`WellKnownChannels`], the one `sonar-record` uses): from a
+//! recording, what `sonar-record` would have written beside it (each sweep's scan, the poses, the
+//! recorded features) with the maps the offline fusion builds, one at the end of each sweep; live,
+//! the snapshot taken (its map, the sensor's pose, the latest features if the fusion publishes any).
 
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufWriter, Seek, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -22,7 +31,10 @@ use sonar_common::ipc::{self, FusionCommandKind, GridHeader, IpcArgs, IpcError, 
 use sonar_fusion::engine::Engine;
 use sonar_fusion::{FeatureTracker, FeaturesSection, FusionConfig, Preset};
 use sonar_mapfiles::{FeatureFormat, Format, Map, PngOptions, output, write_features};
-use sonar_recorder::{FeatureSnapshot, Message, ReadOptions, Recording};
+use sonar_recorder::well_known::Options as WellKnownOptions;
+use sonar_recorder::{
+    FeatureSnapshot, Message, ReadOptions, Recording, RecordingWriter, WellKnownChannels,
+};
 use tracing::{debug, info, warn};
 
 /// Readings the offline engine keeps for re-fusing on a recorded preset/model/rule switch; the
@@ -44,14 +56,19 @@ const TICK: Duration = Duration::from_millis(500);
 /// (poses and fusion commands as recorded) and writes the final map and features.
 ///
 /// Files are named after --out without its extension: STEM.png, STEM.pgm + STEM.yaml, STEM.csv,
-/// STEM.npy, STEM.features.csv, STEM.features.json; missing directories are created. Their paths
-/// are printed on standard output. See docs/export.md for the conventions.
+/// STEM.npy, STEM.features.csv, STEM.features.json, STEM.mcap; missing directories are created.
+/// Their paths are printed on standard output. See docs/export.md for the conventions.
+///
+/// --mcap writes STEM.mcap for Foxglove (and with --ros2 for ROS 2 tools; docs/foxglove.md): from a
+/// recording, the map (re-fused, at most one every --grid-period), each sweep as a laser scan, the
+/// poses and the recorded features; live, the map taken, the sensor's pose and the latest features.
 ///
 /// Examples:
 ///   sonar-export --format png --out room.png
 ///   sonar-export --format all --out maps/room --sweeps 2
 ///   sonar-export --format pgm --out map --from-recording run.mcap --preset paper
 ///   sonar-export --format features-csv,features-json --out maps/room
+///   sonar-export --mcap --ros2 --out room --from-recording old.mcap   # room.mcap for Foxglove, RViz
 ///   ros2 run nav2_map_server map_server --ros-args -p yaml_filename:=map.yaml
 ///
 /// Exit status: 0 written, 1 error, 130 interrupted (Ctrl-C/SIGTERM) before a map arrived.
@@ -59,9 +76,21 @@ const TICK: Duration = Duration::from_millis(500);
 #[command(name = "sonar-export", version, verbatim_doc_comment)]
 struct Args {
     /// Formats, comma-separated: png, pgm (with its YAML), csv, npy, or all (these four map
-    /// formats); features-csv, features-json (the features, only when named).
-    #[arg(long, value_delimiter = ',', default_value = "all", value_parser = parse_formats)]
+    /// formats); features-csv, features-json (the features, only when named). [default: all,
+    /// none with --mcap]
+    #[arg(long, value_delimiter = ',', value_parser = parse_formats)]
     format: Vec<Formats>,
+    /// Also write STEM.mcap: the map as foxglove.Grid, the sweeps as foxglove.LaserScan, the
+    /// sensor's pose as foxglove.FrameTransform, the features as foxglove.SceneUpdate.
+    #[arg(long)]
+    mcap: bool,
+    /// With --mcap: also /map, /scan and /tf as ROS 2 messages (CDR), for `ros2 bag play`.
+    #[arg(long, requires = "mcap")]
+    ros2: bool,
+    /// With --mcap from a recording: seconds (of the recording's time) between the maps written;
+    /// the last is always written.
+    #[arg(long, value_name = "SECONDS", default_value = "5", value_parser = sonar_common::parse_positive_seconds)]
+    grid_period: Duration,
     /// Output path: the files' stem (an extension like .png or .features.csv is dropped), or an
     /// existing directory (files named sonar-map.* in it). Existing files are replaced, missing
     /// directories created.
@@ -179,7 +208,12 @@ fn main() -> ExitCode {
 
 fn run(args: &Args) -> Result<Outcome> {
     let mut formats = Formats::default();
-    for f in &args.format {
+    let default = [parse_formats("all").map_err(anyhow::Error::msg)?];
+    let asked = match (args.format.is_empty(), args.mcap) {
+        (true, false) => &default[..],
+        _ => &args.format[..],
+    };
+    for f in asked {
         formats.maps.extend(&f.maps);
         formats.features.extend(&f.features);
     }
@@ -193,13 +227,6 @@ fn run(args: &Args) -> Result<Outcome> {
         bail!("--timeout must be a positive number of seconds");
     }
     let with_features = !formats.features.is_empty();
-    let snapshot = match &args.from_recording {
-        Some(file) => from_recording(file, args, with_features)?,
-        None => match live(args, with_features)? {
-            Some(snapshot) => snapshot,
-            None => return Ok(Outcome::Interrupted),
-        },
-    };
     let stem = output::stem(&args.out);
     if let Some(dir) = stem.parent()
         && !dir.as_os_str().is_empty()
@@ -208,6 +235,35 @@ fn run(args: &Args) -> Result<Outcome> {
             .with_context(|| format!("cannot create the output directory {}", dir.display()))?;
     }
     let mut written = Vec::new();
+    let mcap_path = stem.with_extension("mcap");
+    let mut mcap = args
+        .mcap
+        .then(|| McapExport::create(&mcap_path, args))
+        .transpose()?;
+    let snapshot = match &args.from_recording {
+        Some(file) => from_recording(file, args, with_features, mcap.as_mut())?,
+        None => {
+            let features = match (with_features, args.mcap) {
+                (true, _) => LiveFeatures::Required,
+                (false, true) => LiveFeatures::IfPublisher,
+                (false, false) => LiveFeatures::No,
+            };
+            match live(args, features)? {
+                Some(snapshot) => {
+                    if let Some(mcap) = &mut mcap {
+                        mcap.snapshot(&snapshot)?;
+                    }
+                    snapshot
+                }
+                None => return Ok(Outcome::Interrupted),
+            }
+        }
+    };
+    if let Some(mcap) = mcap {
+        let messages = mcap.finish()?;
+        info!(messages, file = %mcap_path.display(), "Foxglove channels written");
+        written.push(mcap_path);
+    }
     let (header, cells) = &snapshot.grid;
     if !formats.maps.is_empty() {
         let map = Map::new(header, cells).context("the map is unusable")?;
@@ -221,7 +277,7 @@ fn run(args: &Args) -> Result<Outcome> {
             "map written"
         );
     }
-    if let Some(features) = &snapshot.features {
+    if let Some(features) = snapshot.features.as_ref().filter(|_| with_features) {
         written.extend(write_features(
             &features.header,
             &features.records,
@@ -305,17 +361,31 @@ impl Wanted {
     }
 }
 
-/// Waits for the wanted snapshot on `sonar/grid` (and, `with_features`, for a `sonar/features`
-/// snapshot) and copies it out; `None` on SIGINT/SIGTERM.
-fn live(args: &Args, with_features: bool) -> Result<Option<Snapshot>> {
+/// Whether a live export takes the features.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum LiveFeatures {
+    No,
+    /// Waits for a snapshot if the fusion publishes features (it re-offers its latest every second
+    /// when idle), else none: a fusion run with `--no-features` has no publisher on the service.
+    IfPublisher,
+    /// Waits for a snapshot.
+    Required,
+}
+
+/// Waits for the wanted snapshot on `sonar/grid` (and for a `sonar/features` snapshot, as
+/// `features` says) and copies it out; `None` on SIGINT/SIGTERM.
+fn live(args: &Args, features: LiveFeatures) -> Result<Option<Snapshot>> {
+    let mut with_features = features == LiveFeatures::Required;
     let node = args.ipc.node("sonar-export")?;
     let subscriber = ipc::grid_service(&node)?
         .subscriber_builder()
         .create()
         .map_err(|e| IpcError::new("create grid subscriber", e))?;
     let mut listeners = vec![ipc::wakeup_listener(&node, ipc::GRID_SERVICE)?];
-    let features = if with_features {
-        let subscriber = ipc::features_service(&node)?
+    let features = if features != LiveFeatures::No {
+        let service = ipc::features_service(&node)?;
+        with_features |= service.dynamic_config().number_of_publishers() > 0;
+        let subscriber = service
             .subscriber_builder()
             .create()
             .map_err(|e| IpcError::new("create features subscriber", e))?;
@@ -445,7 +515,82 @@ fn live(args: &Args, with_features: bool) -> Result<Option<Snapshot>> {
     }
 }
 
-fn from_recording(file: &Path, args: &Args, with_features: bool) -> Result<Snapshot> {
+/// STEM.mcap being written: the well-known channels only (the recording's own stay in the
+/// recording).
+struct McapExport<W: Write + Seek> {
+    writer: RecordingWriter<W>,
+    channels: WellKnownChannels,
+}
+
+impl McapExport<BufWriter<File>> {
+    fn create(path: &Path, args: &Args) -> Result<Self> {
+        let mut extra = BTreeMap::new();
+        extra.insert(
+            "recorder".to_owned(),
+            format!("sonar-export {}", env!("CARGO_PKG_VERSION")),
+        );
+        if let Some(source) = &args.from_recording {
+            extra.insert("source".to_owned(), source.display().to_string());
+        }
+        let writer = RecordingWriter::create(path, true, &extra)
+            .with_context(|| format!("cannot create {}", path.display()))?;
+        Self::new(
+            writer,
+            WellKnownOptions {
+                ros2: args.ros2,
+                grid_period_ns: u64::try_from(args.grid_period.as_nanos()).unwrap_or(u64::MAX),
+            },
+        )
+    }
+}
+
+impl<W: Write + Seek> McapExport<W> {
+    fn new(mut writer: RecordingWriter<W>, options: WellKnownOptions) -> Result<Self> {
+        let channels = WellKnownChannels::declare(&mut writer, options)
+            .context("declare the Foxglove channels")?;
+        Ok(Self { writer, channels })
+    }
+
+    fn message(&mut self, log_time_ns: u64, message: &Message) -> Result<()> {
+        Ok(self
+            .channels
+            .message(&mut self.writer, log_time_ns, message)?)
+    }
+
+    fn grid(&mut self, log_time_ns: u64, (header, cells): &Grid) -> Result<()> {
+        Ok(self
+            .channels
+            .grid(&mut self.writer, log_time_ns, header, cells)?)
+    }
+
+    /// A live snapshot: its map (with the sensor's pose) and its features, stamped now.
+    fn snapshot(&mut self, snapshot: &Snapshot) -> Result<()> {
+        let now = ipc::unix_time_ns();
+        self.grid(now, &snapshot.grid)?;
+        if let Some(features) = &snapshot.features {
+            self.message(now, &Message::Features(features.clone()))?;
+        }
+        Ok(())
+    }
+
+    /// Writes what the converter kept back and the file's end; the well-known messages written.
+    fn finish(mut self) -> Result<u64> {
+        let messages = self
+            .channels
+            .finish(&mut self.writer, ipc::unix_time_ns())?;
+        self.writer
+            .finish()
+            .context("write the end of the MCAP file")?;
+        Ok(messages)
+    }
+}
+
+fn from_recording<W: Write + Seek>(
+    file: &Path,
+    args: &Args,
+    with_features: bool,
+    mcap: Option<&mut McapExport<W>>,
+) -> Result<Snapshot> {
     let recording = sonar_recorder::read_file(
         file,
         ReadOptions {
@@ -464,6 +609,7 @@ fn from_recording(file: &Path, args: &Args, with_features: bool) -> Result<Snaps
         config,
         !args.ignore_fusion_commands,
         with_features,
+        mcap,
     )
 }
 
@@ -472,11 +618,15 @@ fn from_recording(file: &Path, args: &Args, with_features: bool) -> Result<Snaps
 /// reading also goes to a feature tracker with `sonar-fusion`'s default `[features]` settings
 /// (before the engine fuses it, and cleared with the map, as there). Returns the final snapshot;
 /// the last sweep's features are merged at the end, as the fusion does when the readings stop.
-fn fuse_recording(
+/// With `mcap`, every message also goes to its well-known channels, with the map at the end of
+/// each sweep (taken before the next sweep's first reading is fused, as the fusion publishes it)
+/// and the final one.
+fn fuse_recording<W: Write + Seek>(
     recording: &Recording,
     config: FusionConfig,
     commands: bool,
     with_features: bool,
+    mut mcap: Option<&mut McapExport<W>>,
 ) -> Result<Snapshot> {
     let mut engine = Engine::new(config, OFFLINE_HISTORY).context("invalid fusion settings")?;
     let mut tracker = with_features
@@ -484,9 +634,17 @@ fn fuse_recording(
         .transpose()
         .context("invalid feature settings")?;
     let (mut fused, mut refused, mut stamp) = (0u64, 0u64, 0u64);
+    let mut sweep = None;
+    let mut snapshots = 0;
     for entry in &recording.entries {
         match &entry.message {
             Message::Reading(r) if r.layout_version == LAYOUT_VERSION => {
+                if let Some(mcap) = mcap.as_deref_mut()
+                    && sweep.replace(r.sweep_id).is_some_and(|s| s != r.sweep_id)
+                {
+                    snapshots += 1;
+                    mcap.grid(entry.log_time_ns, &grid_snapshot(&engine, snapshots, stamp))?;
+                }
                 if let Some(tracker) = &mut tracker {
                     tracker.push(r, engine.pose());
                 }
@@ -519,22 +677,32 @@ fn fuse_recording(
             // Recorded features are the live fusion's; these are computed anew from the readings.
             Message::FusionCommand(_) | Message::ScanCommand(_) | Message::Features(_) => {}
         }
+        if let Some(mcap) = mcap.as_deref_mut() {
+            mcap.message(entry.log_time_ns, &entry.message)?;
+        }
     }
     if fused == 0 {
         warn!("the recording holds no usable reading: the map is empty");
     }
     info!(fused, refused, "recording fused");
-    let mut cells = vec![0; engine.grid_len()];
-    let counts = engine.encode_grid(&mut cells);
+    let grid = grid_snapshot(&engine, snapshots + 1, stamp);
+    if let Some(mcap) = mcap {
+        let log_time = recording.entries.last().map_or(stamp, |e| e.log_time_ns);
+        mcap.grid(log_time, &grid)?;
+    }
     let features = tracker.map(|mut tracker| {
         tracker.finish_sweep();
         let (header, records) = tracker.snapshot(engine.mapper().grid(), 1, stamp);
         FeatureSnapshot { header, records }
     });
-    Ok(Snapshot {
-        grid: (engine.grid_header(1, stamp, counts), cells),
-        features,
-    })
+    Ok(Snapshot { grid, features })
+}
+
+/// The engine's map as the fusion publishes it: snapshot number `seq`, stamped `stamp_ns`.
+fn grid_snapshot(engine: &Engine, seq: u64, stamp_ns: u64) -> Grid {
+    let mut cells = vec![0; engine.grid_len()];
+    let counts = engine.encode_grid(&mut cells);
+    (engine.grid_header(seq, stamp_ns, counts), cells)
 }
 
 #[cfg(test)]
@@ -542,6 +710,7 @@ mod tests {
     use super::*;
     use sonar_common::ipc::{FusionCommand, FusionCommandKind, Reading, ScanMode, preset_code};
     use sonar_recorder::Entry;
+    use std::io::Cursor;
 
     /// Offers snapshots (seq, sweep, readings) in turn; the answer to each.
     fn offers(mut w: Wanted, snapshots: &[(u64, u32, u64)]) -> Vec<Take> {
@@ -643,10 +812,39 @@ mod tests {
         }
     }
 
+    /// `fuse_recording` without an MCAP to write.
+    fn fuse(rec: &Recording, config: FusionConfig, commands: bool, features: bool) -> Snapshot {
+        fuse_recording::<Cursor<Vec<u8>>>(rec, config, commands, features, None).unwrap()
+    }
+
+    /// The MCAP of a recording gets a map at the end of each sweep and at the end (every one,
+    /// with a period of 0), each with the sensor's transform (no pose source), and a scan a sweep.
+    #[test]
+    fn a_recording_s_mcap_has_a_map_and_a_scan_per_sweep() {
+        let options = WellKnownOptions {
+            ros2: true,
+            grid_period_ns: 0,
+        };
+        let mut mcap = McapExport::new(
+            RecordingWriter::new(Cursor::new(Vec::new()), &BTreeMap::new()).unwrap(),
+            options,
+        )
+        .unwrap();
+        let rec = recording();
+        let snapshot =
+            fuse_recording(&rec, FusionConfig::default(), true, false, Some(&mut mcap)).unwrap();
+        assert_eq!(
+            snapshot.grid.0.seq, 2,
+            "one map at the sweep change, then the last"
+        );
+        // Two sweeps: 2 maps, 2 transforms, 2 scans; twice, with the ROS 2 messages.
+        assert_eq!(mcap.finish().unwrap(), 12);
+    }
+
     #[test]
     fn a_recording_is_fused_with_its_commands_unless_told_otherwise() {
         let rec = recording();
-        let snapshot = fuse_recording(&rec, FusionConfig::default(), true, false).unwrap();
+        let snapshot = fuse(&rec, FusionConfig::default(), true, false);
         assert!(snapshot.features.is_none(), "not asked for");
         let (h, cells) = snapshot.grid;
         assert_eq!(h.readings_fused, 50, "the clear dropped the first sweep");
@@ -661,7 +859,7 @@ mod tests {
             .fold(0.0f32, f32::max);
         assert!(wall > 0.5, "{wall}");
 
-        let all = fuse_recording(&rec, FusionConfig::preset(Preset::Paper), false, false).unwrap();
+        let all = fuse(&rec, FusionConfig::preset(Preset::Paper), false, false);
         assert_eq!(all.grid.0.readings_fused, 100);
         assert_eq!(all.grid.0.preset, preset_code::PAPER);
     }
@@ -717,8 +915,7 @@ mod tests {
     fn the_features_of_a_recording_are_tracked_like_the_fusion_does_and_cleared_with_the_map() {
         let rec = post_recording();
         let features = |commands| {
-            fuse_recording(&rec, FusionConfig::default(), commands, true)
-                .unwrap()
+            fuse(&rec, FusionConfig::default(), commands, true)
                 .features
                 .expect("asked for")
         };

@@ -36,8 +36,9 @@ use sonar_common::ipc::{
     self, FeatureRecord, FeaturesHeader, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, PubSub,
     Reading,
 };
-use sonar_recorder::format::{ExtraChannel, FeatureSnapshot, Message, RecordingWriter, Topic};
-use sonar_wellknown::{Channel, Options as WellKnownOptions, WellKnown};
+use sonar_recorder::WellKnownChannels;
+use sonar_recorder::format::{FeatureSnapshot, Message, RecordingWriter, Topic};
+use sonar_wellknown::Options as WellKnownOptions;
 use tracing::{debug, info, warn};
 
 /// How often the loop wakes without an event: polls subscribers whose publishers do not notify,
@@ -139,11 +140,9 @@ fn run(args: Args) -> Result<()> {
             }
         })?;
 
-    let well_known = (!args.no_foxglove).then(|| {
-        WellKnown::new(WellKnownOptions {
-            ros2: args.ros2,
-            grid_period_ns: u64::try_from(args.grid_period.as_nanos()).unwrap_or(u64::MAX),
-        })
+    let well_known = (!args.no_foxglove).then(|| WellKnownOptions {
+        ros2: args.ros2,
+        grid_period_ns: u64::try_from(args.grid_period.as_nanos()).unwrap_or(u64::MAX),
     });
     let written = Arc::new(Written::default());
     let (tx, rx) = mpsc::channel::<(u64, Item)>();
@@ -549,92 +548,33 @@ impl Recorder {
     }
 }
 
-/// The well-known channels of a recording and what feeds them.
-struct WellKnownChannels {
-    converter: WellKnown,
-    channels: BTreeMap<Channel, ExtraChannel>,
-    written: u64,
-}
-
-impl WellKnownChannels {
-    fn declare(
-        writer: &mut RecordingWriter<BufWriter<File>>,
-        converter: WellKnown,
-    ) -> Result<Self> {
-        let mut channels = BTreeMap::new();
-        for channel in converter.channels() {
-            let spec = channel.spec();
-            let extra = writer
-                .add_channel(
-                    spec.topic,
-                    &spec.schema_name,
-                    &spec.schema_encoding,
-                    &spec.schema,
-                    &spec.message_encoding,
-                )
-                .with_context(|| format!("declare {}", spec.topic))?;
-            channels.insert(channel, extra);
-        }
-        Ok(Self {
-            converter,
-            channels,
-            written: 0,
-        })
-    }
-
-    /// Converts an item and writes what it gives.
-    fn take(
-        &mut self,
-        writer: &mut RecordingWriter<BufWriter<File>>,
-        log_time: u64,
-        item: &Item,
-    ) -> Result<()> {
-        let outputs = match item {
-            Item::Recorded(Message::Reading(r)) => self.converter.reading(r),
-            Item::Recorded(Message::Pose(p)) => self.converter.pose(p),
-            Item::Recorded(Message::Features(f)) => self.converter.features(&f.header, &f.records),
-            Item::Recorded(_) => Vec::new(),
-            Item::Grid(header, cells) => self.converter.grid(header, cells),
-        };
-        self.write(writer, log_time, outputs)
-    }
-
-    fn write(
-        &mut self,
-        writer: &mut RecordingWriter<BufWriter<File>>,
-        log_time: u64,
-        outputs: Vec<sonar_wellknown::Output>,
-    ) -> Result<()> {
-        for out in outputs {
-            if let Some(channel) = self.channels.get_mut(&out.channel) {
-                writer.write_extra(channel, log_time, out.stamp_ns, &out.data)?;
-                self.written += 1;
-            }
-        }
-        Ok(())
-    }
-}
-
 fn write_loop(
     mut writer: RecordingWriter<BufWriter<File>>,
-    well_known: Option<WellKnown>,
+    well_known: Option<WellKnownOptions>,
     rx: Receiver<(u64, Item)>,
     written: &Written,
 ) -> Result<Finished> {
     let mut well_known = well_known
-        .map(|converter| WellKnownChannels::declare(&mut writer, converter))
-        .transpose()?;
+        .map(|options| WellKnownChannels::declare(&mut writer, options))
+        .transpose()
+        .context("declare the well-known channels")?;
     let mut last_flush = Instant::now();
     let mut dirty = false;
     loop {
         match rx.recv_timeout(FLUSH_PERIOD) {
             Ok((log_time, item)) => {
-                if let Item::Recorded(message) = &item {
-                    writer.write(log_time, message)?;
-                    written.messages.fetch_add(1, Ordering::Relaxed);
-                }
-                if let Some(w) = &mut well_known {
-                    w.take(&mut writer, log_time, &item)?;
+                match (&item, &mut well_known) {
+                    (Item::Recorded(message), w) => {
+                        writer.write(log_time, message)?;
+                        written.messages.fetch_add(1, Ordering::Relaxed);
+                        if let Some(w) = w {
+                            w.message(&mut writer, log_time, message)?;
+                        }
+                    }
+                    (Item::Grid(header, cells), Some(w)) => {
+                        w.grid(&mut writer, log_time, header, cells)?
+                    }
+                    (Item::Grid(..), None) => {}
                 }
                 dirty = true;
             }
@@ -648,12 +588,8 @@ fn write_loop(
         }
     }
     // The map kept back and the sweep in progress.
-    let well_known = match &mut well_known {
-        Some(w) => {
-            let outputs = w.converter.finish();
-            w.write(&mut writer, ipc::unix_time_ns(), outputs)?;
-            w.written
-        }
+    let well_known = match well_known {
+        Some(w) => w.finish(&mut writer, ipc::unix_time_ns())?,
         None => 0,
     };
     let counts = Topic::ALL
