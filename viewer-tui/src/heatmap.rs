@@ -165,19 +165,38 @@ impl CellBox {
 
 /// The smallest box holding every observed cell of `cells` (`grid_w × grid_h`, row 0 at the
 /// lowest y); `None` when no cell was observed (or the slice has the wrong length).
+///
+/// Runs once per new grid over every cell, so rows are tested in blocks: [`CELL_UNKNOWN`] is all
+/// ones, so a block is unobserved exactly when the AND of its bytes is, which the compiler
+/// vectorises (a search byte by byte stops it doing so).
 pub fn seen_box(cells: &[u8], grid_w: usize, grid_h: usize) -> Option<CellBox> {
+    const BLOCK: usize = 64;
     if grid_w == 0 || grid_w.checked_mul(grid_h) != Some(cells.len()) {
         return None;
     }
+    let unobserved =
+        |block: &[u8]| block.iter().fold(CELL_UNKNOWN, |all, &v| all & v) == CELL_UNKNOWN;
     let mut seen: Option<(usize, usize, usize, usize)> = None;
     for (y, row) in cells.chunks_exact(grid_w).enumerate() {
-        let Some(first) = row.iter().position(|&v| v != CELL_UNKNOWN) else {
+        let Some(first_block) = row.chunks(BLOCK).position(|b| !unobserved(b)) else {
             continue;
         };
-        let last = row
-            .iter()
-            .rposition(|&v| v != CELL_UNKNOWN)
-            .unwrap_or(first);
+        let last_block = row
+            .chunks(BLOCK)
+            .rposition(|b| !unobserved(b))
+            .unwrap_or(first_block);
+        let in_block = |block: usize, from_right: bool| {
+            let start = block * BLOCK;
+            let cells = &row[start..(start + BLOCK).min(row.len())];
+            let observed = |&v: &u8| v != CELL_UNKNOWN;
+            let offset = if from_right {
+                cells.iter().rposition(observed)
+            } else {
+                cells.iter().position(observed)
+            };
+            start + offset.unwrap_or(0)
+        };
+        let (first, last) = (in_block(first_block, false), in_block(last_block, true));
         seen = Some(match seen {
             None => (first, y, last, y),
             Some((x0, y0, x1, _)) => (x0.min(first), y0, x1.max(last), y),
@@ -1009,6 +1028,29 @@ mod tests {
         assert_eq!(nearest_xterm256([128, 128, 128]), 244);
         for v in 0..=255u8 {
             assert!(nearest_xterm256(cell_rgb(v)) >= 16);
+        }
+    }
+
+    proptest! {
+        /// The block-wise search finds exactly the box a cell-by-cell search finds.
+        #[test]
+        fn seen_box_is_the_box_of_the_observed_cells(
+            w in 1usize..200,
+            h in 1usize..6,
+            marks in proptest::collection::vec((0usize..200, 0usize..6, 0u8..255), 0..6),
+        ) {
+            let marks: Vec<_> = marks.into_iter().filter(|&(x, y, _)| x < w && y < h).collect();
+            let cells = grid_with(w, h, CELL_UNKNOWN, &marks);
+            let expected = marks.iter().fold(None, |b: Option<CellBox>, &(x, y, _)| {
+                let cell = CellBox {
+                    x0: x as f64,
+                    y0: y as f64,
+                    x1: x as f64 + 1.0,
+                    y1: y as f64 + 1.0,
+                };
+                Some(b.map_or(cell, |b| b.including(x as u32, y as u32)))
+            });
+            prop_assert_eq!(seen_box(&cells, w, h), expected);
         }
     }
 
