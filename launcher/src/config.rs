@@ -97,7 +97,7 @@ pub struct ViewerSection {
     pub enabled: bool,
     /// `map`, `radar` or `split`.
     pub view: Option<String>,
-    /// `auto`, `truecolor` or `256`.
+    /// `auto`, `truecolor`, `256`, `16` or `none` (the viewer's `--color`).
     pub color: Option<String>,
 }
 

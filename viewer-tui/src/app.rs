@@ -979,8 +979,8 @@ impl App {
         Some(Action::Fusion(FusionCommand::new(kind, value)))
     }
 
-    /// `t`: follow the robot or stop following it. Switching it on over the whole map zooms in
-    /// once, as following shows nothing new there.
+    /// `t`: follow the robot or stop following it. Switching it on unzoomed zooms in once, as
+    /// following shows nothing new in a framing, which holds the robot anyway.
     fn toggle_follow(&mut self) {
         self.follow_by_key = true;
         self.map.follow = !self.map.follow;

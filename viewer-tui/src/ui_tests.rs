@@ -425,6 +425,24 @@ fn radar_world(inner: Rect, range: f64, col: u16, row: u16) -> (f64, f64) {
     (-hx + 2.0 * hx * fx, hy - 2.0 * hy * fy)
 }
 
+/// World positions (relative to the sensor) of the marks drawn in `color` inside a 4 m radar
+/// drawn at `inner`.
+fn radar_marks(buf: &Buffer, inner: Rect, color: Color) -> Vec<(f64, f64)> {
+    (inner.top()..inner.bottom())
+        .flat_map(|y| (inner.left()..inner.right()).map(move |x| (x, y)))
+        .filter(|&(x, y)| buf[(x, y)].fg == color && buf[(x, y)].symbol() != " ")
+        .map(|(x, y)| radar_world(inner, 4.0, x, y))
+        .collect()
+}
+
+/// The radar view of [`live_app`] with `segment` as the last local scan asked for.
+fn radar_with_local_segment(t0: Instant, segment: Segment) -> App {
+    let mut app = live_app(t0);
+    app.view = View::Radar;
+    app.local_segment = Some(segment);
+    app
+}
+
 #[test]
 fn radar_shows_a_wall_as_an_arc_at_its_range() {
     let t0 = Instant::now();
@@ -451,11 +469,7 @@ fn radar_shows_a_wall_as_an_arc_at_its_range() {
 
     let buf = terminal.backend().buffer();
     let inner = Rect::new(1, 1, 58, 22);
-    let echoes: Vec<(f64, f64)> = (inner.top()..inner.bottom())
-        .flat_map(|y| (inner.left()..inner.right()).map(move |x| (x, y)))
-        .filter(|&(x, y)| buf[(x, y)].fg == Color::LightRed)
-        .map(|(x, y)| radar_world(inner, 4.0, x, y))
-        .collect();
+    let echoes = radar_marks(buf, inner, Color::LightRed);
     assert!(echoes.len() >= 6, "the arc is drawn: {echoes:?}");
     for (x, y) in echoes {
         let (r, a) = (x.hypot(y), y.atan2(x).to_degrees());
@@ -662,23 +676,15 @@ fn the_map_has_a_scale_bar_and_a_colour_code_and_the_radar_a_key() {
 #[test]
 fn a_running_local_scan_keeps_its_segment_on_the_radar() {
     let t0 = Instant::now();
-    let mut app = live_app(t0);
-    app.view = View::Radar;
-    app.local_segment = Some(Segment {
+    let segment = Segment {
         from_deg: -30.0,
         to_deg: 30.0,
-    });
-    let inner = Rect::new(1, 1, 44, 21);
-    let cyan = |buf: &Buffer| -> Vec<(f64, f64)> {
-        (inner.top()..inner.bottom())
-            .flat_map(|y| (inner.left()..inner.right()).map(move |x| (x, y)))
-            .filter(|&(x, y)| buf[(x, y)].fg == Color::Cyan && buf[(x, y)].symbol() != " ")
-            .map(|(x, y)| radar_world(inner, 4.0, x, y))
-            .collect()
     };
+    let mut app = radar_with_local_segment(t0, segment);
+    let inner = Rect::new(1, 1, 44, 21);
     // The driver still sweeps fully: no segment.
     let terminal = draw(&mut app, 80, 24, t0);
-    assert!(cyan(terminal.backend().buffer()).is_empty());
+    assert!(radar_marks(terminal.backend().buffer(), inner, Color::Cyan).is_empty());
 
     let mut status = *app.driver.as_ref().unwrap();
     status.mode = ScanMode::Local as u32;
@@ -687,26 +693,35 @@ fn a_running_local_scan_keeps_its_segment_on_the_radar() {
     let terminal = draw(&mut app, 80, 24, t0);
     insta::assert_snapshot!(terminal.backend());
     let buf = terminal.backend().buffer();
-    let marks = cyan(buf);
+    let marks = radar_marks(buf, inner, Color::Cyan);
     assert!(marks.len() >= 10, "{marks:?}");
     for (x, y) in marks.into_iter().filter(|(x, y)| x.hypot(*y) > 0.8) {
         let a = y.atan2(x).to_degrees();
         assert!((-40.0..=40.0).contains(&a), "a mark at {a:.0}°");
     }
-    let screen = screen_text(buf);
-    assert!(screen.contains("local scan"), "{screen}");
-    assert!(screen.contains("local"), "{screen}");
+    // Labelled inside, named in the legend below.
+    assert!(area_text(buf, inner).contains("local"));
+    assert!(screen_text(buf).contains("⣿ local scan"));
+
+    // While a new segment is being chosen, that one (yellow) is drawn instead.
+    app.selection = Some(Segment {
+        from_deg: 60.0,
+        to_deg: 90.0,
+    });
+    let terminal = draw(&mut app, 80, 24, t0);
+    assert!(radar_marks(terminal.backend().buffer(), inner, Color::Cyan).is_empty());
 }
 
 #[test]
 fn local_scan_selection_is_drawn_on_the_radar() {
     let t0 = Instant::now();
-    let mut app = live_app(t0);
-    app.view = View::Radar;
-    app.selection = Some(Segment {
+    let segment = Segment {
         from_deg: -30.0,
         to_deg: 30.0,
-    });
+    };
+    let mut app = radar_with_local_segment(t0, segment);
+    app.local_segment = None;
+    app.selection = Some(segment);
     let terminal = draw(&mut app, 80, 24, t0);
     insta::assert_snapshot!(terminal.backend());
     let buf = terminal.backend().buffer();
@@ -942,11 +957,7 @@ fn a_moving_robot_is_drawn_with_its_heading_its_trail_and_its_fix() {
     // (within a terminal cell, ≈ 0.21 m × 0.42 m here). Unturned, the northern echoes would lie
     // east of the robot, inside the room.
     let radar = Rect::new(44, 1, 41, 29);
-    let echoes: Vec<(f64, f64)> = (radar.top()..radar.bottom())
-        .flat_map(|y| (radar.left()..radar.right()).map(move |x| (x, y)))
-        .filter(|&(x, y)| buf[(x, y)].fg == Color::LightRed)
-        .map(|(x, y)| radar_world(radar, 4.0, x, y))
-        .collect();
+    let echoes = radar_marks(buf, radar, Color::LightRed);
     assert!(echoes.len() >= 10, "{echoes:?}");
     for (x, y) in echoes {
         let (wx, wy) = (0.525 + x, 0.825 + y);
