@@ -3,7 +3,8 @@
 //! thin front of this process's own (`front`), the older `foxglove.websocket.v1` that Lichtblick
 //! and older Foxglove offer; with the same well-known channels a recording carries
 //! (`docs/foxglove.md`): the map as `foxglove.Grid`, each sweep as `foxglove.LaserScan`, the
-//! sensor's pose as `foxglove.FrameTransform`, the features as `foxglove.SceneUpdate`.
+//! sensor's pose as `foxglove.FrameTransform`, the features and each reading's beam (at most 10 a
+//! second) as `foxglove.SceneUpdate`.
 //!
 //! One more consumer of the pipeline's services: it polls its subscribers every 20 ms, converts
 //! with `sonar_wellknown` (the recorder's conversion) and hands the bytes to the `foxglove` crate's
@@ -40,7 +41,8 @@ const POLL: Duration = Duration::from_millis(20);
 /// Serves the running pipeline to Foxglove over its WebSocket protocol: the map (sonar/grid) as
 /// foxglove.Grid on /foxglove/map, each sweep as foxglove.LaserScan on /foxglove/scan, the
 /// sensor's pose as foxglove.FrameTransform on /foxglove/tf and the features as
-/// foxglove.SceneUpdate on /foxglove/features. In Foxglove: Open connection → Foxglove WebSocket →
+/// foxglove.SceneUpdate on /foxglove/features, the latest reading's beam as foxglove.SceneUpdate on
+/// /foxglove/beam. In Foxglove: Open connection → Foxglove WebSocket →
 /// ws://127.0.0.1:8765 (docs/foxglove.md). Prints that address on standard output when ready.
 ///
 /// Examples:

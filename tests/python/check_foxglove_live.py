@@ -29,6 +29,7 @@ EXPECTED = {
     "/foxglove/scan": "foxglove.LaserScan",
     "/foxglove/tf": "foxglove.FrameTransform",
     "/foxglove/features": "foxglove.SceneUpdate",
+    "/foxglove/beam": "foxglove.SceneUpdate",
 }
 MESSAGE_DATA = 0x01  # server → client binary opcode
 

@@ -12,6 +12,9 @@ the pipeline itself says:
   `sonar/readings` channel (or that of `--readings-from`, the recording a `sonar-export --mcap`
   file was made from), decoded from the byte layout of docs/recording.md: one scan per sweep
   (none for a live export's snapshot, which has no readings);
+- every reading's beam (foxglove.SceneUpdate on /foxglove/beam, at most one each 100 ms of the
+  readings' stamps) against its reading: a cone from the sensor, its arc at the reading's range (the
+  maximum range without an echo) and spanning its bearing ± half-angle;
 - that transforms and the features' scene are there.
 
 Usage: check_wellknown_mcap.py FILE.mcap MAP_STEM [--ros2] [--readings-from RECORDING.mcap]
@@ -122,7 +125,15 @@ def main():
         for _, _, message in make_reader(f).iter_messages(topics=["sonar/readings"]):
             f_ = READING.unpack(message.data)
             readings.append(
-                {"sweep_id": f_[5], "flags": f_[6], "angle_deg": f_[7], "distance_m": f_[10]}
+                {
+                    "stamp_ns": f_[1],
+                    "sweep_id": f_[5],
+                    "flags": f_[6],
+                    "angle_deg": f_[7],
+                    "half_angle_deg": f_[8],
+                    "distance_m": f_[10],
+                    "max_range_m": f_[13],
+                }
             )
     decoded = {}
     with open(args.recording, "rb") as f:
@@ -130,7 +141,7 @@ def main():
             f, decoder_factories=[ProtobufDecoderFactory(), Ros2DecoderFactory()]
         )
         schemas = {c.topic: reader.get_summary().schemas[c.schema_id] for c in reader.get_summary().channels.values()}
-        topics = ["/foxglove/map", "/foxglove/scan", "/foxglove/tf", "/foxglove/features"]
+        topics = ["/foxglove/map", "/foxglove/scan", "/foxglove/tf", "/foxglove/features", "/foxglove/beam"]
         if args.ros2:
             topics += ["/map", "/scan", "/tf"]
         for _, channel, _, msg in reader.iter_decoded_messages(topics=topics):
@@ -139,8 +150,8 @@ def main():
     check(schemas["/foxglove/map"].name == "foxglove.Grid", "grid schema")
     check(schemas["/foxglove/map"].encoding == "protobuf", "grid schema encoding")
     for topic in topics:
-        # The scans are counted against the sweeps below.
-        if not topic.endswith("/scan"):
+        # The scans and beams are counted against the readings below.
+        if not topic.endswith("/scan") and topic != "/foxglove/beam":
             check(decoded.get(topic), f"no message on {topic}")
 
     # The map: the last Grid is the map the pipeline ended with.
@@ -174,12 +185,40 @@ def main():
         check(scan.frame_id == "sonar", "scan frame")
         check_scan(scan, sweep, scan.start_angle, scan.end_angle, list(scan.ranges), f"scan {k}")
 
+    beams = decoded.get("/foxglove/beam", [])
+    check(bool(beams) == bool(readings), f"{len(beams)} beams for {len(readings)} readings")
+    by_stamp = {r["stamp_ns"]: r for r in readings}
+    last = None
+    for k, beam in enumerate(beams):
+        check(len(beam.entities) == 1, f"beam {k}: one entity")
+        e = beam.entities[0]
+        check((e.id, e.frame_id) == ("beam", "sonar"), f"beam {k}: entity {e.id} in {e.frame_id}")
+        stamp = e.timestamp.seconds * 1_000_000_000 + e.timestamp.nanos
+        r = by_stamp.get(stamp)
+        check(r is not None, f"beam {k}: no reading stamped {stamp}")
+        check(last is None or stamp < last or stamp - last >= 100_000_000, f"beam {k}: too soon")
+        last = stamp
+        silent = r["flags"] & (NO_ECHO | OUT_OF_RANGE)
+        reach = r["max_range_m"] if silent else r["distance_m"]
+        outline = e.lines[0].points
+        check(close(outline[0].x, 0) and close(outline[0].y, 0), f"beam {k}: not from the sensor")
+        arc = outline[1:-1]
+        check(
+            all(close(math.hypot(p.x, p.y), reach, 1e-4) for p in arc),
+            f"beam {k}: arc not at {reach} m",
+        )
+        edges = [math.atan2(p.y, p.x) for p in (arc[0], arc[-1])]
+        centre, half = math.radians(r["angle_deg"]), math.radians(r["half_angle_deg"])
+        for edge, want in zip(edges, (centre - half, centre + half)):
+            turn = (edge - want + math.pi) % (2 * math.pi) - math.pi
+            check(abs(turn) < 1e-4, f"beam {k}: edge at {edge} rad instead of {want}")
+
     check(decoded["/foxglove/tf"][0].child_frame_id == "sonar", "transform child frame")
     walls = sum(len(e.lines) for e in decoded["/foxglove/features"][-1].entities)
     summary = (
         f"grid {width}x{height} res {resolution} cells {width * height} known {known} "
         f"scans {len(scans)} readings {len(readings)} transforms {len(decoded['/foxglove/tf'])} "
-        f"wall_lines {walls}"
+        f"wall_lines {walls} beams {len(beams)}"
     )
 
     if args.ros2:

@@ -80,6 +80,7 @@ fn a_recording_s_grid_scans_and_ros2_messages_decode_to_the_map_and_the_readings
             command.args(["--readings-from", path_str(recording)]);
         }
         let summary = check_ok("check_wellknown_mcap.py", &command.output().unwrap());
+        eprintln!("{}: {summary}", mcap.display());
         // grid 400x400 … scans N readings M …
         move |name: &str| -> u64 {
             let words: Vec<&str> = summary.split_whitespace().collect();
@@ -92,6 +93,7 @@ fn a_recording_s_grid_scans_and_ros2_messages_decode_to_the_map_and_the_readings
     assert!(field("scans") >= 4, "three sweeps and a part");
     assert!(field("known") > 1000, "the room is mapped");
     assert!(field("wall_lines") >= 1, "the room's walls");
+    assert!(field("beams") >= 1, "beams of the readings");
 
     // The live snapshot's MCAP: the same map, no readings, so no scans.
     let snapshot = check(&stem.with_extension("mcap"), &stem, None);
@@ -118,7 +120,7 @@ fn a_recording_s_grid_scans_and_ros2_messages_decode_to_the_map_and_the_readings
     );
     assert!(printed.contains("offline.mcap"), "{printed}");
     let converted = check(&offline.with_extension("mcap"), &offline, Some(&file));
-    for name in ["readings", "scans", "known", "ros2_scans"] {
+    for name in ["readings", "scans", "beams", "known", "ros2_scans"] {
         assert_eq!(converted(name), field(name), "{name}");
     }
 
@@ -183,7 +185,7 @@ impl Drop for Netns {
 }
 
 /// sonar-foxglove serves the running room to a Foxglove WebSocket client that offers only
-/// `foxglove.websocket.v1`, and to one that offers only `foxglove.sdk.v1`: the four channels with
+/// `foxglove.websocket.v1`, and to one that offers only `foxglove.sdk.v1`: the five channels with
 /// their protobuf schemas, and a map that decodes to the fusion's grid.
 #[test]
 fn sonar_foxglove_serves_the_live_map_to_a_websocket_client() {
@@ -236,9 +238,9 @@ fn sonar_foxglove_serves_the_live_map_to_a_websocket_client() {
         "{lines}"
     );
     for line in lines.lines() {
-        // <subprotocol> channels 4 grid 400x400 cell 0.0200 known N frame map
+        // <subprotocol> channels 5 grid 400x400 cell 0.0200 known N frame map
         let words: Vec<&str> = line.split_whitespace().collect();
-        assert_eq!(words[2], "4", "{line}");
+        assert_eq!(words[2], "5", "{line}");
         assert_eq!(
             words[4],
             format!("{}x{}", expected.width, expected.height),

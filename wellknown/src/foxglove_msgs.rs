@@ -3,11 +3,11 @@
 use foxglove::Encode;
 use foxglove::messages::{
     Color, CubePrimitive, FrameTransform, Grid, LaserScan, LinePrimitive, PackedElementField,
-    Point3, Pose, Quaternion, SceneEntity, SceneUpdate, SpherePrimitive, Timestamp, Vector2,
-    Vector3, line_primitive, packed_element_field::NumericType,
+    Point3, Pose, Quaternion, SceneEntity, SceneUpdate, SpherePrimitive, Timestamp,
+    TriangleListPrimitive, Vector2, Vector3, line_primitive, packed_element_field::NumericType,
 };
 use sonar_common::ipc::{
-    FeatureRecord, FeaturesHeader, GridHeader, decode_probability, feature_kind,
+    FeatureRecord, FeaturesHeader, GridHeader, Reading, decode_probability, feature_kind,
 };
 
 use crate::scan::Scan;
@@ -217,6 +217,87 @@ pub fn features(header: &FeaturesHeader, records: &[FeatureRecord]) -> SceneUpda
             lines,
             cubes,
             spheres,
+            ..SceneEntity::default()
+        }],
+    }
+}
+
+/// A beam that heard an echo: outline, and its inside more transparent.
+const BEAM_ECHO: Color = Color {
+    r: 1.0,
+    g: 0.8,
+    b: 0.1,
+    a: 1.0,
+};
+/// A beam that heard nothing (drawn out to the maximum range).
+const BEAM_SILENT: Color = Color {
+    r: 0.6,
+    g: 0.6,
+    b: 0.6,
+    a: 1.0,
+};
+const BEAM_FILL_ALPHA: f64 = 0.25;
+/// Points on a beam's arc, its two edges included.
+pub const BEAM_ARC_POINTS: usize = 9;
+/// Thickness of a beam's outline, metres.
+const BEAM_THICKNESS: f64 = 0.01;
+
+/// A reading's beam as one `foxglove.SceneUpdate` entity `beam` in frame `sonar` (replacing the
+/// previous reading's): the cone of `beam_half_angle_deg` either side of its bearing, out to the
+/// echo's range (yellow), or to the maximum range when it heard nothing (grey); the outline as a
+/// line strip from the sensor along the arc and back, the inside as a translucent fan of triangles.
+pub fn beam(reading: &Reading) -> SceneUpdate {
+    let echo = reading.is_valid_range();
+    let (range, color) = if echo {
+        (reading.distance_m, BEAM_ECHO)
+    } else {
+        (reading.max_range_m, BEAM_SILENT)
+    };
+    let range = f64::from(range);
+    let centre = f64::from(reading.angle_deg).to_radians();
+    let half = f64::from(reading.beam_half_angle_deg).to_radians();
+    let origin = Point3::default();
+    let arc: Vec<Point3> = (0..BEAM_ARC_POINTS)
+        .map(|i| {
+            let a = centre - half + 2.0 * half * i as f64 / (BEAM_ARC_POINTS - 1) as f64;
+            Point3 {
+                x: range * a.cos(),
+                y: range * a.sin(),
+                z: 0.0,
+            }
+        })
+        .collect();
+    let outline = std::iter::once(origin)
+        .chain(arc.iter().copied())
+        .chain(std::iter::once(origin))
+        .collect();
+    let fan = arc.windows(2).flat_map(|w| [origin, w[0], w[1]]).collect();
+    SceneUpdate {
+        deletions: Vec::new(),
+        entities: vec![SceneEntity {
+            timestamp: Some(timestamp(reading.host_stamp_ns)),
+            frame_id: SENSOR_FRAME.into(),
+            id: "beam".into(),
+            lines: vec![LinePrimitive {
+                r#type: line_primitive::Type::LineStrip as i32,
+                pose: Some(planar_pose(0.0, 0.0, 0.0)),
+                thickness: BEAM_THICKNESS,
+                scale_invariant: false,
+                points: outline,
+                color: Some(color),
+                colors: Vec::new(),
+                indices: Vec::new(),
+            }],
+            triangles: vec![TriangleListPrimitive {
+                pose: Some(planar_pose(0.0, 0.0, 0.0)),
+                points: fan,
+                color: Some(Color {
+                    a: BEAM_FILL_ALPHA,
+                    ..color
+                }),
+                colors: Vec::new(),
+                indices: Vec::new(),
+            }],
             ..SceneEntity::default()
         }],
     }

@@ -8,6 +8,7 @@
 //! | each sweep's readings | `foxglove.LaserScan` on `/foxglove/scan` | `sensor_msgs/msg/LaserScan` on `/scan` |
 //! | the sensor's pose | `foxglove.FrameTransform` on `/foxglove/tf` | `tf2_msgs/msg/TFMessage` on `/tf` |
 //! | walls, corners, posts | `foxglove.SceneUpdate` on `/foxglove/features` | — |
+//! | each reading's beam (at most 10 a second) | `foxglove.SceneUpdate` on `/foxglove/beam` | — |
 //!
 //! Frames: `map` is the grid's world frame, `sonar` the sensor (x forward, angles counter-clockwise),
 //! placed in `map` by the transforms. [`WellKnown`] turns the pipeline's payloads into these
@@ -30,6 +31,9 @@ pub const SENSOR_FRAME: &str = "sonar";
 /// Transforms closer together than this are left out (the simulator publishes 20 poses a
 /// simulated second, hundreds a real second when it runs fast).
 const TRANSFORM_PERIOD_NS: u64 = 50_000_000;
+/// Beams of readings closer together than this are left out: the real head takes a few readings a
+/// second, all drawn; the simulator at 100× some 500, of which 10 a second are enough to watch.
+pub const BEAM_PERIOD_NS: u64 = 100_000_000;
 
 /// A cell as ROS's occupancy: −1 never observed, else the probability in percent (0–100), rounded
 /// half up from the cell's `p · 254`.
@@ -78,6 +82,7 @@ pub enum Channel {
     FoxgloveScan,
     FoxgloveTransform,
     FoxgloveFeatures,
+    FoxgloveBeam,
     Ros2Map,
     Ros2Scan,
     Ros2Transform,
@@ -94,11 +99,12 @@ pub struct ChannelSpec {
 }
 
 impl Channel {
-    pub const FOXGLOVE: [Channel; 4] = [
+    pub const FOXGLOVE: [Channel; 5] = [
         Channel::FoxgloveMap,
         Channel::FoxgloveScan,
         Channel::FoxgloveTransform,
         Channel::FoxgloveFeatures,
+        Channel::FoxgloveBeam,
     ];
     pub const ROS2: [Channel; 3] = [Channel::Ros2Map, Channel::Ros2Scan, Channel::Ros2Transform];
 
@@ -108,6 +114,7 @@ impl Channel {
             Channel::FoxgloveScan => "/foxglove/scan",
             Channel::FoxgloveTransform => "/foxglove/tf",
             Channel::FoxgloveFeatures => "/foxglove/features",
+            Channel::FoxgloveBeam => "/foxglove/beam",
             Channel::Ros2Map => "/map",
             Channel::Ros2Scan => "/scan",
             Channel::Ros2Transform => "/tf",
@@ -120,7 +127,9 @@ impl Channel {
             Channel::FoxgloveMap => foxglove_msgs::schema::<fm::Grid>(),
             Channel::FoxgloveScan => foxglove_msgs::schema::<fm::LaserScan>(),
             Channel::FoxgloveTransform => foxglove_msgs::schema::<fm::FrameTransform>(),
-            Channel::FoxgloveFeatures => foxglove_msgs::schema::<fm::SceneUpdate>(),
+            Channel::FoxgloveFeatures | Channel::FoxgloveBeam => {
+                foxglove_msgs::schema::<fm::SceneUpdate>()
+            }
             Channel::Ros2Map => {
                 ros2_spec("nav_msgs/msg/OccupancyGrid", ros2::occupancy_grid_schema())
             }
@@ -182,6 +191,7 @@ pub struct WellKnown {
     /// A pose source exists: the transforms follow it, not the grid's copy of the pose.
     pose_seen: bool,
     last_transform_ns: Option<u64>,
+    last_beam_ns: Option<u64>,
 }
 
 impl WellKnown {
@@ -193,6 +203,7 @@ impl WellKnown {
             pending_grid: None,
             pose_seen: false,
             last_transform_ns: None,
+            last_beam_ns: None,
         }
     }
 
@@ -205,12 +216,26 @@ impl WellKnown {
         channels
     }
 
-    /// A reading: the previous sweep's scan when it begins a new sweep.
+    /// A reading: the previous sweep's scan when it begins a new sweep, and its beam unless one
+    /// was given less than [`BEAM_PERIOD_NS`] before (by the readings' stamps).
     pub fn reading(&mut self, reading: &Reading) -> Vec<Output> {
-        match self.scans.push(reading) {
+        let mut out = match self.scans.push(reading) {
             Some(scan) => self.scan(&scan),
             None => Vec::new(),
+        };
+        let stamp_ns = reading.host_stamp_ns;
+        let due = self
+            .last_beam_ns
+            .is_none_or(|last| stamp_ns < last || stamp_ns >= last.saturating_add(BEAM_PERIOD_NS));
+        if due {
+            self.last_beam_ns = Some(stamp_ns);
+            out.push(Output {
+                channel: Channel::FoxgloveBeam,
+                stamp_ns,
+                data: foxglove_msgs::encode(&foxglove_msgs::beam(reading)),
+            });
         }
+        out
     }
 
     /// A pose of the sensor: its transform, unless one was given less than 50 ms before.

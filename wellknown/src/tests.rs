@@ -1,6 +1,6 @@
 use foxglove::Decode;
 use foxglove::messages::{FrameTransform, Grid, LaserScan, SceneUpdate};
-use sonar_common::ipc::feature_kind;
+use sonar_common::ipc::{feature_kind, flags};
 
 use super::*;
 
@@ -141,7 +141,11 @@ fn a_sweep_becomes_a_scan_when_the_next_begins_and_the_last_at_the_end() {
         host_stamp_ns: 5,
         ..Reading::default()
     };
-    assert!(w.reading(&reading(1, 0.0)).is_empty());
+    // The first reading's beam; the others come within the beam period (the same stamp).
+    assert_eq!(
+        channels(&w.reading(&reading(1, 0.0))),
+        [Channel::FoxgloveBeam]
+    );
     assert!(w.reading(&reading(1, 6.0)).is_empty());
     let out = w.reading(&reading(2, 6.0));
     assert_eq!(channels(&out), [Channel::FoxgloveScan]);
@@ -202,5 +206,61 @@ fn channel_specs_carry_foxglove_s_protobuf_schemas_and_ros2_definitions() {
         ("ros2msg", "cdr")
     );
     assert_eq!(WellKnown::new(options(false)).channels(), Channel::FOXGLOVE);
-    assert_eq!(WellKnown::new(options(true)).channels().len(), 7);
+    assert_eq!(WellKnown::new(options(true)).channels().len(), 8);
+}
+
+#[test]
+fn a_reading_s_beam_is_a_cone_to_its_range_at_most_ten_a_second() {
+    let mut w = WellKnown::new(options(false));
+    let reading = |stamp_ms: u64, flags| Reading {
+        angle_deg: 90.0,
+        beam_half_angle_deg: 15.0,
+        distance_m: 1.5,
+        max_range_m: 4.0,
+        flags,
+        host_stamp_ns: stamp_ms * 1_000_000,
+        ..Reading::default()
+    };
+    let beams = |out: Vec<Output>| -> Vec<SceneUpdate> {
+        out.iter()
+            .filter(|o| o.channel == Channel::FoxgloveBeam)
+            .map(|o| SceneUpdate::decode(&o.data[..]).unwrap())
+            .collect()
+    };
+    let first = beams(w.reading(&reading(1000, 0)));
+    assert_eq!(first.len(), 1);
+    let entity = &first[0].entities[0];
+    assert_eq!(
+        (entity.id.as_str(), entity.frame_id.as_str()),
+        ("beam", SENSOR_FRAME)
+    );
+    let outline = &entity.lines[0].points;
+    assert_eq!(outline.len(), foxglove_msgs::BEAM_ARC_POINTS + 2);
+    assert_eq!((outline[0].x, outline[0].y), (0.0, 0.0), "from the sensor");
+    let arc = &outline[1..outline.len() - 1];
+    for p in arc {
+        assert!(
+            (p.x.hypot(p.y) - 1.5).abs() < 1e-6,
+            "at the echo's range: {p:?}"
+        );
+    }
+    let bearing = |p: &foxglove::messages::Point3| p.y.atan2(p.x).to_degrees();
+    assert!((bearing(&arc[0]) - 75.0).abs() < 1e-6);
+    assert!((bearing(&arc[arc.len() - 1]) - 105.0).abs() < 1e-6);
+    assert_eq!(
+        entity.triangles[0].points.len(),
+        3 * (foxglove_msgs::BEAM_ARC_POINTS - 1),
+        "a fan of triangles fills it"
+    );
+
+    assert!(
+        beams(w.reading(&reading(1099, 0))).is_empty(),
+        "within 100 ms"
+    );
+    let silent = beams(w.reading(&reading(1100, flags::NO_ECHO)));
+    let p = silent[0].entities[0].lines[0].points[1];
+    assert!(
+        (p.x.hypot(p.y) - 4.0).abs() < 1e-6,
+        "no echo: to the maximum range"
+    );
 }

@@ -818,7 +818,8 @@ mod tests {
     }
 
     /// The MCAP of a recording gets a map at the end of each sweep and at the end (every one,
-    /// with a period of 0), each with the sensor's transform (no pose source), and a scan a sweep.
+    /// with a period of 0), each with the sensor's transform (no pose source), and a scan a sweep;
+    /// one beam (the readings carry one stamp, so the others come within the beam period).
     #[test]
     fn a_recording_s_mcap_has_a_map_and_a_scan_per_sweep() {
         let options = WellKnownOptions {
@@ -837,8 +838,8 @@ mod tests {
             snapshot.grid.0.seq, 2,
             "one map at the sweep change, then the last"
         );
-        // Two sweeps: 2 maps, 2 transforms, 2 scans; twice, with the ROS 2 messages.
-        assert_eq!(mcap.finish().unwrap(), 12);
+        // Two sweeps: 2 maps, 2 transforms, 2 scans; twice, with the ROS 2 messages; one beam.
+        assert_eq!(mcap.finish().unwrap(), 13);
     }
 
     #[test]

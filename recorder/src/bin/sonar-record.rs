@@ -54,7 +54,8 @@ const BACKLOG_WARNING: u64 = 10_000;
 /// `sonar/features` to an MCAP file (one channel each; docs/recording.md), until Ctrl-C/SIGTERM,
 /// `--count` or `--duration`. Beside them it writes what Foxglove draws by itself: the map
 /// (`sonar/grid`) as foxglove.Grid, each sweep as foxglove.LaserScan, the sensor's pose as
-/// foxglove.FrameTransform and the features as foxglove.SceneUpdate (docs/foxglove.md); with
+/// foxglove.FrameTransform, the features and each reading's beam (at most 10 a second) as
+/// foxglove.SceneUpdate (docs/foxglove.md); with
 /// `--ros2` also /map, /scan and /tf as ROS 2 messages. sonar-replay skips those.
 ///
 /// Examples:
