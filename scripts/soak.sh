@@ -43,7 +43,7 @@ for _ in $(seq 100); do [ -e "$WORK/tty" ] && break; sleep 0.1; done
 "$BIN/sonar-driver" --port "$WORK/tty" >"$WORK/driver.log" 2>&1 &
 PIDS+=($!)
 echo "soak: recording $READINGS readings"
-"$BIN/sonar-record" "$WORK/room.mcap" --count "$READINGS" --progress-interval 60 2>"$WORK/record.log"
+"$BIN/sonar-record" "$WORK/room.mcap" --max-readings "$READINGS" --progress-interval 60 2>"$WORK/record.log"
 for pid in "${PIDS[@]}"; do kill "$pid" 2>/dev/null || true; done
 wait 2>/dev/null || true
 PIDS=()
@@ -60,7 +60,7 @@ VIEWER=$(pgrep -f "sonar-viewer --log-file $WORK/viewer.log" | head -1)
 # 3. Replays back to back at maximum speed, without a rate ceiling, until the time is up.
 (
   while true; do
-    nice -n 10 "$BIN/sonar-replay" "$WORK/room.mcap" --speed max --max-rate 0 --readings-only \
+    nice -n 10 "$BIN/sonar-replay" "$WORK/room.mcap" --speed max --max-message-rate 0 --readings-only \
       --linger 0 --no-progress 2>>"$WORK/replay.log" || true
   done
 ) &

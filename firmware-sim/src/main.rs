@@ -66,8 +66,15 @@ struct Args {
     #[arg(long, default_value = "1")]
     speed: Speed,
     /// Air temperature in °C, which sets the speed of sound (331.3 + 0.606·T m/s).
-    #[arg(long, default_value_t = 20.0, allow_hyphen_values = true)]
-    air_temperature: f32,
+    /// Named as the file's `[sensor]` key; `--air-temperature` still works.
+    #[arg(
+        long,
+        value_name = "CELSIUS",
+        alias = "air-temperature",
+        default_value_t = 20.0,
+        allow_hyphen_values = true
+    )]
+    air_temperature_c: f32,
     /// The motor and its driver (as the firmware was built for).
     #[arg(long, value_enum, default_value_t = Motor::Paper)]
     motor: Motor,
@@ -105,10 +112,10 @@ fn run(args: Args) -> Result<()> {
     let scene =
         Scene::resolve(&args.scene).with_context(|| format!("loading scene {:?}", args.scene))?;
     let sensor = SensorConfig {
-        air_temperature_c: args.air_temperature,
+        air_temperature_c: args.air_temperature_c,
         ..SensorConfig::default()
     };
-    sensor.validate().context("--air-temperature")?;
+    sensor.validate().context("--air-temperature-c")?;
     let scene_name = scene.name.clone();
     let model = EchoModel::new(scene, sensor, args.seed)?;
     let head_cfg = HeadConfig {

@@ -3,7 +3,7 @@
 //! It sleeps on the readings' wake-up event, fuses every reading into both of the paper's maps
 //! (see the crate docs), and publishes them as snapshots on `sonar/grid` (header + one byte per
 //! cell, written straight into the loaned shared-memory sample) and `sonar/radar`, at most
-//! `--max-rate` times a second (readings in between are coalesced), and at the end of a sweep
+//! `--max-snapshot-rate` times a second (readings in between are coalesced), and at the end of a sweep
 //! unless sweeps end faster than that (see [`Pace`]). Commands on `sonar/fusion_commands` clear
 //! the maps or switch model, rule or preset.
 //!
@@ -91,7 +91,7 @@ const POSE_POLL: Duration = Duration::from_millis(1);
 /// Examples:
 ///   sonar-fusion                                  # recommended preset, 400² cells of 2 cm
 ///   sonar-fusion --preset paper                   # the paper exactly as written
-///   sonar-fusion --rule dempster-shafer --cells 800 --resolution 0.01
+///   sonar-fusion --rule dempster-shafer --cells 800 --resolution-m 0.01
 ///   sonar-fusion --state-file /var/lib/sonar/map.bin --save-period 2
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
@@ -99,27 +99,42 @@ struct Args {
     /// Pipeline configuration file (TOML); its `[fusion]` table is read, other tables ignored.
     #[arg(long, env = "SONAR_CONFIG")]
     config: Option<PathBuf>,
-    /// Ready-made settings: `paper` or `recommended`.
+    /// Ready-made settings: `paper` or `recommended` [default: recommended, or the file's].
     #[arg(long, value_parser = parse::<Preset>)]
     preset: Option<Preset>,
-    /// Sensor model: `paper`, `log-odds` or `smooth` (with its default parameters).
+    /// Sensor model: `paper`, `log-odds` or `smooth` (with its default parameters) [default: the
+    /// preset's: smooth for recommended, paper for paper].
     #[arg(long, value_parser = parse::<ModelKind>)]
     model: Option<ModelKind>,
-    /// Combination rule: `bayes`, `log-odds`, `dempster-shafer` or `himm`.
+    /// Combination rule: `bayes`, `log-odds`, `dempster-shafer` or `himm` [default: the preset's:
+    /// log-odds for recommended, bayes for paper].
     #[arg(long, value_parser = parse::<RuleKind>)]
     rule: Option<RuleKind>,
-    /// Grid cells per side (the grid is square and centred on the sensor's start).
+    /// Grid cells per side (the grid is square and centred on the sensor's start) [default: 400,
+    /// or the file's `[fusion.grid] cells`].
     #[arg(long)]
     cells: Option<u32>,
-    /// Cell edge in metres.
-    #[arg(long, allow_negative_numbers = true)]
-    resolution: Option<f32>,
+    /// Cell edge in metres [default: 0.02, or the file's `[fusion.grid] resolution_m`]. Named as
+    /// the file's key; `--resolution` still works.
+    #[arg(
+        long,
+        value_name = "METRES",
+        alias = "resolution",
+        allow_negative_numbers = true
+    )]
+    resolution_m: Option<f32>,
     /// Fuse readings without an echo as free space up to the maximum range.
     #[arg(long)]
     clear_on_no_echo: Option<bool>,
-    /// Most snapshots published per second; readings in between are coalesced.
-    #[arg(long, default_value_t = 10.0)]
-    max_rate: f64,
+    /// Most grid and radar snapshots published per second; readings in between are coalesced
+    /// into the next. (`--max-rate` still works.)
+    #[arg(
+        long,
+        value_name = "PER_SECOND",
+        alias = "max-rate",
+        default_value_t = 10.0
+    )]
+    max_snapshot_rate: f64,
     /// Readings kept to re-fuse when model, rule or preset change (0: switching clears the map).
     #[arg(long, default_value_t = 20_000)]
     history: usize,
@@ -184,7 +199,7 @@ fn fusion_config(args: &Args) -> Result<(FusionConfig, PersistConfig, FeaturesSe
     if let Some(cells) = args.cells {
         config.grid.cells = cells;
     }
-    if let Some(resolution) = args.resolution {
+    if let Some(resolution) = args.resolution_m {
         config.grid.resolution_m = resolution;
     }
     if let Some(clear) = args.clear_on_no_echo {
@@ -284,8 +299,8 @@ fn check_shared_memory(cells: usize) -> Result<u64> {
 }
 
 fn run(args: &Args) -> Result<()> {
-    if !(args.max_rate.is_finite() && args.max_rate > 0.0) {
-        bail!("--max-rate must be a positive number of snapshots per second");
+    if !(args.max_snapshot_rate.is_finite() && args.max_snapshot_rate > 0.0) {
+        bail!("--max-snapshot-rate must be a positive number of snapshots per second");
     }
     let (config, persist_config, features) = fusion_config(args)?;
     let localize = args.localize || features.localize;
@@ -332,7 +347,7 @@ fn run(args: &Args) -> Result<()> {
 
     let node = args.ipc.node("sonar-fusion")?;
     let ports = Ports::new(&node, engine.grid_len())?;
-    let min_interval = Duration::from_secs_f64(1.0 / args.max_rate);
+    let min_interval = Duration::from_secs_f64(1.0 / args.max_snapshot_rate);
     let mut features = tracker
         .map(|tracker| Features::new(&node, tracker, localize, min_interval))
         .transpose()?;
@@ -792,7 +807,7 @@ impl Ports {
     }
 }
 
-/// At most one snapshot of a kind per `min_interval` (1 / `--max-rate`).
+/// At most one snapshot of a kind per `min_interval` (1 / `--max-snapshot-rate`).
 ///
 /// The grid keeps two: one for all its snapshots, which coalesces the readings in between, and
 /// one for the snapshots at the end of a sweep. A sweep's end publishes the finished sweep's map
@@ -802,7 +817,7 @@ impl Ports {
 /// Uncapped, sweep ends cost the engine everything once it fell behind: its buffer overflows,
 /// consecutive readings belong to different sweeps, and each forced a snapshot (at 1024² cells,
 /// offered 9 k readings/s, it fused 105/s). Capped, a fragmenting stream costs at most two
-/// snapshots per interval, and sweeps that end less often than `--max-rate` keep every one.
+/// snapshots per interval, and sweeps that end less often than `--max-snapshot-rate` keep every one.
 #[derive(Debug, Clone, Copy)]
 struct Pace {
     min_interval: Duration,
@@ -1113,6 +1128,26 @@ impl Output<'_> {
             if let Err(e) = notifier.notify() {
                 warn!("notify: {e:?}");
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[test]
+    fn flags_are_named_as_the_files_keys_and_the_old_names_still_work() {
+        Args::command().debug_assert();
+        for (rate, resolution) in [
+            ("--max-snapshot-rate", "--resolution-m"),
+            ("--max-rate", "--resolution"),
+        ] {
+            let args = Args::try_parse_from(["sonar-fusion", rate, "4", resolution, "0.05"])
+                .unwrap_or_else(|e| panic!("{rate} {resolution}: {e}"));
+            assert_eq!(args.max_snapshot_rate, 4.0);
+            assert_eq!(args.resolution_m, Some(0.05));
         }
     }
 }

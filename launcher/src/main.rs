@@ -300,7 +300,11 @@ impl Pipeline {
                     );
                     push_opt(&mut sim, "--seed", args.seed.or(file.simulator.seed));
                     push_opt(&mut sim, "--dialect", dialect.clone());
-                    push_opt(&mut sim, "--air-temperature", file.sensor.air_temperature_c);
+                    push_opt(
+                        &mut sim,
+                        "--air-temperature-c",
+                        file.sensor.air_temperature_c,
+                    );
                     processes.push(Process::new("sonar-sim", sim, false));
                     Some(link)
                 }
@@ -315,7 +319,7 @@ impl Pipeline {
             }
             push_opt(
                 &mut driver,
-                "--air-temperature",
+                "--air-temperature-c",
                 file.sensor.air_temperature_c,
             );
             push_opt(

@@ -79,8 +79,15 @@ struct Args {
     #[arg(long, value_enum, default_value_t = Dialect::Native)]
     dialect: Dialect,
     /// Air temperature in °C, which sets the speed of sound (331.3 + 0.606·T m/s).
-    #[arg(long, default_value_t = 20.0, allow_hyphen_values = true)]
-    air_temperature: f32,
+    /// Named as the file's `[sensor]` key; `--air-temperature` still works.
+    #[arg(
+        long,
+        value_name = "CELSIUS",
+        alias = "air-temperature",
+        default_value_t = 20.0,
+        allow_hyphen_values = true
+    )]
+    air_temperature_c: f32,
     /// Also make a symbolic link to the pseudo-terminal at this path (removed on exit).
     #[arg(long)]
     link: Option<PathBuf>,
@@ -278,10 +285,10 @@ fn run(args: Args) -> Result<()> {
     let scene =
         Scene::resolve(&args.scene).with_context(|| format!("loading scene {:?}", args.scene))?;
     let sensor = SensorConfig {
-        air_temperature_c: args.air_temperature,
+        air_temperature_c: args.air_temperature_c,
         ..SensorConfig::default()
     };
-    sensor.validate().context("--air-temperature")?;
+    sensor.validate().context("--air-temperature-c")?;
     let timing = Timing {
         ping_interval_ms: args.ping_interval_ms,
         step_time_ms: args.step_time_ms,

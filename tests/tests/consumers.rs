@@ -460,7 +460,7 @@ fn the_nearest_obstacle_alerter_reports_the_room_walls_and_stays_quiet_below_the
     let sandbox = Sandbox::new("nearest");
     let _pipeline = start_room(&sandbox);
 
-    let (alerts, _) = alerter(&sandbox, &["--threshold", "1.5", "--count", "1"]);
+    let (alerts, _) = alerter(&sandbox, &["--threshold", "1.5", "--max-alerts", "1"]);
     assert_eq!(alerts.len(), 1, "{alerts:?}");
     let (bearing, distance) = parse_alert(&alerts[0]);
     assert!((1.1..=1.3).contains(&distance), "{}", alerts[0]);
@@ -483,7 +483,7 @@ fn the_nearest_obstacle_alerter_reports_the_room_walls_and_stays_quiet_below_the
         "{stderr}"
     );
 
-    // Without --count it runs until stopped, and stops cleanly.
+    // Without --max-alerts it runs until stopped, and stops cleanly.
     let mut running = sandbox.spawn("sonar-nearest-obstacle", &["--threshold", "1.5"]);
     let stdout = running.child.stdout.take().unwrap();
     let (tx, rx) = std::sync::mpsc::channel();

@@ -260,7 +260,7 @@ fn readings_lost_to_gaps_and_a_full_buffer_are_counted_and_a_driver_restart_is_n
 
 /// Readings of a local scan of the narrowest segment (two readings a sweep) offered far faster
 /// than the fusion fuses them: its buffer overflows, so nearly every reading it gets starts a new
-/// sweep. A sweep's end used to force a snapshot each time, whatever `--max-rate`, and the engine
+/// sweep. A sweep's end used to force a snapshot each time, whatever `--max-snapshot-rate`, and the engine
 /// spent itself on them (at 1024² cells, offered 9 k readings/s, it fused 105/s). Now it keeps
 /// fusing, publishes at most two snapshots per rate interval (the periodic one and one at a
 /// sweep's end), counts every reading it did not get, and the last map still appears.
@@ -275,7 +275,7 @@ fn an_overloaded_fusion_keeps_fusing_within_its_snapshot_rate_and_counts_the_los
     let started = Instant::now();
     let fusion = sandbox.spawn(
         "sonar-fusion",
-        &["--no-persist", "--max-rate", &MAX_RATE.to_string()],
+        &["--no-persist", "--max-snapshot-rate", &MAX_RATE.to_string()],
     );
     fusion_status(&node, &status);
     readings.update_connections().unwrap();

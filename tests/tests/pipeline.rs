@@ -649,7 +649,7 @@ fn the_fusion_engine_maps_the_room_walls_occupied_and_the_space_in_front_free() 
         .unwrap();
     let (sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100", "--seed", "11"]);
     let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
-    let fusion = sandbox.spawn("sonar-fusion", &["--max-rate", "20"]);
+    let fusion = sandbox.spawn("sonar-fusion", &["--max-snapshot-rate", "20"]);
 
     // Two full sweeps: the snapshot published at the end of the second one holds 100 readings.
     let snapshots = collect_until(
@@ -780,7 +780,7 @@ fn bad_fusion_settings_are_clear_errors() {
     let sandbox = Sandbox::new("fusionbad");
     for (args, expected) in [
         (
-            &["--resolution", "-0.02"][..],
+            &["--resolution-m", "-0.02"][..],
             "resolution_m must be a positive",
         ),
         (

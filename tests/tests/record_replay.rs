@@ -55,7 +55,7 @@ fn a_replay_publishes_exactly_what_the_live_pipeline_published() {
     let sub = readings_subscriber(&node);
     let file: PathBuf = live.root.join("run.mcap");
     let count = READINGS.to_string();
-    let recorder = live.spawn("sonar-record", &[path_str(&file), "--count", &count]);
+    let recorder = live.spawn("sonar-record", &[path_str(&file), "--max-readings", &count]);
     // Both subscribers exist before the driver publishes its first reading.
     wait_until(&node, "the recorder's subscription", || {
         readings_subscribers(&node) >= 2
@@ -70,7 +70,7 @@ fn a_replay_publishes_exactly_what_the_live_pipeline_published() {
     );
     let (status, stderr) = recorder.wait_exit();
     assert!(status.success(), "sonar-record failed: {stderr}");
-    assert!(stderr.contains("reached --count"), "{stderr}");
+    assert!(stderr.contains("reached --max-readings"), "{stderr}");
     assert!(driver.terminate().success(), "driver did not exit cleanly");
     assert!(sim.terminate().success(), "simulator did not exit cleanly");
 
@@ -308,7 +308,7 @@ fn damaged_or_foreign_files_are_clear_errors() {
     );
 
     // The recorder does not overwrite a file by accident.
-    let out = sandbox.run("sonar-record", &[path_str(&noise), "--count", "1"]);
+    let out = sandbox.run("sonar-record", &[path_str(&noise), "--max-readings", "1"]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(stderr.contains("--force"), "{stderr}");

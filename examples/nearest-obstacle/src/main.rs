@@ -30,7 +30,7 @@ const PROGRESS_PERIOD: Duration = Duration::from_secs(1);
 
 /// Prints `bearing <deg> distance <m>` whenever the closest occupied cell of the sonar map is
 /// nearer than --threshold (once per map snapshot). Bearing: degrees counter-clockwise from the
-/// sensor's forward axis. Runs until Ctrl-C/SIGTERM, --count alerts or --snapshots snapshots.
+/// sensor's forward axis. Runs until Ctrl-C/SIGTERM, --max-alerts alerts or --snapshots snapshots.
 /// Once a second the nearest occupied cell is logged on stderr, alert or not.
 ///
 /// Example: sonar-nearest-obstacle --threshold 0.8
@@ -43,9 +43,9 @@ struct Args {
     /// A cell counts as occupied when its probability is above this.
     #[arg(long, default_value_t = 0.65)]
     occupied_above: f32,
-    /// Exit after N alerts (0: never).
-    #[arg(long, value_name = "N", default_value_t = 0)]
-    count: u64,
+    /// Exit after N alerts (0: never). (`--count` still works.)
+    #[arg(long, value_name = "N", alias = "count", default_value_t = 0)]
+    max_alerts: u64,
     /// Exit after N snapshots, alert or not (0: never).
     #[arg(long, value_name = "N", default_value_t = 0)]
     snapshots: u64,
@@ -89,7 +89,7 @@ fn run(args: &Args) -> Result<()> {
         .map_err(|e| IpcError::new("attach listener", e))?;
     let (mut alerts, mut snapshots, mut closest) = (0u64, 0u64, None);
     let done = |alerts, snapshots| {
-        (args.count > 0 && alerts >= args.count)
+        (args.max_alerts > 0 && alerts >= args.max_alerts)
             || (args.snapshots > 0 && snapshots >= args.snapshots)
     };
     let mut out = std::io::stdout().lock();

@@ -307,7 +307,7 @@ enum Take {
 /// `sweeps` sweeps that ended while we watched (the one in progress at the start included).
 ///
 /// The fusion engine publishes a snapshot at the end of every sweep (unless sweeps end faster than
-/// its `--max-rate`), before it fuses the first
+/// its `--max-snapshot-rate`), before it fuses the first
 /// reading of the next, and that snapshot still carries the old `sweep_id`: a sweep is seen to
 /// have ended only with the next snapshot. If no snapshot came between the two (consecutive
 /// `seq`), the earlier one is the map at the end of the sweep, without readings of the next one.

@@ -52,7 +52,7 @@ const BACKLOG_WARNING: u64 = 10_000;
 
 /// Records `sonar/readings`, `sonar/commands`, `sonar/fusion_commands`, `robot/pose` and
 /// `sonar/features` to an MCAP file (one channel each; docs/recording.md), until Ctrl-C/SIGTERM,
-/// `--count` or `--duration`. Beside them it writes what Foxglove draws by itself: the map
+/// `--max-readings` or `--duration`. Beside them it writes what Foxglove draws by itself: the map
 /// (`sonar/grid`) as foxglove.Grid, each sweep as foxglove.LaserScan, the sensor's pose as
 /// foxglove.FrameTransform, the features and each reading's beam (at most 10 a second) as
 /// foxglove.SceneUpdate (docs/foxglove.md); with
@@ -60,7 +60,7 @@ const BACKLOG_WARNING: u64 = 10_000;
 ///
 /// Examples:
 ///   sonar-record run.mcap                          # until Ctrl-C
-///   sonar-record run.mcap --count 500              # the next 500 readings
+///   sonar-record run.mcap --max-readings 500       # the next 500 readings
 ///   sonar-record run.mcap --duration 60 --force    # one minute, replacing run.mcap
 ///   sonar-record run.mcap --ros2                   # also for ros2 bag play and RViz
 #[derive(Debug, Parser)]
@@ -71,9 +71,9 @@ struct Args {
     /// Replace the output file if it exists.
     #[arg(long)]
     force: bool,
-    /// Stop after this many readings.
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
-    count: Option<u64>,
+    /// Stop after this many readings. (`--count` still works.)
+    #[arg(long, value_name = "N", alias = "count", value_parser = clap::value_parser!(u64).range(1..))]
+    max_readings: Option<u64>,
     /// Stop after this many seconds.
     #[arg(long, value_name = "SECONDS", value_parser = sonar_common::parse_positive_seconds)]
     duration: Option<Duration>,
@@ -157,7 +157,7 @@ fn run(args: Args) -> Result<()> {
 
     info!(
         file = %args.file.display(),
-        count = ?args.count,
+        max_readings = ?args.max_readings,
         duration = ?args.duration,
         "recording"
     );
@@ -167,7 +167,7 @@ fn run(args: Args) -> Result<()> {
         others: 0,
         lost: 0,
         last_seq: None,
-        limit: args.count,
+        limit: args.max_readings,
         writer_gone: false,
     };
     let outcome = if signalled_early {
@@ -371,7 +371,7 @@ impl Recorder {
                 bail!("the writer stopped");
             }
             if done {
-                info!(readings = self.readings, "reached --count");
+                info!(readings = self.readings, "reached --max-readings");
                 return Ok(());
             }
             if args.duration.is_some_and(|d| start.elapsed() >= d) {
@@ -410,7 +410,7 @@ impl Recorder {
     }
 
     /// Empties every subscriber (commands, poses and features first: they are usually older than
-    /// the readings found in the same wake-up); true once `--count` is reached.
+    /// the readings found in the same wake-up); true once `--max-readings` is reached.
     fn drain_all(&mut self, ports: &Ports) -> bool {
         let now = ipc::unix_time_ns();
         if let Some(sub) = &ports.scan_commands {
@@ -510,7 +510,7 @@ impl Recorder {
         }
     }
 
-    /// Takes every reading the subscriber holds; true once `--count` is reached.
+    /// Takes every reading the subscriber holds; true once `--max-readings` is reached.
     fn drain_readings(&mut self, sub: &Subscriber<Ipc, Reading, ()>) -> bool {
         loop {
             if self.limit.is_some_and(|n| self.readings >= n) {

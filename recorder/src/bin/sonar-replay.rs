@@ -45,10 +45,11 @@ struct Args {
     /// or `max`.
     #[arg(long, default_value = "1")]
     speed: Speed,
-    /// Never publish more than this many messages per second, after a burst of 32 (0: no
-    /// ceiling). Keeps a consumer's buffer of 256 from overflowing at high speeds.
-    #[arg(long, value_name = "PER_SECOND", default_value_t = DEFAULT_MAX_RATE)]
-    max_rate: f64,
+    /// Never publish more than this many messages (readings, commands, poses) per second, after a
+    /// burst of 32 (0: no ceiling). Keeps a consumer's buffer of 256 from overflowing at high
+    /// speeds. (`--max-rate` still works.)
+    #[arg(long, value_name = "PER_SECOND", alias = "max-rate", default_value_t = DEFAULT_MAX_RATE)]
+    max_message_rate: f64,
     /// Before publishing anything, wait until this many subscribers are connected to
     /// `sonar/readings`.
     #[arg(long, value_name = "N", default_value_t = 0)]
@@ -100,8 +101,11 @@ fn run(args: Args) -> Result<()> {
         print_info(&args, &recording);
         return Ok(());
     }
-    if !(args.max_rate.is_finite() && args.max_rate >= 0.0) {
-        anyhow::bail!("--max-rate must be a number ≥ 0, got {}", args.max_rate);
+    if !(args.max_message_rate.is_finite() && args.max_message_rate >= 0.0) {
+        anyhow::bail!(
+            "--max-message-rate must be a number ≥ 0, got {}",
+            args.max_message_rate
+        );
     }
     if !(args.linger.is_finite() && (0.0..1e6).contains(&args.linger)) {
         anyhow::bail!(
@@ -141,11 +145,11 @@ fn run(args: Args) -> Result<()> {
         readings = total_readings,
         others = entries.len() as u64 - total_readings,
         speed = %args.speed,
-        max_rate = args.max_rate,
+        max_message_rate = args.max_message_rate,
         "replaying"
     );
     let bar = progress_bar(total_readings, args.no_progress);
-    let mut pacer = Pacer::new(args.speed, args.max_rate, DEFAULT_BURST);
+    let mut pacer = Pacer::new(args.speed, args.max_message_rate, DEFAULT_BURST);
     let start = Instant::now();
     let mut next_log = start + PROGRESS_LOG_PERIOD;
     let mut published = 0u64;
