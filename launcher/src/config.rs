@@ -44,6 +44,7 @@ pub struct PipelineFile {
     /// `sonar-fusion` reads this table too (walls, corners and posts; validated as it is read).
     pub features: FeaturesSection,
     pub viewer: ViewerSection,
+    pub foxglove: FoxgloveSection,
     pub launcher: LauncherSection,
     /// `sonar-bridge` reads and validates this table from the same file (zenoh stays out of the
     /// launcher); the launcher only looks at `enabled`.
@@ -111,6 +112,32 @@ impl Default for ViewerSection {
     }
 }
 
+/// `sonar-foxglove`, the live view in Foxglove (docs/foxglove.md); unset keys keep its defaults.
+#[derive(Debug, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FoxgloveSection {
+    /// Start it with the pipeline.
+    pub enabled: bool,
+    /// Address it listens on (127.0.0.1 unless set; the protocol has no authentication).
+    pub host: Option<String>,
+    /// TCP port (8765 unless set).
+    pub port: Option<u16>,
+    /// Seconds between maps sent (1 unless set).
+    pub grid_period: Option<f64>,
+}
+
+impl FoxgloveSection {
+    /// `grid_period` as `sonar-foxglove --grid-period` takes it: a positive number of seconds.
+    fn check(&self) -> Result<(), String> {
+        match self.grid_period {
+            Some(s) if !(s.is_finite() && s > 0.0) => Err(format!(
+                "[foxglove] grid_period = {s} is not a positive number of seconds"
+            )),
+            _ => Ok(()),
+        }
+    }
+}
+
 #[derive(Debug, Default, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct LauncherSection {
@@ -151,6 +178,8 @@ impl PipelineFile {
             })?;
         file.launcher
             .restart_delay()
+            .map(drop)
+            .and_then(|()| file.foxglove.check())
             .map_err(|message| ConfigError::Parse {
                 path: path.to_owned(),
                 message,
@@ -202,6 +231,7 @@ mod tests {
         assert!(file.viewer.enabled);
         assert_eq!(file.fusion.engine, FusionConfig::default());
         assert!(file.features.enabled && !file.features.localize);
+        assert!(!file.foxglove.enabled);
 
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/corridor.toml");
         let tour = PipelineFile::load(&path).unwrap();
@@ -245,6 +275,32 @@ mod tests {
             matches!(&bad, Err(ConfigError::Parse { message, .. }) if message.contains("restart_delay")),
             "{bad:?}"
         );
+        let foxglove =
+            "[foxglove]\nenabled = true\nhost = \"0.0.0.0\"\nport = 9000\ngrid_period = 0.5\n";
+        let foxglove = PipelineFile::parse(foxglove, Path::new("x.toml"))
+            .unwrap()
+            .foxglove;
+        assert!(foxglove.enabled);
+        assert_eq!(
+            (
+                foxglove.host.as_deref(),
+                foxglove.port,
+                foxglove.grid_period
+            ),
+            (Some("0.0.0.0"), Some(9000), Some(0.5))
+        );
+        for bad in [
+            "grid_period = 0",
+            "grid_period = -1.0",
+            "port = 70000",
+            "hots = \"x\"",
+        ] {
+            let file = PipelineFile::parse(&format!("[foxglove]\n{bad}\n"), Path::new("x.toml"));
+            assert!(
+                matches!(file, Err(ConfigError::Parse { .. })),
+                "{bad}: {file:?}"
+            );
+        }
     }
 
     #[test]

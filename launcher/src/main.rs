@@ -28,7 +28,7 @@ use sonar_common::ipc::IpcArgs;
 use sonar_common::logging::{self, LogTo};
 use tracing::{info, warn};
 
-use crate::config::{PipelineFile, push_opt};
+use crate::config::{FoxgloveSection, PipelineFile, push_opt};
 use crate::terminal::Terminal;
 
 /// How often the supervisor looks at its children.
@@ -104,16 +104,16 @@ struct Args {
     /// Viewer's first view: map, radar or split [default: [viewer] view of --config, else split].
     #[arg(long, value_parser = ["map", "radar", "split"])]
     view: Option<String>,
-    /// Also start sonar-foxglove: the pipeline live in Foxglove (docs/foxglove.md), on
-    /// ws://127.0.0.1:8765 unless --foxglove-host/--foxglove-port say otherwise.
+    /// Also start sonar-foxglove: the pipeline live in Foxglove (docs/foxglove.md) [default:
+    /// [foxglove] enabled of --config, else off].
     #[arg(long)]
     foxglove: bool,
     /// Address sonar-foxglove listens on (0.0.0.0: every interface; the protocol has no
-    /// authentication).
-    #[arg(long, value_name = "HOST", requires = "foxglove")]
+    /// authentication) [default: [foxglove] host of --config, else 127.0.0.1].
+    #[arg(long, value_name = "HOST")]
     foxglove_host: Option<String>,
-    /// Port sonar-foxglove listens on.
-    #[arg(long, value_name = "PORT", requires = "foxglove")]
+    /// Port sonar-foxglove listens on [default: [foxglove] port of --config, else 8765].
+    #[arg(long, value_name = "PORT")]
     foxglove_port: Option<u16>,
     /// Directory for the processes' logs [default: $XDG_STATE_HOME/sonar, else ~/.local/state/sonar].
     #[arg(long, env = "SONAR_LOG_DIR")]
@@ -350,10 +350,7 @@ impl Pipeline {
             processes.push(Process::new("sonar-bridge", bridge, false));
         }
 
-        if args.foxglove {
-            let mut foxglove = Vec::new();
-            push_opt(&mut foxglove, "--host", args.foxglove_host.clone());
-            push_opt(&mut foxglove, "--port", args.foxglove_port);
+        if let Some(foxglove) = foxglove_args(args, &file.foxglove)? {
             processes.push(Process::new("sonar-foxglove", foxglove, false));
         }
 
@@ -702,6 +699,29 @@ impl Process {
     }
 }
 
+/// sonar-foxglove's arguments, if it is to run: the flags over the `[foxglove]` table, only the
+/// settings given (its defaults live in it).
+fn foxglove_args(args: &Args, table: &FoxgloveSection) -> Result<Option<Vec<String>>> {
+    if !(args.foxglove || table.enabled) {
+        if args.foxglove_host.is_some() || args.foxglove_port.is_some() {
+            bail!(
+                "--foxglove-host/--foxglove-port set where sonar-foxglove listens: start it with \
+                 --foxglove or [foxglove] enabled = true"
+            );
+        }
+        return Ok(None);
+    }
+    let mut foxglove = Vec::new();
+    push_opt(
+        &mut foxglove,
+        "--host",
+        args.foxglove_host.clone().or(table.host.clone()),
+    );
+    push_opt(&mut foxglove, "--port", args.foxglove_port.or(table.port));
+    push_opt(&mut foxglove, "--grid-period", table.grid_period);
+    Ok(Some(foxglove))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -717,6 +737,43 @@ mod tests {
         let args = Args::try_parse_from(exec.split_whitespace()).unwrap();
         assert!(args.no_viewer);
         assert_eq!(args.config, Some(PathBuf::from("/etc/sonar/sonar.toml")));
+    }
+
+    #[test]
+    fn foxglove_runs_when_the_flag_or_the_table_says_so_with_the_flags_over_the_table() {
+        let parse =
+            |args: &[&str]| Args::try_parse_from([&["sonar-pipeline"], args].concat()).unwrap();
+        let off = FoxgloveSection::default();
+        assert_eq!(foxglove_args(&parse(&[]), &off).unwrap(), None);
+        assert_eq!(
+            foxglove_args(&parse(&["--foxglove"]), &off).unwrap(),
+            Some(vec![]),
+            "its own defaults"
+        );
+        let table = FoxgloveSection {
+            enabled: true,
+            host: Some("0.0.0.0".into()),
+            port: Some(9000),
+            grid_period: Some(0.5),
+        };
+        assert_eq!(
+            foxglove_args(&parse(&["--foxglove-port", "9100"]), &table).unwrap(),
+            Some(
+                [
+                    "--host",
+                    "0.0.0.0",
+                    "--port",
+                    "9100",
+                    "--grid-period",
+                    "0.5"
+                ]
+                .map(String::from)
+                .to_vec()
+            )
+        );
+        // An address for a server that is not started is a mistake, not silently ignored.
+        let err = foxglove_args(&parse(&["--foxglove-port", "9100"]), &off).unwrap_err();
+        assert!(err.to_string().contains("--foxglove"), "{err}");
     }
 
     #[test]

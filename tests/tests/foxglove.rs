@@ -5,7 +5,6 @@
 //! live to a WebSocket client (Python `websockets`) inside a network namespace of the test's own.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // a panic is a failure
 
-use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Command, Stdio};
 
@@ -184,46 +183,52 @@ impl Drop for Netns {
     }
 }
 
-/// sonar-foxglove serves the running room to a Foxglove WebSocket client that offers only
-/// `foxglove.websocket.v1`, and to one that offers only `foxglove.sdk.v1`: the five channels with
-/// their protobuf schemas, and a map that decodes to the fusion's grid.
+/// `sonar-pipeline` starts sonar-foxglove from its `[foxglove]` table, which serves the running
+/// room to a Foxglove WebSocket client that offers only `foxglove.websocket.v1`, and to one that
+/// offers only `foxglove.sdk.v1`: the five channels with their protobuf schemas, and a map that
+/// decodes to the fusion's grid.
 #[test]
 fn sonar_foxglove_serves_the_live_map_to_a_websocket_client() {
     let sandbox = Sandbox::new("foxlive");
     let node = sandbox.node("test-grid");
     let grid = grid_subscriber(&node);
-    let fusion = sandbox.spawn("sonar-fusion", &["--no-persist"]);
-    let (sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "20", "--seed", "4"]);
-    let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+    let config = sandbox.root.join("fox.toml");
+    let table = "[simulator]\nscene = \"room\"\nspeed = \"20\"\nseed = 4\n\n\
+                 [foxglove]\nenabled = true\nport = 8766\ngrid_period = 0.5\n";
+    std::fs::write(&config, table).unwrap();
+    let logs = sandbox.root.join("logs");
+
+    let netns = Netns::new("fox");
+    let mut pipeline = sandbox.command("sonar-pipeline");
+    pipeline.args(["--no-viewer", "--config", path_str(&config)]);
+    pipeline.args(["--log-dir", path_str(&logs)]);
+    let pipeline = Proc {
+        name: "sonar-pipeline".into(),
+        child: netns
+            .wrap(&pipeline)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    };
     let headers = collect_until(
         &node,
         || grid.receive().unwrap().map(|s| *s.user_header()),
         |got: &[ipc::GridHeader]| got.last().is_some_and(|h| h.readings_fused >= 50),
     );
     let expected = *headers.last().unwrap();
-
-    let netns = Netns::new("fox");
-    let mut server = netns.wrap(sandbox.command("sonar-foxglove").args(["--port", "8765"]));
-    let mut server = server
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut url = String::new();
-    BufReader::new(server.stdout.take().unwrap())
-        .read_line(&mut url)
-        .unwrap();
-    let server = Proc {
-        name: "sonar-foxglove".into(),
-        child: server,
-    };
-    assert_eq!(url.trim(), "ws://127.0.0.1:8765", "the default host");
+    // Ready once it printed its address (into its log, under the launcher).
+    let url = "ws://127.0.0.1:8766";
+    let log = logs.join("sonar-foxglove.log");
+    wait_until(&node, "sonar-foxglove's address in its log", || {
+        std::fs::read_to_string(&log).is_ok_and(|l| l.contains(url))
+    });
 
     // First exactly the ws-protocol's subprotocol (Lichtblick, older Foxglove), then the crate's.
     let mut client = Command::new(python());
     client
         .arg(workspace().join("tests/python/check_foxglove_live.py"))
-        .arg(url.trim())
+        .arg(url)
         .args(["--subprotocol", "foxglove.websocket.v1"])
         .args(["--subprotocol", "foxglove.sdk.v1"]);
     let out = netns.wrap(&client).output().unwrap();
@@ -254,11 +259,14 @@ fn sonar_foxglove_serves_the_live_map_to_a_websocket_client() {
         assert_eq!(words[10], "map", "{line}");
     }
 
+    let (status, stderr) = pipeline.terminate_with_stderr();
+    assert!(status.success(), "{stderr}");
+    let foxglove_log = std::fs::read_to_string(&log).unwrap();
     assert!(
-        server.terminate().success(),
-        "sonar-foxglove did not exit cleanly"
+        foxglove_log.contains("signal received: stopping"),
+        "{foxglove_log}"
     );
-    assert!(driver.terminate().success());
-    assert!(sim.terminate().success());
-    assert!(fusion.terminate().success());
+    drop((grid, node));
+    let left = sandbox.stale_shm_files();
+    assert!(left.is_empty(), "stale shared memory: {left:?}");
 }
