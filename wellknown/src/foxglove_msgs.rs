@@ -127,28 +127,37 @@ pub fn frame_transform(t: &Transform) -> FrameTransform {
     }
 }
 
-const WALL: Color = Color {
-    r: 0.95,
-    g: 0.55,
-    b: 0.1,
-    a: 1.0,
-};
-const CORNER: Color = Color {
-    r: 0.2,
-    g: 0.8,
-    b: 0.3,
-    a: 1.0,
-};
-const POST: Color = Color {
-    r: 0.2,
-    g: 0.6,
-    b: 1.0,
-    a: 1.0,
-};
+/// A colour without transparency.
+const fn opaque(r: f64, g: f64, b: f64) -> Color {
+    Color { r, g, b, a: 1.0 }
+}
+
+const WALL: Color = opaque(0.95, 0.55, 0.1);
+const CORNER: Color = opaque(0.2, 0.8, 0.3);
+const POST: Color = opaque(0.2, 0.6, 1.0);
 /// Edge of a corner's cube and diameter of a post's sphere, metres.
 const MARKER_SIZE: f64 = 0.08;
 /// Thickness of a wall's line, metres.
 const WALL_THICKNESS: f64 = 0.03;
+
+/// Lines of one colour and thickness (metres) in the entity's frame.
+fn line(
+    kind: line_primitive::Type,
+    thickness: f64,
+    points: Vec<Point3>,
+    color: Color,
+) -> LinePrimitive {
+    LinePrimitive {
+        r#type: kind as i32,
+        pose: Some(planar_pose(0.0, 0.0, 0.0)),
+        thickness,
+        scale_invariant: false,
+        points,
+        color: Some(color),
+        colors: Vec::new(),
+        indices: Vec::new(),
+    }
+}
 
 /// A features snapshot as one `foxglove.SceneUpdate` entity `features` in frame `map` (replacing the
 /// previous snapshot's): walls as line segments, corners as cubes, posts as spheres.
@@ -197,16 +206,12 @@ pub fn features(header: &FeaturesHeader, records: &[FeatureRecord]) -> SceneUpda
     let lines = if walls.is_empty() {
         Vec::new()
     } else {
-        vec![LinePrimitive {
-            r#type: line_primitive::Type::LineList as i32,
-            pose: Some(planar_pose(0.0, 0.0, 0.0)),
-            thickness: WALL_THICKNESS,
-            scale_invariant: false,
-            points: walls,
-            color: Some(WALL),
-            colors: Vec::new(),
-            indices: Vec::new(),
-        }]
+        vec![line(
+            line_primitive::Type::LineList,
+            WALL_THICKNESS,
+            walls,
+            WALL,
+        )]
     };
     SceneUpdate {
         deletions: Vec::new(),
@@ -223,19 +228,9 @@ pub fn features(header: &FeaturesHeader, records: &[FeatureRecord]) -> SceneUpda
 }
 
 /// A beam that heard an echo: outline, and its inside more transparent.
-const BEAM_ECHO: Color = Color {
-    r: 1.0,
-    g: 0.8,
-    b: 0.1,
-    a: 1.0,
-};
+const BEAM_ECHO: Color = opaque(1.0, 0.8, 0.1);
 /// A beam that heard nothing (drawn out to the maximum range).
-const BEAM_SILENT: Color = Color {
-    r: 0.6,
-    g: 0.6,
-    b: 0.6,
-    a: 1.0,
-};
+const BEAM_SILENT: Color = opaque(0.6, 0.6, 0.6);
 const BEAM_FILL_ALPHA: f64 = 0.25;
 /// Points on a beam's arc, its two edges included.
 pub const BEAM_ARC_POINTS: usize = 9;
@@ -278,16 +273,12 @@ pub fn beam(reading: &Reading) -> SceneUpdate {
             timestamp: Some(timestamp(reading.host_stamp_ns)),
             frame_id: SENSOR_FRAME.into(),
             id: "beam".into(),
-            lines: vec![LinePrimitive {
-                r#type: line_primitive::Type::LineStrip as i32,
-                pose: Some(planar_pose(0.0, 0.0, 0.0)),
-                thickness: BEAM_THICKNESS,
-                scale_invariant: false,
-                points: outline,
-                color: Some(color),
-                colors: Vec::new(),
-                indices: Vec::new(),
-            }],
+            lines: vec![line(
+                line_primitive::Type::LineStrip,
+                BEAM_THICKNESS,
+                outline,
+                color,
+            )],
             triangles: vec![TriangleListPrimitive {
                 pose: Some(planar_pose(0.0, 0.0, 0.0)),
                 points: fan,
