@@ -116,6 +116,22 @@ impl SensorConfig {
     }
 }
 
+/// The air temperature flag of every program that turns echo times into ranges or back (driver,
+/// simulator, firmware simulator): one definition, so name, unit, default and range agree.
+#[derive(Debug, Clone, Copy, clap::Args)]
+pub struct AirTemperatureArg {
+    /// Air temperature in °C, which sets the speed of sound (331.3 + 0.606·T m/s). Named as the
+    /// file's `[sensor]` key; `--air-temperature` still works.
+    #[arg(
+        long = "air-temperature-c",
+        value_name = "CELSIUS",
+        alias = "air-temperature",
+        default_value_t = 20.0,
+        allow_hyphen_values = true
+    )]
+    pub air_temperature_c: f32,
+}
+
 /// Speed of sound in air, V = 331.3 + 0.606·T m/s (T in °C), the linear law the paper's PC software
 /// would use; good to 0.2 % over ±30 °C against the exact 331.3·√(1 + T/273.15).
 pub fn speed_of_sound_mps(air_temperature_c: f32) -> f32 {

@@ -92,16 +92,8 @@ struct Args {
     /// (e.g. `-30..30`). Restarted after a reconnect.
     #[arg(long, default_value = "full", value_parser = parse_scan, allow_hyphen_values = true)]
     scan: ScanRequest,
-    /// Air temperature in °C, for the speed of sound (V = 331.3 + 0.606·T m/s).
-    /// Named as the file's `[sensor]` key; `--air-temperature` still works.
-    #[arg(
-        long,
-        value_name = "CELSIUS",
-        alias = "air-temperature",
-        default_value_t = 20.0,
-        allow_hyphen_values = true
-    )]
-    air_temperature_c: f32,
+    #[command(flatten)]
+    air: sonar_common::sensor::AirTemperatureArg,
     /// Beam half-angle stamped on readings, degrees (the paper's ±30°).
     #[arg(long, default_value_t = 30.0)]
     beam_half_angle: f32,
@@ -226,7 +218,7 @@ enum SessionEnd {
 
 fn run(args: Args) -> Result<()> {
     let sensor = SensorConfig {
-        air_temperature_c: args.air_temperature_c,
+        air_temperature_c: args.air.air_temperature_c,
         beam_half_angle_deg: args.beam_half_angle,
         ..SensorConfig::default()
     };

@@ -65,16 +65,8 @@ struct Args {
     /// Emulated time per wall time: a factor (1 = real time) or `max` (never sleep).
     #[arg(long, default_value = "1")]
     speed: Speed,
-    /// Air temperature in °C, which sets the speed of sound (331.3 + 0.606·T m/s).
-    /// Named as the file's `[sensor]` key; `--air-temperature` still works.
-    #[arg(
-        long,
-        value_name = "CELSIUS",
-        alias = "air-temperature",
-        default_value_t = 20.0,
-        allow_hyphen_values = true
-    )]
-    air_temperature_c: f32,
+    #[command(flatten)]
+    air: sonar_common::sensor::AirTemperatureArg,
     /// The motor and its driver (as the firmware was built for).
     #[arg(long, value_enum, default_value_t = Motor::Paper)]
     motor: Motor,
@@ -112,7 +104,7 @@ fn run(args: Args) -> Result<()> {
     let scene =
         Scene::resolve(&args.scene).with_context(|| format!("loading scene {:?}", args.scene))?;
     let sensor = SensorConfig {
-        air_temperature_c: args.air_temperature_c,
+        air_temperature_c: args.air.air_temperature_c,
         ..SensorConfig::default()
     };
     sensor.validate().context("--air-temperature-c")?;

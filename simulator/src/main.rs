@@ -78,16 +78,8 @@ struct Args {
     /// Which firmware to run.
     #[arg(long, value_enum, default_value_t = Dialect::Native)]
     dialect: Dialect,
-    /// Air temperature in °C, which sets the speed of sound (331.3 + 0.606·T m/s).
-    /// Named as the file's `[sensor]` key; `--air-temperature` still works.
-    #[arg(
-        long,
-        value_name = "CELSIUS",
-        alias = "air-temperature",
-        default_value_t = 20.0,
-        allow_hyphen_values = true
-    )]
-    air_temperature_c: f32,
+    #[command(flatten)]
+    air: sonar_common::sensor::AirTemperatureArg,
     /// Also make a symbolic link to the pseudo-terminal at this path (removed on exit).
     #[arg(long)]
     link: Option<PathBuf>,
@@ -285,7 +277,7 @@ fn run(args: Args) -> Result<()> {
     let scene =
         Scene::resolve(&args.scene).with_context(|| format!("loading scene {:?}", args.scene))?;
     let sensor = SensorConfig {
-        air_temperature_c: args.air_temperature_c,
+        air_temperature_c: args.air.air_temperature_c,
         ..SensorConfig::default()
     };
     sensor.validate().context("--air-temperature-c")?;
