@@ -841,11 +841,19 @@ fn format_length(m: f32) -> String {
 }
 
 /// Counts as "9999", "12.3k", "4.2M", so that a large grid's still fit the panel.
-fn format_count(n: u32) -> String {
+fn format_count(n: u64) -> String {
     match n {
         0..10_000 => n.to_string(),
-        10_000..1_000_000 => format!("{:.1}k", f64::from(n) / 1e3),
-        _ => format!("{:.1}M", f64::from(n) / 1e6),
+        10_000..1_000_000 => format!("{:.1}k", n as f64 / 1e3),
+        _ => format!("{:.1}M", n as f64 / 1e6),
+    }
+}
+
+/// "1 reading", "2 readings", "12.5k readings".
+fn readings_count(n: u64) -> String {
+    match n {
+        1 => "1 reading".to_owned(),
+        _ => format!("{} readings", format_count(n)),
     }
 }
 
@@ -1090,24 +1098,24 @@ fn status_lines(app: &App, now: Instant, width: u16, height: u16) -> Vec<Line<'s
                     format_length(h.resolution_m)
                 ))],
             ));
-            lines.push(row(
-                "fused",
-                vec![text(format!("{} readings", h.readings_fused))],
-            ));
+            lines.push(row("fused", vec![text(readings_count(h.readings_fused))]));
             lines.push(row(
                 "cells",
                 vec![Span::styled(
-                    format!("{} occupied", format_count(h.occupied_cells)),
+                    format!("{} occupied", format_count(h.occupied_cells.into())),
                     Style::new().fg(Color::LightRed),
                 )],
             ));
             lines.push(row(
                 "",
-                vec![text(format!("{} free", format_count(h.free_cells)))],
+                vec![text(format!("{} free", format_count(h.free_cells.into())))],
             ));
             lines.push(row(
                 "",
-                vec![text(format!("{} unknown", format_count(h.unknown_cells)))],
+                vec![text(format!(
+                    "{} unknown",
+                    format_count(h.unknown_cells.into())
+                ))],
             ));
             if let Some((position, p)) = cursor_text(app) {
                 lines.push(row("cursor", vec![text(position)]));

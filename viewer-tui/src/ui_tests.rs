@@ -797,6 +797,9 @@ fn ring_steps_and_lengths() {
     assert_eq!(format_count(9999), "9999");
     assert_eq!(format_count(12_345), "12.3k");
     assert_eq!(format_count(4_194_304), "4.2M");
+    assert_eq!(readings_count(1), "1 reading");
+    assert_eq!(readings_count(0), "0 readings");
+    assert_eq!(readings_count(12_345), "12.3k readings");
 }
 
 #[test]
