@@ -1,7 +1,7 @@
 //! `sonar-eval`: runs the evaluation and writes the pictures and the tables.
 
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{Context, Result};
@@ -57,7 +57,8 @@ struct Args {
     /// Pixels per 2 cm grid cell in the pictures.
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u16).range(1..=8))]
     scale: u16,
-    /// Write the Markdown tables to this file instead of standard output.
+    /// Write the Markdown tables to this file instead of standard output; a relative path is
+    /// taken inside --out, beside the pictures (an absolute one as it is).
     #[arg(long)]
     report: Option<PathBuf>,
     /// Rotations of every scene for the feature evaluation, degrees: comma-separated values or
@@ -240,15 +241,25 @@ fn run(args: Args) -> Result<()> {
         }
         text += &motion::markdown(&motion_settings, &scenes);
     }
-    match &args.report {
-        Some(path) => std::fs::write(path, &text)
-            .with_context(|| format!("writing the report {}", path.display()))?,
+    match args.report.as_deref().map(|r| report_path(&args.out, r)) {
+        Some(path) => {
+            std::fs::create_dir_all(&args.out)
+                .with_context(|| format!("creating the output directory {}", args.out.display()))?;
+            std::fs::write(&path, &text)
+                .with_context(|| format!("writing the report {}", path.display()))?;
+            info!(report = %path.display(), "report written");
+        }
         None => std::io::stdout()
             .lock()
             .write_all(text.as_bytes())
             .context("writing the report to standard output")?,
     }
     Ok(())
+}
+
+/// Where `--report` goes: inside `out` unless it is absolute.
+fn report_path(out: &Path, report: &Path) -> PathBuf {
+    out.join(report)
 }
 
 #[cfg(test)]
@@ -288,6 +299,19 @@ mod tests {
         let seeds = |s| parse_seeds(s).map(|v| v.0);
         assert_eq!(seeds("1..3:1").unwrap(), [1.0, 2.0, 3.0]);
         assert!(seeds("1.5").is_err() && seeds("-1").is_err());
+    }
+
+    #[test]
+    fn a_relative_report_goes_beside_the_pictures() {
+        let out = Path::new("docs/results");
+        assert_eq!(
+            report_path(out, Path::new("motion.md")),
+            Path::new("docs/results/motion.md")
+        );
+        assert_eq!(
+            report_path(out, Path::new("/tmp/motion.md")),
+            Path::new("/tmp/motion.md")
+        );
     }
 
     #[test]
