@@ -1,27 +1,46 @@
 #!/usr/bin/env bash
-# Instruction counts of the fusion engine on a fixed input (valgrind's callgrind): stable on a
-# loaded machine, so a change compares against the figures recorded in docs/benchmarks.md.
+# The benchmark suite (issue 13): builds the release binaries it needs, runs every section and
+# writes each section's figures, with the date, machine, load and command, into its block of
+# docs/benchmarks.md (between `<!-- bench.sh SECTION begin/end -->`).
 #
-#   scripts/bench.sh [BINARY]    # default: builds and uses fusion's `fixed_workload` example
+#   scripts/bench.sh                     # every section, about 25 minutes on 2 cores
+#   scripts/bench.sh ipc latency         # only these sections (the others' blocks stay)
+#   BENCH_NO_DOC=1 scripts/bench.sh ...  # print only, leave docs/benchmarks.md alone
+#   FIXED_WORKLOAD=path scripts/bench.sh instructions   # instruction counts of another build
 #
-# BINARY lets an older build be measured the same way (copy the example of another commit aside
-# and pass it). Prints a Markdown table: per grid size, the instructions of the whole run, of
-# fusing (the kernel and keeping the snapshot encoding up to date), of the snapshots (copying the
-# cells out), of working out the cone's row spans and of building the stencil; and the cold start
-# (a new engine and its first sweep at 1024² × 1 cm). Takes a few minutes (callgrind runs the code
-# about 50× slower).
+# Sections (`sonar-bench --help` and each subcommand's --help say more; the doc says what each
+# figure means):
+#   ipc           snapshot delivery 64 KiB–16 MiB, iceoryx2 against a Unix socket with bincode
+#   latency       reading line on the serial line → snapshot visible, at 400², 1024², 2048²
+#   throughput    lossless throughput and the fused rate at 2× and 4× that, per grid size
+#   idle          CPU and wake-ups/s of every process of an idle pipeline over 60 s
+#   memory        RSS and shared memory per grid size with 1 and 6 grid subscribers
+#   instructions  callgrind instruction counts of fusing and snapshotting a fixed workload
+#                 (needs valgrind; stable on a loaded machine, so the figures to compare against)
 set -euo pipefail
 cd "$(dirname "$0")/.."
-command -v valgrind >/dev/null || { echo "bench: needs valgrind (apt-get install valgrind)" >&2; exit 1; }
 
-BIN=${1:-}
-if [ -z "$BIN" ]; then
-  cargo build --release --quiet -p sonar-fusion --example fixed_workload
-  BIN=target/release/examples/fixed_workload
+ALL=(ipc latency throughput idle memory instructions)
+SECTIONS=("$@")
+[ ${#SECTIONS[@]} -eq 0 ] && SECTIONS=("${ALL[@]}")
+for s in "${SECTIONS[@]}"; do
+  [[ " ${ALL[*]} " == *" $s "* ]] || { echo "bench: unknown section '$s' (one of: ${ALL[*]})" >&2; exit 2; }
+done
+wants() { [[ " ${SECTIONS[*]} " == *" $1 "* ]]; }
+
+if wants instructions && [ -z "${FIXED_WORKLOAD:-}" ]; then
+  command -v valgrind >/dev/null || { echo "bench: needs valgrind (apt-get install valgrind)" >&2; exit 1; }
 fi
+echo "bench: building the release binaries (only the packages the suite runs)" >&2
+cargo build --release --quiet -p sonar-bench -p sonar-fusion -p sonar-driver -p sonar-sim -p sonar-viewer --bins
+if wants instructions && [ -z "${FIXED_WORKLOAD:-}" ]; then
+  cargo build --release --quiet -p sonar-fusion --example fixed_workload
+fi
+BENCH=target/release/sonar-bench
 OUT=$(mktemp -d /tmp/sonar-bench.XXXXXX)
 trap 'rm -rf "$OUT"' EXIT
 
+# --- instruction counts (valgrind's callgrind) -------------------------------------------------
 # Inclusive instructions of the function whose name matches $2 in profile $1 (0 if absent).
 inclusive() {
   callgrind_annotate --inclusive=yes "$1" 2>/dev/null |
@@ -31,16 +50,74 @@ inclusive() {
 total() { callgrind_annotate "$1" 2>/dev/null | awk '/PROGRAM TOTALS/ { gsub(",", "", $1); print $1; exit }'; }
 # Thousands separators, for the table.
 human() { echo "$1" | sed ':a;s/\B[0-9]\{3\}\>/,&/;ta'; }
-
-echo "| case | readings | snapshots | total | fuse | snapshot | row spans | stencil |"
-echo "|---|--:|--:|--:|--:|--:|--:|--:|"
-run() { # label cells resolution readings snapshot_every
-  local label=$1 out="$OUT/cg.$2.$4.out"
-  valgrind --tool=callgrind --callgrind-out-file="$out" "$BIN" --cells "$2" --resolution "$3" \
+callgrind_case() { # label cells resolution readings snapshot_every
+  local label=$1 out="$OUT/cg.$2.$4.out" bin=${FIXED_WORKLOAD:-target/release/examples/fixed_workload}
+  valgrind --tool=callgrind --callgrind-out-file="$out" "$bin" --cells "$2" --resolution "$3" \
     --readings "$4" --snapshot-every "$5" >"$OUT/log" 2>&1 || { cat "$OUT/log" >&2; exit 1; }
   echo "| $label | $4 | $(( $4 / $5 )) | $(human "$(total "$out")") | $(human "$(inclusive "$out" 'fixed_workload::fuse')") | $(human "$(inclusive "$out" 'fixed_workload::snapshot')") | $(human "$(inclusive "$out" 'kernel::Spans::new')") | $(human "$(inclusive "$out" 'ConeCache::prepared_for')") |"
 }
-run "400² × 2 cm" 400 0.02 500 5
-run "1024² × 1 cm" 1024 0.01 500 5
-run "2048² × 1 cm" 2048 0.01 250 5
-run "cold start, 1024² × 1 cm" 1024 0.01 50 1000
+
+# --- the sections -------------------------------------------------------------------------------
+GRIDS=("400 0.02" "1024 0.01" "2048 0.01")
+section_ipc() { "$BENCH" ipc; }
+section_latency() {
+  local header=--header
+  for g in "${GRIDS[@]}"; do set -- $g; "$BENCH" latency --cells "$1" --resolution "$2" $header; header=; done
+}
+section_throughput() {
+  local header=--header start
+  for g in "${GRIDS[@]}"; do
+    set -- $g
+    case $1 in 400) start=2000 ;; *) start=500 ;; esac
+    "$BENCH" throughput --cells "$1" --resolution "$2" --start-rate "$start" $header; header=
+  done
+}
+section_idle() { "$BENCH" idle --seconds 60; }
+section_memory() {
+  local header=--header
+  for g in "${GRIDS[@]}"; do
+    set -- $g
+    for n in 1 6; do "$BENCH" memory --cells "$1" --resolution "$2" --subscribers "$n" $header; header=; done
+  done
+}
+section_instructions() {
+  echo "| case | readings | snapshots | total | fuse | snapshot | row spans | stencil |"
+  echo "|---|--:|--:|--:|--:|--:|--:|--:|"
+  callgrind_case "400² × 2 cm" 400 0.02 500 5
+  callgrind_case "1024² × 1 cm" 1024 0.01 500 5
+  callgrind_case "2048² × 1 cm" 2048 0.01 250 5
+  callgrind_case "cold start, 1024² × 1 cm" 1024 0.01 50 1000
+  echo
+  echo "valgrind $(valgrind --version | sed 's/valgrind-//'), binary ${FIXED_WORKLOAD:-target/release/examples/fixed_workload}."
+}
+
+MACHINE="$(nproc) CPUs ($(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ *//')), Linux $(uname -r), $(rustc --version | cut -d' ' -f1-2), release profile"
+COMMIT=$(git rev-parse --short HEAD)$(git diff --quiet HEAD -- . ':!docs' || echo "+changes")
+
+# Replaces the block of section $1 in docs/benchmarks.md by file $2.
+splice() {
+  local begin="<!-- bench.sh $1 begin -->" end="<!-- bench.sh $1 end -->" doc=docs/benchmarks.md
+  if ! grep -qxF "$begin" "$doc" || ! grep -qxF "$end" "$doc"; then
+    echo "bench: $doc has no '$begin'/'$end' block; figures of $1 not written" >&2
+    return
+  fi
+  awk -v b="$begin" -v e="$end" -v f="$2" '
+    $0 == b { print; while ((getline line < f) > 0) print line; skip = 1; next }
+    $0 == e { skip = 0 }
+    !skip { print }' "$doc" >"$OUT/doc" && cat "$OUT/doc" >"$doc"
+}
+
+for s in "${SECTIONS[@]}"; do
+  echo "bench: $s (load average $(cut -d' ' -f1-3 /proc/loadavg), $(date -u +%H:%M) UTC)" >&2
+  if ! {
+    echo
+    echo "Measured $(date -u '+%Y-%m-%d %H:%M') UTC by \`scripts/bench.sh $s\` at $COMMIT on $MACHINE; load average at the start $(cut -d' ' -f1-3 /proc/loadavg)."
+    echo
+    "section_$s"
+    echo
+  } | tee "$OUT/$s.md"; then
+    echo "bench: section $s failed; docs/benchmarks.md keeps its earlier figures" >&2
+    exit 1
+  fi
+  [ -n "${BENCH_NO_DOC:-}" ] || splice "$s" "$OUT/$s.md"
+done

@@ -1,0 +1,337 @@
+//! A reading's line written on the serial line → the snapshot that contains it visible to a
+//! subscriber, through the real `sonar-driver` and `sonar-fusion`.
+//!
+//! This program plays the sensor head on a pseudo-terminal (protocol version 2: it answers the
+//! driver's `HELLO` and `SCAN`, then writes `RD` lines of sweeps of 50 readings), subscribes to
+//! `sonar/readings` and `sonar/grid` as any consumer does (a waitset on their wake-up events), and
+//! times each `RD` line from just before it is written to the master side until a grid snapshot
+//! whose `readings_fused` counts it has been received (its header read). Readings are spaced a
+//! little more than the fusion's snapshot interval (`--max-rate 10`, the default) apart, with a
+//! random jitter, so each one gets its own snapshot rather than waiting for the pace: the head's own
+//! rate is about 4 readings a second.
+
+use std::fs::File;
+use std::io::{ErrorKind, Read, Write};
+use std::os::fd::OwnedFd;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use iceoryx2::prelude::*;
+use iceoryx2::waitset::WaitSetRunResult;
+use nix::fcntl::{FcntlArg, OFlag, fcntl};
+use nix::pty::{Winsize, openpty};
+use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
+use sonar_common::ipc::{self as sonar_ipc, IpcError};
+use sonar_common::protocol::{
+    DeviceMessage, Direction, HostCommand, ProtocolVersion, WireReading, WireScanMode,
+    encode_device, parse_command,
+};
+
+use crate::sandbox::{Sandbox, load_average, quantile, show};
+
+/// A pseudo-terminal: the master (non-blocking) for this program, the slave's path for another.
+#[derive(Debug)]
+pub struct Pty {
+    pub master: File,
+    pub slave: OwnedFd,
+    pub path: PathBuf,
+}
+
+impl Pty {
+    /// Raw like a serial port, or (with a size) a terminal for a full-screen program.
+    pub fn open(size: Option<(u16, u16)>) -> Result<Self> {
+        let winsize = size.map(|(cols, rows)| Winsize {
+            ws_row: rows,
+            ws_col: cols,
+            ws_xpixel: 0,
+            ws_ypixel: 0,
+        });
+        let pty = openpty(winsize.as_ref(), None).context("openpty")?;
+        if size.is_none() {
+            let mut tio = tcgetattr(&pty.slave)?;
+            cfmakeraw(&mut tio);
+            tcsetattr(&pty.slave, SetArg::TCSANOW, &tio)?;
+        }
+        let path = nix::unistd::ttyname(&pty.slave)?;
+        let flags = OFlag::from_bits_truncate(fcntl(&pty.master, FcntlArg::F_GETFL)?);
+        fcntl(&pty.master, FcntlArg::F_SETFL(flags | OFlag::O_NONBLOCK))?;
+        Ok(Self {
+            master: File::from(pty.master),
+            slave: pty.slave,
+            path,
+        })
+    }
+}
+
+/// Readings per sweep, as the head sends them: centres −147° … 147° in 6° steps.
+const SWEEP_READINGS: u32 = 50;
+/// Echo time of a range, µs (343 m/s, there and back).
+fn echo_us(range_m: f64) -> u32 {
+    (range_m * 2.0 / 343.0 * 1e6).round() as u32
+}
+
+/// The sensor head's side of the line: replies to the driver and the `RD` lines of the sweeps.
+struct Head {
+    master: File,
+    pending: Vec<u8>,
+    readings: u32,
+    scanning: bool,
+}
+
+impl Head {
+    fn new(master: File) -> Self {
+        Self {
+            master,
+            pending: Vec::new(),
+            readings: 0,
+            scanning: false,
+        }
+    }
+
+    fn send(&mut self, msg: &DeviceMessage) -> Result<()> {
+        self.master
+            .write_all(encode_device(msg, ProtocolVersion::V2).as_bytes())
+            .context("write to the pseudo-terminal")
+    }
+
+    /// Answers every complete command the driver has written.
+    fn serve(&mut self) -> Result<()> {
+        let mut buf = [0u8; 512];
+        loop {
+            match self.master.read(&mut buf) {
+                Ok(0) => break,
+                Ok(n) => self.pending.extend_from_slice(&buf[..n]),
+                Err(e) if e.kind() == ErrorKind::WouldBlock => break,
+                Err(e) if e.raw_os_error() == Some(nix::libc::EIO) => break, // no host yet
+                Err(e) => return Err(e).context("read the pseudo-terminal"),
+            }
+        }
+        while let Some(end) = self.pending.iter().position(|&b| b == b'\n') {
+            let line: Vec<u8> = self.pending.drain(..=end).collect();
+            let line = line.trim_ascii_end();
+            let Ok(command) = parse_command(line, ProtocolVersion::V2) else {
+                continue;
+            };
+            match command {
+                HostCommand::Hello { .. } => self.send(&DeviceMessage::Hello {
+                    version: 2,
+                    firmware: "sonar-bench".into(),
+                    head_id: "BENCH-1".into(),
+                    step_cdeg: 150,
+                    pings_per_reading: 4,
+                    min_cdeg: -15000,
+                    max_cdeg: 15000,
+                })?,
+                HostCommand::FullScan | HostCommand::LocalScan { .. } => {
+                    self.send(&DeviceMessage::Ack {
+                        command: "SCAN".into(),
+                    })?;
+                    self.scanning = true;
+                    self.start_sweep()?;
+                }
+                HostCommand::Stop => {
+                    self.send(&DeviceMessage::Ack {
+                        command: "STOP".into(),
+                    })?;
+                    self.scanning = false;
+                }
+                HostCommand::Status => self.send(&DeviceMessage::Status {
+                    state: if self.scanning {
+                        sonar_common::protocol::DeviceState::Full
+                    } else {
+                        sonar_common::protocol::DeviceState::Idle
+                    },
+                    angle_cdeg: 0,
+                    direction: Direction::Ccw,
+                    sweep: self.sweep(),
+                })?,
+            }
+        }
+        Ok(())
+    }
+
+    fn sweep(&self) -> u32 {
+        self.readings / SWEEP_READINGS
+    }
+
+    fn direction(&self) -> Direction {
+        if self.sweep().is_multiple_of(2) {
+            Direction::Ccw
+        } else {
+            Direction::Cw
+        }
+    }
+
+    fn start_sweep(&mut self) -> Result<()> {
+        let (from_cdeg, to_cdeg) = match self.direction() {
+            Direction::Ccw => (-14700, 14700),
+            Direction::Cw => (14700, -14700),
+        };
+        self.send(&DeviceMessage::SweepStart {
+            sweep: self.sweep(),
+            direction: self.direction(),
+            mode: WireScanMode::Full,
+            from_cdeg,
+            to_cdeg,
+        })
+    }
+
+    /// Writes the next `RD` line (and the sweep's end and the next start after its last).
+    fn write_reading(&mut self, elapsed_ms: u32) -> Result<()> {
+        let index = (self.readings % SWEEP_READINGS) as i32;
+        let angle_cdeg = match self.direction() {
+            Direction::Ccw => -14700 + 600 * index,
+            Direction::Cw => 14700 - 600 * index,
+        };
+        // A room: walls 1.5–3.5 m away, different at each bearing.
+        let range = 1.5 + f64::from((angle_cdeg + 15000) % 2000) / 1000.0;
+        let echo = echo_us(range);
+        self.send(&DeviceMessage::Reading(WireReading {
+            seq: self.readings,
+            time_ms: elapsed_ms,
+            sweep: self.sweep(),
+            direction: self.direction(),
+            angle_cdeg,
+            ping_count: 4,
+            echo_us: [echo, echo + 3, echo, echo + 6, 0, 0, 0, 0],
+        }))?;
+        self.readings += 1;
+        if self.readings.is_multiple_of(SWEEP_READINGS) {
+            self.send(&DeviceMessage::SweepEnd {
+                sweep: self.sweep() - 1,
+            })?;
+            self.start_sweep()?;
+        }
+        Ok(())
+    }
+}
+
+/// A small deterministic generator for the jitter (xorshift).
+fn jitter_ms(state: &mut u64, max: u64) -> u64 {
+    *state ^= *state << 13;
+    *state ^= *state >> 7;
+    *state ^= *state << 17;
+    *state % (max + 1)
+}
+
+/// Measures `readings` readings at `cells`² × `resolution` and prints one table row.
+pub fn run(bin_dir: &Path, cells: u32, resolution: f32, readings: usize) -> Result<()> {
+    let load_before = load_average();
+    let mut sandbox = Sandbox::new("lat", bin_dir)?;
+    sandbox.spawn_fusion(cells, resolution)?;
+    let pty = Pty::open(None)?;
+    let port = pty.path.to_string_lossy().into_owned();
+    sandbox.spawn("sonar-driver", &["--port", &port])?;
+    let mut head = Head::new(pty.master.try_clone()?);
+
+    let node = sandbox.node("bench-latency")?;
+    let grid = sonar_ipc::grid_service(&node)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| IpcError::new("create grid subscriber", e))?;
+    let readings_sub = sonar_ipc::readings_service(&node)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| IpcError::new("create readings subscriber", e))?;
+    let grid_listener = sonar_ipc::wakeup_listener(&node, sonar_ipc::GRID_SERVICE)?;
+    let readings_listener = sonar_ipc::wakeup_listener(&node, sonar_ipc::READINGS_SERVICE)?;
+    let waitset = WaitSetBuilder::new()
+        .create::<ipc::Service>()
+        .map_err(|e| IpcError::new("create waitset", e))?;
+    let _g = waitset
+        .attach_notification(&grid_listener)
+        .map_err(|e| IpcError::new("attach", e))?;
+    let _r = waitset
+        .attach_notification(&readings_listener)
+        .map_err(|e| IpcError::new("attach", e))?;
+
+    // The handshake: until the driver has commanded the scan.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !head.scanning {
+        sandbox.check_running()?;
+        head.serve()?;
+        if Instant::now() > deadline {
+            bail!("the driver never commanded a scan");
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+
+    let start = Instant::now();
+    let mut fused_seen = 0u64;
+    let mut readings_seen = 0u64;
+    let (mut to_reading, mut to_snapshot) = (Vec::new(), Vec::new());
+    let mut rng = 0x9e37_79b9_7f4a_7c15u64 ^ u64::from(cells);
+    let warmup = 10;
+    for i in 0..warmup + readings {
+        std::thread::sleep(Duration::from_millis(110 + jitter_ms(&mut rng, 40)));
+        head.serve()?;
+        sandbox.check_running()?;
+        let written = Instant::now();
+        let elapsed_ms = u32::try_from(start.elapsed().as_millis()).unwrap_or(u32::MAX);
+        head.write_reading(elapsed_ms)?;
+        let (mut reading_at, mut snapshot_at) = (None, None);
+        let deadline = written + Duration::from_secs(5);
+        while snapshot_at.is_none() {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                bail!("reading {i} never reached a snapshot within 5 s");
+            }
+            let result = waitset
+                .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, left)
+                .map_err(|e| IpcError::new("wait", e))?;
+            if matches!(
+                result,
+                WaitSetRunResult::Interrupt | WaitSetRunResult::TerminationRequest
+            ) {
+                bail!("interrupted");
+            }
+            let _ = grid_listener.try_wait(|_| {});
+            let _ = readings_listener.try_wait(|_| {});
+            while let Some(sample) = readings_sub
+                .receive()
+                .map_err(|e| IpcError::new("receive reading", e))?
+            {
+                readings_seen += 1;
+                drop(sample);
+                if readings_seen == i as u64 + 1 && reading_at.is_none() {
+                    reading_at = Some(written.elapsed());
+                }
+            }
+            while let Some(sample) = grid
+                .receive()
+                .map_err(|e| IpcError::new("receive grid", e))?
+            {
+                fused_seen = fused_seen.max(sample.user_header().readings_fused);
+            }
+            if fused_seen > i as u64 {
+                snapshot_at = Some(written.elapsed());
+            }
+        }
+        if i >= warmup {
+            to_snapshot.extend(snapshot_at);
+            to_reading.extend(reading_at);
+        }
+    }
+    let load_after = load_average();
+    println!(
+        "| {cells}² × {} cm | {} | {} / {} | {} | {} / {} | {} | {load_before} → {load_after} |",
+        (resolution * 100.0).round(),
+        to_snapshot.len(),
+        show(quantile(&to_snapshot, 0.5)),
+        show(quantile(&to_snapshot, 0.99)),
+        show(quantile(&to_snapshot, 1.0)),
+        show(quantile(&to_reading, 0.5)),
+        show(quantile(&to_reading, 0.99)),
+        show(quantile(&to_reading, 1.0)),
+    );
+    Ok(())
+}
+
+/// The table's header.
+pub fn print_header() {
+    println!(
+        "| grid | readings | line → snapshot visible p50 / p99 | max | line → reading visible p50 / p99 | max | load average before → after |"
+    );
+    println!("|---|--:|--:|--:|--:|--:|---|");
+}
