@@ -10,7 +10,7 @@ use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use sonar_common::ipc::{CELL_UNKNOWN, GridHeader, LAYOUT_VERSION, encode_probability};
 use sonar_viewer::app::{App, View};
-use sonar_viewer::heatmap::{ColorMode, Palette};
+use sonar_viewer::heatmap::{ColorMode, Palette, seen_box};
 use sonar_viewer::ui::{self, MapCache};
 
 const SIDE: u32 = 2048;
@@ -73,6 +73,11 @@ fn frame(c: &mut Criterion) {
         "copy of a 2048² snapshot into the viewer (App::on_grid)",
         |b| b.iter(|| app.on_grid(black_box(&header), black_box(&cells), now)),
     );
+    // The part of on_grid that finds what has been seen, for the map's default framing.
+    let side = SIDE as usize;
+    c.bench_function("seen part of a 2048² snapshot (heatmap::seen_box)", |b| {
+        b.iter(|| seen_box(black_box(&cells), side, side))
+    });
 }
 
 criterion_group!(benches, frame);
