@@ -25,7 +25,7 @@ use anyhow::{Context, Result, anyhow};
 use serde::{Deserialize, Serialize};
 use sonar_common::ipc::{self as sonar_ipc, GridHeader, IpcError};
 
-use crate::sandbox::{Sandbox, load_average, quantile, show};
+use crate::sandbox::{Sandbox, grid_consumer, load_average, quantile, show};
 
 /// Payload sizes: 64 KiB to 16 MiB (a 256² to a 4096² grid of one-byte cells).
 pub const SIZES: [usize; 5] = [64 << 10, 256 << 10, 1 << 20, 4 << 20, 16 << 20];
@@ -129,11 +129,7 @@ fn iceoryx2_latencies(per_case: usize) -> Result<Vec<Latency>> {
     let args = sandbox.ipc_args();
     let subscriber = std::thread::spawn(move || -> Result<Vec<Latency>> {
         let node = args.node("bench-subscriber")?;
-        let subscriber = sonar_ipc::grid_service(&node)?
-            .subscriber_builder()
-            .create()
-            .map_err(|e| IpcError::new("create grid subscriber", e))?;
-        let listener = sonar_ipc::wakeup_listener(&node, sonar_ipc::GRID_SERVICE)?;
+        let (subscriber, listener) = grid_consumer(&node)?;
         ready_tx.send(())?;
         let mut latencies = Vec::with_capacity(total);
         while latencies.len() < total {

@@ -12,57 +12,19 @@
 
 use std::fs::File;
 use std::io::{ErrorKind, Read, Write};
-use std::os::fd::OwnedFd;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use iceoryx2::prelude::*;
-use iceoryx2::waitset::WaitSetRunResult;
-use nix::fcntl::{FcntlArg, OFlag, fcntl};
-use nix::pty::{Winsize, openpty};
-use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
 use sonar_common::ipc::{self as sonar_ipc, IpcError};
 use sonar_common::protocol::{
     DeviceMessage, Direction, HostCommand, ProtocolVersion, WireReading, WireScanMode,
     encode_device, parse_command,
 };
+use sonar_sim::serve::Pty;
 
-use crate::sandbox::{Sandbox, load_average, quantile, show};
-
-/// A pseudo-terminal: the master (non-blocking) for this program, the slave's path for another.
-#[derive(Debug)]
-pub struct Pty {
-    pub master: File,
-    pub slave: OwnedFd,
-    pub path: PathBuf,
-}
-
-impl Pty {
-    /// Raw like a serial port, or (with a size) a terminal for a full-screen program.
-    pub fn open(size: Option<(u16, u16)>) -> Result<Self> {
-        let winsize = size.map(|(cols, rows)| Winsize {
-            ws_row: rows,
-            ws_col: cols,
-            ws_xpixel: 0,
-            ws_ypixel: 0,
-        });
-        let pty = openpty(winsize.as_ref(), None).context("openpty")?;
-        if size.is_none() {
-            let mut tio = tcgetattr(&pty.slave)?;
-            cfmakeraw(&mut tio);
-            tcsetattr(&pty.slave, SetArg::TCSANOW, &tio)?;
-        }
-        let path = nix::unistd::ttyname(&pty.slave)?;
-        let flags = OFlag::from_bits_truncate(fcntl(&pty.master, FcntlArg::F_GETFL)?);
-        fcntl(&pty.master, FcntlArg::F_SETFL(flags | OFlag::O_NONBLOCK))?;
-        Ok(Self {
-            master: File::from(pty.master),
-            slave: pty.slave,
-            path,
-        })
-    }
-}
+use crate::sandbox::{Sandbox, grid_consumer, load_average, quantile, show, wait};
 
 /// Readings per sweep, as the head sends them: centres −147° … 147° in 6° steps.
 const SWEEP_READINGS: u32 = 50;
@@ -220,21 +182,18 @@ pub fn run(bin_dir: &Path, cells: u32, resolution: f32, readings: usize) -> Resu
     let load_before = load_average();
     let mut sandbox = Sandbox::new("lat", bin_dir)?;
     sandbox.spawn_fusion(cells, resolution)?;
-    let pty = Pty::open(None)?;
-    let port = pty.path.to_string_lossy().into_owned();
+    // The serial line: a raw pseudo-terminal, as `sonar-sim` serves the driver.
+    let pty = Pty::open().context("open a pseudo-terminal")?;
+    let port = pty.path().to_string_lossy().into_owned();
     sandbox.spawn("sonar-driver", &["--port", &port])?;
-    let mut head = Head::new(pty.master.try_clone()?);
+    let mut head = Head::new(pty.master().try_clone()?);
 
     let node = sandbox.node("bench-latency")?;
-    let grid = sonar_ipc::grid_service(&node)?
-        .subscriber_builder()
-        .create()
-        .map_err(|e| IpcError::new("create grid subscriber", e))?;
+    let (grid, grid_listener) = grid_consumer(&node)?;
     let readings_sub = sonar_ipc::readings_service(&node)?
         .subscriber_builder()
         .create()
         .map_err(|e| IpcError::new("create readings subscriber", e))?;
-    let grid_listener = sonar_ipc::wakeup_listener(&node, sonar_ipc::GRID_SERVICE)?;
     let readings_listener = sonar_ipc::wakeup_listener(&node, sonar_ipc::READINGS_SERVICE)?;
     let waitset = WaitSetBuilder::new()
         .create::<ipc::Service>()
@@ -277,13 +236,7 @@ pub fn run(bin_dir: &Path, cells: u32, resolution: f32, readings: usize) -> Resu
             if left.is_zero() {
                 bail!("reading {i} never reached a snapshot within 5 s");
             }
-            let result = waitset
-                .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, left)
-                .map_err(|e| IpcError::new("wait", e))?;
-            if matches!(
-                result,
-                WaitSetRunResult::Interrupt | WaitSetRunResult::TerminationRequest
-            ) {
+            if !wait(&waitset, left)? {
                 bail!("interrupted");
             }
             let _ = grid_listener.try_wait(|_| {});

@@ -1,18 +1,19 @@
 //! What the pipeline's processes cost at rest and in memory: CPU and wake-ups of an idle
 //! pipeline, and RSS and shared memory per grid size with 1 and 6 grid subscribers.
 
+use std::fs::File;
 use std::io::Read;
 use std::path::Path;
 use std::time::Duration;
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use iceoryx2::prelude::*;
-use iceoryx2::waitset::WaitSetRunResult;
-use sonar_common::ipc::{self as sonar_ipc, IpcArgs, IpcError};
+use nix::pty::{Winsize, openpty};
+use sonar_common::ipc::{IpcArgs, IpcError};
 
-use crate::latency::Pty;
 use crate::sandbox::{
-    ProcUsage, Sandbox, clock_ticks_per_second, load_average, status_field, wait_until,
+    ProcUsage, Sandbox, clock_ticks_per_second, grid_consumer, load_average, status_field, wait,
+    wait_until,
 };
 
 /// Starts `sonar-sim` (room) and `sonar-driver` on its link with `driver_args`.
@@ -38,7 +39,18 @@ pub fn idle(bin_dir: &Path, seconds: u64) -> Result<()> {
     let mut sandbox = Sandbox::new("idle", bin_dir)?;
     start_head(&mut sandbox, &[], &["--scan", "none"])?;
     sandbox.spawn("sonar-fusion", &["--no-persist"])?;
-    let terminal = Pty::open(Some((160, 50)))?;
+    // A 160 × 50 terminal for the viewer; whatever it draws is read and dropped, so that it never
+    // blocks on a full terminal.
+    let terminal = openpty(
+        Some(&Winsize {
+            ws_row: 50,
+            ws_col: 160,
+            ws_xpixel: 0,
+            ws_ypixel: 0,
+        }),
+        None,
+    )
+    .context("open a pseudo-terminal")?;
     let slave = terminal.slave.try_clone()?;
     let (out, err) = (slave.try_clone()?, slave.try_clone()?);
     sandbox.spawn_with("sonar-viewer", &[], move |cmd| {
@@ -47,20 +59,10 @@ pub fn idle(bin_dir: &Path, seconds: u64) -> Result<()> {
             .stderr(err)
             .env("TERM", "xterm-256color");
     })?;
-    // Whatever the viewer draws is read and dropped, so it never blocks on a full terminal.
-    let mut master = terminal.master.try_clone()?;
+    let mut master = File::from(terminal.master);
     std::thread::spawn(move || {
         let mut buf = [0u8; 4096];
-        loop {
-            match master.read(&mut buf) {
-                Ok(0) => break,
-                Ok(_) => {}
-                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
-                    std::thread::sleep(Duration::from_millis(50));
-                }
-                Err(_) => break,
-            }
-        }
+        while matches!(master.read(&mut buf), Ok(n) if n > 0) {}
     });
     std::thread::sleep(Duration::from_secs(5)); // started, connected, first frame drawn
     sandbox.check_running()?;
@@ -89,7 +91,6 @@ pub fn idle(bin_dir: &Path, seconds: u64) -> Result<()> {
         "Over {seconds} s after 5 s to settle; load average {load_before} before, {} after.",
         load_average()
     );
-    drop(terminal);
     Ok(())
 }
 
@@ -169,11 +170,7 @@ pub fn memory(bin_dir: &Path, cells: u32, resolution: f32, subscribers: usize) -
 /// A grid consumer for [`memory`]: takes every snapshot and reads every cell, until SIGTERM.
 pub fn read_grid(ipc: &IpcArgs) -> Result<()> {
     let node = ipc.node("bench-reader")?;
-    let grid = sonar_ipc::grid_service(&node)?
-        .subscriber_builder()
-        .create()
-        .map_err(|e| IpcError::new("create grid subscriber", e))?;
-    let listener = sonar_ipc::wakeup_listener(&node, sonar_ipc::GRID_SERVICE)?;
+    let (grid, listener) = grid_consumer(&node)?;
     let waitset = WaitSetBuilder::new()
         .create::<ipc::Service>()
         .map_err(|e| IpcError::new("create waitset", e))?;
@@ -182,13 +179,7 @@ pub fn read_grid(ipc: &IpcArgs) -> Result<()> {
         .map_err(|e| IpcError::new("attach listener", e))?;
     let mut checksum = 0u64;
     loop {
-        let result = waitset
-            .wait_and_process_once(|_| CallbackProgression::Continue)
-            .map_err(|e| IpcError::new("wait", e))?;
-        if matches!(
-            result,
-            WaitSetRunResult::Interrupt | WaitSetRunResult::TerminationRequest
-        ) {
+        if !wait(&waitset, Duration::from_secs(3600))? {
             break;
         }
         let _ = listener.try_wait(|_| {});

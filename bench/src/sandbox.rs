@@ -7,10 +7,13 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
+use iceoryx2::waitset::{WaitSet, WaitSetRunResult};
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
-use sonar_common::ipc::IpcArgs;
+use sonar_common::ipc::{self as sonar_ipc, GridHeader, IpcArgs, IpcError};
 
 /// A namespace (prefix, root, state directory) and the processes started in it; dropping it stops
 /// them and removes what the namespace left in `/dev/shm`.
@@ -139,26 +142,28 @@ impl Sandbox {
         Ok(())
     }
 
-    /// The namespace's files in `/dev/shm`: (apparent bytes, bytes of memory in use).
-    pub fn shm_bytes(&self) -> (u64, u64) {
-        use std::os::unix::fs::MetadataExt;
-        let mut sizes = (0, 0);
-        for entry in std::fs::read_dir("/dev/shm")
+    /// The namespace's files in `/dev/shm`.
+    fn shm_files(&self) -> impl Iterator<Item = std::fs::DirEntry> + '_ {
+        std::fs::read_dir("/dev/shm")
             .into_iter()
             .flatten()
             .flatten()
-        {
-            if entry
-                .file_name()
-                .to_string_lossy()
-                .starts_with(&self.prefix)
-                && let Ok(meta) = entry.metadata()
-            {
-                sizes.0 += meta.len();
-                sizes.1 += meta.blocks() * 512;
-            }
-        }
-        sizes
+            .filter(|entry| {
+                entry
+                    .file_name()
+                    .to_string_lossy()
+                    .starts_with(&self.prefix)
+            })
+    }
+
+    /// The namespace's files in `/dev/shm`: (apparent bytes, bytes of memory in use).
+    pub fn shm_bytes(&self) -> (u64, u64) {
+        use std::os::unix::fs::MetadataExt;
+        self.shm_files()
+            .filter_map(|entry| entry.metadata().ok())
+            .fold((0, 0), |(apparent, used), meta| {
+                (apparent + meta.len(), used + meta.blocks() * 512)
+            })
     }
 }
 
@@ -168,21 +173,40 @@ impl Drop for Sandbox {
         while let Some((_, mut child)) = self.children.pop() {
             terminate(&mut child);
         }
-        for entry in std::fs::read_dir("/dev/shm")
-            .into_iter()
-            .flatten()
-            .flatten()
-        {
-            if entry
-                .file_name()
-                .to_string_lossy()
-                .starts_with(&self.prefix)
-            {
-                let _ = std::fs::remove_file(entry.path());
-            }
+        for entry in self.shm_files() {
+            let _ = std::fs::remove_file(entry.path());
         }
         let _ = std::fs::remove_dir_all(&self.dir);
     }
+}
+
+/// The subscriber of a `sonar/grid` consumer.
+pub type GridSubscriber = Subscriber<ipc::Service, [u8], GridHeader>;
+
+/// A subscriber of `sonar/grid` and a listener on its wake-up event: what every grid consumer has.
+pub fn grid_consumer(
+    node: &Node<ipc::Service>,
+) -> Result<(GridSubscriber, Listener<ipc::Service>)> {
+    let subscriber = sonar_ipc::grid_service(node)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| IpcError::new("create grid subscriber", e))?;
+    Ok((
+        subscriber,
+        sonar_ipc::wakeup_listener(node, sonar_ipc::GRID_SERVICE)?,
+    ))
+}
+
+/// Sleeps on `waitset` until an event arrives or `timeout` passes; false if a signal asks this
+/// process to stop.
+pub fn wait(waitset: &WaitSet<ipc::Service>, timeout: Duration) -> Result<bool> {
+    let result = waitset
+        .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, timeout)
+        .map_err(|e| IpcError::new("wait", e))?;
+    Ok(!matches!(
+        result,
+        WaitSetRunResult::Interrupt | WaitSetRunResult::TerminationRequest
+    ))
 }
 
 fn terminate(child: &mut Child) {
