@@ -3,7 +3,7 @@
 # writes each section's figures, with the date, machine, load and command, into its block of
 # docs/benchmarks.md (between `<!-- bench.sh SECTION begin/end -->`).
 #
-#   scripts/bench.sh                     # every section, about 25 minutes on 2 cores
+#   scripts/bench.sh                     # every section, about 12 minutes on 2 cores after the build
 #   scripts/bench.sh ipc latency         # only these sections (the others' blocks stay)
 #   BENCH_NO_DOC=1 scripts/bench.sh ...  # print only, leave docs/benchmarks.md alone
 #   FIXED_WORKLOAD=path scripts/bench.sh instructions   # instruction counts of another build
