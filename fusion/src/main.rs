@@ -943,6 +943,11 @@ impl Output<'_> {
                     None => return Ok(false),
                 },
             };
+            // Poses are taken before each reading, not once a turn: a turn of 256 readings takes
+            // long enough in a debug build (or on a loaded machine) for a fast pose stream (a
+            // replay at ×40 sends 800 a second) to overflow robot/pose's buffer of 256, and the
+            // lost poses placed readings by interpolating across the gap.
+            self.take_pose(engine)?;
             // The pose policy of `sonar_fusion::poses`: a reading newer than the newest pose
             // waits for the pose that covers it, for a bounded time.
             if pose_wait == PoseWait::Bounded
