@@ -63,7 +63,7 @@ fn bench(c: &mut Criterion) {
                 rule: RuleConfig::default_for(rule),
                 ..FusionConfig::default()
             };
-            let engine = filled_engine(config);
+            let mut engine = filled_engine(config);
             let mut group = c.benchmark_group(format!("save_{cells}_{rule}"));
             group
                 .sample_size(10)

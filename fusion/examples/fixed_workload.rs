@@ -95,7 +95,7 @@ fn fuse(engine: &mut Engine, reading: &Reading) -> bool {
 
 /// What a snapshot costs the process besides the loan: the cells into the sample, and the counts.
 #[inline(never)]
-fn snapshot(engine: &Engine, sample: &mut [u8]) -> CellCounts {
+fn snapshot(engine: &mut Engine, sample: &mut [u8]) -> CellCounts {
     engine.encode_grid(sample)
 }
 
@@ -116,7 +116,7 @@ fn main() -> Result<()> {
     for seq in 0..args.readings {
         fused += u32::from(fuse(&mut engine, &reading(seq)));
         if (seq + 1).is_multiple_of(args.snapshot_every.max(1)) {
-            counts = snapshot(&engine, &mut sample);
+            counts = snapshot(&mut engine, &mut sample);
             snapshots += 1;
         }
     }

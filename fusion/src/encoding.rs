@@ -4,8 +4,9 @@
 //! observed ([`sonar_common::ipc::encode_probability`]), and the header counts the cells with
 //! p > 0.5, p < 0.5 and unknown. Encoding a whole grid per snapshot (an `expf` and a `roundf` per
 //! cell with log-odds cells) cost more than fusing the readings in between, so the grid keeps the
-//! encoded bytes and the counts beside its cells and re-encodes only the runs of cells a reading
-//! touched; a snapshot copies the bytes.
+//! encoded bytes and the counts beside its cells and, when a snapshot is asked for, re-encodes
+//! only the cells fused since the last one (each once, however many readings touched it); a
+//! snapshot copies the bytes.
 //!
 //! Every rule reads a cell out as a probability that rises with one number, the cell's *key*
 //! ([`crate::rule::Combine::key`]: the probability itself, the log-odds, the pignistic probability
@@ -21,7 +22,7 @@
 
 use sonar_common::ipc::{CELL_UNKNOWN, encode_probability};
 
-use crate::grid::CellCounts;
+use crate::grid::CellClass;
 use crate::rule::Combine;
 
 /// Buckets tried first; doubled until no bucket holds two steps.
@@ -152,26 +153,18 @@ impl KeyEncoder {
         }
     }
 
-    /// The counts of a run of keys: (p > 0.5, p < 0.5, unknown). Branch-free, so it vectorises.
+    /// What a cell with `key` says, for the snapshot header's counts.
     #[inline(always)]
-    pub fn classes(&self, keys: impl Iterator<Item = f32>) -> [u32; 3] {
-        let (mut occupied, mut free, mut unknown) = (0u32, 0u32, 0u32);
-        for key in keys {
-            occupied += u32::from(key >= self.occupied_from);
-            free += u32::from(key < self.free_below);
-            unknown += u32::from(key.is_nan());
+    pub(crate) fn class(&self, key: f32) -> CellClass {
+        if key.is_nan() {
+            CellClass::Unknown
+        } else if key >= self.occupied_from {
+            CellClass::Occupied
+        } else if key < self.free_below {
+            CellClass::Free
+        } else {
+            CellClass::Even
         }
-        [occupied, free, unknown]
-    }
-}
-
-impl CellCounts {
-    /// These counts after a run's cells went from `before` to `after` ([`KeyEncoder::classes`]).
-    pub(crate) fn apply(&mut self, before: [u32; 3], after: [u32; 3]) {
-        let shift = |count: u32, b: u32, a: u32| count.wrapping_add(a).wrapping_sub(b);
-        self.occupied = shift(self.occupied, before[0], after[0]);
-        self.free = shift(self.free, before[1], after[1]);
-        self.unknown = shift(self.unknown, before[2], after[2]);
     }
 }
 
@@ -183,22 +176,23 @@ mod tests {
 
     /// What the encoder must give for `key`: the snapshot byte and the counts as the reference
     /// encoder ([`encode_probability`] of the rule's probability) and the documented header say.
-    fn reference<R: Combine>(rule: &R, key: f32) -> (u8, [u32; 3]) {
+    fn reference<R: Combine>(rule: &R, key: f32) -> (u8, CellClass) {
         if key.is_nan() {
-            return (CELL_UNKNOWN, [0, 0, 1]);
+            return (CELL_UNKNOWN, CellClass::Unknown);
         }
         let p = rule.key_probability(key);
-        (
-            encode_probability(p),
-            [u32::from(p > 0.5), u32::from(p < 0.5), 0],
-        )
+        let class = if p > 0.5 {
+            CellClass::Occupied
+        } else if p < 0.5 {
+            CellClass::Free
+        } else {
+            CellClass::Even
+        };
+        (encode_probability(p), class)
     }
 
     fn check<R: Combine>(rule: &R, encoder: &KeyEncoder, key: f32) {
-        let got = (
-            encoder.byte(rule, key),
-            encoder.classes(std::iter::once(key)),
-        );
+        let got = (encoder.byte(rule, key), encoder.class(key));
         assert_eq!(
             got,
             reference(rule, key),

@@ -328,14 +328,14 @@ impl Engine {
     ///
     /// # Panics
     /// If `out` does not hold one byte per cell: the caller sizes it from the grid.
-    pub fn encode_grid(&self, out: &mut [u8]) -> CellCounts {
-        self.mapper.grid().encode_into(out)
+    pub fn encode_grid(&mut self, out: &mut [u8]) -> CellCounts {
+        self.mapper.grid_mut().encode_into(out)
     }
 
     /// The grid's cells in the snapshot encoding and their counts, as kept up to date while
     /// fusing ([`crate::OccupancyGrid::encoded`]).
-    pub fn encoded_grid(&self) -> (&[u8], CellCounts) {
-        self.mapper.grid().encoded()
+    pub fn encoded_grid(&mut self) -> (&[u8], CellCounts) {
+        self.mapper.grid_mut().encoded()
     }
 
     /// Cells per snapshot.
@@ -408,7 +408,7 @@ mod tests {
         out
     }
 
-    fn encoded(engine: &Engine) -> Vec<u8> {
+    fn encoded(engine: &mut Engine) -> Vec<u8> {
         let mut cells = vec![0; engine.grid_len()];
         engine.encode_grid(&mut cells);
         cells
@@ -441,7 +441,7 @@ mod tests {
         for r in &readings {
             fresh.fuse(r);
         }
-        assert_eq!(encoded(&live), encoded(&fresh));
+        assert_eq!(encoded(&mut live), encoded(&mut fresh));
         let h = live.grid_header(1, 0, CellCounts::default());
         assert_eq!(h.preset, preset_code::PAPER);
         assert_eq!(h.model, model_code::PAPER);
@@ -473,7 +473,7 @@ mod tests {
         for r in &readings[50..] {
             expected.fuse(r);
         }
-        assert_eq!(encoded(&engine), encoded(&expected));
+        assert_eq!(encoded(&mut engine), encoded(&mut expected));
         let h = engine.grid_header(1, 0, CellCounts::default());
         assert_eq!(h.preset, preset_code::CUSTOM);
         assert_eq!(h.rule, rule_code::HIMM);
@@ -485,13 +485,13 @@ mod tests {
         for r in &sweeps() {
             engine.fuse(r);
         }
-        let before = encoded(&engine);
+        let before = encoded(&mut engine);
         assert!(before.iter().any(|&c| c != sonar_common::ipc::CELL_UNKNOWN));
         engine
             .apply(&FusionCommand::new(FusionCommandKind::Clear, 0))
             .unwrap();
         assert!(
-            encoded(&engine)
+            encoded(&mut engine)
                 .iter()
                 .all(|&c| c == sonar_common::ipc::CELL_UNKNOWN)
         );
@@ -504,7 +504,7 @@ mod tests {
             ))
             .unwrap();
         assert!(
-            encoded(&engine)
+            encoded(&mut engine)
                 .iter()
                 .all(|&c| c == sonar_common::ipc::CELL_UNKNOWN)
         );
@@ -516,7 +516,7 @@ mod tests {
         for r in &sweeps() {
             engine.fuse(r);
         }
-        let before = encoded(&engine);
+        let before = encoded(&mut engine);
         for (cmd, expected) in [
             (
                 FusionCommand { kind: 99, value: 0 },
@@ -539,7 +539,7 @@ mod tests {
         ] {
             assert_eq!(engine.apply(&cmd), Err(expected));
         }
-        assert_eq!(encoded(&engine), before);
+        assert_eq!(encoded(&mut engine), before);
     }
 
     #[test]

@@ -14,55 +14,94 @@ use crate::rule::{
 use crate::state::{SavedCells, StateError, check_len};
 
 /// The cells of one rule, with the rule's parameters, and the cells in the snapshot encoding with
-/// their counts, kept up to date ([`crate::encoding`]).
+/// their counts ([`crate::encoding`]). The encoding lags behind the cells: a kernel's runs are
+/// only noted as dirty, and [`Self::flush`] re-encodes their union when a snapshot is asked for.
+/// Re-encoding each run as it was fused cost more than fusing it (a cell is touched by many
+/// readings between two snapshots); once per snapshot, a cell costs one encoding however often it
+/// was fused.
 pub(crate) struct Layer<R: Combine> {
     pub rule: R,
     cells: Vec<R::Cell>,
     encoder: KeyEncoder,
     bytes: Vec<u8>,
-    counts: CellCounts,
+    /// Each cell's [`CellClass`] as of the last flush, so a flush can move it between the counts.
+    classes: Vec<u8>,
+    /// Cells per [`CellClass`], as of the last flush.
+    tally: [u32; CellClass::COUNT],
+    /// Runs fused since the last flush, in the order fused (they may overlap).
+    dirty: Vec<Range<usize>>,
 }
 
 impl<R: Combine> Layer<R> {
     fn new(rule: R, len: usize) -> Self {
+        let mut tally = [0; CellClass::COUNT];
+        tally[CellClass::Unknown as usize] = len as u32;
         Self {
             encoder: KeyEncoder::new(&rule),
             rule,
             cells: vec![R::UNKNOWN; len],
             bytes: vec![CELL_UNKNOWN; len],
-            counts: CellCounts {
-                unknown: len as u32,
-                ..CellCounts::default()
-            },
+            classes: vec![CellClass::Unknown as u8; len],
+            tally,
+            dirty: Vec::new(),
         }
     }
 
-    /// The cells of `run`, for a kernel to fuse into, with the counts of what they read as
-    /// before; hand both back to [`Self::end_run`] with how many cells changed. (Two calls rather
-    /// than one taking the kernel as a closure: a closure is not inlined into the kernel's AVX2
-    /// build, and the kernel's loop would lose its vectors.)
+    /// The cells of `run`, for a kernel to fuse into; hand the run back to [`Self::end_run`] with
+    /// how many cells changed. (Two calls rather than one taking the kernel as a closure: a
+    /// closure is not inlined into the kernel's AVX2 build, and the kernel's loop would lose its
+    /// vectors.)
     #[inline(always)]
-    pub fn begin_run(&mut self, run: Range<usize>) -> (&R, &mut [R::Cell], [u32; 3]) {
-        let cells = &mut self.cells[run];
-        let rule = &self.rule;
-        let before = self.encoder.classes(cells.iter().map(|&c| rule.key(c)));
-        (rule, cells, before)
+    pub fn begin_run(&mut self, run: Range<usize>) -> (&R, &mut [R::Cell]) {
+        (&self.rule, &mut self.cells[run])
     }
 
-    /// Brings the snapshot bytes of `run` and the counts up to date after a kernel updated
-    /// `updated` of its cells, which read as `before` ([`Self::begin_run`]). Branch-free counts;
-    /// the bytes are re-encoded only if a cell changed.
+    /// Notes `run` for the next [`Self::flush`] if the kernel changed any of its cells.
     #[inline(always)]
-    pub fn end_run(&mut self, run: Range<usize>, before: [u32; 3], updated: usize) {
-        if updated == 0 {
+    pub fn end_run(&mut self, run: Range<usize>, updated: usize) {
+        if updated > 0 {
+            self.dirty.push(run);
+        }
+    }
+
+    /// Brings the bytes and counts up to date with the cells: re-encodes the union of the runs
+    /// fused since the last flush, each cell once.
+    fn flush(&mut self) {
+        if self.dirty.is_empty() {
             return;
         }
+        let mut dirty = std::mem::take(&mut self.dirty);
+        dirty.sort_unstable_by_key(|run| run.start);
+        let mut pending: Option<Range<usize>> = None;
+        for run in dirty.drain(..) {
+            pending = match pending {
+                Some(p) if run.start <= p.end => Some(p.start..p.end.max(run.end)),
+                Some(p) => {
+                    self.encode_run(p);
+                    Some(run)
+                }
+                None => Some(run),
+            };
+        }
+        if let Some(p) = pending {
+            self.encode_run(p);
+        }
+        // The allocation is kept for the next runs.
+        self.dirty = dirty;
+    }
+
+    fn encode_run(&mut self, run: Range<usize>) {
         let rule = self.rule;
         let cells = &self.cells[run.clone()];
-        let after = self.encoder.classes(cells.iter().map(|&c| rule.key(c)));
-        self.counts.apply(before, after);
-        for (byte, &cell) in self.bytes[run].iter_mut().zip(cells) {
-            *byte = self.encoder.byte(&rule, rule.key(cell));
+        let bytes = &mut self.bytes[run.clone()];
+        let classes = &mut self.classes[run];
+        for ((byte, class), &cell) in bytes.iter_mut().zip(classes.iter_mut()).zip(cells) {
+            let key = rule.key(cell);
+            *byte = self.encoder.byte(&rule, key);
+            let now = self.encoder.class(key) as u8;
+            self.tally[usize::from(*class)] -= 1;
+            self.tally[usize::from(now)] += 1;
+            *class = now;
         }
     }
 
@@ -74,17 +113,19 @@ impl<R: Combine> Layer<R> {
     }
 
     fn encode_all(&mut self) {
+        self.dirty.clear();
         let rule = self.rule;
-        let [occupied, free, unknown] = self
-            .encoder
-            .classes(self.cells.iter().map(|&c| rule.key(c)));
-        self.counts = CellCounts {
-            occupied,
-            free,
-            unknown,
-        };
-        for (byte, &cell) in self.bytes.iter_mut().zip(&self.cells) {
-            *byte = self.encoder.byte(&rule, rule.key(cell));
+        self.tally = [0; CellClass::COUNT];
+        for ((byte, class), &cell) in self
+            .bytes
+            .iter_mut()
+            .zip(self.classes.iter_mut())
+            .zip(&self.cells)
+        {
+            let key = rule.key(cell);
+            *byte = self.encoder.byte(&rule, key);
+            *class = self.encoder.class(key) as u8;
+            self.tally[usize::from(*class)] += 1;
         }
     }
 
@@ -92,6 +133,35 @@ impl<R: Combine> Layer<R> {
         self.cells = cells;
         self.encode_all();
     }
+
+    /// The bytes and counts, brought up to date.
+    fn encoded(&mut self) -> (&[u8], CellCounts) {
+        self.flush();
+        let tally = self.tally;
+        let counts = CellCounts {
+            occupied: tally[CellClass::Occupied as usize],
+            free: tally[CellClass::Free as usize],
+            unknown: tally[CellClass::Unknown as usize],
+        };
+        (&self.bytes, counts)
+    }
+}
+
+/// What a cell says, for the snapshot header's counts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum CellClass {
+    /// p > 0.5.
+    Occupied = 0,
+    /// p < 0.5.
+    Free = 1,
+    /// Never reached by a reading.
+    Unknown = 2,
+    /// p = 0.5 exactly after readings: counted as neither.
+    Even = 3,
+}
+
+impl CellClass {
+    const COUNT: usize = 4;
 }
 
 /// The grid's state, in the representation of its rule.
@@ -201,16 +271,16 @@ impl OccupancyGrid {
 
     /// Every cell in the snapshot encoding of `sonar_common::ipc` (0 = free … 254 = occupied,
     /// 127 = even odds, [`CELL_UNKNOWN`] = 255 for never observed), row-major, and the counts for
-    /// the snapshot header. Kept up to date as the grid is fused: this costs nothing.
-    pub fn encoded(&self) -> (&[u8], CellCounts) {
-        with_layer!(&self.store, l => (&l.bytes, l.counts))
+    /// the snapshot header. Costs one encoding per cell fused since the last call.
+    pub fn encoded(&mut self) -> (&[u8], CellCounts) {
+        with_layer!(&mut self.store, l => l.encoded())
     }
 
     /// [`Self::encoded`] copied into `out`; returns the counts.
     ///
     /// # Panics
     /// If `out` does not hold one byte per cell.
-    pub fn encode_into(&self, out: &mut [u8]) -> CellCounts {
+    pub fn encode_into(&mut self, out: &mut [u8]) -> CellCounts {
         let (bytes, counts) = self.encoded();
         out.copy_from_slice(bytes);
         counts
@@ -298,7 +368,8 @@ mod tests {
     #[test]
     fn a_new_grid_is_unknown_and_encodes_as_such() {
         for kind in RuleKind::ALL {
-            let g = OccupancyGrid::new(GridGeometry::new(8, 0.5), &RuleConfig::default_for(kind));
+            let mut g =
+                OccupancyGrid::new(GridGeometry::new(8, 0.5), &RuleConfig::default_for(kind));
             assert_eq!(g.rule_kind(), kind);
             assert_eq!(g.probability(3, 4), None);
             let mut bytes = vec![0u8; 64];

@@ -423,9 +423,9 @@ fn fuse_rows<R: Combine, E: CellEvidence>(
             .copied()
             .zip(stencil.bearing[s..s + len].iter().copied());
         let run = first..first + len;
-        let (rule, cells, before) = layer.begin_run(run.clone());
+        let (rule, cells) = layer.begin_run(run.clone());
         let changed = fuse_run(rule, evidence, axis, cone, cells, polar);
-        layer.end_run(run, before, changed);
+        layer.end_run(run, changed);
         updated += changed;
     }
     updated
@@ -508,10 +508,10 @@ fn bounding_box<R: Combine, E: CellEvidence>(
         let first = ((sensor.cell[1] + oy) * n + sensor.cell[0] + x0) as usize;
         let len = (x1 - x0 + 1) as usize;
         let run = first..first + len;
-        let (rule, cells, before) = layer.begin_run(run.clone());
+        let (rule, cells) = layer.begin_run(run.clone());
         let polar = (x0..=x1).map(|ox| sensor.polar(ox, oy));
         let changed = fuse_run(rule, evidence, beam.axis, cone, cells, polar);
-        layer.end_run(run, before, changed);
+        layer.end_run(run, changed);
         updated += changed;
     }
     updated

@@ -437,7 +437,7 @@ fn run(args: &Args) -> Result<()> {
             features.publish_if_due(&engine, now);
             features.refresh(now);
         }
-        out.publish_if_due(&engine, now)?;
+        out.publish_if_due(&mut engine, now)?;
         if let Some(saving) = &mut saving {
             saving.tick(&engine, &mut out.ledger, now);
         }
@@ -447,7 +447,7 @@ fn run(args: &Args) -> Result<()> {
     // (pace or not), so a replay's last readings reach the saved map and its subscribers.
     while out.fuse_readings(&mut engine, features.as_mut(), PoseWait::None)? {}
     if out.dirty {
-        out.publish(&engine)?;
+        out.publish(&mut engine)?;
     }
     if let Some(saving) = saving {
         saving.finish(&engine, &mut out.ledger);
@@ -1071,7 +1071,7 @@ impl Output<'_> {
         self.dirty.then(|| self.pace.wait(now))
     }
 
-    fn publish_if_due(&mut self, engine: &Engine, now: Instant) -> Result<()> {
+    fn publish_if_due(&mut self, engine: &mut Engine, now: Instant) -> Result<()> {
         if self.dirty && self.pace.allows(now) {
             self.publish(engine)?;
         } else if now.duration_since(self.last_refresh) >= REFRESH_PERIOD {
@@ -1090,7 +1090,7 @@ impl Output<'_> {
         Ok(())
     }
 
-    fn publish(&mut self, engine: &Engine) -> Result<()> {
+    fn publish(&mut self, engine: &mut Engine) -> Result<()> {
         self.seq += 1;
         // The engine keeps the cells encoded as it fuses: a snapshot is a copy into a sample that
         // need not be zeroed first. Stamped once the sample is complete, just before it goes.

@@ -67,7 +67,7 @@ fn map_in_file(state_file: &Path) -> (Vec<u8>, Radar) {
     let saved = sonar_fusion::persist::read(state_file)
         .unwrap()
         .expect("a state file");
-    let engine = Engine::restore(saved.settings, usize::MAX, saved.state).unwrap();
+    let mut engine = Engine::restore(saved.settings, usize::MAX, saved.state).unwrap();
     let mut cells = vec![0; engine.grid_len()];
     engine.encode_grid(&mut cells);
     (cells, engine.radar(0, 0))

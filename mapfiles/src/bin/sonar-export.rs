@@ -643,7 +643,10 @@ fn fuse_recording<W: Write + Seek>(
                     && sweep.replace(r.sweep_id).is_some_and(|s| s != r.sweep_id)
                 {
                     snapshots += 1;
-                    mcap.grid(entry.log_time_ns, &grid_snapshot(&engine, snapshots, stamp))?;
+                    mcap.grid(
+                        entry.log_time_ns,
+                        &grid_snapshot(&mut engine, snapshots, stamp),
+                    )?;
                 }
                 if let Some(tracker) = &mut tracker {
                     tracker.push(r, engine.pose());
@@ -685,7 +688,7 @@ fn fuse_recording<W: Write + Seek>(
         warn!("the recording holds no usable reading: the map is empty");
     }
     info!(fused, refused, "recording fused");
-    let grid = grid_snapshot(&engine, snapshots + 1, stamp);
+    let grid = grid_snapshot(&mut engine, snapshots + 1, stamp);
     if let Some(mcap) = mcap {
         let log_time = recording.entries.last().map_or(stamp, |e| e.log_time_ns);
         mcap.grid(log_time, &grid)?;
@@ -699,7 +702,7 @@ fn fuse_recording<W: Write + Seek>(
 }
 
 /// The engine's map as the fusion publishes it: snapshot number `seq`, stamped `stamp_ns`.
-fn grid_snapshot(engine: &Engine, seq: u64, stamp_ns: u64) -> Grid {
+fn grid_snapshot(engine: &mut Engine, seq: u64, stamp_ns: u64) -> Grid {
     let mut cells = vec![0; engine.grid_len()];
     let counts = engine.encode_grid(&mut cells);
     (engine.grid_header(seq, stamp_ns, counts), cells)
