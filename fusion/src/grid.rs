@@ -13,6 +13,9 @@ use crate::rule::{
 };
 use crate::state::{SavedCells, StateError, check_len};
 
+/// Runs noted before a flush is forced: 1 MiB of ranges, a few hundred readings' worth.
+const MAX_DIRTY_RUNS: usize = 1 << 16;
+
 /// The cells of one rule, with the rule's parameters, and the cells in the snapshot encoding with
 /// their counts ([`crate::encoding`]). The encoding lags behind the cells: a kernel's runs are
 /// only noted as dirty, and [`Self::flush`] re-encodes their union when a snapshot is asked for.
@@ -56,11 +59,16 @@ impl<R: Combine> Layer<R> {
         (&self.rule, &mut self.cells[run])
     }
 
-    /// Notes `run` for the next [`Self::flush`] if the kernel changed any of its cells.
+    /// Notes `run` for the next [`Self::flush`] if the kernel changed any of its cells; flushes
+    /// at once when [`MAX_DIRTY_RUNS`] are noted, so an engine that fuses without snapshots (an
+    /// offline export of a long recording) keeps bounded memory.
     #[inline(always)]
     pub fn end_run(&mut self, run: Range<usize>, updated: usize) {
         if updated > 0 {
             self.dirty.push(run);
+            if self.dirty.len() >= MAX_DIRTY_RUNS {
+                self.flush();
+            }
         }
     }
 
@@ -114,19 +122,7 @@ impl<R: Combine> Layer<R> {
 
     fn encode_all(&mut self) {
         self.dirty.clear();
-        let rule = self.rule;
-        self.tally = [0; CellClass::COUNT];
-        for ((byte, class), &cell) in self
-            .bytes
-            .iter_mut()
-            .zip(self.classes.iter_mut())
-            .zip(&self.cells)
-        {
-            let key = rule.key(cell);
-            *byte = self.encoder.byte(&rule, key);
-            *class = self.encoder.class(key) as u8;
-            self.tally[usize::from(*class)] += 1;
-        }
+        self.encode_run(0..self.cells.len());
     }
 
     fn set_cells(&mut self, cells: Vec<R::Cell>) {
@@ -420,5 +416,32 @@ mod tests {
         );
         g.clear();
         assert_eq!(g.probability(0, 0), None);
+    }
+
+    #[test]
+    fn runs_fused_without_a_snapshot_are_flushed_before_they_pile_up() {
+        let mut layer = Layer::new(LogOddsRule::default(), 4);
+        for i in 0..MAX_DIRTY_RUNS + 10 {
+            let (rule, cells) = layer.begin_run(1..3);
+            // Evidence that changes the cells every time, also at the clamp.
+            let evidence = if i % 2 == 0 { 0.01 } else { -0.005 };
+            let changed = cells
+                .iter_mut()
+                .filter_map(|c| rule.fuse(c, evidence).then_some(()))
+                .count();
+            layer.end_run(1..3, changed);
+            assert!(layer.dirty.len() < MAX_DIRTY_RUNS, "run {i}");
+        }
+        let (bytes, counts) = layer.encoded();
+        assert_eq!(bytes[0], CELL_UNKNOWN);
+        assert!(bytes[1] > 127 && bytes[1] == bytes[2], "{bytes:?}");
+        assert_eq!(
+            counts,
+            CellCounts {
+                occupied: 2,
+                free: 0,
+                unknown: 2
+            }
+        );
     }
 }
