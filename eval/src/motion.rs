@@ -39,7 +39,7 @@ use std::fmt::Write as _;
 use anyhow::{Context, Result, ensure};
 use nalgebra::{Isometry2, RealField};
 use sonar_common::ipc::{LAYOUT_VERSION, Pose2D};
-use sonar_features::FeatureConfig;
+use sonar_features::{FeatureConfig, OdometryErrors};
 use sonar_fusion::engine::Engine;
 use sonar_fusion::{FeatureTracker, FusionConfig, GridConfig, Preset, SweepOutcome};
 use sonar_sim::geometry::angle_diff_rad;
@@ -290,7 +290,9 @@ pub fn fuse_tour(
     let mut engine = Engine::new(config, 0).context("setting up the fusion engine")?;
     let features = FeatureConfig::default();
     let mut tracker = match placement {
-        Placement::Localized => FeatureTracker::with_localization(features),
+        Placement::Localized => {
+            FeatureTracker::with_localization(features, OdometryErrors::default())
+        }
         Placement::Truth | Placement::Odometry => FeatureTracker::new(features),
     }
     .context("setting up the features")?;
@@ -324,11 +326,12 @@ pub fn fuse_tour(
             &truth_at(&tour.poses, r.host_stamp_ns),
         ));
         // After fusing, as the process does: the sweep is placed where the engine placed its
-        // first reading; a finished sweep's correction goes to the engine.
-        if let Some(outcome) = tracker.push(r, engine.pose()) {
-            if localize {
-                engine.set_correction(tracker.correction());
-            }
+        // first reading; the correction goes to the engine after every reading.
+        let finished = tracker.push(r, engine.pose());
+        if localize {
+            engine.set_correction(tracker.correction());
+        }
+        if let Some(outcome) = finished {
             sweeps.push(sweep(&outcome, last_stamp_ns));
         }
         last_stamp_ns = r.host_stamp_ns;

@@ -80,6 +80,7 @@
 
 pub mod classify;
 pub mod config;
+pub mod drift;
 pub mod localize;
 pub mod map;
 pub mod physics;
@@ -89,6 +90,7 @@ pub mod segment;
 
 pub use classify::{Class, Classification, Observation, classify};
 pub use config::{EchoPhysics, FeatureConfig, MergeConfig, SegmentConfig};
+pub use drift::{DriftEstimate, DriftFilter, OdometryErrors};
 pub use localize::PoseFix;
 pub use map::{Feature, FeatureKind, FeatureMap, FeatureSummary, SweepReport};
 pub use physics::Reflector;

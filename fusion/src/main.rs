@@ -35,6 +35,7 @@ use sonar_common::ipc::{
     Radar, Reading, unix_time_ns,
 };
 use sonar_common::throttle::Throttle;
+use sonar_features::OdometryErrors;
 use sonar_fusion::engine::Engine;
 use sonar_fusion::persist::{self, Restore, SaveReport, Saver};
 use sonar_fusion::poses::MAX_POSE_WAIT;
@@ -311,7 +312,7 @@ fn run(args: &Args) -> Result<()> {
     let tracker = extract
         .then(|| {
             if localize {
-                FeatureTracker::with_localization(features.config)
+                FeatureTracker::with_localization(features.config, OdometryErrors::default())
             } else {
                 FeatureTracker::new(features.config)
             }
@@ -609,7 +610,13 @@ impl Features {
     /// Adds a reading; publishes when it ended a sweep.
     fn push(&mut self, reading: &sonar_common::ipc::Reading, engine: &mut Engine) {
         self.last_reading = Instant::now();
-        if let Some(outcome) = self.tracker.push(reading, engine.pose()) {
+        let finished = self.tracker.push(reading, engine.pose());
+        if self.localized.is_some() {
+            // The odometry's drift is taken out step by step: the next reading is placed with
+            // this reading's correction.
+            engine.set_correction(self.tracker.correction());
+        }
+        if let Some(outcome) = finished {
             self.sweep_done(&outcome, engine);
         }
     }
@@ -654,7 +661,7 @@ impl Features {
         );
         if let Some(publisher) = &self.localized {
             engine.set_correction(self.tracker.correction());
-            let pose = localized_pose(outcome, self.tracker.correction(), self.tracker.fixes());
+            let pose = localized_pose(outcome, self.tracker.fixes());
             if let Err(e) = publisher.send_copy(pose) {
                 warn!("send localized pose: {e:?}");
             }
@@ -709,12 +716,8 @@ impl Features {
 }
 
 /// The record of a sweep's pose: the fix if there is one, else the prediction (`matched` 0, the
-/// covariance NaN); the odometry's pose of the same instant is the pose with the correction undone.
-fn localized_pose(
-    outcome: &SweepOutcome,
-    correction: nalgebra::Isometry2<f32>,
-    fixes: u32,
-) -> LocalizedPose {
+/// covariance NaN), with the odometry's pose of the same instant.
+fn localized_pose(outcome: &SweepOutcome, fixes: u32) -> LocalizedPose {
     let (pose, covariance, matched) = match &outcome.fix {
         Some(fix) => (fix.pose, fix.covariance, fix.matched),
         None => (
@@ -723,7 +726,7 @@ fn localized_pose(
             0,
         ),
     };
-    let odometry = correction.cast::<f64>().inverse() * pose;
+    let odometry = outcome.odometry;
     let c = |i, j| covariance[(i, j)] as f32;
     LocalizedPose {
         stamp_ns: outcome.stamp_ns,
