@@ -28,7 +28,7 @@ use sonar_common::ipc::{
 };
 use sonar_features::{
     DriftEstimate, DriftFilter, FeatureConfig, FeatureError, FeatureKind, FeatureMap,
-    FeatureSummary, OdometryErrors, PoseFix, Sweep, SweepReport,
+    FeatureSummary, OdometryErrors, PoseFix, Sweep, SweepReport, Taken,
 };
 
 use crate::grid::OccupancyGrid;
@@ -195,9 +195,14 @@ impl FeatureTracker {
             // The filter's pose at the sweep's first reading is `predicted`; its covariance is the
             // prior, and what the fix adds to it is the sonar's.
             let (_, prior) = loc.filter.sweep_prior();
-            if let Some(found) = self
-                .map
-                .localize(&classification.observations, &predicted, &prior)
+            let taken = if self.moving {
+                Taken::OnTheMove
+            } else {
+                Taken::StandingStill
+            };
+            if let Some(found) =
+                self.map
+                    .localize(&classification.observations, taken, &predicted, &prior)
                 && loc.filter.apply_fix(&found, &prior)
             {
                 loc.fixes += 1;
