@@ -37,10 +37,10 @@
 //! across, not along, and Λ says so. The filter takes Λ's eigen-directions as scalar measurements
 //! of the clone, so a fix moves the current pose and the odometry's parameters through their
 //! correlations, and a direction the sonar did not see is left to the odometry.
-use nalgebra::{Isometry2, Matrix3, SMatrix, SVector, Vector2, Vector3};
+use nalgebra::{Isometry2, Matrix3, SMatrix, SVector, Vector3};
 
 use crate::localize::PoseFix;
-use crate::wrap_rad;
+use crate::{pose_vector, vector_pose, wrap_rad};
 
 const N: usize = 9;
 type State = SVector<f64, N>;
@@ -148,7 +148,7 @@ impl DriftFilter {
 
     /// The current pose estimate in the map.
     pub fn pose(&self) -> Isometry2<f64> {
-        to_pose(&self.x.fixed_rows::<3>(POSE).into_owned())
+        vector_pose(&self.x.fixed_rows::<3>(POSE).into_owned())
     }
 
     /// Map ← odometry at the latest odometry pose: what to apply to the odometry's poses until the
@@ -173,7 +173,7 @@ impl DriftFilter {
     /// Moves the estimate by the odometry's step from the pose it last saw to `odometry`.
     pub fn advance(&mut self, odometry: &Isometry2<f64>) {
         let Some(last) = self.odometry.replace(*odometry) else {
-            let start = to_vector(odometry);
+            let start = pose_vector(odometry);
             self.x.fixed_rows_mut::<3>(POSE).copy_from(&start);
             self.x.fixed_rows_mut::<3>(CLONE).copy_from(&start);
             return;
@@ -232,7 +232,7 @@ impl DriftFilter {
     /// The pose at the start of the sweep and its covariance: the prior to localise it from.
     pub fn sweep_prior(&self) -> (Isometry2<f64>, Matrix3<f64>) {
         (
-            to_pose(&self.x.fixed_rows::<3>(CLONE).into_owned()),
+            vector_pose(&self.x.fixed_rows::<3>(CLONE).into_owned()),
             self.p.fixed_view::<3, 3>(CLONE, CLONE).into_owned(),
         )
     }
@@ -247,7 +247,7 @@ impl DriftFilter {
             return false;
         };
         let (prior, _) = self.sweep_prior();
-        let mut shift = to_vector(&fix.pose) - to_vector(&prior);
+        let mut shift = pose_vector(&fix.pose) - pose_vector(&prior);
         shift.z = wrap_rad(shift.z);
         let sonar = posterior_information - prior_information;
         let sonar = (sonar + sonar.transpose()) * 0.5;
@@ -280,21 +280,10 @@ impl DriftFilter {
     }
 }
 
-fn to_vector(pose: &Isometry2<f64>) -> Vector3<f64> {
-    Vector3::new(
-        pose.translation.x,
-        pose.translation.y,
-        pose.rotation.angle(),
-    )
-}
-
-fn to_pose(x: &Vector3<f64>) -> Isometry2<f64> {
-    Isometry2::new(Vector2::new(x.x, x.y), x.z)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Vector2;
 
     /// The odometry of a robot driving `path` (metres, then turning by the angle, radians) in
     /// 5 cm steps, reporting 3 % long and drifting 2°/m: true and reported poses, each step.

@@ -124,6 +124,20 @@ pub fn wrap_rad(rad: f64) -> f64 {
     wrap_deg(rad.to_degrees()).to_radians()
 }
 
+/// A pose as (x, y, θ), the coordinates localisation estimates.
+pub(crate) fn pose_vector(pose: &nalgebra::Isometry2<f64>) -> nalgebra::Vector3<f64> {
+    nalgebra::Vector3::new(
+        pose.translation.x,
+        pose.translation.y,
+        pose.rotation.angle(),
+    )
+}
+
+/// (x, y, θ) as a pose.
+pub(crate) fn vector_pose(x: &nalgebra::Vector3<f64>) -> nalgebra::Isometry2<f64> {
+    nalgebra::Isometry2::new(nalgebra::Vector2::new(x.x, x.y), x.z)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -45,17 +45,15 @@
 //! 16 cm (the first stop in the corridor sees one known wall and is never fixed); as here, 8.5 /
 //! 11 cm (median / worst).
 
-use nalgebra::{Isometry2, Matrix2, Matrix3, Matrix3x2, Vector2, Vector3};
+use nalgebra::{Isometry2, Matrix2, Matrix3};
 
 use crate::classify::Observation;
-use crate::map::{Feature, FeatureKind, FeatureMap, Placed, innovation};
+use crate::map::{FeatureKind, FeatureMap, Placed, innovation};
 
 /// Most Gauss–Newton iterations.
 const MAX_ITERATIONS: usize = 10;
 /// An update smaller than this (metres and radians) ends the iterations.
 const CONVERGED: f64 = 1e-6;
-/// Step of the numerical Jacobians.
-const STEP: f64 = 1e-6;
 /// Fewest matched observations a fix rests on, but for one wall from a standing sweep: one post
 /// leaves the heading to the prior's linearisation, and one wrong association turns the robot.
 const MIN_MATCHES: usize = 2;
@@ -84,52 +82,6 @@ pub struct PoseFix {
     pub iterations: usize,
 }
 
-fn to_vector(pose: &Isometry2<f64>) -> Vector3<f64> {
-    Vector3::new(
-        pose.translation.x,
-        pose.translation.y,
-        pose.rotation.angle(),
-    )
-}
-
-fn to_pose(x: &Vector3<f64>) -> Isometry2<f64> {
-    Isometry2::new(Vector2::new(x.x, x.y), x.z)
-}
-
-/// An observation placed at the estimate `x`, and at `x` moved by [`STEP`] along each of its three
-/// coordinates: all the placements its innovations and their Jacobians need, against any feature.
-struct Placements {
-    at: Placed,
-    moved: [Placed; 3],
-}
-
-impl Placements {
-    fn new(o: &Observation, x: &Vector3<f64>) -> Self {
-        let moved = |k: usize| {
-            let mut m = *x;
-            m[k] += STEP;
-            Placed::new(o, &to_pose(&m))
-        };
-        Self {
-            at: Placed::new(o, &to_pose(x)),
-            moved: [moved(0), moved(1), moved(2)],
-        }
-    }
-
-    /// The innovation against `f`, and its Jacobian with respect to `x`.
-    fn linearise(&self, f: &Feature) -> (Vector2<f64>, Matrix3x2<f64>) {
-        let v = innovation(f, &self.at);
-        let mut jt = Matrix3x2::zeros();
-        for (k, moved) in self.moved.iter().enumerate() {
-            let dv = innovation(f, moved) - v;
-            // The plane's angle is wrapped: a step never crosses more than a tiny arc.
-            let dv = Vector2::new(crate::wrap_rad(dv.x), dv.y);
-            jt.set_row(k, &(dv / STEP).transpose());
-        }
-        (v, jt)
-    }
-}
-
 impl FeatureMap {
     /// The pose at which `observations` (one sweep's, in the sensor's frame, taken as `taken`
     /// says) fit the map best, starting from `prior` with covariance `prior_covariance` (of x, y,
@@ -143,7 +95,7 @@ impl FeatureMap {
         prior_covariance: &Matrix3<f64>,
     ) -> Option<PoseFix> {
         let prior_information = prior_covariance.try_inverse()?;
-        let x0 = to_vector(prior);
+        let x0 = crate::pose_vector(prior);
         let gate = self.config().merge.gate_chi2;
         let anchors = self.features();
         let mut x = x0;
@@ -160,13 +112,14 @@ impl FeatureMap {
             matched = 0;
             walls = 0;
             for o in observations {
-                let placements = Placements::new(o, &x);
-                let observed = placements.at.covariance();
+                let (placed, jacobian) = Placed::with_jacobian(o, &x);
+                let jt = jacobian.transpose();
+                let observed = placed.covariance();
                 let best = anchors
                     .iter()
                     .filter(|f| f.kind() == o.kind)
                     .filter_map(|f| {
-                        let (v, jt) = placements.linearise(f);
+                        let v = innovation(f, &placed);
                         let s = f.covariance_own() + observed;
                         let gated: Matrix2<f64> = s + jt.transpose() * covariance * jt;
                         let d2 = (v.transpose() * gated.try_inverse()? * v)[(0, 0)];
@@ -197,7 +150,7 @@ impl FeatureMap {
         let d2 = (d.transpose() * prior_information * d)[(0, 0)];
         let enough = matched >= MIN_MATCHES || (taken == Taken::StandingStill && walls >= 1);
         (enough && d2 <= FIX_GATE).then_some(PoseFix {
-            pose: to_pose(&x),
+            pose: crate::vector_pose(&x),
             covariance,
             matched,
             iterations,
@@ -210,6 +163,7 @@ mod tests {
     use super::*;
     use crate::{FeatureConfig, FeatureKind, Sweep};
     use nalgebra::Point2;
+    use nalgebra::{Vector2, Vector3};
 
     /// What a sensor at `pose` observes of: a wall x = 2 (normal +x), a wall y = 1.5 (normal
     /// +y), a post at (1, −0.8) and a corner at (2, 1.5).
@@ -266,7 +220,7 @@ mod tests {
             Isometry2::new(Vector2::new(0.3, 0.2), 0.5),
         ] {
             for _ in 0..2 {
-                map.merge(&observe(&pose, &ALL), &no_pings, &pose);
+                map.merge(&observe(&pose, &ALL), &no_pings, &pose, &Matrix3::zeros());
             }
         }
         assert_eq!(map.features().len(), 4, "{:?}", map.features());

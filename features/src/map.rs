@@ -22,7 +22,7 @@
 //! Confirmation moves the confidence towards 1, a miss multiplies it by
 //! [`MergeConfig::miss_factor`], and a feature below [`MergeConfig::remove_below`] is removed.
 
-use nalgebra::{Isometry2, Matrix2, Point2, Vector2};
+use nalgebra::{Isometry2, Matrix2, Matrix2x3, Matrix3, Point2, Vector2, Vector3};
 
 use crate::FeatureError;
 use crate::classify::{Classification, Observation, classify};
@@ -184,7 +184,28 @@ pub(crate) struct Placed {
     foot: f64,
 }
 
+/// Step of the numerical Jacobians of a placement, metres and radians.
+const STEP: f64 = 1e-6;
+
 impl Placed {
+    /// `o` placed at the pose `x` = (x, y, θ), and the Jacobian of its mean with respect to `x`:
+    /// taken numerically, so that every kind is placed by the one function that merges it.
+    pub(crate) fn with_jacobian(o: &Observation, x: &Vector3<f64>) -> (Self, Matrix2x3<f64>) {
+        let at = Self::new(o, &crate::vector_pose(x));
+        let mut j = Matrix2x3::zeros();
+        for k in 0..3 {
+            let mut moved = *x;
+            moved[k] += STEP;
+            let mut d = Self::new(o, &crate::vector_pose(&moved)).mean - at.mean;
+            if o.kind == FeatureKind::Plane {
+                // The plane's angle is wrapped: a step never crosses more than a tiny arc.
+                d.x = crate::wrap_rad(d.x);
+            }
+            j.set_column(k, &(d / STEP));
+        }
+        (at, j)
+    }
+
     /// Covariance of the observation in the map's coordinates, both parts.
     pub(crate) fn covariance(&self) -> Matrix2<f64> {
         self.random + self.systematic
@@ -317,27 +338,42 @@ impl FeatureMap {
         (rcds, classification)
     }
 
-    /// The whole pipeline for one sweep taken at `pose` (the sensor in the map's frame): regions
-    /// of constant depth, classification, merging and fading.
+    /// The whole pipeline for one sweep taken at `pose` (the sensor in the map's frame, taken as
+    /// exact): regions of constant depth, classification, merging and fading.
     pub fn update(&mut self, sweep: &Sweep, pose: &Isometry2<f64>) -> SweepReport {
         let (rcds, classification) = self.observe(sweep);
-        let mut report = self.merge(&classification.observations, sweep, pose);
+        let mut report = self.merge(&classification.observations, sweep, pose, &Matrix3::zeros());
         report.rcds = rcds;
         report.classification = classification;
         report
     }
 
-    /// Merges one sweep's observations (taken at `pose`), and fades the features `sweep` aimed at
-    /// without hearing them. The report's `rcds` and `classification` are left empty.
+    /// Merges one sweep's observations (taken at `pose`, known to within `pose_covariance` of
+    /// x, y, θ), and fades the features `sweep` aimed at without hearing them. The report's `rcds`
+    /// and `classification` are left empty.
+    ///
+    /// The pose's uncertainty goes into each observation's independent part: a wall first seen
+    /// from a pose known only across the corridor is known as little along it, weighs as little
+    /// in a fix, and gives way to a sighting from a better known pose (the pose's error differs
+    /// from sweep to sweep, so it averages out like the pings' jitter).
     pub fn merge(
         &mut self,
         observations: &[Observation],
         sweep: &Sweep,
         pose: &Isometry2<f64>,
+        pose_covariance: &Matrix3<f64>,
     ) -> SweepReport {
         self.sweeps += 1;
         let stamp = self.sweeps;
-        let placed: Vec<Placed> = observations.iter().map(|o| Placed::new(o, pose)).collect();
+        let x = crate::pose_vector(pose);
+        let placed: Vec<Placed> = observations
+            .iter()
+            .map(|o| {
+                let (mut z, j) = Placed::with_jacobian(o, &x);
+                z.random += j * pose_covariance * j.transpose();
+                z
+            })
+            .collect();
         let gate = self.cfg.merge.gate_chi2;
         // Every admissible pair, closest first; each side used once.
         let mut pairs: Vec<(f64, usize, usize)> = Vec::new();

@@ -154,7 +154,12 @@ mod tests {
                 y.atan2(x).to_degrees(),
             )
         }));
-        m.merge(&obs, &Sweep::default(), &Isometry2::identity());
+        m.merge(
+            &obs,
+            &Sweep::default(),
+            &Isometry2::identity(),
+            &nalgebra::Matrix3::zeros(),
+        );
         m
     }
 

@@ -21,7 +21,7 @@
 //! odometry) is handed to the engine after every reading, so the next readings are placed with
 //! it: a sweep's own readings are in the grid at the poses predicted before its fix.
 
-use nalgebra::{Isometry2, Point2};
+use nalgebra::{Isometry2, Matrix3, Point2};
 use sonar_common::ipc::Reading;
 use sonar_common::ipc::{
     FeatureRecord, FeaturesHeader, LAYOUT_VERSION, MAX_FEATURES, feature_kind,
@@ -190,11 +190,14 @@ impl FeatureTracker {
         let (rcds, classification) = self.map.observe(&sweep);
         let predicted = self.pose;
         let mut pose = predicted;
+        // Without localisation the pose is taken as exact.
+        let mut pose_covariance = Matrix3::zeros();
         let mut fix = None;
         if let Some(loc) = &mut self.localization {
             // The filter's pose at the sweep's first reading is `predicted`; its covariance is the
             // prior, and what the fix adds to it is the sonar's.
             let (_, prior) = loc.filter.sweep_prior();
+            pose_covariance = prior;
             let taken = if self.moving {
                 Taken::OnTheMove
             } else {
@@ -207,6 +210,7 @@ impl FeatureTracker {
             {
                 loc.fixes += 1;
                 pose = found.pose;
+                pose_covariance = found.covariance;
                 fix = Some(found);
             }
         }
@@ -217,7 +221,12 @@ impl FeatureTracker {
         let report = if self.moving {
             SweepReport::default()
         } else {
-            self.map.merge(&classification.observations, &sweep, &pose)
+            self.map.merge(
+                &classification.observations,
+                &sweep,
+                &pose,
+                &pose_covariance,
+            )
         };
         let outcome = SweepOutcome {
             sweep_id: first.sweep_id,
