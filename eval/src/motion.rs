@@ -376,6 +376,7 @@ fn log_sweep(outcome: &SweepOutcome, poses: &[PoseSample], placement: Placement)
         fixed_deg = fixed.map(|e| e.heading_deg),
         matched = outcome.fix.map(|f| f.matched),
         rcds = outcome.rcds,
+        ranged = outcome.ranged,
         added = outcome.added,
         refined = outcome.refined,
         "sweep placed"

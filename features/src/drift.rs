@@ -37,9 +37,9 @@
 //! across, not along, and Λ says so. The filter takes Λ's eigen-directions as scalar measurements
 //! of the clone, so a fix moves the current pose and the odometry's parameters through their
 //! correlations, and a direction the sonar did not see is left to the odometry.
-use nalgebra::{Isometry2, Matrix3, SMatrix, SVector, Vector3};
+use nalgebra::{Isometry2, Matrix3, SMatrix, SVector, Vector2, Vector3};
 
-use crate::localize::PoseFix;
+use crate::localize::{PoseFix, WallAhead};
 use crate::{pose_vector, vector_pose, wrap_rad};
 
 const N: usize = 9;
@@ -112,6 +112,10 @@ pub struct DriftFilter {
     odometry: Option<Isometry2<f64>>,
 }
 
+/// Largest squared innovation of a ping's range, in variances: χ² of one degree of freedom at
+/// 99 %.
+const RANGE_GATE: f64 = 6.63;
+
 /// Smallest information (1/σ², in the units of x, y, θ) a fix's direction must add to count as a
 /// measurement: σ = 10 m or 570°, i.e. none.
 const MIN_INFORMATION: f64 = 0.01;
@@ -170,20 +174,21 @@ impl DriftFilter {
         }
     }
 
-    /// Moves the estimate by the odometry's step from the pose it last saw to `odometry`.
-    pub fn advance(&mut self, odometry: &Isometry2<f64>) {
+    /// Moves the estimate by the odometry's step from the pose it last saw to `odometry`;
+    /// `true` if the odometry moved.
+    pub fn advance(&mut self, odometry: &Isometry2<f64>) -> bool {
         let Some(last) = self.odometry.replace(*odometry) else {
             let start = pose_vector(odometry);
             self.x.fixed_rows_mut::<3>(POSE).copy_from(&start);
             self.x.fixed_rows_mut::<3>(CLONE).copy_from(&start);
-            return;
+            return false;
         };
         let step = last.inverse() * odometry;
         let (dx, dy) = (step.translation.x, step.translation.y);
         let dtheta = step.rotation.angle();
         let ds = dx.hypot(dy);
         if ds == 0.0 && dtheta == 0.0 {
-            return;
+            return false;
         }
         let (a, b, c) = (self.x[SCALE], self.x[DRIFT], self.x[TURN]);
         let k = 1.0 / (1.0 + a);
@@ -212,6 +217,32 @@ impl DriftFilter {
         q[(POSE + 2, POSE + 2)] = e.heading_noise_deg_per_sqrt_m.to_radians().powi(2) * ds
             + e.turn_noise_deg_per_sqrt_rad.to_radians().powi(2) * dtheta.abs();
         self.p = f * self.p * f.transpose() + q;
+        true
+    }
+
+    /// Takes one ping's range `measured_m` (σ `sigma_m`) to `wall`, heard on its perpendicular
+    /// from the current pose: a measurement of the distance across the wall. `false` when the
+    /// range is farther from the prediction than [`RANGE_GATE`] allows (the ping heard something
+    /// else), and nothing changes.
+    pub fn range_to_wall(&mut self, wall: &WallAhead, measured_m: f64, sigma_m: f64) -> bool {
+        let n = Vector2::new(wall.normal_rad.cos(), wall.normal_rad.sin());
+        let p = Vector2::new(self.x[POSE], self.x[POSE + 1]);
+        let innovation = measured_m - (wall.distance_m - p.dot(&n));
+        let mut h = SMatrix::<f64, 1, N>::zeros();
+        h[(0, POSE)] = -n.x;
+        h[(0, POSE + 1)] = -n.y;
+        let ph = self.p * h.transpose();
+        let s = (h * ph)[(0, 0)] + sigma_m.powi(2) + wall.distance_sigma_m.powi(2);
+        if innovation * innovation > RANGE_GATE * s {
+            return false;
+        }
+        let gain = ph / s;
+        self.x += gain * innovation;
+        self.p -= gain * ph.transpose();
+        self.p = (self.p + self.p.transpose()) * 0.5;
+        self.x[POSE + 2] = wrap_rad(self.x[POSE + 2]);
+        self.x[CLONE + 2] = wrap_rad(self.x[CLONE + 2]);
+        true
     }
 
     /// Marks the start of a sweep: the pose now is the one its fix will be of.
@@ -283,7 +314,6 @@ impl DriftFilter {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::Vector2;
 
     /// The odometry of a robot driving `path` (metres, then turning by the angle, radians) in
     /// 5 cm steps, reporting 3 % long and drifting 2°/m: true and reported poses, each step.
@@ -391,6 +421,42 @@ mod tests {
         // The last leg's prediction, before its fix, is far better than the odometry's 3 % and 2°/m
         // (3 cm and 2° over the metre).
         assert!(last_error.0 < 0.01 && last_error.1 < 0.5, "{last_error:?}");
+    }
+
+    #[test]
+    fn ranges_to_a_side_wall_hold_the_pose_across_the_corridor() {
+        // Down a corridor whose wall y = 0.6 faces the sensor's left: every 5 cm a ping at 90°.
+        let wall = WallAhead {
+            normal_rad: std::f64::consts::FRAC_PI_2,
+            distance_m: 0.6,
+            distance_sigma_m: 0.005,
+        };
+        let run = drive(&[(3.0, 0.0)]);
+        let mut filter = DriftFilter::new(OdometryErrors::default());
+        let mut plain = DriftFilter::new(OdometryErrors::default());
+        for (truth, odometry) in &run {
+            plain.advance(odometry);
+            filter.advance(odometry);
+            let across = 0.6 - truth.translation.y;
+            assert!(
+                filter.range_to_wall(&wall, across, 0.02),
+                "{:?}",
+                filter.pose()
+            );
+        }
+        let (truth, _) = run.last().unwrap();
+        // The odometry's 2°/m leaves it 18 cm off across the corridor after 3 m; the ranges hold
+        // the pose on the truth, and through the motion the heading too.
+        let (odometry_error, _) = error(&plain.pose(), truth);
+        assert!(odometry_error > 0.15, "{odometry_error}");
+        let across = (filter.pose().translation.y - truth.translation.y).abs();
+        assert!(across < 0.01, "{across}");
+        let heading = filter.pose().rotation.angle().to_degrees().abs();
+        assert!(heading < 1.0, "{heading}");
+        // A ping that heard the room through a doorway (1.5 m, not 0.6) is refused, unchanged.
+        let before = filter.pose();
+        assert!(!filter.range_to_wall(&wall, 1.5, 0.02));
+        assert_eq!(filter.pose(), before);
     }
 
     #[test]

@@ -70,6 +70,20 @@ pub enum Taken {
 /// at 99.9 %: a fix farther than the odometry can have drifted is a wrong association.
 const FIX_GATE: f64 = 16.27;
 
+/// Smallest number of sweeps a wall must have been seen in to range on it from a single ping: a
+/// wall seen once may be a phantom of a sweep.
+const RANGING_MIN_SIGHTINGS: u32 = 3;
+
+/// A wall a ping is expected to hear on its perpendicular, in the map: the normal's direction φ
+/// (radians) and the distance d from the map's origin, with σ of d. From a sensor at p the range
+/// is d − p·n(φ).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WallAhead {
+    pub normal_rad: f64,
+    pub distance_m: f64,
+    pub distance_sigma_m: f64,
+}
+
 /// A corrected pose.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PoseFix {
@@ -83,6 +97,40 @@ pub struct PoseFix {
 }
 
 impl FeatureMap {
+    /// The nearest wall a ping from `pose` along `bearing_rad` (sensor frame) hears on its
+    /// perpendicular: a wall seen in [`RANGING_MIN_SIGHTINGS`] sweeps or more, in front of the
+    /// sensor, its normal within `cone_rad` of the ping's axis (the specular cut-off, less a
+    /// margin). `None` when no wall qualifies. Whether the ping heard that wall and not something
+    /// nearer, or a doorway's far side, is for the range gate to decide.
+    pub fn wall_ahead(
+        &self,
+        pose: &Isometry2<f64>,
+        bearing_rad: f64,
+        cone_rad: f64,
+    ) -> Option<WallAhead> {
+        let axis = pose.rotation.angle() + bearing_rad;
+        let p = pose.translation.vector;
+        self.features()
+            .iter()
+            .filter(|f| f.kind() == FeatureKind::Plane && f.times_seen() >= RANGING_MIN_SIGHTINGS)
+            .filter_map(|f| {
+                let (phi, d) = (f.mean_own().x, f.mean_own().y);
+                let range = d - p.dot(&f.normal());
+                (range > 0.0 && crate::wrap_rad(phi - axis).abs() <= cone_rad).then(|| {
+                    (
+                        range,
+                        WallAhead {
+                            normal_rad: phi,
+                            distance_m: d,
+                            distance_sigma_m: f.covariance_own()[(1, 1)].sqrt(),
+                        },
+                    )
+                })
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, wall)| wall)
+    }
+
     /// The pose at which `observations` (one sweep's, in the sensor's frame, taken as `taken`
     /// says) fit the map best, starting from `prior` with covariance `prior_covariance` (of x, y,
     /// θ). `None` when too few observations match a feature ([`Taken`]), the fix lies beyond what
@@ -333,6 +381,36 @@ mod tests {
             ),
             None
         );
+    }
+
+    #[test]
+    fn a_ping_ranges_on_the_wall_it_faces_on_its_perpendicular() {
+        let map = built_map();
+        let pose = Isometry2::new(Vector2::new(0.6, 0.1), 0.3);
+        let cone = 20.0_f64.to_radians();
+        let ahead = |deg: f64| map.wall_ahead(&pose, deg.to_radians() - 0.3, cone);
+        // Straight at the wall x = 2 (and 15° off its normal, still within the cone).
+        for deg in [0.0, 15.0] {
+            let wall = ahead(deg).expect("the wall x = 2");
+            assert!(wall.normal_rad.abs() < 0.01 && (wall.distance_m - 2.0).abs() < 0.01);
+        }
+        let wall = ahead(90.0).expect("the wall y = 1.5");
+        assert!((wall.normal_rad - std::f64::consts::FRAC_PI_2).abs() < 0.01);
+        assert!((wall.distance_m - 1.5).abs() < 0.01, "{wall:?}");
+        // Between the walls' cones, and behind the sensor: no wall on its perpendicular.
+        assert_eq!(ahead(45.0), None);
+        assert_eq!(ahead(180.0), None);
+        // A wall seen in one sweep only may be a phantom: not ranged on.
+        let mut once = FeatureMap::new(FeatureConfig::default()).unwrap();
+        let no_pings = Sweep::from_pings(Vec::new(), 1.5).unwrap();
+        let origin = Isometry2::identity();
+        once.merge(
+            &observe(&origin, &[FeatureKind::Plane]),
+            &no_pings,
+            &origin,
+            &Matrix3::zeros(),
+        );
+        assert_eq!(once.wall_ahead(&origin, 0.0, cone), None);
     }
 
     #[test]

@@ -89,6 +89,11 @@ impl Feature {
         }
     }
 
+    /// The estimate in its own coordinates: (x, y), or (φ, d) for a plane.
+    pub(crate) fn mean_own(&self) -> Vector2<f64> {
+        self.mean
+    }
+
     /// Reported covariance of the estimate in its own coordinates: (x, y), or (φ, d) for a plane.
     pub(crate) fn covariance_own(&self) -> Matrix2<f64> {
         self.random + self.systematic

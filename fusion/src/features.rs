@@ -58,6 +58,8 @@ pub struct SweepOutcome {
     pub odometry: Isometry2<f64>,
     /// Localisation's fix, when it is on and the sweep matched the map.
     pub fix: Option<PoseFix>,
+    /// Pings taken on the move that localisation ranged on a known wall.
+    pub ranged: usize,
     /// The sensor moved during the sweep: its pings were brought to its first reading's pose, and
     /// it was localised but not merged.
     pub moving: bool,
@@ -83,6 +85,8 @@ pub struct FeatureTracker {
     pose: Isometry2<f64>,
     /// The odometry's own pose at the pending sweep's first reading.
     sweep_odometry: Isometry2<f64>,
+    /// Pings of the pending sweep ranged on a known wall.
+    ranged: usize,
     last: Option<SweepOutcome>,
     localization: Option<Localization>,
 }
@@ -95,6 +99,7 @@ impl FeatureTracker {
             moving: false,
             pose: Isometry2::identity(),
             sweep_odometry: Isometry2::identity(),
+            ranged: 0,
             last: None,
             localization: None,
         })
@@ -151,8 +156,10 @@ impl FeatureTracker {
             Some((first, _)) if first.sweep_id != reading.sweep_id => self.finish_sweep(),
             _ => None,
         };
-        if let Some(loc) = &mut self.localization {
-            loc.filter.advance(&odometry);
+        if let Some(loc) = &mut self.localization
+            && loc.filter.advance(&odometry)
+        {
+            self.ranged += range_on_walls(&mut loc.filter, &self.map, reading);
         }
         // Placed with the correction of now: after the step's drift is taken out and the finished
         // sweep's fix, neither of which the engine's placement of this reading had yet.
@@ -189,6 +196,7 @@ impl FeatureTracker {
         );
         let (rcds, classification) = self.map.observe(&sweep);
         let predicted = self.pose;
+        tracing::debug!(sweep = first.sweep_id, moving = self.moving, ?predicted, obs = ?classification.observations.iter().map(|o| (o.kind, (o.range_m*1000.0).round()/1000.0, (o.bearing_deg*10.0).round()/10.0, (o.bearing_sigma_deg*100.0).round()/100.0)).collect::<Vec<_>>(), feats = ?self.map.features().iter().map(|f| (f.kind(), (f.position()*100.0).map(f64::round))).collect::<Vec<_>>(), "DIAG");
         let mut pose = predicted;
         // Without localisation the pose is taken as exact.
         let mut pose_covariance = Matrix3::zeros();
@@ -239,9 +247,11 @@ impl FeatureTracker {
             predicted,
             odometry: self.sweep_odometry,
             fix,
+            ranged: self.ranged,
             moving: self.moving,
         };
         self.pending.clear();
+        self.ranged = 0;
         self.last = Some(outcome);
         Some(outcome)
     }
@@ -301,6 +311,37 @@ impl FeatureTracker {
         };
         (header, records)
     }
+}
+
+/// σ of one ping's range to a wall, for localisation on the move: the detector's jitter (≈ 4 mm)
+/// and the wall's own roughness, widened because the pings of a reading and of neighbouring
+/// readings hear the same stretch of wall and are not independent.
+const RANGING_SIGMA_M: f64 = 0.02;
+/// A ping ranges on a wall whose normal lies this far inside the specular cut-off of its axis:
+/// near the edge of the cone a wall's echo may be lost and something beyond it heard.
+const RANGING_CONE_MARGIN_DEG: f64 = 8.0;
+
+/// Ranges the pings of `reading`, taken on the move at the filter's current pose, on the walls of
+/// `map` they face; the number used. A sweep taken on the move makes no regions of constant depth
+/// (a wall's foot slides along it with the robot), but each ping aimed within a known wall's
+/// cone still measures the distance across it: driving along a corridor, its side walls keep the
+/// pose and, through the motion, the heading.
+fn range_on_walls(filter: &mut DriftFilter, map: &FeatureMap, reading: &Reading) -> usize {
+    let cfg = map.config();
+    let cone = (cfg.echo.specular_cutoff_deg - RANGING_CONE_MARGIN_DEG).to_radians();
+    let late = cfg.echo.late_bias_m(f64::from(reading.speed_of_sound_mps));
+    let pings = Sweep::from_readings_at(std::iter::once((reading, Isometry2::identity())), cfg);
+    let mut used = 0;
+    for ping in pings.pings() {
+        let Some(range) = ping.range_m else { continue };
+        let bearing = ping.bearing_deg.to_radians();
+        if let Some(wall) = map.wall_ahead(&filter.pose(), bearing, cone)
+            && filter.range_to_wall(&wall, range - late, RANGING_SIGMA_M)
+        {
+            used += 1;
+        }
+    }
+    used
 }
 
 /// `pose` with its rotation of unit length again.
