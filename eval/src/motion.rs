@@ -39,7 +39,7 @@ use std::fmt::Write as _;
 use anyhow::{Context, Result, ensure};
 use nalgebra::{Isometry2, RealField};
 use sonar_common::ipc::{LAYOUT_VERSION, Pose2D};
-use sonar_features::{FeatureConfig, OdometryErrors};
+use sonar_features::FeatureConfig;
 use sonar_fusion::engine::Engine;
 use sonar_fusion::{FeatureTracker, FusionConfig, GridConfig, Preset, SweepOutcome};
 use sonar_sim::geometry::angle_diff_rad;
@@ -290,9 +290,7 @@ pub fn fuse_tour(
     let mut engine = Engine::new(config, 0).context("setting up the fusion engine")?;
     let features = FeatureConfig::default();
     let mut tracker = match placement {
-        Placement::Localized => {
-            FeatureTracker::with_localization(features, OdometryErrors::default())
-        }
+        Placement::Localized => FeatureTracker::with_localization(features),
         Placement::Truth | Placement::Odometry => FeatureTracker::new(features),
     }
     .context("setting up the features")?;

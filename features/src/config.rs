@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 use sonar_common::sensor::SensorConfig;
 
 use crate::FeatureError;
+use crate::drift::OdometryErrors;
 
 /// The physics of the echo, as far as the widths of regions of constant depth depend on it.
 ///
@@ -148,6 +149,8 @@ pub struct FeatureConfig {
     pub range_sigma_rel: f64,
     pub merge: MergeConfig,
     pub segments: SegmentConfig,
+    /// How the robot's odometry is expected to err, for localisation (`[features.odometry]`).
+    pub odometry: OdometryErrors,
 }
 
 impl Default for FeatureConfig {
@@ -161,6 +164,7 @@ impl Default for FeatureConfig {
             range_sigma_rel: 0.002,
             merge: MergeConfig::default(),
             segments: SegmentConfig::default(),
+            odometry: OdometryErrors::default(),
         }
     }
 }
@@ -238,7 +242,30 @@ impl FeatureConfig {
         let s = &self.segments;
         positive(s.support_tolerance_m, "segments.support_tolerance_m")?;
         positive(s.max_gap_m, "segments.max_gap_m")?;
-        positive(s.corner_tolerance_m, "segments.corner_tolerance_m")
+        positive(s.corner_tolerance_m, "segments.corner_tolerance_m")?;
+        let o = &self.odometry;
+        for (value, name) in [
+            (o.scale_sigma, "odometry.scale_sigma"),
+            (o.turn_sigma, "odometry.turn_sigma"),
+        ] {
+            check(
+                value.is_finite() && (0.0..0.5).contains(&value),
+                &format!("{name} must be in [0, 0.5)"),
+            )?;
+        }
+        non_negative(o.drift_sigma_deg_per_m, "odometry.drift_sigma_deg_per_m")?;
+        non_negative(
+            o.position_noise_m_per_sqrt_m,
+            "odometry.position_noise_m_per_sqrt_m",
+        )?;
+        non_negative(
+            o.heading_noise_deg_per_sqrt_m,
+            "odometry.heading_noise_deg_per_sqrt_m",
+        )?;
+        non_negative(
+            o.turn_noise_deg_per_sqrt_rad,
+            "odometry.turn_noise_deg_per_sqrt_rad",
+        )
     }
 
     /// The stepper's angle between two pings, degrees.

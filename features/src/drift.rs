@@ -38,6 +38,7 @@
 //! of the clone, so a fix moves the current pose and the odometry's parameters through their
 //! correlations, and a direction the sonar did not see is left to the odometry.
 use nalgebra::{Isometry2, Matrix3, SMatrix, SVector, Vector2, Vector3};
+use serde::{Deserialize, Serialize};
 
 use crate::localize::{PoseFix, WallAhead};
 use crate::{pose_vector, vector_pose, wrap_rad};
@@ -53,8 +54,11 @@ const DRIFT: usize = 4;
 const TURN: usize = 5;
 const CLONE: usize = 6;
 
-/// How the odometry is expected to err: the prior of its systematic errors and its random error.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// How the odometry is expected to err: the prior of its systematic errors and its random error
+/// (`[features.odometry]` in the configuration). Set them from the robot: a calibrated odometry
+/// (UMBmark) has smaller systematic errors, a wheel on carpet larger random ones.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct OdometryErrors {
     /// σ of the scale error a (fraction). Ordinary wheels: a few percent.
     pub scale_sigma: f64,

@@ -629,5 +629,16 @@ mod tests {
         assert!(parse("enabled = 1\n").is_err());
         let invalid = parse("range_margin_m = -1.0\n").unwrap_err().to_string();
         assert!(invalid.contains("range_margin_m"), "{invalid}");
+        // The odometry's expected errors, for localisation.
+        let calibrated = parse("[odometry]\nscale_sigma = 0.01\n").unwrap();
+        assert_eq!(calibrated.config.odometry.scale_sigma, 0.01);
+        assert_eq!(
+            calibrated.config.odometry.drift_sigma_deg_per_m,
+            FeatureConfig::default().odometry.drift_sigma_deg_per_m
+        );
+        let wild = parse("[odometry]\nscale_sigma = 0.7\n").unwrap_err().to_string();
+        assert!(wild.contains("odometry.scale_sigma"), "{wild}");
+        let typo = parse("[odometry]\nscale = 0.01\n").unwrap_err().to_string();
+        assert!(typo.contains("scale"), "{typo}");
     }
 }

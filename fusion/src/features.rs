@@ -28,7 +28,7 @@ use sonar_common::ipc::{
 };
 use sonar_features::{
     DriftEstimate, DriftFilter, FeatureConfig, FeatureError, FeatureKind, FeatureMap,
-    FeatureSummary, OdometryErrors, PoseFix, Sweep, SweepReport, Taken,
+    FeatureSummary, PoseFix, Sweep, SweepReport, Taken,
 };
 
 use crate::grid::OccupancyGrid;
@@ -107,14 +107,11 @@ impl FeatureTracker {
 
     /// The tracker with localisation: every sweep is matched against the map before it is
     /// merged, and [`Self::correction`] follows the odometry's drift, learnt from the fixes
-    /// ([`DriftFilter`]) with the odometry expected to err as `errors` says.
-    pub fn with_localization(
-        cfg: FeatureConfig,
-        errors: OdometryErrors,
-    ) -> Result<Self, FeatureError> {
+    /// ([`DriftFilter`]) with the odometry expected to err as `cfg.odometry` says.
+    pub fn with_localization(cfg: FeatureConfig) -> Result<Self, FeatureError> {
         let mut tracker = Self::new(cfg)?;
         tracker.localization = Some(Localization {
-            filter: DriftFilter::new(errors),
+            filter: DriftFilter::new(cfg.odometry),
             fixes: 0,
         });
         Ok(tracker)
@@ -558,9 +555,7 @@ mod tests {
 
     #[test]
     fn a_sweep_on_the_move_is_localised() {
-        let mut tracker =
-            FeatureTracker::with_localization(FeatureConfig::default(), OdometryErrors::default())
-                .unwrap();
+        let mut tracker = FeatureTracker::with_localization(FeatureConfig::default()).unwrap();
         let start = Isometry2::new(Vector2::new(2.0, -1.0), std::f32::consts::FRAC_PI_2);
         let mut outcomes = Vec::new();
         for sweep_id in 1..=2 {
@@ -634,9 +629,7 @@ mod tests {
         // Without localisation the drifted sweeps see the post and the wall off: a second of each.
         assert_eq!(plain.len(), 4, "{:?}", plain.map.features());
 
-        let mut tracker =
-            FeatureTracker::with_localization(FeatureConfig::default(), OdometryErrors::default())
-                .unwrap();
+        let mut tracker = FeatureTracker::with_localization(FeatureConfig::default()).unwrap();
         let outcomes = drifting_run(&mut tracker);
         assert_eq!(outcomes.len(), 7);
         assert!(outcomes[0].fix.is_none(), "the map was empty");

@@ -35,7 +35,6 @@ use sonar_common::ipc::{
     Radar, Reading, unix_time_ns,
 };
 use sonar_common::throttle::Throttle;
-use sonar_features::OdometryErrors;
 use sonar_fusion::engine::Engine;
 use sonar_fusion::persist::{self, Restore, SaveReport, Saver};
 use sonar_fusion::poses::MAX_POSE_WAIT;
@@ -312,7 +311,7 @@ fn run(args: &Args) -> Result<()> {
     let tracker = extract
         .then(|| {
             if localize {
-                FeatureTracker::with_localization(features.config, OdometryErrors::default())
+                FeatureTracker::with_localization(features.config)
             } else {
                 FeatureTracker::new(features.config)
             }

@@ -238,6 +238,11 @@ mod tests {
         assert_eq!(tour.simulator.scene.as_deref(), Some("corridor"));
         assert!(tour.features.localize);
         assert_eq!(tour.fusion.engine.grid.centre_x_m, 3.0);
+        // Its [features.odometry] spells out the defaults.
+        assert_eq!(
+            tour.features.config.odometry,
+            sonar_fusion::FeaturesSection::default().config.odometry
+        );
     }
 
     #[test]
