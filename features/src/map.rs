@@ -30,6 +30,7 @@ use crate::config::{FeatureConfig, MergeConfig};
 use crate::pings::Sweep;
 use crate::rcd::{Rcd, extract};
 use crate::segment::{Segment, segments};
+use sonar_common::ipc::Reading;
 
 /// What kind of target a feature is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -189,6 +190,12 @@ pub(crate) struct Placed {
     foot: f64,
 }
 
+/// Normal directions tried for the walls of a sweep on the move, degrees apart.
+const MOVING_NORMAL_STEP_DEG: f64 = 2.0;
+/// Pings within this of a tried normal are looked at: a wall is heard within its specular cut-off
+/// (28°) of its normal; the rest of the window shows where its region ends.
+const MOVING_WINDOW_DEG: f64 = 45.0;
+
 /// Step of the numerical Jacobians of a placement, metres and radians.
 const STEP: f64 = 1e-6;
 
@@ -341,6 +348,41 @@ impl FeatureMap {
         let rcds = extract(sweep, &self.cfg);
         let classification = classify(&rcds, &self.cfg);
         (rcds, classification)
+    }
+
+    /// The walls of a sweep taken on the move, each reading with its pose relative to the
+    /// sweep's reference: for every normal direction in steps of [`MOVING_NORMAL_STEP_DEG`], the
+    /// pings facing it compensated for the motion along it ([`Sweep::facing`]), and a plane found
+    /// there whose own normal agrees with the one assumed (within half a step). Regions of
+    /// constant depth from the pings as they were taken break up on the move — a wall's foot
+    /// slides along it with the robot — so this is how such a sweep sees walls. Points and
+    /// corners are not looked for: their range changes with the motion in a direction the beam
+    /// does not tell.
+    pub fn walls_on_the_move(&self, readings: &[(Reading, Isometry2<f64>)]) -> Vec<Observation> {
+        let mut walls: Vec<Observation> = Vec::new();
+        let steps = (360.0 / MOVING_NORMAL_STEP_DEG).round() as usize;
+        for k in 0..steps {
+            let normal = -180.0 + MOVING_NORMAL_STEP_DEG * k as f64;
+            let sweep = Sweep::facing(
+                readings.iter().map(|(r, pose)| (r, *pose)),
+                normal,
+                MOVING_WINDOW_DEG,
+                &self.cfg,
+            );
+            let (_, classification) = self.observe(&sweep);
+            for o in classification.observations {
+                let agrees =
+                    crate::wrap_deg(o.bearing_deg - normal).abs() <= MOVING_NORMAL_STEP_DEG / 2.0;
+                let known = walls.iter().any(|w| {
+                    crate::wrap_deg(w.bearing_deg - o.bearing_deg).abs() <= MOVING_NORMAL_STEP_DEG
+                        && (w.range_m - o.range_m).abs() <= self.cfg.range_tolerance_m()
+                });
+                if o.kind == FeatureKind::Plane && agrees && !known {
+                    walls.push(o);
+                }
+            }
+        }
+        walls
     }
 
     /// The whole pipeline for one sweep taken at `pose` (the sensor in the map's frame, taken as
@@ -623,6 +665,47 @@ mod tests {
 
     fn of_kind(m: &FeatureMap, kind: FeatureKind) -> Vec<&Feature> {
         m.features().iter().filter(|f| f.kind() == kind).collect()
+    }
+
+    #[test]
+    fn a_wall_passed_on_the_move_is_found_under_its_own_normal() {
+        // Driving along x at 5 cm per reading past a wall 0.8 m to the left (y = 0.8) while the
+        // head turns from 45° to 135°: every ping within the cut-off of the wall's normal hears
+        // 0.8 m, each from its own place.
+        let readings: Vec<(Reading, Isometry2<f64>)> = (0..16)
+            .map(|k| {
+                let centre = 45.0 + 6.0 * k as f32;
+                let ranges: Vec<f64> = [-2.25, -0.75, 0.75, 2.25]
+                    .iter()
+                    .map(|o| {
+                        let axis = f64::from(centre) + o;
+                        if (axis - 90.0).abs() <= 28.0 {
+                            0.8 + 0.0043
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect();
+                let pose = Isometry2::translation(0.05 * f64::from(k), 0.0);
+                (reading(centre, 1, &ranges), pose)
+            })
+            .collect();
+        let m = map();
+        let near = |o: &Observation| {
+            o.kind == FeatureKind::Plane
+                && (o.bearing_deg - 90.0).abs() < 1.0
+                && (o.range_m - 0.8).abs() < 0.01
+        };
+        // Brought to the first pose along each ping's own axis, the wall's ranges spread by
+        // centimetres from one end of its cone to the other: no wall there.
+        let (_, along_axes) = m.observe(&Sweep::from_readings_at(
+            readings.iter().map(|(r, p)| (r, *p)),
+            m.config(),
+        ));
+        assert!(!along_axes.observations.iter().any(near), "{along_axes:?}");
+        // Under the wall's own normal the ranges are one again.
+        let walls = m.walls_on_the_move(&readings);
+        assert_eq!(walls.iter().filter(|o| near(o)).count(), 1, "{walls:?}");
     }
 
     #[test]

@@ -67,11 +67,39 @@ impl Sweep {
         readings: impl IntoIterator<Item = (&'a Reading, Isometry2<f64>)>,
         cfg: &FeatureConfig,
     ) -> Self {
+        Self::brought_to_reference(readings, None, cfg)
+    }
+
+    /// The pings of a sweep taken on the move that would have heard a wall whose normal points
+    /// along `normal_deg` (in the reference's frame): those aimed within `window_deg` of it, each
+    /// range plus the displacement of its pose from the reference **along that normal** — the
+    /// distance to such a wall changes by exactly that, wherever in the cone the ping pointed.
+    /// Under the right normal a wall's pings have one range again, as from one place, and its
+    /// region of constant depth is whole; under another they spread as the robot drove along it.
+    pub fn facing<'a>(
+        readings: impl IntoIterator<Item = (&'a Reading, Isometry2<f64>)>,
+        normal_deg: f64,
+        window_deg: f64,
+        cfg: &FeatureConfig,
+    ) -> Self {
+        let mut sweep = Self::brought_to_reference(readings, Some(normal_deg), cfg);
+        sweep
+            .pings
+            .retain(|p| crate::wrap_deg(p.bearing_deg - normal_deg).abs() <= window_deg);
+        sweep
+    }
+
+    fn brought_to_reference<'a>(
+        readings: impl IntoIterator<Item = (&'a Reading, Isometry2<f64>)>,
+        normal_deg: Option<f64>,
+        cfg: &FeatureConfig,
+    ) -> Self {
         let step = cfg.step_deg();
         let mut pings = Vec::new();
         let mut skipped = 0;
         for (r, pose) in readings {
-            match placed_pings(r, cfg).map(|p| p.map(|ping| at_reference(ping, &pose))) {
+            match placed_pings(r, cfg).map(|p| p.map(|ping| at_reference(ping, &pose, normal_deg)))
+            {
                 Some(p) => pings.extend(p),
                 None => skipped += 1,
             }
@@ -149,10 +177,11 @@ impl Sweep {
 }
 
 /// `ping`, taken at `pose` (relative to the reference), as seen from the reference: bearing turned
-/// by the pose's heading, range plus the pose's displacement along the beam.
-fn at_reference(ping: Ping, pose: &Isometry2<f64>) -> Ping {
+/// by the pose's heading, range plus the pose's displacement along `along_deg` (the beam's axis
+/// when `None`).
+fn at_reference(ping: Ping, pose: &Isometry2<f64>, along_deg: Option<f64>) -> Ping {
     let bearing_deg = ping.bearing_deg + pose.rotation.angle().to_degrees();
-    let (sin, cos) = bearing_deg.to_radians().sin_cos();
+    let (sin, cos) = along_deg.unwrap_or(bearing_deg).to_radians().sin_cos();
     let along = pose.translation.vector.dot(&Vector2::new(cos, sin));
     Ping {
         bearing_deg,

@@ -636,7 +636,9 @@ mod tests {
             calibrated.config.odometry.drift_sigma_deg_per_m,
             FeatureConfig::default().odometry.drift_sigma_deg_per_m
         );
-        let wild = parse("[odometry]\nscale_sigma = 0.7\n").unwrap_err().to_string();
+        let wild = parse("[odometry]\nscale_sigma = 0.7\n")
+            .unwrap_err()
+            .to_string();
         assert!(wild.contains("odometry.scale_sigma"), "{wild}");
         let typo = parse("[odometry]\nscale = 0.01\n").unwrap_err().to_string();
         assert!(typo.contains("scale"), "{typo}");

@@ -4,12 +4,15 @@
 //! A sweep ends when a reading of the next one arrives ([`FeatureTracker::push`]) or when the
 //! process has heard nothing for a while and asks for it ([`FeatureTracker::finish_sweep`]): a
 //! stopped scan's last sweep still counts. Each sweep is placed at the robot's pose of its first
-//! reading, its reference: the regions of constant depth need the pings of one place, so every
-//! reading's pings are first brought from the pose they were taken at to the reference
-//! ([`Sweep::from_readings_at`]). A robot that scans while it drives thus localises its sweeps
-//! too. Only sweeps taken standing still add to the feature map: what is left of the motion (the
-//! odometry's own drift within the sweep, a point target's bearing shifted by the sensor's
-//! displacement across the beam) would stay in a feature for good.
+//! reading, its reference, and every reading's pings are brought from the pose they were taken at
+//! to the reference. A sweep taken standing still gives regions of constant depth, classified
+//! into walls, corners and posts ([`Sweep::from_readings_at`]). On the move those break up — a
+//! wall's foot slides along it with the robot — so a sweep on the move is seen by its walls only,
+//! each found with the pings compensated for the motion along its own normal
+//! ([`FeatureMap::walls_on_the_move`]). Sweeps on the move add their walls to the map only until
+//! a sweep taken standing still has been merged: a robot that stops to scan builds its map from
+//! its stops, where what is left of the motion (the odometry's own drift within a sweep) cannot
+//! stay in a feature for good; one that never stops builds it on the move.
 //!
 //! # Localisation
 //!
@@ -19,7 +22,10 @@
 //! the features ([`FeatureMap::localize`]) from the filter's pose at its first reading, with the
 //! filter's covariance as the prior, and merged at the corrected pose. The correction (map ←
 //! odometry) is handed to the engine after every reading, so the next readings are placed with
-//! it: a sweep's own readings are in the grid at the poses predicted before its fix.
+//! it: a sweep's own readings are in the grid at the poses predicted before its fix. Between
+//! fixes, each ping of a reading taken on the move that faces a well-known wall on its
+//! perpendicular measures the distance across it ([`DriftFilter::range_to_wall`]): along a
+//! corridor the side walls hold the pose, and through the motion the heading.
 
 use nalgebra::{Isometry2, Matrix3, Point2};
 use sonar_common::ipc::Reading;
@@ -87,6 +93,8 @@ pub struct FeatureTracker {
     sweep_odometry: Isometry2<f64>,
     /// Pings of the pending sweep ranged on a known wall.
     ranged: usize,
+    /// A sweep taken standing still has been merged: from then on only such sweeps add to the map.
+    merged_standing: bool,
     last: Option<SweepOutcome>,
     localization: Option<Localization>,
 }
@@ -100,6 +108,7 @@ impl FeatureTracker {
             pose: Isometry2::identity(),
             sweep_odometry: Isometry2::identity(),
             ranged: 0,
+            merged_standing: false,
             last: None,
             localization: None,
         })
@@ -192,8 +201,14 @@ impl FeatureTracker {
             self.map.config(),
         );
         let (rcds, classification) = self.map.observe(&sweep);
+        // On the move, regions of constant depth break up (a wall's foot slides along it with the
+        // robot): such a sweep is seen by its walls, found under the motion along each normal.
+        let observations = if self.moving {
+            self.map.walls_on_the_move(&self.pending)
+        } else {
+            classification.observations
+        };
         let predicted = self.pose;
-        tracing::debug!(sweep = first.sweep_id, moving = self.moving, ?predicted, obs = ?classification.observations.iter().map(|o| (o.kind, (o.range_m*1000.0).round()/1000.0, (o.bearing_deg*10.0).round()/10.0, (o.bearing_sigma_deg*100.0).round()/100.0)).collect::<Vec<_>>(), feats = ?self.map.features().iter().map(|f| (f.kind(), (f.position()*100.0).map(f64::round))).collect::<Vec<_>>(), "DIAG");
         let mut pose = predicted;
         // Without localisation the pose is taken as exact.
         let mut pose_covariance = Matrix3::zeros();
@@ -208,9 +223,7 @@ impl FeatureTracker {
             } else {
                 Taken::StandingStill
             };
-            if let Some(found) =
-                self.map
-                    .localize(&classification.observations, taken, &predicted, &prior)
+            if let Some(found) = self.map.localize(&observations, taken, &predicted, &prior)
                 && loc.filter.apply_fix(&found, &prior)
             {
                 loc.fixes += 1;
@@ -219,19 +232,19 @@ impl FeatureTracker {
                 fix = Some(found);
             }
         }
-        // A sweep on the move is localised but adds nothing to the map: what is left of the motion
-        // (the odometry's drift within the sweep, a point's bearing shifted by the displacement
-        // across the beam) is a small error in one fix but stays in a feature for good. Measured:
-        // merging them doubled the corridor's largest pose error (docs/results.md).
-        let report = if self.moving {
+        // A sweep on the move adds its walls to the map only while no sweep taken standing still
+        // has: what is left of the motion (the odometry's drift within the sweep) is a small
+        // error in one fix but stays in a feature for good. A robot that scans while it drives
+        // builds its map from them; one that stops to scan, from its stops. Measured
+        // (docs/results.md): merging the walls of every sweep on the move tripled the corridor's
+        // largest pose error; merging none leaves the room tour without a map.
+        let merge = !self.moving || !self.merged_standing;
+        self.merged_standing |= !self.moving;
+        let report = if !merge {
             SweepReport::default()
         } else {
-            self.map.merge(
-                &classification.observations,
-                &sweep,
-                &pose,
-                &pose_covariance,
-            )
+            self.map
+                .merge(&observations, &sweep, &pose, &pose_covariance)
         };
         let outcome = SweepOutcome {
             sweep_id: first.sweep_id,
@@ -553,23 +566,38 @@ mod tests {
         odometry
     }
 
+    /// A reading of sweep `sweep_id` centred at `centre_deg` in a corner of two walls: one 2 m
+    /// ahead (heard within ±28° of its normal) with the post of [`post_reading`] before it, both
+    /// `ahead_m` nearer, and one 1.5 m to the left.
+    fn corner_reading(sweep_id: u32, centre_deg: f32, ahead_m: f32) -> Reading {
+        let mut r = reading_of(sweep_id, centre_deg, true, ahead_m);
+        for j in 0..4 {
+            let bearing = centre_deg + 1.5 * (j as f32 - 1.5);
+            if (bearing - 90.0).abs() <= 28.0 {
+                r.echo_us[j] = (2.0 * 1.5043 / r.speed_of_sound_mps * 1e6).round() as u32;
+            }
+        }
+        r
+    }
+
     #[test]
-    fn a_sweep_on_the_move_is_localised() {
+    fn a_sweep_on_the_move_is_localised_by_its_walls() {
         let mut tracker = FeatureTracker::with_localization(FeatureConfig::default()).unwrap();
         let start = Isometry2::new(Vector2::new(2.0, -1.0), std::f32::consts::FRAC_PI_2);
         let mut outcomes = Vec::new();
         for sweep_id in 1..=2 {
             for k in 0..50 {
-                let r = reading_of(sweep_id, -147.0 + 6.0 * k as f32, true, 0.0);
+                let r = corner_reading(sweep_id, -147.0 + 6.0 * k as f32, 0.0);
                 push_at(&mut tracker, &r, &start, &mut outcomes);
             }
         }
         // A drive out and back leaves the odometry some centimetres and 4° off; then the robot
-        // drives 30 cm towards the post and the wall behind it during the sweep.
+        // drives 30 cm towards the post and the wall behind it during the sweep, along the wall
+        // on its left.
         let drifted = drive_out_and_back(&mut tracker, 3, start, &mut outcomes);
         for k in 0..50 {
             let ahead = 0.01 * (k as f32 - 20.0).clamp(0.0, 30.0);
-            let r = reading_of(4, -147.0 + 6.0 * k as f32, true, ahead);
+            let r = corner_reading(4, -147.0 + 6.0 * k as f32, ahead);
             push_at(
                 &mut tracker,
                 &r,
@@ -579,18 +607,56 @@ mod tests {
         }
         let outcome = tracker.finish_sweep().unwrap();
         assert!(outcome.moving, "{outcome:?}");
+        assert_eq!((outcome.added, outcome.refined), (0, 0), "not merged");
         let odometry_error = start.inverse() * drifted;
         assert!(
             odometry_error.rotation.angle().abs() > 3.0_f32.to_radians(),
             "{odometry_error}"
         );
         let fix = outcome.fix.expect("the sweep on the move is localised");
+        assert_eq!(fix.matched, 2, "both walls, not the post: {fix:?}");
         let err = start.cast::<f64>().inverse() * fix.pose;
         assert!(
             err.translation.vector.norm() < 0.01
                 && err.rotation.angle().abs() < 0.5_f64.to_radians(),
             "{fix:?}"
         );
+    }
+
+    #[test]
+    fn sweeps_on_the_move_build_the_map_until_one_is_taken_standing_still() {
+        let mut tracker = FeatureTracker::new(FeatureConfig::default()).unwrap();
+        let moving_sweep = |tracker: &mut FeatureTracker, sweep_id| {
+            for k in 0..50 {
+                let ahead = 0.01 * (k as f32 - 20.0).clamp(0.0, 30.0);
+                let r = corner_reading(sweep_id, -147.0 + 6.0 * k as f32, ahead);
+                tracker.push(&r, &Isometry2::translation(ahead, 0.0));
+            }
+            tracker.finish_sweep().unwrap()
+        };
+        // A robot that never stopped yet: its walls go into the map (not the post, whose range
+        // changes with the motion in a way the beam does not tell).
+        let first = moving_sweep(&mut tracker, 1);
+        assert!(first.moving && first.added == 2, "{first:?}");
+        assert!(
+            tracker
+                .map
+                .features()
+                .iter()
+                .all(|f| f.kind() == FeatureKind::Plane)
+        );
+        // Standing still from the start pose: the post is added, the walls refined.
+        for k in 0..50 {
+            tracker.push(
+                &corner_reading(2, -147.0 + 6.0 * k as f32, 0.0),
+                &Isometry2::identity(),
+            );
+        }
+        let standing = tracker.finish_sweep().unwrap();
+        assert!(!standing.moving && standing.refined == 2, "{standing:?}");
+        // From then on a sweep on the move adds nothing.
+        let later = moving_sweep(&mut tracker, 3);
+        assert_eq!((later.added, later.refined), (0, 0), "{later:?}");
     }
 
     /// A sweep of the post and the wall from `odometry`.
