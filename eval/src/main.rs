@@ -25,9 +25,10 @@ use tracing::info;
 /// the two grid presets on the same runs: a 5 cm post, two posts at --feature-spacings, the room,
 /// the corner, a slanted wall and a 10 cm post.
 ///
-/// Last, drives the tour scenes (corridor, room-tour) with a drifting odometry (3 % scale, 2°/m)
-/// for --motion-metres with every --motion-seeds, and fuses each tour at the true poses, at the
-/// odometry, and at the odometry corrected by sonar localisation.
+/// Last, drives the tour scenes (corridor, room-tour) with a drifting odometry (3 % scale, 2°/m;
+/// --motion-scale-error and --motion-heading-drift set others) for --motion-metres with every
+/// --motion-seeds, and fuses each tour at the true poses, at the odometry, and at the odometry
+/// corrected by sonar localisation.
 ///
 /// Writes <OUT>/<scene>.png for each scene (basic | probability | actual setup; top row the
 /// `paper` preset, bottom row `recommended`), <OUT>/<scene>-motion.png for each tour scene (the
@@ -83,6 +84,14 @@ struct Args {
     /// Length of each tour of the motion evaluation, metres driven.
     #[arg(long, default_value_t = 20.0, value_parser = parse_metres)]
     motion_metres: f64,
+    /// The odometry's scale error in the motion evaluation (0.03: it reports 3 % more than
+    /// driven; negative: less).
+    #[arg(long, default_value_t = 0.03, value_parser = parse_scale_error, allow_hyphen_values = true)]
+    motion_scale_error: f64,
+    /// The odometry's heading drift in the motion evaluation, degrees per metre driven (negative:
+    /// clockwise).
+    #[arg(long, default_value_t = 2.0, value_parser = parse_heading_drift, allow_hyphen_values = true)]
+    motion_heading_drift: f64,
     /// Only the motion evaluation.
     #[arg(long)]
     motion_only: bool,
@@ -184,6 +193,22 @@ fn parse_metres(s: &str) -> Result<f64, String> {
     }
 }
 
+fn parse_scale_error(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v > -0.5 && v < 0.5 => Ok(v),
+        _ => Err(format!("expected a scale error in (-0.5, 0.5), got {s:?}")),
+    }
+}
+
+fn parse_heading_drift(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.abs() <= 45.0 => Ok(v),
+        _ => Err(format!(
+            "expected degrees per metre in [-45, 45], got {s:?}"
+        )),
+    }
+}
+
 fn run(args: Args) -> Result<()> {
     let settings = Settings {
         sweeps: args.sweeps,
@@ -221,11 +246,13 @@ fn run(args: Args) -> Result<()> {
         text += &feature_report::markdown(&feature_settings, &results);
     }
     if !args.motion_seeds.0.is_empty() && !args.features_only {
-        let motion_settings = MotionSettings::drifting(
+        let mut motion_settings = MotionSettings::drifting(
             args.motion_seeds.0.iter().map(|&s| s as u64).collect(),
             args.motion_metres,
             usize::from(args.scale),
         );
+        motion_settings.odometry.scale_error = args.motion_scale_error;
+        motion_settings.odometry.heading_drift_deg_per_m = args.motion_heading_drift;
         let scenes = motion::evaluate(&motion_settings)?;
         std::fs::create_dir_all(&args.out)
             .with_context(|| format!("creating the output directory {}", args.out.display()))?;
@@ -299,6 +326,24 @@ mod tests {
         let seeds = |s| parse_seeds(s).map(|v| v.0);
         assert_eq!(seeds("1..3:1").unwrap(), [1.0, 2.0, 3.0]);
         assert!(seeds("1.5").is_err() && seeds("-1").is_err());
+    }
+
+    #[test]
+    fn the_tours_odometry_errors_are_checked_and_may_be_negative() {
+        let args = Args::try_parse_from([
+            "sonar-eval",
+            "--motion-scale-error",
+            "-0.03",
+            "--motion-heading-drift",
+            "-2",
+        ])
+        .unwrap();
+        assert_eq!(
+            (args.motion_scale_error, args.motion_heading_drift),
+            (-0.03, -2.0)
+        );
+        assert!(parse_scale_error("0.5").is_err() && parse_scale_error("x").is_err());
+        assert!(parse_heading_drift("90").is_err() && parse_heading_drift("NaN").is_err());
     }
 
     #[test]

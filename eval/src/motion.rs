@@ -39,7 +39,7 @@ use std::fmt::Write as _;
 use anyhow::{Context, Result, ensure};
 use nalgebra::{Isometry2, RealField};
 use sonar_common::ipc::{LAYOUT_VERSION, Pose2D};
-use sonar_features::FeatureConfig;
+use sonar_features::{DriftEstimate, FeatureConfig};
 use sonar_fusion::engine::Engine;
 use sonar_fusion::{FeatureTracker, FusionConfig, GridConfig, Preset, SweepOutcome};
 use sonar_sim::geometry::angle_diff_rad;
@@ -188,6 +188,8 @@ pub struct Fused {
     pub readings: Vec<PoseError>,
     /// Sweeps localisation fixed.
     pub fixes: u32,
+    /// The odometry's drift as localisation learnt it by the end (localised runs only).
+    pub drift: Option<DriftEstimate>,
 }
 
 /// How one sweep was placed.
@@ -354,6 +356,7 @@ pub fn fuse_tour(
         sweeps,
         readings,
         fixes: tracker.fixes(),
+        drift: tracker.drift(),
         map,
     })
 }
@@ -717,6 +720,24 @@ pub fn markdown(settings: &MotionSettings, scenes: &[SceneMotion]) -> String {
                 } else {
                     "–".into()
                 },
+            );
+        }
+        // What a robot builder would calibrate: the drift the filter learnt, against the
+        // simulator's (its heading drift is per metre driven, the filter's per metre reported).
+        let learnt: Vec<String> = runs
+            .iter()
+            .filter_map(|r| r.get(Placement::Localized)?.drift)
+            .map(|d| format!("{:+.1} % and {:+.2}°/m", d.scale * 100.0, d.drift_deg_per_m))
+            .collect();
+        if !learnt.is_empty() {
+            let o = settings.odometry;
+            let _ = writeln!(
+                s,
+                "\nThe odometry's drift learnt by the end of the tour, per seed: {} (the \
+                 simulator's: {:+.1} % and {:+.2}°/m of the distance it reports).",
+                learnt.join("; "),
+                o.scale_error * 100.0,
+                o.heading_drift_deg_per_m / (1.0 + o.scale_error),
             );
         }
     }

@@ -42,10 +42,14 @@ use crate::grid::OccupancyGrid;
 /// Occupancy probability from which a grid cell lends its position to a wall's segment.
 const SUPPORT_PROBABILITY: f32 = 0.8;
 
-/// A sweep during which the sensor moved more than this (m, degrees) is reported as one taken on
-/// the move.
+/// A reading more than this (m, degrees) from the pose of the sweep's middle reading was taken on
+/// the move …
 const STILL_M: f64 = 0.01;
 const STILL_DEG: f64 = 0.5;
+/// … and a sweep with more than this share of such readings is one taken on the move. A few at
+/// either end do not count: a reading's stamp is the host's, a millisecond or more after the
+/// ping, so the first and last readings of a stop can be placed at the arrival and departure.
+const MOVING_SHARE: f64 = 0.1;
 
 /// What one finished sweep did to the feature map.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -84,8 +88,6 @@ pub struct FeatureTracker {
     map: FeatureMap,
     /// The pending sweep's readings, each with the pose it was placed at relative to the first's.
     pending: Vec<(Reading, Isometry2<f64>)>,
-    /// Whether the sensor moved during the pending sweep.
-    moving: bool,
     /// Where the pending sweep is taken from: its first reading's pose, with the correction its
     /// other readings come placed with.
     pose: Isometry2<f64>,
@@ -104,7 +106,6 @@ impl FeatureTracker {
         Ok(Self {
             map: FeatureMap::new(cfg)?,
             pending: Vec::new(),
-            moving: false,
             pose: Isometry2::identity(),
             sweep_odometry: Isometry2::identity(),
             ranged: 0,
@@ -176,16 +177,30 @@ impl FeatureTracker {
             }
             self.pose = placed;
             self.sweep_odometry = odometry;
-            self.moving = false;
             Isometry2::identity()
         } else {
-            let step = self.pose.inverse() * placed;
-            self.moving |= step.translation.vector.norm() > STILL_M
-                || step.rotation.angle().abs() > STILL_DEG.to_radians();
-            step
+            self.pose.inverse() * placed
         };
         self.pending.push((*reading, relative));
         finished
+    }
+
+    /// Whether more than [`MOVING_SHARE`] of the pending sweep's readings were taken away from the
+    /// pose of its middle one.
+    fn taken_on_the_move(&self) -> bool {
+        let Some((_, middle)) = self.pending.get(self.pending.len() / 2) else {
+            return false;
+        };
+        let away = self
+            .pending
+            .iter()
+            .filter(|(_, relative)| {
+                let d = middle.inverse() * relative;
+                d.translation.vector.norm() > STILL_M
+                    || d.rotation.angle().abs() > STILL_DEG.to_radians()
+            })
+            .count();
+        away as f64 > MOVING_SHARE * self.pending.len() as f64
     }
 
     /// Whether readings of an unfinished sweep are waiting.
@@ -201,9 +216,10 @@ impl FeatureTracker {
             self.map.config(),
         );
         let (rcds, classification) = self.map.observe(&sweep);
+        let moving = self.taken_on_the_move();
         // On the move, regions of constant depth break up (a wall's foot slides along it with the
         // robot): such a sweep is seen by its walls, found under the motion along each normal.
-        let observations = if self.moving {
+        let observations = if moving {
             self.map.walls_on_the_move(&self.pending)
         } else {
             classification.observations
@@ -218,7 +234,7 @@ impl FeatureTracker {
             // prior, and what the fix adds to it is the sonar's.
             let (_, prior) = loc.filter.sweep_prior();
             pose_covariance = prior;
-            let taken = if self.moving {
+            let taken = if moving {
                 Taken::OnTheMove
             } else {
                 Taken::StandingStill
@@ -238,8 +254,8 @@ impl FeatureTracker {
         // builds its map from them; one that stops to scan, from its stops. Measured
         // (docs/results.md): merging the walls of every sweep on the move tripled the corridor's
         // largest pose error; merging none leaves the room tour without a map.
-        let merge = !self.moving || !self.merged_standing;
-        self.merged_standing |= !self.moving;
+        let merge = !moving || !self.merged_standing;
+        self.merged_standing |= !moving;
         let report = if !merge {
             SweepReport::default()
         } else {
@@ -258,7 +274,7 @@ impl FeatureTracker {
             odometry: self.sweep_odometry,
             fix,
             ranged: self.ranged,
-            moving: self.moving,
+            moving,
         };
         self.pending.clear();
         self.ranged = 0;
@@ -578,6 +594,25 @@ mod tests {
             }
         }
         r
+    }
+
+    #[test]
+    fn a_stop_whose_first_and_last_readings_are_placed_on_the_move_is_a_standing_sweep() {
+        // The host stamps a reading a little after its ping: the stop's first reading lands on
+        // the arrival, its last on the departure, 2 cm away.
+        let mut tracker = FeatureTracker::new(FeatureConfig::default()).unwrap();
+        let readings = sweep(1);
+        let last = readings.len() - 1;
+        for (k, r) in readings.iter().enumerate() {
+            let pose = match k {
+                0 => Isometry2::translation(-0.02, 0.0),
+                k if k == last => Isometry2::translation(0.02, 0.0),
+                _ => Isometry2::identity(),
+            };
+            tracker.push(r, &pose);
+        }
+        let stop = tracker.finish_sweep().unwrap();
+        assert!(!stop.moving && stop.added == 1, "{stop:?}");
     }
 
     #[test]

@@ -452,6 +452,16 @@ fn run(args: &Args) -> Result<()> {
     if let Some(saving) = saving {
         saving.finish(&engine, &mut out.ledger);
     }
+    if let Some(drift) = features.as_ref().and_then(|f| f.tracker.drift()) {
+        // What to calibrate the robot's odometry with (and a check on localisation).
+        info!(
+            fixes = features.as_ref().map_or(0, |f| f.tracker.fixes()),
+            scale_error_percent = drift.scale * 100.0,
+            heading_drift_deg_per_m = drift.drift_deg_per_m,
+            turn_error_percent = drift.turn * 100.0,
+            "the odometry's drift as localisation learnt it"
+        );
+    }
     let status = out.ledger.status(engine.mapper().readings_fused(), 0);
     info!(
         readings = status.readings_fused,
@@ -656,6 +666,7 @@ impl Features {
         debug!(
             ?outcome,
             features = self.tracker.len(),
+            drift = ?self.tracker.drift(),
             "sweep merged into the features"
         );
         if let Some(publisher) = &self.localized {
