@@ -91,7 +91,7 @@ pub mod segment;
 pub use classify::{Class, Classification, Observation, classify};
 pub use config::{EchoPhysics, FeatureConfig, MergeConfig, SegmentConfig};
 pub use drift::{DriftEstimate, DriftFilter, OdometryErrors};
-pub use localize::{PoseFix, Taken, WallAhead};
+pub use localize::{Needs, PoseFix, WallAhead};
 pub use map::{Feature, FeatureKind, FeatureMap, FeatureSummary, SweepReport};
 pub use physics::Reflector;
 pub use pings::{Ping, Sweep};

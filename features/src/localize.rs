@@ -35,15 +35,12 @@
 //! # Refusing a fix
 //!
 //! A fix lying farther from the prediction than the prediction's own uncertainty allows (χ² of 3
-//! degrees of freedom at 99.9 %) is refused, and so is one resting on too little ([`Taken`]): a
-//! sweep taken standing still is fixed by one wall (its heading and the distance across it; the
-//! odometry keeps the direction along it), one taken on the move needs two matches — its pings
-//! were brought together by the odometry, and a turn during the sweep breaks a wall's run into
-//! phantom walls that a single match may take for a real one. The sweep is then placed at the
-//! prediction. Measured on the corridor tour (`sonar-eval --motion-only`, seeds 1–3): one wall
-//! enough on the move too, the largest pose error was 37 / 87 cm; two matches everywhere, 15 /
-//! 16 cm (the first stop in the corridor sees one known wall and is never fixed); as here, 8.5 /
-//! 11 cm (median / worst).
+//! degrees of freedom at 99.9 %) is refused, and so is one resting on less than the caller asks
+//! ([`Needs`]): the sweep is then placed at the prediction. A sweep taken standing still is fixed
+//! by one wall (its heading and the distance across it; the odometry keeps the direction along
+//! it); one taken on the move needs more — its pings were brought together by the odometry, and
+//! a turn during the sweep breaks a wall's run into phantom walls that a single match may take
+//! for a real one (`fusion/src/features.rs` chooses, with the figures).
 
 use nalgebra::{Isometry2, Matrix2, Matrix3};
 
@@ -54,17 +51,23 @@ use crate::map::{FeatureKind, FeatureMap, Placed, innovation};
 const MAX_ITERATIONS: usize = 10;
 /// An update smaller than this (metres and radians) ends the iterations.
 const CONVERGED: f64 = 1e-6;
-/// Fewest matched observations a fix rests on, but for one wall from a standing sweep: one post
-/// leaves the heading to the prior's linearisation, and one wrong association turns the robot.
-const MIN_MATCHES: usize = 2;
-
-/// How the sweep to localise was taken: what its fix may rest on.
+/// What a fix must rest on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Taken {
-    /// From one place: one matched wall, or two matches of any kind.
-    StandingStill,
-    /// On the move: two matches.
-    OnTheMove,
+pub enum Needs {
+    /// One matched wall, or two matches of any kind (never one post or corner: it leaves the
+    /// heading to the prior's linearisation, and one wrong association turns the robot).
+    OneWallOrTwo,
+    /// At least this many matches of any kind.
+    Matches(usize),
+}
+
+impl Needs {
+    fn met_by(self, matched: usize, walls: usize) -> bool {
+        match self {
+            Needs::OneWallOrTwo => walls >= 1 || matched >= 2,
+            Needs::Matches(n) => matched >= n,
+        }
+    }
 }
 /// Largest squared Mahalanobis distance of a fix from its prediction, χ² of 3 degrees of freedom
 /// at 99.9 %: a fix farther than the odometry can have drifted is a wrong association.
@@ -131,14 +134,14 @@ impl FeatureMap {
             .map(|(_, wall)| wall)
     }
 
-    /// The pose at which `observations` (one sweep's, in the sensor's frame, taken as `taken`
-    /// says) fit the map best, starting from `prior` with covariance `prior_covariance` (of x, y,
-    /// θ). `None` when too few observations match a feature ([`Taken`]), the fix lies beyond what
-    /// the prior allows, or the prior covariance is not invertible.
+    /// The pose at which `observations` (one sweep's, in the sensor's frame) fit the map best,
+    /// starting from `prior` with covariance `prior_covariance` (of x, y, θ). `None` when the
+    /// matches are fewer than `needs`, the fix lies beyond what the prior allows, or the prior
+    /// covariance is not invertible.
     pub fn localize(
         &self,
         observations: &[Observation],
-        taken: Taken,
+        needs: Needs,
         prior: &Isometry2<f64>,
         prior_covariance: &Matrix3<f64>,
     ) -> Option<PoseFix> {
@@ -196,8 +199,7 @@ impl FeatureMap {
         let mut d = x - x0;
         d.z = crate::wrap_rad(d.z);
         let d2 = (d.transpose() * prior_information * d)[(0, 0)];
-        let enough = matched >= MIN_MATCHES || (taken == Taken::StandingStill && walls >= 1);
-        (enough && d2 <= FIX_GATE).then_some(PoseFix {
+        (needs.met_by(matched, walls) && d2 <= FIX_GATE).then_some(PoseFix {
             pose: crate::vector_pose(&x),
             covariance,
             matched,
@@ -291,7 +293,7 @@ mod tests {
         let fix = map
             .localize(
                 &observe(&truth, &ALL),
-                Taken::OnTheMove,
+                Needs::Matches(2),
                 &drifted,
                 &prior_covariance(),
             )
@@ -319,13 +321,13 @@ mod tests {
             .take(1)
             .collect();
         assert_eq!(
-            map.localize(&wall, Taken::OnTheMove, &drifted, &prior_covariance()),
+            map.localize(&wall, Needs::Matches(2), &drifted, &prior_covariance()),
             None
         );
         // From a standing sweep the wall alone fixes the heading and the distance across it (x,
         // the wall being x = 2), and leaves y at the prediction.
         let fix = map
-            .localize(&wall, Taken::StandingStill, &drifted, &prior_covariance())
+            .localize(&wall, Needs::OneWallOrTwo, &drifted, &prior_covariance())
             .expect("a fix");
         assert_eq!(fix.matched, 1);
         assert!(
@@ -343,7 +345,7 @@ mod tests {
         // A post alone is no fix either way.
         let post = observe(&truth, &[FeatureKind::Point]);
         assert_eq!(
-            map.localize(&post, Taken::StandingStill, &drifted, &prior_covariance()),
+            map.localize(&post, Needs::OneWallOrTwo, &drifted, &prior_covariance()),
             None
         );
         // With the post beside it, the fix stands.
@@ -352,7 +354,7 @@ mod tests {
             .chain(observe(&truth, &[FeatureKind::Point]))
             .collect();
         let fix = map
-            .localize(&both, Taken::OnTheMove, &drifted, &prior_covariance())
+            .localize(&both, Needs::Matches(2), &drifted, &prior_covariance())
             .expect("a fix");
         assert_eq!(fix.matched, 2);
         assert!(
@@ -375,7 +377,7 @@ mod tests {
         assert_eq!(
             map.localize(
                 &observe(&truth, &ALL),
-                Taken::StandingStill,
+                Needs::OneWallOrTwo,
                 &drifted,
                 &tight
             ),
@@ -421,9 +423,9 @@ mod tests {
         // A prediction a metre off and certain of itself finds nothing within the gate.
         let wrong = Isometry2::new(Vector2::new(-0.6, -1.0), 1.0);
         let tight = Matrix3::from_diagonal(&Vector3::new(1e-6, 1e-6, 1e-6));
-        for taken in [Taken::StandingStill, Taken::OnTheMove] {
-            assert_eq!(map.localize(&obs, taken, &wrong, &tight), None);
-            assert_eq!(map.localize(&[], taken, &far, &prior_covariance()), None);
+        for needs in [Needs::OneWallOrTwo, Needs::Matches(2)] {
+            assert_eq!(map.localize(&obs, needs, &wrong, &tight), None);
+            assert_eq!(map.localize(&[], needs, &far, &prior_covariance()), None);
         }
     }
 }
