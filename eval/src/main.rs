@@ -79,7 +79,7 @@ struct Args {
     /// Seeds of the motion evaluation (the tour scenes driven with a drifting odometry, fused at
     /// the true poses, the odometry's, and the odometry's with localisation): comma-separated
     /// values or ranges FROM..TO:STEP, or `none` to skip it.
-    #[arg(long, default_value = "1..3:1", value_parser = parse_seeds)]
+    #[arg(long, default_value = "1..10:1", value_parser = parse_seeds)]
     motion_seeds: Values,
     /// Length of each tour of the motion evaluation, metres driven.
     #[arg(long, default_value_t = 20.0, value_parser = parse_metres)]
@@ -367,7 +367,7 @@ mod tests {
         assert_eq!(a.feature_seeds.0, [1.0, 2.0, 3.0]);
         assert_eq!(a.feature_spacings.0.len(), 13);
         assert!(!a.features_only && !a.motion_only);
-        assert_eq!((a.motion_seeds.0.len(), a.motion_metres), (3, 20.0));
+        assert_eq!((a.motion_seeds.0.len(), a.motion_metres), (10, 20.0));
         assert!(Args::try_parse_from(["sonar-eval", "--sweeps", "0"]).is_err());
         assert!(Args::try_parse_from(["sonar-eval", "--motion-metres", "0"]).is_err());
         assert!(Args::try_parse_from(["sonar-eval", "--motion-only", "--features-only"]).is_err());

@@ -1,14 +1,14 @@
 //! A short tour of the motion evaluation, as `sonar-eval` runs it: the corridor's first 4 m
 //! (stop-and-scan), one seed, the drifting odometry. The whole chain (the simulator's robot
 //! carrying the head, the driver's decoder, the fusion engine and the feature tracker with and
-//! without localisation, the report) works, and localisation does no worse than the odometry.
-//!
-//! Over a longer tour it does worse: see the motion section of `docs/results.md`.
+//! without localisation, the report) works, and localisation holds the pose within the issue's
+//! 5 cm and 2° while the odometry drifts off. The whole tours' figures: the motion section of
+//! `docs/results.md`.
 
 use sonar_eval::motion::{self, MotionSettings, Placement};
 
 #[test]
-fn a_short_corridor_tour_is_localised_no_worse_than_the_odometry() {
+fn a_short_corridor_tour_is_localised_within_5_cm_and_2_degrees() {
     let mut settings = MotionSettings::drifting(vec![1], 4.0, 1);
     settings.scenes = vec!["corridor".into()];
     let scenes = motion::evaluate(&settings).unwrap();
@@ -42,10 +42,9 @@ fn a_short_corridor_tour_is_localised_no_worse_than_the_odometry() {
         "{odometry_m} m, {odometry_deg}°"
     );
     assert!(localized.fixes > 0);
-    assert!(localized_m <= odometry_m, "{localized_m} > {odometry_m} m");
     assert!(
-        localized_deg <= odometry_deg,
-        "{localized_deg} > {odometry_deg}°"
+        localized_m < 0.05 && localized_deg < 2.0,
+        "{localized_m} m, {localized_deg}°"
     );
     assert!(truth.walls.median_distance_m.is_some() && truth.walls.coverage > 0.0);
 
@@ -54,6 +53,7 @@ fn a_short_corridor_tour_is_localised_no_worse_than_the_odometry() {
         "### Motion and localisation on the tour scenes",
         "| localisation keeps every sweep's pose within 5 cm and 2° | corridor |",
         "| odometry + localisation |",
+        "The odometry's drift learnt by the end of the tour, per seed:",
     ] {
         assert!(md.contains(needle), "{needle} missing from\n{md}");
     }
