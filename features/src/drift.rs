@@ -235,17 +235,38 @@ impl DriftFilter {
         let mut h = SMatrix::<f64, 1, N>::zeros();
         h[(0, POSE)] = -n.x;
         h[(0, POSE + 1)] = -n.y;
+        let noise = sigma_m.powi(2) + wall.distance_sigma_m.powi(2);
+        let taken = self.scalar_update(&h, innovation, noise, RANGE_GATE);
+        if taken {
+            self.wrap_angles();
+        }
+        taken
+    }
+
+    fn wrap_angles(&mut self) {
+        self.x[POSE + 2] = wrap_rad(self.x[POSE + 2]);
+        self.x[CLONE + 2] = wrap_rad(self.x[CLONE + 2]);
+    }
+
+    /// One scalar measurement `h`·x, `innovation` off the estimate, with variance `noise`; refused
+    /// (`false`, nothing changes) when innovation² exceeds `gate` times its variance. The angles
+    /// are left unwrapped for the caller.
+    fn scalar_update(
+        &mut self,
+        h: &SMatrix<f64, 1, N>,
+        innovation: f64,
+        noise: f64,
+        gate: f64,
+    ) -> bool {
         let ph = self.p * h.transpose();
-        let s = (h * ph)[(0, 0)] + sigma_m.powi(2) + wall.distance_sigma_m.powi(2);
-        if innovation * innovation > RANGE_GATE * s {
+        let s = (h * ph)[(0, 0)] + noise;
+        if innovation * innovation > gate * s {
             return false;
         }
         let gain = ph / s;
         self.x += gain * innovation;
         self.p -= gain * ph.transpose();
         self.p = (self.p + self.p.transpose()) * 0.5;
-        self.x[POSE + 2] = wrap_rad(self.x[POSE + 2]);
-        self.x[CLONE + 2] = wrap_rad(self.x[CLONE + 2]);
         true
     }
 
@@ -302,15 +323,10 @@ impl DriftFilter {
             let innovation = measured - u.dot(&now);
             let mut h = SMatrix::<f64, 1, N>::zeros();
             h.fixed_columns_mut::<3>(CLONE).copy_from(&u.transpose());
-            let ph = self.p * h.transpose();
-            let s = (h * ph)[(0, 0)] + 1.0 / information;
-            let gain = ph / s;
-            self.x += gain * innovation;
-            self.p -= gain * ph.transpose();
-            self.p = (self.p + self.p.transpose()) * 0.5;
+            // The localisation gated the fix already.
+            self.scalar_update(&h, innovation, 1.0 / information, f64::INFINITY);
         }
-        self.x[POSE + 2] = wrap_rad(self.x[POSE + 2]);
-        self.x[CLONE + 2] = wrap_rad(self.x[CLONE + 2]);
+        self.wrap_angles();
         true
     }
 }

@@ -562,6 +562,15 @@ pub fn path_str(p: &std::path::Path) -> &str {
 }
 
 /// A subscriber to `sonar/readings`; subscribe before the driver starts to miss nothing.
+/// A subscriber of `sonar/localized_pose`.
+pub fn localized_pose_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, ipc::LocalizedPose, ()> {
+    ipc::localized_pose_service(node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap()
+}
+
 pub fn grid_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, [u8], GridHeader> {
     ipc::grid_service(node)
         .unwrap()

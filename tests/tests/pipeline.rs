@@ -18,8 +18,8 @@ use sonar_common::protocol::{
 };
 use sonar_e2e::{
     PATIENCE, Sandbox, back_wall_seen_at, collect_until, corridor_grid_config,
-    driver_status_subscriber, readings_subscriber, readings_subscribers, receive_reading,
-    send_scan_command, wait_for_status, wait_until,
+    driver_status_subscriber, grid_subscriber, localized_pose_subscriber, readings_subscriber,
+    readings_subscribers, receive_reading, send_scan_command, wait_for_status, wait_until,
 };
 
 /// The test plays the microcontroller on a pseudo-terminal of its own.
@@ -1028,16 +1028,8 @@ fn the_simulated_robot_tours_the_room_publishing_its_odometry_and_its_true_pose(
 fn a_touring_robot_maps_both_rooms_in_one_frame_and_is_localised() {
     let sandbox = Sandbox::new("corridor");
     let node = sandbox.node("test-consumer");
-    let grid = ipc::grid_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
-    let localized = ipc::localized_pose_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let grid = grid_subscriber(&node);
+    let localized = localized_pose_subscriber(&node);
     let config = corridor_grid_config("corridor");
     let (_sim, pty) = sandbox.spawn_sim(&[
         "--scene",
@@ -1108,11 +1100,7 @@ fn a_drifting_robot_is_localised_near_the_truth() {
         .subscriber_builder()
         .create()
         .unwrap();
-    let localized = ipc::localized_pose_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let localized = localized_pose_subscriber(&node);
     let config = corridor_grid_config("drift");
     // The fusion first, so that it hears the tour from its start. At 10× (not the 40× of the
     // test above) a reading's host stamp, a millisecond or two after the ping, is still within a
