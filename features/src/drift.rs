@@ -166,6 +166,11 @@ impl DriftFilter {
             .map_or(Isometry2::identity(), |o| self.pose() * o.inverse())
     }
 
+    /// σ of the current heading, radians.
+    pub fn heading_sigma_rad(&self) -> f64 {
+        self.p[(POSE + 2, POSE + 2)].sqrt()
+    }
+
     /// The odometry's drift as estimated so far.
     pub fn drift(&self) -> DriftEstimate {
         DriftEstimate {
