@@ -70,8 +70,9 @@ pub struct SweepOutcome {
     pub fix: Option<PoseFix>,
     /// Pings taken on the move that localisation ranged on a known wall.
     pub ranged: usize,
-    /// The sensor moved during the sweep: its pings were brought to its first reading's pose, and
-    /// it was localised but not merged.
+    /// Taken on the move (more than a tenth of its readings away from the middle one's
+    /// pose): seen by its walls only, and merged only while no sweep taken standing still has
+    /// been.
     pub moving: bool,
 }
 
