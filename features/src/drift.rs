@@ -128,30 +128,22 @@ impl DriftFilter {
     /// A filter with the odometry's parameters unknown to within `errors`. The map's frame is the
     /// odometry's where it starts: the first odometry pose is taken as exact.
     pub fn new(errors: OdometryErrors) -> Self {
-        let x = State::zeros();
         let mut p = Covariance::zeros();
         // A tiny start uncertainty keeps every covariance the localisation sees invertible.
-        for i in [POSE, POSE + 1, CLONE, CLONE + 1] {
-            p[(i, i)] = 1e-6;
-        }
-        for i in [POSE + 2, CLONE + 2] {
-            p[(i, i)] = 0.01_f64.to_radians().powi(2);
-        }
-        p[(POSE, CLONE)] = 1e-6;
-        p[(CLONE, POSE)] = 1e-6;
-        p[(POSE + 1, CLONE + 1)] = 1e-6;
-        p[(CLONE + 1, POSE + 1)] = 1e-6;
-        p[(POSE + 2, CLONE + 2)] = p[(POSE + 2, POSE + 2)];
-        p[(CLONE + 2, POSE + 2)] = p[(POSE + 2, POSE + 2)];
+        p[(POSE, POSE)] = 1e-6;
+        p[(POSE + 1, POSE + 1)] = 1e-6;
+        p[(POSE + 2, POSE + 2)] = 0.01_f64.to_radians().powi(2);
         p[(SCALE, SCALE)] = errors.scale_sigma.powi(2);
         p[(DRIFT, DRIFT)] = errors.drift_sigma_deg_per_m.to_radians().powi(2);
         p[(TURN, TURN)] = errors.turn_sigma.powi(2);
-        Self {
+        let mut filter = Self {
             errors,
-            x,
+            x: State::zeros(),
             p,
             odometry: None,
-        }
+        };
+        filter.begin_sweep();
+        filter
     }
 
     /// The current pose estimate in the map.
@@ -187,9 +179,10 @@ impl DriftFilter {
     /// `true` if the odometry moved.
     pub fn advance(&mut self, odometry: &Isometry2<f64>) -> bool {
         let Some(last) = self.odometry.replace(*odometry) else {
-            let start = pose_vector(odometry);
-            self.x.fixed_rows_mut::<3>(POSE).copy_from(&start);
-            self.x.fixed_rows_mut::<3>(CLONE).copy_from(&start);
+            self.x
+                .fixed_rows_mut::<3>(POSE)
+                .copy_from(&pose_vector(odometry));
+            self.begin_sweep();
             return false;
         };
         let step = last.inverse() * odometry;
