@@ -240,8 +240,8 @@ impl FeatureTracker {
             // drift within the sweep), and the filter's prediction usually too. Measured on the
             // corridor tour over 10 seeds and the four signs of 3 % and 2°/m (`sonar-eval
             // --motion-only --motion-seeds 1..10:1 --motion-scale-error ± --motion-heading-drift
-            // ±`): largest pose error 4.0–8.5 cm and 1.9–2.6° with two, 5.0–5.9 cm and 1.6–1.8°
-            // with three. The room tour, whose map is built on the move, falls apart with three
+            // ±`, at fd43f66): largest pose error 4.0–8.5 cm and 1.9–2.6° with two, 5.0–5.9 cm
+            // and 1.6–1.8° with three. The room tour, whose map is built on the move, falls apart with three
             // (23 cm and 15°, once 180°): there such fixes are all it has.
             let needs = match (moving, self.merged_standing) {
                 (false, _) => Needs::OneWallOrTwo,
@@ -263,14 +263,13 @@ impl FeatureTracker {
         // builds its map from them; one that stops to scan, from its stops. Measured
         // (docs/results.md): merging the walls of every sweep on the move tripled the corridor's
         // largest pose error; merging none leaves the room tour without a map.
-        let merge = !moving || !self.merged_standing;
-        self.merged_standing |= !moving;
-        let report = if !merge {
+        let report = if moving && self.merged_standing {
             SweepReport::default()
         } else {
             self.map
                 .merge(&observations, &sweep, &pose, &pose_covariance)
         };
+        self.merged_standing |= !moving;
         let outcome = SweepOutcome {
             sweep_id: first.sweep_id,
             stamp_ns: first.host_stamp_ns,
@@ -291,10 +290,14 @@ impl FeatureTracker {
         Some(outcome)
     }
 
-    /// Forgets every feature and the pending sweep (the map was cleared).
+    /// Forgets every feature and the pending sweep (the map was cleared): the next sweeps build
+    /// the map again, on the move too until one is taken standing still. Localisation keeps its
+    /// pose and what it learnt of the odometry.
     pub fn clear(&mut self) {
         self.map.clear();
         self.pending.clear();
+        self.ranged = 0;
+        self.merged_standing = false;
         self.last = None;
     }
 
@@ -715,6 +718,10 @@ mod tests {
         // From then on a sweep on the move adds nothing.
         let later = moving_sweep(&mut tracker, 3);
         assert_eq!((later.added, later.refined), (0, 0), "{later:?}");
+        // A cleared map is built again, on the move too.
+        tracker.clear();
+        let again = moving_sweep(&mut tracker, 4);
+        assert_eq!(again.added, 3, "{again:?}");
     }
 
     /// A sweep of the post and the wall from `odometry`.
