@@ -166,6 +166,11 @@ impl Engine {
         &self.pose
     }
 
+    /// Gaps in the pose stream (poses lost or not sent; estimated, see [`crate::poses`]).
+    pub fn pose_gaps(&self) -> crate::poses::PoseGaps {
+        self.poses.gaps()
+    }
+
     /// Readings placed with a stale pose: the pose stream had stopped or lagged by more than
     /// [`crate::poses::STALE_AFTER_NS`].
     pub fn stale_pose_readings(&self) -> u64 {

@@ -32,6 +32,10 @@
 //!   readings between the two stamps are interpolated across it.
 //! - At most [`KEPT_POSES`] poses within [`KEPT_NS`] are kept: enough for the readings' delay, a
 //!   bounded memory whatever the pose rate.
+//! - **Lost poses** are estimated, since `Pose2D` has no sequence number: the stream's period is
+//!   learnt from its intervals, and an interval longer than [`GAP_FACTOR`] periods counts as a
+//!   gap with that many periods less one missing ([`PoseTrack::gaps`]). It assumes a source that
+//!   publishes at a steady rate, as odometry does; readings in a gap are interpolated across it.
 
 use std::collections::VecDeque;
 
@@ -51,6 +55,18 @@ pub const MAX_POSE_WAIT: std::time::Duration = std::time::Duration::from_millis(
 pub const KEPT_POSES: usize = 512;
 /// Poses older than this before the newest are dropped.
 pub const KEPT_NS: u64 = 5_000_000_000;
+
+/// An interval this many times the stream's period is a gap (poses lost or not sent).
+pub const GAP_FACTOR: f64 = 2.5;
+
+/// Gaps in the pose stream: poses lost in transit or never sent.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct PoseGaps {
+    /// Intervals longer than [`GAP_FACTOR`] periods.
+    pub gaps: u64,
+    /// Poses missing in them, estimated from the period.
+    pub missing: u64,
+}
 
 /// Where a reading was placed, and how the pose for it was found.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -87,6 +103,9 @@ pub enum PoseError {
 pub struct PoseTrack {
     initial: Isometry2<f32>,
     poses: VecDeque<Pose2D>,
+    /// The stream's usual interval, ns: a running mean of the intervals that are not gaps.
+    period_ns: Option<f64>,
+    gaps: PoseGaps,
 }
 
 impl PoseTrack {
@@ -95,6 +114,29 @@ impl PoseTrack {
         Self {
             initial,
             poses: VecDeque::new(),
+            period_ns: None,
+            gaps: PoseGaps::default(),
+        }
+    }
+
+    /// Gaps in the stream so far.
+    pub fn gaps(&self) -> PoseGaps {
+        self.gaps
+    }
+
+    /// Learns the period from the interval to the previous pose, or counts a gap.
+    fn note_interval(&mut self, interval_ns: u64) {
+        if interval_ns == 0 {
+            return;
+        }
+        let interval = interval_ns as f64;
+        match self.period_ns {
+            None => self.period_ns = Some(interval),
+            Some(period) if interval > GAP_FACTOR * period => {
+                self.gaps.gaps += 1;
+                self.gaps.missing += ((interval / period).round() as u64).saturating_sub(1);
+            }
+            Some(period) => self.period_ns = Some(0.9 * period + 0.1 * interval),
         }
     }
 
@@ -121,6 +163,9 @@ impl PoseTrack {
                 stamp_ns: pose.stamp_ns,
                 latest_ns: last.stamp_ns,
             });
+        }
+        if let Some(last) = self.poses.back() {
+            self.note_interval(pose.stamp_ns - last.stamp_ns);
         }
         self.poses.push_back(pose);
         let newest = pose.stamp_ns;
@@ -211,6 +256,30 @@ mod tests {
         (a.translation.x - x).abs() < 1e-4
             && (a.translation.y - y).abs() < 1e-4
             && wrap_angle(a.rotation.angle() - theta).abs() < 1e-4
+    }
+
+    #[test]
+    fn gaps_in_a_steady_stream_are_counted_with_the_poses_missing() {
+        let mut track = PoseTrack::new(Isometry2::identity());
+        // 20 Hz with a little jitter: no gap.
+        for k in 0..40u64 {
+            let jitter = [0, 3, 0, 2][k as usize % 4];
+            track.push(pose(50 * k + jitter, 0.0, 0.0, 0.0)).unwrap();
+        }
+        assert_eq!(track.gaps(), PoseGaps::default());
+        // Two poses lost (150 ms), then seven (400 ms).
+        track.push(pose(50 * 39 + 150, 0.0, 0.0, 0.0)).unwrap();
+        track.push(pose(50 * 39 + 550, 0.0, 0.0, 0.0)).unwrap();
+        assert_eq!(
+            track.gaps(),
+            PoseGaps {
+                gaps: 2,
+                missing: 9
+            }
+        );
+        // Two poses of one instant (a replay's burst may stamp alike) are no gap.
+        track.push(pose(50 * 39 + 550, 0.0, 0.0, 0.0)).unwrap();
+        assert_eq!(track.gaps().gaps, 2);
     }
 
     #[test]
