@@ -53,11 +53,14 @@
 //! Noise, from a seeded ChaCha RNG so runs repeat: the detector fires on the 1st to 3rd cycle of the
 //! echo ([`NoiseParams::late_cycles_max`], sensor-facts: jitter of about one wavelength), and a few
 //! pings ([`NoiseParams::spurious_probability`]) end early on a transient, uniformly between the
-//! minimum range and the true echo. Ranges below the minimum read the minimum; beyond the maximum
-//! there is no echo.
+//! minimum range and the true echo. On top, a zero-mean Gaussian of deviation
+//! [`NoiseParams::range_sigma_m`] + [`NoiseParams::range_sigma_fraction`] × range (off by default)
+//! plays the centimetre jitter of real sensors. Ranges below the minimum read the minimum; beyond
+//! the maximum there is no echo.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 use sonar_common::sensor::SensorConfig;
 
@@ -131,6 +134,12 @@ pub struct NoiseParams {
     pub late_cycles_max: u32,
     /// Share of pings ended early by a transient (sensor-facts: rare spurious short readings).
     pub spurious_probability: f64,
+    /// Standard deviation of a zero-mean Gaussian added to every ping's range, m, at any range:
+    /// the jitter of real SRF05/HC-SR04 readings (about a centimetre, sensor-facts) that the
+    /// late-cycle model alone does not make. 0 (the default) keeps the noise of the late cycles only.
+    pub range_sigma_m: f64,
+    /// The part of that deviation that grows with range, as a share of the range (0.01: 1 %).
+    pub range_sigma_fraction: f64,
 }
 
 impl Default for NoiseParams {
@@ -138,6 +147,8 @@ impl Default for NoiseParams {
         Self {
             late_cycles_max: 2,
             spurious_probability: 0.005,
+            range_sigma_m: 0.0,
+            range_sigma_fraction: 0.0,
         }
     }
 }
@@ -196,10 +207,23 @@ impl EchoParams {
 }
 
 impl NoiseParams {
+    /// The Gaussian range noise's deviation at `range_m`.
+    pub fn range_sigma_at(&self, range_m: f64) -> f64 {
+        self.range_sigma_m + self.range_sigma_fraction * range_m
+    }
+
     pub fn validate(&self) -> Result<(), String> {
         require(
             (0.0..=1.0).contains(&self.spurious_probability),
             "noise.spurious_probability must be in [0, 1]",
+        )?;
+        require(
+            self.range_sigma_m.is_finite() && self.range_sigma_m >= 0.0,
+            "noise.range_sigma_m must be >= 0",
+        )?;
+        require(
+            self.range_sigma_fraction.is_finite() && self.range_sigma_fraction >= 0.0,
+            "noise.range_sigma_fraction must be >= 0",
         )
     }
 }
@@ -415,9 +439,15 @@ impl Transducer for EchoModel {
         } else {
             truth
         };
-        let Some(range) = range else {
+        let Some(mut range) = range else {
             return 0;
         };
+        let sigma = noise.range_sigma_at(range);
+        // Drawn only when asked for, so the seeded runs without it repeat as before.
+        if sigma > 0.0 {
+            let z: f64 = StandardNormal.sample(&mut self.rng);
+            range += sigma * z;
+        }
         let v = self.speed_of_sound_mps();
         let late_cycles = self.rng.random_range(0..=noise.late_cycles_max);
         let echo_us = 2.0 * range.max(min) / v * 1e6
@@ -667,6 +697,33 @@ mod tests {
             m.ping(0.0),
             SensorConfig::default().echo_time_us(0.03).round() as u32
         );
+    }
+
+    #[test]
+    fn gaussian_range_noise_has_the_asked_spread_and_no_bias() {
+        let mut scene = Scene::new("w", vec![facing_wall(2.0)], vec![]).unwrap();
+        scene.noise.late_cycles_max = 0;
+        scene.noise.spurious_probability = 0.0;
+        scene.noise.range_sigma_m = 0.01;
+        scene.noise.range_sigma_fraction = 0.01;
+        let mut m = EchoModel::new(scene, SensorConfig::default(), 7).unwrap();
+        let ranges: Vec<f64> = (0..4000).map(|_| range_of(m.ping(0.0))).collect();
+        let n = ranges.len() as f64;
+        let mean = ranges.iter().sum::<f64>() / n;
+        let sd = (ranges.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+        // σ = 1 cm + 1 % of 2 m = 3 cm; the echo time is rounded to whole µs (0.17 mm).
+        assert!((mean - 2.0).abs() < 0.003, "mean {mean}");
+        assert!((sd - 0.03).abs() < 0.003, "sd {sd}");
+        // Off by default, so seeded runs without it repeat.
+        let mut quiet = Scene::new("w", vec![facing_wall(2.0)], vec![]).unwrap();
+        quiet.noise.late_cycles_max = 0;
+        quiet.noise.spurious_probability = 0.0;
+        let mut m = EchoModel::new(quiet, SensorConfig::default(), 7).unwrap();
+        let first = m.ping(0.0);
+        assert!((0..50).all(|_| m.ping(0.0) == first));
+        let mut bad = NoiseParams::default();
+        bad.range_sigma_fraction = -0.1;
+        assert!(bad.validate().is_err());
     }
 
     #[test]
