@@ -62,6 +62,8 @@ pub struct Engine {
     stale_pose_readings: u64,
     /// Readings placed past the latest pose (within [`crate::poses::STALE_AFTER_NS`]).
     extrapolated_pose_readings: u64,
+    /// Readings older than every pose kept, placed at the oldest.
+    early_pose_readings: u64,
     rejected_readings: u64,
     last_seq: Option<u64>,
     /// Bumped by every change of the state, so a saver knows whether there is anything new.
@@ -81,6 +83,7 @@ impl Engine {
             correction: Isometry2::identity(),
             stale_pose_readings: 0,
             extrapolated_pose_readings: 0,
+            early_pose_readings: 0,
             rejected_readings: 0,
             last_seq: None,
             revision: 0,
@@ -110,6 +113,7 @@ impl Engine {
             correction: Isometry2::identity(),
             stale_pose_readings: 0,
             extrapolated_pose_readings: 0,
+            early_pose_readings: 0,
             rejected_readings: state.rejected_readings,
             last_seq: state.last_seq,
             revision: 0,
@@ -183,6 +187,12 @@ impl Engine {
         self.extrapolated_pose_readings
     }
 
+    /// Readings older than every pose kept, placed at the oldest: more than
+    /// [`crate::poses::KEPT_POSES`] poses arrived while they waited in the buffer.
+    pub fn early_pose_readings(&self) -> u64 {
+        self.early_pose_readings
+    }
+
     /// Whether a pose stream exists and no pose at or after `stamp_ns` has arrived yet: the one
     /// that places a reading of that instant by interpolation is still to come.
     pub fn awaits_pose(&self, stamp_ns: u64) -> bool {
@@ -212,10 +222,12 @@ impl Engine {
     /// Fuses `reading` at the current pose into both maps; `false` if the kernels refused it.
     pub fn fuse(&mut self, reading: &Reading) -> bool {
         let PlacedPose { pose, kind } = self.poses.at(reading.host_stamp_ns);
+        self.poses.placed(reading.host_stamp_ns);
         match kind {
             PoseKind::Stale => self.stale_pose_readings += 1,
             PoseKind::Extrapolated => self.extrapolated_pose_readings += 1,
-            PoseKind::Initial | PoseKind::Interpolated | PoseKind::Early => {}
+            PoseKind::Early => self.early_pose_readings += 1,
+            PoseKind::Initial | PoseKind::Interpolated => {}
         }
         self.pose = self.correction * pose;
         let obs = Observation::from_reading(reading, self.pose);

@@ -467,6 +467,7 @@ fn run(args: &Args) -> Result<()> {
         readings = status.readings_fused,
         extrapolated_pose = engine.extrapolated_pose_readings(),
         stale_pose = engine.stale_pose_readings(),
+        early_pose = engine.early_pose_readings(),
         pose_gaps = engine.pose_gaps().gaps,
         poses_missing = engine.pose_gaps().missing,
         received = status.readings_received,

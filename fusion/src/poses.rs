@@ -30,8 +30,14 @@
 //! - A pose older than the newest kept is out of order and refused; a pose *jump* (a
 //!   localisation's correction) is taken as it comes: readings after it are placed from it,
 //!   readings between the two stamps are interpolated across it.
-//! - At most [`KEPT_POSES`] poses within [`KEPT_NS`] are kept: enough for the readings' delay, a
-//!   bounded memory whatever the pose rate.
+//! - **Every pose a reading still to come may need is kept**: readings arrive in stamp order, so
+//!   once a reading is placed ([`PoseTrack::placed`]) only the poses before the last one at or
+//!   before its stamp can go. Trimming by the newest pose's age instead let a fusion that lagged
+//!   behind its readings (a loaded machine) drop the poses of the readings still in its buffer and
+//!   place them at the oldest pose kept: a live run and its replay then differed by where the lag
+//!   fell. Memory stays bounded by [`KEPT_POSES`]; a reading older than every pose kept is placed
+//!   at the oldest and counted ([`PoseKind::Early`]).
+//! - Before any reading is placed, the poses within [`KEPT_NS`] of the newest are kept.
 //! - **Lost poses** are estimated, since `Pose2D` has no sequence number: the stream's period is
 //!   learnt from its intervals, and an interval longer than [`GAP_FACTOR`] periods counts as a
 //!   gap with that many periods less one missing ([`PoseTrack::gaps`]). It assumes a source that
@@ -49,11 +55,13 @@ pub const MAX_EXTRAPOLATION_NS: u64 = 100_000_000;
 /// A reading this long after the latest pose is placed with a stale pose.
 pub const STALE_AFTER_NS: u64 = 500_000_000;
 /// Longest a reading newer than the newest pose waits for the pose that covers its instant,
-/// after which it is placed as today (extrapolated, or stale).
-pub const MAX_POSE_WAIT: std::time::Duration = std::time::Duration::from_millis(100);
-/// Most poses kept.
-pub const KEPT_POSES: usize = 512;
-/// Poses older than this before the newest are dropped.
+/// after which it is placed as today (extrapolated, or stale). Wall clock: long enough for a pose
+/// source descheduled on a loaded machine, short enough that a stopped stream costs little (a
+/// reading more than [`STALE_AFTER_NS`] past the newest pose does not wait at all).
+pub const MAX_POSE_WAIT: std::time::Duration = std::time::Duration::from_millis(500);
+/// Most poses kept: 20 s of a replay at ×40 (800 poses a second), 512 KiB.
+pub const KEPT_POSES: usize = 16_384;
+/// Before any reading is placed, poses older than this before the newest are dropped.
 pub const KEPT_NS: u64 = 5_000_000_000;
 
 /// An interval this many times the stream's period is a gap (poses lost or not sent).
@@ -106,6 +114,8 @@ pub struct PoseTrack {
     /// The stream's usual interval, ns: a running mean of the intervals that are not gaps.
     period_ns: Option<f64>,
     gaps: PoseGaps,
+    /// The stamp of the newest reading placed: the poses before it are no longer needed.
+    placed_up_to: Option<u64>,
 }
 
 impl PoseTrack {
@@ -116,6 +126,7 @@ impl PoseTrack {
             poses: VecDeque::new(),
             period_ns: None,
             gaps: PoseGaps::default(),
+            placed_up_to: None,
         }
     }
 
@@ -147,8 +158,34 @@ impl PoseTrack {
 
     /// Whether a pose at or after `stamp_ns` is still to come: there are poses and the newest is
     /// older. Without any pose (a fixed head, no pose stream) nothing is awaited.
+    /// A reading more than [`STALE_AFTER_NS`] past the newest pose awaits nothing: the stream
+    /// stopped, and waiting would only slow every reading down.
     pub fn awaits(&self, stamp_ns: u64) -> bool {
-        self.poses.back().is_some_and(|p| p.stamp_ns < stamp_ns)
+        self.poses
+            .back()
+            .is_some_and(|p| p.stamp_ns < stamp_ns && stamp_ns - p.stamp_ns <= STALE_AFTER_NS)
+    }
+
+    /// Notes that a reading stamped `stamp_ns` was placed: the poses only older readings need go.
+    pub fn placed(&mut self, stamp_ns: u64) {
+        self.placed_up_to = Some(self.placed_up_to.map_or(stamp_ns, |p| p.max(stamp_ns)));
+        self.trim();
+    }
+
+    /// Drops the poses no reading to come needs, and any beyond [`KEPT_POSES`].
+    fn trim(&mut self) {
+        let Some(newest) = self.poses.back().map(|p| p.stamp_ns) else {
+            return;
+        };
+        // A pose can go when the one after it is at or before every reading still to come.
+        let needed_from = self
+            .placed_up_to
+            .unwrap_or_else(|| newest.saturating_sub(KEPT_NS));
+        while self.poses.len() > 2
+            && (self.poses.len() > KEPT_POSES || self.poses[1].stamp_ns <= needed_from)
+        {
+            self.poses.pop_front();
+        }
     }
 
     /// Adds a pose; refuses a non-finite one or one older than the newest kept.
@@ -168,15 +205,7 @@ impl PoseTrack {
             self.note_interval(pose.stamp_ns - last.stamp_ns);
         }
         self.poses.push_back(pose);
-        let newest = pose.stamp_ns;
-        while self.poses.len() > KEPT_POSES
-            || self
-                .poses
-                .front()
-                .is_some_and(|p| newest - p.stamp_ns > KEPT_NS && self.poses.len() > 2)
-        {
-            self.poses.pop_front();
-        }
+        self.trim();
         Ok(())
     }
 
@@ -391,7 +420,9 @@ mod tests {
     #[test]
     fn memory_is_bounded_in_count_and_time() {
         let mut track = PoseTrack::new(Isometry2::identity());
-        for k in 0..2000 {
+        // A reading placed at the start keeps every pose after it, up to the cap.
+        track.placed(0);
+        for k in 0..(KEPT_POSES as u64 + 2000) {
             track.push(pose(k, k as f32, 0.0, 0.0)).unwrap();
         }
         assert_eq!(track.poses.len(), KEPT_POSES);
@@ -399,8 +430,58 @@ mod tests {
         for k in 0..20 {
             sparse.push(pose(k * 1000, k as f32, 0.0, 0.0)).unwrap();
         }
-        // 5 s kept: the poses of 14 s … 19 s.
+        // No reading placed yet: 5 s kept, the poses of 14 s … 19 s.
         assert_eq!(sparse.poses.len(), 6);
         assert_eq!(sparse.at(0).kind, PoseKind::Early);
+    }
+
+    /// A fusion that lags behind its readings (a loaded machine) still holds the poses of the
+    /// readings in its buffer, however many newer poses it takes meanwhile: where a reading lands
+    /// does not depend on how far behind the fusion runs.
+    #[test]
+    fn poses_are_kept_for_the_readings_still_to_place() {
+        let stream: Vec<Pose2D> = (0..4000u64)
+            .map(|k| pose(k, 0.001 * k as f32, 0.0, 0.0))
+            .collect();
+        let readings: Vec<u64> = (0..400u64).map(|k| (10 * k + 3) * MS / 2).collect();
+        let place_all = |lag: usize| {
+            let mut track = PoseTrack::new(Isometry2::identity());
+            let mut placed = Vec::new();
+            let mut next_pose = 0;
+            for &stamp in &readings {
+                // The poses taken before this reading run `lag` poses ahead of its stamp.
+                while next_pose < stream.len()
+                    && stream[next_pose].stamp_ns <= stamp + lag as u64 * MS
+                {
+                    track.push(stream[next_pose]).unwrap();
+                    next_pose += 1;
+                }
+                let at = track.at(stamp);
+                track.placed(stamp);
+                placed.push((at.pose.translation.x, at.kind));
+            }
+            placed
+        };
+        let prompt = place_all(1);
+        assert!(prompt.iter().all(|(_, k)| *k == PoseKind::Interpolated));
+        // 3 s behind: 3000 poses taken ahead of the reading, far more than the old cap of 512.
+        assert_eq!(place_all(3000), prompt);
+        // Poses before the latest reading's are dropped as readings are placed.
+        let mut track = PoseTrack::new(Isometry2::identity());
+        for p in &stream[..100] {
+            track.push(*p).unwrap();
+        }
+        track.placed(50 * MS + MS / 2);
+        assert_eq!(track.poses.front().map(|p| p.stamp_ns), Some(50 * MS));
+    }
+
+    #[test]
+    fn a_stopped_pose_stream_is_not_waited_for() {
+        let mut track = PoseTrack::new(Isometry2::identity());
+        assert!(!track.awaits(MS));
+        track.push(pose(1000, 0.0, 0.0, 0.0)).unwrap();
+        assert!(track.awaits(1001 * MS));
+        assert!(!track.awaits(1000 * MS));
+        assert!(!track.awaits(1000 * MS + STALE_AFTER_NS + 1));
     }
 }
