@@ -41,6 +41,45 @@ pub fn python() -> PathBuf {
     python
 }
 
+/// A busy thread that loads a core while it lives: a test that must hold on a loaded machine (CI's
+/// is one) runs its processes beside one. Stopped and joined when dropped.
+pub struct CpuHog {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    threads: Vec<std::thread::JoinHandle<()>>,
+}
+
+impl CpuHog {
+    /// One spinning thread: a core of CI's two taken from the test's processes, with the other
+    /// tests of its binary running beside it.
+    pub fn start() -> Self {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        let stop = std::sync::Arc::new(AtomicBool::new(false));
+        let threads = (0..1)
+            .map(|_| {
+                let stop = stop.clone();
+                std::thread::spawn(move || {
+                    let mut x = 0u64;
+                    while !stop.load(Ordering::Relaxed) {
+                        x = std::hint::black_box(
+                            x.wrapping_mul(6364136223846793005).wrapping_add(1),
+                        );
+                    }
+                })
+            })
+            .collect();
+        Self { stop, threads }
+    }
+}
+
+impl Drop for CpuHog {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+    }
+}
+
 /// Subscribers of `sonar/readings` now.
 pub fn readings_subscribers(node: &Node<Ipc>) -> usize {
     ipc::readings_service(node)
