@@ -43,6 +43,7 @@ pub fn python() -> PathBuf {
 
 /// A busy thread that loads a core while it lives: a test that must hold on a loaded machine (CI's
 /// is one) runs its processes beside one. Stopped and joined when dropped.
+#[derive(Debug)]
 pub struct CpuHog {
     stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
     threads: Vec<std::thread::JoinHandle<()>>,
