@@ -747,11 +747,16 @@ impl IpcArgs {
             })
         })?;
         let node_name = NodeName::new(name).map_err(|e| IpcError::new("node name", e))?;
-        NodeBuilder::new()
+        let node = NodeBuilder::new()
             .name(&node_name)
             .config(&cfg)
             .create::<ipc::Service>()
-            .map_err(|e| explained(IpcError::new(format!("create iceoryx2 node {name}"), e)))
+            .map_err(|e| explained(IpcError::new(format!("create iceoryx2 node {name}"), e)))?;
+        crate::namespace::secure(&cfg).map_err(|e| IpcError {
+            context: "make the iceoryx2 namespace owner-only".into(),
+            message: e.to_string(),
+        })?;
+        Ok(node)
     }
 }
 

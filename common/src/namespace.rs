@@ -106,6 +106,10 @@ pub const GLOBAL_MGMT_GRACE: Duration = Duration::from_secs(1);
 const UNFINISHED_RECORD_MODE: u32 = 0o600;
 /// A shared-memory object becomes readable by its owner only once it is initialised.
 const FINISHED_SHM_BIT: u32 = 0o400;
+/// Size of iceoryx2 0.10's finished node counter (`….node.0_10_0.global_mgmt`, the version is in
+/// its name): a finished counter of another size was truncated or written by someone else, and
+/// every node creation of the prefix would hang on it.
+const GLOBAL_MGMT_SIZE: u64 = 16;
 
 /// Why a namespace could not be made usable.
 #[derive(Debug, thiserror::Error)]
@@ -136,6 +140,13 @@ pub enum NamespaceError {
     },
     #[error("cannot list the iceoryx2 nodes of the namespace: {0:?}")]
     NodeList(iceoryx2::node::NodeListFailure),
+    #[error(
+        "{} belongs to uid {owner}, not to this user (uid {me}): another user's processes share \
+         this iceoryx2 namespace. Run as that user, or give this pipeline a prefix and root of its \
+         own (--iox-prefix, --iox-root, the same for every process)",
+        file.display()
+    )]
+    Foreign { file: PathBuf, owner: u32, me: u32 },
 }
 
 /// Makes the namespace of `cfg` usable: removes what killed processes left half-created or
@@ -224,6 +235,56 @@ fn remove_stale(path: &StdPath, why: &str) -> Result<(), NamespaceError> {
         Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(()),
         Err(e) => Err(io_error("remove", path)(e)),
     }
+}
+
+/// A finished node counter must be this user's and of its size: iceoryx2 makes it writable by
+/// everyone (0666), so another local user could truncate it, and every later node creation of
+/// the prefix would hang. A foreign counter is refused with the fix; one of the wrong size is
+/// removed (the next node creates it anew); an open one is made owner-only.
+fn check_counter(path: &StdPath) -> Result<(), NamespaceError> {
+    use std::os::unix::fs::MetadataExt;
+    let meta = match fs::metadata(path) {
+        Ok(meta) => meta,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(io_error("inspect", path)(e)),
+    };
+    let me = nix::unistd::geteuid().as_raw();
+    if meta.uid() != me {
+        return Err(NamespaceError::Foreign {
+            file: path.to_owned(),
+            owner: meta.uid(),
+            me,
+        });
+    }
+    if meta.len() != GLOBAL_MGMT_SIZE {
+        return remove_stale(
+            path,
+            &format!(
+                "node counter of {} bytes instead of {GLOBAL_MGMT_SIZE}: truncated or not iceoryx2's",
+                meta.len()
+            ),
+        );
+    }
+    let mode = meta.permissions().mode() & 0o777;
+    if mode & 0o077 != 0 {
+        fs::set_permissions(path, fs::Permissions::from_mode(mode & 0o700))
+            .map_err(io_error("make owner-only", path))?;
+        debug!("{} made owner-only (was {mode:04o})", path.display());
+    }
+    Ok(())
+}
+
+/// After this process's node is created: its prefix's node counter, which iceoryx2 has just made
+/// writable by everyone, made owner-only ([`check_counter`]).
+pub fn secure(cfg: &Config) -> Result<(), NamespaceError> {
+    let ns = Namespace::new(cfg);
+    let counter = cfg.global.node.global_mgmt_suffix.as_bytes();
+    for (path, name, mode) in ns.shared_memory()? {
+        if mode & FINISHED_SHM_BIT != 0 && name.ends_with(counter) {
+            check_counter(&path)?;
+        }
+    }
+    Ok(())
 }
 
 /// An iceoryx2 id written in decimal, as in file names.
@@ -323,7 +384,8 @@ impl<'a> Namespace<'a> {
     fn lock(&self, start: Instant) -> Result<Flock<File>, NamespaceError> {
         fs::DirBuilder::new()
             .recursive(true)
-            .mode(0o750) // what iceoryx2 gives the directories it creates
+            // Owner-only: everything of the namespace below it is this user's alone.
+            .mode(0o700)
             .create(&self.root)
             .map_err(io_error("create", &self.root))?;
         let mut dir = File::open(&self.root).map_err(io_error("open", &self.root))?;
@@ -384,6 +446,9 @@ impl<'a> Namespace<'a> {
         let counter = self.cfg.global.node.global_mgmt_suffix.as_bytes();
         for (path, name, mode) in self.shared_memory()? {
             if mode & FINISHED_SHM_BIT != 0 {
+                if name.ends_with(counter) {
+                    check_counter(&path)?;
+                }
                 continue;
             }
             if name.ends_with(counter) {
@@ -758,6 +823,54 @@ mod tests {
 
     fn now() -> Duration {
         clock_gettime(ClockId::CLOCK_MONOTONIC).map_or(Duration::ZERO, Duration::from)
+    }
+
+    /// A namespace of this test's own (prefix and root), and the path of its node counter.
+    fn counter_namespace(test: &str) -> (Config, PathBuf) {
+        let mut cfg = Config::default();
+        let prefix = format!("sonar_u{}_{test}_", std::process::id());
+        cfg.global.prefix = FileName::new(prefix.as_bytes()).unwrap();
+        let root = std::env::temp_dir().join(format!("{prefix}root/"));
+        cfg.global
+            .set_root_path(&Path::new(root.as_os_str().as_bytes()).unwrap());
+        let suffix = cfg.global.node.global_mgmt_suffix;
+        let name = [prefix.as_bytes(), b"9204dd_node.0_10_0", suffix.as_bytes()].concat();
+        let counter = StdPath::new(SHM_DIR).join(OsStr::from_bytes(&name));
+        (cfg, counter)
+    }
+
+    #[test]
+    fn a_node_counter_open_to_everyone_is_made_owner_only_and_a_truncated_one_removed() {
+        let (cfg, counter) = counter_namespace("counter");
+        fs::write(&counter, [0u8; GLOBAL_MGMT_SIZE as usize]).unwrap();
+        fs::set_permissions(&counter, fs::Permissions::from_mode(0o666)).unwrap();
+        secure(&cfg).unwrap();
+        let mode = fs::metadata(&counter).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode, 0o600);
+
+        // Truncated by somebody: removed by the next start's recovery instead of hanging it.
+        fs::write(&counter, []).unwrap();
+        fs::set_permissions(&counter, fs::Permissions::from_mode(0o666)).unwrap();
+        recover(&cfg).unwrap();
+        assert!(!counter.exists());
+
+        // Another user's: refused with the fix (needs root to make a file another user's).
+        if nix::unistd::geteuid().is_root() {
+            fs::write(&counter, [0u8; GLOBAL_MGMT_SIZE as usize]).unwrap();
+            fs::set_permissions(&counter, fs::Permissions::from_mode(0o666)).unwrap();
+            nix::unistd::chown(&counter, Some(nix::unistd::Uid::from_raw(65534)), None).unwrap();
+            let err = recover(&cfg).unwrap_err();
+            assert!(
+                matches!(err, NamespaceError::Foreign { owner: 65534, .. }),
+                "{err}"
+            );
+            assert!(err.to_string().contains("--iox-prefix"), "{err}");
+            fs::remove_file(&counter).unwrap();
+        }
+        let root = to_path(cfg.global.root_path());
+        let mode = fs::metadata(&root).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode, 0o700, "the root is its owner's only");
+        let _ = fs::remove_dir_all(root);
     }
 
     #[test]

@@ -71,7 +71,7 @@ const POSE_POLL: Duration = Duration::from_millis(1);
 /// The map is saved to --state-file every --save-period seconds while it changes, and when the
 /// process is stopped (SIGINT, SIGTERM); at start it is restored if it was saved with exactly
 /// the same settings (grid, model, rule and all their parameters). Otherwise the fusion starts
-/// empty, says why, and keeps the refused file as <state-file>.bad (start with that file and its
+/// empty, says why, and keeps the refused file as <state-file>.bad (.bad.1, … when that exists; start with that file and its
 /// settings to get that map back; a map saved after a model, rule or preset switch carries the
 /// switched settings). A crash, power cut or kill -9 loses at most the readings of the last save
 /// period (and of a save still being written), never the previous save.

@@ -47,7 +47,8 @@
 //! [`restore`] reads the file and takes it only if everything holds: the magic, the version, the
 //! lengths, the checksum, settings equal to the process's own, a payload that fits them. Otherwise
 //! the engine starts empty and the reason is returned (the process logs it at WARN), and the file
-//! is renamed to `<name>.bad`: the next save would overwrite it, and a map saved under other
+//! is renamed to `<name>.bad` (`<name>.bad.1`, … when that exists: an earlier refused map is never
+//! overwritten): the next save would overwrite it, and a map saved under other
 //! settings may still be wanted (start the fusion with those settings and that file to get it
 //! back). A state file never stops the process from starting.
 //!
@@ -61,6 +62,7 @@
 
 use std::fs::{self, File};
 use std::io::{self, BufWriter, Read, Write};
+use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{self, Receiver, SyncSender, TryRecvError};
 use std::thread::JoinHandle;
@@ -320,7 +322,14 @@ pub fn write_atomic<E: From<io::Error>>(
     fs::create_dir_all(dir)?;
     let tmp = temporary_path(path);
     let result = (|| {
-        let mut file = File::create(&tmp)?;
+        // Owner-only: the map shows the robot's surroundings, and nobody else's process should
+        // read or replace it.
+        let mut file = fs::OpenOptions::new()
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .mode(0o600)
+            .open(&tmp)?;
         write(&mut file)?;
         file.sync_all()?;
         drop(file);
@@ -349,6 +358,29 @@ pub fn temporary_path(path: &Path) -> PathBuf {
 /// Where a refused state file is kept.
 pub fn quarantine_path(path: &Path) -> PathBuf {
     with_suffix(path, ".bad")
+}
+
+/// Moves a refused state file aside to the first free name of `<name>.bad`, `<name>.bad.1`, …:
+/// never over an earlier refused map, which may be the one a user still wants back. The file is
+/// linked to its new name (which fails rather than replace an existing one), then unlinked.
+pub fn quarantine(path: &Path) -> io::Result<PathBuf> {
+    let first = quarantine_path(path);
+    for n in 0u32.. {
+        let candidate = if n == 0 {
+            first.clone()
+        } else {
+            with_suffix(&first, &format!(".{n}"))
+        };
+        match fs::hard_link(path, &candidate) {
+            Ok(()) => {
+                fs::remove_file(path)?;
+                return Ok(candidate);
+            }
+            Err(e) if e.kind() == io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(e),
+        }
+    }
+    Err(io::Error::other("no free name for the refused state file"))
 }
 
 /// Saves `map` to `path` atomically ([`write_atomic`]).
@@ -461,8 +493,7 @@ pub fn restore(
         Ok(Some(engine)) => Ok((engine, Restore::Restored)),
         Ok(None) => Ok((Engine::new(config, history_limit)?, Restore::NoFile)),
         Err(reason) => {
-            let bad = quarantine_path(path);
-            let kept_as = fs::rename(path, &bad).map(|()| bad);
+            let kept_as = quarantine(path);
             let engine = Engine::new(config, history_limit)?;
             Ok((engine, Restore::Refused { reason, kept_as }))
         }
@@ -813,6 +844,9 @@ mod tests {
         let path = dir.file("map.bin");
         let saved = small(RuleKind::LogOdds);
         write(&path, &engine_with_readings(saved).capture()).unwrap();
+        use std::os::unix::fs::PermissionsExt;
+        let mode = fs::metadata(&path).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode, 0o600, "the state file is its owner's only: {mode:o}");
         let now = FusionConfig {
             grid: GridConfig {
                 cells: 32,
@@ -876,6 +910,17 @@ mod tests {
             fs::read(dir.file("map.bin.bad")).unwrap(),
             b"hello, world\n"
         );
+        // A second refused file keeps the first refused one.
+        fs::write(&path, b"second\n").unwrap();
+        let (_, outcome) = restore(&path, config, 10).unwrap();
+        assert!(
+            matches!(outcome, Restore::Refused { kept_as: Ok(ref p), .. } if *p == dir.file("map.bin.bad.1"))
+        );
+        assert_eq!(
+            fs::read(dir.file("map.bin.bad")).unwrap(),
+            b"hello, world\n"
+        );
+        assert_eq!(fs::read(dir.file("map.bin.bad.1")).unwrap(), b"second\n");
 
         // Torn and bit-rotted files on disk, each refused for what it is.
         let good = bytes_of(&engine_with_readings(config).capture());

@@ -12,6 +12,7 @@ mod terminal;
 use std::collections::VecDeque;
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
+use std::os::unix::fs::{DirBuilderExt, OpenOptionsExt, PermissionsExt};
 use std::os::unix::process::{CommandExt, ExitStatusExt};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitCode, ExitStatus, Stdio};
@@ -175,7 +176,11 @@ fn run(args: Args) -> Result<ExitCode> {
         .clone()
         .or(file.launcher.log_dir.clone())
         .unwrap_or_else(sonar_common::state_dir);
-    std::fs::create_dir_all(&log_dir)
+    // Owner-only, like the logs in it: they name the robot's surroundings and commands.
+    std::fs::DirBuilder::new()
+        .recursive(true)
+        .mode(0o700)
+        .create(&log_dir)
         .with_context(|| format!("cannot create log directory {}", log_dir.display()))?;
     let with_viewer = file.viewer.enabled && !args.no_viewer;
     init_logging(&log_dir, with_viewer)?;
@@ -223,12 +228,17 @@ fn init_logging(log_dir: &Path, to_file: bool) -> Result<()> {
     Ok(())
 }
 
+/// A log file opened for appending, its owner's only (0600, also when an older one was wider).
 fn append(path: &Path) -> Result<File> {
-    File::options()
+    let file = File::options()
         .create(true)
         .append(true)
+        .mode(0o600)
         .open(path)
-        .with_context(|| format!("cannot open log file {}", path.display()))
+        .with_context(|| format!("cannot open log file {}", path.display()))?;
+    file.set_permissions(std::fs::Permissions::from_mode(0o600))
+        .with_context(|| format!("cannot make log file {} owner-only", path.display()))?;
+    Ok(file)
 }
 
 impl Pipeline {

@@ -66,6 +66,13 @@ fn the_launcher_restarts_a_dead_process_and_stops_everything_cleanly() {
     assert!(left.is_empty(), "stale shared memory: {left:?}");
     let driver_log = std::fs::read_to_string(logs.join("sonar-driver.log")).unwrap();
     assert!(driver_log.contains("handshake done"), "{driver_log}");
+    // The logs are their owner's only.
+    use std::os::unix::fs::PermissionsExt;
+    let mode = |p: &std::path::Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode(&logs), 0o700);
+    for name in ["sonar-driver.log", "sonar-fusion.log", "sonar-sim.log"] {
+        assert_eq!(mode(&logs.join(name)), 0o600, "{name}");
+    }
 }
 
 #[test]
