@@ -9,8 +9,8 @@
 //!
 //! Two things keep what it does from being lost unnoticed:
 //!
-//! - **The map is saved** (`sonar_fusion::persist`): every `--save-period` while it changes, and
-//!   at SIGINT/SIGTERM, to `--state-file`, and restored at start if it was saved with the same
+//! - **The map is saved** (`sonar_fusion::persist`): at its first change, then every
+//!   `--save-period` while it changes, and at SIGINT/SIGTERM, to `--state-file`, and restored at start if it was saved with the same
 //!   settings. The readings loop only copies the state; a saver thread encodes, writes and fsyncs
 //!   it, so a save holds fusion up for a memory copy, not for the disk.
 //! - **Losses are counted** (`sonar_fusion::status`): gaps in the readings' sequence numbers (a
@@ -68,11 +68,11 @@ const POSE_POLL: Duration = Duration::from_millis(1);
 /// Settings come from the `[fusion]` table of --config, then from the flags below; --preset
 /// replaces model, rule and no-echo handling, and --model/--rule/--clear-on-no-echo refine it.
 ///
-/// The map is saved to --state-file every --save-period seconds while it changes, and when the
-/// process is stopped (SIGINT, SIGTERM); at start it is restored if it was saved with exactly
-/// the same settings (grid, model, rule and all their parameters). Otherwise the fusion starts
-/// empty, says why, and keeps the refused file as <state-file>.bad (.bad.1, … when that exists; start with that file and its
-/// settings to get that map back; a map saved after a model, rule or preset switch carries the
+/// The map is saved to --state-file as soon as it first changes, then every --save-period seconds
+/// while it changes, and when the process is stopped (SIGINT, SIGTERM); at start it is restored
+/// if it was saved with exactly the same settings (grid, model, rule and all their parameters).
+/// Otherwise the fusion starts empty, says why, and keeps the refused file as <state-file>.bad
+/// (.bad.1, … when that exists; start with that file and its settings to get that map back; a map saved after a model, rule or preset switch carries the
 /// switched settings). A crash, power cut or kill -9 loses at most the readings of the last save
 /// period (and of a save still being written), never the previous save.
 ///
@@ -498,7 +498,9 @@ impl Saving {
         Ok(Self {
             saver: Saver::spawn(path).context("cannot start the map saver thread")?,
             period,
-            next: Instant::now() + period,
+            // The first save is due as soon as the map changes: a kill before the first period
+            // is over would otherwise lose every reading since the start.
+            next: Instant::now(),
             saved_revision: engine.revision(),
             pending_revision: None,
             // The copy is allocated now, at start, and reused by every save: a fresh copy of a

@@ -173,6 +173,48 @@ fn the_map_survives_kill_9_of_the_fusion_and_is_restored_cell_for_cell() {
     assert!(left.is_empty(), "stale shared memory: {left:?}");
 }
 
+/// A fusion killed long before its first save period is over still restores what it had fused:
+/// the first save follows the first change of the map (before, a kill within 5 s of the start
+/// persisted nothing; issue 24).
+#[test]
+fn the_first_readings_are_saved_at_once_not_a_save_period_later() {
+    let sandbox = Sandbox::new("firstsave");
+    let state_file = sandbox.state.join("fusion-map.bin");
+    // The test is the driver.
+    let node = sandbox.node("test-driver");
+    let (readings, wake) = driver_ports(&node);
+    let status = fusion_status_subscriber(&node);
+    // An hour between saves: only the first save can put the readings in the file.
+    let fusion_args = [
+        "--state-file",
+        path_str(&state_file),
+        "--save-period",
+        "3600",
+    ];
+    let fusion = sandbox.spawn("sonar-fusion", &fusion_args);
+    let first = fusion_status(&node, &status);
+    assert_eq!(first.saves, 0);
+    readings.update_connections().unwrap();
+    for seq in 0..3 {
+        readings.send_copy(reading(seq)).unwrap();
+    }
+    wake.notify().unwrap();
+    let saved = wait_for_status(&node, &status, |s| {
+        s.saves >= 1 && s.saved_readings_fused >= 1
+    });
+    assert!(!fusion.kill9().success());
+    while status.receive().unwrap().is_some() {}
+
+    let fusion = sandbox.spawn("sonar-fusion", &fusion_args);
+    let after = wait_for_status(&node, &status, |s| s.stamp_ns > saved.stamp_ns);
+    assert_eq!(after.restored, 1, "{after:?}");
+    assert!(
+        after.readings_fused >= saved.saved_readings_fused,
+        "{after:?}"
+    );
+    assert!(fusion.terminate().success());
+}
+
 fn reading(seq: u64) -> Reading {
     Reading {
         seq,
