@@ -7,12 +7,21 @@
 #   scripts/demo.sh                                   # the small square room, real time
 #   scripts/demo.sh --scene obstacle --scan=-45..45 --speed 5
 #   scripts/demo.sh --preset paper                    # the paper's method exactly as written
+#   scripts/demo.sh --config examples/corridor.toml   # another configuration instead of sonar.toml
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if ! command -v cargo >/dev/null; then
   echo "cargo not found: install Rust first (https://rustup.rs), then run this again" >&2
   exit 1
 fi
-echo "building (release; the first build takes a few minutes)…" >&2
-cargo build --release --workspace --bins --quiet
-exec target/release/sonar-pipeline --config examples/sonar.toml "$@"
+echo "building (release; the first build takes a few minutes, longer on a small machine)…" >&2
+# cargo's own progress, so a long first build is seen to move.
+cargo build --release --workspace --bins
+# examples/sonar.toml unless the flags name a configuration of their own.
+config=(--config examples/sonar.toml)
+for arg in "$@"; do
+  case "$arg" in
+    --config | --config=*) config=() ;;
+  esac
+done
+exec target/release/sonar-pipeline "${config[@]}" "$@"
