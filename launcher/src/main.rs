@@ -80,6 +80,10 @@ struct Args {
     /// viewer show it, --speed sets the pace. Without the viewer the pipeline stops at its end.
     #[arg(long, value_name = "FILE", conflicts_with_all = ["scene", "seed", "scan"])]
     replay: Option<PathBuf>,
+    /// With --replay: accept a recording that ends early (its recorder was killed) and replay
+    /// what it holds.
+    #[arg(long, requires = "replay")]
+    allow_truncated: bool,
     /// Simulator scene: room, corner, obstacle, two-obstacles, corridor, room-tour, or a scene
     /// file [default: [simulator] scene of --config, else room].
     #[arg(long, env = "SONAR_SCENE")]
@@ -280,6 +284,9 @@ impl Pipeline {
                 "--no-progress".to_owned(),
             ];
             push_opt(&mut replay, "--speed", args.speed.clone());
+            if args.allow_truncated {
+                replay.push("--allow-truncated".to_owned());
+            }
             processes.push(Process::new("sonar-replay", replay, false).until_done());
             None
         } else {
@@ -811,5 +818,13 @@ mod tests {
         let err = parse(&["--replay", "run.mcap", "--scene", "room"]).unwrap_err();
         assert!(err.to_string().contains("cannot be used with"), "{err}");
         assert!(parse(&["--replay", "run.mcap", "--port", "/dev/ttyUSB0"]).is_err());
+        // A truncated recording's error names --allow-truncated: the pipeline takes it for its
+        // replay, and only with one.
+        assert!(
+            parse(&["--replay", "run.mcap", "--allow-truncated"])
+                .unwrap()
+                .allow_truncated
+        );
+        assert!(parse(&["--allow-truncated"]).is_err());
     }
 }

@@ -69,7 +69,7 @@ struct Args {
     scene: String,
     /// Simulated time per wall time: a factor (1 = real time, 20 = twenty times faster) or `max`
     /// (never sleep; runs as fast as the host reads).
-    #[arg(long, default_value = "1")]
+    #[arg(long, default_value = "1", allow_hyphen_values = true)]
     speed: Speed,
     /// Seed of the ranging noise and of the odometry's; the same seed and commands give the same
     /// readings and poses.

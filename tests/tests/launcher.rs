@@ -142,6 +142,9 @@ fn a_scan_outside_the_limits_stops_the_pipeline_and_errors_quote_their_own_run_o
 
     let stderr = run(&["--speed", "abc"]);
     assert!(stderr.contains("is not a speed"), "{stderr}");
+    // A negative speed too: the simulator takes it as a value and says what a speed is.
+    let stderr = run(&["--speed", "-5"]);
+    assert!(stderr.contains("\"-5\" is not a speed"), "{stderr}");
     assert!(
         !stderr.contains("limit switches"),
         "an earlier run's error: {stderr}"

@@ -43,7 +43,7 @@ struct Args {
     file: PathBuf,
     /// `1` real time (from the readings' recorded host_stamp_ns), a factor such as `10` or `0.5`,
     /// or `max`.
-    #[arg(long, default_value = "1")]
+    #[arg(long, default_value = "1", allow_hyphen_values = true)]
     speed: Speed,
     /// Never publish more than this many messages (readings, commands, poses) per second, after a
     /// burst of 32 (0: no ceiling). Keeps a consumer's buffer of 256 from overflowing at high
