@@ -676,10 +676,27 @@ pub struct IpcError {
 }
 
 impl IpcError {
+    /// The error of `context`; iceoryx2's "too many ports" errors are explained, since the usual
+    /// cause is a second pipeline started on the namespace of a running one.
     pub fn new(context: impl Into<String>, err: impl std::fmt::Debug) -> Self {
+        let mut message = format!("{err:?}");
+        if let Some(ports) = [
+            ("ExceedsMaxSupportedPublishers", "publishers"),
+            ("ExceedsMaxSupportedSubscribers", "subscribers"),
+        ]
+        .iter()
+        .find_map(|(name, ports)| message.contains(name).then_some(ports))
+        {
+            message.push_str(&format!(
+                ": the service already has all the {ports} it allows. Is a pipeline (or another \
+                 copy of this program) already running on this iceoryx2 namespace? `sonar \
+                 services` lists who is attached; stop it, or give this pipeline a namespace of \
+                 its own with --iox-prefix (and --iox-root), the same for each of its processes"
+            ));
+        }
         Self {
             context: context.into(),
-            message: format!("{err:?}"),
+            message,
         }
     }
 }

@@ -375,3 +375,21 @@ fn an_overloaded_fusion_keeps_fusing_within_its_snapshot_rate_and_counts_the_los
     let left = sandbox.stale_shm_files();
     assert!(left.is_empty(), "stale shared memory: {left:?}");
 }
+
+/// A second fusion on the namespace of a running one is refused with what to do, not with
+/// iceoryx2's bare `ExceedsMaxSupportedPublishers` (issue 28).
+#[test]
+fn a_second_fusion_on_a_running_namespace_says_so_and_how_to_pick_another() {
+    let sandbox = Sandbox::new("second");
+    let node = sandbox.node("test-second");
+    let status = fusion_status_subscriber(&node);
+    let fusion = sandbox.spawn("sonar-fusion", &["--no-persist"]);
+    fusion_status(&node, &status);
+    let second = sandbox.run("sonar-fusion", &["--no-persist"]);
+    let stderr = String::from_utf8_lossy(&second.stderr);
+    assert!(!second.status.success(), "{stderr}");
+    assert!(stderr.contains("ExceedsMaxSupportedPublishers"), "{stderr}");
+    assert!(stderr.contains("already running"), "{stderr}");
+    assert!(stderr.contains("--iox-prefix"), "{stderr}");
+    assert!(fusion.terminate().success());
+}
