@@ -798,12 +798,14 @@ pub fn readings_service(node: &Node<ipc::Service>) -> Result<PubSub<Reading>, Ip
         .map_err(|e| IpcError::new(format!("open {READINGS_SERVICE}"), e))
 }
 
-/// `sonar/commands`: many writers (viewer, scripts), one reader (the driver).
+/// `sonar/commands`: many writers (viewer, scripts), one reader that acts (the driver) and
+/// readers that record (recorders, a bridge). Room for 7 of those beside the driver, so recorders
+/// started first never leave the driver without a place (two did, and the driver exited).
 pub fn commands_service(node: &Node<ipc::Service>) -> Result<PubSub<ScanCommand>, IpcError> {
     node.service_builder(&service_name(COMMANDS_SERVICE)?)
         .publish_subscribe::<ScanCommand>()
         .max_publishers(8)
-        .max_subscribers(2)
+        .max_subscribers(8)
         .subscriber_max_buffer_size(16)
         .history_size(0)
         .open_or_create()
@@ -887,7 +889,7 @@ pub fn fusion_commands_service(
     node.service_builder(&service_name(FUSION_COMMANDS_SERVICE)?)
         .publish_subscribe::<FusionCommand>()
         .max_publishers(8)
-        .max_subscribers(2)
+        .max_subscribers(8)
         .subscriber_max_buffer_size(16)
         .history_size(0)
         .open_or_create()

@@ -535,3 +535,33 @@ fn assert_same_cells(live: &[u8], replayed: &[u8], context: &str) {
         "cells differ between the live and the replayed map {context}"
     );
 }
+
+/// Recorders started before the head leave the driver and the fusion their places on the command
+/// services: with two places, two early recorders made the driver exit (issue 28).
+#[test]
+fn recorders_started_first_never_keep_the_driver_or_the_fusion_out() {
+    let sandbox = Sandbox::new("rec_early");
+    let node = sandbox.node("test-early");
+    let commands = ipc::commands_service(&node).unwrap();
+    let fusion_commands = ipc::fusion_commands_service(&node).unwrap();
+    let recorders: Vec<_> = (0..3)
+        .map(|k| {
+            let file = sandbox.root.join(format!("early{k}.mcap"));
+            sandbox.spawn("sonar-record", &[path_str(&file)])
+        })
+        .collect();
+    wait_until(&node, "the recorders' subscriptions", || {
+        commands.dynamic_config().number_of_subscribers() >= 3
+            && fusion_commands.dynamic_config().number_of_subscribers() >= 3
+    });
+    let readings = readings_subscriber(&node);
+    let fusion = sandbox.spawn("sonar-fusion", &["--no-persist"]);
+    let (sim, pty) = sandbox.spawn_sim(&["--speed", "20"]);
+    let driver = sandbox.spawn("sonar-driver", &["--port", &pty]);
+    // The driver runs (it subscribes to sonar/commands before it publishes a reading).
+    collect_until(&node, || receive_reading(&readings), |got| got.len() >= 10);
+    assert_eq!(fusion_commands.dynamic_config().number_of_subscribers(), 4);
+    for p in [driver, fusion, sim].into_iter().chain(recorders) {
+        assert!(p.terminate().success());
+    }
+}
