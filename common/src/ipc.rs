@@ -744,6 +744,19 @@ impl IpcArgs {
         Ok(cfg)
     }
 
+    /// Where this process looks for the pipeline, for messages that must say it: `iceoryx2
+    /// prefix "iox2_", root /tmp/iceoryx2/`.
+    pub fn describe(&self) -> String {
+        match self.config() {
+            Ok(cfg) => format!(
+                "iceoryx2 prefix {:?}, root {}",
+                String::from_utf8_lossy(cfg.global.prefix.as_bytes()),
+                String::from_utf8_lossy(cfg.global.root_path().as_bytes())
+            ),
+            Err(e) => format!("an iceoryx2 namespace that cannot be read ({e:?})"),
+        }
+    }
+
     /// Creates this process's node. First removes what processes of the namespace killed at the
     /// wrong moment left behind, which would otherwise make creating the node or opening a service
     /// hang or fail (see [`crate::namespace`]); then iceoryx2 finds no dead node left to clean.

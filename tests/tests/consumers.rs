@@ -707,3 +707,34 @@ fn the_sonar_command_lists_services_echoes_readings_and_measures_a_rate() {
         .unwrap_or_else(|| panic!("no rate in {hz:?}"));
     assert!(rate > 0.0, "{hz}");
 }
+
+/// With no pipeline on its namespace, `sonar-export` says where it looks and what to check while
+/// it waits, and `--timeout` ends the wait with the same (issue 28: it waited for ever after one
+/// line).
+#[test]
+fn sonar_export_without_a_pipeline_names_its_namespace_and_gives_up_at_its_timeout() {
+    let sandbox = Sandbox::new("export_alone");
+    let out = sandbox.run(
+        "sonar-export",
+        &[
+            "--out",
+            sandbox.root.join("none").to_str().unwrap(),
+            "--timeout",
+            "5",
+        ],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("still waiting: nothing publishes sonar/grid"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains(&format!("{:?}", sandbox.prefix)),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("no suitable map within --timeout"),
+        "{stderr}"
+    );
+}

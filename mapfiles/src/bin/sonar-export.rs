@@ -40,6 +40,10 @@ use tracing::{debug, info, warn};
 /// Readings the offline engine keeps for re-fusing on a recorded preset/model/rule switch; the
 /// same as `sonar-fusion --history`'s default, so both build the same map.
 const OFFLINE_HISTORY: usize = 20_000;
+/// How long the live wait is quiet before it says that no fusion publishes a map, and how often
+/// it says it again.
+const NO_FUSION_HINT_AFTER: Duration = Duration::from_secs(3);
+const NO_FUSION_HINT_EVERY: Duration = Duration::from_secs(10);
 /// How often the live wait looks at the clock (for --timeout) and for a missed wake-up.
 const TICK: Duration = Duration::from_millis(500);
 
@@ -116,7 +120,8 @@ struct Args {
         conflicts_with = "from_recording"
     )]
     sweeps: u32,
-    /// Live: give up (exit status 1) if no suitable map arrived within this many seconds.
+    /// Live: give up (exit status 1) if no suitable map arrived within this many seconds
+    /// [default: wait until one comes, saying every 10 s when no fusion publishes maps].
     #[arg(long, value_name = "SECONDS", conflicts_with = "from_recording")]
     timeout: Option<f64>,
     /// Offline: fuse the readings of this recording (sonar-record's MCAP file) instead.
@@ -410,13 +415,17 @@ fn live(args: &Args, features: LiveFeatures) -> Result<Option<Snapshot>> {
     let deadline = args
         .timeout
         .map(|t| Instant::now() + Duration::from_secs_f64(t));
+    let namespace = args.ipc.describe();
     info!(
         wait_readings = args.wait_readings,
         sweeps = args.sweeps,
         with_features,
-        "waiting for a map on {}",
+        "waiting for a map on {} ({namespace})",
         ipc::GRID_SERVICE
     );
+    let grid_service = ipc::grid_service(&node)?;
+    let started = Instant::now();
+    let mut last_hint: Option<Instant> = None;
     let mut seen = 0u64;
     // A copy of the previous snapshot, which may turn out to be the end of the last wanted sweep.
     let mut previous: Option<Grid> = None;
@@ -494,14 +503,30 @@ fn live(args: &Args, features: LiveFeatures) -> Result<Option<Snapshot>> {
                 features: latest_features,
             }));
         }
+        // Nothing publishes the map: most likely no pipeline runs on this namespace. Said after a
+        // few seconds and then every so often, so a wait that will never end does not look hung.
+        let now = Instant::now();
+        if map.is_none()
+            && grid_service.dynamic_config().number_of_publishers() == 0
+            && now.duration_since(started) >= NO_FUSION_HINT_AFTER
+            && last_hint.is_none_or(|t| now.duration_since(t) >= NO_FUSION_HINT_EVERY)
+        {
+            last_hint = Some(now);
+            warn!(
+                "still waiting: nothing publishes {} on {namespace}. Is sonar-fusion running, \
+                 with the same --iox-prefix and --iox-root as this command (`sonar services` \
+                 lists what runs there)? --timeout gives up after a while",
+                ipc::GRID_SERVICE
+            );
+        }
         if let Some(deadline) = deadline
             && Instant::now() >= deadline
         {
             if map.is_none() {
                 bail!(
-                    "no suitable map within --timeout ({seen} snapshots seen on {}): is \
-                     sonar-fusion running with the same --iox-prefix/--iox-root, and the sensor \
-                     scanning?",
+                    "no suitable map within --timeout ({seen} snapshots seen on {} on \
+                     {namespace}): is sonar-fusion running with the same --iox-prefix/--iox-root, \
+                     and the sensor scanning?",
                     ipc::GRID_SERVICE
                 );
             }
