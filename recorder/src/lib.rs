@@ -11,6 +11,7 @@
 
 pub mod format;
 pub mod pace;
+pub mod ros2_bag;
 pub mod well_known;
 
 pub use format::{
@@ -18,4 +19,5 @@ pub use format::{
     RecordingWriter, Topic, read, read_file,
 };
 pub use pace::{Pacer, Speed};
+pub use ros2_bag::Ros2Bag;
 pub use well_known::WellKnownChannels;

@@ -1,7 +1,7 @@
-//! The well-known channels of an MCAP file: Foxglove's (and, with `ros2`, ROS 2's) messages of the
-//! map, the sweeps, the sensor's pose and the features, declared on a [`RecordingWriter`] and fed
-//! with the pipeline's own messages and map snapshots (`sonar_wellknown` converts;
-//! `docs/foxglove.md`). One writer for every producer: `sonar-record` feeds it what it records,
+//! The well-known channels of an MCAP file: Foxglove's messages of the map, the sweeps, the
+//! sensor's pose and the features, declared on a [`RecordingWriter`], and with a [`Ros2Bag`] ROS
+//! 2's (`/map`, `/scan`, `/tf`) in that bag of their own; fed with the pipeline's own messages and
+//! map snapshots (`sonar_wellknown` converts; `docs/foxglove.md`). One writer for every producer: `sonar-record` feeds it what it records,
 //! `sonar-export --mcap` a recording's messages with the maps it fuses from them, or a live
 //! snapshot.
 
@@ -14,39 +14,66 @@ pub use sonar_wellknown::Options;
 use sonar_wellknown::{Channel, Output, WellKnown};
 
 use crate::format::{ExtraChannel, FormatError, Message, RecordingWriter};
+use crate::ros2_bag::{BagChannel, Ros2Bag};
+
+/// Where a well-known channel is written.
+#[derive(Debug)]
+enum Target {
+    /// Foxglove's: beside the recording's own channels.
+    Recording(ExtraChannel),
+    /// ROS 2's: in the bag.
+    Bag(BagChannel),
+}
 
 /// The converter and the channels it writes on.
 #[derive(Debug)]
 pub struct WellKnownChannels {
     converter: WellKnown,
-    channels: BTreeMap<Channel, ExtraChannel>,
+    channels: BTreeMap<Channel, Target>,
+    bag: Option<Ros2Bag>,
     written: u64,
 }
 
 impl WellKnownChannels {
-    /// Declares the channels `options` ask for on `writer`.
+    /// Declares Foxglove's channels on `writer` and, with `bag`, ROS 2's in it (`options.ros2`
+    /// follows whether there is a bag).
     pub fn declare<W: Write + Seek>(
         writer: &mut RecordingWriter<W>,
         options: Options,
+        mut bag: Option<Ros2Bag>,
     ) -> Result<Self, FormatError> {
-        let converter = WellKnown::new(options);
+        let converter = WellKnown::new(Options {
+            ros2: bag.is_some(),
+            ..options
+        });
         let mut channels = BTreeMap::new();
         for channel in converter.channels() {
             let spec = channel.spec();
-            let extra = writer.add_channel(
-                spec.topic,
-                &spec.schema_name,
-                &spec.schema_encoding,
-                &spec.schema,
-                &spec.message_encoding,
-            )?;
-            channels.insert(channel, extra);
+            let target = match bag.as_mut() {
+                Some(bag) if Channel::ROS2.contains(&channel) => {
+                    Target::Bag(bag.add_channel(spec.topic, &spec.schema_name, &spec.schema)?)
+                }
+                _ => Target::Recording(writer.add_channel(
+                    spec.topic,
+                    &spec.schema_name,
+                    &spec.schema_encoding,
+                    &spec.schema,
+                    &spec.message_encoding,
+                )?),
+            };
+            channels.insert(channel, target);
         }
         Ok(Self {
             converter,
             channels,
+            bag,
             written: 0,
         })
+    }
+
+    /// Closes the bag's current chunk, as the recording's writer does its own.
+    pub fn flush(&mut self) -> Result<(), FormatError> {
+        self.bag.as_mut().map_or(Ok(()), Ros2Bag::flush)
     }
 
     /// One of the pipeline's messages (readings, poses and features give something; commands
@@ -79,8 +106,8 @@ impl WellKnownChannels {
         self.write(writer, log_time_ns, outputs)
     }
 
-    /// The end: the map kept back and the scan of the sweep in progress. Returns the number of
-    /// well-known messages written in all.
+    /// The end: the map kept back and the scan of the sweep in progress, and the bag's end and
+    /// metadata. Returns the number of well-known messages written in all.
     pub fn finish<W: Write + Seek>(
         mut self,
         writer: &mut RecordingWriter<W>,
@@ -88,6 +115,9 @@ impl WellKnownChannels {
     ) -> Result<u64, FormatError> {
         let outputs = self.converter.finish();
         self.write(writer, log_time_ns, outputs)?;
+        if let Some(bag) = self.bag.take() {
+            bag.finish()?;
+        }
         Ok(self.written)
     }
 
@@ -98,10 +128,16 @@ impl WellKnownChannels {
         outputs: Vec<Output>,
     ) -> Result<(), FormatError> {
         for out in outputs {
-            if let Some(channel) = self.channels.get_mut(&out.channel) {
-                writer.write_extra(channel, log_time_ns, out.stamp_ns, &out.data)?;
-                self.written += 1;
+            match (self.channels.get_mut(&out.channel), self.bag.as_mut()) {
+                (Some(Target::Recording(channel)), _) => {
+                    writer.write_extra(channel, log_time_ns, out.stamp_ns, &out.data)?
+                }
+                (Some(Target::Bag(channel)), Some(bag)) => {
+                    bag.write(channel, log_time_ns, out.stamp_ns, &out.data)?
+                }
+                _ => continue,
             }
+            self.written += 1;
         }
         Ok(())
     }

@@ -2,9 +2,11 @@
 """Checks the well-known channels of a sonar-record or sonar-export --mcap file with independent decoders.
 
 Reads the MCAP file with the `mcap` package and decodes Foxglove's protobuf messages with
-`mcap-protobuf-support` (from the schemas in the file) and the ROS 2 ones with
-`mcap-ros2-support` (CDR, from the ros2msg definitions in the file), then compares them with what
-the pipeline itself says:
+`mcap-protobuf-support` (from the schemas in the file); with `--ros2`, the ROS 2 bag beside it
+(FILE_ros2/) is opened with `rosbags` (an independent ROS 2 bag reader: the directory, and its MCAP
+file alone, which must have profile ros2), every message deserialised with the typestores of ROS 2
+Humble and Jazzy, and the bag round-tripped through `rosbags-convert` (ROS 2 → ROS 1 → ROS 2) with
+its maps unchanged; then compares them with what the pipeline itself says:
 
 - the last foxglove.Grid (and nav_msgs/msg/OccupancyGrid) against the map exported by
   `sonar-export --format npy,pgm` (values, size, resolution, origin);
@@ -26,11 +28,16 @@ import argparse
 import math
 import re
 import struct
+import subprocess
 import sys
+import tempfile
+from pathlib import Path
 
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
-from mcap_ros2.decoder import DecoderFactory as Ros2DecoderFactory
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import Reader as Rosbag2Reader
+from rosbags.typesys import Stores, get_typestore
 
 READING = struct.Struct("<QQ5I7f8IbBBB4s")  # sonar::ReadingV1, 104 bytes
 NO_ECHO, OUT_OF_RANGE = 1, 2
@@ -109,6 +116,83 @@ def check_scan(scan, sweep, start, end, ranges, what):
             check(math.isnan(v), f"{what}: bin {i} has {v} but no reading")
 
 
+ROS2_TYPES = {
+    "/map": "nav_msgs/msg/OccupancyGrid",
+    "/scan": "sensor_msgs/msg/LaserScan",
+    "/tf": "tf2_msgs/msg/TFMessage",
+}
+
+
+def read_bag(path, typestore):
+    """Every message of the ROS 2 bag (or bare MCAP file) at `path`, deserialised, by topic."""
+    messages = {}
+    with Rosbag2Reader(path) as reader:
+        topics = sorted(conn.topic for conn in reader.connections)
+        check(topics == sorted(ROS2_TYPES), f"{path}: topics {topics}")
+        for conn in reader.connections:
+            check(conn.msgtype == ROS2_TYPES.get(conn.topic), f"{conn.topic}: type {conn.msgtype}")
+        for conn, _, raw in reader.messages():
+            messages.setdefault(conn.topic, []).append(typestore.deserialize_cdr(raw, conn.msgtype))
+    return messages
+
+
+def check_ros2_bag(bag, expected, geometry, sweeps):
+    """The bag beside a file: rosbags opens it (and its MCAP file alone), both distributions'
+    types decode every message, the last map is the exported map, one scan per sweep, and
+    rosbags-convert carries it to ROS 1 and back unchanged. Returns the summary's words."""
+    width, height, resolution, ox, oy = geometry
+    check((bag / "metadata.yaml").is_file(), f"no ROS 2 bag at {bag}")
+    files = sorted(bag.glob("*.mcap"))
+    check(len(files) == 1, f"{len(files)} MCAP files in {bag}")
+    decoded = None
+    for store in (Stores.ROS2_HUMBLE, Stores.ROS2_JAZZY):
+        typestore = get_typestore(store)
+        for path in (bag, files[0]):
+            got = read_bag(path, typestore)
+            # A live snapshot's export has a map and a transform but no sweep, so no scan.
+            check({"/map", "/tf"} <= set(got), f"{path}: messages on {sorted(got)}")
+            decoded = decoded or got
+    og = decoded["/map"][-1]
+    info = og.info
+    check((info.width, info.height) == (width, height), "occupancy grid size")
+    check(close(info.resolution, resolution), "occupancy grid resolution")
+    check(close(info.origin.position.x, ox) and close(info.origin.position.y, oy), "origin")
+    check(close(info.origin.orientation.w, 1.0), "origin orientation")
+    check(og.header.frame_id == "map", "occupancy grid frame")
+    check(list(og.data) == expected, "occupancy grid data differ from the map")
+    ros_scans = decoded.get("/scan", [])
+    check(len(ros_scans) == len(sweeps), f"{len(ros_scans)} ROS scans for {len(sweeps)} sweeps")
+    for k, (scan, sweep) in enumerate(zip(ros_scans, sweeps)):
+        n = len(scan.ranges)
+        check(
+            n == 1 or close(scan.angle_min + (n - 1) * scan.angle_increment, scan.angle_max, 1e-5),
+            f"ROS scan {k}: angle_max",
+        )
+        check_scan(scan, sweep, scan.angle_min, scan.angle_max, list(scan.ranges), f"ROS scan {k}")
+    tf = decoded["/tf"][0].transforms[0]
+    check((tf.header.frame_id, tf.child_frame_id) == ("map", "sonar"), "ROS transform frames")
+
+    # ROS 2 → ROS 1 → ROS 2 with rosbags-convert: the same maps come back.
+    convert = Path(sys.executable).with_name("rosbags-convert")
+    with tempfile.TemporaryDirectory() as tmp:
+        ros1, back = Path(tmp) / "bag.bag", Path(tmp) / "back"
+        for src, dst, extra in ((bag, ros1, []), (ros1, back, ["--dst-typestore", "ros2_humble"])):
+            done = subprocess.run(
+                [str(convert), "--src", str(src), "--dst", str(dst), *extra],
+                capture_output=True, text=True,
+            )
+            check(done.returncode == 0, f"rosbags-convert {src} -> {dst}: {done.stderr}")
+        with AnyReader([back], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+            maps = [
+                reader.deserialize(raw, conn.msgtype)
+                for conn, _, raw in reader.messages()
+                if conn.topic == "/map"
+            ]
+        check(len(maps) == len(decoded["/map"]), f"{len(maps)} maps after the round trip")
+        check(list(maps[-1].data) == expected, "the round trip changed the map")
+    return f"ros2_maps {len(decoded['/map'])} ros2_scans {len(ros_scans)}"
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("recording")
@@ -137,13 +221,11 @@ def main():
             )
     decoded = {}
     with open(args.recording, "rb") as f:
-        reader = make_reader(
-            f, decoder_factories=[ProtobufDecoderFactory(), Ros2DecoderFactory()]
-        )
+        reader = make_reader(f, decoder_factories=[ProtobufDecoderFactory()])
         schemas = {c.topic: reader.get_summary().schemas[c.schema_id] for c in reader.get_summary().channels.values()}
         topics = ["/foxglove/map", "/foxglove/scan", "/foxglove/tf", "/foxglove/features", "/foxglove/beam"]
-        if args.ros2:
-            topics += ["/map", "/scan", "/tf"]
+        # ROS 2's channels are in the bag of their own, never beside these.
+        check(not {"/map", "/scan", "/tf"} & set(schemas), "ROS 2 channels in the Foxglove file")
         for _, channel, _, msg in reader.iter_decoded_messages(topics=topics):
             decoded.setdefault(channel.topic, []).append(msg)
 
@@ -222,28 +304,9 @@ def main():
     )
 
     if args.ros2:
-        check(schemas["/map"].name == "nav_msgs/msg/OccupancyGrid", "map schema")
-        check(schemas["/map"].encoding == "ros2msg", "map schema encoding")
-        og = decoded["/map"][-1]
-        info = og.info
-        check((info.width, info.height) == (width, height), "occupancy grid size")
-        check(close(info.resolution, resolution), "occupancy grid resolution")
-        check(close(info.origin.position.x, ox) and close(info.origin.position.y, oy), "origin")
-        check(close(info.origin.orientation.w, 1.0), "origin orientation")
-        check(og.header.frame_id == "map", "occupancy grid frame")
-        check(list(og.data) == expected, "occupancy grid data differ from the map")
-        ros_scans = decoded.get("/scan", [])
-        check(len(ros_scans) == len(sweeps), f"{len(ros_scans)} ROS scans for {len(sweeps)} sweeps")
-        for k, (scan, sweep) in enumerate(zip(ros_scans, sweeps)):
-            n = len(scan.ranges)
-            check(
-                n == 1 or close(scan.angle_min + (n - 1) * scan.angle_increment, scan.angle_max, 1e-5),
-                f"ROS scan {k}: angle_max",
-            )
-            check_scan(scan, sweep, scan.angle_min, scan.angle_max, list(scan.ranges), f"ROS scan {k}")
-        tf = decoded["/tf"][0].transforms[0]
-        check((tf.header.frame_id, tf.child_frame_id) == ("map", "sonar"), "ROS transform frames")
-        summary += f" ros2_maps {len(decoded['/map'])} ros2_scans {len(ros_scans)}"
+        recording = Path(args.recording)
+        bag = recording.with_name(recording.stem + "_ros2")
+        summary += " " + check_ros2_bag(bag, expected, (width, height, resolution, ox, oy), sweeps)
 
     print(summary)
 

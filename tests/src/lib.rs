@@ -35,7 +35,7 @@ pub fn python() -> PathBuf {
     assert!(
         python.exists(),
         "{} missing: run .ci/run once (it makes .venv and installs iceoryx2, mcap, \
-         mcap-protobuf-support and mcap-ros2-support)",
+         mcap-protobuf-support, websockets and rosbags)",
         python.display()
     );
     python

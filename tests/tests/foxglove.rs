@@ -1,6 +1,7 @@
-//! End to end: the well-known channels of a recording (Foxglove's protobuf schemas and ROS 2's
-//! CDR messages), decoded by independent readers (Python `mcap`, `mcap-protobuf-support`,
-//! `mcap-ros2-support`, installed by `.ci/run`) and compared with the map and the readings; and
+//! End to end: the well-known channels of a recording (Foxglove's protobuf schemas) and the ROS 2
+//! bag beside it (CDR messages), decoded by independent readers (Python `mcap`,
+//! `mcap-protobuf-support`, and `rosbags` for the bag, installed by `.ci/run`) and compared with
+//! the map and the readings; and
 //! `sonar-replay` reading such a file as before. And `sonar-foxglove` serving the same channels
 //! live to a WebSocket client (Python `websockets`) inside a network namespace of the test's own.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // a panic is a failure

@@ -33,7 +33,7 @@ use sonar_fusion::{FeatureTracker, FeaturesSection, FusionConfig, Preset};
 use sonar_mapfiles::{FeatureFormat, Format, Map, PngOptions, output, write_features};
 use sonar_recorder::well_known::Options as WellKnownOptions;
 use sonar_recorder::{
-    FeatureSnapshot, Message, ReadOptions, Recording, RecordingWriter, WellKnownChannels,
+    FeatureSnapshot, Message, ReadOptions, Recording, RecordingWriter, Ros2Bag, WellKnownChannels,
 };
 use tracing::{debug, info, warn};
 
@@ -545,6 +545,9 @@ fn live(args: &Args, features: LiveFeatures) -> Result<Option<Snapshot>> {
 struct McapExport<W: Write + Seek> {
     writer: RecordingWriter<W>,
     channels: WellKnownChannels,
+    /// The newest time written: the end's messages take it, so an export of a recording is
+    /// stamped with the recording's times, not the export's.
+    last_log_ns: Option<u64>,
 }
 
 impl McapExport<BufWriter<File>> {
@@ -559,30 +562,49 @@ impl McapExport<BufWriter<File>> {
         }
         let writer = RecordingWriter::create(path, true, &extra)
             .with_context(|| format!("cannot create {}", path.display()))?;
+        let bag = args
+            .ros2
+            .then(|| {
+                let dir = Ros2Bag::dir_beside(path);
+                Ros2Bag::create(&dir, true)
+                    .with_context(|| format!("cannot create the ROS 2 bag {}", dir.display()))
+            })
+            .transpose()?;
         Self::new(
             writer,
             WellKnownOptions {
                 ros2: args.ros2,
                 grid_period_ns: u64::try_from(args.grid_period.as_nanos()).unwrap_or(u64::MAX),
             },
+            bag,
         )
     }
 }
 
 impl<W: Write + Seek> McapExport<W> {
-    fn new(mut writer: RecordingWriter<W>, options: WellKnownOptions) -> Result<Self> {
-        let channels = WellKnownChannels::declare(&mut writer, options)
-            .context("declare the Foxglove channels")?;
-        Ok(Self { writer, channels })
+    fn new(
+        mut writer: RecordingWriter<W>,
+        options: WellKnownOptions,
+        bag: Option<Ros2Bag>,
+    ) -> Result<Self> {
+        let channels = WellKnownChannels::declare(&mut writer, options, bag)
+            .context("declare the Foxglove and ROS 2 channels")?;
+        Ok(Self {
+            writer,
+            channels,
+            last_log_ns: None,
+        })
     }
 
     fn message(&mut self, log_time_ns: u64, message: &Message) -> Result<()> {
+        self.last_log_ns = self.last_log_ns.max(Some(log_time_ns));
         Ok(self
             .channels
             .message(&mut self.writer, log_time_ns, message)?)
     }
 
     fn grid(&mut self, log_time_ns: u64, (header, cells): &Grid) -> Result<()> {
+        self.last_log_ns = self.last_log_ns.max(Some(log_time_ns));
         Ok(self
             .channels
             .grid(&mut self.writer, log_time_ns, header, cells)?)
@@ -600,9 +622,8 @@ impl<W: Write + Seek> McapExport<W> {
 
     /// Writes what the converter kept back and the file's end; the well-known messages written.
     fn finish(mut self) -> Result<u64> {
-        let messages = self
-            .channels
-            .finish(&mut self.writer, ipc::unix_time_ns())?;
+        let end = self.last_log_ns.unwrap_or_else(ipc::unix_time_ns);
+        let messages = self.channels.finish(&mut self.writer, end)?;
         self.writer
             .finish()
             .context("write the end of the MCAP file")?;
@@ -854,9 +875,11 @@ mod tests {
             ros2: true,
             grid_period_ns: 0,
         };
+        let bag_dir = std::env::temp_dir().join(format!("sonar_export_bag_{}", std::process::id()));
         let mut mcap = McapExport::new(
             RecordingWriter::new(Cursor::new(Vec::new()), &BTreeMap::new()).unwrap(),
             options,
+            Some(Ros2Bag::create(&bag_dir, true).unwrap()),
         )
         .unwrap();
         let rec = recording();
@@ -868,6 +891,22 @@ mod tests {
         );
         // Two sweeps: 2 maps, 2 transforms, 2 scans; twice, with the ROS 2 messages; one beam.
         assert_eq!(mcap.finish().unwrap(), 13);
+        // The ROS 2 half went to the bag, stamped with the recording's times: its last message
+        // (start + duration) is the recording's last, not the time of the export.
+        let yaml = std::fs::read_to_string(bag_dir.join("metadata.yaml")).unwrap();
+        assert!(yaml.contains("message_count: 6"), "{yaml}");
+        let number_after = |key: &str| -> u64 {
+            let at = yaml.find(key).unwrap() + key.len();
+            yaml[at..]
+                .split_whitespace()
+                .next()
+                .unwrap()
+                .parse()
+                .unwrap()
+        };
+        let end = number_after("nanoseconds_since_epoch:") + number_after("nanoseconds:");
+        assert_eq!(end, rec.entries.last().unwrap().log_time_ns, "{yaml}");
+        let _ = std::fs::remove_dir_all(&bag_dir);
     }
 
     #[test]

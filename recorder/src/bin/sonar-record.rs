@@ -36,8 +36,8 @@ use sonar_common::ipc::{
     self, FeatureRecord, FeaturesHeader, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, PubSub,
     Reading,
 };
-use sonar_recorder::WellKnownChannels;
 use sonar_recorder::format::{FeatureSnapshot, Message, RecordingWriter, Topic};
+use sonar_recorder::{Ros2Bag, WellKnownChannels};
 use sonar_wellknown::Options as WellKnownOptions;
 use tracing::{debug, info, warn};
 
@@ -56,7 +56,8 @@ const BACKLOG_WARNING: u64 = 10_000;
 /// (`sonar/grid`) as foxglove.Grid, each sweep as foxglove.LaserScan, the sensor's pose as
 /// foxglove.FrameTransform, the features and each reading's beam (at most 10 a second) as
 /// foxglove.SceneUpdate (docs/foxglove.md); with
-/// `--ros2` also /map, /scan and /tf as ROS 2 messages. sonar-replay skips those.
+/// `--ros2` also /map, /scan and /tf as ROS 2 messages, in a ROS 2 bag of their own beside the
+/// file (run.mcap → run_ros2/, for `ros2 bag play run_ros2`).
 ///
 /// Examples:
 ///   sonar-record run.mcap                          # until Ctrl-C
@@ -84,7 +85,9 @@ struct Args {
     #[arg(long, conflicts_with = "ros2")]
     no_foxglove: bool,
     /// Also the ROS 2 messages /map (nav_msgs/msg/OccupancyGrid), /scan (sensor_msgs/msg/LaserScan)
-    /// and /tf (tf2_msgs/msg/TFMessage), CDR-encoded, for `ros2 bag play` and RViz.
+    /// and /tf (tf2_msgs/msg/TFMessage), CDR-encoded, in a ROS 2 bag beside the file (run.mcap →
+    /// run_ros2/: metadata.yaml and an MCAP file of profile ros2), for `ros2 bag play` and RViz.
+    /// Not replaced if it exists, unless `--force`.
     #[arg(long)]
     ros2: bool,
     /// Seconds between the maps written for Foxglove (and ROS 2); the latest is always written
@@ -141,9 +144,24 @@ fn run(args: Args) -> Result<()> {
             }
         })?;
 
-    let well_known = (!args.no_foxglove).then(|| WellKnownOptions {
-        ros2: args.ros2,
-        grid_period_ns: u64::try_from(args.grid_period.as_nanos()).unwrap_or(u64::MAX),
+    let bag = args
+        .ros2
+        .then(|| {
+            let dir = Ros2Bag::dir_beside(&args.file);
+            Ros2Bag::create(&dir, args.force).with_context(|| {
+                format!(
+                    "cannot create the ROS 2 bag {} (pass --force to replace it)",
+                    dir.display()
+                )
+            })
+        })
+        .transpose()?;
+    let well_known = (!args.no_foxglove).then(|| WellKnown {
+        options: WellKnownOptions {
+            ros2: args.ros2,
+            grid_period_ns: u64::try_from(args.grid_period.as_nanos()).unwrap_or(u64::MAX),
+        },
+        bag,
     });
     let written = Arc::new(Written::default());
     let (tx, rx) = mpsc::channel::<(u64, Item)>();
@@ -549,14 +567,20 @@ impl Recorder {
     }
 }
 
+/// What the well-known channels are written with: the options, and the ROS 2 bag with `--ros2`.
+struct WellKnown {
+    options: WellKnownOptions,
+    bag: Option<Ros2Bag>,
+}
+
 fn write_loop(
     mut writer: RecordingWriter<BufWriter<File>>,
-    well_known: Option<WellKnownOptions>,
+    well_known: Option<WellKnown>,
     rx: Receiver<(u64, Item)>,
     written: &Written,
 ) -> Result<Finished> {
     let mut well_known = well_known
-        .map(|options| WellKnownChannels::declare(&mut writer, options))
+        .map(|w| WellKnownChannels::declare(&mut writer, w.options, w.bag))
         .transpose()
         .context("declare the well-known channels")?;
     let mut last_flush = Instant::now();
@@ -584,6 +608,9 @@ fn write_loop(
         }
         if dirty && last_flush.elapsed() >= FLUSH_PERIOD {
             writer.flush()?;
+            if let Some(w) = &mut well_known {
+                w.flush()?;
+            }
             dirty = false;
             last_flush = Instant::now();
         }
