@@ -23,7 +23,8 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use sonar_common::ipc::{
-    self, DriverStatus, GridHeader, IpcArgs, IpcError, LinkState, Pose2D, Reading, ScanMode,
+    self, DriverStatus, FeatureRecord, FeaturesHeader, FusionStatus, GridHeader, IpcArgs, IpcError,
+    LinkState, LocalizedPose, Pose2D, Radar, Reading, ScanMode, feature_kind,
 };
 
 /// How often `echo` and `hz` look for new messages.
@@ -77,6 +78,16 @@ enum Topic {
     Grid,
     /// robot/pose: the odometry.
     Pose,
+    /// robot/true_pose: the simulator's true pose beside its odometry.
+    TruePose,
+    /// sonar/localized_pose: localisation's pose of each sweep, its σ, the odometry's.
+    LocalizedPose,
+    /// sonar/fusion_status: the fusion's health counters (lost, rejected, saves, …).
+    FusionStatus,
+    /// sonar/radar: the basic map's snapshot (bins with a distance, nearest).
+    Radar,
+    /// sonar/features: each snapshot's counts, then one line per wall, corner and post.
+    Features,
 }
 
 impl Topic {
@@ -86,6 +97,11 @@ impl Topic {
             Topic::DriverStatus => ipc::DRIVER_STATUS_SERVICE,
             Topic::Grid => ipc::GRID_SERVICE,
             Topic::Pose => ipc::POSE_SERVICE,
+            Topic::TruePose => ipc::TRUE_POSE_SERVICE,
+            Topic::LocalizedPose => ipc::LOCALIZED_POSE_SERVICE,
+            Topic::FusionStatus => ipc::FUSION_STATUS_SERVICE,
+            Topic::Radar => ipc::RADAR_SERVICE,
+            Topic::Features => ipc::FEATURES_SERVICE,
         }
     }
 }
@@ -242,6 +258,37 @@ fn receive_or_tick(
             each,
         ),
         Topic::Pose => each_message(node, &ipc::pose_service(node)?, service, pose_line, each),
+        Topic::TruePose => each_message(
+            node,
+            &ipc::true_pose_service(node)?,
+            service,
+            pose_line,
+            each,
+        ),
+        Topic::LocalizedPose => each_message(
+            node,
+            &ipc::localized_pose_service(node)?,
+            service,
+            localized_pose_line,
+            each,
+        ),
+        Topic::FusionStatus => each_message(
+            node,
+            &ipc::fusion_status_service(node)?,
+            service,
+            fusion_status_line,
+            each,
+        ),
+        Topic::Radar => each_message(node, &ipc::radar_service(node)?, service, radar_line, each),
+        Topic::Features => {
+            let sub = subscribe(&ipc::features_service(node)?, service)?;
+            poll(node, &mut each, || {
+                Ok(sub
+                    .receive()
+                    .map_err(|e| IpcError::new(format!("receive from {service}"), e))?
+                    .map(|s| features_lines(s.user_header(), s.payload())))
+            })
+        }
         Topic::Grid => {
             let sub = subscribe(&ipc::grid_service(node)?, service)?;
             poll(node, &mut each, || {
@@ -298,6 +345,91 @@ fn poll(
             return Ok(());
         }
     }
+}
+
+fn localized_pose_line(p: &LocalizedPose) -> String {
+    // A prediction without a fix has a NaN covariance: say so rather than print NaN.
+    let sigma = if p.matched == 0 || !p.cov_xx.is_finite() {
+        "no fix".to_owned()
+    } else {
+        format!(
+            "σ {:.3} m {:.3} m {:.2}°",
+            p.cov_xx.max(0.0).sqrt(),
+            p.cov_yy.max(0.0).sqrt(),
+            p.cov_thetatheta.max(0.0).sqrt().to_degrees()
+        )
+    };
+    format!(
+        "stamp {} x {:+.3} y {:+.3} θ {:+.1}° {sigma} matched {} fixes {} odometry {:+.3} {:+.3} {:+.1}°",
+        p.stamp_ns,
+        p.x_m,
+        p.y_m,
+        p.theta_rad.to_degrees(),
+        p.matched,
+        p.fixes,
+        p.odometry_x_m,
+        p.odometry_y_m,
+        p.odometry_theta_rad.to_degrees()
+    )
+}
+
+fn fusion_status_line(s: &FusionStatus) -> String {
+    format!(
+        "received {} fused {} lost {} out_of_order {} rejected {} snapshots {} skipped {} saves {} save_failures {} restored {}",
+        s.readings_received,
+        s.readings_fused,
+        s.readings_lost,
+        s.readings_out_of_order,
+        s.readings_rejected,
+        s.snapshots_published,
+        s.snapshots_skipped,
+        s.saves,
+        s.save_failures,
+        s.restored
+    )
+}
+
+fn radar_line(r: &Radar) -> String {
+    let bins = (r.bin_count as usize).min(r.distances_m.len());
+    let heard: Vec<f32> = r.distances_m[..bins]
+        .iter()
+        .copied()
+        .filter(|d| d.is_finite() && *d > 0.0)
+        .collect();
+    let nearest = heard
+        .iter()
+        .copied()
+        .fold(None, |m: Option<f32>, d| Some(m.map_or(d, |m| m.min(d))));
+    format!(
+        "seq {} sweep {} bins {} with a distance {}{} at {:+.1}°",
+        r.seq,
+        r.sweep_id,
+        bins,
+        heard.len(),
+        nearest.map_or(String::new(), |d| format!(", nearest {d:.3} m")),
+        r.current_angle_deg
+    )
+}
+
+/// A snapshot's counts, then one line per feature.
+fn features_lines(h: &FeaturesHeader, records: &[FeatureRecord]) -> String {
+    let mut out = format!(
+        "seq {} sweeps {} features {} (left out {})",
+        h.seq, h.sweeps, h.feature_count, h.features_left_out
+    );
+    for f in records {
+        let kind = match f.kind {
+            feature_kind::PLANE => "wall",
+            feature_kind::CORNER => "corner",
+            feature_kind::POINT => "post",
+            _ => "unknown",
+        };
+        out.push_str(&format!(
+            "\n  {kind} {} at {:+.3} {:+.3} seen {}",
+            f.id, f.x_m, f.y_m, f.times_seen
+        ));
+    }
+    out
 }
 
 fn reading_line(r: &Reading) -> String {

@@ -706,6 +706,28 @@ fn the_sonar_command_lists_services_echoes_readings_and_measures_a_rate() {
         .and_then(|r| r.parse().ok())
         .unwrap_or_else(|| panic!("no rate in {hz:?}"));
     assert!(rate > 0.0, "{hz}");
+
+    // Every service the pipeline publishes has a reader (issue 28: the health counters had none).
+    let echo = |topic: &str| {
+        check_ok(
+            "sonar echo",
+            &sandbox.run("sonar", &["echo", topic, "--count", "1"]),
+        )
+    };
+    let status = echo("fusion-status");
+    assert!(
+        status.starts_with("received ") && status.contains(" lost 0 "),
+        "{status}"
+    );
+    let radar = echo("radar");
+    assert!(
+        radar.starts_with("seq ") && radar.contains(" bins 50 "),
+        "{radar}"
+    );
+    // The first sweep's snapshot lists the room's walls.
+    let features = sandbox.run("sonar", &["echo", "features", "--count", "2"]);
+    let features = check_ok("sonar echo features", &features);
+    assert!(features.contains("\n  wall "), "{features}");
 }
 
 /// With no pipeline on its namespace, `sonar-export` says where it looks and what to check while
