@@ -67,22 +67,27 @@ enum Command {
     },
 }
 
-/// The services `echo` and `hz` know how to decode.
+/// The services `echo` and `hz` know how to decode (a service's own name, `driver_status`, is
+/// taken too).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 enum Topic {
     /// sonar/readings: one line per reading.
     Readings,
     /// sonar/driver_status: the link, the scan, the counters.
+    #[value(alias = "driver_status")]
     DriverStatus,
     /// sonar/grid: the snapshot headers (not the cells).
     Grid,
     /// robot/pose: the odometry.
     Pose,
     /// robot/true_pose: the simulator's true pose beside its odometry.
+    #[value(alias = "true_pose")]
     TruePose,
     /// sonar/localized_pose: localisation's pose of each sweep, its σ, the odometry's.
+    #[value(alias = "localized_pose")]
     LocalizedPose,
     /// sonar/fusion_status: the fusion's health counters (lost, rejected, saves, …).
+    #[value(alias = "fusion_status")]
     FusionStatus,
     /// sonar/radar: the basic map's snapshot (bins with a distance, nearest).
     Radar,
