@@ -320,6 +320,57 @@ mod tests {
     }
     const REBUILD: usize = crate::kernel::REBUILD_AFTER as usize;
 
+    /// FNV-1a over the bits of every cell of the grid: a fingerprint of the whole map.
+    fn fingerprint(m: &Mapper) -> u64 {
+        cells(m)
+            .iter()
+            .flat_map(|c| c.map_or(u32::MAX, f32::to_bits).to_le_bytes())
+            .fold(0xcbf2_9ce4_8422_2325, |h, b| {
+                (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)
+            })
+    }
+
+    /// The paper preset is the paper as written: its map of fixed readings from five poses (with
+    /// both kernels) is the very one it gave before the recommended model learnt where a cell was
+    /// heard from (fingerprint taken on commit cef130e, before that change).
+    #[test]
+    fn the_paper_preset_map_is_unchanged_bit_for_bit() {
+        let config = FusionConfig {
+            grid: GridConfig {
+                cells: 150,
+                ..GridConfig::default()
+            },
+            ..FusionConfig::preset(Preset::Paper)
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(23);
+        let centres = SensorConfig::default().reading_centres_deg();
+        let poses = [
+            (0.0, 0.0, 0.0),
+            (0.5, 0.3, 1.0),
+            (-0.7, 0.2, -2.0),
+            (0.1, -0.9, 2.5),
+            (0.33, 0.71, 0.2),
+        ];
+        let mut maps = [Kernel::Cone, Kernel::WholeGrid].map(|k| (k, Mapper::new(config).unwrap()));
+        for (x, y, heading) in poses {
+            let pose = Isometry2::new(Vector2::new(x, y), heading);
+            for &centre in &centres {
+                let obs = Observation {
+                    pose,
+                    range_m: rng.random_bool(0.9).then(|| rng.random_range(0.1..4.2)),
+                    ..reading(centre, None)
+                };
+                for (kernel, m) in &mut maps {
+                    m.update_with(&obs, *kernel).unwrap();
+                }
+            }
+        }
+        for (kernel, m) in &maps {
+            assert_eq!(fingerprint(m), PAPER_FINGERPRINT, "{kernel:?}");
+        }
+    }
+    const PAPER_FINGERPRINT: u64 = 9_818_789_633_411_597_063;
+
     #[test]
     fn every_model_and_rule_is_symmetric_about_the_beam_axis() {
         for model in ModelKind::ALL {
