@@ -64,7 +64,7 @@ impl Mapper {
             Vector2::new(config.grid.centre_x_m, config.grid.centre_y_m),
         );
         Ok(Self {
-            grid: OccupancyGrid::new(geometry, &config.rule),
+            grid: OccupancyGrid::new(geometry, &config.rule, config.model.hears()),
             radar: RadarMap::new(config.radar)?,
             cones: ConeCache::new(&config),
             paper_arrays: PaperArrays::default(),
@@ -128,13 +128,13 @@ impl Mapper {
                 cells_updated: 0,
             });
         };
-        let (geometry, store) = self.grid.parts_mut();
+        let (geometry, store, heard) = self.grid.parts_mut();
         let (cones, arrays) = (&mut self.cones, &mut self.paper_arrays);
         let cells_updated = with_model!(&self.config.model, m => {
             let evidence = m.reading(&beam);
             with_layer!(store, layer => match kernel {
-                Kernel::Cone => cones.update(layer, geometry, &beam, &evidence),
-                Kernel::WholeGrid => arrays.update(layer, geometry, &beam, &evidence),
+                Kernel::Cone => cones.update(layer, heard, geometry, &beam, &evidence),
+                Kernel::WholeGrid => arrays.update(layer, heard, geometry, &beam, &evidence),
             })
         });
         Ok(Update {
@@ -460,6 +460,96 @@ mod tests {
             let band = crate::model::SmoothModel::default().band(range);
             assert_eq!(occupied_in_front(Preset::Recommended, range, band), 0);
         }
+    }
+
+    /// Readings from `(x, y)` at world bearings `from_deg..=to_deg` every 1.5°, each with the
+    /// range `range(bearing°)`, repeated `sweeps` times.
+    fn sweep(
+        at: (f32, f32),
+        (from_deg, to_deg): (f32, f32),
+        sweeps: usize,
+        range: impl Fn(f32) -> Option<f32>,
+    ) -> Vec<Observation> {
+        let steps = ((to_deg - from_deg) / 1.5).round() as usize;
+        let one: Vec<Observation> = (0..=steps)
+            .map(|i| from_deg + i as f32 * 1.5)
+            .map(|a| Observation {
+                pose: Isometry2::new(Vector2::new(at.0, at.1), 0.0),
+                ..reading(a, range(a))
+            })
+            .collect();
+        one.repeat(sweeps)
+    }
+
+    /// A thin board across x = 1 m, |y| ≤ 0.3 m, heard square from the origin, then passed along
+    /// and beside by readings from two other positions that hear a wall at y = 1.5 m beyond it,
+    /// and from a fourth that sees it square from behind and hears nothing there (the board was
+    /// taken away). Returns the mapper and, per 2 cm row of the board's middle (|y| ≤ 0.14 m),
+    /// the highest occupancy within 3 cm of x = 1 m.
+    fn board_scene(model: crate::model::SmoothModel, taken_away: bool) -> (Mapper, Vec<f32>) {
+        let mut m = Mapper::new(FusionConfig {
+            model: ModelConfig::Smooth(model),
+            ..FusionConfig::default()
+        })
+        .unwrap();
+        // Square from the origin: every beam whose lobe (±15°) holds the board's foot hears it at
+        // its perpendicular distance; the others hear the far wall at x = 3 m.
+        let square = sweep((0.0, 0.0), (-30.0, 30.0), 2, |a| {
+            Some(if a.abs() <= 15.0 { 1.0 } else { 3.0 })
+        });
+        // Edge-on from (1, −1.5): the beams along the board hear the wall at y = 1.5 m; beside it,
+        // from (1.3, −1.5), the same.
+        let along = sweep((1.0, -1.5), (75.0, 105.0), 3, |_| Some(3.0));
+        let beside = sweep((1.3, -1.5), (75.0, 105.0), 3, |_| Some(3.0));
+        let mut all: Vec<Observation> = [square, along, beside].concat();
+        if taken_away {
+            // From behind, square to it, at x = 2 m: the beams hear the wall at x = −1 m.
+            all.extend(sweep((2.0, 0.0), (165.0, 195.0), 3, |_| Some(3.0)));
+        }
+        for obs in &all {
+            m.update(obs).unwrap();
+        }
+        let g = *m.grid().geometry();
+        let rows = (-7..=7)
+            .map(|i| {
+                let y = i as f32 * 0.02 + 0.01;
+                (-1..=1)
+                    .filter_map(|j| {
+                        let p = nalgebra::Point2::new(1.0 + j as f32 * 0.02 + 0.01, y);
+                        let (cx, cy) = g.cell_at(p)?;
+                        m.grid().probability(cx, cy)
+                    })
+                    .fold(0.0f32, f32::max)
+            })
+            .collect();
+        (m, rows)
+    }
+
+    #[test]
+    fn a_board_passed_edge_on_or_beside_survives_and_empty_space_is_still_cleared() {
+        let recommended = crate::model::SmoothModel::default();
+        let (m, rows) = board_scene(recommended, false);
+        assert!(rows.iter().all(|&p| p > 0.5), "{rows:?}");
+        // Without the weighting by incidence (every cell takes full free evidence, as the smooth
+        // model did before), the same readings erase the board.
+        let deaf = crate::model::SmoothModel {
+            incidence_full_deg: 90.0,
+            incidence_none_deg: 180.0,
+            ..recommended
+        };
+        let (_, erased) = board_scene(deaf, false);
+        assert!(erased.iter().all(|&p| p < 0.5), "{erased:?}");
+        // Space no reading heard occupied is cleared: between the board and the edge-on sensor.
+        let g = *m.grid().geometry();
+        for y in [-1.0f32, -0.6, -0.35] {
+            let (cx, cy) = g.cell_at(nalgebra::Point2::new(1.01, y)).unwrap();
+            let p = m.grid().probability(cx, cy).unwrap();
+            assert!(p < 0.2, "({}, {y}): {p}", 1.01);
+        }
+        // A board taken away is cleared by readings that would have heard it (square, from
+        // behind).
+        let (_, gone) = board_scene(recommended, true);
+        assert!(gone.iter().all(|&p| p < 0.5), "{gone:?}");
     }
 
     #[test]
