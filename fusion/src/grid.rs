@@ -319,6 +319,21 @@ impl OccupancyGrid {
         }
     }
 
+    /// Copies the bearings each cell was last heard occupied from into `out` (none if the model
+    /// does not hear), into its own allocation.
+    pub(crate) fn save_heard_into(&self, out: &mut Vec<f32>) {
+        out.clear();
+        out.extend_from_slice(&self.heard);
+    }
+
+    /// Takes saved bearings back, if there are as many as this grid keeps (none when its model
+    /// does not hear).
+    pub(crate) fn restore_heard(&mut self, saved: Vec<f32>) -> Result<(), StateError> {
+        check_len("the heard bearings", self.heard.len(), saved.len())?;
+        self.heard = saved;
+        Ok(())
+    }
+
     /// Takes saved cells back, if they are this grid's rule's and one per cell.
     pub(crate) fn restore_cells(&mut self, saved: SavedCells) -> Result<(), StateError> {
         fn put<R: Combine>(layer: &mut Layer<R>, cells: Vec<R::Cell>) -> Result<(), StateError> {

@@ -148,6 +148,7 @@ impl Mapper {
         out.readings_fused = self.readings;
         out.last_pose = self.pose.into();
         self.grid.save_cells_into(&mut out.cells);
+        self.grid.save_heard_into(&mut out.heard);
         self.radar.save_into(&mut out.radar);
     }
 
@@ -155,6 +156,7 @@ impl Mapper {
     pub(crate) fn restore(config: FusionConfig, saved: MapperState) -> Result<Self, StateError> {
         let mut mapper = Self::new(config)?;
         mapper.grid.restore_cells(saved.cells)?;
+        mapper.grid.restore_heard(saved.heard)?;
         mapper.radar.restore(saved.radar)?;
         mapper.readings = saved.readings_fused;
         mapper.pose = saved.last_pose.into();
@@ -550,6 +552,35 @@ mod tests {
         // behind).
         let (_, gone) = board_scene(recommended, true);
         assert!(gone.iter().all(|&p| p < 0.5), "{gone:?}");
+    }
+
+    /// A restored map remembers where its cells were heard from: it fuses on like the original
+    /// (without the bearings, the edge-on readings below would erase the board in the copy only).
+    #[test]
+    fn a_restored_map_keeps_the_bearings_its_cells_were_heard_from() {
+        let (mut original, _) = board_scene(crate::model::SmoothModel::default(), false);
+        let mut saved = MapperState::default();
+        original.save_into(&mut saved);
+        assert_eq!(saved.heard.len(), original.grid().geometry().len());
+        assert!(saved.heard.iter().any(|h| !h.is_nan()));
+        let mut restored = Mapper::restore(*original.config(), saved.clone()).unwrap();
+        for obs in sweep((1.0, -1.5), (75.0, 105.0), 3, |_| Some(3.0)) {
+            original.update(&obs).unwrap();
+            restored.update(&obs).unwrap();
+        }
+        assert_eq!(fingerprint(&original), fingerprint(&restored));
+        // Bearings the settings have no room for are refused.
+        let deaf = FusionConfig {
+            model: ModelConfig::default_for(ModelKind::Paper),
+            ..*original.config()
+        };
+        assert!(matches!(
+            Mapper::restore(deaf, saved),
+            Err(StateError::Length {
+                what: "the heard bearings",
+                ..
+            })
+        ));
     }
 
     #[test]
