@@ -36,7 +36,11 @@
 //!   occupied evidence in a band d ± w around it (w = max(2.5 cm, 1 % of d)), each falling off
 //!   smoothly with the angle off the axis (by default free evidence to zero at 14°, occupied at
 //!   4°) and with range (a radial trust that halves at 3 m). It never raises occupancy in front of
-//!   that band, nor lowers it within the band.
+//!   that band, nor lowers it within the band. Its free evidence at a cell that was heard
+//!   occupied is weighted by the incidence at which the reading meets that reflector (the angle
+//!   between the bearings it is seen from now and was heard from): full to 30°, none from 60°,
+//!   since a specular board seen edge-on or at a slant is silent and its silence is no evidence
+//!   that it is gone (`docs/fusion.md`, "Free space only where a reflector would have been heard").
 //!
 //! Why the recommended parameters ([`SmoothModel::default`]; `docs/results.md` has the evaluation
 //! they come from, on the simulator): a small target is heard only near the axis (a 5 cm post at 1
