@@ -91,6 +91,7 @@ pub mod firmware;
 pub mod geometry;
 pub mod hobby;
 pub mod link;
+pub mod profile;
 pub mod robot;
 pub mod scene;
 pub mod serve;
@@ -101,6 +102,7 @@ pub use firmware::{FIRMWARE_ID, Firmware, Timing, Transducer};
 pub use geometry::{Pose, Vec2};
 pub use hobby::HobbySketch;
 pub use link::Symlink;
+pub use profile::SensorProfile;
 pub use robot::{Mode, Odometry, OdometryParams, PoseSample, Robot, RobotSpec, Rover, Trajectory};
 pub use scene::{
     BUILTIN_NAMES, Joint, Post, Scene, SceneError, SuggestedScan, Surface, Vertex, Wall,
