@@ -49,12 +49,14 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use anyhow::{Context, Result, bail};
 use nalgebra::{Isometry2, Vector2};
 use sonar_common::ipc::Reading;
+use sonar_common::sensor::SensorConfig;
+use sonar_features::{FeatureConfig, FeatureMap, Sweep};
 use sonar_fusion::{FusionConfig, FusionSection, Mapper, Observation, Preset};
 use sonar_sim::geometry::{distance_to_segment, segments_intersect};
 use sonar_sim::{Pose, Scene, SensorProfile, Vec2};
 use tracing::info;
 
-use crate::features::{Truth, feature_maps, score};
+use crate::features::{Truth, score};
 use crate::metrics::{MapView, quantile};
 use crate::pipeline::{Head, Scan, capture_with, probability_view};
 use crate::scenegen::{self, Generated, VIEWPOINTS};
@@ -411,15 +413,32 @@ pub struct ViewFeatures {
     pub false_features: usize,
 }
 
-/// Runs the features on `readings` (one viewpoint, in its frame: `view_scene`) and scores them.
+/// The features of `readings` (one viewpoint, several sweeps), with the feature pipeline's
+/// defaults but the head's own geometry (its step between pings, its range limits), as a robot
+/// builder would configure it for that sensor.
+fn feature_map(readings: &[Reading], sensor: SensorConfig) -> Result<FeatureMap> {
+    let cfg = FeatureConfig {
+        sensor,
+        ..FeatureConfig::default()
+    };
+    let mut map = FeatureMap::new(cfg).context("setting up the feature map")?;
+    for sweep in readings.chunk_by(|a, b| a.sweep_id == b.sweep_id) {
+        map.update(&Sweep::from_readings(sweep, &cfg), &Isometry2::identity());
+    }
+    Ok(map)
+}
+
+/// Runs the features on `readings` (one viewpoint, in its frame: `view_scene`, heard by a head
+/// of geometry `sensor`) and scores them.
 pub fn score_features(
     view_scene: &Scene,
     readings: &[Reading],
-    max_range_m: f64,
+    sensor: SensorConfig,
 ) -> Result<ViewFeatures> {
-    let maps = feature_maps(readings)?;
+    let max_range_m = f64::from(sensor.max_range_m);
+    let map = feature_map(readings, sensor)?;
     let truth = Truth::of(view_scene, Scan::Full);
-    let scored = score(&maps.all, &truth, &[]);
+    let scored = score(&map, &truth, &[]);
     let origin = Vec2::default();
     let mut out = ViewFeatures {
         false_features: scored.false_features.len(),
@@ -524,7 +543,7 @@ pub fn run_scene(
             mix(seed, index, k),
         )
         .with_context(|| format!("scene {} viewpoint {}", scene.name, k + 1))?;
-        features.push(score_features(&view_scene, &capture.readings, max_range_m)?);
+        features.push(score_features(&view_scene, &capture.readings, head.sensor)?);
         let pose = isometry(view);
         for (mapper, scores) in mappers.iter_mut().zip(&mut grid) {
             for r in &capture.readings {
@@ -934,5 +953,104 @@ mod pose_tests {
             "{at_moved:?}"
         );
         assert!(wrong.precision.unwrap() < p / 3.0, "{wrong:?}");
+    }
+}
+
+/// The suite's structural properties, small enough for CI in a debug build.
+#[cfg(test)]
+mod structural_tests {
+    use super::*;
+
+    fn settings(profiles: Vec<ProfileChoice>) -> SuiteSettings {
+        SuiteSettings {
+            scenes: 1,
+            seeds: vec![1],
+            profiles,
+            viewpoints: vec![1, 3, 8],
+            fusion: vec!["recommended".parse().unwrap()],
+            split: Split::Report,
+            sweeps: 2,
+            jobs: 1,
+        }
+    }
+
+    fn every_profile() -> Vec<ProfileChoice> {
+        SensorProfile::ALL
+            .into_iter()
+            .map(|p| ProfileChoice(Some(p)))
+            .chain([ProfileChoice(None)])
+            .collect()
+    }
+
+    #[test]
+    fn an_empty_scene_gives_no_features_and_no_occupied_cells() {
+        let empty = Generated {
+            scene: Scene::new("empty", vec![], vec![]).unwrap(),
+            layout: scenegen::Layout::Room,
+            viewpoints: (0..VIEWPOINTS)
+                .map(|k| Pose::new(0.1 * k as f64, -0.05 * k as f64, 0.8 * k as f64))
+                .collect(),
+        };
+        let s = settings(every_profile());
+        for &profile in &s.profiles {
+            let run = run_scene(&empty, 0, 1, profile, &s).unwrap();
+            for (k, f) in run.features.iter().enumerate() {
+                assert_eq!(f.false_features, 0, "{profile}, viewpoint {}", k + 1);
+                assert_eq!(f.expected, [0, 0, 0]);
+            }
+            for score in &run.grid[0] {
+                assert_eq!(score.visible, 0);
+                assert_eq!(score.occupied, 0, "{profile}: {score:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_run_repeats_with_its_seed() {
+        let s = settings(vec![ProfileChoice(Some(SensorProfile::Srf05))]);
+        let generated = scenegen::generate(s.split.scene_seed(0)).unwrap();
+        let profile = s.profiles[0];
+        let a = run_scene(&generated, 0, 1, profile, &s).unwrap();
+        assert_eq!(a, run_scene(&generated, 0, 1, profile, &s).unwrap());
+        assert_ne!(a, run_scene(&generated, 0, 2, profile, &s).unwrap());
+        // Something to score: walls in sight, cells occupied.
+        assert!(a.grid[0].iter().all(|g| g.visible > 0 && g.occupied > 0));
+    }
+
+    /// The issue's aim: fusing more viewpoints never loses walls. Measured both ways: the recall
+    /// of all that the fused viewpoints see, and of what the first one sees alone.
+    #[test]
+    #[ignore = "fails with today's recommended preset (see docs/results.md, the suite's section); \
+                to be enabled with the new grid model"]
+    fn recall_does_not_fall_as_viewpoints_are_added() {
+        let mut s = settings(vec![ProfileChoice(Some(SensorProfile::Srf05))]);
+        s.scenes = 3;
+        let runs = evaluate(&s).unwrap();
+        let mut falls = Vec::new();
+        for run in &runs {
+            let g = &run.grid[0];
+            for v in 1..g.len() {
+                for (what, before, after) in [
+                    ("recall", g[v - 1].recall, g[v].recall),
+                    (
+                        "recall of view 1",
+                        g[v - 1].recall_first_view,
+                        g[v].recall_first_view,
+                    ),
+                ] {
+                    if let (Some(b), Some(a)) = (before, after)
+                        && a < b
+                    {
+                        falls.push(format!(
+                            "scene {}: {what} {b:.3} -> {a:.3} from {} to {} viewpoints",
+                            run.scene,
+                            s.viewpoints[v - 1],
+                            s.viewpoints[v]
+                        ));
+                    }
+                }
+            }
+        }
+        assert!(falls.is_empty(), "{}", falls.join("\n"));
     }
 }
