@@ -24,7 +24,10 @@
 //! - **Recall**: the share of the visible samples with an occupied cell centre within 5 cm.
 //!   **Recall of view 1's walls**: the same over the samples visible from the first viewpoint
 //!   only, whatever the number of viewpoints fused (the denominator does not grow, so a fall means
-//!   that adding viewpoints erased walls).
+//!   that adding viewpoints erased walls). **Recall faced**: over the visible samples that some
+//!   viewpoint seeing them faces within 28° of the surface's normal ([`FACED_DEG`], the SRF05's
+//!   specular cut-off): the part a specular sensor can hear at all, to tell what a model could
+//!   not have drawn from what it erased.
 //! - **Precision**: the share of occupied cells whose centre lies within 5 cm of a true surface
 //!   (any, visible or not). **Median error**: the median distance from the occupied cells'
 //!   centres to the nearest true surface.
@@ -63,6 +66,10 @@ use crate::scenegen::{self, Generated, VIEWPOINTS};
 
 /// A surface counts as drawn, and an occupied cell as on a surface, within this.
 pub const TOLERANCE_M: f64 = 0.05;
+/// A surface is **faced** by a viewpoint that sees it within this angle of its normal: the
+/// SRF05's specular cut-off (28°, `sensor-facts.md`: a card read correctly to ≈ 25–30°), so that
+/// a ping aimed at it could hear it at all.
+pub const FACED_DEG: f64 = 28.0;
 /// Surfaces are sampled this often for visibility (one cell).
 const SAMPLE_M: f64 = 0.02;
 /// A post is expected of the features within this range of its echo point.
@@ -278,6 +285,9 @@ pub struct GridScore {
     pub recall: Option<f64>,
     /// Share of the surface visible from the first viewpoint drawn.
     pub recall_first_view: Option<f64>,
+    /// Share of the visible surface faced within [`FACED_DEG`] by a viewpoint that sees it
+    /// drawn.
+    pub recall_faced: Option<f64>,
     /// Share of occupied cells on a surface; `None` when no cell is occupied.
     pub precision: Option<f64>,
     /// Median distance of the occupied cells to the nearest surface, metres.
@@ -314,6 +324,21 @@ fn surface_samples(scene: &Scene) -> Vec<(Vec2, Owner)> {
         }));
     }
     out
+}
+
+/// The unit normal of the surface at `sample` (either side of a wall).
+fn surface_normal(scene: &Scene, sample: Vec2, owner: Owner) -> Vec2 {
+    match owner {
+        Owner::Wall(i) => {
+            let w = scene.walls()[i];
+            let e = w.b - w.a;
+            Vec2::new(-e.y, e.x) * (1.0 / e.norm())
+        }
+        Owner::Post(i) => {
+            let c = scene.posts()[i];
+            (sample - c.centre) * (1.0 / c.radius)
+        }
+    }
 }
 
 /// Whether `sample` (of `owner`) is in line of sight from `from` within `max_range_m`.
@@ -362,6 +387,9 @@ pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], max_range_m: f64
     let mut drawn = 0;
     let mut first = 0;
     let mut first_drawn = 0;
+    let mut faced = 0;
+    let mut faced_drawn = 0;
+    let faced_cos = FACED_DEG.to_radians().cos();
     for &(p, owner) in &samples {
         let seen: Vec<bool> = views
             .iter()
@@ -377,6 +405,15 @@ pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], max_range_m: f64
             first += 1;
             first_drawn += usize::from(hit);
         }
+        let normal = surface_normal(scene, p, owner);
+        let is_faced = views.iter().zip(&seen).any(|(v, &s)| {
+            let to_view = v.at - p;
+            s && normal.dot(to_view).abs() >= faced_cos * to_view.norm()
+        });
+        if is_faced {
+            faced += 1;
+            faced_drawn += usize::from(hit);
+        }
     }
     let n = map.geometry().cells_per_side();
     let mut errors: Vec<f64> = (0..n)
@@ -390,6 +427,7 @@ pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], max_range_m: f64
     GridScore {
         recall: share(drawn, visible),
         recall_first_view: share(first_drawn, first),
+        recall_faced: share(faced_drawn, faced),
         precision: share(on_surface, errors.len()),
         median_error_m: quantile(&errors, 0.5),
         occupied: errors.len(),
@@ -647,6 +685,7 @@ pub struct GridSummary {
     pub precision: Option<(f64, f64)>,
     pub error_m: Option<(f64, f64)>,
     pub recall_first_view: Option<(f64, f64)>,
+    pub recall_faced: Option<(f64, f64)>,
     /// Runs where recall (of the growing visible set) fell from the previous viewpoint count.
     pub recall_fell: usize,
     /// Runs where the recall of view 1's walls fell from the previous viewpoint count.
@@ -691,6 +730,10 @@ pub fn grid_summaries(settings: &SuiteSettings, runs: &[Run]) -> Vec<GridSummary
                         scores.iter().filter_map(|s| s.recall_first_view).collect(),
                         false,
                     ),
+                    recall_faced: median_worst(
+                        scores.iter().filter_map(|s| s.recall_faced).collect(),
+                        false,
+                    ),
                     recall_fell: fell(|s| s.recall),
                     first_view_recall_fell: fell(|s| s.recall_first_view),
                     runs: scores.len(),
@@ -714,8 +757,10 @@ pub fn markdown(settings: &SuiteSettings, runs: &[Run]) -> String {
         "### Generated scene suite: grid\n\n{} scenes of the `{split}` split × seeds {} × \
          {} full sweeps per viewpoint. Median / worst over scenes × seeds. Recall and precision \
          within {:.0} cm of the true surfaces visible from the viewpoints fused; \"view 1\" is \
-         the recall of what the first viewpoint sees alone; \"fell\" counts runs where that \
-         recall fell when viewpoints were added (from the previous count).\n",
+         the recall of what the first viewpoint sees alone; \"faced\" of what some viewpoint \
+         sees within {FACED_DEG:.0}° of the surface's normal (what a specular sensor can hear); \
+         \"fell\" counts runs where recall fell when viewpoints were added (from the previous \
+         count).\n",
         settings.scenes,
         seeds.join(", "),
         settings.sweeps,
@@ -723,13 +768,13 @@ pub fn markdown(settings: &SuiteSettings, runs: &[Run]) -> String {
     );
     let _ = writeln!(
         t,
-        "| profile | fusion | viewpoints | recall | precision | median error (cm) | recall of view 1's walls | recall fell | view-1 recall fell | runs |"
+        "| profile | fusion | viewpoints | recall | precision | median error (cm) | recall of view 1's walls | recall faced | recall fell | view-1 recall fell | runs |"
     );
-    let _ = writeln!(t, "|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(t, "|---|---|---|---|---|---|---|---|---|---|---|");
     for s in grid_summaries(settings, runs) {
         let _ = writeln!(
             t,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             s.profile,
             s.fusion,
             s.viewpoints,
@@ -737,6 +782,7 @@ pub fn markdown(settings: &SuiteSettings, runs: &[Run]) -> String {
             cell(s.precision, 1.0, 2),
             cell(s.error_m, 100.0, 1),
             cell(s.recall_first_view, 1.0, 2),
+            cell(s.recall_faced, 1.0, 2),
             s.recall_fell,
             s.first_view_recall_fell,
             s.runs
@@ -853,7 +899,7 @@ mod tests {
         // the shadow at x = 2 spans |y| <= 2, so none of the far wall is visible.
         let near_samples = 100;
         assert_eq!(s.visible, near_samples, "{s:?}");
-        assert_eq!(s.recall, Some(1.0));
+        assert_eq!((s.recall, s.recall_faced), (Some(1.0), Some(1.0)));
         // Occupied: two columns of 100 cells on the wall (centres at x = 0.99 and 1.01) and two
         // of 20 at x = 0.5, 0.5 m from everything.
         assert_eq!(s.occupied, 240, "{s:?}");
@@ -883,6 +929,13 @@ mod tests {
             "{s3:?} of {all}"
         );
         assert_eq!((s3.recall, s3.precision), (Some(0.0), None));
+        assert_eq!(s3.recall_faced, Some(0.0));
+        // Only the part of the near wall within 28° of its normal is faced: a map drawing just
+        // that (|y| <= tan 28° = 0.53 m) has every faced sample and half the visible ones.
+        let faced_only = map_of(|p| (p.x - 1.0).abs() < 0.011 && p.y.abs() < 0.5);
+        let s4 = score_grid(&faced_only, &scene, &views, 4.0);
+        assert!(s4.recall_faced.unwrap() > 0.95, "{s4:?}");
+        assert!((0.5..0.6).contains(&s4.recall.unwrap()), "{s4:?}");
     }
 
     #[test]

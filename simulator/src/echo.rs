@@ -47,16 +47,26 @@
 //!   when it is wider than the first Fresnel zone there, √(λ·d·(r−d)/r): sound diffracts around a
 //!   5 cm post, which is why the wall behind the paper's small obstacle is still heard through it.
 //!
-//! Multipath (the late phantom echoes of specular walls past the cut-off) is not modelled: such a
-//! ping reads "no echo".
+//! Multipath: with [`EchoParams::double_bounce`] (every sensor profile; off without one) a ping may
+//! leave by one wall, meet a second and come back by the first, S → A → B → S, the path found by
+//! the method of images; it returns a late phantom where no surface is, in corners that are not
+//! square and between walls and boards at a slant (a square corner's double bounce is its own
+//! vertex echo). Longer paths are not modelled: a ping past the cut-off that has no such path
+//! reads "no echo".
+//!
+//! Thin boards ([`Surface::Board`]) return [`EchoParams::board_loss_db`] less than a wall and
+//! nothing from their ends. A sensor that reports processed ranges adds
+//! [`EchoParams::range_bias_m`] and rounds to [`EchoParams::range_step_m`].
 //!
 //! Noise, from a seeded ChaCha RNG so runs repeat: the detector fires on the 1st to 3rd cycle of the
 //! echo ([`NoiseParams::late_cycles_max`], sensor-facts: jitter of about one wavelength), and a few
 //! pings ([`NoiseParams::spurious_probability`]) end early on a transient, uniformly between the
 //! minimum range and the true echo. On top, a zero-mean Gaussian of deviation
 //! [`NoiseParams::range_sigma_m`] + [`NoiseParams::range_sigma_fraction`] × range (off by default)
-//! plays the centimetre jitter of real sensors. Ranges below the minimum read the minimum; beyond
-//! the maximum there is no echo.
+//! plays the centimetre jitter of real sensors, [`NoiseParams::threshold_jitter_db`] moves each
+//! ping's detection threshold (amplitude jitter) and [`NoiseParams::dropout_probability`] loses
+//! whole pings (all off by default). Ranges below the minimum read the minimum; beyond the maximum
+//! there is no echo.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -462,10 +472,10 @@ impl EchoModel {
 
     /// The double-bounce ghosts heard by a ping aimed at `aim_deg` (absolute, degrees), by the
     /// method of images: the sensor mirrored in wall A and in wall B; where the straight line
-    /// between the two images crosses A and then B inside both walls, sound leaves towards the
-    /// crossing on A, meets B, comes back by A's crossing... the path S → P(A) → Q(B) → S, as long
-    /// as the line between the images. A square corner puts P and Q on its vertex: that path is
-    /// the corner's own echo, already counted, so only paths with P and Q apart are ghosts.
+    /// between the two images crosses A at P and then B at Q inside both walls, sound runs
+    /// S → P → Q → S (or back the other way), a path as long as the line between the images. A
+    /// square corner puts P and Q on its vertex: that path is the corner's own echo, already
+    /// counted, so only paths with P and Q apart are ghosts.
     fn double_bounces(&self, aim_deg: f64, out: &mut Vec<Echo>) {
         let p = &self.scene.echo;
         let sensor = self.pose.at;

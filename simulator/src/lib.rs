@@ -80,6 +80,14 @@
 //! wins, unless the line of sight is blocked. Noise: late detection by up to two cycles (≤ 8.6 mm)
 //! and 0.5 % transient short readings, from a seeded ChaCha RNG.
 //!
+//! That is the model without a sensor profile, the calibration behind `docs/results.md`. A
+//! [`profile`] (`profile = "hc-sr04"` in a scene file, `--profile`) names a sensor instead:
+//! `srf05` (refitted so that a 5 cm post is heard to about 1.1 m), `hc-sr04` (a 15° measuring
+//! angle, 60 ms per ping) or `nxt` (processed whole-centimetre ranges 3 cm short, 3° steps), each
+//! with per-ping Gaussian range noise, ±1 dB of amplitude jitter, dropouts and double-bounce
+//! ghosts, and with its own head geometry and timing. Thin boards (`surface = "board"`) are
+//! faint and silent edge-on under any model.
+//!
 //! # Ground truth
 //!
 //! [`Scene::walls`], [`Scene::posts`] and [`Scene::distance_to_surface`] give other crates (the
