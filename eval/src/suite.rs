@@ -1073,8 +1073,6 @@ mod structural_tests {
     /// The issue's aim: fusing more viewpoints never loses walls. Measured both ways: the recall
     /// of all that the fused viewpoints see, and of what the first one sees alone.
     #[test]
-    #[ignore = "fails with today's recommended preset (see docs/results.md, the suite's section); \
-                to be enabled with the new grid model"]
     fn recall_does_not_fall_as_viewpoints_are_added() {
         let mut s = settings(vec![ProfileChoice(Some(SensorProfile::Srf05))]);
         s.scenes = 3;

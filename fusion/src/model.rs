@@ -506,13 +506,13 @@ impl Default for SmoothModel {
         Self {
             occupied_log_odds: 1.0,
             free_log_odds: -1.5,
-            occupied_half_angle_deg: 4.0,
-            free_half_angle_deg: 14.0,
+            occupied_half_angle_deg: 6.0,
+            free_half_angle_deg: 7.0,
             band_fraction: 0.01,
             min_band_m: 0.025,
             fade_range_m: 3.0,
-            incidence_full_deg: 30.0,
-            incidence_none_deg: 60.0,
+            incidence_full_deg: 0.0,
+            incidence_none_deg: 10.0,
         }
     }
 }
@@ -764,8 +764,8 @@ mod tests {
         let deg = |a: f32| a.to_radians();
         // (r, α) → eq. 1–2 value; smooth model's probability σ(l) (None: no evidence), with
         // l = ∓1 · (1 − (α/θ)²) · f(r) and the radial trust f(r) = 0.985071 at 1 m, 0.961538 at
-        // 1.8 m, 0.947214 at 2 m; the same with the recommended −1.5 free evidence within 14°
-        // and occupied evidence within 4°.
+        // 1.8 m, 0.947214 at 2 m; the same with the recommended −1.5 free evidence within 7°
+        // and occupied evidence within 6°.
         let cells = [
             // Region II on the axis: s = (0.75 + 1)/2 = 0.875, eq. 2: 0.125.
             (1.0, 0.0, 0.125, Some(0.271_887), Some(0.185_789)),
@@ -776,7 +776,7 @@ mod tests {
             // Region I on the axis: s = 0.75, eq. 1: 0.735.
             (2.0, 0.0, 0.735, Some(0.720_554), Some(0.720_554)),
             // Region I near the edge: s = 0.333333, eq. 1: 0.326667 < 0.5, free evidence at the
-            // echo; the smooth model's occupied evidence stops at 12° (4°).
+            // echo; the smooth model's occupied evidence stops at 12° (6°).
             (2.0, 25.0, 0.326_667, None, None),
         ];
         for (r, a, p, q, rec) in cells {
