@@ -39,3 +39,5 @@ pub mod metrics;
 pub mod motion;
 pub mod pipeline;
 pub mod report;
+pub mod scenegen;
+pub mod suite;

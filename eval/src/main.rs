@@ -9,6 +9,7 @@ use clap::Parser;
 use sonar_eval::features::{self, FeatureSettings};
 use sonar_eval::motion::{self, MotionSettings};
 use sonar_eval::report::{self, Settings};
+use sonar_eval::suite::{self, SuiteArgs, SuiteSettings};
 use sonar_eval::{feature_report, image};
 use sonar_sim::{BUILTIN_NAMES, Scene};
 use tracing::info;
@@ -95,6 +96,8 @@ struct Args {
     /// Only the motion evaluation.
     #[arg(long)]
     motion_only: bool,
+    #[command(flatten)]
+    suite: SuiteArgs,
 }
 
 fn main() -> ExitCode {
@@ -210,6 +213,12 @@ fn parse_heading_drift(s: &str) -> Result<f64, String> {
 }
 
 fn run(args: Args) -> Result<()> {
+    if args.suite.suite {
+        let settings = SuiteSettings::from_args(&args.suite)?;
+        let runs = suite::evaluate(&settings)?;
+        let text = suite::markdown(&settings, &runs);
+        return write_report(&args.out, args.report.as_deref(), &text);
+    }
     let settings = Settings {
         sweeps: args.sweeps,
         seed: args.seed,
@@ -268,11 +277,16 @@ fn run(args: Args) -> Result<()> {
         }
         text += &motion::markdown(&motion_settings, &scenes);
     }
-    match args.report.as_deref().map(|r| report_path(&args.out, r)) {
+    write_report(&args.out, args.report.as_deref(), &text)
+}
+
+/// Writes the tables to `report` (inside `out` unless absolute), or to standard output.
+fn write_report(out: &Path, report: Option<&Path>, text: &str) -> Result<()> {
+    match report.map(|r| report_path(out, r)) {
         Some(path) => {
-            std::fs::create_dir_all(&args.out)
-                .with_context(|| format!("creating the output directory {}", args.out.display()))?;
-            std::fs::write(&path, &text)
+            std::fs::create_dir_all(out)
+                .with_context(|| format!("creating the output directory {}", out.display()))?;
+            std::fs::write(&path, text)
                 .with_context(|| format!("writing the report {}", path.display()))?;
             info!(report = %path.display(), "report written");
         }

@@ -91,8 +91,38 @@ pub struct Capture {
 /// Runs `scene` through the simulated device and the driver's decoder for `sweeps` complete
 /// sweeps of `scan`, with the echo noise seeded by `seed`.
 pub fn capture(scene: Scene, scan: Scan, sweeps: u32, seed: u64) -> Result<Capture> {
+    let head = Head::default();
+    capture_with(scene, head, scan, sweeps, seed)
+}
+
+/// The simulated head's geometry and timing: the paper's by default, a sensor profile's
+/// otherwise ([`Head::of`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Head {
+    pub sensor: SensorConfig,
+    pub timing: Timing,
+}
+
+impl Head {
+    /// The head a scene's sensor profile gives it, the paper's without one.
+    pub fn of(scene: &Scene) -> Self {
+        scene.profile.map_or_else(Self::default, |p| Self {
+            sensor: p.sensor(),
+            timing: p.timing(),
+        })
+    }
+}
+
+/// As [`capture`], with the device's geometry and timing `head`.
+pub fn capture_with(
+    scene: Scene,
+    head: Head,
+    scan: Scan,
+    sweeps: u32,
+    seed: u64,
+) -> Result<Capture> {
     ensure!(sweeps > 0, "at least one sweep is needed");
-    run_device(scene, scan, seed, Until::Sweeps(sweeps), None)
+    run_device(scene, head, scan, seed, Until::Sweeps(sweeps), None)
 }
 
 /// A capture with the head on the scene's robot, and the robot's poses.
@@ -139,7 +169,14 @@ pub fn capture_tour(
         poses: Vec::new(),
         driven_m: 0.0,
     };
-    let capture = run_device(scene, scan, seed, Until::Driven(metres), Some(&mut robot))?;
+    let capture = run_device(
+        scene,
+        Head::default(),
+        scan,
+        seed,
+        Until::Driven(metres),
+        Some(&mut robot),
+    )?;
     Ok(TourCapture {
         capture,
         poses: robot.poses,
@@ -190,16 +227,16 @@ enum Until {
 /// The simulated device (on `robot`, if any) and the driver's side of the line until `until`.
 fn run_device(
     scene: Scene,
+    head: Head,
     scan: Scan,
     seed: u64,
     until: Until,
     mut robot: Option<&mut Robot>,
 ) -> Result<Capture> {
-    let sensor = SensorConfig::default();
+    let sensor = head.sensor;
     let name = scene.name.clone();
     let model = EchoModel::new(scene, sensor, seed).context("setting up the echo model")?;
-    let firmware =
-        Firmware::new(sensor, Timing::default(), model).context("setting up the firmware")?;
+    let firmware = Firmware::new(sensor, head.timing, model).context("setting up the firmware")?;
     let mut device = NativeDevice::new(firmware);
     let mut host = Host::new(sensor);
     // The virtual clock stamps the robot's poses as it stamps the readings.

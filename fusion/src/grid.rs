@@ -197,6 +197,10 @@ pub struct CellCounts {
 pub struct OccupancyGrid {
     geometry: GridGeometry,
     store: CellStore,
+    /// Per cell, the world bearing from the sensor at which a reading last gave it occupied
+    /// evidence (NaN: never), for a model that hears (`crate::model::CellEvidence::HEARD`);
+    /// empty for the others.
+    heard: Vec<f32>,
 }
 
 impl fmt::Debug for OccupancyGrid {
@@ -209,8 +213,9 @@ impl fmt::Debug for OccupancyGrid {
 }
 
 impl OccupancyGrid {
-    /// A grid of `geometry` where every cell is unknown (probability 0.5, the paper's prior).
-    pub fn new(geometry: GridGeometry, rule: &RuleConfig) -> Self {
+    /// A grid of `geometry` where every cell is unknown (probability 0.5, the paper's prior), and,
+    /// if `hears`, a bearing per cell for where it was heard occupied from (none yet).
+    pub fn new(geometry: GridGeometry, rule: &RuleConfig, hears: bool) -> Self {
         let len = geometry.len();
         let store = match *rule {
             RuleConfig::Bayes => CellStore::Bayes(Layer::new(BayesRule, len)),
@@ -220,7 +225,16 @@ impl OccupancyGrid {
             }
             RuleConfig::Himm(r) => CellStore::Himm(Layer::new(r, len)),
         };
-        Self { geometry, store }
+        let heard = if hears {
+            vec![f32::NAN; len]
+        } else {
+            Vec::new()
+        };
+        Self {
+            geometry,
+            store,
+            heard,
+        }
     }
 
     pub fn geometry(&self) -> &GridGeometry {
@@ -236,8 +250,8 @@ impl OccupancyGrid {
         }
     }
 
-    pub(crate) fn parts_mut(&mut self) -> (&GridGeometry, &mut CellStore) {
-        (&self.geometry, &mut self.store)
+    pub(crate) fn parts_mut(&mut self) -> (&GridGeometry, &mut CellStore, &mut [f32]) {
+        (&self.geometry, &mut self.store, &mut self.heard)
     }
 
     /// Occupancy probability of cell (`x`, `y`); `None` if no reading has reached it (it is then
@@ -305,6 +319,21 @@ impl OccupancyGrid {
         }
     }
 
+    /// Copies the bearings each cell was last heard occupied from into `out` (none if the model
+    /// does not hear), into its own allocation.
+    pub(crate) fn save_heard_into(&self, out: &mut Vec<f32>) {
+        out.clear();
+        out.extend_from_slice(&self.heard);
+    }
+
+    /// Takes saved bearings back, if there are as many as this grid keeps (none when its model
+    /// does not hear).
+    pub(crate) fn restore_heard(&mut self, saved: Vec<f32>) -> Result<(), StateError> {
+        check_len("the heard bearings", self.heard.len(), saved.len())?;
+        self.heard = saved;
+        Ok(())
+    }
+
     /// Takes saved cells back, if they are this grid's rule's and one per cell.
     pub(crate) fn restore_cells(&mut self, saved: SavedCells) -> Result<(), StateError> {
         fn put<R: Combine>(layer: &mut Layer<R>, cells: Vec<R::Cell>) -> Result<(), StateError> {
@@ -332,6 +361,7 @@ impl OccupancyGrid {
             l.encode_all();
         }
         with_layer!(&mut self.store, l => reset(l));
+        self.heard.fill(f32::NAN);
     }
 }
 
@@ -364,8 +394,11 @@ mod tests {
     #[test]
     fn a_new_grid_is_unknown_and_encodes_as_such() {
         for kind in RuleKind::ALL {
-            let mut g =
-                OccupancyGrid::new(GridGeometry::new(8, 0.5), &RuleConfig::default_for(kind));
+            let mut g = OccupancyGrid::new(
+                GridGeometry::new(8, 0.5),
+                &RuleConfig::default_for(kind),
+                false,
+            );
             assert_eq!(g.rule_kind(), kind);
             assert_eq!(g.probability(3, 4), None);
             let mut bytes = vec![0u8; 64];
@@ -389,6 +422,7 @@ mod tests {
         let mut g = OccupancyGrid::new(
             GridGeometry::new(2, 1.0),
             &RuleConfig::LogOdds(LogOddsRule::default()),
+            false,
         );
         let CellStore::LogOdds(l) = &mut g.parts_mut().1 else {
             unreachable!()

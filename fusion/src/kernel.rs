@@ -70,8 +70,31 @@ pub(crate) fn cell_evidence<R: Combine, E: CellEvidence>(
     if alpha.abs() <= cone { e } else { f32::NAN }
 }
 
+/// [`cell_evidence`] for a model that hears ([`CellEvidence::HEARD`]), with the bearing `heard` the
+/// cell was last heard occupied from, which it updates (only inside the rule's cone).
+#[inline(always)]
+pub(crate) fn heard_cell_evidence<R: Combine, E: CellEvidence>(
+    evidence: &E,
+    axis: f32,
+    cone: f32,
+    r: f32,
+    bearing: f32,
+    heard: &mut f32,
+) -> f32 {
+    let alpha = off_axis(bearing, axis);
+    let inside = alpha.abs() <= cone;
+    let mut h = *heard;
+    let e = match R::DOMAIN {
+        Domain::Probability => evidence.heard_probability(r, alpha, bearing, &mut h),
+        Domain::LogOdds => evidence.heard_log_odds(r, alpha, bearing, &mut h),
+    };
+    *heard = if inside { h } else { *heard };
+    if inside { e } else { f32::NAN }
+}
+
 /// Fuses a reading into a run of cells whose (range, bearing) `polar` yields in order; returns how
-/// many cells it updated.
+/// many cells it updated. `heard` holds the run's bearings each cell was last heard occupied from
+/// if the model hears ([`CellEvidence::HEARD`]), and is empty otherwise.
 #[inline(always)]
 pub(crate) fn fuse_run<R: Combine, E: CellEvidence>(
     rule: &R,
@@ -79,15 +102,23 @@ pub(crate) fn fuse_run<R: Combine, E: CellEvidence>(
     axis: f32,
     cone: f32,
     cells: &mut [R::Cell],
+    heard: &mut [f32],
     polar: impl Iterator<Item = (f32, f32)>,
 ) -> usize {
     // Counted in u32, the width of the cells' lanes: a usize counter would make the vectoriser
     // pair each f32 lane with a 64-bit one and halve the vector width. A run is at most a grid
     // row (≤ `MAX_CELLS_PER_SIDE` cells), so it cannot overflow.
     let mut updated = 0u32;
-    for (cell, (r, bearing)) in cells.iter_mut().zip(polar) {
-        let e = cell_evidence::<R, E>(evidence, axis, cone, r, bearing);
-        updated += u32::from(rule.fuse(cell, e));
+    if E::HEARD {
+        for ((cell, heard), (r, bearing)) in cells.iter_mut().zip(heard).zip(polar) {
+            let e = heard_cell_evidence::<R, E>(evidence, axis, cone, r, bearing, heard);
+            updated += u32::from(rule.fuse(cell, e));
+        }
+    } else {
+        for (cell, (r, bearing)) in cells.iter_mut().zip(polar) {
+            let e = cell_evidence::<R, E>(evidence, axis, cone, r, bearing);
+            updated += u32::from(rule.fuse(cell, e));
+        }
     }
     updated as usize
 }
@@ -317,11 +348,13 @@ impl ConeCache {
         self.prepared.as_mut()
     }
 
-    /// Fuses the reading of `beam` (whose evidence is `evidence`) into `layer`; returns how many
-    /// cells it updated.
+    /// Fuses the reading of `beam` (whose evidence is `evidence`) into `layer` and, if the model
+    /// hears, into `heard` (one bearing per cell; empty otherwise); returns how many cells it
+    /// updated.
     pub fn update<R: Combine, E: CellEvidence>(
         &mut self,
         layer: &mut Layer<R>,
+        heard: &mut [f32],
         geometry: &GridGeometry,
         beam: &Beam,
         evidence: &E,
@@ -341,7 +374,7 @@ impl ConeCache {
                 .min(self.model_half_angle),
         );
         let Some(Prepared { stencil, spans }) = self.prepared_for(&sensor) else {
-            return bounding_box(layer, geometry, &sensor, beam, cone, reach, evidence);
+            return bounding_box(layer, heard, geometry, &sensor, beam, cone, reach, evidence);
         };
         let key = ((beam.axis + PI) / ANGLE_STEP).round() as usize % ANGLE_KEYS;
         let spans = spans[key].get_or_insert_with(|| {
@@ -359,9 +392,9 @@ impl ConeCache {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2, checked just above.
-            return unsafe { fuse_rows_avx2(layer, evidence, beam.axis, cone, &pass) };
+            return unsafe { fuse_rows_avx2(layer, heard, evidence, beam.axis, cone, &pass) };
         }
-        fuse_rows(layer, evidence, beam.axis, cone, &pass)
+        fuse_rows(layer, heard, evidence, beam.axis, cone, &pass)
     }
 }
 
@@ -382,6 +415,7 @@ struct RowPass<'a> {
 #[inline(always)]
 fn fuse_rows<R: Combine, E: CellEvidence>(
     layer: &mut Layer<R>,
+    heard: &mut [f32],
     evidence: &E,
     axis: f32,
     cone: f32,
@@ -424,7 +458,15 @@ fn fuse_rows<R: Combine, E: CellEvidence>(
             .zip(stencil.bearing[s..s + len].iter().copied());
         let run = first..first + len;
         let (rule, cells) = layer.begin_run(run.clone());
-        let changed = fuse_run(rule, evidence, axis, cone, cells, polar);
+        let changed = fuse_run(
+            rule,
+            evidence,
+            axis,
+            cone,
+            cells,
+            heard_run(heard, &run),
+            polar,
+        );
         layer.end_run(run, changed);
         updated += changed;
     }
@@ -439,12 +481,23 @@ fn fuse_rows<R: Combine, E: CellEvidence>(
 #[target_feature(enable = "avx2")]
 fn fuse_rows_avx2<R: Combine, E: CellEvidence>(
     layer: &mut Layer<R>,
+    heard: &mut [f32],
     evidence: &E,
     axis: f32,
     cone: f32,
     pass: &RowPass<'_>,
 ) -> usize {
-    fuse_rows(layer, evidence, axis, cone, pass)
+    fuse_rows(layer, heard, evidence, axis, cone, pass)
+}
+
+/// The heard bearings of the cells of `run`: none when the model does not hear (`heard` empty).
+#[inline(always)]
+fn heard_run<'a>(heard: &'a mut [f32], run: &std::ops::Range<usize>) -> &'a mut [f32] {
+    if heard.is_empty() {
+        heard
+    } else {
+        &mut heard[run.clone()]
+    }
 }
 
 /// Cells a vector instruction handles at once in the widest row loop (AVX2, f32).
@@ -462,8 +515,10 @@ fn whole_vectors(lo: i64, hi: i64, min: i64, max: i64) -> (i64, i64) {
 }
 
 /// The fallback: every cell of the bounding box of the cone, up to `reach`.
+#[allow(clippy::too_many_arguments)]
 fn bounding_box<R: Combine, E: CellEvidence>(
     layer: &mut Layer<R>,
+    heard: &mut [f32],
     geometry: &GridGeometry,
     sensor: &SensorCell,
     beam: &Beam,
@@ -510,7 +565,8 @@ fn bounding_box<R: Combine, E: CellEvidence>(
         let run = first..first + len;
         let (rule, cells) = layer.begin_run(run.clone());
         let polar = (x0..=x1).map(|ox| sensor.polar(ox, oy));
-        let changed = fuse_run(rule, evidence, beam.axis, cone, cells, polar);
+        let heard = heard_run(heard, &run);
+        let changed = fuse_run(rule, evidence, beam.axis, cone, cells, heard, polar);
         layer.end_run(run, changed);
         updated += changed;
     }

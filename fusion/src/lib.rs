@@ -34,18 +34,24 @@
 //!   it, uniformly across the cone. The textbook baseline, and the cheapest.
 //! - [`SmoothModel`], after ROS `range_sensor_layer`: free evidence in front of the range and
 //!   occupied evidence in a band d ± w around it (w = max(2.5 cm, 1 % of d)), each falling off
-//!   smoothly with the angle off the axis (by default free evidence to zero at 14°, occupied at
-//!   4°) and with range (a radial trust that halves at 3 m). It never raises occupancy in front of
-//!   that band, nor lowers it within the band.
+//!   smoothly with the angle off the axis (by default free evidence to zero at 7°, occupied at
+//!   6°) and with range (a radial trust that halves at 3 m). It never raises occupancy in front of
+//!   that band, nor lowers it within the band. Its free evidence at a cell that was heard
+//!   occupied is weighted by the incidence at which the reading meets that reflector (the angle
+//!   between the bearings it is seen from now and was heard from): full from the bearing it was heard from, none from 10° off it,
+//!   since a specular board seen edge-on or at a slant is silent and its silence is no evidence
+//!   that it is gone (`docs/fusion.md`, "Free space only where a reflector would have been heard").
 //!
 //! Why the recommended parameters ([`SmoothModel::default`]; `docs/results.md` has the evaluation
-//! they come from, on the simulator): a small target is heard only near the axis (a 5 cm post at 1
-//! m within roughly ±10–15°, ±13.4° in the simulator), a wall across much of the ±30° beam. Free
-//! evidence is therefore given only within ±14°, about where such a target would have been heard:
-//! with free evidence over the whole cone, the readings aimed beside a post cleared the post
-//! itself. Occupied evidence stays within ±4° and is weaker than free evidence (+1 against −1.5 in
-//! log-odds on the axis): each reading claims its echo near its axis, and the claims of readings
-//! aimed beside a small object are refuted by the neighbours that heard past it. The band's 2.5 cm
+//! they come from, on the simulator; the angles and the incidence weighting were re-chosen on the
+//! generated scene suite for issue 23, `docs/fusion.md`): a small or weak target is heard only
+//! near the axis (a 5 cm post at 1 m within roughly ±10–15°, a thin board less), a wall across
+//! much of the ±30° beam. Free evidence is therefore given only within ±7°, about where such a
+//! target would have been heard: with free evidence over the whole cone, the readings aimed beside
+//! a post cleared the post itself. Occupied evidence stays within ±6° and is weaker than free
+//! evidence (+1 against −1.5 in log-odds on the axis): each reading claims its echo near its
+//! axis, and the claims of readings aimed beside a small object are refuted by the neighbours that
+//! heard past it. The band's 2.5 cm
 //! covers the SRF05's quoted 3–4 cm accuracy. Far readings are the ones multipath spoils (a flat
 //! surface beyond the specular cut-off returns phantom ranges of 2.5–3.4 m), hence the trust fading
 //! from 3 m. With the log-odds rule's clamps (−2 and 3.5), no single reading decides a cell, and

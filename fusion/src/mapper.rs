@@ -64,7 +64,7 @@ impl Mapper {
             Vector2::new(config.grid.centre_x_m, config.grid.centre_y_m),
         );
         Ok(Self {
-            grid: OccupancyGrid::new(geometry, &config.rule),
+            grid: OccupancyGrid::new(geometry, &config.rule, config.model.hears()),
             radar: RadarMap::new(config.radar)?,
             cones: ConeCache::new(&config),
             paper_arrays: PaperArrays::default(),
@@ -128,13 +128,13 @@ impl Mapper {
                 cells_updated: 0,
             });
         };
-        let (geometry, store) = self.grid.parts_mut();
+        let (geometry, store, heard) = self.grid.parts_mut();
         let (cones, arrays) = (&mut self.cones, &mut self.paper_arrays);
         let cells_updated = with_model!(&self.config.model, m => {
             let evidence = m.reading(&beam);
             with_layer!(store, layer => match kernel {
-                Kernel::Cone => cones.update(layer, geometry, &beam, &evidence),
-                Kernel::WholeGrid => arrays.update(layer, geometry, &beam, &evidence),
+                Kernel::Cone => cones.update(layer, heard, geometry, &beam, &evidence),
+                Kernel::WholeGrid => arrays.update(layer, heard, geometry, &beam, &evidence),
             })
         });
         Ok(Update {
@@ -148,6 +148,7 @@ impl Mapper {
         out.readings_fused = self.readings;
         out.last_pose = self.pose.into();
         self.grid.save_cells_into(&mut out.cells);
+        self.grid.save_heard_into(&mut out.heard);
         self.radar.save_into(&mut out.radar);
     }
 
@@ -155,6 +156,7 @@ impl Mapper {
     pub(crate) fn restore(config: FusionConfig, saved: MapperState) -> Result<Self, StateError> {
         let mut mapper = Self::new(config)?;
         mapper.grid.restore_cells(saved.cells)?;
+        mapper.grid.restore_heard(saved.heard)?;
         mapper.radar.restore(saved.radar)?;
         mapper.readings = saved.readings_fused;
         mapper.pose = saved.last_pose.into();
@@ -320,6 +322,57 @@ mod tests {
     }
     const REBUILD: usize = crate::kernel::REBUILD_AFTER as usize;
 
+    /// FNV-1a over the bits of every cell of the grid: a fingerprint of the whole map.
+    fn fingerprint(m: &Mapper) -> u64 {
+        cells(m)
+            .iter()
+            .flat_map(|c| c.map_or(u32::MAX, f32::to_bits).to_le_bytes())
+            .fold(0xcbf2_9ce4_8422_2325, |h, b| {
+                (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)
+            })
+    }
+
+    /// The paper preset is the paper as written: its map of fixed readings from five poses (with
+    /// both kernels) is the very one it gave before the recommended model learnt where a cell was
+    /// heard from (fingerprint taken on commit cef130e, before that change).
+    #[test]
+    fn the_paper_preset_map_is_unchanged_bit_for_bit() {
+        let config = FusionConfig {
+            grid: GridConfig {
+                cells: 150,
+                ..GridConfig::default()
+            },
+            ..FusionConfig::preset(Preset::Paper)
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(23);
+        let centres = SensorConfig::default().reading_centres_deg();
+        let poses = [
+            (0.0, 0.0, 0.0),
+            (0.5, 0.3, 1.0),
+            (-0.7, 0.2, -2.0),
+            (0.1, -0.9, 2.5),
+            (0.33, 0.71, 0.2),
+        ];
+        let mut maps = [Kernel::Cone, Kernel::WholeGrid].map(|k| (k, Mapper::new(config).unwrap()));
+        for (x, y, heading) in poses {
+            let pose = Isometry2::new(Vector2::new(x, y), heading);
+            for &centre in &centres {
+                let obs = Observation {
+                    pose,
+                    range_m: rng.random_bool(0.9).then(|| rng.random_range(0.1..4.2)),
+                    ..reading(centre, None)
+                };
+                for (kernel, m) in &mut maps {
+                    m.update_with(&obs, *kernel).unwrap();
+                }
+            }
+        }
+        for (kernel, m) in &maps {
+            assert_eq!(fingerprint(m), PAPER_FINGERPRINT, "{kernel:?}");
+        }
+    }
+    const PAPER_FINGERPRINT: u64 = 9_818_789_633_411_597_063;
+
     #[test]
     fn every_model_and_rule_is_symmetric_about_the_beam_axis() {
         for model in ModelKind::ALL {
@@ -341,12 +394,14 @@ mod tests {
                             } else {
                                 (x, n - 1 - y)
                             };
-                            // Exact about the x axis; within rounding of π/2 about the y axis.
+                            // Exact about the x axis; within rounding of π/2 about the y axis
+                            // (a bearing's last bit moves the smooth model's steep 7° free
+                            // profile by about 1e-6).
                             let (a, b) = (m.grid().probability(x, y), m.grid().probability(mx, my));
                             assert_eq!(a.is_some(), b.is_some(), "{model} {rule} ({x}, {y})");
                             let (a, b) = (a.unwrap_or(0.0), b.unwrap_or(0.0));
                             assert!(
-                                (a - b).abs() <= 1e-6,
+                                (a - b).abs() <= 4e-6,
                                 "{model} {rule} axis {axis_deg}: ({x}, {y}) {a} {b}"
                             );
                         }
@@ -409,6 +464,124 @@ mod tests {
             let band = crate::model::SmoothModel::default().band(range);
             assert_eq!(occupied_in_front(Preset::Recommended, range, band), 0);
         }
+    }
+
+    /// Readings from `(x, y)` at world bearings `from_deg..=to_deg` every 1.5°, each with the
+    /// range `range(bearing°)`, repeated `sweeps` times.
+    fn sweep(
+        at: (f32, f32),
+        (from_deg, to_deg): (f32, f32),
+        sweeps: usize,
+        range: impl Fn(f32) -> Option<f32>,
+    ) -> Vec<Observation> {
+        let steps = ((to_deg - from_deg) / 1.5).round() as usize;
+        let one: Vec<Observation> = (0..=steps)
+            .map(|i| from_deg + i as f32 * 1.5)
+            .map(|a| Observation {
+                pose: Isometry2::new(Vector2::new(at.0, at.1), 0.0),
+                ..reading(a, range(a))
+            })
+            .collect();
+        one.repeat(sweeps)
+    }
+
+    /// A thin board across x = 1 m, |y| ≤ 0.3 m, heard square from the origin, then passed along
+    /// and beside by readings from two other positions that hear a wall at y = 1.5 m beyond it,
+    /// and, if `taken_away`, swept again from the origin hearing the wall at x = 3 m (the board
+    /// was taken away). Returns the mapper and, per 2 cm row of the board's middle (|y| ≤ 0.14 m),
+    /// the highest occupancy within 3 cm of x = 1 m.
+    fn board_scene(model: crate::model::SmoothModel, taken_away: bool) -> (Mapper, Vec<f32>) {
+        let mut m = Mapper::new(FusionConfig {
+            model: ModelConfig::Smooth(model),
+            ..FusionConfig::default()
+        })
+        .unwrap();
+        // Square from the origin: every beam whose lobe (±15°) holds the board's foot hears it at
+        // its perpendicular distance; the others hear the far wall at x = 3 m.
+        let square = sweep((0.0, 0.0), (-30.0, 30.0), 2, |a| {
+            Some(if a.abs() <= 15.0 { 1.0 } else { 3.0 })
+        });
+        // Edge-on from (1, −1.5): the beams along the board hear the wall at y = 1.5 m; beside it,
+        // from (1.3, −1.5), the same.
+        let along = sweep((1.0, -1.5), (75.0, 105.0), 3, |_| Some(3.0));
+        let beside = sweep((1.3, -1.5), (75.0, 105.0), 3, |_| Some(3.0));
+        let mut all: Vec<Observation> = [square, along, beside].concat();
+        if taken_away {
+            all.extend(sweep((0.0, 0.0), (-30.0, 30.0), 3, |_| Some(3.0)));
+        }
+        for obs in &all {
+            m.update(obs).unwrap();
+        }
+        let g = *m.grid().geometry();
+        let rows = (-7..=7)
+            .map(|i| {
+                let y = i as f32 * 0.02 + 0.01;
+                (-1..=1)
+                    .filter_map(|j| {
+                        let p = nalgebra::Point2::new(1.0 + j as f32 * 0.02 + 0.01, y);
+                        let (cx, cy) = g.cell_at(p)?;
+                        m.grid().probability(cx, cy)
+                    })
+                    .fold(0.0f32, f32::max)
+            })
+            .collect();
+        (m, rows)
+    }
+
+    #[test]
+    fn a_board_passed_edge_on_or_beside_survives_and_empty_space_is_still_cleared() {
+        let recommended = crate::model::SmoothModel::default();
+        let (m, rows) = board_scene(recommended, false);
+        assert!(rows.iter().all(|&p| p > 0.5), "{rows:?}");
+        // Without the weighting by incidence (every cell takes full free evidence, as the smooth
+        // model did before), the same readings erase the board.
+        let deaf = crate::model::SmoothModel {
+            incidence_full_deg: 90.0,
+            incidence_none_deg: 180.0,
+            ..recommended
+        };
+        let (_, erased) = board_scene(deaf, false);
+        assert!(erased.iter().all(|&p| p < 0.5), "{erased:?}");
+        // Space no reading heard occupied is cleared: between the board and the edge-on sensor.
+        let g = *m.grid().geometry();
+        for y in [-1.0f32, -0.6, -0.35] {
+            let (cx, cy) = g.cell_at(nalgebra::Point2::new(1.01, y)).unwrap();
+            let p = m.grid().probability(cx, cy).unwrap();
+            assert!(p < 0.2, "({}, {y}): {p}", 1.01);
+        }
+        // A board taken away is cleared by readings that would have heard it: from where it was
+        // heard.
+        let (_, gone) = board_scene(recommended, true);
+        assert!(gone.iter().all(|&p| p < 0.5), "{gone:?}");
+    }
+
+    /// A restored map remembers where its cells were heard from: it fuses on like the original
+    /// (without the bearings, the edge-on readings below would erase the board in the copy only).
+    #[test]
+    fn a_restored_map_keeps_the_bearings_its_cells_were_heard_from() {
+        let (mut original, _) = board_scene(crate::model::SmoothModel::default(), false);
+        let mut saved = MapperState::default();
+        original.save_into(&mut saved);
+        assert_eq!(saved.heard.len(), original.grid().geometry().len());
+        assert!(saved.heard.iter().any(|h| !h.is_nan()));
+        let mut restored = Mapper::restore(*original.config(), saved.clone()).unwrap();
+        for obs in sweep((1.0, -1.5), (75.0, 105.0), 3, |_| Some(3.0)) {
+            original.update(&obs).unwrap();
+            restored.update(&obs).unwrap();
+        }
+        assert_eq!(fingerprint(&original), fingerprint(&restored));
+        // Bearings the settings have no room for are refused.
+        let deaf = FusionConfig {
+            model: ModelConfig::default_for(ModelKind::Paper),
+            ..*original.config()
+        };
+        assert!(matches!(
+            Mapper::restore(deaf, saved),
+            Err(StateError::Length {
+                what: "the heard bearings",
+                ..
+            })
+        ));
     }
 
     #[test]

@@ -6,7 +6,12 @@
 //! combination rule consumes, so neither rule pays for a conversion when the model is native in
 //! its domain. NaN means "no evidence": the cell lies beyond the reading (region III) and stays as
 //! it is.
+//!
+//! A model may also remember, per cell, the bearing it last heard the cell occupied from
+//! ([`CellEvidence::HEARD`]): the smooth model weighs a later reading's free evidence at that cell
+//! by whether a specular reflector heard from there could have answered this reading at all.
 
+use std::f32::consts::{FRAC_PI_2, PI, TAU};
 use std::fmt;
 use std::str::FromStr;
 
@@ -17,6 +22,10 @@ use crate::observation::Beam;
 
 /// What one reading says about the cells of its cone, with its constants worked out.
 pub(crate) trait CellEvidence: Copy {
+    /// Whether the evidence for a cell depends on the bearing the cell was last heard occupied
+    /// from ([`Self::heard_log_odds`]); if not, the kernels pass no such bearings.
+    const HEARD: bool = false;
+
     /// Farthest range this reading updates.
     fn reach(&self) -> f32;
     /// Farthest angle off the axis, radians, at which this reading can give evidence: cells
@@ -29,6 +38,20 @@ pub(crate) trait CellEvidence: Copy {
     fn probability(&self, r: f32, alpha: f32) -> f32;
     /// The same as log-odds, ln(p / (1 − p)); NaN for no evidence.
     fn log_odds(&self, r: f32, alpha: f32) -> f32;
+
+    /// [`Self::log_odds`] for a cell at world bearing `bearing` from the sensor that was last
+    /// heard occupied from world bearing `heard` (NaN: never), which it updates. Only called when
+    /// [`Self::HEARD`].
+    #[inline(always)]
+    fn heard_log_odds(&self, r: f32, alpha: f32, _bearing: f32, _heard: &mut f32) -> f32 {
+        self.log_odds(r, alpha)
+    }
+
+    /// [`Self::heard_log_odds`] as a probability.
+    #[inline(always)]
+    fn heard_probability(&self, r: f32, alpha: f32, bearing: f32, heard: &mut f32) -> f32 {
+        sigmoid(self.heard_log_odds(r, alpha, bearing, heard))
+    }
 }
 
 /// ln(p / (1 − p)); ±∞ at 0 and 1, which the log-odds rule's clamping absorbs.
@@ -141,6 +164,16 @@ impl ModelConfig {
             ModelConfig::Paper(m) => max_range * (1.0 + m.tolerance),
             ModelConfig::LogOdds(_) => max_range,
             ModelConfig::Smooth(m) => max_range + m.band(max_range),
+        }
+    }
+
+    /// Whether the model keeps, per cell, the bearing the cell was last heard occupied from
+    /// ([`CellEvidence::HEARD`]).
+    pub(crate) fn hears(&self) -> bool {
+        match self {
+            ModelConfig::Paper(_) => PaperReading::HEARD,
+            ModelConfig::LogOdds(_) => LogOddsReading::HEARD,
+            ModelConfig::Smooth(_) => SmoothReading::HEARD,
         }
     }
 
@@ -427,6 +460,18 @@ impl CellEvidence for LogOddsReading {
 /// It never raises occupancy in front of the occupied band d ± w (the range's own uncertainty), nor
 /// lowers it within the band.
 ///
+/// **Free evidence only where a reflector would have answered.** A flat board or wall is a
+/// specular reflector: it returns an echo only to a sensor near its perpendicular, and a beam that
+/// passes along it or meets it at a slant hears whatever lies beyond. So each cell remembers the
+/// world bearing from which a reading last put occupied evidence on it (the sensor then lay near
+/// the reflector's perpendicular, or the echo would not have come back). A later reading's free
+/// evidence at that cell is weighted by the incidence i, the angle between the bearing it sees
+/// the cell at and the remembered one, folded into [0°, 90°] (a thin board answers from either
+/// side): full up to `incidence_full_deg`, falling linearly to none at `incidence_none_deg`. A
+/// cell never heard occupied takes full free evidence, so truly empty space is cleared as before;
+/// the readings of one standing sweep see every cell at the bearing they heard it from (i = 0),
+/// so a single sweep's map is the same as without this weighting.
+///
 /// ROS scales the probability's deviation from one half by the weights, with extremes 0 and 1
 /// (infinite log-odds on the axis); scaling log-odds keeps every reading's evidence finite, and
 /// the two separate angular widths let free-space evidence reach wider than occupied evidence,
@@ -448,6 +493,11 @@ pub struct SmoothModel {
     pub min_band_m: f32,
     /// Range at which the radial trust has fallen to one half (ROS's φ_v).
     pub fade_range_m: f32,
+    /// Incidence up to which a cell heard occupied still takes a reading's full free evidence.
+    pub incidence_full_deg: f32,
+    /// Incidence from which it takes none (above `incidence_full_deg`; beyond 90° never reached,
+    /// so the weight then stays above zero).
+    pub incidence_none_deg: f32,
 }
 
 impl Default for SmoothModel {
@@ -456,11 +506,13 @@ impl Default for SmoothModel {
         Self {
             occupied_log_odds: 1.0,
             free_log_odds: -1.5,
-            occupied_half_angle_deg: 4.0,
-            free_half_angle_deg: 14.0,
+            occupied_half_angle_deg: 6.0,
+            free_half_angle_deg: 7.0,
             band_fraction: 0.01,
             min_band_m: 0.025,
             fade_range_m: 3.0,
+            incidence_full_deg: 0.0,
+            incidence_none_deg: 10.0,
         }
     }
 }
@@ -505,6 +557,18 @@ impl SmoothModel {
             self.fade_range_m,
             self.fade_range_m > 0.0 && self.fade_range_m.is_finite(),
             "a positive number of metres",
+        )?;
+        check(
+            "model.incidence_full_deg",
+            self.incidence_full_deg,
+            (0.0..=90.0).contains(&self.incidence_full_deg),
+            "in [0, 90] degrees",
+        )?;
+        check(
+            "model.incidence_none_deg",
+            self.incidence_none_deg,
+            self.incidence_none_deg > self.incidence_full_deg && self.incidence_none_deg <= 180.0,
+            "above model.incidence_full_deg, at most 180 degrees",
         )
     }
 
@@ -545,6 +609,9 @@ impl SmoothModel {
             inv_sq_free: inv_sq(self.free_half_angle_deg),
             fade_range: self.fade_range_m,
             half_angle: self.half_angle(),
+            incidence_none: self.incidence_none_deg.to_radians(),
+            inv_incidence_span: 1.0
+                / (self.incidence_none_deg - self.incidence_full_deg).to_radians(),
         }
     }
 }
@@ -562,9 +629,53 @@ pub(crate) struct SmoothReading {
     inv_sq_free: f32,
     fade_range: f32,
     half_angle: f32,
+    incidence_none: f32,
+    inv_incidence_span: f32,
+}
+
+impl SmoothReading {
+    /// The evidence with free evidence weighted by `free_weight`: the model's formula, written as
+    /// arithmetic and selects, without early returns, so the loop vectorises.
+    #[inline(always)]
+    fn weighted_log_odds(&self, r: f32, alpha: f32, free_weight: f32) -> f32 {
+        let a2 = alpha * alpha;
+        let x = 2.0 * (r - self.fade_range);
+        let trust = 0.5 - 0.5 * x / (1.0 + x * x).sqrt();
+        // `positive` rather than f32::max: the same values, one instruction in the loop.
+        let t = positive((r - self.ramp_from) * self.inv_band);
+        let j = (r - self.d) * self.inv_band;
+        let free = self.l_free * positive(1.0 - a2 * self.inv_sq_free) * (1.0 - t * t);
+        let occupied = self.l_occ * positive(1.0 - a2 * self.inv_sq_occ) * (1.0 - j * j);
+        let l = if r < self.free_to {
+            free * free_weight
+        } else if r < self.occupied_to {
+            occupied
+        } else {
+            0.0
+        } * trust;
+        // A zero weight (outside a profile's angle, at a band's end) is no evidence: the cell stays
+        // unknown rather than "seen, undecided".
+        if l != 0.0 { l } else { f32::NAN }
+    }
+
+    /// How much of a reading's free evidence a cell heard occupied from world bearing `heard`
+    /// takes when this reading sees it at world bearing `bearing`: 1 up to the full incidence,
+    /// none from `incidence_none`, linear between; 1 for a cell never heard (NaN).
+    #[inline(always)]
+    fn free_weight(&self, bearing: f32, heard: f32) -> f32 {
+        // Both bearings lie in [−π, π]; the difference folded into [0, π/2]. NaN passes through
+        // every fold (its comparisons are false) and gives the weight 1.
+        let d = (bearing - heard).abs();
+        let d = if d > PI { TAU - d } else { d };
+        let incidence = if d > FRAC_PI_2 { PI - d } else { d };
+        let w = (self.incidence_none - incidence) * self.inv_incidence_span;
+        if w < 1.0 { positive(w) } else { 1.0 }
+    }
 }
 
 impl CellEvidence for SmoothReading {
+    const HEARD: bool = true;
+
     fn reach(&self) -> f32 {
         self.free_to.max(self.occupied_to)
     }
@@ -580,25 +691,15 @@ impl CellEvidence for SmoothReading {
 
     #[inline(always)]
     fn log_odds(&self, r: f32, alpha: f32) -> f32 {
-        // Written as arithmetic and selects, without early returns, so the loop vectorises.
-        let a2 = alpha * alpha;
-        let x = 2.0 * (r - self.fade_range);
-        let trust = 0.5 - 0.5 * x / (1.0 + x * x).sqrt();
-        // `positive` rather than f32::max: the same values, one instruction in the loop.
-        let t = positive((r - self.ramp_from) * self.inv_band);
-        let j = (r - self.d) * self.inv_band;
-        let free = self.l_free * positive(1.0 - a2 * self.inv_sq_free) * (1.0 - t * t);
-        let occupied = self.l_occ * positive(1.0 - a2 * self.inv_sq_occ) * (1.0 - j * j);
-        let l = if r < self.free_to {
-            free
-        } else if r < self.occupied_to {
-            occupied
-        } else {
-            0.0
-        } * trust;
-        // A zero weight (outside a profile's angle, at a band's end) is no evidence: the cell stays
-        // unknown rather than "seen, undecided".
-        if l != 0.0 { l } else { f32::NAN }
+        self.weighted_log_odds(r, alpha, 1.0)
+    }
+
+    #[inline(always)]
+    fn heard_log_odds(&self, r: f32, alpha: f32, bearing: f32, heard: &mut f32) -> f32 {
+        let l = self.weighted_log_odds(r, alpha, self.free_weight(bearing, *heard));
+        // Occupied evidence (NaN compares false): the sensor lay near this cell's perpendicular.
+        *heard = if l > 0.0 { bearing } else { *heard };
+        l
     }
 }
 
@@ -663,8 +764,8 @@ mod tests {
         let deg = |a: f32| a.to_radians();
         // (r, α) → eq. 1–2 value; smooth model's probability σ(l) (None: no evidence), with
         // l = ∓1 · (1 − (α/θ)²) · f(r) and the radial trust f(r) = 0.985071 at 1 m, 0.961538 at
-        // 1.8 m, 0.947214 at 2 m; the same with the recommended −1.5 free evidence within 14°
-        // and occupied evidence within 4°.
+        // 1.8 m, 0.947214 at 2 m; the same with the recommended −1.5 free evidence within 7°
+        // and occupied evidence within 6°.
         let cells = [
             // Region II on the axis: s = (0.75 + 1)/2 = 0.875, eq. 2: 0.125.
             (1.0, 0.0, 0.125, Some(0.271_887), Some(0.185_789)),
@@ -675,7 +776,7 @@ mod tests {
             // Region I on the axis: s = 0.75, eq. 1: 0.735.
             (2.0, 0.0, 0.735, Some(0.720_554), Some(0.720_554)),
             // Region I near the edge: s = 0.333333, eq. 1: 0.326667 < 0.5, free evidence at the
-            // echo; the smooth model's occupied evidence stops at 12° (4°).
+            // echo; the smooth model's occupied evidence stops at 12° (6°).
             (2.0, 25.0, 0.326_667, None, None),
         ];
         for (r, a, p, q, rec) in cells {

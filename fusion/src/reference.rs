@@ -13,7 +13,7 @@
 
 use crate::geometry::{GridGeometry, SensorCell, off_axis};
 use crate::grid::Layer;
-use crate::kernel::cell_evidence;
+use crate::kernel::{cell_evidence, heard_cell_evidence};
 use crate::model::CellEvidence;
 use crate::observation::Beam;
 use crate::rule::Combine;
@@ -28,10 +28,12 @@ pub(crate) struct PaperArrays {
 }
 
 impl PaperArrays {
-    /// Fuses the reading of `beam` into `layer`; returns how many cells it updated.
+    /// Fuses the reading of `beam` into `layer` and, if the model hears, into `heard` (one bearing
+    /// per cell; empty otherwise); returns how many cells it updated.
     pub fn update<R: Combine, E: CellEvidence>(
         &mut self,
         layer: &mut Layer<R>,
+        heard: &mut [f32],
         geometry: &GridGeometry,
         beam: &Beam,
         evidence: &E,
@@ -48,13 +50,12 @@ impl PaperArrays {
             let mut updated = 0;
             for (i, cell) in cells.iter_mut().enumerate() {
                 if self.angle_inside[i] == 1 {
-                    let e = cell_evidence::<R, E>(
-                        evidence,
-                        beam.axis,
-                        cone,
-                        self.grid_length[i],
-                        self.grid_angles[i],
-                    );
+                    let (r, a) = (self.grid_length[i], self.grid_angles[i]);
+                    let e = if E::HEARD {
+                        heard_cell_evidence::<R, E>(evidence, beam.axis, cone, r, a, &mut heard[i])
+                    } else {
+                        cell_evidence::<R, E>(evidence, beam.axis, cone, r, a)
+                    };
                     updated += usize::from(rule.fuse(cell, e));
                 }
             }

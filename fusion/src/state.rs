@@ -55,6 +55,9 @@ pub(crate) struct MapperState {
     pub readings_fused: u64,
     pub last_pose: SavedPose,
     pub cells: SavedCells,
+    /// Per cell, the bearing it was last heard occupied from, for a model that hears (empty for
+    /// the others; see [`crate::grid::OccupancyGrid`]).
+    pub heard: Vec<f32>,
     pub radar: SavedRadar,
 }
 

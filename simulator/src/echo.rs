@@ -47,16 +47,26 @@
 //!   when it is wider than the first Fresnel zone there, √(λ·d·(r−d)/r): sound diffracts around a
 //!   5 cm post, which is why the wall behind the paper's small obstacle is still heard through it.
 //!
-//! Multipath (the late phantom echoes of specular walls past the cut-off) is not modelled: such a
-//! ping reads "no echo".
+//! Multipath: with [`EchoParams::double_bounce`] (every sensor profile; off without one) a ping may
+//! leave by one wall, meet a second and come back by the first, S → A → B → S, the path found by
+//! the method of images; it returns a late phantom where no surface is, in corners that are not
+//! square and between walls and boards at a slant (a square corner's double bounce is its own
+//! vertex echo). Longer paths are not modelled: a ping past the cut-off that has no such path
+//! reads "no echo".
+//!
+//! Thin boards ([`Surface::Board`]) return [`EchoParams::board_loss_db`] less than a wall and
+//! nothing from their ends. A sensor that reports processed ranges adds
+//! [`EchoParams::range_bias_m`] and rounds to [`EchoParams::range_step_m`].
 //!
 //! Noise, from a seeded ChaCha RNG so runs repeat: the detector fires on the 1st to 3rd cycle of the
 //! echo ([`NoiseParams::late_cycles_max`], sensor-facts: jitter of about one wavelength), and a few
 //! pings ([`NoiseParams::spurious_probability`]) end early on a transient, uniformly between the
 //! minimum range and the true echo. On top, a zero-mean Gaussian of deviation
 //! [`NoiseParams::range_sigma_m`] + [`NoiseParams::range_sigma_fraction`] × range (off by default)
-//! plays the centimetre jitter of real sensors. Ranges below the minimum read the minimum; beyond
-//! the maximum there is no echo.
+//! plays the centimetre jitter of real sensors, [`NoiseParams::threshold_jitter_db`] moves each
+//! ping's detection threshold (amplitude jitter) and [`NoiseParams::dropout_probability`] loses
+//! whole pings (all off by default). Ranges below the minimum read the minimum; beyond the maximum
+//! there is no echo.
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -74,6 +84,21 @@ const BEAM_REFERENCE_DB: f64 = 6.0;
 const FLAT_JOINT_DEG: f64 = 1.0;
 /// A surface does not hide itself: the line of sight stops this short of the target.
 const SELF_OCCLUSION_M: f64 = 0.005;
+/// A two-bounce path whose crossings lie closer than this is a corner's own echo, not a ghost.
+const GHOST_APART_M: f64 = 0.02;
+
+/// Where the segment from `p` along `d` (parameter u in [0, 1]) crosses the segment from `a`
+/// along `e` (parameter v in [0, 1]): `(u, v)`, `None` if they do not cross or run parallel.
+fn segment_crossing(p: Vec2, d: Vec2, a: Vec2, e: Vec2) -> Option<(f64, f64)> {
+    let denom = d.cross(e);
+    if denom.abs() < 1e-12 {
+        return None;
+    }
+    let w = a - p;
+    let u = w.cross(e) / denom;
+    let v = w.cross(d) / denom;
+    ((0.0..=1.0).contains(&u) && (0.0..=1.0).contains(&v)).then_some((u, v))
+}
 
 /// Physical parameters of the echo model; `[echo]` in a scene file. Defaults from
 /// `shared/docs/sensor-facts.md` where it has a number, fitted to its calibration points otherwise.
@@ -104,6 +129,23 @@ pub struct EchoParams {
     pub edge_radius_m: f64,
     /// Extra loss of a soft surface (fabric, foam) against a hard one.
     pub soft_loss_db: f64,
+    /// Loss of a thin board ([`Surface::Board`]: a shelf, a skirting, a cardboard panel lower
+    /// than the beam is tall) against a wall that fills the beam: a low target strength. Its ends
+    /// return nothing (a board seen edge-on is silent).
+    pub board_loss_db: f64,
+    /// Double-bounce ghosts: a ping that leaves by one wall, meets a second and comes back by
+    /// the first (the path of two mirror images, S → A → B → S) returns a late phantom from where
+    /// no surface is, in corners that are not square and between a wall and a board or partition
+    /// at a slant. Off by default (the figures of `docs/results.md` were made without).
+    pub double_bounce: bool,
+    /// Loss of such a ghost against a flat wall at the same path length (two imperfect mirrors).
+    pub double_bounce_loss_db: f64,
+    /// What the sensor's own processing adds to every range it reports, metres (−0.03: a sensor
+    /// that reads 3 cm short). 0 for the raw SRF05 echo line.
+    pub range_bias_m: f64,
+    /// The step of the ranges the sensor reports, metres (0.01: whole centimetres); 0 for the raw
+    /// echo line's continuous time.
+    pub range_step_m: f64,
 }
 
 impl Default for EchoParams {
@@ -120,6 +162,11 @@ impl Default for EchoParams {
             corner_max_opening_deg: 120.0,
             edge_radius_m: 0.01,
             soft_loss_db: 12.0,
+            board_loss_db: 8.0,
+            double_bounce: false,
+            double_bounce_loss_db: 6.0,
+            range_bias_m: 0.0,
+            range_step_m: 0.0,
         }
     }
 }
@@ -140,6 +187,13 @@ pub struct NoiseParams {
     pub range_sigma_m: f64,
     /// The part of that deviation that grows with range, as a share of the range (0.01: 1 %).
     pub range_sigma_fraction: f64,
+    /// Amplitude jitter: each ping's detection threshold moves by a uniform draw in ± this many
+    /// dB (1: the issue's ±1 dB), so a target near the edge of its effective cone or range is
+    /// heard by some pings and not others. 0 (the default) keeps the threshold fixed.
+    pub threshold_jitter_db: f64,
+    /// Share of pings that report no echo whatever is there (a lost burst, a missed edge of the
+    /// echo line). 0 by default.
+    pub dropout_probability: f64,
 }
 
 impl Default for NoiseParams {
@@ -149,6 +203,8 @@ impl Default for NoiseParams {
             spurious_probability: 0.005,
             range_sigma_m: 0.0,
             range_sigma_fraction: 0.0,
+            threshold_jitter_db: 0.0,
+            dropout_probability: 0.0,
         }
     }
 }
@@ -178,6 +234,9 @@ impl EchoParams {
             (p.tvg_max_range_m, "echo.tvg_max_range_m"),
             (p.corner_loss_db, "echo.corner_loss_db"),
             (p.soft_loss_db, "echo.soft_loss_db"),
+            (p.board_loss_db, "echo.board_loss_db"),
+            (p.double_bounce_loss_db, "echo.double_bounce_loss_db"),
+            (p.range_step_m, "echo.range_step_m"),
         ] {
             require(
                 value.is_finite() && value >= 0.0,
@@ -193,6 +252,10 @@ impl EchoParams {
             "echo.corner_max_opening_deg must be in (0, 180)",
         )?;
         require(
+            p.range_bias_m.is_finite() && p.range_bias_m.abs() <= 0.5,
+            "echo.range_bias_m must be within ±0.5 m",
+        )?;
+        require(
             p.edge_radius_m.is_finite() && p.edge_radius_m > 0.0,
             "echo.edge_radius_m must be > 0",
         )
@@ -202,6 +265,18 @@ impl EchoParams {
         match surface {
             Surface::Hard => 0.0,
             Surface::Soft => self.soft_loss_db,
+            Surface::Board => self.board_loss_db,
+        }
+    }
+
+    /// The range the sensor reports for a measured `range_m`: its bias added, rounded to its
+    /// step. Only called when the profile has either.
+    fn processed_range(&self, range_m: f64) -> f64 {
+        let biased = range_m + self.range_bias_m;
+        if self.range_step_m > 0.0 {
+            (biased / self.range_step_m).round() * self.range_step_m
+        } else {
+            biased
         }
     }
 }
@@ -224,6 +299,15 @@ impl NoiseParams {
         require(
             self.range_sigma_fraction.is_finite() && self.range_sigma_fraction >= 0.0,
             "noise.range_sigma_fraction must be >= 0",
+        )?;
+        require(
+            self.threshold_jitter_db.is_finite()
+                && (0.0..=20.0).contains(&self.threshold_jitter_db),
+            "noise.threshold_jitter_db must be in [0, 20]",
+        )?;
+        require(
+            (0.0..=1.0).contains(&self.dropout_probability),
+            "noise.dropout_probability must be in [0, 1]",
         )
     }
 }
@@ -235,6 +319,9 @@ pub enum Target {
     Corner(usize),
     Edge(usize),
     Post(usize),
+    /// A double-bounce ghost: out by wall `.0`, back from wall `.1` (see
+    /// [`EchoParams::double_bounce`]).
+    Ghost(usize, usize),
 }
 
 /// One echo arriving at the transducer, before noise.
@@ -362,7 +449,9 @@ impl EchoModel {
                 // Two bounces: both walls' losses.
                 let level = Self::plane_db(r) - p.corner_loss_db - s1 - s2;
                 hear(Target::Corner(i), at, r, level, f64::INFINITY);
-            } else if v.opening_deg > 180.0 + FLAT_JOINT_DEG {
+            } else if v.opening_deg > 180.0 + FLAT_JOINT_DEG
+                && !v.surfaces.contains(&Surface::Board)
+            {
                 let level = Self::cylinder_db(r, p.edge_radius_m) - s1.min(s2);
                 hear(Target::Edge(i), at, r, level, f64::INFINITY);
             }
@@ -375,14 +464,102 @@ impl EchoModel {
             let level = Self::cylinder_db(r, c.radius) - p.surface_loss_db(c.surface);
             hear(Target::Post(i), nearest, r, level, f64::INFINITY);
         }
+        if p.double_bounce {
+            self.double_bounces(aim_deg, &mut out);
+        }
         out
+    }
+
+    /// The double-bounce ghosts heard by a ping aimed at `aim_deg` (absolute, degrees), by the
+    /// method of images: the sensor mirrored in wall A and in wall B; where the straight line
+    /// between the two images crosses A at P and then B at Q inside both walls, sound runs
+    /// S → P → Q → S (or back the other way), a path as long as the line between the images. A
+    /// square corner puts P and Q on its vertex: that path is the corner's own echo, already
+    /// counted, so only paths with P and Q apart are ghosts.
+    fn double_bounces(&self, aim_deg: f64, out: &mut Vec<Echo>) {
+        let p = &self.scene.echo;
+        let sensor = self.pose.at;
+        let walls = self.scene.walls();
+        // The image of the sensor (the origin, relative) in the line through a with direction e.
+        let image = |a: Vec2, e: Vec2| {
+            let t = -a.dot(e) / e.dot(e);
+            (a + e * t) * 2.0
+        };
+        for (i, wa) in walls.iter().enumerate() {
+            let (a0, ea) = (wa.a - sensor, wa.b - wa.a);
+            let img_a = image(a0, ea);
+            for (j, wb) in walls.iter().enumerate().skip(i + 1) {
+                let (b0, eb) = (wb.a - sensor, wb.b - wb.a);
+                let img_b = image(b0, eb);
+                let span = img_b - img_a;
+                let (Some((u_p, _)), Some((u_q, _))) = (
+                    segment_crossing(img_a, span, a0, ea),
+                    segment_crossing(img_a, span, b0, eb),
+                ) else {
+                    continue;
+                };
+                if u_p >= u_q {
+                    continue;
+                }
+                let (at_p, at_q) = (img_a + span * u_p, img_a + span * u_q);
+                if (at_q - at_p).norm() < GHOST_APART_M {
+                    continue;
+                }
+                let range = span.norm() / 2.0;
+                let off_p = angle_diff_deg(at_p.angle_deg(), aim_deg);
+                let off_q = angle_diff_deg(at_q.angle_deg(), aim_deg);
+                let (Some(beam_p), Some(beam_q)) = (self.beam_db(off_p), self.beam_db(off_q))
+                else {
+                    continue;
+                };
+                if self.occluded(at_p)
+                    || self.occluded(at_q)
+                    || self.blocked_between(at_p, at_q, &[i, j])
+                {
+                    continue;
+                }
+                let level = Self::plane_db(range)
+                    - p.double_bounce_loss_db
+                    - p.surface_loss_db(wa.surface)
+                    - p.surface_loss_db(wb.surface);
+                out.push(Echo {
+                    target: Target::Ghost(i, j),
+                    range_m: range,
+                    // Out by one crossing and back by the other: half of each round-trip gain.
+                    margin_db: level + (beam_p + beam_q) / 2.0 + self.receiver_db(range)
+                        - p.threshold_db,
+                });
+            }
+        }
+    }
+
+    /// Whether a wall other than `skip` lies across the path between `from` and `to` (relative
+    /// to the sensor), the last few millimetres at each end left out.
+    fn blocked_between(&self, from: Vec2, to: Vec2, skip: &[usize]) -> bool {
+        let d = to - from;
+        let len = d.norm();
+        if len <= 2.0 * SELF_OCCLUSION_M {
+            return false;
+        }
+        let sensor = self.pose.at;
+        self.scene.walls().iter().enumerate().any(|(k, w)| {
+            !skip.contains(&k)
+                && segment_crossing(from, d, w.a - sensor, w.b - w.a).is_some_and(|(s, _)| {
+                    s * len > SELF_OCCLUSION_M && s * len < len - SELF_OCCLUSION_M
+                })
+        })
     }
 
     /// The echo the SRF05 reports, without noise: the nearest one above threshold.
     pub fn first_echo(&self, aim_deg: f64) -> Option<Echo> {
+        self.first_echo_above(aim_deg, 0.0)
+    }
+
+    /// The nearest echo whose level clears the threshold raised by `shift_db`.
+    fn first_echo_above(&self, aim_deg: f64, shift_db: f64) -> Option<Echo> {
         self.echoes(aim_deg)
             .into_iter()
-            .filter(|e| e.margin_db >= 0.0)
+            .filter(|e| e.margin_db >= shift_db)
             .min_by(|a, b| a.range_m.total_cmp(&b.range_m))
     }
 
@@ -432,7 +609,18 @@ impl Transducer for EchoModel {
         let min = f64::from(self.sensor.min_range_m);
         let max = f64::from(self.sensor.max_range_m);
         let noise = self.scene.noise;
-        let truth = self.first_echo(aim_deg).map(|e| e.range_m);
+        // Dropouts and amplitude jitter are drawn only when asked for, so the seeded runs without
+        // them repeat as before.
+        if noise.dropout_probability > 0.0 && self.rng.random_bool(noise.dropout_probability) {
+            return 0;
+        }
+        let shift_db = if noise.threshold_jitter_db > 0.0 {
+            self.rng
+                .random_range(-noise.threshold_jitter_db..=noise.threshold_jitter_db)
+        } else {
+            0.0
+        };
+        let truth = self.first_echo_above(aim_deg, shift_db).map(|e| e.range_m);
         let range = if self.rng.random_bool(noise.spurious_probability) {
             let upto = truth.unwrap_or(max).max(min);
             Some(self.rng.random_range(min..=upto))
@@ -450,8 +638,15 @@ impl Transducer for EchoModel {
         }
         let v = self.speed_of_sound_mps();
         let late_cycles = self.rng.random_range(0..=noise.late_cycles_max);
-        let echo_us = 2.0 * range.max(min) / v * 1e6
-            + f64::from(late_cycles) * 1e6 / self.scene.echo.frequency_hz;
+        let echo = &self.scene.echo;
+        let echo_us = if echo.range_bias_m != 0.0 || echo.range_step_m > 0.0 {
+            // A sensor that reports a processed range: what it measured (late cycles included),
+            // biased and rounded, then sent as the echo time of that range.
+            let late_m = f64::from(late_cycles) * v / (2.0 * echo.frequency_hz);
+            2.0 * echo.processed_range(range.max(min) + late_m).max(min) / v * 1e6
+        } else {
+            2.0 * range.max(min) / v * 1e6 + f64::from(late_cycles) * 1e6 / echo.frequency_hz
+        };
         if echo_us * v / 2e6 > max || echo_us > f64::from(self.sensor.echo_timeout_us) {
             0
         } else {
@@ -721,8 +916,10 @@ mod tests {
         let mut m = EchoModel::new(quiet, SensorConfig::default(), 7).unwrap();
         let first = m.ping(0.0);
         assert!((0..50).all(|_| m.ping(0.0) == first));
-        let mut bad = NoiseParams::default();
-        bad.range_sigma_fraction = -0.1;
+        let bad = NoiseParams {
+            range_sigma_fraction: -0.1,
+            ..NoiseParams::default()
+        };
         assert!(bad.validate().is_err());
     }
 

@@ -80,6 +80,14 @@
 //! wins, unless the line of sight is blocked. Noise: late detection by up to two cycles (≤ 8.6 mm)
 //! and 0.5 % transient short readings, from a seeded ChaCha RNG.
 //!
+//! That is the model without a sensor profile, the calibration behind `docs/results.md`. A
+//! [`profile`] (`profile = "hc-sr04"` in a scene file, `--profile`) names a sensor instead:
+//! `srf05` (refitted so that a 5 cm post is heard to about 1.1 m), `hc-sr04` (a 15° measuring
+//! angle, 60 ms per ping) or `nxt` (processed whole-centimetre ranges 3 cm short, 3° steps), each
+//! with per-ping Gaussian range noise, ±1 dB of amplitude jitter, dropouts and double-bounce
+//! ghosts, and with its own head geometry and timing. Thin boards (`surface = "board"`) are
+//! faint and silent edge-on under any model.
+//!
 //! # Ground truth
 //!
 //! [`Scene::walls`], [`Scene::posts`] and [`Scene::distance_to_surface`] give other crates (the
@@ -91,6 +99,7 @@ pub mod firmware;
 pub mod geometry;
 pub mod hobby;
 pub mod link;
+pub mod profile;
 pub mod robot;
 pub mod scene;
 pub mod serve;
@@ -101,6 +110,7 @@ pub use firmware::{FIRMWARE_ID, Firmware, Timing, Transducer};
 pub use geometry::{Pose, Vec2};
 pub use hobby::HobbySketch;
 pub use link::Symlink;
+pub use profile::SensorProfile;
 pub use robot::{Mode, Odometry, OdometryParams, PoseSample, Robot, RobotSpec, Rover, Trajectory};
 pub use scene::{
     BUILTIN_NAMES, Joint, Post, Scene, SceneError, SuggestedScan, Surface, Vertex, Wall,

@@ -12,7 +12,7 @@
 //! [[segments]]                           # a wall, metres
 //! from = [2.0, -1.5]
 //! to = [2.0, 1.5]
-//! surface = "hard"                       # optional: "hard" (default) or "soft"
+//! surface = "hard"                       # optional: "hard" (default), "soft" or "board" (thin)
 //!
 //! [[polygons]]                           # a closed chain of walls (a room, a box)
 //! points = [[1.2, 1.2], [-1.2, 1.2], [-1.2, -1.2], [1.2, -1.2]]
@@ -21,6 +21,8 @@
 //! centre = [1.0, 0.0]
 //! radius = 0.025
 //!
+//! profile = "srf05"                     # optional: a sensor profile (crate::profile) whose
+//!                                        # echo and noise the [echo] and [noise] below amend
 //! [echo]                                 # optional: any field of EchoParams
 //! threshold_db = -15.0
 //! [noise]                                # optional: any field of NoiseParams
@@ -60,6 +62,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::echo::{EchoParams, NoiseParams};
 use crate::geometry::{Vec2, distance_to_segment, segments_intersect};
+use crate::profile::SensorProfile;
 use crate::robot::{OdometryParams, RobotSpec};
 
 /// Ends closer than this are one joint; shorter walls are rejected as degenerate.
@@ -74,6 +77,9 @@ pub enum Surface {
     Hard,
     /// Curtains, foam, upholstery: absorb part of the sound ([`EchoParams::soft_loss_db`]).
     Soft,
+    /// A thin board (a shelf, a skirting, a panel lower than the beam is tall): hard but a small
+    /// target ([`EchoParams::board_loss_db`]), and its ends return nothing: edge-on it is silent.
+    Board,
 }
 
 /// A flat wall between two points.
@@ -165,6 +171,9 @@ pub struct Scene {
     pub name: String,
     pub description: String,
     pub scan: Option<SuggestedScan>,
+    /// The sensor this scene is heard through, if it names one (its echo and noise are then the
+    /// profile's, amended by the file's `[echo]` and `[noise]`).
+    pub profile: Option<SensorProfile>,
     pub echo: EchoParams,
     pub noise: NoiseParams,
     /// The robot carrying the head; `None`: the head stands at the origin.
@@ -190,6 +199,7 @@ struct SceneFile {
     polygons: Vec<PolygonSpec>,
     #[serde(default)]
     circles: Vec<CircleSpec>,
+    profile: Option<SensorProfile>,
     #[serde(default)]
     echo: EchoParams,
     #[serde(default)]
@@ -304,6 +314,7 @@ impl Scene {
             name: name.to_owned(),
             description: String::new(),
             scan: None,
+            profile: None,
             echo: EchoParams::default(),
             noise: NoiseParams::default(),
             robot,
@@ -345,8 +356,8 @@ impl Scene {
             .unwrap_or_default();
         let origin = path.display().to_string();
         let file: SceneFile = match path.extension().and_then(|e| e.to_str()) {
-            Some("toml") => toml::from_str(&text).map_err(|e| parse_error(&origin, e))?,
-            Some("json") => serde_json::from_str(&text).map_err(|e| parse_error(&origin, e))?,
+            Some("toml") => toml_file(&text).map_err(|e| parse_error(&origin, e))?,
+            Some("json") => json_file(&text).map_err(|e| parse_error(&origin, e))?,
             _ => return Err(SceneError::Extension(path.to_owned())),
         };
         Self::from_file(file, &stem, &origin)
@@ -354,13 +365,13 @@ impl Scene {
 
     /// Parses TOML text; `default_name` names the scene if the text does not.
     pub fn from_toml_str(text: &str, default_name: &str) -> Result<Self, SceneError> {
-        let file = toml::from_str(text).map_err(|e| parse_error(default_name, e))?;
+        let file = toml_file(text).map_err(|e| parse_error(default_name, e))?;
         Self::from_file(file, default_name, default_name)
     }
 
     /// Parses JSON text; `default_name` names the scene if the text does not.
     pub fn from_json_str(text: &str, default_name: &str) -> Result<Self, SceneError> {
-        let file = serde_json::from_str(text).map_err(|e| parse_error(default_name, e))?;
+        let file = json_file(text).map_err(|e| parse_error(default_name, e))?;
         Self::from_file(file, default_name, default_name)
     }
 
@@ -425,10 +436,18 @@ impl Scene {
         })?;
         scene.description = file.description;
         scene.scan = file.scan;
+        scene.profile = file.profile;
         scene.echo = file.echo;
         scene.noise = file.noise;
         scene.odometry = odometry;
         Ok(scene)
+    }
+
+    /// Hears the scene through `profile`: its echo and noise replace the scene's.
+    pub fn set_profile(&mut self, profile: SensorProfile) {
+        self.profile = Some(profile);
+        self.echo = profile.echo();
+        self.noise = profile.noise();
     }
 
     /// Every wall, polygon sides included: the ground truth of flat surfaces.
@@ -462,6 +481,59 @@ impl Scene {
             .map(|c| ((p - c.centre).norm() - c.radius).max(0.0));
         walls.chain(posts).fold(f64::INFINITY, f64::min)
     }
+}
+
+/// A TOML scene file. With a `profile`, the profile's echo and noise fill what the file's
+/// `[echo]` and `[noise]` leave out (read a second time, as a table, only then).
+fn toml_file(text: &str) -> Result<SceneFile, String> {
+    let file: SceneFile = toml::from_str(text).map_err(|e| e.to_string())?;
+    let Some(profile) = file.profile else {
+        return Ok(file);
+    };
+    let mut table: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
+    for (section, defaults) in [
+        ("echo", toml::Table::try_from(profile.echo())),
+        ("noise", toml::Table::try_from(profile.noise())),
+    ] {
+        let defaults = defaults.map_err(|e| e.to_string())?;
+        if let Some(t) = table
+            .entry(section)
+            .or_insert_with(|| toml::Table::new().into())
+            .as_table_mut()
+        {
+            for (k, v) in defaults {
+                t.entry(k).or_insert(v);
+            }
+        }
+    }
+    table.try_into().map_err(|e: toml::de::Error| e.to_string())
+}
+
+/// A JSON scene file, as [`toml_file`].
+fn json_file(text: &str) -> Result<SceneFile, String> {
+    let file: SceneFile = serde_json::from_str(text).map_err(|e| e.to_string())?;
+    let Some(profile) = file.profile else {
+        return Ok(file);
+    };
+    let mut value: serde_json::Value = serde_json::from_str(text).map_err(|e| e.to_string())?;
+    for (section, defaults) in [
+        ("echo", serde_json::to_value(profile.echo())),
+        ("noise", serde_json::to_value(profile.noise())),
+    ] {
+        let serde_json::Value::Object(defaults) = defaults.map_err(|e| e.to_string())? else {
+            continue;
+        };
+        if let Some(t) = value
+            .as_object_mut()
+            .map(|o| o.entry(section).or_insert_with(|| serde_json::json!({})))
+            .and_then(|v| v.as_object_mut())
+        {
+            for (k, v) in defaults {
+                t.entry(k).or_insert(v);
+            }
+        }
+    }
+    serde_json::from_value(value).map_err(|e| e.to_string())
 }
 
 fn parse_error(origin: &str, e: impl std::fmt::Display) -> SceneError {
@@ -613,6 +685,26 @@ mod tests {
         assert_eq!(scene.walls()[0].surface, Surface::Soft);
         assert_eq!(scene.echo.threshold_db, -20.0);
         assert_eq!(scene.echo.frequency_hz, EchoParams::default().frequency_hz);
+        assert_eq!(scene.profile, None);
+        // A profile fills what the file's [echo] and [noise] leave out, in both formats.
+        let toml_text = "profile = \"hc-sr04\"\n[echo]\nthreshold_db = -20\n";
+        let json_text = r#"{"profile": "hc-sr04", "echo": {"threshold_db": -20}}"#;
+        for profiled in [
+            Scene::from_toml_str(toml_text, "p").unwrap(),
+            Scene::from_json_str(json_text, "p").unwrap(),
+        ] {
+            let scene = profiled;
+            assert_eq!(scene.profile, Some(SensorProfile::HcSr04));
+            assert_eq!(scene.echo.threshold_db, -20.0);
+            let profile = SensorProfile::HcSr04.echo();
+            assert_eq!(
+                scene.echo.beam_6db_half_angle_deg,
+                profile.beam_6db_half_angle_deg
+            );
+            assert_eq!(scene.noise, SensorProfile::HcSr04.noise());
+        }
+        let bad = Scene::from_toml_str("profile = \"srf04\"\n", "p").unwrap_err();
+        assert!(bad.to_string().contains("unknown variant `srf04`"), "{bad}");
         assert_eq!(
             scene.scan,
             Some(SuggestedScan::Local {
