@@ -284,6 +284,17 @@ mod tests {
         };
         assert!(heard_at(1.0) > 300, "{}", heard_at(1.0));
         assert_eq!(heard_at(1.25), 0);
+        // Just past the nominal reach (≈ 0.4 dB under threshold) the ±1 dB jitter lets some pings
+        // hear it and not others; without the jitter none do.
+        let jittered = heard_at(1.15);
+        assert!((40..=250).contains(&jittered), "{jittered}");
+        let mut steady = scene(SensorProfile::Srf05, vec![], vec![post(1.15, 0.025)]);
+        steady.noise.threshold_jitter_db = 0.0;
+        let mut m = EchoModel::new(steady, SensorProfile::Srf05.sensor(), 3).unwrap();
+        assert!((0..400).all(|_| {
+            let r = f64::from(SensorProfile::Srf05.sensor().range_m(m.ping(0.0) as f32));
+            (r - 1.125).abs() >= 0.1
+        }));
     }
 
     #[test]
