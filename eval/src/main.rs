@@ -37,8 +37,13 @@ use tracing::info;
 /// as Markdown tables on standard output (or to --report). Progress goes to standard error
 /// (level from RUST_LOG).
 ///
-/// Example:
+/// With --suite, runs the generated scene suite instead and nothing else: generated rooms and
+/// corridors scanned from 1, 3 and 8 viewpoints with every sensor profile and seed, the maps of
+/// every --suite-fusion and the features scored against the scenes' true surfaces.
+///
+/// Examples:
 ///   cargo run -p sonar-eval --release -- --out docs/results
+///   cargo run -p sonar-eval --release -- --suite --suite-scenes 50 --suite-fusion recommended,mine.toml
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
 struct Args {

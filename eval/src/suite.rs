@@ -1,7 +1,8 @@
 //! The generated scene suite (`sonar-eval --suite`): many layouts, viewpoints, seeds and sensor
 //! profiles, scored against each scene's true geometry, never against another output of ours.
 //!
-//! For every generated scene ([`crate::scenegen`]), noise seed and sensor profile, the head scans
+//! For every generated scene ([`crate::scenegen`]), noise seed and sensor (a profile, its
+//! per-ping range noise perhaps replaced by a `--suite-noise` level), the head scans
 //! the scene from each of its eight viewpoints in turn (the pipeline's own simulated device and
 //! driver decoder, [`crate::pipeline::capture_with`], `--suite-sweeps` full sweeps each, the
 //! robot standing still at the true pose), and:
@@ -118,6 +119,60 @@ impl std::fmt::Display for ProfileChoice {
     }
 }
 
+/// Per-ping Gaussian range noise replacing a profile's own: σ = `sigma_m` + `fraction` × range.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RangeNoise {
+    pub sigma_m: f64,
+    pub fraction: f64,
+}
+
+/// `--suite-noise` values: `profile` (the profile's own noise), `S` (metres) or `S+F` (metres
+/// plus a share of the range, e.g. `0.01+0.01`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NoiseChoice(pub Option<RangeNoise>);
+
+impl FromStr for NoiseChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        if s == "profile" {
+            return Ok(Self(None));
+        }
+        let bad = || format!("expected profile, SIGMA_M or SIGMA_M+FRACTION, got {s:?}");
+        let num = |v: &str| {
+            v.trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite() && (0.0..=0.5).contains(x))
+                .ok_or_else(bad)
+        };
+        let (sigma_m, fraction) = match s.split_once('+') {
+            Some((a, b)) => (num(a)?, num(b)?),
+            None => (num(s)?, 0.0),
+        };
+        Ok(Self(Some(RangeNoise { sigma_m, fraction })))
+    }
+}
+
+/// The sensor of a run: a profile, its range noise perhaps replaced.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SensorChoice {
+    pub profile: ProfileChoice,
+    pub noise: Option<RangeNoise>,
+}
+
+impl std::fmt::Display for SensorChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.profile)?;
+        if let Some(n) = self.noise {
+            write!(f, ", σ {:.0} mm", n.sigma_m * 1000.0)?;
+            if n.fraction > 0.0 {
+                write!(f, " + {:.1} %", n.fraction * 100.0)?;
+            }
+        }
+        Ok(())
+    }
+}
+
 /// A fusion configuration to score, by preset name or from a TOML file.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FusionChoice {
@@ -222,6 +277,11 @@ pub struct SuiteArgs {
     /// comma-separated.
     #[arg(long, default_value = "srf05,hc-sr04,nxt", value_delimiter = ',')]
     pub suite_profiles: Vec<ProfileChoice>,
+    /// Per-ping Gaussian range noise levels, each run with every profile in place of the
+    /// profile's own: `profile` (its own), SIGMA_M, or SIGMA_M+FRACTION (σ = SIGMA_M + FRACTION
+    /// × range; the range is 0.003 to 0.01+0.01), comma-separated.
+    #[arg(long, default_value = "profile", value_delimiter = ',')]
+    pub suite_noise: Vec<NoiseChoice>,
     /// Numbers of viewpoints fused into one map (nested: the first N of each scene's eight),
     /// comma-separated, 1 to 8.
     #[arg(long, default_value = "1,3,8", value_delimiter = ',', value_parser = parse_viewpoints)]
@@ -247,7 +307,8 @@ pub struct SuiteArgs {
 pub struct SuiteSettings {
     pub scenes: u64,
     pub seeds: Vec<u64>,
-    pub profiles: Vec<ProfileChoice>,
+    /// Every profile with every noise level.
+    pub sensors: Vec<SensorChoice>,
     /// Increasing, 1 to 8.
     pub viewpoints: Vec<usize>,
     pub fusion: Vec<FusionChoice>,
@@ -261,14 +322,23 @@ impl SuiteSettings {
         let mut viewpoints = args.suite_viewpoints.clone();
         viewpoints.sort_unstable();
         viewpoints.dedup();
-        if args.suite_seeds.0.is_empty() || args.suite_profiles.is_empty() || viewpoints.is_empty()
-        {
-            bail!("the suite needs at least one seed, profile and viewpoint count");
+        let sensors: Vec<SensorChoice> = args
+            .suite_profiles
+            .iter()
+            .flat_map(|&profile| {
+                args.suite_noise.iter().map(move |n| SensorChoice {
+                    profile,
+                    noise: n.0,
+                })
+            })
+            .collect();
+        if args.suite_seeds.0.is_empty() || sensors.is_empty() || viewpoints.is_empty() {
+            bail!("the suite needs at least one seed, profile, noise level and viewpoint count");
         }
         Ok(Self {
             scenes: args.suite_scenes,
             seeds: args.suite_seeds.0.clone(),
-            profiles: args.suite_profiles.clone(),
+            sensors,
             viewpoints,
             fusion: args.suite_fusion.clone(),
             split: args.suite_split,
@@ -517,13 +587,13 @@ pub fn score_features(
     Ok(out)
 }
 
-/// One scene, seed and profile.
+/// One scene, seed and sensor.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Run {
     /// Index of the scene in the split.
     pub scene: u64,
     pub seed: u64,
-    pub profile: ProfileChoice,
+    pub sensor: SensorChoice,
     /// Per fusion configuration (in the settings' order), per viewpoint count (the settings').
     pub grid: Vec<Vec<GridScore>>,
     /// Per viewpoint.
@@ -548,17 +618,21 @@ fn isometry(p: Pose) -> Isometry2<f32> {
     )
 }
 
-/// Runs one generated scene with one seed and profile.
+/// Runs one generated scene with one seed and sensor.
 pub fn run_scene(
     generated: &Generated,
     index: u64,
     seed: u64,
-    profile: ProfileChoice,
+    sensor: SensorChoice,
     settings: &SuiteSettings,
 ) -> Result<Run> {
     let mut scene = generated.scene.clone();
-    if let Some(p) = profile.0 {
+    if let Some(p) = sensor.profile.0 {
         scene.set_profile(p);
+    }
+    if let Some(n) = sensor.noise {
+        scene.noise.range_sigma_m = n.sigma_m;
+        scene.noise.range_sigma_fraction = n.fraction;
     }
     let head = Head::of(&scene);
     let max_range_m = f64::from(head.sensor.max_range_m);
@@ -598,20 +672,20 @@ pub fn run_scene(
     Ok(Run {
         scene: index,
         seed,
-        profile,
+        sensor,
         grid,
         features,
     })
 }
 
 /// Runs the whole suite, `settings.jobs` runs at a time; results in a fixed order (scene, seed,
-/// profile), whatever the threads did.
+/// sensor), whatever the threads did.
 pub fn evaluate(settings: &SuiteSettings) -> Result<Vec<Run>> {
     let mut tasks = Vec::new();
     for k in 0..settings.scenes {
         for &seed in &settings.seeds {
-            for &profile in &settings.profiles {
-                tasks.push((k, seed, profile));
+            for &sensor in &settings.sensors {
+                tasks.push((k, seed, sensor));
             }
         }
     }
@@ -627,15 +701,15 @@ pub fn evaluate(settings: &SuiteSettings) -> Result<Vec<Run>> {
             s.spawn(|| {
                 loop {
                     let i = next.fetch_add(1, Ordering::Relaxed);
-                    let Some(&(k, seed, profile)) = tasks.get(i) else {
+                    let Some(&(k, seed, sensor)) = tasks.get(i) else {
                         break;
                     };
-                    let run = run_scene(&generated[k as usize], k, seed, profile, settings);
+                    let run = run_scene(&generated[k as usize], k, seed, sensor, settings);
                     let n = done.fetch_add(1, Ordering::Relaxed) + 1;
                     info!(
                         scene = k,
                         seed,
-                        %profile,
+                        %sensor,
                         "suite run {n} of {} done",
                         tasks.len()
                     );
@@ -674,11 +748,11 @@ fn cell(v: Option<(f64, f64)>, scale: f64, digits: usize) -> String {
     }
 }
 
-/// Per profile and fusion, the runs' grid scores at each viewpoint count, and how often recall
+/// Per sensor and fusion, the runs' grid scores at each viewpoint count, and how often recall
 /// fell from one count to the next.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GridSummary {
-    pub profile: ProfileChoice,
+    pub sensor: SensorChoice,
     pub fusion: String,
     pub viewpoints: usize,
     pub recall: Option<(f64, f64)>,
@@ -693,11 +767,11 @@ pub struct GridSummary {
     pub runs: usize,
 }
 
-/// The grid figures of `runs`, one row per profile × fusion × viewpoint count.
+/// The grid figures of `runs`, one row per sensor × fusion × viewpoint count.
 pub fn grid_summaries(settings: &SuiteSettings, runs: &[Run]) -> Vec<GridSummary> {
     let mut out = Vec::new();
-    for &profile in &settings.profiles {
-        let of_profile: Vec<&Run> = runs.iter().filter(|r| r.profile == profile).collect();
+    for &sensor in &settings.sensors {
+        let of_profile: Vec<&Run> = runs.iter().filter(|r| r.sensor == sensor).collect();
         for (f, fusion) in settings.fusion.iter().enumerate() {
             for (v, &viewpoints) in settings.viewpoints.iter().enumerate() {
                 let scores: Vec<&GridScore> = of_profile.iter().map(|r| &r.grid[f][v]).collect();
@@ -714,7 +788,7 @@ pub fn grid_summaries(settings: &SuiteSettings, runs: &[Run]) -> Vec<GridSummary
                         .count()
                 };
                 out.push(GridSummary {
-                    profile,
+                    sensor,
                     fusion: fusion.name.clone(),
                     viewpoints,
                     recall: median_worst(scores.iter().filter_map(|s| s.recall).collect(), false),
@@ -768,14 +842,14 @@ pub fn markdown(settings: &SuiteSettings, runs: &[Run]) -> String {
     );
     let _ = writeln!(
         t,
-        "| profile | fusion | viewpoints | recall | precision | median error (cm) | recall of view 1's walls | recall faced | recall fell | view-1 recall fell | runs |"
+        "| sensor | fusion | viewpoints | recall | precision | median error (cm) | recall of view 1's walls | recall faced | recall fell | view-1 recall fell | runs |"
     );
     let _ = writeln!(t, "|---|---|---|---|---|---|---|---|---|---|---|");
     for s in grid_summaries(settings, runs) {
         let _ = writeln!(
             t,
             "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-            s.profile,
+            s.sensor,
             s.fusion,
             s.viewpoints,
             cell(s.recall, 1.0, 2),
@@ -798,13 +872,13 @@ pub fn markdown(settings: &SuiteSettings, runs: &[Run]) -> String {
     );
     let _ = writeln!(
         t,
-        "| profile | post error (cm) | wall angle error (°) | wall distance error (cm) | corner error (cm) | posts found | walls found | corners found | false features / view | views |"
+        "| sensor | post error (cm) | wall angle error (°) | wall distance error (cm) | corner error (cm) | posts found | walls found | corners found | false features / view | views |"
     );
     let _ = writeln!(t, "|---|---|---|---|---|---|---|---|---|---|");
-    for &profile in &settings.profiles {
+    for &sensor in &settings.sensors {
         let views: Vec<&ViewFeatures> = runs
             .iter()
-            .filter(|r| r.profile == profile)
+            .filter(|r| r.sensor == sensor)
             .flat_map(|r| &r.features)
             .collect();
         let all = |pick: fn(&ViewFeatures) -> &Vec<f64>| -> Vec<f64> {
@@ -820,7 +894,7 @@ pub fn markdown(settings: &SuiteSettings, runs: &[Run]) -> String {
         let false_mean = false_total as f64 / views.len().max(1) as f64;
         let _ = writeln!(
             t,
-            "| {profile} | {} | {} | {} | {} | {} | {} | {} | {false_mean:.2} / {false_worst} | {} |",
+            "| {sensor} | {} | {} | {} | {} | {} | {} | {} | {false_mean:.2} / {false_worst} | {} |",
             cell(median_worst(all(|v| &v.post_errors_m), true), 100.0, 1),
             cell(
                 median_worst(all(|v| &v.wall_angle_errors_deg), true),
@@ -951,6 +1025,15 @@ mod tests {
         assert!("paper".parse::<FusionChoice>().is_ok());
         assert!("nope".parse::<FusionChoice>().is_err());
         assert!(parse_viewpoints("9").is_err() && parse_viewpoints("0").is_err());
+        assert_eq!("profile".parse::<NoiseChoice>(), Ok(NoiseChoice(None)));
+        let n = "0.01+0.01".parse::<NoiseChoice>().unwrap().0.unwrap();
+        assert_eq!((n.sigma_m, n.fraction), (0.01, 0.01));
+        assert!("-1".parse::<NoiseChoice>().is_err() && "x+1".parse::<NoiseChoice>().is_err());
+        let label = SensorChoice {
+            profile: ProfileChoice(Some(SensorProfile::Srf05)),
+            noise: Some(n),
+        };
+        assert_eq!(label.to_string(), "srf05, σ 10 mm + 1.0 %");
         assert_ne!(Split::Tune.scene_seed(3), Split::Report.scene_seed(3));
         // A configuration file: the paper preset written out under [fusion].
         let dir = std::env::temp_dir().join(format!("sonar-suite-{}", std::process::id()));
@@ -1015,10 +1098,17 @@ mod structural_tests {
     use super::*;
 
     fn settings(profiles: Vec<ProfileChoice>) -> SuiteSettings {
+        let sensors = profiles
+            .into_iter()
+            .map(|profile| SensorChoice {
+                profile,
+                noise: None,
+            })
+            .collect();
         SuiteSettings {
             scenes: 1,
             seeds: vec![1],
-            profiles,
+            sensors,
             viewpoints: vec![1, 3, 8],
             fusion: vec!["recommended".parse().unwrap()],
             split: Split::Report,
@@ -1045,7 +1135,7 @@ mod structural_tests {
                 .collect(),
         };
         let s = settings(every_profile());
-        for &profile in &s.profiles {
+        for &profile in &s.sensors {
             let run = run_scene(&empty, 0, 1, profile, &s).unwrap();
             for (k, f) in run.features.iter().enumerate() {
                 assert_eq!(f.false_features, 0, "{profile}, viewpoint {}", k + 1);
@@ -1062,7 +1152,18 @@ mod structural_tests {
     fn a_run_repeats_with_its_seed() {
         let s = settings(vec![ProfileChoice(Some(SensorProfile::Srf05))]);
         let generated = scenegen::generate(s.split.scene_seed(0)).unwrap();
-        let profile = s.profiles[0];
+        let profile = s.sensors[0];
+        let noisier = SensorChoice {
+            noise: Some(RangeNoise {
+                sigma_m: 0.01,
+                fraction: 0.01,
+            }),
+            ..profile
+        };
+        assert_ne!(
+            run_scene(&generated, 0, 1, noisier, &s).unwrap().features,
+            run_scene(&generated, 0, 1, profile, &s).unwrap().features
+        );
         let a = run_scene(&generated, 0, 1, profile, &s).unwrap();
         assert_eq!(a, run_scene(&generated, 0, 1, profile, &s).unwrap());
         assert_ne!(a, run_scene(&generated, 0, 2, profile, &s).unwrap());
