@@ -884,10 +884,7 @@ mod tests {
             encode_command(&HostCommand::Hello { version: 2 }, v2),
             "$HELLO,2*4975\n"
         );
-        assert_eq!(
-            encode_command(&HostCommand::Reset, v2),
-            "$RESET*7DB2\n"
-        );
+        assert_eq!(encode_command(&HostCommand::Reset, v2), "$RESET*7DB2\n");
         assert_eq!(
             parse_command(b"$SCAN,FULL*36c7", v2),
             Ok(HostCommand::FullScan),

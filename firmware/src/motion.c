@@ -8,7 +8,7 @@
 #include <string.h>
 
 /* The answer to a scan while stopped on a fault. */
-#define FAULT_REFUSAL "stopped on a hardware fault: check the head, then send RESET"
+#define FAULT_REFUSAL "stopped on a hardware fault: check the head and send RESET"
 
 /* The configured motor: MOTOR_NUM / MOTOR_DEN microsteps per output revolution (config.h). */
 const motor_ratio MOTOR_RATIO = {MOTOR_NUM, MOTOR_DEN, LIMIT_SEEK_MICROSTEPS};

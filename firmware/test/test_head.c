@@ -256,9 +256,9 @@ static void check_stopped(void)
     int n = B.n_msgs;
     long steps = B.steps;
     command("SCAN,FULL");
-    CHECK_STR(msg(n), "ERR,HARDWARE,stopped on a hardware fault: check the head_ then send RESET");
+    CHECK_STR(msg(n), "ERR,HARDWARE,stopped on a hardware fault: check the head and send RESET");
     command("SCAN,LOCAL,-3000,3000");
-    CHECK_STR(msg(n + 1), "ERR,HARDWARE,stopped on a hardware fault: check the head_ then send RESET");
+    CHECK_STR(msg(n + 1), "ERR,HARDWARE,stopped on a hardware fault: check the head and send RESET");
     command("STOP");
     CHECK_STR(msg(n + 2), "ACK,STOP");
     command("STATUS");

@@ -96,7 +96,9 @@ pub mod scene;
 pub mod serve;
 
 pub use echo::{Echo, EchoModel, EchoParams, NoiseParams, Target};
-pub use faults::{FaultCounts, FaultInjector, FaultSpec, LineFault, SpecError};
+pub use faults::{
+    FaultCounts, FaultInjector, FaultSpec, LineFault, SpecError, SwitchFault, SwitchFaults,
+};
 pub use firmware::{FIRMWARE_ID, Firmware, Timing, Transducer};
 pub use geometry::{Pose, Vec2};
 pub use hobby::HobbySketch;
