@@ -7,9 +7,6 @@
 
 #include <string.h>
 
-/* The answer to a scan while stopped on a fault. */
-#define FAULT_REFUSAL "stopped on a hardware fault: check the head and send RESET"
-
 /* The configured motor: MOTOR_NUM / MOTOR_DEN microsteps per output revolution (config.h). */
 const motor_ratio MOTOR_RATIO = {MOTOR_NUM, MOTOR_DEN, LIMIT_SEEK_MICROSTEPS};
 
@@ -207,6 +204,7 @@ static void fault(head_t *h, const dev_msg *m)
     h->pending = false;
     h->ping_out = false;
     h->ending = 0;
+    memcpy(h->fault_text, m->u.err.text, sizeof h->fault_text);
     emit(h, m);
     if (open != 0) {
         send_swp_end(h, open);
@@ -219,6 +217,16 @@ static void fault_P(head_t *h, const char *text_P)
     dev_msg m;
     proto_err_P(&m, ERR_HARDWARE, text_P);
     fault(h, &m);
+}
+
+/* A scan while stopped on a fault: the fault's ERR,HARDWARE line again, and no motion. */
+static void refuse_scan(head_t *h)
+{
+    dev_msg m;
+    m.kind = MSG_ERR;
+    m.u.err.code = ERR_HARDWARE;
+    memcpy(m.u.err.text, h->fault_text, sizeof m.u.err.text);
+    emit(h, &m);
 }
 
 static void travel(head_t *h, head_scan scan)
@@ -287,7 +295,7 @@ void head_command(head_t *h, const proto_cmd *cmd)
         break;
     case CMD_SCAN_FULL: {
         if (h->activity == HEAD_FAULT) {
-            send_err_P(h, ERR_HARDWARE, FSTR(FAULT_REFUSAL));
+            refuse_scan(h);
             break;
         }
         send_ack(h, FSTR("SCAN"));
@@ -297,7 +305,7 @@ void head_command(head_t *h, const proto_cmd *cmd)
     }
     case CMD_SCAN_LOCAL: {
         if (h->activity == HEAD_FAULT) {
-            send_err_P(h, ERR_HARDWARE, FSTR(FAULT_REFUSAL));
+            refuse_scan(h);
             break;
         }
         int16_t first = -1, last = -1;

@@ -18,8 +18,9 @@
  * the tolerance). A hardware fault — the MIN switch not found while homing, or stuck closed; both
  * switches closed; a switch still open past its limit; a switch closing more than the tolerance
  * before its limit (the position is NOT "corrected" to it) — stops the head at once: it reports
- * ERR,HARDWARE,<what>, ends the open sweep (SWP,END), reports ST,FAULT, refuses scans and moves
- * only after RESET, which homes it again.
+ * ERR,HARDWARE,<what>, ends the open sweep (SWP,END), reports ST,FAULT, answers a scan with the
+ * same ERR,HARDWARE,<what> line (and does not move), and moves only after RESET, which homes it
+ * again.
  *
  * It never waits: the caller (main.c, or a test) asks head_next() what to do — one
  * microstep, one ping, or nothing — does it when the hardware timing allows, and reports back.
@@ -116,6 +117,8 @@ typedef struct {
     uint8_t ping;   /* HEAD_SWEEP: next ping of that reading */
     bool ping_out;  /* a ping was asked for and its result is awaited */
     bool silent_reported;
+
+    char fault_text[PROTO_TEXT_MAX + 1]; /* HEAD_FAULT: what it stopped on, sent again to a scan */
 
     uint32_t last_sweep; /* latest sweep id started, 0 before the first */
     uint32_t seq;        /* RD counter */

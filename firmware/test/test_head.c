@@ -255,10 +255,15 @@ static void check_stopped(void)
 {
     int n = B.n_msgs;
     long steps = B.steps;
-    command("SCAN,FULL");
-    CHECK_STR(msg(n), "ERR,HARDWARE,stopped on a hardware fault: check the head and send RESET");
+    int err = n - 1;
+    while (err >= 0 && !starts(err, "ERR,HARDWARE,")) {
+        err--;
+    }
+    CHECK(err >= 0);
+    command("SCAN,FULL"); /* answered with the fault again */
+    CHECK_STR(msg(n), msg(err));
     command("SCAN,LOCAL,-3000,3000");
-    CHECK_STR(msg(n + 1), "ERR,HARDWARE,stopped on a hardware fault: check the head and send RESET");
+    CHECK_STR(msg(n + 1), msg(err));
     command("STOP");
     CHECK_STR(msg(n + 2), "ACK,STOP");
     command("STATUS");

@@ -21,8 +21,6 @@ const SWITCH_TOLERANCE_H: i32 = 2;
 /// Homing gives up after this much travel without the MIN switch: one sweep + 15° (the firmware's
 /// `HOMING_MAX_DEG`).
 const HOMING_MAX_DEG: u32 = 315;
-/// The answer to a scan while stopped on a fault (the firmware's `FAULT_REFUSAL`).
-pub const FAULT_REFUSAL: &str = "stopped on a hardware fault: check the head and send RESET";
 
 /// The firmware's name in the `HELLO` reply.
 pub const FIRMWARE_ID: &str = concat!("sonar-sim ", env!("CARGO_PKG_VERSION"));
@@ -85,7 +83,8 @@ enum Activity {
         k: usize,
         ping: usize,
     },
-    /// Stopped on a hardware fault: nothing moves until `RESET`.
+    /// Stopped on a hardware fault: nothing moves until `RESET`; a scan is answered with the
+    /// fault's `ERR,HARDWARE` line again.
     Fault,
 }
 
@@ -115,6 +114,8 @@ pub struct Firmware<T> {
     version: ProtocolVersion,
     head_id: String,
     switches: SwitchFaults,
+    /// What the head stopped on, while [`Activity::Fault`].
+    fault_text: String,
 }
 
 impl<T: Transducer> Firmware<T> {
@@ -151,6 +152,7 @@ impl<T: Transducer> Firmware<T> {
             version: PROTOCOL_VERSION,
             head_id: DEFAULT_HEAD_ID.to_owned(),
             switches: SwitchFaults::default(),
+            fault_text: String::new(),
         })
     }
 
@@ -245,6 +247,7 @@ impl<T: Transducer> Firmware<T> {
             Activity::Idle | Activity::Fault => None,
         };
         self.activity = Activity::Fault;
+        self.fault_text = text.clone();
         out.push(DeviceMessage::Error {
             code: ErrorCode::Hardware,
             text,
@@ -389,9 +392,10 @@ impl<T: Transducer> Firmware<T> {
             HostCommand::FullScan | HostCommand::LocalScan { .. }
                 if self.activity == Activity::Fault =>
             {
+                // The fault again, and no motion.
                 out.push(DeviceMessage::Error {
                     code: ErrorCode::Hardware,
-                    text: FAULT_REFUSAL.into(),
+                    text: self.fault_text.clone(),
                 });
             }
             HostCommand::FullScan => {
@@ -1194,6 +1198,8 @@ mod tests {
     /// Stopped on a fault: scans refused, STOP changes nothing, nothing moves, RESET homes.
     fn assert_stopped(fw: &mut Firmware<Probe>) {
         let pings = fw.transducer().aims.len();
+        let again = hardware(&fw.fault_text);
+        assert!(!fw.fault_text.is_empty());
         for cmd in [
             HostCommand::FullScan,
             HostCommand::LocalScan {
@@ -1201,7 +1207,7 @@ mod tests {
                 to_cdeg: 3000,
             },
         ] {
-            assert_eq!(command(fw, cmd), [hardware(FAULT_REFUSAL)]);
+            assert_eq!(command(fw, cmd), [again.clone()], "the fault again");
         }
         assert_eq!(
             command(fw, HostCommand::Stop),
