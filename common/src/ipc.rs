@@ -239,8 +239,8 @@ pub struct DriverStatus {
     /// first handshake.
     pub head_id: [u8; 32],
     /// The latest `ERR` line's code and text, e.g. `RANGE: segment outside the limits`,
-    /// NUL-padded ASCII, cut to fit.
-    pub last_device_error: [u8; 64],
+    /// NUL-padded ASCII (96 bytes hold the longest code and the protocol's 80 characters of text).
+    pub last_device_error: [u8; 96],
     /// 1 while the head is stopped on a hardware fault (it reported `ST,FAULT`): no scan is sent
     /// until a person acknowledges it with [`ScanCommandKind::Reset`]; 0 otherwise.
     pub head_fault: u32,
@@ -248,7 +248,7 @@ pub struct DriverStatus {
     pub hardware_faults: u32,
 }
 
-const _: () = assert!(std::mem::size_of::<DriverStatus>() == 176);
+const _: () = assert!(std::mem::size_of::<DriverStatus>() == 208);
 
 impl Default for DriverStatus {
     fn default() -> Self {
@@ -268,7 +268,7 @@ impl Default for DriverStatus {
             silences: 0,
             device_errors: 0,
             head_id: [0; 32],
-            last_device_error: [0; 64],
+            last_device_error: [0; 96],
             head_fault: 0,
             hardware_faults: 0,
         }
@@ -1015,8 +1015,8 @@ mod tests {
         assert_eq!(offset_of!(DriverStatus, device_errors), 68);
         assert_eq!(offset_of!(DriverStatus, head_id), 72);
         assert_eq!(offset_of!(DriverStatus, last_device_error), 104);
-        assert_eq!(offset_of!(DriverStatus, head_fault), 168);
-        assert_eq!(offset_of!(DriverStatus, hardware_faults), 172);
+        assert_eq!(offset_of!(DriverStatus, head_fault), 200);
+        assert_eq!(offset_of!(DriverStatus, hardware_faults), 204);
     }
 
     #[test]
