@@ -29,6 +29,7 @@ use sonar_common::sensor::SensorConfig;
 use sonar_common::throttle::Throttle;
 use sonar_driver::averaging::PingPolicy;
 use sonar_driver::decoder::{Decoded, Decoder, Dialect};
+use sonar_driver::sweeps::SweepIds;
 use tracing::{debug, info, warn};
 
 /// How long one read of the port may block: bounds the latency of commands and of shutdown.
@@ -368,6 +369,8 @@ struct Link {
     head_fault: bool,
     /// An `ERR,HARDWARE` came: ask the head at once whether it stopped (`ST,FAULT`).
     status_wanted: bool,
+    /// Sweep ids as published, continued across resets of the head.
+    sweeps: SweepIds,
 }
 
 impl Link {
@@ -418,6 +421,7 @@ impl Link {
             last_hardware_error: String::new(),
             head_fault: false,
             status_wanted: false,
+            sweeps: SweepIds::default(),
         })
     }
 
@@ -631,6 +635,7 @@ impl Link {
                     return Ok(SessionEnd::WrongHead(why));
                 }
                 self.status.head_resets += 1;
+                self.sweeps.head_was_reset();
                 if self.head_fault {
                     warn!(
                         resets = self.status.head_resets,
@@ -729,7 +734,10 @@ impl Link {
                     );
                 }
             }
-            Ok(Decoded::Reading(reading)) => self.publish(&reading)?,
+            Ok(Decoded::Reading(mut reading)) => {
+                reading.sweep_id = self.sweeps.of(reading.sweep_id);
+                self.publish(&reading)?
+            }
             Ok(Decoded::Message(msg)) => self.on_message(msg)?,
         }
         Ok(())
@@ -770,7 +778,7 @@ impl Link {
                 mode,
                 ..
             } => {
-                self.status.sweep_id = *sweep;
+                self.status.sweep_id = self.sweeps.of(*sweep);
                 self.status.direction = direction.sign();
                 self.status.mode = match mode {
                     WireScanMode::Full => ScanMode::Full,

@@ -352,7 +352,8 @@ fn a_reset_mid_sweep_is_recovered_by_the_driver() {
     kill(Pid::from_raw(head.child.id() as i32), Signal::SIGUSR1).unwrap();
     let s = wait_for_status(&node, &status, |s| s.head_resets >= 1);
     assert_eq!(s.link_state, LinkState::Connected as u32);
-    // After the reset the head counts readings and sweeps from the start again.
+    // After the reset the head counts readings and sweeps from the start again; the driver
+    // publishes its sweeps on from the interrupted one, which thereby ends (issue 24 item 8).
     let after = collect_until(
         &node,
         || receive_reading(&sub),
@@ -360,7 +361,17 @@ fn a_reset_mid_sweep_is_recovered_by_the_driver() {
     );
     let restarted: Vec<&Reading> = after.iter().filter(|r| r.device_seq < 5).collect();
     assert_eq!(restarted[0].device_seq, 0, "{restarted:?}");
-    assert_eq!(restarted[0].sweep_id, 1);
+    let interrupted = after
+        .iter()
+        .take_while(|r| r.device_seq >= 5)
+        .map(|r| r.sweep_id)
+        .max()
+        .unwrap_or(before[9].sweep_id);
+    assert_eq!(
+        restarted[0].sweep_id,
+        interrupted + 1,
+        "a new sweep, not sweep 1 again"
+    );
     assert_eq!(
         restarted[0].angle_deg, -147.0,
         "a new sweep from the MIN switch"
