@@ -508,7 +508,7 @@ impl Link {
             "the head stopped on a hardware fault: {what}. Check its limit switches (both levers \
              move freely and open and close when pressed), their wiring and connector, and that the \
              head turns freely without slipping; then acknowledge with a reset (the viewer's R, or \
-             `sonar reset`), which homes the head again. No scan is sent to it until then."
+             `sonar reset-head`), which homes the head again. No scan is sent to it until then."
         );
         self.publish_status()
     }

@@ -721,8 +721,10 @@ mod tests {
         let mut m = EchoModel::new(quiet, SensorConfig::default(), 7).unwrap();
         let first = m.ping(0.0);
         assert!((0..50).all(|_| m.ping(0.0) == first));
-        let mut bad = NoiseParams::default();
-        bad.range_sigma_fraction = -0.1;
+        let bad = NoiseParams {
+            range_sigma_fraction: -0.1,
+            ..NoiseParams::default()
+        };
         assert!(bad.validate().is_err());
     }
 

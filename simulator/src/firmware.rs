@@ -1207,7 +1207,11 @@ mod tests {
                 to_cdeg: 3000,
             },
         ] {
-            assert_eq!(command(fw, cmd), [again.clone()], "the fault again");
+            assert_eq!(
+                command(fw, cmd),
+                std::slice::from_ref(&again),
+                "the fault again"
+            );
         }
         assert_eq!(
             command(fw, HostCommand::Stop),

@@ -386,20 +386,32 @@ fn a_reset_mid_sweep_is_recovered_by_the_driver() {
 /// times agree to the firmware's timer resolution.
 #[test]
 fn the_rust_device_model_and_the_firmware_give_the_same_readings() {
+    // CI compares two sweeps (400 pings); the long comparison behind docs/reliability.md's figure
+    // sets SONAR_TWIN_SWEEPS.
+    let sweeps: u32 = std::env::var("SONAR_TWIN_SWEEPS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(2);
     let run = |name: &str, spawn: &dyn Fn(&Sandbox) -> (Proc, String)| {
         let sandbox = Sandbox::new(name);
         let node = sandbox.node("test-consumer");
         let sub = readings_subscriber(&node);
         let (_head, pty) = spawn(&sandbox);
         let _driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
-        let readings = collect_until(
-            &node,
-            || receive_reading(&sub),
-            |got| got.iter().any(|r| r.sweep_id == 3),
-        );
+        let deadline = std::time::Instant::now() + PATIENCE * sweeps.div_ceil(2);
+        let mut readings = Vec::new();
+        while !readings.iter().any(|r: &Reading| r.sweep_id > sweeps) {
+            assert!(std::time::Instant::now() < deadline, "{name}: too slow");
+            match receive_reading(&sub) {
+                Some(r) => readings.push(r),
+                None => {
+                    let _ = node.wait(std::time::Duration::from_millis(5));
+                }
+            }
+        }
         readings
             .into_iter()
-            .filter(|r| r.sweep_id < 3)
+            .filter(|r| r.sweep_id <= sweeps)
             .map(|r| ((r.sweep_id, (r.angle_deg * 100.0).round() as i32), r))
             .collect::<BTreeMap<_, _>>()
     };
@@ -407,10 +419,10 @@ fn the_rust_device_model_and_the_firmware_give_the_same_readings() {
         s.spawn_sim(&["--scene", "room", "--seed", "5", "--speed", "100"])
     });
     let firmware = run("fw_twin_avr", &|s: &Sandbox| spawn_firmware(s, "room", "5"));
-    assert_eq!(rust.len(), 100, "two full sweeps");
+    assert_eq!(rust.len(), 50 * sweeps as usize, "{sweeps} full sweeps");
     let echoes = rust.values().filter(|r| r.is_valid_range()).count();
     assert!(
-        echoes > 60,
+        echoes > 30 * sweeps as usize,
         "the room's walls answer most readings: {echoes}"
     );
     assert_eq!(
@@ -418,18 +430,30 @@ fn the_rust_device_model_and_the_firmware_give_the_same_readings() {
         firmware.keys().collect::<Vec<_>>()
     );
     let mut worst_us = 0;
+    let mut differ = Vec::new();
     for (key, a) in &rust {
         let b = &firmware[key];
         assert_eq!(a.direction, b.direction, "{key:?}");
-        assert_eq!(a.flags, b.flags, "{key:?}: {a:?} {b:?}");
+        let same_echoes = a.echo_us[..4]
+            .iter()
+            .zip(&b.echo_us[..4])
+            .all(|(x, y)| (*x == 0) == (*y == 0));
+        // 0 (no echo) must be 0 on both; an echo within the timer's 0.5 µs tick and the emulated
+        // board's edge timing.
+        if !same_echoes || a.flags != b.flags || (a.distance_m - b.distance_m).abs() >= 0.002 {
+            differ.push(format!("{key:?}: model {a:?}, firmware {b:?}"));
+            continue;
+        }
         for (x, y) in a.echo_us[..4].iter().zip(&b.echo_us[..4]) {
-            // 0 (no echo) must be 0 on both; an echo within the timer's 0.5 µs tick and the
-            // emulated board's edge timing.
-            assert_eq!(*x == 0, *y == 0, "{key:?}: {a:?} {b:?}");
             worst_us = worst_us.max(x.abs_diff(*y));
         }
-        assert!((a.distance_m - b.distance_m).abs() < 0.002, "{key:?}");
     }
+    println!(
+        "twin: {sweeps} sweeps, {} pings, {} readings differ, largest echo time difference {worst_us} µs",
+        4 * rust.len(),
+        differ.len()
+    );
+    assert!(differ.is_empty(), "{differ:#?}");
     assert!(worst_us <= 2, "largest echo time difference {worst_us} µs");
 }
 

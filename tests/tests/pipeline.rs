@@ -17,7 +17,7 @@ use sonar_common::protocol::{
     DeviceMessage, DeviceState, Direction, ErrorCode, PROTOCOL_VERSION, WireReading, encode_device,
 };
 use sonar_e2e::{
-    PATIENCE, Sandbox, back_wall_seen_at, collect_until, corridor_grid_config,
+    PATIENCE, Sandbox, back_wall_seen_at, check_ok, collect_until, corridor_grid_config,
     driver_status_subscriber, grid_subscriber, localized_pose_subscriber, readings_subscriber,
     readings_subscribers, receive_reading, send_scan_command, wait_for_status, wait_until,
 };
@@ -575,8 +575,14 @@ fn a_head_stopped_on_a_hardware_fault_gets_no_scan_until_a_reset() {
     assert!(!head.heard.contains("$RESET"), "{:?}", head.heard);
     assert_eq!(wait_for_status(&node, &status, |_| true).head_fault, 1);
 
-    // A person checked the head and resets it: RESET, then the scan it should run.
-    let _reset = send_scan_command(&node, ScanCommand::new(ScanCommandKind::Reset, 0.0, 0.0));
+    // A person checked the head and resets it (`sonar reset-head`, as the viewer's R): RESET,
+    // then the scan it should run.
+    let out = sandbox.run("sonar", &["reset-head"]);
+    let said = check_ok("sonar reset-head", &out);
+    assert!(
+        said.starts_with("reset sent: the head homes again"),
+        "{said}"
+    );
     head.hear("$RESET*", 1);
     head.hear("$SCAN,FULL*", 2);
     let at = head.heard.find("$RESET*").unwrap();
