@@ -22,6 +22,12 @@ _Static_assert(((unsigned long long)HOMING_MAX_DEG * HEAD_UNITS_PER_REV / 360 + 
                        (unsigned long long)HEAD_UNITS_PER_REV * MOTOR_DEN <
                    0x100000000ULL,
                "motor position to angle overflows 32 bits: use a smaller GEAR");
+/* The creep past a limit (the switch tolerance and the rounding) is counted in a uint8_t. */
+_Static_assert((unsigned long long)HEAD_SWITCH_TOLERANCE_UNITS * MOTOR_NUM /
+                           ((unsigned long long)HEAD_UNITS_PER_REV * MOTOR_DEN) +
+                       LIMIT_SEEK_MICROSTEPS + 1 <=
+                   255,
+               "the creep past a limit overflows 8 bits: use a smaller GEAR");
 /* Motor positions are int32 and every head position has its own microstep. */
 _Static_assert(MOTOR_NUM >= (unsigned long)HEAD_UNITS_PER_REV * MOTOR_DEN,
                "the motor must make at least one microstep per 0.75 degree");
