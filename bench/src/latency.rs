@@ -98,6 +98,13 @@ impl Head {
                     })?;
                     self.scanning = false;
                 }
+                // The bench head never faults; a reset stops it, as the firmware's homing does.
+                HostCommand::Reset => {
+                    self.send(&DeviceMessage::Ack {
+                        command: "RESET".into(),
+                    })?;
+                    self.scanning = false;
+                }
                 HostCommand::Status => self.send(&DeviceMessage::Status {
                     state: if self.scanning {
                         sonar_common::protocol::DeviceState::Full

@@ -24,7 +24,8 @@ use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use sonar_common::ipc::{
     self, DriverStatus, FeatureRecord, FeaturesHeader, FusionStatus, GridHeader, IpcArgs, IpcError,
-    LinkState, LocalizedPose, Pose2D, Radar, Reading, ScanMode, feature_kind,
+    LinkState, LocalizedPose, Pose2D, Radar, Reading, ScanCommand, ScanCommandKind, ScanMode,
+    feature_kind,
 };
 
 /// How often `echo` and `hz` look for new messages.
@@ -38,6 +39,7 @@ const POLL: Duration = Duration::from_millis(5);
 ///   sonar services
 ///   sonar echo readings --count 10
 ///   sonar hz grid
+///   sonar reset-head        # a person checked a head stopped on a hardware fault
 #[derive(Debug, Parser)]
 #[command(name = "sonar", version, verbatim_doc_comment)]
 struct Cli {
@@ -65,6 +67,10 @@ enum Command {
         #[arg(long, value_name = "N")]
         count: Option<u64>,
     },
+    /// Acknowledge a head stopped on a hardware fault, once a person has checked it (its limit
+    /// switches, their wiring, that it turns freely): the driver sends RESET, the head homes
+    /// again, then the driver sends its scan. As the viewer's R key.
+    ResetHead,
 }
 
 /// The services `echo` and `hz` know how to decode (a service's own name, `driver_status`, is
@@ -125,7 +131,55 @@ fn run(cli: Cli) -> Result<()> {
             receive(&node, topic, |line| out.print(line))
         }
         Command::Hz { topic, count } => hz(&node, topic, count),
+        Command::ResetHead => reset_head(&node),
     }
+}
+
+/// Driver status messages to wait for after sending the reset: the driver publishes one at least
+/// every second and takes commands every 50 ms, so by the second it has taken the reset.
+const RESET_STATUSES: usize = 2;
+
+/// `reset-head`: sends the reset command and reports what the driver says after it.
+fn reset_head(node: &Node<Ipc>) -> Result<()> {
+    let status = ipc::driver_status_service(node)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| IpcError::new("subscribe to the driver status", e))?;
+    let commands = ipc::commands_service(node)?
+        .publisher_builder()
+        .create()
+        .map_err(|e| IpcError::new("publish on the commands service", e))?;
+    let delivered = commands
+        .send_copy(ScanCommand::new(ScanCommandKind::Reset, 0.0, 0.0))
+        .map_err(|e| IpcError::new("send the reset command", e))?;
+    anyhow::ensure!(
+        delivered > 0,
+        "no driver listens on {} (is sonar-driver running, with the same --iox-* settings?)",
+        ipc::COMMANDS_SERVICE
+    );
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let mut seen = Vec::new();
+    while seen.len() < RESET_STATUSES {
+        anyhow::ensure!(
+            Instant::now() < deadline,
+            "the driver published no status for 10 s after the reset"
+        );
+        while let Some(sample) = status
+            .receive()
+            .map_err(|e| IpcError::new("receive the driver status", e))?
+        {
+            seen.push(*sample.payload());
+        }
+        if node.wait(Duration::from_millis(50)).is_err() {
+            return Ok(());
+        }
+    }
+    let last = seen[seen.len() - 1];
+    println!(
+        "reset sent: the head homes again ({})",
+        driver_status_line(&last)
+    );
+    Ok(())
 }
 
 /// `services`: one line per service, sorted by name.
@@ -467,6 +521,9 @@ fn driver_status_line(s: &DriverStatus) -> String {
         "{link} scan {mode} sweep {} angle {:+.1}° readings {} rejected {} reconnects {}",
         s.sweep_id, s.angle_deg, s.readings_published, s.lines_rejected, s.reconnects
     );
+    if s.head_fault != 0 {
+        line.push_str(" HEAD STOPPED on a hardware fault: check it, then `sonar reset-head`");
+    }
     if s.device_errors > 0 {
         let _ = write!(
             line,
@@ -538,5 +595,8 @@ mod tests {
             line.ends_with("device errors 1 (last: RANGE: outside)"),
             "{line}"
         );
+        s.head_fault = 1;
+        let line = driver_status_line(&s);
+        assert!(line.contains("HEAD STOPPED"), "{line}");
     }
 }

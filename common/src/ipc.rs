@@ -149,6 +149,9 @@ pub enum ScanCommandKind {
     Stop = 3,
     /// Ask the device for a status line (refreshes `sonar/driver_status`).
     Status = 4,
+    /// A person has checked a head stopped on a hardware fault: the driver sends `RESET` (the head
+    /// homes again) and then the scan it should run.
+    Reset = 5,
 }
 
 /// A command to the driver on [`COMMANDS_SERVICE`].
@@ -182,6 +185,7 @@ impl ScanCommand {
             2 => ScanCommandKind::LocalScan,
             3 => ScanCommandKind::Stop,
             4 => ScanCommandKind::Status,
+            5 => ScanCommandKind::Reset,
             _ => return None,
         })
     }
@@ -204,7 +208,7 @@ pub enum LinkState {
 /// The driver's state and counters on [`DRIVER_STATUS_SERVICE`], published on change and once a
 /// second.
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("sonar::DriverStatusV2")]
+#[type_name("sonar::DriverStatusV3")]
 #[repr(C)]
 pub struct DriverStatus {
     pub stamp_ns: u64,
@@ -235,11 +239,16 @@ pub struct DriverStatus {
     /// first handshake.
     pub head_id: [u8; 32],
     /// The latest `ERR` line's code and text, e.g. `RANGE: segment outside the limits`,
-    /// NUL-padded ASCII, cut to fit.
-    pub last_device_error: [u8; 64],
+    /// NUL-padded ASCII (96 bytes hold the longest code and the protocol's 80 characters of text).
+    pub last_device_error: [u8; 96],
+    /// 1 while the head is stopped on a hardware fault (it reported `ST,FAULT`): no scan is sent
+    /// until a person acknowledges it with [`ScanCommandKind::Reset`]; 0 otherwise.
+    pub head_fault: u32,
+    /// Times the head stopped on a hardware fault.
+    pub hardware_faults: u32,
 }
 
-const _: () = assert!(std::mem::size_of::<DriverStatus>() == 168);
+const _: () = assert!(std::mem::size_of::<DriverStatus>() == 208);
 
 impl Default for DriverStatus {
     fn default() -> Self {
@@ -259,7 +268,9 @@ impl Default for DriverStatus {
             silences: 0,
             device_errors: 0,
             head_id: [0; 32],
-            last_device_error: [0; 64],
+            last_device_error: [0; 96],
+            head_fault: 0,
+            hardware_faults: 0,
         }
     }
 }
@@ -1041,6 +1052,8 @@ mod tests {
         assert_eq!(offset_of!(DriverStatus, device_errors), 68);
         assert_eq!(offset_of!(DriverStatus, head_id), 72);
         assert_eq!(offset_of!(DriverStatus, last_device_error), 104);
+        assert_eq!(offset_of!(DriverStatus, head_fault), 200);
+        assert_eq!(offset_of!(DriverStatus, hardware_faults), 204);
     }
 
     #[test]

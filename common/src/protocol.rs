@@ -168,6 +168,9 @@ pub enum DeviceState {
     Local,
     /// Looking for the MIN limit switch after a reset (version 2).
     Homing,
+    /// Stopped on a hardware fault (a limit switch that did not close where it should, or both
+    /// closed), reported just before with `ERR,HARDWARE`: the head moves again only after `RESET`.
+    Fault,
 }
 
 /// Error codes a device reports with `ERR`.
@@ -222,6 +225,8 @@ pub enum HostCommand {
     Stop,
     /// Ask for one `ST` line.
     Status,
+    /// Clear a hardware fault (a person has looked at the head) and home again.
+    Reset,
 }
 
 /// A message from the device to the PC.
@@ -464,6 +469,7 @@ pub fn encode_command(cmd: &HostCommand, version: ProtocolVersion) -> String {
         }
         HostCommand::Stop => "STOP".to_owned(),
         HostCommand::Status => "STATUS".to_owned(),
+        HostCommand::Reset => "RESET".to_owned(),
     };
     frame(&body, version)
 }
@@ -501,6 +507,10 @@ pub fn parse_command(line: &[u8], version: ProtocolVersion) -> Result<HostComman
         "STATUS" => {
             expect_fields(&f, "STATUS", 1)?;
             Ok(HostCommand::Status)
+        }
+        "RESET" => {
+            expect_fields(&f, "RESET", 1)?;
+            Ok(HostCommand::Reset)
         }
         other => Err(ParseError::UnknownTag(sanitize_text(other))),
     }
@@ -581,6 +591,7 @@ pub fn encode_device(msg: &DeviceMessage, version: ProtocolVersion) -> String {
                 DeviceState::Full => "FULL",
                 DeviceState::Local => "LOCAL",
                 DeviceState::Homing => "HOMING",
+                DeviceState::Fault => "FAULT",
             };
             let _ = write!(body, "ST,{state},{angle_cdeg},{},{sweep}", direction.wire());
         }
@@ -661,6 +672,7 @@ pub fn parse_device(line: &[u8], version: ProtocolVersion) -> Result<DeviceMessa
                 "FULL" => DeviceState::Full,
                 "LOCAL" => DeviceState::Local,
                 "HOMING" => DeviceState::Homing,
+                "FAULT" => DeviceState::Fault,
                 _ => return Err(ParseError::BadField("state")),
             };
             Ok(DeviceMessage::Status {
@@ -872,6 +884,7 @@ mod tests {
             encode_command(&HostCommand::Hello { version: 2 }, v2),
             "$HELLO,2*4975\n"
         );
+        assert_eq!(encode_command(&HostCommand::Reset, v2), "$RESET*7DB2\n");
         assert_eq!(
             parse_command(b"$SCAN,FULL*36c7", v2),
             Ok(HostCommand::FullScan),
@@ -904,6 +917,7 @@ mod tests {
             },
             HostCommand::Stop,
             HostCommand::Status,
+            HostCommand::Reset,
         ] {
             for v in BOTH {
                 let line = encode_command(&cmd, v);
@@ -985,6 +999,12 @@ mod tests {
                 angle_cdeg: 0,
                 direction: Direction::Cw,
                 sweep: 0,
+            },
+            DeviceMessage::Status {
+                state: DeviceState::Fault,
+                angle_cdeg: -15000,
+                direction: Direction::Cw,
+                sweep: 3,
             },
             DeviceMessage::Error {
                 code: ErrorCode::Range,

@@ -160,7 +160,7 @@ impl Decoder {
             }
             DeviceMessage::Status { state, .. } => {
                 self.mode = match state {
-                    DeviceState::Idle | DeviceState::Homing => ScanMode::Idle,
+                    DeviceState::Idle | DeviceState::Homing | DeviceState::Fault => ScanMode::Idle,
                     DeviceState::Full => ScanMode::Full,
                     DeviceState::Local => ScanMode::Local,
                 };

@@ -2,9 +2,11 @@
 //! and to iceoryx2:
 //!
 //! - [`decoder`]: lines (our protocol or the hobby "Arduino radar" dialect) → [`Reading`]s;
-//! - [`averaging`]: the policy that turns the four pings of a 6° group into one range.
+//! - [`averaging`]: the policy that turns the four pings of a 6° group into one range;
+//! - [`sweeps`]: sweep ids continued across resets of the head.
 //!
 //! [`Reading`]: sonar_common::ipc::Reading
 
 pub mod averaging;
 pub mod decoder;
+pub mod sweeps;

@@ -29,6 +29,7 @@ use sonar_common::sensor::SensorConfig;
 use sonar_common::throttle::Throttle;
 use sonar_driver::averaging::PingPolicy;
 use sonar_driver::decoder::{Decoded, Decoder, Dialect};
+use sonar_driver::sweeps::SweepIds;
 use tracing::{debug, info, warn};
 
 /// How long one read of the port may block: bounds the latency of commands and of shutdown.
@@ -361,6 +362,15 @@ struct Link {
     /// The state in the latest `ST` line, until acted on.
     head_state: Option<DeviceState>,
     reject_log: Throttle,
+    /// The latest `ERR,HARDWARE` text: what the head stopped on, when it reports `ST,FAULT`.
+    last_hardware_error: String,
+    /// The head stopped on a hardware fault (`ST,FAULT`): no scan is sent to it until a person
+    /// acknowledges with the `reset` command, also after the head was reset or reconnected.
+    head_fault: bool,
+    /// An `ERR,HARDWARE` came: ask the head at once whether it stopped (`ST,FAULT`).
+    status_wanted: bool,
+    /// Sweep ids as published, continued across resets of the head.
+    sweeps: SweepIds,
 }
 
 impl Link {
@@ -408,6 +418,10 @@ impl Link {
             probe_sent: None,
             head_state: None,
             reject_log: Throttle::new(REJECT_LOG_PERIOD),
+            last_hardware_error: String::new(),
+            head_fault: false,
+            status_wanted: false,
+            sweeps: SweepIds::default(),
         })
     }
 
@@ -464,12 +478,52 @@ impl Link {
         }
     }
 
-    /// Sends the scan the head should be doing, if any.
+    /// Sends the scan the head should be doing, if any, unless the head stopped on a fault.
     fn command_scan(&mut self, port: &mut TTYPort) -> Result<()> {
         match self.scan.host_command() {
+            Some(_) if self.head_fault => {
+                debug!("not sending the scan: the head stopped on a hardware fault");
+                Ok(())
+            }
             Some(cmd) => send(port, &cmd, self.version),
             None => Ok(()),
         }
+    }
+
+    /// The head reported `ST,FAULT`: it stopped on a hardware fault and moves only after `RESET`.
+    /// Said once, with what to check; no scan is sent until a person acknowledges.
+    fn head_stopped_on_fault(&mut self) -> Result<()> {
+        if self.head_fault {
+            return Ok(());
+        }
+        self.head_fault = true;
+        self.status.head_fault = 1;
+        self.status.hardware_faults += 1;
+        let what = if self.last_hardware_error.is_empty() {
+            "(no ERR,HARDWARE line seen)"
+        } else {
+            &self.last_hardware_error
+        };
+        tracing::error!(
+            "the head stopped on a hardware fault: {what}. Check its limit switches (both levers \
+             move freely and open and close when pressed), their wiring and connector, and that the \
+             head turns freely without slipping; then acknowledge with a reset (the viewer's R, or \
+             `sonar reset-head`), which homes the head again. No scan is sent to it until then."
+        );
+        self.publish_status()
+    }
+
+    /// A person acknowledged the fault: `RESET` (the head homes again), then the scan.
+    fn acknowledge_fault(&mut self, port: &mut TTYPort) -> Result<()> {
+        info!(
+            was_stopped = self.head_fault,
+            "reset acknowledged: the head homes again"
+        );
+        send(port, &HostCommand::Reset, self.version)?;
+        self.head_fault = false;
+        self.status.head_fault = 0;
+        self.publish_status()?;
+        self.command_scan(port)
     }
 
     fn set_state(&mut self, state: LinkState) -> Result<()> {
@@ -581,10 +635,19 @@ impl Link {
                     return Ok(SessionEnd::WrongHead(why));
                 }
                 self.status.head_resets += 1;
-                warn!(
-                    resets = self.status.head_resets,
-                    "the head announced itself: it was reset; sending the scan again"
-                );
+                self.sweeps.head_was_reset();
+                if self.head_fault {
+                    warn!(
+                        resets = self.status.head_resets,
+                        "the head announced itself: it was reset; its hardware fault is not \
+                         acknowledged, so no scan is sent (acknowledge with a reset)"
+                    );
+                } else {
+                    warn!(
+                        resets = self.status.head_resets,
+                        "the head announced itself: it was reset; sending the scan again"
+                    );
+                }
                 self.decoder.adopt_device_geometry(&hello);
                 if let Err(e) = self.command_scan(port) {
                     return Ok(SessionEnd::PortLost(e));
@@ -597,6 +660,11 @@ impl Link {
                     Ok(Err(why)) => return Ok(SessionEnd::PortLost(anyhow::anyhow!(why))),
                     Ok(Ok(())) => {}
                 }
+            }
+            if std::mem::take(&mut self.status_wanted)
+                && let Err(e) = send(port, &HostCommand::Status, self.version)
+            {
+                return Ok(SessionEnd::PortLost(e));
             }
             if let Err(e) = self.resume_idle_head(port) {
                 return Ok(SessionEnd::PortLost(e));
@@ -666,7 +734,10 @@ impl Link {
                     );
                 }
             }
-            Ok(Decoded::Reading(reading)) => self.publish(&reading)?,
+            Ok(Decoded::Reading(mut reading)) => {
+                reading.sweep_id = self.sweeps.of(reading.sweep_id);
+                self.publish(&reading)?
+            }
             Ok(Decoded::Message(msg)) => self.on_message(msg)?,
         }
         Ok(())
@@ -679,6 +750,10 @@ impl Link {
                 if *code == ErrorCode::Version {
                     self.version_rejected = true;
                 }
+                if *code == ErrorCode::Hardware {
+                    self.last_hardware_error = text.clone();
+                    self.status_wanted = true;
+                }
                 warn!(?code, text, "device reports an error");
                 self.status.device_errors += 1;
                 ipc::set_padded_text(
@@ -690,8 +765,11 @@ impl Link {
             DeviceMessage::Status { state, .. } => {
                 self.head_state = Some(*state);
                 debug!(?msg, "status");
-                if *state == DeviceState::Idle {
+                if matches!(state, DeviceState::Idle | DeviceState::Fault) {
                     self.scan_stopped()?;
+                }
+                if *state == DeviceState::Fault {
+                    self.head_stopped_on_fault()?;
                 }
             }
             DeviceMessage::SweepStart {
@@ -700,7 +778,7 @@ impl Link {
                 mode,
                 ..
             } => {
-                self.status.sweep_id = *sweep;
+                self.status.sweep_id = self.sweeps.of(*sweep);
                 self.status.direction = direction.sign();
                 self.status.mode = match mode {
                     WireScanMode::Full => ScanMode::Full,
@@ -774,6 +852,12 @@ impl Link {
                 },
                 Some(ScanCommandKind::Stop) => Some(ScanRequest::None),
                 Some(ScanCommandKind::Status) => None,
+                Some(ScanCommandKind::Reset) => {
+                    if self.dialect == Dialect::Native {
+                        self.acknowledge_fault(port)?;
+                    }
+                    continue;
+                }
                 None => {
                     warn!(kind = cmd.kind, "rejected unknown command");
                     continue;
@@ -791,6 +875,14 @@ impl Link {
                 }
                 None => HostCommand::Status,
             };
+            if self.head_fault && host != HostCommand::Stop && host != HostCommand::Status {
+                warn!(
+                    "not sending the scan: the head stopped on a hardware fault ({}); it runs once \
+                     the fault is acknowledged with a reset",
+                    self.last_hardware_error
+                );
+                continue;
+            }
             send(port, &host, self.version)?;
             if host == HostCommand::Stop {
                 self.scan_stopped()?;

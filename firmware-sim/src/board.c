@@ -33,6 +33,8 @@
 #include "avr_ioport.h"
 #include "avr_uart.h"
 #include "avr_eeprom.h"
+#include "avr_timer.h"
+#include "sim_interrupts.h"
 
 #define BOARD_PORTS 4     /* A..D; the ATmega328P has B, C and D */
 #define BOARD_EVENTS 256  /* pin-change events between two board_next_event drains */
@@ -237,6 +239,52 @@ static void free_firmware(elf_firmware_t *f)
 	free(f);
 }
 
+/*
+ * simavr 1.6 (Debian's) clears every raised flag of a timer's interrupt flag register on any write
+ * to it: its avr_timer_write_pending() ignores the value written. The firmware writes
+ * TIFR1 = _BV(ICF1) (datasheet §16.11.9: a flag is cleared by writing a logical one to it, the
+ * others are left alone) around each echo edge with interrupts off; an overflow raised just then
+ * was lost with it, and the echo's timestamps came out 65536 ticks (32.8 ms) apart: an echo
+ * reported as none, about 5 times in 12 000 pings. Fixed upstream in 2021 (simavr pull request
+ * 415); until the distribution ships that, the board installs a write-one-to-clear handler for
+ * Timer1's flags.
+ */
+static void board_timer_flags_write(avr_t *avr, avr_io_addr_t addr, uint8_t v, void *param)
+{
+	avr_timer_t *p = param;
+	if (addr == p->overflow.raised.reg && avr_regbit_from_value(avr, p->overflow.raised, v))
+		avr_clear_interrupt(avr, &p->overflow);
+	if (addr == p->icr.raised.reg && avr_regbit_from_value(avr, p->icr.raised, v))
+		avr_clear_interrupt(avr, &p->icr);
+	for (int i = 0; i < AVR_TIMER_COMP_COUNT; i++) {
+		avr_int_vector_t *comp = &p->comp[i].interrupt;
+		if (addr == comp->raised.reg && avr_regbit_from_value(avr, comp->raised, v))
+			avr_clear_interrupt(avr, comp);
+	}
+}
+
+/* Installs board_timer_flags_write for Timer1's TIFR1; 0 when done, -1 when the register is not
+ * Timer1's alone (another simavr than the one this was written for: left as it is). */
+static int board_fix_timer1_flags(avr_t *avr)
+{
+	for (avr_io_t *io = avr->io_port; io; io = io->next) {
+		if (!io->kind || strcmp(io->kind, "timer") != 0)
+			continue;
+		avr_timer_t *t = (avr_timer_t *)io;
+		if (t->name != '1')
+			continue;
+		avr_io_addr_t reg = t->overflow.raised.reg;
+		if (!reg || reg != t->icr.raised.reg)
+			return -1;
+		int a = AVR_DATA_TO_IO(reg);
+		if (a < 0 || a >= MAX_IOs || avr->io[a].w.param != t)
+			return -1;
+		avr->io[a].w.c = board_timer_flags_write;
+		return 0;
+	}
+	return -1;
+}
+
 board_t *board_new(const char *elf_path, uint32_t frequency, char *err, size_t err_len)
 {
 	elf_firmware_t *f = calloc(1, sizeof *f);
@@ -272,6 +320,9 @@ board_t *board_new(const char *elf_path, uint32_t frequency, char *err, size_t e
 	}
 	avr_load_firmware(avr, f);
 	free_firmware(f);
+	if (board_fix_timer1_flags(avr) != 0)
+		AVR_LOG(avr, LOG_WARNING,
+			"board: Timer1's TIFR1 write handler not replaced: pending overflows may be lost\n");
 	avr->frequency = frequency; /* the board's crystal, whatever the ELF says */
 	avr->sleep = board_no_sleep;
 	avr->log = LOG_WARNING;

@@ -1,10 +1,10 @@
 //! The hardware around the chip, as one pure state machine: port levels the firmware drives go in
 //! (with their cycle), edges to drive on its input pins come out (with theirs).
 
-use sonar_sim::Transducer;
+use sonar_sim::{SwitchFaults, Transducer};
 use tracing::{debug, warn};
 
-use crate::motor::{Follower, Motor, STOP_DEG, Shaft, StartOutsideStops};
+use crate::motor::{Follower, Motor, STOP_DEG, Shaft, StartOutsideStops, Travel};
 use crate::pins::{ECHO, LED, Pin, Port, TRIG};
 use crate::schedule::{Edge, Schedule};
 use crate::srf05::{PingStats, Srf05};
@@ -18,12 +18,14 @@ pub struct HeadConfig {
     pub start_deg: f64,
     /// `Some(seed)`: the limit switches bounce, seeded.
     pub bounce_seed: Option<u64>,
+    /// Broken limit switches (`--switch-fault`).
+    pub switch_faults: SwitchFaults,
     /// ECHO pulse without an echo, µs (SRF05: 30 ms).
     pub echo_timeout_us: u32,
 }
 
 /// Counters of the head, for the summary.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct HeadStats {
     /// Microsteps the shaft followed.
     pub steps: u64,
@@ -33,6 +35,8 @@ pub struct HeadStats {
     pub faults: u64,
     /// Limit switch changes.
     pub switch_changes: u64,
+    /// How far the shaft turned.
+    pub travel: Travel,
     pub sonar: PingStats,
 }
 
@@ -56,7 +60,7 @@ impl<T: Transducer> Head<T> {
         let shaft = Shaft::new(cfg.motor, cfg.start_deg)?;
         Ok(Self {
             follower: Follower::new(cfg.motor.drive()),
-            switches: LimitSwitches::new(&shaft, cfg.bounce_seed),
+            switches: LimitSwitches::new(&shaft, cfg.bounce_seed, cfg.switch_faults),
             shaft,
             sonar: Srf05::new(transducer, cfg.echo_timeout_us),
             schedule: Schedule::default(),
@@ -137,6 +141,7 @@ impl<T: Transducer> Head<T> {
             lost_steps,
             faults: self.faults,
             switch_changes: self.switches.changes(),
+            travel: self.shaft.travel(),
             sonar: self.sonar.stats(),
         }
     }
@@ -167,6 +172,7 @@ mod tests {
             motor: Motor::Paper,
             start_deg,
             bounce_seed: None,
+            switch_faults: SwitchFaults::default(),
             echo_timeout_us: 30_000,
         };
         Head::new(&cfg, Room).unwrap()
@@ -207,6 +213,10 @@ mod tests {
         assert_eq!(h.angle_deg(), -159.75);
         let s = h.stats();
         assert_eq!((s.steps, s.lost_steps), (1, 3));
+        // The shaft stopped at −159.75°; driven on, it would have wound to −162°.
+        let t = s.travel;
+        assert_eq!((t.lowest_deg, t.highest_deg), (-159.75, -159.0));
+        assert_eq!((t.wound_lowest_deg, t.wound_highest_deg), (-162.0, -159.0));
     }
 
     #[test]

@@ -39,7 +39,10 @@
 //! - Steps past the mechanical stops (±160°) are lost: the motor stalls there. Anywhere else no
 //!   step is ever missed.
 //! - Limit switches: pure contacts; `--switch-bounce` adds 1–3 seeded open/close pairs within
-//!   2 ms of every change.
+//!   2 ms of every change. `--switch-fault` breaks them: `dead` (never closes), `stuck` (always
+//!   closed; `both=stuck` a shorted cable), `early:DEG` (closes DEG° before ±150°), `bouncing`
+//!   (4–10 pairs within 10 ms, the worst sensor-facts allows). `--travel-report FILE` writes at exit
+//!   how far the shaft turned, and how far it was driven (lost steps against the stops included).
 //! - SRF05 (mode 1): a trigger pulse of ≥ 10 µs (shorter ones are ignored, as by the module)
 //!   fires a ping on its falling edge, aimed where the shaft stands then. ECHO rises
 //!   [`ECHO_DELAY_US`](srf05::ECHO_DELAY_US) = 500 µs later — **assumed**: no datasheet gives it —

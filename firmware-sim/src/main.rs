@@ -14,8 +14,8 @@ use sonar_firmware_sim::head::{Head, HeadConfig};
 use sonar_firmware_sim::headid::HeadId;
 use sonar_firmware_sim::motor::Motor;
 use sonar_sim::link::open_announced;
-use sonar_sim::{EchoModel, Scene};
-use tracing::info;
+use sonar_sim::{EchoModel, Scene, SwitchFault, SwitchFaults};
+use tracing::{info, warn};
 
 /// Firmware in the loop: the sensor head's own ATmega328P firmware (the ELF, unchanged) runs in
 /// simavr at 16 MHz; the stepper, the two limit switches and the SRF05 around the chip are
@@ -49,6 +49,7 @@ use tracing::info;
 ///   sonar-firmware-sim --speed max --link /tmp/sonar-tty --start-angle 40
 ///   sonar-firmware-sim --motor 28byj48 --firmware firmware/build/28byj48-uln2003-g1/sonar-head.elf
 ///   sonar-firmware-sim --switch-bounce --head-id 3F2A9C0417B6E5D1
+///   sonar-firmware-sim --switch-fault min=dead --travel-report travel.json
 ///   kill -USR1 <pid>        # press the reset button
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
@@ -83,6 +84,54 @@ struct Args {
     /// Limit switches bounce (1–3 open/close pairs within 2 ms of each change).
     #[arg(long)]
     switch_bounce: bool,
+    /// Break a limit switch: WHICH=KIND, WHICH one of min, max, both; KIND one of
+    ///   dead       never closes (broken contact, cut wire)
+    ///   stuck      always closed (welded contact, short to ground; both=stuck: both closed)
+    ///   early:DEG  closes DEG degrees (1–90) before its place (bent lever, moved switch)
+    ///   bouncing   4–10 open/close pairs within 10 ms of every change (the worst a switch may)
+    /// May be given twice (min and max).
+    #[arg(long, value_name = "WHICH=KIND", value_parser = parse_switch_fault, verbatim_doc_comment)]
+    switch_fault: Vec<(Which, SwitchFault)>,
+    /// At exit, write how far the shaft turned to this file as JSON: the lowest and highest angles
+    /// it reached, and those it was driven to (lost steps against the stops included), degrees.
+    #[arg(long, value_name = "FILE")]
+    travel_report: Option<PathBuf>,
+}
+
+/// Which switch a `--switch-fault` breaks.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Which {
+    Min,
+    Max,
+    Both,
+}
+
+fn parse_switch_fault(s: &str) -> Result<(Which, SwitchFault), String> {
+    let (which, kind) = s
+        .split_once('=')
+        .ok_or_else(|| format!("expected WHICH=KIND, e.g. min=dead, got {s:?}"))?;
+    let which = match which.trim() {
+        "min" => Which::Min,
+        "max" => Which::Max,
+        "both" => Which::Both,
+        other => return Err(format!("{other:?}: expected min, max or both")),
+    };
+    Ok((which, kind.parse()?))
+}
+
+fn switch_faults(given: &[(Which, SwitchFault)]) -> Result<SwitchFaults> {
+    let mut faults = SwitchFaults::default();
+    for &(which, fault) in given {
+        for (slot, hit) in [
+            (&mut faults.min, which != Which::Max),
+            (&mut faults.max, which != Which::Min),
+        ] {
+            if hit && slot.replace(fault).is_some() {
+                bail!("--switch-fault: a switch is broken twice");
+            }
+        }
+    }
+    Ok(faults)
 }
 
 fn main() -> ExitCode {
@@ -109,11 +158,16 @@ fn run(args: Args) -> Result<()> {
     };
     sensor.validate().context("--air-temperature-c")?;
     let scene_name = scene.name.clone();
+    let faults = switch_faults(&args.switch_fault)?;
+    if faults != SwitchFaults::default() {
+        warn!(?faults, "limit switches broken on purpose (--switch-fault)");
+    }
     let model = EchoModel::new(scene, sensor, args.seed)?;
     let head_cfg = HeadConfig {
         motor: args.motor,
         start_deg: args.start_angle,
-        bounce_seed: args.switch_bounce.then_some(args.seed),
+        bounce_seed: (args.switch_bounce || faults.bouncing()).then_some(args.seed),
+        switch_faults: faults,
         echo_timeout_us: sensor.echo_timeout_us,
     };
     let mut head = Head::new(&head_cfg, model).context("--start-angle")?;
@@ -165,8 +219,23 @@ fn run(args: Args) -> Result<()> {
         bytes_dropped = s.line.dropped,
         head_id = %s.head_id.map_or("none".to_owned(), |id| id.to_string()),
         angle = head.angle_deg(),
+        lowest_angle = s.head.travel.lowest_deg,
+        highest_angle = s.head.travel.highest_deg,
         "stopped"
     );
+    if let Some(path) = &args.travel_report {
+        let t = s.head.travel;
+        let report = serde_json::json!({
+            "lowest_deg": t.lowest_deg,
+            "highest_deg": t.highest_deg,
+            "wound_lowest_deg": t.wound_lowest_deg,
+            "wound_highest_deg": t.wound_highest_deg,
+            "steps": s.head.steps,
+            "lost_steps": s.head.lost_steps,
+        });
+        std::fs::write(path, format!("{report}\n"))
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
     match &s.end {
         End::Stopped => Ok(()),
         End::Died { state, pc } => bail!(

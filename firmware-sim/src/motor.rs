@@ -199,6 +199,22 @@ pub struct Shaft {
     moved: u64,
     /// Microsteps lost against a stop.
     lost: u64,
+    /// The lowest and highest positions the shaft reached.
+    reached: (i64, i64),
+    /// Where the shaft would be without the stops (every microstep commanded, lost ones too), and
+    /// the lowest and highest of that: how far a head without stops would have wound its cable.
+    wound: i64,
+    wound_reached: (i64, i64),
+}
+
+/// How far the shaft turned, degrees: the extremes it reached, and those it was driven to (the
+/// mechanical stops aside).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Travel {
+    pub lowest_deg: f64,
+    pub highest_deg: f64,
+    pub wound_lowest_deg: f64,
+    pub wound_highest_deg: f64,
 }
 
 /// Where to start the shaft is not a place it can be.
@@ -219,13 +235,30 @@ impl Shaft {
             position,
             moved: 0,
             lost: 0,
+            reached: (position, position),
+            wound: position,
+            wound_reached: (position, position),
         })
     }
 
     /// The shaft's angle, degrees, counter-clockwise positive.
     pub fn angle_deg(&self) -> f64 {
+        self.deg_of(self.position)
+    }
+
+    fn deg_of(&self, microsteps: i64) -> f64 {
         let (num, den) = self.motor.microsteps_per_turn();
-        self.position as f64 * 360.0 * den as f64 / num as f64
+        microsteps as f64 * 360.0 * den as f64 / num as f64
+    }
+
+    /// How far the shaft turned since power-on.
+    pub fn travel(&self) -> Travel {
+        Travel {
+            lowest_deg: self.deg_of(self.reached.0),
+            highest_deg: self.deg_of(self.reached.1),
+            wound_lowest_deg: self.deg_of(self.wound_reached.0),
+            wound_highest_deg: self.deg_of(self.wound_reached.1),
+        }
     }
 
     /// How the shaft's angle compares with `deg`, exactly.
@@ -240,12 +273,21 @@ impl Shaft {
     pub fn step(&mut self, steps: i32) -> u32 {
         let mut lost = 0;
         for _ in 0..steps.unsigned_abs() {
+            self.wound += i64::from(steps.signum());
+            self.wound_reached = (
+                self.wound_reached.0.min(self.wound),
+                self.wound_reached.1.max(self.wound),
+            );
             self.position += i64::from(steps.signum());
             if self.cmp_deg(STOP_DEG).is_gt() || self.cmp_deg(-STOP_DEG).is_lt() {
                 self.position -= i64::from(steps.signum());
                 lost += 1;
             } else {
                 self.moved += 1;
+                self.reached = (
+                    self.reached.0.min(self.position),
+                    self.reached.1.max(self.position),
+                );
             }
         }
         self.lost += u64::from(lost);

@@ -87,10 +87,15 @@
 #define HEAD_UNITS_PER_REV (36000L / HEAD_UNIT_CDEG) /* 480 */
 #define HEAD_MAX_UNITS ((HEAD_MAX_CDEG - HEAD_MIN_CDEG) / HEAD_UNIT_CDEG) /* 400 */
 #define HEAD_READINGS (HEAD_MAX_UNITS / (2 * HEAD_PINGS))                 /* 50 */
-/* A switch closing more than this many units before its limit is a hardware error (missed steps). */
+/* A switch closing more than this many units (1.5°) before its limit, or still open this far past
+ * it, is a hardware fault: the head stops (motion.h). */
 #define HEAD_SWITCH_TOLERANCE_UNITS 2
-/* Homing gives up after this much clockwise travel without the MIN switch (300° + margin). */
-#define HOMING_MAX_DEG 380UL
+/* Homing gives up after one sweep without the MIN switch: 300° (from +150°, the farthest the MIN
+ * switch can be) plus a 15° margin (a head powered on past the MAX switch, up to a mechanical stop
+ * 10° beyond it, and the switch tolerance). Never more travel than that without a switch. */
+#define HOMING_SWEEP_DEG 300UL
+#define HOMING_MARGIN_DEG 15UL
+#define HOMING_MAX_DEG (HOMING_SWEEP_DEG + HOMING_MARGIN_DEG)
 /* Homing from on or beyond the MIN switch: leave it by at most 30° (a switch still closed after
  * that is stuck), then go on 3° past the point where it opened, beyond its 1–10 ms bounce, before
  * seeking it again (units of 0.75°). */

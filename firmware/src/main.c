@@ -193,7 +193,8 @@ int main(void)
             }
             break;
         default:
-            (void)switches_take(); /* edges while standing still mean nothing */
+            /* Standing still: only both switches closed at once means something (a fault). */
+            (void)head_check_switches(&head, switches_take(), 0);
             if (DEENERGISE_IDLE_MS != 0 && !stepper_released() &&
                 now - idle_since_us >= DEENERGISE_IDLE_MS * 1000UL) {
                 stepper_release();

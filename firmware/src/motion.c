@@ -22,6 +22,12 @@ _Static_assert(((unsigned long long)HOMING_MAX_DEG * HEAD_UNITS_PER_REV / 360 + 
                        (unsigned long long)HEAD_UNITS_PER_REV * MOTOR_DEN <
                    0x100000000ULL,
                "motor position to angle overflows 32 bits: use a smaller GEAR");
+/* The creep past a limit (the switch tolerance and the rounding) is counted in a uint8_t. */
+_Static_assert((unsigned long long)HEAD_SWITCH_TOLERANCE_UNITS * MOTOR_NUM /
+                           ((unsigned long long)HEAD_UNITS_PER_REV * MOTOR_DEN) +
+                       LIMIT_SEEK_MICROSTEPS + 1 <=
+                   255,
+               "the creep past a limit overflows 8 bits: use a smaller GEAR");
 /* Motor positions are int32 and every head position has its own microstep. */
 _Static_assert(MOTOR_NUM >= (unsigned long)HEAD_UNITS_PER_REV * MOTOR_DEN,
                "the motor must make at least one microstep per 0.75 degree");
@@ -136,7 +142,10 @@ static void start_homing(head_t *h)
     h->activity = HEAD_HOMING;
     h->homed = false;
     h->moving = false;
+    h->seek_left = 0;
+    h->seek_exhausted = false;
     h->ping_out = false;
+    h->pending = false;
     /* Where the head is, nobody knows: assume the far end (+150°), so the count reaches −150°
      * after 300° of travel, the longest way home. ST reports this assumed angle. */
     h->q = HEAD_MAX_UNITS;
@@ -182,6 +191,50 @@ static void close_sweep(head_t *h)
     }
 }
 
+static void send_status(head_t *h);
+
+/* A hardware fault: stop at once, say why (m: an ERR,HARDWARE message), end the open sweep, report
+ * ST,FAULT. Only RESET moves the head again. */
+static void fault(head_t *h, const dev_msg *m)
+{
+    uint32_t open = 0;
+    if (h->activity == HEAD_SWEEP) {
+        open = h->sweep;
+    } else if (h->activity == HEAD_TRAVEL) {
+        open = h->ending;
+    }
+    h->activity = HEAD_FAULT;
+    h->moving = false;
+    h->seek_left = 0;
+    h->seek_exhausted = false;
+    h->pending = false;
+    h->ping_out = false;
+    h->ending = 0;
+    memcpy(h->fault_text, m->u.err.text, sizeof h->fault_text);
+    emit(h, m);
+    if (open != 0) {
+        send_swp_end(h, open);
+    }
+    send_status(h);
+}
+
+static void fault_P(head_t *h, const char *text_P)
+{
+    dev_msg m;
+    proto_err_P(&m, ERR_HARDWARE, text_P);
+    fault(h, &m);
+}
+
+/* A scan while stopped on a fault: the fault's ERR,HARDWARE line again, and no motion. */
+static void refuse_scan(head_t *h)
+{
+    dev_msg m;
+    m.kind = MSG_ERR;
+    m.u.err.code = ERR_HARDWARE;
+    memcpy(m.u.err.text, h->fault_text, sizeof m.u.err.text);
+    emit(h, &m);
+}
+
 static void travel(head_t *h, head_scan scan)
 {
     h->activity = HEAD_TRAVEL;
@@ -198,12 +251,6 @@ static void begin_scan(head_t *h, head_scan scan)
         h->pending_scan = scan;
         return;
     }
-    if (!h->homed) {
-        start_homing(h); /* homing failed before: try again */
-        h->pending = true;
-        h->pending_scan = scan;
-        return;
-    }
     close_sweep(h);
     travel(h, scan);
 }
@@ -215,6 +262,9 @@ static void send_status(head_t *h)
     switch (h->activity) {
     case HEAD_HOMING:
         m.u.st.state = STATE_HOMING;
+        break;
+    case HEAD_FAULT:
+        m.u.st.state = STATE_FAULT;
         break;
     case HEAD_TRAVEL:
     case HEAD_SWEEP:
@@ -250,12 +300,20 @@ void head_command(head_t *h, const proto_cmd *cmd)
         }
         break;
     case CMD_SCAN_FULL: {
+        if (h->activity == HEAD_FAULT) {
+            refuse_scan(h);
+            break;
+        }
         send_ack(h, FSTR("SCAN"));
         head_scan scan = {true, 0, HEAD_READINGS - 1};
         begin_scan(h, scan);
         break;
     }
     case CMD_SCAN_LOCAL: {
+        if (h->activity == HEAD_FAULT) {
+            refuse_scan(h);
+            break;
+        }
         int16_t first = -1, last = -1;
         for (uint8_t i = 0; i < HEAD_READINGS; i++) {
             int32_t c = motion_centre_cdeg(i);
@@ -297,10 +355,17 @@ void head_command(head_t *h, const proto_cmd *cmd)
         if (h->activity == HEAD_HOMING) {
             /* Homing runs on (the head must learn where it is); only the waiting scan is dropped. */
             h->pending = false;
-        } else {
+        } else if (h->activity != HEAD_FAULT) { /* a fault stays until RESET */
             close_sweep(h);
             h->activity = HEAD_IDLE;
         }
+        break;
+    case CMD_RESET:
+        /* A person has looked at the head: clear the fault and home again (from anywhere: the
+         * position is not trusted after a fault). */
+        send_ack(h, FSTR("RESET"));
+        close_sweep(h);
+        start_homing(h);
         break;
     case CMD_STATUS:
     default:
@@ -389,13 +454,25 @@ uint8_t head_next(head_t *h)
             h->q = h->move_to;
             if (h->q == 0 || h->q == HEAD_MAX_UNITS) {
                 /* At the sweep limit and its switch has not closed (else head_check_switches
-                 * would have ended the move): creep on a little to meet it, if the motor's
-                 * rounding allows it; then reverse. */
-                h->seek_left = h->ratio->limit_seek;
-                if (h->seek_left == 0) {
-                    h->dir = (int8_t)-h->dir; /* no LIM: that comes only with the switch */
-                }
+                 * would have ended the move): creep on by the tolerance (and what the motor's
+                 * rounding needs) to meet it. */
+                h->seek_left = (uint8_t)(motion_motor_of(h->ratio, HEAD_SWITCH_TOLERANCE_UNITS) +
+                                         h->ratio->limit_seek);
             }
+        }
+        if (h->seek_exhausted) {
+            /* Crept on as far as allowed: the switch is dead, or steps were missed. */
+            dev_msg m;
+            tbuf t;
+            m.kind = MSG_ERR;
+            m.u.err.code = ERR_HARDWARE;
+            tb_init(&t, m.u.err.text, PROTO_TEXT_MAX);
+            tb_str_P(&t, h->dir < 0 ? FSTR("MIN") : FSTR("MAX"));
+            tb_str_P(&t, FSTR(" switch open at "));
+            tb_i32(&t, motion_cdeg_of_motor(h->ratio, h->m));
+            tb_str_P(&t, FSTR(" cdeg past its limit (dead switch? missed steps?)"));
+            fault(h, &m);
+            return HEAD_ACT_NONE;
         }
         if (h->seek_left != 0) {
             h->step_dir = h->dir;
@@ -405,15 +482,19 @@ uint8_t head_next(head_t *h)
         case HEAD_HOMING:
             if (h->home_phase == HOME_LEAVE &&
                 h->home_travel >= (uint32_t)motion_motor_of(h->ratio, HOME_LEAVE_MAX_UNITS)) {
-                h->activity = HEAD_IDLE;
-                h->pending = false;
-                send_err_P(h, ERR_HARDWARE, FSTR("MIN switch stuck closed"));
+                fault_P(h, FSTR("MIN switch stuck closed (still closed 30 deg off it)"));
                 return HEAD_ACT_NONE;
             }
             if (h->home_travel >= h->home_limit) {
-                h->activity = HEAD_IDLE;
-                h->pending = false;
-                send_err_P(h, ERR_HARDWARE, FSTR("MIN switch not found"));
+                dev_msg m;
+                tbuf t;
+                m.kind = MSG_ERR;
+                m.u.err.code = ERR_HARDWARE;
+                tb_init(&t, m.u.err.text, PROTO_TEXT_MAX);
+                tb_str_P(&t, FSTR("MIN switch not found in "));
+                tb_u32(&t, HOMING_MAX_DEG);
+                tb_str_P(&t, FSTR(" deg of homing (dead switch? wiring?)"));
+                fault(h, &m);
                 return HEAD_ACT_NONE;
             }
             if (h->home_phase == HOME_CLEAR && h->home_clear_left == 0) {
@@ -446,6 +527,7 @@ uint8_t head_next(head_t *h)
             return HEAD_ACT_PING;
         }
         case HEAD_IDLE:
+        case HEAD_FAULT:
         default:
             return HEAD_ACT_NONE;
         }
@@ -462,33 +544,66 @@ void head_stepped(head_t *h)
         }
     }
     if (h->seek_left != 0 && --h->seek_left == 0) {
-        /* Crept on as far as allowed without meeting the switch: reverse without LIM (the motor
-         * position stays true; the next move starts from it). A switch closing on this very
-         * microstep is still seen by head_check_switches. */
-        h->dir = (int8_t)-h->dir;
+        /* Crept on as far as allowed. A switch closing on this very microstep is still seen by
+         * head_check_switches; if it does not, head_next stops the head. */
+        h->seek_exhausted = true;
     }
+}
+
+/* ERR,HARDWARE for a switch that closed too far before its limit. */
+static void early_switch(head_t *h, bool min)
+{
+    int32_t at = motion_cdeg_of_motor(h->ratio, h->m);
+    int32_t early = min ? at - HEAD_MIN_CDEG : HEAD_MAX_CDEG - at;
+    dev_msg m;
+    tbuf t;
+    m.kind = MSG_ERR;
+    m.u.err.code = ERR_HARDWARE;
+    tb_init(&t, m.u.err.text, PROTO_TEXT_MAX);
+    tb_str_P(&t, min ? FSTR("MIN") : FSTR("MAX"));
+    tb_str_P(&t, FSTR(" switch closed at "));
+    tb_i32(&t, at);
+    tb_str_P(&t, FSTR(" cdeg: "));
+    tb_i32(&t, early);
+    tb_str_P(&t, FSTR(" cdeg early (switch moved? missed steps?)"));
+    fault(h, &m);
 }
 
 bool head_check_switches(head_t *h, uint8_t closed, int8_t dir)
 {
-    if (h->activity == HEAD_HOMING && h->home_phase == HOME_LEAVE) {
-        if (!(closed & HEAD_SW_MIN)) {
-            /* Off the switch: a little further so its bounce is behind us, then back onto it. */
-            h->home_phase = HOME_CLEAR;
-            h->home_clear_left = (uint32_t)motion_motor_of(h->ratio, HOME_CLEAR_UNITS);
-        }
-        return false;
+    if (h->activity == HEAD_FAULT) {
+        return true; /* nothing moves */
     }
-    if (!(closed & (dir < 0 ? HEAD_SW_MIN : HEAD_SW_MAX))) {
-        return false; /* a switch behind the motion (leaving it, bouncing) is ignored */
+    if ((closed & (HEAD_SW_MIN | HEAD_SW_MAX)) == (HEAD_SW_MIN | HEAD_SW_MAX)) {
+        /* The head cannot be at both ends: one is stuck closed or the wiring is shorted. */
+        fault_P(h, FSTR("both limit switches closed (one stuck? wiring shorted?)"));
+        return true;
+    }
+    if (dir == 0) {
+        return false;
     }
     if (h->activity == HEAD_HOMING) {
         if (dir > 0) {
+            if (closed & HEAD_SW_MAX) {
+                /* Leaving the MIN switch ran into MAX: the MIN switch is stuck closed. */
+                fault_P(h, FSTR("MAX switch closed while homing (MIN switch stuck closed?)"));
+                return true;
+            }
+            if (h->home_phase == HOME_LEAVE && !(closed & HEAD_SW_MIN)) {
+                /* Off the switch: a little further so its bounce is behind us, then back onto it. */
+                h->home_phase = HOME_CLEAR;
+                h->home_clear_left = (uint32_t)motion_motor_of(h->ratio, HOME_CLEAR_UNITS);
+            }
+            return false;
+        }
+        if (!(closed & HEAD_SW_MIN)) {
             return false;
         }
         if (h->home_phase == HOME_SEEK && h->home_travel == 0) {
             /* Closed before any step: at the switch or beyond it. Leave it first. */
             h->home_phase = HOME_LEAVE;
+            h->dir = 1;
+            h->step_dir = 1;
             return true;
         }
         h->homed = true;
@@ -504,28 +619,23 @@ bool head_check_switches(head_t *h, uint8_t closed, int8_t dir)
         }
         return true;
     }
-    if (!h->homed) {
-        return false;
+    if (!(closed & (dir < 0 ? HEAD_SW_MIN : HEAD_SW_MAX))) {
+        return false; /* a switch behind the motion (leaving it, bouncing) is ignored */
     }
     bool min = dir < 0;
     int16_t limit = min ? 0 : HEAD_MAX_UNITS;
     bool early = min ? h->m > motion_motor_of(h->ratio, HEAD_SWITCH_TOLERANCE_UNITS)
                      : h->m < motion_motor_of(h->ratio, HEAD_MAX_UNITS - HEAD_SWITCH_TOLERANCE_UNITS);
     if (early) {
-        dev_msg m;
-        tbuf t;
-        m.kind = MSG_ERR;
-        m.u.err.code = ERR_HARDWARE;
-        tb_init(&t, m.u.err.text, PROTO_TEXT_MAX);
-        tb_str_P(&t, min ? FSTR("MIN") : FSTR("MAX"));
-        tb_str_P(&t, FSTR(" switch closed early at "));
-        tb_i32(&t, motion_cdeg_of_motor(h->ratio, h->m));
-        tb_str_P(&t, FSTR(" cdeg (missed steps?) position corrected"));
-        emit(h, &m);
+        /* Far from where the step count puts it: either the switch or the count is wrong, and
+         * nothing tells which. Stop rather than trust either. */
+        early_switch(h, min);
+        return true;
     }
     send_lim(h, min ? LIMIT_MIN : LIMIT_MAX);
     h->moving = false;
     h->seek_left = 0;
+    h->seek_exhausted = false;
     h->q = limit;
     h->m = motion_motor_of(h->ratio, limit);
     h->dir = min ? 1 : -1;
@@ -535,8 +645,8 @@ bool head_check_switches(head_t *h, uint8_t closed, int8_t dir)
         send_swp_end(h, h->sweep);
         start_sweep(h);
     } else if (h->activity == HEAD_TRAVEL && h->ending == 0) {
-        /* A travel to a scan's start chooses its target again from the corrected position (a
-         * run-on to this very switch has arrived). */
+        /* A travel to a scan's start chooses its target again from the limit (a run-on to this
+         * very switch has arrived). */
         h->planned = false;
     }
     return true;

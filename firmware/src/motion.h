@@ -9,9 +9,19 @@
  *
  * The state machine behaves on the wire like simulator/src/firmware.rs (the Rust model of this
  * head): the same messages in the same order, the same sweep ids, reading centres and ping
- * positions. At a sweep limit whose switch is still open, a motor whose limit is not a whole
- * number of microsteps creeps on by at most limit_seek microsteps to meet it (a switch at exactly
- * ±150° is then always reached and reported); then it reverses, with or without the switch.
+ * positions. At a sweep limit whose switch is still open, the head creeps on by at most
+ * HEAD_SWITCH_TOLERANCE_UNITS (1.5°) plus limit_seek microsteps (for a motor whose limit is not a
+ * whole number of microsteps) to meet it.
+ *
+ * The head protects itself (docs/protocol.md, "Hardware faults"): it never travels further than
+ * one sweep plus a margin without a switch (homing: HOMING_MAX_DEG; after homing: the limit plus
+ * the tolerance). A hardware fault — the MIN switch not found while homing, or stuck closed; both
+ * switches closed; a switch still open past its limit; a switch closing more than the tolerance
+ * before its limit (the position is NOT "corrected" to it) — stops the head at once: it reports
+ * ERR,HARDWARE,<what>, ends the open sweep (SWP,END), reports ST,FAULT, answers a scan with the
+ * same ERR,HARDWARE,<what> line (and does not move), and moves only after RESET, which homes it
+ * again.
+ *
  * It never waits: the caller (main.c, or a test) asks head_next() what to do — one
  * microstep, one ping, or nothing — does it when the hardware timing allows, and reports back.
  */
@@ -61,7 +71,7 @@ void motion_segment_ends(uint8_t first, uint8_t last, int16_t *lo, int16_t *hi);
 
 typedef void (*head_emit_fn)(void *ctx, const dev_msg *m);
 
-enum { HEAD_IDLE = 0, HEAD_HOMING, HEAD_TRAVEL, HEAD_SWEEP };
+enum { HEAD_IDLE = 0, HEAD_HOMING, HEAD_TRAVEL, HEAD_SWEEP, HEAD_FAULT };
 enum { HEAD_ACT_NONE = 0, HEAD_ACT_STEP, HEAD_ACT_PING };
 /* Bits of the closed-switch mask passed to head_check_switches. */
 #define HEAD_SW_MIN 0x01u
@@ -93,6 +103,7 @@ typedef struct {
     int8_t dir;   /* direction of the last motion, +1 CCW (angle increasing), −1 CW */
     bool moving;  /* a move of at most one 1.5° step to move_to is under way */
     uint8_t seek_left; /* at a limit with its switch open: microsteps left to creep on */
+    bool seek_exhausted; /* crept on as far as allowed and the switch is still open */
     int16_t move_to;
     int8_t step_dir; /* direction of the microstep head_next asked for */
 
@@ -106,6 +117,8 @@ typedef struct {
     uint8_t ping;   /* HEAD_SWEEP: next ping of that reading */
     bool ping_out;  /* a ping was asked for and its result is awaited */
     bool silent_reported;
+
+    char fault_text[PROTO_TEXT_MAX + 1]; /* HEAD_FAULT: what it stopped on, sent again to a scan */
 
     uint32_t last_sweep; /* latest sweep id started, 0 before the first */
     uint32_t seq;        /* RD counter */
@@ -130,14 +143,15 @@ uint8_t head_next(head_t *h);
 /* The microstep asked for was made. */
 void head_stepped(head_t *h);
 /* Switch check, after a microstep in direction dir (once it has had time to take effect) or before
- * one: closed is the mask of closed switches (level, or a closing edge since the last check).
- * Only the switch in the direction of motion counts. Returns true if it acted (homing found,
- * LIM, maybe ERR,HARDWARE, position corrected to the limit, reversal). */
+ * one, or while standing (dir = 0): closed is the mask of closed switches (level, or a closing
+ * edge since the last check). Both closed is a fault in any state; otherwise only the switch in
+ * the direction of motion counts. Returns true if it acted (homing found, LIM, position set to the
+ * limit, reversal, or a fault: the head stopped). */
 bool head_check_switches(head_t *h, uint8_t closed, int8_t dir);
 /* The ping asked for finished: echo time in µs (0 = no echo); silent = the echo line never rose;
  * now_ms = the device clock. Ignored if a command cancelled the ping meanwhile. */
 void head_ping_done(head_t *h, uint16_t echo_us, bool silent, uint32_t now_ms);
-/* Whether a scan or homing is under way (for the LED). */
+/* Whether a scan or homing is under way, or the head stopped on a fault (for the LED). */
 bool head_busy(const head_t *h);
 /* ST angle: from the motor position reached, clamped to the limits. */
 int32_t head_angle_cdeg(const head_t *h);

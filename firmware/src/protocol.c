@@ -205,9 +205,11 @@ static int8_t hex_value(char c)
 }
 
 /* Rust `num`: no empty field, no '+' sign, no spaces, no overflow; '-' only for signed types. */
+/* docs/protocol.md: one spelling per number, so no leading zeros ("007") and, in parse_i32, no
+ * "-0": a line that is taken reads back as itself, as in the Rust parser. */
 static bool parse_u32(field f, uint32_t *out)
 {
-    if (f.n == 0) {
+    if (f.n == 0 || (f.n > 1 && f.s[0] == '0')) {
         return false;
     }
     uint32_t v = 0;
@@ -235,7 +237,7 @@ static bool parse_i32(field f, int32_t *out)
         return false;
     }
     if (neg) {
-        if (mag > 2147483648UL) {
+        if (mag == 0 || mag > 2147483648UL) {
             return false;
         }
         *out = (int32_t)(0 - mag);
@@ -399,6 +401,13 @@ uint8_t proto_parse_command(const char *line, uint8_t len, proto_cmd *cmd, char 
         cmd->kind = CMD_STATUS;
         return ERR_NONE;
     }
+    if (field_is_P(f[0], FSTR("RESET"))) {
+        if (nf != 1) {
+            return field_count(text, FSTR("RESET"), 1, nf);
+        }
+        cmd->kind = CMD_RESET;
+        return ERR_NONE;
+    }
     tbuf t;
     tb_init(&t, text, PROTO_TEXT_MAX);
     tb_str_P(&t, FSTR("unknown message tag \""));
@@ -410,7 +419,7 @@ uint8_t proto_parse_command(const char *line, uint8_t len, proto_cmd *cmd, char 
 /* ---- device message encoding ----------------------------------------------------------------- */
 
 static const char ERR_NAMES[] PROGMEM = "CHECKSUM\0SYNTAX\0RANGE\0VERSION\0HARDWARE\0";
-static const char STATE_NAMES[] PROGMEM = "IDLE\0FULL\0LOCAL\0HOMING\0";
+static const char STATE_NAMES[] PROGMEM = "IDLE\0FULL\0LOCAL\0HOMING\0FAULT\0";
 
 /* The n-th NUL-separated name of a flash table. */
 static void tb_nth_P(tbuf *t, const char *table_P, uint8_t n)
@@ -492,7 +501,7 @@ uint8_t proto_encode(const dev_msg *m, char *out)
         break;
     case MSG_ST:
         tb_str_P(&t, FSTR("ST,"));
-        tb_nth_P(&t, STATE_NAMES, m->u.st.state <= STATE_HOMING ? m->u.st.state : STATE_IDLE);
+        tb_nth_P(&t, STATE_NAMES, m->u.st.state <= STATE_FAULT ? m->u.st.state : STATE_IDLE);
         tb_char(&t, ',');
         tb_i32(&t, m->u.st.angle_cdeg);
         tb_char(&t, ',');

@@ -69,6 +69,7 @@ typedef enum {
     CMD_SCAN_LOCAL,
     CMD_STOP,
     CMD_STATUS,
+    CMD_RESET,
 } cmd_kind;
 
 typedef struct {
@@ -106,7 +107,7 @@ typedef enum {
 } msg_kind;
 
 enum { LIMIT_MIN = 0, LIMIT_MAX = 1 };
-enum { STATE_IDLE = 0, STATE_FULL, STATE_LOCAL, STATE_HOMING };
+enum { STATE_IDLE = 0, STATE_FULL, STATE_LOCAL, STATE_HOMING, STATE_FAULT };
 
 typedef struct {
     uint8_t kind; /* msg_kind */

@@ -60,7 +60,7 @@ static void paper_motor_is_exact(void)
         CHECK_INT(motion_cdeg_of_motor(&PAPER, q), -15000 + 75 * q);
     }
     CHECK_INT(motion_cdeg_of_motor(&PAPER, -4), -15300);
-    CHECK_INT(motion_homing_limit(&PAPER), 507); /* 380° = 506.7 half steps */
+    CHECK_INT(motion_homing_limit(&PAPER), 420); /* 315° = one sweep + 15°, 420 half steps */
 }
 
 static void motor_rounding_over_the_sweep(void)
@@ -157,8 +157,8 @@ static void angles_over_the_homing_range(void)
 
 static void homing_limits(void)
 {
-    CHECK_INT(motion_homing_limit(&BYJ48), 4303);  /* 380/360 × 4075.8 = 4302.3 */
-    CHECK_INT(motion_homing_limit(&NEMA17), 3378); /* 380/360 × 3200 = 3377.8 */
+    CHECK_INT(motion_homing_limit(&BYJ48), 3567);  /* 315/360 × 4075.8 = 3566.3 */
+    CHECK_INT(motion_homing_limit(&NEMA17), 2800); /* 315/360 × 3200 */
 }
 
 static void reading_centres(void)

@@ -66,6 +66,8 @@ static void parses_every_command(void)
     CHECK_INT(c.to_cdeg, 4500);
     CHECK_INT(parse("$STATUS*2DAA", &c, text), ERR_NONE);
     CHECK_INT(c.kind, CMD_STATUS);
+    CHECK_INT(parse("$RESET*7DB2", &c, text), ERR_NONE); /* the Rust encoder's line */
+    CHECK_INT(c.kind, CMD_RESET);
     /* Lower-case CRC digits are accepted. */
     CHECK_INT(parse("$STOP*af2e", &c, text), ERR_NONE);
     CHECK_INT(c.kind, CMD_STOP);
@@ -131,6 +133,7 @@ static void rejects_unknown_and_malformed_commands(void)
     CHECK_INT(parse(framed("STOP,1"), &c, text), ERR_SYNTAX);
     CHECK_STR(text, "wrong number of fields for STOP: expected 1, got 2");
     CHECK_INT(parse(framed("STATUS,"), &c, text), ERR_SYNTAX);
+    CHECK_INT(parse(framed("RESET,1"), &c, text), ERR_SYNTAX);
     CHECK_INT(parse(framed("HELLO"), &c, text), ERR_SYNTAX);
     CHECK_INT(parse(framed("HELLO,2,3"), &c, text), ERR_SYNTAX);
     CHECK_INT(parse(framed("HELLO,-2"), &c, text), ERR_SYNTAX);
@@ -157,9 +160,25 @@ static void rejects_unknown_and_malformed_commands(void)
     CHECK_INT(parse(framed("SCAN,LOCAL,-2147483648,2147483647"), &c, text), ERR_NONE);
     CHECK_INT(c.from_cdeg, INT32_MIN);
     CHECK_INT(c.to_cdeg, INT32_MAX);
-    CHECK_INT(parse(framed("SCAN,LOCAL,-0,007"), &c, text), ERR_NONE);
+    /* One spelling per number (docs/protocol.md), as the Rust parser: no leading zeros, no -0. */
+    CHECK_INT(parse(framed("SCAN,LOCAL,-0,007"), &c, text), ERR_SYNTAX);
+    CHECK_STR(text, "field from angle is malformed");
+    CHECK_INT(parse(framed("SCAN,LOCAL,0,007"), &c, text), ERR_SYNTAX);
+    CHECK_STR(text, "field to angle is malformed");
+    CHECK_INT(parse(framed("SCAN,LOCAL,-0,7"), &c, text), ERR_SYNTAX);
+    CHECK_INT(parse(framed("SCAN,LOCAL,-007,7"), &c, text), ERR_SYNTAX);
+    CHECK_INT(parse(framed("HELLO,007"), &c, text), ERR_SYNTAX);
+    CHECK_STR(text, "field version is malformed");
+    CHECK_INT(parse(framed("HELLO,02"), &c, text), ERR_SYNTAX);
+    CHECK_INT(parse(framed("HELLO,00"), &c, text), ERR_SYNTAX);
+    CHECK_INT(parse(framed("HELLO,0"), &c, text), ERR_NONE);
+    CHECK_INT(c.version, 0);
+    CHECK_INT(parse(framed("SCAN,LOCAL,0,7"), &c, text), ERR_NONE);
     CHECK_INT(c.from_cdeg, 0);
     CHECK_INT(c.to_cdeg, 7);
+    CHECK_INT(parse(framed("SCAN,LOCAL,-10,0"), &c, text), ERR_NONE);
+    CHECK_INT(c.from_cdeg, -10);
+    CHECK_INT(c.to_cdeg, 0);
 }
 
 /* Feeds a string to the framer, collecting lines ("<overflow>" for an overlong one). */
@@ -304,6 +323,9 @@ static void encodes_status(void)
     m.u.st.angle_cdeg = 0;
     m.u.st.sweep = UINT32_MAX;
     CHECK_STR(encode(&m), "$ST,LOCAL,0,+,4294967295*AD3D\n");
+    m.u.st.state = STATE_FAULT;
+    m.u.st.sweep = 3;
+    CHECK_STR(encode(&m), "$ST,FAULT,0,+,3*9EC2\n");
 }
 
 static void encodes_errors_with_sanitised_text(void)

@@ -104,6 +104,58 @@ impl LineFault {
     }
 }
 
+/// A broken or misplaced limit switch, played by the device model (`sonar-sim --faults
+/// min-switch=dead`) and by the firmware's emulated board (`sonar-firmware-sim --switch-fault
+/// min=dead`). Written `dead`, `stuck`, `early:DEG` or `bouncing`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SwitchFault {
+    /// Never closes: a broken contact or a cut wire.
+    Dead,
+    /// Always closed: a welded contact or a short to ground.
+    Stuck,
+    /// Closes this many degrees (1–90) before its place: a bent lever, a switch that moved.
+    Early { deg: u32 },
+    /// Bounces as badly as a mechanical switch may (sensor-facts: up to 10 ms) at every change.
+    /// The firmware's debounce must make it a good switch; the device model's switches are
+    /// debounced contacts, so there it behaves as a good one.
+    Bouncing,
+}
+
+impl FromStr for SwitchFault {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let bad = || format!("{s:?}: expected dead, stuck, bouncing or early:DEG (1 to 90)");
+        Ok(match s.trim() {
+            "dead" => SwitchFault::Dead,
+            "stuck" => SwitchFault::Stuck,
+            "bouncing" => SwitchFault::Bouncing,
+            other => {
+                let deg = other
+                    .strip_prefix("early:")
+                    .and_then(|d| d.trim().parse::<u32>().ok())
+                    .filter(|d| (1..=90).contains(d))
+                    .ok_or_else(bad)?;
+                SwitchFault::Early { deg }
+            }
+        })
+    }
+}
+
+/// The faults of the two limit switches (`None`: a good switch).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SwitchFaults {
+    pub min: Option<SwitchFault>,
+    pub max: Option<SwitchFault>,
+}
+
+impl SwitchFaults {
+    /// Whether either switch bounces badly.
+    pub fn bouncing(&self) -> bool {
+        [self.min, self.max].contains(&Some(SwitchFault::Bouncing))
+    }
+}
+
 /// What `--faults` asks for.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct FaultSpec {
@@ -115,6 +167,8 @@ pub struct FaultSpec {
     pub silences: Vec<(Duration, Duration)>,
     /// Whether `HELLO` lines may be damaged too.
     pub damage_hello: bool,
+    /// Broken limit switches (`min-switch=…`, `max-switch=…`): the device model plays them.
+    pub switches: SwitchFaults,
 }
 
 impl FaultSpec {
@@ -133,9 +187,11 @@ pub enum SpecError {
     NotKeyValue(String),
     #[error(
         "unknown key {0:?} (known: garbage, bitflip, double-flip, truncate, overlong, stray, \
-         reset, silence, hello)"
+         reset, silence, hello, min-switch, max-switch)"
     )]
     UnknownKey(String),
+    #[error("{key}={why}")]
+    BadSwitch { key: String, why: String },
     #[error("{0} is given twice")]
     Duplicate(String),
     #[error("{key}={value}: a rate is a probability per line, from 0 to 1 (or 0% to 100%)")]
@@ -189,6 +245,20 @@ impl FromStr for FaultSpec {
                         return Err(SpecError::BadSilence(value.to_owned()));
                     }
                     spec.silences.push((at, length));
+                }
+                "min-switch" | "max-switch" => {
+                    let slot = if key == "min-switch" {
+                        &mut spec.switches.min
+                    } else {
+                        &mut spec.switches.max
+                    };
+                    if slot.is_some() {
+                        return Err(SpecError::Duplicate(key.to_owned()));
+                    }
+                    *slot = Some(value.parse().map_err(|why| SpecError::BadSwitch {
+                        key: key.to_owned(),
+                        why,
+                    })?);
                 }
                 "hello" => {
                     if std::mem::replace(&mut hello_seen, true) {
@@ -695,6 +765,30 @@ mod tests {
             "bitflip=0.1,garbage=0.2,stray=0.7"
                 .parse::<FaultSpec>()
                 .is_ok()
+        );
+    }
+
+    #[test]
+    fn switch_faults_are_read_per_switch() {
+        let s = spec("min-switch=dead,max-switch=early:5");
+        assert_eq!(s.switches.min, Some(SwitchFault::Dead));
+        assert_eq!(s.switches.max, Some(SwitchFault::Early { deg: 5 }));
+        assert!(!s.switches.bouncing());
+        let s = spec("max-switch=bouncing, min-switch = stuck");
+        assert_eq!(s.switches.min, Some(SwitchFault::Stuck));
+        assert!(s.switches.bouncing());
+        for bad in ["early:0", "early:91", "early", "broken", ""] {
+            assert!(
+                matches!(
+                    format!("min-switch={bad}").parse::<FaultSpec>(),
+                    Err(SpecError::BadSwitch { .. })
+                ),
+                "{bad}"
+            );
+        }
+        assert_eq!(
+            "max-switch=dead,max-switch=stuck".parse::<FaultSpec>(),
+            Err(SpecError::Duplicate("max-switch".into()))
         );
     }
 

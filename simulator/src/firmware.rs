@@ -12,7 +12,15 @@ use sonar_common::protocol::{
 };
 use sonar_common::sensor::{SensorConfig, SensorConfigError};
 
+use crate::faults::{SwitchFault, SwitchFaults};
 use crate::geometry::Pose;
+
+/// A switch closing more than this many half steps (1.5°) before its limit, or still open this far
+/// past it, is a hardware fault (the firmware's `HEAD_SWITCH_TOLERANCE_UNITS`).
+const SWITCH_TOLERANCE_H: i32 = 2;
+/// Homing gives up after this much travel without the MIN switch: one sweep + 15° (the firmware's
+/// `HOMING_MAX_DEG`).
+const HOMING_MAX_DEG: u32 = 315;
 
 /// The firmware's name in the `HELLO` reply.
 pub const FIRMWARE_ID: &str = concat!("sonar-sim ", env!("CARGO_PKG_VERSION"));
@@ -75,6 +83,9 @@ enum Activity {
         k: usize,
         ping: usize,
     },
+    /// Stopped on a hardware fault: nothing moves until `RESET`; a scan is answered with the
+    /// fault's `ERR,HARDWARE` line again.
+    Fault,
 }
 
 /// The emulated PIC: stepper, limit switches and ranging, driven by host commands.
@@ -102,6 +113,9 @@ pub struct Firmware<T> {
     rejected_lines: u64,
     version: ProtocolVersion,
     head_id: String,
+    switches: SwitchFaults,
+    /// What the head stopped on, while [`Activity::Fault`].
+    fault_text: String,
 }
 
 impl<T: Transducer> Firmware<T> {
@@ -137,7 +151,18 @@ impl<T: Transducer> Firmware<T> {
             rejected_lines: 0,
             version: PROTOCOL_VERSION,
             head_id: DEFAULT_HEAD_ID.to_owned(),
+            switches: SwitchFaults::default(),
+            fault_text: String::new(),
         })
+    }
+
+    /// Breaks the limit switches as `faults` say (`--faults min-switch=…`). The model homes at
+    /// once: [`Firmware::power_on`] reports what the firmware's homing would find. Positions are
+    /// the head's own count from the MIN switch, so a MIN switch closing early moves where the
+    /// MAX switch is met, as on the hardware. A bouncing switch is debounced, as by the firmware.
+    pub fn with_switch_faults(mut self, faults: SwitchFaults) -> Self {
+        self.switches = faults;
+        self
     }
 
     /// The protocol version this head speaks (only that one) and the identity it announces.
@@ -153,9 +178,100 @@ impl<T: Transducer> Firmware<T> {
 
     /// What the head prints at power-on: a version-2 head announces itself with its `HELLO`, so a
     /// driver that is already connected learns that the head was reset.
-    pub fn power_on(&self, out: &mut Vec<DeviceMessage>) {
+    pub fn power_on(&mut self, out: &mut Vec<DeviceMessage>) {
         if self.version >= ProtocolVersion::V2 {
             out.push(self.hello());
+        }
+        self.home(out, false);
+    }
+
+    /// Homes at once to the MIN switch (saying `LIM,MIN` if `announce`), or stops on the fault
+    /// the firmware's homing would meet with these switches.
+    fn home(&mut self, out: &mut Vec<DeviceMessage>, announce: bool) {
+        self.pos_h = 0;
+        self.dir = Direction::Ccw;
+        self.activity = Activity::Idle;
+        match self.switches.min {
+            Some(SwitchFault::Dead) => {
+                self.dir = Direction::Cw;
+                return self.fault(
+                    out,
+                    format!(
+                        "MIN switch not found in {HOMING_MAX_DEG} deg of homing (dead switch? wiring?)"
+                    ),
+                );
+            }
+            Some(SwitchFault::Stuck) => {
+                return self.fault(
+                    out,
+                    "MIN switch stuck closed (still closed 30 deg off it)".into(),
+                );
+            }
+            _ => {}
+        }
+        if self.closed_at(0).1 {
+            self.dir = Direction::Cw;
+            return self.fault(out, BOTH_CLOSED.into());
+        }
+        if announce {
+            out.push(DeviceMessage::LimitHit(Limit::Min));
+        }
+    }
+
+    /// Whether (MIN, MAX) are closed with the head at `pos_h` (half steps from where homing found
+    /// the MIN switch).
+    fn closed_at(&self, pos_h: i32) -> (bool, bool) {
+        let half_step_deg = f64::from(self.cfg.step_deg) / 2.0;
+        let early_h = |fault: Option<SwitchFault>| match fault {
+            Some(SwitchFault::Early { deg }) => (f64::from(deg) / half_step_deg).floor() as i32,
+            _ => 0,
+        };
+        let level = |fault: Option<SwitchFault>, at_place: bool| match fault {
+            Some(SwitchFault::Dead) => false,
+            Some(SwitchFault::Stuck) => true,
+            _ => at_place,
+        };
+        // Homing put the MIN switch at 0; a MIN switch closing early moved that 0 towards MAX.
+        let max_at = self.max_h - early_h(self.switches.min) - early_h(self.switches.max);
+        (
+            level(self.switches.min, pos_h <= 0),
+            level(self.switches.max, pos_h >= max_at),
+        )
+    }
+
+    /// Stops on a hardware fault: `ERR,HARDWARE`, the open sweep ended, `ST,FAULT`.
+    fn fault(&mut self, out: &mut Vec<DeviceMessage>, text: String) {
+        let open = match self.activity {
+            Activity::Sweep { sweep, .. } => Some(sweep),
+            Activity::Travel { ending, .. } => ending,
+            Activity::Idle | Activity::Fault => None,
+        };
+        self.activity = Activity::Fault;
+        self.fault_text = text.clone();
+        out.push(DeviceMessage::Error {
+            code: ErrorCode::Hardware,
+            text,
+        });
+        if let Some(sweep) = open {
+            out.push(DeviceMessage::SweepEnd { sweep });
+        }
+        out.push(self.status());
+    }
+
+    fn status(&self) -> DeviceMessage {
+        let (state, sweep) = match self.activity {
+            Activity::Idle => (DeviceState::Idle, self.last_sweep),
+            Activity::Fault => (DeviceState::Fault, self.last_sweep),
+            Activity::Travel { scan, .. } => (scan.state(), self.last_sweep),
+            Activity::Sweep { scan, sweep, .. } => (scan.state(), sweep),
+        };
+        let (min, max) = self.limits_cdeg();
+        DeviceMessage::Status {
+            state,
+            // As the firmware: from the position reached, within the limits.
+            angle_cdeg: cdeg(self.angle_deg()).clamp(min, max),
+            direction: self.dir,
+            sweep,
         }
     }
 
@@ -168,8 +284,6 @@ impl<T: Transducer> Firmware<T> {
     /// the switch. The simulated clock runs on (it paces the simulation), and so do the simulator's
     /// counters ([`Firmware::readings`], [`Firmware::command_counts`]).
     pub fn reset(&mut self, out: &mut Vec<DeviceMessage>) {
-        self.pos_h = 0;
-        self.dir = Direction::Ccw;
         self.activity = Activity::Idle;
         self.last_sweep = 0;
         self.seq = 0;
@@ -198,7 +312,7 @@ impl<T: Transducer> Firmware<T> {
 
     /// Whether [`Firmware::act`] has something to do.
     pub fn is_busy(&self) -> bool {
-        self.activity != Activity::Idle
+        !matches!(self.activity, Activity::Idle | Activity::Fault)
     }
 
     /// Lets simulated time pass while idle (a busy device's clock follows its actions).
@@ -275,6 +389,15 @@ impl<T: Transducer> Firmware<T> {
                     self.version.number()
                 ),
             }),
+            HostCommand::FullScan | HostCommand::LocalScan { .. }
+                if self.activity == Activity::Fault =>
+            {
+                // The fault again, and no motion.
+                out.push(DeviceMessage::Error {
+                    code: ErrorCode::Hardware,
+                    text: self.fault_text.clone(),
+                });
+            }
             HostCommand::FullScan => {
                 out.push(ack("SCAN"));
                 self.close_sweep(out);
@@ -326,21 +449,18 @@ impl<T: Transducer> Firmware<T> {
             }
             HostCommand::Stop => {
                 out.push(ack("STOP"));
-                self.close_sweep(out);
-                self.activity = Activity::Idle;
+                // A fault stays until RESET.
+                if self.activity != Activity::Fault {
+                    self.close_sweep(out);
+                    self.activity = Activity::Idle;
+                }
             }
-            HostCommand::Status => {
-                let (state, sweep) = match self.activity {
-                    Activity::Idle => (DeviceState::Idle, self.last_sweep),
-                    Activity::Travel { scan, .. } => (scan.state(), self.last_sweep),
-                    Activity::Sweep { scan, sweep, .. } => (scan.state(), sweep),
-                };
-                out.push(DeviceMessage::Status {
-                    state,
-                    angle_cdeg: cdeg(self.angle_deg()),
-                    direction: self.dir,
-                    sweep,
-                });
+            HostCommand::Status => out.push(self.status()),
+            HostCommand::Reset => {
+                // A person has looked at the head: clear the fault and home again.
+                out.push(ack("RESET"));
+                self.close_sweep(out);
+                self.home(out, true);
             }
         }
     }
@@ -349,7 +469,7 @@ impl<T: Transducer> Firmware<T> {
     /// returns false when idle. Messages carry the time at the end of the action.
     pub fn act(&mut self, out: &mut Vec<DeviceMessage>) -> bool {
         match self.activity {
-            Activity::Idle => return false,
+            Activity::Idle | Activity::Fault => return false,
             Activity::Travel {
                 scan,
                 target,
@@ -430,7 +550,9 @@ impl<T: Transducer> Firmware<T> {
         true
     }
 
-    /// Moves at most one step toward `target`; a limit switch reached reverses the motor.
+    /// Moves at most one step toward `target`, half a step at a time as the firmware's microsteps,
+    /// watching the switch ahead: a switch at its place reverses the motor, one closing early or
+    /// still open past its limit, or both closed, stops the head ([`Firmware::fault`]).
     fn step_toward(&mut self, target: i32, out: &mut Vec<DeviceMessage>) {
         let delta = (target - self.pos_h).clamp(-2, 2);
         self.dir = if delta > 0 {
@@ -438,16 +560,78 @@ impl<T: Transducer> Firmware<T> {
         } else {
             Direction::Cw
         };
-        self.pos_h += delta;
-        self.now_us += u64::from(delta.unsigned_abs()) * u64::from(self.timing.step_time_ms) * 500;
-        if self.pos_h == 0 || self.pos_h == self.max_h {
-            out.push(DeviceMessage::LimitHit(if self.pos_h == 0 {
-                Limit::Min
-            } else {
-                Limit::Max
-            }));
-            self.dir = self.dir.reversed();
+        for _ in 0..delta.unsigned_abs() {
+            if self.half_step(out) {
+                return;
+            }
         }
+        let limit = match self.dir {
+            Direction::Ccw => self.max_h,
+            Direction::Cw => 0,
+        };
+        if self.pos_h == limit {
+            // At the limit and its switch is open: creep on by the tolerance to meet it.
+            for _ in 0..SWITCH_TOLERANCE_H {
+                if self.half_step(out) {
+                    return;
+                }
+            }
+            let text = format!(
+                "{} switch open at {} cdeg past its limit (dead switch? missed steps?)",
+                self.switch_name(),
+                cdeg(self.angle_deg())
+            );
+            self.fault(out, text);
+        }
+    }
+
+    fn switch_name(&self) -> &'static str {
+        match self.dir {
+            Direction::Ccw => "MAX",
+            Direction::Cw => "MIN",
+        }
+    }
+
+    /// One half step in `self.dir`, then the switches; true if they acted.
+    fn half_step(&mut self, out: &mut Vec<DeviceMessage>) -> bool {
+        self.pos_h += self.dir.sign();
+        self.now_us += u64::from(self.timing.step_time_ms) * 500;
+        let (min, max) = self.closed_at(self.pos_h);
+        if min && max {
+            self.fault(out, BOTH_CLOSED.into());
+            return true;
+        }
+        let (ahead, limit, off) = match self.dir {
+            Direction::Ccw => (max, self.max_h, self.max_h - self.pos_h),
+            Direction::Cw => (min, 0, self.pos_h),
+        };
+        if !ahead {
+            return false;
+        }
+        if off > SWITCH_TOLERANCE_H {
+            // Far from where the step count puts it: the switch or the count is wrong, and
+            // nothing tells which. Stop rather than trust either.
+            let text = format!(
+                "{} switch closed at {} cdeg: {} cdeg early (switch moved? missed steps?)",
+                self.switch_name(),
+                cdeg(self.angle_deg()),
+                cdeg(f64::from(off) * f64::from(self.cfg.step_deg) / 2.0)
+            );
+            self.fault(out, text);
+            return true;
+        }
+        self.pos_h = limit;
+        out.push(DeviceMessage::LimitHit(match self.dir {
+            Direction::Ccw => Limit::Max,
+            Direction::Cw => Limit::Min,
+        }));
+        self.dir = self.dir.reversed();
+        if let Activity::Sweep { scan, sweep, .. } = self.activity {
+            // The switch ends the sweep (the reading under way is dropped).
+            out.push(DeviceMessage::SweepEnd { sweep });
+            self.start_sweep(scan, out);
+        }
+        true
     }
 
     /// Begins a sweep from where the head stands (a limit, or an end of the local segment).
@@ -534,6 +718,9 @@ impl Scan {
         }
     }
 }
+
+/// The fault of both switches closed at once.
+const BOTH_CLOSED: &str = "both limit switches closed (one stuck? wiring shorted?)";
 
 /// Degrees to the wire's centidegrees.
 fn cdeg(deg: f64) -> i32 {
@@ -977,5 +1164,220 @@ mod tests {
         ));
         assert_eq!(fw.command_counts(), (0, 5));
         assert!(!fw.is_busy());
+    }
+
+    fn broken(
+        min: Option<SwitchFault>,
+        max: Option<SwitchFault>,
+    ) -> (Firmware<Probe>, Vec<DeviceMessage>) {
+        let mut fw = firmware()
+            .speaking(ProtocolVersion::V2, "HEAD-7")
+            .with_switch_faults(SwitchFaults { min, max });
+        let mut out = Vec::new();
+        fw.power_on(&mut out);
+        out.remove(0); // the HELLO
+        (fw, out)
+    }
+
+    fn hardware(text: &str) -> DeviceMessage {
+        DeviceMessage::Error {
+            code: ErrorCode::Hardware,
+            text: text.into(),
+        }
+    }
+
+    fn fault_status(angle_cdeg: i32, direction: Direction, sweep: u32) -> DeviceMessage {
+        DeviceMessage::Status {
+            state: DeviceState::Fault,
+            angle_cdeg,
+            direction,
+            sweep,
+        }
+    }
+
+    /// Stopped on a fault: scans refused, STOP changes nothing, nothing moves, RESET homes.
+    fn assert_stopped(fw: &mut Firmware<Probe>) {
+        let pings = fw.transducer().aims.len();
+        let again = hardware(&fw.fault_text);
+        assert!(!fw.fault_text.is_empty());
+        for cmd in [
+            HostCommand::FullScan,
+            HostCommand::LocalScan {
+                from_cdeg: -3000,
+                to_cdeg: 3000,
+            },
+        ] {
+            assert_eq!(
+                command(fw, cmd),
+                std::slice::from_ref(&again),
+                "the fault again"
+            );
+        }
+        assert_eq!(
+            command(fw, HostCommand::Stop),
+            [DeviceMessage::Ack {
+                command: "STOP".into()
+            }]
+        );
+        assert!(matches!(
+            command(fw, HostCommand::Status)[..],
+            [DeviceMessage::Status {
+                state: DeviceState::Fault,
+                ..
+            }]
+        ));
+        assert!(!fw.act(&mut Vec::new()) && !fw.is_busy());
+        assert_eq!(fw.transducer().aims.len(), pings);
+    }
+
+    #[test]
+    fn homing_faults_are_those_the_firmware_meets() {
+        let (mut fw, out) = broken(Some(SwitchFault::Dead), None);
+        assert_eq!(
+            out,
+            [
+                hardware("MIN switch not found in 315 deg of homing (dead switch? wiring?)"),
+                fault_status(-15000, Direction::Cw, 0)
+            ]
+        );
+        assert_stopped(&mut fw);
+        let (mut fw, out) = broken(Some(SwitchFault::Stuck), None);
+        assert_eq!(
+            out[0],
+            hardware("MIN switch stuck closed (still closed 30 deg off it)")
+        );
+        assert_stopped(&mut fw);
+        for (min, max) in [
+            (None, Some(SwitchFault::Stuck)),
+            (Some(SwitchFault::Stuck), Some(SwitchFault::Stuck)),
+        ] {
+            let (mut fw, out) = broken(min, max);
+            let both = out.iter().any(|m| *m == hardware(BOTH_CLOSED));
+            // A stuck MIN switch is found leaving it, before MAX is reached.
+            assert_eq!(both, min.is_none(), "{out:?}");
+            assert_stopped(&mut fw);
+        }
+        let (_, out) = broken(Some(SwitchFault::Bouncing), Some(SwitchFault::Bouncing));
+        assert!(out.is_empty(), "a bouncing switch is debounced: {out:?}");
+    }
+
+    #[test]
+    fn a_dead_max_switch_stops_the_head_one_and_a_half_degrees_past_its_limit() {
+        let (mut fw, _) = broken(None, Some(SwitchFault::Dead));
+        command(&mut fw, HostCommand::FullScan);
+        let mut out = Vec::new();
+        while fw.act(&mut out) {}
+        assert_eq!(readings(&out).len(), 50);
+        assert_eq!(
+            out[out.len() - 3..],
+            [
+                hardware(
+                    "MAX switch open at 15150 cdeg past its limit (dead switch? missed steps?)"
+                ),
+                DeviceMessage::SweepEnd { sweep: 1 },
+                fault_status(15000, Direction::Ccw, 1),
+            ]
+        );
+        assert_eq!(fw.angle_deg(), 151.5, "never further");
+        assert_stopped(&mut fw);
+        // RESET: acknowledged, homed (the model at once), then a scan runs again from sweep 2.
+        assert_eq!(
+            command(&mut fw, HostCommand::Reset),
+            [
+                DeviceMessage::Ack {
+                    command: "RESET".into()
+                },
+                DeviceMessage::LimitHit(Limit::Min)
+            ]
+        );
+        command(&mut fw, HostCommand::FullScan);
+        assert!(matches!(
+            run(&mut fw, 1)[0],
+            DeviceMessage::SweepStart { sweep: 2, .. }
+        ));
+    }
+
+    #[test]
+    fn a_switch_closing_early_stops_the_head_without_correcting() {
+        // MAX 5° early: met at +145.5° (half-step grid), 450 cdeg early.
+        let (mut fw, _) = broken(None, Some(SwitchFault::Early { deg: 5 }));
+        command(&mut fw, HostCommand::FullScan);
+        let mut out = Vec::new();
+        while fw.act(&mut out) {}
+        let n = out.len();
+        assert_eq!(
+            out[n - 3..],
+            [
+                hardware(
+                    "MAX switch closed at 14550 cdeg: 450 cdeg early (switch moved? missed steps?)"
+                ),
+                DeviceMessage::SweepEnd { sweep: 1 },
+                fault_status(14550, Direction::Ccw, 1),
+            ]
+        );
+        assert!(!out.iter().any(|m| matches!(m, DeviceMessage::LimitHit(_))));
+        // The last whole reading is +141°: the one at +147° was cut by the switch.
+        assert_eq!(readings(&out).last().map(|r| r.angle_cdeg), Some(14100));
+        assert_stopped(&mut fw);
+
+        // A MIN switch 5° early puts home 5° towards MAX: MAX is met as early, as on the hardware.
+        let (mut fw, out) = broken(Some(SwitchFault::Early { deg: 5 }), None);
+        assert!(out.is_empty());
+        command(&mut fw, HostCommand::FullScan);
+        let mut out = Vec::new();
+        while fw.act(&mut out) {}
+        assert!(out.contains(&hardware(
+            "MAX switch closed at 14550 cdeg: 450 cdeg early (switch moved? missed steps?)"
+        )));
+    }
+
+    #[test]
+    fn a_switch_within_a_step_of_its_place_is_the_limit() {
+        // 1° early: met half a step before +150°, within the 1.5° tolerance.
+        let (mut fw, _) = broken(None, Some(SwitchFault::Early { deg: 1 }));
+        command(&mut fw, HostCommand::FullScan);
+        let msgs = run(&mut fw, 60);
+        assert!(
+            !msgs
+                .iter()
+                .any(|m| matches!(m, DeviceMessage::Error { .. }))
+        );
+        let lim = msgs
+            .iter()
+            .position(|m| *m == DeviceMessage::LimitHit(Limit::Max))
+            .unwrap();
+        // The last reading's pings end at +149.25°: the switch at +149.25° ends the sweep there.
+        assert_eq!(msgs[lim + 1], DeviceMessage::SweepEnd { sweep: 1 });
+        assert!(matches!(
+            msgs[lim + 2],
+            DeviceMessage::SweepStart {
+                sweep: 2,
+                direction: Direction::Cw,
+                ..
+            }
+        ));
+    }
+
+    #[test]
+    fn reset_mid_sweep_ends_it_and_sweep_ids_go_on() {
+        let mut fw = firmware();
+        command(&mut fw, HostCommand::FullScan);
+        run(&mut fw, 10);
+        assert_eq!(
+            command(&mut fw, HostCommand::Reset),
+            [
+                DeviceMessage::Ack {
+                    command: "RESET".into()
+                },
+                DeviceMessage::SweepEnd { sweep: 1 },
+                DeviceMessage::LimitHit(Limit::Min)
+            ]
+        );
+        assert!(!fw.is_busy());
+        command(&mut fw, HostCommand::FullScan);
+        assert!(matches!(
+            run(&mut fw, 1)[0],
+            DeviceMessage::SweepStart { sweep: 2, .. }
+        ));
     }
 }

@@ -24,7 +24,9 @@
 //!   symbolic link to the terminal.
 //! - [`faults`]: `--faults`, between the device and the terminal: damaged lines (garbage, bit flips,
 //!   same-column double flips, truncation, overlong lines, stray bytes), a reset mid-sweep and
-//!   silences, seeded and logged, to test a driver against a noisy line. Pure, like the model.
+//!   silences, seeded and logged, to test a driver against a noisy line; and broken limit
+//!   switches ([`SwitchFault`]: `min-switch=`/`max-switch=` `dead`, `stuck`, `early:DEG`,
+//!   `bouncing`), which the model plays. Pure, like the model.
 //!
 //! # Device behaviour (protocol version 2, `docs/protocol.md`; version 1 with `--protocol 1`)
 //!
@@ -53,11 +55,19 @@
 //! - A `SCAN` during a scan replaces it: `ACK,SCAN`, `SWP,END` for the open sweep, then as above.
 //! - `STOP` → `ACK,STOP`, `SWP,END,<id>` if a sweep was open, idle where the head stands. The
 //!   reading in progress is discarded.
-//! - `STATUS` → `ST,<IDLE|FULL|LOCAL>,<angle_cdeg>,<dir>,<sweep>`: the mode (driving to a scan's
+//! - `STATUS` → `ST,<IDLE|FULL|LOCAL|FAULT>,<angle_cdeg>,<dir>,<sweep>`: the mode (driving to a scan's
 //!   start counts as that mode), the head angle, the direction of its last motion, and the open
 //!   sweep's id, or the last one (0 before any).
 //! - A line with a bad checksum → `ERR,CHECKSUM,…`; any other unreadable line (or one longer than
 //!   160 bytes) → `ERR,SYNTAX,…`.
+//! - **Hardware faults** (broken switches, `docs/protocol.md`): the model watches the switch ahead
+//!   after every half step, as the firmware after every microstep. Both closed, a switch still
+//!   open 1.5° past its limit, or one closing more than 1.5° early stops the head:
+//!   `ERR,HARDWARE,…`, `SWP,END` of an open sweep, `ST,FAULT,…`; scans are answered with the same
+//!   `ERR`, nothing moves until `RESET` (`ACK,RESET`, `SWP,END` if open, `LIM,MIN`: homed at once,
+//!   sweep ids go on). Homing being instant, power-on (and a reset) report at once what the
+//!   firmware's homing would meet (a dead or stuck MIN switch, both closed); the `ST` angle after
+//!   such a homing fault is the MIN limit's, where the firmware reports the angle it assumed.
 //! - Commands are obeyed between actions (after the current motor step or ping), as the PIC's main
 //!   loop would; a reply comes at most one ping (50 ms simulated) late.
 //! - `RD,<seq>,<time_ms>,<sweep>,<dir>,<centre_cdeg>,<P>,<e1>,…,<eP>`: `seq` from 0, +1 per `RD`
@@ -105,7 +115,9 @@ pub mod scene;
 pub mod serve;
 
 pub use echo::{Echo, EchoModel, EchoParams, NoiseParams, Target};
-pub use faults::{FaultCounts, FaultInjector, FaultSpec, LineFault, SpecError};
+pub use faults::{
+    FaultCounts, FaultInjector, FaultSpec, LineFault, SpecError, SwitchFault, SwitchFaults,
+};
 pub use firmware::{FIRMWARE_ID, Firmware, Timing, Transducer};
 pub use geometry::{Pose, Vec2};
 pub use hobby::HobbySketch;

@@ -120,6 +120,8 @@ struct Args {
     ///   reset=T      the head reboots (HELLO, idle, at the MIN limit)
     ///   silence=T:D  the head sends and hears nothing for D (it runs on, as if the cable were cut)
     /// Durations: 500ms, 30s, 2min. HELLO lines are spared unless hello=damage.
+    /// Broken limit switches (the head stops on them: ERR,HARDWARE, ST,FAULT, until RESET):
+    ///   min-switch=K, max-switch=K   K: dead, stuck, early:DEG (1–90) or bouncing
     #[arg(long, value_name = "SPEC", verbatim_doc_comment)]
     faults: Option<FaultSpec>,
     /// Seed of the faults; the same seed and the same traffic give the same faults.
@@ -334,8 +336,11 @@ fn run(args: Args) -> Result<()> {
                 .clone()
                 .unwrap_or_else(|| format!("{:016X}", rand::random::<u64>()));
             info!(head_id, protocol = %args.protocol, "head identity");
+            let switches = args.faults.as_ref().map(|f| f.switches).unwrap_or_default();
             Box::new(NativeDevice::new(
-                Firmware::new(sensor, timing, model)?.speaking(args.protocol, &head_id),
+                Firmware::new(sensor, timing, model)?
+                    .speaking(args.protocol, &head_id)
+                    .with_switch_faults(switches),
             ))
         }
         Dialect::Hobby => Box::new(HobbySketch::new(model, sensor.echo_timeout_us)),

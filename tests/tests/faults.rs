@@ -25,6 +25,7 @@ use sonar_common::ipc::{self, DriverStatus, LinkState, Reading};
 use sonar_common::protocol::{
     DeviceMessage, FramedLine, LineFramer, ProtocolVersion, Terminators, WireReading, parse_device,
 };
+use sonar_driver::sweeps::SweepIds;
 use sonar_e2e::{
     PATIENCE, Sandbox, driver_status_subscriber, path_str, readings_subscriber, receive_reading,
 };
@@ -154,13 +155,25 @@ impl Run {
         let mut rejected = 0;
         let mut ok = 0;
         let mut expected = Vec::new();
-        for line in &replay.framed[..seen] {
+        // Sweep ids are published on across the head's reset, as the driver does.
+        let mut sweeps = SweepIds::default();
+        for (i, line) in replay.framed[..seen].iter().enumerate() {
+            if replay.reset_at.contains(&i) {
+                sweeps.head_was_reset();
+            }
             match parse(line, replay.version) {
                 None => rejected += 1,
                 Some(msg) => {
                     ok += 1;
-                    if let DeviceMessage::Reading(r) = msg {
-                        expected.push(wire_key(&r));
+                    match msg {
+                        DeviceMessage::Reading(mut r) => {
+                            r.sweep = sweeps.of(r.sweep);
+                            expected.push(wire_key(&r));
+                        }
+                        DeviceMessage::SweepStart { sweep, .. } => {
+                            sweeps.of(sweep);
+                        }
+                        _ => {}
                     }
                 }
             }
@@ -185,8 +198,8 @@ impl Run {
     }
 }
 
-/// The raw side of a reading: device counter and clock, sweep, direction, angle (centidegrees),
-/// echo times.
+/// The raw side of a reading: device counter and clock, sweep (as published), direction, angle
+/// (centidegrees), echo times.
 type Key = (u32, u32, u32, i8, i32, Vec<u32>);
 
 fn wire_key(r: &WireReading) -> Key {
@@ -366,12 +379,17 @@ impl Replay {
         };
         let mut framer = LineFramer::new(Terminators::Newline);
         let mut started = false;
+        // The readings as published: sweep ids go on across a reset of the head.
+        let mut sweeps = SweepIds::default();
         for entry in text.lines().map(parse_entry) {
             if let Some(event) = entry.get("event") {
                 *replay.events.entry(event.clone()).or_default() += 1;
                 match event.as_str() {
                     "start" => started = true,
-                    "reset" => replay.reset_at.push(replay.framed.len()),
+                    "reset" => {
+                        replay.reset_at.push(replay.framed.len());
+                        sweeps.head_was_reset();
+                    }
                     // The driver reconnects during the silence, with a new framer.
                     "silence" => framer = LineFramer::new(Terminators::Newline),
                     "silence-end" => replay.silence_end_at.push(replay.framed.len()),
@@ -380,8 +398,15 @@ impl Replay {
                 continue;
             }
             let line = latin1(&entry["line"]);
-            if let Ok(DeviceMessage::Reading(r)) = parse_device(&line, version) {
-                replay.originals.insert(wire_key(&r));
+            match parse_device(&line, version) {
+                Ok(DeviceMessage::Reading(mut r)) => {
+                    r.sweep = sweeps.of(r.sweep);
+                    replay.originals.insert(wire_key(&r));
+                }
+                Ok(DeviceMessage::SweepStart { sweep, .. }) => {
+                    sweeps.of(sweep);
+                }
+                _ => {}
             }
             let kind = &entry["kind"];
             if !started || kind == "silenced" {

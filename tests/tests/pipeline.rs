@@ -14,10 +14,10 @@ use sonar_common::ipc::{
     ScanCommand, ScanCommandKind, ScanMode, feature_kind, flags,
 };
 use sonar_common::protocol::{
-    DeviceMessage, Direction, PROTOCOL_VERSION, WireReading, encode_device,
+    DeviceMessage, DeviceState, Direction, ErrorCode, PROTOCOL_VERSION, WireReading, encode_device,
 };
 use sonar_e2e::{
-    PATIENCE, Sandbox, back_wall_seen_at, collect_until, corridor_grid_config,
+    PATIENCE, Sandbox, back_wall_seen_at, check_ok, collect_until, corridor_grid_config,
     driver_status_subscriber, grid_subscriber, localized_pose_subscriber, readings_subscriber,
     readings_subscribers, receive_reading, send_scan_command, wait_for_status, wait_until,
 };
@@ -499,6 +499,99 @@ fn a_silent_head_is_probed_then_handshaken_again_and_resumes() {
         s.link_state == LinkState::Connected as u32 && s.reconnects >= 1
     });
     assert_eq!(s.silences, 1);
+}
+
+/// Issue 24: a head that stopped on a hardware fault (`ERR,HARDWARE`, then `ST,FAULT`) gets no
+/// further scan — not on the silence probe, not after it reset itself, not when a scan is asked
+/// for — until a person acknowledges with the reset command: then `RESET` and the scan.
+#[test]
+fn a_head_stopped_on_a_hardware_fault_gets_no_scan_until_a_reset() {
+    let sandbox = Sandbox::new("hw_fault");
+    let node = sandbox.node("test-device");
+    let status = driver_status_subscriber(&node);
+    let mut head = FakeHead::new();
+    let _driver = sandbox.spawn(
+        "sonar-driver",
+        &[
+            "--port",
+            &head.slave_path,
+            "--scan",
+            "full",
+            "--silence-timeout",
+            "0.5",
+        ],
+    );
+    let fault = DeviceMessage::Status {
+        state: DeviceState::Fault,
+        angle_cdeg: -15000,
+        direction: Direction::Cw,
+        sweep: 0,
+    };
+    head.hear("$HELLO,2*", 1);
+    head.say(&hello_from("HEAD-A"));
+    head.hear("$SCAN,FULL*", 1);
+    head.say(&DeviceMessage::Error {
+        code: ErrorCode::Hardware,
+        text: "MIN switch not found in 315 deg of homing (dead switch? wiring?)".into(),
+    });
+    // The driver asks at once whether the head stopped.
+    head.hear("$STATUS*", 1);
+    head.say(&fault);
+    let s = wait_for_status(&node, &status, |s| s.head_fault == 1);
+    assert_eq!(s.hardware_faults, 1);
+    assert_eq!(
+        s.last_device_error(),
+        "HARDWARE: MIN switch not found in 315 deg of homing (dead switch? wiring?)"
+    );
+    assert_eq!(s.link_state, LinkState::Connected as u32);
+    // Quiet: probed, and told again that the head is stopped.
+    for k in 2..=3 {
+        head.hear("$STATUS*", k);
+        head.say(&fault);
+    }
+    // A scan asked for by a user is kept, not sent.
+    let _scan = send_scan_command(&node, ScanCommand::new(ScanCommandKind::FullScan, 0.0, 0.0));
+    head.hear("$STATUS*", 4);
+    // The head resets itself (its latch is gone: it answers idle): still no scan, the fault is
+    // not acknowledged.
+    head.say(&hello_from("HEAD-A"));
+    wait_for_status(&node, &status, |s| s.head_resets == 1);
+    for k in 5..=6 {
+        head.hear("$STATUS*", k);
+        head.say(&DeviceMessage::Status {
+            state: DeviceState::Idle,
+            angle_cdeg: -15000,
+            direction: Direction::Ccw,
+            sweep: 0,
+        });
+    }
+    head.hear("$STATUS*", 7);
+    assert_eq!(
+        head.heard.matches("$SCAN").count(),
+        1,
+        "no scan after the fault: {:?}",
+        head.heard
+    );
+    assert!(!head.heard.contains("$RESET"), "{:?}", head.heard);
+    assert_eq!(wait_for_status(&node, &status, |_| true).head_fault, 1);
+
+    // A person checked the head and resets it (`sonar reset-head`, as the viewer's R): RESET,
+    // then the scan it should run.
+    let out = sandbox.run("sonar", &["reset-head"]);
+    let said = check_ok("sonar reset-head", &out);
+    assert!(
+        said.starts_with("reset sent: the head homes again"),
+        "{said}"
+    );
+    head.hear("$RESET*", 1);
+    head.hear("$SCAN,FULL*", 2);
+    let at = head.heard.find("$RESET*").unwrap();
+    assert!(
+        head.heard[at..].contains("$SCAN,FULL*"),
+        "RESET, then the scan"
+    );
+    let s = wait_for_status(&node, &status, |s| s.head_fault == 0);
+    assert_eq!(s.hardware_faults, 1);
 }
 
 #[test]

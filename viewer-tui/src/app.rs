@@ -419,6 +419,10 @@ pub const KEYS: &[(&str, &str)] = &[
     ("l", "local scan: pick a segment on the radar"),
     ("  ←/→  ↑/↓", "turn / widen it, Enter scans, Esc cancels"),
     ("x", "stop scanning"),
+    (
+        "R",
+        "reset a head stopped on a hardware fault, once checked",
+    ),
     ("C", "clear the map"),
     ("m  r  p", "next sensor model / rule / preset"),
     ("arrows", "move the cursor (Shift: faster)"),
@@ -469,6 +473,7 @@ impl Action {
                 }
                 Some(ScanCommandKind::Stop) => "stop".to_owned(),
                 Some(ScanCommandKind::Status) => "status request".to_owned(),
+                Some(ScanCommandKind::Reset) => "reset the head".to_owned(),
                 None => format!("scan command #{}", cmd.kind),
             },
             Action::Fusion(cmd) => match cmd.kind() {
@@ -839,6 +844,7 @@ impl App {
             KeyCode::Char('?') | KeyCode::F(1) => self.show_help = true,
             KeyCode::Char('f') => return Some(scan(ScanCommandKind::FullScan, None)),
             KeyCode::Char('x') => return Some(scan(ScanCommandKind::Stop, None)),
+            KeyCode::Char('R') => return Some(scan(ScanCommandKind::Reset, None)),
             KeyCode::Char('l') => {
                 // Start from the last local scan, else around the sweep line.
                 let center = self.radar.map_or(0.0, |r| r.current_angle_deg);

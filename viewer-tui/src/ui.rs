@@ -1199,16 +1199,27 @@ fn rate_text(app: &App, now: Instant) -> Option<String> {
     }
 }
 
-/// The head's latest refusal, in red; `None` when it refused nothing.
+/// The head's latest refusal, in red; `None` when it refused nothing. A head stopped on a
+/// hardware fault says so first, and how to go on.
 fn device_error(app: &App) -> Option<Span<'static>> {
     app.driver
         .as_ref()
-        .filter(|s| s.device_errors > 0)
+        .filter(|s| s.device_errors > 0 || s.head_fault != 0)
         .map(|s| {
-            Span::styled(
-                s.last_device_error().to_owned(),
-                Style::new().fg(Color::Red),
-            )
+            if s.head_fault != 0 {
+                Span::styled(
+                    format!(
+                        "STOPPED: {} · check the head, then R resets it",
+                        s.last_device_error()
+                    ),
+                    Style::new().fg(Color::Red).add_modifier(Modifier::BOLD),
+                )
+            } else {
+                Span::styled(
+                    s.last_device_error().to_owned(),
+                    Style::new().fg(Color::Red),
+                )
+            }
         })
 }
 

@@ -555,6 +555,33 @@ fn the_head_its_silences_and_its_latest_error_reach_the_status_panel() {
     }
 }
 
+/// Issue 24: a head stopped on a hardware fault says so, what it stopped on, and how to go on.
+#[test]
+fn a_head_stopped_on_a_fault_is_shown_with_what_to_do() {
+    let t0 = Instant::now();
+    let mut app = live_app(t0);
+    let mut status = *app.driver.as_ref().unwrap();
+    status.device_errors = 1;
+    status.head_fault = 1;
+    sonar_common::ipc::set_padded_text(
+        &mut status.last_device_error,
+        "HARDWARE: MIN switch not found in 315 deg",
+    );
+    status.stamp_ns += 1_000_000_000;
+    app.on_driver_status(&status, t0).unwrap();
+    let screen = screen_text(draw(&mut app, 160, 50, t0).backend().buffer());
+    assert!(
+        screen.contains("head err STOPPED: HARDWARE: MIN"),
+        "{screen}"
+    );
+    assert!(screen.contains("R resets it"), "{screen}");
+    status.head_fault = 0;
+    status.stamp_ns += 1_000_000_000;
+    app.on_driver_status(&status, t0).unwrap();
+    let screen = screen_text(draw(&mut app, 160, 50, t0).backend().buffer());
+    assert!(!screen.contains("STOPPED"), "{screen}");
+}
+
 /// Issue 16: a terminal too small for the status panel gets its essentials in one line, the
 /// cursor's cell included; problems come first, so they are never the part cut off.
 #[test]
