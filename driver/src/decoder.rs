@@ -128,6 +128,12 @@ impl Decoder {
         self.next_seq
     }
 
+    /// Gives back the sequence number of the reading just decoded, which was not published (it
+    /// came from a head not identified yet), so the published numbers stay without gaps.
+    pub fn withdraw_last(&mut self) {
+        self.next_seq = self.next_seq.saturating_sub(1);
+    }
+
     /// Decodes one line (without terminator). `now_ns` stamps a reading.
     pub fn decode(&mut self, line: &[u8], now_ns: u64) -> Result<Decoded, ParseError> {
         match self.dialect {

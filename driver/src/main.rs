@@ -232,7 +232,7 @@ fn run(args: Args) -> Result<()> {
     let mut link = Link::new(&node, &args, sensor)?;
     let mut backoff = MIN_BACKOFF;
     loop {
-        match link.session(&mut port, &node)? {
+        match link.session(&mut port.tty, &node)? {
             SessionEnd::Shutdown => break,
             end @ (SessionEnd::PortLost(_) | SessionEnd::WrongHead(_)) => {
                 if let SessionEnd::WrongHead(why) = end {
@@ -263,14 +263,18 @@ fn run(args: Args) -> Result<()> {
             }
         }
     }
-    if args.dialect == Dialect::Native {
-        // Leave the motor idle when nobody is listening any more.
-        let _ = port.write_all(encode_command(&HostCommand::Stop, args.protocol).as_bytes());
+    if link.identified && args.dialect == Dialect::Native {
+        // Leave the motor idle when nobody is listening any more; a device that never said it
+        // is our head is not told anything.
+        let _ = port
+            .tty
+            .write_all(encode_command(&HostCommand::Stop, args.protocol).as_bytes());
     }
     link.set_state(LinkState::Disconnected)?;
     info!(
         readings = link.status.readings_published,
         rejected = link.status.lines_rejected,
+        unidentified_readings = link.unidentified_readings,
         "driver stopped"
     );
     Ok(())
@@ -280,7 +284,48 @@ fn run(args: Args) -> Result<()> {
 const NOT_A_PORT: &str = "is not a serial port (not a terminal device): give the adapter's \
                           device, e.g. /dev/ttyUSB0, /dev/ttyACM0 or its /dev/serial/by-id/… name";
 
-fn open_port(args: &Args) -> Result<TTYPort> {
+/// The terminal settings a port had before the driver opened it, put back when dropped: the
+/// driver leaves a device it gives up on (or stops serving) as it found it.
+struct SavedTerminal {
+    file: std::fs::File,
+    settings: nix::sys::termios::Termios,
+}
+
+impl SavedTerminal {
+    /// Reads the settings of `path` through a descriptor of its own, opened without making it
+    /// the controlling terminal and without waiting for a carrier.
+    fn take(path: &str) -> Option<Self> {
+        use std::os::unix::fs::OpenOptionsExt;
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .custom_flags(nix::libc::O_NOCTTY | nix::libc::O_NONBLOCK)
+            .open(path)
+            .ok()?;
+        let settings = nix::sys::termios::tcgetattr(&file).ok()?;
+        Some(Self { file, settings })
+    }
+}
+
+impl Drop for SavedTerminal {
+    fn drop(&mut self) {
+        if let Err(e) = nix::sys::termios::tcsetattr(
+            &self.file,
+            nix::sys::termios::SetArg::TCSANOW,
+            &self.settings,
+        ) {
+            debug!("terminal settings not restored: {e}");
+        }
+    }
+}
+
+/// The serial port, and what to restore when it is closed.
+struct OpenPort {
+    tty: TTYPort,
+    _saved: Option<SavedTerminal>,
+}
+
+fn open_port(args: &Args) -> Result<OpenPort> {
     let path = args.port.to_string_lossy().into_owned();
     if !Path::new(&path).exists() {
         bail!(
@@ -298,6 +343,7 @@ fn open_port(args: &Args) -> Result<TTYPort> {
         Dialect::Native => 115_200,
         Dialect::Hobby => 9_600,
     });
+    let saved = SavedTerminal::take(&path);
     let port = serialport::new(&path, baud)
         .data_bits(match args.data_bits {
             5 => DataBits::Five,
@@ -333,7 +379,10 @@ fn open_port(args: &Args) -> Result<TTYPort> {
             anyhow::anyhow!("cannot open serial port {path}: {e}{hint}")
         })?;
     info!(port = %path, baud, dialect = ?args.dialect, "serial port open");
-    Ok(port)
+    Ok(OpenPort {
+        tty: port,
+        _saved: saved,
+    })
 }
 
 /// The driver's side of the pipeline: decoder, iceoryx2 ports and counters.
@@ -371,6 +420,11 @@ struct Link {
     status_wanted: bool,
     /// Sweep ids as published, continued across resets of the head.
     sweeps: SweepIds,
+    /// The device on the port answered the handshake as the head served: until then its
+    /// readings are not published (they may be another head's) and nothing but `HELLO` is sent.
+    identified: bool,
+    /// Readings dropped because the device had not identified itself yet.
+    unidentified_readings: u64,
 }
 
 impl Link {
@@ -422,6 +476,9 @@ impl Link {
             head_fault: false,
             status_wanted: false,
             sweeps: SweepIds::default(),
+            // The hobby dialect has no identity to wait for.
+            identified: args.dialect != Dialect::Native,
+            unidentified_readings: 0,
         })
     }
 
@@ -548,6 +605,8 @@ impl Link {
     /// Runs one connection: handshake, scan request, then lines until the port fails or we stop.
     fn session(&mut self, port: &mut TTYPort, node: &Node<Ipc>) -> Result<SessionEnd> {
         self.set_state(LinkState::Connecting)?;
+        // Whoever is on the port now has to identify itself again.
+        self.identified = self.dialect != Dialect::Native;
         // Bytes queued before we opened belong to nobody (or a previous driver).
         let _ = port.clear(serialport::ClearBuffer::All);
         let mut framer = LineFramer::new(self.dialect.terminators());
@@ -598,7 +657,14 @@ impl Link {
                 if let Err(why) = self.accept_head(&hello) {
                     return Ok(SessionEnd::WrongHead(why));
                 }
+                self.identified = true;
                 info!(?hello, "handshake done");
+                if self.unidentified_readings > 0 {
+                    info!(
+                        dropped = self.unidentified_readings,
+                        "readings sent before the head identified itself were not published"
+                    );
+                }
                 self.decoder.adopt_device_geometry(&hello);
                 if let Some(why) = self.scan.outside_limits(&hello) {
                     // The scan of the command line: the head would refuse it for ever. (One asked
@@ -632,6 +698,7 @@ impl Link {
             if let Some(hello) = self.hello.take() {
                 // Unprompted: the head was reset (power, watchdog, its reset button) and is idle.
                 if let Err(why) = self.accept_head(&hello) {
+                    self.identified = false;
                     return Ok(SessionEnd::WrongHead(why));
                 }
                 self.status.head_resets += 1;
@@ -733,6 +800,11 @@ impl Link {
                         "rejected line: {e}"
                     );
                 }
+            }
+            Ok(Decoded::Reading(_)) if !self.identified => {
+                // Before the handshake names the head, a reading may be another head's.
+                self.decoder.withdraw_last();
+                self.unidentified_readings += 1;
             }
             Ok(Decoded::Reading(mut reading)) => {
                 reading.sweep_id = self.sweeps.of(reading.sweep_id);

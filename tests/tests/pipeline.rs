@@ -1304,3 +1304,73 @@ fn every_program_names_itself_in_its_version() {
         assert!(text.starts_with(&format!("{name} ")), "{name}: {text}");
     }
 }
+
+/// A device that has not identified itself as the head (it sends readings but never answers
+/// `HELLO`) gets nothing but `HELLO`, none of its readings is published, and the driver leaves
+/// its terminal settings as it found them (issue 24).
+#[test]
+fn a_device_that_never_identifies_itself_is_only_asked_who_it_is() {
+    let sandbox = Sandbox::new("unknown_dev");
+    let node = sandbox.node("test-device");
+    let readings = readings_subscriber(&node);
+    let mut head = FakeHead::new();
+    let before = nix::sys::termios::tcgetattr(head._slave.as_fd()).unwrap();
+    let driver = sandbox.spawn(
+        "sonar-driver",
+        &["--port", &head.slave_path, "--scan", "full"],
+    );
+    head.hear("$HELLO,2*", 1);
+    for seq in 0..6u32 {
+        head.say(&DeviceMessage::Reading(WireReading {
+            seq,
+            time_ms: 1000 + seq,
+            sweep: 1,
+            direction: Direction::Ccw,
+            angle_cdeg: -14700 + 600 * seq as i32,
+            ping_count: 4,
+            echo_us: [5800, 5800, 5800, 5800, 0, 0, 0, 0],
+        }));
+    }
+    // The driver asks again (its handshake attempts), so it has read the lines sent before.
+    head.hear("$HELLO,2*", 2);
+    let (status, stderr) = driver.terminate_with_stderr();
+    assert!(status.success(), "{stderr}");
+    assert!(
+        stderr.contains("unidentified_readings=6"),
+        "the readings were not read, or published: {stderr}"
+    );
+    assert!(receive_reading(&readings).is_none());
+    // Give a STOP time to arrive, were one sent.
+    std::thread::sleep(Duration::from_millis(200));
+    let mut fds = [PollFd::new(head.master.as_fd(), PollFlags::POLLIN)];
+    if poll(&mut fds, PollTimeout::from(100u16)).unwrap() > 0 {
+        let mut buf = [0u8; 256];
+        let n = head.master.read(&mut buf).unwrap_or(0);
+        head.heard.push_str(&String::from_utf8_lossy(&buf[..n]));
+    }
+    let sent: Vec<&str> = head.heard.lines().collect();
+    assert!(
+        sent.iter().all(|l| l.starts_with("$HELLO,")),
+        "more than HELLO sent to an unidentified device: {sent:?}"
+    );
+    let after = nix::sys::termios::tcgetattr(head._slave.as_fd()).unwrap();
+    assert_eq!(
+        (
+            after.input_flags,
+            after.output_flags,
+            after.control_flags,
+            after.local_flags
+        ),
+        (
+            before.input_flags,
+            before.output_flags,
+            before.control_flags,
+            before.local_flags
+        ),
+        "terminal settings changed"
+    );
+    assert_eq!(
+        nix::sys::termios::cfgetospeed(&after),
+        nix::sys::termios::cfgetospeed(&before)
+    );
+}
