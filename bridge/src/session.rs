@@ -31,8 +31,8 @@ pub fn max_message_size(settings: &Settings) -> usize {
         + MESSAGE_SLACK
 }
 
-/// A zenoh peer with exactly the configured endpoints: no multicast scouting, so it reaches only
-/// the machines it is told of (and those they know of), and retries them for ever. Over TLS both
+/// A zenoh peer with exactly the configured endpoints: no multicast or gossip scouting, so it
+/// reaches only the machines it is told of, and retries them for ever. Over TLS both
 /// ends present certificates signed by the same authority; a robot then serves only the peers its
 /// allow lists name (`robot` is its name).
 pub fn zenoh_config(
@@ -44,6 +44,10 @@ pub fn zenoh_config(
         ("listen/endpoints", json!(settings.listen)),
         ("connect/endpoints", json!(settings.connect)),
         ("scouting/multicast/enabled", json!(false)),
+        // No gossip: a peer would otherwise learn, from the robot, the address of every other peer
+        // that reached it, and connect there directly, past the robot's access control (a remote
+        // bridge joined an unlisted peer's plain-TCP listener that way and sent it its commands).
+        ("scouting/gossip/enabled", json!(false)),
         // Keep retrying a robot that is not (yet) there instead of failing at start.
         ("connect/timeout_ms", json!(-1)),
         ("connect/exit_on_failure", json!(false)),
