@@ -45,9 +45,9 @@ pub struct BridgeSection {
     pub mode: Option<Mode>,
     /// This robot's name (robot mode) or the robot to watch (remote mode).
     pub robot: Option<String>,
-    /// zenoh endpoints to listen on, e.g. `tcp/0.0.0.0:7447`.
+    /// zenoh endpoints to listen on, e.g. `tls/192.168.1.20:7447` (default `tcp/127.0.0.1:7447`).
     pub listen: Option<Vec<String>>,
-    /// zenoh endpoints to connect to, e.g. `tcp/192.168.1.20:7447`.
+    /// zenoh endpoints to connect to, e.g. `tls/192.168.1.20:7447`.
     pub connect: Option<Vec<String>>,
     /// Channels to carry (`readings`, `grid`, …, `commands`); all by default.
     pub services: Option<Vec<String>>,
@@ -279,7 +279,7 @@ impl Settings {
         let connect = pick(&flags.connect, &file.connect, Vec::new());
         if listen.is_empty() && connect.is_empty() {
             return Err(invalid(
-                "nothing to listen on and nowhere to connect: give --connect tcp/ROBOT:7447 \
+                "nothing to listen on and nowhere to connect: give --connect tls/ROBOT:7447 \
                  (or [bridge] connect)"
                     .into(),
             ));

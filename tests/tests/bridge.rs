@@ -788,11 +788,21 @@ fn bridge_link_figures() {
                 &listen,
                 "--grid-max-rate",
                 rate,
+                // The figures of docs/benchmarks.md were taken over plain TCP.
+                "--insecure",
             ],
         );
         let laptop_bridge = laptop.spawn(
             "sonar-bridge",
-            &["--mode", "remote", "--robot", "r1", "--connect", &listen],
+            &[
+                "--mode",
+                "remote",
+                "--robot",
+                "r1",
+                "--connect",
+                &listen,
+                "--insecure",
+            ],
         );
         // Settle: connections made, the first snapshots through.
         std::thread::sleep(Duration::from_secs(5));
