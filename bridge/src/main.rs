@@ -173,6 +173,9 @@ fn run(args: Args) -> Result<()> {
              and commands the robot. Use mutual TLS (docs/bridge.md, Security)"
         );
     }
+    if let Some(tls) = &settings.tls {
+        warn_if_others_can_read(&tls.key);
+    }
     let session = open_session(&settings)?;
     if args.list_robots {
         for robot in robots_seen(&session)? {
@@ -218,6 +221,21 @@ fn open_session(settings: &Settings) -> Result<zenoh::Session> {
     zenoh::open(config)
         .wait()
         .map_err(|e| anyhow!("open the zenoh session (listen {:?}): {e}", settings.listen))
+}
+
+/// A private key others can read is as good as theirs: say so (as ssh would; not refused, since a
+/// copy made with the default umask is 0644 until fixed).
+fn warn_if_others_can_read(key: &std::path::Path) {
+    use std::os::unix::fs::PermissionsExt;
+    if let Ok(meta) = std::fs::metadata(key)
+        && meta.permissions().mode() & 0o077 != 0
+    {
+        warn!(
+            key = %key.display(),
+            mode = format!("{:o}", meta.permissions().mode() & 0o777),
+            "the private key is readable by others: chmod 600 it"
+        );
+    }
 }
 
 fn make_certs(dir: &std::path::Path, peers: &[Peer], days: u32) -> Result<()> {
