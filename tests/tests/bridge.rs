@@ -639,9 +639,14 @@ fn intruders_read_and_command_nothing_and_bombs_are_counted() {
             (i.who, peer(&laptop, &endpoint_of(i), &i.tls, &args))
         })
         .collect();
-    for (who, put) in puts {
+    for ((who, put), intruder) in puts.into_iter().zip(&intruders) {
         let out = output_of(put);
         assert!(out.contains("sent 40"), "{who}: {out}");
+        // The listed reader is shown the robot's command subscription: its 40 commands reach the
+        // robot, whose access control must refuse them (the others never get that far).
+        if intruder.listed_reader {
+            assert!(out.contains("\nmatched"), "{who}: {out}");
+        }
     }
 
     // Bombs from the commander's machine: one 4 kB frame declaring a 4 GiB LZ4 slice (it aborted
@@ -660,7 +665,7 @@ fn intruders_read_and_command_nothing_and_bombs_are_counted() {
     for (file, count) in [(&bomb_file, "5"), (&big_file, "2")] {
         let args = ["put", "sonar/r1/commands", path_str(file), count];
         let out = output_of(peer(&laptop, &endpoint, &commander, &args));
-        assert!(out.contains("robot seen"), "the commander's peer: {out}");
+        assert!(out.contains("\nmatched"), "the commander's peer: {out}");
     }
 
     // The laptop commands a local scan (again while the robot has not switched: a command sent

@@ -9,8 +9,9 @@
 //!     subscribes to KEYEXPR, watches its liveliness tokens and asks for it twice a second; on a
 //!     line (or the end) of standard input prints `samples=N replies=M tokens=T` and exits
 //! sonar-test-peer ENDPOINT [--tls CA CERT KEY] put KEY FILE COUNT
-//!     waits (at most 15 s) to see a robot's token, prints `robot seen` or `robot not seen`, then
-//!     puts FILE's bytes on KEY COUNT times and prints `sent COUNT`
+//!     waits (at most 15 s) to see a robot's token and a subscriber of KEY, prints `robot seen` or
+//!     `robot not seen` and `matched` or `not matched`, then puts FILE's bytes on KEY COUNT times
+//!     and prints `sent COUNT`
 //! ```
 #![allow(clippy::unwrap_used, clippy::expect_used)] // a test tool: a failure is the test's failure
 
@@ -112,22 +113,24 @@ fn put(session: &zenoh::Session, key: &str, frame: Vec<u8>, count: u64) {
         .history(true)
         .wait()
         .unwrap();
-    let deadline = Instant::now() + Duration::from_secs(15);
-    let mut seen = false;
-    while let Some(left) = deadline.checked_duration_since(Instant::now()) {
-        if let Ok(Some(_)) = robots.recv_timeout(left) {
-            seen = true;
-            break;
-        }
-    }
-    println!("{}", if seen { "robot seen" } else { "robot not seen" });
     let publisher = session
         .declare_publisher(key.to_owned())
         .congestion_control(CongestionControl::Block)
         .wait()
         .unwrap();
-    // The robot's subscription reaches this peer with its token, or just after.
-    std::thread::sleep(Duration::from_millis(500));
+    // Wait (at most 15 s) for the robot's token and for a subscriber of KEY (the robot's), so
+    // that the frames are sent to it rather than nowhere.
+    let deadline = Instant::now() + Duration::from_secs(15);
+    let (mut seen, mut matched) = (false, false);
+    while Instant::now() < deadline && !(seen && matched) {
+        seen |= matches!(robots.recv_timeout(Duration::from_millis(50)), Ok(Some(_)));
+        matched |= publisher
+            .matching_status()
+            .wait()
+            .is_ok_and(|m| m.matching());
+    }
+    println!("{}", if seen { "robot seen" } else { "robot not seen" });
+    println!("{}", if matched { "matched" } else { "not matched" });
     for _ in 0..count {
         publisher.put(frame.clone()).wait().unwrap();
     }
