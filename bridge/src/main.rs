@@ -15,6 +15,7 @@ use sonar_bridge::config::{BridgeSection, Mode, Overrides, Settings};
 use sonar_bridge::ports::{self, Reader, WriteError, Writer};
 use sonar_bridge::session;
 use sonar_bridge::wire::FrameError;
+use sonar_common::flood::FloodGuard;
 use sonar_common::ipc::IpcArgs;
 use sonar_common::throttle::Throttle;
 use tracing::{debug, info, warn};
@@ -137,12 +138,14 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    sonar_common::init_tracing();
+    // A peer can make zenoh log a line per attempt (a TLS handshake without a certificate).
+    let flood = FloodGuard::new(&["zenoh"]);
+    sonar_common::flood::init_tracing(flood.clone());
     let args = Args::parse();
-    sonar_common::report_exit("sonar-bridge", run(args))
+    sonar_common::report_exit("sonar-bridge", run(args, &flood))
 }
 
-fn run(args: Args) -> Result<()> {
+fn run(args: Args, flood: &FloodGuard) -> Result<()> {
     if let Some(Command::Certs { dir, days, peers }) = &args.command {
         return make_certs(dir, peers, *days);
     }
@@ -203,8 +206,9 @@ fn run(args: Args) -> Result<()> {
         "bridge running"
     );
     let mut bridge = Bridge::new(&session, &node, &settings, &robot)?;
-    bridge.run(&node);
+    bridge.run(&node, flood);
     bridge.log_stats(true);
+    flood.report();
     drop(bridge);
     close(session)
 }
@@ -467,7 +471,8 @@ impl Bridge {
     }
 
     /// Until Ctrl-C or SIGTERM.
-    fn run(&mut self, node: &Node<iceoryx2::service::ipc::Service>) {
+    fn run(&mut self, node: &Node<iceoryx2::service::ipc::Service>, flood: &FloodGuard) {
+        let mut last_flood_report = Instant::now();
         loop {
             let now = Instant::now();
             self.watch_peers();
@@ -480,6 +485,10 @@ impl Bridge {
                 for inbound in &mut self.inbound {
                     inbound.write.refresh();
                 }
+            }
+            if now.duration_since(last_flood_report) >= sonar_common::flood::PERIOD {
+                last_flood_report = now;
+                flood.report();
             }
             if now.duration_since(self.last_stats) >= STATS_PERIOD {
                 self.last_stats = now;

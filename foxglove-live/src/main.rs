@@ -25,6 +25,7 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
+use sonar_common::flood::FloodGuard;
 use sonar_common::ipc::{
     self, FeatureRecord, FeaturesHeader, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, Pose2D,
     Reading,
@@ -32,7 +33,6 @@ use sonar_common::ipc::{
 use sonar_wellknown::{Channel, Options, Output, WellKnown};
 use tracing::{debug, info, warn};
 
-mod flood;
 mod front;
 
 /// How often the subscribers are emptied. The readings' buffer holds 256, so even the simulator
@@ -70,8 +70,9 @@ struct Args {
 }
 
 fn main() -> std::process::ExitCode {
-    let flood = flood::FloodGuard::default();
-    flood::init_tracing(flood.clone());
+    // A client can make the foxglove crate log a line per item of its request.
+    let flood = FloodGuard::new(&["foxglove"]);
+    sonar_common::flood::init_tracing(flood.clone());
     sonar_common::report_exit("sonar-foxglove", run(Args::parse(), &flood))
 }
 
@@ -169,7 +170,7 @@ impl Ports {
     }
 }
 
-fn run(args: Args, flood: &flood::FloodGuard) -> Result<()> {
+fn run(args: Args, flood: &FloodGuard) -> Result<()> {
     let node = args.ipc.node("sonar-foxglove")?;
     // iceoryx2 installs its SIGINT/SIGTERM handler on the first wait: before subscribing, so that
     // anyone who sees us can stop us cleanly.
@@ -214,7 +215,7 @@ fn run(args: Args, flood: &flood::FloodGuard) -> Result<()> {
     let mut last_flood_report = std::time::Instant::now();
     while node.wait(POLL).is_ok() {
         front.accept_waiting();
-        if last_flood_report.elapsed() >= flood::PERIOD {
+        if last_flood_report.elapsed() >= sonar_common::flood::PERIOD {
             last_flood_report = std::time::Instant::now();
             flood.report();
         }

@@ -1,8 +1,10 @@
-//! A flood limit for the `foxglove` crate's log lines. A client's request can make the crate log
-//! a line per item (a subscribe naming 2 000 unknown channels logged 2 000 ERROR lines): per call
-//! site, the first [`BURST`] lines of each [`PERIOD`] are written and the rest are counted; the
-//! main loop reports the counts ([`FloodGuard::report`]) so nothing goes unnoticed. Our own lines
-//! are rate-limited where they are written (`sonar_common::throttle`) and pass unchanged.
+//! A flood limit for the log lines of the libraries a process serves the network with. A peer's
+//! request can make a library log a line per item (a subscribe naming 2 000 unknown channels made
+//! the `foxglove` crate log 2 000 ERROR lines; each TLS handshake a peer without a certificate
+//! tries makes zenoh log a WARN line): per call site of the given targets, the first [`BURST`]
+//! lines of each [`PERIOD`] are written and the rest are counted; the process's loop reports the
+//! counts ([`FloodGuard::report`]) so nothing goes unnoticed. Our own lines are rate-limited where
+//! they are written ([`crate::throttle`]) and pass unchanged.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, PoisonError};
@@ -16,9 +18,10 @@ use tracing_subscriber::layer::{Context, Filter};
 pub const BURST: u32 = 5;
 pub const PERIOD: Duration = Duration::from_secs(10);
 
-/// Which lines are limited: the foxglove crate's (its targets are `foxglove::…`).
-fn is_limited(meta: &Metadata<'_>) -> bool {
-    meta.target() == "foxglove" || meta.target().starts_with("foxglove::")
+/// Whether `target` is `crate_name` or one of its modules (`zenoh` takes `zenoh_link_tls` too: the
+/// crates of one library share its name as a prefix).
+fn is_of(target: &str, crate_name: &str) -> bool {
+    target.starts_with(crate_name)
 }
 
 #[derive(Debug)]
@@ -31,15 +34,25 @@ struct Window {
 }
 
 /// Shared between the log filter and the loop that reports what it left out.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub struct FloodGuard {
+    /// The libraries whose lines are limited (target prefixes, e.g. `foxglove`, `zenoh`).
+    libraries: &'static [&'static str],
     windows: Arc<Mutex<HashMap<Identifier, Window>>>,
 }
 
 impl FloodGuard {
+    /// Limits the lines of `libraries` (target prefixes).
+    pub fn new(libraries: &'static [&'static str]) -> Self {
+        Self {
+            libraries,
+            windows: Arc::default(),
+        }
+    }
+
     /// Whether a line of `meta`'s call site may be written at `now`.
     fn allow(&self, meta: &Metadata<'_>, now: Instant) -> bool {
-        if !is_limited(meta) {
+        if !self.libraries.iter().any(|l| is_of(meta.target(), l)) {
             return true;
         }
         let mut windows = self.windows.lock().unwrap_or_else(PoisonError::into_inner);
@@ -82,7 +95,8 @@ impl FloodGuard {
             tracing::warn!(
                 left_out,
                 from = %place,
-                "foxglove server's log lines left out (at most {BURST} per call site every {}s)",
+                "log lines of {} left out (at most {BURST} per call site every {}s)",
+                self.libraries.join(", "),
                 PERIOD.as_secs()
             );
         }
@@ -104,24 +118,32 @@ impl<S: Subscriber> Filter<S> for FloodGuard {
     }
 }
 
-/// Sets up the log on standard error as `sonar_common::init_tracing` does, with `guard` limiting
-/// the foxglove crate's lines.
+/// Sets up the log on standard error as [`crate::init_tracing`] does, with `guard` limiting its
+/// libraries' lines.
 pub fn init_tracing(guard: FloodGuard) {
     use std::io::IsTerminal;
+    use tracing_subscriber::Layer;
     use tracing_subscriber::layer::SubscriberExt;
     use tracing_subscriber::util::SubscriberInitExt;
-    use tracing_subscriber::{EnvFilter, Layer};
 
     // iceoryx2's own log into tracing, no subscriber yet: ours follows.
-    sonar_common::logging::init(sonar_common::logging::LogTo::Nowhere);
-    let directives =
-        sonar_common::logging::filter_directives(std::env::var("RUST_LOG").ok().as_deref());
+    crate::logging::init(crate::logging::LogTo::Nowhere);
+    let directives = crate::logging::filter_directives(std::env::var("RUST_LOG").ok().as_deref());
     let layer = tracing_subscriber::fmt::layer()
         .with_ansi(std::io::stderr().is_terminal())
         .with_writer(std::io::stderr)
-        .with_filter(EnvFilter::new(directives))
-        .with_filter(guard);
+        .with_filter(limited(&directives, guard));
     let _ = tracing_subscriber::registry().with(layer).try_init();
+}
+
+/// `RUST_LOG`'s filter, then the guard: only lines the level lets through are counted, and a
+/// library's DEBUG lines under `info` are neither written nor reported as left out.
+fn limited<S: Subscriber + for<'a> tracing_subscriber::registry::LookupSpan<'a>>(
+    directives: &str,
+    guard: FloodGuard,
+) -> impl Filter<S> + use<S> {
+    use tracing_subscriber::filter::FilterExt;
+    tracing_subscriber::EnvFilter::new(directives).and(guard)
 }
 
 #[cfg(test)]
@@ -150,7 +172,7 @@ mod tests {
 
     #[test]
     fn the_crates_lines_are_limited_per_call_site_and_counted() {
-        let guard = FloodGuard::default();
+        let guard = FloodGuard::new(&["foxglove"]);
         let counter = Counter::default();
         let subscriber =
             tracing_subscriber::registry().with(counter.clone().with_filter(guard.clone()));
@@ -160,9 +182,10 @@ mod tests {
             }
             for _ in 0..3 {
                 tracing::error!(target: "sonar_foxglove", "ours");
+                tracing::warn!(target: "zenoh_link_tls::unicast", "not limited here");
             }
         });
-        assert_eq!(counter.events.load(Ordering::Relaxed), BURST + 3);
+        assert_eq!(counter.events.load(Ordering::Relaxed), BURST + 6);
         let left_out = guard.take_left_out();
         assert_eq!(left_out.len(), 1);
         assert_eq!(left_out[0].1, 2000 - u64::from(BURST));
@@ -178,12 +201,30 @@ mod tests {
             tracing::error!(target: "foxglove", "a line");
         });
         let meta = counter.last.lock().unwrap().unwrap();
-        let guard = FloodGuard::default();
+        let guard = FloodGuard::new(&["zenoh", "foxglove"]);
         let t0 = Instant::now();
         let written = (0..20).filter(|_| guard.allow(meta, t0)).count();
         assert_eq!(written, BURST as usize);
         assert!(!guard.allow(meta, t0 + PERIOD / 2));
         assert!(guard.allow(meta, t0 + PERIOD));
         assert_eq!(guard.take_left_out()[0].1, 16);
+    }
+
+    #[test]
+    fn lines_below_the_level_are_neither_written_nor_counted() {
+        let guard = FloodGuard::new(&["zenoh"]);
+        let counter = Counter::default();
+        let subscriber = tracing_subscriber::registry()
+            .with(counter.clone().with_filter(limited("info", guard.clone())));
+        tracing::subscriber::with_default(subscriber, || {
+            for _ in 0..20 {
+                tracing::debug!(target: "zenoh::net", "chatter");
+                tracing::warn!(target: "zenoh_link_tls::unicast", "handshake failed");
+            }
+        });
+        assert_eq!(counter.events.load(Ordering::Relaxed), BURST);
+        let left_out = guard.take_left_out();
+        assert_eq!(left_out.len(), 1, "{left_out:?}");
+        assert_eq!(left_out[0].1, 20 - u64::from(BURST));
     }
 }
