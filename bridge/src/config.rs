@@ -45,14 +45,32 @@ pub struct BridgeSection {
     pub mode: Option<Mode>,
     /// This robot's name (robot mode) or the robot to watch (remote mode).
     pub robot: Option<String>,
-    /// zenoh endpoints to listen on, e.g. `tcp/0.0.0.0:7447`.
+    /// zenoh endpoints to listen on, e.g. `tls/192.168.1.20:7447` (default `tcp/127.0.0.1:7447`).
     pub listen: Option<Vec<String>>,
-    /// zenoh endpoints to connect to, e.g. `tcp/192.168.1.20:7447`.
+    /// zenoh endpoints to connect to, e.g. `tls/192.168.1.20:7447`.
     pub connect: Option<Vec<String>>,
     /// Channels to carry (`readings`, `grid`, …, `commands`); all by default.
     pub services: Option<Vec<String>>,
     /// Most messages per second on the link, per channel (0: no limit).
     pub max_rate_hz: BTreeMap<String, f64>,
+    /// Allow plain TCP (no authentication, no encryption) beyond localhost.
+    pub insecure: bool,
+    /// The certificates of mutual TLS (`tls/` endpoints), made by `sonar-bridge certs`.
+    pub tls: Option<TlsFiles>,
+    /// Robot: the certificate names (common names) of the peers that may read its channels.
+    pub allow_read: Vec<String>,
+    /// Robot: the certificate names of the peers that may read and command.
+    pub allow_command: Vec<String>,
+}
+
+/// This bridge's certificate and key, and the authority every peer's certificate must be signed
+/// by (PEM files).
+#[derive(Debug, Default, Clone, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TlsFiles {
+    pub ca: PathBuf,
+    pub cert: PathBuf,
+    pub key: PathBuf,
 }
 
 /// The file's tables, of which the bridge reads only its own.
@@ -86,6 +104,12 @@ pub struct Overrides {
     pub connect: Vec<String>,
     pub services: Vec<String>,
     pub grid_max_rate_hz: Option<f64>,
+    pub insecure: bool,
+    pub ca: Option<PathBuf>,
+    pub cert: Option<PathBuf>,
+    pub key: Option<PathBuf>,
+    pub allow_read: Vec<String>,
+    pub allow_command: Vec<String>,
 }
 
 /// Everything the bridge runs with.
@@ -99,6 +123,130 @@ pub struct Settings {
     pub channels: Vec<Channel>,
     /// The shortest interval between two messages of a channel on the link.
     pub min_interval: BTreeMap<Channel, Duration>,
+    /// Mutual TLS, when an endpoint is `tls/…`.
+    pub tls: Option<TlsFiles>,
+    /// Robot over TLS: who may read, who may also command (certificate common names).
+    pub allow_read: Vec<String>,
+    pub allow_command: Vec<String>,
+    /// The plain-TCP endpoints beyond localhost that `insecure` let through (warned of at start).
+    pub insecure_endpoints: Vec<String>,
+}
+
+/// How an endpoint's traffic travels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Protocol {
+    Tcp,
+    Tls,
+}
+
+/// The protocol of a zenoh endpoint (`tcp/HOST:PORT`, `tls/HOST:PORT`, optionally followed by
+/// `?…` or `#…`), and whether its host is this machine only.
+fn endpoint(text: &str) -> Result<(Protocol, bool), ConfigError> {
+    let (protocol, rest) = text.split_once('/').ok_or_else(|| {
+        ConfigError::Invalid(format!(
+            "endpoint {text:?} is not PROTOCOL/HOST:PORT (e.g. tls/192.168.1.20:{DEFAULT_PORT})"
+        ))
+    })?;
+    let protocol = match protocol {
+        "tcp" => Protocol::Tcp,
+        "tls" => Protocol::Tls,
+        other => {
+            return Err(ConfigError::Invalid(format!(
+                "endpoint {text:?}: protocol {other:?} is not built in; use tls/ (or tcp/ on \
+                 localhost)"
+            )));
+        }
+    };
+    let address = rest.split(['?', '#']).next().unwrap_or_default();
+    let host = address
+        .rsplit_once(':')
+        .map_or(address, |(host, _port)| host)
+        .trim_start_matches('[')
+        .trim_end_matches(']');
+    let local = host == "localhost"
+        || host
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback());
+    Ok((protocol, local))
+}
+
+impl Settings {
+    /// The channels that come in from the link (commands on a robot, the rest on a remote).
+    pub fn inbound_channels(&self) -> impl Iterator<Item = Channel> + '_ {
+        self.channels
+            .iter()
+            .copied()
+            .filter(|c| c.is_command() == (self.mode == Mode::Robot))
+    }
+}
+
+/// Checks the endpoints against the security settings: plain TCP beyond localhost only when
+/// asked for by name, TLS only with certificates, allow lists only where they mean something.
+/// Returns the TLS files and the insecure endpoints.
+fn check_security(
+    mode: Mode,
+    endpoints: &[&String],
+    tls: Option<TlsFiles>,
+    insecure: bool,
+    allowed: usize,
+) -> Result<(Option<TlsFiles>, Vec<String>), ConfigError> {
+    let invalid = |m: String| ConfigError::Invalid(m);
+    let mut insecure_endpoints = Vec::new();
+    let mut any_tls = false;
+    for text in endpoints {
+        match endpoint(text)? {
+            (Protocol::Tls, _) => any_tls = true,
+            (Protocol::Tcp, true) => {}
+            (Protocol::Tcp, false) if insecure => insecure_endpoints.push((*text).clone()),
+            (Protocol::Tcp, false) => {
+                return Err(invalid(format!(
+                    "{text} is plain TCP beyond localhost: anyone who reaches it could read \
+                     every channel and command the robot. Use tls/… with certificates \
+                     (--ca, --cert, --key; `sonar-bridge certs` makes them, docs/bridge.md), or \
+                     pass --insecure ([bridge] insecure = true) to accept that"
+                )));
+            }
+        }
+    }
+    let tls = if any_tls {
+        let files = tls.ok_or_else(|| {
+            invalid(
+                "tls/ endpoints need this bridge's certificate: --ca CA.pem --cert NAME.pem \
+                 --key NAME.key (or [bridge.tls]); `sonar-bridge certs` makes them"
+                    .into(),
+            )
+        })?;
+        for path in [&files.ca, &files.cert, &files.key] {
+            if !path.is_file() {
+                return Err(invalid(format!(
+                    "TLS file {} does not exist (or is not a file)",
+                    path.display()
+                )));
+            }
+        }
+        if mode == Mode::Robot && allowed == 0 {
+            return Err(invalid(
+                "over TLS a robot serves only the peers it lists: give --allow-read NAME and/or \
+                 --allow-command NAME (the names of their certificates) or [bridge] allow_read / \
+                 allow_command"
+                    .into(),
+            ));
+        }
+        Some(files)
+    } else {
+        if allowed > 0 {
+            return Err(invalid(
+                "allow_read/allow_command name certificates: they need tls/ endpoints".into(),
+            ));
+        }
+        None
+    };
+    if mode == Mode::Remote && allowed > 0 {
+        return Err(invalid(
+            "allow_read/allow_command are a robot's lists; a remote bridge has none".into(),
+        ));
+    }
+    Ok((tls, insecure_endpoints))
 }
 
 impl Settings {
@@ -121,20 +269,61 @@ impl Settings {
                 file.clone().unwrap_or(default)
             }
         };
-        // The robot waits for remotes to connect; a remote connects to the robots it is told of.
+        // The robot waits for remotes to connect (on this machine only unless told otherwise); a
+        // remote connects to the robots it is told of.
         let default_listen = match mode {
-            Mode::Robot => vec![format!("tcp/0.0.0.0:{DEFAULT_PORT}")],
+            Mode::Robot => vec![format!("tcp/127.0.0.1:{DEFAULT_PORT}")],
             Mode::Remote => Vec::new(),
         };
         let listen = pick(&flags.listen, &file.listen, default_listen);
         let connect = pick(&flags.connect, &file.connect, Vec::new());
         if listen.is_empty() && connect.is_empty() {
             return Err(invalid(
-                "nothing to listen on and nowhere to connect: give --connect tcp/ROBOT:7447 \
+                "nothing to listen on and nowhere to connect: give --connect tls/ROBOT:7447 \
                  (or [bridge] connect)"
                     .into(),
             ));
         }
+        let tls = match (&flags.ca, &flags.cert, &flags.key) {
+            (None, None, None) => file.tls.clone(),
+            (Some(ca), Some(cert), Some(key)) => Some(TlsFiles {
+                ca: ca.clone(),
+                cert: cert.clone(),
+                key: key.clone(),
+            }),
+            _ => {
+                return Err(invalid(
+                    "--ca, --cert and --key go together (mutual TLS needs all three)".into(),
+                ));
+            }
+        };
+        let allow_read = pick(
+            &flags.allow_read,
+            &Some(file.allow_read.clone()),
+            Vec::new(),
+        );
+        let allow_command = pick(
+            &flags.allow_command,
+            &Some(file.allow_command.clone()),
+            Vec::new(),
+        );
+        if let Some(bad) = allow_read
+            .iter()
+            .chain(&allow_command)
+            .find(|n| n.trim().is_empty())
+        {
+            return Err(invalid(format!(
+                "empty certificate name {bad:?} in an allow list"
+            )));
+        }
+        let endpoints: Vec<&String> = listen.iter().chain(&connect).collect();
+        let (tls, insecure_endpoints) = check_security(
+            mode,
+            &endpoints,
+            tls,
+            flags.insecure || file.insecure,
+            allow_read.len() + allow_command.len(),
+        )?;
         let names = pick(&flags.services, &file.services, Vec::new());
         let mut channels = if names.is_empty() {
             Channel::ALL.to_vec()
@@ -177,6 +366,10 @@ impl Settings {
             connect,
             channels,
             min_interval,
+            tls,
+            allow_read,
+            allow_command,
+            insecure_endpoints,
         })
     }
 }
@@ -204,7 +397,7 @@ mod tests {
     fn flags_override_the_file_and_defaults_fill_the_rest() {
         let file = parse(
             "[fusion]\nx = 1\n[bridge]\nmode = \"remote\"\nrobot = \"r1\"\n\
-             connect = [\"tcp/10.0.0.1:7447\"]\nservices = [\"grid\", \"commands\"]\n\
+             connect = [\"tcp/127.0.0.1:7447\"]\nservices = [\"grid\", \"commands\"]\n\
              max_rate_hz = { grid = 0.5, radar = 0 }\n",
         )
         .unwrap();
@@ -240,5 +433,99 @@ mod tests {
         assert!(err("[bridge]\nrobot = \"r\"\nservices = [\"gird\"]\n").contains("gird"));
         assert!(err("[bridge]\nrobot = \"r\"\nmax_rate_hz = { grid = -1 }\n").contains("grid"));
         assert!(err("[bridge]\nmode = \"remote\"\n").contains("--connect"));
+    }
+
+    #[test]
+    fn nothing_listens_beyond_localhost_without_authentication_unless_asked_by_name() {
+        let robot = |extra: &str| parse(&format!("[bridge]\nrobot = \"r1\"\n{extra}")).unwrap();
+        let resolve = |file: &BridgeSection, flags: &Overrides| Settings::resolve(file, flags);
+        // The default: this machine only, nothing to warn of.
+        let s = resolve(&robot(""), &Overrides::default()).unwrap();
+        assert_eq!(s.listen, ["tcp/127.0.0.1:7447"]);
+        assert!(s.insecure_endpoints.is_empty() && s.tls.is_none());
+        for local in [
+            "tcp/[::1]:7447",
+            "tcp/localhost:7447",
+            "tcp/127.0.0.2:7447#iface=lo",
+        ] {
+            let file = robot(&format!("listen = [\"{local}\"]\n"));
+            assert!(resolve(&file, &Overrides::default()).is_ok(), "{local}");
+        }
+        // Plain TCP beyond localhost: refused, with the way out named.
+        for open in ["tcp/0.0.0.0:7447", "tcp/192.168.1.20:7447", "tcp/[::]:7447"] {
+            let file = robot(&format!("listen = [\"{open}\"]\n"));
+            let err = resolve(&file, &Overrides::default())
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains("--insecure") && err.contains("tls/"), "{err}");
+            let flags = Overrides {
+                insecure: true,
+                ..Default::default()
+            };
+            let s = resolve(&file, &flags).unwrap();
+            assert_eq!(s.insecure_endpoints, [open]);
+        }
+        let file = parse("[bridge]\nmode = \"remote\"\nconnect = [\"tcp/10.0.0.1:7447\"]\n");
+        assert!(resolve(&file.unwrap(), &Overrides::default()).is_err());
+        let file = robot("listen = [\"udp/0.0.0.0:7447\"]\n");
+        let err = resolve(&file, &Overrides::default())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("not built in"), "{err}");
+    }
+
+    #[test]
+    fn tls_needs_certificates_and_a_robot_over_tls_its_allow_lists() {
+        let dir = std::env::temp_dir().join(format!("sonar-bridge-tls-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for f in ["ca.pem", "r1.pem", "r1.key"] {
+            std::fs::write(dir.join(f), "").unwrap();
+        }
+        let file = parse(&format!(
+            "[bridge]\nrobot = \"r1\"\nlisten = [\"tls/0.0.0.0:7447\"]\n\
+             allow_command = [\"laptop1\"]\n[bridge.tls]\nca = \"{0}/ca.pem\"\n\
+             cert = \"{0}/r1.pem\"\nkey = \"{0}/r1.key\"\n",
+            dir.display()
+        ))
+        .unwrap();
+        let s = Settings::resolve(&file, &Overrides::default()).unwrap();
+        assert_eq!(s.allow_command, ["laptop1"]);
+        assert!(s.tls.is_some() && s.insecure_endpoints.is_empty());
+        let flags = |f: Overrides| Settings::resolve(&BridgeSection::default(), &f);
+        let tls_robot = Overrides {
+            robot: Some("r1".into()),
+            listen: vec!["tls/0.0.0.0:7447".into()],
+            ca: Some(dir.join("ca.pem")),
+            cert: Some(dir.join("r1.pem")),
+            key: Some(dir.join("r1.key")),
+            ..Default::default()
+        };
+        let err = flags(tls_robot.clone()).unwrap_err().to_string();
+        assert!(err.contains("--allow-read"), "{err}");
+        let err = flags(Overrides {
+            key: None,
+            allow_read: vec!["x".into()],
+            ..tls_robot.clone()
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("go together"), "{err}");
+        let err = flags(Overrides {
+            cert: Some(dir.join("missing.pem")),
+            allow_read: vec!["x".into()],
+            ..tls_robot.clone()
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("missing.pem"), "{err}");
+        let err = flags(Overrides {
+            robot: Some("r1".into()),
+            allow_read: vec!["x".into()],
+            ..Default::default()
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("need tls/"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -18,7 +18,9 @@
 //! iceoryx2 side runs on the main thread (its ports are not `Send`) and uses zenoh's synchronous
 //! API with channel handlers, so no async code is written here.
 
+pub mod certs;
 pub mod channel;
 pub mod config;
 pub mod ports;
+pub mod session;
 pub mod wire;

@@ -9,9 +9,13 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Parser;
 use iceoryx2::prelude::*;
+use sonar_bridge::certs::{self, Peer};
 use sonar_bridge::channel::{self, Channel};
 use sonar_bridge::config::{BridgeSection, Mode, Overrides, Settings};
 use sonar_bridge::ports::{self, Reader, WriteError, Writer};
+use sonar_bridge::session;
+use sonar_bridge::wire::FrameError;
+use sonar_common::flood::FloodGuard;
 use sonar_common::ipc::IpcArgs;
 use sonar_common::throttle::Throttle;
 use tracing::{debug, info, warn};
@@ -43,13 +47,23 @@ const QUERY_TIMEOUT: Duration = Duration::from_secs(5);
 ///
 /// Settings come from the [bridge] table of --config, overridden by the flags below.
 ///
-/// Examples:
-///   sonar-bridge --robot r1                                    # on the robot, listens on :7447
-///   sonar-bridge --mode remote --connect tcp/192.168.1.20:7447 # on the laptop, then sonar-viewer
-///   sonar-bridge --mode remote --connect tcp/10.0.0.5:7447 --list-robots
+/// Security: by default the robot listens on this machine only (tcp/127.0.0.1:7447). Beyond it,
+/// use mutual TLS: certificates from `sonar-bridge certs`, tls/ endpoints, and on the robot the
+/// names of the peers that may read (--allow-read) or also command (--allow-command). Plain TCP
+/// beyond localhost is refused unless asked for by name with --insecure.
+///
+/// Examples (docs/bridge.md):
+///   sonar-bridge certs --dir certs robot1=192.168.1.20 laptop1     # once, on a trusted machine
+///   sonar-bridge --robot robot1 --listen tls/192.168.1.20:7447 --ca certs/ca.pem \
+///       --cert certs/robot1.pem --key certs/robot1.key --allow-command laptop1
+///   sonar-bridge --mode remote --connect tls/192.168.1.20:7447 --ca certs/ca.pem \
+///       --cert certs/laptop1.pem --key certs/laptop1.key        # on the laptop, then sonar-viewer
+///   sonar-bridge --robot r1                                    # this machine only, no TLS
 #[derive(Debug, Parser)]
-#[command(version, verbatim_doc_comment)]
+#[command(version, verbatim_doc_comment, args_conflicts_with_subcommands = true)]
 struct Args {
+    #[command(subcommand)]
+    command: Option<Command>,
     /// Pipeline configuration file (TOML) with a [bridge] table.
     #[arg(long, env = "SONAR_CONFIG")]
     config: Option<PathBuf>,
@@ -60,11 +74,11 @@ struct Args {
     /// robot seen).
     #[arg(long, env = "SONAR_ROBOT")]
     robot: Option<String>,
-    /// zenoh endpoints to listen on, comma-separated [default: tcp/0.0.0.0:7447 on a robot, none
-    /// on a remote].
+    /// zenoh endpoints to listen on, comma-separated, e.g. tls/192.168.1.20:7447 [default:
+    /// tcp/127.0.0.1:7447 on a robot (this machine only), none on a remote].
     #[arg(long, env = "SONAR_BRIDGE_LISTEN", value_delimiter = ',')]
     listen: Vec<String>,
-    /// zenoh endpoints to connect to, comma-separated, e.g. tcp/192.168.1.20:7447.
+    /// zenoh endpoints to connect to, comma-separated, e.g. tls/192.168.1.20:7447.
     #[arg(long, env = "SONAR_BRIDGE_CONNECT", value_delimiter = ',')]
     connect: Vec<String>,
     /// Services to carry, comma-separated: readings, driver_status, grid, radar, features,
@@ -77,17 +91,64 @@ struct Args {
     /// Print the robots whose bridges are reachable, one name a line, and exit.
     #[arg(long)]
     list_robots: bool,
+    /// The certificate authority's certificate (PEM): peers must show a certificate it signed.
+    #[arg(long, env = "SONAR_BRIDGE_CA", value_name = "CA.pem")]
+    ca: Option<PathBuf>,
+    /// This bridge's certificate (PEM), from `sonar-bridge certs`.
+    #[arg(long, env = "SONAR_BRIDGE_CERT", value_name = "NAME.pem")]
+    cert: Option<PathBuf>,
+    /// This bridge's private key (PEM).
+    #[arg(long, env = "SONAR_BRIDGE_KEY", value_name = "NAME.key")]
+    key: Option<PathBuf>,
+    /// Robot over TLS: certificate names of the peers that may read its channels, comma-separated.
+    #[arg(long, value_delimiter = ',', value_name = "NAMES")]
+    allow_read: Vec<String>,
+    /// Robot over TLS: certificate names of the peers that may read and command, comma-separated.
+    #[arg(long, value_delimiter = ',', value_name = "NAMES")]
+    allow_command: Vec<String>,
+    /// Allow plain TCP beyond localhost: no authentication, no encryption, anyone who reaches the
+    /// endpoint reads every channel and commands the robot. For a trusted network or a VPN only.
+    #[arg(long)]
+    insecure: bool,
     #[command(flatten)]
     ipc: IpcArgs,
 }
 
-fn main() -> ExitCode {
-    sonar_common::init_tracing();
-    let args = Args::parse();
-    sonar_common::report_exit("sonar-bridge", run(args))
+#[derive(Debug, clap::Subcommand)]
+enum Command {
+    /// Make the certificates of mutual TLS: a private certificate authority in DIR (made on the
+    /// first call, reused later) and NAME.pem + NAME.key for each peer. Give a robot the host
+    /// names or addresses laptops connect to it by (NAME=HOST,HOST). Existing files are never
+    /// overwritten; keys are written owner-only.
+    ///
+    /// Example:
+    ///   sonar-bridge certs --dir certs robot1=192.168.1.20,robot1.local laptop1 laptop2
+    #[command(verbatim_doc_comment)]
+    Certs {
+        /// Directory of ca.pem, ca.key and the peers' files.
+        #[arg(long, default_value = "sonar-certs")]
+        dir: PathBuf,
+        /// Days the peers' certificates are valid (the authority: five times as long).
+        #[arg(long, default_value_t = 730)]
+        days: u32,
+        /// NAME or NAME=HOST[,HOST…] per peer; NAME is what --allow-read/--allow-command list.
+        #[arg(required = true, value_name = "NAME[=HOSTS]")]
+        peers: Vec<Peer>,
+    },
 }
 
-fn run(args: Args) -> Result<()> {
+fn main() -> ExitCode {
+    // A peer can make zenoh log a line per attempt (a TLS handshake without a certificate).
+    let flood = FloodGuard::new(&["zenoh"]);
+    sonar_common::flood::init_tracing(flood.clone());
+    let args = Args::parse();
+    sonar_common::report_exit("sonar-bridge", run(args, &flood))
+}
+
+fn run(args: Args, flood: &FloodGuard) -> Result<()> {
+    if let Some(Command::Certs { dir, days, peers }) = &args.command {
+        return make_certs(dir, peers, *days);
+    }
     let file = match &args.config {
         Some(path) => BridgeSection::load(path)?,
         None => BridgeSection::default(),
@@ -99,8 +160,25 @@ fn run(args: Args) -> Result<()> {
         connect: args.connect.clone(),
         services: args.services.clone(),
         grid_max_rate_hz: args.grid_max_rate,
+        insecure: args.insecure,
+        ca: args.ca.clone(),
+        cert: args.cert.clone(),
+        key: args.key.clone(),
+        allow_read: args.allow_read.clone(),
+        allow_command: args.allow_command.clone(),
     };
     let settings = Settings::resolve(&file, &flags)?;
+    if !settings.insecure_endpoints.is_empty() {
+        warn!(
+            endpoints = ?settings.insecure_endpoints,
+            "INSECURE (asked for by --insecure): plain TCP beyond localhost, without \
+             authentication or encryption; anyone who reaches these endpoints reads every channel \
+             and commands the robot. Use mutual TLS (docs/bridge.md, Security)"
+        );
+    }
+    if let Some(tls) = &settings.tls {
+        warn_if_others_can_read(&tls.key);
+    }
     let session = open_session(&settings)?;
     if args.list_robots {
         for robot in robots_seen(&session)? {
@@ -122,11 +200,15 @@ fn run(args: Args) -> Result<()> {
         listen = ?settings.listen,
         connect = ?settings.connect,
         channels = ?settings.channels,
+        tls = settings.tls.is_some(),
+        allow_read = ?settings.allow_read,
+        allow_command = ?settings.allow_command,
         "bridge running"
     );
     let mut bridge = Bridge::new(&session, &node, &settings, &robot)?;
-    bridge.run(&node);
+    bridge.run(&node, flood);
     bridge.log_stats(true);
+    flood.report();
     drop(bridge);
     close(session)
 }
@@ -138,37 +220,48 @@ fn close(session: zenoh::Session) -> Result<()> {
         .map_err(|e| anyhow!("close the zenoh session: {e}"))
 }
 
-/// A zenoh peer with exactly the configured endpoints: no multicast scouting, so it reaches only
-/// the machines it is told of (and those they know of), and retries them for ever.
 fn open_session(settings: &Settings) -> Result<zenoh::Session> {
-    let mut config = zenoh::Config::default();
-    let json = |v: &[String]| serde_json_list(v);
-    let entries = [
-        ("mode", "\"peer\"".to_owned()),
-        ("listen/endpoints", json(&settings.listen)),
-        ("connect/endpoints", json(&settings.connect)),
-        ("scouting/multicast/enabled", "false".to_owned()),
-        // Keep retrying a robot that is not (yet) there instead of failing at start.
-        ("connect/timeout_ms", "-1".to_owned()),
-        ("connect/exit_on_failure", "false".to_owned()),
-    ];
-    for (key, value) in entries {
-        config
-            .insert_json5(key, &value)
-            .map_err(|e| anyhow!("zenoh setting {key} = {value}: {e}"))?;
-    }
+    let config = session::zenoh_config(settings, settings.robot.as_deref())?;
     zenoh::open(config)
         .wait()
         .map_err(|e| anyhow!("open the zenoh session (listen {:?}): {e}", settings.listen))
 }
 
-/// A JSON list of strings (endpoints hold no quotes or backslashes, but escape anyway).
-fn serde_json_list(items: &[String]) -> String {
-    let quoted: Vec<String> = items
-        .iter()
-        .map(|s| format!("\"{}\"", s.replace('\\', "\\\\").replace('"', "\\\"")))
-        .collect();
-    format!("[{}]", quoted.join(","))
+/// A private key others can read is as good as theirs: say so (as ssh would; not refused, since a
+/// copy made with the default umask is 0644 until fixed).
+fn warn_if_others_can_read(key: &std::path::Path) {
+    use std::os::unix::fs::PermissionsExt;
+    if let Ok(meta) = std::fs::metadata(key)
+        && meta.permissions().mode() & 0o077 != 0
+    {
+        warn!(
+            key = %key.display(),
+            mode = format!("{:o}", meta.permissions().mode() & 0o777),
+            "the private key is readable by others: chmod 600 it"
+        );
+    }
+}
+
+fn make_certs(dir: &std::path::Path, peers: &[Peer], days: u32) -> Result<()> {
+    let made = certs::make(dir, peers, days)?;
+    let ca = dir.join(certs::CA_CERT);
+    if made.new_authority {
+        println!(
+            "made the authority: {} (copy to every machine) and {} (keep it here, nowhere else)",
+            ca.display(),
+            dir.join(certs::CA_KEY).display()
+        );
+    } else {
+        println!("signed with the authority in {}", ca.display());
+    }
+    for (cert, key) in made.peers {
+        println!(
+            "{} + {} (copy both to that machine only)",
+            cert.display(),
+            key.display()
+        );
+    }
+    Ok(())
 }
 
 /// The names of the robots whose bridges are seen within [`DISCOVERY_TIME`], sorted. Watches
@@ -221,7 +314,9 @@ struct Counts {
     dropped_for_rate: u64,
     /// Another layout version: refused.
     version_mismatches: u64,
-    /// Damaged frames, or the local publication failed.
+    /// Damaged, oversized or inconsistent frames: refused before they were decoded further.
+    rejected: u64,
+    /// The local publication (or the link's) failed.
     failures: u64,
 }
 
@@ -376,7 +471,8 @@ impl Bridge {
     }
 
     /// Until Ctrl-C or SIGTERM.
-    fn run(&mut self, node: &Node<iceoryx2::service::ipc::Service>) {
+    fn run(&mut self, node: &Node<iceoryx2::service::ipc::Service>, flood: &FloodGuard) {
+        let mut last_flood_report = Instant::now();
         loop {
             let now = Instant::now();
             self.watch_peers();
@@ -389,6 +485,10 @@ impl Bridge {
                 for inbound in &mut self.inbound {
                     inbound.write.refresh();
                 }
+            }
+            if now.duration_since(last_flood_report) >= sonar_common::flood::PERIOD {
+                last_flood_report = now;
+                flood.report();
             }
             if now.duration_since(self.last_stats) >= STATS_PERIOD {
                 self.last_stats = now;
@@ -474,8 +574,7 @@ impl Bridge {
     fn pump_in(&mut self) {
         for inbound in &mut self.inbound {
             while let Ok(Some(sample)) = inbound.subscriber.try_recv() {
-                let frame = sample.payload().to_bytes();
-                inbound.take(&frame);
+                inbound.take_sample(&sample);
             }
         }
     }
@@ -508,17 +607,16 @@ impl Bridge {
     }
 
     fn take_replies(&mut self) {
-        let inbound = &mut self.inbound;
+        let (inbound, robot) = (&mut self.inbound, &self.robot);
         self.queries.retain(|replies| {
             loop {
                 match replies.try_recv() {
                     Ok(Some(reply)) => {
                         let Ok(sample) = reply.result() else { continue };
                         let key = sample.key_expr().as_str();
-                        if let Some(i) =
-                            inbound.iter_mut().find(|i| key.ends_with(i.channel.name()))
-                        {
-                            i.take(&sample.payload().to_bytes());
+                        // The whole key: `…/localized_pose` ends with `pose` too.
+                        if let Some(i) = inbound.iter_mut().find(|i| key == i.channel.key(robot)) {
+                            i.take_sample(sample);
                         }
                     }
                     Ok(None) => return true,
@@ -544,6 +642,7 @@ impl Bridge {
                     bytes = counts.bytes,
                     dropped_for_rate = counts.dropped_for_rate,
                     version_mismatches = counts.version_mismatches,
+                    rejected = counts.rejected,
                     failures = counts.failures,
                     "counts"
                 );
@@ -585,6 +684,18 @@ impl Outbound {
 }
 
 impl Inbound {
+    /// A message from the link: refused unread if it is longer than the channel's payload can be
+    /// (zenoh has already capped it at the longest of all inbound channels), else published.
+    fn take_sample(&mut self, sample: &Sample) {
+        let len = sample.payload().len();
+        let cap = self.write.max_frame_len();
+        if len > cap {
+            self.refuse(&WriteError::Frame(FrameError::FrameTooLong { len, cap }));
+            return;
+        }
+        self.take(&sample.payload().to_bytes());
+    }
+
     /// Publishes a frame locally, unless it repeats the last one or is refused.
     fn take(&mut self, frame: &[u8]) {
         if self.channel.is_state() && self.last_written.as_deref() == Some(frame) {
@@ -598,21 +709,24 @@ impl Inbound {
                     self.last_written = Some(frame.to_vec());
                 }
             }
-            Err(e) => {
-                let mismatch = matches!(&e, WriteError::Frame(f) if f.is_version_mismatch());
-                if mismatch {
-                    self.counts.version_mismatches += 1;
-                } else {
-                    self.counts.failures += 1;
-                }
-                if let Some(left_out) = self.refused_log.allow(Instant::now()) {
-                    warn!(
-                        channel = %self.channel,
-                        left_out,
-                        "refused a message: {e}"
-                    );
-                }
-            }
+            Err(e) => self.refuse(&e),
+        }
+    }
+
+    /// Counts a message that was not published, and logs it (at most once per 10 s, with the
+    /// number left out since).
+    fn refuse(&mut self, e: &WriteError) {
+        match e {
+            WriteError::Frame(f) if f.is_version_mismatch() => self.counts.version_mismatches += 1,
+            WriteError::Frame(_) => self.counts.rejected += 1,
+            WriteError::Ipc(_) => self.counts.failures += 1,
+        }
+        if let Some(left_out) = self.refused_log.allow(Instant::now()) {
+            warn!(
+                channel = %self.channel,
+                left_out,
+                "refused a message: {e}"
+            );
         }
     }
 }

@@ -8,10 +8,10 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
-use sonar_common::ipc::{self, IpcError, PubSub};
+use sonar_common::ipc::{self, FeaturesHeader, GridHeader, IpcError, PubSub};
 
 use crate::channel::Channel;
-use crate::wire::{self, Codec, FrameError, Plain, read_plain};
+use crate::wire::{self, Codec, Expect, FrameError, Plain, read_plain};
 
 type Ipc = iceoryx2::service::ipc::Service;
 
@@ -31,6 +31,8 @@ type WriteFn = Box<dyn FnMut(&[u8]) -> Result<(), WriteError>>;
 
 /// Publishes one framed sample into a local service.
 pub struct Writer {
+    /// What the service's payload type takes: frames are checked against it.
+    expect: Expect,
     write: WriteFn,
     /// Hands the latest sample (history 1) to subscribers that joined since: a publisher that
     /// idles must do this itself (`docs/ipc.md`, late joiners).
@@ -44,12 +46,46 @@ impl std::fmt::Debug for Writer {
 }
 
 impl Writer {
+    /// The longest frame the service's payload type can take; a longer one is refused unread.
+    pub fn max_frame_len(&self) -> usize {
+        self.expect.max_frame_len()
+    }
+
     pub fn write(&mut self, frame: &[u8]) -> Result<(), WriteError> {
         (self.write)(frame)
     }
 
     pub fn refresh(&mut self) {
         (self.refresh)()
+    }
+}
+
+/// Cells per side of the largest grid the fusion process makes (its `MAX_CELLS_PER_SIDE`): a grid
+/// frame declaring more is refused before it is decompressed.
+pub const MAX_GRID_SIDE: usize = 4096;
+
+/// How many elements a slice service's samples hold.
+struct SliceLimits<H> {
+    /// The publisher's first segment (it grows in power-of-two steps).
+    initial: usize,
+    /// How many the header says the slice has: a frame whose slice disagrees is refused.
+    len_of: fn(&H) -> usize,
+}
+
+/// What a frame of `channel` must be: its payload type's layout, and for a slice the most
+/// elements a sample can have.
+pub fn expect(channel: Channel) -> Expect {
+    match channel {
+        Channel::Readings => Expect::fixed::<ipc::Reading>(),
+        Channel::DriverStatus => Expect::fixed::<ipc::DriverStatus>(),
+        Channel::Radar => Expect::fixed::<ipc::Radar>(),
+        Channel::FusionStatus => Expect::fixed::<ipc::FusionStatus>(),
+        Channel::Pose => Expect::fixed::<ipc::Pose2D>(),
+        Channel::LocalizedPose => Expect::fixed::<ipc::LocalizedPose>(),
+        Channel::Commands => Expect::fixed::<ipc::ScanCommand>(),
+        Channel::FusionCommands => Expect::fixed::<ipc::FusionCommand>(),
+        Channel::Grid => Expect::slice::<GridHeader, u8>(MAX_GRID_SIDE * MAX_GRID_SIDE),
+        Channel::Features => Expect::slice::<FeaturesHeader, ipc::FeatureRecord>(ipc::MAX_FEATURES),
     }
 }
 
@@ -77,20 +113,35 @@ pub fn writer(node: &Node<Ipc>, channel: Channel) -> Result<Writer, IpcError> {
         None
     };
     match channel {
-        Channel::Readings => fixed_writer(node, ipc::readings_service, notifier),
-        Channel::DriverStatus => fixed_writer(node, ipc::driver_status_service, notifier),
-        Channel::Radar => fixed_writer(node, ipc::radar_service, notifier),
-        Channel::FusionStatus => fixed_writer(node, ipc::fusion_status_service, notifier),
-        Channel::Pose => fixed_writer(node, ipc::pose_service, notifier),
-        Channel::LocalizedPose => fixed_writer(node, ipc::localized_pose_service, notifier),
-        Channel::Commands => fixed_writer(node, ipc::commands_service, notifier),
-        Channel::FusionCommands => fixed_writer(node, ipc::fusion_commands_service, notifier),
+        Channel::Readings => fixed_writer(node, channel, ipc::readings_service, notifier),
+        Channel::DriverStatus => fixed_writer(node, channel, ipc::driver_status_service, notifier),
+        Channel::Radar => fixed_writer(node, channel, ipc::radar_service, notifier),
+        Channel::FusionStatus => fixed_writer(node, channel, ipc::fusion_status_service, notifier),
+        Channel::Pose => fixed_writer(node, channel, ipc::pose_service, notifier),
+        Channel::LocalizedPose => {
+            fixed_writer(node, channel, ipc::localized_pose_service, notifier)
+        }
+        Channel::Commands => fixed_writer(node, channel, ipc::commands_service, notifier),
+        Channel::FusionCommands => {
+            fixed_writer(node, channel, ipc::fusion_commands_service, notifier)
+        }
         // 400² cells to start with; a larger grid grows the segment (power-of-two steps).
-        Channel::Grid => slice_writer(ipc::grid_service(node)?, channel, 400 * 400, notifier),
+        Channel::Grid => slice_writer(
+            ipc::grid_service(node)?,
+            channel,
+            SliceLimits {
+                initial: 400 * 400,
+                len_of: |h: &GridHeader| (h.width as usize).saturating_mul(h.height as usize),
+            },
+            notifier,
+        ),
         Channel::Features => slice_writer(
             ipc::features_service(node)?,
             channel,
-            ipc::MAX_FEATURES,
+            SliceLimits {
+                initial: ipc::MAX_FEATURES,
+                len_of: |h: &FeaturesHeader| h.feature_count as usize,
+            },
             notifier,
         ),
     }
@@ -149,6 +200,7 @@ fn notify(notifier: &Option<Notifier<Ipc>>) -> Result<(), IpcError> {
 
 fn fixed_writer<T: Plain + Debug>(
     node: &Node<Ipc>,
+    channel: Channel,
     open: fn(&Node<Ipc>) -> Result<PubSub<T>, IpcError>,
     notifier: Option<Notifier<Ipc>>,
 ) -> Result<Writer, IpcError> {
@@ -158,11 +210,13 @@ fn fixed_writer<T: Plain + Debug>(
             .create()
             .map_err(|e| IpcError::new("create publisher", e))?,
     );
-    let tag = wire::tag::<T>(None);
+    let expect = expect(channel);
+    let check = expect.clone();
     let refresher = publisher.clone();
     Ok(Writer {
+        expect,
         write: Box::new(move |frame| {
-            let decoded = wire::decode(frame, &tag, size_of::<T>(), 1)?;
+            let decoded = wire::decode(frame, &check)?;
             let value = match (read_plain::<T>(decoded.header), decoded.slice.is_empty()) {
                 (Some(value), true) => value,
                 _ => return Err(FrameError::Truncated("fixed-size payload").into()),
@@ -181,26 +235,32 @@ fn fixed_writer<T: Plain + Debug>(
 fn slice_writer<H: Plain + Debug + Default, E: Plain + Debug + Default>(
     service: PortFactory<Ipc, [E], H>,
     channel: Channel,
-    initial_len: usize,
+    limits: SliceLimits<H>,
     notifier: Option<Notifier<Ipc>>,
 ) -> Result<Writer, IpcError> {
     let publisher = std::rc::Rc::new(
         service
             .publisher_builder()
-            .initial_max_slice_len(initial_len)
+            .initial_max_slice_len(limits.initial)
             .allocation_strategy(AllocationStrategy::PowerOfTwo)
             .create()
             .map_err(|e| IpcError::new(format!("create {channel} publisher"), e))?,
     );
-    let tag = wire::tag::<H>(Some(E::tag()));
+    let expect = expect(channel);
+    let check = expect.clone();
     let refresher = publisher.clone();
     let element = size_of::<E>();
     Ok(Writer {
+        expect,
         write: Box::new(move |frame| {
-            let decoded = wire::decode(frame, &tag, size_of::<H>(), element)?;
+            let decoded = wire::decode(frame, &check)?;
             let header =
                 read_plain::<H>(decoded.header).ok_or(FrameError::Truncated("slice header"))?;
             let len = decoded.slice.len() / element;
+            let said = (limits.len_of)(&header);
+            if said != len {
+                return Err(FrameError::HeaderDisagrees { said, carried: len }.into());
+            }
             let mut sample = publisher
                 .loan_slice_uninit(len)
                 .map_err(|e| IpcError::new(format!("loan {channel} sample of {len}"), e))?;

@@ -16,7 +16,10 @@
 //! ```
 //!
 //! The type tag carries the layout version (every type name ends in it), so a receiver built for
-//! another layout refuses the message instead of misreading it. Bytes are in the sender's native
+//! another layout refuses the message instead of misreading it. A frame comes from the network:
+//! [`decode`] checks every length it declares (the whole frame's, the header's, the slice's, the
+//! size LZ4 promises) against what the receiving payload type can hold ([`Expect`]) before it
+//! allocates anything, so a lying frame costs its own bytes and no more. Bytes are in the sender's native
 //! order, as in shared memory: both ends are little-endian machines (x86-64, AArch64), which the
 //! frame's own fields assume too.
 
@@ -30,6 +33,10 @@ const MAGIC: &[u8; 4] = b"SNBR";
 /// Version of the frame itself (not of the payloads, which the type tag names).
 pub const FRAME_VERSION: u8 = 1;
 const FIXED_LEN: usize = 16;
+/// The most bytes an LZ4 block can expand to per compressed byte: a match token of 1 byte plus a
+/// 2-byte offset yields at most 255 bytes per extra length byte, so any declared size above
+/// 255 × the block's length is a lie, refused before the output buffer is allocated.
+const LZ4_MAX_RATIO: usize = 255;
 
 /// How the slice travels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -58,6 +65,14 @@ pub enum FrameError {
     Codec(u8),
     #[error("decompression failed: {0}")]
     Decompress(String),
+    #[error("frame of {len} bytes, more than the {cap} this payload can take")]
+    FrameTooLong { len: usize, cap: usize },
+    #[error("declares a slice of {declared} bytes, more than the {cap} this payload can take")]
+    SliceTooLong { declared: usize, cap: usize },
+    #[error("its header says {said} elements, the slice carries {carried}")]
+    HeaderDisagrees { said: usize, carried: usize },
+    #[error("declares {declared} bytes from {compressed} compressed, beyond LZ4's ratio")]
+    Lz4Ratio { declared: usize, compressed: usize },
 }
 
 impl FrameError {
@@ -67,6 +82,55 @@ impl FrameError {
             self,
             Self::FrameVersion(_) | Self::TypeMismatch { .. } | Self::HeaderLength { .. }
         )
+    }
+}
+
+/// What a receiver takes: the layout its payload type has and the most elements its slice holds.
+/// Every length a frame declares is checked against it before anything is allocated.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Expect {
+    /// The type tag, as [`tag`] makes it.
+    pub tag: String,
+    /// The fixed-size payload's or the slice's user header's size.
+    pub header_len: usize,
+    /// Bytes of one slice element (1 for a fixed-size payload, whose slice must be empty).
+    pub element_len: usize,
+    /// The most elements the slice may have (0: a fixed-size payload).
+    pub max_elements: usize,
+}
+
+impl Expect {
+    /// A fixed-size payload `T`.
+    pub fn fixed<T: Plain>() -> Self {
+        Self {
+            tag: tag::<T>(None),
+            header_len: size_of::<T>(),
+            element_len: 1,
+            max_elements: 0,
+        }
+    }
+
+    /// A slice of at most `max_elements` `E` with user header `H`.
+    pub fn slice<H: Plain, E: Plain>(max_elements: usize) -> Self {
+        Self {
+            tag: tag::<H>(Some(E::tag())),
+            header_len: size_of::<H>(),
+            element_len: size_of::<E>(),
+            max_elements,
+        }
+    }
+
+    /// The most slice bytes (uncompressed) a frame may declare.
+    pub fn max_slice_len(&self) -> usize {
+        self.max_elements.saturating_mul(self.element_len)
+    }
+
+    /// The longest frame this receiver takes: the raw slice, or its LZ4 block if that is longer
+    /// (incompressible input grows by 1/255 plus a few bytes).
+    pub fn max_frame_len(&self) -> usize {
+        let slice = self.max_slice_len();
+        let lz4_worst = slice + slice / LZ4_MAX_RATIO + 16;
+        FIXED_LEN + self.tag.len() + self.header_len + lz4_worst
     }
 }
 
@@ -162,19 +226,23 @@ pub struct Decoded<'a> {
     pub slice: std::borrow::Cow<'a, [u8]>,
 }
 
-/// Takes a frame apart, refusing one that does not carry `expected_tag` with a `header_len`-byte
-/// header and a slice of whole `element_len`-byte elements.
-pub fn decode<'a>(
-    frame: &'a [u8],
-    expected_tag: &str,
-    header_len: usize,
-    element_len: usize,
-) -> Result<Decoded<'a>, FrameError> {
+/// Takes a frame apart, refusing one that does not carry `expect`'s layout or declares more than
+/// it can hold. Nothing is allocated before every declared length has been checked: an LZ4 slice
+/// is decompressed into a buffer of its declared size only when that size is within the cap and
+/// within what the compressed bytes can expand to.
+pub fn decode<'a>(frame: &'a [u8], expect: &Expect) -> Result<Decoded<'a>, FrameError> {
     if frame.len() < FIXED_LEN || &frame[..4] != MAGIC {
         return Err(FrameError::NotAFrame(frame.len()));
     }
     if frame[4] != FRAME_VERSION {
         return Err(FrameError::FrameVersion(frame[4]));
+    }
+    let cap = expect.max_frame_len();
+    if frame.len() > cap {
+        return Err(FrameError::FrameTooLong {
+            len: frame.len(),
+            cap,
+        });
     }
     let codec = frame[5];
     let tag_len = usize::from(frame[6]);
@@ -188,32 +256,44 @@ pub fn decode<'a>(
     let tag = rest
         .get(..tag_len)
         .ok_or(FrameError::Truncated("type tag"))?;
-    if tag != expected_tag.as_bytes() {
+    if tag != expect.tag.as_bytes() {
         return Err(FrameError::TypeMismatch {
             got: String::from_utf8_lossy(tag).into_owned(),
-            expected: expected_tag.to_owned(),
+            expected: expect.tag.clone(),
         });
     }
-    if got_header_len != header_len {
+    if got_header_len != expect.header_len {
         return Err(FrameError::HeaderLength {
             got: got_header_len,
-            expected: header_len,
+            expected: expect.header_len,
         });
     }
     let rest = &rest[tag_len..];
     let header = rest
-        .get(..header_len)
+        .get(..expect.header_len)
         .ok_or(FrameError::Truncated("header"))?;
-    let body = &rest[header_len..];
-    if element_len == 0 || slice_len % element_len != 0 {
+    let body = &rest[expect.header_len..];
+    if expect.element_len == 0 || slice_len % expect.element_len != 0 {
         return Err(FrameError::SliceLength {
             len: slice_len,
-            element: element_len,
+            element: expect.element_len,
+        });
+    }
+    if slice_len > expect.max_slice_len() {
+        return Err(FrameError::SliceTooLong {
+            declared: slice_len,
+            cap: expect.max_slice_len(),
         });
     }
     let slice = match codec {
         0 if body.len() == slice_len => std::borrow::Cow::Borrowed(body),
         0 => return Err(FrameError::Truncated("slice")),
+        1 if slice_len > body.len().saturating_mul(LZ4_MAX_RATIO) => {
+            return Err(FrameError::Lz4Ratio {
+                declared: slice_len,
+                compressed: body.len(),
+            });
+        }
         1 => std::borrow::Cow::Owned(
             lz4_flex::block::decompress(body, slice_len)
                 .map_err(|e| FrameError::Decompress(e.to_string()))?,
@@ -231,8 +311,9 @@ mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
 
-    fn grid_tag() -> String {
-        tag::<GridHeader>(Some("u8"))
+    /// A grid of at most 400² cells, as a test receiver.
+    fn grid() -> Expect {
+        Expect::slice::<GridHeader, u8>(400 * 400)
     }
 
     #[test]
@@ -247,20 +328,42 @@ mod tests {
         let cells: Vec<u8> = (0..60_000u32)
             .map(|i| if i % 97 < 60 { 255 } else { (i % 254) as u8 })
             .collect();
-        let frame = encode(&grid_tag(), bytes_of(&header), &cells, Codec::Lz4);
+        let frame = encode(&grid().tag, bytes_of(&header), &cells, Codec::Lz4);
         assert!(frame.len() < cells.len() / 2, "{} bytes", frame.len());
-        let got = decode(&frame, &grid_tag(), size_of::<GridHeader>(), 1).unwrap();
+        let got = decode(&frame, &grid()).unwrap();
         assert_eq!(read_plain::<GridHeader>(got.header), Some(header));
         assert_eq!(&*got.slice, &cells[..]);
     }
 
     #[test]
+    fn the_most_compressible_and_the_least_compressible_grids_fit_the_caps() {
+        // All cells alike compress the most: the declared size must stay within LZ4's ratio.
+        let expect = Expect::slice::<GridHeader, u8>(1024 * 1024);
+        let uniform = vec![127u8; expect.max_elements];
+        let frame = encode(&expect.tag, &[0; 88], &uniform, Codec::Lz4);
+        assert_eq!(decode(&frame, &expect).unwrap().slice.len(), uniform.len());
+        // Noise does not compress: the block is longer than the cells, and still within the cap.
+        let mut x = 0x9E37_79B9u32;
+        let noise: Vec<u8> = (0..expect.max_elements)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 17;
+                x ^= x << 5;
+                x as u8
+            })
+            .collect();
+        let frame = encode(&expect.tag, &[0; 88], &noise, Codec::Lz4);
+        assert!(frame.len() > noise.len());
+        assert_eq!(&*decode(&frame, &expect).unwrap().slice, &noise[..]);
+    }
+
+    #[test]
     fn a_fixed_payload_round_trips_raw() {
         let cmd = ScanCommand::new(sonar_common::ipc::ScanCommandKind::LocalScan, -30.0, 30.0);
-        let tag = tag::<ScanCommand>(None);
-        assert_eq!(tag, "sonar::ScanCommandV1");
-        let frame = encode(&tag, bytes_of(&cmd), &[], Codec::Raw);
-        let got = decode(&frame, &tag, size_of::<ScanCommand>(), 1).unwrap();
+        let expect = Expect::fixed::<ScanCommand>();
+        assert_eq!(expect.tag, "sonar::ScanCommandV1");
+        let frame = encode(&expect.tag, bytes_of(&cmd), &[], Codec::Raw);
+        let got = decode(&frame, &expect).unwrap();
         assert_eq!(read_plain::<ScanCommand>(got.header), Some(cmd));
         assert!(got.slice.is_empty());
     }
@@ -274,44 +377,78 @@ mod tests {
             &[],
             Codec::Raw,
         );
-        let err = decode(
-            &frame,
-            &tag::<DriverStatus>(None),
-            size_of::<DriverStatus>(),
-            1,
-        )
-        .unwrap_err();
+        let err = decode(&frame, &Expect::fixed::<DriverStatus>()).unwrap_err();
         assert!(err.is_version_mismatch(), "{err}");
-        let mut future = encode(&grid_tag(), &[0; 88], &[], Codec::Raw);
+        let mut future = encode(&grid().tag, &[0; 88], &[], Codec::Raw);
         future[4] = FRAME_VERSION + 1;
-        assert!(
-            decode(&future, &grid_tag(), 88, 1)
-                .unwrap_err()
-                .is_version_mismatch()
-        );
+        assert!(decode(&future, &grid()).unwrap_err().is_version_mismatch());
     }
 
     #[test]
     fn damaged_frames_are_errors_not_panics() {
-        let grid = grid_tag();
-        let frame = encode(&grid, &[7; 88], &[1, 2, 3, 4, 5, 6, 7, 8], Codec::Lz4);
+        let frame = encode(&grid().tag, &[7; 88], &[1, 2, 3, 4, 5, 6, 7, 8], Codec::Lz4);
         for cut in 0..frame.len() {
-            let err = decode(&frame[..cut], &grid, 88, 1).unwrap_err();
+            let err = decode(&frame[..cut], &grid()).unwrap_err();
             assert!(!err.is_version_mismatch(), "cut at {cut}: {err}");
         }
-        let features = encode(
-            &tag::<FeaturesHeader>(Some("f")),
-            &[0; 56],
-            &[0; 73],
-            Codec::Raw,
-        );
+        let features = Expect::slice::<FeaturesHeader, FeatureRecord>(4);
+        let ragged = encode(&features.tag, &[0; 56], &[0; 73], Codec::Raw);
         assert!(matches!(
-            decode(&features, &tag::<FeaturesHeader>(Some("f")), 56, 72),
+            decode(&ragged, &features),
             Err(FrameError::SliceLength { .. })
         ));
         assert!(matches!(
-            decode(b"hello, world, not a frame", &grid, 88, 1),
+            decode(b"hello, world, not a frame", &grid()),
             Err(FrameError::NotAFrame(_))
         ));
+    }
+
+    /// Sets the slice length a frame declares.
+    fn declare_slice_len(frame: &mut [u8], len: u32) {
+        frame[12..16].copy_from_slice(&len.to_le_bytes());
+    }
+
+    #[test]
+    fn the_4_kb_bomb_of_the_fault_injection_is_refused_before_it_allocates() {
+        // A command frame (the robot's only inbound channel) claiming an LZ4 slice of 4 GiB: it
+        // aborted the bridge with "memory allocation of 4294967295 bytes failed".
+        let command = Expect::fixed::<ScanCommand>();
+        let mut bomb = encode(&command.tag, &[0; 16], &[], Codec::Raw);
+        bomb[5] = Codec::Lz4 as u8;
+        declare_slice_len(&mut bomb, u32::MAX);
+        let mut bomb = bomb[..FIXED_LEN + command.tag.len() + 16].to_vec();
+        bomb.resize(bomb.len() + 4000, 0xAB);
+        let err = decode(&bomb, &command).unwrap_err();
+        assert!(matches!(err, FrameError::FrameTooLong { .. }), "{err}");
+        // The same declaration in a frame short enough to pass the frame cap.
+        bomb.truncate(FIXED_LEN + command.tag.len() + 16);
+        let err = decode(&bomb, &command).unwrap_err();
+        assert!(matches!(err, FrameError::SliceTooLong { .. }), "{err}");
+    }
+
+    #[test]
+    fn each_declared_length_is_held_against_its_cap() {
+        let expect = grid();
+        let cells = vec![0u8; 1000];
+        // Within the cap, but far beyond what 1000 cells' block can expand to.
+        let mut frame = encode(&expect.tag, &[0; 88], &cells, Codec::Lz4);
+        declare_slice_len(&mut frame, 150_000);
+        let err = decode(&frame, &expect).unwrap_err();
+        assert!(matches!(err, FrameError::Lz4Ratio { .. }), "{err}");
+        // One cell over the cap, raw: refused by the declaration, not by the missing bytes.
+        let mut frame = encode(&expect.tag, &[0; 88], &cells, Codec::Raw);
+        declare_slice_len(&mut frame, (400 * 400 + 1) as u32);
+        let err = decode(&frame, &expect).unwrap_err();
+        assert!(matches!(err, FrameError::SliceTooLong { .. }), "{err}");
+        // A frame longer than the cap whatever it declares: 2 MB for a 160 kB grid.
+        let big = encode(&expect.tag, &[0; 88], &vec![1u8; 2_000_000], Codec::Raw);
+        let err = decode(&big, &expect).unwrap_err();
+        assert!(matches!(err, FrameError::FrameTooLong { .. }), "{err}");
+        assert!(expect.max_frame_len() < 2_000_000);
+        // A fixed-size payload takes no slice at all.
+        let command = Expect::fixed::<ScanCommand>();
+        let frame = encode(&command.tag, &[0; 16], &[9], Codec::Raw);
+        let err = decode(&frame, &command).unwrap_err();
+        assert!(matches!(err, FrameError::SliceTooLong { .. }), "{err}");
     }
 }

@@ -14,6 +14,7 @@
 
 use std::path::PathBuf;
 
+pub mod flood;
 pub mod ipc;
 pub mod logging;
 pub mod namespace;

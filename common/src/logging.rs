@@ -65,8 +65,9 @@ pub fn init(to: LogTo) {
     }
 }
 
-/// `RUST_LOG`'s directives (default `info`), with iceoryx2 at `error` unless they name it.
-fn filter_directives(rust_log: Option<&str>) -> String {
+/// `RUST_LOG`'s directives (default `info`), with iceoryx2 at `error` unless they name it (also for
+/// `flood::init_tracing`, which installs its own subscriber after `init(LogTo::Nowhere)`).
+pub(crate) fn filter_directives(rust_log: Option<&str>) -> String {
     let given = rust_log.map(str::trim).filter(|s| !s.is_empty());
     match given {
         Some(d) if d.contains("iceoryx2") => d.to_owned(),

@@ -14,13 +14,19 @@
 //! refuses what it cannot serve). After the handshake it copies bytes both ways untouched: the
 //! WebSocket accept key does not depend on the subprotocol and no extension is negotiated.
 //!
-//! Plain threads, two per connection (a viewer or two, never thousands): nothing async here.
+//! Plain threads, two per connection, and at most [`Front::max_clients`] connections at once (a
+//! viewer or two, never thousands): nothing async here. A connection over the limit, or one for
+//! which no thread can be started (the process's thread limit), is closed at once and counted;
+//! such refusals are logged at most once per 10 s with the number left out.
 
 use std::io::{self, Read, Write};
 use std::net::{Shutdown, SocketAddr, TcpListener, TcpStream};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::thread;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
+use sonar_common::throttle::Throttle;
 use tracing::{debug, info, warn};
 
 /// The subprotocol of the ws-protocol specification, which the crate does not name.
@@ -35,20 +41,60 @@ const MAX_HEAD: usize = 16 * 1024;
 /// A connection that has not finished its handshake by then is dropped.
 const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 
+/// Starts a connection's thread; a test can make it fail as a thread limit would.
+type Spawn = fn(Box<dyn FnOnce() + Send>) -> io::Result<()>;
+
+fn spawn_thread(work: Box<dyn FnOnce() + Send>) -> io::Result<()> {
+    thread::Builder::new()
+        .name("foxglove-client".into())
+        .spawn(work)
+        .map(drop)
+}
+
 /// The public listener and the inner server's address.
 #[derive(Debug)]
 pub struct Front {
     listener: TcpListener,
     inner: SocketAddr,
+    max_clients: usize,
+    /// Connections being served now.
+    active: Arc<AtomicUsize>,
+    /// Connections closed at once: over the limit, or no thread for them.
+    refused: u64,
+    refused_log: Throttle,
+    spawn: Spawn,
+}
+
+/// Counts a connection as active until dropped (also when its thread ends by a panic).
+struct Active(Arc<AtomicUsize>);
+
+impl Drop for Active {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::AcqRel);
+    }
 }
 
 impl Front {
-    /// Listens on `host:port` for clients of the inner server at `inner`.
-    pub fn bind(host: &str, port: u16, inner: SocketAddr) -> io::Result<Self> {
+    /// Listens on `host:port` for at most `max_clients` clients at once of the inner server at
+    /// `inner`.
+    pub fn bind(host: &str, port: u16, inner: SocketAddr, max_clients: usize) -> io::Result<Self> {
         let listener = TcpListener::bind((host, port))?;
         // Polled from the main loop, which wakes every few milliseconds anyway.
         listener.set_nonblocking(true)?;
-        Ok(Self { listener, inner })
+        Ok(Self {
+            listener,
+            inner,
+            max_clients,
+            active: Arc::new(AtomicUsize::new(0)),
+            refused: 0,
+            refused_log: Throttle::new(Duration::from_secs(10)),
+            spawn: spawn_thread,
+        })
+    }
+
+    /// Connections closed at once since the start (over the limit, or no thread for them).
+    pub fn refused(&self) -> u64 {
+        self.refused
     }
 
     /// The port clients connect to (the one chosen when bound to port 0).
@@ -56,16 +102,23 @@ impl Front {
         Ok(self.listener.local_addr()?.port())
     }
 
-    /// Hands each waiting connection to a thread of its own; returns when none is left.
-    pub fn accept_waiting(&self) {
+    /// Hands each waiting connection to a thread of its own, or closes it when the limit is
+    /// reached or no thread can be started; returns when none is left.
+    pub fn accept_waiting(&mut self) {
         loop {
             match self.listener.accept() {
                 Ok((client, peer)) => {
-                    let inner = self.inner;
-                    thread::spawn(move || match serve(client, inner) {
-                        Ok(()) => debug!(%peer, "client disconnected"),
-                        Err(e) => info!(%peer, "client dropped: {e}"),
-                    });
+                    if let Err(why) = self.start(client, peer) {
+                        self.refused += 1;
+                        if let Some(left_out) = self.refused_log.allow(Instant::now()) {
+                            warn!(
+                                %peer,
+                                refused = self.refused,
+                                left_out,
+                                "connection closed: {why}"
+                            );
+                        }
+                    }
                 }
                 Err(e) if e.kind() == io::ErrorKind::WouldBlock => return,
                 Err(e) => {
@@ -74,6 +127,31 @@ impl Front {
                 }
             }
         }
+    }
+}
+
+impl Front {
+    /// Serves `client` on a thread of its own, within the limit.
+    fn start(&self, client: TcpStream, peer: SocketAddr) -> Result<(), String> {
+        // Only this thread adds to the count, so checking then adding cannot overshoot.
+        if self.active.load(Ordering::Acquire) >= self.max_clients {
+            return Err(format!(
+                "{} clients already (--max-clients)",
+                self.max_clients
+            ));
+        }
+        self.active.fetch_add(1, Ordering::AcqRel);
+        let active = Active(self.active.clone());
+        let inner = self.inner;
+        (self.spawn)(Box::new(move || {
+            let _active = active;
+            match serve(client, inner) {
+                Ok(()) => debug!(%peer, "client disconnected"),
+                Err(e) => info!(%peer, "client dropped: {e}"),
+            }
+        }))
+        // The closure (with the connection and its count) was dropped with the error.
+        .map_err(|e| format!("no thread for it: {e}"))
     }
 }
 
@@ -108,10 +186,14 @@ fn serve(client: TcpStream, inner: SocketAddr) -> io::Result<()> {
 /// Copies each direction until one side closes, then closes both, so neither copy outlives it.
 fn relay(client: TcpStream, server: TcpStream) -> io::Result<()> {
     let (upstream_client, upstream_server) = (client.try_clone()?, server.try_clone()?);
-    let upstream = thread::spawn(move || {
-        let _ = io::copy(&mut &upstream_client, &mut &upstream_server);
-        close(&upstream_client, &upstream_server);
-    });
+    // No thread (the process's limit): an error for this client, not a panic.
+    let upstream = thread::Builder::new()
+        .name("foxglove-upstream".into())
+        .spawn(move || {
+            let _ = io::copy(&mut &upstream_client, &mut &upstream_server);
+            close(&upstream_client, &upstream_server);
+        })
+        .inspect_err(|_| close(&client, &server))?;
     let downstream = io::copy(&mut &server, &mut &client);
     close(&client, &server);
     let _ = upstream.join();
@@ -278,7 +360,7 @@ mod tests {
             let _ = io::copy(&mut &stream, &mut &stream);
             asked
         });
-        let front = Front::bind("127.0.0.1", 0, inner_addr).unwrap();
+        let mut front = Front::bind("127.0.0.1", 0, inner_addr, 4).unwrap();
         let client = TcpStream::connect(("127.0.0.1", front.port().unwrap())).unwrap();
         (&client)
             .write_all(request(&["foxglove.websocket.v1"]).as_bytes())
@@ -309,5 +391,86 @@ mod tests {
         assert_eq!(&echoed, b"frame bytes");
         client.shutdown(Shutdown::Both).unwrap();
         assert_eq!(echo.join().unwrap(), "foxglove.sdk.v1");
+    }
+
+    /// Reads until the server closes the connection (true) or `patience` passes (false).
+    fn closed_by_server(client: &TcpStream, front: &mut Front, patience: Duration) -> bool {
+        client
+            .set_read_timeout(Some(Duration::from_millis(20)))
+            .unwrap();
+        let deadline = Instant::now() + patience;
+        let mut chunk = [0u8; 64];
+        while Instant::now() < deadline {
+            front.accept_waiting();
+            match (&*client).read(&mut chunk) {
+                Ok(0) => return true,
+                Ok(_) => {}
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => {}
+                Err(e) if e.kind() == io::ErrorKind::TimedOut => {}
+                Err(_) => return true,
+            }
+        }
+        false
+    }
+
+    #[test]
+    fn connections_over_the_limit_are_closed_and_counted() {
+        // An inner address nobody serves: clients wait in their handshake, which is enough.
+        let inner = TcpListener::bind("127.0.0.1:0").unwrap();
+        let mut front = Front::bind("127.0.0.1", 0, inner.local_addr().unwrap(), 2).unwrap();
+        let port = front.port().unwrap();
+        let connect = || TcpStream::connect(("127.0.0.1", port)).unwrap();
+        let (first, second) = (connect(), connect());
+        while front.active.load(Ordering::Acquire) < 2 {
+            front.accept_waiting();
+            thread::sleep(Duration::from_millis(5));
+        }
+        let third = connect();
+        assert!(closed_by_server(
+            &third,
+            &mut front,
+            Duration::from_secs(60)
+        ));
+        assert_eq!(front.refused(), 1);
+        // The first two are still being served (each waits for its handshake).
+        for client in [&first, &second] {
+            assert!(!closed_by_server(
+                client,
+                &mut front,
+                Duration::from_millis(100)
+            ));
+        }
+        // A client that leaves frees its place.
+        drop(first);
+        while front.active.load(Ordering::Acquire) > 1 {
+            front.accept_waiting();
+            thread::sleep(Duration::from_millis(5));
+        }
+        let fourth = connect();
+        assert!(!closed_by_server(
+            &fourth,
+            &mut front,
+            Duration::from_millis(100)
+        ));
+        assert_eq!(front.refused(), 1);
+    }
+
+    #[test]
+    fn no_thread_for_a_connection_closes_it_instead_of_panicking() {
+        let inner = TcpListener::bind("127.0.0.1:0").unwrap();
+        let mut front = Front::bind("127.0.0.1", 0, inner.local_addr().unwrap(), 8).unwrap();
+        front.spawn = |_| Err(io::Error::from(io::ErrorKind::WouldBlock));
+        let client = TcpStream::connect(("127.0.0.1", front.port().unwrap())).unwrap();
+        assert!(closed_by_server(
+            &client,
+            &mut front,
+            Duration::from_secs(60)
+        ));
+        assert_eq!(front.refused(), 1);
+        assert_eq!(
+            front.active.load(Ordering::Acquire),
+            0,
+            "its place is free again"
+        );
     }
 }

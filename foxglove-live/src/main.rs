@@ -25,6 +25,7 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
+use sonar_common::flood::FloodGuard;
 use sonar_common::ipc::{
     self, FeatureRecord, FeaturesHeader, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, Pose2D,
     Reading,
@@ -57,6 +58,9 @@ struct Args {
     /// TCP port (0: any free one, printed at start).
     #[arg(long, default_value_t = 8765)]
     port: u16,
+    /// Most clients served at once; more are closed at once (and counted in the log).
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u16).range(1..))]
+    max_clients: u16,
     /// Seconds between maps sent (the newest snapshot each time; a client that connects gets the
     /// next one).
     #[arg(long, value_name = "SECONDS", default_value = "1", value_parser = sonar_common::parse_positive_seconds)]
@@ -66,8 +70,10 @@ struct Args {
 }
 
 fn main() -> std::process::ExitCode {
-    sonar_common::init_tracing();
-    sonar_common::report_exit("sonar-foxglove", run(Args::parse()))
+    // A client can make the foxglove crate log a line per item of its request.
+    let flood = FloodGuard::new(&["foxglove"]);
+    sonar_common::flood::init_tracing(flood.clone());
+    sonar_common::report_exit("sonar-foxglove", run(Args::parse(), &flood))
 }
 
 /// The pipeline's services this process reads; the optional ones are left out with a warning
@@ -164,7 +170,7 @@ impl Ports {
     }
 }
 
-fn run(args: Args) -> Result<()> {
+fn run(args: Args, flood: &FloodGuard) -> Result<()> {
     let node = args.ipc.node("sonar-foxglove")?;
     // iceoryx2 installs its SIGINT/SIGTERM handler on the first wait: before subscribing, so that
     // anyone who sees us can stop us cleanly.
@@ -184,7 +190,7 @@ fn run(args: Args) -> Result<()> {
         .context("cannot start the WebSocket server on 127.0.0.1")?;
     let inner = std::net::SocketAddr::from(([127, 0, 0, 1], server.port()));
     debug!(%inner, "the foxglove crate's server");
-    let front = front::Front::bind(&args.host, args.port, inner)
+    let mut front = front::Front::bind(&args.host, args.port, inner, args.max_clients.into())
         .with_context(|| format!("cannot serve on {}:{}", args.host, args.port))?;
     let mut channels: BTreeMap<Channel, Arc<RawChannel>> = BTreeMap::new();
     for channel in converter.channels() {
@@ -206,8 +212,13 @@ fn run(args: Args) -> Result<()> {
     println!("{url}");
 
     let mut sent = 0u64;
+    let mut last_flood_report = std::time::Instant::now();
     while node.wait(POLL).is_ok() {
         front.accept_waiting();
+        if last_flood_report.elapsed() >= sonar_common::flood::PERIOD {
+            last_flood_report = std::time::Instant::now();
+            flood.report();
+        }
         for out in ports.drain(&mut converter) {
             if let Some(channel) = channels.get(&out.channel) {
                 channel.log_with_meta(&out.data, PartialMetadata::with_log_time(out.stamp_ns));
@@ -215,7 +226,12 @@ fn run(args: Args) -> Result<()> {
             }
         }
     }
-    info!(messages = sent, "signal received: stopping");
+    flood.report();
+    info!(
+        messages = sent,
+        connections_refused = front.refused(),
+        "signal received: stopping"
+    );
     server.stop().wait_blocking();
     Ok(())
 }

@@ -2,9 +2,12 @@
 //! pair, each with its own iceoryx2 namespace. The robot runs the simulator, driver, fusion and
 //! `sonar-bridge`; the laptop runs `sonar-bridge --mode remote` and the unchanged `sonar-viewer` in
 //! tmux, and the test reads both sides' shared memory (network namespaces do not separate
-//! /dev/shm). The grid must arrive byte for byte, the viewer must draw the room, a key pressed in
-//! it must start a local scan on the robot's driver, and the map must resume after the link was
-//! cut for 10 s.
+//! /dev/shm). Over mutual TLS (certificates from `sonar-bridge certs`) the grid must arrive byte
+//! for byte, the viewer must draw the room, a key pressed in it must start a local scan on the
+//! robot's driver, and the map must resume after the link was cut for 10 s. Intruders on the link
+//! (plain zenoh peers played by `sonar-test-peer`: no certificate, another authority's, a valid
+//! but unlisted one, a listed reader) read nothing or command nothing, and bomb frames from a
+//! listed commander are counted as rejected while the robot's bridge stays up and small.
 //!
 //! Needs root and iproute2 (`ip`); CI has both. Without them the test says SKIPPED and passes.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // helpers outside #[test] fns; a panic is a failure
@@ -16,7 +19,8 @@ use std::time::{Duration, Instant};
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
-use sonar_common::ipc::{self, GridHeader, ScanMode};
+use sonar_bridge::wire::{self, Codec, Expect};
+use sonar_common::ipc::{self, GridHeader, ScanCommand, ScanCommandKind, ScanMode};
 use sonar_e2e::{
     PATIENCE, Proc, Sandbox, Tmux, driver_status_subscriber, grid_subscriber, map_wall_rows,
     path_str, wait_for_status,
@@ -197,6 +201,34 @@ fn wait_for_identical_grid(
     }
 }
 
+/// Makes the authority and the peers' certificates in `dir` with `sonar-bridge certs`, the command
+/// docs/bridge.md gives.
+fn make_certs(dir: &std::path::Path, peers: &[&str]) {
+    let out = Command::new(sonar_e2e::bin("sonar-bridge"))
+        .args(["certs", "--dir", path_str(dir)])
+        .args(peers)
+        .output()
+        .unwrap();
+    sonar_e2e::check_ok("sonar-bridge certs", &out);
+}
+
+/// `--ca --cert --key` of peer `name` whose files are in `dir`.
+fn tls_args(dir: &std::path::Path, name: &str) -> Vec<String> {
+    let file = |f: String| dir.join(f).display().to_string();
+    vec![
+        "--ca".into(),
+        file("ca.pem".into()),
+        "--cert".into(),
+        file(format!("{name}.pem")),
+        "--key".into(),
+        file(format!("{name}.key")),
+    ]
+}
+
+fn str_args(args: &[String]) -> Vec<&str> {
+    args.iter().map(String::as_str).collect()
+}
+
 fn still_running(procs: &mut [&mut Proc]) {
     for p in procs {
         assert!(
@@ -226,12 +258,25 @@ fn a_laptop_watches_and_commands_the_robot_over_zenoh_through_a_cut_link() {
     let fusion = robot.spawn("sonar-fusion", &["--no-persist"]);
     let (sim, pty) = robot.spawn_sim(&["--scene", "room", "--speed", "20", "--seed", "3"]);
     let mut driver = robot.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
-    let listen = format!("tcp/{}:7447", robot_addr(0));
-    let mut robot_bridge = robot.spawn("sonar-bridge", &["--robot", "r1", "--listen", &listen]);
-    let mut laptop_bridge = laptop.spawn(
-        "sonar-bridge",
-        &["--mode", "remote", "--robot", "r1", "--connect", &listen],
-    );
+    // Mutual TLS: the robot's certificate names the address the laptop connects to.
+    let certs = robot.root.join("certs");
+    make_certs(&certs, &[&format!("r1={}", robot_addr(0)), "laptop"]);
+    let listen = format!("tls/{}:7447", robot_addr(0));
+    let mut args = vec![
+        "--robot",
+        "r1",
+        "--listen",
+        &listen,
+        "--allow-command",
+        "laptop",
+    ];
+    let robot_tls = tls_args(&certs, "r1");
+    args.extend(str_args(&robot_tls));
+    let mut robot_bridge = robot.spawn("sonar-bridge", &args);
+    let laptop_tls = tls_args(&certs, "laptop");
+    let mut args = vec!["--mode", "remote", "--robot", "r1", "--connect", &listen];
+    args.extend(str_args(&laptop_tls));
+    let mut laptop_bridge = laptop.spawn("sonar-bridge", &args);
 
     // The map arrives on the laptop as the robot published it.
     let mut robot_grids = BTreeMap::new();
@@ -360,6 +405,7 @@ fn two_robots_are_told_apart() {
                 &listen,
                 "--services",
                 "driver_status",
+                "--insecure",
             ],
         );
         connect.push(listen);
@@ -371,7 +417,14 @@ fn two_robots_are_told_apart() {
     loop {
         let out = laptop.run(
             "sonar-bridge",
-            &["--mode", "remote", "--connect", &connect, "--list-robots"],
+            &[
+                "--mode",
+                "remote",
+                "--connect",
+                &connect,
+                "--list-robots",
+                "--insecure",
+            ],
         );
         assert!(out.status.success(), "--list-robots failed: {out:?}");
         if String::from_utf8_lossy(&out.stdout) == "alpha\nbeta\n" {
@@ -384,7 +437,15 @@ fn two_robots_are_told_apart() {
     let status = driver_status_subscriber(&laptop_node);
     let bridge = laptop.spawn(
         "sonar-bridge",
-        &["--mode", "remote", "--robot", "beta", "--connect", &connect],
+        &[
+            "--mode",
+            "remote",
+            "--robot",
+            "beta",
+            "--connect",
+            &connect,
+            "--insecure",
+        ],
     );
     let mut heads = Vec::new();
     sonar_e2e::collect_until(
@@ -406,11 +467,271 @@ fn two_robots_are_told_apart() {
     );
     drop(status);
     assert!(bridge.terminate().success());
-    for (_, procs) in robots {
-        for p in procs {
-            p.terminate();
+    for (_, [bridge, driver, sim]) in robots {
+        // Plain TCP beyond localhost was asked for by name, and the robot said what that means.
+        let (status, stderr) = bridge.terminate_with_stderr();
+        assert!(status.success(), "{stderr}");
+        assert!(
+            stderr.contains("INSECURE"),
+            "no warning at start:\n{stderr}"
+        );
+        driver.terminate();
+        sim.terminate();
+    }
+}
+
+/// One intruder on the link: a plain zenoh peer with the credentials it has.
+struct Intruder {
+    who: &'static str,
+    /// `--tls CA CERT KEY`, or nothing: plain TCP to the robot's TLS port.
+    tls: Vec<String>,
+    /// Whether the robot lists it as a reader (it must then read, or the check could not fail).
+    listed_reader: bool,
+}
+
+/// A plain zenoh peer (`sonar-test-peer`) in `side`'s network namespace.
+fn peer(side: &Sandbox, endpoint: &str, tls: &[String], command: &[&str]) -> std::process::Child {
+    side.command("sonar-test-peer")
+        .arg(endpoint)
+        .args(tls)
+        .args(command)
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap()
+}
+
+fn output_of(child: std::process::Child) -> String {
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success(), "sonar-test-peer failed: {out:?}");
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// `name=<number>` in a log line.
+fn field(line: &str, name: &str) -> u64 {
+    let at = line
+        .find(&format!(" {name}="))
+        .unwrap_or_else(|| panic!("no {name} in {line}"));
+    line[at + name.len() + 2..]
+        .split(|c: char| !c.is_ascii_digit())
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap()
+}
+
+/// Peak resident memory of a process, kB.
+fn peak_rss_kb(pid: u32) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let line = status.lines().find(|l| l.starts_with("VmHWM:")).unwrap();
+    line.split_whitespace().nth(1).unwrap().parse().unwrap()
+}
+
+/// The robot's bridge over mutual TLS lists one commander (`laptop`) and one reader (`watcher`).
+/// The intruders listen on plain TCP as zenoh peers do by default: a bridge that learned their
+/// addresses by gossip and connected to them would hand them everything (it did, before gossip
+/// was turned off).
+/// On the link: a peer without a certificate, one with another authority's, one with a valid
+/// but unlisted certificate, and the listed reader. Each watches `sonar/r1/**` (the robot's keys:
+/// a wider expression is refused all the more) and asks for it, and puts 40 local-scan commands
+/// on the robot's command key. Then the commander's
+/// machine sends bomb frames (4 kB declaring a 4 GiB LZ4 slice, 2 MB frames), and the real laptop
+/// commands a local scan. The unlisted peers read nothing; the reader reads; no intruder's command
+/// arrives (the robot counts only the laptop's); the bombs are counted as rejected, the bridge's
+/// memory stays small, and it stops cleanly.
+#[test]
+fn intruders_read_and_command_nothing_and_bombs_are_counted() {
+    if let Some(why) = missing_privileges() {
+        eprintln!("SKIPPED the intruder test: {why}");
+        return;
+    }
+    let net = Netns::new("i", 1);
+    let robot = Sandbox::in_netns("bridge_intr_robot", net.robot(0));
+    let laptop = Sandbox::in_netns("bridge_intr_laptop", &net.laptop);
+    let certs = robot.root.join("certs");
+    let foreign = robot.root.join("foreign");
+    make_certs(
+        &certs,
+        &[
+            &format!("r1={}", robot_addr(0)),
+            "laptop",
+            "watcher",
+            "stranger",
+        ],
+    );
+    make_certs(&foreign, &["eve"]);
+
+    let (sim, pty) = robot.spawn_sim(&["--scene", "room", "--speed", "5"]);
+    let driver = robot.spawn("sonar-driver", &["--port", &pty, "--scan", "none"]);
+    let endpoint = format!("tls/{}:7447", robot_addr(0));
+    let robot_tls = tls_args(&certs, "r1");
+    let mut args = vec!["--robot", "r1", "--listen", &endpoint];
+    args.extend(["--allow-read", "watcher", "--allow-command", "laptop"]);
+    args.extend(str_args(&robot_tls));
+    let mut robot_bridge = robot.spawn("sonar-bridge", &args);
+    let robot_node = robot.node("test-robot-side");
+    let robot_status = driver_status_subscriber(&robot_node);
+
+    let laptop_node = laptop.node("test-laptop-side");
+    let laptop_status = driver_status_subscriber(&laptop_node);
+    let laptop_tls = tls_args(&certs, "laptop");
+    let mut args = vec!["--mode", "remote", "--robot", "r1", "--connect", &endpoint];
+    args.extend(str_args(&laptop_tls));
+    let mut laptop_bridge = laptop.spawn("sonar-bridge", &args);
+    wait_for_status(&laptop_node, &laptop_status, |_| true);
+
+    let peer_tls = |dir: &std::path::Path, name: &str| {
+        let file = |f: String| dir.join(f).display().to_string();
+        vec![
+            "--tls".into(),
+            file("ca.pem".into()),
+            file(format!("{name}.pem")),
+            file(format!("{name}.key")),
+        ]
+    };
+    let intruders = [
+        Intruder {
+            who: "no certificate (plain TCP)",
+            tls: Vec::new(),
+            listed_reader: false,
+        },
+        Intruder {
+            who: "another authority's certificate",
+            tls: peer_tls(&foreign, "eve"),
+            listed_reader: false,
+        },
+        Intruder {
+            who: "a valid certificate nobody listed",
+            tls: peer_tls(&certs, "stranger"),
+            listed_reader: false,
+        },
+        Intruder {
+            who: "a listed reader",
+            tls: peer_tls(&certs, "watcher"),
+            listed_reader: true,
+        },
+    ];
+    // Plain TCP to the same port: the TLS listener is all there is to talk to.
+    let endpoint_of = |i: &Intruder| {
+        if i.tls.is_empty() {
+            format!("tcp/{}:7447", robot_addr(0))
+        } else {
+            endpoint.clone()
+        }
+    };
+    let watchers: Vec<_> = intruders
+        .iter()
+        .map(|i| peer(&laptop, &endpoint_of(i), &i.tls, &["watch", "sonar/r1/**"]))
+        .collect();
+    let frames = robot.root.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    let command = Expect::fixed::<ScanCommand>();
+    let local_scan = ScanCommand::new(ScanCommandKind::LocalScan, -20.0, 20.0);
+    let local_scan_file = frames.join("local_scan");
+    let frame = wire::encode(&command.tag, wire::bytes_of(&local_scan), &[], Codec::Raw);
+    std::fs::write(&local_scan_file, frame).unwrap();
+    let puts: Vec<_> = intruders
+        .iter()
+        .map(|i| {
+            let file = path_str(&local_scan_file);
+            let args = ["put", "sonar/r1/commands", file, "40"];
+            (i.who, peer(&laptop, &endpoint_of(i), &i.tls, &args))
+        })
+        .collect();
+    for ((who, put), intruder) in puts.into_iter().zip(&intruders) {
+        let out = output_of(put);
+        assert!(out.contains("sent 40"), "{who}: {out}");
+        // The listed reader is shown the robot's command subscription: its 40 commands reach the
+        // robot, whose access control must refuse them (the others never get that far).
+        if intruder.listed_reader {
+            assert!(out.contains("\nmatched"), "{who}: {out}");
         }
     }
+
+    // Bombs from the commander's machine: one 4 kB frame declaring a 4 GiB LZ4 slice (it aborted
+    // the bridge), five times, and two 2 MB frames.
+    let mut bomb = wire::encode(&command.tag, &[0; 16], &[], Codec::Raw);
+    bomb[5] = Codec::Lz4 as u8;
+    bomb[12..16].copy_from_slice(&u32::MAX.to_le_bytes());
+    bomb.resize(4096, 0xAB);
+    let bomb_file = frames.join("bomb_4k");
+    std::fs::write(&bomb_file, &bomb).unwrap();
+    bomb.resize(2_000_000, 0xCD);
+    bomb[12..16].copy_from_slice(&(512u32 << 20).to_le_bytes());
+    let big_file = frames.join("bomb_2m");
+    std::fs::write(&big_file, &bomb).unwrap();
+    let commander = peer_tls(&certs, "laptop");
+    for (file, count) in [(&bomb_file, "5"), (&big_file, "2")] {
+        let args = ["put", "sonar/r1/commands", path_str(file), count];
+        let out = output_of(peer(&laptop, &endpoint, &commander, &args));
+        assert!(out.contains("\nmatched"), "the commander's peer: {out}");
+    }
+
+    // The laptop commands a local scan (again while the robot has not switched: a command sent
+    // before the bridges matched their ends would go nowhere). At most one a second, so fewer
+    // than 40 over PATIENCE: a single intruder's commands arriving would outnumber them.
+    let laptop_commands = ipc::commands_service(&laptop_node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    let deadline = Instant::now() + PATIENCE;
+    let mut sent = 0u64;
+    let mut robot_local = false;
+    while !robot_local {
+        assert!(Instant::now() < deadline, "the robot never scanned locally");
+        laptop_commands.send_copy(local_scan).unwrap();
+        sent += 1;
+        let until = Instant::now() + Duration::from_secs(2);
+        while Instant::now() < until && !robot_local {
+            while let Some(s) = robot_status.receive().unwrap() {
+                robot_local |= ScanMode::from_u8(s.payload().mode as u8) == ScanMode::Local;
+            }
+            let _ = robot_node.wait(Duration::from_millis(20));
+        }
+    }
+    still_running(&mut [&mut robot_bridge, &mut laptop_bridge]);
+    let peak_kb = peak_rss_kb(robot_bridge.child.id());
+
+    for (mut watcher, intruder) in watchers.into_iter().zip(&intruders) {
+        use std::io::Write as _;
+        writeln!(watcher.stdin.take().unwrap()).unwrap();
+        let counts = output_of(watcher);
+        let samples = field(&format!(" {counts}"), "samples");
+        let replies = field(&format!(" {counts}"), "replies");
+        if intruder.listed_reader {
+            assert!(samples > 0, "{}: read nothing ({counts})", intruder.who);
+        } else {
+            assert_eq!((samples, replies), (0, 0), "{}: {counts}", intruder.who);
+        }
+    }
+
+    drop((laptop_commands, laptop_status, robot_status));
+    assert!(laptop_bridge.terminate().success());
+    let (status, stderr) = robot_bridge.terminate_with_stderr();
+    assert!(status.success(), "the robot's bridge: {status}\n{stderr}");
+    let counts = stderr
+        .lines()
+        .rfind(|l| l.contains("counts") && l.contains("channel=commands"))
+        .unwrap_or_else(|| panic!("no command counts:\n{stderr}"));
+    let arrived = field(counts, "messages");
+    assert!(
+        (1..=sent).contains(&arrived),
+        "{arrived} commands arrived, the laptop sent {sent}: {counts}"
+    );
+    // The 4 kB bombs reach the bridge and are refused unread; the 2 MB frames are dropped by
+    // zenoh (longer than a robot takes), or refused by the bridge if they arrive.
+    let rejected = field(counts, "rejected");
+    assert!((5..=7).contains(&rejected), "{counts}");
+    // It was 563 MB after one 2 MB frame, and one 4 kB frame aborted it.
+    assert!(
+        peak_kb < 200 * 1024,
+        "the robot's bridge peaked at {peak_kb} kB"
+    );
+    eprintln!("robot bridge: {counts}; peak RSS {peak_kb} kB");
+    driver.terminate();
+    sim.terminate();
 }
 
 /// CPU time (user + system) a process has used so far.
@@ -472,11 +793,21 @@ fn bridge_link_figures() {
                 &listen,
                 "--grid-max-rate",
                 rate,
+                // The figures of docs/benchmarks.md were taken over plain TCP.
+                "--insecure",
             ],
         );
         let laptop_bridge = laptop.spawn(
             "sonar-bridge",
-            &["--mode", "remote", "--robot", "r1", "--connect", &listen],
+            &[
+                "--mode",
+                "remote",
+                "--robot",
+                "r1",
+                "--connect",
+                &listen,
+                "--insecure",
+            ],
         );
         // Settle: connections made, the first snapshots through.
         std::thread::sleep(Duration::from_secs(5));
