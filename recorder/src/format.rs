@@ -723,17 +723,14 @@ impl<W: Write + Seek> RecordingWriter<W> {
         publish_time_ns: u64,
         data: &[u8],
     ) -> Result<(), FormatError> {
-        let header = MessageHeader {
-            channel_id: channel.id,
-            sequence: channel.sequence,
-            log_time: log_time_ns,
-            publish_time: publish_time_ns,
-        };
-        self.mcap
-            .write_to_known_channel(&header, data)
-            .map_err(FormatError::Write)?;
-        channel.sequence = channel.sequence.wrapping_add(1);
-        Ok(())
+        write_numbered(
+            &mut self.mcap,
+            channel.id,
+            &mut channel.sequence,
+            log_time_ns,
+            publish_time_ns,
+            data,
+        )
     }
 
     /// Messages written per topic.
@@ -749,6 +746,28 @@ impl<W: Write + Seek> RecordingWriter<W> {
             .map_err(|e| FormatError::Write(McapError::Io(e)))?;
         Ok(sink)
     }
+}
+
+/// Writes `data` on an MCAP writer's channel `channel_id` as message number `sequence` of it,
+/// then counts the number on.
+pub(crate) fn write_numbered<W: Write + Seek>(
+    mcap: &mut mcap::Writer<W>,
+    channel_id: u16,
+    sequence: &mut u32,
+    log_time_ns: u64,
+    publish_time_ns: u64,
+    data: &[u8],
+) -> Result<(), FormatError> {
+    let header = MessageHeader {
+        channel_id,
+        sequence: *sequence,
+        log_time: log_time_ns,
+        publish_time: publish_time_ns,
+    };
+    mcap.write_to_known_channel(&header, data)
+        .map_err(FormatError::Write)?;
+    *sequence = sequence.wrapping_add(1);
+    Ok(())
 }
 
 /// A channel of a recording outside its own topics, from [`RecordingWriter::add_channel`].

@@ -19,9 +19,8 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use mcap::WriteOptions;
-use mcap::records::MessageHeader;
 
-use crate::format::FormatError;
+use crate::format::{FormatError, write_numbered};
 
 /// Message encoding of every channel of the bag.
 const MESSAGE_ENCODING: &str = "cdr";
@@ -182,16 +181,14 @@ impl Ros2Bag {
         publish_time_ns: u64,
         data: &[u8],
     ) -> Result<(), FormatError> {
-        let header = MessageHeader {
-            channel_id: channel.id,
-            sequence: channel.sequence,
-            log_time: log_time_ns,
-            publish_time: publish_time_ns,
-        };
-        self.mcap
-            .write_to_known_channel(&header, data)
-            .map_err(FormatError::Write)?;
-        channel.sequence = channel.sequence.wrapping_add(1);
+        write_numbered(
+            &mut self.mcap,
+            channel.id,
+            &mut channel.sequence,
+            log_time_ns,
+            publish_time_ns,
+            data,
+        )?;
         self.topics[channel.index].messages += 1;
         self.first_ns = Some(self.first_ns.map_or(log_time_ns, |t| t.min(log_time_ns)));
         self.last_ns = self.last_ns.max(log_time_ns);
