@@ -104,6 +104,7 @@
 //! evaluation) the true surfaces to rasterise.
 
 pub mod echo;
+pub mod echo_params;
 pub mod faults;
 pub mod firmware;
 pub mod geometry;

@@ -23,7 +23,7 @@ use std::str::FromStr;
 use serde::{Deserialize, Serialize};
 use sonar_common::sensor::SensorConfig;
 
-use crate::echo::{EchoParams, NoiseParams};
+use crate::echo_params::{EchoParams, NoiseParams};
 use crate::firmware::Timing;
 
 /// A named sensor.

@@ -60,7 +60,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::echo::{EchoParams, NoiseParams};
+use crate::echo_params::{EchoParams, NoiseParams};
 use crate::geometry::{Vec2, distance_to_segment, segments_intersect};
 use crate::profile::SensorProfile;
 use crate::robot::{OdometryParams, RobotSpec};
