@@ -323,18 +323,14 @@ fn corner_of_planes(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::rcd::extract;
-    use crate::rcd::tests::{run, sweep};
+    use crate::rcd::tests::{regions, run, sweep};
 
     fn classified(from_deg: f64, ranges: &[f64]) -> (Vec<Rcd>, Classification) {
         let cfg = FeatureConfig::default();
-        let rcds = extract(&sweep(from_deg, ranges), &cfg);
+        let rcds = regions(&sweep(from_deg, ranges));
         let c = classify(&rcds, &cfg);
         (rcds, c)
     }
-
-    /// The detector's mean lateness (one cycle at 40 kHz), which the sensor adds to every range.
-    const LATE: f64 = 0.00429;
 
     /// `n` pings from `from_deg` every 1.5°, each hearing the nearest of the `targets`
     /// `(bearing, cone half-angle, true range)` whose cone it lies in, or nothing: ideal targets.
@@ -345,7 +341,7 @@ mod tests {
                 targets
                     .iter()
                     .filter(|(bearing, half, _)| (b - bearing).abs() <= *half)
-                    .map(|t| t.2 + LATE)
+                    .map(|t| t.2)
                     .reduce(f64::min)
                     .unwrap_or(0.0)
             })

@@ -49,12 +49,12 @@
 //! # fn main() -> Result<(), sonar_features::FeatureError> {
 //! let cfg = FeatureConfig::default();
 //! let mut map = FeatureMap::new(cfg)?;
-//! // A 5 cm post 1 m ahead, heard within ±13.4° at its near face (0.975 m, plus the detector's
-//! // mean lateness); from readings, `Sweep::from_readings(&one_sweep, &cfg)`.
+//! // A 5 cm post 1 m ahead, heard within ±13.4° at its near face (0.975 m); from readings,
+//! // `Sweep::from_readings(&one_sweep, &cfg)`.
 //! let pings = (0..40)
 //!     .map(|i| {
 //!         let bearing_deg = -29.25 + 1.5 * f64::from(i);
-//!         Ping { bearing_deg, range_m: (bearing_deg.abs() <= 13.4).then_some(0.979) }
+//!         Ping { bearing_deg, range_m: (bearing_deg.abs() <= 13.4).then_some(0.975) }
 //!     })
 //!     .collect();
 //! map.update(&Sweep::from_pings(pings, 1.5)?, &Isometry2::identity());
@@ -83,6 +83,7 @@ pub mod config;
 pub mod drift;
 pub mod localize;
 pub mod map;
+pub mod noise;
 pub mod physics;
 pub mod pings;
 pub mod rcd;
@@ -93,6 +94,7 @@ pub use config::{EchoPhysics, FeatureConfig, MergeConfig, SegmentConfig};
 pub use drift::{DriftEstimate, DriftFilter, OdometryErrors};
 pub use localize::{Needs, PoseFix, WallAhead};
 pub use map::{Feature, FeatureKind, FeatureMap, FeatureSummary, SweepReport};
+pub use noise::{NoiseConfig, NoiseModel, PingPair};
 pub use physics::Reflector;
 pub use pings::{Ping, Sweep};
 pub use rcd::{End, Rcd};

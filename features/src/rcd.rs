@@ -25,9 +25,10 @@
 //!    unless together they would be wider than any one target's region at that range (the four
 //!    corners of a square room, all at one range between the nearer walls, stay four).
 //! 4. Runs of fewer than `min_pings` pings are dropped; the rest become [`Rcd`]s, their range the
-//!    mean of their pings less the detector's mean lateness.
+//!    mean of their pings less the sensor's calibrated offset (`range_offset_m`).
 
 use crate::config::FeatureConfig;
+use crate::noise::NoiseModel;
 use crate::pings::Sweep;
 
 /// Why a region of constant depth ends where it does.
@@ -52,7 +53,7 @@ impl End {
 /// A region of constant depth.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Rcd {
-    /// Range of the target: the mean of the pings less the detector's mean lateness, metres.
+    /// Range of the target: the mean of the pings less the sensor's calibrated offset, metres.
     pub range_m: f64,
     /// Standard error of that mean from the pings' jitter (independent from sweep to sweep).
     pub range_sigma_m: f64,
@@ -138,10 +139,6 @@ impl Stats {
         }
     }
 
-    fn fits(&self, r: f64, tol: f64) -> bool {
-        self.hi.max(r) - self.lo.min(r) <= tol
-    }
-
     fn add(&mut self, r: f64) {
         self.n += 1;
         self.sum += r;
@@ -173,6 +170,60 @@ impl Stats {
     }
 }
 
+/// Whether a ping heard the same target as a run: within [`crate::NoiseConfig::gate_sigmas`] σ of
+/// the noise estimated for the sensor ([`NoiseModel`]) around the run's mean.
+#[derive(Debug, Clone, Copy)]
+pub struct Gate {
+    noise: NoiseModel,
+    sigmas: f64,
+}
+
+impl Gate {
+    pub fn new(noise: NoiseModel, cfg: &FeatureConfig) -> Self {
+        Self {
+            noise,
+            sigmas: cfg.noise.gate_sigmas,
+        }
+    }
+
+    /// The noise it was made with.
+    pub fn noise(&self) -> &NoiseModel {
+        &self.noise
+    }
+
+    /// How far one ping's range may lie from a target's at `range_m` and still be the target's.
+    pub fn tolerance_at(&self, range_m: f64) -> f64 {
+        self.sigmas * self.noise.sigma_at(range_m)
+    }
+
+    /// Half-width of the interval around a run's mean in which a further ping of its target falls
+    /// (the prediction interval: the ping's noise and the mean's).
+    fn reach(&self, s: &Stats) -> f64 {
+        self.tolerance_at(s.mean()) * (1.0 + 1.0 / f64::from(s.n)).sqrt()
+    }
+
+    /// Within the reach, and the run's spread with it no wider than the noise makes one target's
+    /// (so a range that creeps, ping by ping, does not make one long run).
+    fn fits(&self, s: &Stats, r: f64) -> bool {
+        (r - s.mean()).abs() <= self.reach(s)
+            && s.hi.max(r) - s.lo.min(r) <= 2.0 * self.tolerance_at(s.mean())
+    }
+
+    fn farther(&self, s: &Stats, r: f64) -> bool {
+        r > s.mean() + self.reach(s)
+    }
+
+    fn nearer(&self, s: &Stats, r: f64) -> bool {
+        r < s.mean() - self.reach(s)
+    }
+
+    /// Two runs at one range: their means within the noise of the two means.
+    fn same_range(&self, a: &Stats, b: &Stats) -> bool {
+        let n = 1.0 / f64::from(a.n) + 1.0 / f64::from(b.n);
+        (a.mean() - b.mean()).abs() <= self.tolerance_at(a.mean()) * n.sqrt()
+    }
+}
+
 /// A run of pings: indices of its first and last ping, its ranges and ends.
 #[derive(Debug, Clone, Copy)]
 struct Run {
@@ -188,26 +239,24 @@ struct Run {
     end_steps: f64,
 }
 
-/// The regions of constant depth of one sweep, in order of bearing.
-pub fn extract(sweep: &Sweep, cfg: &FeatureConfig) -> Vec<Rcd> {
-    let tol = cfg.range_tolerance_m();
-    let mut runs = find_runs(sweep, tol);
+/// The regions of constant depth of one sweep, in order of bearing, their pings grouped by
+/// `gate` (the sensor's noise).
+pub fn extract(sweep: &Sweep, cfg: &FeatureConfig, gate: &Gate) -> Vec<Rcd> {
+    let mut runs = find_runs(sweep, gate);
     for run in &mut runs {
-        (run.start, run.start_steps) = end_kind(sweep, run, tol, Side::Start);
-        (run.end, run.end_steps) = end_kind(sweep, run, tol, Side::End);
+        (run.start, run.start_steps) = end_kind(sweep, run, gate, Side::Start);
+        (run.end, run.end_steps) = end_kind(sweep, run, gate, Side::End);
     }
-    let runs = join_hidden(sweep, runs, cfg);
-    let speed = cfg.speed_of_sound_mps();
-    let bias = cfg.echo.late_bias_m(speed);
-    let ping_sigma = cfg.echo.late_sigma_m(speed);
+    let runs = join_hidden(sweep, runs, cfg, gate);
     let pings = sweep.pings();
     runs.into_iter()
         .filter(|r| r.stats.n >= cfg.min_pings)
         .map(|r| Rcd {
-            range_m: r.stats.mean() - bias,
-            // The model's jitter is a floor: a few pings can agree by chance; a wider sample
+            range_m: r.stats.mean() - cfg.range_offset_m,
+            // The sensor's noise is a floor: a few pings can agree by chance; a wider sample
             // spread (a transient absorbed into the run) is kept.
-            range_sigma_m: r.stats.sample_sd().max(ping_sigma) / f64::from(r.stats.n).sqrt(),
+            range_sigma_m: r.stats.sample_sd().max(gate.noise.sigma_at(r.stats.mean()))
+                / f64::from(r.stats.n).sqrt(),
             first_deg: pings[r.first].bearing_deg,
             last_deg: pings[r.last].bearing_deg,
             step_deg: sweep.step_deg(),
@@ -223,7 +272,7 @@ pub fn extract(sweep: &Sweep, cfg: &FeatureConfig) -> Vec<Rcd> {
 }
 
 /// Maximal runs of constant depth, single transients and dropouts bridged.
-fn find_runs(sweep: &Sweep, tol: f64) -> Vec<Run> {
+fn find_runs(sweep: &Sweep, gate: &Gate) -> Vec<Run> {
     let pings = sweep.pings();
     let mut runs = Vec::new();
     let mut i = 0;
@@ -237,18 +286,18 @@ fn find_runs(sweep: &Sweep, tol: f64) -> Vec<Run> {
         let mut j = i + 1;
         while j < pings.len() && !sweep.gap_before(j) {
             match pings[j].range_m {
-                Some(r) if stats.fits(r, tol) => {
+                Some(r) if gate.fits(&stats, r) => {
                     stats.add(r);
                     last = j;
                     j += 1;
                 }
                 other => {
-                    // Nearer than the whole run (a transient ends a ping early by any amount),
-                    // or nothing; never farther.
-                    let bridgeable = other.is_none_or(|r| r < stats.lo);
+                    // Nearer than the run (a transient ends a ping early by any amount), or
+                    // nothing; never farther.
+                    let bridgeable = other.is_none_or(|r| !gate.farther(&stats, r));
                     let resumes = j + 1 < pings.len()
                         && !sweep.gap_before(j + 1)
-                        && pings[j + 1].range_m.is_some_and(|r| stats.fits(r, tol));
+                        && pings[j + 1].range_m.is_some_and(|r| gate.fits(&stats, r));
                     if bridgeable && resumes {
                         outliers += 1;
                         j += 1;
@@ -282,7 +331,7 @@ enum Side {
 
 /// What the ping just outside a run's end says about it, and the span (in steps) in which the
 /// cone's edge lies.
-fn end_kind(sweep: &Sweep, run: &Run, tol: f64, side: Side) -> (End, f64) {
+fn end_kind(sweep: &Sweep, run: &Run, gate: &Gate, side: Side) -> (End, f64) {
     let pings = sweep.pings();
     // The ping `steps` beyond the run on `side`, if no readings are lost on the way.
     let outside = |steps: usize| match side {
@@ -296,10 +345,10 @@ fn end_kind(sweep: &Sweep, run: &Run, tol: f64, side: Side) -> (End, f64) {
     let Some(k) = outside(1) else {
         return (End::Unknown, 1.0);
     };
-    let past = |r: Option<f64>| r.is_none_or(|r| r > run.stats.hi + tol);
+    let past = |r: Option<f64>| r.is_none_or(|r| gate.farther(&run.stats, r));
     match pings[k].range_m {
         r if past(r) => (End::Natural, 1.0),
-        Some(r) if r < run.stats.lo => {
+        Some(r) if gate.nearer(&run.stats, r) => {
             // A lone nearer ping with nothing or something farther beyond it is a transient, not
             // a target hiding this one: the run ended there or one ping later.
             if outside(2).is_some_and(|j| past(pings[j].range_m)) {
@@ -314,8 +363,7 @@ fn end_kind(sweep: &Sweep, run: &Run, tol: f64, side: Side) -> (End, f64) {
 
 /// Joins runs at the same range separated only by pings that heard nearer: one target, partly
 /// hidden by a nearer one, if no wider than one target's region can be.
-fn join_hidden(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig) -> Vec<Run> {
-    let tol = cfg.range_tolerance_m();
+fn join_hidden(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) -> Vec<Run> {
     let beam = f64::from(cfg.sensor.beam_half_angle_deg);
     let pings = sweep.pings();
     let mut out: Vec<Run> = Vec::with_capacity(runs.len());
@@ -327,11 +375,10 @@ fn join_hidden(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig) -> Vec<Run> {
         let mut joined = runs[a];
         // Each step looks past the pings that heard nearer, for a run at the same range.
         while joined.end == End::Occluded {
-            let level = joined.stats.lo - tol;
             let mut k = joined.last + 1;
             while k < pings.len()
                 && !sweep.gap_before(k)
-                && pings[k].range_m.is_some_and(|r| r < level)
+                && pings[k].range_m.is_some_and(|r| gate.nearer(&joined.stats, r))
             {
                 k += 1;
             }
@@ -346,7 +393,7 @@ fn join_hidden(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig) -> Vec<Run> {
                 s.merge(&r.stats);
                 let width =
                     pings[r.last].bearing_deg - pings[joined.first].bearing_deg + sweep.step_deg();
-                s.hi - s.lo <= tol
+                gate.same_range(&joined.stats, &r.stats)
                     && width
                         <= cfg.echo.widest_region_deg(s.mean(), beam) + cfg.width_tolerance_deg()
             };
@@ -400,8 +447,15 @@ pub(crate) mod tests {
         parts.concat()
     }
 
+    /// The regions of `sweep` with the noise estimated from its own pings, as the map does.
+    pub(crate) fn regions(sweep: &Sweep) -> Vec<Rcd> {
+        let cfg = FeatureConfig::default();
+        let noise = NoiseModel::estimate(sweep.pairs().iter().copied(), &cfg.noise);
+        extract(sweep, &cfg, &Gate::new(noise, &cfg))
+    }
+
     fn rcds(from_deg: f64, ranges: &[f64]) -> Vec<Rcd> {
-        extract(&sweep(from_deg, ranges), &FeatureConfig::default())
+        regions(&sweep(from_deg, ranges))
     }
 
     #[test]
@@ -416,8 +470,8 @@ pub(crate) mod tests {
         assert!((r.width_deg() - 27.0).abs() < 1e-9);
         // Pings from -25.5 to 0: centre -12.75.
         assert!((r.centre_deg() + 12.75).abs() < 1e-9);
-        // The detector's mean lateness (4.3 mm) is taken off.
-        assert!((r.range_m - (0.98 - 0.0043)).abs() < 1e-4, "{}", r.range_m);
+        // Without a calibrated offset the range is the pings' mean.
+        assert!((r.range_m - 0.98).abs() < 1e-9, "{}", r.range_m);
         assert!(r.range_sigma_m > 0.0 && r.range_sigma_m < 0.002);
     }
 
@@ -508,7 +562,7 @@ pub(crate) mod tests {
             p.bearing_deg += 6.0;
         }
         let gapped = Sweep::from_pings(pings, 1.5).unwrap();
-        let r = extract(&gapped, &FeatureConfig::default());
+        let r = regions(&gapped);
         assert_eq!(r.len(), 2);
         assert_eq!((r[0].end, r[1].start), (End::Unknown, End::Unknown));
     }
