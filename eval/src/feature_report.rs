@@ -575,7 +575,10 @@ pub fn levels_markdown(settings: &FeatureSettings, levels: &[LevelResults]) -> S
     for mm in &settings.level_spacings_mm {
         let _ = write!(s, " {} |", mm_cm(*mm));
     }
-    let _ = writeln!(s, " false features per scene (mean over all scenes) | aims |");
+    let _ = writeln!(
+        s,
+        " false features per scene (mean over all scenes) | aims |"
+    );
     let _ = writeln!(
         s,
         "|---|---|{}---|---|",
@@ -625,9 +628,16 @@ pub fn levels_markdown(settings: &FeatureSettings, levels: &[LevelResults]) -> S
     for l in levels {
         for f in [&l.room, &l.off_centre, &l.l_room, &l.corner, &l.slanted] {
             let (angle, dist, _) = wall_errors(f, When::All);
-            let walls = found(f.runs.iter().flat_map(|r| r.all.walls.iter().map(Option::is_some)));
-            let corners =
-                found(f.runs.iter().flat_map(|r| r.all.corners.iter().map(Option::is_some)));
+            let walls = found(
+                f.runs
+                    .iter()
+                    .flat_map(|r| r.all.walls.iter().map(Option::is_some)),
+            );
+            let corners = found(
+                f.runs
+                    .iter()
+                    .flat_map(|r| r.all.corners.iter().map(Option::is_some)),
+            );
             let (corner, _) = corner_errors(f, When::All);
             let kinds: std::collections::BTreeMap<String, usize> = f
                 .runs

@@ -64,11 +64,9 @@ pub struct FeatureSettings {
 /// `scene` turned by `deg` counter-clockwise about the sensor, everything else kept.
 pub fn rotated(scene: &Scene, deg: f64) -> Result<Scene> {
     let (s, c) = deg.to_radians().sin_cos();
-    moved(
-        scene,
-        &format!("{}@{deg}°", scene.name),
-        |p: Vec2| Vec2::new(c * p.x - s * p.y, s * p.x + c * p.y),
-    )
+    moved(scene, &format!("{}@{deg}°", scene.name), |p: Vec2| {
+        Vec2::new(c * p.x - s * p.y, s * p.x + c * p.y)
+    })
 }
 
 /// `scene` with the sensor standing at `at` (in the scene's frame) instead of its origin.
@@ -780,9 +778,8 @@ pub fn evaluate_levels(settings: &FeatureSettings) -> Result<Vec<LevelResults>> 
         .levels
         .iter()
         .map(|&level| {
-            let run = |name: &str, scene: &Scene| {
-                family_at(name, scene, settings, GridUse::None, level)
-            };
+            let run =
+                |name: &str, scene: &Scene| family_at(name, scene, settings, GridUse::None, level);
             let room = Scene::builtin("room")?;
             let mut off_centre = Family {
                 name: "room, off-centre".into(),

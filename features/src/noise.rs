@@ -33,7 +33,8 @@ pub struct NoiseConfig {
     pub prior_sigma_m: f64,
     pub prior_sigma_fraction: f64,
     /// A ping belongs to a run when it lies within this many σ of the run's mean (its prediction
-    /// interval): 3.5σ splits a run by chance once in ≈ 2000 pings of Gaussian noise.
+    /// interval): 4σ splits a run by chance once in ≈ 30 000 pings of Gaussian noise, and still
+    /// once in a few hundred when one sweep's estimate is 20 % low.
     pub gate_sigmas: f64,
     /// Pairs of pings kept for the estimate (the last sweeps').
     pub window: usize,
@@ -45,7 +46,7 @@ impl Default for NoiseConfig {
             floor_m: 0.003,
             prior_sigma_m: 0.01,
             prior_sigma_fraction: 0.01,
-            gate_sigmas: 3.5,
+            gate_sigmas: 4.0,
             window: 4096,
         }
     }
@@ -170,10 +171,7 @@ fn line_fit(points: &[(f64, f64)]) -> (f64, f64) {
     let mean_r = points.iter().map(|p| p.0).sum::<f64>() / n;
     let mean_s = points.iter().map(|p| p.1).sum::<f64>() / n;
     let srr: f64 = points.iter().map(|p| (p.0 - mean_r).powi(2)).sum();
-    let srs: f64 = points
-        .iter()
-        .map(|p| (p.0 - mean_r) * (p.1 - mean_s))
-        .sum();
+    let srs: f64 = points.iter().map(|p| (p.0 - mean_r) * (p.1 - mean_s)).sum();
     // Bins less than 10 cm apart in range say nothing about a slope.
     if srr < n * 0.1f64.powi(2) || srs <= 0.0 {
         return (mean_s, 0.0);
@@ -200,10 +198,7 @@ impl NoiseLog {
     pub fn model_with(&self, fresh: &[PingPair], cfg: &NoiseConfig) -> NoiseModel {
         let keep = cfg.window.saturating_sub(fresh.len());
         let skip = self.pairs.len().saturating_sub(keep);
-        NoiseModel::estimate(
-            self.pairs.iter().skip(skip).chain(fresh).copied(),
-            cfg,
-        )
+        NoiseModel::estimate(self.pairs.iter().skip(skip).chain(fresh).copied(), cfg)
     }
 
     pub fn len(&self) -> usize {
