@@ -42,7 +42,7 @@
 use crate::config::FeatureConfig;
 use crate::map::FeatureKind;
 use crate::physics::Reflector;
-use crate::rcd::Rcd;
+use crate::rcd::{End, Rcd};
 
 /// What a region of constant depth was taken for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -340,6 +340,33 @@ fn corner_of_planes(
             || (!rcd.start.is_natural()
                 && next(rcd.first_deg - plane.last_deg, rcd.start_interval_deg))
     };
+    // How far beyond each end the corner's vertex may lie unheard: over the nearer region that
+    // hides that end (often the wall itself), or anywhere past the end of the scan.
+    let hidden = |toward_higher: bool| -> Option<(f64, f64)> {
+        let (end, interval) = if toward_higher {
+            (rcd.end, rcd.end_interval_deg)
+        } else {
+            (rcd.start, rcd.start_interval_deg)
+        };
+        if end.is_natural() {
+            return None;
+        }
+        let next = |gap: f64| gap > 0.0 && gap < interval + step / 2.0;
+        let occluder = rcds.iter().find(|p| {
+            p.range_m < rcd.range_m
+                && if toward_higher {
+                    next(p.first_deg - rcd.last_deg)
+                } else {
+                    next(rcd.first_deg - p.last_deg)
+                }
+        });
+        match (occluder, end) {
+            (Some(p), _) => Some((p.start_edge_deg(), p.end_edge_deg())),
+            (None, End::Unknown) => Some((f64::NEG_INFINITY, f64::INFINITY)),
+            (None, _) => None,
+        }
+    };
+    let (hidden_below, hidden_above) = (hidden(false), hidden(true));
     let mut estimates: Vec<(Bearing, usize, bool)> = Vec::new();
     for (j, plane) in rcds.iter().enumerate() {
         let Some(normal) = planes[j].filter(|_| j != i) else {
@@ -360,16 +387,8 @@ fn corner_of_planes(
             let deg =
                 rcd.centre_deg() + crate::wrap_deg(normal.deg + side * off - rcd.centre_deg());
             let margin = 3.0 * sigma + step / 2.0;
-            let lo = if rcd.start.is_natural() {
-                rcd.start_edge_deg() - margin
-            } else {
-                f64::NEG_INFINITY
-            };
-            let hi = if rcd.end.is_natural() {
-                rcd.end_edge_deg() + margin
-            } else {
-                f64::INFINITY
-            };
+            let lo = hidden_below.map_or(rcd.start_edge_deg(), |(from, _)| from) - margin;
+            let hi = hidden_above.map_or(rcd.end_edge_deg(), |(_, to)| to) + margin;
             let inside = (lo..=hi).contains(&deg)
                 && rcd.start_edge_deg() >= deg - corner_half - margin
                 && rcd.end_edge_deg() <= deg + corner_half + margin;
@@ -406,7 +425,6 @@ fn corner_of_planes(
 mod tests {
     use super::*;
     use crate::pings::{Ping, Sweep};
-    use crate::rcd::End;
     use crate::rcd::tests::{regions, run, sweep};
 
     fn classified(from_deg: f64, ranges: &[f64]) -> (Vec<Rcd>, Classification) {

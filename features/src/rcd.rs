@@ -283,6 +283,9 @@ pub fn extract(sweep: &Sweep, cfg: &FeatureConfig, gate: &Gate) -> Vec<Rcd> {
 /// targets with nothing behind them is wider: each target's cone is 10° or more.
 const MAX_BRIDGED: usize = 3;
 
+/// How far past a run's end a burst of lost pings is looked through for the run's range again.
+const RESUME_LOOKAHEAD: usize = 6;
+
 /// Maximal runs of constant depth, single transients and short dropouts bridged.
 fn find_runs(sweep: &Sweep, gate: &Gate) -> Vec<Run> {
     let pings = sweep.pings();
@@ -583,6 +586,29 @@ fn end_kind(sweep: &Sweep, run: &Run, gate: &Gate, side: Side) -> (End, f64) {
         return (End::Unknown, 1.0);
     };
     let past = |r: Option<f64>| r.is_none_or(|r| gate.farther(&run.stats, r));
+    // Pings lost beyond the end (nothing, at most one transient), then the run's own range
+    // again: the target goes on past a burst of lost pings, its edge is not known.
+    let lost = |steps: usize| {
+        let mut nearer = 0;
+        (1..steps).all(|s| {
+            outside(s).is_some_and(|i| match pings[i].range_m {
+                None => true,
+                Some(r) if gate.nearer(&run.stats, r) => {
+                    nearer += 1;
+                    nearer <= 1
+                }
+                Some(_) => false,
+            })
+        })
+    };
+    let resumes = (2..=RESUME_LOOKAHEAD).any(|steps| {
+        lost(steps)
+            && outside(steps)
+                .is_some_and(|j| pings[j].range_m.is_some_and(|r| gate.fits(&run.stats, r)))
+    });
+    if resumes {
+        return (End::Unknown, 1.0);
+    }
     match pings[k].range_m {
         r if past(r) => (End::Natural, 1.0),
         Some(r) if gate.nearer(&run.stats, r) => {
