@@ -399,26 +399,26 @@ fn corner_of_planes(
     }
     // A corner's region is cut by its own walls: planes right beside a hidden end speak for
     // it before planes elsewhere, whose lines may meet its range by chance.
-    if estimates.iter().any(|e| e.2) {
-        estimates.retain(|e| e.2);
-    }
-    let estimates: Vec<(Bearing, usize)> = estimates.into_iter().map(|(b, j, _)| (b, j)).collect();
-    if estimates.is_empty() {
+    let beside_any = estimates.iter().any(|e| e.2);
+    let used: Vec<&(Bearing, usize, bool)> =
+        estimates.iter().filter(|e| e.2 || !beside_any).collect();
+    if used.is_empty() {
         return None;
     }
-    let weight: f64 = estimates.iter().map(|(b, _)| b.sigma.powi(-2)).sum();
-    let deg = estimates
+    let weight: f64 = used.iter().map(|(b, _, _)| b.sigma.powi(-2)).sum();
+    let deg = used
         .iter()
-        .map(|(b, _)| b.deg * b.sigma.powi(-2))
+        .map(|(b, _, _)| b.deg * b.sigma.powi(-2))
         .sum::<f64>()
         / weight;
-    Some((
-        Bearing {
-            deg,
-            sigma: weight.powf(-0.5),
-        },
-        estimates.into_iter().map(|(_, j)| j).collect(),
-    ))
+    let sigma = weight.powf(-0.5);
+    // Every plane whose line agrees with the corner found speaks for it.
+    let agree = estimates
+        .iter()
+        .filter(|(b, _, _)| (b.deg - deg).abs() <= 3.0 * b.sigma.hypot(sigma) + step / 2.0)
+        .map(|(_, j, _)| *j)
+        .collect();
+    Some((Bearing { deg, sigma }, agree))
 }
 
 #[cfg(test)]
