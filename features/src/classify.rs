@@ -218,7 +218,7 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
                     range_m: rcd.range_m,
                     bearing_deg: crate::wrap_deg(b.deg),
                     range_sigma_random_m: rcd.range_sigma_m,
-                    range_sigma_systematic_m: cfg.range_sigma_rel * rcd.range_m,
+                    range_sigma_systematic_m: cfg.range_sigma_systematic_m(rcd.range_m),
                     bearing_sigma_deg: b.sigma,
                     rcd: i,
                 })

@@ -133,6 +133,11 @@ pub struct FeatureConfig {
     /// fires a cycle or two into the echo reads long). A property of one sensor: calibrate it
     /// against a wall at a known distance; 0 takes the ranges as they come.
     pub range_offset_m: f64,
+    /// Uncertainty (1σ) of that offset, metres, shared by every range: a detector fires one or
+    /// two cycles into the echo (4–9 mm at 40 kHz) and hobby sensors are often a centimetre or
+    /// more off; left at 5 mm while the offset is not calibrated, so the reported uncertainty
+    /// covers it. Lower it once the offset is measured.
+    pub range_offset_sigma_m: f64,
     /// The range noise, estimated online from the pings ([`crate::noise`]).
     pub noise: NoiseConfig,
     /// Uncertainty (1σ) of every modelled cone half-angle: the specular cut-off and the effective
@@ -154,6 +159,7 @@ impl Default for FeatureConfig {
             echo: EchoPhysics::default(),
             min_pings: 3,
             range_offset_m: 0.0,
+            range_offset_sigma_m: 0.005,
             noise: NoiseConfig::default(),
             cone_sigma_deg: 0.5,
             range_sigma_rel: 0.002,
@@ -221,6 +227,7 @@ impl FeatureConfig {
             self.range_offset_m.is_finite() && self.range_offset_m.abs() < 1.0,
             "range_offset_m must be within ±1 m",
         )?;
+        non_negative(self.range_offset_sigma_m, "range_offset_sigma_m")?;
         let n = &self.noise;
         positive(n.floor_m, "noise.floor_m")?;
         non_negative(n.prior_sigma_m, "noise.prior_sigma_m")?;
@@ -278,6 +285,12 @@ impl FeatureConfig {
     /// Speed of sound at the configured air temperature, for readings that carry none.
     pub fn speed_of_sound_mps(&self) -> f64 {
         f64::from(self.sensor.speed_of_sound_mps())
+    }
+
+    /// The range error shared by every sweep at `range_m`, 1σ: the speed of sound's law and the
+    /// sensor's offset.
+    pub fn range_sigma_systematic_m(&self, range_m: f64) -> f64 {
+        (self.range_sigma_rel * range_m).hypot(self.range_offset_sigma_m)
     }
 
     /// Tolerance on a measured width: each end of a run is known to one step (the cone's edge
