@@ -71,6 +71,11 @@ impl PingPair {
     }
 }
 
+/// Pairs of pings further apart than this (plus the share below of their range) are not noise:
+/// 7σ of the difference of two pings of a sensor with σ = 1 cm + 1 % at 1 m.
+const MAX_DIFFERENCE_M: f64 = 0.05;
+const MAX_DIFFERENCE_PER_M: f64 = 0.15;
+
 /// Fewest pairs an estimate is made from; below, the prior holds.
 const MIN_PAIRS: usize = 8;
 /// Fewest pairs in one range bin.
@@ -90,6 +95,8 @@ pub struct NoiseModel {
     pub floor_m: f64,
     /// Pairs it was estimated from (0: the prior).
     pub pairs: usize,
+    /// The ranges it was measured over: σ is held constant outside them.
+    pub ranges_m: (f64, f64),
 }
 
 impl NoiseModel {
@@ -100,6 +107,7 @@ impl NoiseModel {
             sigma_per_m: cfg.prior_sigma_fraction,
             floor_m: cfg.floor_m,
             pairs: 0,
+            ranges_m: (0.0, f64::INFINITY),
         }
     }
 
@@ -110,19 +118,28 @@ impl NoiseModel {
             sigma_per_m,
             floor_m: 0.0,
             pairs: 0,
+            ranges_m: (0.0, f64::INFINITY),
         }
     }
 
     /// σ of one ping's range at `range_m`.
     pub fn sigma_at(&self, range_m: f64) -> f64 {
-        (self.sigma_m + self.sigma_per_m * range_m.max(0.0)).max(self.floor_m)
+        let r = range_m.clamp(self.ranges_m.0.max(0.0), self.ranges_m.1.max(0.0));
+        (self.sigma_m + self.sigma_per_m * r).max(self.floor_m)
     }
 
     /// The model estimated from `pairs` (module docs), or the prior when there are too few.
     pub fn estimate(pairs: impl IntoIterator<Item = PingPair>, cfg: &NoiseConfig) -> Self {
+        // A pair farther apart than any working ranger's noise makes straddles two targets; in
+        // a scene of few targets at few ranges (two posts before a wall) such pairs would fill a
+        // bin of their own.
         let mut pairs: Vec<PingPair> = pairs
             .into_iter()
-            .filter(|p| p.range_m.is_finite() && p.difference_m.is_finite())
+            .filter(|p| {
+                p.range_m.is_finite()
+                    && p.difference_m.is_finite()
+                    && p.difference_m <= MAX_DIFFERENCE_M + MAX_DIFFERENCE_PER_M * p.range_m
+            })
             .collect();
         let n = pairs.len();
         if n < MIN_PAIRS {
@@ -145,6 +162,8 @@ impl NoiseModel {
             sigma_per_m: b,
             floor_m: cfg.floor_m,
             pairs: n,
+            // Beyond the ranges it was measured at, the line is not extrapolated.
+            ranges_m: (pairs[0].range_m, pairs[n - 1].range_m),
         }
     }
 }
@@ -257,6 +276,19 @@ pub(crate) mod tests {
                     "σ = {a} + {b} r at {r} m: {got} vs {truth} ({m:?})"
                 );
             }
+        }
+    }
+
+    #[test]
+    fn pairs_across_two_targets_do_not_make_noise() {
+        // Two posts at 1 m before a wall at 2 m: most pairs on the posts, a few on the wall, a
+        // tenth straddling a post's edge (1 m apart).
+        let mut pairs = noisy_pairs(300, 1.0, 1.02, (0.003, 0.0), 0.0, 5);
+        pairs.extend(noisy_pairs(30, 2.0, 2.01, (0.003, 0.0), 0.0, 6));
+        pairs.extend((0..40).map(|_| PingPair::of(1.01, 2.0)));
+        let m = NoiseModel::estimate(pairs, &NoiseConfig::default());
+        for r in [1.0, 1.5, 2.0, 4.0] {
+            assert!(m.sigma_at(r) < 0.005, "{r} m: {m:?}");
         }
     }
 

@@ -610,6 +610,12 @@ fn end_kind(sweep: &Sweep, run: &Run, gate: &Gate, side: Side) -> (End, f64) {
         return (End::Unknown, 1.0);
     }
     match pings[k].range_m {
+        // A lost ping right before a nearer target: that target may hide the rest.
+        None if outside(2)
+            .is_some_and(|j| pings[j].range_m.is_some_and(|r| gate.nearer(&run.stats, r))) =>
+        {
+            (End::Occluded, 1.0)
+        }
         r if past(r) => (End::Natural, 1.0),
         Some(r) if gate.nearer(&run.stats, r) => {
             // A lone nearer ping with nothing or something farther beyond it is a transient, not
@@ -639,11 +645,12 @@ fn join_hidden(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) 
         // Each step looks past the pings that heard nearer, for a run at the same range.
         while joined.end == End::Occluded {
             let mut k = joined.last + 1;
+            // (A lost ping among them hid nothing either.)
             while k < pings.len()
                 && !sweep.gap_before(k)
                 && pings[k]
                     .range_m
-                    .is_some_and(|r| gate.nearer(&joined.stats, r))
+                    .is_none_or(|r| gate.nearer(&joined.stats, r))
             {
                 k += 1;
             }
@@ -824,10 +831,13 @@ pub(crate) mod tests {
 
     #[test]
     fn short_runs_are_dropped_and_scan_ends_are_unknown() {
-        let ranges = cat(&[run(2, 1.0), vec![0.0], run(5, 1.5)]);
+        let ranges = cat(&[run(2, 1.0), vec![0.0, 0.0], run(5, 1.5)]);
         let r = rcds(0.0, &ranges);
         assert_eq!(r.len(), 1);
         assert_eq!((r[0].start, r[0].end), (End::Natural, End::Unknown));
+        // One lost ping right before a nearer target: that target may hide the rest.
+        let ranges = cat(&[run(2, 1.0), vec![0.0], run(5, 1.5)]);
+        assert_eq!(rcds(0.0, &ranges)[0].start, End::Occluded);
         // Lost readings end a run like the end of the scan.
         let mut pings: Vec<Ping> = sweep(0.0, &run(6, 1.0)).pings().to_vec();
         for p in &mut pings[3..] {
