@@ -25,12 +25,15 @@
 //! its natural end: the normal lies one cut-off inward from the cone's edge. Narrower, it could be
 //! anything partly seen: **unclassified**.
 //!
-//! A region hidden at an end by a nearer plane right beside it is tested as a **corner** of that
-//! plane: a concave corner is farther than the feet of its walls, so its walls, heard nearer,
-//! hide it on both sides (the room's corners). If the plane's line meets the region's range
-//! inside the region (at φ ± acos(d / r)), the region is that corner, at that bearing (the mean
-//! over both walls when both are heard) and at the region's range. Regions hidden on both sides
-//! that no plane explains stay unclassified.
+//! A region not seen whole as a point, two points or a plane is tested as a **corner** of the
+//! sweep's planes: a concave corner lies on its wall's line beyond the foot of the perpendicular,
+//! so a plane (normal φ, distance d) meets the region's range r at φ ± acos(d / r). If that
+//! bearing lies inside the region, or beyond an end that is not natural (over the nearer region
+//! hiding it, or past the scan's end), and the region lies inside the corner's cone around it,
+//! the region is that corner, at that bearing (weighted mean over the planes beside its hidden
+//! ends, or over all when none is beside) and at the region's range. A region whose width is both
+//! a reference post's and a wall's (near the sensor) is a plane when another region is its corner.
+//! Regions that no plane explains keep the class their width gives.
 //!
 //! Uncertainties: a cone's edge lies somewhere in the step between the last ping that heard the
 //! target and the first that did not, uniformly: σ = step/√12 per edge (two steps when that ping

@@ -10,16 +10,20 @@
 //!
 //! The extraction, over the pings of one sweep sorted by bearing:
 //!
-//! 1. **Runs**: grow a run while the next ping's range keeps the run's spread within the range
-//!    tolerance (the detector's jitter of `late_cycles_max` half-wavelengths plus a margin). One
-//!    ping that breaks a run by hearing **nearer** than all of it (a transient: the SRF05's
-//!    spurious echoes end a ping early, by any amount) or **nothing** (a dropout), when the ping
-//!    after it continues the run, is bridged and counted as an outlier. A ping that hears **farther** is never bridged: the beam went past
-//!    the target there, which is evidence of a gap (two posts with a way between them).
+//! 1. **Runs**: grow a run while the next ping lies within the [`Gate`] of the run's mean: a few σ
+//!    of the sensor's range noise, estimated online from the pings themselves
+//!    ([`crate::noise`]). Up to three pings that heard **nothing** (dropouts), one of
+//!    which may have heard **nearer** than the run (a transient: the SRF05's spurious echoes end a
+//!    ping early, by any amount), are bridged when the ping after them continues the run, and
+//!    counted as outliers. A ping that hears **farther** is never bridged: the beam went past the
+//!    target there, which is evidence of a gap (two posts with a way between them). Runs are then
+//!    split at significant steps in range (targets nearer in range than the gate), touching runs
+//!    at one range joined again, and the pings at their boundaries settled.
 //! 2. **Ends**: [`End::Natural`] when the next ping heard farther or nothing (the target left the
 //!    cone there), [`End::Occluded`] when it heard nearer (a nearer target may hide the rest of this
-//!    one), [`End::Unknown`] at the end of the scan, at lost readings, or at an ambiguous neighbour.
-//!    A lone nearer ping followed by farther or nothing is a transient: the end is natural.
+//!    one), [`End::Unknown`] at the end of the scan, at lost readings, at an ambiguous neighbour,
+//!    or where the run's range comes back past a burst of lost pings. A lone nearer ping followed
+//!    by farther or nothing is a transient: the end is natural.
 //! 3. **Joining**: two runs at the same range, separated only by pings that heard nearer, are one
 //!    target partly hidden (the wall behind a post): they are joined, the hidden pings counted —
 //!    unless together they would be wider than any one target's region at that range (the four
