@@ -6,7 +6,8 @@ use std::fmt::Write as _;
 use sonar_features::FeatureKind;
 
 use crate::features::{
-    CHI2_1SIGMA, CHI2_95, CROWD_M, Family, FeatureResults, FeatureSettings, RESOLVED_M, Run, Scored,
+    CHI2_1SIGMA, CHI2_95, CROWD_M, Family, FeatureResults, FeatureSettings, LevelResults,
+    RESOLVED_M, Run, Scored,
 };
 
 /// Median and worst of a set of figures (worst = largest).
@@ -529,6 +530,143 @@ pub fn markdown(settings: &FeatureSettings, r: &FeatureResults) -> String {
                 h.rms_normalised,
                 h.within_1sigma * 100.0,
                 h.within_95 * 100.0
+            );
+        }
+    }
+    s
+}
+
+/// Mean false features per run of a family.
+pub fn mean_false_features(family: &Family) -> f64 {
+    let n = family.runs.len().max(1) as f64;
+    family
+        .runs
+        .iter()
+        .map(|r| r.all.false_features.len() as f64)
+        .sum::<f64>()
+        / n
+}
+
+/// Found of expected (after all sweeps): walls and corners.
+fn found(all: impl Iterator<Item = bool>) -> (usize, usize) {
+    all.fold((0, 0), |(f, n), ok| (f + usize::from(ok), n + 1))
+}
+
+/// The robustness runs as Markdown: per noise level the posts, the rooms and the aims of issue 23.
+pub fn levels_markdown(settings: &FeatureSettings, levels: &[LevelResults]) -> String {
+    let mut s = String::new();
+    let runs = settings.bearings_deg.len() * settings.seeds.len();
+    let _ = writeln!(
+        s,
+        "### Features under sensor noise\n\nEvery scene rotated by {} × seeds {:?} ({runs} runs; \
+         the off-centre room {} runs, {} sensor positions), {} sweeps each, at each noise level: \
+         Gaussian range noise per ping on top of the simulator's own, and dropouts (pings that \
+         hear nothing); scored against each scene's true geometry, median / worst over the runs.\n",
+        list_deg(&settings.bearings_deg),
+        settings.seeds,
+        runs * crate::features::OFF_CENTRE.len(),
+        crate::features::OFF_CENTRE.len(),
+        settings.sweeps,
+    );
+    let _ = write!(
+        s,
+        "| noise | 5 cm post at 1 m: error (missed) | two posts resolved at"
+    );
+    for mm in &settings.level_spacings_mm {
+        let _ = write!(s, " {} |", mm_cm(*mm));
+    }
+    let _ = writeln!(
+        s,
+        " false features per scene (mean over all scenes) | aims |"
+    );
+    let _ = writeln!(
+        s,
+        "|---|---|{}---|---|",
+        "---|".repeat(settings.level_spacings_mm.len())
+    );
+    for l in levels {
+        let (post, missed) = post_errors(&l.post, When::All);
+        let _ = write!(
+            s,
+            "| {} | {} ({missed}) |",
+            l.level.label(),
+            spread_fine(post)
+        );
+        for (_, f) in &l.spacings {
+            let (ok, n) = resolved(f);
+            let _ = write!(s, " {ok} of {n} |");
+        }
+        let families = l.families();
+        let mean_false = families.iter().map(|f| mean_false_features(f)).sum::<f64>()
+            / families.len().max(1) as f64;
+        let at_20 = l
+            .spacings
+            .iter()
+            .find(|(mm, _)| *mm == 200)
+            .map(|(_, f)| resolved(f));
+        let aims = [
+            post.is_some_and(|p| p.worst <= 0.02) && missed == 0,
+            at_20.is_some_and(|(ok, n)| ok * 10 >= n * 9),
+            mean_false <= 1.0,
+        ];
+        let _ = writeln!(
+            s,
+            " {mean_false:.2} | post ≤ 2 cm worst: {}; two at 20 cm ≥ 90 %: {}; ≤ 1 false: {} |",
+            verdict(aims[0]),
+            verdict(aims[1]),
+            verdict(aims[2])
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\nWalls, corners and false features per scene and noise level (found of expected after \
+         all sweeps; errors of the found ones: walls' normal angle and perpendicular distance, \
+         corners' position):\n\n| noise | scene | walls found | wall angle | wall distance | \
+         corners found | corner error | false features per run (mean / worst) | what they were |\n\
+         |---|---|---|---|---|---|---|---|---|"
+    );
+    for l in levels {
+        for f in [&l.room, &l.off_centre, &l.l_room, &l.corner, &l.slanted] {
+            let (angle, dist, _) = wall_errors(f, When::All);
+            let walls = found(
+                f.runs
+                    .iter()
+                    .flat_map(|r| r.all.walls.iter().map(Option::is_some)),
+            );
+            let corners = found(
+                f.runs
+                    .iter()
+                    .flat_map(|r| r.all.corners.iter().map(Option::is_some)),
+            );
+            let (corner, _) = corner_errors(f, When::All);
+            let kinds: std::collections::BTreeMap<String, usize> = f
+                .runs
+                .iter()
+                .flat_map(|r| r.all.false_features.iter())
+                .fold(Default::default(), |mut m, (k, _)| {
+                    *m.entry(format!("{k:?}").to_lowercase()).or_default() += 1;
+                    m
+                });
+            let what = kinds
+                .iter()
+                .map(|(k, n)| format!("{n} {k}"))
+                .collect::<Vec<_>>()
+                .join(", ");
+            let worst = false_features(f, When::All).map_or(0.0, |x| x.worst);
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} of {} | {} | {} | {} of {} | {} | {:.2} / {worst:.0} | {} |",
+                l.level.label(),
+                f.name,
+                walls.0,
+                walls.1,
+                spread_deg(angle),
+                spread_fine(dist),
+                corners.0,
+                corners.1,
+                spread_fine(corner),
+                mean_false_features(f),
+                if what.is_empty() { "–".into() } else { what }
             );
         }
     }

@@ -55,12 +55,31 @@ pub struct FeatureSettings {
     pub sweeps: u32,
     /// Centre spacings of the two-post scenes, millimetres.
     pub spacings_mm: Vec<u32>,
+    /// Noise levels of the robustness runs ([`evaluate_levels`]).
+    pub levels: Vec<NoiseLevel>,
+    /// Centre spacings of the two-post scenes in the robustness runs, millimetres.
+    pub level_spacings_mm: Vec<u32>,
 }
 
 /// `scene` turned by `deg` counter-clockwise about the sensor, everything else kept.
 pub fn rotated(scene: &Scene, deg: f64) -> Result<Scene> {
     let (s, c) = deg.to_radians().sin_cos();
-    let turn = |p: Vec2| Vec2::new(c * p.x - s * p.y, s * p.x + c * p.y);
+    moved(scene, &format!("{}@{deg}°", scene.name), |p: Vec2| {
+        Vec2::new(c * p.x - s * p.y, s * p.x + c * p.y)
+    })
+}
+
+/// `scene` with the sensor standing at `at` (in the scene's frame) instead of its origin.
+pub fn shifted(scene: &Scene, at: Vec2) -> Result<Scene> {
+    moved(
+        scene,
+        &format!("{}+({:.2},{:.2})", scene.name, at.x, at.y),
+        |p: Vec2| p - at,
+    )
+}
+
+/// `scene` with every wall end and post centre moved by `turn`, everything else kept.
+fn moved(scene: &Scene, name: &str, turn: impl Fn(Vec2) -> Vec2) -> Result<Scene> {
     let walls = scene
         .walls()
         .iter()
@@ -79,7 +98,7 @@ pub fn rotated(scene: &Scene, deg: f64) -> Result<Scene> {
             surface: p.surface,
         })
         .collect();
-    let mut out = Scene::new(&format!("{}@{deg}°", scene.name), walls, posts)?;
+    let mut out = Scene::new(name, walls, posts)?;
     out.description = scene.description.clone();
     out.scan = scene.scan;
     out.echo = scene.echo;
@@ -103,6 +122,128 @@ pub fn slanted_wall() -> Result<Scene> {
         to_deg: 45.0,
     });
     Ok(scene)
+}
+
+/// An L-shaped room around the sensor (2.8 m × 2.6 m less a 1.2 m × 1.2 m corner): five concave
+/// corners, one convex (an edge, a point target), walls 0.6–1.8 m away.
+pub fn l_room() -> Result<Scene> {
+    let corners = [
+        Vec2::new(-1.0, -1.0),
+        Vec2::new(1.8, -1.0),
+        Vec2::new(1.8, 0.4),
+        Vec2::new(0.6, 0.4),
+        Vec2::new(0.6, 1.6),
+        Vec2::new(-1.0, 1.6),
+    ];
+    let walls = (0..corners.len())
+        .map(|i| Wall {
+            a: corners[i],
+            b: corners[(i + 1) % corners.len()],
+            surface: sonar_sim::Surface::Hard,
+        })
+        .collect();
+    let mut scene = Scene::new("l-room", walls, vec![])?;
+    scene.description = "an L-shaped room, five concave corners and a convex one".into();
+    scene.scan = Some(sonar_sim::SuggestedScan::Full);
+    Ok(scene)
+}
+
+/// Where the sensor stands in the square room for the off-centre runs: the nearest wall 0.5 m
+/// away, then two others.
+pub const OFF_CENTRE: [(f64, f64); 3] = [(0.15, -0.7), (-0.6, 0.45), (0.55, 0.55)];
+
+/// The simulated sensor's noise: Gaussian range noise σ = `sigma_m` + `fraction` × range on top
+/// of the simulator's own (the detector's late cycles, rare transients), and a share `dropout` of
+/// pings that hear nothing.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NoiseLevel {
+    pub sigma_m: f64,
+    pub fraction: f64,
+    pub dropout: f64,
+}
+
+impl NoiseLevel {
+    /// The simulator's own noise only.
+    pub const NONE: Self = Self {
+        sigma_m: 0.0,
+        fraction: 0.0,
+        dropout: 0.0,
+    };
+
+    /// `MM[+PCT%][/DROP%]`: σ in millimetres, the share of the range in percent, the pings lost
+    /// in percent (`10+1%/2%`: σ = 1 cm + 1 % of the range, 2 % of the pings lost).
+    pub fn parse(s: &str) -> Result<Self, String> {
+        let bad = || format!("{s:?}: expected MM[+PCT%][/DROP%], e.g. 3, 10+1% or 10+1%/2%");
+        let (noise, drop) = s.trim().split_once('/').unwrap_or((s.trim(), "0%"));
+        let (mm, pct) = noise.split_once('+').unwrap_or((noise, "0%"));
+        let percent = |v: &str| -> Result<f64, String> {
+            v.trim()
+                .strip_suffix('%')
+                .unwrap_or(v.trim())
+                .parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite() && (0.0..100.0).contains(x))
+                .map(|x| x / 100.0)
+                .ok_or_else(bad)
+        };
+        let mm: f64 = mm.trim().parse().map_err(|_| bad())?;
+        if !(mm.is_finite() && (0.0..=200.0).contains(&mm)) {
+            return Err(bad());
+        }
+        Ok(Self {
+            sigma_m: mm / 1000.0,
+            fraction: percent(pct)?,
+            dropout: percent(drop)?,
+        })
+    }
+
+    /// As written on the command line and in the tables.
+    pub fn label(&self) -> String {
+        let mut out = if *self == Self::NONE {
+            "simulator's own".to_owned()
+        } else {
+            format!("σ = {:.0} mm", self.sigma_m * 1000.0)
+        };
+        if self.fraction > 0.0 {
+            out += &format!(" + {:.1} %", self.fraction * 100.0);
+        }
+        if self.dropout > 0.0 {
+            out += &format!(", {:.0} % dropouts", self.dropout * 100.0);
+        }
+        out
+    }
+
+    /// `scene` with this noise.
+    fn on(&self, scene: &Scene) -> Scene {
+        let mut out = scene.clone();
+        out.noise.range_sigma_m = self.sigma_m;
+        out.noise.range_sigma_fraction = self.fraction;
+        out
+    }
+
+    /// Loses a share `dropout` of the pings of `readings` (seeded: the same runs lose the same
+    /// pings).
+    fn drop_pings(&self, readings: &mut [Reading], seed: u64) {
+        if self.dropout <= 0.0 {
+            return;
+        }
+        let mut state = seed ^ 0x9e37_79b9_7f4a_7c15;
+        for r in readings {
+            let n = usize::from(r.ping_count).min(r.echo_us.len());
+            for us in &mut r.echo_us[..n] {
+                // SplitMix64: uniform in [0, 1) from the top 53 bits.
+                state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+                let mut z = state;
+                z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+                z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+                z ^= z >> 31;
+                let uniform = (z >> 11) as f64 / (1u64 << 53) as f64;
+                if uniform < self.dropout {
+                    *us = 0;
+                }
+            }
+        }
+    }
 }
 
 /// The paper's obstacle scene with a post `radius_m` thick instead of 2.5 cm: a 10 cm post is
@@ -505,14 +646,26 @@ fn occupied_cells(readings: &[Reading]) -> Result<Vec<Point2<f64>>> {
 
 /// Runs `base` at every bearing and seed.
 fn family(name: &str, base: &Scene, settings: &FeatureSettings, grid: GridUse) -> Result<Family> {
+    family_at(name, base, settings, grid, NoiseLevel::NONE)
+}
+
+/// Runs `base` with `level`'s noise at every bearing and seed.
+fn family_at(
+    name: &str,
+    base: &Scene,
+    settings: &FeatureSettings,
+    grid: GridUse,
+    level: NoiseLevel,
+) -> Result<Family> {
     let mut runs = Vec::new();
     for &bearing in &settings.bearings_deg {
-        let scene = rotated(base, bearing)?;
+        let scene = level.on(&rotated(base, bearing)?);
         let scan = Scan::for_scene(&scene);
         let truth = Truth::of(&scene, scan);
         for &seed in &settings.seeds {
-            let cap = capture(scene.clone(), scan, settings.sweeps, seed)
+            let mut cap = capture(scene.clone(), scan, settings.sweeps, seed)
                 .with_context(|| format!("simulating {} at {bearing}° with seed {seed}", name))?;
+            level.drop_pings(&mut cap.readings, seed);
             let maps = feature_maps(&cap.readings)?;
             let support = match grid {
                 GridUse::Support => occupied_cells(&cap.readings)?,
@@ -584,13 +737,88 @@ pub fn evaluate(settings: &FeatureSettings) -> Result<FeatureResults> {
     })
 }
 
+/// The features of one noise level on every scene family of the robustness runs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LevelResults {
+    pub level: NoiseLevel,
+    /// The 5 cm post at 1 m.
+    pub post: Family,
+    /// Per spacing (mm).
+    pub spacings: Vec<(u32, Family)>,
+    /// The square room, sensor at its centre.
+    pub room: Family,
+    /// The square room, the sensor at each of [`OFF_CENTRE`] (all in one family).
+    pub off_centre: Family,
+    pub l_room: Family,
+    pub corner: Family,
+    pub slanted: Family,
+}
+
+impl LevelResults {
+    /// Every scene family, named.
+    pub fn families(&self) -> Vec<&Family> {
+        let mut out = vec![&self.post];
+        out.extend(self.spacings.iter().map(|(_, f)| f));
+        out.extend([
+            &self.room,
+            &self.off_centre,
+            &self.l_room,
+            &self.corner,
+            &self.slanted,
+        ]);
+        out
+    }
+}
+
+/// The robustness runs: every level of `settings.levels` on the post, the two posts at
+/// `level_spacings_mm`, the square room with the sensor at its centre and off it, the L room,
+/// the corner and the slanted wall, scored against each scene's truth (no grid).
+pub fn evaluate_levels(settings: &FeatureSettings) -> Result<Vec<LevelResults>> {
+    settings
+        .levels
+        .iter()
+        .map(|&level| {
+            let run =
+                |name: &str, scene: &Scene| family_at(name, scene, settings, GridUse::None, level);
+            let room = Scene::builtin("room")?;
+            let mut off_centre = Family {
+                name: "room, off-centre".into(),
+                runs: Vec::new(),
+            };
+            for (x, y) in OFF_CENTRE {
+                let f = run("room, off-centre", &shifted(&room, Vec2::new(x, y))?)?;
+                off_centre.runs.extend(f.runs);
+            }
+            let spacings = settings
+                .level_spacings_mm
+                .iter()
+                .map(|&mm| {
+                    let scene = two_posts(f64::from(mm) / 1000.0)?;
+                    Ok((mm, run(&scene.name.clone(), &scene)?))
+                })
+                .collect::<Result<Vec<_>>>()?;
+            tracing::info!(level = %level.label(), "noise level done");
+            Ok(LevelResults {
+                level,
+                post: run("obstacle", &Scene::builtin("obstacle")?)?,
+                spacings,
+                room: run("room", &room)?,
+                off_centre,
+                l_room: run("l-room", &l_room()?)?,
+                corner: run("corner", &Scene::builtin("corner")?)?,
+                slanted: run("slanted-wall", &slanted_wall()?)?,
+            })
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use sonar_common::sensor::SensorConfig;
     use sonar_features::classify::Observation;
     use sonar_features::{EchoPhysics, Reflector};
-    use sonar_sim::{EchoModel, EchoParams, NoiseParams, Target};
+    use sonar_sim::{EchoModel, EchoParams, Target};
 
     fn model(walls: Vec<Wall>, posts: Vec<Post>) -> EchoModel {
         let scene = Scene::new("test", walls, posts).unwrap();
@@ -614,16 +842,8 @@ mod tests {
         let f = EchoPhysics::default();
         let e = EchoParams::default();
         assert_eq!(
-            (
-                f.frequency_hz,
-                f.beam_6db_half_angle_deg,
-                f.specular_cutoff_deg
-            ),
-            (
-                e.frequency_hz,
-                e.beam_6db_half_angle_deg,
-                e.specular_cutoff_deg
-            )
+            (f.beam_6db_half_angle_deg, f.specular_cutoff_deg),
+            (e.beam_6db_half_angle_deg, e.specular_cutoff_deg)
         );
         assert_eq!(
             (f.absorption_db_per_m, f.tvg_db_per_m, f.tvg_max_range_m),
@@ -633,7 +853,6 @@ mod tests {
             (f.threshold_db, f.corner_loss_db),
             (e.threshold_db, e.corner_loss_db)
         );
-        assert_eq!(f.late_cycles_max, NoiseParams::default().late_cycles_max);
         assert_eq!(f.point_radius_m, crate::pipeline::POST_RADIUS_M);
 
         // And the cones the library expects are the ones the simulator produces.

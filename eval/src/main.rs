@@ -82,6 +82,17 @@ struct Args {
     /// Only the feature evaluation (no pictures, no grid tables of the paper's scenes, no tours).
     #[arg(long, conflicts_with = "motion_only")]
     features_only: bool,
+    /// Noise levels of the features' robustness runs (post, two posts, square room centred and
+    /// off-centre, L room, corner, slanted wall): comma-separated MM[+PCT%][/DROP%], Gaussian σ
+    /// per ping in mm plus a share of the range, and the pings lost (`10+1%/2%`), or `none`.
+    #[arg(long, default_value = "0,3,10,10+1%,10+1%/2%", value_parser = parse_levels)]
+    feature_noise: Levels,
+    /// Centre spacings of the two-post scenes in the robustness runs, in cm (as --spacings).
+    #[arg(long, default_value = "10,20,30,40,60", value_parser = parse_spacings)]
+    feature_level_spacings: Spacings,
+    /// Of the feature evaluation, only the robustness runs under noise.
+    #[arg(long, conflicts_with = "motion_only")]
+    feature_levels_only: bool,
     /// Seeds of the motion evaluation (the tour scenes driven with a drifting odometry, fused at
     /// the true poses, the odometry's, and the odometry's with localisation): comma-separated
     /// values or ranges FROM..TO:STEP, or `none` to skip it.
@@ -114,6 +125,20 @@ fn main() -> ExitCode {
 /// Spacings of the two-post sweep, whole millimetres, increasing.
 #[derive(Debug, Clone, PartialEq, Eq)]
 struct Spacings(Vec<u32>);
+
+/// Noise levels of the features' robustness runs.
+#[derive(Debug, Clone, PartialEq)]
+struct Levels(Vec<features::NoiseLevel>);
+
+fn parse_levels(s: &str) -> Result<Levels, String> {
+    if s.trim() == "none" {
+        return Ok(Levels(Vec::new()));
+    }
+    s.split(',')
+        .map(features::NoiseLevel::parse)
+        .collect::<Result<_, _>>()
+        .map(Levels)
+}
 
 /// Numbers from the command line, in the order given.
 #[derive(Debug, Clone, PartialEq)]
@@ -231,7 +256,7 @@ fn run(args: Args) -> Result<()> {
         scale: usize::from(args.scale),
     };
     let mut text = String::new();
-    if !args.features_only && !args.motion_only {
+    if !args.features_only && !args.feature_levels_only && !args.motion_only {
         std::fs::create_dir_all(&args.out)
             .with_context(|| format!("creating the output directory {}", args.out.display()))?;
         let mut scenes = Vec::new();
@@ -252,14 +277,25 @@ fn run(args: Args) -> Result<()> {
             seeds: args.feature_seeds.0.iter().map(|&s| s as u64).collect(),
             sweeps: args.sweeps,
             spacings_mm: args.feature_spacings.0,
+            levels: args.feature_noise.0,
+            level_spacings_mm: args.feature_level_spacings.0,
         };
-        let results = features::evaluate(&feature_settings)?;
-        if !text.is_empty() {
-            text.push('\n');
+        if !args.feature_levels_only {
+            let results = features::evaluate(&feature_settings)?;
+            if !text.is_empty() {
+                text.push('\n');
+            }
+            text += &feature_report::markdown(&feature_settings, &results);
         }
-        text += &feature_report::markdown(&feature_settings, &results);
+        if !feature_settings.levels.is_empty() {
+            let levels = features::evaluate_levels(&feature_settings)?;
+            if !text.is_empty() {
+                text.push('\n');
+            }
+            text += &feature_report::levels_markdown(&feature_settings, &levels);
+        }
     }
-    if !args.motion_seeds.0.is_empty() && !args.features_only {
+    if !args.motion_seeds.0.is_empty() && !args.features_only && !args.feature_levels_only {
         let mut motion_settings = MotionSettings::drifting(
             args.motion_seeds.0.iter().map(|&s| s as u64).collect(),
             args.motion_metres,

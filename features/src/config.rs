@@ -7,6 +7,7 @@ use sonar_common::sensor::SensorConfig;
 
 use crate::FeatureError;
 use crate::drift::OdometryErrors;
+use crate::noise::NoiseConfig;
 
 /// The physics of the echo, as far as the widths of regions of constant depth depend on it.
 ///
@@ -22,9 +23,6 @@ use crate::drift::OdometryErrors;
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct EchoPhysics {
-    /// Carrier: the SRF05 sends 8 cycles at 40 kHz (sensor-facts). Sets the wavelength, hence
-    /// the detector's jitter.
-    pub frequency_hz: f64,
     /// Off-axis angle where the round-trip beam is 6 dB down: 27° (sensor-facts: ≈ 55° full
     /// width at −6 dB).
     pub beam_6db_half_angle_deg: f64,
@@ -47,16 +45,11 @@ pub struct EchoPhysics {
     /// two: 2.5 cm, the paper's small obstacles. A thicker post is heard over a wider cone and
     /// is reported as two targets (see the crate docs).
     pub point_radius_m: f64,
-    /// The detector fires on the first to the `1 + late_cycles_max`-th cycle of the echo
-    /// (sensor-facts: jitter of about one wavelength); each late cycle adds half a wavelength of
-    /// range. Sets the range tolerance of a run and the bias removed from its mean.
-    pub late_cycles_max: u32,
 }
 
 impl Default for EchoPhysics {
     fn default() -> Self {
         Self {
-            frequency_hz: 40_000.0,
             beam_6db_half_angle_deg: 27.0,
             specular_cutoff_deg: 28.0,
             absorption_db_per_m: 1.3,
@@ -65,7 +58,6 @@ impl Default for EchoPhysics {
             threshold_db: -15.0,
             corner_loss_db: 3.0,
             point_radius_m: 0.025,
-            late_cycles_max: 2,
         }
     }
 }
@@ -137,10 +129,17 @@ pub struct FeatureConfig {
     /// ping, and even the weakest target the model hears (a 5 cm post at 2 m, ±9°) spans more
     /// than three.
     pub min_pings: u32,
-    /// Range tolerance of a run beyond the detector's own jitter (which is
-    /// `late_cycles_max` half-wavelengths, 8.6 mm): targets that are not perfectly round or flat,
-    /// rounding. The ranges of a run lie within jitter + margin of each other.
-    pub range_margin_m: f64,
+    /// Subtracted from every range: the sensor's own constant lateness, metres (a detector that
+    /// fires a cycle or two into the echo reads long). A property of one sensor: calibrate it
+    /// against a wall at a known distance; 0 takes the ranges as they come.
+    pub range_offset_m: f64,
+    /// Uncertainty (1σ) of that offset, metres, shared by every range: a detector fires one or
+    /// two cycles into the echo (4–9 mm at 40 kHz) and hobby sensors are often a centimetre or
+    /// more off; left at 5 mm while the offset is not calibrated, so the reported uncertainty
+    /// covers it. Lower it once the offset is measured.
+    pub range_offset_sigma_m: f64,
+    /// The range noise, estimated online from the pings ([`crate::noise`]).
+    pub noise: NoiseConfig,
     /// Uncertainty (1σ) of every modelled cone half-angle: the specular cut-off and the effective
     /// cones. The simulator's are exact; on a real head measure them and raise this (sensor-facts
     /// only bounds the cut-off to 25–30°).
@@ -159,7 +158,9 @@ impl Default for FeatureConfig {
             sensor: SensorConfig::default(),
             echo: EchoPhysics::default(),
             min_pings: 3,
-            range_margin_m: 0.01,
+            range_offset_m: 0.0,
+            range_offset_sigma_m: 0.005,
+            noise: NoiseConfig::default(),
             cone_sigma_deg: 0.5,
             range_sigma_rel: 0.002,
             merge: MergeConfig::default(),
@@ -204,7 +205,6 @@ impl FeatureConfig {
             .validate()
             .map_err(|e| FeatureError::Config(e.to_string()))?;
         let e = &self.echo;
-        positive(e.frequency_hz, "echo.frequency_hz")?;
         check(
             e.beam_6db_half_angle_deg > 0.0 && e.beam_6db_half_angle_deg < 90.0,
             "echo.beam_6db_half_angle_deg must be in (0, 90)",
@@ -222,12 +222,21 @@ impl FeatureConfig {
         )?;
         non_negative(e.corner_loss_db, "echo.corner_loss_db")?;
         positive(e.point_radius_m, "echo.point_radius_m")?;
-        check(
-            e.late_cycles_max <= 16,
-            "echo.late_cycles_max must be at most 16",
-        )?;
         check(self.min_pings >= 1, "min_pings must be at least 1")?;
-        non_negative(self.range_margin_m, "range_margin_m")?;
+        check(
+            self.range_offset_m.is_finite() && self.range_offset_m.abs() < 1.0,
+            "range_offset_m must be within ±1 m",
+        )?;
+        non_negative(self.range_offset_sigma_m, "range_offset_sigma_m")?;
+        let n = &self.noise;
+        positive(n.floor_m, "noise.floor_m")?;
+        non_negative(n.prior_sigma_m, "noise.prior_sigma_m")?;
+        non_negative(n.prior_sigma_fraction, "noise.prior_sigma_fraction")?;
+        check(
+            n.gate_sigmas.is_finite() && n.gate_sigmas >= 1.0,
+            "noise.gate_sigmas must be at least 1",
+        )?;
+        check(n.window >= 16, "noise.window must be at least 16")?;
         non_negative(self.cone_sigma_deg, "cone_sigma_deg")?;
         non_negative(self.range_sigma_rel, "range_sigma_rel")?;
         let m = &self.merge;
@@ -278,10 +287,10 @@ impl FeatureConfig {
         f64::from(self.sensor.speed_of_sound_mps())
     }
 
-    /// The ranges of one run lie within this of each other: the detector's jitter plus the
-    /// margin.
-    pub fn range_tolerance_m(&self) -> f64 {
-        self.echo.late_spread_m(self.speed_of_sound_mps()) + self.range_margin_m
+    /// The range error shared by every sweep at `range_m`, 1σ: the speed of sound's law and the
+    /// sensor's offset.
+    pub fn range_sigma_systematic_m(&self, range_m: f64) -> f64 {
+        (self.range_sigma_rel * range_m).hypot(self.range_offset_sigma_m)
     }
 
     /// Tolerance on a measured width: each end of a run is known to one step (the cone's edge
@@ -315,11 +324,12 @@ mod tests {
     }
 
     #[test]
-    fn tolerances_follow_from_the_physics() {
+    fn the_width_tolerance_follows_from_the_step_and_the_cones() {
         let cfg = FeatureConfig::default();
-        // Two late cycles at 40 kHz and 343.4 m/s: 8.6 mm, plus the 1 cm margin.
-        assert!((cfg.range_tolerance_m() - 0.0186).abs() < 1e-4);
         assert!((cfg.width_tolerance_deg() - 2.5).abs() < 1e-9);
+        let mut bad = FeatureConfig::default();
+        bad.noise.gate_sigmas = 0.5;
+        assert!(bad.validate().is_err());
     }
 
     #[test]
@@ -328,7 +338,7 @@ mod tests {
             toml::from_str("min_pings = 4\n[echo]\nspecular_cutoff_deg = 25.0\n").unwrap();
         assert_eq!(cfg.min_pings, 4);
         assert_eq!(cfg.echo.specular_cutoff_deg, 25.0);
-        assert_eq!(cfg.echo.frequency_hz, 40_000.0);
+        assert_eq!(cfg.echo.beam_6db_half_angle_deg, 27.0);
         assert!(toml::from_str::<FeatureConfig>("min_ping = 4\n").is_err());
     }
 }

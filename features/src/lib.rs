@@ -22,7 +22,8 @@
 //! 1. [`Sweep`]: the pings of one sweep at their own angles (ping j of a reading at
 //!    centre + (j − 1.5)·1.5° in the direction of motion), sorted by bearing so both scan
 //!    directions give the same sequence. No-echo and out-of-range pings have no range.
-//! 2. [`rcd::extract`]: runs of constant depth, with a single transient (reads nearer) or dropout
+//! 2. [`rcd::extract`]: runs of constant depth within a few σ of the sensor's noise, measured
+//!    online from the pings ([`noise`]), with short bursts of lost pings (one may read nearer)
 //!    bridged, never a ping that heard farther (a gap); each end **natural** (the next ping heard
 //!    farther or nothing: the cone's edge), **occluded** (nearer: hidden) or unknown (scan end,
 //!    lost readings); runs at one range separated only by nearer pings joined (the wall behind a
@@ -32,8 +33,9 @@
 //!    heard over twice its specular cut-off (56°), a corner over its whole cone (60° when near), a
 //!    reference 5 cm post over ±13.4° at 1 m. A region **wider than one point's cone but at most
 //!    two** is two equal points, one half-cone in from each end: the union of two equal cones
-//!    ends at each target's cone edge. Regions hidden by a plane beside them whose line meets
-//!    their range inside them are that plane's **corner**. [`Observation`]s in polar form.
+//!    ends at each target's cone edge. Regions where a plane's line meets their range (inside
+//!    them, or behind what hides them) are that plane's **corner**. [`Observation`]s in polar
+//!    form.
 //! 4. [`FeatureMap`]: observations placed with the sweep's pose, merged into the feature of their
 //!    kind they match (Mahalanobis gate; Kalman refinement), else new; features aimed at but not
 //!    heard fade and are removed. Uncertainty in two parts: jitter averages out over sweeps, the
@@ -49,12 +51,12 @@
 //! # fn main() -> Result<(), sonar_features::FeatureError> {
 //! let cfg = FeatureConfig::default();
 //! let mut map = FeatureMap::new(cfg)?;
-//! // A 5 cm post 1 m ahead, heard within ±13.4° at its near face (0.975 m, plus the detector's
-//! // mean lateness); from readings, `Sweep::from_readings(&one_sweep, &cfg)`.
+//! // A 5 cm post 1 m ahead, heard within ±13.4° at its near face (0.975 m); from readings,
+//! // `Sweep::from_readings(&one_sweep, &cfg)`.
 //! let pings = (0..40)
 //!     .map(|i| {
 //!         let bearing_deg = -29.25 + 1.5 * f64::from(i);
-//!         Ping { bearing_deg, range_m: (bearing_deg.abs() <= 13.4).then_some(0.979) }
+//!         Ping { bearing_deg, range_m: (bearing_deg.abs() <= 13.4).then_some(0.975) }
 //!     })
 //!     .collect();
 //! map.update(&Sweep::from_pings(pings, 1.5)?, &Isometry2::identity());
@@ -83,6 +85,7 @@ pub mod config;
 pub mod drift;
 pub mod localize;
 pub mod map;
+pub mod noise;
 pub mod physics;
 pub mod pings;
 pub mod rcd;
@@ -93,6 +96,7 @@ pub use config::{EchoPhysics, FeatureConfig, MergeConfig, SegmentConfig};
 pub use drift::{DriftEstimate, DriftFilter, OdometryErrors};
 pub use localize::{Needs, PoseFix, WallAhead};
 pub use map::{Feature, FeatureKind, FeatureMap, FeatureSummary, SweepReport};
+pub use noise::{NoiseConfig, NoiseModel, PingPair};
 pub use physics::Reflector;
 pub use pings::{Ping, Sweep};
 pub use rcd::{End, Rcd};

@@ -27,8 +27,9 @@ use nalgebra::{Isometry2, Matrix2, Matrix2x3, Matrix3, Point2, Vector2, Vector3}
 use crate::FeatureError;
 use crate::classify::{Classification, Observation, classify};
 use crate::config::{FeatureConfig, MergeConfig};
+use crate::noise::{NoiseLog, NoiseModel};
 use crate::pings::Sweep;
-use crate::rcd::{Rcd, extract};
+use crate::rcd::{Gate, Rcd, extract};
 use crate::segment::{Segment, segments};
 use sonar_common::ipc::Reading;
 
@@ -310,6 +311,8 @@ pub struct FeatureMap {
     features: Vec<Feature>,
     next_id: u64,
     sweeps: u64,
+    /// Pairs of pings of the last sweeps merged: the sensor's noise ([`crate::noise`]).
+    noise: NoiseLog,
 }
 
 impl FeatureMap {
@@ -320,6 +323,7 @@ impl FeatureMap {
             features: Vec::new(),
             next_id: 1,
             sweeps: 0,
+            noise: NoiseLog::default(),
         })
     }
 
@@ -337,7 +341,16 @@ impl FeatureMap {
         self.sweeps
     }
 
-    /// Forgets every feature (the sweep count and feature ids go on).
+    /// The range noise estimated from the sweeps merged so far and `sweep`'s pings.
+    pub fn noise(&self, sweep: &Sweep) -> NoiseModel {
+        self.noise.model_with(sweep.pairs(), &self.cfg.noise)
+    }
+
+    fn gate(&self, sweep: &Sweep) -> Gate {
+        Gate::new(self.noise(sweep), &self.cfg)
+    }
+
+    /// Forgets every feature (the sweep count, feature ids and the noise estimate go on).
     pub fn clear(&mut self) {
         self.features.clear();
     }
@@ -345,7 +358,7 @@ impl FeatureMap {
     /// A sweep's regions of constant depth and what they are, in the sensor's frame: what
     /// [`Self::localize`] matches and [`Self::merge`] merges.
     pub fn observe(&self, sweep: &Sweep) -> (Vec<Rcd>, Classification) {
-        let rcds = extract(sweep, &self.cfg);
+        let rcds = extract(sweep, &self.cfg, &self.gate(sweep));
         let classification = classify(&rcds, &self.cfg);
         (rcds, classification)
     }
@@ -370,12 +383,13 @@ impl FeatureMap {
                 &self.cfg,
             );
             let (_, classification) = self.observe(&sweep);
+            let gate = self.gate(&sweep);
             for o in classification.observations {
                 let agrees =
                     crate::wrap_deg(o.bearing_deg - normal).abs() <= MOVING_NORMAL_STEP_DEG / 2.0;
                 let known = walls.iter().any(|w| {
                     crate::wrap_deg(w.bearing_deg - o.bearing_deg).abs() <= MOVING_NORMAL_STEP_DEG
-                        && (w.range_m - o.range_m).abs() <= self.cfg.range_tolerance_m()
+                        && (w.range_m - o.range_m).abs() <= gate.tolerance_at(o.range_m)
                 });
                 if o.kind == FeatureKind::Plane && agrees && !known {
                     walls.push(o);
@@ -444,10 +458,12 @@ impl FeatureMap {
             refine(&mut self.features[j], &placed[i], stamp, &self.cfg.merge);
             report.refined += 1;
         }
-        let tolerance = self.cfg.range_tolerance_m();
+        let gate = self.gate(sweep);
+        self.noise.add(sweep.pairs(), &self.cfg.noise);
+        let offset = self.cfg.range_offset_m;
         let merge_cfg = self.cfg.merge;
         for (f, used) in self.features.iter_mut().zip(&feature_used) {
-            if !used && heard_past(f, sweep, pose, tolerance) {
+            if !used && heard_past(f, sweep, pose, &gate, offset) {
                 f.confidence *= merge_cfg.miss_factor;
                 report.missed += 1;
             }
@@ -585,7 +601,13 @@ fn refine(f: &mut Feature, z: &Placed, stamp: u64, cfg: &MergeConfig) {
 }
 
 /// Whether `sweep`, taken at `pose`, aimed a ping at the feature and heard farther or nothing.
-fn heard_past(f: &Feature, sweep: &Sweep, pose: &Isometry2<f64>, tolerance: f64) -> bool {
+fn heard_past(
+    f: &Feature,
+    sweep: &Sweep,
+    pose: &Isometry2<f64>,
+    gate: &Gate,
+    range_offset_m: f64,
+) -> bool {
     let inverse = pose.inverse();
     let (bearing_deg, range) = match f.kind {
         FeatureKind::Point | FeatureKind::Corner => {
@@ -610,7 +632,7 @@ fn heard_past(f: &Feature, sweep: &Sweep, pose: &Isometry2<f64>, tolerance: f64)
     };
     sweep.ping_at(bearing_deg).is_some_and(|p| {
         p.range_m
-            .is_none_or(|r| r > range + tolerance + 3.0 * sigma)
+            .is_none_or(|r| r - range_offset_m > range + gate.tolerance_at(range) + 3.0 * sigma)
     })
 }
 
@@ -640,14 +662,14 @@ mod tests {
             .collect()
     }
 
-    /// A post at `bearing` heard within ±13.4° at 0.979 m (its true range, 0.975, plus the
-    /// mean lateness), and a wall 2 m away facing the sensor, within its cut-off.
+    /// A post at `bearing` heard within ±13.4° at 0.975 m (its near face), and a wall 2 m away
+    /// facing the sensor, within its cut-off.
     fn post_scene(bearing: f64) -> impl Fn(f64) -> f64 {
         move |b: f64| {
             if (b - bearing).abs() <= 13.4 {
-                0.975 + 0.0043
+                0.975
             } else if b.abs() <= 28.0 {
-                2.0 + 0.0043
+                2.0
             } else {
                 0.0
             }
@@ -680,7 +702,7 @@ mod tests {
                     .map(|o| {
                         let axis = f64::from(centre) + o;
                         if (axis - 90.0).abs() <= 28.0 {
-                            0.8 + 0.0043
+                            0.8
                         } else {
                             0.0
                         }
@@ -747,7 +769,7 @@ mod tests {
         }
         let id = of_kind(&m, FeatureKind::Point)[0].id();
         // Now the pings at the post's bearing hear the wall behind.
-        let empty = |b: f64| if b.abs() <= 28.0 { 2.0043 } else { 0.0 };
+        let empty = |b: f64| if b.abs() <= 28.0 { 2.0 } else { 0.0 };
         let mut confidences = Vec::new();
         let mut removed = false;
         for _ in 0..8 {

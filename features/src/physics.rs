@@ -84,30 +84,6 @@ impl EchoPhysics {
             radius_m: self.point_radius_m,
         }
     }
-
-    /// Range of one late cycle of the detector: half a wavelength.
-    fn cycle_range_m(&self, speed_of_sound_mps: f64) -> f64 {
-        speed_of_sound_mps / (2.0 * self.frequency_hz)
-    }
-
-    /// Widest spread of one target's ranges: `late_cycles_max` half-wavelengths.
-    pub fn late_spread_m(&self, speed_of_sound_mps: f64) -> f64 {
-        f64::from(self.late_cycles_max) * self.cycle_range_m(speed_of_sound_mps)
-    }
-
-    /// Mean lateness of the detector, metres of range: it fires equally often on each of the
-    /// first `1 + late_cycles_max` cycles, so on average `late_cycles_max / 2` cycles late. The
-    /// true range is the mean of the pings less this.
-    pub fn late_bias_m(&self, speed_of_sound_mps: f64) -> f64 {
-        self.late_spread_m(speed_of_sound_mps) / 2.0
-    }
-
-    /// Standard deviation of one ping's range from the detector's lateness: a discrete uniform
-    /// distribution over `1 + late_cycles_max` cycles.
-    pub fn late_sigma_m(&self, speed_of_sound_mps: f64) -> f64 {
-        let n = f64::from(self.late_cycles_max + 1);
-        ((n * n - 1.0) / 12.0).sqrt() * self.cycle_range_m(speed_of_sound_mps)
-    }
 }
 
 #[cfg(test)]
@@ -115,7 +91,6 @@ mod tests {
     use super::*;
 
     const BEAM: f64 = 30.0;
-    const V: f64 = 343.42;
 
     fn cone(reflector: Reflector, r: f64) -> Option<f64> {
         EchoPhysics::default().cone_half_angle_deg(reflector, r, BEAM)
@@ -149,15 +124,5 @@ mod tests {
         let p = EchoPhysics::default();
         assert!(p.widest_region_deg(0.5, BEAM) > 100.0);
         assert_eq!(p.widest_region_deg(1.7, BEAM), 60.0);
-    }
-
-    #[test]
-    fn the_detector_is_late_by_one_cycle_on_average() {
-        let p = EchoPhysics::default();
-        // λ/2 at 40 kHz: 4.29 mm.
-        assert!((p.late_bias_m(V) - 0.00429).abs() < 1e-5);
-        assert!((p.late_spread_m(V) - 0.00859).abs() < 1e-5);
-        // Uniform over {0, 1, 2} cycles: σ = √(2/3) cycles.
-        assert!((p.late_sigma_m(V) - 0.00429 * (2.0f64 / 3.0).sqrt()).abs() < 1e-5);
     }
 }

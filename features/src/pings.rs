@@ -25,6 +25,7 @@ use sonar_common::ipc::{Reading, flags};
 
 use crate::FeatureError;
 use crate::config::FeatureConfig;
+use crate::noise::PingPair;
 
 /// One ping: where the head pointed, and the range of the first echo it heard.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -41,6 +42,8 @@ pub struct Sweep {
     pings: Vec<Ping>,
     step_deg: f64,
     skipped_readings: usize,
+    /// Neighbouring pings of one reading that both heard something: the noise's evidence.
+    pairs: Vec<PingPair>,
 }
 
 /// Two neighbouring pings farther apart than this many steps have lost readings between them.
@@ -96,11 +99,16 @@ impl Sweep {
     ) -> Self {
         let step = cfg.step_deg();
         let mut pings = Vec::new();
+        let mut pairs = Vec::new();
         let mut skipped = 0;
         for (r, pose) in readings {
             match placed_pings(r, cfg).map(|p| p.map(|ping| at_reference(ping, &pose, normal_deg)))
             {
-                Some(p) => pings.extend(p),
+                Some(p) => {
+                    let first = pings.len();
+                    pings.extend(p);
+                    pairs.extend(neighbour_pairs(&pings[first..]));
+                }
                 None => skipped += 1,
             }
         }
@@ -108,6 +116,7 @@ impl Sweep {
             pings,
             step_deg: step,
             skipped_readings: skipped,
+            pairs,
         };
         sweep.sort();
         sweep
@@ -134,8 +143,14 @@ impl Sweep {
             pings,
             step_deg,
             skipped_readings: 0,
+            pairs: Vec::new(),
         };
         sweep.sort();
+        // Without readings, neighbours in bearing stand in for a reading's pings.
+        sweep.pairs = (1..sweep.pings.len())
+            .filter(|&i| !sweep.gap_before(i))
+            .flat_map(|i| neighbour_pairs(&sweep.pings[i - 1..=i]))
+            .collect();
         Ok(sweep)
     }
 
@@ -150,6 +165,12 @@ impl Sweep {
 
     pub fn step_deg(&self) -> f64 {
         self.step_deg
+    }
+
+    /// Neighbouring pings of one reading that both heard something, for the noise estimate
+    /// ([`crate::noise`]); for pings placed without readings, neighbours in bearing.
+    pub fn pairs(&self) -> &[PingPair] {
+        &self.pairs
     }
 
     /// Readings left out because their pings' angles are unknown.
@@ -187,6 +208,13 @@ fn at_reference(ping: Ping, pose: &Isometry2<f64>, along_deg: Option<f64>) -> Pi
         bearing_deg,
         range_m: ping.range_m.map(|r| r + along).filter(|r| *r > 0.0),
     }
+}
+
+/// Every two neighbouring pings (in the order given) that both heard something.
+fn neighbour_pairs(pings: &[Ping]) -> impl Iterator<Item = PingPair> + '_ {
+    pings
+        .windows(2)
+        .filter_map(|w| Some(PingPair::of(w[0].range_m?, w[1].range_m?)))
 }
 
 /// The pings of one reading at their angles, or `None` when their angles are unknown.

@@ -376,7 +376,7 @@ fn range_on_walls(filter: &mut DriftFilter, map: &FeatureMap, reading: &Reading)
     }
     let cfg = map.config();
     let cone = (cfg.echo.specular_cutoff_deg - RANGING_CONE_MARGIN_DEG).to_radians();
-    let late = cfg.echo.late_bias_m(f64::from(reading.speed_of_sound_mps));
+    let late = cfg.range_offset_m;
     let pings = Sweep::from_readings_at(std::iter::once((reading, Isometry2::identity())), cfg);
     let mut used = 0;
     for ping in pings.pings() {
