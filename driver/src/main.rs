@@ -275,6 +275,7 @@ fn run(args: Args) -> Result<()> {
         readings = link.status.readings_published,
         rejected = link.status.lines_rejected,
         unidentified_readings = link.unidentified_readings,
+        discarded_bytes = link.discarded_bytes,
         "driver stopped"
     );
     Ok(())
@@ -411,6 +412,7 @@ struct Link {
     /// The state in the latest `ST` line, until acted on.
     head_state: Option<DeviceState>,
     reject_log: Throttle,
+    device_error_log: Throttle,
     /// The latest `ERR,HARDWARE` text: what the head stopped on, when it reports `ST,FAULT`.
     last_hardware_error: String,
     /// The head stopped on a hardware fault (`ST,FAULT`): no scan is sent to it until a person
@@ -425,6 +427,8 @@ struct Link {
     identified: bool,
     /// Readings dropped because the device had not identified itself yet.
     unidentified_readings: u64,
+    /// Bytes the port held when a session began, dropped unread.
+    discarded_bytes: u64,
 }
 
 impl Link {
@@ -472,6 +476,7 @@ impl Link {
             probe_sent: None,
             head_state: None,
             reject_log: Throttle::new(REJECT_LOG_PERIOD),
+            device_error_log: Throttle::new(REJECT_LOG_PERIOD),
             last_hardware_error: String::new(),
             head_fault: false,
             status_wanted: false,
@@ -479,6 +484,7 @@ impl Link {
             // The hobby dialect has no identity to wait for.
             identified: args.dialect != Dialect::Native,
             unidentified_readings: 0,
+            discarded_bytes: 0,
         })
     }
 
@@ -607,8 +613,17 @@ impl Link {
         self.set_state(LinkState::Connecting)?;
         // Whoever is on the port now has to identify itself again.
         self.identified = self.dialect != Dialect::Native;
-        // Bytes queued before we opened belong to nobody (or a previous driver).
+        // Bytes queued before we opened belong to nobody (or a previous driver, or a session that
+        // failed): dropped, but counted and said.
+        let queued = port.bytes_to_read().unwrap_or(0);
         let _ = port.clear(serialport::ClearBuffer::All);
+        if queued > 0 {
+            self.discarded_bytes += u64::from(queued);
+            info!(
+                bytes = queued,
+                "dropped what the port held before the handshake (lines of an earlier session)"
+            );
+        }
         let mut framer = LineFramer::new(self.dialect.terminators());
         let mut buf = [0u8; 4096];
 
@@ -826,8 +841,18 @@ impl Link {
                     self.last_hardware_error = text.clone();
                     self.status_wanted = true;
                 }
-                warn!(?code, text, "device reports an error");
                 self.status.device_errors += 1;
+                // Counted and kept in the status always; logged at most once a second (a head
+                // answering every probe with its fault makes one a probe).
+                if let Some(left_out) = self.device_error_log.allow(Instant::now()) {
+                    warn!(
+                        ?code,
+                        text,
+                        errors = self.status.device_errors,
+                        left_out,
+                        "device reports an error"
+                    );
+                }
                 ipc::set_padded_text(
                     &mut self.status.last_device_error,
                     &format!("{}: {text}", code.wire()),

@@ -1374,3 +1374,36 @@ fn a_device_that_never_identifies_itself_is_only_asked_who_it_is() {
         nix::sys::termios::cfgetospeed(&before)
     );
 }
+
+/// A flood of device errors is counted in full and logged at most once a second with the number
+/// left out (issue 24: every ERR line was a WARN line).
+#[test]
+fn device_errors_are_counted_in_full_and_logged_rate_limited() {
+    let sandbox = Sandbox::new("errflood");
+    let node = sandbox.node("test-device");
+    let status = driver_status_subscriber(&node);
+    let mut head = FakeHead::new();
+    let driver = sandbox.spawn(
+        "sonar-driver",
+        &["--port", &head.slave_path, "--scan", "full"],
+    );
+    head.hear("$HELLO,2*", 1);
+    head.say(&hello_from("HEAD-A"));
+    head.hear("$SCAN,FULL*", 1);
+    for k in 0..40 {
+        head.say(&DeviceMessage::Error {
+            code: ErrorCode::Range,
+            text: format!("refused {k}"),
+        });
+    }
+    let s = wait_for_status(&node, &status, |s| s.device_errors == 40);
+    assert_eq!(s.last_device_error(), "RANGE: refused 39");
+    let (exit, stderr) = driver.terminate_with_stderr();
+    assert!(exit.success(), "{stderr}");
+    let logged = stderr.matches("device reports an error").count();
+    // One a second: 40 lines read within a few seconds even on a loaded machine.
+    assert!(
+        (1..=10).contains(&logged),
+        "{logged} lines for 40 errors:\n{stderr}"
+    );
+}
