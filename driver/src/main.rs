@@ -660,6 +660,14 @@ impl Link {
                     }
                 }
             }
+            // Identified by its answer: its readings from here on are published (also those that
+            // come while the handshake settles below).
+            if let Some(hello) = self.hello.clone() {
+                if let Err(why) = self.accept_head(&hello) {
+                    return Ok(SessionEnd::WrongHead(why));
+                }
+                self.identified = true;
+            }
             // A head that announced itself at power-on as we asked answers twice; both are this
             // handshake.
             let settle = Instant::now() + HANDSHAKE_SETTLE;

@@ -157,15 +157,23 @@ impl Run {
         let mut expected = Vec::new();
         // Sweep ids are published on across the head's reset, as the driver does.
         let mut sweeps = SweepIds::default();
+        // After the silence the driver opened the port again: until the head answers its `HELLO`
+        // the readings are not published (they could be another head's), as after any new port.
+        let mut identified = true;
         for (i, line) in replay.framed[..seen].iter().enumerate() {
             if replay.reset_at.contains(&i) {
                 sweeps.head_was_reset();
+            }
+            if replay.silence_end_at.contains(&i) && self.status.reconnects > 0 {
+                identified = false;
             }
             match parse(line, replay.version) {
                 None => rejected += 1,
                 Some(msg) => {
                     ok += 1;
                     match msg {
+                        DeviceMessage::Hello { .. } => identified = true,
+                        DeviceMessage::Reading(_) if !identified => {}
                         DeviceMessage::Reading(mut r) => {
                             r.sweep = sweeps.of(r.sweep);
                             expected.push(wire_key(&r));
