@@ -55,6 +55,19 @@ fn probe() -> Result<Flags, String> {
 fn main() {
     println!("cargo::rustc-check-cfg=cfg(simavr)");
     println!("cargo::rerun-if-changed=build.rs");
+    // The firmware's protocol code built for the host, whatever simavr: its command parser is
+    // checked against the Rust one (`src/protocol_oracle.rs`).
+    for file in ["protocol.c", "protocol.h", "compat.h"] {
+        println!("cargo::rerun-if-changed=../firmware/src/{file}");
+    }
+    cc::Build::new()
+        .file("../firmware/src/protocol.c")
+        .include("../firmware/src")
+        .std("c11")
+        .warnings(true)
+        .extra_warnings(true)
+        .warnings_into_errors(true)
+        .compile("sonar_firmware_protocol");
     println!("cargo::rerun-if-changed=src/board.c");
     for var in [
         "SONAR_FIRMWARE_SIM_NO_SIMAVR",

@@ -79,6 +79,8 @@ pub mod headid;
 pub mod motor;
 pub mod pacing;
 pub mod pins;
+#[cfg(test)]
+mod protocol_oracle;
 pub mod schedule;
 pub mod serial;
 pub mod srf05;
