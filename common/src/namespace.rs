@@ -388,6 +388,7 @@ impl<'a> Namespace<'a> {
             .mode(0o700)
             .create(&self.root)
             .map_err(io_error("create", &self.root))?;
+        self.tighten_root()?;
         let mut dir = File::open(&self.root).map_err(io_error("open", &self.root))?;
         loop {
             match Flock::lock(dir, FlockArg::LockExclusiveNonblock) {
@@ -408,6 +409,34 @@ impl<'a> Namespace<'a> {
             }
             std::thread::sleep(POLL);
         }
+    }
+
+    /// A root made by an older version (or iceoryx2 itself, 0750) is made owner-only too, when it
+    /// is this user's and iceoryx2's alone: it holds iceoryx2's `services` and `nodes` and nothing
+    /// marks it shared (a sticky directory such as /tmp, or a root the user named that holds other
+    /// things, is left as it is).
+    fn tighten_root(&self) -> Result<(), NamespaceError> {
+        use std::os::unix::fs::MetadataExt;
+        let meta = fs::metadata(&self.root).map_err(io_error("inspect", &self.root))?;
+        let mode = meta.permissions().mode() & 0o7777;
+        let dedicated = self.services.is_dir()
+            && self.nodes.is_dir()
+            && entries(&self.root)?.iter().all(|e| {
+                let path = e.path();
+                path == self.services
+                    || path == self.nodes
+                    || path.extension().is_some_and(|x| x == "event")
+            });
+        if meta.uid() == nix::unistd::geteuid().as_raw()
+            && mode & 0o1000 == 0
+            && mode & 0o077 != 0
+            && dedicated
+        {
+            fs::set_permissions(&self.root, fs::Permissions::from_mode(0o700))
+                .map_err(io_error("make owner-only", &self.root))?;
+            info!("{} made owner-only (was {mode:04o})", self.root.display());
+        }
+        Ok(())
     }
 
     /// One recovery pass (the steps of the module documentation); returns the files live
@@ -868,8 +897,21 @@ mod tests {
             fs::remove_file(&counter).unwrap();
         }
         let root = to_path(cfg.global.root_path());
-        let mode = fs::metadata(&root).unwrap().permissions().mode() & 0o777;
-        assert_eq!(mode, 0o700, "the root is its owner's only");
+        let mode_of = |p: &StdPath| fs::metadata(p).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode_of(&root), 0o700, "the root is its owner's only");
+
+        // A root an older version left 0750 is tightened when it holds iceoryx2's alone...
+        let ns = Namespace::new(&cfg);
+        fs::create_dir_all(&ns.services).unwrap();
+        fs::create_dir_all(&ns.nodes).unwrap();
+        fs::set_permissions(&root, fs::Permissions::from_mode(0o750)).unwrap();
+        recover(&cfg).unwrap();
+        assert_eq!(mode_of(&root), 0o700);
+        // ...and left alone when it holds anything else (a directory the user named).
+        fs::write(root.join("notes.txt"), b"mine").unwrap();
+        fs::set_permissions(&root, fs::Permissions::from_mode(0o750)).unwrap();
+        recover(&cfg).unwrap();
+        assert_eq!(mode_of(&root), 0o750);
         let _ = fs::remove_dir_all(root);
     }
 
