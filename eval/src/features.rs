@@ -64,9 +64,8 @@ pub struct FeatureSettings {
 /// `scene` turned by `deg` counter-clockwise about the sensor, everything else kept.
 pub fn rotated(scene: &Scene, deg: f64) -> Result<Scene> {
     let (s, c) = deg.to_radians().sin_cos();
-    moved(scene, &format!("{}@{deg}°", scene.name), |p: Vec2| {
-        Vec2::new(c * p.x - s * p.y, s * p.x + c * p.y)
-    })
+    let turn = |p: Vec2| Vec2::new(c * p.x - s * p.y, s * p.x + c * p.y);
+    Ok(scene.moved(&format!("{}@{deg}°", scene.name), turn)?)
 }
 
 /// `scene` with the sensor standing at `at` (in the scene's frame) instead of its origin.

@@ -23,7 +23,8 @@
 use anyhow::{Result, bail};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use sonar_sim::geometry::{distance_to_segment, rotate, segments_intersect};
+use sonar_sim::geometry::{rotate, segments_intersect};
+use sonar_sim::scene::distance_to_surfaces;
 use sonar_sim::{Pose, Post, Scene, Surface, Vec2, Wall};
 
 /// Viewpoints drawn per scene.
@@ -103,12 +104,7 @@ impl Builder {
     }
 
     fn distance_to_surface(&self, p: Vec2) -> f64 {
-        let walls = self.walls.iter().map(|w| distance_to_segment(w.a, w.b, p));
-        let posts = self
-            .posts
-            .iter()
-            .map(|c| ((p - c.centre).norm() - c.radius).max(0.0));
-        walls.chain(posts).fold(f64::INFINITY, f64::min)
+        distance_to_surfaces(&self.walls, &self.posts, p)
     }
 
     /// A board of random length and orientation somewhere in `area`, clear of everything.
@@ -394,34 +390,13 @@ fn corridor(b: &mut Builder) -> Area {
 /// the origin facing +x, so that the pipeline's fixed head scans it from there. Echo and noise are
 /// the scene's.
 pub fn seen_from(scene: &Scene, pose: Pose) -> Result<Scene> {
-    let to_frame = |p: Vec2| rotate(p - pose.at, -pose.heading_rad);
-    let walls = scene
-        .walls()
-        .iter()
-        .map(|w| Wall {
-            a: to_frame(w.a),
-            b: to_frame(w.b),
-            surface: w.surface,
-        })
-        .collect();
-    let posts = scene
-        .posts()
-        .iter()
-        .map(|p| Post {
-            centre: to_frame(p.centre),
-            ..*p
-        })
-        .collect();
-    let mut out = Scene::new(&scene.name, walls, posts)?;
-    out.profile = scene.profile;
-    out.echo = scene.echo;
-    out.noise = scene.noise;
-    Ok(out)
+    Ok(scene.moved(&scene.name, |p| rotate(p - pose.at, -pose.heading_rad))?)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use sonar_sim::geometry::distance_to_segment;
 
     #[test]
     fn scenes_repeat_by_seed_and_hold_what_the_suite_needs() {

@@ -474,12 +474,37 @@ impl Scene {
     /// Distance from `p` to the nearest surface, metres (0 inside a post, which is solid): rasterise
     /// the truth by marking the cells whose centre lies within half a cell of a surface.
     pub fn distance_to_surface(&self, p: Vec2) -> f64 {
-        let walls = self.walls.iter().map(|w| distance_to_segment(w.a, w.b, p));
+        distance_to_surfaces(&self.walls, &self.posts, p)
+    }
+
+    /// This scene with every wall and post moved by `map` (a rigid motion: turned about the
+    /// sensor, or into another frame), named `name`; description, suggested scan, profile, echo
+    /// and noise kept. A robot's tour is not moved with it and is dropped.
+    pub fn moved(&self, name: &str, map: impl Fn(Vec2) -> Vec2) -> Result<Scene, SceneError> {
+        let walls = self
+            .walls
+            .iter()
+            .map(|w| Wall {
+                a: map(w.a),
+                b: map(w.b),
+                ..*w
+            })
+            .collect();
         let posts = self
             .posts
             .iter()
-            .map(|c| ((p - c.centre).norm() - c.radius).max(0.0));
-        walls.chain(posts).fold(f64::INFINITY, f64::min)
+            .map(|p| Post {
+                centre: map(p.centre),
+                ..*p
+            })
+            .collect();
+        let mut out = Scene::new(name, walls, posts)?;
+        out.description = self.description.clone();
+        out.scan = self.scan;
+        out.profile = self.profile;
+        out.echo = self.echo;
+        out.noise = self.noise;
+        Ok(out)
     }
 }
 
@@ -613,6 +638,15 @@ impl Joint {
             surfaces: [cw_surface, ccw_surface],
         })
     }
+}
+
+/// Distance from `p` to the nearest of `walls` and `posts`, metres (0 inside a post, which is solid).
+pub fn distance_to_surfaces(walls: &[Wall], posts: &[Post], p: Vec2) -> f64 {
+    let walls = walls.iter().map(|w| distance_to_segment(w.a, w.b, p));
+    let posts = posts
+        .iter()
+        .map(|c| ((p - c.centre).norm() - c.radius).max(0.0));
+    walls.chain(posts).fold(f64::INFINITY, f64::min)
 }
 
 #[cfg(test)]
