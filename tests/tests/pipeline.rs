@@ -65,6 +65,13 @@ impl FakeHead {
         }
     }
 
+    /// The driver's first handshake answered as head `head_id`, up to its full scan.
+    fn handshake(&mut self, head_id: &str) {
+        self.hear("$HELLO,2*", 1);
+        self.say(&hello_from(head_id));
+        self.hear("$SCAN,FULL*", 1);
+    }
+
     fn say(&mut self, msg: &DeviceMessage) {
         self.master
             .write_all(encode_device(msg, PROTOCOL_VERSION).as_bytes())
@@ -396,9 +403,7 @@ fn a_reset_head_is_sent_its_scan_again_and_a_different_head_is_refused() {
             "0.5",
         ],
     );
-    head.hear("$HELLO,2*", 1);
-    head.say(&hello_from("HEAD-A"));
-    head.hear("$SCAN,FULL*", 1);
+    head.handshake("HEAD-A");
     wait_for_status(&node, &status, |s| {
         s.link_state == LinkState::Connected as u32
     });
@@ -474,9 +479,7 @@ fn a_silent_head_is_probed_then_handshaken_again_and_resumes() {
             "0.5",
         ],
     );
-    head.hear("$HELLO,2*", 1);
-    head.say(&hello_from("HEAD-A"));
-    head.hear("$SCAN,FULL*", 1);
+    head.handshake("HEAD-A");
 
     // Quiet: the driver asks; the head says it is idle (it lost the command): the scan again.
     head.hear("$STATUS*", 1);
@@ -527,9 +530,7 @@ fn a_head_stopped_on_a_hardware_fault_gets_no_scan_until_a_reset() {
         direction: Direction::Cw,
         sweep: 0,
     };
-    head.hear("$HELLO,2*", 1);
-    head.say(&hello_from("HEAD-A"));
-    head.hear("$SCAN,FULL*", 1);
+    head.handshake("HEAD-A");
     head.say(&DeviceMessage::Error {
         code: ErrorCode::Hardware,
         text: "MIN switch not found in 315 deg of homing (dead switch? wiring?)".into(),
@@ -1387,9 +1388,7 @@ fn device_errors_are_counted_in_full_and_logged_rate_limited() {
         "sonar-driver",
         &["--port", &head.slave_path, "--scan", "full"],
     );
-    head.hear("$HELLO,2*", 1);
-    head.say(&hello_from("HEAD-A"));
-    head.hear("$SCAN,FULL*", 1);
+    head.handshake("HEAD-A");
     for k in 0..40 {
         head.say(&DeviceMessage::Error {
             code: ErrorCode::Range,
