@@ -341,6 +341,16 @@ fn run(args: &Args) -> Result<()> {
         localize,
         "fusion engine ready"
     );
+    if let Some((path, _)) = &persistence {
+        persist::check_writable(path).with_context(|| {
+            format!(
+                "cannot write the state file {}: give --state-file a place this user can write \
+                 (or state_file in [fusion]), or --no-persist to run without saving \
+                 the map",
+                path.display()
+            )
+        })?;
+    }
     let mut saving = persistence
         .map(|(path, period)| Saving::new(path, period, &engine))
         .transpose()?;

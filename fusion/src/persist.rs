@@ -385,6 +385,25 @@ pub fn quarantine(path: &Path) -> io::Result<PathBuf> {
     Err(io::Error::other("no free name for the refused state file"))
 }
 
+/// Whether a map can be saved at `path`: its directory is made if missing, and the temporary file
+/// a save writes first is created and removed again. Checked at start, so that persistence that
+/// cannot work stops the process with the reason instead of failing at every save period.
+pub fn check_writable(path: &Path) -> io::Result<()> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    fs::create_dir_all(dir)?;
+    let tmp = temporary_path(path);
+    fs::OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(true)
+        .mode(0o600)
+        .open(&tmp)?;
+    fs::remove_file(&tmp)
+}
+
 /// Saves `map` to `path` atomically ([`write_atomic`]).
 pub fn write(path: &Path, map: &SavedMap) -> Result<(), SaveError> {
     write_atomic(path, |file| encode(map, file))

@@ -393,3 +393,27 @@ fn a_second_fusion_on_a_running_namespace_says_so_and_how_to_pick_another() {
     assert!(stderr.contains("--iox-prefix"), "{stderr}");
     assert!(fusion.terminate().success());
 }
+
+/// A state file that cannot be written stops the fusion at start with the reason and the way out,
+/// instead of a warning at every save period while persistence is silently off (issue 28).
+#[test]
+fn an_unwritable_state_file_stops_the_start_with_what_to_do() {
+    let sandbox = Sandbox::new("unwritable");
+    // Under a file, not a directory: unwritable for root too.
+    let blocker = sandbox.root.join("not-a-directory");
+    std::fs::write(&blocker, b"x").unwrap();
+    let state = blocker.join("map.bin");
+    let out = sandbox.run("sonar-fusion", &["--state-file", path_str(&state)]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(stderr.contains("cannot write the state file"), "{stderr}");
+    assert!(stderr.contains("--no-persist"), "{stderr}");
+    // And a writable one is left without a stray temporary file.
+    let fine = sandbox.state.join("ok/map.bin");
+    let fusion = sandbox.spawn("sonar-fusion", &["--state-file", path_str(&fine)]);
+    let node = sandbox.node("test-unwritable");
+    let status = fusion_status_subscriber(&node);
+    fusion_status(&node, &status);
+    assert!(!sonar_fusion::persist::temporary_path(&fine).exists());
+    assert!(fusion.terminate().success());
+}
