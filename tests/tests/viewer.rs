@@ -43,22 +43,23 @@ fn the_viewer_shows_the_room_scans_on_keys_and_quits_cleanly() {
     // `f`: the driver starts full sweeps and the room's north and south walls (facing the sweep)
     // appear above and below the sensor.
     term.send_keys(&["f"]);
-    let screen = term.wait_for("the room's walls", |s| {
-        let rows = map_wall_rows(s, 8);
-        rows.len() >= 2 && rows[rows.len() - 1] - rows[0] >= 8
-    });
-    let rows = map_wall_rows(&screen, 8);
     // The sensor is an arrow (a fixed head's points along its 0°, →), under the cursor `+` until
     // the cursor moves; the status panel (right of `││`) has `+` signs of its own.
-    let sensor_row = screen
-        .lines()
-        .map(|l| l.split("││").next().unwrap_or(l))
-        .position(|map| map.contains(SENSOR_GLYPHS) || map.contains('+'))
-        .unwrap_or_else(|| panic!("the sensor is drawn:\n{screen}"));
-    assert!(
-        rows[0] < sensor_row && sensor_row < rows[rows.len() - 1],
-        "walls above and below the sensor:\n{screen}"
-    );
+    let sensor_row = |screen: &str| {
+        screen
+            .lines()
+            .map(|l| l.split("││").next().unwrap_or(l))
+            .position(|map| map.contains(SENSOR_GLYPHS) || map.contains('+'))
+    };
+    // Waited for, not taken from the first screen with two walls: early in the sweep the walls
+    // drawn so far may all lie on one side.
+    let screen = term.wait_for("the room's walls above and below the sensor", |s| {
+        let rows = map_wall_rows(s, 8);
+        sensor_row(s).is_some_and(|sensor| {
+            rows.first().is_some_and(|&top| top < sensor)
+                && rows.last().is_some_and(|&bottom| sensor < bottom)
+        })
+    });
     assert!(screen.contains("scan     full"), "{screen}");
 
     // `l` then Enter: a local scan of the selected segment, which the driver carries out.
