@@ -561,6 +561,15 @@ fn switch_fault_run(
     (Travel::read(&report), last, readings)
 }
 
+/// The head reported the hardware fault it stopped on, its text starting with `fault`.
+fn assert_stopped_on(status: &sonar_common::ipc::DriverStatus, fault: &str) {
+    assert!(
+        status.last_device_error().starts_with(fault),
+        "{}",
+        status.last_device_error()
+    );
+}
+
 /// Issue 24: a MIN switch that never closes. The head homes one sweep plus the margin (315°)
 /// at most, stops, reports it, and the driver sends it nothing more: before, the driver re-sent
 /// its scan every 3 s and each homed 380° again (−2070° after 30 s).
@@ -568,13 +577,7 @@ fn switch_fault_run(
 fn a_dead_min_switch_stops_homing_after_one_sweep_and_the_head_stays_stopped() {
     let (travel, status, readings) =
         switch_fault_run("fw_sw_min_dead", "min=dead", "0", &|s, _| s.head_fault == 1);
-    assert!(
-        status
-            .last_device_error()
-            .starts_with("HARDWARE: MIN switch not found in 315 deg"),
-        "{}",
-        status.last_device_error()
-    );
+    assert_stopped_on(&status, "HARDWARE: MIN switch not found in 315 deg");
     assert_eq!(status.hardware_faults, 1);
     assert!(readings.is_empty());
     // From 0°, 315° clockwise once (the board's stop at −160° takes the rest); never again.
@@ -589,13 +592,7 @@ fn a_stuck_min_switch_never_turns_the_head_past_max() {
     let (travel, status, _) = switch_fault_run("fw_sw_min_stuck", "min=stuck", "140", &|s, _| {
         s.head_fault == 1
     });
-    assert!(
-        status
-            .last_device_error()
-            .starts_with("HARDWARE: both limit switches closed"),
-        "{}",
-        status.last_device_error()
-    );
+    assert_stopped_on(&status, "HARDWARE: both limit switches closed");
     assert!(travel.within(140.0, 150.0), "{travel:?}");
 }
 
@@ -607,13 +604,7 @@ fn a_stuck_max_switch_stops_the_head_at_home() {
         switch_fault_run("fw_sw_max_stuck", "max=stuck", "0", &|s, _| {
             s.head_fault == 1
         });
-    assert!(
-        status
-            .last_device_error()
-            .starts_with("HARDWARE: both limit switches closed"),
-        "{}",
-        status.last_device_error()
-    );
+    assert_stopped_on(&status, "HARDWARE: both limit switches closed");
     assert!(readings.is_empty());
     assert!(travel.within(-150.75, 0.0), "{travel:?}");
 }
@@ -624,13 +615,7 @@ fn both_switches_closed_stop_the_head_before_it_moves() {
     let (travel, status, _) = switch_fault_run("fw_sw_both", "both=stuck", "9.75", &|s, _| {
         s.head_fault == 1
     });
-    assert!(
-        status
-            .last_device_error()
-            .starts_with("HARDWARE: both limit switches closed"),
-        "{}",
-        status.last_device_error()
-    );
+    assert_stopped_on(&status, "HARDWARE: both limit switches closed");
     assert!(travel.within(9.75, 9.75), "{travel:?}");
 }
 
@@ -640,13 +625,7 @@ fn both_switches_closed_stop_the_head_before_it_moves() {
 fn a_dead_max_switch_stops_the_head_just_past_its_limit() {
     let (travel, status, readings) =
         switch_fault_run("fw_sw_max_dead", "max=dead", "0", &|s, _| s.head_fault == 1);
-    assert!(
-        status
-            .last_device_error()
-            .starts_with("HARDWARE: MAX switch open at 15150 cdeg"),
-        "{}",
-        status.last_device_error()
-    );
+    assert_stopped_on(&status, "HARDWARE: MAX switch open at 15150 cdeg");
     assert_eq!(by_sweep(&readings).len(), 1, "one sweep, then stopped");
     assert!(travel.within(-150.75, 151.5), "{travel:?}");
 }
@@ -659,12 +638,9 @@ fn a_switch_closing_early_stops_the_head_where_it_closed() {
         switch_fault_run("fw_sw_max_early", "max=early:5", "0", &|s, _| {
             s.head_fault == 1
         });
-    assert!(
-        status
-            .last_device_error()
-            .starts_with("HARDWARE: MAX switch closed at 14550 cdeg: 450 cdeg early"),
-        "{}",
-        status.last_device_error()
+    assert_stopped_on(
+        &status,
+        "HARDWARE: MAX switch closed at 14550 cdeg: 450 cdeg early",
     );
     let sweeps = by_sweep(&readings);
     assert_eq!(sweeps.len(), 1, "one sweep, then stopped");
