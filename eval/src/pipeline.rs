@@ -420,6 +420,7 @@ impl Maps {
                 .update(&Observation::from_reading(r, Isometry2::identity()))
                 .with_context(|| format!("fusing reading {}", r.seq))?;
         }
+        mapper.close_region();
         Ok(Self { preset, mapper })
     }
 

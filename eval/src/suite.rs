@@ -663,6 +663,7 @@ pub fn run_scene(
                     .update(&Observation::from_reading(r, pose))
                     .with_context(|| format!("fusing reading {}", r.seq))?;
             }
+            mapper.close_region();
             if settings.viewpoints.contains(&(k + 1)) {
                 let map = probability_view(mapper);
                 scores.push(score_grid(&map, &scene, &views[..=k], max_range_m));

@@ -219,6 +219,17 @@ impl Engine {
         self.scan.is_some_and(|s| s.sweep_id != reading.sweep_id)
     }
 
+    /// Places the evidence of the region of constant depth still open (with echoes placed by
+    /// region; [`Mapper::close_region`]): at the end of a sweep, so that its maps are whole.
+    /// Whether that changed the grid.
+    pub fn close_region(&mut self) -> bool {
+        let changed = self.mapper.close_region() > 0;
+        if changed {
+            self.revision += 1;
+        }
+        changed
+    }
+
     /// Fuses `reading` at the current pose into both maps; `false` if the kernels refused it.
     pub fn fuse(&mut self, reading: &Reading) -> bool {
         let PlacedPose { pose, kind } = self.poses.at(reading.host_stamp_ns);

@@ -199,6 +199,7 @@ pub mod persist;
 pub mod poses;
 pub mod radar;
 pub mod reference;
+mod regions;
 pub mod rule;
 pub mod state;
 pub mod status;
@@ -212,7 +213,8 @@ pub use geometry::GridGeometry;
 pub use grid::{CellCounts, OccupancyGrid};
 pub use mapper::{Kernel, Mapper, Update};
 pub use model::{
-    AlphaSign, BeamWidth, LogOddsModel, ModelConfig, ModelKind, PaperModel, SmoothModel,
+    AlphaSign, BeamWidth, EchoPlacement, LogOddsModel, ModelConfig, ModelKind, PaperModel,
+    SmoothModel,
 };
 pub use observation::{Observation, ObservationError};
 pub use persist::{LoadError, PersistConfig, Restore, SaveError, Saver};

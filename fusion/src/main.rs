@@ -985,9 +985,13 @@ impl Output<'_> {
                 self.waiting = Some((reading, received));
                 return Ok(false);
             }
-            if engine.starts_new_sweep(&reading) && self.dirty {
+            if engine.starts_new_sweep(&reading) {
+                // The finished sweep's last region of constant depth belongs to its maps.
+                if engine.close_region() {
+                    self.dirty = true;
+                }
                 let now = Instant::now();
-                if self.sweep_end_pace.allows(now) {
+                if self.dirty && self.sweep_end_pace.allows(now) {
                     // The finished sweep's maps, before the next sweep's first reading.
                     self.sweep_end_pace.sent(now);
                     self.publish(engine)?;

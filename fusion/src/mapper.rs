@@ -6,12 +6,14 @@ use nalgebra::{Isometry2, Vector2};
 
 use crate::config::{ConfigError, FusionConfig};
 use crate::geometry::GridGeometry;
+use crate::geometry::wrap_angle;
 use crate::grid::{OccupancyGrid, with_layer};
 use crate::kernel::ConeCache;
-use crate::model::with_model;
+use crate::model::{ModelConfig, with_model};
 use crate::observation::{Beam, Observation, ObservationError};
 use crate::radar::RadarMap;
 use crate::reference::PaperArrays;
+use crate::regions::{DepthTolerance, Heard, Region, RegionTracker};
 use crate::state::{MapperState, StateError};
 
 /// Which kernel fuses a reading into the grid. Both give the same grid.
@@ -42,6 +44,17 @@ pub struct Mapper {
     paper_arrays: PaperArrays,
     readings: u64,
     pose: Isometry2<f32>,
+    /// With echoes placed by region: the tolerance of a region's depth, and the open region.
+    regions: Option<Regions>,
+}
+
+/// With echoes placed by region: the tracker, and the readings of the open region, whose free
+/// evidence waits for it to close, since only the readings of a whole region may clear space.
+#[derive(Debug)]
+struct Regions {
+    tolerance: DepthTolerance,
+    tracker: RegionTracker,
+    waiting: Vec<Beam>,
 }
 
 impl fmt::Debug for Mapper {
@@ -70,6 +83,14 @@ impl Mapper {
             paper_arrays: PaperArrays::default(),
             readings: 0,
             pose: Isometry2::identity(),
+            regions: match &config.model {
+                ModelConfig::Smooth(m) => m.regions().map(|tolerance| Regions {
+                    tolerance,
+                    tracker: RegionTracker::default(),
+                    waiting: Vec::new(),
+                }),
+                _ => None,
+            },
             config,
         })
     }
@@ -122,24 +143,104 @@ impl Mapper {
         let radar_bin = self.radar.record(obs);
         self.readings += 1;
         self.pose = obs.pose;
-        let Some(beam) = beam else {
-            return Ok(Update {
-                radar_bin,
-                cells_updated: 0,
-            });
-        };
-        let (geometry, store, heard) = self.grid.parts_mut();
-        let (cones, arrays) = (&mut self.cones, &mut self.paper_arrays);
-        let cells_updated = with_model!(&self.config.model, m => {
-            let evidence = m.reading(&beam);
-            with_layer!(store, layer => match kernel {
-                Kernel::Cone => cones.update(layer, heard, geometry, &beam, &evidence),
-                Kernel::WholeGrid => arrays.update(layer, heard, geometry, &beam, &evidence),
-            })
-        });
+        let mut cells_updated = 0;
+        if let Some(regions) = &mut self.regions {
+            let heard = Heard {
+                position: obs.pose.translation.vector,
+                axis: wrap_angle(obs.pose.rotation.angle() + obs.angle_rad),
+                range: beam.and_then(|b| b.echo),
+            };
+            // A region this reading closes is placed first: it lies before this reading.
+            let closed = regions.tracker.push(&heard, &regions.tolerance);
+            let mut waiting = std::mem::take(&mut regions.waiting);
+            let defer = heard.range.is_some();
+            if let Some(region) = closed {
+                cells_updated += self.close(&region, &mut waiting, kernel);
+            }
+            if let (true, Some(beam)) = (defer, beam) {
+                waiting.push(beam);
+            }
+            if let Some(regions) = &mut self.regions {
+                regions.waiting = waiting;
+            }
+            if defer {
+                return Ok(Update {
+                    radar_bin,
+                    cells_updated,
+                });
+            }
+        }
+        if let Some(beam) = beam {
+            cells_updated += self.fuse_beam(&beam, kernel);
+        }
         Ok(Update {
             radar_bin,
             cells_updated,
+        })
+    }
+
+    /// Fuses one reading's beam with the model's evidence.
+    fn fuse_beam(&mut self, beam: &Beam, kernel: Kernel) -> usize {
+        let (geometry, store, heard) = self.grid.parts_mut();
+        let (cones, arrays) = (&mut self.cones, &mut self.paper_arrays);
+        with_model!(&self.config.model, m => {
+            let evidence = m.reading(beam);
+            with_layer!(store, layer => match kernel {
+                Kernel::Cone => cones.update(layer, heard, geometry, beam, &evidence),
+                Kernel::WholeGrid => arrays.update(layer, heard, geometry, beam, &evidence),
+            })
+        })
+    }
+
+    /// Places a closed region, if whole, and the free evidence of its `waiting` readings (emptied).
+    fn close(&mut self, region: &Region, waiting: &mut Vec<Beam>, kernel: Kernel) -> usize {
+        let mut cells = 0;
+        if region.is_whole() {
+            cells += self.place_region(region, kernel);
+            for beam in waiting.iter() {
+                cells += self.fuse_beam(beam, kernel);
+            }
+        }
+        waiting.clear();
+        cells
+    }
+
+    /// With echoes placed by region (`echo_placement = "region"`), places the open region's
+    /// evidence now instead of when the next reading closes it: at the end of a sweep, or before
+    /// the map is read when no more readings follow. Returns the cells it updated.
+    pub fn close_region(&mut self) -> usize {
+        let Some(regions) = &mut self.regions else {
+            return 0;
+        };
+        let Some(region) = regions.tracker.close() else {
+            return 0;
+        };
+        let mut waiting = std::mem::take(&mut regions.waiting);
+        let cells = self.close(&region, &mut waiting, Kernel::Cone);
+        if let Some(regions) = &mut self.regions {
+            regions.waiting = waiting;
+        }
+        cells
+    }
+
+    /// Fuses a closed region's occupied evidence: a straight patch at its middle bearing and range.
+    fn place_region(&mut self, region: &Region, kernel: Kernel) -> usize {
+        let ModelConfig::Smooth(model) = &self.config.model else {
+            return 0;
+        };
+        let beam = Beam {
+            position: region.position,
+            axis: region.axis,
+            half_angle: model.max_half_angle(),
+            max_range: self.config.sensor.limits().max_range,
+            echo: Some(region.range),
+        };
+        let evidence = model.region_echo(&beam, region.range, region.half_width);
+        let (geometry, store, heard) = self.grid.parts_mut();
+        let (cones, arrays) = (&mut self.cones, &mut self.paper_arrays);
+        with_layer!(store, layer => match kernel {
+            Kernel::Cone => cones.update(layer, heard, geometry, &beam, &evidence),
+            Kernel::WholeGrid => arrays.update(layer, heard, geometry, &beam, &evidence),
         })
     }
 
@@ -168,6 +269,10 @@ impl Mapper {
         self.grid.clear();
         self.radar.clear();
         self.readings = 0;
+        if let Some(regions) = &mut self.regions {
+            regions.tracker = RegionTracker::default();
+            regions.waiting.clear();
+        }
     }
 }
 
@@ -242,6 +347,37 @@ mod tests {
             .collect()
     }
 
+    /// Sweeps in which runs of readings hear the same range between readings with no echo, so
+    /// that regions of constant depth form: from the origin, from a parked position long enough
+    /// for the stencil to move there, and from a new pose at every reading.
+    fn region_observations(seed: u64) -> Vec<Observation> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let parked = Isometry2::new(Vector2::new(0.37, -0.21), 0.4);
+        let mut range = None;
+        (0..3 * 51)
+            .map(|i| {
+                let pose = match i / 51 {
+                    0 => Isometry2::identity(),
+                    1 => parked,
+                    _ => Isometry2::new(
+                        Vector2::new(rng.random_range(-0.01..0.01), rng.random_range(-0.01..0.01)),
+                        rng.random_range(-0.01..0.01),
+                    ),
+                };
+                if i % 5 == 0 {
+                    range = rng.random_bool(0.8).then(|| rng.random_range(0.3..4.3));
+                }
+                Observation {
+                    pose,
+                    angle_rad: (-150.0 + 6.0 * (i % 51) as f32) * DEG,
+                    range_m: if i % 5 == 4 { None } else { range },
+                    beam_half_angle_rad: 30.0 * DEG,
+                    max_range_m: 4.0,
+                }
+            })
+            .collect()
+    }
+
     #[test]
     fn fast_kernel_equals_the_whole_grid_pass_for_every_model_and_rule() {
         // Every model with its defaults, and the paper's model with its other conventions for β
@@ -256,6 +392,10 @@ mod tests {
                 }),
                 ModelConfig::Paper(PaperModel {
                     alpha: AlphaSign::Signed,
+                    ..Default::default()
+                }),
+                ModelConfig::Smooth(crate::model::SmoothModel {
+                    echo_placement: crate::model::EchoPlacement::Region,
                     ..Default::default()
                 }),
             ]);
@@ -294,7 +434,13 @@ mod tests {
                             "{model:?} {rule}"
                         );
                     };
-                    for (i, obs) in random_observations(seed as u64).into_iter().enumerate() {
+                    let observations = match model {
+                        ModelConfig::Smooth(m) if m.regions().is_some() => {
+                            region_observations(seed as u64)
+                        }
+                        _ => random_observations(seed as u64),
+                    };
+                    for (i, obs) in observations.into_iter().enumerate() {
                         let a = fast.update_with(&obs, Kernel::Cone).unwrap();
                         let b = reference.update_with(&obs, Kernel::WholeGrid).unwrap();
                         assert_eq!(a, b, "{model:?} {rule} {obs:?}");
@@ -526,6 +672,52 @@ mod tests {
             })
             .collect();
         (m, rows)
+    }
+
+    /// The occupied cells of one sweep from the origin over a wall along x = 1.5 m, heard at its
+    /// perpendicular distance by every reading within 27° of the perpendicular (the foot in the
+    /// lobe) and by no other: (x, y) of each cell centre.
+    fn wall_heard_off_its_perpendicular(placement: crate::model::EchoPlacement) -> Vec<(f32, f32)> {
+        let mut m = Mapper::new(FusionConfig {
+            model: ModelConfig::Smooth(crate::model::SmoothModel {
+                echo_placement: placement,
+                ..Default::default()
+            }),
+            ..FusionConfig::default()
+        })
+        .unwrap();
+        // Reading centres every 6°, as the driver publishes them.
+        for k in -10..=10 {
+            let a = 6.0 * k as f32;
+            m.update(&reading(a, (a.abs() <= 27.0).then_some(1.5)))
+                .unwrap();
+        }
+        m.close_region();
+        let g = *m.grid().geometry();
+        let n = g.cells_per_side();
+        (0..n)
+            .flat_map(|y| (0..n).map(move |x| (x, y)))
+            .filter(|&(x, y)| m.grid().probability(x, y).is_some_and(|p| p > 0.5))
+            .map(|(x, y)| {
+                let c = g.cell_centre(x, y);
+                (c.x, c.y)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_region_puts_a_wall_where_it_is_and_single_readings_draw_an_arc_in_front_of_it() {
+        use crate::model::EchoPlacement;
+        let arc = wall_heard_off_its_perpendicular(EchoPlacement::Reading);
+        let patch = wall_heard_off_its_perpendicular(EchoPlacement::Region);
+        let in_front = |cells: &[(f32, f32)]| cells.iter().filter(|c| c.0 < 1.44).count();
+        // Each reading puts its echo on its own axis: at 24° off the perpendicular, 13 cm in front.
+        assert!(in_front(&arc) > 10, "{arc:?}");
+        // The region's patch lies on the wall (band ± 2.5 cm and a cell), along it both ways.
+        assert!(!patch.is_empty());
+        assert_eq!(in_front(&patch), 0, "{patch:?}");
+        assert!(patch.iter().all(|c| (c.0 - 1.5).abs() <= 0.05), "{patch:?}");
+        assert!(patch.iter().any(|c| c.1 > 0.4) && patch.iter().any(|c| c.1 < -0.4));
     }
 
     #[test]

@@ -19,6 +19,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::{ConfigError, UnknownName, check};
 use crate::observation::Beam;
+use crate::regions::DepthTolerance;
 
 /// What one reading says about the cells of its cone, with its constants worked out.
 pub(crate) trait CellEvidence: Copy {
@@ -163,7 +164,7 @@ impl ModelConfig {
         match self {
             ModelConfig::Paper(m) => max_range * (1.0 + m.tolerance),
             ModelConfig::LogOdds(_) => max_range,
-            ModelConfig::Smooth(m) => max_range + m.band(max_range),
+            ModelConfig::Smooth(m) => m.max_reach(max_range),
         }
     }
 
@@ -181,7 +182,7 @@ impl ModelConfig {
     pub(crate) fn max_half_angle(&self) -> f32 {
         match self {
             ModelConfig::Paper(_) | ModelConfig::LogOdds(_) => f32::INFINITY,
-            ModelConfig::Smooth(m) => m.half_angle(),
+            ModelConfig::Smooth(m) => m.max_half_angle(),
         }
     }
 }
@@ -498,6 +499,29 @@ pub struct SmoothModel {
     /// Incidence from which it takes none (above `incidence_full_deg`; beyond 90° never reached,
     /// so the weight then stays above zero).
     pub incidence_none_deg: f32,
+    /// Where a reading's echo puts its occupied evidence.
+    pub echo_placement: EchoPlacement,
+    /// With `echo_placement = "region"`: two readings are the same depth while their ranges differ
+    /// by at most this many metres …
+    pub region_tolerance_m: f32,
+    /// … plus this fraction of the range.
+    pub region_tolerance_fraction: f32,
+    /// With `echo_placement = "region"`: half the angle, seen from the sensor, of the straight patch
+    /// a region's occupied evidence is drawn on, square to its middle bearing at its range.
+    pub region_half_angle_deg: f32,
+}
+
+/// Where a reading's echo puts its occupied evidence ([`SmoothModel::echo_placement`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum EchoPlacement {
+    /// On the reading's own axis, at its range: each reading alone.
+    #[default]
+    Reading,
+    /// Once per region of constant depth (the readings of a sweep that heard the same range one
+    /// after the other, [`crate::regions`]), on a straight patch at the region's middle bearing,
+    /// where the reflector is; each reading still gives its free evidence at once.
+    Region,
 }
 
 impl Default for SmoothModel {
@@ -513,6 +537,10 @@ impl Default for SmoothModel {
             fade_range_m: 3.0,
             incidence_full_deg: 0.0,
             incidence_none_deg: 10.0,
+            echo_placement: EchoPlacement::Reading,
+            region_tolerance_m: 0.02,
+            region_tolerance_fraction: 0.02,
+            region_half_angle_deg: 25.0,
         }
     }
 }
@@ -569,7 +597,49 @@ impl SmoothModel {
             self.incidence_none_deg,
             self.incidence_none_deg > self.incidence_full_deg && self.incidence_none_deg <= 180.0,
             "above model.incidence_full_deg, at most 180 degrees",
+        )?;
+        for (name, v) in [
+            ("model.region_tolerance_m", self.region_tolerance_m),
+            (
+                "model.region_tolerance_fraction",
+                self.region_tolerance_fraction,
+            ),
+        ] {
+            check(name, v, (0.0..1.0).contains(&v), "in [0, 1)")?;
+        }
+        check(
+            "model.region_half_angle_deg",
+            self.region_half_angle_deg,
+            self.region_half_angle_deg > 0.0 && self.region_half_angle_deg < 60.0,
+            "in (0, 60) degrees",
         )
+    }
+
+    /// The depth tolerance of a region, with `echo_placement = "region"`, else `None`.
+    pub(crate) fn regions(&self) -> Option<DepthTolerance> {
+        (self.echo_placement == EchoPlacement::Region).then_some(DepthTolerance {
+            absolute_m: self.region_tolerance_m,
+            fraction: self.region_tolerance_fraction,
+        })
+    }
+
+    /// The half-angle of a region's patch, radians, when echoes are placed by region, else 0.
+    fn region_half_angle(&self) -> f32 {
+        match self.echo_placement {
+            EchoPlacement::Reading => 0.0,
+            EchoPlacement::Region => self.region_half_angle_deg.to_radians(),
+        }
+    }
+
+    /// The farthest range a reading or a region's patch can update when ranges go up to
+    /// `max_range`.
+    pub(crate) fn max_reach(&self, max_range: f32) -> f32 {
+        (max_range + self.band(max_range)) / self.region_half_angle().cos()
+    }
+
+    /// The widest angle off the axis at which a reading or a region's patch gives evidence.
+    pub(crate) fn max_half_angle(&self) -> f32 {
+        self.half_angle().max(self.region_half_angle() * 1.001)
     }
 
     pub(crate) fn band(&self, d: f32) -> f32 {
@@ -603,7 +673,12 @@ impl SmoothModel {
             free_to,
             occupied_to: d + band,
             inv_band: if band > 0.0 { 1.0 / band } else { 0.0 },
-            l_occ: self.occupied_log_odds,
+            // Placed by region, a reading's echo waits for its region to close
+            // ([`Self::region_echo`]).
+            l_occ: match self.echo_placement {
+                EchoPlacement::Reading => self.occupied_log_odds,
+                EchoPlacement::Region => 0.0,
+            },
             l_free: self.free_log_odds,
             inv_sq_occ: inv_sq(self.occupied_half_angle_deg),
             inv_sq_free: inv_sq(self.free_half_angle_deg),
@@ -613,6 +688,76 @@ impl SmoothModel {
             inv_incidence_span: 1.0
                 / (self.incidence_none_deg - self.incidence_full_deg).to_radians(),
         }
+    }
+
+    /// The occupied evidence of a closed region of constant depth seen along `beam` (its middle
+    /// bearing, its mean range): a straight patch square to the axis at the range, `band` thick,
+    /// fading as 1 − (α/θ)² to the patch's half-angle θ; each of its cells remembers the axis as
+    /// the bearing it was heard from (the reflector's normal, if it is a wall).
+    pub(crate) fn region_echo(&self, beam: &Beam, range: f32, half_width: f32) -> RegionEcho {
+        let band = self.band(range);
+        let half_angle =
+            half_width.clamp(3f32.to_radians(), self.region_half_angle_deg.to_radians());
+        RegionEcho {
+            d: range,
+            band,
+            inv_band: 1.0 / band,
+            l_occ: self.occupied_log_odds,
+            inv_sq: 1.0 / (half_angle * half_angle),
+            fade_range: self.fade_range_m,
+            half_angle: half_angle * 1.001,
+            normal: beam.axis,
+        }
+    }
+}
+
+/// A region's occupied evidence ([`SmoothModel::region_echo`]).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct RegionEcho {
+    d: f32,
+    band: f32,
+    inv_band: f32,
+    l_occ: f32,
+    inv_sq: f32,
+    fade_range: f32,
+    half_angle: f32,
+    normal: f32,
+}
+
+impl CellEvidence for RegionEcho {
+    const HEARD: bool = true;
+
+    fn reach(&self) -> f32 {
+        (self.d + self.band) / self.half_angle.cos()
+    }
+
+    fn half_angle(&self) -> f32 {
+        self.half_angle
+    }
+
+    #[inline(always)]
+    fn probability(&self, r: f32, alpha: f32) -> f32 {
+        sigmoid(self.log_odds(r, alpha))
+    }
+
+    #[inline(always)]
+    fn log_odds(&self, r: f32, alpha: f32) -> f32 {
+        let x = 2.0 * (r - self.fade_range);
+        let trust = 0.5 - 0.5 * x / (1.0 + x * x).sqrt();
+        // The distance along the axis, not the range: the patch is straight, as a wall is.
+        let j = (r * alpha.cos() - self.d) * self.inv_band;
+        let l = self.l_occ
+            * positive(1.0 - alpha * alpha * self.inv_sq)
+            * positive(1.0 - j * j)
+            * trust;
+        if l != 0.0 { l } else { f32::NAN }
+    }
+
+    #[inline(always)]
+    fn heard_log_odds(&self, r: f32, alpha: f32, _bearing: f32, heard: &mut f32) -> f32 {
+        let l = self.log_odds(r, alpha);
+        *heard = if l > 0.0 { self.normal } else { *heard };
+        l
     }
 }
 

@@ -1,0 +1,319 @@
+//! Regions of constant depth: where a sweep's echoes put their occupied evidence.
+//!
+//! A specular reflector (a wall, a board) answers every reading whose lobe holds the foot of its
+//! perpendicular, and every one of them hears the same range, the perpendicular distance d. Each
+//! reading alone can only put its echo on its own axis, so a sweep draws an arc of radius d
+//! tangent to the wall, up to d·(1/cos 28° − 1) in front of it off the perpendicular (20 cm at
+//! 1.5 m): only the reading aimed at the foot is right. The readings that heard the same range one
+//! after the other form a region of constant depth (Leonard & Durrant-Whyte, *Directed Sonar
+//! Sensing for Mobile Robot Navigation*, 1992); the reflector lies at the region's middle bearing,
+//! whether it is the foot of a wall or a post, a corner or an edge heard over the lobe's width.
+//!
+//! [`RegionTracker`] follows the readings in the order the head takes them and hands back each
+//! region once it is closed: by a reading that heard another range, by no echo, by a gap in the
+//! angles or by the head turning back. It knows nothing of grids or models; the mapper places the
+//! closed region's evidence ([`crate::model::SmoothModel`], `echo_placement = "region"`).
+
+use nalgebra::Vector2;
+
+use crate::geometry::wrap_angle;
+
+/// Largest angle between two readings of one region, radians: two 6° readings and a little. A
+/// wider gap means readings are missing between them (or the head jumped), and whatever lies in
+/// between was not heard.
+const MAX_GAP: f32 = 13.0 * std::f32::consts::PI / 180.0;
+
+/// How far two ranges may differ and still be the same depth.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct DepthTolerance {
+    /// Metres.
+    pub absolute_m: f32,
+    /// Fraction of the region's range.
+    pub fraction: f32,
+}
+
+impl DepthTolerance {
+    fn admits(&self, region_range: f32, range: f32) -> bool {
+        (range - region_range).abs() <= self.absolute_m + self.fraction * region_range
+    }
+}
+
+/// One reading as the tracker sees it: where the sensor was, where it pointed (world bearing),
+/// and what it heard.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Heard {
+    pub position: Vector2<f32>,
+    pub axis: f32,
+    /// `None`: no echo, which closes any open region.
+    pub range: Option<f32>,
+}
+
+/// What lies beside a region's first or last reading.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum End {
+    /// No echo, or a farther one: the reflector stopped being heard there, so the region's width
+    /// is the reflector's own and its middle bearing points at it.
+    Natural,
+    /// A nearer echo: the nearer reflector masks this one (the sensor reports the first echo), so
+    /// the region is cut short on that side and its middle bearing is not the reflector's.
+    Occluded,
+    /// The sweep's end, a gap in the angles or the head turning back: nothing is known.
+    Unknown,
+}
+
+/// A closed region of constant depth.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Region {
+    /// The sensor's position, midway between the region's first and last readings.
+    pub position: Vector2<f32>,
+    /// The middle bearing between the first and the last reading's axes, in [−π, π].
+    pub axis: f32,
+    /// The mean of the readings' ranges.
+    pub range: f32,
+    pub readings: u32,
+    /// Half the angle between the first and the last reading's axes, radians.
+    pub half_width: f32,
+    /// Beside the first and beside the last reading.
+    pub ends: [End; 2],
+}
+
+impl Region {
+    /// Whether the reflector stopped being heard on both sides: only then is the middle bearing
+    /// the reflector's. On simulated scans (16 generated rooms, one sweep each) 93 % of the
+    /// readings in such regions lie on the surface their middle bearing meets, against 40 % in
+    /// regions cut short by a nearer echo on one side and 14 % on both.
+    pub fn is_whole(&self) -> bool {
+        self.ends == [End::Natural; 2]
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Open {
+    first_position: Vector2<f32>,
+    first_axis: f32,
+    last_position: Vector2<f32>,
+    range_sum: f32,
+    readings: u32,
+    start: End,
+}
+
+impl Open {
+    fn range(&self) -> f32 {
+        self.range_sum / self.readings as f32
+    }
+
+    fn close(&self, last_axis: f32, end: End) -> Region {
+        Region {
+            position: (self.first_position + self.last_position) * 0.5,
+            axis: wrap_angle(self.first_axis + 0.5 * wrap_angle(last_axis - self.first_axis)),
+            range: self.range(),
+            readings: self.readings,
+            half_width: 0.5 * wrap_angle(last_axis - self.first_axis).abs(),
+            ends: [self.start, end],
+        }
+    }
+}
+
+/// The reading before the next one: its axis, what it heard, and the way the head was turning.
+#[derive(Debug, Clone, Copy)]
+struct Last {
+    axis: f32,
+    range: Option<f32>,
+    turning: f32,
+}
+
+/// Groups readings, in the order the head takes them, into regions of constant depth.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct RegionTracker {
+    open: Option<Open>,
+    last: Option<Last>,
+}
+
+impl RegionTracker {
+    /// Takes the next reading; returns the region it closed, if any.
+    pub fn push(&mut self, heard: &Heard, tolerance: &DepthTolerance) -> Option<Region> {
+        // Whether this reading is the next angle on from the last one, the same way round.
+        let (adjacent, turning) = match self.last {
+            Some(last) => {
+                let step = wrap_angle(heard.axis - last.axis);
+                let onwards = step != 0.0 && step.abs() <= MAX_GAP && step * last.turning >= 0.0;
+                (onwards, if onwards { step.signum() } else { 0.0 })
+            }
+            None => (false, 0.0),
+        };
+        let last = self.last.replace(Last {
+            axis: heard.axis,
+            range: heard.range,
+            turning,
+        });
+        let last_axis = last.map_or(heard.axis, |l| l.axis);
+        let Some(range) = heard.range else {
+            let end = if adjacent { End::Natural } else { End::Unknown };
+            return self.open.take().map(|o| o.close(last_axis, end));
+        };
+        if let Some(open) = &mut self.open
+            && adjacent
+            && tolerance.admits(open.range(), range)
+        {
+            open.last_position = heard.position;
+            open.range_sum += range;
+            open.readings += 1;
+            return None;
+        }
+        // This reading starts a region; what lies beside it on each side.
+        let beside = |other: f32, this: f32| {
+            if other < this {
+                End::Occluded
+            } else {
+                End::Natural
+            }
+        };
+        let start = match last {
+            Some(Last { range: None, .. }) if adjacent => End::Natural,
+            Some(Last { range: Some(r), .. }) if adjacent => beside(r, range),
+            _ => End::Unknown,
+        };
+        let closed = self.open.take().map(|o| {
+            let end = if adjacent {
+                beside(range, o.range())
+            } else {
+                End::Unknown
+            };
+            o.close(last_axis, end)
+        });
+        self.open = Some(Open {
+            first_position: heard.position,
+            first_axis: heard.axis,
+            last_position: heard.position,
+            range_sum: range,
+            readings: 1,
+            start,
+        });
+        closed
+    }
+
+    /// Closes the open region, if any, at the end of a sweep or of a run of readings: its last
+    /// end is unknown, and the next reading starts afresh.
+    pub fn close(&mut self) -> Option<Region> {
+        let last = self.last.take();
+        let open = self.open.take()?;
+        Some(open.close(last.map_or(open.first_axis, |l| l.axis), End::Unknown))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const TOLERANCE: DepthTolerance = DepthTolerance {
+        absolute_m: 0.02,
+        fraction: 0.02,
+    };
+
+    fn heard(axis_deg: f32, range: Option<f32>) -> Heard {
+        Heard {
+            position: Vector2::new(1.0, 2.0),
+            axis: axis_deg.to_radians(),
+            range,
+        }
+    }
+
+    /// Feeds `(angle, range)` readings; returns the regions closed on the way and at the end.
+    fn regions(readings: &[(f32, Option<f32>)]) -> Vec<Region> {
+        let mut tracker = RegionTracker::default();
+        let mut out: Vec<Region> = readings
+            .iter()
+            .filter_map(|&(a, r)| tracker.push(&heard(a, r), &TOLERANCE))
+            .collect();
+        out.extend(tracker.close());
+        out
+    }
+
+    /// (middle bearing in whole degrees, readings, ends) of each region.
+    fn summary(found: &[Region]) -> Vec<(i32, u32, [End; 2])> {
+        found
+            .iter()
+            .map(|r| (r.axis.to_degrees().round() as i32, r.readings, r.ends))
+            .collect()
+    }
+
+    #[test]
+    fn a_wall_heard_off_its_perpendicular_is_one_whole_region_at_the_middle_bearing() {
+        // The foot at 20°: every reading from −10° to 50° hears 1.5 m (± noise); nothing heard
+        // either side.
+        let mut readings = vec![(-16.0, None)];
+        readings
+            .extend((0..11).map(|k| (-10.0 + 6.0 * k as f32, Some(1.49 + 0.01 * (k % 3) as f32))));
+        readings.push((56.0, None));
+        let found = regions(&readings);
+        assert_eq!(found.len(), 1);
+        let wall = found[0];
+        assert!((wall.axis.to_degrees() - 20.0).abs() < 1e-4);
+        assert!((wall.half_width.to_degrees() - 30.0).abs() < 1e-3);
+        assert!((wall.range - 1.5).abs() < 0.01);
+        assert_eq!(wall.readings, 11);
+        assert_eq!(wall.position, Vector2::new(1.0, 2.0));
+        assert!(wall.is_whole());
+    }
+
+    #[test]
+    fn what_lies_beside_a_region_tells_whether_it_is_whole() {
+        use End::{Natural, Occluded, Unknown};
+        let found = regions(&[
+            (0.0, Some(1.0)), // the sweep's first reading: unknown before it
+            (6.0, Some(1.0)),
+            (12.0, Some(2.0)), // farther: 1 m ends naturally, 2 m starts occluded by 1 m
+            (18.0, Some(2.0)),
+            (24.0, None), // no echo: a natural end
+            (30.0, Some(2.0)),
+            (36.0, Some(3.0)), // farther
+            (42.0, None),
+            (48.0, Some(2.5)),
+            (90.0, Some(2.5)), // a gap: unknown on both sides of it
+            (84.0, Some(2.5)), // the head turns back …
+            (90.0, Some(2.5)), // … and again
+        ]);
+        assert_eq!(
+            summary(&found),
+            vec![
+                (3, 2, [Unknown, Natural]),
+                (15, 2, [Occluded, Natural]),
+                (30, 1, [Natural, Natural]),
+                (36, 1, [Occluded, Natural]),
+                (48, 1, [Natural, Unknown]),
+                (87, 2, [Unknown, Unknown]),
+                (90, 1, [Unknown, Unknown]),
+            ],
+            "{found:?}"
+        );
+        let whole: Vec<_> = found.iter().map(Region::is_whole).collect();
+        assert_eq!(whole, [false, false, true, false, false, false, false]);
+    }
+
+    #[test]
+    fn a_nearer_echo_after_a_region_cuts_it_short() {
+        let found = regions(&[
+            (0.0, None),
+            (6.0, Some(2.0)),
+            (12.0, Some(2.0)),
+            (18.0, Some(1.0)),
+            (24.0, None),
+        ]);
+        assert_eq!(found[0].ends, [End::Natural, End::Occluded]);
+        assert_eq!(found[1].ends, [End::Natural, End::Natural]);
+    }
+
+    #[test]
+    fn a_region_across_the_back_of_the_circle_keeps_its_middle_bearing() {
+        let found = regions(&[(174.0, Some(1.0)), (180.0, Some(1.0)), (-174.0, Some(1.0))]);
+        assert_eq!(found.len(), 1);
+        assert!((found[0].axis.abs().to_degrees() - 180.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn the_depth_tolerance_grows_with_range() {
+        // 2 cm + 2 %: at 3 m two readings 7 cm apart are one depth, at 0.5 m 4 cm apart are not.
+        assert_eq!(regions(&[(0.0, Some(3.0)), (6.0, Some(3.07))]).len(), 1);
+        assert_eq!(regions(&[(0.0, Some(0.5)), (6.0, Some(0.54))]).len(), 2);
+    }
+}
