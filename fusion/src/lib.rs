@@ -192,6 +192,7 @@ pub mod features;
 pub mod geometry;
 pub mod grid;
 pub mod kernel;
+mod lines;
 pub mod mapper;
 pub mod model;
 pub mod observation;

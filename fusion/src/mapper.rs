@@ -9,7 +9,9 @@ use crate::geometry::GridGeometry;
 use crate::geometry::wrap_angle;
 use crate::grid::{OccupancyGrid, with_layer};
 use crate::kernel::ConeCache;
+use crate::lines::{Lines, Patch, Stretch};
 use crate::model::{ModelConfig, with_model};
+use crate::model::{RegionEcho, SmoothModel};
 use crate::observation::{Beam, Observation, ObservationError};
 use crate::radar::RadarMap;
 use crate::reference::PaperArrays;
@@ -55,6 +57,9 @@ struct Regions {
     tolerance: DepthTolerance,
     tracker: RegionTracker,
     waiting: Vec<Beam>,
+    /// The patches placed, for the walls between them ([`crate::lines`]).
+    lines: Lines,
+    stretches: Vec<Stretch>,
 }
 
 impl fmt::Debug for Mapper {
@@ -88,6 +93,8 @@ impl Mapper {
                     tolerance,
                     tracker: RegionTracker::default(),
                     waiting: Vec::new(),
+                    lines: Lines::default(),
+                    stretches: Vec::new(),
                 }),
                 _ => None,
             },
@@ -223,11 +230,13 @@ impl Mapper {
         cells
     }
 
-    /// Fuses a closed region's occupied evidence: a straight patch at its middle bearing and range.
+    /// Fuses a closed region's occupied evidence: a straight patch at its middle bearing and range;
+    /// then the stretches of wall between it and the patches other viewpoints placed on its line.
     fn place_region(&mut self, region: &Region, kernel: Kernel) -> usize {
-        let ModelConfig::Smooth(model) = &self.config.model else {
+        let ModelConfig::Smooth(model) = self.config.model else {
             return 0;
         };
+        let half_angle = model.region_patch_half_angle(region.half_width);
         let beam = Beam {
             position: region.position,
             axis: region.axis,
@@ -235,13 +244,81 @@ impl Mapper {
             max_range: self.config.sensor.limits().max_range,
             echo: Some(region.range),
         };
-        let evidence = model.region_echo(&beam, region.range, region.half_width);
+        let mut cells = self.place_patch(
+            &beam,
+            &model.region_echo(&beam, region.range, half_angle),
+            kernel,
+        );
+        let Some(regions) = &mut self.regions else {
+            return cells;
+        };
+        let mut stretches = std::mem::take(&mut regions.stretches);
+        regions.lines.add(
+            Patch::new(region.position, region.axis, region.range, half_angle),
+            &mut stretches,
+        );
+        for stretch in &stretches {
+            if !self.seen_through(stretch) {
+                cells += self.place_stretch(&model, stretch, kernel);
+            }
+        }
+        if let Some(regions) = &mut self.regions {
+            regions.stretches = stretches;
+        }
+        cells
+    }
+
+    fn place_patch(&mut self, beam: &Beam, evidence: &RegionEcho, kernel: Kernel) -> usize {
         let (geometry, store, heard) = self.grid.parts_mut();
         let (cones, arrays) = (&mut self.cones, &mut self.paper_arrays);
         with_layer!(store, layer => match kernel {
-            Kernel::Cone => cones.update(layer, heard, geometry, &beam, &evidence),
-            Kernel::WholeGrid => arrays.update(layer, heard, geometry, &beam, &evidence),
+            Kernel::Cone => cones.update(layer, heard, geometry, beam, evidence),
+            Kernel::WholeGrid => arrays.update(layer, heard, geometry, beam, evidence),
         })
+    }
+
+    /// Whether readings saw through `stretch`: three cells in a row along it that the grid holds
+    /// free (p < 0.3), a doorway or the gap between two walls in line.
+    fn seen_through(&self, stretch: &Stretch) -> bool {
+        let grid = &self.grid;
+        let step = grid.geometry().resolution();
+        let length = (stretch.b - stretch.a).norm();
+        let steps = (length / step).ceil() as usize;
+        let mut free_run = 0;
+        for k in 0..=steps {
+            let p = stretch.a + (stretch.b - stretch.a) * (k as f32 / steps.max(1) as f32);
+            let free = grid
+                .geometry()
+                .cell_at(p.into())
+                .and_then(|(x, y)| grid.probability(x, y))
+                .is_some_and(|p| p < 0.3);
+            free_run = if free { free_run + 1 } else { 0 };
+            if free_run >= 3 {
+                return true;
+            }
+        }
+        false
+    }
+
+    /// Fuses a stretch of wall as the patch a sensor square to its middle would have heard, far
+    /// enough back that the whole stretch lies within the widest patch's angle.
+    fn place_stretch(&mut self, model: &SmoothModel, stretch: &Stretch, kernel: Kernel) -> usize {
+        let half_length = 0.5 * (stretch.b - stretch.a).norm();
+        let widest = model.region_half_angle_deg.to_radians();
+        let distance = (half_length / widest.tan()).clamp(0.5, 3.0);
+        let normal = Vector2::new(stretch.facing.cos(), stretch.facing.sin());
+        let middle = 0.5 * (stretch.a + stretch.b);
+        let cut = (half_length / distance).atan();
+        let beam = Beam {
+            position: middle - normal * distance,
+            axis: stretch.facing,
+            half_angle: cut,
+            max_range: self.config.sensor.limits().max_range,
+            echo: Some(distance),
+        };
+        // The profile reaches past the stretch's ends, so that they get more than a trace.
+        let evidence = model.region_echo(&beam, distance, 1.5 * cut);
+        self.place_patch(&beam, &evidence, kernel)
     }
 
     /// Copies both maps and the counters into `out`, for saving (into its allocations).
@@ -272,6 +349,7 @@ impl Mapper {
         if let Some(regions) = &mut self.regions {
             regions.tracker = RegionTracker::default();
             regions.waiting.clear();
+            regions.lines.clear();
         }
     }
 }
@@ -722,7 +800,13 @@ mod tests {
 
     #[test]
     fn a_board_passed_edge_on_or_beside_survives_and_empty_space_is_still_cleared() {
-        let recommended = crate::model::SmoothModel::default();
+        // The weighting by incidence, with each reading's echo on its own axis: here the sweeps
+        // from the two other positions hear one range end to end, a region with no natural end,
+        // which placed by region would give no evidence at all.
+        let recommended = crate::model::SmoothModel {
+            echo_placement: crate::model::EchoPlacement::Reading,
+            ..Default::default()
+        };
         let (m, rows) = board_scene(recommended, false);
         assert!(rows.iter().all(|&p| p > 0.5), "{rows:?}");
         // Without the weighting by incidence (every cell takes full free evidence, as the smooth
@@ -814,7 +898,16 @@ mod tests {
 
     #[test]
     fn readings_are_fused_at_the_robot_pose() {
-        let mut m = Mapper::new(FusionConfig::default()).unwrap();
+        // One reading: with the echo on its own axis (placed by region, one reading with nothing
+        // beside it is no whole region).
+        let mut m = Mapper::new(FusionConfig {
+            model: ModelConfig::Smooth(crate::model::SmoothModel {
+                echo_placement: crate::model::EchoPlacement::Reading,
+                ..Default::default()
+            }),
+            ..FusionConfig::default()
+        })
+        .unwrap();
         // The robot 1 m along y, heading along y; the sensor's 0° looks along the world's y.
         let pose = Isometry2::new(Vector2::new(0.0, 1.0), 90.0 * DEG);
         let obs = Observation {

@@ -516,11 +516,12 @@ pub struct SmoothModel {
 #[serde(rename_all = "kebab-case")]
 pub enum EchoPlacement {
     /// On the reading's own axis, at its range: each reading alone.
-    #[default]
     Reading,
     /// Once per region of constant depth (the readings of a sweep that heard the same range one
     /// after the other, [`crate::regions`]), on a straight patch at the region's middle bearing,
-    /// where the reflector is; each reading still gives its free evidence at once.
+    /// where the reflector is; only the readings of a region whose reflector stopped being heard
+    /// on both sides give evidence, occupied or free.
+    #[default]
     Region,
 }
 
@@ -537,10 +538,10 @@ impl Default for SmoothModel {
             fade_range_m: 3.0,
             incidence_full_deg: 0.0,
             incidence_none_deg: 10.0,
-            echo_placement: EchoPlacement::Reading,
+            echo_placement: EchoPlacement::Region,
             region_tolerance_m: 0.02,
             region_tolerance_fraction: 0.02,
-            region_half_angle_deg: 25.0,
+            region_half_angle_deg: 18.0,
         }
     }
 }
@@ -694,10 +695,8 @@ impl SmoothModel {
     /// bearing, its mean range): a straight patch square to the axis at the range, `band` thick,
     /// fading as 1 − (α/θ)² to the patch's half-angle θ; each of its cells remembers the axis as
     /// the bearing it was heard from (the reflector's normal, if it is a wall).
-    pub(crate) fn region_echo(&self, beam: &Beam, range: f32, half_width: f32) -> RegionEcho {
+    pub(crate) fn region_echo(&self, beam: &Beam, range: f32, half_angle: f32) -> RegionEcho {
         let band = self.band(range);
-        let half_angle =
-            half_width.clamp(3f32.to_radians(), self.region_half_angle_deg.to_radians());
         RegionEcho {
             d: range,
             band,
@@ -708,6 +707,12 @@ impl SmoothModel {
             half_angle: half_angle * 1.001,
             normal: beam.axis,
         }
+    }
+
+    /// The half-angle of the patch of a region `half_width` wide each side, radians: its own
+    /// width, at least 3° (a single reading), at most `region_half_angle_deg`.
+    pub(crate) fn region_patch_half_angle(&self, half_width: f32) -> f32 {
+        half_width.clamp(3f32.to_radians(), self.region_half_angle_deg.to_radians())
     }
 }
 
@@ -894,6 +899,8 @@ mod tests {
             free_log_odds: -1.0,
             occupied_half_angle_deg: 12.0,
             free_half_angle_deg: 30.0,
+            // Each reading's own evidence, occupied part included.
+            echo_placement: EchoPlacement::Reading,
             ..SmoothModel::default()
         }
     }
@@ -905,7 +912,13 @@ mod tests {
     fn worked_example_of_the_eq2_flaw() {
         let paper = PaperModel::default().reading(&beam(Some(2.0)));
         let smooth = round_smooth().reading(&beam(Some(2.0)));
-        let recommended = SmoothModel::default().reading(&beam(Some(2.0)));
+        // The recommended parameters with the echo on the reading's own axis (placed by region,
+        // the occupied part waits for the region: [`SmoothModel::region_echo`]).
+        let recommended = SmoothModel {
+            echo_placement: EchoPlacement::Reading,
+            ..SmoothModel::default()
+        }
+        .reading(&beam(Some(2.0)));
         let deg = |a: f32| a.to_radians();
         // (r, α) → eq. 1–2 value; smooth model's probability σ(l) (None: no evidence), with
         // l = ∓1 · (1 − (α/θ)²) · f(r) and the radial trust f(r) = 0.985071 at 1 m, 0.961538 at
