@@ -516,12 +516,12 @@ pub struct SmoothModel {
 #[serde(rename_all = "kebab-case")]
 pub enum EchoPlacement {
     /// On the reading's own axis, at its range: each reading alone.
+    #[default]
     Reading,
     /// Once per region of constant depth (the readings of a sweep that heard the same range one
     /// after the other, [`crate::regions`]), on a straight patch at the region's middle bearing,
     /// where the reflector is; only the readings of a region whose reflector stopped being heard
     /// on both sides give evidence, occupied or free.
-    #[default]
     Region,
 }
 
@@ -538,7 +538,7 @@ impl Default for SmoothModel {
             fade_range_m: 3.0,
             incidence_full_deg: 0.0,
             incidence_none_deg: 10.0,
-            echo_placement: EchoPlacement::Region,
+            echo_placement: EchoPlacement::Reading,
             region_tolerance_m: 0.02,
             region_tolerance_fraction: 0.02,
             region_half_angle_deg: 18.0,
