@@ -1,6 +1,7 @@
 //! Everything a fusion engine is set up with, its two presets, and their validation.
 
 use std::fmt;
+use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 use serde::de::Error as _;
@@ -316,6 +317,47 @@ impl<'de> Deserialize<'de> for FusionSection {
         Ok(Self {
             engine: engine.try_into().map_err(D::Error::custom)?,
             persistence: persistence.try_into().map_err(D::Error::custom)?,
+        })
+    }
+}
+
+/// The tables of a pipeline configuration file that the fusion reads, `[fusion]` and
+/// `[features]`; the other programs' tables are left to them. `sonar-fusion` and the offline
+/// `sonar-export` read the same file the same way, so an export fuses as the pipeline did.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+pub struct FusionFile {
+    #[serde(default)]
+    pub fusion: FusionSection,
+    #[serde(default)]
+    pub features: FeaturesSection,
+}
+
+/// A configuration file that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum FusionFileError {
+    #[error("cannot read config file {}", .path.display())]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("invalid config file {}", .path.display())]
+    Parse {
+        path: PathBuf,
+        #[source]
+        source: toml::de::Error,
+    },
+}
+
+impl FusionFile {
+    pub fn load(path: &Path) -> Result<Self, FusionFileError> {
+        let text = std::fs::read_to_string(path).map_err(|source| FusionFileError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
+        toml::from_str(&text).map_err(|source| FusionFileError::Parse {
+            path: path.to_owned(),
+            source,
         })
     }
 }

@@ -37,6 +37,7 @@ use sonar_features::{
     FeatureSummary, Needs, PoseFix, Sweep, SweepReport,
 };
 
+use crate::engine::Engine;
 use crate::grid::OccupancyGrid;
 
 /// Occupancy probability from which a grid cell lends its position to a wall's segment.
@@ -202,6 +203,22 @@ impl FeatureTracker {
             })
             .count();
         away as f64 > MOVING_SHARE * self.pending.len() as f64
+    }
+
+    /// Adds a reading `engine` has just fused, at the pose the engine placed it; with `localize`,
+    /// hands the engine the correction the next reading is to be placed with, so the odometry's
+    /// drift is taken out step by step. The order `sonar-fusion` and the offline exports share.
+    pub fn follow(
+        &mut self,
+        reading: &Reading,
+        engine: &mut Engine,
+        localize: bool,
+    ) -> Option<SweepOutcome> {
+        let finished = self.push(reading, engine.pose());
+        if localize {
+            engine.set_correction(self.correction());
+        }
+        finished
     }
 
     /// Whether readings of an unfinished sweep are waiting.

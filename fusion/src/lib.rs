@@ -206,8 +206,8 @@ pub mod state;
 pub mod status;
 
 pub use config::{
-    ConfigError, FeaturesSection, FusionConfig, FusionSection, GridConfig, Preset, SensorLimits,
-    UnknownName,
+    ConfigError, FeaturesSection, FusionConfig, FusionFile, FusionFileError, FusionSection,
+    GridConfig, Preset, SensorLimits, UnknownName,
 };
 pub use features::{FeatureTracker, SweepOutcome};
 pub use geometry::GridGeometry;

@@ -41,8 +41,8 @@ use sonar_fusion::poses::MAX_POSE_WAIT;
 use sonar_fusion::state::SavedMap;
 use sonar_fusion::status::{Ledger, SeqStep};
 use sonar_fusion::{
-    FeatureTracker, FeaturesSection, FusionConfig, FusionSection, ModelConfig, ModelKind,
-    PersistConfig, Preset, RuleConfig, RuleKind, SweepOutcome,
+    FeatureTracker, FeaturesSection, FusionConfig, FusionFile, FusionSection, ModelConfig,
+    ModelKind, PersistConfig, Preset, RuleConfig, RuleKind, SweepOutcome,
 };
 use tracing::{debug, info, warn};
 
@@ -174,15 +174,15 @@ fn main() -> ExitCode {
 /// The configuration from the file, the preset and the flags, validated; and the file's
 /// persistence and feature settings.
 fn fusion_config(args: &Args) -> Result<(FusionConfig, PersistConfig, FeaturesSection)> {
-    let File {
+    let FusionFile {
         fusion: FusionSection {
             engine: mut config,
             persistence,
         },
         features,
     } = match &args.config {
-        Some(path) => load_config(path)?,
-        None => File::default(),
+        Some(path) => FusionFile::load(path)?,
+        None => FusionFile::default(),
     };
     if let Some(preset) = args.preset {
         let p = FusionConfig::preset(preset);
@@ -207,21 +207,6 @@ fn fusion_config(args: &Args) -> Result<(FusionConfig, PersistConfig, FeaturesSe
     }
     config.validate().context("invalid fusion settings")?;
     Ok((config, persistence, features))
-}
-
-/// The tables of the pipeline's configuration file that the fusion reads.
-#[derive(Default, serde::Deserialize)]
-struct File {
-    #[serde(default)]
-    fusion: FusionSection,
-    #[serde(default)]
-    features: FeaturesSection,
-}
-
-fn load_config(path: &Path) -> Result<File> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("cannot read config file {}", path.display()))?;
-    toml::from_str(&text).with_context(|| format!("invalid config file {}", path.display()))
 }
 
 /// Where and how often to save, from the file's `[fusion]` keys and the flags; `None` with
@@ -634,12 +619,9 @@ impl Features {
     /// Adds a reading; publishes when it ended a sweep.
     fn push(&mut self, reading: &sonar_common::ipc::Reading, engine: &mut Engine) {
         self.last_reading = Instant::now();
-        let finished = self.tracker.push(reading, engine.pose());
-        if self.localized.is_some() {
-            // The odometry's drift is taken out step by step: the next reading is placed with
-            // this reading's correction.
-            engine.set_correction(self.tracker.correction());
-        }
+        let finished = self
+            .tracker
+            .follow(reading, engine, self.localized.is_some());
         if let Some(outcome) = finished {
             self.sweep_done(&outcome, engine);
         }

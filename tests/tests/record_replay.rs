@@ -11,7 +11,7 @@ use sonar_common::ipc::{
     self, FusionCommand, FusionCommandKind, Reading, ScanCommand, ScanCommandKind,
 };
 use sonar_e2e::{
-    CpuHog, Sandbox, collect_until, corridor_grid_config, driver_ports, path_str,
+    CpuHog, Sandbox, check_ok, collect_until, corridor_grid_config, driver_ports, path_str,
     readings_subscriber, readings_subscribers, receive_reading, wait_until,
 };
 
@@ -510,6 +510,105 @@ fn replaying_a_recorded_tour_gives_the_live_map() {
         &cells,
         &format!("({header:?})\nlive: {live_log}\nreplay: {replay_log}"),
     );
+}
+
+/// The corridor tour with its drifting odometry through a localising fusion (the pipeline's
+/// configuration file: the tour's grid, `[features] localize = true`), recorded; `sonar-export
+/// --from-recording` given the same file fuses the recording into the live map, cell for cell
+/// (issue 27: an export took no configuration, so a tour's map came out clipped and smeared).
+#[test]
+fn an_offline_export_with_the_pipelines_config_gives_the_live_localised_map() {
+    let config = corridor_grid_config("export_tour");
+    let text = std::fs::read_to_string(&config).unwrap();
+    std::fs::write(&config, format!("{text}\n[features]\nlocalize = true\n")).unwrap();
+    let sandbox = Sandbox::new("export_tour");
+    let node = sandbox.node("test-export");
+    let readings = readings_subscriber(&node);
+    let file: PathBuf = sandbox.root.join("tour.mcap");
+    let recorder = sandbox.spawn("sonar-record", &[path_str(&file)]);
+    let fusion = sandbox.spawn(
+        "sonar-fusion",
+        &["--config", config.to_str().unwrap(), "--no-persist"],
+    );
+    wait_until(&node, "recorder and fusion subscribed", || {
+        readings_subscribers(&node) >= 3
+    });
+    let grid = grid_subscriber(&node);
+    // The evaluation's drifting odometry: 3 % long, 2°/m.
+    let (sim, pty) = sandbox.spawn_sim(&[
+        "--scene",
+        "corridor",
+        "--speed",
+        "40",
+        "--seed",
+        "3",
+        "--odom-scale-error",
+        "0.03",
+        "--odom-heading-drift",
+        "2",
+    ]);
+    let driver = sandbox.spawn("sonar-driver", &["--port", &pty]);
+    let mut count = collect_until(
+        &node,
+        || receive_reading(&readings),
+        |got| got.len() >= TOUR_READINGS,
+    )
+    .len() as u64;
+    assert!(driver.terminate().success(), "driver did not exit cleanly");
+    while receive_reading(&readings).is_some() {
+        count += 1;
+    }
+    let (header, _) = map_after(&node, &grid, count);
+    assert!(header.occupied_cells > 500, "{header:?}");
+    let live_stem = sandbox.root.join("live");
+    let live = sandbox.run(
+        "sonar-export",
+        &["--format", "npy", "--out", path_str(&live_stem)],
+    );
+    check_ok("live sonar-export", &live);
+    for p in [recorder, sim] {
+        assert!(p.terminate().success());
+    }
+    let live_log = stopped_line(fusion);
+    let offline_stem = sandbox.root.join("offline");
+    let offline = sandbox.run(
+        "sonar-export",
+        &[
+            "--format",
+            "npy",
+            "--out",
+            path_str(&offline_stem),
+            "--from-recording",
+            path_str(&file),
+            "--config",
+            config.to_str().unwrap(),
+        ],
+    );
+    check_ok("offline sonar-export", &offline);
+    let live_map = std::fs::read(live_stem.with_extension("npy")).unwrap();
+    let offline_map = std::fs::read(offline_stem.with_extension("npy")).unwrap();
+    assert_same_cells(&live_map, &offline_map, &format!("live: {live_log}"));
+    // The localisation made a difference: the same grid without it is another map.
+    std::fs::write(&config, text).unwrap();
+    let unlocalised_stem = sandbox.root.join("unlocalised");
+    let unlocalised = sandbox.run(
+        "sonar-export",
+        &[
+            "--format",
+            "npy",
+            "--out",
+            path_str(&unlocalised_stem),
+            "--from-recording",
+            path_str(&file),
+            "--config",
+            config.to_str().unwrap(),
+        ],
+    );
+    check_ok("unlocalised sonar-export", &unlocalised);
+    let _ = std::fs::remove_file(&config);
+    let unlocalised_map = std::fs::read(unlocalised_stem.with_extension("npy")).unwrap();
+    assert_eq!(unlocalised_map.len(), live_map.len());
+    assert_ne!(unlocalised_map, live_map);
 }
 
 /// Stops a fusion and returns its last log line, the one with its counters (readings, and those

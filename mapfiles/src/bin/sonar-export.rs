@@ -15,7 +15,7 @@
 //! recorded features) with the maps the offline fusion builds, one at the end of each sweep; live,
 //! the snapshot taken (its map, the sensor's pose, the latest features if the fusion publishes any).
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 use std::fs::File;
 use std::io::{BufWriter, Seek, Write};
 use std::path::{Path, PathBuf};
@@ -27,9 +27,14 @@ use clap::Parser;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::waitset::WaitSetRunResult;
-use sonar_common::ipc::{self, FusionCommandKind, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION};
+use sonar_common::ipc::{
+    self, FusionCommandKind, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, Reading,
+};
 use sonar_fusion::engine::Engine;
-use sonar_fusion::{FeatureTracker, FeaturesSection, FusionConfig, Preset};
+use sonar_fusion::poses::MAX_POSE_WAIT;
+use sonar_fusion::{
+    FeatureTracker, FeaturesSection, FusionConfig, FusionFile, FusionSection, Preset,
+};
 use sonar_mapfiles::{FeatureFormat, Format, Map, PngOptions, output, write_features};
 use sonar_recorder::well_known::Options as WellKnownOptions;
 use sonar_recorder::{
@@ -127,9 +132,19 @@ struct Args {
     /// Offline: fuse the readings of this recording (sonar-record's MCAP file) instead.
     #[arg(long, value_name = "FILE")]
     from_recording: Option<PathBuf>,
-    /// Offline: fusion settings, `paper` or `recommended` (default, as sonar-fusion).
+    /// Offline: the pipeline's configuration file; its `[fusion]` and `[features]` tables are
+    /// read as `sonar-fusion` reads them (grid, model, rule, `localize`), so the export fuses the
+    /// recording as the pipeline did.
+    #[arg(long, value_name = "FILE", requires = "from_recording")]
+    config: Option<PathBuf>,
+    /// Offline: fusion settings, `paper` or `recommended` (default, as sonar-fusion); with
+    /// --config, replaces the file's model and rule, as `sonar-fusion --preset` does.
     #[arg(long, value_parser = parse_preset, requires = "from_recording")]
     preset: Option<Preset>,
+    /// Offline: localise each sweep against the features to correct the recorded odometry, as
+    /// `sonar-fusion --localize` does (`[features] localize = true` in --config does the same).
+    #[arg(long, requires = "from_recording")]
+    localize: bool,
     /// Offline: ignore the recorded fusion commands (clear, preset/model/rule switches), so every
     /// reading is fused with --preset.
     #[arg(long, requires = "from_recording")]
@@ -647,16 +662,49 @@ fn from_recording<W: Write + Seek>(
     if recording.truncated {
         warn!("the recording ends early; fusing the messages before the cut");
     }
-    let config = args
-        .preset
-        .map_or_else(FusionConfig::default, FusionConfig::preset);
+    let FusionFile {
+        fusion: FusionSection {
+            engine: mut config, ..
+        },
+        features,
+    } = match &args.config {
+        Some(path) => FusionFile::load(path)?,
+        None => FusionFile::default(),
+    };
+    if let Some(preset) = args.preset {
+        let p = FusionConfig::preset(preset);
+        config.model = p.model;
+        config.rule = p.rule;
+        config.clear_on_no_echo = p.clear_on_no_echo;
+    }
+    let localize = args.localize || features.localize;
+    if localize && !features.enabled {
+        bail!("localisation needs the features: [features] enabled = false in the config file");
+    }
     fuse_recording(
         &recording,
-        config,
-        !args.ignore_fusion_commands,
-        with_features,
+        Offline {
+            config,
+            features,
+            localize,
+            commands: !args.ignore_fusion_commands,
+            with_features,
+        },
         mcap,
     )
+}
+
+/// How a recording is fused offline.
+struct Offline {
+    config: FusionConfig,
+    /// The feature settings (the file's `[features]` table).
+    features: FeaturesSection,
+    /// Whether each sweep is localised against the features (they are then extracted).
+    localize: bool,
+    /// Whether the recorded fusion commands are carried out.
+    commands: bool,
+    /// Whether the features are written.
+    with_features: bool,
 }
 
 /// Replays `recording` into a fusion engine as `sonar-fusion` runs it: readings fused, poses
@@ -669,67 +717,84 @@ fn from_recording<W: Write + Seek>(
 /// and the final one.
 fn fuse_recording<W: Write + Seek>(
     recording: &Recording,
-    config: FusionConfig,
-    commands: bool,
-    with_features: bool,
+    offline: Offline,
     mut mcap: Option<&mut McapExport<W>>,
 ) -> Result<Snapshot> {
-    let mut engine = Engine::new(config, OFFLINE_HISTORY).context("invalid fusion settings")?;
-    let mut tracker = with_features
-        .then(|| FeatureTracker::new(FeaturesSection::default().config))
+    let Offline {
+        config,
+        features,
+        localize,
+        commands,
+        with_features,
+    } = offline;
+    let engine = Engine::new(config, OFFLINE_HISTORY).context("invalid fusion settings")?;
+    let tracker = (with_features || localize)
+        .then(|| {
+            if localize {
+                FeatureTracker::with_localization(features.config)
+            } else {
+                FeatureTracker::new(features.config)
+            }
+        })
         .transpose()
-        .context("invalid feature settings")?;
-    let (mut fused, mut refused, mut stamp) = (0u64, 0u64, 0u64);
-    let mut sweep = None;
-    let mut snapshots = 0;
+        .context("invalid [features] settings")?;
+    let mut run = Run {
+        engine,
+        tracker,
+        localize,
+        waiting: VecDeque::new(),
+        fused: 0,
+        refused: 0,
+        stamp: 0,
+        sweep: None,
+        snapshots: 0,
+    };
     for entry in &recording.entries {
         match &entry.message {
             Message::Reading(r) if r.layout_version == LAYOUT_VERSION => {
-                if let Some(mcap) = mcap.as_deref_mut()
-                    && sweep.replace(r.sweep_id).is_some_and(|s| s != r.sweep_id)
-                {
-                    snapshots += 1;
-                    mcap.grid(
-                        entry.log_time_ns,
-                        &grid_snapshot(&mut engine, snapshots, stamp),
-                    )?;
-                }
-                if let Some(tracker) = &mut tracker {
-                    tracker.push(r, engine.pose());
-                }
-                if engine.fuse(r) {
-                    fused += 1;
-                } else {
-                    refused += 1;
-                }
-                stamp = r.host_stamp_ns;
+                run.waiting.push_back((entry.log_time_ns, *r));
             }
             Message::Reading(r) => warn!(
                 version = r.layout_version,
                 "reading of another layout version ignored"
             ),
             Message::Pose(p) => {
-                if let Err(e) = engine.set_pose(p) {
+                if let Err(e) = run.engine.set_pose(p) {
                     warn!(pose = ?p, "pose refused: {e}");
                 }
             }
-            Message::FusionCommand(c) if commands => match engine.apply(c) {
-                Ok(()) => {
-                    if let (Some(FusionCommandKind::Clear), Some(tracker)) =
-                        (c.kind(), &mut tracker)
-                    {
-                        tracker.clear();
+            Message::FusionCommand(c) if commands => {
+                // The readings before a command are fused before it, as the fusion receives them.
+                run.release(u64::MAX, mcap.as_deref_mut())?;
+                match run.engine.apply(c) {
+                    Ok(()) => {
+                        if let (Some(FusionCommandKind::Clear), Some(tracker)) =
+                            (c.kind(), &mut run.tracker)
+                        {
+                            tracker.clear();
+                        }
                     }
+                    Err(e) => warn!(command = ?c, "recorded fusion command refused: {e}"),
                 }
-                Err(e) => warn!(command = ?c, "recorded fusion command refused: {e}"),
-            },
+            }
             // Recorded features are the live fusion's; these are computed anew from the readings.
             Message::FusionCommand(_) | Message::ScanCommand(_) | Message::Features(_) => {}
         }
+        run.release(entry.log_time_ns, mcap.as_deref_mut())?;
         if let Some(mcap) = mcap.as_deref_mut() {
             mcap.message(entry.log_time_ns, &entry.message)?;
         }
     }
+    run.release(u64::MAX, mcap.as_deref_mut())?;
+    let Run {
+        mut engine,
+        tracker,
+        fused,
+        refused,
+        stamp,
+        snapshots,
+        ..
+    } = run;
     if fused == 0 {
         warn!("the recording holds no usable reading: the map is empty");
     }
@@ -739,12 +804,87 @@ fn fuse_recording<W: Write + Seek>(
         let log_time = recording.entries.last().map_or(stamp, |e| e.log_time_ns);
         mcap.grid(log_time, &grid)?;
     }
-    let features = tracker.map(|mut tracker| {
+    let features = tracker.filter(|_| with_features).map(|mut tracker| {
         tracker.finish_sweep();
         let (header, records) = tracker.snapshot(engine.mapper().grid(), 1, stamp);
         FeatureSnapshot { header, records }
     });
     Ok(Snapshot { grid, features })
+}
+
+/// An offline fusion under way: the engine, the features, and the readings waiting for the pose
+/// that covers their instant.
+struct Run {
+    engine: Engine,
+    tracker: Option<FeatureTracker>,
+    localize: bool,
+    /// Readings with the log time they were recorded at, in recorded order.
+    waiting: VecDeque<(u64, Reading)>,
+    fused: u64,
+    refused: u64,
+    /// The stamp of the last reading fused.
+    stamp: u64,
+    sweep: Option<u32>,
+    snapshots: u64,
+}
+
+impl Run {
+    /// Fuses the waiting readings, oldest first, that no longer wait for a pose at the recording's
+    /// time `now_ns`: the fusion's pose policy (`sonar_fusion::poses`), a reading newer than the
+    /// newest pose waits for the one that covers it, at most `MAX_POSE_WAIT`; the readings behind
+    /// it wait with it.
+    fn release<W: Write + Seek>(
+        &mut self,
+        now_ns: u64,
+        mut mcap: Option<&mut McapExport<W>>,
+    ) -> Result<()> {
+        let wait = u64::try_from(MAX_POSE_WAIT.as_nanos()).unwrap_or(u64::MAX);
+        while let Some(&(logged_ns, reading)) = self.waiting.front() {
+            if self.engine.awaits_pose(reading.host_stamp_ns)
+                && now_ns.saturating_sub(logged_ns) < wait
+            {
+                break;
+            }
+            self.waiting.pop_front();
+            self.fuse(logged_ns, &reading, mcap.as_deref_mut())?;
+        }
+        Ok(())
+    }
+
+    /// One reading, in the fusion's order: a new sweep's first reading closes the last region
+    /// and ends the map of the sweep before it; then the engine fuses the reading; then the
+    /// features take it where the engine placed it (and localisation corrects the next).
+    fn fuse<W: Write + Seek>(
+        &mut self,
+        logged_ns: u64,
+        r: &Reading,
+        mcap: Option<&mut McapExport<W>>,
+    ) -> Result<()> {
+        if self
+            .sweep
+            .replace(r.sweep_id)
+            .is_some_and(|s| s != r.sweep_id)
+        {
+            self.engine.close_region();
+            if let Some(mcap) = mcap {
+                self.snapshots += 1;
+                mcap.grid(
+                    logged_ns,
+                    &grid_snapshot(&mut self.engine, self.snapshots, self.stamp),
+                )?;
+            }
+        }
+        if self.engine.fuse(r) {
+            self.fused += 1;
+        } else {
+            self.refused += 1;
+        }
+        if let Some(tracker) = &mut self.tracker {
+            tracker.follow(r, &mut self.engine, self.localize);
+        }
+        self.stamp = r.host_stamp_ns;
+        Ok(())
+    }
 }
 
 /// The engine's map as the fusion publishes it: snapshot number `seq`, stamped `stamp_ns`.
@@ -863,7 +1003,14 @@ mod tests {
 
     /// `fuse_recording` without an MCAP to write.
     fn fuse(rec: &Recording, config: FusionConfig, commands: bool, features: bool) -> Snapshot {
-        fuse_recording::<Cursor<Vec<u8>>>(rec, config, commands, features, None).unwrap()
+        let offline = Offline {
+            config,
+            features: FeaturesSection::default(),
+            localize: false,
+            commands,
+            with_features: features,
+        };
+        fuse_recording::<Cursor<Vec<u8>>>(rec, offline, None).unwrap()
     }
 
     /// The MCAP of a recording gets a map at the end of each sweep and at the end (every one,
@@ -883,8 +1030,18 @@ mod tests {
         )
         .unwrap();
         let rec = recording();
-        let snapshot =
-            fuse_recording(&rec, FusionConfig::default(), true, false, Some(&mut mcap)).unwrap();
+        let snapshot = fuse_recording(
+            &rec,
+            Offline {
+                config: FusionConfig::default(),
+                features: FeaturesSection::default(),
+                localize: false,
+                commands: true,
+                with_features: false,
+            },
+            Some(&mut mcap),
+        )
+        .unwrap();
         assert_eq!(
             snapshot.grid.0.seq, 2,
             "one map at the sweep change, then the last"
