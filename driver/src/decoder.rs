@@ -28,6 +28,58 @@ impl Dialect {
     }
 }
 
+/// Which hobby distance means "no echo". A distance of 0 never is an echo and always means none;
+/// sketches differ in what else they send when nothing came back: NewPing's `0`, many others `255`
+/// (the largest byte), or a sentinel at or beyond the sensor's range (`400`, `999`).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum NoEcho {
+    /// Only 0 cm (NewPing's convention).
+    #[default]
+    Zero,
+    /// This many cm exactly (e.g. 255), besides 0.
+    Exactly(f32),
+    /// This many cm or more, besides 0.
+    AtOrBeyond(f32),
+}
+
+impl NoEcho {
+    /// True when a hobby distance (cm) means that nothing echoed.
+    pub fn means_none(self, distance_cm: f32) -> bool {
+        distance_cm <= 0.0
+            || match self {
+                NoEcho::Zero => false,
+                NoEcho::Exactly(cm) => distance_cm == cm,
+                NoEcho::AtOrBeyond(cm) => distance_cm >= cm,
+            }
+    }
+}
+
+impl std::str::FromStr for NoEcho {
+    type Err = String;
+
+    /// `0`, a value in cm (`255`), or a value and more (`400+` or `>=400`).
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let s = s.trim();
+        let (number, beyond) = match s.strip_suffix('+').or_else(|| s.strip_prefix(">=")) {
+            Some(n) => (n.trim(), true),
+            None => (s, false),
+        };
+        let cm: f32 = number.parse().map_err(|_| {
+            format!("expected 0, a distance in cm (255) or one and beyond (400+), got {s:?}")
+        })?;
+        if !(cm.is_finite() && cm >= 0.0) {
+            return Err(format!(
+                "the no-echo value must be a distance >= 0 cm, got {s:?}"
+            ));
+        }
+        Ok(match (cm, beyond) {
+            (0.0, _) => NoEcho::Zero,
+            (cm, false) => NoEcho::Exactly(cm),
+            (cm, true) => NoEcho::AtOrBeyond(cm),
+        })
+    }
+}
+
 /// What a line meant.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Decoded {
@@ -50,6 +102,8 @@ pub struct Decoder {
     mode: ScanMode,
     /// Added to hobby angles: the sketches' servo points forward at 90°.
     hobby_angle_offset_deg: f32,
+    /// The hobby distance that means no echo.
+    hobby_no_echo: NoEcho,
     hobby: HobbySweep,
 }
 
@@ -87,8 +141,15 @@ impl Decoder {
             next_seq: 0,
             mode: ScanMode::Unknown,
             hobby_angle_offset_deg,
+            hobby_no_echo: NoEcho::default(),
             hobby: HobbySweep::default(),
         }
+    }
+
+    /// Reads hobby distances that `no_echo` names as "nothing echoed" (0 cm always is).
+    pub fn hobby_no_echo(mut self, no_echo: NoEcho) -> Self {
+        self.hobby_no_echo = no_echo;
+        self
     }
 
     /// Reads the native protocol in `version` instead of the newest.
@@ -212,13 +273,12 @@ impl Decoder {
         h.device_seq = h.device_seq.wrapping_add(1);
         let (direction, sweep, device_seq) = (h.direction, h.sweep_id, h.device_seq);
 
-        // NewPing sketches report 0 for no echo; the range goes through the same policy as a native
-        // ping (a synthesised echo time) so range limits apply identically.
-        let distance_m = hobby.distance_cm / 100.0;
-        let echo = if distance_m > 0.0 {
-            self.sensor.echo_time_us(distance_m).round() as u32
-        } else {
+        // A distance the sketch sends for "no echo" becomes no echo time; any other goes through
+        // the same policy as a native ping (a synthesised echo time) so range limits apply alike.
+        let echo = if self.hobby_no_echo.means_none(hobby.distance_cm) {
             0
+        } else {
+            self.sensor.echo_time_us(hobby.distance_cm / 100.0).round() as u32
         };
         let mut echo_us = [0u32; MAX_PINGS];
         echo_us[0] = echo;
@@ -354,5 +414,57 @@ mod tests {
         assert_eq!(sweeps[2], (0.0, 0, 1, valid | flags::NO_ECHO));
         assert_eq!(sweeps[3], (-1.0, 1, -1, valid));
         assert_eq!(sweeps[4].3, valid | flags::OUT_OF_RANGE);
+    }
+
+    fn hobby(no_echo: NoEcho) -> Decoder {
+        Decoder::new(
+            Dialect::Hobby,
+            SensorConfig::default(),
+            PingPolicy::default(),
+            0.0,
+        )
+        .hobby_no_echo(no_echo)
+    }
+
+    fn flags_of(d: &mut Decoder, line: &str) -> (u32, f32) {
+        let Decoded::Reading(r) = d.decode(line.as_bytes(), 0).unwrap() else {
+            panic!("not a reading")
+        };
+        (r.flags & !flags::NO_RAW_PINGS, r.distance_m)
+    }
+
+    #[test]
+    fn the_no_echo_value_is_no_echo_and_never_a_range() {
+        // Without the setting, 255 is an echo at 2.55 m (what such a sketch's user saw).
+        let mut plain = hobby(NoEcho::Zero);
+        let (f, d) = flags_of(&mut plain, "10,255");
+        assert_eq!(f, 0);
+        assert!((d - 2.55).abs() < 1e-3);
+        assert_eq!(flags_of(&mut plain, "11,0").0, flags::NO_ECHO);
+
+        let mut d = hobby("255".parse().unwrap());
+        assert_eq!(flags_of(&mut d, "10,255"), (flags::NO_ECHO, 0.0));
+        assert_eq!(flags_of(&mut d, "11,0"), (flags::NO_ECHO, 0.0));
+        let (f, m) = flags_of(&mut d, "12,254");
+        assert_eq!(f, 0);
+        assert!((m - 2.54).abs() < 1e-3);
+
+        for form in ["300+", ">=300", " 300 +"] {
+            let mut d = hobby(form.parse().unwrap());
+            assert_eq!(flags_of(&mut d, "10,300"), (flags::NO_ECHO, 0.0), "{form}");
+            assert_eq!(flags_of(&mut d, "11,999"), (flags::NO_ECHO, 0.0), "{form}");
+            assert_eq!(flags_of(&mut d, "12,299").0, 0, "{form}");
+        }
+    }
+
+    #[test]
+    fn no_echo_forms() {
+        assert_eq!("0".parse(), Ok(NoEcho::Zero));
+        assert_eq!("255".parse(), Ok(NoEcho::Exactly(255.0)));
+        assert_eq!("400+".parse(), Ok(NoEcho::AtOrBeyond(400.0)));
+        assert_eq!(">=400".parse(), Ok(NoEcho::AtOrBeyond(400.0)));
+        for bad in ["", "far", "-5", "+", "nan", "inf+"] {
+            assert!(bad.parse::<NoEcho>().is_err(), "{bad:?}");
+        }
     }
 }

@@ -330,6 +330,7 @@ impl Pipeline {
             let mut driver = vec!["--port".to_owned(), port.display().to_string()];
             push_opt(&mut driver, "--baud", args.baud.or(file.serial.baud));
             push_opt(&mut driver, "--dialect", dialect);
+            push_opt(&mut driver, "--no-echo", file.serial.no_echo.clone());
             if let Some(scan) = args.scan.clone().or(file.serial.scan.clone()) {
                 // `=` keeps a segment such as -30..30 from reading as a flag.
                 driver.push(format!("--scan={scan}"));
