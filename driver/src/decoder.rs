@@ -80,6 +80,11 @@ impl std::str::FromStr for NoEcho {
     }
 }
 
+/// The largest step between consecutive readings of a continuous head across its wrap: a
+/// jump of more than half a turn that is at most this far the short way round is a wrap (a servo
+/// that flies back from 165° to 15° is not).
+const MAX_WRAP_STEP_DEG: f32 = 45.0;
+
 /// What a line meant.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Decoded {
@@ -256,15 +261,23 @@ impl Decoder {
         let angle_deg = hobby.angle_deg + self.hobby_angle_offset_deg;
         let h = &mut self.hobby;
         if let Some(last) = h.last_angle_deg {
-            let direction = if angle_deg > last {
+            let change = angle_deg - last;
+            // The turn the angle took, the short way round: a continuous head that wraps
+            // (357° → 0°, 180° → −177°, −357° → 0°) goes on in its direction.
+            let turned = change - 360.0 * (change / 360.0).round();
+            let wrapped = change.abs() > 180.0 && turned.abs() <= MAX_WRAP_STEP_DEG;
+            let direction = if wrapped {
+                turned.signum() as i8
+            } else if change > 0.0 {
                 1
-            } else if angle_deg < last {
+            } else if change < 0.0 {
                 -1
             } else {
                 h.direction
             };
-            // A reversal starts a new sweep, as a limit does in our protocol.
-            if direction != h.direction && h.direction != 0 {
+            // A reversal starts a new sweep, as a limit does in our protocol; so does a wrap: one
+            // revolution of a continuous head is one sweep.
+            if wrapped || (direction != h.direction && h.direction != 0) {
                 h.sweep_id += 1;
             }
             h.direction = direction;
@@ -414,6 +427,60 @@ mod tests {
         assert_eq!(sweeps[2], (0.0, 0, 1, valid | flags::NO_ECHO));
         assert_eq!(sweeps[3], (-1.0, 1, -1, valid));
         assert_eq!(sweeps[4].3, valid | flags::OUT_OF_RANGE);
+    }
+
+    /// (sweep, direction) of each hobby angle in turn.
+    fn sweeps_of(angles: impl IntoIterator<Item = f32>) -> Vec<(u32, i8)> {
+        let mut d = hobby(NoEcho::Zero);
+        angles
+            .into_iter()
+            .map(|a| {
+                let Decoded::Reading(r) = d.decode(format!("{a},100").as_bytes(), 0).unwrap()
+                else {
+                    panic!("not a reading")
+                };
+                (r.sweep_id, r.direction)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn one_revolution_of_a_continuous_head_is_one_sweep_however_its_angles_are_written() {
+        let turns = 3;
+        let per_turn = 120;
+        /// Angle of reading `k` of a turn at 3°, written as such a head writes it.
+        type Written = fn(usize) -> f32;
+        let written: [(&str, Written); 4] = [
+            ("0…360", |k| (k % 120) as f32 * 3.0),
+            ("0…−360", |k| -((k % 120) as f32) * 3.0),
+            ("−180…180", |k| (k % 120) as f32 * 3.0 - 180.0),
+            ("from 90", |k| ((k % 120) as f32 * 3.0 + 90.0) % 360.0),
+        ];
+        for (how, angle) in written {
+            let got = sweeps_of((0..turns * per_turn).map(angle));
+            // A sweep ends where the written angle wraps: every whole one is one revolution.
+            let mut sizes = std::collections::BTreeMap::<u32, usize>::new();
+            for &(sweep, _) in &got {
+                *sizes.entry(sweep).or_default() += 1;
+            }
+            let sizes: Vec<usize> = sizes.into_values().collect();
+            let expected = if how == "from 90" {
+                vec![90, 120, 120, 30]
+            } else {
+                vec![120; turns]
+            };
+            assert_eq!(sizes, expected, "{how}: readings per sweep");
+            let sign = if how == "0…−360" { -1 } else { 1 };
+            assert!(got[1..].iter().all(|&(_, d)| d == sign), "{how}");
+        }
+        // A servo still reverses, and one that flies back from 165° to 15° starts a sweep there.
+        let servo = sweeps_of([15.0, 16.0, 17.0, 16.0, 15.0, 16.0]);
+        assert_eq!(
+            servo.iter().map(|g| g.0).collect::<Vec<_>>(),
+            [0, 0, 0, 1, 1, 2]
+        );
+        let fly_back = sweeps_of([163.0, 164.0, 165.0, 15.0, 16.0]);
+        assert_eq!(fly_back[3].0, 1);
     }
 
     fn hobby(no_echo: NoEcho) -> Decoder {

@@ -92,3 +92,73 @@ fn a_hobby_sketchs_255_is_no_echo_with_the_setting() {
         }
     }
 }
+
+/// A motor that turns a full circle, pinging every 3°, writing its angles 0…357 (no offset): the
+/// real driver and fusion keep every reading of a revolution in the radar, each in a bin of its
+/// own, and count one sweep per revolution.
+#[test]
+fn a_continuous_head_at_3_degrees_keeps_every_reading_in_the_radar() {
+    let sandbox = Sandbox::new("turn360");
+    let mut head = HobbyHead::new();
+    let node = sandbox.node("test-radar");
+    let radar = sonar_common::ipc::radar_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let _driver = sandbox.spawn(
+        "sonar-driver",
+        &[
+            "--port",
+            &head.serial.slave_path,
+            "--dialect",
+            "hobby",
+            "--hobby-angle-offset",
+            "0",
+        ],
+    );
+    let _fusion = sandbox.spawn("sonar-fusion", &["--no-persist"]);
+    // Each bearing its own distance, so a reading in the wrong bin shows.
+    let distance_cm = |k: i32| 60 + 2 * k as u32;
+    let revolution: Vec<(i32, u32)> = (0..120).map(|k| (3 * k, distance_cm(k))).collect();
+    let readings = readings_while_repeating(&sandbox, &mut head, &revolution, |got| {
+        got.iter()
+            .map(|r| r.sweep_id)
+            .collect::<std::collections::BTreeSet<_>>()
+            .len()
+            >= 4
+    });
+
+    // Whole revolutions (not the first, which may have begun mid-turn): one sweep each.
+    let first = readings[0].sweep_id;
+    let last = readings.last().unwrap().sweep_id;
+    for sweep in first + 1..last {
+        let of: Vec<&Reading> = readings.iter().filter(|r| r.sweep_id == sweep).collect();
+        assert_eq!(of.len(), 120, "sweep {sweep} is one revolution");
+        assert!(of.iter().all(|r| r.direction == 1), "{of:?}");
+    }
+
+    let latest = collect_until(
+        &node,
+        || radar.receive().unwrap().map(|s| *s.payload()),
+        |got| {
+            got.last().is_some_and(|r| {
+                r.bin_count == 120 && r.distances_m[..120].iter().all(|d| d.is_finite())
+            })
+        },
+    );
+    let r = latest.last().unwrap();
+    assert_eq!(r.bin_width_deg, 3.0, "{r:?}");
+    for k in 0..120 {
+        let bin = ((3.0 * k as f32 - r.first_bin_deg) / 3.0)
+            .round()
+            .rem_euclid(120.0) as usize;
+        let want = distance_cm(k) as f32 / 100.0;
+        assert!(
+            (r.distances_m[bin] - want).abs() < 2e-3,
+            "{}° in bin {bin}: {} m, sent {want} m",
+            3 * k,
+            r.distances_m[bin]
+        );
+    }
+}

@@ -796,7 +796,7 @@ fn the_fusion_engine_maps_the_room_walls_occupied_and_the_space_in_front_free() 
         |got| !got.is_empty(),
     );
     let r = latest.last().unwrap();
-    assert_eq!(r.bin_count, 50);
+    assert_eq!(r.bin_count, 60, "a full turn of the paper's 6° bins");
     let ahead = ((3.0 - r.first_bin_deg) / r.bin_width_deg).round() as usize;
     assert!((r.distances_m[ahead] - 1.2).abs() < 0.05, "{r:?}");
 
