@@ -43,6 +43,15 @@ pub enum NoEcho {
 }
 
 impl NoEcho {
+    /// The same setting for distances given in a unit of `cm_per_unit` centimetres, in cm.
+    pub fn in_cm(self, cm_per_unit: f32) -> Self {
+        match self {
+            NoEcho::Zero => NoEcho::Zero,
+            NoEcho::Exactly(v) => NoEcho::Exactly(v * cm_per_unit),
+            NoEcho::AtOrBeyond(v) => NoEcho::AtOrBeyond(v * cm_per_unit),
+        }
+    }
+
     /// True when a hobby distance (cm) means that nothing echoed.
     pub fn means_none(self, distance_cm: f32) -> bool {
         distance_cm <= 0.0
@@ -217,7 +226,7 @@ impl Decoder {
             }
             Dialect::Hobby => {
                 let hobby = protocol::parse_hobby(line)?;
-                Ok(Decoded::Reading(self.hobby(hobby, now_ns)))
+                Ok(Decoded::Reading(self.hobby_reading(hobby, now_ns)))
             }
         }
     }
@@ -257,7 +266,10 @@ impl Decoder {
         self.reading(&group, combined, now_ns)
     }
 
-    fn hobby(&mut self, hobby: HobbyReading, now_ns: u64) -> Reading {
+    /// One angle and distance as the hobby dialect reads them (a line of the sketch, or a row of
+    /// a log brought in by `sonar-import`), stamped `now_ns`: sweep and direction from the angle
+    /// sequence, the no-echo value, one synthesised ping through the same policy as the head's.
+    pub fn hobby_reading(&mut self, hobby: HobbyReading, now_ns: u64) -> Reading {
         let angle_deg = hobby.angle_deg + self.hobby_angle_offset_deg;
         let h = &mut self.hobby;
         if let Some(last) = h.last_angle_deg {

@@ -187,7 +187,7 @@ impl RadarMap {
         self.distances = vec![f32::NAN; count as usize];
         tracing::info!(
             bin_width_deg = width,
-            bins = count,
+            bins = count as u32,
             "the radar takes its bins from the head's step"
         );
     }

@@ -6,8 +6,11 @@
 use std::io::Write;
 use std::time::Duration;
 
-use sonar_common::ipc::{Reading, flags};
-use sonar_e2e::{FakeSerial, Sandbox, collect_until, readings_subscriber, receive_reading};
+use sonar_common::ipc::{LinkState, Reading, flags};
+use sonar_e2e::{
+    FakeSerial, Sandbox, check_ok, collect_until, driver_status_subscriber, path_str,
+    readings_subscriber, receive_reading, wait_for_status,
+};
 
 /// A hobby sketch on a fake serial port: writes its records, one block at a time.
 struct HobbyHead {
@@ -161,4 +164,168 @@ fn a_continuous_head_at_3_degrees_keeps_every_reading_in_the_radar() {
             r.distances_m[bin]
         );
     }
+}
+
+/// Three revolutions of a continuous head at 3° in a square room 3 m wide, in whole cm, with 255
+/// for no echo now and then: (angle, range) rows.
+fn room_log() -> Vec<(i32, u32)> {
+    (0..360)
+        .map(|k| {
+            let deg = 3 * (k % 120);
+            let a = (deg as f64).to_radians();
+            let cm = (150.0 / a.cos().abs().max(a.sin().abs())).round() as u32;
+            (deg, if k % 17 == 5 { 255 } else { cm })
+        })
+        .collect()
+}
+
+/// The map `sonar-export` writes as NumPy bytes (`--out` stem in `dir`, then any arguments).
+fn export_npy(sandbox: &Sandbox, dir: &std::path::Path, stem: &str, args: &[&str]) -> Vec<u8> {
+    let out = dir.join(stem);
+    let mut all = vec!["--format", "npy", "--out", path_str(&out)];
+    all.extend_from_slice(args);
+    check_ok("sonar-export", &sandbox.run("sonar-export", &all));
+    std::fs::read(dir.join(format!("{stem}.npy"))).unwrap()
+}
+
+/// Cells of a `.npy` map (NumPy 1.0, `<f4`) above and below p = 0.5 (unknown ones are NaN).
+fn occupied_and_free(npy: &[u8]) -> (usize, usize) {
+    let header = usize::from(u16::from_le_bytes([npy[8], npy[9]]));
+    let p = npy[10 + header..]
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]));
+    p.fold((0, 0), |(o, f), p| {
+        (o + usize::from(p > 0.5), f + usize::from(p < 0.5))
+    })
+}
+
+/// A CSV log brought in by `sonar-import` gives, exported or replayed, the very map (cell for cell)
+/// that the same readings give live through the driver (a hobby head writing them) and fusion.
+#[test]
+fn an_imported_log_maps_as_the_same_readings_fed_live() {
+    let sandbox = Sandbox::new("import");
+    let dir = std::env::temp_dir().join(format!("sonar_import_{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let log = room_log();
+    let csv: String = std::iter::once("angle,range\n".to_owned())
+        .chain(log.iter().map(|(a, d)| format!("{a},{d}\n")))
+        .collect();
+    let csv_path = dir.join("room.csv");
+    std::fs::write(&csv_path, csv).unwrap();
+    let mcap = dir.join("room.mcap");
+    check_ok(
+        "sonar-import",
+        &sandbox.run(
+            "sonar-import",
+            &[path_str(&csv_path), path_str(&mcap), "--no-echo", "255"],
+        ),
+    );
+    let imported = export_npy(
+        &sandbox,
+        &dir,
+        "imported",
+        &["--from-recording", path_str(&mcap)],
+    );
+
+    // Live: a head writes the same rows to the driver, the fusion maps them.
+    let node = sandbox.node("test-live");
+    let status = driver_status_subscriber(&node);
+    let mut head = HobbyHead::new();
+    let driver = sandbox.spawn(
+        "sonar-driver",
+        &[
+            "--port",
+            &head.serial.slave_path,
+            "--dialect",
+            "hobby",
+            "--hobby-angle-offset",
+            "0",
+            "--no-echo",
+            "255",
+        ],
+    );
+    let fusion = sandbox.spawn("sonar-fusion", &["--no-persist"]);
+    wait_for_status(&node, &status, |s| {
+        s.link_state == LinkState::Connected as u32
+    });
+    sonar_e2e::wait_until(&node, "the fusion to subscribe", || {
+        sonar_e2e::readings_subscribers(&node) >= 1
+    });
+    // A few rows at a time, so no subscriber's buffer overflows.
+    for rows in log.chunks(20) {
+        head.send(rows);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let wait = log.len().to_string();
+    let live = export_npy(
+        &sandbox,
+        &dir,
+        "live",
+        &["--wait-readings", &wait, "--timeout", "60"],
+    );
+    assert!(fusion.terminate().success());
+    assert!(driver.terminate().success());
+    let (occupied, free) = occupied_and_free(&imported);
+    assert!(
+        occupied > 100 && free > 1000,
+        "walls and open floor: {occupied} / {free}"
+    );
+    assert_eq!(imported.len(), live.len());
+    let differ = imported.iter().zip(&live).filter(|(a, b)| a != b).count();
+    assert_eq!(differ, 0, "bytes of the map that differ from the live one");
+
+    // Replayed into a pipeline like any recording: the same map again.
+    let replay_box = Sandbox::new("import_replay");
+    let fusion = replay_box.spawn("sonar-fusion", &["--no-persist"]);
+    check_ok(
+        "sonar-replay",
+        &replay_box.run(
+            "sonar-replay",
+            &[
+                path_str(&mcap),
+                "--speed",
+                "max",
+                "--wait-for-subscribers",
+                "1",
+                "--no-progress",
+            ],
+        ),
+    );
+    let replayed = export_npy(
+        &replay_box,
+        &dir,
+        "replayed",
+        &["--wait-readings", &wait, "--timeout", "60"],
+    );
+    assert!(fusion.terminate().success());
+    assert_eq!(replayed, live, "the replayed map");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A malformed row stops the import with its line number, and nothing is left behind.
+#[test]
+fn a_malformed_log_is_refused_with_its_line_and_writes_nothing() {
+    let sandbox = Sandbox::new("import_bad");
+    let dir = std::env::temp_dir().join(format!("sonar_import_bad_{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let csv_path = dir.join("bad.csv");
+    std::fs::write(&csv_path, "# my log\n0,100\n3,1O0\n6,100\n").unwrap();
+    let mcap = dir.join("bad.mcap");
+    let out = sandbox.run("sonar-import", &[path_str(&csv_path), path_str(&mcap)]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("line 3") && stderr.contains("\"1O0\" is not a number"),
+        "{stderr}"
+    );
+    let left: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(
+        left,
+        [std::ffi::OsString::from("bad.csv")],
+        "nothing written"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }
