@@ -8,8 +8,8 @@ use std::time::Duration;
 
 use sonar_common::ipc::{LinkState, Reading, flags};
 use sonar_e2e::{
-    FakeSerial, Sandbox, check_ok, collect_until, driver_status_subscriber, path_str,
-    readings_subscriber, receive_reading, wait_for_status,
+    FakeSerial, Sandbox, check_ok, collect_until, driver_status_subscriber,
+    fusion_status_subscriber, path_str, readings_subscriber, receive_reading, wait_for_status,
 };
 
 /// A hobby sketch on a fake serial port: writes its records, one block at a time.
@@ -120,7 +120,8 @@ fn a_continuous_head_at_3_degrees_keeps_every_reading_in_the_radar() {
             "0",
         ],
     );
-    let _fusion = sandbox.spawn("sonar-fusion", &["--no-persist"]);
+    let fusion = sandbox.spawn("sonar-fusion", &["--no-persist"]);
+    let fusion_status = fusion_status_subscriber(&node);
     // Each bearing its own distance, so a reading in the wrong bin shows.
     let distance_cm = |k: i32| 60 + 2 * k as u32;
     let revolution: Vec<(i32, u32)> = (0..120).map(|k| (3 * k, distance_cm(k))).collect();
@@ -164,6 +165,17 @@ fn a_continuous_head_at_3_degrees_keeps_every_reading_in_the_radar() {
             r.distances_m[bin]
         );
     }
+
+    // Without raw pings no features come from these readings: counted, and said once.
+    let status = wait_for_status(&node, &fusion_status, |s| s.feature_readings_skipped >= 240);
+    assert!(status.readings_fused >= u64::from(status.feature_readings_skipped));
+    let (exit, stderr) = fusion.terminate_with_stderr();
+    assert!(exit.success(), "{stderr}");
+    assert_eq!(
+        stderr.matches("give no walls, corners or posts").count(),
+        1,
+        "named once: {stderr}"
+    );
 }
 
 /// Three revolutions of a continuous head at 3° in a square room 3 m wide, in whole cm, with 255
