@@ -89,9 +89,9 @@ impl std::str::FromStr for NoEcho {
     }
 }
 
-/// The largest step between consecutive readings of a continuous head across its wrap: a
-/// jump of more than half a turn that is at most this far the short way round is a wrap (a servo
-/// that flies back from 165° to 15° is not).
+/// The largest step between consecutive readings of a head: a jump of more than half a turn that
+/// is at most this far the short way round is a continuous head's wrap; any other jump beyond it
+/// is a servo flying back to its start (165° → 15°).
 const MAX_WRAP_STEP_DEG: f32 = 45.0;
 
 /// What a line meant.
@@ -278,8 +278,13 @@ impl Decoder {
             // (357° → 0°, 180° → −177°, −357° → 0°) goes on in its direction.
             let turned = change - 360.0 * (change / 360.0).round();
             let wrapped = change.abs() > 180.0 && turned.abs() <= MAX_WRAP_STEP_DEG;
+            // A servo that flies back from its end to its start (165° → 15°) and sweeps on in
+            // the same direction.
+            let flew_back = !wrapped && change.abs() > MAX_WRAP_STEP_DEG;
             let direction = if wrapped {
                 turned.signum() as i8
+            } else if flew_back {
+                h.direction
             } else if change > 0.0 {
                 1
             } else if change < 0.0 {
@@ -287,9 +292,9 @@ impl Decoder {
             } else {
                 h.direction
             };
-            // A reversal starts a new sweep, as a limit does in our protocol; so does a wrap: one
-            // revolution of a continuous head is one sweep.
-            if wrapped || (direction != h.direction && h.direction != 0) {
+            // A reversal starts a new sweep, as a limit does in our protocol; so do a wrap (one
+            // revolution of a continuous head is one sweep) and a fly-back.
+            if wrapped || flew_back || (direction != h.direction && h.direction != 0) {
                 h.sweep_id += 1;
             }
             h.direction = direction;
@@ -491,8 +496,8 @@ mod tests {
             servo.iter().map(|g| g.0).collect::<Vec<_>>(),
             [0, 0, 0, 1, 1, 2]
         );
-        let fly_back = sweeps_of([163.0, 164.0, 165.0, 15.0, 16.0]);
-        assert_eq!(fly_back[3].0, 1);
+        let fly_back = sweeps_of([163.0, 164.0, 165.0, 15.0, 16.0, 17.0]);
+        assert_eq!(fly_back, [(0, 0), (0, 1), (0, 1), (1, 1), (1, 1), (1, 1)]);
     }
 
     fn hobby(no_echo: NoEcho) -> Decoder {
