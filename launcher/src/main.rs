@@ -795,6 +795,31 @@ mod tests {
     }
 
     #[test]
+    fn the_serial_tables_no_echo_value_reaches_the_driver() {
+        let file: PipelineFile = toml::from_str(
+            "[serial]\nport = \"/dev/ttyUSB0\"\ndialect = \"hobby\"\nno_echo = \"255\"\n",
+        )
+        .unwrap();
+        // The plan checks that its programs exist; empty stand-ins do.
+        let bin_dir = std::env::temp_dir().join(format!("sonar_plan_{}", std::process::id()));
+        std::fs::create_dir_all(&bin_dir).unwrap();
+        for name in ["sonar-driver", "sonar-fusion"] {
+            std::fs::write(bin_dir.join(name), "").unwrap();
+        }
+        let dir = bin_dir.to_str().unwrap();
+        let args = Args::try_parse_from(["sonar-pipeline", "--bin-dir", dir]).unwrap();
+        let plan = Pipeline::plan(&args, &file, std::env::temp_dir(), false).unwrap();
+        std::fs::remove_dir_all(&bin_dir).unwrap();
+        let driver = plan
+            .processes
+            .iter()
+            .find(|p| p.name == "sonar-driver")
+            .unwrap();
+        let at = driver.args.iter().position(|a| a == "--no-echo").unwrap();
+        assert_eq!(driver.args[at + 1], "255", "{:?}", driver.args);
+    }
+
+    #[test]
     fn flags_are_checked_before_anything_starts() {
         let parse = |args: &[&str]| Args::try_parse_from([&["sonar-pipeline"], args].concat());
         // A negative speed reaches the simulator, which says what a speed is, instead of clap's
