@@ -434,7 +434,7 @@ fn localized_pose_line(p: &LocalizedPose) -> String {
 
 fn fusion_status_line(s: &FusionStatus) -> String {
     format!(
-        "received {} fused {} lost {} out_of_order {} rejected {} snapshots {} skipped {} saves {} save_failures {} restored {}",
+        "received {} fused {} lost {} out_of_order {} rejected {} snapshots {} skipped {} saves {} save_failures {} restored {} feature_readings_skipped {}",
         s.readings_received,
         s.readings_fused,
         s.readings_lost,
@@ -444,7 +444,8 @@ fn fusion_status_line(s: &FusionStatus) -> String {
         s.snapshots_skipped,
         s.saves,
         s.save_failures,
-        s.restored
+        s.restored,
+        s.feature_readings_skipped
     )
 }
 

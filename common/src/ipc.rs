@@ -531,7 +531,10 @@ pub struct FusionStatus {
     /// 1 if the map was restored from the state file at start, else 0.
     pub restored: u32,
     pub layout_version: u32,
-    pub reserved: u32,
+    /// Readings the walls, corners and posts could not use, since the process started: no raw
+    /// pings to place (one range per angle: the hobby dialect, imported logs) or several pings
+    /// without a direction. They are in the grid and the radar all the same. Saturates.
+    pub feature_readings_skipped: u32,
 }
 
 const _: () = assert!(std::mem::size_of::<FusionStatus>() == 120);
@@ -561,7 +564,7 @@ impl Default for FusionStatus {
             last_save_write_us: 0,
             restored: 0,
             layout_version: LAYOUT_VERSION,
-            reserved: 0,
+            feature_readings_skipped: 0,
         }
     }
 }
@@ -1075,7 +1078,7 @@ mod tests {
         assert_eq!(offset_of!(FusionStatus, last_save_write_us), 104);
         assert_eq!(offset_of!(FusionStatus, restored), 108);
         assert_eq!(offset_of!(FusionStatus, layout_version), 112);
-        assert_eq!(offset_of!(FusionStatus, reserved), 116);
+        assert_eq!(offset_of!(FusionStatus, feature_readings_skipped), 116);
         assert_eq!(std::mem::align_of::<FusionStatus>(), 8);
     }
 

@@ -28,6 +28,72 @@ impl Dialect {
     }
 }
 
+/// Which hobby distance means "no echo". A distance of 0 never is an echo and always means none;
+/// sketches differ in what else they send when nothing came back: NewPing's `0`, many others `255`
+/// (the largest byte), or a sentinel at or beyond the sensor's range (`400`, `999`).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum NoEcho {
+    /// Only 0 cm (NewPing's convention).
+    #[default]
+    Zero,
+    /// This many cm exactly (e.g. 255), besides 0.
+    Exactly(f32),
+    /// This many cm or more, besides 0.
+    AtOrBeyond(f32),
+}
+
+impl NoEcho {
+    /// The same setting for distances given in a unit of `cm_per_unit` centimetres, in cm.
+    pub fn in_cm(self, cm_per_unit: f32) -> Self {
+        match self {
+            NoEcho::Zero => NoEcho::Zero,
+            NoEcho::Exactly(v) => NoEcho::Exactly(v * cm_per_unit),
+            NoEcho::AtOrBeyond(v) => NoEcho::AtOrBeyond(v * cm_per_unit),
+        }
+    }
+
+    /// True when a hobby distance (cm) means that nothing echoed.
+    pub fn means_none(self, distance_cm: f32) -> bool {
+        distance_cm <= 0.0
+            || match self {
+                NoEcho::Zero => false,
+                NoEcho::Exactly(cm) => distance_cm == cm,
+                NoEcho::AtOrBeyond(cm) => distance_cm >= cm,
+            }
+    }
+}
+
+impl std::str::FromStr for NoEcho {
+    type Err = String;
+
+    /// `0`, a value in cm (`255`), or a value and more (`400+` or `>=400`).
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let s = s.trim();
+        let (number, beyond) = match s.strip_suffix('+').or_else(|| s.strip_prefix(">=")) {
+            Some(n) => (n.trim(), true),
+            None => (s, false),
+        };
+        let cm: f32 = number.parse().map_err(|_| {
+            format!("expected 0, a distance in cm (255) or one and beyond (400+), got {s:?}")
+        })?;
+        if !(cm.is_finite() && cm >= 0.0) {
+            return Err(format!(
+                "the no-echo value must be a distance >= 0 cm, got {s:?}"
+            ));
+        }
+        Ok(match (cm, beyond) {
+            (0.0, _) => NoEcho::Zero,
+            (cm, false) => NoEcho::Exactly(cm),
+            (cm, true) => NoEcho::AtOrBeyond(cm),
+        })
+    }
+}
+
+/// The largest step between consecutive readings of a head: a jump of more than half a turn that
+/// is at most this far the short way round is a continuous head's wrap; any other jump beyond it
+/// is a servo flying back to its start (165° → 15°).
+const MAX_WRAP_STEP_DEG: f32 = 45.0;
+
 /// What a line meant.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Decoded {
@@ -50,6 +116,8 @@ pub struct Decoder {
     mode: ScanMode,
     /// Added to hobby angles: the sketches' servo points forward at 90°.
     hobby_angle_offset_deg: f32,
+    /// The hobby distance that means no echo.
+    hobby_no_echo: NoEcho,
     hobby: HobbySweep,
 }
 
@@ -87,8 +155,15 @@ impl Decoder {
             next_seq: 0,
             mode: ScanMode::Unknown,
             hobby_angle_offset_deg,
+            hobby_no_echo: NoEcho::default(),
             hobby: HobbySweep::default(),
         }
+    }
+
+    /// Reads hobby distances that `no_echo` names as "nothing echoed" (0 cm always is).
+    pub fn hobby_no_echo(mut self, no_echo: NoEcho) -> Self {
+        self.hobby_no_echo = no_echo;
+        self
     }
 
     /// Reads the native protocol in `version` instead of the newest.
@@ -151,7 +226,7 @@ impl Decoder {
             }
             Dialect::Hobby => {
                 let hobby = protocol::parse_hobby(line)?;
-                Ok(Decoded::Reading(self.hobby(hobby, now_ns)))
+                Ok(Decoded::Reading(self.hobby_reading(hobby, now_ns)))
             }
         }
     }
@@ -191,19 +266,35 @@ impl Decoder {
         self.reading(&group, combined, now_ns)
     }
 
-    fn hobby(&mut self, hobby: HobbyReading, now_ns: u64) -> Reading {
+    /// One angle and distance as the hobby dialect reads them (a line of the sketch, or a row of
+    /// a log brought in by `sonar-import`), stamped `now_ns`: sweep and direction from the angle
+    /// sequence, the no-echo value, one synthesised ping through the same policy as the head's.
+    pub fn hobby_reading(&mut self, hobby: HobbyReading, now_ns: u64) -> Reading {
         let angle_deg = hobby.angle_deg + self.hobby_angle_offset_deg;
         let h = &mut self.hobby;
         if let Some(last) = h.last_angle_deg {
-            let direction = if angle_deg > last {
+            let change = angle_deg - last;
+            // The turn the angle took, the short way round: a continuous head that wraps
+            // (357° → 0°, 180° → −177°, −357° → 0°) goes on in its direction.
+            let turned = change - 360.0 * (change / 360.0).round();
+            let wrapped = change.abs() > 180.0 && turned.abs() <= MAX_WRAP_STEP_DEG;
+            // A servo that flies back from its end to its start (165° → 15°) and sweeps on in
+            // the same direction.
+            let flew_back = !wrapped && change.abs() > MAX_WRAP_STEP_DEG;
+            let direction = if wrapped {
+                turned.signum() as i8
+            } else if flew_back {
+                h.direction
+            } else if change > 0.0 {
                 1
-            } else if angle_deg < last {
+            } else if change < 0.0 {
                 -1
             } else {
                 h.direction
             };
-            // A reversal starts a new sweep, as a limit does in our protocol.
-            if direction != h.direction && h.direction != 0 {
+            // A reversal starts a new sweep, as a limit does in our protocol; so do a wrap (one
+            // revolution of a continuous head is one sweep) and a fly-back.
+            if wrapped || flew_back || (direction != h.direction && h.direction != 0) {
                 h.sweep_id += 1;
             }
             h.direction = direction;
@@ -212,13 +303,12 @@ impl Decoder {
         h.device_seq = h.device_seq.wrapping_add(1);
         let (direction, sweep, device_seq) = (h.direction, h.sweep_id, h.device_seq);
 
-        // NewPing sketches report 0 for no echo; the range goes through the same policy as a native
-        // ping (a synthesised echo time) so range limits apply identically.
-        let distance_m = hobby.distance_cm / 100.0;
-        let echo = if distance_m > 0.0 {
-            self.sensor.echo_time_us(distance_m).round() as u32
-        } else {
+        // A distance the sketch sends for "no echo" becomes no echo time; any other goes through
+        // the same policy as a native ping (a synthesised echo time) so range limits apply alike.
+        let echo = if self.hobby_no_echo.means_none(hobby.distance_cm) {
             0
+        } else {
+            self.sensor.echo_time_us(hobby.distance_cm / 100.0).round() as u32
         };
         let mut echo_us = [0u32; MAX_PINGS];
         echo_us[0] = echo;
@@ -354,5 +444,111 @@ mod tests {
         assert_eq!(sweeps[2], (0.0, 0, 1, valid | flags::NO_ECHO));
         assert_eq!(sweeps[3], (-1.0, 1, -1, valid));
         assert_eq!(sweeps[4].3, valid | flags::OUT_OF_RANGE);
+    }
+
+    /// (sweep, direction) of each hobby angle in turn.
+    fn sweeps_of(angles: impl IntoIterator<Item = f32>) -> Vec<(u32, i8)> {
+        let mut d = hobby(NoEcho::Zero);
+        angles
+            .into_iter()
+            .map(|a| {
+                let Decoded::Reading(r) = d.decode(format!("{a},100").as_bytes(), 0).unwrap()
+                else {
+                    panic!("not a reading")
+                };
+                (r.sweep_id, r.direction)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn one_revolution_of_a_continuous_head_is_one_sweep_however_its_angles_are_written() {
+        let turns = 3;
+        let per_turn = 120;
+        /// Angle of reading `k` of a turn at 3°, written as such a head writes it.
+        type Written = fn(usize) -> f32;
+        let written: [(&str, Written); 4] = [
+            ("0…360", |k| (k % 120) as f32 * 3.0),
+            ("0…−360", |k| -((k % 120) as f32) * 3.0),
+            ("−180…180", |k| (k % 120) as f32 * 3.0 - 180.0),
+            ("from 90", |k| ((k % 120) as f32 * 3.0 + 90.0) % 360.0),
+        ];
+        for (how, angle) in written {
+            let got = sweeps_of((0..turns * per_turn).map(angle));
+            // A sweep ends where the written angle wraps: every whole one is one revolution.
+            let mut sizes = std::collections::BTreeMap::<u32, usize>::new();
+            for &(sweep, _) in &got {
+                *sizes.entry(sweep).or_default() += 1;
+            }
+            let sizes: Vec<usize> = sizes.into_values().collect();
+            let expected = if how == "from 90" {
+                vec![90, 120, 120, 30]
+            } else {
+                vec![120; turns]
+            };
+            assert_eq!(sizes, expected, "{how}: readings per sweep");
+            let sign = if how == "0…−360" { -1 } else { 1 };
+            assert!(got[1..].iter().all(|&(_, d)| d == sign), "{how}");
+        }
+        // A servo still reverses, and one that flies back from 165° to 15° starts a sweep there.
+        let servo = sweeps_of([15.0, 16.0, 17.0, 16.0, 15.0, 16.0]);
+        assert_eq!(
+            servo.iter().map(|g| g.0).collect::<Vec<_>>(),
+            [0, 0, 0, 1, 1, 2]
+        );
+        let fly_back = sweeps_of([163.0, 164.0, 165.0, 15.0, 16.0, 17.0]);
+        assert_eq!(fly_back, [(0, 0), (0, 1), (0, 1), (1, 1), (1, 1), (1, 1)]);
+    }
+
+    fn hobby(no_echo: NoEcho) -> Decoder {
+        Decoder::new(
+            Dialect::Hobby,
+            SensorConfig::default(),
+            PingPolicy::default(),
+            0.0,
+        )
+        .hobby_no_echo(no_echo)
+    }
+
+    fn flags_of(d: &mut Decoder, line: &str) -> (u32, f32) {
+        let Decoded::Reading(r) = d.decode(line.as_bytes(), 0).unwrap() else {
+            panic!("not a reading")
+        };
+        (r.flags & !flags::NO_RAW_PINGS, r.distance_m)
+    }
+
+    #[test]
+    fn the_no_echo_value_is_no_echo_and_never_a_range() {
+        // Without the setting, 255 is an echo at 2.55 m (what such a sketch's user saw).
+        let mut plain = hobby(NoEcho::Zero);
+        let (f, d) = flags_of(&mut plain, "10,255");
+        assert_eq!(f, 0);
+        assert!((d - 2.55).abs() < 1e-3);
+        assert_eq!(flags_of(&mut plain, "11,0").0, flags::NO_ECHO);
+
+        let mut d = hobby("255".parse().unwrap());
+        assert_eq!(flags_of(&mut d, "10,255"), (flags::NO_ECHO, 0.0));
+        assert_eq!(flags_of(&mut d, "11,0"), (flags::NO_ECHO, 0.0));
+        let (f, m) = flags_of(&mut d, "12,254");
+        assert_eq!(f, 0);
+        assert!((m - 2.54).abs() < 1e-3);
+
+        for form in ["300+", ">=300", " 300 +"] {
+            let mut d = hobby(form.parse().unwrap());
+            assert_eq!(flags_of(&mut d, "10,300"), (flags::NO_ECHO, 0.0), "{form}");
+            assert_eq!(flags_of(&mut d, "11,999"), (flags::NO_ECHO, 0.0), "{form}");
+            assert_eq!(flags_of(&mut d, "12,299").0, 0, "{form}");
+        }
+    }
+
+    #[test]
+    fn no_echo_forms() {
+        assert_eq!("0".parse(), Ok(NoEcho::Zero));
+        assert_eq!("255".parse(), Ok(NoEcho::Exactly(255.0)));
+        assert_eq!("400+".parse(), Ok(NoEcho::AtOrBeyond(400.0)));
+        assert_eq!(">=400".parse(), Ok(NoEcho::AtOrBeyond(400.0)));
+        for bad in ["", "far", "-5", "+", "nan", "inf+"] {
+            assert!(bad.parse::<NoEcho>().is_err(), "{bad:?}");
+        }
     }
 }

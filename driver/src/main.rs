@@ -28,7 +28,7 @@ use sonar_common::protocol::{
 use sonar_common::sensor::SensorConfig;
 use sonar_common::throttle::Throttle;
 use sonar_driver::averaging::PingPolicy;
-use sonar_driver::decoder::{Decoded, Decoder, Dialect};
+use sonar_driver::decoder::{Decoded, Decoder, Dialect, NoEcho};
 use sonar_driver::sweeps::SweepIds;
 use tracing::{debug, info, warn};
 
@@ -57,6 +57,7 @@ const REJECT_LOG_PERIOD: Duration = Duration::from_secs(1);
 ///   sonar-driver --port /dev/ttyACM0 --print               # check a freshly flashed head
 ///   sonar-driver --port /dev/ttyUSB0 --protocol 1          # a head with version-1 firmware
 ///   sonar-driver --port /dev/ttyACM0 --dialect hobby       # an "Arduino radar" sketch at 9600 baud
+///   sonar-driver --port /dev/ttyUSB0 --dialect hobby --no-echo 255   # its sketch sends 255 for no echo
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
 struct Args {
@@ -101,6 +102,11 @@ struct Args {
     /// Hobby dialect: added to the sketch's servo angle so that 0° is the sensor's forward axis.
     #[arg(long, default_value_t = -90.0, allow_hyphen_values = true)]
     hobby_angle_offset: f32,
+    /// Hobby dialect: the distance the sketch sends when nothing echoed, published as NO_ECHO
+    /// (never as an obstacle): `0` (NewPing), a value in cm such as `255`, or a value and beyond
+    /// such as `400+`. 0 cm always means no echo.
+    #[arg(long, default_value = "0", value_name = "CM")]
+    no_echo: NoEcho,
     /// Also print each reading on standard output, one line each.
     #[arg(long)]
     print: bool,
@@ -454,6 +460,7 @@ impl Link {
                 PingPolicy::default(),
                 args.hobby_angle_offset,
             )
+            .hobby_no_echo(args.no_echo)
             .speaking(args.protocol),
             dialect: args.dialect,
             print: args.print,

@@ -614,7 +614,7 @@ mod tests {
         no_echo.flags = flags::NO_ECHO;
         engine.fuse(&no_echo);
         let radar = engine.radar(7, 0);
-        assert_eq!(radar.bin_count, 50);
+        assert_eq!(radar.bin_count, 60);
         let bin = |deg: f32| ((deg - radar.first_bin_deg) / radar.bin_width_deg).round() as usize;
         assert_eq!(radar.distances_m[bin(3.0)], 1.5);
         assert_eq!(radar.distances_m[bin(9.0)], f32::INFINITY);

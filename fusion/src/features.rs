@@ -75,6 +75,9 @@ pub struct SweepOutcome {
     /// pose): seen by its walls only, and merged only while no sweep taken standing still has
     /// been.
     pub moving: bool,
+    /// Its readings whose pings could not be placed (no raw pings, or no direction): no feature
+    /// comes from them.
+    pub skipped: usize,
 }
 
 /// Localisation's state: the pose with the odometry's drift, and the fixes so far.
@@ -101,6 +104,8 @@ pub struct FeatureTracker {
     merged_standing: bool,
     last: Option<SweepOutcome>,
     localization: Option<Localization>,
+    /// Readings skipped by every sweep so far ([`SweepOutcome::skipped`]); a clear keeps counting.
+    skipped: u64,
 }
 
 impl FeatureTracker {
@@ -114,6 +119,7 @@ impl FeatureTracker {
             merged_standing: false,
             last: None,
             localization: None,
+            skipped: 0,
         })
     }
 
@@ -300,7 +306,9 @@ impl FeatureTracker {
             fix,
             ranged: self.ranged,
             moving,
+            skipped: sweep.skipped_readings(),
         };
+        self.skipped += outcome.skipped as u64;
         self.pending.clear();
         self.ranged = 0;
         self.last = Some(outcome);
@@ -316,6 +324,11 @@ impl FeatureTracker {
         self.ranged = 0;
         self.merged_standing = false;
         self.last = None;
+    }
+
+    /// Readings whose pings could not be placed, in every sweep so far.
+    pub fn readings_skipped(&self) -> u64 {
+        self.skipped
     }
 
     /// Features in the map.
@@ -470,7 +483,7 @@ mod tests {
     use super::*;
     use crate::{FusionConfig, Mapper};
     use nalgebra::Vector2;
-    use sonar_common::ipc::ScanMode;
+    use sonar_common::ipc::{ScanMode, flags};
     use sonar_features::OdometryErrors;
 
     /// A reading of sweep `sweep_id` centred at `centre_deg` (moving counter-clockwise), its four
@@ -548,6 +561,40 @@ mod tests {
             "{post:?}"
         );
         assert!(post.segment_ax_m.is_nan() && post.angle_sigma_deg.is_nan());
+        assert_eq!(tracker.readings_skipped(), 0, "every ping placed");
+    }
+
+    #[test]
+    fn readings_without_raw_pings_are_counted_and_give_nothing() {
+        let mut tracker = FeatureTracker::new(FeatureConfig::default()).unwrap();
+        let pose = Isometry2::identity();
+        let hobby = |sweep_id| {
+            let mut readings = sweep(sweep_id);
+            for r in &mut readings {
+                r.flags |= flags::NO_RAW_PINGS;
+            }
+            readings
+        };
+        for r in hobby(1).iter().chain(&hobby(2)[..1]) {
+            tracker.push(r, &pose);
+        }
+        let outcome = tracker.last.expect("sweep 1 merged");
+        assert_eq!(
+            (outcome.readings, outcome.skipped, outcome.rcds),
+            (50, 50, 0)
+        );
+        assert!(tracker.is_empty());
+        tracker.clear();
+        for r in &hobby(2)[1..] {
+            tracker.push(r, &pose);
+        }
+        tracker.finish_sweep();
+        // The clear dropped sweep 2's first reading with the pending sweep; the rest is counted on.
+        assert_eq!(
+            tracker.readings_skipped(),
+            50 + 49,
+            "a clear keeps counting"
+        );
     }
 
     #[test]

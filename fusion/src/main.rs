@@ -431,6 +431,8 @@ fn run(args: &Args) -> Result<()> {
             features.finish_idle_sweep(&mut engine, now);
             features.publish_if_due(&engine, now);
             features.refresh(now);
+            out.ledger
+                .feature_readings_skipped(features.tracker.readings_skipped());
         }
         out.publish_if_due(&mut engine, now)?;
         if let Some(saving) = &mut saving {
@@ -582,6 +584,8 @@ struct Features {
     pace: Pace,
     last_reading: Instant,
     last_refresh: Instant,
+    /// The readings the features cannot use were named in the log.
+    said_skipped: bool,
 }
 
 impl Features {
@@ -613,6 +617,7 @@ impl Features {
             pace: Pace::new(min_interval),
             last_reading: Instant::now(),
             last_refresh: Instant::now(),
+            said_skipped: false,
         })
     }
 
@@ -666,6 +671,18 @@ impl Features {
             drift = ?self.tracker.drift(),
             "sweep merged into the features"
         );
+        if outcome.skipped > 0 && !self.said_skipped {
+            // Once: a head without raw pings sends nothing else, and a line per sweep says nothing new.
+            self.said_skipped = true;
+            warn!(
+                sweep = outcome.sweep_id,
+                skipped = outcome.skipped,
+                of = outcome.readings,
+                "readings without raw pings to place (one range per angle: the hobby dialect, an \
+                 imported log) give no walls, corners or posts; they are in the grid and the radar. \
+                 Counted in sonar/fusion_status feature_readings_skipped (`sonar echo fusion-status`)"
+            );
+        }
         if let Some(publisher) = &self.localized {
             engine.set_correction(self.tracker.correction());
             let pose = localized_pose(outcome, self.tracker.fixes());

@@ -121,11 +121,14 @@ impl SavedCells {
     }
 }
 
-/// The radar array's contents (its bins are in the settings).
+/// The radar array's contents and its bins (which follow the head, so they may differ from the
+/// settings' bins; their count is the number of distances).
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub(crate) struct SavedRadar {
     pub distances_m: Vec<f32>,
     pub current_angle_deg: Option<f32>,
+    pub first_bin_deg: f32,
+    pub bin_width_deg: f32,
 }
 
 /// A pose as nalgebra holds it (translation and unit complex), so it comes back bit for bit rather

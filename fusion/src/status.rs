@@ -90,6 +90,11 @@ impl Ledger {
         self.status.readings_rejected += 1;
     }
 
+    /// The features have skipped `total` readings so far (no raw pings to place).
+    pub fn feature_readings_skipped(&mut self, total: u64) {
+        self.status.feature_readings_skipped = u32::try_from(total).unwrap_or(u32::MAX);
+    }
+
     pub fn snapshot_published(&mut self) {
         self.status.snapshots_published += 1;
     }

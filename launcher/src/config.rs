@@ -72,6 +72,8 @@ pub struct SerialSection {
     pub dialect: Option<String>,
     /// `full`, `none` or `FROM..TO` degrees.
     pub scan: Option<String>,
+    /// The hobby dialect's distance for "no echo": `0`, cm (`255`) or cm and beyond (`400+`).
+    pub no_echo: Option<String>,
 }
 
 #[derive(Debug, Default, Deserialize)]

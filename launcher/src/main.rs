@@ -330,6 +330,7 @@ impl Pipeline {
             let mut driver = vec!["--port".to_owned(), port.display().to_string()];
             push_opt(&mut driver, "--baud", args.baud.or(file.serial.baud));
             push_opt(&mut driver, "--dialect", dialect);
+            push_opt(&mut driver, "--no-echo", file.serial.no_echo.clone());
             if let Some(scan) = args.scan.clone().or(file.serial.scan.clone()) {
                 // `=` keeps a segment such as -30..30 from reading as a flag.
                 driver.push(format!("--scan={scan}"));
@@ -791,6 +792,31 @@ mod tests {
         // An address for a server that is not started is a mistake, not silently ignored.
         let err = foxglove_args(&parse(&["--foxglove-port", "9100"]), &off).unwrap_err();
         assert!(err.to_string().contains("--foxglove"), "{err}");
+    }
+
+    #[test]
+    fn the_serial_tables_no_echo_value_reaches_the_driver() {
+        let file: PipelineFile = toml::from_str(
+            "[serial]\nport = \"/dev/ttyUSB0\"\ndialect = \"hobby\"\nno_echo = \"255\"\n",
+        )
+        .unwrap();
+        // The plan checks that its programs exist; empty stand-ins do.
+        let bin_dir = std::env::temp_dir().join(format!("sonar_plan_{}", std::process::id()));
+        std::fs::create_dir_all(&bin_dir).unwrap();
+        for name in ["sonar-driver", "sonar-fusion"] {
+            std::fs::write(bin_dir.join(name), "").unwrap();
+        }
+        let dir = bin_dir.to_str().unwrap();
+        let args = Args::try_parse_from(["sonar-pipeline", "--bin-dir", dir]).unwrap();
+        let plan = Pipeline::plan(&args, &file, std::env::temp_dir(), false).unwrap();
+        std::fs::remove_dir_all(&bin_dir).unwrap();
+        let driver = plan
+            .processes
+            .iter()
+            .find(|p| p.name == "sonar-driver")
+            .unwrap();
+        let at = driver.args.iter().position(|a| a == "--no-echo").unwrap();
+        assert_eq!(driver.args[at + 1], "255", "{:?}", driver.args);
     }
 
     #[test]

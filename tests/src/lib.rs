@@ -21,6 +21,35 @@ use sonar_common::ipc::{self, DriverStatus, FusionStatus, GridHeader, IpcArgs, R
 /// hanging CI. No test asserts on how fast something happens.
 pub const PATIENCE: Duration = Duration::from_secs(60);
 
+/// A serial device the test plays: a pseudo-terminal in raw mode whose slave the driver opens.
+#[derive(Debug)]
+pub struct FakeSerial {
+    /// The device's side: what the test writes here, the driver reads.
+    pub master: std::fs::File,
+    /// Held open so the master never reads EIO while the driver reopens the slave (and so a test
+    /// can read the terminal settings the driver leaves).
+    pub slave: std::os::fd::OwnedFd,
+    /// The path to give the driver's `--port`.
+    pub slave_path: String,
+}
+
+impl FakeSerial {
+    pub fn open() -> Self {
+        use std::os::fd::AsFd;
+        let pty = nix::pty::openpty(None, None).unwrap();
+        let slave_path = nix::unistd::ttyname(pty.slave.as_fd()).unwrap();
+        let mut tio = nix::sys::termios::tcgetattr(pty.slave.as_fd()).unwrap();
+        nix::sys::termios::cfmakeraw(&mut tio);
+        nix::sys::termios::tcsetattr(pty.slave.as_fd(), nix::sys::termios::SetArg::TCSANOW, &tio)
+            .unwrap();
+        Self {
+            master: std::fs::File::from(pty.master),
+            slave: pty.slave,
+            slave_path: slave_path.to_str().unwrap().to_owned(),
+        }
+    }
+}
+
 /// The workspace's root directory.
 pub fn workspace() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")

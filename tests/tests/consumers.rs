@@ -721,7 +721,7 @@ fn the_sonar_command_lists_services_echoes_readings_and_measures_a_rate() {
     );
     let radar = echo("radar");
     assert!(
-        radar.starts_with("seq ") && radar.contains(" bins 50 "),
+        radar.starts_with("seq ") && radar.contains(" bins 60 "),
         "{radar}"
     );
     // The first sweep's snapshot lists the room's walls.

@@ -8,7 +8,6 @@ use std::time::{Duration, Instant};
 
 use nalgebra::{Isometry2, Vector2};
 use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
-use nix::pty::openpty;
 use sonar_common::ipc::{
     self, FeatureRecord, FusionCommand, FusionCommandKind, GridHeader, LinkState, Reading,
     ScanCommand, ScanCommandKind, ScanMode, feature_kind, flags,
@@ -17,32 +16,22 @@ use sonar_common::protocol::{
     DeviceMessage, DeviceState, Direction, ErrorCode, PROTOCOL_VERSION, WireReading, encode_device,
 };
 use sonar_e2e::{
-    PATIENCE, Sandbox, back_wall_seen_at, check_ok, collect_until, corridor_grid_config,
-    driver_status_subscriber, grid_subscriber, localized_pose_subscriber, readings_subscriber,
-    readings_subscribers, receive_reading, send_scan_command, wait_for_status, wait_until,
+    FakeSerial, PATIENCE, Sandbox, back_wall_seen_at, check_ok, collect_until,
+    corridor_grid_config, driver_status_subscriber, grid_subscriber, localized_pose_subscriber,
+    readings_subscriber, readings_subscribers, receive_reading, send_scan_command, wait_for_status,
+    wait_until,
 };
 
 /// The test plays the microcontroller on a pseudo-terminal of its own.
 struct FakeHead {
-    master: std::fs::File,
-    /// Held open so the master never reads EIO while the driver reopens the slave.
-    _slave: std::os::fd::OwnedFd,
-    slave_path: String,
+    serial: FakeSerial,
     heard: String,
 }
 
 impl FakeHead {
     fn new() -> Self {
-        let pty = openpty(None, None).unwrap();
-        let slave_path = nix::unistd::ttyname(pty.slave.as_fd()).unwrap();
-        let mut tio = nix::sys::termios::tcgetattr(pty.slave.as_fd()).unwrap();
-        nix::sys::termios::cfmakeraw(&mut tio);
-        nix::sys::termios::tcsetattr(pty.slave.as_fd(), nix::sys::termios::SetArg::TCSANOW, &tio)
-            .unwrap();
         Self {
-            master: std::fs::File::from(pty.master),
-            _slave: pty.slave,
-            slave_path: slave_path.to_str().unwrap().to_owned(),
+            serial: FakeSerial::open(),
             heard: String::new(),
         }
     }
@@ -56,10 +45,10 @@ impl FakeHead {
                 "waited for {times}× {text:?}, heard {:?}",
                 self.heard
             );
-            let mut fds = [PollFd::new(self.master.as_fd(), PollFlags::POLLIN)];
+            let mut fds = [PollFd::new(self.serial.master.as_fd(), PollFlags::POLLIN)];
             if poll(&mut fds, PollTimeout::from(100u16)).unwrap() > 0 {
                 let mut buf = [0u8; 256];
-                let n = self.master.read(&mut buf).unwrap();
+                let n = self.serial.master.read(&mut buf).unwrap();
                 self.heard.push_str(&String::from_utf8_lossy(&buf[..n]));
             }
         }
@@ -73,7 +62,8 @@ impl FakeHead {
     }
 
     fn say(&mut self, msg: &DeviceMessage) {
-        self.master
+        self.serial
+            .master
             .write_all(encode_device(msg, PROTOCOL_VERSION).as_bytes())
             .unwrap();
     }
@@ -321,7 +311,7 @@ fn garbage_on_the_line_is_counted_and_never_published() {
     let mut head = FakeHead::new();
     let _driver = sandbox.spawn(
         "sonar-driver",
-        &["--port", &head.slave_path, "--scan", "none"],
+        &["--port", &head.serial.slave_path, "--scan", "none"],
     );
 
     // Answer the handshake.
@@ -365,7 +355,7 @@ fn garbage_on_the_line_is_counted_and_never_published() {
     stream.extend_from_slice(b"$RD,1,2,3,+,100,1*0000\n"); // bad checksum, wrong fields
     stream.extend_from_slice(double_flip.as_bytes());
     stream.extend_from_slice(good(1, 300).as_bytes());
-    head.master.write_all(&stream).unwrap();
+    head.serial.master.write_all(&stream).unwrap();
 
     let readings = collect_until(&node, || receive_reading(&sub), |got| got.len() >= 2);
     assert_eq!(readings[0].device_seq, 0);
@@ -396,7 +386,7 @@ fn a_reset_head_is_sent_its_scan_again_and_a_different_head_is_refused() {
         "sonar-driver",
         &[
             "--port",
-            &head.slave_path,
+            &head.serial.slave_path,
             "--scan",
             "full",
             "--max-backoff",
@@ -470,7 +460,7 @@ fn a_silent_head_is_probed_then_handshaken_again_and_resumes() {
         "sonar-driver",
         &[
             "--port",
-            &head.slave_path,
+            &head.serial.slave_path,
             "--scan",
             "full",
             "--silence-timeout",
@@ -517,7 +507,7 @@ fn a_head_stopped_on_a_hardware_fault_gets_no_scan_until_a_reset() {
         "sonar-driver",
         &[
             "--port",
-            &head.slave_path,
+            &head.serial.slave_path,
             "--scan",
             "full",
             "--silence-timeout",
@@ -806,7 +796,7 @@ fn the_fusion_engine_maps_the_room_walls_occupied_and_the_space_in_front_free() 
         |got| !got.is_empty(),
     );
     let r = latest.last().unwrap();
-    assert_eq!(r.bin_count, 50);
+    assert_eq!(r.bin_count, 60, "a full turn of the paper's 6° bins");
     let ahead = ((3.0 - r.first_bin_deg) / r.bin_width_deg).round() as usize;
     assert!((r.distances_m[ahead] - 1.2).abs() < 0.05, "{r:?}");
 
@@ -1315,10 +1305,10 @@ fn a_device_that_never_identifies_itself_is_only_asked_who_it_is() {
     let node = sandbox.node("test-device");
     let readings = readings_subscriber(&node);
     let mut head = FakeHead::new();
-    let before = nix::sys::termios::tcgetattr(head._slave.as_fd()).unwrap();
+    let before = nix::sys::termios::tcgetattr(head.serial.slave.as_fd()).unwrap();
     let driver = sandbox.spawn(
         "sonar-driver",
-        &["--port", &head.slave_path, "--scan", "full"],
+        &["--port", &head.serial.slave_path, "--scan", "full"],
     );
     head.hear("$HELLO,2*", 1);
     for seq in 0..6u32 {
@@ -1343,10 +1333,10 @@ fn a_device_that_never_identifies_itself_is_only_asked_who_it_is() {
     assert!(receive_reading(&readings).is_none());
     // Give a STOP time to arrive, were one sent.
     std::thread::sleep(Duration::from_millis(200));
-    let mut fds = [PollFd::new(head.master.as_fd(), PollFlags::POLLIN)];
+    let mut fds = [PollFd::new(head.serial.master.as_fd(), PollFlags::POLLIN)];
     if poll(&mut fds, PollTimeout::from(100u16)).unwrap() > 0 {
         let mut buf = [0u8; 256];
-        let n = head.master.read(&mut buf).unwrap_or(0);
+        let n = head.serial.master.read(&mut buf).unwrap_or(0);
         head.heard.push_str(&String::from_utf8_lossy(&buf[..n]));
     }
     let sent: Vec<&str> = head.heard.lines().collect();
@@ -1354,7 +1344,7 @@ fn a_device_that_never_identifies_itself_is_only_asked_who_it_is() {
         sent.iter().all(|l| l.starts_with("$HELLO,")),
         "more than HELLO sent to an unidentified device: {sent:?}"
     );
-    let after = nix::sys::termios::tcgetattr(head._slave.as_fd()).unwrap();
+    let after = nix::sys::termios::tcgetattr(head.serial.slave.as_fd()).unwrap();
     assert_eq!(
         (
             after.input_flags,
@@ -1386,7 +1376,7 @@ fn device_errors_are_counted_in_full_and_logged_rate_limited() {
     let mut head = FakeHead::new();
     let driver = sandbox.spawn(
         "sonar-driver",
-        &["--port", &head.slave_path, "--scan", "full"],
+        &["--port", &head.serial.slave_path, "--scan", "full"],
     );
     head.handshake("HEAD-A");
     for k in 0..40 {
