@@ -279,3 +279,36 @@ fn slice_writer<H: Plain + Debug + Default, E: Plain + Debug + Default>(
         }),
     })
 }
+#[cfg(test)]
+mod frame_table {
+    use super::*;
+
+    /// `docs/bridge.md`'s frame table names every channel's type tag, header size, element size
+    /// and largest slice as this build expects them: a zenoh client written from the document
+    /// reads what the bridge sends.
+    #[test]
+    fn the_frame_table_of_docs_bridge_md_is_the_code() {
+        let doc = include_str!("../../docs/bridge.md");
+        for channel in Channel::ALL {
+            let e = expect(channel);
+            let key = format!("| `sonar/<robot>/{}` |", channel.name());
+            let row = doc
+                .lines()
+                .find(|l| l.starts_with(&key))
+                .unwrap_or_else(|| panic!("no row {key} in docs/bridge.md"));
+            let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+            let (element, max) = if e.max_elements == 0 {
+                ("–".to_owned(), "–".to_owned())
+            } else {
+                (e.element_len.to_string(), e.max_elements.to_string())
+            };
+            let want = [
+                format!("`{}`", e.tag),
+                e.header_len.to_string(),
+                element,
+                max,
+            ];
+            assert_eq!(&cells[2..6], &want, "{row}");
+        }
+    }
+}
