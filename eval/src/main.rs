@@ -9,6 +9,7 @@ use clap::Parser;
 use sonar_eval::features::{self, FeatureSettings};
 use sonar_eval::motion::{self, MotionSettings};
 use sonar_eval::report::{self, Settings};
+use sonar_eval::slam;
 use sonar_eval::suite::{self, SuiteArgs, SuiteSettings};
 use sonar_eval::{feature_report, image};
 use sonar_sim::{BUILTIN_NAMES, Scene};
@@ -114,6 +115,58 @@ struct Args {
     motion_only: bool,
     #[command(flatten)]
     suite: SuiteArgs,
+    /// Runs the SLAM evaluation instead and nothing else: generated tours (--slam-tours) of every
+    /// --slam-layouts, driven with every --slam-seeds at every --slam-odometry level, each given
+    /// to sonar-slam and to today's localisation, every sweep's pose scored against the truth.
+    #[arg(long)]
+    slam: bool,
+    /// Tours of the SLAM evaluation: comma-separated hallway, hallway-driving, loop,
+    /// long-corridor, office, corridor, room-tour.
+    #[arg(long, default_value = "hallway,hallway-driving,loop,long-corridor,office,corridor,room-tour", value_parser = parse_families)]
+    slam_tours: Families,
+    /// Layout seeds of the SLAM evaluation's generated tours (as --motion-seeds).
+    #[arg(long, default_value = "4..8:1", value_parser = parse_seeds)]
+    slam_layouts: Values,
+    /// Run seeds of the SLAM evaluation: echo and odometry noise, and the signs of the
+    /// odometry's errors.
+    #[arg(long, default_value = "1..3:1", value_parser = parse_seeds)]
+    slam_seeds: Values,
+    /// Odometry levels of the SLAM evaluation: comma-separated good (1 %, 0.5°/m), medium (3 %,
+    /// 2°/m), poor (5 %, 3°/m).
+    #[arg(long, default_value = "medium,poor", value_parser = parse_levels_odometry)]
+    slam_odometry: OdometryLevels,
+}
+
+/// Tours of the SLAM evaluation.
+#[derive(Debug, Clone, PartialEq)]
+struct Families(Vec<slam::Family>);
+
+fn parse_families(s: &str) -> Result<Families, String> {
+    s.split(',')
+        .map(|name| {
+            let name = name.trim();
+            slam::Family::parse(name).ok_or_else(|| format!("unknown tour {name:?}"))
+        })
+        .collect::<Result<_, _>>()
+        .map(Families)
+}
+
+/// Odometry levels of the SLAM evaluation.
+#[derive(Debug, Clone, PartialEq)]
+struct OdometryLevels(Vec<slam::OdometryLevel>);
+
+fn parse_levels_odometry(s: &str) -> Result<OdometryLevels, String> {
+    s.split(',')
+        .map(|name| match name.trim() {
+            "good" => Ok(slam::OdometryLevel::GOOD),
+            "medium" => Ok(slam::OdometryLevel::MEDIUM),
+            "poor" => Ok(slam::OdometryLevel::POOR),
+            other => Err(format!(
+                "unknown odometry level {other:?} (good, medium, poor)"
+            )),
+        })
+        .collect::<Result<_, _>>()
+        .map(OdometryLevels)
 }
 
 fn main() -> ExitCode {
@@ -243,6 +296,18 @@ fn parse_heading_drift(s: &str) -> Result<f64, String> {
 }
 
 fn run(args: Args) -> Result<()> {
+    if args.slam {
+        let settings = slam::SlamSettings {
+            families: args.slam_tours.0,
+            layouts: args.slam_layouts.0.iter().map(|&s| s as u64).collect(),
+            seeds: args.slam_seeds.0.iter().map(|&s| s as u64).collect(),
+            levels: args.slam_odometry.0,
+            config: sonar_slam::SlamConfig::default(),
+        };
+        let runs = slam::evaluate(&settings)?;
+        let text = slam::markdown(&settings, &runs);
+        return write_report(&args.out, args.report.as_deref(), &text);
+    }
     if args.suite.suite {
         let settings = SuiteSettings::from_args(&args.suite)?;
         let runs = suite::evaluate(&settings)?;
