@@ -410,6 +410,19 @@ pub fn run(
         .iter()
         .map(|e| {
             let truth = truth_at(&tour.poses, e.stamp_ns);
+            tracing::debug!(
+                sweep = e.sweep_id,
+                state = ?e.state,
+                observations = e.observations,
+                matched = e.matched,
+                admitted = e.admitted,
+                moving = e.moving,
+                error_cm = PoseError::of(&e.pose, &truth).position_m * 100.0,
+                error_deg = PoseError::of(&e.pose, &truth).heading_deg,
+                sigma_cm = ?(e.covariance[(0, 0)].sqrt() * 100.0, e.covariance[(1, 1)].sqrt() * 100.0),
+                sigma_deg = e.covariance[(2, 2)].sqrt().to_degrees(),
+                "SLAM sweep"
+            );
             Placed {
                 error: PoseError::of(&e.pose, &truth),
                 odometry: PoseError::of(&e.odometry, &truth),

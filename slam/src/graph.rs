@@ -23,8 +23,9 @@ const CONVERGED: f64 = 1e-7;
 pub enum LandmarkKind {
     /// A post or a corner: a point (x, y) observed in range and bearing.
     Point,
-    /// A wall: its normal's direction φ and distance d from the map's origin, observed as the
-    /// perpendicular distance and the normal's bearing.
+    /// A wall: its normal's direction φ (pointing away from the side it is seen from) and its
+    /// signed distance d from the map's origin along it, observed as the perpendicular distance
+    /// and the normal's bearing.
     Line,
 }
 
@@ -62,8 +63,9 @@ pub fn predict(
     }
 }
 
-/// Where `z`, seen from `pose`, puts a landmark of `kind`: the inverse of [`predict`]. A line
-/// whose distance from the origin comes out negative has its normal turned round.
+/// Where `z`, seen from `pose`, puts a landmark of `kind`: the inverse of [`predict`]. A line's
+/// normal points away from the side it was seen from, so its distance from the map's origin is
+/// negative when the origin lies beyond it: (φ, d) and (φ + π, −d) are the two sides of one line.
 pub fn place(kind: LandmarkKind, pose: &Vector3<f64>, z: &Measurement) -> Vector2<f64> {
     let direction = pose.z + z.y;
     match kind {
@@ -73,12 +75,10 @@ pub fn place(kind: LandmarkKind, pose: &Vector3<f64>, z: &Measurement) -> Vector
         ),
         LandmarkKind::Line => {
             let n = Vector2::new(direction.cos(), direction.sin());
-            let d = z.x + n.dot(&Vector2::new(pose.x, pose.y));
-            if d < 0.0 {
-                Vector2::new(wrap_rad(direction + std::f64::consts::PI), -d)
-            } else {
-                Vector2::new(wrap_rad(direction), d)
-            }
+            Vector2::new(
+                wrap_rad(direction),
+                z.x + n.dot(&Vector2::new(pose.x, pose.y)),
+            )
         }
     }
 }
