@@ -135,6 +135,10 @@ struct Args {
     /// 2°/m), poor (5 %, 3°/m).
     #[arg(long, default_value = "medium,poor", value_parser = parse_levels_odometry)]
     slam_odometry: OdometryLevels,
+    /// The SLAM's settings (the `SlamConfig` fields as TOML, e.g. `range_sigma_floor_m = 0.005`);
+    /// unset fields keep their defaults.
+    #[arg(long, default_value = "")]
+    slam_config: String,
 }
 
 /// Tours of the SLAM evaluation.
@@ -302,7 +306,8 @@ fn run(args: Args) -> Result<()> {
             layouts: args.slam_layouts.0.iter().map(|&s| s as u64).collect(),
             seeds: args.slam_seeds.0.iter().map(|&s| s as u64).collect(),
             levels: args.slam_odometry.0,
-            config: sonar_slam::SlamConfig::default(),
+            config: toml::from_str(&args.slam_config)
+                .with_context(|| format!("--slam-config {:?}", args.slam_config))?,
         };
         let runs = slam::evaluate(&settings)?;
         let text = slam::markdown(&settings, &runs);

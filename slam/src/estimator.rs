@@ -296,10 +296,16 @@ impl Slam {
             self.extractor.observe(&sweep).1.observations
         };
         self.extractor.learn_noise(&sweep);
-        let floor = Vector2::new(
+        let mut floor = Vector2::new(
             self.cfg.range_sigma_floor_m,
             self.cfg.bearing_sigma_floor_deg.to_radians(),
         );
+        if moving && let Some(last) = readings.last() {
+            // The pings of a sweep on the move were brought to its first reading by the odometry,
+            // which errs over the sweep: its walls are no better than that.
+            let within = self.sweep_odometry_sigma(first.host_stamp_ns, last.host_stamp_ns);
+            floor = floor.zip_map(&within, f64::hypot);
+        }
         let sightings: Vec<Sighting> = observations
             .iter()
             .map(|o| Sighting {
@@ -322,6 +328,24 @@ impl Slam {
         self.track.forget_before(first.host_stamp_ns);
         self.last = Some(estimate);
         Some(estimate)
+    }
+
+    /// σ of the odometry's error (position, heading) accumulated from `from_ns` to `to_ns`: its
+    /// random part and the systematic part its error model allows (scale error times the
+    /// distance, drift times the distance and turn error times the turn).
+    fn sweep_odometry_sigma(&self, from_ns: u64, to_ns: u64) -> Vector2<f64> {
+        let steps = self.track.steps(from_ns, to_ns);
+        let errors = &self.cfg.features.odometry;
+        let random = random_covariance(&steps, errors);
+        let distance: f64 = steps.iter().map(|s| s.x.hypot(s.y)).sum();
+        let turned: f64 = steps.iter().map(|s| s.z.abs()).sum();
+        let position = (random[(0, 0)] + random[(1, 1)])
+            .sqrt()
+            .hypot(errors.scale_sigma * distance);
+        let heading = random[(2, 2)].sqrt().hypot(
+            errors.drift_sigma_deg_per_m.to_radians() * distance + errors.turn_sigma * turned,
+        );
+        Vector2::new(position, heading)
     }
 
     /// The latest sweep's estimate.
