@@ -364,6 +364,11 @@ pub fn run_slam(tour: &TourCapture, config: SlamConfig) -> Result<(Vec<SweepEsti
     if let Some(e) = slam.finish_sweep() {
         estimates.push(e);
     }
+    tracing::debug!(
+        calibration = ?slam.calibration(),
+        landmarks = slam.landmarks().len(),
+        "SLAM at the end of the tour (scale error, drift rad/m, turn error)"
+    );
     Ok((estimates, slam.refused()))
 }
 
