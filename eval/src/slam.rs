@@ -191,10 +191,8 @@ impl Family {
                     .iter()
                     .map(|(dx, dy)| ([cx + dx, cy + dy], 0.025))
                     .collect();
-                posts.push((
-                    [rng.random_range(0.6..1.0), rng.random_range(0.6..1.0)],
-                    0.1,
-                ));
+                // A pillar between the wall y = 0 and the robot's path (at least 0.55 m from it).
+                posts.push(([cx + rng.random_range(-0.5..0.5), 0.3], 0.1));
                 let (rx, ry) = (tx + 0.9, ty + 0.8);
                 let waypoints = vec![
                     [cx - rx, cy - ry],
@@ -710,13 +708,19 @@ mod tests {
 
     #[test]
     fn every_family_makes_a_valid_tour_scene_and_layouts_differ() {
-        for family in Family::ALL {
-            let (scene, metres) = family.scene(1).unwrap();
+        let all = Family::ALL
+            .into_iter()
+            .flat_map(|f| (1..=20).map(move |l| (f, l)));
+        for (family, layout) in all {
+            let (scene, metres) = family.scene(layout).unwrap();
             assert!(scene.robot.is_some(), "{family:?}");
             assert!(metres > 5.0, "{family:?}: {metres}");
             // Every waypoint lies inside the scene, off its walls.
             for p in &scene.robot.as_ref().unwrap().waypoints {
-                assert!(scene.distance_to_surface(*p) > 0.3, "{family:?}: {p:?}");
+                assert!(
+                    scene.distance_to_surface(*p) > 0.3,
+                    "{family:?} {layout}: {p:?}"
+                );
             }
         }
         let (a, _) = Family::Hallway.scene(1).unwrap();
