@@ -20,17 +20,21 @@
 //! |---|---|---|---|---|---|---|
 //! | tiny-solver | 0.18.8 | 117 (faer, rayon, num-dual) | 145 s | 0.34 | Huber, Cauchy, … | none exposed |
 //! | factrs | 0.3.0 | 99 (faer, statrs, num-dual) | 193 s | 0.34 | Huber, Cauchy, … | none exposed |
-//! | apex-solver | 1.5.0 | 305 (faer 0.24, clap, chrono, tracing-subscriber, camera models) | 480 s | 0.33 | 15 kernels | per-variable blocks only |
+//! | apex-solver | 1.5.0 | 305 (faer 0.24, clap, chrono, tracing-subscriber, camera models) | 480 s | 0.33 | 15 kernels | full matrix, blocks and block pairs |
 //! | nalgebra (already in the workspace) | 0.35 | 0 new | 0 s | 0.35 | written here (Huber) | any block of H⁻¹ |
 //!
 //! What decided it:
 //! - **The joint covariance.** Joint-compatibility data association needs the covariance of the
-//!   current pose *and every landmark together*, cross-covariances included, at every sweep. Of
-//!   the three only apex-solver computes covariances, and only each variable's own block; with
-//!   any of them the normal matrix would have to be rebuilt outside the crate anyway.
+//!   current pose *and every landmark together*, cross-covariances included, at every sweep.
+//!   tiny-solver and factrs expose no covariance (no such function in their sources); with them
+//!   the normal matrix would have to be rebuilt outside the crate. apex-solver does compute it
+//!   (`linalg::covariance`: the full matrix, a block, a pair of blocks), so this alone does not
+//!   rule it out; its weight does (below).
 //! - **A second linear-algebra stack.** All three pull faer and an older nalgebra (0.33/0.34)
 //!   than the workspace's 0.35: two copies of nalgebra, with conversions at every boundary, and
-//!   rayon's thread pool in a process meant to share 2 cores with the driver and the fusion.
+//!   (tiny-solver, apex-solver) rayon's thread pool in a process meant to share 2 cores with the
+//!   driver and the fusion; apex-solver also brings a command-line parser, chrono and a tracing
+//!   subscriber into a library: 305 crates and 8 minutes of build for a few hundred unknowns.
 //! - **Size.** A tour of hundreds of sweeps and tens of landmarks is a state of a few hundred
 //!   numbers: a dense Cholesky factorisation of it takes milliseconds, so the sparse machinery
 //!   the crates bring buys nothing here. Should tours grow to thousands of sweeps, the choice
