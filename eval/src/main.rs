@@ -42,8 +42,14 @@ use tracing::info;
 /// corridors scanned from 1, 3 and 8 viewpoints with every sensor profile and seed, the maps of
 /// every --suite-fusion and the features scored against the scenes' true surfaces.
 ///
+/// With --slam, runs the SLAM evaluation instead and nothing else: generated tours (hallways,
+/// a ring corridor, a long corridor, an office, the built-in corridor and room tour) driven with a
+/// drifting odometry, each given to sonar-slam and to today's localisation, every sweep's pose
+/// scored against the truth (docs/results.md, "SLAM").
+///
 /// Examples:
 ///   cargo run -p sonar-eval --release -- --out docs/results
+///   cargo run -p sonar-eval --release -- --slam --slam-layouts 4..8:1 --slam-seeds 1..3:1 --report slam.md
 ///   cargo run -p sonar-eval --release -- --suite --suite-scenes 50 --suite-fusion recommended,mine.toml
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
@@ -496,5 +502,26 @@ mod tests {
         assert!(Args::try_parse_from(["sonar-eval", "--sweeps", "0"]).is_err());
         assert!(Args::try_parse_from(["sonar-eval", "--motion-metres", "0"]).is_err());
         assert!(Args::try_parse_from(["sonar-eval", "--motion-only", "--features-only"]).is_err());
+        let a = Args::try_parse_from(["sonar-eval", "--slam"]).unwrap();
+        assert!(a.slam);
+        assert_eq!(a.slam_tours.0.len(), 7);
+        assert_eq!(
+            a.slam_odometry.0,
+            [slam::OdometryLevel::MEDIUM, slam::OdometryLevel::POOR]
+        );
+        let a = Args::try_parse_from([
+            "sonar-eval",
+            "--slam",
+            "--slam-tours",
+            "loop, office",
+            "--slam-odometry",
+            "good",
+        ])
+        .unwrap();
+        assert_eq!(a.slam_tours.0, [slam::Family::Loop, slam::Family::Office]);
+        assert_eq!(a.slam_odometry.0, [slam::OdometryLevel::GOOD]);
+        for bad in [["--slam-tours", "maze"], ["--slam-odometry", "perfect"]] {
+            assert!(Args::try_parse_from(["sonar-eval", "--slam", bad[0], bad[1]]).is_err());
+        }
     }
 }
