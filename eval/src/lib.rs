@@ -40,4 +40,5 @@ pub mod motion;
 pub mod pipeline;
 pub mod report;
 pub mod scenegen;
+pub mod slam;
 pub mod suite;

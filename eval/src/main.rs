@@ -9,6 +9,7 @@ use clap::Parser;
 use sonar_eval::features::{self, FeatureSettings};
 use sonar_eval::motion::{self, MotionSettings};
 use sonar_eval::report::{self, Settings};
+use sonar_eval::slam;
 use sonar_eval::suite::{self, SuiteArgs, SuiteSettings};
 use sonar_eval::{feature_report, image};
 use sonar_sim::{BUILTIN_NAMES, Scene};
@@ -41,8 +42,14 @@ use tracing::info;
 /// corridors scanned from 1, 3 and 8 viewpoints with every sensor profile and seed, the maps of
 /// every --suite-fusion and the features scored against the scenes' true surfaces.
 ///
+/// With --slam, runs the SLAM evaluation instead and nothing else: generated tours (hallways,
+/// a ring corridor, a long corridor, an office, the built-in corridor and room tour) driven with a
+/// drifting odometry, each given to sonar-slam and to today's localisation, every sweep's pose
+/// scored against the truth (docs/results.md, "SLAM").
+///
 /// Examples:
 ///   cargo run -p sonar-eval --release -- --out docs/results
+///   cargo run -p sonar-eval --release -- --slam --slam-layouts 4..8:1 --slam-seeds 1..3:1 --report slam.md
 ///   cargo run -p sonar-eval --release -- --suite --suite-scenes 50 --suite-fusion recommended,mine.toml
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
@@ -114,6 +121,62 @@ struct Args {
     motion_only: bool,
     #[command(flatten)]
     suite: SuiteArgs,
+    /// Runs the SLAM evaluation instead and nothing else: generated tours (--slam-tours) of every
+    /// --slam-layouts, driven with every --slam-seeds at every --slam-odometry level, each given
+    /// to sonar-slam and to today's localisation, every sweep's pose scored against the truth.
+    #[arg(long)]
+    slam: bool,
+    /// Tours of the SLAM evaluation: comma-separated hallway, hallway-driving, loop,
+    /// long-corridor, office, corridor, room-tour.
+    #[arg(long, default_value = "hallway,hallway-driving,loop,long-corridor,office,corridor,room-tour", value_parser = parse_families)]
+    slam_tours: Families,
+    /// Layout seeds of the SLAM evaluation's generated tours (as --motion-seeds).
+    #[arg(long, default_value = "4..8:1", value_parser = parse_seeds)]
+    slam_layouts: Values,
+    /// Run seeds of the SLAM evaluation: echo and odometry noise, and the signs of the
+    /// odometry's errors.
+    #[arg(long, default_value = "1..3:1", value_parser = parse_seeds)]
+    slam_seeds: Values,
+    /// Odometry levels of the SLAM evaluation: comma-separated good (1 %, 0.5°/m), medium (3 %,
+    /// 2°/m), poor (5 %, 3°/m).
+    #[arg(long, default_value = "medium,poor", value_parser = parse_levels_odometry)]
+    slam_odometry: OdometryLevels,
+    /// The SLAM's settings (the `SlamConfig` fields as TOML, e.g. `range_sigma_floor_m = 0.005`);
+    /// unset fields keep their defaults.
+    #[arg(long, default_value = "")]
+    slam_config: String,
+}
+
+/// Tours of the SLAM evaluation.
+#[derive(Debug, Clone, PartialEq)]
+struct Families(Vec<slam::Family>);
+
+fn parse_families(s: &str) -> Result<Families, String> {
+    s.split(',')
+        .map(|name| {
+            let name = name.trim();
+            slam::Family::parse(name).ok_or_else(|| format!("unknown tour {name:?}"))
+        })
+        .collect::<Result<_, _>>()
+        .map(Families)
+}
+
+/// Odometry levels of the SLAM evaluation.
+#[derive(Debug, Clone, PartialEq)]
+struct OdometryLevels(Vec<slam::OdometryLevel>);
+
+fn parse_levels_odometry(s: &str) -> Result<OdometryLevels, String> {
+    s.split(',')
+        .map(|name| match name.trim() {
+            "good" => Ok(slam::OdometryLevel::GOOD),
+            "medium" => Ok(slam::OdometryLevel::MEDIUM),
+            "poor" => Ok(slam::OdometryLevel::POOR),
+            other => Err(format!(
+                "unknown odometry level {other:?} (good, medium, poor)"
+            )),
+        })
+        .collect::<Result<_, _>>()
+        .map(OdometryLevels)
 }
 
 fn main() -> ExitCode {
@@ -243,6 +306,19 @@ fn parse_heading_drift(s: &str) -> Result<f64, String> {
 }
 
 fn run(args: Args) -> Result<()> {
+    if args.slam {
+        let settings = slam::SlamSettings {
+            families: args.slam_tours.0,
+            layouts: args.slam_layouts.0.iter().map(|&s| s as u64).collect(),
+            seeds: args.slam_seeds.0.iter().map(|&s| s as u64).collect(),
+            levels: args.slam_odometry.0,
+            config: toml::from_str(&args.slam_config)
+                .with_context(|| format!("--slam-config {:?}", args.slam_config))?,
+        };
+        let runs = slam::evaluate(&settings)?;
+        let text = slam::markdown(&settings, &runs);
+        return write_report(&args.out, args.report.as_deref(), &text);
+    }
     if args.suite.suite {
         let settings = SuiteSettings::from_args(&args.suite)?;
         let runs = suite::evaluate(&settings)?;
@@ -426,5 +502,26 @@ mod tests {
         assert!(Args::try_parse_from(["sonar-eval", "--sweeps", "0"]).is_err());
         assert!(Args::try_parse_from(["sonar-eval", "--motion-metres", "0"]).is_err());
         assert!(Args::try_parse_from(["sonar-eval", "--motion-only", "--features-only"]).is_err());
+        let a = Args::try_parse_from(["sonar-eval", "--slam"]).unwrap();
+        assert!(a.slam);
+        assert_eq!(a.slam_tours.0.len(), 7);
+        assert_eq!(
+            a.slam_odometry.0,
+            [slam::OdometryLevel::MEDIUM, slam::OdometryLevel::POOR]
+        );
+        let a = Args::try_parse_from([
+            "sonar-eval",
+            "--slam",
+            "--slam-tours",
+            "loop, office",
+            "--slam-odometry",
+            "good",
+        ])
+        .unwrap();
+        assert_eq!(a.slam_tours.0, [slam::Family::Loop, slam::Family::Office]);
+        assert_eq!(a.slam_odometry.0, [slam::OdometryLevel::GOOD]);
+        for bad in [["--slam-tours", "maze"], ["--slam-odometry", "perfect"]] {
+            assert!(Args::try_parse_from(["sonar-eval", "--slam", bad[0], bad[1]]).is_err());
+        }
     }
 }

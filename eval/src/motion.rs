@@ -37,7 +37,7 @@
 use std::fmt::Write as _;
 
 use anyhow::{Context, Result, ensure};
-use nalgebra::{Isometry2, RealField};
+use nalgebra::{Isometry2, Matrix3, RealField, Vector3};
 use sonar_common::ipc::{LAYOUT_VERSION, Pose2D};
 use sonar_features::{DriftEstimate, FeatureConfig};
 use sonar_fusion::engine::Engine;
@@ -204,6 +204,8 @@ pub struct SweepPose {
     /// The robot moved (over 1 cm or 1°) between its first and last reading: its pings were not
     /// taken from one place.
     pub on_the_move: bool,
+    /// The fix's normalised estimation error squared against its own covariance (x, y, θ).
+    pub fix_nees: Option<f64>,
 }
 
 impl SweepPose {
@@ -214,6 +216,17 @@ impl SweepPose {
             && (self.error.position_m > self.predicted.position_m
                 || self.error.heading_deg > self.predicted.heading_deg)
     }
+}
+
+/// The normalised estimation error squared of `pose` with covariance `covariance` (x, y, θ)
+/// against `truth`; `None` for a covariance that is not invertible.
+pub fn nees(pose: &Isometry2<f64>, covariance: &Matrix3<f64>, truth: &Pose) -> Option<f64> {
+    let d = Vector3::new(
+        pose.translation.x - truth.at.x,
+        pose.translation.y - truth.at.y,
+        angle_diff_rad(pose.rotation.angle(), truth.heading_rad),
+    );
+    Some((d.transpose() * covariance.try_inverse()? * d)[(0, 0)])
 }
 
 /// A grid of the default cell size over `scene`'s walls and its robot's waypoints, plus
@@ -304,6 +317,9 @@ pub fn fuse_tour(
         let last = truth_at(&tour.poses, last_stamp_ns);
         let used = outcome.fix.map_or(outcome.predicted, |f| f.pose);
         SweepPose {
+            fix_nees: outcome
+                .fix
+                .and_then(|f| nees(&f.pose, &f.covariance, &truth)),
             error: PoseError::of(&used, &truth),
             predicted: PoseError::of(&outcome.predicted, &truth),
             fixed: outcome.fix.is_some(),

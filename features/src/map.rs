@@ -350,6 +350,13 @@ impl FeatureMap {
         Gate::new(self.noise(sweep), &self.cfg)
     }
 
+    /// Takes `sweep`'s neighbouring pings into the range-noise estimate without merging
+    /// anything: for a consumer that only extracts observations ([`Self::observe`],
+    /// [`Self::walls_on_the_move`]) and keeps its own landmarks (the SLAM).
+    pub fn learn_noise(&mut self, sweep: &Sweep) {
+        self.noise.add(sweep.pairs(), &self.cfg.noise);
+    }
+
     /// Forgets every feature (the sweep count, feature ids and the noise estimate go on).
     pub fn clear(&mut self) {
         self.features.clear();

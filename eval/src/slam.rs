@@ -1,0 +1,776 @@
+//! The SLAM evaluation (issue 25): generated tours driven with a drifting odometry, each capture
+//! given to `sonar-slam`'s library and to today's localisation (`sonar-fusion --localize`, as
+//! [`crate::motion::fuse_tour`] runs it), every sweep's pose scored against the truth.
+//!
+//! # The tours
+//!
+//! [`Family`] makes a scene with a robot from a layout seed: the size, the doorways, the posts and
+//! the whole layout's rotation drawn from it. Each layout is driven with every run seed (echo and
+//! odometry noise) at every [`OdometryLevel`], the signs of its scale error and drift drawn from
+//! the seed ("all signs" over the seeds). Layout seeds split the suite: the SLAM's settings were
+//! chosen on one set of layouts and the figures reported on another (`docs/results.md`).
+//!
+//! # The figures
+//!
+//! Per run: the largest and the median position and heading error over the sweeps of the pose
+//! each method published for the sweep (the SLAM's estimate when the sweep was added — online, as
+//! a robot would use it — or the localisation's fix, else its prediction), and the odometry's own
+//! at the same instants. Per fix (a sweep the method says it fixed): NEES against the fix's own
+//! covariance, whether the truth lies inside the fix's 95 % ellipse (NEES ≤ χ²₃(0.95) = 7.81),
+//! and whether the fix is worse than the odometry (more than [`WORSE_M`] farther or [`WORSE_DEG`]
+//! more turned than the odometry's pose at that instant).
+
+use std::f64::consts::PI;
+use std::fmt::Write as _;
+
+use anyhow::{Context, Result};
+use nalgebra::{Isometry2, Vector2};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use sonar_common::ipc::Reading;
+use sonar_sim::{OdometryParams, Pose, PoseSample, Scene};
+use sonar_slam::{FixState, Slam, SlamConfig, SweepEstimate};
+
+use crate::feature_report::Spread;
+use crate::motion::{POSE_RATE_HZ, Placement, PoseError, fuse_tour, grid_over, nees, truth_at};
+use crate::pipeline::{Scan, TourCapture, capture_tour};
+
+/// χ² of 3 degrees of freedom at 95 %: a fix whose NEES is within lies inside its 95 % ellipse.
+pub const CHI2_3_95: f64 = 7.81;
+/// A fix is worse than the odometry when it is this much farther from the truth …
+pub const WORSE_M: f64 = 0.01;
+/// … or this much more turned.
+pub const WORSE_DEG: f64 = 0.5;
+
+/// A generated kind of tour.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Family {
+    /// An L-shaped hallway with a doorway, out to its end and back, stopping to scan.
+    Hallway,
+    /// The same hallway, scanning while driving.
+    HallwayDriving,
+    /// A ring corridor round a block, driven round and round, stopping to scan: loop closure.
+    Loop,
+    /// A 10 m corridor without doors or posts, out and back, stopping to scan.
+    LongCorridor,
+    /// An office with a table (four legs) and a pillar, driven round the table while scanning.
+    Office,
+    /// The built-in `corridor` tour (stop and scan).
+    Corridor,
+    /// The built-in `room-tour` (scan while driving).
+    RoomTour,
+}
+
+impl Family {
+    pub const ALL: [Family; 7] = [
+        Family::Hallway,
+        Family::HallwayDriving,
+        Family::Loop,
+        Family::LongCorridor,
+        Family::Office,
+        Family::Corridor,
+        Family::RoomTour,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Family::Hallway => "hallway",
+            Family::HallwayDriving => "hallway-driving",
+            Family::Loop => "loop",
+            Family::LongCorridor => "long-corridor",
+            Family::Office => "office",
+            Family::Corridor => "corridor",
+            Family::RoomTour => "room-tour",
+        }
+    }
+
+    /// One of the scenes built into the simulator, whose layout does not change.
+    pub fn is_builtin(self) -> bool {
+        matches!(self, Family::Corridor | Family::RoomTour)
+    }
+
+    pub fn parse(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|f| f.name() == name)
+    }
+
+    /// The scene of layout `layout`, and the tour's length in metres (two rounds of a loop's
+    /// ring, three of the office's table; out and back otherwise).
+    pub fn scene(self, layout: u64) -> Result<(Scene, f64)> {
+        let mut rng =
+            ChaCha8Rng::seed_from_u64(layout.wrapping_mul(7919).wrapping_add(self as u64));
+        let rotation = rng.random_range(0.0..2.0 * PI);
+        let (walls, posts, waypoints, mode, metres) = match self {
+            Family::Corridor | Family::RoomTour => {
+                let scene = Scene::builtin(self.name())
+                    .with_context(|| format!("loading scene {}", self.name()))?;
+                let metres = if self == Family::Corridor { 24.0 } else { 19.2 };
+                return Ok((scene, metres));
+            }
+            Family::Hallway | Family::HallwayDriving => {
+                let w = rng.random_range(1.0..1.4);
+                let (l1, l2) = (rng.random_range(4.0..6.0), rng.random_range(3.0..5.0));
+                let door = rng.random_range(1.5..l1 - 2.0);
+                let h = w / 2.0;
+                let walls = vec![
+                    [[0.0, -h], [l1 + h, -h]],
+                    [[l1 + h, -h], [l1 + h, l2]],
+                    [[0.0, h], [door, h]],
+                    [[door + 0.8, h], [l1 - h, h]],
+                    [[l1 - h, h], [l1 - h, l2]],
+                    [[0.0, -h], [0.0, h]],
+                    [[l1 - h, l2], [l1 + h, l2]],
+                ];
+                let mut out = along(&[[0.5, 0.0], [l1, 0.0], [l1, l2 - 0.5]], 1.0);
+                let back: Vec<[f64; 2]> = out
+                    .iter()
+                    .rev()
+                    .skip(1)
+                    .take(out.len().saturating_sub(2))
+                    .copied()
+                    .collect();
+                out.extend(back);
+                let mode = if self == Family::Hallway {
+                    "stop-and-scan"
+                } else {
+                    "scan-while-driving"
+                };
+                (walls, Vec::new(), out, mode, 2.0 * (l1 - 0.5 + l2 - 0.5))
+            }
+            Family::Loop => {
+                let (a, b) = (rng.random_range(5.0..7.0), rng.random_range(3.5..5.0));
+                let w = 1.2;
+                let rect = |x0: f64, y0: f64, x1: f64, y1: f64| {
+                    vec![
+                        [[x0, y0], [x1, y0]],
+                        [[x1, y0], [x1, y1]],
+                        [[x1, y1], [x0, y1]],
+                        [[x0, y1], [x0, y0]],
+                    ]
+                };
+                let mut walls = rect(0.0, 0.0, a, b);
+                walls.extend(rect(w, w, a - w, b - w));
+                let h = w / 2.0;
+                let ring = [[h, h], [a - h, h], [a - h, b - h], [h, b - h], [h, h]];
+                let mut waypoints = along(&ring, 1.0);
+                waypoints.pop();
+                let lap = 2.0 * (a - w + b - w);
+                (walls, Vec::new(), waypoints, "stop-and-scan", 2.0 * lap)
+            }
+            Family::LongCorridor => {
+                let w = rng.random_range(1.0..1.4);
+                let h = w / 2.0;
+                let l = 10.0;
+                let walls = vec![
+                    [[0.0, -h], [l, -h]],
+                    [[0.0, h], [l, h]],
+                    [[0.0, -h], [0.0, h]],
+                    [[l, -h], [l, h]],
+                ];
+                let mut out = along(&[[0.5, 0.0], [l - 0.5, 0.0]], 1.0);
+                let back: Vec<[f64; 2]> = out
+                    .iter()
+                    .rev()
+                    .skip(1)
+                    .take(out.len().saturating_sub(2))
+                    .copied()
+                    .collect();
+                out.extend(back);
+                (walls, Vec::new(), out, "stop-and-scan", 2.0 * (l - 1.0))
+            }
+            Family::Office => {
+                let (a, b) = (rng.random_range(4.5..6.0), rng.random_range(3.5..4.5));
+                let walls = vec![
+                    [[0.0, 0.0], [a, 0.0]],
+                    [[a, 0.0], [a, b]],
+                    [[a, b], [0.0, b]],
+                    [[0.0, b], [0.0, 0.0]],
+                ];
+                let (cx, cy) = (a / 2.0, b / 2.0);
+                let (tx, ty) = (0.6, 0.4);
+                let mut posts: Vec<([f64; 2], f64)> = [(-tx, -ty), (tx, -ty), (tx, ty), (-tx, ty)]
+                    .iter()
+                    .map(|(dx, dy)| ([cx + dx, cy + dy], 0.025))
+                    .collect();
+                // A pillar between the wall y = 0 and the robot's path (at least 0.55 m from it).
+                posts.push(([cx + rng.random_range(-0.5..0.5), 0.3], 0.1));
+                let (rx, ry) = (tx + 0.9, ty + 0.8);
+                let waypoints = vec![
+                    [cx - rx, cy - ry],
+                    [cx + rx, cy - ry],
+                    [cx + rx, cy + ry],
+                    [cx - rx, cy + ry],
+                ];
+                let lap = 4.0 * (rx + ry);
+                (walls, posts, waypoints, "scan-while-driving", 1.5 * lap)
+            }
+        };
+        let turn = |p: [f64; 2]| {
+            let (s, c) = rotation.sin_cos();
+            [c * p[0] - s * p[1], s * p[0] + c * p[1]]
+        };
+        let mut toml = format!(
+            "name = \"{}-{layout}\"\ndescription = \"generated {} layout {layout}\"\nscan = {{ mode = \"full\" }}\n",
+            self.name(),
+            self.name()
+        );
+        for [from, to] in walls {
+            let (f, t) = (turn(from), turn(to));
+            let _ = writeln!(
+                toml,
+                "[[segments]]\nfrom = [{:.4}, {:.4}]\nto = [{:.4}, {:.4}]",
+                f[0], f[1], t[0], t[1]
+            );
+        }
+        for (centre, radius) in posts {
+            let c = turn(centre);
+            let _ = writeln!(
+                toml,
+                "[[circles]]\ncentre = [{:.4}, {:.4}]\nradius = {radius}",
+                c[0], c[1]
+            );
+        }
+        let points: Vec<String> = waypoints
+            .iter()
+            .map(|&p| {
+                let p = turn(p);
+                format!("[{:.4}, {:.4}]", p[0], p[1])
+            })
+            .collect();
+        let _ = writeln!(
+            toml,
+            "[robot]\nwaypoints = [{}]\nspeed_mps = 0.2\nturn_rate_dps = 45\nmode = \"{mode}\"\nloop = true",
+            points.join(", ")
+        );
+        let scene = Scene::from_toml_str(&toml, self.name())
+            .with_context(|| format!("generated scene {} {layout}:\n{toml}", self.name()))?;
+        Ok((scene, metres))
+    }
+}
+
+/// Points along the polyline `corners`, at most `spacing` apart, corners included.
+fn along(corners: &[[f64; 2]], spacing: f64) -> Vec<[f64; 2]> {
+    let mut out = vec![corners[0]];
+    for pair in corners.windows(2) {
+        let (a, b) = (Vector2::from(pair[0]), Vector2::from(pair[1]));
+        let n = ((b - a).norm() / spacing).ceil().max(1.0) as usize;
+        for k in 1..=n {
+            let p = a + (b - a) * (k as f64 / n as f64);
+            out.push([p.x, p.y]);
+        }
+    }
+    out
+}
+
+/// How much the odometry errs: scale error and heading drift (their signs drawn per run).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OdometryLevel {
+    pub scale: f64,
+    pub drift_deg_per_m: f64,
+}
+
+impl OdometryLevel {
+    pub const GOOD: Self = Self {
+        scale: 0.01,
+        drift_deg_per_m: 0.5,
+    };
+    pub const MEDIUM: Self = Self {
+        scale: 0.03,
+        drift_deg_per_m: 2.0,
+    };
+    pub const POOR: Self = Self {
+        scale: 0.05,
+        drift_deg_per_m: 3.0,
+    };
+
+    pub fn label(self) -> String {
+        format!("{:.0} % / {}°/m", self.scale * 100.0, self.drift_deg_per_m)
+    }
+
+    /// The simulator's odometry for run `seed`: this level with signs from the seed, and the tour
+    /// scenes' small white noise.
+    fn params(self, seed: u64) -> OdometryParams {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed);
+        let sign = |b: bool| if b { 1.0 } else { -1.0 };
+        OdometryParams {
+            scale_error: sign(rng.random_bool(0.5)) * self.scale,
+            heading_drift_deg_per_m: sign(rng.random_bool(0.5)) * self.drift_deg_per_m,
+            noise_m: 0.0005,
+            noise_deg: 0.05,
+        }
+    }
+}
+
+/// One method's account of one sweep.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Placed {
+    pub error: PoseError,
+    /// The odometry's own error at the same instant.
+    pub odometry: PoseError,
+    /// The method called it a fix; with the fix's NEES.
+    pub fix: Option<f64>,
+    /// Sweep's share of the tour's time (0 at the start, 1 at the end).
+    pub progress: f64,
+}
+
+impl Placed {
+    fn worse_than_odometry(&self) -> bool {
+        self.error.position_m > self.odometry.position_m + WORSE_M
+            || self.error.heading_deg > self.odometry.heading_deg + WORSE_DEG
+    }
+}
+
+/// One tour of one layout with one seed at one odometry level.
+#[derive(Debug, Clone)]
+pub struct Run {
+    pub family: Family,
+    pub layout: u64,
+    pub seed: u64,
+    pub level: OdometryLevel,
+    pub odometry: OdometryParams,
+    pub slam: Vec<Placed>,
+    pub localize: Vec<Placed>,
+    /// Sweeps the SLAM refused.
+    pub refused: u32,
+}
+
+/// What to run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SlamSettings {
+    pub families: Vec<Family>,
+    pub layouts: Vec<u64>,
+    pub seeds: Vec<u64>,
+    pub levels: Vec<OdometryLevel>,
+    pub config: SlamConfig,
+}
+
+/// Feeds `tour` to the SLAM as a process would get it: every odometry sample up to a reading's
+/// stamp before the reading.
+pub fn run_slam(tour: &TourCapture, config: SlamConfig) -> Result<(Vec<SweepEstimate>, u32)> {
+    let mut slam = Slam::new(config).context("setting up the SLAM")?;
+    let mut estimates = Vec::new();
+    let mut poses = tour.poses.iter().peekable();
+    let to_iso = |p: &Pose| Isometry2::new(Vector2::new(p.at.x, p.at.y), p.heading_rad);
+    let push_reading = |slam: &mut Slam, r: &Reading, out: &mut Vec<SweepEstimate>| {
+        if let Some(e) = slam.push_reading(r) {
+            out.push(e);
+        }
+    };
+    for r in &tour.capture.readings {
+        while let Some(s) = poses.next_if(|s| s.t_us * 1000 <= r.host_stamp_ns) {
+            slam.push_odometry(s.t_us * 1000, to_iso(&s.odometry));
+        }
+        push_reading(&mut slam, r, &mut estimates);
+    }
+    for s in poses {
+        slam.push_odometry(s.t_us * 1000, to_iso(&s.odometry));
+    }
+    if let Some(e) = slam.finish_sweep() {
+        estimates.push(e);
+    }
+    tracing::debug!(
+        calibration = ?slam.calibration(),
+        landmarks = slam.landmarks().len(),
+        "SLAM at the end of the tour (scale error, drift rad/m, turn error)"
+    );
+    Ok((estimates, slam.refused()))
+}
+
+fn odometry_at(poses: &[PoseSample], stamp_ns: u64) -> Pose {
+    // The odometry interpolated as the truth is.
+    let swapped: Vec<PoseSample> = poses
+        .iter()
+        .map(|s| PoseSample {
+            t_us: s.t_us,
+            truth: s.odometry,
+            odometry: s.truth,
+        })
+        .collect();
+    truth_at(&swapped, stamp_ns)
+}
+
+fn pose_iso(p: &Pose) -> Isometry2<f64> {
+    Isometry2::new(Vector2::new(p.at.x, p.at.y), p.heading_rad)
+}
+
+/// Captures one tour and runs both methods on it.
+pub fn run(
+    family: Family,
+    layout: u64,
+    seed: u64,
+    level: OdometryLevel,
+    config: SlamConfig,
+) -> Result<Run> {
+    let (scene, metres) = family.scene(layout)?;
+    let odometry = level.params(seed);
+    let tour = capture_tour(
+        scene.clone(),
+        Scan::for_scene(&scene),
+        metres,
+        odometry,
+        POSE_RATE_HZ,
+        seed,
+    )
+    .with_context(|| format!("touring {} layout {layout} seed {seed}", family.name()))?;
+    let end_ns = tour.poses.last().map_or(1, |s| s.t_us.max(1) * 1000);
+    let progress = |stamp_ns: u64| stamp_ns as f64 / end_ns as f64;
+    let (estimates, refused) = run_slam(&tour, config)?;
+    let slam = estimates
+        .iter()
+        .map(|e| {
+            let truth = truth_at(&tour.poses, e.stamp_ns);
+            tracing::debug!(
+                sweep = e.sweep_id,
+                state = ?e.state,
+                observations = e.observations,
+                matched = e.matched,
+                admitted = e.admitted,
+                moving = e.moving,
+                error_cm = PoseError::of(&e.pose, &truth).position_m * 100.0,
+                error_deg = PoseError::of(&e.pose, &truth).heading_deg,
+                sigma_cm = ?(e.covariance[(0, 0)].sqrt() * 100.0, e.covariance[(1, 1)].sqrt() * 100.0),
+                sigma_deg = e.covariance[(2, 2)].sqrt().to_degrees(),
+                "SLAM sweep"
+            );
+            Placed {
+                error: PoseError::of(&e.pose, &truth),
+                odometry: PoseError::of(&e.odometry, &truth),
+                fix: (e.state == FixState::Fix)
+                    .then(|| nees(&e.pose, &e.covariance, &truth))
+                    .flatten(),
+                progress: progress(e.stamp_ns),
+            }
+        })
+        .collect();
+    let fused = fuse_tour(&scene, &tour, Placement::Localized, grid_over(&scene))
+        .context("today's localisation on the same tour")?;
+    let localize = fused
+        .sweeps
+        .iter()
+        .zip(fused_stamps(&tour, fused.sweeps.len()))
+        .map(|(s, stamp)| {
+            let truth = truth_at(&tour.poses, stamp);
+            let odo = odometry_at(&tour.poses, stamp);
+            Placed {
+                error: s.error,
+                odometry: PoseError::of(&pose_iso(&odo), &truth),
+                fix: if s.fixed {
+                    s.fix_nees.or(Some(f64::INFINITY))
+                } else {
+                    None
+                },
+                progress: progress(stamp),
+            }
+        })
+        .collect();
+    Ok(Run {
+        family,
+        layout,
+        seed,
+        level,
+        odometry,
+        slam,
+        localize,
+        refused,
+    })
+}
+
+/// The first reading's stamp of each of the first `n` sweeps of `tour` (the sweeps the fusion's
+/// tracker reports, in order).
+fn fused_stamps(tour: &TourCapture, n: usize) -> Vec<u64> {
+    let mut stamps: Vec<u64> = Vec::new();
+    let mut last = None;
+    for r in &tour.capture.readings {
+        if last != Some(r.sweep_id) {
+            stamps.push(r.host_stamp_ns);
+            last = Some(r.sweep_id);
+        }
+    }
+    stamps.truncate(n);
+    stamps
+}
+
+/// Every run of `settings`.
+pub fn evaluate(settings: &SlamSettings) -> Result<Vec<Run>> {
+    let mut runs = Vec::new();
+    for &family in &settings.families {
+        for &layout in &settings.layouts {
+            for &level in &settings.levels {
+                for &seed in &settings.seeds {
+                    // A built-in tour has one layout: the layout seed varies its noise instead,
+                    // so that the split into layouts still gives different runs.
+                    let seed = if family.is_builtin() {
+                        seed + 1000 * layout
+                    } else {
+                        seed
+                    };
+                    let r = run(family, layout, seed, level, settings.config)?;
+                    tracing::info!(
+                        family = family.name(),
+                        layout,
+                        seed,
+                        level = level.label(),
+                        sweeps = r.slam.len(),
+                        slam_max_cm = largest(&r.slam, false) * 100.0,
+                        localize_max_cm = largest(&r.localize, false) * 100.0,
+                        odometry_max_cm = largest_odometry(&r.slam, false) * 100.0,
+                        "run done"
+                    );
+                    runs.push(r);
+                }
+            }
+        }
+    }
+    Ok(runs)
+}
+
+fn largest(p: &[Placed], heading: bool) -> f64 {
+    p.iter()
+        .map(|s| {
+            if heading {
+                s.error.heading_deg
+            } else {
+                s.error.position_m
+            }
+        })
+        .fold(0.0, f64::max)
+}
+
+fn largest_odometry(p: &[Placed], heading: bool) -> f64 {
+    p.iter()
+        .map(|s| {
+            if heading {
+                s.odometry.heading_deg
+            } else {
+                s.odometry.position_m
+            }
+        })
+        .fold(0.0, f64::max)
+}
+
+fn median(p: &[Placed], heading: bool) -> Option<f64> {
+    Spread::of(p.iter().map(|s| {
+        if heading {
+            s.error.heading_deg
+        } else {
+            s.error.position_m
+        }
+    }))
+    .map(|s| s.median)
+}
+
+/// "median / worst" over runs of a per-run figure.
+fn over_runs(values: impl IntoIterator<Item = f64>, scale: f64, digits: usize) -> String {
+    Spread::of(values).map_or("–".into(), |s| {
+        format!(
+            "{:.digits$} / {:.digits$}",
+            s.median * scale,
+            s.worst * scale
+        )
+    })
+}
+
+fn share(n: usize, of: usize) -> String {
+    if of == 0 {
+        "–".into()
+    } else {
+        format!("{:.0} % of {of}", 100.0 * n as f64 / of as f64)
+    }
+}
+
+/// The figures as Markdown: one table per odometry level, a row per family and method.
+pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "Layouts {:?}, run seeds {:?} (echo and odometry noise; the signs of scale error and drift \
+         drawn per seed; the built-in corridor and room-tour, which have one layout, run with seed \
+         + 1000 × layout instead), odometry white noise 0.5 mm and 0.05° per 50 ms step. Per run: the \
+         largest and the median error of the pose published for each sweep; \"median / worst\" \
+         over the runs. Fixes: the sweeps a method calls fixed (the SLAM: matched and within \
+         its σ limits; today's: `localize` accepted a fix).\n",
+        settings.layouts, settings.seeds
+    );
+    for &level in &settings.levels {
+        let _ = writeln!(
+            s,
+            "#### Odometry {}\n\n| tour | method | largest position error (cm) | largest heading \
+             error (°) | median position error (cm) | fixes inside their 95 % ellipse | fixes \
+             worse than odometry | sweeps fixed | runs whose largest error exceeds odometry's \
+             |\n|---|---|---|---|---|---|---|---|---|",
+            level.label()
+        );
+        for &family in &settings.families {
+            let these: Vec<&Run> = runs
+                .iter()
+                .filter(|r| r.family == family && r.level == level)
+                .collect();
+            if these.is_empty() {
+                continue;
+            }
+            type Pick = fn(&Run) -> &Vec<Placed>;
+            let methods: [(&str, Pick); 2] = [
+                ("SLAM", |r| &r.slam),
+                ("today's `--localize`", |r| &r.localize),
+            ];
+            for (name, pick) in methods {
+                let fixes: Vec<&Placed> = these
+                    .iter()
+                    .flat_map(|r| pick(r).iter())
+                    .filter(|p| p.fix.is_some())
+                    .collect();
+                let inside = fixes
+                    .iter()
+                    .filter(|p| p.fix.is_some_and(|n| n <= CHI2_3_95))
+                    .count();
+                let worse = fixes.iter().filter(|p| p.worse_than_odometry()).count();
+                let sweeps: usize = these.iter().map(|r| pick(r).len()).sum();
+                let runs_worse = these
+                    .iter()
+                    .filter(|r| largest(pick(r), false) > largest_odometry(pick(r), false))
+                    .count();
+                let _ = writeln!(
+                    s,
+                    "| {} | {name} | {} | {} | {} | {} | {} | {} | {} |",
+                    family.name(),
+                    over_runs(these.iter().map(|r| largest(pick(r), false)), 100.0, 1),
+                    over_runs(these.iter().map(|r| largest(pick(r), true)), 1.0, 1),
+                    over_runs(
+                        these.iter().filter_map(|r| median(pick(r), false)),
+                        100.0,
+                        1
+                    ),
+                    share(inside, fixes.len()),
+                    share(worse, fixes.len()),
+                    share(fixes.len(), sweeps),
+                    share(runs_worse, these.len()),
+                );
+            }
+            let _ = writeln!(
+                s,
+                "| {} | odometry alone | {} | {} | – | – | – | – | – |",
+                family.name(),
+                over_runs(
+                    these.iter().map(|r| largest_odometry(&r.slam, false)),
+                    100.0,
+                    1
+                ),
+                over_runs(
+                    these.iter().map(|r| largest_odometry(&r.slam, true)),
+                    1.0,
+                    1
+                ),
+            );
+        }
+        // The loop's laps: the largest error in the first and the last third of the tour.
+        let loops: Vec<&Run> = runs
+            .iter()
+            .filter(|r| r.family == Family::Loop && r.level == level)
+            .collect();
+        if !loops.is_empty() {
+            let third = |r: &Run, last: bool| {
+                r.slam
+                    .iter()
+                    .filter(|p| {
+                        if last {
+                            p.progress > 2.0 / 3.0
+                        } else {
+                            p.progress <= 1.0 / 3.0
+                        }
+                    })
+                    .map(|p| p.error.position_m)
+                    .fold(0.0, f64::max)
+            };
+            let no_worse = loops
+                .iter()
+                .filter(|r| third(r, true) <= third(r, false) + WORSE_M)
+                .count();
+            let _ = writeln!(
+                s,
+                "\nLoop, SLAM: largest position error in the first third of the tour {} cm, in the \
+                 last third {} cm (median / worst over runs); the last third no worse than the \
+                 first (within {:.0} cm) in {}. Sweeps refused to keep the odometry plausible: {}.\n",
+                over_runs(loops.iter().map(|r| third(r, false)), 100.0, 1),
+                over_runs(loops.iter().map(|r| third(r, true)), 100.0, 1),
+                WORSE_M * 100.0,
+                share(no_worse, loops.len()),
+                loops.iter().map(|r| r.refused).sum::<u32>(),
+            );
+        } else {
+            s.push('\n');
+        }
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_family_makes_a_valid_tour_scene_and_layouts_differ() {
+        let all = Family::ALL
+            .into_iter()
+            .flat_map(|f| (1..=20).map(move |l| (f, l)));
+        for (family, layout) in all {
+            let (scene, metres) = family.scene(layout).unwrap();
+            assert!(scene.robot.is_some(), "{family:?}");
+            assert!(metres > 5.0, "{family:?}: {metres}");
+            // Every waypoint lies inside the scene, off its walls.
+            for p in &scene.robot.as_ref().unwrap().waypoints {
+                assert!(
+                    scene.distance_to_surface(*p) > 0.3,
+                    "{family:?} {layout}: {p:?}"
+                );
+            }
+        }
+        let (a, _) = Family::Hallway.scene(1).unwrap();
+        let (b, _) = Family::Hallway.scene(2).unwrap();
+        assert_ne!(a.walls()[0].a, b.walls()[0].a);
+    }
+
+    /// The structural check CI runs (the figures come from `sonar-eval --slam`, out of CI): a
+    /// short stop-and-scan tour through the SLAM gives one estimate per sweep, each with a finite
+    /// pose and a symmetric, positive covariance, and fixes only where it matched landmarks.
+    #[test]
+    fn a_short_tour_gives_an_estimate_per_sweep() {
+        let scene = Scene::builtin("corridor").unwrap();
+        let tour = capture_tour(
+            scene.clone(),
+            Scan::for_scene(&scene),
+            2.0,
+            OdometryLevel::MEDIUM.params(1),
+            POSE_RATE_HZ,
+            1,
+        )
+        .unwrap();
+        let (estimates, _) = run_slam(&tour, SlamConfig::default()).unwrap();
+        assert_eq!(estimates.len(), fused_stamps(&tour, usize::MAX).len());
+        assert!(estimates.len() >= 3, "{}", estimates.len());
+        for e in &estimates {
+            assert!(
+                e.pose.translation.vector.iter().all(|v| v.is_finite()),
+                "{e:?}"
+            );
+            let c = e.covariance;
+            assert!(
+                (c - c.transpose()).amax() < 1e-9 && c.symmetric_eigenvalues().min() > 0.0,
+                "{e:?}"
+            );
+            if e.state == FixState::Fix {
+                assert!(e.matched > 0, "{e:?}");
+            }
+        }
+        // The first sweep has nothing to match yet.
+        assert_eq!(estimates[0].state, FixState::NoLandmarks);
+    }
+
+    #[test]
+    fn polylines_are_divided_into_short_legs() {
+        let p = along(&[[0.0, 0.0], [2.5, 0.0], [2.5, 1.0]], 1.0);
+        assert_eq!(p.len(), 5);
+        assert!(
+            p.windows(2)
+                .all(|w| (Vector2::from(w[1]) - Vector2::from(w[0])).norm() <= 1.0 + 1e-12)
+        );
+    }
+}

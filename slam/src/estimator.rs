@@ -1,0 +1,1032 @@
+//! Sweeps in, pose estimates out: one pose per sweep, landmarks admitted from two viewpoints,
+//! data association gated by the joint covariance, the graph solved after every sweep.
+//!
+//! # One sweep
+//!
+//! 1. Its readings are collected until a reading of the next sweep arrives (or
+//!    [`Slam::finish_sweep`]). Each reading's pings are placed at the odometry's pose of its own
+//!    instant, interpolated between the odometry's samples, relative to the sweep's first reading.
+//! 2. The features crate extracts what the sweep saw: regions of constant depth classified into
+//!    walls, corners and posts when it was taken standing still; walls only, found under the
+//!    motion along each normal, when it was taken on the move.
+//! 3. A pose joins the graph, predicted from the previous one by the odometry with its systematic
+//!    errors as estimated so far, tied to it by an odometry factor.
+//! 4. **Association.** The joint covariance of the new pose and every landmark (the columns of
+//!    H⁻¹ they take) gives each observation–landmark pair its innovation covariance; pairs within
+//!    the χ² gate are taken closest first, one to one, and the set as a whole must pass the joint
+//!    compatibility test (Neira & Tardós 2001): while the joint innovation fails χ² of its degrees
+//!    of freedom, the pair with the largest individual distance is dropped. A landmark seen again
+//!    after a loop is found here, with the covariance the loop has grown: that is the loop
+//!    closure, and the solve that follows carries it back along the loop.
+//! 5. **Admission.** An observation matched to no landmark waits as a candidate; a later
+//!    observation of the same kind from another viewpoint (at least
+//!    [`SlamConfig::min_baseline_m`] or [`SlamConfig::min_baseline_deg`] away) that places the
+//!    same landmark within the gate makes it a landmark, with both sightings as factors. A phantom
+//!    of one sweep (a corner at the edge of a sweep taken for a wall) never anchors a pose.
+//! 6. The graph is solved (Huber kernel on the landmark factors). **Never worse than odometry**:
+//!    when the sweep's sightings raise the odometry's own χ² by more than
+//!    [`SlamConfig::odometry_gate_chi2`], the odometry would have to be implausibly wrong for
+//!    them: they are taken back, the sweep is placed by odometry, and the refusal is counted.
+//! 7. The sweep's estimate is published with its marginal covariance, and as a **fix** only when
+//!    it matched a landmark and the covariance is within [`SlamConfig::fix_max_sigma_m`] and
+//!    [`SlamConfig::fix_max_sigma_deg`]; otherwise "no fix", with the covariance that says why.
+
+use nalgebra::{DMatrix, DVector, Isometry2, Matrix2, Matrix2x3, Matrix3, Vector2, Vector3};
+use serde::{Deserialize, Serialize};
+use sonar_common::ipc::Reading;
+use sonar_features::{FeatureConfig, FeatureMap, Sweep, wrap_rad};
+
+use crate::SlamError;
+use crate::graph::{Graph, LandmarkKind, Measurement, Var, place, predict};
+use crate::odometry::{OdometryTrack, random_covariance};
+
+/// Settings of the SLAM (`[slam]` in a configuration file); every field has a default.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SlamConfig {
+    /// The feature extraction's settings, and in `odometry` the odometry's error model.
+    pub features: FeatureConfig,
+    /// Added (in quadrature) to every observation's range σ, metres: what the features' own
+    /// σ leaves out (the bearing's quantisation repeats between sweeps from one place, the
+    /// echo point is not the landmark's exact point from every side).
+    pub range_sigma_floor_m: f64,
+    /// Added (in quadrature) to every observation's bearing σ, degrees.
+    pub bearing_sigma_floor_deg: f64,
+    /// Individual compatibility gate, χ² of 2 degrees of freedom (9.21: 99 %).
+    pub gate_chi2: f64,
+    /// Probability of the joint compatibility test (χ² of 2 per pair).
+    pub joint_probability: f64,
+    /// Huber threshold of a landmark factor, in σ.
+    pub huber_k: f64,
+    /// Two sightings are two viewpoints when their poses lie this far apart …
+    pub min_baseline_m: f64,
+    /// … or differ by this much in heading.
+    pub min_baseline_deg: f64,
+    /// A candidate not confirmed within this many sweeps is forgotten.
+    pub candidate_max_age: usize,
+    /// A sweep is a fix only while the largest σ of its position is within this …
+    pub fix_max_sigma_m: f64,
+    /// … and σ of its heading within this.
+    pub fix_max_sigma_deg: f64,
+    /// Largest rise of the odometry's χ² one sweep's sightings may cause (χ² of 3 degrees of
+    /// freedom at 99.9 %: 16.27).
+    pub odometry_gate_chi2: f64,
+}
+
+impl Default for SlamConfig {
+    fn default() -> Self {
+        Self {
+            features: FeatureConfig::default(),
+            range_sigma_floor_m: 0.01,
+            bearing_sigma_floor_deg: 1.0,
+            gate_chi2: 9.21,
+            joint_probability: 0.99,
+            huber_k: 1.5,
+            min_baseline_m: 0.1,
+            min_baseline_deg: 10.0,
+            candidate_max_age: 20,
+            fix_max_sigma_m: 0.05,
+            fix_max_sigma_deg: 2.0,
+            odometry_gate_chi2: 16.27,
+        }
+    }
+}
+
+impl SlamConfig {
+    /// Checks the settings.
+    pub fn validate(&self) -> Result<(), SlamError> {
+        let positive = [
+            ("range_sigma_floor_m", self.range_sigma_floor_m),
+            ("bearing_sigma_floor_deg", self.bearing_sigma_floor_deg),
+            ("gate_chi2", self.gate_chi2),
+            ("huber_k", self.huber_k),
+            ("fix_max_sigma_m", self.fix_max_sigma_m),
+            ("fix_max_sigma_deg", self.fix_max_sigma_deg),
+            ("odometry_gate_chi2", self.odometry_gate_chi2),
+        ];
+        for (name, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(SlamError::Config(format!("{name} must be > 0, got {v}")));
+            }
+        }
+        for (name, v) in [
+            ("min_baseline_m", self.min_baseline_m),
+            ("min_baseline_deg", self.min_baseline_deg),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(SlamError::Config(format!("{name} must be ≥ 0, got {v}")));
+            }
+        }
+        if !(self.joint_probability > 0.0 && self.joint_probability < 1.0) {
+            return Err(SlamError::Config(format!(
+                "joint_probability must lie in (0, 1), got {}",
+                self.joint_probability
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Whether a sweep's estimate is a fix.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FixState {
+    /// Matched to the map, with a covariance within the limits.
+    Fix,
+    /// Nothing of the map was seen: placed by odometry.
+    NoLandmarks,
+    /// Landmarks were seen, but the pose is still too uncertain in some direction (a featureless
+    /// corridor's axis, a heading no wall fixes).
+    Uncertain,
+    /// The sightings would have made the odometry implausible: taken back, placed by odometry.
+    Refused,
+}
+
+/// What the SLAM says about one sweep.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SweepEstimate {
+    pub sweep_id: u32,
+    /// `host_stamp_ns` of its first reading: the instant the pose is of.
+    pub stamp_ns: u64,
+    /// The sensor's pose in the map at that instant, as estimated when the sweep was added.
+    pub pose: Isometry2<f64>,
+    /// Its marginal covariance (x, y, θ): m², m·rad, rad².
+    pub covariance: Matrix3<f64>,
+    /// The odometry's own pose at that instant.
+    pub odometry: Isometry2<f64>,
+    pub state: FixState,
+    /// Observations the sweep's features gave.
+    pub observations: usize,
+    /// Of them, matched to landmarks (after the joint compatibility test) or admitted as new ones.
+    pub matched: usize,
+    /// Landmarks admitted by this sweep.
+    pub admitted: usize,
+    /// Taken on the move (walls only).
+    pub moving: bool,
+}
+
+impl SweepEstimate {
+    /// Map ← odometry at the sweep's instant: what to apply to the odometry's poses until the
+    /// next estimate.
+    pub fn correction(&self) -> Isometry2<f64> {
+        self.pose * self.odometry.inverse()
+    }
+}
+
+/// A landmark of the map.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Landmark {
+    pub kind: LandmarkKind,
+    /// Point: (x, y). Line: (φ, d), its normal's direction (radians) and distance from the
+    /// map's origin.
+    pub mean: Vector2<f64>,
+    pub sightings: u32,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct LandmarkNode {
+    var: Var,
+    kind: LandmarkKind,
+    sightings: u32,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct PoseNode {
+    var: Var,
+    stamp_ns: u64,
+}
+
+/// An observation matched to no landmark, waiting for a second viewpoint.
+#[derive(Debug, Clone, Copy)]
+struct Candidate {
+    pose: usize,
+    kind: LandmarkKind,
+    z: Measurement,
+    sigma: Vector2<f64>,
+}
+
+/// One observation as the graph measures it.
+#[derive(Debug, Clone, Copy)]
+struct Sighting {
+    kind: LandmarkKind,
+    z: Measurement,
+    sigma: Vector2<f64>,
+}
+
+/// A reading more than this (m, degrees) from the pose of the sweep's middle reading was taken
+/// on the move, and a sweep with more than [`MOVING_SHARE`] such readings was taken on the move
+/// (the same rule as `sonar-fusion`'s feature tracker).
+const STILL_M: f64 = 0.01;
+const STILL_DEG: f64 = 0.5;
+const MOVING_SHARE: f64 = 0.1;
+
+/// The first pose is the map's origin: the odometry's pose where it starts, taken as known to
+/// this (m, rad).
+const ANCHOR_SIGMA: f64 = 1e-4;
+
+/// The SLAM: feed it odometry and readings; it returns an estimate for every finished sweep.
+#[derive(Debug)]
+pub struct Slam {
+    cfg: SlamConfig,
+    extractor: FeatureMap,
+    track: OdometryTrack,
+    pending: Vec<Reading>,
+    graph: Graph,
+    calibration: Option<Var>,
+    poses: Vec<PoseNode>,
+    landmarks: Vec<LandmarkNode>,
+    candidates: Vec<Candidate>,
+    refused: u32,
+    last: Option<SweepEstimate>,
+}
+
+impl Slam {
+    pub fn new(cfg: SlamConfig) -> Result<Self, SlamError> {
+        cfg.validate()?;
+        Ok(Self {
+            extractor: FeatureMap::new(cfg.features)?,
+            cfg,
+            track: OdometryTrack::default(),
+            pending: Vec::new(),
+            graph: Graph::new(cfg.huber_k),
+            calibration: None,
+            poses: Vec::new(),
+            landmarks: Vec::new(),
+            candidates: Vec::new(),
+            refused: 0,
+            last: None,
+        })
+    }
+
+    /// The odometry's pose at `stamp_ns` (the readings' clock); `false` when refused (older than
+    /// the last, or not finite).
+    pub fn push_odometry(&mut self, stamp_ns: u64, pose: Isometry2<f64>) -> bool {
+        self.track.push(stamp_ns, pose)
+    }
+
+    /// Adds a reading; when it starts a new sweep, the finished one is estimated first and its
+    /// estimate returned.
+    pub fn push_reading(&mut self, reading: &Reading) -> Option<SweepEstimate> {
+        let finished = match self.pending.first() {
+            Some(first) if first.sweep_id != reading.sweep_id => self.finish_sweep(),
+            _ => None,
+        };
+        self.pending.push(*reading);
+        finished
+    }
+
+    /// Estimates the pending sweep now (the scan stopped). `None` without readings or before
+    /// any odometry.
+    pub fn finish_sweep(&mut self) -> Option<SweepEstimate> {
+        let readings = std::mem::take(&mut self.pending);
+        let first = readings.first()?;
+        let reference = self.track.at(first.host_stamp_ns)?;
+        let placed: Vec<(Reading, Isometry2<f64>)> = readings
+            .iter()
+            .map(|r| {
+                let at = self.track.at(r.host_stamp_ns).unwrap_or(reference);
+                (*r, reference.inverse() * at)
+            })
+            .collect();
+        let moving = taken_on_the_move(&placed);
+        let sweep =
+            Sweep::from_readings_at(placed.iter().map(|(r, p)| (r, *p)), &self.cfg.features);
+        let observations = if moving {
+            self.extractor.walls_on_the_move(&placed)
+        } else {
+            self.extractor.observe(&sweep).1.observations
+        };
+        self.extractor.learn_noise(&sweep);
+        let mut floor = Vector2::new(
+            self.cfg.range_sigma_floor_m,
+            self.cfg.bearing_sigma_floor_deg.to_radians(),
+        );
+        if moving && let Some(last) = readings.last() {
+            // The pings of a sweep on the move were brought to its first reading by the odometry,
+            // which errs over the sweep: its walls are no better than that.
+            let within = self.sweep_odometry_sigma(first.host_stamp_ns, last.host_stamp_ns);
+            floor = floor.zip_map(&within, f64::hypot);
+        }
+        let sightings: Vec<Sighting> = observations
+            .iter()
+            .map(|o| Sighting {
+                kind: LandmarkKind::of(o.kind),
+                z: Vector2::new(o.range_m, o.bearing_deg.to_radians()),
+                sigma: Vector2::new(
+                    (o.range_sigma_random_m.powi(2) + o.range_sigma_systematic_m.powi(2)).sqrt(),
+                    o.bearing_sigma_deg.to_radians(),
+                )
+                .zip_map(&floor, f64::hypot),
+            })
+            .collect();
+        let estimate = self.add_sweep(
+            first.sweep_id,
+            first.host_stamp_ns,
+            reference,
+            &sightings,
+            moving,
+        );
+        self.track.forget_before(first.host_stamp_ns);
+        self.last = Some(estimate);
+        Some(estimate)
+    }
+
+    /// σ of the odometry's error (position, heading) accumulated from `from_ns` to `to_ns`: its
+    /// random part and the systematic part its error model allows (scale error times the
+    /// distance, drift times the distance and turn error times the turn).
+    fn sweep_odometry_sigma(&self, from_ns: u64, to_ns: u64) -> Vector2<f64> {
+        let steps = self.track.steps(from_ns, to_ns);
+        let errors = &self.cfg.features.odometry;
+        let random = random_covariance(&steps, errors);
+        let distance: f64 = steps.iter().map(|s| s.x.hypot(s.y)).sum();
+        let turned: f64 = steps.iter().map(|s| s.z.abs()).sum();
+        let position = (random[(0, 0)] + random[(1, 1)])
+            .sqrt()
+            .hypot(errors.scale_sigma * distance);
+        let heading = random[(2, 2)].sqrt().hypot(
+            errors.drift_sigma_deg_per_m.to_radians() * distance + errors.turn_sigma * turned,
+        );
+        Vector2::new(position, heading)
+    }
+
+    /// The latest sweep's estimate.
+    pub fn last(&self) -> Option<&SweepEstimate> {
+        self.last.as_ref()
+    }
+
+    /// Sweeps whose sightings were refused to keep the odometry plausible.
+    pub fn refused(&self) -> u32 {
+        self.refused
+    }
+
+    /// The landmarks as currently estimated.
+    pub fn landmarks(&self) -> Vec<Landmark> {
+        self.landmarks
+            .iter()
+            .map(|l| Landmark {
+                kind: l.kind,
+                mean: self.graph.vector2(l.var),
+                sightings: l.sightings,
+            })
+            .collect()
+    }
+
+    /// The odometry's systematic errors as estimated: scale error, heading drift (rad per metre
+    /// reported), turn error.
+    pub fn calibration(&self) -> Option<Vector3<f64>> {
+        self.calibration.map(|v| self.graph.vector3(v))
+    }
+
+    fn add_sweep(
+        &mut self,
+        sweep_id: u32,
+        stamp_ns: u64,
+        odometry: Isometry2<f64>,
+        sightings: &[Sighting],
+        moving: bool,
+    ) -> SweepEstimate {
+        let pose = self.add_pose(stamp_ns, &odometry);
+        let k = self.poses.len() - 1;
+        let checkpoint = self.graph.checkpoint();
+        let values = self.graph.values().to_vec();
+        let (landmarks_before, candidates_before) =
+            (self.landmarks.clone(), self.candidates.clone());
+        let chi2_before = self.graph.odometry_chi2();
+
+        let mut vars = vec![(pose, 3)];
+        vars.extend(self.landmarks.iter().map(|l| (l.var, 2)));
+        let joint = self.graph.covariance(&vars);
+        let (matched, admitted) = match &joint {
+            Some(joint) => {
+                let pairs = self.associate(pose, sightings, joint);
+                let mut used = vec![false; sightings.len()];
+                for &(i, j) in &pairs {
+                    used[i] = true;
+                    let (s, l) = (sightings[i], &mut self.landmarks[j]);
+                    self.graph
+                        .add_landmark_factor(pose, l.var, l.kind, s.z, s.sigma);
+                    l.sightings += 1;
+                }
+                let pose_cov = joint.fixed_view::<3, 3>(0, 0).into_owned();
+                let unmatched: Vec<Sighting> = sightings
+                    .iter()
+                    .zip(&used)
+                    .filter(|(_, u)| !**u)
+                    .map(|(s, _)| *s)
+                    .collect();
+                let admitted = self.admit(k, &unmatched, &pose_cov);
+                (pairs.len(), admitted)
+            }
+            None => (0, 0),
+        };
+        let mut state = FixState::NoLandmarks;
+        if matched + admitted > 0 {
+            self.graph.optimize();
+            if self.graph.odometry_chi2() - chi2_before > self.cfg.odometry_gate_chi2 {
+                self.graph.restore(checkpoint, &values);
+                self.landmarks = landmarks_before;
+                self.candidates = candidates_before;
+                self.refused += 1;
+                state = FixState::Refused;
+            } else {
+                state = FixState::Fix;
+            }
+        }
+        self.candidates
+            .retain(|c| k - c.pose <= self.cfg.candidate_max_age);
+        let covariance = self
+            .graph
+            .covariance(&[(pose, 3)])
+            .map_or(Matrix3::from_diagonal_element(f64::INFINITY), |c| {
+                c.fixed_view::<3, 3>(0, 0).into_owned()
+            });
+        if state == FixState::Fix {
+            let position = covariance.fixed_view::<2, 2>(0, 0).into_owned();
+            let largest = position.symmetric_eigenvalues().max().max(0.0).sqrt();
+            let heading = covariance[(2, 2)].max(0.0).sqrt();
+            if !(largest <= self.cfg.fix_max_sigma_m
+                && heading <= self.cfg.fix_max_sigma_deg.to_radians())
+            {
+                state = FixState::Uncertain;
+            }
+        }
+        let (matched, admitted) = if state == FixState::Refused {
+            (0, 0)
+        } else {
+            (matched, admitted)
+        };
+        SweepEstimate {
+            sweep_id,
+            stamp_ns,
+            pose: self.graph.pose(pose),
+            covariance,
+            odometry,
+            state,
+            observations: sightings.len(),
+            matched: matched + admitted,
+            admitted,
+            moving,
+        }
+    }
+
+    /// Adds the sweep's pose: the first anchors the map's frame at the odometry; the others are
+    /// predicted by the odometry since the previous sweep, corrected by its errors as known.
+    fn add_pose(&mut self, stamp_ns: u64, odometry: &Isometry2<f64>) -> Var {
+        let odo = Vector3::new(
+            odometry.translation.x,
+            odometry.translation.y,
+            odometry.rotation.angle(),
+        );
+        let errors = self.cfg.features.odometry;
+        let (Some(calibration), Some(previous)) = (self.calibration, self.poses.last().copied())
+        else {
+            let calibration = self.graph.add_variable(&[0.0; 3]);
+            let prior = Matrix3::from_diagonal(&Vector3::new(
+                errors.scale_sigma.powi(2),
+                errors.drift_sigma_deg_per_m.to_radians().powi(2),
+                errors.turn_sigma.powi(2),
+            ));
+            self.graph
+                .add_prior(calibration, Vector3::zeros(), &prior, false);
+            let pose = self.graph.add_variable(odo.as_slice());
+            self.graph.add_prior(
+                pose,
+                odo,
+                &Matrix3::from_diagonal_element(ANCHOR_SIGMA * ANCHOR_SIGMA),
+                true,
+            );
+            self.calibration = Some(calibration);
+            self.poses.push(PoseNode {
+                var: pose,
+                stamp_ns,
+            });
+            return pose;
+        };
+        let steps = self.track.steps(previous.stamp_ns, stamp_ns);
+        let motion = crate::odometry::corrected(&steps, &self.graph.vector3(calibration));
+        let from = self.graph.vector3(previous.var);
+        let (sin, cos) = from.z.sin_cos();
+        let predicted = Vector3::new(
+            from.x + cos * motion.x - sin * motion.y,
+            from.y + sin * motion.x + cos * motion.y,
+            wrap_rad(from.z + motion.z),
+        );
+        let pose = self.graph.add_variable(predicted.as_slice());
+        let covariance = random_covariance(&steps, &errors);
+        self.graph
+            .add_odometry(previous.var, pose, calibration, steps, &covariance);
+        self.poses.push(PoseNode {
+            var: pose,
+            stamp_ns,
+        });
+        pose
+    }
+
+    /// Pairs (sighting, landmark) by individual compatibility, nearest first and one to one, then
+    /// pruned until the set is jointly compatible. `joint` is the covariance of the pose (first 3)
+    /// and every landmark (2 each, in order).
+    fn associate(
+        &self,
+        pose: Var,
+        sightings: &[Sighting],
+        joint: &DMatrix<f64>,
+    ) -> Vec<(usize, usize)> {
+        let x = self.graph.vector3(pose);
+        let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
+        for (i, s) in sightings.iter().enumerate() {
+            for (j, l) in self.landmarks.iter().enumerate() {
+                if l.kind != s.kind {
+                    continue;
+                }
+                let Some((v, hx, hl)) = innovation(s, &x, &self.graph.vector2(l.var)) else {
+                    continue;
+                };
+                let at = 3 + 2 * j;
+                let pp = joint.fixed_view::<3, 3>(0, 0).into_owned();
+                let pl = joint.fixed_view::<3, 2>(0, at).into_owned();
+                let ll = joint.fixed_view::<2, 2>(at, at).into_owned();
+                let s_cov = hx * pp * hx.transpose()
+                    + hx * pl * hl.transpose()
+                    + hl * pl.transpose() * hx.transpose()
+                    + hl * ll * hl.transpose()
+                    + Matrix2::from_diagonal(&s.sigma.map(|v| v * v));
+                let Some(inv) = s_cov.try_inverse() else {
+                    continue;
+                };
+                let d2 = (v.transpose() * inv * v)[(0, 0)];
+                if d2 <= self.cfg.gate_chi2 {
+                    pairs.push((d2, i, j));
+                }
+            }
+        }
+        pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut taken: Vec<(f64, usize, usize)> = Vec::new();
+        for p in pairs {
+            if !taken.iter().any(|t| t.1 == p.1 || t.2 == p.2) {
+                taken.push(p);
+            }
+        }
+        while !taken.is_empty() && !self.jointly_compatible(&x, sightings, &taken, joint) {
+            // The least compatible pair goes first.
+            let worst = taken
+                .iter()
+                .enumerate()
+                .max_by(|a, b| a.1.0.total_cmp(&b.1.0))
+                .map(|(k, _)| k);
+            if let Some(k) = worst {
+                taken.remove(k);
+            }
+        }
+        taken.into_iter().map(|(_, i, j)| (i, j)).collect()
+    }
+
+    /// Whether the pairs' joint innovation passes χ² of its degrees of freedom at
+    /// [`SlamConfig::joint_probability`], with the cross-covariances between landmarks and pose.
+    fn jointly_compatible(
+        &self,
+        x: &Vector3<f64>,
+        sightings: &[Sighting],
+        pairs: &[(f64, usize, usize)],
+        joint: &DMatrix<f64>,
+    ) -> bool {
+        let m = pairs.len();
+        let n = joint.nrows();
+        let mut h = DMatrix::zeros(2 * m, n);
+        let mut v = DVector::zeros(2 * m);
+        let mut r = DMatrix::zeros(2 * m, 2 * m);
+        for (row, &(_, i, j)) in pairs.iter().enumerate() {
+            let s = &sightings[i];
+            let Some((vi, hx, hl)) = innovation(s, x, &self.graph.vector2(self.landmarks[j].var))
+            else {
+                return false;
+            };
+            h.view_mut((2 * row, 0), (2, 3)).copy_from(&hx);
+            h.view_mut((2 * row, 3 + 2 * j), (2, 2)).copy_from(&hl);
+            v.rows_mut(2 * row, 2).copy_from(&vi);
+            r[(2 * row, 2 * row)] = s.sigma.x * s.sigma.x;
+            r[(2 * row + 1, 2 * row + 1)] = s.sigma.y * s.sigma.y;
+        }
+        let s = &h * joint * h.transpose() + r;
+        let Some(inv) = s.try_inverse() else {
+            return false;
+        };
+        let d2 = (v.transpose() * inv * &v)[(0, 0)];
+        d2 <= chi2_quantile(2 * m, self.cfg.joint_probability)
+    }
+
+    /// Admits landmarks seen a second time: each sighting against the candidates of other
+    /// viewpoints; the rest become candidates. `pose_cov` is the current pose's covariance, used
+    /// for both placements (the candidate's pose is about as well known). The number admitted.
+    fn admit(&mut self, k: usize, unmatched: &[Sighting], pose_cov: &Matrix3<f64>) -> usize {
+        let pose = self.poses[k].var;
+        let x = self.graph.vector3(pose);
+        let mut admitted = 0;
+        for s in unmatched {
+            let here = placement(s, &x, pose_cov);
+            let best = self
+                .candidates
+                .iter()
+                .enumerate()
+                .filter(|(_, c)| c.kind == s.kind && c.pose != k)
+                .filter_map(|(ci, c)| {
+                    let xc = self.graph.vector3(self.poses[c.pose].var);
+                    let apart = Vector2::new(xc.x - x.x, xc.y - x.y).norm()
+                        >= self.cfg.min_baseline_m
+                        || wrap_rad(xc.z - x.z).abs() >= self.cfg.min_baseline_deg.to_radians();
+                    if !apart {
+                        return None;
+                    }
+                    let there = placement(
+                        &Sighting {
+                            kind: c.kind,
+                            z: c.z,
+                            sigma: c.sigma,
+                        },
+                        &xc,
+                        pose_cov,
+                    );
+                    let mut d = here.0 - there.0;
+                    if s.kind == LandmarkKind::Line {
+                        d.x = wrap_rad(d.x);
+                    }
+                    let inv = (here.1 + there.1).try_inverse()?;
+                    let d2 = (d.transpose() * inv * d)[(0, 0)];
+                    (d2 <= self.cfg.gate_chi2).then_some((d2, ci))
+                })
+                .min_by(|a, b| a.0.total_cmp(&b.0));
+            match best {
+                Some((_, ci)) => {
+                    let c = self.candidates.remove(ci);
+                    let var = self.graph.add_variable(here.0.as_slice());
+                    let from = self.poses[c.pose].var;
+                    self.graph
+                        .add_landmark_factor(from, var, c.kind, c.z, c.sigma);
+                    self.graph
+                        .add_landmark_factor(pose, var, s.kind, s.z, s.sigma);
+                    self.landmarks.push(LandmarkNode {
+                        var,
+                        kind: s.kind,
+                        sightings: 2,
+                    });
+                    admitted += 1;
+                }
+                None => self.candidates.push(Candidate {
+                    pose: k,
+                    kind: s.kind,
+                    z: s.z,
+                    sigma: s.sigma,
+                }),
+            }
+        }
+        admitted
+    }
+}
+
+/// Step of the numerical Jacobians of a measurement.
+const STEP: f64 = 1e-7;
+
+/// Innovation z − h(x, l) of `s` against a landmark at `l` seen from `x`, with the Jacobians of
+/// h with respect to the pose and the landmark; `None` when h is undefined (a wall from behind).
+fn innovation(
+    s: &Sighting,
+    x: &Vector3<f64>,
+    l: &Vector2<f64>,
+) -> Option<(Vector2<f64>, Matrix2x3<f64>, Matrix2<f64>)> {
+    let h = predict(s.kind, x, l)?;
+    let mut hx = Matrix2x3::zeros();
+    for k in 0..3 {
+        let mut moved = *x;
+        moved[k] += STEP;
+        let mut d = predict(s.kind, &moved, l)? - h;
+        d.y = wrap_rad(d.y);
+        hx.set_column(k, &(d / STEP));
+    }
+    let mut hl = Matrix2::zeros();
+    for k in 0..2 {
+        let mut moved = *l;
+        moved[k] += STEP;
+        let mut d = predict(s.kind, x, &moved)? - h;
+        d.y = wrap_rad(d.y);
+        hl.set_column(k, &(d / STEP));
+    }
+    let mut v = s.z - h;
+    v.y = wrap_rad(v.y);
+    Some((v, hx, hl))
+}
+
+/// Where `s` seen from `x` puts its landmark, with the covariance of that placement from the
+/// sighting's σ and the pose's covariance `pose_cov`.
+fn placement(
+    s: &Sighting,
+    x: &Vector3<f64>,
+    pose_cov: &Matrix3<f64>,
+) -> (Vector2<f64>, Matrix2<f64>) {
+    let at = place(s.kind, x, &s.z);
+    let mut jx = Matrix2x3::zeros();
+    for k in 0..3 {
+        let mut moved = *x;
+        moved[k] += STEP;
+        let mut d = place(s.kind, &moved, &s.z) - at;
+        if s.kind == LandmarkKind::Line {
+            d.x = wrap_rad(d.x);
+        }
+        jx.set_column(k, &(d / STEP));
+    }
+    let mut jz = Matrix2::zeros();
+    for k in 0..2 {
+        let mut moved = s.z;
+        moved[k] += STEP;
+        let mut d = place(s.kind, x, &moved) - at;
+        if s.kind == LandmarkKind::Line {
+            d.x = wrap_rad(d.x);
+        }
+        jz.set_column(k, &(d / STEP));
+    }
+    let r = Matrix2::from_diagonal(&s.sigma.map(|v| v * v));
+    (at, jx * pose_cov * jx.transpose() + jz * r * jz.transpose())
+}
+
+/// Whether more than [`MOVING_SHARE`] of the readings were taken away from the pose of the middle
+/// one.
+fn taken_on_the_move(placed: &[(Reading, Isometry2<f64>)]) -> bool {
+    let Some((_, middle)) = placed.get(placed.len() / 2) else {
+        return false;
+    };
+    let away = placed
+        .iter()
+        .filter(|(_, p)| {
+            let d = middle.inverse() * p;
+            d.translation.vector.norm() > STILL_M
+                || d.rotation.angle().abs() > STILL_DEG.to_radians()
+        })
+        .count();
+    away as f64 > MOVING_SHARE * placed.len() as f64
+}
+
+/// The `p` quantile of χ² with `k` degrees of freedom (Wilson–Hilferty; within 1 % from 2
+/// degrees of freedom up at the probabilities used here).
+pub fn chi2_quantile(k: usize, p: f64) -> f64 {
+    let k = k.max(1) as f64;
+    let z = normal_quantile(p);
+    let a = 2.0 / (9.0 * k);
+    k * (1.0 - a + z * a.sqrt()).powi(3)
+}
+
+/// The standard normal's `p` quantile (Acklam's rational approximation, relative error < 1.2e-9).
+fn normal_quantile(p: f64) -> f64 {
+    const A: [f64; 6] = [
+        -3.969683028665376e1,
+        2.209460984245205e2,
+        -2.759285104469687e2,
+        1.38357751867269e2,
+        -3.066479806614716e1,
+        2.506628277459239,
+    ];
+    const B: [f64; 5] = [
+        -5.447609879822406e1,
+        1.615858368580409e2,
+        -1.556989798598866e2,
+        6.680131188771972e1,
+        -1.328068155288572e1,
+    ];
+    const C: [f64; 6] = [
+        -7.784894002430293e-3,
+        -3.223964580411365e-1,
+        -2.400758277161838,
+        -2.549732539343734,
+        4.374664141464968,
+        2.938163982698783,
+    ];
+    const D: [f64; 4] = [
+        7.784695709041462e-3,
+        3.224671290700398e-1,
+        2.445134137142996,
+        3.754408661907416,
+    ];
+    let p = p.clamp(1e-12, 1.0 - 1e-12);
+    let tail = |q: f64| {
+        (((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5])
+            / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
+    };
+    if p < 0.02425 {
+        tail((-2.0 * p.ln()).sqrt())
+    } else if p > 1.0 - 0.02425 {
+        -tail((-2.0 * (1.0 - p).ln()).sqrt())
+    } else {
+        let q = p - 0.5;
+        let r = q * q;
+        (((((A[0] * r + A[1]) * r + A[2]) * r + A[3]) * r + A[4]) * r + A[5]) * q
+            / (((((B[0] * r + B[1]) * r + B[2]) * r + B[3]) * r + B[4]) * r + 1.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A corridor x ∈ [−1, 7] between walls y = ±0.6 with end walls, and posts.
+    const WALLS: [(f64, f64); 4] = [
+        (std::f64::consts::FRAC_PI_2, 0.6),
+        (-std::f64::consts::FRAC_PI_2, 0.6),
+        (0.0, 7.0),
+        (std::f64::consts::PI, 1.0),
+    ];
+    const POSTS: [(f64, f64); 3] = [(1.0, 0.4), (3.0, -0.4), (5.0, 0.4)];
+
+    /// What a sensor at `x` sees: every wall, and the posts within 2.5 m, exactly.
+    fn seen(x: &Vector3<f64>) -> Vec<Sighting> {
+        let sigma = Vector2::new(0.01, 1.0_f64.to_radians());
+        let walls = WALLS.iter().filter_map(|&(phi, d)| {
+            predict(LandmarkKind::Line, x, &Vector2::new(phi, d)).map(|z| Sighting {
+                kind: LandmarkKind::Line,
+                z,
+                sigma,
+            })
+        });
+        let posts = POSTS.iter().filter_map(|&(px, py)| {
+            let z = predict(LandmarkKind::Point, x, &Vector2::new(px, py))?;
+            (z.x < 2.5).then_some(Sighting {
+                kind: LandmarkKind::Point,
+                z,
+                sigma,
+            })
+        });
+        walls.chain(posts).collect()
+    }
+
+    /// Drives along the corridor in 0.5 m legs, odometry 3 % long with 2°/m of drift, a sweep at
+    /// each stop; returns the estimates and the true poses.
+    fn tour(
+        slam: &mut Slam,
+        legs: usize,
+        extra: impl Fn(usize) -> Vec<Sighting>,
+    ) -> Vec<(SweepEstimate, Vector3<f64>)> {
+        let (a, b) = (0.03, 2.0_f64.to_radians());
+        let mut truth = Vector3::<f64>::zeros();
+        let mut odo = truth;
+        let mut stamp = 0;
+        let mut out = Vec::new();
+        for k in 0..=legs {
+            if k > 0 {
+                for _ in 0..50 {
+                    truth.x += 0.01;
+                    let reported = 0.01 * (1.0 + a);
+                    let turn = b * reported;
+                    odo.x += reported * odo.z.cos();
+                    odo.y += reported * odo.z.sin();
+                    odo.z += turn;
+                    stamp += 1000;
+                    slam.push_odometry(stamp, Isometry2::new(Vector2::new(odo.x, odo.y), odo.z));
+                }
+            } else {
+                slam.push_odometry(stamp, Isometry2::identity());
+            }
+            let mut sightings = seen(&truth);
+            sightings.extend(extra(k));
+            let odometry = Isometry2::new(Vector2::new(odo.x, odo.y), odo.z);
+            let estimate = slam.add_sweep(k as u32, stamp, odometry, &sightings, false);
+            out.push((estimate, truth));
+        }
+        out
+    }
+
+    fn error(e: &SweepEstimate, truth: &Vector3<f64>) -> (f64, f64) {
+        let p = e.pose;
+        (
+            (p.translation.vector - Vector2::new(truth.x, truth.y)).norm(),
+            wrap_rad(p.rotation.angle() - truth.z).abs().to_degrees(),
+        )
+    }
+
+    #[test]
+    fn landmarks_need_two_viewpoints_and_then_hold_the_pose_against_a_drifting_odometry() {
+        let mut slam = Slam::new(SlamConfig::default()).unwrap();
+        let run = tour(&mut slam, 12, |_| Vec::new());
+        // The first sweep has nothing to match: its sightings wait for a second viewpoint.
+        assert_eq!(run[0].0.state, FixState::NoLandmarks);
+        assert!(slam.landmarks().len() >= 5, "{:?}", slam.landmarks());
+        for (k, (e, truth)) in run.iter().enumerate() {
+            let (position, heading) = error(e, truth);
+            assert!(
+                position < 0.03 && heading < 1.0,
+                "sweep {k}: {position} m {heading}° {e:?}"
+            );
+            if k > 0 {
+                assert_eq!(e.state, FixState::Fix, "sweep {k}");
+                // The published covariance covers the error (3 dof, 99.9 %).
+                let mut d = Vector3::new(
+                    e.pose.translation.x - truth.x,
+                    e.pose.translation.y - truth.y,
+                    wrap_rad(e.pose.rotation.angle() - truth.z),
+                );
+                d.z = wrap_rad(d.z);
+                let nees = (d.transpose() * e.covariance.try_inverse().unwrap() * d)[(0, 0)];
+                assert!(nees < 16.27, "sweep {k}: NEES {nees}");
+            }
+        }
+        // The odometry alone ends far worse: 6 m at 2°/m turns it by 12°.
+        let (last, truth) = run.last().unwrap();
+        let odo = Vector3::new(
+            last.odometry.translation.x,
+            last.odometry.translation.y,
+            last.odometry.rotation.angle(),
+        );
+        assert!(wrap_rad(odo.z - truth.z).abs().to_degrees() > 10.0);
+        // The drift is learnt.
+        let c = slam.calibration().unwrap();
+        assert!((c.x - 0.03).abs() < 0.01, "{c}");
+    }
+
+    #[test]
+    fn a_phantom_of_one_sweep_never_becomes_a_landmark() {
+        let mut slam = Slam::new(SlamConfig::default()).unwrap();
+        // Sweep 4 alone sees a corner that is not there.
+        let phantom = Sighting {
+            kind: LandmarkKind::Point,
+            z: Vector2::new(0.8, 0.3),
+            sigma: Vector2::new(0.01, 0.02),
+        };
+        tour(&mut slam, 8, |k| {
+            if k == 4 { vec![phantom] } else { Vec::new() }
+        });
+        assert_eq!(
+            slam.landmarks()
+                .iter()
+                .filter(|l| l.kind == LandmarkKind::Point)
+                .count(),
+            3,
+            "the three posts, not the phantom: {:?}",
+            slam.landmarks()
+        );
+    }
+
+    #[test]
+    fn sightings_from_a_wrong_place_do_not_drag_the_pose() {
+        let mut slam = Slam::new(SlamConfig::default()).unwrap();
+        let run = tour(&mut slam, 6, |_| Vec::new());
+        // The corridor as seen from 30 cm further along than the robot is: the end walls and
+        // posts fail the gate (the side walls fit either way); the pose stays where it is.
+        let last = run.last().unwrap().0;
+        let x = Vector3::new(
+            last.pose.translation.x + 0.3,
+            last.pose.translation.y,
+            last.pose.rotation.angle(),
+        );
+        let stamp = last.stamp_ns + 1000;
+        slam.push_odometry(stamp, last.odometry);
+        let e = slam.add_sweep(99, stamp, last.odometry, &seen(&x), false);
+        assert!(e.matched < e.observations, "{e:?}");
+        assert!((e.pose.translation.x - 3.0).abs() < 0.02, "{e:?}");
+    }
+
+    #[test]
+    fn sightings_that_would_make_the_odometry_implausible_are_refused() {
+        // A gate so tight that any pull on the odometry is implausible.
+        let cfg = SlamConfig {
+            odometry_gate_chi2: 1e-9,
+            ..SlamConfig::default()
+        };
+        let mut slam = Slam::new(cfg).unwrap();
+        let run = tour(&mut slam, 3, |_| Vec::new());
+        let refused = run
+            .iter()
+            .filter(|(e, _)| e.state == FixState::Refused)
+            .count();
+        assert!(refused > 0 && refused as u32 == slam.refused(), "{run:?}");
+        for (e, _) in run.iter().filter(|(e, _)| e.state == FixState::Refused) {
+            assert_eq!((e.matched, e.admitted), (0, 0));
+            // Placed by the odometry, corrected by the errors known so far (none yet): the
+            // odometry's own pose.
+            assert!((e.pose.translation.vector - e.odometry.translation.vector).norm() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn chi2_quantiles_match_the_tables() {
+        for (k, p, table) in [
+            (2, 0.99, 9.21),
+            (3, 0.999, 16.27),
+            (3, 0.95, 7.81),
+            (10, 0.99, 23.21),
+        ] {
+            let q = chi2_quantile(k, p);
+            assert!(
+                (q - table).abs() / table < 0.02,
+                "{k} {p}: {q} against {table}"
+            );
+        }
+    }
+
+    #[test]
+    fn bad_settings_are_refused() {
+        let cfg = SlamConfig {
+            gate_chi2: -1.0,
+            ..SlamConfig::default()
+        };
+        assert!(matches!(Slam::new(cfg), Err(SlamError::Config(_))));
+        let cfg = SlamConfig {
+            joint_probability: 1.0,
+            ..SlamConfig::default()
+        };
+        assert!(Slam::new(cfg).is_err());
+    }
+}

@@ -1,0 +1,628 @@
+//! The factor graph: poses, landmarks and the odometry's systematic errors as one state, solved
+//! by Gauss–Newton with Levenberg's damping on dense normal equations (nalgebra), a Huber kernel
+//! on the landmark factors, and covariances read from the inverse of the undamped normal matrix.
+//!
+//! Variables are appended as they come (the odometry's errors first, then a pose per sweep and a
+//! landmark when one is admitted); a [`Checkpoint`] lets the caller take back what one sweep
+//! added. Jacobians are taken numerically, so each factor is written once, as its residual.
+
+use nalgebra::{Cholesky, DMatrix, DVector, Dyn, Isometry2, Matrix2, Matrix3, Vector2, Vector3};
+use sonar_features::{FeatureKind, wrap_rad};
+
+use crate::odometry::{Step, corrected};
+
+/// Step of the numerical Jacobians (metres, radians).
+const STEP: f64 = 1e-7;
+/// Most iterations of one solve.
+const MAX_ITERATIONS: usize = 15;
+/// A step smaller than this (in the state's units) ends a solve.
+const CONVERGED: f64 = 1e-7;
+
+/// What a landmark is, and so how it is observed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LandmarkKind {
+    /// A post or a corner: a point (x, y) observed in range and bearing.
+    Point,
+    /// A wall: its normal's direction φ (pointing away from the side it is seen from) and its
+    /// signed distance d from the map's origin along it, observed as the perpendicular distance
+    /// and the normal's bearing.
+    Line,
+}
+
+impl LandmarkKind {
+    /// How a feature of `kind` is kept: walls as lines, corners and posts as points.
+    pub fn of(kind: FeatureKind) -> Self {
+        match kind {
+            FeatureKind::Plane => LandmarkKind::Line,
+            FeatureKind::Point | FeatureKind::Corner => LandmarkKind::Point,
+        }
+    }
+}
+
+/// A landmark measurement as the sensor sees it: range (or perpendicular distance) and bearing
+/// (radians, in the sensor's frame).
+pub type Measurement = Vector2<f64>;
+
+/// The measurement `pose` = (x, y, θ) predicts of `landmark` of `kind`; `None` for a wall seen
+/// from behind (the sensor on the far side of its line).
+pub fn predict(
+    kind: LandmarkKind,
+    pose: &Vector3<f64>,
+    landmark: &Vector2<f64>,
+) -> Option<Measurement> {
+    match kind {
+        LandmarkKind::Point => {
+            let d = Vector2::new(landmark.x - pose.x, landmark.y - pose.y);
+            Some(Vector2::new(d.norm(), wrap_rad(d.y.atan2(d.x) - pose.z)))
+        }
+        LandmarkKind::Line => {
+            let n = Vector2::new(landmark.x.cos(), landmark.x.sin());
+            let range = landmark.y - n.dot(&Vector2::new(pose.x, pose.y));
+            (range > 0.0).then(|| Vector2::new(range, wrap_rad(landmark.x - pose.z)))
+        }
+    }
+}
+
+/// Where `z`, seen from `pose`, puts a landmark of `kind`: the inverse of [`predict`]. A line's
+/// normal points away from the side it was seen from, so its distance from the map's origin is
+/// negative when the origin lies beyond it: (φ, d) and (φ + π, −d) are the two sides of one line.
+pub fn place(kind: LandmarkKind, pose: &Vector3<f64>, z: &Measurement) -> Vector2<f64> {
+    let direction = pose.z + z.y;
+    match kind {
+        LandmarkKind::Point => Vector2::new(
+            pose.x + z.x * direction.cos(),
+            pose.y + z.x * direction.sin(),
+        ),
+        LandmarkKind::Line => {
+            let n = Vector2::new(direction.cos(), direction.sin());
+            Vector2::new(
+                wrap_rad(direction),
+                z.x + n.dot(&Vector2::new(pose.x, pose.y)),
+            )
+        }
+    }
+}
+
+/// Where a variable starts in the state vector.
+pub type Var = usize;
+
+/// One factor: a residual of some variables, whitened.
+#[derive(Debug, Clone)]
+enum Factor {
+    /// A Gaussian prior on a 3-vector (the first pose, the odometry's errors).
+    Prior {
+        var: Var,
+        mean: Vector3<f64>,
+        sqrt_information: Matrix3<f64>,
+        /// Component 2 is an angle (wrapped).
+        angle: bool,
+    },
+    /// The odometry between two poses: `steps` corrected by the errors at `calibration`.
+    Odometry {
+        from: Var,
+        to: Var,
+        calibration: Var,
+        steps: Vec<Step>,
+        sqrt_information: Matrix3<f64>,
+    },
+    /// A landmark seen from a pose, under the Huber kernel.
+    Landmark {
+        pose: Var,
+        landmark: Var,
+        kind: LandmarkKind,
+        z: Measurement,
+        sqrt_information: Matrix2<f64>,
+    },
+}
+
+fn vec3(x: &[f64], v: Var) -> Vector3<f64> {
+    Vector3::new(x[v], x[v + 1], x[v + 2])
+}
+
+fn vec2(x: &[f64], v: Var) -> Vector2<f64> {
+    Vector2::new(x[v], x[v + 1])
+}
+
+/// `to` relative to `from`, both (x, y, θ): the motion in the frame of `from`.
+fn relative(from: &Vector3<f64>, to: &Vector3<f64>) -> Vector3<f64> {
+    let (sin, cos) = from.z.sin_cos();
+    let (dx, dy) = (to.x - from.x, to.y - from.y);
+    Vector3::new(
+        cos * dx + sin * dy,
+        -sin * dx + cos * dy,
+        wrap_rad(to.z - from.z),
+    )
+}
+
+impl Factor {
+    /// The state indices this factor depends on.
+    fn keys(&self) -> Vec<usize> {
+        match self {
+            Factor::Prior { var, .. } => (*var..var + 3).collect(),
+            Factor::Odometry {
+                from,
+                to,
+                calibration,
+                ..
+            } => (*from..from + 3)
+                .chain(*to..to + 3)
+                .chain(*calibration..calibration + 3)
+                .collect(),
+            Factor::Landmark { pose, landmark, .. } => {
+                (*pose..pose + 3).chain(*landmark..landmark + 2).collect()
+            }
+        }
+    }
+
+    /// The whitened residual at state `x`; `None` when it is undefined there (a wall seen from
+    /// behind).
+    fn residual(&self, x: &[f64]) -> Option<DVector<f64>> {
+        match self {
+            Factor::Prior {
+                var,
+                mean,
+                sqrt_information,
+                angle,
+            } => {
+                let mut r = vec3(x, *var) - mean;
+                if *angle {
+                    r.z = wrap_rad(r.z);
+                }
+                Some(DVector::from_column_slice(
+                    (sqrt_information * r).as_slice(),
+                ))
+            }
+            Factor::Odometry {
+                from,
+                to,
+                calibration,
+                steps,
+                sqrt_information,
+            } => {
+                let estimated = relative(&vec3(x, *from), &vec3(x, *to));
+                let mut r = estimated - corrected(steps, &vec3(x, *calibration));
+                r.z = wrap_rad(r.z);
+                Some(DVector::from_column_slice(
+                    (sqrt_information * r).as_slice(),
+                ))
+            }
+            Factor::Landmark {
+                pose,
+                landmark,
+                kind,
+                z,
+                sqrt_information,
+            } => {
+                let predicted = predict(*kind, &vec3(x, *pose), &vec2(x, *landmark))?;
+                let mut r = z - predicted;
+                r.y = wrap_rad(r.y);
+                Some(DVector::from_column_slice(
+                    (sqrt_information * r).as_slice(),
+                ))
+            }
+        }
+    }
+
+    fn robust(&self) -> bool {
+        matches!(self, Factor::Landmark { .. })
+    }
+
+    fn is_odometry(&self) -> bool {
+        matches!(self, Factor::Odometry { .. } | Factor::Prior { .. })
+    }
+}
+
+/// The Huber weight of a whitened residual of norm `norm`: 1 inside `k`, k/norm beyond.
+pub fn huber_weight(norm: f64, k: f64) -> f64 {
+    if norm <= k { 1.0 } else { k / norm }
+}
+
+/// How much of the graph existed at some moment.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Checkpoint {
+    variables: usize,
+    factors: usize,
+}
+
+/// The graph: state, factors, and the Huber threshold of the landmark factors.
+#[derive(Debug, Clone)]
+pub struct Graph {
+    x: Vec<f64>,
+    factors: Vec<Factor>,
+    huber_k: f64,
+}
+
+impl Graph {
+    pub fn new(huber_k: f64) -> Self {
+        Self {
+            x: Vec::new(),
+            factors: Vec::new(),
+            huber_k,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    pub fn checkpoint(&self) -> Checkpoint {
+        Checkpoint {
+            variables: self.x.len(),
+            factors: self.factors.len(),
+        }
+    }
+
+    /// Removes every variable and factor added since `c`, and restores `values` (a copy of the
+    /// state taken at `c`, see [`Self::values`]).
+    pub fn restore(&mut self, c: Checkpoint, values: &[f64]) {
+        self.factors.truncate(c.factors);
+        self.x.truncate(c.variables);
+        let n = self.x.len().min(values.len());
+        self.x[..n].copy_from_slice(&values[..n]);
+    }
+
+    pub fn values(&self) -> &[f64] {
+        &self.x
+    }
+
+    /// Adds a variable of `initial`'s size; where it starts in the state.
+    pub fn add_variable(&mut self, initial: &[f64]) -> Var {
+        let v = self.x.len();
+        self.x.extend_from_slice(initial);
+        v
+    }
+
+    pub fn vector3(&self, v: Var) -> Vector3<f64> {
+        vec3(&self.x, v)
+    }
+
+    pub fn vector2(&self, v: Var) -> Vector2<f64> {
+        vec2(&self.x, v)
+    }
+
+    /// A prior N(`mean`, `covariance`) on the 3-vector at `var`; `angle`: its third component is
+    /// an angle. `false` when the covariance is not positive definite.
+    pub fn add_prior(
+        &mut self,
+        var: Var,
+        mean: Vector3<f64>,
+        covariance: &Matrix3<f64>,
+        angle: bool,
+    ) -> bool {
+        let Some(sqrt_information) = sqrt_information3(covariance) else {
+            return false;
+        };
+        self.factors.push(Factor::Prior {
+            var,
+            mean,
+            sqrt_information,
+            angle,
+        });
+        true
+    }
+
+    /// The odometry's `steps` from pose `from` to pose `to`, with the random covariance
+    /// `covariance` and the systematic errors at `calibration`.
+    pub fn add_odometry(
+        &mut self,
+        from: Var,
+        to: Var,
+        calibration: Var,
+        steps: Vec<Step>,
+        covariance: &Matrix3<f64>,
+    ) -> bool {
+        let Some(sqrt_information) = sqrt_information3(covariance) else {
+            return false;
+        };
+        self.factors.push(Factor::Odometry {
+            from,
+            to,
+            calibration,
+            steps,
+            sqrt_information,
+        });
+        true
+    }
+
+    /// Landmark `landmark` of `kind` measured as `z` from pose `pose`, with σ of range and
+    /// bearing `sigma`.
+    pub fn add_landmark_factor(
+        &mut self,
+        pose: Var,
+        landmark: Var,
+        kind: LandmarkKind,
+        z: Measurement,
+        sigma: Vector2<f64>,
+    ) {
+        self.factors.push(Factor::Landmark {
+            pose,
+            landmark,
+            kind,
+            z,
+            sqrt_information: Matrix2::from_diagonal(&sigma.map(|s| 1.0 / s)),
+        });
+    }
+
+    /// Σ ‖r‖² of the odometry's factors and priors: how well the odometry still fits.
+    pub fn odometry_chi2(&self) -> f64 {
+        self.factors
+            .iter()
+            .filter(|f| f.is_odometry())
+            .filter_map(|f| f.residual(&self.x))
+            .map(|r| r.norm_squared())
+            .sum()
+    }
+
+    /// The robust cost at `x`.
+    fn cost(&self, x: &[f64]) -> f64 {
+        self.factors
+            .iter()
+            .filter_map(|f| {
+                let r = f.residual(x)?;
+                let s = r.norm_squared();
+                Some(if f.robust() && s.sqrt() > self.huber_k {
+                    2.0 * self.huber_k * s.sqrt() - self.huber_k * self.huber_k
+                } else {
+                    s
+                })
+            })
+            .sum()
+    }
+
+    /// The normal equations at `x` (Huber weights at `x`): H and the gradient Jᵀr.
+    fn normal_equations(&self, x: &[f64]) -> (DMatrix<f64>, DVector<f64>) {
+        let n = x.len();
+        let mut h = DMatrix::zeros(n, n);
+        let mut g = DVector::zeros(n);
+        let mut moved = x.to_vec();
+        for f in &self.factors {
+            let Some(r) = f.residual(x) else { continue };
+            let keys = f.keys();
+            let mut j = DMatrix::zeros(r.len(), keys.len());
+            for (c, &k) in keys.iter().enumerate() {
+                moved[k] += STEP;
+                let shifted = f.residual(&moved);
+                moved[k] = x[k];
+                if let Some(shifted) = shifted {
+                    let mut d = (shifted - &r) / STEP;
+                    // A residual's wrapped angle never jumps by a full turn over a tiny step.
+                    d.iter_mut().for_each(|v| {
+                        if v.abs() > 1e6 {
+                            *v = 0.0;
+                        }
+                    });
+                    j.set_column(c, &d);
+                }
+            }
+            let w = if f.robust() {
+                huber_weight(r.norm(), self.huber_k)
+            } else {
+                1.0
+            };
+            let jt_j = j.transpose() * &j * w;
+            let jt_r = j.transpose() * &r * w;
+            for (a, &ka) in keys.iter().enumerate() {
+                g[ka] += jt_r[a];
+                for (b, &kb) in keys.iter().enumerate() {
+                    h[(ka, kb)] += jt_j[(a, b)];
+                }
+            }
+        }
+        (h, g)
+    }
+
+    /// Minimises the robust cost from the current state: Gauss–Newton steps, damped (Levenberg)
+    /// when one would raise the cost. The number of iterations taken.
+    pub fn optimize(&mut self) -> usize {
+        let mut lambda = 1e-6;
+        let mut cost = self.cost(&self.x);
+        for iteration in 1..=MAX_ITERATIONS {
+            let (h, g) = self.normal_equations(&self.x);
+            let mut accepted = false;
+            for _ in 0..8 {
+                let mut damped = h.clone();
+                for i in 0..damped.nrows() {
+                    damped[(i, i)] += lambda * (1.0 + h[(i, i)]);
+                }
+                let Some(chol) = Cholesky::new(damped) else {
+                    lambda *= 10.0;
+                    continue;
+                };
+                let step = -chol.solve(&g);
+                let trial: Vec<f64> = self.x.iter().zip(step.iter()).map(|(a, b)| a + b).collect();
+                let trial_cost = self.cost(&trial);
+                if trial_cost <= cost {
+                    self.x = trial;
+                    cost = trial_cost;
+                    lambda = (lambda / 10.0).max(1e-9);
+                    accepted = true;
+                    if step.amax() < CONVERGED {
+                        return iteration;
+                    }
+                    break;
+                }
+                lambda *= 10.0;
+            }
+            if !accepted {
+                return iteration;
+            }
+        }
+        MAX_ITERATIONS
+    }
+
+    /// The joint covariance of the variables starting at `vars` with sizes `dims`, from the
+    /// undamped normal matrix at the current state: the rows and columns of H⁻¹ they take, found
+    /// by solving for those columns only. `None` when H is singular.
+    pub fn covariance(&self, vars: &[(Var, usize)]) -> Option<DMatrix<f64>> {
+        let (h, _) = self.normal_equations(&self.x);
+        let chol: Cholesky<f64, Dyn> = Cholesky::new(h)?;
+        let idx: Vec<usize> = vars.iter().flat_map(|&(v, d)| v..v + d).collect();
+        let mut e = DMatrix::zeros(self.x.len(), idx.len());
+        for (c, &i) in idx.iter().enumerate() {
+            e[(i, c)] = 1.0;
+        }
+        let columns = chol.solve(&e);
+        let mut out = DMatrix::zeros(idx.len(), idx.len());
+        for (r, &i) in idx.iter().enumerate() {
+            for c in 0..idx.len() {
+                out[(r, c)] = columns[(i, c)];
+            }
+        }
+        Some((out.clone() + out.transpose()) * 0.5)
+    }
+
+    /// A pose variable as an isometry.
+    pub fn pose(&self, v: Var) -> Isometry2<f64> {
+        let p = self.vector3(v);
+        Isometry2::new(Vector2::new(p.x, p.y), p.z)
+    }
+}
+
+/// Upper-triangular R with RᵀR = covariance⁻¹, so that ‖R·r‖² is r's squared Mahalanobis norm.
+fn sqrt_information3(covariance: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+    let information = covariance.try_inverse()?;
+    let l = information.cholesky()?.l();
+    Some(l.transpose())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SIGMA: f64 = 0.01;
+
+    fn anchored(graph: &mut Graph, at: Vector3<f64>) -> Var {
+        let v = graph.add_variable(at.as_slice());
+        assert!(graph.add_prior(v, at, &Matrix3::identity().scale(1e-8), true));
+        v
+    }
+
+    fn calibration(graph: &mut Graph, sigma: f64) -> Var {
+        let v = graph.add_variable(&[0.0; 3]);
+        assert!(graph.add_prior(
+            v,
+            Vector3::zeros(),
+            &Matrix3::identity().scale(sigma * sigma),
+            false
+        ));
+        v
+    }
+
+    #[test]
+    fn prediction_and_placement_are_inverse_for_points_and_lines() {
+        let pose = Vector3::new(0.4, -0.3, 0.7);
+        for (kind, landmark) in [
+            (LandmarkKind::Point, Vector2::new(1.5, 0.8)),
+            (LandmarkKind::Line, Vector2::new(2.0, 1.9)),
+            (LandmarkKind::Line, Vector2::new(-2.5, 0.5)),
+        ] {
+            let z = predict(kind, &pose, &landmark).unwrap();
+            let back = place(kind, &pose, &z);
+            assert!(
+                (back.x - landmark.x).abs() < 1e-12 && (back.y - landmark.y).abs() < 1e-12,
+                "{kind:?}"
+            );
+        }
+        // A wall seen from behind predicts nothing.
+        assert_eq!(
+            predict(
+                LandmarkKind::Line,
+                &Vector3::new(3.0, 0.0, 0.0),
+                &Vector2::new(0.0, 2.0)
+            ),
+            None
+        );
+    }
+
+    /// Three poses 1 m apart along x, a post and a wall seen from each; the odometry reports
+    /// 5 % long. The landmarks pull the poses back to the truth, the odometry's scale error is
+    /// learnt, and the covariance shrinks where the landmarks constrain.
+    #[test]
+    fn landmarks_and_odometry_are_solved_together() {
+        let mut g = Graph::new(1.5);
+        let calib = calibration(&mut g, 0.1);
+        let mut poses = vec![anchored(&mut g, Vector3::zeros())];
+        let reported = 1.05;
+        for k in 1..3 {
+            let v = g.add_variable(&[reported * k as f64, 0.0, 0.0]);
+            let steps: Vec<Step> = (0..10)
+                .map(|_| Vector3::new(reported / 10.0, 0.0, 0.0))
+                .collect();
+            let noise = Matrix3::identity().scale(0.05 * 0.05);
+            assert!(g.add_odometry(poses[k - 1], v, calib, steps, &noise));
+            poses.push(v);
+        }
+        let post = Vector2::new(1.0, 1.0);
+        let wall = Vector2::new(0.0, 3.0); // x = 3, normal +x
+        let landmarks = [
+            (LandmarkKind::Point, post, g.add_variable(&[1.05, 0.95])),
+            (LandmarkKind::Line, wall, g.add_variable(&[0.02, 3.1])),
+        ];
+        for (k, &v) in poses.iter().enumerate() {
+            let truth = Vector3::new(k as f64, 0.0, 0.0);
+            for &(kind, at, var) in &landmarks {
+                let z = predict(kind, &truth, &at).unwrap();
+                g.add_landmark_factor(v, var, kind, z, Vector2::new(SIGMA, 0.01));
+            }
+        }
+        let odometry_only = g.covariance(&[(poses[2], 3)]).unwrap();
+        g.optimize();
+        for (k, &v) in poses.iter().enumerate() {
+            let p = g.vector3(v);
+            assert!(
+                (p.x - k as f64).abs() < 1e-3 && p.y.abs() < 1e-3 && p.z.abs() < 5e-4,
+                "pose {k}: {p}"
+            );
+        }
+        assert!(
+            (g.vector3(calib).x - 0.05).abs() < 0.01,
+            "{}",
+            g.vector3(calib)
+        );
+        let cov = g.covariance(&[(poses[2], 3)]).unwrap();
+        assert!(cov[(0, 0)] > 0.0 && cov[(0, 0)].sqrt() < 0.02, "{cov}");
+        assert!(
+            odometry_only[(0, 0)] >= cov[(0, 0)],
+            "{odometry_only} {cov}"
+        );
+    }
+
+    #[test]
+    fn the_huber_kernel_limits_a_wrong_sighting_and_a_checkpoint_takes_a_sweep_back() {
+        let mut g = Graph::new(1.5);
+        let p = anchored(&mut g, Vector3::zeros());
+        let post = g.add_variable(&[1.0, 0.0]);
+        for _ in 0..5 {
+            g.add_landmark_factor(
+                p,
+                post,
+                LandmarkKind::Point,
+                Vector2::new(1.0, 0.0),
+                Vector2::new(0.01, 0.01),
+            );
+        }
+        let before = g.checkpoint();
+        let values = g.values().to_vec();
+        // One sighting 50 cm off: under Huber the post moves far less than the mean's 10 cm.
+        g.add_landmark_factor(
+            p,
+            post,
+            LandmarkKind::Point,
+            Vector2::new(1.5, 0.0),
+            Vector2::new(0.01, 0.01),
+        );
+        g.optimize();
+        let moved = g.vector2(post).x - 1.0;
+        assert!(moved > 0.0 && moved < 0.01, "{moved}");
+        assert_eq!(huber_weight(1.0, 1.5), 1.0);
+        assert!((huber_weight(3.0, 1.5) - 0.5).abs() < 1e-12);
+        g.restore(before, &values);
+        assert_eq!(g.values(), values.as_slice());
+        g.optimize();
+        assert!((g.vector2(post).x - 1.0).abs() < 1e-9);
+    }
+}
