@@ -41,6 +41,10 @@ pub const FEATURES_SERVICE: &str = "sonar/features";
 /// The robot's pose as sonar localisation corrected it, once per sweep (`sonar-fusion --localize`).
 pub const LOCALIZED_POSE_SERVICE: &str = "sonar/localized_pose";
 
+/// The iceoryx2 node name of `sonar-replay`: a viewer that sees it behind `sonar/readings` knows
+/// that the readings stop because a recording ended, not because a driver died.
+pub const REPLAY_NODE_NAME: &str = "sonar-replay";
+
 /// Bits of [`Reading::flags`].
 pub mod flags {
     /// No ping of the group heard an echo (or too few agreed): `distance_m` is meaningless.

@@ -228,6 +228,7 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
         ColorArg::None => ColorMode::Mono,
     };
     let mut app = App::new(Palette::new(mode), args.view.into());
+    app.namespace = Some(args.ipc.describe());
     match &log {
         Ok(path) => info!(log = %path.display(), ?mode, "viewer starting"),
         Err(problem) => app.message = Some(problem.clone()),
