@@ -65,8 +65,9 @@ const POSE_POLL: Duration = Duration::from_millis(1);
 /// probability method's occupancy grid) and `sonar/radar` (the basic method's latest distance per
 /// angle); takes commands on `sonar/fusion_commands`.
 ///
-/// Settings come from the `[fusion]` table of --config, then from the flags below; --preset
-/// replaces model, rule and no-echo handling, and --model/--rule/--clear-on-no-echo refine it.
+/// Settings come from the `[fusion]` (and `[features]`) tables of --config, then from the flags
+/// below; --preset replaces model, rule and no-echo handling, and --model/--rule/--clear-on-no-echo
+/// refine it.
 ///
 /// The map is saved to --state-file as soon as it first changes, then every --save-period seconds
 /// while it changes, and when the process is stopped (SIGINT, SIGTERM); at start it is restored
@@ -96,7 +97,8 @@ const POSE_POLL: Duration = Duration::from_millis(1);
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
 struct Args {
-    /// Pipeline configuration file (TOML); its `[fusion]` table is read, other tables ignored.
+    /// Pipeline configuration file (TOML); its `[fusion]` and `[features]` tables are read, the
+    /// others ignored.
     #[arg(long, env = "SONAR_CONFIG")]
     config: Option<PathBuf>,
     /// Ready-made settings: `paper` or `recommended` [default: recommended, or the file's].
@@ -221,7 +223,9 @@ struct File {
 fn load_config(path: &Path) -> Result<File> {
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("cannot read config file {}", path.display()))?;
-    toml::from_str(&text).with_context(|| format!("invalid config file {}", path.display()))
+    sonar_common::toml_file::parse(&text)
+        .map_err(anyhow::Error::msg)
+        .with_context(|| format!("invalid config file {}", path.display()))
 }
 
 /// Where and how often to save, from the file's `[fusion]` keys and the flags; `None` with
