@@ -631,8 +631,9 @@ pub struct FeatureRecord {
     pub cov_xx: f32,
     pub cov_xy: f32,
     pub cov_yy: f32,
-    /// Plane: direction of its normal (towards the sensor). Point, corner: direction of the
-    /// sensor's ray at the latest sighting. Degrees counter-clockwise from +x.
+    /// Plane: direction of its normal from the map's origin towards the wall (the foot of the
+    /// perpendicular, `x_m`, `y_m`, lies along it). Point, corner: direction of the sensor's ray
+    /// at the latest sighting. Degrees counter-clockwise from +x.
     pub angle_deg: f32,
     /// Plane: σ of the normal's direction, degrees; NaN otherwise.
     pub angle_sigma_deg: f32,

@@ -198,6 +198,16 @@ fn sonar_export_writes_the_live_room_as_png_ros_map_csv_and_npy() {
         }),
         "a wall 1.2 m away:\n{csv}"
     );
+    // A plane's angle_deg is its normal's direction from the origin towards the wall, as
+    // docs/export.md says: the foot of the perpendicular lies along it (issue 28).
+    for r in rows.iter().filter(|r| r[1] == "plane") {
+        let (x, y, angle) = (field_f32(&r[2]), field_f32(&r[3]), field_f32(&r[7]));
+        let off = (y.atan2(x).to_degrees() - angle + 540.0).rem_euclid(360.0) - 180.0;
+        assert!(
+            off.abs() < 1.0,
+            "angle_deg {angle} vs foot ({x}, {y}):\n{csv}"
+        );
+    }
     let json = std::fs::read_to_string(format!("{}.features.json", stem.display())).unwrap();
     assert!(json.starts_with("{\n  \"seq\": "), "{json}");
     assert!(
