@@ -724,10 +724,12 @@ pub struct IpcArgs {
     /// (./config/iceoryx2.toml, ~/.config/iceoryx2/iceoryx2.toml, /etc/iceoryx2/iceoryx2.toml).
     #[arg(long, env = "SONAR_IOX_CONFIG", value_name = "FILE")]
     pub iox_config: Option<PathBuf>,
-    /// Prefix of the shared-memory files; pipelines with different prefixes never see each other.
+    /// Prefix of the shared-memory files; pipelines with different prefixes never see each other
+    /// [default: iceoryx2's, iox2_, or --iox-config's].
     #[arg(long, env = "SONAR_IOX_PREFIX", value_name = "PREFIX")]
     pub iox_prefix: Option<String>,
-    /// Directory of iceoryx2's service and node records.
+    /// Directory of iceoryx2's service and node records [default: iceoryx2's, /tmp/iceoryx2/, or
+    /// --iox-config's].
     #[arg(long, env = "SONAR_IOX_ROOT", value_name = "DIR")]
     pub iox_root: Option<PathBuf>,
 }
@@ -1033,6 +1035,14 @@ pub fn unix_time_ns() -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The defaults `--help` names for --iox-prefix and --iox-root are iceoryx2's.
+    #[test]
+    fn the_namespace_defaults_named_in_the_help_are_iceoryx2s() {
+        let cfg = Config::default();
+        assert_eq!(cfg.global.prefix.as_bytes(), b"iox2_");
+        assert_eq!(cfg.global.root_path().as_bytes(), b"/tmp/iceoryx2/");
+    }
     use std::mem::offset_of;
 
     /// The offsets `docs/ipc.md` documents for other languages.

@@ -125,8 +125,9 @@ struct Args {
         allow_negative_numbers = true
     )]
     resolution_m: Option<f32>,
-    /// Fuse readings without an echo as free space up to the maximum range.
-    #[arg(long)]
+    /// Fuse readings without an echo as free space up to the maximum range: true or false
+    /// [default: false (both presets), or the file's `[fusion] clear_on_no_echo`].
+    #[arg(long, value_name = "BOOL")]
     clear_on_no_echo: Option<bool>,
     /// Most grid and radar snapshots published per second; readings in between are coalesced
     /// into the next. (`--max-rate` still works.)
