@@ -147,7 +147,8 @@ fn split_commands(words: Vec<String>) -> Vec<Vec<String>> {
             continue;
         }
         let current = commands.last_mut().unwrap();
-        if !(current.is_empty() && is_assignment(&word)) && !word.is_empty() {
+        let leading_assignment = current.is_empty() && is_assignment(&word);
+        if !word.is_empty() && !leading_assignment {
             current.push(word);
         }
         if ends {
