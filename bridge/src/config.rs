@@ -87,10 +87,11 @@ impl BridgeSection {
             path: path.to_owned(),
             source,
         })?;
-        let file: PipelineFile = toml::from_str(&text).map_err(|e| ConfigError::Parse {
-            path: path.to_owned(),
-            message: e.to_string(),
-        })?;
+        let file: PipelineFile =
+            sonar_common::toml_file::parse(&text).map_err(|message| ConfigError::Parse {
+                path: path.to_owned(),
+                message,
+            })?;
         Ok(file.bridge)
     }
 }

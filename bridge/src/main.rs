@@ -85,7 +85,13 @@ struct Args {
     /// fusion_status, pose, localized_pose, commands, fusion_commands [default: all].
     #[arg(long, value_delimiter = ',')]
     services: Vec<String>,
-    /// Most grid snapshots per second on the link (0: every one) [default: 2].
+    /// Seconds between the grid snapshots sent on the link, at least (0: every one) [default: 0.5],
+    /// named as sonar-record's, sonar-export's and sonar-foxglove's. The same as --grid-max-rate
+    /// 1/SECONDS.
+    #[arg(long, value_name = "SECONDS", value_parser = parse_period, conflicts_with = "grid_max_rate")]
+    grid_period: Option<f64>,
+    /// Most grid snapshots per second on the link (0: every one) [default: 2]; the file's
+    /// `max_rate_hz.grid`.
     #[arg(long, value_name = "HZ")]
     grid_max_rate: Option<f64>,
     /// Print the robots whose bridges are reachable, one name a line, and exit.
@@ -137,6 +143,23 @@ enum Command {
     },
 }
 
+impl Args {
+    /// `--grid-max-rate`, or `--grid-period` as a rate.
+    fn grid_max_rate_hz(&self) -> Option<f64> {
+        self.grid_max_rate.or(self
+            .grid_period
+            .map(|p| if p == 0.0 { 0.0 } else { 1.0 / p }))
+    }
+}
+
+/// `--grid-period`: seconds, 0 or more.
+fn parse_period(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if x.is_finite() && (0.0..1e9).contains(&x) => Ok(x),
+        _ => Err(format!("{s:?} is not a number of seconds >= 0")),
+    }
+}
+
 fn main() -> ExitCode {
     // A peer can make zenoh log a line per attempt (a TLS handshake without a certificate).
     let flood = FloodGuard::new(&["zenoh"]);
@@ -159,7 +182,7 @@ fn run(args: Args, flood: &FloodGuard) -> Result<()> {
         listen: args.listen.clone(),
         connect: args.connect.clone(),
         services: args.services.clone(),
-        grid_max_rate_hz: args.grid_max_rate,
+        grid_max_rate_hz: args.grid_max_rate_hz(),
         insecure: args.insecure,
         ca: args.ca.clone(),
         cert: args.cert.clone(),
@@ -728,5 +751,25 @@ impl Inbound {
                 "refused a message: {e}"
             );
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `--grid-period` is named and counted as elsewhere, `--grid-max-rate` still works, and
+    /// not both (issue 28).
+    #[test]
+    fn the_grid_pace_is_a_period_or_a_rate() {
+        let rate = |flags: &[&str]| {
+            Args::try_parse_from([&["sonar-bridge"], flags].concat()).map(|a| a.grid_max_rate_hz())
+        };
+        assert_eq!(rate(&["--grid-period", "0.25"]).ok(), Some(Some(4.0)));
+        assert_eq!(rate(&["--grid-period", "0"]).ok(), Some(Some(0.0)));
+        assert_eq!(rate(&["--grid-max-rate", "2"]).ok(), Some(Some(2.0)));
+        assert_eq!(rate(&[]).ok(), Some(None));
+        assert!(rate(&["--grid-period", "-1"]).is_err());
+        assert!(rate(&["--grid-period", "1", "--grid-max-rate", "1"]).is_err());
     }
 }

@@ -23,9 +23,9 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use sonar_common::ipc::{
-    self, DriverStatus, FeatureRecord, FeaturesHeader, FusionStatus, GridHeader, IpcArgs, IpcError,
-    LinkState, LocalizedPose, Pose2D, Radar, Reading, ScanCommand, ScanCommandKind, ScanMode,
-    feature_kind,
+    self, DriverStatus, FeatureRecord, FeaturesHeader, FusionCommand, FusionCommandKind,
+    FusionStatus, GridHeader, IpcArgs, IpcError, LinkState, LocalizedPose, Pose2D, Radar, Reading,
+    ScanCommand, ScanCommandKind, ScanMode, feature_kind,
 };
 
 /// How often `echo` and `hz` look for new messages.
@@ -99,6 +99,11 @@ enum Topic {
     Radar,
     /// sonar/features: each snapshot's counts, then one line per wall, corner and post.
     Features,
+    /// sonar/commands: the scan commands sent to the driver (full, local, stop, …).
+    Commands,
+    /// sonar/fusion_commands: the commands sent to the fusion (clear, preset, model, rule).
+    #[value(alias = "fusion_commands")]
+    FusionCommands,
 }
 
 impl Topic {
@@ -113,6 +118,8 @@ impl Topic {
             Topic::FusionStatus => ipc::FUSION_STATUS_SERVICE,
             Topic::Radar => ipc::RADAR_SERVICE,
             Topic::Features => ipc::FEATURES_SERVICE,
+            Topic::Commands => ipc::COMMANDS_SERVICE,
+            Topic::FusionCommands => ipc::FUSION_COMMANDS_SERVICE,
         }
     }
 }
@@ -339,6 +346,20 @@ fn receive_or_tick(
             each,
         ),
         Topic::Radar => each_message(node, &ipc::radar_service(node)?, service, radar_line, each),
+        Topic::Commands => each_message(
+            node,
+            &ipc::commands_service(node)?,
+            service,
+            scan_command_line,
+            each,
+        ),
+        Topic::FusionCommands => each_message(
+            node,
+            &ipc::fusion_commands_service(node)?,
+            service,
+            fusion_command_line,
+            each,
+        ),
         Topic::Features => {
             let sub = subscribe(&ipc::features_service(node)?, service)?;
             poll(node, &mut each, || {
@@ -550,6 +571,57 @@ fn grid_line(h: &GridHeader, cells: usize) -> String {
     )
 }
 
+fn scan_command_line(c: &ScanCommand) -> String {
+    match c.kind() {
+        Some(ScanCommandKind::FullScan) => "full scan".to_owned(),
+        Some(ScanCommandKind::LocalScan) => {
+            format!("local scan {:+.1}° .. {:+.1}°", c.from_deg, c.to_deg)
+        }
+        Some(ScanCommandKind::Stop) => "stop".to_owned(),
+        Some(ScanCommandKind::Status) => "status".to_owned(),
+        Some(ScanCommandKind::Reset) => "reset".to_owned(),
+        None => format!("unknown kind {}", c.kind),
+    }
+}
+
+fn fusion_command_line(c: &FusionCommand) -> String {
+    let name = |names: &[(u32, &str)]| {
+        names
+            .iter()
+            .find(|(code, _)| *code == c.value)
+            .map_or_else(|| format!("code {}", c.value), |(_, n)| (*n).to_owned())
+    };
+    match c.kind() {
+        Some(FusionCommandKind::Clear) => "clear".to_owned(),
+        Some(FusionCommandKind::SetPreset) => format!(
+            "preset {}",
+            name(&[
+                (ipc::preset_code::CUSTOM, "custom"),
+                (ipc::preset_code::PAPER, "paper"),
+                (ipc::preset_code::RECOMMENDED, "recommended"),
+            ])
+        ),
+        Some(FusionCommandKind::SetModel) => format!(
+            "model {}",
+            name(&[
+                (ipc::model_code::PAPER, "paper"),
+                (ipc::model_code::LOG_ODDS, "log-odds"),
+                (ipc::model_code::SMOOTH, "smooth"),
+            ])
+        ),
+        Some(FusionCommandKind::SetRule) => format!(
+            "rule {}",
+            name(&[
+                (ipc::rule_code::BAYES, "bayes"),
+                (ipc::rule_code::LOG_ODDS, "log-odds"),
+                (ipc::rule_code::DEMPSTER_SHAFER, "dempster-shafer"),
+                (ipc::rule_code::HIMM, "himm"),
+            ])
+        ),
+        None => format!("unknown kind {} value {}", c.kind, c.value),
+    }
+}
+
 fn pose_line(p: &Pose2D) -> String {
     format!(
         "stamp {} x {:+.3} m y {:+.3} m heading {:+.1}°",
@@ -599,5 +671,19 @@ mod tests {
         s.head_fault = 1;
         let line = driver_status_line(&s);
         assert!(line.contains("HEAD STOPPED"), "{line}");
+    }
+
+    #[test]
+    fn commands_are_decoded() {
+        let local = ScanCommand::new(ScanCommandKind::LocalScan, -45.0, 30.0);
+        assert_eq!(scan_command_line(&local), "local scan -45.0° .. +30.0°");
+        let odd = ScanCommand { kind: 9, ..local };
+        assert_eq!(scan_command_line(&odd), "unknown kind 9");
+        let preset = FusionCommand::new(FusionCommandKind::SetPreset, ipc::preset_code::PAPER);
+        assert_eq!(fusion_command_line(&preset), "preset paper");
+        let rule = FusionCommand::new(FusionCommandKind::SetRule, 77);
+        assert_eq!(fusion_command_line(&rule), "rule code 77");
+        let clear = FusionCommand::new(FusionCommandKind::Clear, 0);
+        assert_eq!(fusion_command_line(&clear), "clear");
     }
 }

@@ -41,6 +41,10 @@ pub const FEATURES_SERVICE: &str = "sonar/features";
 /// The robot's pose as sonar localisation corrected it, once per sweep (`sonar-fusion --localize`).
 pub const LOCALIZED_POSE_SERVICE: &str = "sonar/localized_pose";
 
+/// The iceoryx2 node name of `sonar-replay`: a viewer that sees it behind `sonar/readings` knows
+/// that the readings stop because a recording ended, not because a driver died.
+pub const REPLAY_NODE_NAME: &str = "sonar-replay";
+
 /// Bits of [`Reading::flags`].
 pub mod flags {
     /// No ping of the group heard an echo (or too few agreed): `distance_m` is meaningless.
@@ -630,8 +634,9 @@ pub struct FeatureRecord {
     pub cov_xx: f32,
     pub cov_xy: f32,
     pub cov_yy: f32,
-    /// Plane: direction of its normal (towards the sensor). Point, corner: direction of the
-    /// sensor's ray at the latest sighting. Degrees counter-clockwise from +x.
+    /// Plane: direction of its normal from the map's origin towards the wall (the foot of the
+    /// perpendicular, `x_m`, `y_m`, lies along it). Point, corner: direction of the sensor's ray
+    /// at the latest sighting. Degrees counter-clockwise from +x.
     pub angle_deg: f32,
     /// Plane: σ of the normal's direction, degrees; NaN otherwise.
     pub angle_sigma_deg: f32,
@@ -722,10 +727,12 @@ pub struct IpcArgs {
     /// (./config/iceoryx2.toml, ~/.config/iceoryx2/iceoryx2.toml, /etc/iceoryx2/iceoryx2.toml).
     #[arg(long, env = "SONAR_IOX_CONFIG", value_name = "FILE")]
     pub iox_config: Option<PathBuf>,
-    /// Prefix of the shared-memory files; pipelines with different prefixes never see each other.
+    /// Prefix of the shared-memory files; pipelines with different prefixes never see each other
+    /// [default: iceoryx2's, iox2_, or --iox-config's].
     #[arg(long, env = "SONAR_IOX_PREFIX", value_name = "PREFIX")]
     pub iox_prefix: Option<String>,
-    /// Directory of iceoryx2's service and node records.
+    /// Directory of iceoryx2's service and node records [default: iceoryx2's, /tmp/iceoryx2/, or
+    /// --iox-config's].
     #[arg(long, env = "SONAR_IOX_ROOT", value_name = "DIR")]
     pub iox_root: Option<PathBuf>,
 }
@@ -1031,6 +1038,14 @@ pub fn unix_time_ns() -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The defaults `--help` names for --iox-prefix and --iox-root are iceoryx2's.
+    #[test]
+    fn the_namespace_defaults_named_in_the_help_are_iceoryx2s() {
+        let cfg = Config::default();
+        assert_eq!(cfg.global.prefix.as_bytes(), b"iox2_");
+        assert_eq!(cfg.global.root_path().as_bytes(), b"/tmp/iceoryx2/");
+    }
     use std::mem::offset_of;
 
     /// The offsets `docs/ipc.md` documents for other languages.

@@ -8,6 +8,7 @@
 //! - [`namespace`]: removes what processes killed while creating iceoryx2 resources left behind.
 //! - [`logging`]: one way for every program to log and to report the error it stops with.
 //! - [`speed`]: simulated time against wall time; [`throttle`]: rate limits for frequent log lines.
+//! - [`toml_file`]: configuration files parsed with errors placed at the value at fault.
 //!
 //! Nothing here does I/O except opening iceoryx2 services on behalf of the caller, and removing
 //! what killed processes left in their namespace before that.
@@ -22,6 +23,7 @@ pub mod protocol;
 pub mod sensor;
 pub mod speed;
 pub mod throttle;
+pub mod toml_file;
 
 pub use logging::report_exit;
 

@@ -96,9 +96,15 @@ struct Args {
     scan: ScanRequest,
     #[command(flatten)]
     air: sonar_common::sensor::AirTemperatureArg,
-    /// Beam half-angle stamped on readings, degrees (the paper's ±30°).
-    #[arg(long, default_value_t = 30.0)]
-    beam_half_angle: f32,
+    /// Beam half-angle stamped on readings, degrees (the paper's ±30°). Named as the file's
+    /// `[sensor]` key; `--beam-half-angle` still works.
+    #[arg(
+        long,
+        value_name = "DEGREES",
+        alias = "beam-half-angle",
+        default_value_t = 30.0
+    )]
+    beam_half_angle_deg: f32,
     /// Hobby dialect: added to the sketch's servo angle so that 0° is the sensor's forward axis.
     #[arg(long, default_value_t = -90.0, allow_hyphen_values = true)]
     hobby_angle_offset: f32,
@@ -226,7 +232,7 @@ enum SessionEnd {
 fn run(args: Args) -> Result<()> {
     let sensor = SensorConfig {
         air_temperature_c: args.air.air_temperature_c,
-        beam_half_angle_deg: args.beam_half_angle,
+        beam_half_angle_deg: args.beam_half_angle_deg,
         ..SensorConfig::default()
     };
     sensor.validate().context("invalid sensor settings")?;
@@ -1064,5 +1070,17 @@ mod tests {
                 to_cdeg: 3000
             }))
         );
+    }
+
+    /// Named as the `[sensor]` key; the old name still works (issue 28).
+    #[test]
+    fn the_beam_half_angle_flag_is_named_as_its_key() {
+        for flag in ["--beam-half-angle-deg", "--beam-half-angle"] {
+            let args = Args::try_parse_from(["sonar-driver", "--port", "/dev/null", flag, "15"])
+                .unwrap_or_else(|e| panic!("{flag}: {e}"));
+            assert_eq!(args.beam_half_angle_deg, 15.0);
+        }
+        let defaults = Args::try_parse_from(["sonar-driver", "--port", "/dev/null"]);
+        assert_eq!(defaults.map(|a| a.beam_half_angle_deg).ok(), Some(30.0));
     }
 }

@@ -113,6 +113,11 @@
 #ifndef PING_INTERVAL_MS
 #define PING_INTERVAL_MS 50UL
 #endif
+/* `make PING_MS=…`: the echo of the previous ping (≤ 38 ms of echo line, the HC-SR04's time-out)
+ * must be over, and a reading's four pings (≤ 1 s) stay well inside the driver's 3 s
+ * --silence-timeout. */
+_Static_assert(PING_INTERVAL_MS >= 40UL && PING_INTERVAL_MS <= 250UL,
+               "PING_MS must lie between 40 and 250 ms");
 /* sensor-facts / paper §II.A.1: trigger pulse ≥ 10 µs; 12 µs leaves a margin. */
 #define SONAR_TRIG_PULSE_US 12
 /* sensor-facts: with no echo the SRF05 drops its echo line after ≈ 30 ms (HC-SR04 ≈ 38 ms); a

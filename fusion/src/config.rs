@@ -341,12 +341,10 @@ pub enum FusionFileError {
         #[source]
         source: std::io::Error,
     },
-    #[error("invalid config file {}", .path.display())]
-    Parse {
-        path: PathBuf,
-        #[source]
-        source: toml::de::Error,
-    },
+    /// toml's message, placed at the offending value where it can be
+    /// (`sonar_common::toml_file`).
+    #[error("invalid config file {}: {message}", .path.display())]
+    Parse { path: PathBuf, message: String },
 }
 
 impl FusionFile {
@@ -355,9 +353,9 @@ impl FusionFile {
             path: path.to_owned(),
             source,
         })?;
-        toml::from_str(&text).map_err(|source| FusionFileError::Parse {
+        sonar_common::toml_file::parse(&text).map_err(|message| FusionFileError::Parse {
             path: path.to_owned(),
-            source,
+            message,
         })
     }
 }

@@ -65,8 +65,9 @@ const POSE_POLL: Duration = Duration::from_millis(1);
 /// probability method's occupancy grid) and `sonar/radar` (the basic method's latest distance per
 /// angle); takes commands on `sonar/fusion_commands`.
 ///
-/// Settings come from the `[fusion]` table of --config, then from the flags below; --preset
-/// replaces model, rule and no-echo handling, and --model/--rule/--clear-on-no-echo refine it.
+/// Settings come from the `[fusion]` (and `[features]`) tables of --config, then from the flags
+/// below; --preset replaces model, rule and no-echo handling, and --model/--rule/--clear-on-no-echo
+/// refine it.
 ///
 /// The map is saved to --state-file as soon as it first changes, then every --save-period seconds
 /// while it changes, and when the process is stopped (SIGINT, SIGTERM); at start it is restored
@@ -96,7 +97,8 @@ const POSE_POLL: Duration = Duration::from_millis(1);
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
 struct Args {
-    /// Pipeline configuration file (TOML); its `[fusion]` table is read, other tables ignored.
+    /// Pipeline configuration file (TOML); its `[fusion]` and `[features]` tables are read, the
+    /// others ignored.
     #[arg(long, env = "SONAR_CONFIG")]
     config: Option<PathBuf>,
     /// Ready-made settings: `paper` or `recommended` [default: recommended, or the file's].
@@ -123,8 +125,9 @@ struct Args {
         allow_negative_numbers = true
     )]
     resolution_m: Option<f32>,
-    /// Fuse readings without an echo as free space up to the maximum range.
-    #[arg(long)]
+    /// Fuse readings without an echo as free space up to the maximum range: true or false
+    /// [default: false (both presets), or the file's `[fusion] clear_on_no_echo`].
+    #[arg(long, value_name = "BOOL")]
     clear_on_no_echo: Option<bool>,
     /// Most grid and radar snapshots published per second; readings in between are coalesced
     /// into the next. (`--max-rate` still works.)

@@ -162,10 +162,11 @@ impl PipelineFile {
     }
 
     fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
-        let file: Self = toml::from_str(text).map_err(|e| ConfigError::Parse {
-            path: path.to_owned(),
-            message: e.to_string(),
-        })?;
+        let file: Self =
+            sonar_common::toml_file::parse(text).map_err(|message| ConfigError::Parse {
+                path: path.to_owned(),
+                message,
+            })?;
         file.fusion
             .engine
             .validate()
@@ -263,6 +264,29 @@ mod tests {
         );
         let bad = PipelineFile::parse("[fusion.grid]\nresolution_m = -1.0\n", Path::new("x.toml"));
         assert!(matches!(bad, Err(ConfigError::Fusion { .. })), "{bad:?}");
+        // A value of the wrong type is shown at its own line, in [fusion] and [features] too
+        // (issue 28: it was shown at the table's header).
+        for (text, line) in [
+            (
+                "[fusion]\n\n[fusion.grid]\ncells = 400\nresolution_m = \"2 cm\"\n",
+                5,
+            ),
+            // Except inside [fusion.model] and [fusion.rule], read by `kind` (serde's tagged
+            // enums keep no positions): shown at that table's own header.
+            (
+                "[fusion]\n[fusion.model]\nkind = \"smooth\"\nfade_range_m = \"far\"\n",
+                2,
+            ),
+            ("[features]\nenabled = true\nmin_pings = \"x\"\n", 3),
+            ("[simulator]\nseed = 1\nspeed = 20\n", 3),
+        ] {
+            let wrong = PipelineFile::parse(text, Path::new("x.toml"));
+            assert!(
+                matches!(&wrong, Err(ConfigError::Parse { message, .. })
+                    if message.starts_with(&format!("TOML parse error at line {line},"))),
+                "{text}: {wrong:?}"
+            );
+        }
         // The map's persistence keys belong to [fusion] too.
         let persist = "[fusion]\nsave_period = 2.0\npersist = true\n";
         assert!(PipelineFile::parse(persist, Path::new("x.toml")).is_ok());

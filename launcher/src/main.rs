@@ -342,7 +342,7 @@ impl Pipeline {
             );
             push_opt(
                 &mut driver,
-                "--beam-half-angle",
+                "--beam-half-angle-deg",
                 file.sensor.beam_half_angle_deg,
             );
             processes.push(Process::new("sonar-driver", driver, false));

@@ -15,6 +15,10 @@ pub const EVEN_RGB: [u8; 3] = [225, 225, 205];
 /// p = 1.
 pub const OCCUPIED_RGB: [u8; 3] = [205, 25, 25];
 
+/// The colour of the features overlay (the viewer's and the PNG's): green, a hue the colour code
+/// (blue, pale, red, grey) never uses, bright enough for dark and light cells alike.
+pub const FEATURE_RGB: [u8; 3] = [60, 255, 60];
+
 /// The colour of an occupancy probability (clamped to 0..=1): linear from [`FREE_RGB`] to
 /// [`EVEN_RGB`] to [`OCCUPIED_RGB`]; [`UNKNOWN_RGB`] for `None`, a never-observed cell.
 pub fn probability_rgb(p: Option<f32>) -> [u8; 3] {

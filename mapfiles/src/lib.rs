@@ -14,6 +14,10 @@
 //! - [`output`]: formats, file names, and writing files so that no half-written map is ever seen.
 //! - [`features`]: the walls, corners and posts of a `sonar/features` snapshot as CSV and JSON.
 //! - [`settings`]: names of the model, rule and preset codes of a snapshot header.
+//! - [`viewport`]: which cells each pixel of a picture of the map shows (the viewer's zoom and
+//!   pan; the PNG's one pixel per cell).
+//! - [`overlay`]: the pixels showing the walls, corners and posts over the map, drawn by the
+//!   viewer as glyphs and by the PNG (`sonar-export --features`) as marks.
 //!
 //! `docs/export.md` documents the formats and their conventions for users.
 
@@ -26,10 +30,12 @@ pub mod colour;
 pub mod features;
 mod font;
 pub mod output;
+pub mod overlay;
 pub mod picture;
 pub mod ros;
 pub mod settings;
 pub mod table;
+pub mod viewport;
 
 pub use features::{FeatureFormat, write_features};
 pub use output::{Format, write_map};

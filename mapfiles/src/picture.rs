@@ -1,12 +1,17 @@
 //! The map as a PNG: one pixel per grid cell in the [`colour`](crate::colour) code, the highest y
 //! on top, the map's geometry in a `Comment` text chunk so the picture can be placed in the world
-//! again; optionally a legend strip below the map with a scale bar and the colour code.
+//! again; optionally a legend strip below the map with a scale bar and the colour code, and the
+//! walls, corners and posts drawn over the map as the viewer draws them ([`overlay`]).
 
 use std::io::Write;
 
+use sonar_common::ipc::{FeatureRecord, feature_kind};
+
 use crate::canvas::Canvas;
-use crate::colour::{UNKNOWN_RGB, cell_rgb};
+use crate::colour::{FEATURE_RGB, UNKNOWN_RGB, cell_rgb};
+use crate::overlay::{self, FeatureMark};
 use crate::settings::{MODELS, RULES, setting_name};
+use crate::viewport::Viewport;
 use crate::{Map, MapError, font};
 
 /// Rows the legend adds below the map.
@@ -20,14 +25,23 @@ const RAMP_WIDTH: u32 = 64;
 const INK: [u8; 3] = [0, 0, 0];
 const PAPER: [u8; 3] = [255, 255, 255];
 
+/// Half the size of a corner's cross and a post's square in the picture, pixels: a mark 5 pixels
+/// wide, seen on a map of a thousand cells without covering a 5 cm post's neighbourhood.
+const MARK_HALF: i64 = 2;
+
 /// What goes into the picture besides the map.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct PngOptions {
+#[derive(Debug, Clone, Copy, Default)]
+pub struct PngOptions<'a> {
     /// A [`LEGEND_HEIGHT`]-pixel strip below the map: a scale bar with its length, the colour ramp
     /// from p = 0 to p = 1, and the colour of unknown cells. The picture is widened if the map is
     /// narrower than the legend. Without it (`sonar-export --no-legend`), the picture is exactly
     /// one pixel per cell.
     pub legend: bool,
+    /// Walls, corners and posts to draw over the map in [`FEATURE_RGB`] (`sonar-export
+    /// --features`, the viewer's `s` while its overlay is on): a wall as a line along its segment
+    /// (a tick across its normal when its extent is unknown), a corner as a cross, a post as a
+    /// square around its cell.
+    pub features: Option<&'a [FeatureRecord]>,
 }
 
 /// The scale bar of a legend.
@@ -100,12 +114,57 @@ pub fn write_png<W: Write>(out: W, map: &Map<'_>, options: &PngOptions) -> Resul
             canvas.set(x, y, cell_rgb(cell));
         }
     }
+    if let Some(records) = options.features {
+        draw_features(&mut canvas, map, records);
+        let count = |kind| records.iter().filter(|r| r.kind == kind).count();
+        comment.push_str(&format!(
+            "; features drawn over the map in green (RGB {FEATURE_RGB:?}): {} walls as lines, {} \
+             corners as crosses, {} posts as squares",
+            count(feature_kind::PLANE),
+            count(feature_kind::CORNER),
+            count(feature_kind::POINT)
+        ));
+    }
     if let Some(bar) = &bar {
         draw_legend(&mut canvas, hd.height, bar);
     }
 
     // Maps are mostly flat areas: the fast setting compresses them well, in a blink.
     canvas.write_png(out, png::Compression::Fast, Some(&comment))
+}
+
+/// The features over the map: the pixels the viewer's overlay uses at one pixel per cell, a corner
+/// and a post widened to a mark a reader can find. Marks reaching over the map's edge are clipped
+/// to it, never drawn on the legend.
+fn draw_features(canvas: &mut Canvas, map: &Map<'_>, records: &[FeatureRecord]) {
+    let hd = map.header();
+    let (w, h) = (i64::from(hd.width), i64::from(hd.height));
+    let mut set = |x: i64, y: i64| {
+        if (0..w).contains(&x) && (0..h).contains(&y) {
+            canvas.set(x as usize, y as usize, FEATURE_RGB);
+        }
+    };
+    let viewport = Viewport::one_to_one(hd.width, hd.height);
+    for (px, py, mark) in overlay::feature_pixels(records, hd, &viewport) {
+        let (x, y) = (i64::from(px), i64::from(py));
+        match mark {
+            FeatureMark::Wall(_) => set(x, y),
+            FeatureMark::Corner => {
+                for d in -MARK_HALF..=MARK_HALF {
+                    set(x + d, y + d);
+                    set(x + d, y - d);
+                }
+            }
+            FeatureMark::Post => {
+                for d in -MARK_HALF..=MARK_HALF {
+                    set(x + d, y - MARK_HALF);
+                    set(x + d, y + MARK_HALF);
+                    set(x - MARK_HALF, y + d);
+                    set(x + MARK_HALF, y + d);
+                }
+            }
+        }
+    }
 }
 
 /// Writes `text` in ink with its top-left corner at (`x`, `y`).
@@ -218,7 +277,10 @@ mod tests {
 
     #[test]
     fn the_legend_adds_a_scale_bar_of_the_stated_length_below_the_unchanged_map() {
-        let img = png(PngOptions { legend: true });
+        let img = png(PngOptions {
+            legend: true,
+            ..PngOptions::default()
+        });
         let bar = scale_bar(0.05, 3);
         // A 3-cell map is narrower than the legend: 20 pixels of 5 cm make 1 m.
         assert_eq!(
@@ -247,6 +309,102 @@ mod tests {
         assert_eq!(img.px(ramp, row), cell_rgb(0));
         assert_eq!(img.px(one - 5, row), cell_rgb(254));
         assert_eq!(img.px(swatch + 1, row), UNKNOWN_RGB);
+    }
+
+    /// `sonar-export --features`: the viewer's overlay pixels in the picture, a wall as a line, a
+    /// corner as a cross, a post as a square around its cell; nothing else changes, and marks at
+    /// the edge stay on the map.
+    #[test]
+    fn features_are_drawn_over_the_map_as_the_viewer_places_them() {
+        use sonar_common::ipc::{CELL_UNKNOWN, GridHeader};
+        let header = GridHeader {
+            width: 40,
+            height: 30,
+            resolution_m: 0.1,
+            origin_x_m: -2.0,
+            origin_y_m: -1.5,
+            ..GridHeader::default()
+        };
+        let cells = vec![CELL_UNKNOWN; 1200];
+        let map = Map::new(&header, &cells).unwrap();
+        let nan = f32::NAN;
+        let feature = |kind, x_m, y_m| FeatureRecord {
+            kind,
+            x_m,
+            y_m,
+            angle_deg: nan,
+            segment_ax_m: nan,
+            segment_ay_m: nan,
+            segment_bx_m: nan,
+            segment_by_m: nan,
+            ..FeatureRecord::default()
+        };
+        let records = [
+            // A wall along y = 1.05 m (cell row 25, picture row 4) from x = -1.45 to 0.55 m.
+            FeatureRecord {
+                segment_ax_m: -1.45,
+                segment_ay_m: 1.05,
+                segment_bx_m: 0.55,
+                segment_by_m: 1.05,
+                ..feature(feature_kind::PLANE, 0.0, 0.0)
+            },
+            // A corner at cell (30, 10), picture (30, 19); a post at cell (10, 10), picture
+            // (10, 19); a post on the top-right corner cell, picture (39, 0).
+            feature(feature_kind::CORNER, 1.05, -0.45),
+            feature(feature_kind::POINT, -0.95, -0.45),
+            feature(feature_kind::POINT, 1.95, 1.45),
+        ];
+        let mut bytes = Vec::new();
+        let options = PngOptions {
+            legend: true,
+            features: Some(&records),
+        };
+        write_png(&mut bytes, &map, &options).unwrap();
+        let img = decode(&bytes);
+        let mut plain_bytes = Vec::new();
+        let plain = PngOptions {
+            legend: true,
+            features: None,
+        };
+        write_png(&mut plain_bytes, &map, &plain).unwrap();
+        let plain = decode(&plain_bytes);
+        assert_eq!((img.width, img.height), (plain.width, plain.height));
+
+        let green: Vec<(u32, u32)> = (0..img.height)
+            .flat_map(|y| (0..img.width).map(move |x| (x, y)))
+            .filter(|&(x, y)| img.px(x, y) == FEATURE_RGB)
+            .collect();
+        let mut expected: Vec<(u32, u32)> = (5..=25).map(|x| (x, 4)).collect();
+        for d in -2i32..=2 {
+            expected.push(((30 + d) as u32, (19 + d) as u32));
+            expected.push(((30 + d) as u32, (19 - d) as u32));
+            for (x, y) in [(10 + d, 17), (10 + d, 21), (8, 19 + d), (12, 19 + d)] {
+                expected.push((x as u32, y as u32));
+            }
+            // The edge post: only the parts of its square inside the map.
+            for (x, y) in [(39 + d, -2), (39 + d, 2), (37, d), (41, d)] {
+                if (0..40).contains(&x) && (0..30).contains(&y) {
+                    expected.push((x as u32, y as u32));
+                }
+            }
+        }
+        expected.sort_by_key(|&(x, y)| (y, x));
+        expected.dedup();
+        assert_eq!(green, expected);
+        // Every other pixel is the plain picture's, the legend included.
+        for y in 0..img.height {
+            for x in 0..img.width {
+                if !expected.contains(&(x, y)) {
+                    assert_eq!(img.px(x, y), plain.px(x, y), "({x}, {y})");
+                }
+            }
+        }
+        assert!(
+            img.comment
+                .ends_with("1 walls as lines, 1 corners as crosses, 2 posts as squares"),
+            "{}",
+            img.comment
+        );
     }
 
     #[test]

@@ -198,6 +198,16 @@ fn sonar_export_writes_the_live_room_as_png_ros_map_csv_and_npy() {
         }),
         "a wall 1.2 m away:\n{csv}"
     );
+    // A plane's angle_deg is its normal's direction from the origin towards the wall, as
+    // docs/export.md says: the foot of the perpendicular lies along it (issue 28).
+    for r in rows.iter().filter(|r| r[1] == "plane") {
+        let (x, y, angle) = (field_f32(&r[2]), field_f32(&r[3]), field_f32(&r[7]));
+        let off = (y.atan2(x).to_degrees() - angle + 540.0).rem_euclid(360.0) - 180.0;
+        assert!(
+            off.abs() < 1.0,
+            "angle_deg {angle} vs foot ({x}, {y}):\n{csv}"
+        );
+    }
     let json = std::fs::read_to_string(format!("{}.features.json", stem.display())).unwrap();
     assert!(json.starts_with("{\n  \"seq\": "), "{json}");
     assert!(
@@ -310,6 +320,61 @@ fn sonar_export_writes_the_live_room_as_png_ros_map_csv_and_npy() {
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("no readings count in {comment:?}"));
     assert!(readings >= 100, "two full sweeps of 50 readings: {comment}");
+
+    // --features: the walls, corners and posts drawn over the PNG in the overlay's green, a wall
+    // on the room's walls 1.2 m from the sensor (issue 28).
+    let with_features = dir.join("room-features");
+    let out = sandbox.run(
+        "sonar-export",
+        &[
+            "--format",
+            "png",
+            "--features",
+            "--out",
+            path_str(&with_features),
+        ],
+    );
+    check_ok("sonar-export --features", &out);
+    let mut reader = png::Decoder::new(std::io::Cursor::new(
+        std::fs::read(with_features.with_extension("png")).unwrap(),
+    ))
+    .read_info()
+    .unwrap();
+    let mut pixels = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut pixels).unwrap();
+    let width = info.width as usize;
+    let green: Vec<(usize, usize)> = (0..SIDE)
+        .flat_map(|y| (0..SIDE).map(move |x| (x, y)))
+        .filter(|&(x, y)| {
+            let i = ((SIDE - 1 - y) * width + x) * 3;
+            // The overlay's green, as docs/export.md gives it.
+            pixels[i..i + 3] == [60, 255, 60]
+        })
+        .collect();
+    let comment = &reader.info().uncompressed_latin1_text[0].text;
+    assert!(comment.contains(" walls as lines"), "{comment}");
+    let on_a_wall = |&(x, y): &(usize, usize)| {
+        let (wx, wy) = (
+            ORIGIN + (x as f32 + 0.5) * RES,
+            ORIGIN + (y as f32 + 0.5) * RES,
+        );
+        (wx.abs().max(wy.abs()) - 1.2).abs() < 0.1
+    };
+    assert!(
+        green.iter().filter(|c| on_a_wall(c)).count() >= 20,
+        "a wall drawn on the room's walls: {} green pixels, {comment}",
+        green.len()
+    );
+    // Only the PNG carries the overlay: asked without it, a clear error before any wait.
+    let out = sandbox.run(
+        "sonar-export",
+        &["--format", "pgm", "--features", "--timeout", "1"],
+    );
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("add png to --format"),
+        "{out:?}"
+    );
 }
 
 /// The recorded readings, fused offline, give exactly the map and the features the live engine

@@ -313,6 +313,31 @@ fn damaged_or_foreign_files_are_clear_errors() {
     assert!(!out.status.success());
     assert!(stderr.contains("--force"), "{stderr}");
     assert_eq!(std::fs::read(&noise).unwrap(), fake, "the file was touched");
+
+    // A recording without readings (its recorder stopped before a driver published any): said,
+    // and a failure, by sonar-replay and by sonar-pipeline --replay, instead of a silent exit 0.
+    let node = sandbox.node("test-waiter");
+    let empty = sandbox.root.join("empty.mcap");
+    let recorder = sandbox.spawn("sonar-record", &[path_str(&empty)]);
+    wait_until(&node, "the recorder's subscription", || {
+        readings_subscribers(&node) >= 1
+    });
+    assert!(
+        recorder.terminate().success(),
+        "sonar-record did not exit cleanly"
+    );
+    let out = sandbox.run("sonar-replay", &[path_str(&empty), "--speed", "max"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(stderr.contains("holds no readings"), "{stderr}");
+    assert!(stderr.contains("--info"), "{stderr}");
+    let out = sandbox.run(
+        "sonar-pipeline",
+        &["--replay", path_str(&empty), "--no-viewer"],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(stderr.contains("holds no readings"), "{stderr}");
 }
 
 type GridSubscriber = Subscriber<Ipc, [u8], ipc::GridHeader>;

@@ -4,8 +4,11 @@
 
 use std::time::{Duration, Instant};
 
-use sonar_common::ipc::{self, ScanMode};
-use sonar_e2e::{PATIENCE, Sandbox, Tmux, collect_until, map_wall_rows, pids_of};
+use sonar_common::ipc::{self, Reading, ScanMode};
+use sonar_e2e::{
+    PATIENCE, Sandbox, Tmux, collect_until, driver_ports, map_wall_rows, path_str, pids_of,
+    readings_subscribers, wait_until,
+};
 
 /// The sensor on the map: an arrow along its heading, `@` without one (see the viewer's README).
 const SENSOR_GLYPHS: [char; 9] = ['→', '↗', '↑', '↖', '←', '↙', '↓', '↘', '@'];
@@ -106,4 +109,66 @@ fn the_viewer_exits_when_its_terminal_hangs_up() {
     assert!(text.contains("the terminal went away"), "{text}");
     let left = sandbox.stale_shm_files();
     assert!(left.is_empty(), "stale shared memory: {left:?}");
+}
+
+/// Issue 28: while nothing runs the panel says where the viewer looks; readings from sonar-replay
+/// that end are a finished replay, not a driver gone.
+#[test]
+fn the_viewer_names_its_namespace_and_says_when_a_replay_finished() {
+    let sandbox = Sandbox::new("viewerreplay");
+    let log = sandbox.root.join("viewer.log");
+    let log = log.to_str().unwrap();
+    let term = Tmux::start(&sandbox, "sonar-viewer", &["--log-file", log], 140, 50);
+    let waiting = term.wait_for("the viewer waiting", |s| s.contains("waiting for driver"));
+    assert!(waiting.contains("looking"), "{waiting}");
+    assert!(
+        waiting.contains(&format!("\"{}\"", sandbox.prefix)),
+        "the prefix {} in\n{waiting}",
+        sandbox.prefix
+    );
+
+    // A recording of 20 readings, the test standing in for the driver.
+    let node = sandbox.node("test-driver");
+    let file = sandbox.root.join("run.mcap");
+    let recorder = sandbox.spawn("sonar-record", &[path_str(&file), "--no-foxglove"]);
+    wait_until(
+        &node,
+        "the viewer's and the recorder's subscriptions",
+        || readings_subscribers(&node) >= 2,
+    );
+    let (readings, wake) = driver_ports(&node);
+    for seq in 0..20u64 {
+        let reading = Reading {
+            seq,
+            host_stamp_ns: 1_700_000_000_000_000_000 + seq * 25_000_000,
+            layout_version: ipc::LAYOUT_VERSION,
+            sweep_id: 1,
+            angle_deg: -147.0 + 6.0 * seq as f32,
+            beam_half_angle_deg: 30.0,
+            distance_m: 1.2,
+            ping_count: 4,
+            pings_used: 4,
+            direction: 1,
+            mode: 1,
+            ..Default::default()
+        };
+        readings.send_copy(reading).unwrap();
+        wake.notify().unwrap();
+    }
+    assert!(recorder.terminate().success(), "sonar-record failed");
+    drop((readings, wake));
+
+    // It stays 5 s after its last reading: the viewer looks at who publishes once a second.
+    let replay = sandbox.spawn(
+        "sonar-replay",
+        &[path_str(&file), "--speed", "max", "--linger", "5"],
+    );
+    term.wait_for("the replay running", |s| s.contains("replay running"));
+    let (status, stderr) = replay.wait_exit();
+    assert!(status.success(), "sonar-replay failed: {stderr}");
+    let finished = term.wait_for("the replay finished", |s| s.contains("replay finished"));
+    assert!(!finished.contains("gone for"), "{finished}");
+    term.send_keys(&["q"]);
+    let after = term.wait_for("the viewer's exit", |s| s.contains("EXIT="));
+    assert!(after.contains("EXIT=0"), "{after}");
 }

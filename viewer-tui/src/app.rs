@@ -12,9 +12,9 @@ use crossterm::event::{
     KeyCode, KeyEvent, KeyEventKind, KeyModifiers, MouseButton, MouseEvent, MouseEventKind,
 };
 use sonar_common::ipc::{
-    DriverStatus, FeatureRecord, FeaturesHeader, FusionCommand, FusionCommandKind, GridHeader,
-    LAYOUT_VERSION, LocalizedPose, MAX_FEATURES, RADAR_MAX_BINS, Radar, Reading, ScanCommand,
-    ScanCommandKind, ScanMode, preset_code,
+    DriverStatus, FeatureRecord, FeaturesHeader, FusionCommand, FusionCommandKind, FusionStatus,
+    GridHeader, LAYOUT_VERSION, LocalizedPose, MAX_FEATURES, RADAR_MAX_BINS, Radar, Reading,
+    ScanCommand, ScanCommandKind, ScanMode, preset_code,
 };
 use sonar_common::sensor::SensorConfig;
 
@@ -582,6 +582,12 @@ pub struct App {
     pub show_features: bool,
     pub driver: Option<DriverStatus>,
     pub driver_peer: Peer,
+    /// The readings come from `sonar-replay`, not a driver: when they stop, the replay finished.
+    pub replay: bool,
+    /// The fusion engine's latest counters (`sonar/fusion_status`): readings lost, saves, ….
+    pub fusion_status: Option<FusionStatus>,
+    /// Where the viewer looks for the pipeline (iceoryx2 prefix and root), said while it waits.
+    pub namespace: Option<String>,
     pub fusion_peer: Peer,
     /// The newest readings, newest first.
     pub readings: VecDeque<Reading>,
@@ -630,6 +636,9 @@ impl App {
             show_features: true,
             driver: None,
             driver_peer: Peer::default(),
+            replay: false,
+            fusion_status: None,
+            namespace: None,
             fusion_peer: Peer::default(),
             readings: VecDeque::with_capacity(LAST_READINGS + 1),
             rate: RateMeter::default(),
@@ -761,6 +770,24 @@ impl App {
         Ok(())
     }
 
+    /// Takes a copy of the fusion engine's counters; a copy that differs only in its stamp (the
+    /// once-a-second repeat) costs no frame.
+    pub fn on_fusion_status(&mut self, status: &FusionStatus, now: Instant) -> Result<(), String> {
+        self.fusion_peer.seen(now);
+        if status.layout_version != LAYOUT_VERSION {
+            return Err(format!(
+                "fusion status layout version {}",
+                status.layout_version
+            ));
+        }
+        let unstamped = |s: &FusionStatus| FusionStatus { stamp_ns: 0, ..*s };
+        if self.fusion_status.as_ref().map(unstamped) != Some(unstamped(status)) {
+            self.revision += 1;
+        }
+        self.fusion_status = Some(*status);
+        Ok(())
+    }
+
     pub fn on_reading(&mut self, reading: &Reading, now: Instant) {
         self.driver_peer.seen(now);
         self.readings.push_front(*reading);
@@ -786,8 +813,21 @@ impl App {
         last.is_none_or(|last| *last != self.drawn(now))
     }
 
-    /// Which producers have a publisher whose process is alive.
-    pub fn on_publishers(&mut self, driver_alive: bool, fusion_alive: bool, now: Instant) {
+    /// Which producers have a publisher whose process is alive, and whether the readings' live
+    /// publisher is a replay (`None`: no live publisher of readings, so whoever it was stays).
+    pub fn on_publishers(
+        &mut self,
+        driver_alive: bool,
+        fusion_alive: bool,
+        replay: Option<bool>,
+        now: Instant,
+    ) {
+        if let Some(replay) = replay
+            && replay != self.replay
+        {
+            self.replay = replay;
+            self.revision += 1;
+        }
         if driver_alive {
             self.driver_peer.seen(now);
         }
@@ -1761,7 +1801,7 @@ mod tests {
             ..DriverStatus::default()
         };
         viewer.on_driver_status(&status, t0).unwrap();
-        viewer.on_publishers(true, true, t0);
+        viewer.on_publishers(true, true, None, t0);
         let drawn = viewer.drawn(t0);
         assert!(!viewer.needs_redraw(t0, Some(&drawn)));
 
@@ -1773,7 +1813,7 @@ mod tests {
             ..status
         };
         viewer.on_driver_status(&repeated, t1).unwrap();
-        viewer.on_publishers(true, true, t1);
+        viewer.on_publishers(true, true, None, t1);
         let drawn = viewer.drawn(t1);
         let t2 = t1 + Duration::from_secs(1);
         viewer
@@ -1785,7 +1825,7 @@ mod tests {
                 t2,
             )
             .unwrap();
-        viewer.on_publishers(true, true, t2);
+        viewer.on_publishers(true, true, None, t2);
         assert!(!viewer.needs_redraw(t2, Some(&drawn)));
 
         // A status that says something new does.
@@ -1835,7 +1875,7 @@ mod tests {
         for (i, change) in changes.iter().enumerate() {
             let mut changed = app();
             changed.on_driver_status(&scanning, t2).unwrap();
-            changed.on_publishers(true, true, t2);
+            changed.on_publishers(true, true, None, t2);
             let before = changed.drawn(t2);
             change(&mut changed);
             assert!(changed.needs_redraw(t2, Some(&before)), "change {i}");

@@ -8,16 +8,26 @@ use std::fs::{File, OpenOptions};
 use std::io::{self, BufWriter, ErrorKind, Write};
 use std::path::{Path, PathBuf};
 
+use sonar_common::ipc::FeatureRecord;
 use sonar_mapfiles::picture::PngOptions;
 use sonar_mapfiles::{Map, MapError};
 
 use crate::app::GridSnapshot;
 
-/// Encodes `grid` as an 8-bit RGB PNG, one pixel per cell, with the legend below, as
-/// `sonar-export` does.
-pub fn write_png<W: Write>(out: W, grid: &GridSnapshot) -> Result<(), MapError> {
+/// Encodes `grid` as an 8-bit RGB PNG, one pixel per cell, with the legend below and `features`
+/// drawn over the map (the overlay as shown, `None` when hidden), as `sonar-export [--features]`
+/// does.
+pub fn write_png<W: Write>(
+    out: W,
+    grid: &GridSnapshot,
+    features: Option<&[FeatureRecord]>,
+) -> Result<(), MapError> {
     let map = Map::new(&grid.header, &grid.cells)?;
-    sonar_mapfiles::picture::write_png(out, &map, &PngOptions { legend: true })
+    let options = PngOptions {
+        legend: true,
+        features,
+    };
+    sonar_mapfiles::picture::write_png(out, &map, &options)
 }
 
 /// Where `s` saves maps unless `--save-dir` says otherwise: `$XDG_DATA_HOME/sonar/maps`, else
@@ -45,13 +55,18 @@ pub fn file_stem(unix_secs: u64) -> String {
 
 /// Saves `grid` into `dir` (created if missing) under a timestamped name that no existing file
 /// has; returns the path.
-pub fn save_png(dir: &Path, grid: &GridSnapshot, unix_secs: u64) -> io::Result<PathBuf> {
+pub fn save_png(
+    dir: &Path,
+    grid: &GridSnapshot,
+    features: Option<&[FeatureRecord]>,
+    unix_secs: u64,
+) -> io::Result<PathBuf> {
     std::fs::create_dir_all(dir)
         .map_err(|e| io::Error::new(e.kind(), format!("{}: {e}", dir.display())))?;
     let stem = file_stem(unix_secs);
     let (path, file) = create_unique(dir, &stem)?;
     let mut out = BufWriter::new(file);
-    let written = write_png(&mut out, grid)
+    let written = write_png(&mut out, grid, features)
         .map_err(io::Error::other)
         .and_then(|()| out.flush());
     if let Err(e) = written {
@@ -129,7 +144,7 @@ mod tests {
     #[test]
     fn png_has_one_pixel_per_cell_with_the_highest_row_on_top_and_the_legend_below() {
         let mut bytes = Vec::new();
-        write_png(&mut bytes, &grid()).unwrap();
+        write_png(&mut bytes, &grid(), None).unwrap();
         let mut reader = png::Decoder::new(std::io::Cursor::new(bytes))
             .read_info()
             .unwrap();
@@ -150,13 +165,13 @@ mod tests {
         let top = std::env::temp_dir().join(format!("sonar-viewer-test-{}", std::process::id()));
         let dir = top.join("sonar/maps");
         assert!(!dir.exists());
-        let a = save_png(&dir, &grid(), 0).unwrap();
-        let b = save_png(&dir, &grid(), 0).unwrap();
+        let a = save_png(&dir, &grid(), None, 0).unwrap();
+        let b = save_png(&dir, &grid(), None, 0).unwrap();
         assert_eq!(a, dir.join("sonar-map-19700101-000000.png"));
         assert_eq!(b, dir.join("sonar-map-19700101-000000-2.png"));
         // A directory that cannot be made (a file is in the way) is an error naming it.
         let blocked = a.join("maps");
-        let e = save_png(&blocked, &grid(), 0).unwrap_err();
+        let e = save_png(&blocked, &grid(), None, 0).unwrap_err();
         assert!(e.to_string().contains(&*blocked.to_string_lossy()), "{e}");
         std::fs::remove_dir_all(&top).unwrap();
     }

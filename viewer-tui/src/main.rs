@@ -228,6 +228,7 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
         ColorArg::None => ColorMode::Mono,
     };
     let mut app = App::new(Palette::new(mode), args.view.into());
+    app.namespace = Some(args.ipc.describe());
     match &log {
         Ok(path) => info!(log = %path.display(), ?mode, "viewer starting"),
         Err(problem) => app.message = Some(problem.clone()),
@@ -346,9 +347,18 @@ fn perform(action: Action, app: &mut App, source: &mut Source, args: &Args) -> b
         Action::Fusion(cmd) => delivery(source.send_fusion(cmd, now), "fusion engine"),
         Action::SaveMap => match &app.grid {
             None => Err("no map yet".to_owned()),
-            Some(grid) => export::save_png(&save_dir(args), grid, unix_time_ns() / 1_000_000_000)
-                .map(|path| format!("saved {}", path.display()))
-                .map_err(|e| e.to_string()),
+            Some(grid) => export::save_png(
+                &save_dir(args),
+                grid,
+                // The picture as on screen: with the features while the overlay (`o`) is on.
+                app.features
+                    .as_ref()
+                    .filter(|_| app.show_features)
+                    .map(|f| f.records.as_slice()),
+                unix_time_ns() / 1_000_000_000,
+            )
+            .map(|path| format!("saved {}", path.display()))
+            .map_err(|e| e.to_string()),
         },
     };
     app.message = Some(match outcome {

@@ -17,6 +17,7 @@ use std::fmt::Debug;
 use std::time::{Duration, Instant};
 
 use iceoryx2::identifiers::UniqueNodeId;
+use iceoryx2::node::NodeView;
 use iceoryx2::port::ReceiveError;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -26,8 +27,8 @@ use iceoryx2::service::dynamic_config::publish_subscribe::PublisherDetails;
 use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::service::port_factory::PortFactory;
 use sonar_common::ipc::{
-    self, DriverStatus, FeatureRecord, FeaturesHeader, FusionCommand, GridHeader, IpcError,
-    LocalizedPose, PubSub, Radar, Reading, ScanCommand,
+    self, DriverStatus, FeatureRecord, FeaturesHeader, FusionCommand, FusionStatus, GridHeader,
+    IpcError, LocalizedPose, PubSub, Radar, Reading, ScanCommand,
 };
 use tracing::{info, warn};
 
@@ -99,6 +100,7 @@ pub struct Source {
     features: Lazy<FeaturesSub>,
     localized: Lazy<Sub<LocalizedPose>>,
     status: Lazy<Sub<DriverStatus>>,
+    fusion_status: Lazy<Sub<FusionStatus>>,
     readings: Lazy<Sub<Reading>>,
     commands: Lazy<CommandPort<ScanCommand>>,
     fusion_commands: Lazy<CommandPort<FusionCommand>>,
@@ -124,6 +126,7 @@ impl Source {
             features: Lazy::new(ipc::FEATURES_SERVICE),
             localized: Lazy::new(ipc::LOCALIZED_POSE_SERVICE),
             status: Lazy::new(ipc::DRIVER_STATUS_SERVICE),
+            fusion_status: Lazy::new(ipc::FUSION_STATUS_SERVICE),
             readings: Lazy::new(ipc::READINGS_SERVICE),
             commands: Lazy::new(ipc::COMMANDS_SERVICE),
             fusion_commands: Lazy::new(ipc::FUSION_COMMANDS_SERVICE),
@@ -140,6 +143,7 @@ impl Source {
             &self.features.error,
             &self.localized.error,
             &self.status.error,
+            &self.fusion_status.error,
             &self.readings.error,
             &self.commands.error,
             &self.fusion_commands.error,
@@ -235,6 +239,21 @@ impl Source {
         }
 
         if let Some((_, sub)) = self
+            .fusion_status
+            .get(now, || subscribe(node, ipc::fusion_status_service))
+        {
+            match newest(|| sub.receive()) {
+                Ok(Some(sample)) => {
+                    if let Err(e) = app.on_fusion_status(sample.payload(), now) {
+                        reject(app, "fusion status", &e);
+                    }
+                }
+                Ok(None) => {}
+                Err(e) => self.fusion_status.fail(now, format!("receive: {e:?}")),
+            }
+        }
+
+        if let Some((_, sub)) = self
             .readings
             .get(now, || subscribe(node, ipc::readings_service))
         {
@@ -254,12 +273,18 @@ impl Source {
 
         if now >= self.next_liveness_check {
             self.next_liveness_check = now + LIVENESS_PERIOD;
-            let driver = self.publishers_alive(|f| {
+            let driver = self.live_publishers(|f| {
                 if let Some((s, _)) = &self.status.port {
                     s.dynamic_config().list_publishers(f);
                 }
             });
-            let fusion = self.publishers_alive(|f| {
+            // Whoever publishes the readings: a driver, or a replay standing in for one.
+            let reading_publishers = self.live_publishers(|f| {
+                if let Some((s, _)) = &self.readings.port {
+                    s.dynamic_config().list_publishers(f);
+                }
+            });
+            let fusion = self.live_publishers(|f| {
                 if let Some((s, _)) = &self.grid.port {
                     s.dynamic_config().list_publishers(&mut *f);
                 }
@@ -267,32 +292,52 @@ impl Source {
                     s.dynamic_config().list_publishers(&mut *f);
                 }
                 if let Some((s, _)) = &self.features.port {
+                    s.dynamic_config().list_publishers(&mut *f);
+                }
+                if let Some((s, _)) = &self.fusion_status.port {
                     s.dynamic_config().list_publishers(f);
                 }
             });
-            app.on_publishers(driver, fusion, now);
+            let replay = (!reading_publishers.is_empty()).then(|| {
+                reading_publishers
+                    .iter()
+                    .any(|name| name.as_deref() == Some(ipc::REPLAY_NODE_NAME))
+            });
+            app.on_publishers(
+                !driver.is_empty() || !reading_publishers.is_empty(),
+                !fusion.is_empty(),
+                replay,
+                now,
+            );
         }
         app.ipc_problem = self.problem();
     }
 
-    /// Whether any publisher that `list` reports belongs to a live process. A publisher of a
-    /// process that was killed stays registered until someone cleans up, so presence alone is not
-    /// enough; a node we may not inspect counts as alive.
-    fn publishers_alive(
+    /// The node names of the live processes behind the publishers that `list` reports (`None`
+    /// for a node whose name cannot be read). A publisher of a process that was killed stays
+    /// registered until someone cleans up, so presence alone is not enough; a node we may not
+    /// inspect counts as alive.
+    fn live_publishers(
         &self,
         list: impl FnOnce(&mut dyn FnMut(&PublisherDetails) -> CallbackProgression),
-    ) -> bool {
+    ) -> Vec<Option<String>> {
         let mut nodes: Vec<UniqueNodeId> = Vec::new();
         list(&mut |details| {
             nodes.push(details.node_id);
             CallbackProgression::Continue
         });
-        nodes.into_iter().any(|id| {
-            matches!(
-                Node::<Ipc>::state_of(self.node.config(), id),
-                Ok(Some(NodeState::Alive(_) | NodeState::Inaccessible(_)))
-            )
-        })
+        nodes
+            .into_iter()
+            .filter_map(|id| match Node::<Ipc>::state_of(self.node.config(), id) {
+                Ok(Some(NodeState::Alive(view))) => Some(
+                    view.details()
+                        .as_ref()
+                        .map(|d| d.name().as_str().to_owned()),
+                ),
+                Ok(Some(NodeState::Inaccessible(_))) => Some(None),
+                _ => None,
+            })
+            .collect()
     }
 
     /// Publishes a command to the driver; the number of drivers that received it.

@@ -783,6 +783,97 @@ fn paint_segment(
     );
 }
 
+/// Whoever publishes the readings: the driver's liveness, or a replay's (whose readings stop
+/// because the recording ended: not a fault).
+fn source_span(app: &App, now: Instant) -> Span<'static> {
+    match (app.replay, app.driver_peer.liveness(now)) {
+        (true, Liveness::Alive) => Span::styled("replay running", Style::new().fg(Color::Green)),
+        (true, Liveness::Gone(_)) => Span::styled("replay finished", Style::new().fg(Color::Cyan)),
+        (_, liveness) => liveness_span(liveness, "driver"),
+    }
+}
+
+/// While the driver or the fusion has never been seen: where the viewer looks, and what to check.
+fn where_to_look(app: &App, now: Instant) -> Option<Line<'static>> {
+    let namespace = app.namespace.as_ref()?;
+    let waiting = [app.driver_peer, app.fusion_peer]
+        .iter()
+        .any(|p| p.liveness(now) == Liveness::Waiting);
+    waiting.then(|| {
+        row(
+            "looking",
+            vec![Span::styled(
+                format!(
+                    "on {namespace}: is a pipeline running there, with the same \
+                     --iox-prefix/--iox-root? (`sonar services` lists it)"
+                ),
+                Style::new().fg(Color::Yellow),
+            )],
+        )
+    })
+}
+
+/// The fusion engine's health counters (`sonar/fusion_status`), the ones to look at when the map
+/// seems to miss something: readings lost or rejected, maps not published, saves.
+fn fusion_health(app: &App) -> Vec<Line<'static>> {
+    let Some(s) = &app.fusion_status else {
+        return Vec::new();
+    };
+    let count = |n: u64, what: &str, bad: Color| {
+        let style = if n > 0 {
+            Style::new().fg(bad)
+        } else {
+            Style::new()
+        };
+        Span::styled(format!("{} {what}", format_count(n)), style)
+    };
+    let mut lines = vec![row(
+        "health",
+        vec![
+            count(s.readings_lost, "lost", Color::Yellow),
+            text(" · "),
+            count(s.readings_rejected, "rejected", Color::Yellow),
+        ],
+    )];
+    let mut more = Vec::new();
+    if s.readings_out_of_order > 0 {
+        more.push(count(
+            s.readings_out_of_order,
+            "seq restarts",
+            Color::Yellow,
+        ));
+    }
+    if s.snapshots_skipped > 0 {
+        if !more.is_empty() {
+            more.push(text(" · "));
+        }
+        more.push(count(s.snapshots_skipped, "maps skipped", Color::Yellow));
+    }
+    if !more.is_empty() {
+        lines.push(row("", more));
+    }
+    let mut saves = Vec::new();
+    if s.saves > 0 {
+        saves.push(text(format!("{} saved", format_count(s.saves))));
+    }
+    if s.save_failures > 0 {
+        if !saves.is_empty() {
+            saves.push(text(" · "));
+        }
+        saves.push(Span::styled(
+            format!("{} failed", s.save_failures),
+            Style::new().fg(Color::Red).add_modifier(Modifier::BOLD),
+        ));
+    }
+    if !saves.is_empty() {
+        lines.push(row("saves", saves));
+    }
+    if s.restored != 0 {
+        lines.push(row("", vec![text("map restored at start")]));
+    }
+    lines
+}
+
 fn liveness_span(liveness: Liveness, name: &str) -> Span<'static> {
     match liveness {
         Liveness::Waiting => Span::styled(
@@ -994,7 +1085,7 @@ fn confident_features(app: &App, n: usize) -> Vec<Line<'static>> {
 fn status_lines(app: &App, now: Instant, width: u16, height: u16) -> Vec<Line<'static>> {
     let mut lines = Vec::new();
     let driver_live = app.driver_peer.liveness(now);
-    let mut driver = vec![liveness_span(driver_live, "driver")];
+    let mut driver = vec![source_span(app, now)];
     if let (Liveness::Alive, Some(s)) = (driver_live, &app.driver) {
         let link = match s.link_state {
             x if x == LinkState::Connected as u32 => "connected",
@@ -1012,6 +1103,8 @@ fn status_lines(app: &App, now: Instant, width: u16, height: u16) -> Vec<Line<'s
         "fusion",
         vec![liveness_span(app.fusion_peer.liveness(now), "fusion")],
     ));
+    lines.extend(where_to_look(app, now));
+    lines.extend(fusion_health(app));
 
     let Sweep {
         mode,
@@ -1245,6 +1338,7 @@ fn compact_line(app: &App, now: Instant) -> Line<'static> {
         let liveness = peer.liveness(now);
         parts.push(match liveness {
             Liveness::Waiting => vec![liveness_span(liveness, name)],
+            _ if name == "driver" && app.replay => vec![source_span(app, now)],
             _ => vec![text(format!("{name} ")), liveness_span(liveness, name)],
         });
     }

@@ -9,9 +9,9 @@ use ratatui::Terminal;
 use ratatui::backend::TestBackend;
 use ratatui::buffer::Buffer;
 use sonar_common::ipc::{
-    CELL_UNKNOWN, DriverStatus, FeatureRecord, FeaturesHeader, GridHeader, LAYOUT_VERSION,
-    LinkState, LocalizedPose, Radar, Reading, ScanMode, encode_probability, flags, model_code,
-    preset_code, rule_code,
+    CELL_UNKNOWN, DriverStatus, FeatureRecord, FeaturesHeader, FusionStatus, GridHeader,
+    LAYOUT_VERSION, LinkState, LocalizedPose, Radar, Reading, ScanMode, encode_probability, flags,
+    model_code, preset_code, rule_code,
 };
 
 use super::*;
@@ -529,6 +529,146 @@ fn producers_that_stop_are_reported_gone() {
     assert!(text.contains('▄'));
 }
 
+/// Issue 28: the fusion's health counters (`sonar/fusion_status`) are in the panel, the ones that
+/// went wrong in colour, and a repeat that only moves the stamp costs no frame.
+#[test]
+fn the_fusion_health_counters_are_shown() {
+    let t0 = Instant::now();
+    let mut app = live_app(t0);
+    let healthy = FusionStatus {
+        stamp_ns: 1,
+        readings_received: 250,
+        readings_fused: 250,
+        saves: 3,
+        layout_version: LAYOUT_VERSION,
+        ..FusionStatus::default()
+    };
+    app.on_fusion_status(&healthy, t0).unwrap();
+    let text = screen_text(draw(&mut app, 120, 40, t0).backend().buffer());
+    assert!(text.contains("health   0 lost · 0 rejected"), "{text}");
+    assert!(text.contains("saves    3 saved"), "{text}");
+    assert!(!text.contains("seq restarts"), "{text}");
+
+    let drawn = app.drawn(t0);
+    app.on_fusion_status(
+        &FusionStatus {
+            stamp_ns: 2,
+            ..healthy
+        },
+        t0,
+    )
+    .unwrap();
+    assert!(!app.needs_redraw(t0, Some(&drawn)));
+
+    let troubled = FusionStatus {
+        stamp_ns: 3,
+        readings_lost: 17,
+        readings_rejected: 2,
+        readings_out_of_order: 1,
+        save_failures: 4,
+        restored: 1,
+        ..healthy
+    };
+    app.on_fusion_status(&troubled, t0).unwrap();
+    assert!(app.needs_redraw(t0, Some(&drawn)));
+    let terminal = draw(&mut app, 120, 40, t0);
+    let buf = terminal.backend().buffer();
+    let text = screen_text(buf);
+    for expected in [
+        "health   17 lost · 2 rejected",
+        "1 seq restarts",
+        "saves    3 saved · 4 failed",
+        "map restored at start",
+    ] {
+        assert!(text.contains(expected), "missing {expected:?} in\n{text}");
+    }
+    let (row, line) = text
+        .lines()
+        .enumerate()
+        .find(|(_, l)| l.contains("17 lost"))
+        .unwrap();
+    let column = line.find("17 lost").unwrap();
+    let column = line[..column].chars().count() as u16;
+    assert_eq!(buf[(column, row as u16)].fg, Color::Yellow);
+
+    // Another layout is refused, the counters kept.
+    let old = FusionStatus {
+        layout_version: 0,
+        ..troubled
+    };
+    assert!(app.on_fusion_status(&old, t0).is_err());
+    assert_eq!(app.fusion_status, Some(troubled));
+}
+
+/// Issue 28: while nothing has been seen, the panel says on which iceoryx2 prefix and root the
+/// viewer looks and what to check; once both producers are there it no longer does.
+#[test]
+fn waiting_names_where_the_viewer_looks() {
+    let t0 = Instant::now();
+    let mut app = App::new(Palette::new(ColorMode::TrueColor), View::Split);
+    app.namespace = Some("iceoryx2 prefix \"robot_\", root /tmp/sonar-x/".to_owned());
+    let text = screen_text(draw(&mut app, 120, 32, t0).backend().buffer());
+    let panel: String = text
+        .lines()
+        .map(|l| {
+            l.chars()
+                .skip(87)
+                .take(32)
+                .collect::<String>()
+                .trim()
+                .to_owned()
+        })
+        .collect::<Vec<_>>()
+        .join(" ");
+    for expected in [
+        "waiting for driver…",
+        "prefix \"robot_\", root",
+        "/tmp/sonar-x/",
+        "--iox-prefix/--iox-root",
+        "sonar services",
+    ] {
+        assert!(panel.contains(expected), "missing {expected:?} in\n{text}");
+    }
+
+    let mut live = live_app(t0);
+    live.namespace = app.namespace.clone();
+    let text = screen_text(draw(&mut live, 120, 32, t0).backend().buffer());
+    assert!(!text.contains("robot_"), "{text}");
+}
+
+/// Issue 28: readings from `sonar-replay` that stop mean the recording ended: the panel says the
+/// replay finished, not that a driver is gone.
+#[test]
+fn a_finished_replay_is_not_a_driver_gone() {
+    let t0 = Instant::now();
+    let mut app = App::new(Palette::new(ColorMode::TrueColor), View::Split);
+    let (header, cells) = room_grid();
+    app.on_grid(&header, &cells, t0).unwrap();
+    app.on_reading(&reading(1, 10.0, 1.5, 0), t0);
+    app.on_publishers(true, true, Some(true), t0);
+    let text = screen_text(draw(&mut app, 120, 32, t0).backend().buffer());
+    assert!(text.contains("driver   replay running"), "{text}");
+
+    // The replay exits: no live publisher of readings is left (`None`: whoever it was stays).
+    let later = t0 + Duration::from_secs(12);
+    app.on_publishers(false, true, None, later);
+    let text = screen_text(draw(&mut app, 120, 32, later).backend().buffer());
+    assert!(text.contains("driver   replay finished"), "{text}");
+    assert!(!text.contains("gone for"), "{text}");
+    let compact = screen_text(draw(&mut app, 70, 14, later).backend().buffer());
+    assert!(
+        compact.contains(" replay finished · fusion alive"),
+        "{compact}"
+    );
+
+    // A driver that takes over is a driver again, and its loss is a loss.
+    app.on_publishers(true, true, Some(false), later);
+    let much_later = later + Duration::from_secs(12);
+    app.on_publishers(false, true, None, much_later);
+    let text = screen_text(draw(&mut app, 120, 32, much_later).backend().buffer());
+    assert!(text.contains("driver   gone for 12 s"), "{text}");
+}
+
 #[test]
 fn the_head_its_silences_and_its_latest_error_reach_the_status_panel() {
     let t0 = Instant::now();
@@ -610,7 +750,7 @@ fn a_small_terminal_shows_the_essentials_in_one_line() {
     sonar_common::ipc::set_padded_text(&mut status.last_device_error, "RANGE: 100..200");
     app.on_driver_status(&status, t0).unwrap();
     let later = t0 + Duration::from_secs(5);
-    app.on_publishers(true, false, later);
+    app.on_publishers(true, false, None, later);
     let screen = screen_text(draw(&mut app, 70, 14, later).backend().buffer());
     let line = screen.lines().nth(12).unwrap();
     assert!(

@@ -74,6 +74,7 @@ const TICK: Duration = Duration::from_millis(500);
 ///
 /// Examples:
 ///   sonar-export --format png --out room.png
+///   sonar-export --format png --features --out room   # walls, corners, posts over the map
 ///   sonar-export --format all --out maps/room --sweeps 2
 ///   sonar-export --format pgm --out map --from-recording run.mcap --preset paper
 ///   sonar-export --format features-csv,features-json --out maps/room
@@ -108,6 +109,12 @@ struct Args {
     /// PNG without the legend strip (scale bar, colour ramp): exactly one pixel per cell.
     #[arg(long)]
     no_legend: bool,
+    /// Draw the walls, corners and posts (sonar/features, or the offline feature tracker's) over
+    /// the PNG in green, as the viewer's overlay (`o`) does: walls as lines, corners as crosses,
+    /// posts as squares. A sonar map of a room is arcs, not walls (README, "What a sonar map
+    /// looks like"): the overlay shows the walls found in it. Live, waits for a features snapshot.
+    #[arg(long)]
+    features: bool,
     /// Live: wait for a map with at least N readings fused.
     #[arg(
         long,
@@ -246,7 +253,10 @@ fn run(args: &Args) -> Result<Outcome> {
     {
         bail!("--timeout must be a positive number of seconds");
     }
-    let with_features = !formats.features.is_empty();
+    if args.features && !formats.maps.contains(&Format::Png) {
+        bail!("--features draws on the PNG: add png to --format (or leave --format out for all)");
+    }
+    let with_features = !formats.features.is_empty() || args.features;
     let stem = output::stem(&args.out);
     if let Some(dir) = stem.parent()
         && !dir.as_os_str().is_empty()
@@ -289,6 +299,11 @@ fn run(args: &Args) -> Result<Outcome> {
         let map = Map::new(header, cells).context("the map is unusable")?;
         let png = PngOptions {
             legend: !args.no_legend,
+            features: snapshot
+                .features
+                .as_ref()
+                .filter(|_| args.features)
+                .map(|f| f.records.as_slice()),
         };
         written.extend(sonar_mapfiles::write_map(&map, &stem, &formats.maps, &png)?);
         info!(
@@ -297,7 +312,11 @@ fn run(args: &Args) -> Result<Outcome> {
             "map written"
         );
     }
-    if let Some(features) = snapshot.features.as_ref().filter(|_| with_features) {
+    if let Some(features) = snapshot
+        .features
+        .as_ref()
+        .filter(|_| !formats.features.is_empty())
+    {
         written.extend(write_features(
             &features.header,
             &features.records,

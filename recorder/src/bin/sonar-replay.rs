@@ -101,6 +101,15 @@ fn run(args: Args) -> Result<()> {
         print_info(&args, &recording);
         return Ok(());
     }
+    if recording.count(Topic::Readings) == 0 {
+        anyhow::bail!(
+            "{} holds no readings: nothing to replay (`sonar-replay --info {}` lists what it \
+             holds; a recorder started after the driver stopped, or stopped before the first \
+             sweep, records none)",
+            args.file.display(),
+            args.file.display()
+        );
+    }
     if !(args.max_message_rate.is_finite() && args.max_message_rate >= 0.0) {
         anyhow::bail!(
             "--max-message-rate must be a number ≥ 0, got {}",
@@ -114,7 +123,7 @@ fn run(args: Args) -> Result<()> {
         );
     }
 
-    let node = args.ipc.node("sonar-replay")?;
+    let node = args.ipc.node(ipc::REPLAY_NODE_NAME)?;
     // iceoryx2 installs its SIGINT/SIGTERM handler on the first wait: do it now, so a signal
     // from here on ends the replay cleanly.
     if node.wait(Duration::ZERO).is_err() {
