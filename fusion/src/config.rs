@@ -209,6 +209,15 @@ impl Default for FusionConfig {
 }
 
 impl FusionConfig {
+    /// Takes `preset`'s model, rule and clearing, keeping the grid, sensor and radar: what
+    /// `--preset` does on top of a configuration file.
+    pub fn use_preset(&mut self, preset: Preset) {
+        let p = Self::preset(preset);
+        self.model = p.model;
+        self.rule = p.rule;
+        self.clear_on_no_echo = p.clear_on_no_echo;
+    }
+
     pub fn preset(preset: Preset) -> Self {
         let (model, rule, clear_on_no_echo) = match preset {
             Preset::Paper => (

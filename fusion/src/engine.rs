@@ -282,12 +282,9 @@ impl Engine {
             }
             FusionCommandKind::SetPreset => {
                 let preset = Preset::from_code(command.value).ok_or_else(|| unknown("preset"))?;
-                FusionConfig {
-                    grid: current.grid,
-                    sensor: current.sensor,
-                    radar: current.radar,
-                    ..FusionConfig::preset(preset)
-                }
+                let mut config = current;
+                config.use_preset(preset);
+                config
             }
             FusionCommandKind::SetModel => {
                 let kind = ModelKind::from_code(command.value).ok_or_else(|| unknown("model"))?;

@@ -188,10 +188,7 @@ fn fusion_config(args: &Args) -> Result<(FusionConfig, PersistConfig, FeaturesSe
         None => FusionFile::default(),
     };
     if let Some(preset) = args.preset {
-        let p = FusionConfig::preset(preset);
-        config.model = p.model;
-        config.rule = p.rule;
-        config.clear_on_no_echo = p.clear_on_no_echo;
+        config.use_preset(preset);
     }
     if let Some(kind) = args.model {
         config.model = ModelConfig::default_for(kind);

@@ -35,8 +35,11 @@ pub(crate) trait CellEvidence: Copy {
         f32::INFINITY
     }
     /// P(occupied | this reading) for a cell at range `r`, `alpha` radians off the axis; NaN for
-    /// no evidence.
-    fn probability(&self, r: f32, alpha: f32) -> f32;
+    /// no evidence. By default from [`Self::log_odds`], for models native in log-odds.
+    #[inline(always)]
+    fn probability(&self, r: f32, alpha: f32) -> f32 {
+        sigmoid(self.log_odds(r, alpha))
+    }
     /// The same as log-odds, ln(p / (1 − p)); NaN for no evidence.
     fn log_odds(&self, r: f32, alpha: f32) -> f32;
 
@@ -65,6 +68,14 @@ pub(crate) fn logit(p: f32) -> f32 {
 #[inline(always)]
 fn positive(v: f32) -> f32 {
     if v > 0.0 { v } else { 0.0 }
+}
+
+/// How much a reading counts at range `r`: 1 near the sensor, one half at `fade_range`, towards
+/// 0 beyond (ROS `range_sensor_layer`'s φ_v, as a smooth step).
+#[inline(always)]
+fn radial_trust(r: f32, fade_range: f32) -> f32 {
+    let x = 2.0 * (r - fade_range);
+    0.5 - 0.5 * x / (1.0 + x * x).sqrt()
 }
 
 /// 1 / (1 + e^(−l)).
@@ -741,14 +752,8 @@ impl CellEvidence for RegionEcho {
     }
 
     #[inline(always)]
-    fn probability(&self, r: f32, alpha: f32) -> f32 {
-        sigmoid(self.log_odds(r, alpha))
-    }
-
-    #[inline(always)]
     fn log_odds(&self, r: f32, alpha: f32) -> f32 {
-        let x = 2.0 * (r - self.fade_range);
-        let trust = 0.5 - 0.5 * x / (1.0 + x * x).sqrt();
+        let trust = radial_trust(r, self.fade_range);
         // The distance along the axis, not the range: the patch is straight, as a wall is.
         let j = (r * alpha.cos() - self.d) * self.inv_band;
         let l = self.l_occ
@@ -789,8 +794,7 @@ impl SmoothReading {
     #[inline(always)]
     fn weighted_log_odds(&self, r: f32, alpha: f32, free_weight: f32) -> f32 {
         let a2 = alpha * alpha;
-        let x = 2.0 * (r - self.fade_range);
-        let trust = 0.5 - 0.5 * x / (1.0 + x * x).sqrt();
+        let trust = radial_trust(r, self.fade_range);
         // `positive` rather than f32::max: the same values, one instruction in the loop.
         let t = positive((r - self.ramp_from) * self.inv_band);
         let j = (r - self.d) * self.inv_band;
@@ -832,11 +836,6 @@ impl CellEvidence for SmoothReading {
 
     fn half_angle(&self) -> f32 {
         self.half_angle
-    }
-
-    #[inline(always)]
-    fn probability(&self, r: f32, alpha: f32) -> f32 {
-        sigmoid(self.log_odds(r, alpha))
     }
 
     #[inline(always)]

@@ -585,55 +585,40 @@ fn an_offline_export_with_the_pipelines_config_gives_the_live_localised_map() {
     }
     let (header, _) = map_after(&node, &grid, count);
     assert!(header.occupied_cells > 500, "{header:?}");
-    let live_stem = sandbox.root.join("live");
-    let live = sandbox.run(
-        "sonar-export",
-        &["--format", "npy", "--out", path_str(&live_stem)],
-    );
-    check_ok("live sonar-export", &live);
+    let live_map = export_npy(&sandbox, "live", &[]);
     for p in [recorder, sim] {
         assert!(p.terminate().success());
     }
     let live_log = stopped_line(fusion);
-    let offline_stem = sandbox.root.join("offline");
-    let offline = sandbox.run(
-        "sonar-export",
-        &[
-            "--format",
-            "npy",
-            "--out",
-            path_str(&offline_stem),
-            "--from-recording",
-            path_str(&file),
-            "--config",
-            config.to_str().unwrap(),
-        ],
+    let config_arg = config.to_str().unwrap();
+    let offline_map = export_npy(
+        &sandbox,
+        "offline",
+        &["--from-recording", path_str(&file), "--config", config_arg],
     );
-    check_ok("offline sonar-export", &offline);
-    let live_map = std::fs::read(live_stem.with_extension("npy")).unwrap();
-    let offline_map = std::fs::read(offline_stem.with_extension("npy")).unwrap();
     assert_same_cells(&live_map, &offline_map, &format!("live: {live_log}"));
     // The localisation made a difference: the same grid without it is another map.
     std::fs::write(&config, text).unwrap();
-    let unlocalised_stem = sandbox.root.join("unlocalised");
-    let unlocalised = sandbox.run(
-        "sonar-export",
-        &[
-            "--format",
-            "npy",
-            "--out",
-            path_str(&unlocalised_stem),
-            "--from-recording",
-            path_str(&file),
-            "--config",
-            config.to_str().unwrap(),
-        ],
+    let unlocalised_map = export_npy(
+        &sandbox,
+        "unlocalised",
+        &["--from-recording", path_str(&file), "--config", config_arg],
     );
-    check_ok("unlocalised sonar-export", &unlocalised);
     let _ = std::fs::remove_file(&config);
-    let unlocalised_map = std::fs::read(unlocalised_stem.with_extension("npy")).unwrap();
     assert_eq!(unlocalised_map.len(), live_map.len());
     assert_ne!(unlocalised_map, live_map);
+}
+
+/// Runs `sonar-export --format npy` with `args` into the sandbox as `name.npy`; the file's bytes.
+fn export_npy(sandbox: &Sandbox, name: &str, args: &[&str]) -> Vec<u8> {
+    let stem = sandbox.root.join(name);
+    let mut all = vec!["--format", "npy", "--out", path_str(&stem)];
+    all.extend_from_slice(args);
+    check_ok(
+        &format!("{name} sonar-export"),
+        &sandbox.run("sonar-export", &all),
+    );
+    std::fs::read(stem.with_extension("npy")).unwrap()
 }
 
 /// Stops a fusion and returns its last log line, the one with its counters (readings, and those

@@ -691,10 +691,7 @@ fn from_recording<W: Write + Seek>(
         None => FusionFile::default(),
     };
     if let Some(preset) = args.preset {
-        let p = FusionConfig::preset(preset);
-        config.model = p.model;
-        config.rule = p.rule;
-        config.clear_on_no_echo = p.clear_on_no_echo;
+        config.use_preset(preset);
     }
     let localize = args.localize || features.localize;
     if localize && !features.enabled {
