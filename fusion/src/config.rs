@@ -357,6 +357,11 @@ pub enum FusionFileError {
 }
 
 impl FusionFile {
+    /// The file at `path`, or the defaults without one.
+    pub fn read(path: Option<&Path>) -> Result<Self, FusionFileError> {
+        path.map_or_else(|| Ok(Self::default()), Self::load)
+    }
+
     pub fn load(path: &Path) -> Result<Self, FusionFileError> {
         let text = std::fs::read_to_string(path).map_err(|source| FusionFileError::Read {
             path: path.to_owned(),

@@ -183,10 +183,7 @@ fn fusion_config(args: &Args) -> Result<(FusionConfig, PersistConfig, FeaturesSe
             persistence,
         },
         features,
-    } = match &args.config {
-        Some(path) => FusionFile::load(path)?,
-        None => FusionFile::default(),
-    };
+    } = FusionFile::read(args.config.as_deref())?;
     if let Some(preset) = args.preset {
         config.use_preset(preset);
     }

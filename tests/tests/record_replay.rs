@@ -466,29 +466,7 @@ fn replaying_a_recorded_tour_gives_the_live_map() {
     });
     let live_grid = grid_subscriber(&node);
     // Odometry without errors: the map is where the scene has its walls.
-    let (sim, pty) = live.spawn_sim(&[
-        "--scene",
-        "corridor",
-        "--speed",
-        "40",
-        "--seed",
-        "5",
-        "--odom-scale-error",
-        "0",
-        "--odom-heading-drift",
-        "0",
-    ]);
-    let driver = live.spawn("sonar-driver", &["--port", &pty]);
-    let mut count = collect_until(
-        &node,
-        || receive_reading(&readings),
-        |got| got.len() >= TOUR_READINGS,
-    )
-    .len() as u64;
-    assert!(driver.terminate().success(), "driver did not exit cleanly");
-    while receive_reading(&readings).is_some() {
-        count += 1;
-    }
+    let (sim, count) = drive_tour(&live, &node, &readings, "5", ("0", "0"));
     let (live_header, live_cells) = map_after(&node, &live_grid, count);
     for p in [recorder, sim] {
         assert!(p.terminate().success());
@@ -559,30 +537,8 @@ fn an_offline_export_with_the_pipelines_config_gives_the_live_localised_map() {
         readings_subscribers(&node) >= 3
     });
     let grid = grid_subscriber(&node);
-    // The evaluation's drifting odometry: 3 % long, 2°/m.
-    let (sim, pty) = sandbox.spawn_sim(&[
-        "--scene",
-        "corridor",
-        "--speed",
-        "40",
-        "--seed",
-        "3",
-        "--odom-scale-error",
-        "0.03",
-        "--odom-heading-drift",
-        "2",
-    ]);
-    let driver = sandbox.spawn("sonar-driver", &["--port", &pty]);
-    let mut count = collect_until(
-        &node,
-        || receive_reading(&readings),
-        |got| got.len() >= TOUR_READINGS,
-    )
-    .len() as u64;
-    assert!(driver.terminate().success(), "driver did not exit cleanly");
-    while receive_reading(&readings).is_some() {
-        count += 1;
-    }
+    // The evaluation's drifting odometry: 3 % long, 2 degrees a metre.
+    let (sim, count) = drive_tour(&sandbox, &node, &readings, "3", ("0.03", "2"));
     let (header, _) = map_after(&node, &grid, count);
     assert!(header.occupied_cells > 500, "{header:?}");
     let live_map = export_npy(&sandbox, "live", &[]);
@@ -607,6 +563,42 @@ fn an_offline_export_with_the_pipelines_config_gives_the_live_localised_map() {
     let _ = std::fs::remove_file(&config);
     assert_eq!(unlocalised_map.len(), live_map.len());
     assert_ne!(unlocalised_map, live_map);
+}
+
+/// The corridor tour at 40× with `seed` and odometry errors `(scale, heading drift °/m)` through a
+/// driver in `sandbox`, until [`TOUR_READINGS`] readings; the driver stopped, the simulator still
+/// running. Returns it and how many readings the driver published.
+fn drive_tour(
+    sandbox: &Sandbox,
+    node: &Node<Ipc>,
+    readings: &Subscriber<Ipc, Reading, ()>,
+    seed: &str,
+    (scale, drift): (&str, &str),
+) -> (sonar_e2e::Proc, u64) {
+    let (sim, pty) = sandbox.spawn_sim(&[
+        "--scene",
+        "corridor",
+        "--speed",
+        "40",
+        "--seed",
+        seed,
+        "--odom-scale-error",
+        scale,
+        "--odom-heading-drift",
+        drift,
+    ]);
+    let driver = sandbox.spawn("sonar-driver", &["--port", &pty]);
+    let mut count = collect_until(
+        node,
+        || receive_reading(readings),
+        |got| got.len() >= TOUR_READINGS,
+    )
+    .len() as u64;
+    assert!(driver.terminate().success(), "driver did not exit cleanly");
+    while receive_reading(readings).is_some() {
+        count += 1;
+    }
+    (sim, count)
 }
 
 /// Runs `sonar-export --format npy` with `args` into the sandbox as `name.npy`; the file's bytes.

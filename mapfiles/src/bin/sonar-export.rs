@@ -686,10 +686,7 @@ fn from_recording<W: Write + Seek>(
             engine: mut config, ..
         },
         features,
-    } = match &args.config {
-        Some(path) => FusionFile::load(path)?,
-        None => FusionFile::default(),
-    };
+    } = FusionFile::read(args.config.as_deref())?;
     if let Some(preset) = args.preset {
         config.use_preset(preset);
     }
