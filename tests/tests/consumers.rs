@@ -711,15 +711,26 @@ fn a_consumer_of_another_user_is_told_why_it_cannot_enter_the_namespace() {
         std::fs::set_permissions(dir, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
     }
     let nobody = 65534;
-    let out = std::process::Command::new(&program)
-        .args(["--snapshots", "1"])
-        .env("SONAR_IOX_PREFIX", &sandbox.prefix)
-        .env("SONAR_IOX_ROOT", &sandbox.root)
-        .env("HOME", &sandbox.state)
-        .uid(nobody)
-        .gid(nobody)
-        .output()
-        .unwrap();
+    // A process another test forks while the copy is open for writing inherits its descriptor
+    // until it execs, and so long the kernel refuses to run the copy ("Text file busy"): try again.
+    let mut attempts = 0;
+    let out = loop {
+        let run = std::process::Command::new(&program)
+            .args(["--snapshots", "1"])
+            .env("SONAR_IOX_PREFIX", &sandbox.prefix)
+            .env("SONAR_IOX_ROOT", &sandbox.root)
+            .env("HOME", &sandbox.state)
+            .uid(nobody)
+            .gid(nobody)
+            .output();
+        match run {
+            Err(e) if e.kind() == std::io::ErrorKind::ExecutableFileBusy && attempts < 100 => {
+                attempts += 1;
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
+            other => break other.unwrap(),
+        }
+    };
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "{stderr}");
     assert!(
