@@ -119,6 +119,8 @@ pub struct Decoder {
     /// The hobby distance that means no echo.
     hobby_no_echo: NoEcho,
     hobby: HobbySweep,
+    /// Play of the head's gears, degrees ([`Self::backlash_deg`]).
+    backlash_deg: f32,
 }
 
 /// The raw side of a reading, whichever dialect it came in.
@@ -156,8 +158,19 @@ impl Decoder {
             mode: ScanMode::Unknown,
             hobby_angle_offset_deg,
             hobby_no_echo: NoEcho::default(),
+            backlash_deg: 0.0,
             hobby: HobbySweep::default(),
         }
+    }
+
+    /// Takes out the play of the head's gears, `deg` degrees: the head sets its angle at the switch
+    /// it starts a sweep from, and on the way out the motor turns the play before the shaft
+    /// follows, so the angle it reports runs ahead of the shaft by the play in the direction it
+    /// turns. Each reading is moved back by `deg` against its direction (none when the direction
+    /// is unknown).
+    pub fn backlash_deg(mut self, deg: f32) -> Self {
+        self.backlash_deg = deg;
+        self
     }
 
     /// Reads hobby distances that `no_echo` names as "nothing echoed" (0 cm always is).
@@ -341,7 +354,7 @@ impl Decoder {
             device_time_ms: group.device_time_ms,
             sweep_id: group.sweep_id,
             flags: combined.flags,
-            angle_deg: group.angle_deg,
+            angle_deg: group.angle_deg - f32::from(group.direction) * self.backlash_deg,
             beam_half_angle_deg: self.sensor.beam_half_angle_deg,
             tof_us: combined.tof_us,
             distance_m: combined.distance_m,
@@ -370,6 +383,48 @@ mod tests {
             PingPolicy::default(),
             -90.0,
         )
+    }
+
+    /// The angle of a native reading at 30° in a sweep turning `direction`, decoded by `d`.
+    fn angle_turning(mut d: Decoder, direction: Direction) -> f32 {
+        let start = DeviceMessage::SweepStart {
+            sweep: 1,
+            direction,
+            mode: WireScanMode::Full,
+            from_cdeg: -14700,
+            to_cdeg: 14700,
+        };
+        let line = encode_device(&start, PROTOCOL_VERSION);
+        d.decode(line.trim_end().as_bytes(), 0).unwrap();
+        let wire = WireReading {
+            seq: 1,
+            time_ms: 1,
+            sweep: 1,
+            direction,
+            angle_cdeg: 3000,
+            ping_count: 4,
+            echo_us: [3000, 3000, 3000, 3000, 0, 0, 0, 0],
+        };
+        let line = encode_device(&DeviceMessage::Reading(wire), PROTOCOL_VERSION);
+        let Decoded::Reading(r) = d.decode(line.trim_end().as_bytes(), 1).unwrap() else {
+            panic!("not a reading");
+        };
+        r.angle_deg
+    }
+
+    #[test]
+    fn the_gears_play_is_taken_out_against_the_direction_of_turning() {
+        // Without backlash the reported angle stands.
+        assert_eq!(angle_turning(native(), Direction::Ccw), 30.0);
+        // With 2° of play the motor runs 2° ahead of the shaft whichever way it turns.
+        assert_eq!(
+            angle_turning(native().backlash_deg(2.0), Direction::Ccw),
+            28.0
+        );
+        assert_eq!(
+            angle_turning(native().backlash_deg(2.0), Direction::Cw),
+            32.0
+        );
     }
 
     #[test]

@@ -113,6 +113,12 @@ struct Args {
     /// such as `400+`. 0 cm always means no echo.
     #[arg(long, default_value = "0", value_name = "CM")]
     no_echo: NoEcho,
+    /// Play of the head's gears, degrees (a 28BYJ-48's gearbox: 1–3°): the head reports its
+    /// angle ahead of the shaft by the play in the direction it turns, so each reading is moved
+    /// back by it. Measure it as half the angle between where an edge (a door jamb) shows in a
+    /// counter-clockwise and in a clockwise sweep (`--print`; firmware/README.md).
+    #[arg(long, default_value_t = 0.0, value_name = "DEG", value_parser = parse_backlash)]
+    backlash_deg: f32,
     /// Also print each reading on standard output, one line each.
     #[arg(long)]
     print: bool,
@@ -213,6 +219,14 @@ impl ScanRequest {
                 *max_cdeg as f32 / 100.0
             )
         })
+    }
+}
+
+/// A gear play of 0 to 10 degrees.
+fn parse_backlash(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(v) if (0.0..=10.0).contains(&v) => Ok(v),
+        _ => Err(format!("{s:?} is not a play of 0 to 10 degrees")),
     }
 }
 
@@ -467,6 +481,7 @@ impl Link {
                 args.hobby_angle_offset,
             )
             .hobby_no_echo(args.no_echo)
+            .backlash_deg(args.backlash_deg)
             .speaking(args.protocol),
             dialect: args.dialect,
             print: args.print,

@@ -74,6 +74,8 @@ pub struct SerialSection {
     pub scan: Option<String>,
     /// The hobby dialect's distance for "no echo": `0`, cm (`255`) or cm and beyond (`400+`).
     pub no_echo: Option<String>,
+    /// Play of the head's gears, degrees (`sonar-driver --backlash-deg`).
+    pub backlash_deg: Option<f32>,
 }
 
 #[derive(Debug, Default, Deserialize)]

@@ -331,6 +331,7 @@ impl Pipeline {
             push_opt(&mut driver, "--baud", args.baud.or(file.serial.baud));
             push_opt(&mut driver, "--dialect", dialect);
             push_opt(&mut driver, "--no-echo", file.serial.no_echo.clone());
+            push_opt(&mut driver, "--backlash-deg", file.serial.backlash_deg);
             if let Some(scan) = args.scan.clone().or(file.serial.scan.clone()) {
                 // `=` keeps a segment such as -30..30 from reading as a flag.
                 driver.push(format!("--scan={scan}"));
@@ -795,9 +796,9 @@ mod tests {
     }
 
     #[test]
-    fn the_serial_tables_no_echo_value_reaches_the_driver() {
+    fn the_serial_tables_no_echo_value_and_backlash_reach_the_driver() {
         let file: PipelineFile = toml::from_str(
-            "[serial]\nport = \"/dev/ttyUSB0\"\ndialect = \"hobby\"\nno_echo = \"255\"\n",
+            "[serial]\nport = \"/dev/ttyUSB0\"\ndialect = \"hobby\"\nno_echo = \"255\"\nbacklash_deg = 1.5\n",
         )
         .unwrap();
         // The plan checks that its programs exist; empty stand-ins do.
@@ -817,6 +818,12 @@ mod tests {
             .unwrap();
         let at = driver.args.iter().position(|a| a == "--no-echo").unwrap();
         assert_eq!(driver.args[at + 1], "255", "{:?}", driver.args);
+        let at = driver
+            .args
+            .iter()
+            .position(|a| a == "--backlash-deg")
+            .unwrap();
+        assert_eq!(driver.args[at + 1], "1.5", "{:?}", driver.args);
     }
 
     #[test]
