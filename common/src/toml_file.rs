@@ -18,29 +18,46 @@ pub fn parse<T: DeserializeOwned>(text: &str) -> Result<T, String> {
 /// The error reported at the value it names, if it was reported at a table header with the path
 /// of a key that the document holds.
 fn at_value(text: &str, error: &toml::de::Error) -> Option<String> {
-    let (what, key_path) = error.message().trim_end().rsplit_once("\nin `")?;
-    let key_path = key_path.strip_suffix('`')?;
-    let header = text.get(error.span()?)?.trim();
-    let table = header.strip_prefix('[')?.strip_suffix(']')?;
-    if table.starts_with('[') {
-        return None; // an array of tables: which element is meant cannot be told
-    }
-    let path: Vec<&str> = table
+    let message = error.message().trim_end();
+    // A value read through an intermediate table comes with its key's path; one read where the
+    // table was (a tagged enum) without.
+    let (what, key_path) = match message.rsplit_once("\nin `") {
+        Some((what, path)) => (what, path.strip_suffix('`')?),
+        None => (message, ""),
+    };
+    let table = reported_table(text, error.span()?)?;
+    let mut path: Vec<&str> = table
         .split('.')
         .chain(key_path.split('.'))
         .map(str::trim)
+        .filter(|k| !k.is_empty())
         .collect();
     let document = DeTable::parse(text).ok()?;
     let mut here = document.get_ref();
     let mut span = None;
-    for (i, key) in path.iter().enumerate() {
+    for (i, key) in path.clone().iter().enumerate() {
         let (_, value) = here.iter().find(|(k, _)| k.get_ref().as_ref() == *key)?;
-        if i + 1 == path.len() {
-            span = Some(value.span());
-        } else if let DeValue::Table(inner) = value.get_ref() {
+        if i + 1 < path.len() {
+            let DeValue::Table(inner) = value.get_ref() else {
+                return None;
+            };
             here = inner;
+        } else if let DeValue::Table(inner) = value.get_ref() {
+            // A table read as a whole (a tagged enum such as `[fusion.model]`): the error names
+            // the table, not the key; the value it quotes tells which key it is, if only one
+            // holds it.
+            let quoted = quoted_value(what)?;
+            let mut holders = inner
+                .iter()
+                .filter(|(_, v)| text.get(v.span()).map(str::trim) == Some(quoted));
+            let (key, value) = holders.next()?;
+            if holders.next().is_some() {
+                return None;
+            }
+            path.push(key.get_ref().as_ref());
+            span = Some(value.span());
         } else {
-            return None;
+            span = Some(value.span());
         }
     }
     let span = span?;
@@ -63,6 +80,35 @@ fn at_value(text: &str, error: &toml::de::Error) -> Option<String> {
         "^".repeat(width),
         path.join(".")
     ))
+}
+
+/// The dotted path of the table an error was reported at: its `[header]`, or the part of a
+/// header up to the key the error's span covers (`[fusion.model]` reported at `fusion`).
+fn reported_table(text: &str, span: std::ops::Range<usize>) -> Option<&str> {
+    let reported = text.get(span.clone())?.trim();
+    if let Some(header) = reported.strip_prefix('[') {
+        let table = header.strip_suffix(']')?;
+        // An array of tables: which element is meant cannot be told.
+        return (!table.starts_with('[')).then_some(table);
+    }
+    let line_start = text[..span.start].rfind('\n').map_or(0, |i| i + 1);
+    let before = text[line_start..span.end].trim_start();
+    let table = before.strip_prefix('[')?;
+    (!table.starts_with('[')).then_some(table.trim())
+}
+
+/// The value an "invalid type" message quotes, as it is written in the document: `"high"` of
+/// `invalid type: string "high", expected f32`, `true` of ``invalid type: boolean `true`, …``.
+fn quoted_value(what: &str) -> Option<&str> {
+    let rest = what.strip_prefix("invalid type: ")?;
+    let rest = rest.split_once(' ').map(|(_, r)| r)?;
+    let rest = rest.strip_prefix("point ").unwrap_or(rest); // "floating point `1.5`"
+    if rest.starts_with('"') {
+        let end = rest[1..].find("\", expected").map(|i| i + 2)?;
+        return Some(&rest[..end]);
+    }
+    let inner = rest.strip_prefix('`')?;
+    Some(&inner[..inner.find('`')?])
 }
 
 #[cfg(test)]
@@ -132,5 +178,48 @@ mod tests {
             assert_eq!(e, toml::from_str::<File>(text).unwrap_err().to_string());
         }
         assert!(parse::<File>("[fusion]\n").is_ok());
+    }
+
+    /// Read as a whole, as the fusion's tagged `[fusion.model]` is.
+    #[derive(Debug, Deserialize)]
+    #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+    enum Model {
+        Smooth {
+            #[allow(dead_code)]
+            occupied_log_odds: f32,
+            #[allow(dead_code)]
+            free_log_odds: f32,
+            #[allow(dead_code)]
+            hears: Option<bool>,
+        },
+    }
+
+    #[derive(Debug, Deserialize)]
+    struct Tagged {
+        #[allow(dead_code)]
+        model: Model,
+    }
+
+    #[derive(Debug, Deserialize)]
+    struct TaggedFile {
+        #[allow(dead_code)]
+        fusion: Tagged,
+    }
+
+    #[test]
+    fn a_wrong_type_inside_a_tagged_table_is_reported_at_its_value() {
+        let text = "[fusion.model]\nkind = \"smooth\"\nfree_log_odds = -1.5\noccupied_log_odds = \"high\"\n";
+        let e = parse::<TaggedFile>(text).unwrap_err();
+        assert!(
+            e.starts_with("TOML parse error at line 4, column 21\n"),
+            "{e}"
+        );
+        assert!(e.contains("in `fusion.model.occupied_log_odds`"), "{e}");
+        let text = "[fusion.model]\nkind = \"smooth\"\nfree_log_odds = -1.5\noccupied_log_odds = 1.0\nhears = 3\n";
+        let e = parse::<TaggedFile>(text).unwrap_err();
+        assert!(
+            e.starts_with("TOML parse error at line 5, column 9\n"),
+            "{e}"
+        );
     }
 }

@@ -273,11 +273,15 @@ mod tests {
                 "[fusion]\n\n[fusion.grid]\ncells = 400\nresolution_m = \"2 cm\"\n",
                 5,
             ),
-            // Except inside [fusion.model] and [fusion.rule], read by `kind` (serde's tagged
-            // enums keep no positions): shown at that table's own header.
+            // Inside [fusion.model] and [fusion.rule] too, read by `kind` (serde's tagged enums
+            // keep no positions: the value the message quotes tells the key).
             (
                 "[fusion]\n[fusion.model]\nkind = \"smooth\"\nfade_range_m = \"far\"\n",
-                2,
+                4,
+            ),
+            (
+                "[fusion.rule]\nkind = \"log-odds\"\nmax_log_odds = true\n",
+                3,
             ),
             ("[features]\nenabled = true\nmin_pings = \"x\"\n", 3),
             ("[simulator]\nseed = 1\nspeed = 20\n", 3),
