@@ -103,8 +103,8 @@ fn quoted_value(what: &str) -> Option<&str> {
     let rest = what.strip_prefix("invalid type: ")?;
     let rest = rest.split_once(' ').map(|(_, r)| r)?;
     let rest = rest.strip_prefix("point ").unwrap_or(rest); // "floating point `1.5`"
-    if rest.starts_with('"') {
-        let end = rest[1..].find("\", expected").map(|i| i + 2)?;
+    if let Some(string) = rest.strip_prefix('"') {
+        let end = string.find("\", expected")? + 2;
         return Some(&rest[..end]);
     }
     let inner = rest.strip_prefix('`')?;
