@@ -18,7 +18,10 @@
 //! - [`switches`]: MIN closed at ≤ −150°, MAX at ≥ +150°, active low, optionally bouncing.
 //! - [`srf05`]: trigger ≥ 10 µs, ECHO pulse as wide as the echo time from
 //!   [`EchoModel`](sonar_sim::EchoModel), 30 ms without an echo.
-//! - [`head`]: the three together as one state machine: port levels in, timed pin edges out
+//! - [`servo`]: the servo head's SG90 (`--head servo`, `make -C firmware HEAD=servo`): the width of
+//!   each pulse on its signal line (OC1B = PB2, 50 Hz) is an angle, 1000…2000 µs for −90…+90°,
+//!   which the shaft turns to at 0.1 s per 60°, within its stops; no switches.
+//! - [`head`]: the parts together as one state machine: port levels in, timed pin edges out
 //!   ([`schedule`]).
 //! - [`headid`]: the head id record in EEPROM (`--head-id`); [`pacing`]: emulated time against
 //!   wall time (`--speed`); [`serial`]: UART bytes to and from the pseudo-terminal, never blocking.
@@ -83,5 +86,6 @@ pub mod pins;
 mod protocol_oracle;
 pub mod schedule;
 pub mod serial;
+pub mod servo;
 pub mod srf05;
 pub mod switches;

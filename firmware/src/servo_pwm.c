@@ -12,7 +12,9 @@ void servo_pwm_set(uint16_t ticks)
 {
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
     {
-        OCR1B = ticks; /* 16-bit write through TEMP, shared with the capture ISR's ICR1 read */
+        /* Fast PWM keeps OC1B high from BOTTOM through the compare match: OCR1B + 1 ticks
+         * (datasheet §16.9.3). A 16-bit write through TEMP, shared with the capture ISR. */
+        OCR1B = ticks - 1u;
     }
     SERVO_DDR |= _BV(SERVO_BIT);
 }

@@ -8,7 +8,7 @@
 #include <stdint.h>
 
 /* The pulse width from the next 20 ms frame on (OCR1B is double-buffered: no short pulse), in
- * Timer1 ticks of 0.5 µs (servo_pulse_ticks). The first call switches the output on: until then
+ * Timer1 ticks of 0.5 µs (servo_pulse_ticks, ≥ 1). The first call switches the output on: until then
  * the servo gets no pulse and holds nothing. Call after sonar_init. */
 void servo_pwm_set(uint16_t ticks);
 
