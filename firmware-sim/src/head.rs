@@ -56,7 +56,10 @@ pub struct HeadStats {
 
 /// What turns the shaft.
 #[derive(Debug)]
-#[expect(clippy::large_enum_variant, reason = "one head per process, never moved in a loop")]
+#[expect(
+    clippy::large_enum_variant,
+    reason = "one head per process, never moved in a loop"
+)]
 enum Drive {
     Stepper {
         follower: Follower,
