@@ -24,7 +24,12 @@ struct RawEvent {
     cycle: u64,
     port: c_char,
     value: u8,
+    pin: u8,
+    width: u32,
 }
+
+/// `BOARD_WHOLE_PORT`: a [`RawEvent`] of a whole port.
+const WHOLE_PORT: u8 = 0xFF;
 
 unsafe extern "C" {
     fn board_new(
@@ -39,6 +44,7 @@ unsafe extern "C" {
     fn board_resets(b: *const RawBoard) -> u32;
     fn board_run_until(b: *mut RawBoard, until: u64) -> c_int;
     fn board_watch_port(b: *mut RawBoard, port: c_char) -> c_int;
+    fn board_watch_oc1b(b: *mut RawBoard) -> c_int;
     fn board_next_event(b: *mut RawBoard, out: *mut RawEvent) -> c_int;
     fn board_drive_pin(b: *mut RawBoard, port: c_char, pin: u8, level: c_int) -> c_int;
     fn board_uart_take(b: *mut RawBoard, buf: *mut u8, cap: usize) -> usize;
@@ -82,12 +88,21 @@ impl CpuState {
     }
 }
 
-/// A port's pin levels changed (an output written, a direction changed, a reset).
+/// A port's pin levels changed (an output written, a direction changed, a reset), or a PWM pulse
+/// on a pin ended ([`Chip::watch_oc1b`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct PortEvent {
-    pub cycle: u64,
-    pub port: Port,
-    pub levels: u8,
+pub enum PortEvent {
+    Port {
+        cycle: u64,
+        port: Port,
+        levels: u8,
+    },
+    Pulse {
+        /// When it ended.
+        cycle: u64,
+        pin: Pin,
+        width_cycles: u32,
+    },
 }
 
 /// What went wrong with the chip.
@@ -188,7 +203,18 @@ impl Chip {
         }
     }
 
-    /// The oldest change of a watched port not yet taken.
+    /// Reports every pulse Timer1's fast PWM makes on OC1B (PB2, the servo's signal) as a
+    /// [`PortEvent::Pulse`] when it ends, while PB2 is an output: no port event shows them. The
+    /// width is OCR1B + 1 timer ticks, as the datasheet defines it (the shim says why).
+    pub fn watch_oc1b(&mut self) -> Result<(), ChipError> {
+        // SAFETY: as in `run_until`.
+        match unsafe { board_watch_oc1b(self.raw.as_ptr()) } {
+            0 => Ok(()),
+            _ => Err(ChipError::NoPin(crate::pins::SERVO)),
+        }
+    }
+
+    /// The oldest change of a watched port or pin not yet taken.
     pub fn next_event(&mut self) -> Option<PortEvent> {
         let mut ev = RawEvent::default();
         // SAFETY: `ev` is a valid `board_event_t` to write; `raw` as in `run_until`.
@@ -196,10 +222,18 @@ impl Chip {
             return None;
         }
         let port = Port::from_letter(char::from(ev.port as u8))?;
-        Some(PortEvent {
-            cycle: ev.cycle,
-            port,
-            levels: ev.value,
+        Some(if ev.pin == WHOLE_PORT {
+            PortEvent::Port {
+                cycle: ev.cycle,
+                port,
+                levels: ev.value,
+            }
+        } else {
+            PortEvent::Pulse {
+                cycle: ev.cycle,
+                pin: Pin::new(port, ev.pin),
+                width_cycles: ev.width,
+            }
         })
     }
 

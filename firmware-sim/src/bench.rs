@@ -114,7 +114,7 @@ pub fn run<T: Transducer>(
 
     use tracing::{error, info, warn};
 
-    use crate::avr::{Chip, CpuState};
+    use crate::avr::{Chip, CpuState, PortEvent};
     use crate::headid::RECORD_LEN;
     use crate::pacing::Pacer;
     use crate::pins::{CYCLES_PER_US, Port};
@@ -138,6 +138,9 @@ pub fn run<T: Transducer>(
     }
     chip.watch(Port::B)?;
     chip.watch(Port::D)?;
+    if head.wants_oc1b() {
+        chip.watch_oc1b()?;
+    }
     for (pin, high) in head.input_levels() {
         chip.drive(pin, high)?;
     }
@@ -183,7 +186,18 @@ pub fn run<T: Transducer>(
             warn!("the chip reset itself (watchdog)");
         }
         while let Some(ev) = chip.next_event() {
-            head.on_port(ev.port, ev.levels, ev.cycle);
+            match ev {
+                PortEvent::Port {
+                    cycle,
+                    port,
+                    levels,
+                } => head.on_port(port, levels, cycle),
+                PortEvent::Pulse {
+                    cycle,
+                    pin,
+                    width_cycles,
+                } => head.on_pulse(pin, width_cycles, cycle),
+            }
         }
         let now = chip.cycle();
         due.clear();

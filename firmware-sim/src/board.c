@@ -11,6 +11,8 @@
  *   board_watch_port / board_next_event
  *                                    queue every change of a port's pin levels (IOPORT_IRQ_PIN_ALL)
  *                                    with its cycle, instead of calling back into Rust mid-instruction
+ *   board_watch_oc1b                 queue every pulse Timer1's fast PWM makes on OC1B (PB2, the
+ *                                    servo's signal) with its width (see board_oc1b_pulse)
  *   board_drive_pin                  drive an input pin from outside (a switch, the ECHO line)
  *   board_uart_take                  bytes the firmware sent on UART0
  *   board_uart_ready / board_uart_send
@@ -48,10 +50,14 @@ enum {
 	BOARD_OTHER = 4,   /* limbo, stopped, gdb step states: not expected here */
 };
 
+#define BOARD_WHOLE_PORT 0xFF
+
 typedef struct board_event_t {
 	uint64_t cycle;
 	char port;
-	uint8_t value;
+	uint8_t value;  /* the port's levels */
+	uint8_t pin;    /* BOARD_WHOLE_PORT, or the pin of a pulse (board_watch_oc1b) */
+	uint32_t width; /* a pulse's width, cycles */
 } board_event_t;
 
 typedef struct board_t board_t;
@@ -61,6 +67,8 @@ typedef struct board_watch_t {
 	char port;
 	int active;
 } board_watch_t;
+
+
 
 struct board_t {
 	/* First member: simavr calls our reset through this io module (see board_io_reset). */
@@ -108,7 +116,7 @@ static int port_index(char port)
 	return (port >= 'A' && port < 'A' + BOARD_PORTS) ? port - 'A' : -1;
 }
 
-static void board_push_event(board_t *b, char port, uint8_t value)
+static void board_push_event(board_t *b, char port, uint8_t pin, uint8_t value, uint32_t width)
 {
 	if (b->ev_len == BOARD_EVENTS) {
 		b->ev_lost++;
@@ -118,6 +126,8 @@ static void board_push_event(board_t *b, char port, uint8_t value)
 	e->cycle = b->avr->cycle;
 	e->port = port;
 	e->value = value;
+	e->pin = pin;
+	e->width = width;
 	b->ev_len++;
 }
 
@@ -125,7 +135,36 @@ static void on_port_change(struct avr_irq_t *irq, uint32_t value, void *param)
 {
 	(void)irq;
 	board_watch_t *w = param;
-	board_push_event(w->board, w->port, (uint8_t)value);
+	board_push_event(w->board, w->port, BOARD_WHOLE_PORT, (uint8_t)value, 0);
+}
+
+/*
+ * Timer1's compare unit B has just cleared OC1B: a pulse of the servo's signal ends. Its width is
+ * taken as the datasheet defines it for fast PWM with COM1B = 2 (ATmega328P §16.9.3: OC1B set at
+ * BOTTOM, cleared at the compare match: OCR1B + 1 timer ticks), not from simavr's rising edge:
+ * simavr 1.6 sets that edge late at times under this firmware (seen: pulses of 527-939 us where
+ * 1004 us was asked, while its compare matches stay in time). Only while PB2 is an output (simavr
+ * raises the compare output whatever the pin's direction) and Timer1 is in fast PWM (modes 14, 15).
+ */
+static void board_oc1b_pulse(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+	(void)irq;
+	board_t *b = param;
+	avr_t *avr = b->avr;
+	if (value & 1)
+		return; /* the start of a pulse: its end reports it */
+	avr_ioport_state_t st;
+	if (avr_ioctl(avr, AVR_IOCTL_IOPORT_GETSTATE('B'), &st) != 0 || !(st.ddr & (1u << 2)))
+		return;
+	uint8_t tccr1a = avr->data[0x80], tccr1b = avr->data[0x81];
+	uint8_t wgm = (uint8_t)((tccr1a & 3) | ((tccr1b >> 1) & 0xC));
+	uint8_t com1b = (uint8_t)((tccr1a >> 4) & 3);
+	static const uint16_t prescale[8] = {0, 1, 8, 64, 256, 1024, 0, 0};
+	uint16_t div = prescale[tccr1b & 7];
+	if ((wgm != 14 && wgm != 15) || com1b != 2 || div == 0)
+		return;
+	uint32_t ocr1b = (uint32_t)avr->data[0x8A] | ((uint32_t)avr->data[0x8B] << 8);
+	board_push_event(b, 'B', 2, 0, (ocr1b + 1) * div);
 }
 
 static void on_uart_output(struct avr_irq_t *irq, uint32_t value, void *param)
@@ -417,6 +456,15 @@ int board_watch_port(board_t *b, char port)
 	b->watch[i].port = port;
 	b->watch[i].active = 1;
 	avr_irq_register_notify(all, on_port_change, &b->watch[i]);
+	return 0;
+}
+
+int board_watch_oc1b(board_t *b)
+{
+	avr_irq_t *irq = avr_io_getirq(b->avr, AVR_IOCTL_TIMER_GETIRQ('1'), TIMER_IRQ_OUT_COMP + 1);
+	if (!irq)
+		return -1;
+	avr_irq_register_notify(irq, board_oc1b_pulse, b);
 	return 0;
 }
 

@@ -5,14 +5,26 @@ use sonar_sim::{SwitchFaults, Transducer};
 use tracing::{debug, warn};
 
 use crate::motor::{Follower, Motor, STOP_DEG, Shaft, StartOutsideStops, Travel};
-use crate::pins::{ECHO, LED, Pin, Port, TRIG};
+use crate::pins::{CYCLES_PER_US, ECHO, LED, Pin, Port, SERVO, TRIG};
 use crate::schedule::{Edge, Schedule};
+use crate::servo::{Servo, ServoStats};
 use crate::srf05::{PingStats, Srf05};
 use crate::switches::LimitSwitches;
+
+/// What turns the sensor: the paper's stepper between two limit switches, or a hobby servo
+/// (`make -C firmware HEAD=servo`) with no switches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum HeadKind {
+    #[default]
+    Stepper,
+    Servo,
+}
 
 /// How the head is built.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct HeadConfig {
+    pub kind: HeadKind,
+    /// The stepper (a servo head has none).
     pub motor: Motor,
     /// Where the shaft stands at power-on, degrees.
     pub start_deg: f64,
@@ -35,55 +47,95 @@ pub struct HeadStats {
     pub faults: u64,
     /// Limit switch changes.
     pub switch_changes: u64,
+    /// The servo's pulses (a servo head).
+    pub servo: ServoStats,
     /// How far the shaft turned.
     pub travel: Travel,
     pub sonar: PingStats,
 }
 
-/// Stepper, limit switches and SRF05 on the board.
+/// What turns the shaft.
+#[derive(Debug)]
+#[expect(
+    clippy::large_enum_variant,
+    reason = "one head per process, never moved in a loop"
+)]
+enum Drive {
+    Stepper {
+        follower: Follower,
+        shaft: Shaft,
+        switches: LimitSwitches,
+        /// Against a stop, losing steps (logged once per episode).
+        stalled: bool,
+    },
+    Servo(Servo),
+}
+
+/// Stepper and limit switches, or servo, and the SRF05 on the board.
 #[derive(Debug)]
 pub struct Head<T> {
-    follower: Follower,
-    shaft: Shaft,
-    switches: LimitSwitches,
+    drive: Drive,
     sonar: Srf05<T>,
     schedule: Schedule,
     /// Port B's levels last seen (TRIG, LED).
     portb: u8,
     faults: u64,
-    /// Against a stop, losing steps (logged once per episode).
-    stalled: bool,
+    /// The latest cycle the head was told of.
+    now: u64,
 }
 
 impl<T: Transducer> Head<T> {
     pub fn new(cfg: &HeadConfig, transducer: T) -> Result<Self, StartOutsideStops> {
-        let shaft = Shaft::new(cfg.motor, cfg.start_deg)?;
+        let drive = match cfg.kind {
+            HeadKind::Stepper => {
+                let shaft = Shaft::new(cfg.motor, cfg.start_deg)?;
+                Drive::Stepper {
+                    follower: Follower::new(cfg.motor.drive()),
+                    switches: LimitSwitches::new(&shaft, cfg.bounce_seed, cfg.switch_faults),
+                    shaft,
+                    stalled: false,
+                }
+            }
+            HeadKind::Servo => Drive::Servo(
+                Servo::new(cfg.start_deg)
+                    .ok_or(StartOutsideStops(cfg.start_deg, crate::servo::STOP_DEG))?,
+            ),
+        };
         Ok(Self {
-            follower: Follower::new(cfg.motor.drive()),
-            switches: LimitSwitches::new(&shaft, cfg.bounce_seed, cfg.switch_faults),
-            shaft,
+            drive,
             sonar: Srf05::new(transducer, cfg.echo_timeout_us),
             schedule: Schedule::default(),
             portb: 0,
             faults: 0,
-            stalled: false,
+            now: 0,
         })
     }
 
-    /// The levels of the pins the head drives, now: the switches and ECHO (low between pings).
-    pub fn input_levels(&self) -> [(Pin, bool); 3] {
-        let [min, max] = self.switches.levels();
-        [min, max, (ECHO, false)]
+    /// The levels of the pins the head drives, now: the switches (a stepper head) and ECHO (low
+    /// between pings).
+    pub fn input_levels(&self) -> Vec<(Pin, bool)> {
+        let mut levels = match &self.drive {
+            Drive::Stepper { switches, .. } => switches.levels().to_vec(),
+            Drive::Servo(_) => Vec::new(),
+        };
+        levels.push((ECHO, false));
+        levels
+    }
+
+    /// Whether the head listens to the PWM pulses on OC1B (a servo head).
+    pub fn wants_oc1b(&self) -> bool {
+        matches!(self.drive, Drive::Servo(_))
     }
 
     /// The firmware changed the levels of `port` to `levels` at cycle `now`.
     pub fn on_port(&mut self, port: Port, levels: u8, now: u64) {
+        self.now = self.now.max(now);
         match port {
             Port::B => {
                 let changed = self.portb ^ levels;
                 self.portb = levels;
                 if TRIG.level_in(changed) {
-                    let aim = self.shaft.angle_deg();
+                    let aim = self.angle_at(now);
                     self.sonar
                         .on_trig(TRIG.level_in(levels), now, aim, &mut self.schedule);
                 }
@@ -96,28 +148,41 @@ impl<T: Transducer> Head<T> {
         }
     }
 
+    /// A PWM pulse `width_cycles` wide on `pin` ended at cycle `now`.
+    pub fn on_pulse(&mut self, pin: Pin, width_cycles: u32, now: u64) {
+        self.now = self.now.max(now);
+        if let (Drive::Servo(servo), true) = (&mut self.drive, pin == SERVO) {
+            servo.on_pulse(f64::from(width_cycles) / CYCLES_PER_US as f64, now);
+        }
+    }
+
     fn on_driver(&mut self, portd: u8, now: u64) {
-        let decoded = self.follower.on_port(portd);
+        let Drive::Stepper {
+            follower,
+            shaft,
+            switches,
+            stalled,
+        } = &mut self.drive
+        else {
+            return; // nothing on port D turns a servo
+        };
+        let decoded = follower.on_port(portd);
         if let Some(fault) = decoded.fault {
             self.faults += 1;
-            warn!(
-                cycle = now,
-                angle = self.shaft.angle_deg(),
-                "stepper: {fault}"
-            );
+            warn!(cycle = now, angle = shaft.angle_deg(), "stepper: {fault}");
         }
         if decoded.steps == 0 {
             return;
         }
-        let lost = self.shaft.step(decoded.steps);
-        if lost > 0 && !self.stalled {
+        let lost = shaft.step(decoded.steps);
+        if lost > 0 && !*stalled {
             warn!(
-                angle = self.shaft.angle_deg(),
+                angle = shaft.angle_deg(),
                 "the shaft is against its mechanical stop (±{STOP_DEG}°): the motor stalls, steps are lost"
             );
         }
-        self.stalled = lost > 0;
-        self.switches.update(&self.shaft, now, &mut self.schedule);
+        *stalled = lost > 0;
+        switches.update(shaft, now, &mut self.schedule);
     }
 
     /// The cycle of the next edge the head will drive.
@@ -127,22 +192,45 @@ impl<T: Transducer> Head<T> {
 
     /// Removes the edges due at `now` and appends them to `out`.
     pub fn take_due(&mut self, now: u64, out: &mut Vec<Edge>) {
+        self.now = self.now.max(now);
         self.schedule.take_due(now, out);
     }
 
+    fn angle_at(&self, now: u64) -> f64 {
+        match &self.drive {
+            Drive::Stepper { shaft, .. } => shaft.angle_deg(),
+            Drive::Servo(servo) => servo.angle_deg(now),
+        }
+    }
+
+    /// The shaft's angle, degrees, at the latest cycle the head was told of.
     pub fn angle_deg(&self) -> f64 {
-        self.shaft.angle_deg()
+        self.angle_at(self.now)
     }
 
     pub fn stats(&self) -> HeadStats {
-        let (steps, lost_steps) = self.shaft.counts();
-        HeadStats {
-            steps,
-            lost_steps,
-            faults: self.faults,
-            switch_changes: self.switches.changes(),
-            travel: self.shaft.travel(),
-            sonar: self.sonar.stats(),
+        let sonar = self.sonar.stats();
+        match &self.drive {
+            Drive::Stepper {
+                shaft, switches, ..
+            } => {
+                let (steps, lost_steps) = shaft.counts();
+                HeadStats {
+                    steps,
+                    lost_steps,
+                    faults: self.faults,
+                    switch_changes: switches.changes(),
+                    servo: ServoStats::default(),
+                    travel: shaft.travel(),
+                    sonar,
+                }
+            }
+            Drive::Servo(servo) => HeadStats {
+                servo: servo.stats(),
+                travel: servo.travel(),
+                sonar,
+                ..HeadStats::default()
+            },
         }
     }
 }
@@ -169,6 +257,7 @@ mod tests {
 
     fn head(start_deg: f64) -> Head<Room> {
         let cfg = HeadConfig {
+            kind: HeadKind::Stepper,
             motor: Motor::Paper,
             start_deg,
             bounce_seed: None,
@@ -233,6 +322,41 @@ mod tests {
         h.take_due(u64::MAX, &mut out);
         assert_eq!(out[1].at - out[0].at, 7030 * CYCLES_PER_US);
         assert_eq!(h.stats().sonar.pings, 1);
+    }
+
+    #[test]
+    fn a_servo_head_pings_where_its_pulses_have_turned_the_shaft() {
+        let cfg = HeadConfig {
+            kind: HeadKind::Servo,
+            motor: Motor::Paper,
+            start_deg: 0.0,
+            bounce_seed: None,
+            switch_faults: SwitchFaults::default(),
+            echo_timeout_us: 30_000,
+        };
+        let mut h = Head::new(&cfg, Room).unwrap();
+        assert_eq!(h.input_levels(), [(ECHO, false)], "no switches");
+        assert!(h.wants_oc1b());
+        // 1250 µs: −45°, 75 ms away at 600°/s.
+        let end = 1250 * CYCLES_PER_US;
+        h.on_pulse(SERVO, 1250 * CYCLES_PER_US as u32, end);
+        let t0 = end + 100_000 * CYCLES_PER_US;
+        h.on_port(Port::B, 0b10, t0);
+        h.on_port(Port::B, 0b00, t0 + 10 * CYCLES_PER_US);
+        let mut out = Vec::new();
+        h.take_due(u64::MAX, &mut out);
+        assert_eq!(out[1].at - out[0].at, 6955 * CYCLES_PER_US, "aimed at −45°");
+        assert_eq!(h.stats().servo.pulses, 1);
+        assert!(
+            Head::new(
+                &HeadConfig {
+                    start_deg: 120.0,
+                    ..cfg
+                },
+                Room
+            )
+            .is_err()
+        );
     }
 
     #[test]

@@ -18,7 +18,10 @@
 //! - [`switches`]: MIN closed at ≤ −150°, MAX at ≥ +150°, active low, optionally bouncing.
 //! - [`srf05`]: trigger ≥ 10 µs, ECHO pulse as wide as the echo time from
 //!   [`EchoModel`](sonar_sim::EchoModel), 30 ms without an echo.
-//! - [`head`]: the three together as one state machine: port levels in, timed pin edges out
+//! - [`servo`]: the servo head's SG90 (`--head servo`, `make -C firmware HEAD=servo`): the width of
+//!   each pulse on its signal line (OC1B = PB2, 50 Hz) is an angle, 1000…2000 µs for −90…+90°,
+//!   which the shaft turns to at 0.1 s per 60°, within its stops; no switches.
+//! - [`head`]: the parts together as one state machine: port levels in, timed pin edges out
 //!   ([`schedule`]).
 //! - [`headid`]: the head id record in EEPROM (`--head-id`); [`pacing`]: emulated time against
 //!   wall time (`--speed`); [`serial`]: UART bytes to and from the pseudo-terminal, never blocking.
@@ -49,6 +52,12 @@
 //!   and falls after the echo time, or after 30 ms without an echo. Triggers while a ping is in
 //!   progress are ignored. The firmware times ECHO with Timer1's input capture (ICP1 = PB0), which
 //!   simavr emulates.
+//! - The servo head (`--head servo`): Timer1's PWM pulses on OC1B (PB2), each pulse's width
+//!   (1000…2000 µs, SG90 datasheet) an angle of −90…+90°, which the shaft turns to at 0.1 s/60°
+//!   (SG90 datasheet, 4.8 V) from the end of the pulse, never beyond its stops at ±90°; pulses
+//!   outside 500…2500 µs are ignored and counted. The width is taken from OCR1B and Timer1's
+//!   prescaler at each compare match (simavr 1.6 starts some pulses late; `board.c` says more).
+//!   No dead band, overshoot or ringing (the firmware waits for them), no switches.
 //! - The UART: bytes from the host enter UART0 only while its receiver signals XON (simavr's
 //!   64-byte receive queue has room); they wait on the host side meanwhile (up to 4 KiB, then in
 //!   the terminal, whose writer blocks), and reach the firmware at the baud rate it set. Bytes the firmware sends go to the terminal as soon as they
@@ -83,5 +92,6 @@ pub mod pins;
 mod protocol_oracle;
 pub mod schedule;
 pub mod serial;
+pub mod servo;
 pub mod srf05;
 pub mod switches;

@@ -10,7 +10,7 @@ use clap::Parser;
 use sonar_common::sensor::SensorConfig;
 use sonar_common::speed::Speed;
 use sonar_firmware_sim::bench::{self, BenchConfig, BenchError, End, Signals, WITH_SIMAVR};
-use sonar_firmware_sim::head::{Head, HeadConfig};
+use sonar_firmware_sim::head::{Head, HeadConfig, HeadKind};
 use sonar_firmware_sim::headid::HeadId;
 use sonar_firmware_sim::motor::Motor;
 use sonar_sim::link::open_announced;
@@ -34,6 +34,10 @@ use tracing::{info, warn};
 /// (closed = low; at −150° and +150°, mechanical stops at ±160°); LED PB5; ULN2003 IN1..IN4 on
 /// PD4..PD7, or STEP PD4, DIR PD5, EN PD6 (low = enabled).
 ///
+/// The servo head (--head servo, firmware built with `make -C firmware HEAD=servo`): an SG90 on
+/// PB2 (OC1B, 50 Hz): a pulse of 1000–2000 µs turns it to −90…+90° at 0.1 s/60°, within its
+/// stops at ±90°; no switches; firmware/build/servo/sonar-head.elf.
+///
 /// Motors (--motor must match the firmware build, `make -C firmware MOTOR=...`):
 ///   paper     7.5° motor, 1:5 gear, ULN2003 half steps: 0.75° per half step
 ///             firmware/build/sonar-head.elf
@@ -50,6 +54,8 @@ use tracing::{info, warn};
 ///   sonar-firmware-sim --motor 28byj48 --firmware firmware/build/28byj48-uln2003-g1/sonar-head.elf
 ///   sonar-firmware-sim --switch-bounce --head-id 3F2A9C0417B6E5D1
 ///   sonar-firmware-sim --switch-fault min=dead --travel-report travel.json
+///   make -C firmware HEAD=servo
+///   sonar-firmware-sim --head servo --firmware firmware/build/servo/sonar-head.elf
 ///   kill -USR1 <pid>        # press the reset button
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
@@ -68,10 +74,15 @@ struct Args {
     speed: Speed,
     #[command(flatten)]
     air: sonar_common::sensor::AirTemperatureArg,
-    /// The motor and its driver (as the firmware was built for).
+    /// What turns the sensor (as the firmware was built for): the stepper between limit switches,
+    /// or a hobby servo (no switches).
+    #[arg(long, value_enum, default_value_t = HeadKind::Stepper)]
+    head: HeadKind,
+    /// The motor and its driver (as the firmware was built for; a stepper head).
     #[arg(long, value_enum, default_value_t = Motor::Paper)]
     motor: Motor,
-    /// Where the shaft stands at power-on, degrees (the firmware homes from there).
+    /// Where the shaft stands at power-on, degrees (a stepper head homes from there; a servo's
+    /// lies within ±90°).
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     start_angle: f64,
     /// Head id to program into the EEPROM (16 hex digits) [default: blank EEPROM, as a new chip:
@@ -159,11 +170,15 @@ fn run(args: Args) -> Result<()> {
     sensor.validate().context("--air-temperature-c")?;
     let scene_name = scene.name.clone();
     let faults = switch_faults(&args.switch_fault)?;
+    if args.head == HeadKind::Servo && (faults != SwitchFaults::default() || args.switch_bounce) {
+        bail!("--switch-fault and --switch-bounce: a servo head has no limit switches");
+    }
     if faults != SwitchFaults::default() {
         warn!(?faults, "limit switches broken on purpose (--switch-fault)");
     }
     let model = EchoModel::new(scene, sensor, args.seed)?;
     let head_cfg = HeadConfig {
+        kind: args.head,
         motor: args.motor,
         start_deg: args.start_angle,
         bounce_seed: (args.switch_bounce || faults.bouncing()).then_some(args.seed),
@@ -192,6 +207,7 @@ fn run(args: Args) -> Result<()> {
         pty = %pty.path().display(),
         firmware = %args.firmware.display(),
         scene = %scene_name,
+        head = ?args.head,
         motor = ?args.motor,
         start_angle = args.start_angle,
         head_id = %args.head_id.map_or("blank EEPROM".to_owned(), |id| id.to_string()),
@@ -211,6 +227,8 @@ fn run(args: Args) -> Result<()> {
         ignored_triggers = s.head.sonar.short_triggers + s.head.sonar.busy_triggers,
         steps = s.head.steps,
         lost_steps = s.head.lost_steps,
+        servo_pulses = s.head.servo.pulses,
+        bad_servo_pulses = s.head.servo.bad_pulses,
         faults = s.head.faults,
         switch_changes = s.head.switch_changes,
         resets = s.resets,

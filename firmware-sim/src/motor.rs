@@ -219,15 +219,15 @@ pub struct Travel {
 
 /// Where to start the shaft is not a place it can be.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("the shaft cannot stand at {0}°: the mechanical stops are at ±{STOP_DEG}°")]
-pub struct StartOutsideStops(pub f64);
+#[error("the shaft cannot stand at {0}°: the mechanical stops are at ±{1}°")]
+pub struct StartOutsideStops(pub f64, pub f64);
 
 impl Shaft {
     /// The shaft at `start_deg` (rounded to the nearest microstep).
     pub fn new(motor: Motor, start_deg: f64) -> Result<Self, StartOutsideStops> {
         let (num, den) = motor.microsteps_per_turn();
         if !start_deg.is_finite() || start_deg.abs() > STOP_DEG as f64 {
-            return Err(StartOutsideStops(start_deg));
+            return Err(StartOutsideStops(start_deg, STOP_DEG as f64));
         }
         let position = (start_deg * num as f64 / (360.0 * den as f64)).round() as i64;
         Ok(Self {

@@ -8,6 +8,7 @@
 //! | ECHO | PB0 | SRF05 echo, input; ICP1, so Timer1 captures its edges |
 //! | MIN, MAX switches | PB2, PB3 | inputs with pull-ups, closed = low |
 //! | LED | PB5 | output (Arduino D13) |
+//! | servo signal | PB2 | the servo head's PWM (OC1B), output; no switches on that head |
 //! | IN1..IN4 | PD4..PD7 | ULN2003 inputs (unipolar stepper, half-stepped) |
 //! | STEP, DIR, EN | PD4, PD5, PD6 | A4988/DRV8825 inputs (bipolar stepper); EN low = enabled |
 
@@ -77,6 +78,9 @@ pub const ECHO: Pin = Pin::new(Port::B, 0);
 pub const SWITCH_MIN: Pin = Pin::new(Port::B, 2);
 /// Limit switch at the counter-clockwise end, +150° (input, active low).
 pub const SWITCH_MAX: Pin = Pin::new(Port::B, 3);
+/// The servo head's signal line (OC1B, Timer1's fast PWM, output): a pulse every 20 ms, its width
+/// the angle.
+pub const SERVO: Pin = Pin::new(Port::B, 2);
 /// The board's LED (output).
 pub const LED: Pin = Pin::new(Port::B, 5);
 /// ULN2003 inputs IN1..IN4.
@@ -131,11 +135,12 @@ mod tests {
             .collect()
     }
 
-    /// The pin that `PORTx` macro `port` and `Pxn` macro `bit` name in the header.
+    /// The pin that `PORTx` (or `DDRx`) macro `port` and `Pxn` macro `bit` name in the header.
     fn header_pin(defs: &std::collections::HashMap<String, String>, port: &str, bit: &str) -> Pin {
         let port_reg = &defs[port];
         let letter = port_reg
             .strip_prefix("PORT")
+            .or_else(|| port_reg.strip_prefix("DDR"))
             .and_then(|l| l.chars().next())
             .unwrap_or_else(|| panic!("{port} = {port_reg} is no PORTx"));
         let bit_name = &defs[bit];
@@ -175,6 +180,7 @@ mod tests {
             SWITCH_MAX
         );
         assert_eq!(header_pin(&defs, "LED_PORT", "LED_BIT"), LED);
+        assert_eq!(header_pin(&defs, "SERVO_DDR", "SERVO_BIT"), SERVO);
         assert_eq!(header_pin(&defs, "STEPPER_PORT", "STEPDIR_STEP_BIT"), STEP);
         assert_eq!(header_pin(&defs, "STEPPER_PORT", "STEPDIR_DIR_BIT"), DIR);
         assert_eq!(header_pin(&defs, "STEPPER_PORT", "STEPDIR_EN_BIT"), ENABLE);

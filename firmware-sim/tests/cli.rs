@@ -50,6 +50,31 @@ mod with_simavr {
         elf
     }
 
+    /// A servo head has no switches to break and a travel of ±90°: said before anything starts.
+    #[test]
+    fn a_servo_head_refuses_switch_faults_and_a_start_beyond_its_stops() {
+        for (args, expected) in [
+            (
+                &["--switch-fault", "min=dead"][..],
+                "--switch-fault and --switch-bounce: a servo head has no limit switches",
+            ),
+            (
+                &["--start-angle", "120"][..],
+                "the shaft cannot stand at 120°: the mechanical stops are at ±90°",
+            ),
+        ] {
+            let out = Command::new(BIN)
+                .args(["--head", "servo", "--firmware"])
+                .arg(firmware_elf())
+                .args(args)
+                .output()
+                .unwrap();
+            assert!(!out.status.success(), "{args:?}");
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            assert!(stderr.contains(expected), "{args:?}: {stderr}");
+        }
+    }
+
     #[test]
     fn link_reset_button_and_sigterm() {
         let link = std::env::temp_dir().join(format!("sonar-fwsim-link-{}", std::process::id()));

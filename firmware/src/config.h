@@ -74,9 +74,46 @@
 /* Microsteps per OUTPUT revolution = MOTOR_NUM / MOTOR_DEN exactly. */
 #define MOTOR_NUM (MOTOR_BASE_NUM * (unsigned long)CFG_GEAR)
 
+/* ---- the servo head (make HEAD=servo, servo.h) ----------------------------------------------- */
+
+#if defined(CFG_HEAD_SERVO)
+/* The sweep limits, in the servo's own degrees (0…180; 90 = the sensor's forward axis). */
+#ifndef SERVO_MIN_DEG
+#define SERVO_MIN_DEG 0
+#endif
+#ifndef SERVO_MAX_DEG
+#define SERVO_MAX_DEG 180
+#endif
+/* TowerPro SG90 datasheet: PWM period 20 ms (50 Hz); "~1 ms" pulse at one end (-90°), 1.5 ms in
+ * the middle, "~2 ms" at the other end (+90°). The MG90S datasheet gives the same. Servos differ:
+ * `make HEAD=servo SERVO_US=500-2500` for one that needs wider pulses to reach 180°. */
+#ifndef SERVO_PULSE_MIN_US
+#define SERVO_PULSE_MIN_US 1000
+#endif
+#ifndef SERVO_PULSE_MAX_US
+#define SERVO_PULSE_MAX_US 2000
+#endif
+#define SERVO_PERIOD_US 20000UL
+/* SG90 datasheet: operating speed 0.1 s/60° at 4.8 V (MG90S: 0.1 s/60° at 4.8 V, 0.08 s at 6 V).
+ * A slower supply or a heavier sensor mount: raise it (make SERVO_MS_PER_60=…). */
+#ifndef SERVO_MS_PER_60DEG
+#define SERVO_MS_PER_60DEG 100UL
+#endif
+/* After the move the horn and the sensor on it ring; no datasheet gives how long: 20 ms, assumed. */
+#ifndef SERVO_RING_MS
+#define SERVO_RING_MS 20UL
+#endif
+/* HC-SR04 datasheet: "we suggest to use over 60ms measurement cycle". */
+#ifndef PING_INTERVAL_MS
+#define PING_INTERVAL_MS 60UL
+#endif
+#define FIRMWARE_NAME "sonar-head 0.2.0 servo"
+#else
+#define FIRMWARE_NAME "sonar-head 0.2.0"
+#endif
+
 /* ---- head geometry (docs/protocol.md, paper §II.A.2) ----------------------------------------- */
 
-#define FIRMWARE_NAME "sonar-head 0.2.0"
 #define HEAD_STEP_CDEG 150    /* one 1.5° step: 7.5° motor step through the 1:5 gear (paper) */
 #define HEAD_PINGS 4          /* pings per 6° reading (paper: "four such readings are averaged") */
 #define HEAD_MIN_CDEG (-15000) /* MIN limit switch, −150° (paper: 300° sweep) */

@@ -6,18 +6,26 @@
  * decisions live in motion.c (pure); this file wires them to the hardware and keeps the timing:
  * a step interval after each microstep, SETTLE_MS before a ping, PING_INTERVAL_MS between
  * triggers. Nothing here waits for input: the loop polls and moves on.
+ *
+ * The servo head (HEAD=servo) links servo.c instead of motion.c (the same head interface) and
+ * runs its own loop: a move to the next ping's angle, its settle time, the ping.
  */
 #include "clock.h"
 #include "compat.h"
 #include "config.h"
 #include "head_id.h"
-#include "motion.h"
 #include "pins.h"
 #include "protocol.h"
 #include "sonar.h"
+#include "uart.h"
+#if defined(CFG_HEAD_SERVO)
+#include "servo.h"
+#include "servo_pwm.h"
+#else
+#include "motion.h"
 #include "stepper.h"
 #include "switches.h"
-#include "uart.h"
+#endif
 
 #include <avr/interrupt.h>
 #include <avr/io.h>
@@ -109,6 +117,57 @@ static void led(bool on)
     }
 }
 
+#if defined(CFG_HEAD_SERVO)
+int main(void)
+{
+    LED_DDR |= _BV(LED_BIT);
+    clock_init();
+    uart_init();
+    proto_framer_init(&framer);
+    sei();
+
+    head_id_load(head_id); /* ≈ 1 s at the very first boot only */
+    sonar_init();          /* Timer1: the echo timing and the servo's PWM */
+    head_init(&head, head_id, send, 0);
+
+    /* docs/protocol.md: after power-on or any reset the device sends its HELLO by itself. */
+    head_send_hello(&head);
+    if (reset_cause & _BV(WDRF)) {
+        send_err_P(ERR_HARDWARE, FSTR("watchdog reset"));
+    }
+    wdt_enable(WDTO_500MS);
+
+    uint32_t moved_us = clock_us(); /* when the last move was commanded */
+    uint32_t settle_us = 0;         /* how long that move needs before a ping */
+    uint32_t last_trigger_us = moved_us - PING_INTERVAL_MS * 1000UL;
+
+    for (;;) {
+        wdt_reset();
+        service_rx();
+        uint32_t now = clock_us();
+
+        if (sonar_busy()) {
+            sonar_result r;
+            if (sonar_poll(&r)) {
+                head_ping_done(&head, r.echo_us, r.silent, clock_ms());
+            }
+            continue;
+        }
+        uint8_t action = head_next(&head);
+        led(head_busy(&head));
+        if (action == HEAD_ACT_MOVE) {
+            servo_pwm_set(servo_pulse_ticks_of_head(head_angle_cdeg(&head)));
+            moved_us = now;
+            settle_us = head.settle * 1000UL;
+        } else if (action == HEAD_ACT_PING && now - moved_us >= settle_us &&
+                   now - last_trigger_us >= PING_INTERVAL_MS * 1000UL + 2 * CLOCK_US_RESOLUTION) {
+            /* The clock has 8 µs steps: the margin keeps the ping interval for sure. */
+            last_trigger_us = clock_us();
+            sonar_trigger();
+        }
+    }
+}
+#else
 int main(void)
 {
     LED_DDR |= _BV(LED_BIT);
@@ -203,3 +262,4 @@ int main(void)
         }
     }
 }
+#endif

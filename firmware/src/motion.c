@@ -288,14 +288,7 @@ void head_command(head_t *h, const proto_cmd *cmd)
             head_send_hello(h);
         } else {
             dev_msg m;
-            tbuf t;
-            m.kind = MSG_ERR;
-            m.u.err.code = ERR_VERSION;
-            tb_init(&t, m.u.err.text, PROTO_TEXT_MAX);
-            tb_str_P(&t, FSTR("host speaks version "));
-            tb_u32(&t, cmd->version);
-            tb_str_P(&t, FSTR("; device speaks "));
-            tb_u32(&t, PROTO_VERSION);
+            proto_version_err(&m, cmd->version);
             emit(h, &m);
         }
         break;
@@ -326,21 +319,7 @@ void head_command(head_t *h, const proto_cmd *cmd)
         }
         if (first < 0 || cmd->from_cdeg < HEAD_MIN_CDEG || cmd->to_cdeg > HEAD_MAX_CDEG) {
             dev_msg m;
-            tbuf t;
-            m.kind = MSG_ERR;
-            m.u.err.code = ERR_RANGE;
-            tb_init(&t, m.u.err.text, PROTO_TEXT_MAX);
-            if (first < 0) {
-                tb_str_P(&t, FSTR("no reading centre in "));
-                tb_i32(&t, cmd->from_cdeg);
-                tb_str_P(&t, FSTR(".."));
-                tb_i32(&t, cmd->to_cdeg);
-            } else {
-                tb_str_P(&t, FSTR("segment outside the limits "));
-                tb_i32(&t, HEAD_MIN_CDEG);
-                tb_str_P(&t, FSTR(".."));
-                tb_i32(&t, HEAD_MAX_CDEG);
-            }
+            proto_range_err(&m, first < 0, cmd->from_cdeg, cmd->to_cdeg, HEAD_MIN_CDEG, HEAD_MAX_CDEG);
             emit(h, &m);
             break;
         }

@@ -17,6 +17,9 @@
  *   limit MIN         PB2   D10      PCINT2, active low, internal pull-up
  *   limit MAX         PB3   D11      PCINT3, active low, internal pull-up
  *   status LED        PB5   D13      on while a scan (or homing) is under way
+ *
+ * The servo head (make HEAD=servo) has no stepper and no switches; its servo takes PB2:
+ *   servo signal      PB2   D10      OC1B, Timer1 fast PWM (mode 15, TOP = OCR1A): 50 Hz, 1-2 ms
  */
 #ifndef SONAR_PINS_H
 #define SONAR_PINS_H
@@ -55,6 +58,11 @@
 #define SWITCH_PCIE PCIE0
 #define SWITCH_MIN_PCINT PCINT2
 #define SWITCH_MAX_PCINT PCINT3
+
+/* Servo signal (HEAD=servo): OC1B, the Timer1 compare output that leaves ICP1 (the echo timing)
+ * free: with TOP in OCR1A (mode 15), ICR1 still captures (datasheet §16.9.3). */
+#define SERVO_DDR DDRB
+#define SERVO_BIT PB2 /* D10 = OC1B */
 
 /* Status LED (the Uno's "L" LED). */
 #define LED_DDR DDRB

@@ -535,3 +535,35 @@ void proto_err_P(dev_msg *m, uint8_t code, const char *text_P)
     tb_init(&t, m->u.err.text, PROTO_TEXT_MAX);
     tb_str_P(&t, text_P);
 }
+
+void proto_version_err(dev_msg *m, uint32_t host_version)
+{
+    tbuf t;
+    m->kind = MSG_ERR;
+    m->u.err.code = ERR_VERSION;
+    tb_init(&t, m->u.err.text, PROTO_TEXT_MAX);
+    tb_str_P(&t, FSTR("host speaks version "));
+    tb_u32(&t, host_version);
+    tb_str_P(&t, FSTR("; device speaks "));
+    tb_u32(&t, PROTO_VERSION);
+}
+
+void proto_range_err(dev_msg *m, bool no_centre, int32_t from_cdeg, int32_t to_cdeg, int32_t min_cdeg,
+                     int32_t max_cdeg)
+{
+    tbuf t;
+    m->kind = MSG_ERR;
+    m->u.err.code = ERR_RANGE;
+    tb_init(&t, m->u.err.text, PROTO_TEXT_MAX);
+    if (no_centre) {
+        tb_str_P(&t, FSTR("no reading centre in "));
+        tb_i32(&t, from_cdeg);
+        tb_str_P(&t, FSTR(".."));
+        tb_i32(&t, to_cdeg);
+    } else {
+        tb_str_P(&t, FSTR("segment outside the limits "));
+        tb_i32(&t, min_cdeg);
+        tb_str_P(&t, FSTR(".."));
+        tb_i32(&t, max_cdeg);
+    }
+}

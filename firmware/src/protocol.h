@@ -158,5 +158,11 @@ uint8_t proto_encode(const dev_msg *m, char *out);
 
 /* Sets up an ERR message whose text is a flash string. */
 void proto_err_P(dev_msg *m, uint8_t code, const char *text_P);
+/* ERR,VERSION for a HELLO of another version. */
+void proto_version_err(dev_msg *m, uint32_t host_version);
+/* ERR,RANGE for a SCAN,LOCAL: no reading centre in from..to (no_centre), or a segment outside the
+ * head's limits min..max. */
+void proto_range_err(dev_msg *m, bool no_centre, int32_t from_cdeg, int32_t to_cdeg, int32_t min_cdeg,
+                     int32_t max_cdeg);
 
 #endif

@@ -6,6 +6,11 @@
  * ICES1 to catch the falling edge, and timestamps that. The main loop polls for the end and
  * applies the timeouts (sensor-facts: SRF05 drops ECHO after ≈ 30 ms without an echo, HC-SR04
  * after ≈ 38 ms).
+ *
+ * The servo head (HEAD=servo) shares Timer1 with its servo: fast PWM with TOP = OCR1A = 39999
+ * (mode 15), so the count wraps every 20 ms (the servo's 50 Hz frame) and OC1B makes the pulse.
+ * Input capture still works in that mode (only ICR1 as TOP disables it); the extension to 32 bits
+ * adds 40000 per wrap instead of 65536.
  */
 #include "sonar.h"
 
@@ -18,10 +23,15 @@
 #include <util/delay.h>
 
 #define TICKS_PER_MS 2000UL /* 16 MHz / 8 */
+#if defined(CFG_HEAD_SERVO)
+#define T1_PERIOD (SERVO_PERIOD_US * 2UL) /* 40000 ticks = 20 ms */
+#else
+#define T1_PERIOD 0x10000UL
+#endif
 
 enum { S_IDLE = 0, S_WAIT_RISE, S_WAIT_FALL, S_DONE };
 
-static volatile uint16_t t1_overflows;
+static volatile uint32_t t1_base; /* ticks counted by the wraps so far */
 static volatile uint8_t state;
 static volatile uint32_t rise_ticks;
 static volatile uint32_t width_ticks;
@@ -29,18 +39,18 @@ static uint32_t trigger_ticks;
 
 ISR(TIMER1_OVF_vect)
 {
-    t1_overflows++;
+    t1_base += T1_PERIOD;
 }
 
 /* 32-bit timestamp of a 16-bit count read now; an overflow pending but not yet counted belongs
  * to a small count. Interrupts are off (ISR or atomic block). */
 static uint32_t extend(uint16_t count)
 {
-    uint16_t ovf = t1_overflows;
-    if ((TIFR1 & _BV(TOV1)) && count < 0x8000u) {
-        ovf++;
+    uint32_t base = t1_base;
+    if ((TIFR1 & _BV(TOV1)) && count < T1_PERIOD / 2u) {
+        base += T1_PERIOD;
     }
-    return ((uint32_t)ovf << 16) | count;
+    return base + count;
 }
 
 ISR(TIMER1_CAPT_vect)
@@ -66,8 +76,15 @@ void sonar_init(void)
     SONAR_TRIG_PORT &= (uint8_t)~_BV(SONAR_TRIG_BIT);
     SONAR_ECHO_DDR &= (uint8_t)~_BV(SONAR_ECHO_BIT);
     SONAR_ECHO_PORT &= (uint8_t)~_BV(SONAR_ECHO_BIT); /* no pull-up: the module drives ECHO */
+#if defined(CFG_HEAD_SERVO)
+    /* Mode 15 (WGM13..10 = 1111), TOP = OCR1A; OC1B clears on compare match, sets at BOTTOM. */
+    OCR1A = (uint16_t)(T1_PERIOD - 1u);
+    TCCR1A = _BV(COM1B1) | _BV(WGM11) | _BV(WGM10);
+    TCCR1B = _BV(ICNC1) | _BV(ICES1) | _BV(WGM13) | _BV(WGM12) | _BV(CS11);
+#else
     TCCR1A = 0;                                        /* normal mode */
     TCCR1B = _BV(ICNC1) | _BV(ICES1) | _BV(CS11);      /* noise canceller, rising edge, clk/8 */
+#endif
     TIFR1 = _BV(ICF1) | _BV(TOV1);
     TIMSK1 = _BV(ICIE1) | _BV(TOIE1);
     state = S_IDLE;

@@ -20,10 +20,14 @@ void tt_run(const char *name, tt_fn fn)
 
 int main(void)
 {
+#if defined(CFG_HEAD_SERVO)
+    servo_tests();
+#else
     protocol_tests();
     motion_tests();
     head_tests();
     head_id_tests();
+#endif
     printf("%d passed, %d failed\n", passed, failed);
     return failed ? EXIT_FAILURE : EXIT_SUCCESS;
 }

@@ -49,6 +49,7 @@ void protocol_tests(void);
 void motion_tests(void);
 void head_tests(void);
 void head_id_tests(void);
+void servo_tests(void); /* the servo head (make HEAD=servo), its own runner */
 
 #define RUN(fn) tt_run(#fn, fn)
 

@@ -760,3 +760,32 @@ pub fn back_wall_seen_at(header: &GridHeader, cells: &[u8], x_m: f32) -> bool {
     }
     hits >= 5
 }
+
+/// A private copy of a `sonar/grid` snapshot.
+#[derive(Debug)]
+pub struct GridSnapshot {
+    pub header: GridHeader,
+    pub cells: Vec<u8>,
+}
+
+impl GridSnapshot {
+    /// The highest probability of the cells within `radius` cells of world point (`x`, `y`),
+    /// `None` if all of them are unknown.
+    pub fn max_near(&self, x: f32, y: f32, radius: i64) -> Option<f32> {
+        let h = &self.header;
+        let cx = ((x - h.origin_x_m) / h.resolution_m).floor() as i64;
+        let cy = ((y - h.origin_y_m) / h.resolution_m).floor() as i64;
+        let mut best = None;
+        for j in cy - radius..=cy + radius {
+            for i in cx - radius..=cx + radius {
+                let inside = (0..h.width as i64).contains(&i) && (0..h.height as i64).contains(&j);
+                assert!(inside, "({x}, {y}) lies outside the grid");
+                let cell = self.cells[(j * h.width as i64 + i) as usize];
+                if let Some(p) = ipc::decode_probability(cell) {
+                    best = Some(best.map_or(p, |b: f32| b.max(p)));
+                }
+            }
+        }
+        best
+    }
+}

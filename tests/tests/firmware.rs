@@ -18,8 +18,8 @@ use sonar_common::protocol::{
     WireScanMode, crc16_ccitt_false, encode_command, parse_device,
 };
 use sonar_e2e::{
-    PATIENCE, Proc, Sandbox, collect_until, driver_status_subscriber, readings_subscriber,
-    receive_reading, send_scan_command, wait_for_status,
+    GridSnapshot, PATIENCE, Proc, Sandbox, collect_until, driver_status_subscriber,
+    grid_subscriber, readings_subscriber, receive_reading, send_scan_command, wait_for_status,
 };
 
 /// The image `make -C firmware` builds: the bytes that would be flashed, plus symbols.
@@ -28,6 +28,18 @@ fn firmware_elf() -> String {
     assert!(
         elf.exists(),
         "{} is missing: run `make -C firmware` first (.ci/run does)",
+        elf.display()
+    );
+    elf.to_str().unwrap().to_owned()
+}
+
+/// The servo head's image, `make -C firmware HEAD=servo` (`.ci/run` builds it).
+fn servo_firmware_elf() -> String {
+    let elf =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../firmware/build/servo/sonar-head.elf");
+    assert!(
+        elf.exists(),
+        "{} is missing: run `make -C firmware HEAD=servo` first (.ci/run does)",
         elf.display()
     );
     elf.to_str().unwrap().to_owned()
@@ -664,4 +676,115 @@ fn badly_bouncing_switches_change_nothing() {
         assert_eq!(sweeps[&sweep].len(), 50, "sweep {sweep}");
     }
     assert!(travel.within(-150.75, 150.75), "{travel:?}");
+}
+
+/// The servo head (`make -C firmware HEAD=servo`: an SG90 on Timer1's PWM, an HC-SR04, no limit
+/// switches) on the emulated board, which turns each pulse width into the shaft's angle at the
+/// servo's speed, through the real driver and fusion: the HELLO's limits (−90…+90°) reach the
+/// driver, the sweeps go limit to limit and back, the grid has the room's walls ahead and at the
+/// sides, and the shaft never leaves the servo's 0–180° (±90° at the head), nor is it ever sent
+/// beyond.
+#[test]
+fn the_servo_head_maps_the_room_through_driver_and_fusion_within_its_travel() {
+    let sandbox = Sandbox::new("fw_servo_room");
+    let node = sandbox.node("test-consumer");
+    let sub = readings_subscriber(&node);
+    let grid = grid_subscriber(&node);
+    let report = sandbox.root.join("travel.json");
+    let elf = servo_firmware_elf();
+    let (head, pty) = sandbox.spawn_head(
+        "sonar-firmware-sim",
+        &[
+            "--head",
+            "servo",
+            "--firmware",
+            &elf,
+            "--scene",
+            "room",
+            "--seed",
+            "5",
+            "--speed",
+            "max",
+            "--travel-report",
+            report.to_str().unwrap(),
+        ],
+    );
+    let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+    let fusion = sandbox.spawn(
+        "sonar-fusion",
+        &["--no-persist", "--max-snapshot-rate", "20"],
+    );
+
+    let readings = collect_until(
+        &node,
+        || receive_reading(&sub),
+        |got| got.iter().any(|r| r.sweep_id == 3),
+    );
+    let sweeps = by_sweep(&readings);
+    // Sweep 1 from the lower limit (the servo's position is unknown at power-on), sweep 2 back.
+    let mut centres: Vec<f32> = (0..30).map(|k| -87.0 + 6.0 * k as f32).collect();
+    for (sweep, direction) in [(1, 1), (2, -1)] {
+        let s = &sweeps[&sweep];
+        if direction < 0 {
+            centres.reverse();
+        }
+        let angles: Vec<f32> = s.iter().map(|r| r.angle_deg).collect();
+        assert_eq!(
+            angles, centres,
+            "sweep {sweep}: one reading every 6° over 174°"
+        );
+        for r in s {
+            assert_eq!(r.direction, direction, "{r:?}");
+            assert_eq!(r.ping_count, 4, "{r:?}");
+            // Facing a wall (within 20° of its normal) the range is the perpendicular 1.20 m.
+            let off_normal = (r.angle_deg.rem_euclid(90.0) + 45.0).rem_euclid(90.0) - 45.0;
+            if off_normal.abs() <= 20.0 {
+                assert!(r.is_valid_range(), "{r:?}");
+                assert!((r.distance_m - 1.20).abs() <= 0.03, "{r:?}");
+            }
+        }
+    }
+
+    // The grid once two sweeps (60 readings) are fused.
+    let snapshots = collect_until(
+        &node,
+        || {
+            grid.receive().unwrap().map(|s| GridSnapshot {
+                header: *s.user_header(),
+                cells: s.payload().to_vec(),
+            })
+        },
+        |got| got.last().is_some_and(|s| s.header.readings_fused >= 60),
+    );
+    let map = snapshots.last().unwrap();
+    // The walls ahead and at both sides, and the two corners ahead, are occupied; the space
+    // half-way to them is free; behind the sensor, outside the servo's 180°, nothing was seen.
+    for (x, y) in [
+        (1.2, 0.0),
+        (1.2, 0.2),
+        (1.2, -0.2),
+        (0.0, 1.2),
+        (0.0, -1.2),
+        (1.2, 1.2),
+        (1.2, -1.2),
+    ] {
+        let p = map.max_near(x, y, 2).unwrap_or(0.5);
+        assert!(p > 0.5, "wall at ({x}, {y}) has p = {p}");
+    }
+    for (x, y) in [(0.6, 0.0), (0.0, 0.6), (0.0, -0.6), (0.5, 0.5), (0.5, -0.5)] {
+        let p = map.max_near(x, y, 1).expect("observed");
+        assert!(p < 0.5, "free space at ({x}, {y}) has p = {p}");
+    }
+    assert_eq!(map.max_near(-1.0, 0.0, 2), None, "behind the servo's sweep");
+
+    drop(fusion);
+    drop(driver);
+    assert!(head.terminate().success(), "the board program failed");
+    let travel = Travel::read(&report);
+    assert!(travel.within(-90.0, 90.0), "{travel:?}");
+    // It did turn limit to limit: the outer pings sit 0.75° inside the limits.
+    assert!(
+        travel.lowest <= -89.0 && travel.highest >= 89.0,
+        "{travel:?}"
+    );
 }

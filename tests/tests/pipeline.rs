@@ -16,7 +16,7 @@ use sonar_common::protocol::{
     DeviceMessage, DeviceState, Direction, ErrorCode, PROTOCOL_VERSION, WireReading, encode_device,
 };
 use sonar_e2e::{
-    FakeSerial, PATIENCE, Sandbox, back_wall_seen_at, check_ok, collect_until,
+    FakeSerial, GridSnapshot, PATIENCE, Sandbox, back_wall_seen_at, check_ok, collect_until,
     corridor_grid_config, driver_status_subscriber, grid_subscriber, localized_pose_subscriber,
     readings_subscriber, readings_subscribers, receive_reading, send_scan_command, wait_for_status,
     wait_until,
@@ -690,34 +690,6 @@ fn a_python_consumer_reads_the_documented_layout() {
     }
 }
 
-/// A private copy of a `sonar/grid` snapshot.
-struct Snapshot {
-    header: GridHeader,
-    cells: Vec<u8>,
-}
-
-impl Snapshot {
-    /// The highest probability of the cells within `radius` cells of world point (`x`, `y`),
-    /// `None` if all of them are unknown.
-    fn max_near(&self, x: f32, y: f32, radius: i64) -> Option<f32> {
-        let h = &self.header;
-        let cx = ((x - h.origin_x_m) / h.resolution_m).floor() as i64;
-        let cy = ((y - h.origin_y_m) / h.resolution_m).floor() as i64;
-        let mut best = None;
-        for j in cy - radius..=cy + radius {
-            for i in cx - radius..=cx + radius {
-                let inside = (0..h.width as i64).contains(&i) && (0..h.height as i64).contains(&j);
-                assert!(inside, "({x}, {y}) lies outside the grid");
-                let cell = self.cells[(j * h.width as i64 + i) as usize];
-                if let Some(p) = ipc::decode_probability(cell) {
-                    best = Some(best.map_or(p, |b: f32| b.max(p)));
-                }
-            }
-        }
-        best
-    }
-}
-
 #[test]
 fn the_fusion_engine_maps_the_room_walls_occupied_and_the_space_in_front_free() {
     let sandbox = Sandbox::new("fusion");
@@ -740,7 +712,7 @@ fn the_fusion_engine_maps_the_room_walls_occupied_and_the_space_in_front_free() 
     let snapshots = collect_until(
         &node,
         || {
-            grid.receive().unwrap().map(|s| Snapshot {
+            grid.receive().unwrap().map(|s| GridSnapshot {
                 header: *s.user_header(),
                 cells: s.payload().to_vec(),
             })
