@@ -170,6 +170,26 @@ impl SweepEstimate {
     pub fn correction(&self) -> Isometry2<f64> {
         self.pose * self.odometry.inverse()
     }
+
+    /// The covariance of [`Self::correction`]'s (x, y, θ): the pose's carried through
+    /// `pose ∘ odometry⁻¹` to first order, the odometry's pose of the instant taken as given.
+    pub fn correction_covariance(&self) -> Matrix3<f64> {
+        let inverse = self.odometry.inverse();
+        let (a, b) = (inverse.translation.x, inverse.translation.y);
+        let (sin, cos) = self.pose.rotation.angle().sin_cos();
+        let jacobian = Matrix3::new(
+            1.0,
+            0.0,
+            -sin * a - cos * b,
+            0.0,
+            1.0,
+            cos * a - sin * b,
+            0.0,
+            0.0,
+            1.0,
+        );
+        jacobian * self.covariance * jacobian.transpose()
+    }
 }
 
 /// A landmark of the map.
@@ -822,6 +842,51 @@ fn normal_quantile(p: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The correction's covariance equals the spread of corrections computed from poses drawn
+    /// along each axis of the pose's covariance (first order: small σ, central differences).
+    #[test]
+    fn the_correction_covariance_is_the_poses_carried_through_the_product() {
+        let pose = Isometry2::new(Vector2::new(2.0, -1.0), 0.7);
+        let odometry = Isometry2::new(Vector2::new(1.5, 0.4), -0.3);
+        let covariance = Matrix3::new(4e-4, 1e-4, 2e-5, 1e-4, 9e-4, -3e-5, 2e-5, -3e-5, 1e-4);
+        let estimate = SweepEstimate {
+            sweep_id: 1,
+            stamp_ns: 0,
+            pose,
+            covariance,
+            odometry,
+            state: FixState::Fix,
+            observations: 0,
+            matched: 0,
+            admitted: 0,
+            moving: false,
+        };
+        let as_vector =
+            |t: &Isometry2<f64>| Vector3::new(t.translation.x, t.translation.y, t.rotation.angle());
+        // Numerical Jacobian of the correction with respect to the pose's (x, y, θ).
+        let h = 1e-6;
+        let mut jacobian = Matrix3::zeros();
+        for k in 0..3 {
+            let mut step = Vector3::zeros();
+            step[k] = h;
+            let moved = |sign: f64| {
+                let v = as_vector(&pose) + step * sign;
+                Isometry2::new(Vector2::new(v.x, v.y), v.z) * odometry.inverse()
+            };
+            let diff = as_vector(&moved(1.0)) - as_vector(&moved(-1.0));
+            jacobian.set_column(k, &(diff / (2.0 * h)));
+        }
+        let expected = jacobian * covariance * jacobian.transpose();
+        let got = estimate.correction_covariance();
+        assert!(
+            (got - expected).abs().max() < 1e-9,
+            "got {got}, expected {expected}"
+        );
+        // The correction itself maps the odometry's pose onto the map's.
+        let placed = estimate.correction() * odometry;
+        assert!((as_vector(&placed) - as_vector(&pose)).abs().max() < 1e-12);
+    }
 
     /// A corridor x ∈ [−1, 7] between walls y = ±0.6 with end walls, and posts.
     const WALLS: [(f64, f64); 4] = [

@@ -49,6 +49,7 @@
 
 pub mod estimator;
 pub mod graph;
+pub mod message;
 pub mod odometry;
 
 pub use estimator::{FixState, Landmark, Slam, SlamConfig, SweepEstimate, chi2_quantile};
