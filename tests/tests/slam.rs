@@ -2,7 +2,9 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)] // a panic is a failure
 
 use nalgebra::{Isometry2, Matrix3, Vector2, Vector3};
-use sonar_common::ipc::{self, Pose2D, SlamCorrection};
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+use sonar_common::ipc::{self, Pose2D, Reading, SlamCorrection};
 use sonar_e2e::{
     Sandbox, back_wall_seen_at, collect_until, corridor_grid_config, grid_subscriber,
     readings_subscribers, wait_until,
@@ -195,4 +197,61 @@ fn sonar_slam_corrects_a_drifting_odometry_and_the_fusion_maps_with_it() {
     );
     assert!(stderr.contains("sonar-slam stopped"), "{stderr}");
     let _ = std::fs::remove_file(&config);
+}
+
+/// With nothing else running, sonar-slam starts (it waits for nobody), says once that readings
+/// without odometry are not estimated, publishes nothing for them, and a SIGINT ends it with
+/// status 0 and nothing of it left in shared memory.
+#[test]
+fn sonar_slam_alone_starts_waits_for_odometry_and_stops_cleanly_on_sigint() {
+    let sandbox = Sandbox::new("slam_alone");
+    let node = sandbox.node("test-producer");
+    let slam = sandbox.spawn("sonar-slam", &[]);
+    wait_until(&node, "sonar-slam's readings subscriber", || {
+        readings_subscribers(&node) >= 1
+    });
+    let corrections = ipc::slam_correction_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let readings = ipc::readings_service(&node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    let wake = ipc::wakeup_notifier(&node, ipc::READINGS_SERVICE).unwrap();
+    // Two sweeps of readings and no robot/pose: nothing can be placed.
+    let now = ipc::unix_time_ns();
+    for i in 0..20u32 {
+        let reading = Reading {
+            seq: u64::from(i),
+            host_stamp_ns: now + u64::from(i) * 100_000_000,
+            layout_version: ipc::LAYOUT_VERSION,
+            sweep_id: i / 10,
+            angle_deg: -150.0 + 6.0 * (i % 10) as f32,
+            distance_m: 1.0,
+            ..Reading::default()
+        };
+        readings.send_copy(reading).unwrap();
+        wake.notify().unwrap();
+    }
+    // The readings wait 0.5 s for their odometry, then go to the SLAM, which cannot place them.
+    std::thread::sleep(std::time::Duration::from_secs(1));
+    assert!(corrections.receive().unwrap().is_none());
+    drop((readings, wake));
+
+    let pid = Pid::from_raw(i32::try_from(slam.child.id()).unwrap());
+    kill(pid, Signal::SIGINT).unwrap();
+    let (status, stderr) = slam.wait_exit();
+    assert!(
+        status.success(),
+        "sonar-slam exited with {status:?}: {stderr}"
+    );
+    assert!(stderr.contains("no odometry on robot/pose"), "{stderr}");
+    assert_eq!(stderr.matches("no odometry on").count(), 1, "{stderr}");
+    assert!(stderr.contains("sonar-slam stopped"), "{stderr}");
+    drop((corrections, node));
+    let left = sandbox.stale_shm_files();
+    assert!(left.is_empty(), "stale shared memory: {left:?}");
 }
