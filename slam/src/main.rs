@@ -29,7 +29,7 @@ use serde::Deserialize;
 use sonar_common::ipc::{self, IpcArgs, IpcError, Pose2D, Reading, SlamCorrection};
 use sonar_common::throttle::Throttle;
 use sonar_slam::message::{Totals, correction_message};
-use sonar_slam::{FixState, Slam, SlamConfig, SweepEstimate};
+use sonar_slam::{FixState, Slam, SlamConfig, SlamSection, SweepEstimate};
 use tracing::{debug, info, warn};
 
 /// Longest a reading newer than the newest odometry waits for the pose that covers its instant
@@ -57,7 +57,8 @@ const LOG_PERIOD: Duration = Duration::from_secs(1);
 ///
 /// Settings come from the `[slam]` table of --config (every field of the library's SlamConfig:
 /// gates, kernel, fix limits, and in `[slam.features]` the feature extraction with the odometry's
-/// error model in `[slam.features.odometry]`); other tables are ignored.
+/// error model in `[slam.features.odometry]`; `enabled` is sonar-pipeline's); other tables are
+/// ignored.
 ///
 /// Examples:
 ///   sonar-slam
@@ -77,7 +78,7 @@ struct Args {
 #[derive(Debug, Default, Deserialize)]
 struct SlamFile {
     #[serde(default)]
-    slam: SlamConfig,
+    slam: SlamSection,
 }
 
 fn main() -> ExitCode {
@@ -94,7 +95,7 @@ fn load_config(path: Option<&Path>) -> Result<SlamConfig> {
         std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
     let file: SlamFile = sonar_common::toml_file::parse(&text)
         .map_err(|message| anyhow::anyhow!("{}: {message}", path.display()))?;
-    Ok(file.slam)
+    Ok(file.slam.config)
 }
 
 fn run(args: &Args) -> Result<()> {
@@ -399,7 +400,7 @@ mod tests {
 
     #[test]
     fn the_slam_table_is_read_and_the_others_ignored() {
-        let f = file("[fusion]\ncells = 10\n\n[slam]\nfix_max_sigma_m = 0.08\n");
+        let f = file("[fusion]\ncells = 10\n\n[slam]\nenabled = true\nfix_max_sigma_m = 0.08\n");
         let config = load_config(Some(&f.0)).unwrap_or_else(|e| panic!("{e:#}"));
         assert_eq!(config.fix_max_sigma_m, 0.08);
         assert_eq!(config.gate_chi2, SlamConfig::default().gate_chi2);
@@ -420,10 +421,13 @@ mod tests {
             load_config(Some(&f.0)).err().unwrap_or_else(|| panic!())
         );
         assert!(e.contains("no_such_key"), "{e}");
-        // A value the library refuses is refused before anything starts.
+        // A value the library refuses is refused as the file is read.
         let f = file("[slam]\ngate_chi2 = -1.0\n");
-        let config = load_config(Some(&f.0)).unwrap_or_else(|e| panic!("{e:#}"));
-        assert!(Slam::new(config).is_err());
+        let e = format!(
+            "{:#}",
+            load_config(Some(&f.0)).err().unwrap_or_else(|| panic!())
+        );
+        assert!(e.contains("gate_chi2"), "{e}");
         let missing = std::env::temp_dir().join("sonar-slam-test-no-such-file.toml");
         let e = format!(
             "{:#}",
