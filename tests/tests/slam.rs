@@ -255,3 +255,55 @@ fn sonar_slam_alone_starts_waits_for_odometry_and_stops_cleanly_on_sigint() {
     let left = sandbox.stale_shm_files();
     assert!(left.is_empty(), "stale shared memory: {left:?}");
 }
+
+/// `[slam] enabled = true`: `sonar-pipeline` starts `sonar-slam` beside the simulator's touring
+/// robot, corrections come on `sonar/slam_correction`, and a SIGTERM to the launcher stops every
+/// process and leaves no shared memory.
+#[test]
+fn the_pipeline_starts_sonar_slam_from_its_table() {
+    let sandbox = Sandbox::new("slam_pipeline");
+    let node = sandbox.node("test-consumer");
+    let corrections = ipc::slam_correction_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let config = sandbox.root.join("pipeline.toml");
+    std::fs::write(
+        &config,
+        "[simulator]\nscene = \"corridor\"\nspeed = \"20\"\n\n[fusion]\npersist = false\n\n\
+         [slam]\nenabled = true\n",
+    )
+    .unwrap();
+    let logs = sandbox.root.join("logs");
+    let launcher = sandbox.spawn(
+        "sonar-pipeline",
+        &[
+            "--no-viewer",
+            "--config",
+            config.to_str().unwrap(),
+            "--log-dir",
+            logs.to_str().unwrap(),
+        ],
+    );
+    let got = collect_until(
+        &node,
+        || corrections.receive().unwrap().map(|s| *s.payload()),
+        |got| got.len() >= 3,
+    );
+    assert!(got.iter().all(|c| c.layout_version == ipc::LAYOUT_VERSION));
+    let pid = Pid::from_raw(i32::try_from(launcher.child.id()).unwrap());
+    kill(pid, Signal::SIGTERM).unwrap();
+    let (status, stderr) = launcher.wait_exit();
+    assert!(status.success(), "{stderr}");
+    let slam_log = std::fs::read_to_string(logs.join("sonar-slam.log")).unwrap();
+    assert!(slam_log.contains("sonar-slam stopped"), "{slam_log}");
+    let fusion_log = std::fs::read_to_string(logs.join("sonar-fusion.log")).unwrap();
+    assert!(
+        fusion_log.contains("first correction from sonar-slam"),
+        "{fusion_log}"
+    );
+    drop((corrections, node));
+    let left = sandbox.stale_shm_files();
+    assert!(left.is_empty(), "stale shared memory: {left:?}");
+}
