@@ -368,6 +368,15 @@ impl Slam {
         Vector2::new(position, heading)
     }
 
+    /// Forgets the odometry before `stamp_ns` while no sweep is pending (its readings need the
+    /// odometry of their instants): a robot that drives with its sonar stopped would otherwise
+    /// keep every pose. Readings stamped before `stamp_ns` are then placed at the oldest pose kept.
+    pub fn forget_odometry_before(&mut self, stamp_ns: u64) {
+        if self.pending.is_empty() {
+            self.track.forget_before(stamp_ns);
+        }
+    }
+
     /// The latest sweep's estimate.
     pub fn last(&self) -> Option<&SweepEstimate> {
         self.last.as_ref()
@@ -842,6 +851,39 @@ fn normal_quantile(p: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Odometry is forgotten only while no sweep is pending: a pending sweep's readings keep the
+    /// poses of their instants.
+    #[test]
+    fn odometry_is_forgotten_only_while_no_sweep_is_pending() {
+        let odometry_at = |pending: bool| {
+            let mut slam = Slam::new(SlamConfig::default()).unwrap_or_else(|e| panic!("{e}"));
+            let reading = Reading {
+                host_stamp_ns: 1_500_000_000,
+                angle_deg: 0.0,
+                distance_m: 1.0,
+                ..Reading::default()
+            };
+            if pending {
+                assert!(slam.push_reading(&reading).is_none());
+            }
+            for k in 0..=4u32 {
+                let pose = Isometry2::new(Vector2::new(f64::from(k), 0.0), 0.0);
+                assert!(slam.push_odometry(u64::from(k) * 1_000_000_000, pose));
+            }
+            slam.forget_odometry_before(3_000_000_000);
+            if !pending {
+                assert!(slam.push_reading(&reading).is_none());
+            }
+            slam.finish_sweep()
+                .map(|e| e.odometry.translation.x)
+                .unwrap_or(f64::NAN)
+        };
+        // Pending: the reading's own instant, between the poses at 1 s and 2 s.
+        assert!((odometry_at(true) - 1.5).abs() < 1e-9);
+        // Nothing pending: forgotten up to the pose at 3 s, the oldest kept.
+        assert!((odometry_at(false) - 3.0).abs() < 1e-9);
+    }
 
     /// The correction's covariance equals the spread of corrections computed from poses drawn
     /// along each axis of the pose's covariance (first order: small σ, central differences).

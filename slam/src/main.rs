@@ -42,6 +42,9 @@ const SWEEP_IDLE: Duration = Duration::from_secs(2);
 /// How often the process wakes without readings: poses bring no wake-up, and a reading waiting
 /// for its pose is looked at again this often.
 const TICK: Duration = Duration::from_millis(10);
+/// Odometry kept while no sweep is pending: readings arrive a few milliseconds after their
+/// instant, so this is ample, and a robot driving with its sonar stopped keeps no more.
+const ODOMETRY_KEPT: Duration = Duration::from_secs(10);
 /// How often the publisher offers its last message to subscribers that joined since.
 const REFRESH_PERIOD: Duration = Duration::from_secs(1);
 /// Least time between two log lines about one kind of lost or refused input.
@@ -302,6 +305,11 @@ impl<'a> Process<'a> {
             );
             if self.slam.push_odometry(p.stamp_ns, pose) {
                 self.newest_odometry_ns = Some(p.stamp_ns);
+                if self.queue.is_empty() && !self.sweep_open {
+                    let kept = u64::try_from(ODOMETRY_KEPT.as_nanos()).unwrap_or(u64::MAX);
+                    self.slam
+                        .forget_odometry_before(p.stamp_ns.saturating_sub(kept));
+                }
             } else if let Some(left_out) = self.odometry_log.allow(Instant::now()) {
                 warn!(pose = ?p, left_out, "odometry refused: older than the last, or not finite");
             }
