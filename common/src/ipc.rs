@@ -40,6 +40,9 @@ pub const FUSION_STATUS_SERVICE: &str = "sonar/fusion_status";
 pub const FEATURES_SERVICE: &str = "sonar/features";
 /// The robot's pose as sonar localisation corrected it, once per sweep (`sonar-fusion --localize`).
 pub const LOCALIZED_POSE_SERVICE: &str = "sonar/localized_pose";
+/// `sonar-slam`'s correction of the odometry, once per sweep: the `map → odom` transform with its
+/// covariance and whether it is a fix.
+pub const SLAM_CORRECTION_SERVICE: &str = "sonar/slam_correction";
 
 /// The iceoryx2 node name of `sonar-replay`: a viewer that sees it behind `sonar/readings` knows
 /// that the readings stop because a recording ended, not because a driver died.
@@ -686,6 +689,81 @@ pub struct LocalizedPose {
 
 const _: () = assert!(std::mem::size_of::<LocalizedPose>() == 72);
 
+/// Values of [`SlamCorrection::state`]: `FIX` is a fix, every other value says why there is none.
+pub mod slam_state {
+    /// The sweep matched landmarks of the map and its covariance is within the limits.
+    pub const FIX: u32 = 1;
+    /// No fix: nothing of the map was seen; the sweep was placed by odometry.
+    pub const NO_LANDMARKS: u32 = 2;
+    /// No fix: landmarks were seen but the pose is still too uncertain in some direction (a
+    /// featureless corridor's axis, a heading no wall fixes).
+    pub const UNCERTAIN: u32 = 3;
+    /// No fix: the sightings would have made the odometry implausible; they were refused and
+    /// the sweep placed by odometry.
+    pub const REFUSED: u32 = 4;
+}
+
+/// `sonar-slam`'s estimate after a sweep, on [`SLAM_CORRECTION_SERVICE`]: the `map → odom`
+/// transform (the pose of the odometry's frame in the map, so that a pose of `robot/pose` is
+/// placed in the map as `correction ∘ odometry pose`), with its covariance, the sweep's pose in
+/// the map with its own, and whether it is a fix. Sent for every sweep, fix or not: without a fix
+/// the correction is the SLAM's best estimate and the covariance says how little it is worth.
+#[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("sonar::SlamCorrectionV1")]
+#[repr(C)]
+pub struct SlamCorrection {
+    /// `host_stamp_ns` of the sweep's first reading: the instant the pose is of.
+    pub stamp_ns: u64,
+    pub layout_version: u32,
+    pub sweep_id: u32,
+    /// [`slam_state`].
+    pub state: u32,
+    /// Observations of the sweep matched to landmarks or admitted as new ones.
+    pub matched: u32,
+    /// `map → odom`: translation (m) and rotation (rad).
+    pub correction_x_m: f32,
+    pub correction_y_m: f32,
+    pub correction_theta_rad: f32,
+    /// Covariance of the correction's (x, y, θ): m², m·rad, rad².
+    pub correction_cov_xx: f32,
+    pub correction_cov_xy: f32,
+    pub correction_cov_xtheta: f32,
+    pub correction_cov_yy: f32,
+    pub correction_cov_ytheta: f32,
+    pub correction_cov_thetatheta: f32,
+    /// The sensor's pose in the map at `stamp_ns`.
+    pub x_m: f32,
+    pub y_m: f32,
+    pub theta_rad: f32,
+    /// Covariance of the pose's (x, y, θ): m², m·rad, rad².
+    pub cov_xx: f32,
+    pub cov_xy: f32,
+    pub cov_xtheta: f32,
+    pub cov_yy: f32,
+    pub cov_ytheta: f32,
+    pub cov_thetatheta: f32,
+    /// The odometry's pose (`robot/pose`) at `stamp_ns`.
+    pub odometry_x_m: f32,
+    pub odometry_y_m: f32,
+    pub odometry_theta_rad: f32,
+    /// Landmarks in the map now.
+    pub landmarks: u32,
+    /// Sweeps published as fixes since the process started.
+    pub fixes: u32,
+    /// Sweeps whose sightings were refused to keep the odometry plausible, since the start.
+    pub refused: u32,
+}
+
+const _: () = assert!(std::mem::size_of::<SlamCorrection>() == 120);
+const _: () = assert!(std::mem::align_of::<SlamCorrection>() == 8);
+
+impl SlamCorrection {
+    /// Whether this sweep is a fix.
+    pub fn is_fix(&self) -> bool {
+        self.state == slam_state::FIX
+    }
+}
+
 /// A failure to set up or use an iceoryx2 resource, with what was being done.
 #[derive(Debug, thiserror::Error)]
 #[error("{context}: {message}")]
@@ -997,6 +1075,21 @@ pub fn localized_pose_service(
         .map_err(|e| IpcError::new(format!("open {LOCALIZED_POSE_SERVICE}"), e))
 }
 
+/// `sonar/slam_correction`, with the localised pose's policy: history 1 so a fusion that starts
+/// late places its readings with the latest correction at once.
+pub fn slam_correction_service(
+    node: &Node<ipc::Service>,
+) -> Result<PubSub<SlamCorrection>, IpcError> {
+    node.service_builder(&service_name(SLAM_CORRECTION_SERVICE)?)
+        .publish_subscribe::<SlamCorrection>()
+        .max_publishers(1)
+        .max_subscribers(8)
+        .subscriber_max_buffer_size(16)
+        .history_size(1)
+        .open_or_create()
+        .map_err(|e| IpcError::new(format!("open {SLAM_CORRECTION_SERVICE}"), e))
+}
+
 /// The event service that wakes the consumers of the publish-subscribe service of the same name.
 pub fn wakeup_service(node: &Node<ipc::Service>, name: &str) -> Result<Event, IpcError> {
     node.service_builder(&service_name(name)?)
@@ -1140,6 +1233,28 @@ mod tests {
         assert_eq!(offset_of!(LocalizedPose, odometry_x_m), 56);
         assert_eq!(offset_of!(LocalizedPose, odometry_theta_rad), 64);
         assert_eq!(offset_of!(LocalizedPose, reserved), 68);
+    }
+
+    #[test]
+    fn slam_correction_layout_matches_documentation() {
+        assert_eq!(offset_of!(SlamCorrection, stamp_ns), 0);
+        assert_eq!(offset_of!(SlamCorrection, layout_version), 8);
+        assert_eq!(offset_of!(SlamCorrection, sweep_id), 12);
+        assert_eq!(offset_of!(SlamCorrection, state), 16);
+        assert_eq!(offset_of!(SlamCorrection, matched), 20);
+        assert_eq!(offset_of!(SlamCorrection, correction_x_m), 24);
+        assert_eq!(offset_of!(SlamCorrection, correction_theta_rad), 32);
+        assert_eq!(offset_of!(SlamCorrection, correction_cov_xx), 36);
+        assert_eq!(offset_of!(SlamCorrection, correction_cov_thetatheta), 56);
+        assert_eq!(offset_of!(SlamCorrection, x_m), 60);
+        assert_eq!(offset_of!(SlamCorrection, theta_rad), 68);
+        assert_eq!(offset_of!(SlamCorrection, cov_xx), 72);
+        assert_eq!(offset_of!(SlamCorrection, cov_thetatheta), 92);
+        assert_eq!(offset_of!(SlamCorrection, odometry_x_m), 96);
+        assert_eq!(offset_of!(SlamCorrection, odometry_theta_rad), 104);
+        assert_eq!(offset_of!(SlamCorrection, landmarks), 108);
+        assert_eq!(offset_of!(SlamCorrection, fixes), 112);
+        assert_eq!(offset_of!(SlamCorrection, refused), 116);
     }
 
     #[test]

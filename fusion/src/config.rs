@@ -310,6 +310,9 @@ impl FusionConfig {
 pub struct FusionSection {
     pub engine: FusionConfig,
     pub persistence: PersistConfig,
+    /// `slam_correction = true`: readings are placed with `sonar-slam`'s correction of the
+    /// odometry (`sonar/slam_correction`) instead of the fusion's own localisation.
+    pub slam_correction: bool,
 }
 
 impl<'de> Deserialize<'de> for FusionSection {
@@ -323,9 +326,19 @@ impl<'de> Deserialize<'de> for FusionSection {
                 persistence.insert(key.to_owned(), value);
             }
         }
+        let slam_correction = match engine.remove("slam_correction") {
+            None => false,
+            Some(toml::Value::Boolean(b)) => b,
+            Some(other) => {
+                return Err(D::Error::custom(format!(
+                    "fusion.slam_correction must be true or false, got {other}"
+                )));
+            }
+        };
         Ok(Self {
             engine: engine.try_into().map_err(D::Error::custom)?,
             persistence: persistence.try_into().map_err(D::Error::custom)?,
+            slam_correction,
         })
     }
 }
@@ -570,10 +583,15 @@ mod tests {
         );
         let empty: FusionSection = toml::from_str("").unwrap();
         assert_eq!(empty, FusionSection::default());
+        assert!(!section.slam_correction);
+        let slam: FusionSection = toml::from_str("slam_correction = true\n").unwrap();
+        assert!(slam.slam_correction);
+        assert_eq!(slam.engine, FusionConfig::default());
         for bad in [
             "save_periode = 1.0",
             "[grid]\nsize = 3",
             "persist = \"yes\"",
+            "slam_correction = 1",
         ] {
             assert!(toml::from_str::<FusionSection>(bad).is_err(), "{bad}");
         }

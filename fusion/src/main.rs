@@ -32,7 +32,7 @@ use iceoryx2::waitset::WaitSetRunResult;
 use sonar_common::ipc::{
     self, FeatureRecord, FeaturesHeader, FusionCommand, FusionCommandKind, FusionStatus,
     GRID_SEGMENT_SLOTS, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, LocalizedPose, MAX_FEATURES,
-    Radar, Reading, unix_time_ns,
+    Radar, Reading, SlamCorrection, unix_time_ns,
 };
 use sonar_common::throttle::Throttle;
 use sonar_fusion::engine::Engine;
@@ -87,7 +87,9 @@ const POSE_POLL: Duration = Duration::from_millis(1);
 /// Readings are placed at the robot's pose from robot/pose, interpolated at each reading's
 /// stamp. With --localize, each sweep is also matched against the features to find how far that
 /// odometry has drifted; the corrected pose goes out on sonar/localized_pose and the readings
-/// that follow are placed with the correction.
+/// that follow are placed with the correction. With --slam-correction the correction comes from
+/// sonar-slam instead (sonar/slam_correction, its latest map → odom transform, fix or not); the
+/// two exclude each other.
 ///
 /// Examples:
 ///   sonar-fusion                                  # recommended preset, 400² cells of 2 cm
@@ -160,6 +162,11 @@ struct Args {
     /// (publishes sonar/localized_pose); `[features] localize = true` does the same.
     #[arg(long)]
     localize: bool,
+    /// Place readings with sonar-slam's correction of the odometry (sonar/slam_correction, the
+    /// latest map → odom transform) instead of localising here; `[fusion] slam_correction = true`
+    /// does the same. Excludes --localize.
+    #[arg(long, conflicts_with = "localize")]
+    slam_correction: bool,
     #[command(flatten)]
     ipc: IpcArgs,
 }
@@ -176,12 +183,14 @@ fn main() -> ExitCode {
 
 /// The configuration from the file, the preset and the flags, validated; and the file's
 /// persistence and feature settings.
-fn fusion_config(args: &Args) -> Result<(FusionConfig, PersistConfig, FeaturesSection)> {
+fn fusion_config(args: &Args) -> Result<(FusionConfig, PersistConfig, FeaturesSection, bool)> {
     let FusionFile {
-        fusion: FusionSection {
-            engine: mut config,
-            persistence,
-        },
+        fusion:
+            FusionSection {
+                engine: mut config,
+                persistence,
+                slam_correction,
+            },
         features,
     } = FusionFile::read(args.config.as_deref())?;
     if let Some(preset) = args.preset {
@@ -203,7 +212,12 @@ fn fusion_config(args: &Args) -> Result<(FusionConfig, PersistConfig, FeaturesSe
         config.clear_on_no_echo = clear;
     }
     config.validate().context("invalid fusion settings")?;
-    Ok((config, persistence, features))
+    Ok((
+        config,
+        persistence,
+        features,
+        slam_correction || args.slam_correction,
+    ))
 }
 
 /// Where and how often to save, from the file's `[fusion]` keys and the flags; `None` with
@@ -284,8 +298,15 @@ fn run(args: &Args) -> Result<()> {
     if !(args.max_snapshot_rate.is_finite() && args.max_snapshot_rate > 0.0) {
         bail!("--max-snapshot-rate must be a positive number of snapshots per second");
     }
-    let (config, persist_config, features) = fusion_config(args)?;
+    let (config, persist_config, features, slam_correction) = fusion_config(args)?;
     let localize = args.localize || features.localize;
+    if localize && slam_correction {
+        bail!(
+            "the correction comes either from the fusion's own localisation (--localize, \
+             [features] localize) or from sonar-slam (--slam-correction, [fusion] \
+             slam_correction), not both"
+        );
+    }
     let extract = features.enabled && !args.no_features;
     if localize && !extract {
         bail!("localisation needs the features: they are turned off");
@@ -321,6 +342,7 @@ fn run(args: &Args) -> Result<()> {
         state_file = persistence.as_ref().map(|(p, _)| p.display().to_string()),
         features = tracker.is_some(),
         localize,
+        slam_correction,
         "fusion engine ready"
     );
     if let Some((path, _)) = &persistence {
@@ -338,7 +360,7 @@ fn run(args: &Args) -> Result<()> {
         .transpose()?;
 
     let node = args.ipc.node("sonar-fusion")?;
-    let ports = Ports::new(&node, engine.grid_len())?;
+    let ports = Ports::new(&node, engine.grid_len(), slam_correction)?;
     let min_interval = Duration::from_secs_f64(1.0 / args.max_snapshot_rate);
     let mut features = tracker
         .map(|tracker| Features::new(&node, tracker, localize, min_interval))
@@ -371,6 +393,7 @@ fn run(args: &Args) -> Result<()> {
         rejected_log: Throttle::new(LOG_PERIOD),
         pose_log: Throttle::new(LOG_PERIOD),
         waiting: None,
+        corrections: 0,
     };
     // Readings were left in the buffer at the end of the last turn.
     let mut more = false;
@@ -468,6 +491,7 @@ fn run(args: &Args) -> Result<()> {
         lost = status.readings_lost,
         snapshots = out.seq,
         saves = status.saves,
+        slam_corrections = out.corrections,
         "fusion stopped"
     );
     Ok(())
@@ -777,6 +801,8 @@ struct Ports {
     commands: iceoryx2::port::subscriber::Subscriber<Ipc, FusionCommand, ()>,
     commands_listener: Listener,
     pose: iceoryx2::port::subscriber::Subscriber<Ipc, sonar_common::ipc::Pose2D, ()>,
+    /// With --slam-correction: sonar-slam's corrections.
+    slam_correction: Option<iceoryx2::port::subscriber::Subscriber<Ipc, SlamCorrection, ()>>,
     grid: Publisher<Ipc, [u8], GridHeader>,
     grid_notifier: Notifier<Ipc>,
     radar: Publisher<Ipc, Radar, ()>,
@@ -794,8 +820,16 @@ fn drain_wakeups(listener: &Listener) {
 }
 
 impl Ports {
-    fn new(node: &Node<Ipc>, grid_cells: usize) -> Result<Self> {
+    fn new(node: &Node<Ipc>, grid_cells: usize, slam_correction: bool) -> Result<Self> {
         Ok(Self {
+            slam_correction: slam_correction
+                .then(|| {
+                    ipc::slam_correction_service(node)?
+                        .subscriber_builder()
+                        .create()
+                        .map_err(|e| IpcError::new("create SLAM correction subscriber", e))
+                })
+                .transpose()?,
             readings: ipc::readings_service(node)?
                 .subscriber_builder()
                 .create()
@@ -902,6 +936,8 @@ struct Output<'a> {
     /// A reading waiting for the pose that covers its instant, and when it was received
     /// ([`sonar_fusion::poses::MAX_POSE_WAIT`]); the readings after it wait in the buffer.
     waiting: Option<(Reading, Instant)>,
+    /// sonar-slam's corrections applied (--slam-correction).
+    corrections: u64,
 }
 
 impl Output<'_> {
@@ -936,6 +972,7 @@ impl Output<'_> {
     }
 
     fn take_pose(&mut self, engine: &mut Engine) -> Result<()> {
+        self.take_slam_correction(engine)?;
         while let Some(sample) = self
             .ports
             .pose
@@ -947,6 +984,40 @@ impl Output<'_> {
             {
                 warn!(pose = ?sample.payload(), left_out, "pose refused: {e}");
             }
+        }
+        Ok(())
+    }
+
+    /// With --slam-correction: the latest of sonar-slam's corrections places the readings from
+    /// now on (fix or not: without a fix it is still the SLAM's best estimate of map → odom).
+    fn take_slam_correction(&mut self, engine: &mut Engine) -> Result<()> {
+        let Some(subscriber) = &self.ports.slam_correction else {
+            return Ok(());
+        };
+        while let Some(sample) = subscriber
+            .receive()
+            .map_err(|e| IpcError::new("receive SLAM correction", e))?
+        {
+            let c = *sample.payload();
+            let finite = [c.correction_x_m, c.correction_y_m, c.correction_theta_rad]
+                .iter()
+                .all(|v| v.is_finite());
+            if !finite {
+                warn!(correction = ?c, "SLAM correction refused: not finite");
+                continue;
+            }
+            if self.corrections == 0 {
+                info!(
+                    sweep = c.sweep_id,
+                    fix = c.is_fix(),
+                    "first correction from sonar-slam"
+                );
+            }
+            self.corrections += 1;
+            engine.set_correction(nalgebra::Isometry2::new(
+                nalgebra::Vector2::new(c.correction_x_m, c.correction_y_m),
+                c.correction_theta_rad,
+            ));
         }
         Ok(())
     }

@@ -10,6 +10,7 @@ use std::time::Duration;
 
 use serde::Deserialize;
 use sonar_fusion::{FeaturesSection, FusionSection};
+use sonar_slam::SlamSection;
 
 /// How long a process that died waits for its first restart.
 pub const DEFAULT_RESTART_DELAY: Duration = Duration::from_secs(1);
@@ -43,6 +44,9 @@ pub struct PipelineFile {
     pub fusion: FusionSection,
     /// `sonar-fusion` reads this table too (walls, corners and posts; validated as it is read).
     pub features: FeaturesSection,
+    /// `sonar-slam` reads this table from the same file (validated as it is read); with
+    /// `enabled = true` the launcher starts it and has the fusion take its correction.
+    pub slam: SlamSection,
     pub viewer: ViewerSection,
     pub foxglove: FoxgloveSection,
     pub launcher: LauncherSection,
@@ -177,6 +181,7 @@ impl PipelineFile {
                 source,
             })?;
         file.bridge_enabled()
+            .and_then(|_| file.check_correction())
             .map_err(|message| ConfigError::Parse {
                 path: path.to_owned(),
                 message,
@@ -194,6 +199,20 @@ impl PipelineFile {
 }
 
 impl PipelineFile {
+    /// The fusion's correction comes from one place: `sonar-slam` or its own localisation.
+    fn check_correction(&self) -> Result<(), String> {
+        let slam = self.slam.enabled || self.fusion.slam_correction;
+        if slam && self.features.localize {
+            return Err(
+                "[features] localize = true and sonar-slam's correction ([slam] enabled \
+                 or [fusion] slam_correction) exclude each other: the fusion takes its \
+                 correction from one of them"
+                    .to_owned(),
+            );
+        }
+        Ok(())
+    }
+
     /// Whether `[bridge] enabled = true`: then the launcher starts `sonar-bridge` too.
     pub fn bridge_enabled(&self) -> Result<bool, String> {
         match self.bridge.get("enabled") {
@@ -248,6 +267,42 @@ mod tests {
             tour.features.config.odometry,
             sonar_fusion::FeaturesSection::default().config.odometry
         );
+    }
+
+    #[test]
+    fn the_slam_table_is_checked_and_excludes_the_fusions_localisation() {
+        let on = PipelineFile::parse(
+            "[slam]\nenabled = true\nfix_max_sigma_m = 0.08\n",
+            Path::new("x.toml"),
+        )
+        .unwrap();
+        assert!(on.slam.enabled);
+        assert_eq!(on.slam.config.fix_max_sigma_m, 0.08);
+        assert!(
+            !PipelineFile::parse("", Path::new("x.toml"))
+                .unwrap()
+                .slam
+                .enabled
+        );
+        for bad in [
+            "[slam]\nenabled = \"yes\"\n",
+            "[slam]\nfix_max_sigma = 0.1\n",
+            "[slam]\ngate_chi2 = 0.0\n",
+        ] {
+            assert!(
+                PipelineFile::parse(bad, Path::new("x.toml")).is_err(),
+                "{bad}"
+            );
+        }
+        for both in [
+            "[slam]\nenabled = true\n[features]\nlocalize = true\n",
+            "[fusion]\nslam_correction = true\n[features]\nlocalize = true\n",
+        ] {
+            let err = PipelineFile::parse(both, Path::new("x.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains("exclude each other"), "{both}: {err}");
+        }
     }
 
     #[test]

@@ -357,6 +357,17 @@ impl Pipeline {
             args.config.as_ref().map(|p| p.display()),
         );
         push_opt(&mut fusion, "--preset", args.preset.clone());
+        if file.slam.enabled {
+            // sonar-slam takes its [slam] table from the same file; the fusion places its
+            // readings with its correction.
+            let config = args
+                .config
+                .as_ref()
+                .context("[slam] enabled needs the file given with --config")?;
+            let slam = vec!["--config".to_owned(), config.display().to_string()];
+            processes.push(Process::new("sonar-slam", slam, false));
+            fusion.push("--slam-correction".to_owned());
+        }
         processes.push(Process::new("sonar-fusion", fusion, false));
 
         if file.bridge_enabled().map_err(anyhow::Error::msg)? {
@@ -824,6 +835,47 @@ mod tests {
             .position(|a| a == "--backlash-deg")
             .unwrap();
         assert_eq!(driver.args[at + 1], "1.5", "{:?}", driver.args);
+    }
+
+    #[test]
+    fn the_slam_table_starts_sonar_slam_and_the_fusion_takes_its_correction() {
+        let bin_dir = std::env::temp_dir().join(format!("sonar_plan_slam_{}", std::process::id()));
+        std::fs::create_dir_all(&bin_dir).unwrap();
+        for name in ["sonar-sim", "sonar-driver", "sonar-slam", "sonar-fusion"] {
+            std::fs::write(bin_dir.join(name), "").unwrap();
+        }
+        let dir = bin_dir.to_str().unwrap();
+        let plan = |file: &str| {
+            let file: PipelineFile = toml::from_str(file).unwrap();
+            let args =
+                Args::try_parse_from(["sonar-pipeline", "--bin-dir", dir, "--config", "p.toml"])
+                    .unwrap();
+            Pipeline::plan(&args, &file, std::env::temp_dir(), false).unwrap()
+        };
+        let args_of = |plan: &Pipeline, name: &str| {
+            plan.processes
+                .iter()
+                .find(|p| p.name == name)
+                .map(|p| p.args.clone())
+        };
+        let on = plan("[slam]\nenabled = true\n");
+        let off = plan("");
+        std::fs::remove_dir_all(&bin_dir).unwrap();
+        assert_eq!(
+            args_of(&on, "sonar-slam"),
+            Some(vec!["--config".to_owned(), "p.toml".to_owned()])
+        );
+        assert!(
+            args_of(&on, "sonar-fusion")
+                .unwrap()
+                .contains(&"--slam-correction".to_owned())
+        );
+        assert_eq!(args_of(&off, "sonar-slam"), None);
+        assert!(
+            !args_of(&off, "sonar-fusion")
+                .unwrap()
+                .contains(&"--slam-correction".to_owned())
+        );
     }
 
     #[test]

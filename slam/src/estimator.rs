@@ -170,6 +170,26 @@ impl SweepEstimate {
     pub fn correction(&self) -> Isometry2<f64> {
         self.pose * self.odometry.inverse()
     }
+
+    /// The covariance of [`Self::correction`]'s (x, y, θ): the pose's carried through
+    /// `pose ∘ odometry⁻¹` to first order, the odometry's pose of the instant taken as given.
+    pub fn correction_covariance(&self) -> Matrix3<f64> {
+        let inverse = self.odometry.inverse();
+        let (a, b) = (inverse.translation.x, inverse.translation.y);
+        let (sin, cos) = self.pose.rotation.angle().sin_cos();
+        let jacobian = Matrix3::new(
+            1.0,
+            0.0,
+            -sin * a - cos * b,
+            0.0,
+            1.0,
+            cos * a - sin * b,
+            0.0,
+            0.0,
+            1.0,
+        );
+        jacobian * self.covariance * jacobian.transpose()
+    }
 }
 
 /// A landmark of the map.
@@ -346,6 +366,15 @@ impl Slam {
             errors.drift_sigma_deg_per_m.to_radians() * distance + errors.turn_sigma * turned,
         );
         Vector2::new(position, heading)
+    }
+
+    /// Forgets the odometry before `stamp_ns` while no sweep is pending (its readings need the
+    /// odometry of their instants): a robot that drives with its sonar stopped would otherwise
+    /// keep every pose. Readings stamped before `stamp_ns` are then placed at the oldest pose kept.
+    pub fn forget_odometry_before(&mut self, stamp_ns: u64) {
+        if self.pending.is_empty() {
+            self.track.forget_before(stamp_ns);
+        }
     }
 
     /// The latest sweep's estimate.
@@ -822,6 +851,84 @@ fn normal_quantile(p: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Odometry is forgotten only while no sweep is pending: a pending sweep's readings keep the
+    /// poses of their instants.
+    #[test]
+    fn odometry_is_forgotten_only_while_no_sweep_is_pending() {
+        let odometry_at = |pending: bool| {
+            let mut slam = Slam::new(SlamConfig::default()).unwrap_or_else(|e| panic!("{e}"));
+            let reading = Reading {
+                host_stamp_ns: 1_500_000_000,
+                angle_deg: 0.0,
+                distance_m: 1.0,
+                ..Reading::default()
+            };
+            if pending {
+                assert!(slam.push_reading(&reading).is_none());
+            }
+            for k in 0..=4u32 {
+                let pose = Isometry2::new(Vector2::new(f64::from(k), 0.0), 0.0);
+                assert!(slam.push_odometry(u64::from(k) * 1_000_000_000, pose));
+            }
+            slam.forget_odometry_before(3_000_000_000);
+            if !pending {
+                assert!(slam.push_reading(&reading).is_none());
+            }
+            slam.finish_sweep()
+                .map(|e| e.odometry.translation.x)
+                .unwrap_or(f64::NAN)
+        };
+        // Pending: the reading's own instant, between the poses at 1 s and 2 s.
+        assert!((odometry_at(true) - 1.5).abs() < 1e-9);
+        // Nothing pending: forgotten up to the pose at 3 s, the oldest kept.
+        assert!((odometry_at(false) - 3.0).abs() < 1e-9);
+    }
+
+    /// The correction's covariance equals the spread of corrections computed from poses drawn
+    /// along each axis of the pose's covariance (first order: small σ, central differences).
+    #[test]
+    fn the_correction_covariance_is_the_poses_carried_through_the_product() {
+        let pose = Isometry2::new(Vector2::new(2.0, -1.0), 0.7);
+        let odometry = Isometry2::new(Vector2::new(1.5, 0.4), -0.3);
+        let covariance = Matrix3::new(4e-4, 1e-4, 2e-5, 1e-4, 9e-4, -3e-5, 2e-5, -3e-5, 1e-4);
+        let estimate = SweepEstimate {
+            sweep_id: 1,
+            stamp_ns: 0,
+            pose,
+            covariance,
+            odometry,
+            state: FixState::Fix,
+            observations: 0,
+            matched: 0,
+            admitted: 0,
+            moving: false,
+        };
+        let as_vector =
+            |t: &Isometry2<f64>| Vector3::new(t.translation.x, t.translation.y, t.rotation.angle());
+        // Numerical Jacobian of the correction with respect to the pose's (x, y, θ).
+        let h = 1e-6;
+        let mut jacobian = Matrix3::zeros();
+        for k in 0..3 {
+            let mut step = Vector3::zeros();
+            step[k] = h;
+            let moved = |sign: f64| {
+                let v = as_vector(&pose) + step * sign;
+                Isometry2::new(Vector2::new(v.x, v.y), v.z) * odometry.inverse()
+            };
+            let diff = as_vector(&moved(1.0)) - as_vector(&moved(-1.0));
+            jacobian.set_column(k, &(diff / (2.0 * h)));
+        }
+        let expected = jacobian * covariance * jacobian.transpose();
+        let got = estimate.correction_covariance();
+        assert!(
+            (got - expected).abs().max() < 1e-9,
+            "got {got}, expected {expected}"
+        );
+        // The correction itself maps the odometry's pose onto the map's.
+        let placed = estimate.correction() * odometry;
+        assert!((as_vector(&placed) - as_vector(&pose)).abs().max() < 1e-12);
+    }
 
     /// A corridor x ∈ [−1, 7] between walls y = ±0.6 with end walls, and posts.
     const WALLS: [(f64, f64); 4] = [

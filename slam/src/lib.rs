@@ -49,10 +49,13 @@
 
 pub mod estimator;
 pub mod graph;
+pub mod message;
 pub mod odometry;
+pub mod section;
 
 pub use estimator::{FixState, Landmark, Slam, SlamConfig, SweepEstimate, chi2_quantile};
 pub use graph::LandmarkKind;
+pub use section::SlamSection;
 
 /// What the library refuses.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -1260,6 +1260,7 @@ fn every_program_names_itself_in_its_version() {
         "sonar-firmware-sim",
         "sonar-nearest-obstacle",
         "sonar-foxglove",
+        "sonar-slam",
     ] {
         let out = sandbox.run(name, &["--version"]);
         assert!(out.status.success(), "{name}");
