@@ -16,12 +16,18 @@ use crate::state::{SavedCells, StateError, check_len};
 /// Runs noted before a flush is forced: 1 MiB of ranges, a few hundred readings' worth.
 const MAX_DIRTY_RUNS: usize = 1 << 16;
 
+/// Occupancy probability from which a cell is confidently occupied
+/// ([`OccupancyGrid::confident_cells`]): the cells that lend their position to a wall's segment
+/// in the feature map (`crate::features`).
+pub const CONFIDENT_PROBABILITY: f32 = 0.8;
+
 /// The cells of one rule, with the rule's parameters, and the cells in the snapshot encoding with
 /// their counts ([`crate::encoding`]). The encoding lags behind the cells: a kernel's runs are
 /// only noted as dirty, and [`Self::flush`] re-encodes their union when a snapshot is asked for.
 /// Re-encoding each run as it was fused cost more than fusing it (a cell is touched by many
 /// readings between two snapshots); once per snapshot, a cell costs one encoding however often it
-/// was fused.
+/// was fused. The class a flush keeps per cell also says whether the cell is confidently occupied,
+/// so the cells the features need are found without a probability per cell.
 pub(crate) struct Layer<R: Combine> {
     pub rule: R,
     cells: Vec<R::Cell>,
@@ -130,12 +136,18 @@ impl<R: Combine> Layer<R> {
         self.encode_all();
     }
 
+    /// Each cell's class, brought up to date.
+    fn classes(&mut self) -> &[u8] {
+        self.flush();
+        &self.classes
+    }
+
     /// The bytes and counts, brought up to date.
     fn encoded(&mut self) -> (&[u8], CellCounts) {
         self.flush();
         let tally = self.tally;
         let counts = CellCounts {
-            occupied: tally[CellClass::Occupied as usize],
+            occupied: tally[CellClass::Occupied as usize] + tally[CellClass::Confident as usize],
             free: tally[CellClass::Free as usize],
             unknown: tally[CellClass::Unknown as usize],
         };
@@ -146,7 +158,7 @@ impl<R: Combine> Layer<R> {
 /// What a cell says, for the snapshot header's counts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum CellClass {
-    /// p > 0.5.
+    /// 0.5 < p < [`CONFIDENT_PROBABILITY`].
     Occupied = 0,
     /// p < 0.5.
     Free = 1,
@@ -154,11 +166,16 @@ pub(crate) enum CellClass {
     Unknown = 2,
     /// p = 0.5 exactly after readings: counted as neither.
     Even = 3,
+    /// p ≥ [`CONFIDENT_PROBABILITY`]: counted as occupied.
+    Confident = 4,
 }
 
 impl CellClass {
-    const COUNT: usize = 4;
+    const COUNT: usize = 5;
 }
+
+// [`OccupancyGrid::confident_cells`] finds the confident cells by their one bit.
+const _: () = assert!(CellClass::Confident as u8 == 1 << 2 && CellClass::COUNT == 5);
 
 /// The grid's state, in the representation of its rule.
 pub(crate) enum CellStore {
@@ -286,6 +303,31 @@ impl OccupancyGrid {
         with_layer!(&mut self.store, l => l.encoded())
     }
 
+    /// The cells at least [`CONFIDENT_PROBABILITY`] occupied, as (x, y), row by row (the order of
+    /// the cell arrays). Brings the kept state up to date first, as [`Self::encoded`] does, so it
+    /// costs the cells fused since the last flush and an OR over the classes kept per cell (blocks
+    /// without a confident cell are skipped whole), not a probability per cell.
+    pub fn confident_cells(&mut self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        /// Cells searched at once for a confident one.
+        const BLOCK: usize = 256;
+        let n = self.geometry.cells_per_side();
+        let confident = CellClass::Confident as u8;
+        let classes: &[u8] = with_layer!(&mut self.store, l => l.classes());
+        (0..)
+            .zip(classes.chunks(BLOCK))
+            // Confident is the only class with bit 2 set: an OR over the block (vectorised) tells
+            // whether it holds one.
+            .filter(move |(_, block)| {
+                block.iter().fold(0, |any, &class| any | class) & confident != 0
+            })
+            .flat_map(move |(b, block)| {
+                (b * BLOCK..)
+                    .zip(block)
+                    .filter(move |&(_, &class)| class == confident)
+                    .map(move |(i, _)| (i % n, i / n))
+            })
+    }
+
     /// [`Self::encoded`] copied into `out`; returns the counts.
     ///
     /// # Panics
@@ -385,6 +427,50 @@ pub(crate) fn reference_encoding(grid: &OccupancyGrid) -> (Vec<u8>, CellCounts) 
     (bytes, counts)
 }
 
+/// Fuses each run's evidence, given as a probability, into the grid's cells, as a kernel does
+/// (the runs noted for the next flush).
+#[cfg(test)]
+pub(crate) fn fuse_runs(
+    grid: &mut OccupancyGrid,
+    runs: impl IntoIterator<Item = (Range<usize>, f32)>,
+) {
+    fn fuse<R: Combine>(layer: &mut Layer<R>, runs: impl IntoIterator<Item = (Range<usize>, f32)>) {
+        for (run, p) in runs {
+            let evidence = match R::DOMAIN {
+                crate::rule::Domain::Probability => p,
+                crate::rule::Domain::LogOdds => crate::model::logit(p),
+            };
+            let (rule, cells) = layer.begin_run(run.clone());
+            let changed = cells
+                .iter_mut()
+                .filter_map(|c| rule.fuse(c, evidence).then_some(()))
+                .count();
+            layer.end_run(run, changed);
+        }
+    }
+    with_layer!(&mut grid.store, l => fuse(l, runs));
+}
+
+/// Fuses `runs` random runs of random evidence (leaning to occupied, so that many cells cross
+/// [`CONFIDENT_PROBABILITY`] and some fall back below it).
+#[cfg(test)]
+pub(crate) fn fuse_random_runs(
+    grid: &mut OccupancyGrid,
+    rng: &mut rand_chacha::ChaCha8Rng,
+    runs: usize,
+) {
+    use rand::Rng;
+    let len = grid.geometry.len();
+    let runs: Vec<_> = (0..runs)
+        .map(|_| {
+            let start = rng.random_range(0..len);
+            let end = rng.random_range(start + 1..=len.min(start + 90));
+            (start..end, rng.random_range(0.2f32..0.97))
+        })
+        .collect();
+    fuse_runs(grid, runs);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -450,6 +536,60 @@ mod tests {
         );
         g.clear();
         assert_eq!(g.probability(0, 0), None);
+    }
+
+    /// The cells a walk over every cell's probability finds at least [`CONFIDENT_PROBABILITY`]
+    /// occupied, row by row: what the features once read the grid with, and what
+    /// [`OccupancyGrid::confident_cells`] must equal.
+    fn walked_confident_cells(g: &OccupancyGrid) -> Vec<(usize, usize)> {
+        let n = g.geometry().cells_per_side();
+        (0..n)
+            .flat_map(|y| (0..n).map(move |x| (x, y)))
+            .filter(|&(x, y)| {
+                g.probability(x, y)
+                    .is_some_and(|p| p >= CONFIDENT_PROBABILITY)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn confident_cells_equal_a_walk_over_every_cell_on_random_grids() {
+        use rand::{Rng, SeedableRng};
+        for kind in RuleKind::ALL {
+            for seed in 0..12 {
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+                // Sides that are and are not multiples of 64 cells.
+                let n = rng.random_range(1..=90);
+                let mut g = OccupancyGrid::new(
+                    GridGeometry::new(n, 0.1),
+                    &RuleConfig::default_for(kind),
+                    false,
+                );
+                let mut seen_confident = false;
+                // Several rounds of fusing between reads, so cells enter and leave the set.
+                for round in 0..6 {
+                    let runs = rng.random_range(0..4 * n + 1);
+                    fuse_random_runs(&mut g, &mut rng, runs);
+                    let kept: Vec<_> = g.confident_cells().collect();
+                    assert_eq!(
+                        kept,
+                        walked_confident_cells(&g),
+                        "{kind:?} seed {seed} round {round}"
+                    );
+                    seen_confident |= !kept.is_empty();
+                    if round == 3 {
+                        // A snapshot flushes the same runs; a clear empties the set.
+                        g.encoded();
+                        g.clear();
+                        assert_eq!(g.confident_cells().count(), 0);
+                    }
+                }
+                assert!(
+                    seen_confident || n < 4,
+                    "{kind:?} seed {seed}: the grid never held a confident cell"
+                );
+            }
+        }
     }
 
     #[test]
