@@ -13,9 +13,6 @@ use crate::rule::{
 };
 use crate::state::{SavedCells, StateError, check_len};
 
-/// Runs noted before a flush is forced: 1 MiB of ranges, a few hundred readings' worth.
-const MAX_DIRTY_RUNS: usize = 1 << 16;
-
 /// Occupancy probability from which a cell is confidently occupied
 /// ([`OccupancyGrid::confident_cells`]): the cells that lend their position to a wall's segment
 /// in the feature map (`crate::features`).
@@ -23,7 +20,9 @@ pub const CONFIDENT_PROBABILITY: f32 = 0.8;
 
 /// The cells of one rule, with the rule's parameters, and the cells in the snapshot encoding with
 /// their counts ([`crate::encoding`]). The encoding lags behind the cells: a kernel's runs are
-/// only noted as dirty, and [`Self::flush`] re-encodes their union when a snapshot is asked for.
+/// only noted as dirty, per row the span from the first to the last cell fused since the last
+/// flush, and [`Self::flush`] re-encodes those spans when a snapshot is asked for (at most one
+/// span per row: the bookkeeping is bounded by the grid, however long nothing asks).
 /// Re-encoding each run as it was fused cost more than fusing it (a cell is touched by many
 /// readings between two snapshots); once per snapshot, a cell costs one encoding however often it
 /// was fused. The class a flush keeps per cell also says whether the cell is confidently occupied,
@@ -37,12 +36,19 @@ pub(crate) struct Layer<R: Combine> {
     classes: Vec<u8>,
     /// Cells per [`CellClass`], as of the last flush.
     tally: [u32; CellClass::COUNT],
-    /// Runs fused since the last flush, in the order fused (they may overlap).
-    dirty: Vec<Range<usize>>,
+    /// Cells per row.
+    row_len: usize,
+    /// Per row, the span of its cells (offsets within the row) that runs fused since the last
+    /// flush lie in; empty for a row none touched.
+    dirty_spans: Vec<Range<u32>>,
+    /// The rows with a non-empty span, in the order first touched.
+    dirty_rows: Vec<u32>,
 }
 
 impl<R: Combine> Layer<R> {
-    fn new(rule: R, len: usize) -> Self {
+    /// `rows` rows of `row_len` cells.
+    fn new(rule: R, row_len: usize, rows: usize) -> Self {
+        let len = row_len * rows;
         let mut tally = [0; CellClass::COUNT];
         tally[CellClass::Unknown as usize] = len as u32;
         Self {
@@ -52,7 +58,9 @@ impl<R: Combine> Layer<R> {
             bytes: vec![CELL_UNKNOWN; len],
             classes: vec![CellClass::Unknown as u8; len],
             tally,
-            dirty: Vec::new(),
+            row_len,
+            dirty_spans: vec![0..0; rows],
+            dirty_rows: Vec::new(),
         }
     }
 
@@ -65,43 +73,45 @@ impl<R: Combine> Layer<R> {
         (&self.rule, &mut self.cells[run])
     }
 
-    /// Notes `run` for the next [`Self::flush`] if the kernel changed any of its cells; flushes
-    /// at once when [`MAX_DIRTY_RUNS`] are noted, so an engine that fuses without snapshots (an
-    /// offline export of a long recording) keeps bounded memory.
+    /// Notes `run` for the next [`Self::flush`] if the kernel changed any of its cells: widens
+    /// the dirty span of each row it covers (a kernel's runs lie within a row).
     #[inline(always)]
     pub fn end_run(&mut self, run: Range<usize>, updated: usize) {
         if updated > 0 {
-            self.dirty.push(run);
-            if self.dirty.len() >= MAX_DIRTY_RUNS {
-                self.flush();
-            }
+            self.note_dirty(run);
         }
     }
 
-    /// Brings the bytes and counts up to date with the cells: re-encodes the union of the runs
-    /// fused since the last flush, each cell once.
+    fn note_dirty(&mut self, run: Range<usize>) {
+        let mut start = run.start;
+        while start < run.end {
+            let row = start / self.row_len;
+            let row_start = row * self.row_len;
+            let end = run.end.min(row_start + self.row_len);
+            // Offsets within a row fit: a row is a side of the grid.
+            let (a, b) = ((start - row_start) as u32, (end - row_start) as u32);
+            let span = &mut self.dirty_spans[row];
+            if Range::is_empty(span) {
+                self.dirty_rows.push(row as u32);
+                *span = a..b;
+            } else {
+                *span = span.start.min(a)..span.end.max(b);
+            }
+            start = end;
+        }
+    }
+
+    /// Brings the bytes and counts up to date with the cells: re-encodes each row's dirty span.
     fn flush(&mut self) {
-        if self.dirty.is_empty() {
-            return;
-        }
-        let mut dirty = std::mem::take(&mut self.dirty);
-        dirty.sort_unstable_by_key(|run| run.start);
-        let mut pending: Option<Range<usize>> = None;
-        for run in dirty.drain(..) {
-            pending = match pending {
-                Some(p) if run.start <= p.end => Some(p.start..p.end.max(run.end)),
-                Some(p) => {
-                    self.encode_run(p);
-                    Some(run)
-                }
-                None => Some(run),
-            };
-        }
-        if let Some(p) = pending {
-            self.encode_run(p);
+        let mut rows = std::mem::take(&mut self.dirty_rows);
+        for row in rows.drain(..) {
+            let row = row as usize;
+            let span = std::mem::replace(&mut self.dirty_spans[row], 0..0);
+            let row_start = row * self.row_len;
+            self.encode_run(row_start + span.start as usize..row_start + span.end as usize);
         }
         // The allocation is kept for the next runs.
-        self.dirty = dirty;
+        self.dirty_rows = rows;
     }
 
     fn encode_run(&mut self, run: Range<usize>) {
@@ -127,7 +137,9 @@ impl<R: Combine> Layer<R> {
     }
 
     fn encode_all(&mut self) {
-        self.dirty.clear();
+        for row in self.dirty_rows.drain(..) {
+            self.dirty_spans[row as usize] = 0..0;
+        }
         self.encode_run(0..self.cells.len());
     }
 
@@ -234,13 +246,14 @@ impl OccupancyGrid {
     /// if `hears`, a bearing per cell for where it was heard occupied from (none yet).
     pub fn new(geometry: GridGeometry, rule: &RuleConfig, hears: bool) -> Self {
         let len = geometry.len();
+        let n = geometry.cells_per_side();
         let store = match *rule {
-            RuleConfig::Bayes => CellStore::Bayes(Layer::new(BayesRule, len)),
-            RuleConfig::LogOdds(r) => CellStore::LogOdds(Layer::new(r, len)),
+            RuleConfig::Bayes => CellStore::Bayes(Layer::new(BayesRule, n, n)),
+            RuleConfig::LogOdds(r) => CellStore::LogOdds(Layer::new(r, n, n)),
             RuleConfig::DempsterShafer => {
-                CellStore::DempsterShafer(Layer::new(DempsterShaferRule, len))
+                CellStore::DempsterShafer(Layer::new(DempsterShaferRule, n, n))
             }
-            RuleConfig::Himm(r) => CellStore::Himm(Layer::new(r, len)),
+            RuleConfig::Himm(r) => CellStore::Himm(Layer::new(r, n, n)),
         };
         let heard = if hears {
             vec![f32::NAN; len]
@@ -593,29 +606,60 @@ mod tests {
     }
 
     #[test]
-    fn runs_fused_without_a_snapshot_are_flushed_before_they_pile_up() {
-        let mut layer = Layer::new(LogOddsRule::default(), 4);
-        for i in 0..MAX_DIRTY_RUNS + 10 {
-            let (rule, cells) = layer.begin_run(1..3);
+    fn runs_fused_without_a_snapshot_keep_a_span_per_row_at_most() {
+        let mut layer = Layer::new(LogOddsRule::default(), 4, 3);
+        for i in 0..100_000 {
+            // Runs within a row and across rows, over and over.
+            let run = [1..3, 2..9, 0..12][i % 3].clone();
+            let (rule, cells) = layer.begin_run(run.clone());
             // Evidence that changes the cells every time, also at the clamp.
             let evidence = if i % 2 == 0 { 0.01 } else { -0.005 };
             let changed = cells
                 .iter_mut()
                 .filter_map(|c| rule.fuse(c, evidence).then_some(()))
                 .count();
-            layer.end_run(1..3, changed);
-            assert!(layer.dirty.len() < MAX_DIRTY_RUNS, "run {i}");
+            layer.end_run(run, changed);
+            assert!(layer.dirty_rows.len() <= 3, "run {i}");
         }
+        assert_eq!(layer.dirty_spans, [0..4, 0..4, 0..4]);
         let (bytes, counts) = layer.encoded();
-        assert_eq!(bytes[0], CELL_UNKNOWN);
-        assert!(bytes[1] > 127 && bytes[1] == bytes[2], "{bytes:?}");
+        assert!(bytes.iter().all(|&b| b > 127 && b == bytes[0]), "{bytes:?}");
         assert_eq!(
             counts,
             CellCounts {
-                occupied: 2,
+                occupied: 12,
                 free: 0,
-                unknown: 2
+                unknown: 0
             }
         );
+        assert!(layer.dirty_rows.is_empty() && layer.dirty_spans.iter().all(|s| s.is_empty()));
+    }
+
+    #[test]
+    fn bytes_and_counts_kept_by_dirty_rows_equal_a_full_encoding_on_random_grids() {
+        use rand::{Rng, SeedableRng};
+        for kind in RuleKind::ALL {
+            for seed in 0..12 {
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+                let n = rng.random_range(1..=90);
+                let mut g = OccupancyGrid::new(
+                    GridGeometry::new(n, 0.1),
+                    &RuleConfig::default_for(kind),
+                    false,
+                );
+                for round in 0..6 {
+                    // Random runs, within rows and across them, between two snapshots.
+                    let runs = rng.random_range(0..4 * n + 1);
+                    fuse_random_runs(&mut g, &mut rng, runs);
+                    let (bytes, counts) = g.encoded();
+                    let kept = (bytes.to_vec(), counts);
+                    assert_eq!(
+                        kept,
+                        reference_encoding(&g),
+                        "{kind:?} seed {seed} round {round}"
+                    );
+                }
+            }
+        }
     }
 }
