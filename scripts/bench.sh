@@ -15,8 +15,9 @@
 #   throughput    lossless throughput and the fused rate at 2× and 4× that, per grid size
 #   idle          CPU and wake-ups/s of every process of an idle pipeline over 60 s
 #   memory        RSS and shared memory per grid size with 1 and 6 grid subscribers
-#   instructions  callgrind instruction counts of fusing and snapshotting a fixed workload
-#                 (needs valgrind; stable on a loaded machine, so the figures to compare against)
+#   instructions  callgrind instruction counts of fusing and snapshotting a fixed workload, at the
+#                 head's pace and at replay pace (needs valgrind; stable on a loaded machine, so the
+#                 figures to compare against)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -43,18 +44,21 @@ trap 'rm -rf "$OUT"' EXIT
 # --- instruction counts (valgrind's callgrind) -------------------------------------------------
 # Inclusive instructions of the function whose name matches $2 in profile $1 (0 if absent).
 inclusive() {
-  callgrind_annotate --inclusive=yes "$1" 2>/dev/null |
+  callgrind_annotate --inclusive=yes --threshold=100 "$1" 2>/dev/null |
     awk -v pat="$2" '$0 ~ pat && $0 !~ /=>/ { gsub(",", "", $1); print $1; found = 1; exit }
                      END { if (!found) print 0 }'
 }
 total() { callgrind_annotate "$1" 2>/dev/null | awk '/PROGRAM TOTALS/ { gsub(",", "", $1); print $1; exit }'; }
 # Thousands separators, for the table.
 human() { echo "$1" | sed ':a;s/\B[0-9]\{3\}\>/,&/;ta'; }
-callgrind_case() { # label cells resolution readings snapshot_every
-  local label=$1 out="$OUT/cg.$2.$4.out" bin=${FIXED_WORKLOAD:-target/release/examples/fixed_workload}
-  valgrind --tool=callgrind --callgrind-out-file="$out" "$bin" --cells "$2" --resolution "$3" \
-    --readings "$4" --snapshot-every "$5" >"$OUT/log" 2>&1 || { cat "$OUT/log" >&2; exit 1; }
-  echo "| $label | $4 | $(( $4 / $5 )) | $(human "$(total "$out")") | $(human "$(inclusive "$out" 'fixed_workload::fuse')") | $(human "$(inclusive "$out" 'fixed_workload::snapshot')") | $(human "$(inclusive "$out" 'kernel::Spans::new')") | $(human "$(inclusive "$out" 'ConeCache::prepared_for')") |"
+callgrind_case() { # label cells resolution readings pace [extra fixed_workload flags]
+  local label=$1 cells=$2 resolution=$3 readings=$4 pace=$5 snapshots
+  shift 5
+  local out="$OUT/cg.$cells.$readings.$pace.out" bin=${FIXED_WORKLOAD:-target/release/examples/fixed_workload}
+  valgrind --tool=callgrind --callgrind-out-file="$out" "$bin" --cells "$cells" --resolution "$resolution" \
+    --readings "$readings" --pace "$pace" "$@" >"$OUT/log" 2>&1 || { cat "$OUT/log" >&2; exit 1; }
+  snapshots=$(grep -o '[0-9]* grid snapshots' "$OUT/log" | cut -d' ' -f1)
+  echo "| $label | $pace | $readings | $snapshots | $(human "$(total "$out")") | $(human "$(inclusive "$out" 'fixed_workload::fuse')") | $(human "$(inclusive "$out" 'fixed_workload::snapshot')") | $(human "$(inclusive "$out" 'fixed_workload::follow')") | $(human "$(inclusive "$out" 'fixed_workload::features_snapshot')") | $(human "$(inclusive "$out" 'kernel::Spans::new')") | $(human "$(inclusive "$out" 'ConeCache::prepared_for')") |"
 }
 
 # --- the sections -------------------------------------------------------------------------------
@@ -81,12 +85,14 @@ section_memory() {
   done
 }
 section_instructions() {
-  echo "| case | readings | snapshots | total | fuse | snapshot | row spans | stencil |"
-  echo "|---|--:|--:|--:|--:|--:|--:|--:|"
-  callgrind_case "400² × 2 cm" 400 0.02 500 5
-  callgrind_case "1024² × 1 cm" 1024 0.01 500 5
-  callgrind_case "2048² × 1 cm" 2048 0.01 250 5
-  callgrind_case "cold start, 1024² × 1 cm" 1024 0.01 50 1000
+  echo "| case | pace | readings | grid snapshots | total | fuse | grid snapshot | features: follow | features snapshot | row spans | stencil |"
+  echo "|---|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|"
+  for pace in replay head; do
+    callgrind_case "400² × 2 cm" 400 0.02 500 $pace
+    callgrind_case "1024² × 1 cm" 1024 0.01 500 $pace
+    callgrind_case "2048² × 1 cm" 2048 0.01 250 $pace
+  done
+  callgrind_case "cold start, 1024² × 1 cm (no features)" 1024 0.01 50 replay --no-features --snapshot-every 1000
   echo
   echo "valgrind $(valgrind --version | sed 's/valgrind-//'), binary ${FIXED_WORKLOAD:-target/release/examples/fixed_workload}."
 }

@@ -1,20 +1,49 @@
 //! A fixed, deterministic workload for instruction counts (`valgrind --tool=callgrind`): a new
-//! engine fuses a synthetic recording of a room and takes a grid snapshot every few readings, as
-//! the fusion process does at its default rate. Nothing here depends on time or randomness, so the
-//! instruction counts of [`fuse`] and [`snapshot`] are the same on every run and every machine
-//! load, and a later change compares against them (`scripts/bench.sh`, `docs/benchmarks.md`).
+//! engine fuses a synthetic recording of a room, takes grid snapshots at one of two paces, and,
+//! as the fusion process does by default, follows the readings with the feature map and takes a
+//! features snapshot after every sweep. Nothing here depends on time or randomness, so the
+//! instruction counts of [`fuse`], [`snapshot`], [`follow`] and [`features_snapshot`] are the same
+//! on every run and every machine load, and a later change compares against them
+//! (`scripts/bench.sh`, `docs/benchmarks.md`).
+//!
+//! The paces (`--pace`): at the head's own pace a reading comes every ~240 ms, longer than the
+//! fusion's snapshot period (100 ms at the default --max-rate of 10/s), so **every reading gets
+//! its own grid snapshot**; at replay pace (readings as fast as a replay sends them, 50 a second
+//! and more) the snapshot rate caps them, a snapshot every 5 readings at 50 readings a second.
 //!
 //! The recording: the head at the origin, sweeps of 50 readings from −147° to 147° in 6° steps,
 //! forth and back, of a 6 × 4 m room whose walls are off-centre (so ranges differ by bearing);
 //! bearings beyond the 4 m range give no echo; ranges carry a deterministic ±1 cm wobble so no two
-//! sweeps are the same.
+//! sweeps are the same. Each reading also carries its four raw pings, 1.5° apart: a ping hears a
+//! wall (at its perpendicular distance, as a smooth wall answers) when the wall's normal lies
+//! within 28° of the ping, so the feature map finds the three walls the head faces.
 
 use std::hint::black_box;
 
 use anyhow::{Context, Result};
-use clap::Parser;
-use sonar_common::ipc::{LAYOUT_VERSION, Reading, ScanMode, flags};
-use sonar_fusion::{CellCounts, FusionConfig, GridConfig, engine::Engine};
+use clap::{Parser, ValueEnum};
+use sonar_common::ipc::{LAYOUT_VERSION, MAX_PINGS, Reading, ScanMode, flags};
+use sonar_features::FeatureConfig;
+use sonar_fusion::{CellCounts, FeatureTracker, FusionConfig, GridConfig, engine::Engine};
+
+/// How often the grid is snapshot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum Pace {
+    /// The sensor head's own pace: a reading every ~240 ms, each with its own snapshot.
+    Head,
+    /// Replay pace, 50 readings a second against the default --max-rate of 10 snapshots a second:
+    /// a snapshot every 5 readings.
+    Replay,
+}
+
+impl Pace {
+    fn readings_per_snapshot(self) -> u32 {
+        match self {
+            Self::Head => 1,
+            Self::Replay => 5,
+        }
+    }
+}
 
 /// Fuses a fixed synthetic recording and snapshots it; prints what the last snapshot counted.
 #[derive(Debug, Parser)]
@@ -28,14 +57,26 @@ struct Args {
     /// Readings to fuse (50 per sweep).
     #[arg(long, default_value_t = 500)]
     readings: u32,
-    /// A snapshot after every this many readings (5: the default --max-rate of 10/s at the head's
-    /// 50 readings a second).
-    #[arg(long, default_value_t = 5)]
-    snapshot_every: u32,
+    /// Grid snapshots at the head's pace (one per reading) or at replay pace (one per 5 readings).
+    #[arg(long, value_enum, default_value_t = Pace::Replay)]
+    pace: Pace,
+    /// A grid snapshot after every this many readings, instead of the pace's.
+    #[arg(long)]
+    snapshot_every: Option<u32>,
+    /// Without the feature map (no features followed, no features snapshots).
+    #[arg(long)]
+    no_features: bool,
 }
 
 const READINGS_PER_SWEEP: u32 = 50;
 const MAX_RANGE_M: f32 = 4.0;
+const SPEED_OF_SOUND_MPS: f32 = 343.2;
+/// The room's walls the head can face: (normal's direction in degrees, distance in metres).
+const WALLS: [(f32, f32); 4] = [(0.0, 3.5), (90.0, 2.2), (180.0, 2.5), (-90.0, 1.8)];
+/// A smooth wall answers a ping within this angle of its normal.
+const SPECULAR_DEG: f32 = 28.0;
+/// Degrees between a reading's pings (the stepper's 1.5° steps).
+const PING_STEP_DEG: f32 = 1.5;
 
 /// Distance from the origin to the walls of the room x ∈ [−2.5, 3.5], y ∈ [−1.8, 2.2] along
 /// `angle_deg`.
@@ -63,6 +104,17 @@ fn reading(seq: u32) -> Reading {
     // ±1 cm, from a multiplicative hash of the reading's number.
     let wobble = (seq.wrapping_mul(2_654_435_761) >> 16) as f32 / 65_535.0 * 0.02 - 0.01;
     let range = room_range(angle_deg) + wobble;
+    let direction: i8 = if forth { 1 } else { -1 };
+    let mut echo_us = [0u32; MAX_PINGS];
+    for (j, echo) in echo_us.iter_mut().enumerate().take(4) {
+        let bearing = angle_deg + f32::from(direction) * PING_STEP_DEG * (j as f32 - 1.5);
+        if let Some(&(_, distance)) = WALLS.iter().find(|(normal, _)| {
+            let off = (bearing - normal + 180.0).rem_euclid(360.0) - 180.0;
+            off.abs() <= SPECULAR_DEG
+        }) {
+            *echo = (2.0 * (distance + wobble) / SPEED_OF_SOUND_MPS * 1e6).round() as u32;
+        }
+    }
     Reading {
         seq: u64::from(seq),
         layout_version: LAYOUT_VERSION,
@@ -77,7 +129,11 @@ fn reading(seq: u32) -> Reading {
         distance_m: range.min(MAX_RANGE_M),
         min_range_m: 0.03,
         max_range_m: MAX_RANGE_M,
-        direction: if forth { 1 } else { -1 },
+        speed_of_sound_mps: SPEED_OF_SOUND_MPS,
+        echo_us,
+        ping_count: 4,
+        pings_used: 4,
+        direction,
         mode: ScanMode::Full as u8,
         ..Reading::default()
     }
@@ -99,6 +155,22 @@ fn snapshot(engine: &mut Engine, sample: &mut [u8]) -> CellCounts {
     engine.encode_grid(sample)
 }
 
+/// What the feature map costs per reading: the reading added to its sweep, and a finished sweep
+/// merged. Returns whether a sweep was merged.
+#[inline(never)]
+fn follow(tracker: &mut FeatureTracker, engine: &mut Engine, reading: &Reading) -> bool {
+    tracker.follow(reading, engine, false).is_some()
+}
+
+/// A features snapshot, as the process publishes after every merged sweep; returns the number of
+/// features.
+#[inline(never)]
+fn features_snapshot(tracker: &FeatureTracker, engine: &mut Engine, seq: u64) -> usize {
+    let (header, records) = tracker.snapshot(engine.grid_mut(), seq, 0);
+    black_box(&records);
+    header.feature_count as usize
+}
+
 fn main() -> Result<()> {
     let args = Args::parse();
     let config = FusionConfig {
@@ -110,19 +182,36 @@ fn main() -> Result<()> {
         ..FusionConfig::default()
     };
     let mut engine = new_engine(config)?;
+    let mut tracker = if args.no_features {
+        None
+    } else {
+        Some(FeatureTracker::new(FeatureConfig::default()).context("feature tracker")?)
+    };
+    let every = args
+        .snapshot_every
+        .unwrap_or_else(|| args.pace.readings_per_snapshot())
+        .max(1);
     let mut sample = vec![0u8; engine.grid_len()];
     let mut counts = CellCounts::default();
-    let (mut fused, mut snapshots) = (0u32, 0u32);
+    let (mut fused, mut snapshots, mut feature_snapshots, mut features) = (0u32, 0u32, 0u64, 0);
     for seq in 0..args.readings {
-        fused += u32::from(fuse(&mut engine, &reading(seq)));
-        if (seq + 1).is_multiple_of(args.snapshot_every.max(1)) {
+        let r = reading(seq);
+        fused += u32::from(fuse(&mut engine, &r));
+        if let Some(tracker) = &mut tracker
+            && follow(tracker, &mut engine, &r)
+        {
+            feature_snapshots += 1;
+            features = features_snapshot(tracker, &mut engine, feature_snapshots);
+        }
+        if (seq + 1).is_multiple_of(every) {
             counts = snapshot(&mut engine, &mut sample);
             snapshots += 1;
         }
     }
     black_box(&sample);
     println!(
-        "fused {fused} readings, {snapshots} snapshots; last: {} occupied, {} free, {} unknown",
+        "fused {fused} readings, {snapshots} grid snapshots; last: {} occupied, {} free, {} \
+         unknown; {feature_snapshots} features snapshots, last with {features} features",
         counts.occupied, counts.free, counts.unknown
     );
     Ok(())

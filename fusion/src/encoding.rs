@@ -17,12 +17,13 @@
 //! multiplication, two loads and a comparison, and gives the reference encoder's byte bit for bit:
 //! the steps are found by bisection over the reference encoder itself, on the same float-to-bucket
 //! mapping the lookup uses. Keys outside the range a rule keeps its cells in (only a hand-made
-//! state could hold them) take the reference encoder. The counts are thresholds on the key, found
-//! the same way.
+//! state could hold them) take the reference encoder. The counts, and whether a cell is
+//! confidently occupied ([`crate::grid::CONFIDENT_PROBABILITY`], the cells the features' walls grow
+//! along), are thresholds on the key, found the same way.
 
 use sonar_common::ipc::{CELL_UNKNOWN, encode_probability};
 
-use crate::grid::CellClass;
+use crate::grid::{CONFIDENT_PROBABILITY, CellClass};
 use crate::rule::Combine;
 
 /// Buckets tried first; doubled until no bucket holds two steps.
@@ -43,6 +44,10 @@ pub(crate) struct KeyEncoder {
     occupied_from: f32,
     /// Keys below this read as p < 0.5.
     free_below: f32,
+    /// Keys at or above this read as p ≥ [`CONFIDENT_PROBABILITY`] (found over every float, not
+    /// only the rule's range: a rule whose clamp stays below it has no confident cell, and a
+    /// hand-made key beyond the clamp is still told right).
+    confident_from: f32,
 }
 
 /// One bucket of a [`KeyEncoder`]'s table.
@@ -92,6 +97,10 @@ impl KeyEncoder {
         let reference = |key| encode_probability(probability(key));
         let occupied_from = first_where(lo, hi, |k| probability(k) > 0.5).unwrap_or(f32::INFINITY);
         let free_below = first_where(lo, hi, |k| probability(k) >= 0.5).unwrap_or(f32::INFINITY);
+        let confident_from = first_where(f32::NEG_INFINITY, f32::INFINITY, |k| {
+            probability(k) >= CONFIDENT_PROBABILITY
+        })
+        .unwrap_or(f32::INFINITY);
         let mut buckets = FIRST_BUCKETS;
         loop {
             let scale = buckets as f32 / (hi - lo);
@@ -126,6 +135,7 @@ impl KeyEncoder {
                     steps,
                     occupied_from,
                     free_below,
+                    confident_from,
                 };
             }
             buckets *= 2;
@@ -153,11 +163,13 @@ impl KeyEncoder {
         }
     }
 
-    /// What a cell with `key` says, for the snapshot header's counts.
+    /// What a cell with `key` says, for the snapshot header's counts and the confident cells.
     #[inline(always)]
     pub(crate) fn class(&self, key: f32) -> CellClass {
         if key.is_nan() {
             CellClass::Unknown
+        } else if key >= self.confident_from {
+            CellClass::Confident
         } else if key >= self.occupied_from {
             CellClass::Occupied
         } else if key < self.free_below {
@@ -181,7 +193,9 @@ mod tests {
             return (CELL_UNKNOWN, CellClass::Unknown);
         }
         let p = rule.key_probability(key);
-        let class = if p > 0.5 {
+        let class = if p >= CONFIDENT_PROBABILITY {
+            CellClass::Confident
+        } else if p > 0.5 {
             CellClass::Occupied
         } else if p < 0.5 {
             CellClass::Free
@@ -213,6 +227,7 @@ mod tests {
             .chain([
                 encoder.occupied_from,
                 encoder.free_below,
+                encoder.confident_from,
                 encoder.lo,
                 encoder.hi,
             ])

@@ -363,6 +363,13 @@ impl Engine {
         self.mapper.grid_mut().encoded()
     }
 
+    /// The grid, for reads that bring its kept state up to date first
+    /// ([`crate::OccupancyGrid::confident_cells`], [`crate::OccupancyGrid::encoded`]). Change the
+    /// maps through [`Self::fuse`] and [`Self::apply`]: they keep the history and the revision.
+    pub fn grid_mut(&mut self) -> &mut crate::OccupancyGrid {
+        self.mapper.grid_mut()
+    }
+
     /// Cells per snapshot.
     pub fn grid_len(&self) -> usize {
         self.mapper.grid().geometry().len()

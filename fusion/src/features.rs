@@ -40,9 +40,6 @@ use sonar_features::{
 use crate::engine::Engine;
 use crate::grid::OccupancyGrid;
 
-/// Occupancy probability from which a grid cell lends its position to a wall's segment.
-const SUPPORT_PROBABILITY: f32 = 0.8;
-
 /// A reading more than this (m, degrees) from the pose of the sweep's middle reading was taken on
 /// the move …
 const STILL_M: f64 = 0.01;
@@ -341,24 +338,38 @@ impl FeatureTracker {
     }
 
     /// The snapshot's header and records, most confident first, at most [`MAX_FEATURES`]. The
-    /// walls' segments grow along the grid's occupied cells.
+    /// walls' segments grow along the grid's confidently occupied cells
+    /// ([`OccupancyGrid::confident_cells`]: kept up to date from the cells that changed, so a
+    /// snapshot does not read every cell of the grid).
     pub fn snapshot(
         &self,
-        grid: &OccupancyGrid,
+        grid: &mut OccupancyGrid,
         seq: u64,
         stamp_ns: u64,
     ) -> (FeaturesHeader, Vec<FeatureRecord>) {
-        let has_planes = self
-            .map
-            .features()
-            .iter()
-            .any(|f| f.kind() == FeatureKind::Plane);
-        let support = if has_planes {
-            occupied_cells(grid)
+        let support = if self.has_planes() {
+            support_points(grid)
         } else {
             Vec::new()
         };
-        let mut summaries = self.map.summaries(&support);
+        self.snapshot_with(&support, seq, stamp_ns)
+    }
+
+    fn has_planes(&self) -> bool {
+        self.map
+            .features()
+            .iter()
+            .any(|f| f.kind() == FeatureKind::Plane)
+    }
+
+    /// [`Self::snapshot`] with the walls' segments grown along `support`.
+    fn snapshot_with(
+        &self,
+        support: &[Point2<f64>],
+        seq: u64,
+        stamp_ns: u64,
+    ) -> (FeaturesHeader, Vec<FeatureRecord>) {
+        let mut summaries = self.map.summaries(support);
         summaries.sort_by(|a, b| b.confidence.total_cmp(&a.confidence));
         let left_out = summaries.len().saturating_sub(MAX_FEATURES);
         summaries.truncate(MAX_FEATURES);
@@ -430,23 +441,16 @@ fn count(n: usize) -> u32 {
     u32::try_from(n).unwrap_or(u32::MAX)
 }
 
-/// Centres of the cells at least [`SUPPORT_PROBABILITY`] occupied.
-fn occupied_cells(grid: &OccupancyGrid) -> Vec<Point2<f64>> {
-    let geometry = grid.geometry();
-    let n = geometry.cells_per_side();
-    let mut points = Vec::new();
-    for y in 0..n {
-        for x in 0..n {
-            if grid
-                .probability(x, y)
-                .is_some_and(|p| p >= SUPPORT_PROBABILITY)
-            {
-                let c = geometry.cell_centre(x, y);
-                points.push(Point2::new(f64::from(c.x), f64::from(c.y)));
-            }
-        }
-    }
-    points
+/// Centres of the grid's confidently occupied cells, row by row: the points a wall's segment may
+/// grow along.
+fn support_points(grid: &mut OccupancyGrid) -> Vec<Point2<f64>> {
+    let geometry = *grid.geometry();
+    grid.confident_cells()
+        .map(|(x, y)| {
+            let c = geometry.cell_centre(x, y);
+            Point2::new(f64::from(c.x), f64::from(c.y))
+        })
+        .collect()
 }
 
 /// One feature as its fixed-size record.
@@ -549,8 +553,8 @@ mod tests {
         assert!(!tracker.has_pending());
         assert_eq!(tracker.finish_sweep(), None, "nothing left to finish");
 
-        let mapper = Mapper::new(FusionConfig::default()).unwrap();
-        let (header, records) = tracker.snapshot(mapper.grid(), 7, 42);
+        let mut mapper = Mapper::new(FusionConfig::default()).unwrap();
+        let (header, records) = tracker.snapshot(mapper.grid_mut(), 7, 42);
         assert_eq!((header.seq, header.stamp_ns, header.sweeps), (7, 42, 2));
         assert_eq!((header.feature_count, header.last_sweep_id), (1, 2));
         assert_eq!(header.last_sweep_refined, 1);
@@ -606,9 +610,9 @@ mod tests {
         }
         let still = tracker.finish_sweep().unwrap();
         assert!(!still.moving && still.added == 1, "{still:?}");
-        let mapper = Mapper::new(FusionConfig::default()).unwrap();
-        let post_at = |tracker: &FeatureTracker| {
-            let (_, records) = tracker.snapshot(mapper.grid(), 0, 0);
+        let mut mapper = Mapper::new(FusionConfig::default()).unwrap();
+        let mut post_at = |tracker: &FeatureTracker| {
+            let (_, records) = tracker.snapshot(mapper.grid_mut(), 0, 0);
             (records[0].x_m, records[0].y_m)
         };
         let (x, y) = post_at(&tracker);
@@ -891,6 +895,98 @@ mod tests {
         assert_eq!(range_on_walls(&mut filter, &tracker.map, &left), 0);
     }
 
+    /// The support points as snapshots once found them: every cell's probability read, row by
+    /// row.
+    fn walked_support_points(grid: &OccupancyGrid) -> Vec<Point2<f64>> {
+        let geometry = grid.geometry();
+        let n = geometry.cells_per_side();
+        let mut points = Vec::new();
+        for y in 0..n {
+            for x in 0..n {
+                if grid
+                    .probability(x, y)
+                    .is_some_and(|p| p >= crate::grid::CONFIDENT_PROBABILITY)
+                {
+                    let c = geometry.cell_centre(x, y);
+                    points.push(Point2::new(f64::from(c.x), f64::from(c.y)));
+                }
+            }
+        }
+        points
+    }
+
+    #[test]
+    fn snapshots_grow_the_walls_as_a_walk_over_every_cell_did_on_random_grids() {
+        use rand::{Rng, SeedableRng};
+        use sonar_features::segment::SegmentEnd;
+        // Three walls (2 m ahead, 1.5 m left, 1.2 m right) and the post.
+        let mut tracker = FeatureTracker::new(FeatureConfig::default()).unwrap();
+        for sweep_id in 1..=2 {
+            for k in 0..50 {
+                let r = room_reading(sweep_id, -147.0 + 6.0 * k as f32, 0.0);
+                tracker.push(&r, &Isometry2::identity());
+            }
+        }
+        tracker.finish_sweep();
+        assert!(tracker.has_planes());
+        let mut grew_along_support = 0;
+        for seed in 0..6 {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+            let mut mapper = Mapper::new(FusionConfig::default()).unwrap();
+            let grid = mapper.grid_mut();
+            let geometry = *grid.geometry();
+            let n = geometry.cells_per_side();
+            // Stretches of each wall's line confidently occupied, with gaps of random width, and
+            // random evidence everywhere.
+            for round in 0..3 {
+                let mut runs = Vec::new();
+                for _ in 0..rng.random_range(5..40) {
+                    let along = rng.random_range(-3.5f32..3.5);
+                    let len = rng.random_range(0.05f32..0.6);
+                    let p = if round == 2 { 0.3 } else { 0.95 };
+                    for (from, to) in [
+                        ((along, 1.5), (along + len, 1.5)),
+                        ((along, -1.2), (along + len, -1.2)),
+                    ] {
+                        if let (Some((x0, y)), Some((x1, _))) = (
+                            geometry.cell_at(Point2::new(from.0, from.1)),
+                            geometry.cell_at(Point2::new(to.0, to.1)),
+                        ) {
+                            runs.push((geometry.index(x0, y)..geometry.index(x1, y) + 1, p));
+                        }
+                    }
+                    let mut y = along;
+                    while y < along + len {
+                        if let Some((x, yc)) = geometry.cell_at(Point2::new(2.0, y)) {
+                            let i = geometry.index(x, yc);
+                            runs.push((i..i + 1, p));
+                        }
+                        y += geometry.resolution();
+                    }
+                }
+                crate::grid::fuse_runs(grid, runs);
+                crate::grid::fuse_random_runs(grid, &mut rng, 4 * n);
+                let walked = walked_support_points(grid);
+                let (header, records) = tracker.snapshot(grid, 3, 9);
+                let (old_header, old_records) = tracker.snapshot_with(&walked, 3, 9);
+                assert_eq!(support_points(grid), walked, "seed {seed} round {round}");
+                // Debug prints every float exactly, NaNs alike.
+                assert_eq!(
+                    format!("{header:?} {records:?}"),
+                    format!("{old_header:?} {old_records:?}"),
+                    "seed {seed} round {round}"
+                );
+                grew_along_support += tracker
+                    .map
+                    .segments(&walked)
+                    .iter()
+                    .filter(|s| s.ends.contains(&SegmentEnd::Support))
+                    .count();
+            }
+        }
+        assert!(grew_along_support > 10, "{grew_along_support}");
+    }
+
     #[test]
     fn clearing_forgets_features_and_the_pending_sweep() {
         let mut tracker = FeatureTracker::new(FeatureConfig::default()).unwrap();
@@ -901,8 +997,8 @@ mod tests {
         assert_eq!(tracker.len(), 1);
         tracker.clear();
         assert!(tracker.is_empty() && !tracker.has_pending());
-        let mapper = Mapper::new(FusionConfig::default()).unwrap();
-        let (header, records) = tracker.snapshot(mapper.grid(), 0, 0);
+        let mut mapper = Mapper::new(FusionConfig::default()).unwrap();
+        let (header, records) = tracker.snapshot(mapper.grid_mut(), 0, 0);
         assert_eq!((header.feature_count, header.last_sweep_id), (0, 0));
         assert!(records.is_empty());
     }

@@ -13,15 +13,20 @@ use crate::rule::{
 };
 use crate::state::{SavedCells, StateError, check_len};
 
-/// Runs noted before a flush is forced: 1 MiB of ranges, a few hundred readings' worth.
-const MAX_DIRTY_RUNS: usize = 1 << 16;
+/// Occupancy probability from which a cell is confidently occupied
+/// ([`OccupancyGrid::confident_cells`]): the cells that lend their position to a wall's segment
+/// in the feature map (`crate::features`).
+pub const CONFIDENT_PROBABILITY: f32 = 0.8;
 
 /// The cells of one rule, with the rule's parameters, and the cells in the snapshot encoding with
 /// their counts ([`crate::encoding`]). The encoding lags behind the cells: a kernel's runs are
-/// only noted as dirty, and [`Self::flush`] re-encodes their union when a snapshot is asked for.
+/// only noted as dirty, per row the span from the first to the last cell fused since the last
+/// flush, and [`Self::flush`] re-encodes those spans when a snapshot is asked for (at most one
+/// span per row: the bookkeeping is bounded by the grid, however long nothing asks).
 /// Re-encoding each run as it was fused cost more than fusing it (a cell is touched by many
 /// readings between two snapshots); once per snapshot, a cell costs one encoding however often it
-/// was fused.
+/// was fused. The class a flush keeps per cell also says whether the cell is confidently occupied,
+/// so the cells the features need are found without a probability per cell.
 pub(crate) struct Layer<R: Combine> {
     pub rule: R,
     cells: Vec<R::Cell>,
@@ -31,12 +36,19 @@ pub(crate) struct Layer<R: Combine> {
     classes: Vec<u8>,
     /// Cells per [`CellClass`], as of the last flush.
     tally: [u32; CellClass::COUNT],
-    /// Runs fused since the last flush, in the order fused (they may overlap).
-    dirty: Vec<Range<usize>>,
+    /// Cells per row.
+    row_len: usize,
+    /// Per row, the span of its cells (offsets within the row) that runs fused since the last
+    /// flush lie in; empty for a row none touched.
+    dirty_spans: Vec<Range<u32>>,
+    /// The rows with a non-empty span, in the order first touched.
+    dirty_rows: Vec<u32>,
 }
 
 impl<R: Combine> Layer<R> {
-    fn new(rule: R, len: usize) -> Self {
+    /// `rows` rows of `row_len` cells.
+    fn new(rule: R, row_len: usize, rows: usize) -> Self {
+        let len = row_len * rows;
         let mut tally = [0; CellClass::COUNT];
         tally[CellClass::Unknown as usize] = len as u32;
         Self {
@@ -46,7 +58,9 @@ impl<R: Combine> Layer<R> {
             bytes: vec![CELL_UNKNOWN; len],
             classes: vec![CellClass::Unknown as u8; len],
             tally,
-            dirty: Vec::new(),
+            row_len,
+            dirty_spans: vec![0..0; rows],
+            dirty_rows: Vec::new(),
         }
     }
 
@@ -59,43 +73,45 @@ impl<R: Combine> Layer<R> {
         (&self.rule, &mut self.cells[run])
     }
 
-    /// Notes `run` for the next [`Self::flush`] if the kernel changed any of its cells; flushes
-    /// at once when [`MAX_DIRTY_RUNS`] are noted, so an engine that fuses without snapshots (an
-    /// offline export of a long recording) keeps bounded memory.
+    /// Notes `run` for the next [`Self::flush`] if the kernel changed any of its cells: widens
+    /// the dirty span of each row it covers (a kernel's runs lie within a row).
     #[inline(always)]
     pub fn end_run(&mut self, run: Range<usize>, updated: usize) {
         if updated > 0 {
-            self.dirty.push(run);
-            if self.dirty.len() >= MAX_DIRTY_RUNS {
-                self.flush();
-            }
+            self.note_dirty(run);
         }
     }
 
-    /// Brings the bytes and counts up to date with the cells: re-encodes the union of the runs
-    /// fused since the last flush, each cell once.
+    fn note_dirty(&mut self, run: Range<usize>) {
+        let mut start = run.start;
+        while start < run.end {
+            let row = start / self.row_len;
+            let row_start = row * self.row_len;
+            let end = run.end.min(row_start + self.row_len);
+            // Offsets within a row fit: a row is a side of the grid.
+            let (a, b) = ((start - row_start) as u32, (end - row_start) as u32);
+            let span = &mut self.dirty_spans[row];
+            if Range::is_empty(span) {
+                self.dirty_rows.push(row as u32);
+                *span = a..b;
+            } else {
+                *span = span.start.min(a)..span.end.max(b);
+            }
+            start = end;
+        }
+    }
+
+    /// Brings the bytes and counts up to date with the cells: re-encodes each row's dirty span.
     fn flush(&mut self) {
-        if self.dirty.is_empty() {
-            return;
-        }
-        let mut dirty = std::mem::take(&mut self.dirty);
-        dirty.sort_unstable_by_key(|run| run.start);
-        let mut pending: Option<Range<usize>> = None;
-        for run in dirty.drain(..) {
-            pending = match pending {
-                Some(p) if run.start <= p.end => Some(p.start..p.end.max(run.end)),
-                Some(p) => {
-                    self.encode_run(p);
-                    Some(run)
-                }
-                None => Some(run),
-            };
-        }
-        if let Some(p) = pending {
-            self.encode_run(p);
+        let mut rows = std::mem::take(&mut self.dirty_rows);
+        for row in rows.drain(..) {
+            let row = row as usize;
+            let span = std::mem::replace(&mut self.dirty_spans[row], 0..0);
+            let row_start = row * self.row_len;
+            self.encode_run(row_start + span.start as usize..row_start + span.end as usize);
         }
         // The allocation is kept for the next runs.
-        self.dirty = dirty;
+        self.dirty_rows = rows;
     }
 
     fn encode_run(&mut self, run: Range<usize>) {
@@ -121,7 +137,9 @@ impl<R: Combine> Layer<R> {
     }
 
     fn encode_all(&mut self) {
-        self.dirty.clear();
+        for row in self.dirty_rows.drain(..) {
+            self.dirty_spans[row as usize] = 0..0;
+        }
         self.encode_run(0..self.cells.len());
     }
 
@@ -130,12 +148,18 @@ impl<R: Combine> Layer<R> {
         self.encode_all();
     }
 
+    /// Each cell's class, brought up to date.
+    fn classes(&mut self) -> &[u8] {
+        self.flush();
+        &self.classes
+    }
+
     /// The bytes and counts, brought up to date.
     fn encoded(&mut self) -> (&[u8], CellCounts) {
         self.flush();
         let tally = self.tally;
         let counts = CellCounts {
-            occupied: tally[CellClass::Occupied as usize],
+            occupied: tally[CellClass::Occupied as usize] + tally[CellClass::Confident as usize],
             free: tally[CellClass::Free as usize],
             unknown: tally[CellClass::Unknown as usize],
         };
@@ -146,7 +170,7 @@ impl<R: Combine> Layer<R> {
 /// What a cell says, for the snapshot header's counts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum CellClass {
-    /// p > 0.5.
+    /// 0.5 < p < [`CONFIDENT_PROBABILITY`].
     Occupied = 0,
     /// p < 0.5.
     Free = 1,
@@ -154,11 +178,16 @@ pub(crate) enum CellClass {
     Unknown = 2,
     /// p = 0.5 exactly after readings: counted as neither.
     Even = 3,
+    /// p ≥ [`CONFIDENT_PROBABILITY`]: counted as occupied.
+    Confident = 4,
 }
 
 impl CellClass {
-    const COUNT: usize = 4;
+    const COUNT: usize = 5;
 }
+
+// [`OccupancyGrid::confident_cells`] finds the confident cells by their one bit.
+const _: () = assert!(CellClass::Confident as u8 == 1 << 2 && CellClass::COUNT == 5);
 
 /// The grid's state, in the representation of its rule.
 pub(crate) enum CellStore {
@@ -217,13 +246,14 @@ impl OccupancyGrid {
     /// if `hears`, a bearing per cell for where it was heard occupied from (none yet).
     pub fn new(geometry: GridGeometry, rule: &RuleConfig, hears: bool) -> Self {
         let len = geometry.len();
+        let n = geometry.cells_per_side();
         let store = match *rule {
-            RuleConfig::Bayes => CellStore::Bayes(Layer::new(BayesRule, len)),
-            RuleConfig::LogOdds(r) => CellStore::LogOdds(Layer::new(r, len)),
+            RuleConfig::Bayes => CellStore::Bayes(Layer::new(BayesRule, n, n)),
+            RuleConfig::LogOdds(r) => CellStore::LogOdds(Layer::new(r, n, n)),
             RuleConfig::DempsterShafer => {
-                CellStore::DempsterShafer(Layer::new(DempsterShaferRule, len))
+                CellStore::DempsterShafer(Layer::new(DempsterShaferRule, n, n))
             }
-            RuleConfig::Himm(r) => CellStore::Himm(Layer::new(r, len)),
+            RuleConfig::Himm(r) => CellStore::Himm(Layer::new(r, n, n)),
         };
         let heard = if hears {
             vec![f32::NAN; len]
@@ -284,6 +314,31 @@ impl OccupancyGrid {
     /// the snapshot header. Costs one encoding per cell fused since the last call.
     pub fn encoded(&mut self) -> (&[u8], CellCounts) {
         with_layer!(&mut self.store, l => l.encoded())
+    }
+
+    /// The cells at least [`CONFIDENT_PROBABILITY`] occupied, as (x, y), row by row (the order of
+    /// the cell arrays). Brings the kept state up to date first, as [`Self::encoded`] does, so it
+    /// costs the cells fused since the last flush and an OR over the classes kept per cell (blocks
+    /// without a confident cell are skipped whole), not a probability per cell.
+    pub fn confident_cells(&mut self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        /// Cells searched at once for a confident one.
+        const BLOCK: usize = 256;
+        let n = self.geometry.cells_per_side();
+        let confident = CellClass::Confident as u8;
+        let classes: &[u8] = with_layer!(&mut self.store, l => l.classes());
+        (0..)
+            .zip(classes.chunks(BLOCK))
+            // Confident is the only class with bit 2 set: an OR over the block (vectorised) tells
+            // whether it holds one.
+            .filter(move |(_, block)| {
+                block.iter().fold(0, |any, &class| any | class) & confident != 0
+            })
+            .flat_map(move |(b, block)| {
+                (b * BLOCK..)
+                    .zip(block)
+                    .filter(move |&(_, &class)| class == confident)
+                    .map(move |(i, _)| (i % n, i / n))
+            })
     }
 
     /// [`Self::encoded`] copied into `out`; returns the counts.
@@ -385,6 +440,50 @@ pub(crate) fn reference_encoding(grid: &OccupancyGrid) -> (Vec<u8>, CellCounts) 
     (bytes, counts)
 }
 
+/// Fuses each run's evidence, given as a probability, into the grid's cells, as a kernel does
+/// (the runs noted for the next flush).
+#[cfg(test)]
+pub(crate) fn fuse_runs(
+    grid: &mut OccupancyGrid,
+    runs: impl IntoIterator<Item = (Range<usize>, f32)>,
+) {
+    fn fuse<R: Combine>(layer: &mut Layer<R>, runs: impl IntoIterator<Item = (Range<usize>, f32)>) {
+        for (run, p) in runs {
+            let evidence = match R::DOMAIN {
+                crate::rule::Domain::Probability => p,
+                crate::rule::Domain::LogOdds => crate::model::logit(p),
+            };
+            let (rule, cells) = layer.begin_run(run.clone());
+            let changed = cells
+                .iter_mut()
+                .filter_map(|c| rule.fuse(c, evidence).then_some(()))
+                .count();
+            layer.end_run(run, changed);
+        }
+    }
+    with_layer!(&mut grid.store, l => fuse(l, runs));
+}
+
+/// Fuses `runs` random runs of random evidence (leaning to occupied, so that many cells cross
+/// [`CONFIDENT_PROBABILITY`] and some fall back below it).
+#[cfg(test)]
+pub(crate) fn fuse_random_runs(
+    grid: &mut OccupancyGrid,
+    rng: &mut rand_chacha::ChaCha8Rng,
+    runs: usize,
+) {
+    use rand::Rng;
+    let len = grid.geometry.len();
+    let runs: Vec<_> = (0..runs)
+        .map(|_| {
+            let start = rng.random_range(0..len);
+            let end = rng.random_range(start + 1..=len.min(start + 90));
+            (start..end, rng.random_range(0.2f32..0.97))
+        })
+        .collect();
+    fuse_runs(grid, runs);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -452,30 +551,115 @@ mod tests {
         assert_eq!(g.probability(0, 0), None);
     }
 
+    /// The cells a walk over every cell's probability finds at least [`CONFIDENT_PROBABILITY`]
+    /// occupied, row by row: what the features once read the grid with, and what
+    /// [`OccupancyGrid::confident_cells`] must equal.
+    fn walked_confident_cells(g: &OccupancyGrid) -> Vec<(usize, usize)> {
+        let n = g.geometry().cells_per_side();
+        (0..n)
+            .flat_map(|y| (0..n).map(move |x| (x, y)))
+            .filter(|&(x, y)| {
+                g.probability(x, y)
+                    .is_some_and(|p| p >= CONFIDENT_PROBABILITY)
+            })
+            .collect()
+    }
+
     #[test]
-    fn runs_fused_without_a_snapshot_are_flushed_before_they_pile_up() {
-        let mut layer = Layer::new(LogOddsRule::default(), 4);
-        for i in 0..MAX_DIRTY_RUNS + 10 {
-            let (rule, cells) = layer.begin_run(1..3);
+    fn confident_cells_equal_a_walk_over_every_cell_on_random_grids() {
+        use rand::{Rng, SeedableRng};
+        for kind in RuleKind::ALL {
+            for seed in 0..12 {
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+                // Sides that are and are not multiples of 64 cells.
+                let n = rng.random_range(1..=90);
+                let mut g = OccupancyGrid::new(
+                    GridGeometry::new(n, 0.1),
+                    &RuleConfig::default_for(kind),
+                    false,
+                );
+                let mut seen_confident = false;
+                // Several rounds of fusing between reads, so cells enter and leave the set.
+                for round in 0..6 {
+                    let runs = rng.random_range(0..4 * n + 1);
+                    fuse_random_runs(&mut g, &mut rng, runs);
+                    let kept: Vec<_> = g.confident_cells().collect();
+                    assert_eq!(
+                        kept,
+                        walked_confident_cells(&g),
+                        "{kind:?} seed {seed} round {round}"
+                    );
+                    seen_confident |= !kept.is_empty();
+                    if round == 3 {
+                        // A snapshot flushes the same runs; a clear empties the set.
+                        g.encoded();
+                        g.clear();
+                        assert_eq!(g.confident_cells().count(), 0);
+                    }
+                }
+                assert!(
+                    seen_confident || n < 4,
+                    "{kind:?} seed {seed}: the grid never held a confident cell"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn runs_fused_without_a_snapshot_keep_a_span_per_row_at_most() {
+        let mut layer = Layer::new(LogOddsRule::default(), 4, 3);
+        for i in 0..100_000 {
+            // Runs within a row and across rows, over and over.
+            let run = [1..3, 2..9, 0..12][i % 3].clone();
+            let (rule, cells) = layer.begin_run(run.clone());
             // Evidence that changes the cells every time, also at the clamp.
             let evidence = if i % 2 == 0 { 0.01 } else { -0.005 };
             let changed = cells
                 .iter_mut()
                 .filter_map(|c| rule.fuse(c, evidence).then_some(()))
                 .count();
-            layer.end_run(1..3, changed);
-            assert!(layer.dirty.len() < MAX_DIRTY_RUNS, "run {i}");
+            layer.end_run(run, changed);
+            assert!(layer.dirty_rows.len() <= 3, "run {i}");
         }
+        assert_eq!(layer.dirty_spans, [0..4, 0..4, 0..4]);
         let (bytes, counts) = layer.encoded();
-        assert_eq!(bytes[0], CELL_UNKNOWN);
-        assert!(bytes[1] > 127 && bytes[1] == bytes[2], "{bytes:?}");
+        assert!(bytes.iter().all(|&b| b > 127 && b == bytes[0]), "{bytes:?}");
         assert_eq!(
             counts,
             CellCounts {
-                occupied: 2,
+                occupied: 12,
                 free: 0,
-                unknown: 2
+                unknown: 0
             }
         );
+        assert!(layer.dirty_rows.is_empty() && layer.dirty_spans.iter().all(|s| s.is_empty()));
+    }
+
+    #[test]
+    fn bytes_and_counts_kept_by_dirty_rows_equal_a_full_encoding_on_random_grids() {
+        use rand::{Rng, SeedableRng};
+        for kind in RuleKind::ALL {
+            for seed in 0..12 {
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+                let n = rng.random_range(1..=90);
+                let mut g = OccupancyGrid::new(
+                    GridGeometry::new(n, 0.1),
+                    &RuleConfig::default_for(kind),
+                    false,
+                );
+                for round in 0..6 {
+                    // Random runs, within rows and across them, between two snapshots.
+                    let runs = rng.random_range(0..4 * n + 1);
+                    fuse_random_runs(&mut g, &mut rng, runs);
+                    let (bytes, counts) = g.encoded();
+                    let kept = (bytes.to_vec(), counts);
+                    assert_eq!(
+                        kept,
+                        reference_encoding(&g),
+                        "{kind:?} seed {seed} round {round}"
+                    );
+                }
+            }
+        }
     }
 }

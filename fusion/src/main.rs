@@ -449,7 +449,7 @@ fn run(args: &Args) -> Result<()> {
         let now = Instant::now();
         if let Some(features) = &mut features {
             features.finish_idle_sweep(&mut engine, now);
-            features.publish_if_due(&engine, now);
+            features.publish_if_due(&mut engine, now);
             features.refresh(now);
             out.ledger
                 .feature_readings_skipped(features.tracker.readings_skipped());
@@ -591,8 +591,8 @@ impl Saving {
 /// (at most one per [`Pace`], as the grid's sweep ends) and after a clear.
 ///
 /// The pace matters when sweeps fragment (an overflowing buffer, see [`Pace`]): each fragment is
-/// merged as a sweep, and a snapshot walks the whole grid for the walls' support cells — at
-/// 1024² cells that cost as much as a grid snapshot, once per reading.
+/// merged as a sweep, and a snapshot brings the grid's kept state up to date (the encoding and
+/// the walls' support cells of every cell fused since the last flush) and grows every wall.
 struct Features {
     tracker: FeatureTracker,
     publisher: Publisher<Ipc, [FeatureRecord], FeaturesHeader>,
@@ -715,7 +715,7 @@ impl Features {
         self.publish_if_due(engine, Instant::now());
     }
 
-    fn publish_if_due(&mut self, engine: &Engine, now: Instant) {
+    fn publish_if_due(&mut self, engine: &mut Engine, now: Instant) {
         if self.dirty && self.pace.allows(now) {
             self.publish(engine);
         }
@@ -726,18 +726,18 @@ impl Features {
         self.dirty.then(|| self.pace.wait(now))
     }
 
-    fn clear(&mut self, engine: &Engine) {
+    fn clear(&mut self, engine: &mut Engine) {
         self.tracker.clear();
         self.publish(engine);
     }
 
-    fn publish(&mut self, engine: &Engine) {
+    fn publish(&mut self, engine: &mut Engine) {
         self.dirty = false;
         self.pace.sent(Instant::now());
         self.seq += 1;
-        let (header, records) =
-            self.tracker
-                .snapshot(engine.mapper().grid(), self.seq, unix_time_ns());
+        let (header, records) = self
+            .tracker
+            .snapshot(engine.grid_mut(), self.seq, unix_time_ns());
         let sent = self
             .publisher
             .loan_slice_uninit(records.len())

@@ -819,7 +819,7 @@ fn fuse_recording<W: Write + Seek>(
     }
     let features = tracker.filter(|_| with_features).map(|mut tracker| {
         tracker.finish_sweep();
-        let (header, records) = tracker.snapshot(engine.mapper().grid(), 1, stamp);
+        let (header, records) = tracker.snapshot(engine.grid_mut(), 1, stamp);
         FeatureSnapshot { header, records }
     });
     Ok(Snapshot { grid, features })
