@@ -25,7 +25,7 @@ use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use sonar_common::ipc::{
     self, DriverStatus, FeatureRecord, FeaturesHeader, FusionCommand, FusionCommandKind,
     FusionStatus, GridHeader, IpcArgs, IpcError, LinkState, LocalizedPose, Pose2D, Radar, Reading,
-    ScanCommand, ScanCommandKind, ScanMode, feature_kind,
+    ScanCommand, ScanCommandKind, ScanMode, SlamCorrection, feature_kind, slam_state,
 };
 
 /// How often `echo` and `hz` look for new messages.
@@ -95,6 +95,10 @@ enum Topic {
     /// sonar/fusion_status: the fusion's health counters (lost, rejected, saves, …).
     #[value(alias = "fusion_status")]
     FusionStatus,
+    /// sonar/slam_correction: sonar-slam's map → odom correction after each sweep, its σ, the
+    /// fix state, the pose in the map and the odometry's.
+    #[value(alias = "slam_correction")]
+    SlamCorrection,
     /// sonar/radar: the basic map's snapshot (bins with a distance, nearest).
     Radar,
     /// sonar/features: each snapshot's counts, then one line per wall, corner and post.
@@ -116,6 +120,7 @@ impl Topic {
             Topic::TruePose => ipc::TRUE_POSE_SERVICE,
             Topic::LocalizedPose => ipc::LOCALIZED_POSE_SERVICE,
             Topic::FusionStatus => ipc::FUSION_STATUS_SERVICE,
+            Topic::SlamCorrection => ipc::SLAM_CORRECTION_SERVICE,
             Topic::Radar => ipc::RADAR_SERVICE,
             Topic::Features => ipc::FEATURES_SERVICE,
             Topic::Commands => ipc::COMMANDS_SERVICE,
@@ -338,6 +343,13 @@ fn receive_or_tick(
             localized_pose_line,
             each,
         ),
+        Topic::SlamCorrection => each_message(
+            node,
+            &ipc::slam_correction_service(node)?,
+            service,
+            slam_correction_line,
+            each,
+        ),
         Topic::FusionStatus => each_message(
             node,
             &ipc::fusion_status_service(node)?,
@@ -425,6 +437,40 @@ fn poll(
             return Ok(());
         }
     }
+}
+
+fn slam_correction_line(c: &SlamCorrection) -> String {
+    let state = match c.state {
+        slam_state::FIX => "fix",
+        slam_state::NO_LANDMARKS => "no fix (no landmarks)",
+        slam_state::UNCERTAIN => "no fix (too uncertain)",
+        slam_state::REFUSED => "no fix (refused)",
+        _ => "unknown state",
+    };
+    let sigma = |v: f32| v.max(0.0).sqrt();
+    format!(
+        "sweep {} {state} map→odom {:+.3} {:+.3} {:+.2}° σ {:.3} m {:.3} m {:.2}° pose {:+.3} {:+.3} {:+.1}° σ {:.3} m {:.3} m {:.2}° odometry {:+.3} {:+.3} {:+.1}° matched {} landmarks {} fixes {} refused {}",
+        c.sweep_id,
+        c.correction_x_m,
+        c.correction_y_m,
+        c.correction_theta_rad.to_degrees(),
+        sigma(c.correction_cov_xx),
+        sigma(c.correction_cov_yy),
+        sigma(c.correction_cov_thetatheta).to_degrees(),
+        c.x_m,
+        c.y_m,
+        c.theta_rad.to_degrees(),
+        sigma(c.cov_xx),
+        sigma(c.cov_yy),
+        sigma(c.cov_thetatheta).to_degrees(),
+        c.odometry_x_m,
+        c.odometry_y_m,
+        c.odometry_theta_rad.to_degrees(),
+        c.matched,
+        c.landmarks,
+        c.fixes,
+        c.refused,
+    )
 }
 
 fn localized_pose_line(p: &LocalizedPose) -> String {
@@ -635,6 +681,37 @@ fn pose_line(p: &Pose2D) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_slam_correction_says_whether_it_is_a_fix_and_how_sure() {
+        let c = SlamCorrection {
+            sweep_id: 9,
+            state: slam_state::FIX,
+            correction_x_m: 0.1,
+            correction_theta_rad: 2f32.to_radians(),
+            correction_cov_xx: 0.0004,
+            correction_cov_yy: 0.0009,
+            correction_cov_thetatheta: 1f32.to_radians().powi(2),
+            matched: 3,
+            landmarks: 12,
+            fixes: 5,
+            ..SlamCorrection::default()
+        };
+        let line = slam_correction_line(&c);
+        assert!(
+            line.starts_with("sweep 9 fix map→odom +0.100 +0.000 +2.00° σ 0.020 m 0.030 m 1.00°"),
+            "{line}"
+        );
+        assert!(
+            line.ends_with("matched 3 landmarks 12 fixes 5 refused 0"),
+            "{line}"
+        );
+        let uncertain = SlamCorrection {
+            state: slam_state::UNCERTAIN,
+            ..c
+        };
+        assert!(slam_correction_line(&uncertain).contains(" no fix (too uncertain) "));
+    }
 
     #[test]
     fn lines_are_decoded_with_their_units() {
