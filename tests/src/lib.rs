@@ -13,9 +13,10 @@ use std::time::{Duration, Instant};
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
+use nalgebra::{Isometry2, Vector2};
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
-use sonar_common::ipc::{self, DriverStatus, FusionStatus, GridHeader, IpcArgs, Reading};
+use sonar_common::ipc::{self, DriverStatus, FusionStatus, GridHeader, IpcArgs, Pose2D, Reading};
 
 /// Generous bound for anything a test waits for; only there so a broken build fails instead of
 /// hanging CI. No test asserts on how fast something happens.
@@ -788,4 +789,40 @@ impl GridSnapshot {
         }
         best
     }
+}
+
+/// The simulator's true poses (`robot/true_pose`), gathered beside an estimate's messages.
+#[derive(Debug)]
+pub struct TruePoses(Vec<Pose2D>);
+
+impl TruePoses {
+    /// The true pose nearest `stamp_ns`, if one lies within 10 ms of it.
+    pub fn at(&self, stamp_ns: u64) -> Option<Isometry2<f32>> {
+        self.0
+            .iter()
+            .min_by_key(|t| t.stamp_ns.abs_diff(stamp_ns))
+            .filter(|t| t.stamp_ns.abs_diff(stamp_ns) < 10_000_000)
+            .map(|t| Isometry2::new(Vector2::new(t.x_m, t.y_m), t.theta_rad))
+    }
+}
+
+/// `n` messages of `estimates`, and every true pose that arrived on `truth` meanwhile.
+pub fn collect_with_truth<T>(
+    node: &Node<Ipc>,
+    truth: &Subscriber<Ipc, Pose2D, ()>,
+    mut estimates: impl FnMut() -> Option<T>,
+    n: usize,
+) -> (Vec<T>, TruePoses) {
+    let mut true_poses = Vec::new();
+    let got = collect_until(
+        node,
+        || {
+            while let Some(p) = truth.receive().unwrap() {
+                true_poses.push(*p.payload());
+            }
+            estimates()
+        },
+        |got| got.len() >= n,
+    );
+    (got, TruePoses(true_poses))
 }

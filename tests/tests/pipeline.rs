@@ -17,9 +17,9 @@ use sonar_common::protocol::{
 };
 use sonar_e2e::{
     FakeSerial, GridSnapshot, PATIENCE, Sandbox, back_wall_seen_at, check_ok, collect_until,
-    corridor_grid_config, driver_status_subscriber, grid_subscriber, localized_pose_subscriber,
-    readings_subscriber, readings_subscribers, receive_reading, send_scan_command, wait_for_status,
-    wait_until,
+    collect_with_truth, corridor_grid_config, driver_status_subscriber, grid_subscriber,
+    localized_pose_subscriber, readings_subscriber, readings_subscribers, receive_reading,
+    send_scan_command, wait_for_status, wait_until,
 };
 
 /// The test plays the microcontroller on a pseudo-terminal of its own.
@@ -1189,24 +1189,13 @@ fn a_drifting_robot_is_localised_near_the_truth() {
 
     // Sweeps until the robot has been into both rooms and back to the corridor's far end (20
     // sweeps, 240 s simulated, 24 s here), the truth beside them.
-    let mut true_poses = Vec::new();
-    let sweeps = collect_until(
+    let (sweeps, true_poses) = collect_with_truth(
         &node,
-        || {
-            while let Some(p) = truth.receive().unwrap() {
-                true_poses.push(*p.payload());
-            }
-            localized.receive().unwrap().map(|s| *s.payload())
-        },
-        |got| got.len() >= 20,
+        &truth,
+        || localized.receive().unwrap().map(|s| *s.payload()),
+        20,
     );
-    let truth_at = |stamp_ns: u64| {
-        true_poses
-            .iter()
-            .min_by_key(|t| t.stamp_ns.abs_diff(stamp_ns))
-            .filter(|t| t.stamp_ns.abs_diff(stamp_ns) < 10_000_000)
-            .map(|t| Isometry2::new(Vector2::new(t.x_m, t.y_m), t.theta_rad))
-    };
+    let truth_at = |stamp_ns: u64| true_poses.at(stamp_ns);
     // The map's frame is the odometry's at the first reading the fusion heard (the robot may
     // have set off before): the truth is brought into it through the first sweep.
     let first = &sweeps[0];

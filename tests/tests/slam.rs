@@ -4,10 +4,10 @@
 use nalgebra::{Isometry2, Matrix3, Vector2, Vector3};
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
-use sonar_common::ipc::{self, Pose2D, Reading, SlamCorrection};
+use sonar_common::ipc::{self, Reading, SlamCorrection};
 use sonar_e2e::{
-    Sandbox, back_wall_seen_at, collect_until, corridor_grid_config, grid_subscriber,
-    readings_subscribers, wait_until,
+    Sandbox, back_wall_seen_at, collect_until, collect_with_truth, corridor_grid_config,
+    grid_subscriber, readings_subscribers, wait_until,
 };
 
 /// χ² of 3 degrees of freedom at 95 %: the pose's own 95 % ellipsoid.
@@ -88,24 +88,13 @@ fn sonar_slam_corrects_a_drifting_odometry_and_the_fusion_maps_with_it() {
     let _driver = sandbox.spawn("sonar-driver", &["--port", &pty]);
 
     // Sweeps until the robot has been into both rooms and back (as the localisation test).
-    let mut true_poses: Vec<Pose2D> = Vec::new();
-    let sweeps = collect_until(
+    let (sweeps, true_poses) = collect_with_truth(
         &node,
-        || {
-            while let Some(p) = truth.receive().unwrap() {
-                true_poses.push(*p.payload());
-            }
-            corrections.receive().unwrap().map(|s| *s.payload())
-        },
-        |got| got.len() >= 20,
+        &truth,
+        || corrections.receive().unwrap().map(|s| *s.payload()),
+        20,
     );
-    let truth_at = |stamp_ns: u64| {
-        true_poses
-            .iter()
-            .min_by_key(|t| t.stamp_ns.abs_diff(stamp_ns))
-            .filter(|t| t.stamp_ns.abs_diff(stamp_ns) < 10_000_000)
-            .map(|t| Isometry2::new(Vector2::new(t.x_m, t.y_m), t.theta_rad))
-    };
+    let truth_at = |stamp_ns: u64| true_poses.at(stamp_ns);
     // The SLAM's map is the odometry's frame at its first sweep: the truth is brought into it
     // through that sweep.
     let first = &sweeps[0];
