@@ -868,7 +868,15 @@ impl Link {
 
     fn on_message(&mut self, msg: DeviceMessage) -> Result<()> {
         match &msg {
-            DeviceMessage::Hello { .. } => self.hello = Some(msg),
+            DeviceMessage::Hello { .. } => {
+                // Identified from this line on, not from the end of the read that brought it:
+                // the readings after it in the same read are this head's too, whatever the
+                // serial line's timing put into one read (a test once saw one withheld).
+                if !self.identified && self.accept_head(&msg).is_ok() {
+                    self.identified = true;
+                }
+                self.hello = Some(msg);
+            }
             DeviceMessage::Error { code, text } => {
                 if *code == ErrorCode::Version {
                     self.version_rejected = true;
