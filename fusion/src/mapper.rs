@@ -10,8 +10,7 @@ use crate::geometry::wrap_angle;
 use crate::grid::{OccupancyGrid, with_layer};
 use crate::kernel::ConeCache;
 use crate::lines::{Lines, Patch, Stretch};
-use crate::model::{ModelConfig, with_model};
-use crate::model::{RegionEcho, SmoothModel};
+use crate::model::{CellEvidence, ModelConfig, SmoothModel, with_model};
 use crate::observation::{Beam, Observation, ObservationError};
 use crate::radar::RadarMap;
 use crate::reference::PaperArrays;
@@ -151,26 +150,21 @@ impl Mapper {
         self.readings += 1;
         self.pose = obs.pose;
         let mut cells_updated = 0;
-        if let Some(regions) = &mut self.regions {
+        if let Some(mut regions) = self.regions.take() {
             let heard = Heard {
                 position: obs.pose.translation.vector,
                 axis: wrap_angle(obs.pose.rotation.angle() + obs.angle_rad),
                 range: beam.and_then(|b| b.echo),
             };
             // A region this reading closes is placed first: it lies before this reading.
-            let closed = regions.tracker.push(&heard, &regions.tolerance);
-            let mut waiting = std::mem::take(&mut regions.waiting);
-            let defer = heard.range.is_some();
-            if let Some(region) = closed {
-                cells_updated += self.close(&region, &mut waiting, kernel);
+            if let Some(region) = regions.tracker.push(&heard, &regions.tolerance) {
+                cells_updated += self.close(&mut regions, &region, kernel);
             }
-            if let (true, Some(beam)) = (defer, beam) {
-                waiting.push(beam);
-            }
-            if let Some(regions) = &mut self.regions {
-                regions.waiting = waiting;
-            }
-            if defer {
+            // A reading with an echo waits for its region to close.
+            let waits = beam.filter(|b| b.echo.is_some());
+            regions.waiting.extend(waits);
+            self.regions = Some(regions);
+            if waits.is_some() {
                 return Ok(Update {
                     radar_bin,
                     cells_updated,
@@ -188,27 +182,31 @@ impl Mapper {
 
     /// Fuses one reading's beam with the model's evidence.
     fn fuse_beam(&mut self, beam: &Beam, kernel: Kernel) -> usize {
+        let model = self.config.model;
+        with_model!(&model, m => self.apply(beam, &m.reading(beam), kernel))
+    }
+
+    /// Fuses `evidence` seen along `beam` with the chosen kernel.
+    fn apply<E: CellEvidence>(&mut self, beam: &Beam, evidence: &E, kernel: Kernel) -> usize {
         let (geometry, store, heard) = self.grid.parts_mut();
         let (cones, arrays) = (&mut self.cones, &mut self.paper_arrays);
-        with_model!(&self.config.model, m => {
-            let evidence = m.reading(beam);
-            with_layer!(store, layer => match kernel {
-                Kernel::Cone => cones.update(layer, heard, geometry, beam, &evidence),
-                Kernel::WholeGrid => arrays.update(layer, heard, geometry, beam, &evidence),
-            })
+        with_layer!(store, layer => match kernel {
+            Kernel::Cone => cones.update(layer, heard, geometry, beam, evidence),
+            Kernel::WholeGrid => arrays.update(layer, heard, geometry, beam, evidence),
         })
     }
 
-    /// Places a closed region, if whole, and the free evidence of its `waiting` readings (emptied).
-    fn close(&mut self, region: &Region, waiting: &mut Vec<Beam>, kernel: Kernel) -> usize {
+    /// Places a closed region, if whole, and the free evidence of the readings waiting for it;
+    /// they are forgotten either way.
+    fn close(&mut self, regions: &mut Regions, region: &Region, kernel: Kernel) -> usize {
         let mut cells = 0;
         if region.is_whole() {
-            cells += self.place_region(region, kernel);
-            for beam in waiting.iter() {
+            cells += self.place_region(regions, region, kernel);
+            for beam in &regions.waiting {
                 cells += self.fuse_beam(beam, kernel);
             }
         }
-        waiting.clear();
+        regions.waiting.clear();
         cells
     }
 
@@ -216,23 +214,20 @@ impl Mapper {
     /// evidence now instead of when the next reading closes it: at the end of a sweep, or before
     /// the map is read when no more readings follow. Returns the cells it updated.
     pub fn close_region(&mut self) -> usize {
-        let Some(regions) = &mut self.regions else {
+        let Some(mut regions) = self.regions.take() else {
             return 0;
         };
-        let Some(region) = regions.tracker.close() else {
-            return 0;
+        let cells = match regions.tracker.close() {
+            Some(region) => self.close(&mut regions, &region, Kernel::Cone),
+            None => 0,
         };
-        let mut waiting = std::mem::take(&mut regions.waiting);
-        let cells = self.close(&region, &mut waiting, Kernel::Cone);
-        if let Some(regions) = &mut self.regions {
-            regions.waiting = waiting;
-        }
+        self.regions = Some(regions);
         cells
     }
 
     /// Fuses a closed region's occupied evidence: a straight patch at its middle bearing and range;
     /// then the stretches of wall between it and the patches other viewpoints placed on its line.
-    fn place_region(&mut self, region: &Region, kernel: Kernel) -> usize {
+    fn place_region(&mut self, regions: &mut Regions, region: &Region, kernel: Kernel) -> usize {
         let ModelConfig::Smooth(model) = self.config.model else {
             return 0;
         };
@@ -244,37 +239,18 @@ impl Mapper {
             max_range: self.config.sensor.limits().max_range,
             echo: Some(region.range),
         };
-        let mut cells = self.place_patch(
-            &beam,
-            &model.region_echo(&beam, region.range, half_angle),
-            kernel,
-        );
-        let Some(regions) = &mut self.regions else {
-            return cells;
-        };
-        let mut stretches = std::mem::take(&mut regions.stretches);
+        let evidence = model.region_echo(region.axis, region.range, half_angle);
+        let mut cells = self.apply(&beam, &evidence, kernel);
         regions.lines.add(
             Patch::new(region.position, region.axis, region.range, half_angle),
-            &mut stretches,
+            &mut regions.stretches,
         );
-        for stretch in &stretches {
+        for stretch in &regions.stretches {
             if !self.seen_through(stretch) {
                 cells += self.place_stretch(&model, stretch, kernel);
             }
         }
-        if let Some(regions) = &mut self.regions {
-            regions.stretches = stretches;
-        }
         cells
-    }
-
-    fn place_patch(&mut self, beam: &Beam, evidence: &RegionEcho, kernel: Kernel) -> usize {
-        let (geometry, store, heard) = self.grid.parts_mut();
-        let (cones, arrays) = (&mut self.cones, &mut self.paper_arrays);
-        with_layer!(store, layer => match kernel {
-            Kernel::Cone => cones.update(layer, heard, geometry, beam, evidence),
-            Kernel::WholeGrid => arrays.update(layer, heard, geometry, beam, evidence),
-        })
     }
 
     /// Whether readings saw through `stretch`: three cells in a row along it that the grid holds
@@ -317,8 +293,8 @@ impl Mapper {
             echo: Some(distance),
         };
         // The profile reaches past the stretch's ends, so that they get more than a trace.
-        let evidence = model.region_echo(&beam, distance, 1.5 * cut);
-        self.place_patch(&beam, &evidence, kernel)
+        let evidence = model.region_echo(stretch.facing, distance, 1.5 * cut);
+        self.apply(&beam, &evidence, kernel)
     }
 
     /// Copies both maps and the counters into `out`, for saving (into its allocations).

@@ -702,11 +702,12 @@ impl SmoothModel {
         }
     }
 
-    /// The occupied evidence of a closed region of constant depth seen along `beam` (its middle
-    /// bearing, its mean range): a straight patch square to the axis at the range, `band` thick,
-    /// fading as 1 − (α/θ)² to the patch's half-angle θ; each of its cells remembers the axis as
-    /// the bearing it was heard from (the reflector's normal, if it is a wall).
-    pub(crate) fn region_echo(&self, beam: &Beam, range: f32, half_angle: f32) -> RegionEcho {
+    /// The occupied evidence of a closed region of constant depth seen along world bearing `axis`
+    /// (its middle bearing) at `range` (its mean range): a straight patch square to the axis at
+    /// the range, `band` thick, fading as 1 − (α/θ)² to the patch's half-angle θ = `half_angle`;
+    /// each of its cells remembers the axis as the bearing it was heard from (the reflector's
+    /// normal, if it is a wall).
+    pub(crate) fn region_echo(&self, axis: f32, range: f32, half_angle: f32) -> RegionEcho {
         let band = self.band(range);
         RegionEcho {
             d: range,
@@ -716,7 +717,7 @@ impl SmoothModel {
             inv_sq: 1.0 / (half_angle * half_angle),
             fade_range: self.fade_range_m,
             half_angle: half_angle * 1.001,
-            normal: beam.axis,
+            normal: axis,
         }
     }
 
