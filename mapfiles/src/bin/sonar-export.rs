@@ -759,7 +759,6 @@ fn fuse_recording<W: Write + Seek>(
         fused: 0,
         refused: 0,
         stamp: 0,
-        sweep: None,
         snapshots: 0,
     };
     for entry in &recording.entries {
@@ -837,7 +836,6 @@ struct Run {
     refused: u64,
     /// The stamp of the last reading fused.
     stamp: u64,
-    sweep: Option<u32>,
     snapshots: u64,
 }
 
@@ -873,11 +871,7 @@ impl Run {
         r: &Reading,
         mcap: Option<&mut McapExport<W>>,
     ) -> Result<()> {
-        if self
-            .sweep
-            .replace(r.sweep_id)
-            .is_some_and(|s| s != r.sweep_id)
-        {
+        if self.engine.starts_new_sweep(r) {
             self.engine.close_region();
             if let Some(mcap) = mcap {
                 self.snapshots += 1;
