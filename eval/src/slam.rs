@@ -524,25 +524,19 @@ pub fn evaluate(settings: &SlamSettings) -> Result<Vec<Run>> {
 }
 
 fn largest(p: &[Placed], heading: bool) -> f64 {
-    p.iter()
-        .map(|s| {
-            if heading {
-                s.error.heading_deg
-            } else {
-                s.error.position_m
-            }
-        })
-        .fold(0.0, f64::max)
+    largest_of(p, heading, |s| &s.error)
 }
 
 fn largest_odometry(p: &[Placed], heading: bool) -> f64 {
+    largest_of(p, heading, |s| &s.odometry)
+}
+
+/// The largest heading (or position) of the errors `of` picks from each sweep.
+fn largest_of(p: &[Placed], heading: bool, of: impl Fn(&Placed) -> &PoseError) -> f64 {
     p.iter()
         .map(|s| {
-            if heading {
-                s.odometry.heading_deg
-            } else {
-                s.odometry.position_m
-            }
+            let e = of(s);
+            if heading { e.heading_deg } else { e.position_m }
         })
         .fold(0.0, f64::max)
 }
