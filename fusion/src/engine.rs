@@ -11,7 +11,6 @@
 use std::collections::VecDeque;
 
 use nalgebra::Isometry2;
-use serde::{Deserialize, Serialize};
 use sonar_common::ipc::{
     FusionCommand, FusionCommandKind, GridHeader, LAYOUT_VERSION, Pose2D, RADAR_MAX_BINS, Radar,
     Reading, preset_code,
@@ -24,7 +23,7 @@ use crate::model::{ModelConfig, ModelKind};
 use crate::observation::Observation;
 use crate::poses::{PlacedPose, PoseError, PoseKind, PoseTrack};
 use crate::rule::{RuleConfig, RuleKind};
-use crate::state::{MapState, SavedMap, SavedObservation, StateError};
+use crate::state::{MapState, SavedObservation, ScanState, StateError};
 
 /// A command the engine refuses; the maps are unchanged.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -37,12 +36,11 @@ pub enum CommandError {
     Config(#[from] ConfigError),
 }
 
-/// What the latest reading said about the scan, for the snapshots' headers.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-pub(crate) struct ScanState {
-    sweep_id: u32,
-    direction: i8,
-    mode: u8,
+/// What a map file holds: the settings the map was built with, and the engine's state.
+#[derive(Debug, Clone, Default)]
+pub struct SavedMap {
+    pub settings: FusionConfig,
+    pub state: MapState,
 }
 
 /// Both maps, the observations behind them, and the scan state.
@@ -358,15 +356,15 @@ impl Engine {
     }
 
     /// The grid's cells in the snapshot encoding and their counts, as kept up to date while
-    /// fusing ([`crate::OccupancyGrid::encoded`]).
+    /// fusing ([`crate::grid::OccupancyGrid::encoded`]).
     pub fn encoded_grid(&mut self) -> (&[u8], CellCounts) {
         self.mapper.grid_mut().encoded()
     }
 
     /// The grid, for reads that bring its kept state up to date first
-    /// ([`crate::OccupancyGrid::confident_cells`], [`crate::OccupancyGrid::encoded`]). Change the
+    /// ([`crate::grid::OccupancyGrid::confident_cells`], [`crate::grid::OccupancyGrid::encoded`]). Change the
     /// maps through [`Self::fuse`] and [`Self::apply`]: they keep the history and the revision.
-    pub fn grid_mut(&mut self) -> &mut crate::OccupancyGrid {
+    pub fn grid_mut(&mut self) -> &mut crate::grid::OccupancyGrid {
         self.mapper.grid_mut()
     }
 

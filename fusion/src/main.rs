@@ -35,10 +35,10 @@ use sonar_common::ipc::{
     Radar, Reading, SlamCorrection, unix_time_ns,
 };
 use sonar_common::throttle::Throttle;
+use sonar_fusion::SavedMap;
 use sonar_fusion::engine::Engine;
 use sonar_fusion::persist::{self, Restore, SaveReport, Saver};
 use sonar_fusion::poses::MAX_POSE_WAIT;
-use sonar_fusion::state::SavedMap;
 use sonar_fusion::status::{Ledger, SeqStep};
 use sonar_fusion::{
     FeatureTracker, FeaturesSection, FusionConfig, FusionFile, FusionSection, ModelConfig,
