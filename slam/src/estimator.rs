@@ -36,7 +36,7 @@ use serde::{Deserialize, Serialize};
 use sonar_common::ipc::Reading;
 use sonar_features::{FeatureConfig, FeatureMap, Sweep, wrap_rad};
 
-use crate::SlamError;
+use crate::error::SlamError;
 use crate::graph::{Graph, LandmarkKind, Measurement, Var, place, predict};
 use crate::odometry::{OdometryTrack, random_covariance};
 

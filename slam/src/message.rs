@@ -4,7 +4,7 @@
 use nalgebra::{Isometry2, Matrix3};
 use sonar_common::ipc::{LAYOUT_VERSION, SlamCorrection, slam_state};
 
-use crate::{FixState, SweepEstimate};
+use crate::estimator::{FixState, SweepEstimate};
 
 /// The [`slam_state`] code of a fix state.
 pub fn state_code(state: FixState) -> u32 {
