@@ -8,8 +8,6 @@
 //! the model, the rule or the preset re-fuses the same data: a user compares methods on one scan
 //! instead of waiting for new sweeps.
 
-use std::collections::VecDeque;
-
 use nalgebra::Isometry2;
 use sonar_common::ipc::{
     FusionCommand, FusionCommandKind, GridHeader, LAYOUT_VERSION, Pose2D, RADAR_MAX_BINS, Radar,
@@ -18,6 +16,7 @@ use sonar_common::ipc::{
 
 use crate::config::{ConfigError, FusionConfig, Preset};
 use crate::grid::CellCounts;
+use crate::history::{History, Placement, Revised};
 use crate::mapper::Mapper;
 use crate::model::{ModelConfig, ModelKind};
 use crate::observation::Observation;
@@ -47,8 +46,7 @@ pub struct SavedMap {
 #[derive(Debug)]
 pub struct Engine {
     mapper: Mapper,
-    history: VecDeque<Observation>,
-    history_limit: usize,
+    history: History,
     scan: Option<ScanState>,
     /// The robot's recent poses: each reading is placed at its own instant.
     poses: PoseTrack,
@@ -73,8 +71,7 @@ impl Engine {
     pub fn new(config: FusionConfig, history_limit: usize) -> Result<Self, ConfigError> {
         Ok(Self {
             mapper: Mapper::new(config)?,
-            history: VecDeque::new(),
-            history_limit,
+            history: History::new(history_limit),
             scan: None,
             poses: PoseTrack::new(Isometry2::identity()),
             pose: Isometry2::identity(),
@@ -98,13 +95,10 @@ impl Engine {
         let skip = state.history.len().saturating_sub(history_limit);
         Ok(Self {
             mapper: Mapper::restore(config, state.maps)?,
-            history: state
-                .history
-                .into_iter()
-                .skip(skip)
-                .map(Into::into)
-                .collect(),
-            history_limit,
+            history: History::restored(
+                history_limit,
+                state.history.into_iter().skip(skip).map(Into::into),
+            ),
             scan: state.scan,
             poses: PoseTrack::new(state.robot_pose.into()),
             pose: state.robot_pose.into(),
@@ -136,7 +130,7 @@ impl Engine {
         state.history.clear();
         state
             .history
-            .extend(self.history.iter().map(SavedObservation::from));
+            .extend(self.history.observations().map(SavedObservation::from));
         state.scan = self.scan;
         state.robot_pose = self.poses.latest().into();
         state.rejected_readings = self.rejected_readings;
@@ -203,6 +197,35 @@ impl Engine {
         self.correction = correction;
     }
 
+    /// Moves the kept readings of each sweep in `corrections` (sweep id, map ← odometry as now
+    /// estimated; the SLAM's revisions) to where that correction places them, and starts
+    /// rebuilding the maps from them if some moved by more than half a cell
+    /// ([`crate::history`]); [`Self::rebuild_step`] carries it on.
+    pub fn revise(&mut self, corrections: &[(u32, Isometry2<f32>)]) -> Revised {
+        let config = *self.mapper.config();
+        let tolerance = config.grid.resolution_m / 2.0;
+        self.history.revise(corrections, tolerance, || {
+            // The settings are the live maps', which were valid.
+            Mapper::new(config).unwrap_or_else(|_| unreachable!("the live maps' settings"))
+        })
+    }
+
+    /// Carries a rebuild on by up to `budget` readings; true when the rebuilt maps replaced
+    /// the live ones.
+    pub fn rebuild_step(&mut self, budget: usize) -> bool {
+        let Some(mapper) = self.history.rebuild_step(budget) else {
+            return false;
+        };
+        self.mapper = mapper;
+        self.revision += 1;
+        true
+    }
+
+    /// Whether the maps are being rebuilt after a revision.
+    pub fn rebuilding(&self) -> bool {
+        self.history.rebuilding()
+    }
+
     /// Takes a pose of the robot (`robot/pose`); readings are placed at the pose interpolated at
     /// their own stamp ([`crate::poses`]). A non-finite or out-of-order pose is refused.
     pub fn set_pose(&mut self, pose: &Pose2D) -> Result<(), PoseError> {
@@ -251,12 +274,13 @@ impl Engine {
             self.rejected_readings += 1;
             return false;
         }
-        if self.history_limit > 0 {
-            if self.history.len() == self.history_limit {
-                self.history.pop_front();
-            }
-            self.history.push_back(obs);
-        }
+        self.history.push(
+            obs,
+            Some(Placement {
+                sweep_id: reading.sweep_id,
+                correction: self.correction,
+            }),
+        );
         true
     }
 
@@ -305,12 +329,13 @@ impl Engine {
     /// Rebuilds the maps for `config` from the kept observations.
     fn reconfigure(&mut self, config: FusionConfig) -> Result<(), CommandError> {
         let mut mapper = Mapper::new(config)?;
-        for obs in &self.history {
+        for obs in self.history.observations() {
             // Every kept observation was accepted once; the limits of the new configuration are
             // the same (grid and sensor are kept), so none is refused now.
             let _ = mapper.update(obs);
         }
         self.mapper = mapper;
+        self.history.rebuilt_at_once();
         self.revision += 1;
         Ok(())
     }
@@ -477,6 +502,39 @@ mod tests {
         assert_eq!(h.model, model_code::PAPER);
         assert_eq!(h.rule, rule_code::BAYES);
         assert_eq!(h.readings_fused, readings.len() as u64);
+    }
+
+    /// The SLAM revises sweep 1, placed before its correction was known: the maps rebuilt in
+    /// steps equal maps fused with that correction from the start.
+    #[test]
+    fn a_revised_sweep_is_fused_again_where_its_correction_places_it() {
+        let readings = sweeps();
+        let correction = Isometry2::new(nalgebra::Vector2::new(0.3, -0.2), 0.1);
+        let mut live = Engine::new(FusionConfig::default(), 1000).unwrap();
+        for r in &readings {
+            if r.sweep_id == 2 {
+                live.set_correction(correction);
+            }
+            live.fuse(r);
+        }
+        let mut right = Engine::new(FusionConfig::default(), 1000).unwrap();
+        right.set_correction(correction);
+        for r in &readings {
+            right.fuse(r);
+        }
+        assert_ne!(encoded(&mut live), encoded(&mut right));
+        assert_eq!(live.revise(&[(1, correction)]), Revised::Rebuilding(50));
+        let before = encoded(&mut live);
+        let mut steps = 0;
+        while !live.rebuild_step(32) {
+            steps += 1;
+            // The live maps stay as they were until the rebuilt ones replace them.
+            assert_eq!(encoded(&mut live), before);
+        }
+        assert_eq!(steps, 3, "100 readings in steps of 32");
+        assert!(!live.rebuilding());
+        assert_eq!(encoded(&mut live), encoded(&mut right));
+        assert_eq!(live.revise(&[(1, correction)]), Revised::Unmoved);
     }
 
     #[test]

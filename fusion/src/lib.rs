@@ -193,6 +193,7 @@ pub mod features;
 pub mod file;
 pub mod geometry;
 pub mod grid;
+pub mod history;
 pub mod kernel;
 mod lines;
 pub mod mapper;

@@ -55,6 +55,8 @@ pub mod odometry;
 pub mod section;
 
 pub use error::SlamError;
-pub use estimator::{FixState, Landmark, Slam, SlamConfig, SweepEstimate, chi2_quantile};
+pub use estimator::{
+    FixState, Landmark, Slam, SlamConfig, SweepEstimate, SweepPose, chi2_quantile,
+};
 pub use graph::LandmarkKind;
 pub use section::SlamSection;
