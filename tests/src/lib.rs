@@ -65,7 +65,7 @@ pub fn python() -> PathBuf {
     assert!(
         python.exists(),
         "{} missing: run .ci/run once (it makes .venv and installs iceoryx2, mcap, \
-         mcap-protobuf-support, websockets and rosbags)",
+         mcap-protobuf-support, websockets, rosbags and eclipse-zenoh)",
         python.display()
     );
     python
