@@ -48,12 +48,18 @@ if (args.recording) {
   roots["/data/"] = dirname(resolve(args.recording));
 }
 
+function notFound(response, path) {
+  // Named here: the page's console says only that something was not found.
+  console.log(`HTTP 404 ${path}`);
+  response.writeHead(404).end();
+}
+
 function serve(request, response) {
   const path = decodeURIComponent(new URL(request.url, "http://127.0.0.1").pathname);
   const prefix = Object.keys(roots).find((p) => path.startsWith(p));
   const file = prefix && resolve(roots[prefix], path.slice(prefix.length));
   if (!file || !file.startsWith(roots[prefix] + "/")) {
-    response.writeHead(404).end();
+    notFound(response, path);
     return;
   }
   let size;
@@ -62,7 +68,7 @@ function serve(request, response) {
     if (!stat.isFile()) throw new Error("not a file");
     size = stat.size;
   } catch {
-    response.writeHead(404).end();
+    notFound(response, path);
     return;
   }
   const headers = {
