@@ -124,6 +124,22 @@ function fail(message) {
   console.error(`FAILED: ${message}`);
 }
 
+function panel(page) {
+  return page.locator('[data-testid="panel-mouseenter-container 3D!sonar"]');
+}
+
+/** The 3D panel as the test left it, and the whole page beside it. */
+async function screenshot(page, name) {
+  const shot = join(args.out, `foxglove-${name}.png`);
+  if ((await panel(page).count()) > 0) {
+    await panel(page).screenshot({ path: shot });
+  } else {
+    fail(`${name}: no 3D panel on the page`);
+  }
+  await page.screenshot({ path: join(args.out, `foxglove-${name}-page.png`) });
+  console.log(`${name}: screenshot ${shot}`);
+}
+
 async function check(name, source, playToEnd) {
   const page = await browser.newPage();
   const pageErrors = [];
@@ -176,19 +192,26 @@ async function check(name, source, playToEnd) {
       const listed = await page.locator(".MuiListItemText-primary").allInnerTexts();
       fail(`${name}: the Problems tab lists ${JSON.stringify(listed)}`);
     }
+    await screenshot(page, name);
+    // The 3D panel's own errors (a topic it cannot draw, a frame it cannot place) are marked in
+    // its settings tree, each with an error icon whose tooltip says what.
+    await panel(page).getByLabel("Settings").click();
+    await page.getByText("3D panel settings", { exact: true }).waitFor({ timeout });
+    await page.waitForTimeout(1000);
+    const errors = page.locator('[data-testid="ErrorIcon"]');
+    const count = await errors.count();
+    if (count === 0) {
+      console.log(`${name}: no error in the 3D panel's settings`);
+    }
+    for (let i = 0; i < count; i += 1) {
+      await errors.nth(i).hover();
+      const text = await page.getByRole("tooltip").innerText({ timeout: 5000 }).catch(() => "?");
+      fail(`${name}: the 3D panel's settings show an error: ${text}`);
+    }
   } catch (error) {
     fail(`${name}: ${error.message.split("\n")[0]}`);
+    await screenshot(page, name);
   }
-  const shot = join(args.out, `foxglove-${name}.png`);
-  const panel = page.locator('[data-testid="panel-mouseenter-container 3D!sonar"]');
-  if ((await panel.count()) > 0) {
-    await panel.screenshot({ path: shot });
-  } else {
-    await page.screenshot({ path: shot });
-    fail(`${name}: no panel on the page (whole page in ${shot})`);
-  }
-  await page.screenshot({ path: join(args.out, `foxglove-${name}-page.png`) });
-  console.log(`${name}: screenshot ${shot}`);
   for (const error of pageErrors) {
     fail(`${name}: uncaught error in the page: ${error}`);
   }
