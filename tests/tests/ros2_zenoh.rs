@@ -5,10 +5,11 @@
 //! (`tests/python/check_ros2_zenoh.py`). All inside a network namespace of the test's own.
 #![allow(clippy::unwrap_used, clippy::expect_used)] // a panic is a failure
 
+use std::io::Read;
 use std::process::{Command, Stdio};
 
 use sonar_e2e::{
-    Netns, Sandbox, check_ok, collect_until, grid_subscriber, path_str, python,
+    Netns, Proc, Sandbox, check_ok, collect_until, grid_subscriber, path_str, python,
     readings_subscriber, readings_subscribers, wait_until, workspace,
 };
 
@@ -30,12 +31,17 @@ fn a_zenoh_peer_following_rmw_zenoh_s_design_receives_and_decodes_map_scan_and_t
     peer.arg(workspace().join("tests/python/check_ros2_zenoh.py"))
         .args(["tcp/127.0.0.1:7447", path_str(&stem), path_str(&ready)])
         .args(["--timeout", "120"]);
-    let peer = netns
-        .wrap(&peer)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    // A Proc: stopped if the test fails before it ends by itself.
+    let mut peer = Proc {
+        name: "check_ros2_zenoh.py".into(),
+        child: netns
+            .wrap(&peer)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    };
+    let mut peer_stdout = peer.child.stdout.take().unwrap();
     let fusion = sandbox.spawn("sonar-fusion", &["--no-persist"]);
     let bridge = sandbox.spawn("sonar-bridge", &["--mode", "ros2"]);
     wait_until(&node, "fusion's and the bridge's subscriptions", || {
@@ -72,8 +78,10 @@ fn a_zenoh_peer_following_rmw_zenoh_s_design_receives_and_decodes_map_scan_and_t
     );
     std::fs::write(&ready, "").unwrap();
 
-    let out = peer.wait_with_output().unwrap();
-    let summary = check_ok("check_ros2_zenoh.py", &out);
+    let (status, stderr) = peer.wait_exit();
+    let mut summary = String::new();
+    peer_stdout.read_to_string(&mut summary).unwrap();
+    assert!(status.success(), "check_ros2_zenoh.py: {summary}\n{stderr}");
     // map 400x400 known N maps M scans S tfs T tokens K scan_ranges R
     let words: Vec<&str> = summary.split_whitespace().collect();
     assert_eq!(words[0], "map", "{summary}");

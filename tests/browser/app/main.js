@@ -93,7 +93,10 @@ async function main() {
   await studio.initI18n();
   const params = new URLSearchParams(window.location.search);
   const topics = (params.get("sonar.topics") ?? "").split(",").filter(Boolean);
-  // The layout above is the one Foxglove opens (its profile names the layout last selected).
+  // A fresh start each load: Foxglove keeps its sidebars' state in localStorage, which the pages
+  // of one browser profile share. The layout above is the one it opens (its profile names the
+  // layout last selected).
+  window.localStorage.clear();
   window.localStorage.setItem("studio.profile-data", JSON.stringify({ currentLayoutId: "sonar-test" }));
   const configuration = new MemoryConfiguration({
     "ui.colorScheme": "dark",
