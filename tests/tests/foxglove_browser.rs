@@ -120,12 +120,17 @@ fn foxglove_studio_in_chromium_opens_a_recording_and_the_live_server() {
     assert!(report.contains("recording: played to its end"), "{report}");
     assert!(report.contains("recording: no problems"), "{report}");
     assert!(report.contains("live: no problems"), "{report}");
-    for source in ["recording", "live"] {
-        assert!(
-            report.contains(&format!("{source}: no error in the 3D panel's settings")),
-            "{report}"
-        );
-    }
+    assert!(
+        report.contains("recording: no error in the 3D panel's settings"),
+        "{report}"
+    );
+    // Live, the one known complaint at connection may stand (docs/foxglove.md); the driver
+    // failed on any other.
+    assert!(
+        report.contains("live: no error in the 3D panel's settings")
+            || report.contains("live: known error at connection"),
+        "{report}"
+    );
     for shot in ["foxglove-recording.png", "foxglove-live.png"] {
         let bytes = std::fs::read(out_dir.join(shot)).unwrap();
         assert!(bytes.starts_with(b"\x89PNG"), "{shot} is not a PNG");
