@@ -118,9 +118,6 @@ const browser = await chromium.launchPersistentContext(profile, {
   ],
 });
 
-/** The one complaint a live connection may leave (see its use). */
-const LIVE_START_ERROR = "Missing transform from frame <sonar> to frame <map>";
-
 let failures = 0;
 function fail(message) {
   failures += 1;
@@ -209,14 +206,7 @@ async function check(name, source, playToEnd) {
     for (let i = 0; i < count; i += 1) {
       await errors.nth(i).hover();
       const text = await page.getByRole("tooltip").innerText({ timeout: 5000 }).catch(() => "?");
-      if (!playToEnd && text === LIVE_START_ERROR) {
-        // Known (docs/foxglove.md, "How it is checked"): a live client can get a reading's beam
-        // before the first transform, which comes with the next map; Foxglove then keeps this
-        // complaint though it draws the beam once the transform is there.
-        console.log(`${name}: known error at connection: ${text}`);
-      } else {
-        fail(`${name}: the 3D panel's settings show an error: ${text}`);
-      }
+      fail(`${name}: the 3D panel's settings show an error: ${text}`);
     }
   } catch (error) {
     fail(`${name}: ${error.message.split("\n")[0]}`);

@@ -193,6 +193,8 @@ pub struct WellKnown {
     /// A pose source exists: the transforms follow it, not the grid's copy of the pose.
     pose_seen: bool,
     last_transform_ns: Option<u64>,
+    /// The sensor's transform last given out.
+    last_sensor: Option<Transform>,
     last_beam_ns: Option<u64>,
 }
 
@@ -205,6 +207,7 @@ impl WellKnown {
             pending_grid: None,
             pose_seen: false,
             last_transform_ns: None,
+            last_sensor: None,
             last_beam_ns: None,
         }
     }
@@ -219,7 +222,10 @@ impl WellKnown {
     }
 
     /// A reading: the previous sweep's scan when it begins a new sweep, and its beam unless one
-    /// was given less than [`BEAM_PERIOD_NS`] before (by the readings' stamps).
+    /// was given less than [`BEAM_PERIOD_NS`] before (by the readings' stamps), after the
+    /// sensor's latest transform on Foxglove's channel: a live client that connected since the
+    /// last transform (a pose's come at most 20 a second, a fixed head's with each map) would
+    /// otherwise get a beam in frame `sonar` before any transform, a complaint Foxglove keeps.
     pub fn reading(&mut self, reading: &Reading) -> Vec<Output> {
         let mut out = match self.scans.push(reading) {
             Some(scan) => self.scan(&scan),
@@ -231,6 +237,20 @@ impl WellKnown {
             .is_none_or(|last| stamp_ns < last || stamp_ns >= last.saturating_add(BEAM_PERIOD_NS));
         if due {
             self.last_beam_ns = Some(stamp_ns);
+            let sensor = match (self.last_sensor, self.pose_seen) {
+                (Some(t), _) => Some(t),
+                // A fixed head before its first map: at the origin, where the fusion places it.
+                (None, false) => Some(Transform::sensor(stamp_ns, 0.0, 0.0, 0.0)),
+                // A moving one before its first pose: nowhere known yet.
+                (None, true) => None,
+            };
+            // Foxglove's channel only: the same transform again on ROS 2's `/tf` is what tf2
+            // warns about (a repeated stamp).
+            out.extend(sensor.map(|t| Output {
+                channel: Channel::FoxgloveTransform,
+                stamp_ns: t.stamp_ns,
+                data: foxglove_msgs::encode(&foxglove_msgs::frame_transform(&t)),
+            }));
             out.push(Output {
                 channel: Channel::FoxgloveBeam,
                 stamp_ns,
@@ -349,6 +369,7 @@ impl WellKnown {
 
     fn transform(&mut self, t: Transform) -> Vec<Output> {
         self.last_transform_ns = Some(t.stamp_ns);
+        self.last_sensor = Some(t);
         let mut out = vec![Output {
             channel: Channel::FoxgloveTransform,
             stamp_ns: t.stamp_ns,

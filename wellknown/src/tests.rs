@@ -137,6 +137,22 @@ fn with_a_pose_source_transforms_follow_it_at_most_twenty_a_second() {
     assert_eq!(t.translation.unwrap().y, -2.0);
     assert!(w.pose(&pose(SECOND + 49_000_000)).is_empty());
     assert_eq!(w.pose(&pose(SECOND + 50_000_000)).len(), 2);
+    // A beam comes after the latest transform again, on Foxglove's channel only (tf2 warns of a
+    // repeated stamp on ROS 2's), so a client that connected since gets it first.
+    let beam = w.reading(&Reading {
+        host_stamp_ns: SECOND + 70_000_000,
+        distance_m: 1.0,
+        ..Reading::default()
+    });
+    assert_eq!(
+        channels(&beam),
+        [Channel::FoxgloveTransform, Channel::FoxgloveBeam]
+    );
+    assert_eq!(
+        beam[0].stamp_ns,
+        SECOND + 50_000_000,
+        "the pose's own stamp"
+    );
     // The map no longer brings a transform of its own.
     assert_eq!(
         channels(&w.grid(&header(2 * SECOND), &CELLS)),
@@ -154,11 +170,19 @@ fn a_sweep_becomes_a_scan_when_the_next_begins_and_the_last_at_the_end() {
         host_stamp_ns: 5,
         ..Reading::default()
     };
-    // The first reading's beam; the others come within the beam period (the same stamp).
+    // The first reading's beam, after the sensor's transform (a fixed head before its first
+    // map: at the origin); the others come within the beam period (the same stamp).
+    let first = w.reading(&reading(1, 0.0));
     assert_eq!(
-        channels(&w.reading(&reading(1, 0.0))),
-        [Channel::FoxgloveBeam]
+        channels(&first),
+        [Channel::FoxgloveTransform, Channel::FoxgloveBeam]
     );
+    let t = FrameTransform::decode(&first[0].data[..]).unwrap();
+    assert_eq!(
+        (t.parent_frame_id.as_str(), t.child_frame_id.as_str()),
+        ("map", "sonar")
+    );
+    assert_eq!(t.translation.unwrap().x, 0.0);
     assert!(w.reading(&reading(1, 6.0)).is_empty());
     let out = w.reading(&reading(2, 6.0));
     assert_eq!(channels(&out), [Channel::FoxgloveScan]);
