@@ -10,8 +10,10 @@ use sonar_common::ipc::{
     FeatureRecord, FeaturesHeader, GridHeader, Reading, decode_probability, feature_kind,
 };
 
+use crate::frame::{MAP_FRAME, SENSOR_FRAME, Transform, yaw_quaternion};
+use crate::occupancy::occupancy;
 use crate::scan::Scan;
-use crate::{MAP_FRAME, SENSOR_FRAME, SchemaParts, Transform, occupancy, yaw_quaternion};
+use crate::schema::SchemaParts;
 
 /// The schema of a Foxglove message type as its SDK defines it.
 pub(crate) fn schema<T: Encode>() -> SchemaParts {

@@ -13,7 +13,7 @@ use sonar_common::ipc::{
 };
 use tracing::warn;
 
-use crate::{Output, WellKnown};
+use crate::convert::{Output, WellKnown};
 
 /// The pipeline's services a live server reads; the optional ones are left out with a warning
 /// when their QoS has no room for another subscriber.

@@ -9,8 +9,10 @@
 
 use sonar_common::ipc::GridHeader;
 
+use crate::frame::Transform;
+use crate::occupancy::occupancy;
 use crate::scan::Scan;
-use crate::{Transform, occupancy};
+use crate::schema::SchemaParts;
 
 /// Schema encoding of ROS 2 message definitions in MCAP.
 pub const SCHEMA_ENCODING: &str = "ros2msg";
@@ -152,7 +154,7 @@ impl Cdr {
         for v in [x, y, 0.0] {
             self.f64(v);
         }
-        let (qz, qw) = crate::yaw_quaternion(theta);
+        let (qz, qw) = crate::frame::yaw_quaternion(theta);
         for v in [0.0, 0.0, qz, qw] {
             self.f64(v);
         }
@@ -160,7 +162,7 @@ impl Cdr {
 }
 
 /// The map as `nav_msgs/msg/OccupancyGrid` in frame `frame_id`: the cells as
-/// [`occupancy`](crate::occupancy) (−1 unknown, 0–100), row 0 at the lowest y, like ours.
+/// [`occupancy`](crate::occupancy::occupancy) (−1 unknown, 0–100), row 0 at the lowest y, like ours.
 pub fn occupancy_grid(header: &GridHeader, cells: &[u8], frame_id: &str) -> Vec<u8> {
     let mut m = Cdr::new();
     m.header(header.stamp_ns, frame_id);
@@ -207,6 +209,16 @@ pub fn tf_message(transforms: &[Transform]) -> Vec<u8> {
         m.planar(t.x, t.y, t.theta);
     }
     m.buf
+}
+
+/// The schema of a ROS 2 message type from its definition's text.
+pub(crate) fn schema_parts(name: &str, text: String) -> SchemaParts {
+    (
+        name.into(),
+        SCHEMA_ENCODING.into(),
+        text.into_bytes(),
+        MESSAGE_ENCODING.into(),
+    )
 }
 
 #[cfg(test)]

@@ -1,6 +1,8 @@
 use foxglove::Decode;
 use foxglove::messages::{FrameTransform, Grid, LaserScan, SceneUpdate};
-use sonar_common::ipc::{feature_kind, flags};
+use sonar_common::ipc::{
+    CELL_UNKNOWN, FeatureRecord, FeaturesHeader, GridHeader, Pose2D, Reading, feature_kind, flags,
+};
 
 use super::*;
 
