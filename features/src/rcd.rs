@@ -391,7 +391,7 @@ fn split_steps(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) 
             .collect();
         let width = pings[run.last].bearing_deg - pings[run.first].bearing_deg + sweep.step_deg();
         let too_wide =
-            width > cfg.echo.widest_region_deg(run.stats.mean(), beam) + cfg.width_tolerance_deg();
+            width > cfg.echo.widest_region_deg(run.stats.mean(), beam) + cfg.width_tolerance_deg(sweep.step_deg());
         let threshold = if too_wide {
             WIDE_STEP_SIGMAS
         } else {
@@ -473,7 +473,7 @@ fn join_touching(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate
             let width =
                 pings[run.last].bearing_deg - pings[prev.first].bearing_deg + sweep.step_deg();
             let one_target = width
-                <= cfg.echo.widest_region_deg(prev.stats.mean(), beam) + cfg.width_tolerance_deg();
+                <= cfg.echo.widest_region_deg(prev.stats.mean(), beam) + cfg.width_tolerance_deg(sweep.step_deg());
             if touching
                 && prev.end_neighbour.is_none()
                 && one_target
@@ -566,12 +566,20 @@ enum Side {
 fn end_kind(sweep: &Sweep, run: &Run, gate: &Gate, side: Side) -> (End, f64) {
     let pings = sweep.pings();
     // The ping `steps` beyond the run on `side`, if no readings are lost on the way.
+    // A full circle has no scan end: past its last ping comes its first.
+    let n = pings.len();
+    let circular = sweep.is_circular();
     let outside = |steps: usize| match side {
-        Side::Start => (0..steps).try_fold(run.first, |k, _| {
-            k.checked_sub(1).filter(|_| !sweep.gap_before(k))
+        Side::Start => (0..steps).try_fold(run.first, |k, _| match k.checked_sub(1) {
+            Some(j) => Some(j).filter(|_| !sweep.gap_before(k)),
+            None => circular.then(|| n - 1),
         }),
         Side::End => (0..steps).try_fold(run.last, |k, _| {
-            Some(k + 1).filter(|&j| j < pings.len() && !sweep.gap_before(j))
+            if k + 1 < n {
+                Some(k + 1).filter(|&j| !sweep.gap_before(j))
+            } else {
+                circular.then_some(0)
+            }
         }),
     };
     // Split from a part at another range: nearer beyond hides this one, farther is its edge.
@@ -671,7 +679,7 @@ fn join_hidden(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) 
                     pings[r.last].bearing_deg - pings[joined.first].bearing_deg + sweep.step_deg();
                 gate.same_range(&joined.stats, &r.stats)
                     && width
-                        <= cfg.echo.widest_region_deg(s.mean(), beam) + cfg.width_tolerance_deg()
+                        <= cfg.echo.widest_region_deg(s.mean(), beam) + cfg.width_tolerance_deg(sweep.step_deg())
             };
             match next {
                 Some((b, r))
