@@ -53,9 +53,11 @@ pub struct Sweep {
 const GAP_STEPS: f64 = 1.5;
 
 impl Sweep {
-    /// The pings of `readings` (one sweep's, in any order). Readings whose pings cannot be placed
-    /// are skipped and counted ([`Sweep::skipped_readings`]): those of a source without raw pings
-    /// (`NO_RAW_PINGS`, the hobby dialect) and those with several pings but no direction of motion.
+    /// The pings of `readings` (one sweep's, in any order). A reading with one range per angle
+    /// (`NO_RAW_PINGS`: the hobby dialect, imported logs; or a single ping) is one ping on its
+    /// axis, and a sweep of them has the step of their spacing. Readings whose pings cannot be
+    /// placed are skipped and counted ([`Sweep::skipped_readings`]): several pings but no
+    /// direction of motion, or no angle.
     pub fn from_readings<'a>(
         readings: impl IntoIterator<Item = &'a Reading>,
         cfg: &FeatureConfig,
@@ -182,9 +184,9 @@ impl Sweep {
     }
 
     /// Sorts the pings by bearing. A head that turned a full circle has no scan end: the circle
-    /// is cut where neighbouring pings differ most in range (no echo counting as farthest), so
-    /// that no region of constant depth is cut in two at an arbitrary bearing, and the bearings
-    /// after the cut are continued past 360°.
+    /// is cut between the two neighbouring echoes that differ most in range (a ping that heard
+    /// nothing may be a dropout inside a region), so that no region of constant depth is cut in
+    /// two, and the bearings after the cut are continued past 360°.
     fn sort(&mut self) {
         self.pings
             .sort_by(|a, b| a.bearing_deg.total_cmp(&b.bearing_deg));
@@ -196,10 +198,9 @@ impl Sweep {
         if span + 1.5 * self.step_deg < 360.0 {
             return;
         }
-        let far = |p: &Ping| p.range_m.unwrap_or(f64::INFINITY);
-        let jump = |i: usize| {
-            let (a, b) = (far(&self.pings[(i + n - 1) % n]), far(&self.pings[i]));
-            if a == b { 0.0 } else { (a - b).abs() }
+        let jump = |i: usize| match (self.pings[(i + n - 1) % n].range_m, self.pings[i].range_m) {
+            (Some(a), Some(b)) => (a - b).abs(),
+            _ => 0.0,
         };
         let cut = (0..n)
             .max_by(|&i, &j| jump(i).total_cmp(&jump(j)))
@@ -536,11 +537,13 @@ pub(crate) mod tests {
     fn a_full_circle_is_cut_where_the_range_jumps_most() {
         let cfg = FeatureConfig::default();
         // A continuous head at 5°, angles −175…180; a target at 2 m from −20° to +20°, 1.2 m
-        // elsewhere but 3 m from 100° to 130°: the circle is cut at the largest jump (3 m → 1.2 m
-        // at 135°), not at ±180°.
+        // elsewhere but 3 m from 100° to 130° and nothing at −100° (a dropout): the circle is cut
+        // at the largest jump between echoes (3 m → 1.2 m at 135°), not at ±180°.
         let readings = per_angle_readings((0..72).map(|k| -175.0 + 5.0 * k as f32), |c| {
             if c.abs() <= 20.0 {
                 200.0
+            } else if c == -100.0 {
+                0.0
             } else if (100.0..=130.0).contains(&c) {
                 300.0
             } else {

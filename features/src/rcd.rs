@@ -631,8 +631,12 @@ fn end_kind(sweep: &Sweep, run: &Run, gate: &Gate, side: Side) -> (End, f64) {
         r if past(r) => (End::Natural, 1.0),
         Some(r) if gate.nearer(&run.stats, r) => {
             // A lone nearer ping with nothing or something farther beyond it is a transient, not
-            // a target hiding this one: the run ended there or one ping later.
-            if outside(2).is_some_and(|j| past(pings[j].range_m)) {
+            // a target hiding this one: the run ended there or one ping later — unless past a
+            // lost ping the nearer target goes on (a dropout inside its region).
+            let nearer_goes_on = outside(2).is_some_and(|j| pings[j].range_m.is_none())
+                && outside(3)
+                    .is_some_and(|j| pings[j].range_m.is_some_and(|r| gate.nearer(&run.stats, r)));
+            if !nearer_goes_on && outside(2).is_some_and(|j| past(pings[j].range_m)) {
                 (End::Natural, 2.0)
             } else {
                 (End::Occluded, 1.0)
@@ -802,6 +806,11 @@ pub(crate) mod tests {
         assert!((r[0].width_deg() - 9.75).abs() < 1e-9);
         let r = rcds(0.0, &cat(&[run(6, 1.0), vec![0.5, 0.5], run(6, 2.0)]));
         assert_eq!(r[0].end, End::Occluded);
+        // A nearer target whose region lost a ping next to this run still hides it: the wall
+        // behind a post on each side of it is one wall.
+        let hidden = cat(&[run(6, 1.0), vec![0.5, 0.0], run(6, 0.5), run(6, 1.0)]);
+        let r = rcds(0.0, &hidden);
+        assert_eq!((r[0].pings, r[0].hidden), (12, 8), "joined across the post: {r:?}");
         let gap = cat(&[run(6, 1.0), vec![2.0], run(6, 1.0)]);
         let r = rcds(0.0, &gap);
         assert_eq!(r.len(), 2);
