@@ -831,8 +831,8 @@ pub fn feature_physics(echo: &sonar_sim::EchoParams) -> EchoPhysics {
 mod tests {
     use super::*;
     use sonar_common::sensor::SensorConfig;
-    use sonar_features::classify::Observation;
     use sonar_features::Reflector;
+    use sonar_features::classify::Observation;
     use sonar_sim::{EchoModel, EchoParams, Target};
 
     fn model(walls: Vec<Wall>, posts: Vec<Post>) -> EchoModel {

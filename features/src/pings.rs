@@ -499,11 +499,18 @@ pub(crate) mod tests {
         let s = Sweep::from_readings(&[hobby, unknown, single, no_angle], &cfg);
         assert_eq!(s.skipped_readings(), 2);
         let bearings: Vec<f64> = s.pings().iter().map(|p| p.bearing_deg).collect();
-        assert_eq!(bearings, [0.0, 12.0], "one range per angle, on the reading's axis");
+        assert_eq!(
+            bearings,
+            [0.0, 12.0],
+            "one range per angle, on the reading's axis"
+        );
     }
 
     /// A hobby head: one whole-centimetre range per angle, 3° apart, one reading lost.
-    fn per_angle_readings(centres: impl Iterator<Item = f32>, cm: impl Fn(f32) -> f64) -> Vec<Reading> {
+    fn per_angle_readings(
+        centres: impl Iterator<Item = f32>,
+        cm: impl Fn(f32) -> f64,
+    ) -> Vec<Reading> {
         centres
             .map(|c| {
                 let mut r = reading(c, 1, &[cm(c) / 100.0]);
@@ -523,13 +530,19 @@ pub(crate) mod tests {
         let s = Sweep::from_readings(&readings, &cfg);
         assert_eq!(s.skipped_readings(), 0);
         assert_eq!(s.pings().len(), 29);
-        assert_eq!(s.step_deg(), 3.0, "the head's spacing, not the stepper's 1.5°");
+        assert_eq!(
+            s.step_deg(),
+            3.0,
+            "the head's spacing, not the stepper's 1.5°"
+        );
         // The lost reading is a gap; neighbours in bearing are the noise's pairs.
         assert!(s.gap_before(7) && !s.gap_before(8));
         assert_eq!(s.pairs().len(), 27);
         assert_eq!(s.range_quantum_m(), Some(0.01), "whole centimetres");
         // Ranges that are not whole centimetres have no quantum.
-        let fine = per_angle_readings((0..30).map(|k| 3.0 * k as f32), |c| 120.0 + 0.37 * f64::from(c));
+        let fine = per_angle_readings((0..30).map(|k| 3.0 * k as f32), |c| {
+            120.0 + 0.37 * f64::from(c)
+        });
         assert_eq!(Sweep::from_readings(&fine, &cfg).range_quantum_m(), None);
     }
 
@@ -555,7 +568,11 @@ pub(crate) mod tests {
         assert_eq!(bearings[0], 135.0);
         assert_eq!(*bearings.last().unwrap(), 130.0 + 360.0);
         assert!(s.is_circular());
-        assert!(bearings.windows(2).all(|w| (w[1] - w[0] - 5.0).abs() < 1e-9));
+        assert!(
+            bearings
+                .windows(2)
+                .all(|w| (w[1] - w[0] - 5.0).abs() < 1e-9)
+        );
         // A half circle is left as it is.
         let half = per_angle_readings((0..36).map(|k| -90.0 + 5.0 * k as f32), |_| 120.0);
         let half = Sweep::from_readings(&half, &cfg);

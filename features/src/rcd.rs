@@ -390,8 +390,9 @@ fn split_steps(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) 
             .filter(|&(_, r)| !gate.nearer(&run.stats, r))
             .collect();
         let width = pings[run.last].bearing_deg - pings[run.first].bearing_deg + sweep.step_deg();
-        let too_wide =
-            width > cfg.echo.widest_region_deg(run.stats.mean(), beam) + cfg.width_tolerance_deg(sweep.step_deg());
+        let too_wide = width
+            > cfg.echo.widest_region_deg(run.stats.mean(), beam)
+                + cfg.width_tolerance_deg(sweep.step_deg());
         let threshold = if too_wide {
             WIDE_STEP_SIGMAS
         } else {
@@ -473,7 +474,8 @@ fn join_touching(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate
             let width =
                 pings[run.last].bearing_deg - pings[prev.first].bearing_deg + sweep.step_deg();
             let one_target = width
-                <= cfg.echo.widest_region_deg(prev.stats.mean(), beam) + cfg.width_tolerance_deg(sweep.step_deg());
+                <= cfg.echo.widest_region_deg(prev.stats.mean(), beam)
+                    + cfg.width_tolerance_deg(sweep.step_deg());
             if touching
                 && prev.end_neighbour.is_none()
                 && one_target
@@ -683,7 +685,8 @@ fn join_hidden(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) 
                     pings[r.last].bearing_deg - pings[joined.first].bearing_deg + sweep.step_deg();
                 gate.same_range(&joined.stats, &r.stats)
                     && width
-                        <= cfg.echo.widest_region_deg(s.mean(), beam) + cfg.width_tolerance_deg(sweep.step_deg())
+                        <= cfg.echo.widest_region_deg(s.mean(), beam)
+                            + cfg.width_tolerance_deg(sweep.step_deg())
             };
             match next {
                 Some((b, r))
@@ -810,7 +813,11 @@ pub(crate) mod tests {
         // behind a post on each side of it is one wall.
         let hidden = cat(&[run(6, 1.0), vec![0.5, 0.0], run(6, 0.5), run(6, 1.0)]);
         let r = rcds(0.0, &hidden);
-        assert_eq!((r[0].pings, r[0].hidden), (12, 8), "joined across the post: {r:?}");
+        assert_eq!(
+            (r[0].pings, r[0].hidden),
+            (12, 8),
+            "joined across the post: {r:?}"
+        );
         let gap = cat(&[run(6, 1.0), vec![2.0], run(6, 1.0)]);
         let r = rcds(0.0, &gap);
         assert_eq!(r.len(), 2);
