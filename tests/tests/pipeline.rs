@@ -9,8 +9,8 @@ use std::time::{Duration, Instant};
 use nalgebra::{Isometry2, Vector2};
 use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
 use sonar_common::ipc::{
-    self, FeatureRecord, FusionCommand, FusionCommandKind, GridHeader, LinkState, Reading,
-    ScanCommand, ScanCommandKind, ScanMode, feature_kind, flags,
+    self, FusionCommand, FusionCommandKind, GridHeader, LinkState, Reading, ScanCommand,
+    ScanCommandKind, ScanMode, feature_kind, flags,
 };
 use sonar_common::protocol::{
     DeviceMessage, DeviceState, Direction, ErrorCode, PROTOCOL_VERSION, WireReading, encode_device,
