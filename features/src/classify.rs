@@ -100,6 +100,9 @@ struct Hypothesis {
     /// A point whose width is also a plane's (near, a post's cone is as wide as a wall's): the
     /// plane's normal, should another region be that plane's corner.
     or_plane: Option<Bearing>,
+    /// A plane whose width is also a corner's (a narrow beam hears a wall and a corner over
+    /// nearly the same cone): a corner should another region's plane meet it there.
+    or_corner: bool,
 }
 
 impl Hypothesis {
@@ -108,6 +111,7 @@ impl Hypothesis {
             class: Class::Unclassified,
             bearings: Vec::new(),
             or_plane: None,
+            or_corner: false,
         }
     }
 
@@ -116,6 +120,7 @@ impl Hypothesis {
             class,
             bearings: vec![Bearing { deg, sigma }],
             or_plane: None,
+            or_corner: false,
         }
     }
 
@@ -259,13 +264,16 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
                 }
                 h
             } else if fits(cones.plane) {
-                Hypothesis::one(Class::Plane, centre, centre_sigma)
+                let mut h = Hypothesis::one(Class::Plane, centre, centre_sigma);
+                h.or_corner = fits(cones.corner);
+                h
             } else if fits(cones.corner) {
                 Hypothesis::one(Class::Corner, centre, centre_sigma)
             } else if w <= 4.0 * point + tol {
                 Hypothesis {
                     class: Class::TwoPoints,
                     or_plane: None,
+                    or_corner: false,
                     bearings: vec![
                         Bearing {
                             deg: rcd.start_edge_deg() + point,
@@ -328,7 +336,7 @@ fn corner_of_planes(
     let whole = rcd.start.is_natural() && rcd.end.is_natural();
     match hypotheses[i].class {
         Class::Point | Class::TwoPoints => return None,
-        Class::Plane if whole => return None,
+        Class::Plane if whole && !hypotheses[i].or_corner => return None,
         _ => {}
     }
     let step = rcd.step_deg;
@@ -476,6 +484,39 @@ mod tests {
         let o = c.observations[0];
         assert!((o.bearing_deg - 10.0).abs() <= 0.75, "{o:?}");
         assert!((o.range_m - 1.2).abs() < 0.001);
+    }
+
+    #[test]
+    fn with_a_narrow_beam_a_corner_as_wide_as_a_wall_is_found_from_its_walls() {
+        // An HC-SR04-like beam (round trip 6 dB down at 6°): a wall 1.2 m away is heard within
+        // ±11°, the corner of two such walls 1.7 m away within ±10°, widths a step apart.
+        let mut cfg = FeatureConfig::default();
+        cfg.echo.beam_6db_half_angle_deg = 6.0;
+        cfg.echo.threshold_db = -24.0;
+        cfg.echo.tvg_db_per_m = 6.0;
+        cfg.echo.tvg_max_range_m = 4.0;
+        let cone = |r: Reflector, range: f64| cfg.echo.cone_half_angle_deg(r, range, 30.0).unwrap();
+        let corner_range = 1.2 * 2f64.sqrt();
+        let (wall, corner) = (
+            cone(Reflector::Plane, 1.2),
+            cone(Reflector::Corner, corner_range),
+        );
+        assert!((wall - corner).abs() < 1.5, "{wall} {corner}");
+        let targets = [
+            (0.0, wall, 1.2),
+            (45.0, corner, corner_range),
+            (90.0, wall, 1.2),
+        ];
+        let ranges = cone_sweep(-30.75, 101, &targets);
+        let rcds = regions(&sweep(-30.75, &ranges));
+        let c = classify(&rcds, &cfg);
+        assert_eq!(
+            c.classes,
+            [Class::Plane, Class::Corner, Class::Plane],
+            "{rcds:?}"
+        );
+        let o = c.observations[1];
+        assert!((o.bearing_deg - 45.0).abs() <= 0.75, "{o:?}");
     }
 
     #[test]
