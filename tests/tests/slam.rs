@@ -205,7 +205,10 @@ fn sonar_slam_corrects_a_drifting_odometry_and_the_fusion_maps_with_it() {
         .nth(1)
         .and_then(|rest| rest.split_whitespace().next())
         .and_then(|n| n.parse::<u64>().ok());
-    eprintln!("revisions received: {}, maps rebuilt: {rebuilds:?}", revisions.len());
+    eprintln!(
+        "revisions received: {}, maps rebuilt: {rebuilds:?}",
+        revisions.len()
+    );
     assert!(rebuilds.is_some_and(|n| n > 0), "{stderr}");
 
     let (status, stderr) = slam.terminate_with_stderr();
