@@ -538,9 +538,10 @@ pub struct FusionStatus {
     /// 1 if the map was restored from the state file at start, else 0.
     pub restored: u32,
     pub layout_version: u32,
-    /// Readings the walls, corners and posts could not use, since the process started: no raw
-    /// pings to place (one range per angle: the hobby dialect, imported logs) or several pings
-    /// without a direction. They are in the grid and the radar all the same. Saturates.
+    /// Readings the walls, corners and posts could not use, since the process started: several
+    /// pings without a direction, or no angle (one range per angle — the hobby dialect, imported
+    /// logs — is used as one ping on the reading's axis). They are in the grid and the radar all
+    /// the same. Saturates.
     pub feature_readings_skipped: u32,
 }
 

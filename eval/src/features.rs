@@ -24,7 +24,7 @@
 use anyhow::{Context, Result};
 use nalgebra::{Isometry2, Matrix2, Point2, Vector2};
 use sonar_common::ipc::Reading;
-use sonar_features::{FeatureConfig, FeatureKind, FeatureMap, Sweep};
+use sonar_features::{EchoPhysics, FeatureConfig, FeatureKind, FeatureMap, Sweep};
 use sonar_fusion::Preset;
 use sonar_sim::{Post, Scene, Vec2, Wall};
 
@@ -811,12 +811,28 @@ pub fn evaluate_levels(settings: &FeatureSettings) -> Result<Vec<LevelResults>> 
         .collect()
 }
 
+/// The features' echo physics for a sensor the simulator plays with `echo` (its profile's beam,
+/// cut-off, gain and threshold): what a robot builder who measured that sensor's cones would set
+/// in `[features.echo]`. The simulator's defaults give [`EchoPhysics::default`].
+pub fn feature_physics(echo: &sonar_sim::EchoParams) -> EchoPhysics {
+    EchoPhysics {
+        beam_6db_half_angle_deg: echo.beam_6db_half_angle_deg,
+        specular_cutoff_deg: echo.specular_cutoff_deg,
+        absorption_db_per_m: echo.absorption_db_per_m,
+        tvg_db_per_m: echo.tvg_db_per_m,
+        tvg_max_range_m: echo.tvg_max_range_m,
+        threshold_db: echo.threshold_db,
+        corner_loss_db: echo.corner_loss_db,
+        ..EchoPhysics::default()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use sonar_common::sensor::SensorConfig;
+    use sonar_features::Reflector;
     use sonar_features::classify::Observation;
-    use sonar_features::{EchoPhysics, Reflector};
     use sonar_sim::{EchoModel, EchoParams, Target};
 
     fn model(walls: Vec<Wall>, posts: Vec<Post>) -> EchoModel {
@@ -840,6 +856,7 @@ mod tests {
     fn the_feature_physics_defaults_are_the_simulators() {
         let f = EchoPhysics::default();
         let e = EchoParams::default();
+        assert_eq!(feature_physics(&e), f);
         assert_eq!(
             (f.beam_6db_half_angle_deg, f.specular_cutoff_deg),
             (e.beam_6db_half_angle_deg, e.specular_cutoff_deg)

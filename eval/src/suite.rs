@@ -54,13 +54,13 @@ use anyhow::{Context, Result, bail};
 use nalgebra::{Isometry2, Vector2};
 use sonar_common::ipc::Reading;
 use sonar_common::sensor::SensorConfig;
-use sonar_features::{FeatureConfig, FeatureMap, Sweep};
+use sonar_features::{EchoPhysics, FeatureConfig, FeatureMap, Sweep};
 use sonar_fusion::{FusionConfig, FusionSection, Mapper, Observation, Preset};
 use sonar_sim::geometry::{distance_to_segment, segments_intersect};
 use sonar_sim::{Pose, Scene, SensorProfile, Vec2};
 use tracing::info;
 
-use crate::features::{Truth, score};
+use crate::features::{Truth, feature_physics, score};
 use crate::metrics::{MapView, quantile};
 use crate::pipeline::{Head, Scan, capture_with, probability_view};
 use crate::scenegen::{self, Generated, VIEWPOINTS};
@@ -300,6 +300,9 @@ pub struct SuiteArgs {
     /// Worker threads.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=64))]
     pub suite_jobs: u64,
+    /// Score only the features (no grid: --suite-fusion and --suite-viewpoints are ignored).
+    #[arg(long)]
+    pub suite_features_only: bool,
 }
 
 /// How the suite is run.
@@ -340,7 +343,11 @@ impl SuiteSettings {
             seeds: args.suite_seeds.0.clone(),
             sensors,
             viewpoints,
-            fusion: args.suite_fusion.clone(),
+            fusion: if args.suite_features_only {
+                Vec::new()
+            } else {
+                args.suite_fusion.clone()
+            },
             split: args.suite_split,
             sweeps: args.suite_sweeps,
             jobs: usize::try_from(args.suite_jobs).unwrap_or(1),
@@ -522,11 +529,16 @@ pub struct ViewFeatures {
 }
 
 /// The features of `readings` (one viewpoint, several sweeps), with the feature pipeline's
-/// defaults but the head's own geometry (its step between pings, its range limits), as a robot
-/// builder would configure it for that sensor.
-fn feature_map(readings: &[Reading], sensor: SensorConfig) -> Result<FeatureMap> {
+/// defaults but the head's own geometry (its step between pings, its range limits) and its
+/// sensor's beam (`echo`), as a robot builder would configure it for that sensor.
+fn feature_map(
+    readings: &[Reading],
+    sensor: SensorConfig,
+    echo: EchoPhysics,
+) -> Result<FeatureMap> {
     let cfg = FeatureConfig {
         sensor,
+        echo,
         ..FeatureConfig::default()
     };
     let mut map = FeatureMap::new(cfg).context("setting up the feature map")?;
@@ -544,7 +556,7 @@ pub fn score_features(
     sensor: SensorConfig,
 ) -> Result<ViewFeatures> {
     let max_range_m = f64::from(sensor.max_range_m);
-    let map = feature_map(readings, sensor)?;
+    let map = feature_map(readings, sensor, feature_physics(&view_scene.echo))?;
     let truth = Truth::of(view_scene, Scan::Full);
     let scored = score(&map, &truth, &[]);
     let origin = Vec2::default();
@@ -827,6 +839,20 @@ pub fn markdown(settings: &SuiteSettings, runs: &[Run]) -> String {
         Split::Report => "report",
     };
     let seeds: Vec<String> = settings.seeds.iter().map(u64::to_string).collect();
+    if !settings.fusion.is_empty() {
+        grid_markdown(&mut t, settings, runs, split, &seeds);
+    }
+    features_markdown(&mut t, settings, runs);
+    t
+}
+
+fn grid_markdown(
+    t: &mut String,
+    settings: &SuiteSettings,
+    runs: &[Run],
+    split: &str,
+    seeds: &[String],
+) {
     let _ = writeln!(
         t,
         "### Generated scene suite: grid\n\n{} scenes of the `{split}` split × seeds {} × \
@@ -863,6 +889,9 @@ pub fn markdown(settings: &SuiteSettings, runs: &[Run]) -> String {
             s.runs
         );
     }
+}
+
+fn features_markdown(t: &mut String, settings: &SuiteSettings, runs: &[Run]) {
     let _ = writeln!(
         t,
         "\n### Generated scene suite: features (each viewpoint alone)\n\n\
@@ -914,7 +943,6 @@ pub fn markdown(settings: &SuiteSettings, runs: &[Run]) -> String {
             views.len()
         );
     }
-    t
 }
 
 #[cfg(test)]

@@ -100,6 +100,9 @@ struct Hypothesis {
     /// A point whose width is also a plane's (near, a post's cone is as wide as a wall's): the
     /// plane's normal, should another region be that plane's corner.
     or_plane: Option<Bearing>,
+    /// A plane whose width is also a corner's (a narrow beam hears a wall and a corner over
+    /// nearly the same cone): a corner should another region's plane meet it there.
+    or_corner: bool,
 }
 
 impl Hypothesis {
@@ -108,6 +111,7 @@ impl Hypothesis {
             class: Class::Unclassified,
             bearings: Vec::new(),
             or_plane: None,
+            or_corner: false,
         }
     }
 
@@ -116,6 +120,7 @@ impl Hypothesis {
             class,
             bearings: vec![Bearing { deg, sigma }],
             or_plane: None,
+            or_corner: false,
         }
     }
 
@@ -259,13 +264,16 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
                 }
                 h
             } else if fits(cones.plane) {
-                Hypothesis::one(Class::Plane, centre, centre_sigma)
+                let mut h = Hypothesis::one(Class::Plane, centre, centre_sigma);
+                h.or_corner = fits(cones.corner);
+                h
             } else if fits(cones.corner) {
                 Hypothesis::one(Class::Corner, centre, centre_sigma)
             } else if w <= 4.0 * point + tol {
                 Hypothesis {
                     class: Class::TwoPoints,
                     or_plane: None,
+                    or_corner: false,
                     bearings: vec![
                         Bearing {
                             deg: rcd.start_edge_deg() + point,
@@ -328,9 +336,10 @@ fn corner_of_planes(
     let whole = rcd.start.is_natural() && rcd.end.is_natural();
     match hypotheses[i].class {
         Class::Point | Class::TwoPoints => return None,
-        Class::Plane if whole => return None,
+        Class::Plane if whole && !hypotheses[i].or_corner => return None,
         _ => {}
     }
+    let may_be_plane = whole && hypotheses[i].class == Class::Plane;
     let step = rcd.step_deg;
     let r = rcd.range_m;
     let sigma_r2 = rcd.range_sigma_m.powi(2) + (cfg.range_sigma_rel * r).powi(2);
@@ -376,12 +385,20 @@ fn corner_of_planes(
             continue;
         };
         let d = plane.range_m;
-        // A concave corner lies beyond the foot of its wall's perpendicular.
-        if d >= r {
+        let sigma_d2 = plane.range_sigma_m.powi(2) + (cfg.range_sigma_rel * d).powi(2);
+        // A concave corner lies beyond the foot of its wall's perpendicular. A region that is a
+        // plane by its width must lie farther than the two ranges' noise could make it: another
+        // wall at the same distance (a square room seen from its centre) is not this one's
+        // corner.
+        let beyond_noise = if may_be_plane {
+            3.0 * (sigma_r2 + sigma_d2).sqrt()
+        } else {
+            0.0
+        };
+        if r - d <= beyond_noise {
             continue;
         }
         let off = (d / r).acos().to_degrees();
-        let sigma_d2 = plane.range_sigma_m.powi(2) + (cfg.range_sigma_rel * d).powi(2);
         let dacos2 = (sigma_d2 + (d / r).powi(2) * sigma_r2) / (r * r - d * d);
         let dacos_deg2 = dacos2 * (180.0 / std::f64::consts::PI).powi(2);
         let sigma = (normal.sigma.powi(2) + dacos_deg2).sqrt();
@@ -476,6 +493,94 @@ mod tests {
         let o = c.observations[0];
         assert!((o.bearing_deg - 10.0).abs() <= 0.75, "{o:?}");
         assert!((o.range_m - 1.2).abs() < 0.001);
+    }
+
+    #[test]
+    fn with_a_narrow_beam_a_corner_as_wide_as_a_wall_is_found_from_its_walls() {
+        // An HC-SR04-like beam (round trip 6 dB down at 6°): a wall 1.2 m away is heard within
+        // ±11°, the corner of two such walls 1.7 m away within ±10°, widths a step apart.
+        let mut cfg = FeatureConfig::default();
+        cfg.echo.beam_6db_half_angle_deg = 6.0;
+        cfg.echo.threshold_db = -24.0;
+        cfg.echo.tvg_db_per_m = 6.0;
+        cfg.echo.tvg_max_range_m = 4.0;
+        let cone = |r: Reflector, range: f64| cfg.echo.cone_half_angle_deg(r, range, 30.0).unwrap();
+        let corner_range = 1.2 * 2f64.sqrt();
+        let (wall, corner) = (
+            cone(Reflector::Plane, 1.2),
+            cone(Reflector::Corner, corner_range),
+        );
+        assert!((wall - corner).abs() < 1.5, "{wall} {corner}");
+        let targets = [
+            (0.0, wall, 1.2),
+            (45.0, corner, corner_range),
+            (90.0, wall, 1.2),
+        ];
+        let ranges = cone_sweep(-30.75, 101, &targets);
+        let rcds = regions(&sweep(-30.75, &ranges));
+        let c = classify(&rcds, &cfg);
+        assert_eq!(
+            c.classes,
+            [Class::Plane, Class::Corner, Class::Plane],
+            "{rcds:?}"
+        );
+        let o = c.observations[1];
+        assert!((o.bearing_deg - 45.0).abs() <= 0.75, "{o:?}");
+    }
+
+    #[test]
+    fn a_square_room_seen_round_from_its_centre_at_3_degrees_keeps_its_four_walls() {
+        // At 3° a wall's width (56°) and a corner's (60°) are within the tolerance of each other;
+        // the walls' neighbours at the same distance are not their corners.
+        let corner_range = 1.2 * 2f64.sqrt();
+        let mut targets: Vec<(f64, f64, f64)> = Vec::new();
+        for k in 0..4 {
+            let normal = -90.0 + 90.0 * f64::from(k);
+            // A micrometre apart (equal ranges averaged in another order): a corner that close
+            // behind a wall's foot would be anywhere, its bearing's σ tens of degrees.
+            targets.push((normal, 28.0, 1.2 + 1e-6 * f64::from(k % 2)));
+            targets.push((normal + 45.0, 30.0, corner_range));
+        }
+        let heard = |b: f64| {
+            targets
+                .iter()
+                .filter(|(at, half, _)| crate::geometry::wrap_deg(b - at).abs() <= *half)
+                .map(|t| t.2)
+                .reduce(f64::min)
+        };
+        let pings = (0..120)
+            .map(|k| {
+                let bearing_deg = -177.0 + 3.0 * f64::from(k);
+                Ping {
+                    bearing_deg,
+                    range_m: heard(bearing_deg),
+                }
+            })
+            .collect();
+        let sweep = Sweep::from_pings(pings, 3.0).unwrap();
+        assert!(sweep.is_circular());
+        let rcds = regions(&sweep);
+        let c = classify(&rcds, &FeatureConfig::default());
+        let mut kinds: Vec<(FeatureKind, i64)> = c
+            .observations
+            .iter()
+            .map(|o| (o.kind, o.bearing_deg.round() as i64))
+            .collect();
+        kinds.sort_by_key(|k| k.1);
+        assert_eq!(
+            kinds,
+            [
+                (FeatureKind::Corner, -135),
+                (FeatureKind::Plane, -90),
+                (FeatureKind::Corner, -45),
+                (FeatureKind::Plane, 0),
+                (FeatureKind::Corner, 45),
+                (FeatureKind::Plane, 90),
+                (FeatureKind::Corner, 135),
+                (FeatureKind::Plane, 180),
+            ],
+            "{rcds:?}"
+        );
     }
 
     #[test]

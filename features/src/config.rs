@@ -241,11 +241,11 @@ impl FeatureConfig {
         (self.range_sigma_rel * range_m).hypot(self.range_offset_sigma_m)
     }
 
-    /// Tolerance on a measured width: each end of a run is known to one step (the cone's edge
-    /// lies between the last ping that heard the target and the first that did not), and each
-    /// modelled cone edge to `cone_sigma_deg`, twice over for two ends.
-    pub fn width_tolerance_deg(&self) -> f64 {
-        self.step_deg() + 2.0 * self.cone_sigma_deg
+    /// Tolerance on a width measured by pings `step_deg` apart: each end of a run is known to
+    /// one step (the cone's edge lies between the last ping that heard the target and the first
+    /// that did not), and each modelled cone edge to `cone_sigma_deg`, twice over for two ends.
+    pub fn width_tolerance_deg(&self, step_deg: f64) -> f64 {
+        step_deg + 2.0 * self.cone_sigma_deg
     }
 }
 
@@ -274,7 +274,8 @@ mod tests {
     #[test]
     fn the_width_tolerance_follows_from_the_step_and_the_cones() {
         let cfg = FeatureConfig::default();
-        assert!((cfg.width_tolerance_deg() - 2.5).abs() < 1e-9);
+        assert!((cfg.width_tolerance_deg(cfg.step_deg()) - 2.5).abs() < 1e-9);
+        assert!((cfg.width_tolerance_deg(3.0) - 4.0).abs() < 1e-9);
         let mut bad = FeatureConfig::default();
         bad.noise.gate_sigmas = 0.5;
         assert!(bad.validate().is_err());

@@ -21,7 +21,9 @@
 //!
 //! 1. [`Sweep`]: the pings of one sweep at their own angles (ping j of a reading at
 //!    centre + (j − 1.5)·1.5° in the direction of motion), sorted by bearing so both scan
-//!    directions give the same sequence. No-echo and out-of-range pings have no range.
+//!    directions give the same sequence. No-echo and out-of-range pings have no range. A
+//!    reading with one range per angle (a hobby sketch, a 360° head, a log) is one ping on its
+//!    axis, at the step its head was driven at; a full circle has no scan end.
 //! 2. [`rcd::extract`]: runs of constant depth within a few σ of the sensor's noise, measured
 //!    online from the pings ([`noise`]), with short bursts of lost pings (one may read nearer)
 //!    bridged, never a ping that heard farther (a gap); each end **natural** (the next ping heard

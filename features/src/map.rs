@@ -201,8 +201,14 @@ impl FeatureMap {
     }
 
     /// The range noise estimated from the sweeps merged so far and `sweep`'s pings.
+    /// Ranges in whole units of a quantum (whole centimetres) are never known better than the
+    /// rounding's quantum/√12, however often neighbouring ones agree.
     pub fn noise(&self, sweep: &Sweep) -> NoiseModel {
-        self.noise.model_with(sweep.pairs(), &self.cfg.noise)
+        let mut model = self.noise.model_with(sweep.pairs(), &self.cfg.noise);
+        if let Some(quantum) = sweep.range_quantum_m() {
+            model.floor_m = model.floor_m.max(quantum / 12f64.sqrt());
+        }
+        model
     }
 
     fn gate(&self, sweep: &Sweep) -> Gate {

@@ -44,15 +44,20 @@ pub struct Sweep {
     skipped_readings: usize,
     /// Neighbouring pings of one reading that both heard something: the noise's evidence.
     pairs: Vec<PingPair>,
+    range_quantum_m: Option<f64>,
+    /// A full circle (a continuous head's revolution): its last ping is next to its first.
+    circular: bool,
 }
 
 /// Two neighbouring pings farther apart than this many steps have lost readings between them.
 const GAP_STEPS: f64 = 1.5;
 
 impl Sweep {
-    /// The pings of `readings` (one sweep's, in any order). Readings whose pings cannot be placed
-    /// are skipped and counted ([`Sweep::skipped_readings`]): those of a source without raw pings
-    /// (`NO_RAW_PINGS`, the hobby dialect) and those with several pings but no direction of motion.
+    /// The pings of `readings` (one sweep's, in any order). A reading with one range per angle
+    /// (`NO_RAW_PINGS`: the hobby dialect, imported logs; or a single ping) is one ping on its
+    /// axis, and a sweep of them has the step of their spacing. Readings whose pings cannot be
+    /// placed are skipped and counted ([`Sweep::skipped_readings`]): several pings but no
+    /// direction of motion, or no angle.
     pub fn from_readings<'a>(
         readings: impl IntoIterator<Item = &'a Reading>,
         cfg: &FeatureConfig,
@@ -89,6 +94,7 @@ impl Sweep {
         sweep
             .pings
             .retain(|p| crate::geometry::wrap_deg(p.bearing_deg - normal_deg).abs() <= window_deg);
+        sweep.circular = false;
         sweep
     }
 
@@ -97,28 +103,43 @@ impl Sweep {
         normal_deg: Option<f64>,
         cfg: &FeatureConfig,
     ) -> Self {
-        let step = cfg.step_deg();
         let mut pings = Vec::new();
         let mut pairs = Vec::new();
+        let mut per_angle = Vec::new();
         let mut skipped = 0;
         for (r, pose) in readings {
-            match placed_pings(r, cfg).map(|p| p.map(|ping| at_reference(ping, &pose, normal_deg)))
-            {
-                Some(p) => {
+            match placed_pings(r, cfg) {
+                Placed::Raw(p) => {
                     let first = pings.len();
-                    pings.extend(p);
+                    pings.extend(p.map(|ping| at_reference(ping, &pose, normal_deg)));
                     pairs.extend(neighbour_pairs(&pings[first..]));
                 }
-                None => skipped += 1,
+                Placed::PerAngle(ping) => per_angle.push(at_reference(ping, &pose, normal_deg)),
+                Placed::Unknown => skipped += 1,
             }
         }
+        // One range per angle: the step is the head's own (its readings' spacing), and neighbours
+        // in bearing are the noise's evidence, as for pings placed without readings.
+        let step_deg = if pings.is_empty() && per_angle.len() > 1 {
+            per_angle_step_deg(&per_angle).unwrap_or(cfg.step_deg())
+        } else {
+            cfg.step_deg()
+        };
+        let per_angle_pairs = pings.is_empty() && !per_angle.is_empty();
+        pings.extend(per_angle);
         let mut sweep = Self {
             pings,
-            step_deg: step,
+            step_deg,
             skipped_readings: skipped,
             pairs,
+            range_quantum_m: None,
+            circular: false,
         };
         sweep.sort();
+        if per_angle_pairs {
+            sweep.pairs.extend(sweep.pairs_in_bearing());
+        }
+        sweep.range_quantum_m = whole_centimetres(&sweep.pings).then_some(CENTIMETRE_M);
         sweep
     }
 
@@ -144,19 +165,54 @@ impl Sweep {
             step_deg,
             skipped_readings: 0,
             pairs: Vec::new(),
+            range_quantum_m: None,
+            circular: false,
         };
         sweep.sort();
         // Without readings, neighbours in bearing stand in for a reading's pings.
-        sweep.pairs = (1..sweep.pings.len())
-            .filter(|&i| !sweep.gap_before(i))
-            .flat_map(|i| neighbour_pairs(&sweep.pings[i - 1..=i]))
-            .collect();
+        sweep.pairs = sweep.pairs_in_bearing();
+        sweep.range_quantum_m = whole_centimetres(&sweep.pings).then_some(CENTIMETRE_M);
         Ok(sweep)
     }
 
+    /// Neighbours in bearing with no readings lost between them.
+    fn pairs_in_bearing(&self) -> Vec<PingPair> {
+        (1..self.pings.len())
+            .filter(|&i| !self.gap_before(i))
+            .flat_map(|i| neighbour_pairs(&self.pings[i - 1..=i]))
+            .collect()
+    }
+
+    /// Sorts the pings by bearing. A head that turned a full circle has no scan end: the circle
+    /// is cut between the two neighbouring echoes that differ most in range (a ping that heard
+    /// nothing may be a dropout inside a region), so that no region of constant depth is cut in
+    /// two, and the bearings after the cut are continued past 360°.
     fn sort(&mut self) {
         self.pings
             .sort_by(|a, b| a.bearing_deg.total_cmp(&b.bearing_deg));
+        let n = self.pings.len();
+        if n < 3 {
+            return;
+        }
+        let span = self.pings[n - 1].bearing_deg - self.pings[0].bearing_deg;
+        if span + 1.5 * self.step_deg < 360.0 {
+            return;
+        }
+        let jump = |i: usize| match (self.pings[(i + n - 1) % n].range_m, self.pings[i].range_m) {
+            (Some(a), Some(b)) => (a - b).abs(),
+            _ => 0.0,
+        };
+        let cut = (0..n)
+            .max_by(|&i, &j| jump(i).total_cmp(&jump(j)))
+            .unwrap_or(0);
+        self.pings.rotate_left(cut);
+        self.circular = true;
+        let start = self.pings[0].bearing_deg;
+        for p in &mut self.pings {
+            while p.bearing_deg < start {
+                p.bearing_deg += 360.0;
+            }
+        }
     }
 
     pub fn pings(&self) -> &[Ping] {
@@ -176,6 +232,19 @@ impl Sweep {
     /// Readings left out because their pings' angles are unknown.
     pub fn skipped_readings(&self) -> usize {
         self.skipped_readings
+    }
+
+    /// Whether the pings go round the full circle (a continuous head's revolution, cut where
+    /// neighbouring ranges differ most): past the last ping comes the first, there is no scan
+    /// end.
+    pub fn is_circular(&self) -> bool {
+        self.circular
+    }
+
+    /// The ranges' resolution when every one is a whole number of it (1 cm: a sensor or a
+    /// sketch that reports whole centimetres), whose rounding alone is noise of quantum/√12.
+    pub fn range_quantum_m(&self) -> Option<f64> {
+        self.range_quantum_m
     }
 
     /// Whether readings are missing between ping `i − 1` and ping `i` (lost lines): then neither
@@ -222,30 +291,95 @@ fn neighbour_pairs(pings: &[Ping]) -> impl Iterator<Item = PingPair> + '_ {
         .filter_map(|w| Some(PingPair::of(w[0].range_m?, w[1].range_m?)))
 }
 
-/// The pings of one reading at their angles, or `None` when their angles are unknown.
-fn placed_pings(r: &Reading, cfg: &FeatureConfig) -> Option<impl Iterator<Item = Ping>> {
+/// Where the pings of one reading go.
+enum Placed<I> {
+    /// Raw pings at their own angles.
+    Raw(I),
+    /// One range per angle (the hobby dialect, an imported log, a head that combines its pings):
+    /// one ping on the reading's axis.
+    PerAngle(Ping),
+    /// Several pings whose angles are unknown (no direction of motion), or no angle at all.
+    Unknown,
+}
+
+/// The pings of one reading at their angles.
+fn placed_pings(r: &Reading, cfg: &FeatureConfig) -> Placed<impl Iterator<Item = Ping>> {
     let n = usize::from(r.ping_count).min(r.echo_us.len());
     let direction = f64::from(r.direction.signum());
-    if r.has(flags::NO_RAW_PINGS) || (n > 1 && direction == 0.0) || !r.angle_deg.is_finite() {
-        return None;
-    }
     let finite_positive = |v: f32| (v.is_finite() && v > 0.0).then_some(f64::from(v));
     let speed = finite_positive(r.speed_of_sound_mps).unwrap_or_else(|| cfg.speed_of_sound_mps());
     let min = f64::from(r.min_range_m)
         .max(0.0)
         .min(f64::from(cfg.sensor.max_range_m));
     let max = finite_positive(r.max_range_m).unwrap_or(f64::from(cfg.sensor.max_range_m));
+    // 0 µs is no echo; an echo outside [min, max] is set aside as the driver does.
+    let range_of = move |us: u32| {
+        let range = speed * f64::from(us) * 1e-6 / 2.0;
+        (us > 0 && (min..=max).contains(&range)).then_some(range)
+    };
     let step = cfg.step_deg();
     let centre = f64::from(r.angle_deg);
     let middle = (n as f64 - 1.0) / 2.0;
-    Some(r.echo_us[..n].iter().enumerate().map(move |(j, &us)| {
-        let range = speed * f64::from(us) * 1e-6 / 2.0;
-        Ping {
-            bearing_deg: centre + direction * step * (j as f64 - middle),
-            // 0 µs is no echo; an echo outside [min, max] is set aside as the driver does.
-            range_m: (us > 0 && (min..=max).contains(&range)).then_some(range),
+    let raw = r.echo_us[..n].iter().enumerate().map(move |(j, &us)| Ping {
+        bearing_deg: centre + direction * step * (j as f64 - middle),
+        range_m: range_of(us),
+    });
+    if !r.angle_deg.is_finite() {
+        Placed::Unknown
+    } else if r.has(flags::NO_RAW_PINGS) || n <= 1 {
+        let range_m = if n == 1 {
+            range_of(r.echo_us[0])
+        } else {
+            (r.is_valid_range() && r.distance_m.is_finite() && r.distance_m > 0.0)
+                .then_some(f64::from(r.distance_m))
+        };
+        Placed::PerAngle(Ping {
+            bearing_deg: centre,
+            range_m,
+        })
+    } else if direction == 0.0 {
+        Placed::Unknown
+    } else {
+        Placed::Raw(raw)
+    }
+}
+
+/// The step of a head that gives one range per angle: the median spacing of its bearings
+/// (duplicates and lost readings aside, the spacing it was driven at).
+fn per_angle_step_deg(pings: &[Ping]) -> Option<f64> {
+    let mut bearings: Vec<f64> = pings.iter().map(|p| p.bearing_deg).collect();
+    bearings.sort_by(f64::total_cmp);
+    let mut spacings: Vec<f64> = bearings
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|d| *d > 1e-3)
+        .collect();
+    if spacings.is_empty() {
+        return None;
+    }
+    spacings.sort_by(f64::total_cmp);
+    Some(spacings[spacings.len() / 2])
+}
+
+const CENTIMETRE_M: f64 = 0.01;
+
+/// Fewest ranges that show a sensor's whole centimetres: by chance, eight ranges all fall within
+/// 1 mm of one (1 chance in 5⁸).
+const QUANTUM_EVIDENCE: usize = 8;
+
+/// Whether every range is a whole number of centimetres (to within 1 mm: the echo times a driver
+/// synthesises from centimetres are whole microseconds, 0.17 mm).
+fn whole_centimetres(pings: &[Ping]) -> bool {
+    let ranges = pings.iter().filter_map(|p| p.range_m);
+    let mut count = 0;
+    for r in ranges {
+        let cm = r / CENTIMETRE_M;
+        if (cm - cm.round()).abs() * CENTIMETRE_M > 1e-3 {
+            return false;
         }
-    }))
+        count += 1;
+    }
+    count >= QUANTUM_EVIDENCE
 }
 
 #[cfg(test)]
@@ -365,10 +499,90 @@ pub(crate) mod tests {
         hobby.flags |= flags::NO_RAW_PINGS;
         let unknown = reading(6.0, 0, &[1.0, 1.0, 1.0, 1.0]);
         let single = reading(12.0, 0, &[1.0]);
-        let s = Sweep::from_readings(&[hobby, unknown, single], &cfg);
+        let mut no_angle = reading(18.0, 1, &[1.0]);
+        no_angle.angle_deg = f32::NAN;
+        let s = Sweep::from_readings(&[hobby, unknown, single, no_angle], &cfg);
         assert_eq!(s.skipped_readings(), 2);
-        assert_eq!(s.pings().len(), 1);
-        assert_eq!(s.pings()[0].bearing_deg, 12.0);
+        let bearings: Vec<f64> = s.pings().iter().map(|p| p.bearing_deg).collect();
+        assert_eq!(
+            bearings,
+            [0.0, 12.0],
+            "one range per angle, on the reading's axis"
+        );
+    }
+
+    /// A hobby head: one whole-centimetre range per angle, 3° apart, one reading lost.
+    fn per_angle_readings(
+        centres: impl Iterator<Item = f32>,
+        cm: impl Fn(f32) -> f64,
+    ) -> Vec<Reading> {
+        centres
+            .map(|c| {
+                let mut r = reading(c, 1, &[cm(c) / 100.0]);
+                r.flags |= flags::NO_RAW_PINGS;
+                r
+            })
+            .collect()
+    }
+
+    #[test]
+    fn per_angle_readings_give_one_ping_each_at_the_heads_own_step() {
+        let cfg = FeatureConfig::default();
+        let readings = per_angle_readings(
+            (0..30).filter(|&k| k != 7).map(|k| -45.0 + 3.0 * k as f32),
+            |c| 120.0 + (c.abs() / 10.0).floor() as f64,
+        );
+        let s = Sweep::from_readings(&readings, &cfg);
+        assert_eq!(s.skipped_readings(), 0);
+        assert_eq!(s.pings().len(), 29);
+        assert_eq!(
+            s.step_deg(),
+            3.0,
+            "the head's spacing, not the stepper's 1.5°"
+        );
+        // The lost reading is a gap; neighbours in bearing are the noise's pairs.
+        assert!(s.gap_before(7) && !s.gap_before(8));
+        assert_eq!(s.pairs().len(), 27);
+        assert_eq!(s.range_quantum_m(), Some(0.01), "whole centimetres");
+        // Ranges that are not whole centimetres have no quantum.
+        let fine = per_angle_readings((0..30).map(|k| 3.0 * k as f32), |c| {
+            120.0 + 0.37 * f64::from(c)
+        });
+        assert_eq!(Sweep::from_readings(&fine, &cfg).range_quantum_m(), None);
+    }
+
+    #[test]
+    fn a_full_circle_is_cut_where_the_range_jumps_most() {
+        let cfg = FeatureConfig::default();
+        // A continuous head at 5°, angles −175…180; a target at 2 m from −20° to +20°, 1.2 m
+        // elsewhere but 3 m from 100° to 130° and nothing at −100° (a dropout): the circle is cut
+        // at the largest jump between echoes (3 m → 1.2 m at 135°), not at ±180°.
+        let readings = per_angle_readings((0..72).map(|k| -175.0 + 5.0 * k as f32), |c| {
+            if c.abs() <= 20.0 {
+                200.0
+            } else if c == -100.0 {
+                0.0
+            } else if (100.0..=130.0).contains(&c) {
+                300.0
+            } else {
+                120.0
+            }
+        });
+        let s = Sweep::from_readings(&readings, &cfg);
+        let bearings: Vec<f64> = s.pings().iter().map(|p| p.bearing_deg).collect();
+        assert_eq!(bearings[0], 135.0);
+        assert_eq!(*bearings.last().unwrap(), 130.0 + 360.0);
+        assert!(s.is_circular());
+        assert!(
+            bearings
+                .windows(2)
+                .all(|w| (w[1] - w[0] - 5.0).abs() < 1e-9)
+        );
+        // A half circle is left as it is.
+        let half = per_angle_readings((0..36).map(|k| -90.0 + 5.0 * k as f32), |_| 120.0);
+        let half = Sweep::from_readings(&half, &cfg);
+        assert_eq!(half.pings()[0].bearing_deg, -90.0);
+        assert!(!half.is_circular());
     }
 
     #[test]

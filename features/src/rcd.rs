@@ -390,8 +390,9 @@ fn split_steps(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) 
             .filter(|&(_, r)| !gate.nearer(&run.stats, r))
             .collect();
         let width = pings[run.last].bearing_deg - pings[run.first].bearing_deg + sweep.step_deg();
-        let too_wide =
-            width > cfg.echo.widest_region_deg(run.stats.mean(), beam) + cfg.width_tolerance_deg();
+        let too_wide = width
+            > cfg.echo.widest_region_deg(run.stats.mean(), beam)
+                + cfg.width_tolerance_deg(sweep.step_deg());
         let threshold = if too_wide {
             WIDE_STEP_SIGMAS
         } else {
@@ -473,7 +474,8 @@ fn join_touching(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate
             let width =
                 pings[run.last].bearing_deg - pings[prev.first].bearing_deg + sweep.step_deg();
             let one_target = width
-                <= cfg.echo.widest_region_deg(prev.stats.mean(), beam) + cfg.width_tolerance_deg();
+                <= cfg.echo.widest_region_deg(prev.stats.mean(), beam)
+                    + cfg.width_tolerance_deg(sweep.step_deg());
             if touching
                 && prev.end_neighbour.is_none()
                 && one_target
@@ -566,12 +568,20 @@ enum Side {
 fn end_kind(sweep: &Sweep, run: &Run, gate: &Gate, side: Side) -> (End, f64) {
     let pings = sweep.pings();
     // The ping `steps` beyond the run on `side`, if no readings are lost on the way.
+    // A full circle has no scan end: past its last ping comes its first.
+    let n = pings.len();
+    let circular = sweep.is_circular();
     let outside = |steps: usize| match side {
-        Side::Start => (0..steps).try_fold(run.first, |k, _| {
-            k.checked_sub(1).filter(|_| !sweep.gap_before(k))
+        Side::Start => (0..steps).try_fold(run.first, |k, _| match k.checked_sub(1) {
+            Some(j) => Some(j).filter(|_| !sweep.gap_before(k)),
+            None => circular.then(|| n - 1),
         }),
         Side::End => (0..steps).try_fold(run.last, |k, _| {
-            Some(k + 1).filter(|&j| j < pings.len() && !sweep.gap_before(j))
+            if k + 1 < n {
+                Some(k + 1).filter(|&j| !sweep.gap_before(j))
+            } else {
+                circular.then_some(0)
+            }
         }),
     };
     // Split from a part at another range: nearer beyond hides this one, farther is its edge.
@@ -623,8 +633,12 @@ fn end_kind(sweep: &Sweep, run: &Run, gate: &Gate, side: Side) -> (End, f64) {
         r if past(r) => (End::Natural, 1.0),
         Some(r) if gate.nearer(&run.stats, r) => {
             // A lone nearer ping with nothing or something farther beyond it is a transient, not
-            // a target hiding this one: the run ended there or one ping later.
-            if outside(2).is_some_and(|j| past(pings[j].range_m)) {
+            // a target hiding this one: the run ended there or one ping later — unless past a
+            // lost ping the nearer target goes on (a dropout inside its region).
+            let nearer_goes_on = outside(2).is_some_and(|j| pings[j].range_m.is_none())
+                && outside(3)
+                    .is_some_and(|j| pings[j].range_m.is_some_and(|r| gate.nearer(&run.stats, r)));
+            if !nearer_goes_on && outside(2).is_some_and(|j| past(pings[j].range_m)) {
                 (End::Natural, 2.0)
             } else {
                 (End::Occluded, 1.0)
@@ -671,7 +685,8 @@ fn join_hidden(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) 
                     pings[r.last].bearing_deg - pings[joined.first].bearing_deg + sweep.step_deg();
                 gate.same_range(&joined.stats, &r.stats)
                     && width
-                        <= cfg.echo.widest_region_deg(s.mean(), beam) + cfg.width_tolerance_deg()
+                        <= cfg.echo.widest_region_deg(s.mean(), beam)
+                            + cfg.width_tolerance_deg(sweep.step_deg())
             };
             match next {
                 Some((b, r))
@@ -794,6 +809,15 @@ pub(crate) mod tests {
         assert!((r[0].width_deg() - 9.75).abs() < 1e-9);
         let r = rcds(0.0, &cat(&[run(6, 1.0), vec![0.5, 0.5], run(6, 2.0)]));
         assert_eq!(r[0].end, End::Occluded);
+        // A nearer target whose region lost a ping next to this run still hides it: the wall
+        // behind a post on each side of it is one wall.
+        let hidden = cat(&[run(6, 1.0), vec![0.5, 0.0], run(6, 0.5), run(6, 1.0)]);
+        let r = rcds(0.0, &hidden);
+        assert_eq!(
+            (r[0].pings, r[0].hidden),
+            (12, 8),
+            "joined across the post: {r:?}"
+        );
         let gap = cat(&[run(6, 1.0), vec![2.0], run(6, 1.0)]);
         let r = rcds(0.0, &gap);
         assert_eq!(r.len(), 2);

@@ -569,17 +569,18 @@ mod tests {
     }
 
     #[test]
-    fn readings_without_raw_pings_are_counted_and_give_nothing() {
+    fn readings_whose_pings_cannot_be_placed_are_counted_and_give_nothing() {
         let mut tracker = FeatureTracker::new(FeatureConfig::default()).unwrap();
         let pose = Isometry2::identity();
-        let hobby = |sweep_id| {
+        // Four pings each, but no direction of motion to place them by.
+        let undirected = |sweep_id| {
             let mut readings = sweep(sweep_id);
             for r in &mut readings {
-                r.flags |= flags::NO_RAW_PINGS;
+                r.direction = 0;
             }
             readings
         };
-        for r in hobby(1).iter().chain(&hobby(2)[..1]) {
+        for r in undirected(1).iter().chain(&undirected(2)[..1]) {
             tracker.push(r, &pose);
         }
         let outcome = tracker.last.expect("sweep 1 merged");
@@ -589,7 +590,7 @@ mod tests {
         );
         assert!(tracker.is_empty());
         tracker.clear();
-        for r in &hobby(2)[1..] {
+        for r in &undirected(2)[1..] {
             tracker.push(r, &pose);
         }
         tracker.finish_sweep();
@@ -599,6 +600,17 @@ mod tests {
             50 + 49,
             "a clear keeps counting"
         );
+        // One range per angle (the hobby dialect) is one ping on each reading's axis: used.
+        let mut tracker = FeatureTracker::new(FeatureConfig::default()).unwrap();
+        for r in sweep(1).iter().chain(&sweep(2)[..1]) {
+            let mut per_angle = *r;
+            per_angle.flags |= flags::NO_RAW_PINGS;
+            per_angle.ping_count = 1;
+            tracker.push(&per_angle, &pose);
+        }
+        let outcome = tracker.last.expect("sweep 1 merged");
+        assert_eq!((outcome.readings, outcome.skipped), (50, 0));
+        assert!(outcome.rcds > 0, "{outcome:?}");
     }
 
     #[test]

@@ -701,14 +701,14 @@ impl Features {
             "sweep merged into the features"
         );
         if outcome.skipped > 0 && !self.said_skipped {
-            // Once: a head without raw pings sends nothing else, and a line per sweep says nothing new.
+            // Once: such a head sends nothing else, and a line per sweep says nothing new.
             self.said_skipped = true;
             warn!(
                 sweep = outcome.sweep_id,
                 skipped = outcome.skipped,
                 of = outcome.readings,
-                "readings without raw pings to place (one range per angle: the hobby dialect, an \
-                 imported log) give no walls, corners or posts; they are in the grid and the radar. \
+                "readings whose pings cannot be placed (several pings but no direction of motion, \
+                 or no angle) give no walls, corners or posts; they are in the grid and the radar. \
                  Counted in sonar/fusion_status feature_readings_skipped (`sonar echo fusion-status`)"
             );
         }

@@ -827,6 +827,51 @@ pub fn collect_with_truth<T>(
     (got, TruePoses(true_poses))
 }
 
+pub mod room;
+
+/// A subscriber to `sonar/features` (fixed-size records behind a header).
+pub fn features_subscriber(
+    node: &Node<Ipc>,
+) -> Subscriber<Ipc, [ipc::FeatureRecord], ipc::FeaturesHeader> {
+    ipc::features_service(node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap()
+}
+
+/// Snapshots of `sonar/features` until one with at least `min_sweeps` merged satisfies
+/// `expected`, or `max_sweeps` have been merged (then the test fails with what is wrong in the
+/// last one). Returns that snapshot.
+pub fn room_features(
+    node: &Node<Ipc>,
+    features: &Subscriber<Ipc, [ipc::FeatureRecord], ipc::FeaturesHeader>,
+    expected: &room::Expected,
+    min_sweeps: u64,
+    max_sweeps: u64,
+) -> (ipc::FeaturesHeader, Vec<ipc::FeatureRecord>) {
+    let got = collect_until(
+        node,
+        || {
+            features
+                .receive()
+                .unwrap()
+                .map(|s| (*s.user_header(), s.payload().to_vec()))
+        },
+        |got| {
+            got.last().is_some_and(|(header, records)| {
+                header.sweeps >= max_sweeps
+                    || (header.sweeps >= min_sweeps && expected.check(records).is_ok())
+            })
+        },
+    );
+    let (header, records) = got.last().unwrap().clone();
+    if let Err(wrong) = expected.check(&records) {
+        panic!("after {} sweeps: {wrong}", header.sweeps);
+    }
+    (header, records)
+}
+
 /// A network namespace of the test's own with only its loopback up, removed when dropped: the
 /// live server and its client talk inside it, never on the machine's own interfaces.
 #[derive(Debug)]

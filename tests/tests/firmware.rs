@@ -19,7 +19,8 @@ use sonar_common::protocol::{
 };
 use sonar_e2e::{
     GridSnapshot, PATIENCE, Proc, Sandbox, collect_until, driver_status_subscriber,
-    grid_subscriber, readings_subscriber, receive_reading, send_scan_command, wait_for_status,
+    features_subscriber, grid_subscriber, readings_subscriber, receive_reading, room,
+    room_features, send_scan_command, wait_for_status,
 };
 
 /// The image `make -C firmware` builds: the bytes that would be flashed, plus symbols.
@@ -680,18 +681,21 @@ fn badly_bouncing_switches_change_nothing() {
 
 /// The servo head (`make -C firmware HEAD=servo`: an SG90 on Timer1's PWM, an HC-SR04, no limit
 /// switches) on the emulated board, which turns each pulse width into the shaft's angle at the
-/// servo's speed, through the real driver and fusion: the HELLO's limits (−90…+90°) reach the
-/// driver, the sweeps go limit to limit and back, the grid has the room's walls ahead and at the
-/// sides, and the shaft never leaves the servo's 0–180° (±90° at the head), nor is it ever sent
-/// beyond.
+/// servo's speed, through the real driver and fusion, in the room with a post that every head
+/// maps (`sonar_e2e::room`): the HELLO's limits (−90…+90°) reach the driver, the sweeps go limit
+/// to limit and back, the grid has the room's walls ahead and at the sides, `sonar/features` the
+/// walls, corners and post in its view where they truly are, and the shaft never leaves the
+/// servo's 0–180° (±90° at the head), nor is it ever sent beyond.
 #[test]
 fn the_servo_head_maps_the_room_through_driver_and_fusion_within_its_travel() {
     let sandbox = Sandbox::new("fw_servo_room");
     let node = sandbox.node("test-consumer");
     let sub = readings_subscriber(&node);
     let grid = grid_subscriber(&node);
+    let features = features_subscriber(&node);
     let report = sandbox.root.join("travel.json");
     let elf = servo_firmware_elf();
+    let scene = room::scene();
     let (head, pty) = sandbox.spawn_head(
         "sonar-firmware-sim",
         &[
@@ -700,7 +704,7 @@ fn the_servo_head_maps_the_room_through_driver_and_fusion_within_its_travel() {
             "--firmware",
             &elf,
             "--scene",
-            "room",
+            &scene,
             "--seed",
             "5",
             "--speed",
@@ -736,11 +740,17 @@ fn the_servo_head_maps_the_room_through_driver_and_fusion_within_its_travel() {
         for r in s {
             assert_eq!(r.direction, direction, "{r:?}");
             assert_eq!(r.ping_count, 4, "{r:?}");
-            // Facing a wall (within 20° of its normal) the range is the perpendicular 1.20 m.
+            // Facing a wall (within 20° of its normal) the range is the perpendicular 1.20 m, or
+            // the post's near face where the post (heard within ±16°, some pings of a reading
+            // beyond that) stands before it.
             let off_normal = (r.angle_deg.rem_euclid(90.0) + 45.0).rem_euclid(90.0) - 45.0;
+            let heard = |m: f64| (f64::from(r.distance_m) - m).abs() <= 0.03;
             if off_normal.abs() <= 20.0 {
                 assert!(r.is_valid_range(), "{r:?}");
-                assert!((r.distance_m - 1.20).abs() <= 0.03, "{r:?}");
+                assert!(
+                    heard(room::WALL_M) || (r.angle_deg.abs() <= 20.0 && heard(room::POST_ECHO_M)),
+                    "{r:?}"
+                );
             }
         }
     }
@@ -757,12 +767,12 @@ fn the_servo_head_maps_the_room_through_driver_and_fusion_within_its_travel() {
         |got| got.last().is_some_and(|s| s.header.readings_fused >= 60),
     );
     let map = snapshots.last().unwrap();
-    // The walls ahead and at both sides, and the two corners ahead, are occupied; the space
-    // half-way to them is free; behind the sensor, outside the servo's 180°, nothing was seen.
+    // The walls ahead (beside the post, which hides it within ±16°) and at both sides, and the
+    // two corners ahead, are occupied; the space half-way to them is free; behind the sensor,
+    // outside the servo's 180°, nothing was seen.
     for (x, y) in [
-        (1.2, 0.0),
-        (1.2, 0.2),
-        (1.2, -0.2),
+        (1.2, 0.3),
+        (1.2, -0.3),
         (0.0, 1.2),
         (0.0, -1.2),
         (1.2, 1.2),
@@ -771,11 +781,20 @@ fn the_servo_head_maps_the_room_through_driver_and_fusion_within_its_travel() {
         let p = map.max_near(x, y, 2).unwrap_or(0.5);
         assert!(p > 0.5, "wall at ({x}, {y}) has p = {p}");
     }
-    for (x, y) in [(0.6, 0.0), (0.0, 0.6), (0.0, -0.6), (0.5, 0.5), (0.5, -0.5)] {
+    for (x, y) in [(0.5, 0.0), (0.0, 0.6), (0.0, -0.6), (0.5, 0.5), (0.5, -0.5)] {
         let p = map.max_near(x, y, 1).expect("observed");
         assert!(p < 0.5, "free space at ({x}, {y}) has p = {p}");
     }
     assert_eq!(map.max_near(-1.0, 0.0, 2), None, "behind the servo's sweep");
+
+    // The walls ahead and at both sides (each side wall's normal at the end of the sweep), the
+    // two corners ahead and the post.
+    let expected = room::Expected {
+        step_deg: 1.5,
+        walls_deg: vec![0.0, 90.0, -90.0],
+        corners_deg: vec![45.0, -45.0],
+    };
+    room_features(&node, &features, &expected, 2, 6);
 
     drop(fusion);
     drop(driver);

@@ -9,17 +9,17 @@ use std::time::{Duration, Instant};
 use nalgebra::{Isometry2, Vector2};
 use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
 use sonar_common::ipc::{
-    self, FeatureRecord, FusionCommand, FusionCommandKind, GridHeader, LinkState, Reading,
-    ScanCommand, ScanCommandKind, ScanMode, feature_kind, flags,
+    self, FusionCommand, FusionCommandKind, GridHeader, LinkState, Reading, ScanCommand,
+    ScanCommandKind, ScanMode, feature_kind, flags,
 };
 use sonar_common::protocol::{
     DeviceMessage, DeviceState, Direction, ErrorCode, PROTOCOL_VERSION, WireReading, encode_device,
 };
 use sonar_e2e::{
     FakeSerial, GridSnapshot, PATIENCE, Sandbox, back_wall_seen_at, check_ok, collect_until,
-    collect_with_truth, corridor_grid_config, driver_status_subscriber, grid_subscriber,
-    localized_pose_subscriber, readings_subscriber, readings_subscribers, receive_reading,
-    send_scan_command, wait_for_status, wait_until,
+    collect_with_truth, corridor_grid_config, driver_status_subscriber, features_subscriber,
+    grid_subscriber, localized_pose_subscriber, readings_subscriber, readings_subscribers,
+    receive_reading, room, room_features, send_scan_command, wait_for_status, wait_until,
 };
 
 /// The test plays the microcontroller on a pseudo-terminal of its own.
@@ -856,22 +856,21 @@ fn bad_fusion_settings_are_clear_errors() {
     }
 }
 
-/// The obstacle scene (a 5 cm post 1 m ahead, a wall 2 m ahead) through simulator, driver and
-/// fusion: `sonar/features` carries the post as a point and the wall as a plane, and a clear
-/// command empties it.
+/// The paper's stepper head (`sonar-sim`) in the room with a post (`tests/scenes/room-post.toml`,
+/// the scene every head maps: `tests/tests/heads.rs`, `tests/tests/firmware.rs`) through driver
+/// and fusion: `sonar/features` carries the three walls its ±150° sweep faces, the four corners
+/// and the post, where they truly are and nothing else (`sonar_e2e::room`), and a clear command
+/// empties it.
 #[test]
 fn the_fusion_publishes_walls_and_posts_and_clears_them() {
     let sandbox = Sandbox::new("features");
     let node = sandbox.node("test-features");
-    let features = ipc::features_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let features = features_subscriber(&node);
     let readings = readings_subscriber(&node);
     // Fast, but not so fast that a debug-build fusion falls behind and loses readings: a sweep
     // with readings missing hides its regions' ends.
-    let (_sim, pty) = sandbox.spawn_sim(&["--scene", "obstacle", "--speed", "20"]);
+    let scene = room::scene();
+    let (_sim, pty) = sandbox.spawn_sim(&["--scene", &scene, "--speed", "20"]);
     let driver = sandbox.spawn("sonar-driver", &["--port", &pty]);
     let _fusion = sandbox.spawn("sonar-fusion", &["--no-persist"]);
     let receive = || {
@@ -880,31 +879,19 @@ fn the_fusion_publishes_walls_and_posts_and_clears_them() {
             .unwrap()
             .map(|s| (*s.user_header(), s.payload().to_vec()))
     };
-    let found = |records: &[FeatureRecord], kind: u32, pred: &dyn Fn(&FeatureRecord) -> bool| {
-        records.iter().any(|r| r.kind == kind && pred(r))
+    // The back wall's normal (180°) lies outside the ±150° sweep; its corners do not.
+    let expected = room::Expected {
+        step_deg: 1.5,
+        walls_deg: vec![0.0, 90.0, -90.0],
+        corners_deg: vec![45.0, -45.0, 135.0, -135.0],
     };
-    let got = collect_until(&node, receive, |got| {
-        got.last().is_some_and(|(header, records)| {
-            header.sweeps >= 3
-                && found(records, feature_kind::POINT, &|r| {
-                    (r.x_m - 0.975).abs() < 0.03 && r.y_m.abs() < 0.03
-                })
-                && found(records, feature_kind::PLANE, &|r| {
-                    (r.x_m - 2.0).abs() < 0.03 && r.y_m.abs() < 0.03
-                })
-        })
-    });
-    let (header, records) = got.last().unwrap();
+    let (header, records) = room_features(&node, &features, &expected, 3, 8);
     assert_eq!(header.layout_version, ipc::LAYOUT_VERSION);
     assert_eq!(header.feature_count as usize, records.len());
     let wall = records
         .iter()
-        .find(|r| r.kind == feature_kind::PLANE && (r.x_m - 2.0).abs() < 0.03)
+        .find(|r| r.kind == feature_kind::PLANE && r.angle_deg.abs() < 2.0)
         .unwrap();
-    assert!(
-        wall.angle_deg.abs() < 2.0,
-        "the wall's normal is along x: {wall:?}"
-    );
     assert!(
         wall.times_seen >= 2,
         "seen again, refined, not duplicated: {wall:?}"
