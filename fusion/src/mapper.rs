@@ -14,7 +14,7 @@ use crate::model::{CellEvidence, ModelConfig, SmoothModel, with_model};
 use crate::observation::{Beam, Observation, ObservationError};
 use crate::radar::RadarMap;
 use crate::reference::PaperArrays;
-use crate::regions::{DepthTolerance, Heard, LobeWidth, Region, RegionTracker};
+use crate::regions::{DepthTolerance, End, Heard, LobeWidth, Region, RegionTracker};
 use crate::state::{MapperState, StateError};
 
 /// Which kernel fuses a reading into the grid. Both give the same grid.
@@ -63,6 +63,8 @@ struct Regions {
     lobe: LobeWidth,
     /// With `region_one_end`: the sweep's one-ended regions, placed at its end.
     one_ended: Vec<Region>,
+    /// With `region_corners`: the sweep's regions cut short on both sides, placed at its end.
+    cut: Vec<Region>,
 }
 
 impl fmt::Debug for Mapper {
@@ -100,6 +102,7 @@ impl Mapper {
                     stretches: Vec::new(),
                     lobe: LobeWidth::default(),
                     one_ended: Vec::new(),
+                    cut: Vec::new(),
                 }),
                 _ => None,
             },
@@ -219,6 +222,8 @@ impl Mapper {
             }
         } else if model.region_one_end && region.is_one_ended() {
             regions.one_ended.push(*region);
+        } else if model.region_corners && !region.ends.contains(&End::Natural) {
+            regions.cut.push(*region);
         }
         regions.waiting.clear();
         cells
@@ -234,7 +239,10 @@ impl Mapper {
         let beam = self.config.sensor.limits().half_angle;
         let mut cells = 0;
         for region in std::mem::take(&mut regions.one_ended) {
-            let lobe = regions.lobe.at(region.range).unwrap_or(beam);
+            let lobe = regions
+                .lobe
+                .at(region.range)
+                .unwrap_or_else(|| region.prior_lobe(beam));
             if let Some(axis) = region.one_ended_axis(lobe) {
                 // Half the lobe each side: the foot is known to a reading's step at best, and
                 // on the suite's tune split a patch as wide as the lobe cost `srf05` 0.06 of
@@ -258,7 +266,34 @@ impl Mapper {
             None => 0,
         };
         cells += self.place_one_ended(&mut regions, Kernel::Cone);
+        cells += self.place_corners(&mut regions, Kernel::Cone);
         self.regions = Some(regions);
+        cells
+    }
+
+    /// Places the sweep's regions cut short on both sides, narrower than the lobe, where two
+    /// walls heard so far meet at their middle bearing and range (within the occupied band and the
+    /// regions' depth tolerance): a corner masked by its walls' nearer feet, placed as a point.
+    fn place_corners(&mut self, regions: &mut Regions, kernel: Kernel) -> usize {
+        let ModelConfig::Smooth(model) = self.config.model else {
+            return 0;
+        };
+        let beam = self.config.sensor.limits().half_angle;
+        let mut cells = 0;
+        for region in std::mem::take(&mut regions.cut) {
+            let lobe = regions
+                .lobe
+                .at(region.range)
+                .unwrap_or_else(|| region.prior_lobe(beam));
+            let point =
+                region.position + Vector2::new(region.axis.cos(), region.axis.sin()) * region.range;
+            let tolerance = model.band(region.range) + regions.tolerance.at(region.range);
+            if region.is_cut_and_narrow(lobe) && regions.lines.corner_at(point, tolerance) {
+                // A point: a cell wide.
+                let half_angle = (self.grid.geometry().resolution() / region.range).atan();
+                cells += self.place_region(regions, &region, region.axis, half_angle, kernel);
+            }
+        }
         cells
     }
 
@@ -371,6 +406,7 @@ impl Mapper {
             regions.waiting.clear();
             regions.lines.clear();
             regions.one_ended.clear();
+            regions.cut.clear();
         }
     }
 }
@@ -822,11 +858,12 @@ mod tests {
     /// The occupied cells of a local scan from the origin of a corner at (1.2, 0) between two
     /// walls 0.85 m away square to ±45°: each wall heard from the scan's limit (±57°) to ±21°, the
     /// corner between (a region cut short by both walls' nearer echoes), one sweep each way.
-    fn corner_local_scan(region_one_end: bool) -> Vec<(f32, f32)> {
+    fn corner_local_scan(region_one_end: bool, region_corners: bool) -> Vec<(f32, f32)> {
         let mut m = Mapper::new(FusionConfig {
             model: ModelConfig::Smooth(crate::model::SmoothModel {
                 echo_placement: crate::model::EchoPlacement::Region,
                 region_one_end,
+                region_corners,
                 ..Default::default()
             }),
             ..FusionConfig::default()
@@ -853,11 +890,11 @@ mod tests {
     }
 
     #[test]
-    fn a_local_scan_of_a_corner_draws_its_walls_from_the_regions_that_run_to_its_limits() {
+    fn a_local_scan_of_a_corner_draws_its_walls_and_the_corner_where_they_meet() {
         // Only whole regions are placed: nothing (both walls run to the scan's limits, the corner
         // is masked on both sides).
-        assert!(corner_local_scan(false).is_empty());
-        let cells = corner_local_scan(true);
+        assert!(corner_local_scan(false, false).is_empty());
+        let cells = corner_local_scan(true, false);
         // Every cell on one of the two walls (band ± 2.5 cm and a cell), and both walls drawn.
         let wall = |c: &(f32, f32), side: f32| {
             let normal = (-45f32 * side).to_radians();
@@ -875,6 +912,17 @@ mod tests {
                 .filter(|c| wall(c, side) <= 0.05 && c.1 * side < 0.0);
             assert!(on.count() > 10, "{side}: {cells:?}");
         }
+        // The corner between them: where the two walls meet, at the range its region heard.
+        let near_corner = |cells: &[(f32, f32)]| {
+            cells
+                .iter()
+                .filter(|c| (c.0 - 1.2).hypot(c.1) <= 0.05)
+                .count()
+        };
+        assert_eq!(near_corner(&cells), 0);
+        let with_corner = corner_local_scan(true, true);
+        assert!(near_corner(&with_corner) > 0, "{with_corner:?}");
+        assert!(with_corner.len() <= cells.len() + 6, "a point, not a patch");
     }
 
     #[test]

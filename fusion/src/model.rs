@@ -525,6 +525,10 @@ pub struct SmoothModel {
     /// half-width in from its natural end, the lobe learnt from the whole regions
     /// ([`crate::regions::LobeWidth`]); its readings clear nothing.
     pub region_one_end: bool,
+    /// With `echo_placement = "region"`: a region cut short on both sides, narrower than the
+    /// lobe, is placed as a point at its middle bearing if two walls heard so far meet there (a
+    /// corner masked by the nearer feet of its own walls); its readings clear nothing.
+    pub region_corners: bool,
 }
 
 /// Where a reading's echo puts its occupied evidence ([`SmoothModel::echo_placement`]).
@@ -559,6 +563,7 @@ impl Default for SmoothModel {
             region_tolerance_fraction: 0.02,
             region_half_angle_deg: 18.0,
             region_one_end: false,
+            region_corners: false,
         }
     }
 }

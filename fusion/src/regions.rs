@@ -33,8 +33,13 @@ pub(crate) struct DepthTolerance {
 }
 
 impl DepthTolerance {
+    /// The tolerance at `range`, metres.
+    pub fn at(&self, range: f32) -> f32 {
+        self.absolute_m + self.fraction * range
+    }
+
     fn admits(&self, region_range: f32, range: f32) -> bool {
-        (range - region_range).abs() <= self.absolute_m + self.fraction * region_range
+        (range - region_range).abs() <= self.at(region_range)
     }
 }
 
@@ -114,6 +119,33 @@ impl Region {
             _ => return None,
         };
         (self.span.abs() >= lobe).then(|| wrap_angle(end + inwards * lobe))
+    }
+}
+
+impl Region {
+    /// The angle between its neighbouring readings, radians (0 for one reading).
+    pub fn step(&self) -> f32 {
+        if self.readings > 1 {
+            self.span.abs() / (self.readings - 1) as f32
+        } else {
+            0.0
+        }
+    }
+
+    /// The lobe's half-width when no whole region has taught it ([`LobeWidth`]): the sensor's
+    /// beam half-angle `beam`, less half this region's step between readings (a whole region's
+    /// end readings lie on average half a step inside the lobe).
+    pub fn prior_lobe(&self, beam: f32) -> f32 {
+        beam - 0.5 * self.step()
+    }
+
+    /// Whether the region was cut short on both sides by nearer echoes (or on one side and by the
+    /// sweep's limit on the other) and is narrower than the lobe (`lobe`, its half-width): what a
+    /// corner or a post, which answer from any bearing, heard between two nearer reflectors leaves.
+    pub fn is_cut_and_narrow(&self, lobe: f32) -> bool {
+        !self.ends.contains(&End::Natural)
+            && self.ends.contains(&End::Occluded)
+            && self.half_width < lobe
     }
 }
 
