@@ -17,6 +17,9 @@ use crate::reference::PaperArrays;
 use crate::regions::{DepthTolerance, End, Heard, LobeWidth, Region, RegionTracker};
 use crate::state::{MapperState, StateError};
 
+/// One-ended and cut regions kept for the sweep's end at most: more than a 360° sweep at 1.5° holds.
+const DEFERRED_REGIONS: usize = 256;
+
 /// Which kernel fuses a reading into the grid. Both give the same grid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Kernel {
@@ -226,6 +229,11 @@ impl Mapper {
             regions.cut.push(*region);
         }
         regions.waiting.clear();
+        // A head whose sweeps are never told apart still places them, a sweep's worth at a time.
+        if regions.one_ended.len() + regions.cut.len() >= DEFERRED_REGIONS {
+            cells += self.place_one_ended(regions, kernel);
+            cells += self.place_corners(regions, kernel);
+        }
         cells
     }
 
@@ -923,6 +931,34 @@ mod tests {
         let with_corner = corner_local_scan(true, true);
         assert!(near_corner(&with_corner) > 0, "{with_corner:?}");
         assert!(with_corner.len() <= cells.len() + 6, "a point, not a patch");
+    }
+
+    #[test]
+    fn one_ended_regions_are_placed_even_if_no_sweep_ever_ends() {
+        let mut m = Mapper::new(FusionConfig {
+            model: ModelConfig::Smooth(crate::model::SmoothModel {
+                echo_placement: crate::model::EchoPlacement::Region,
+                region_one_end: true,
+                ..Default::default()
+            }),
+            ..FusionConfig::default()
+        })
+        .unwrap();
+        // Runs of readings 30° apart (a gap: nothing known before each), 54° of echo at 1 m and
+        // then none: one-ended regions, and no end of a sweep.
+        for run in 0..1000 {
+            let start = -170.0 + 90.0 * (run % 4) as f32;
+            for k in 0..10 {
+                let a = start + 6.0 * k as f32;
+                m.update(&reading(a, (k < 9).then_some(1.0))).unwrap();
+            }
+        }
+        let deferred = m.regions.as_ref().map(|r| r.one_ended.len());
+        assert!(
+            deferred.is_some_and(|n| n < DEFERRED_REGIONS),
+            "{deferred:?}"
+        );
+        assert!(cells(&m).iter().any(|p| p.is_some_and(|p| p > 0.5)));
     }
 
     #[test]
