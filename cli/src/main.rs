@@ -445,6 +445,7 @@ fn slam_correction_line(c: &SlamCorrection) -> String {
         slam_state::NO_LANDMARKS => "no fix (no landmarks)",
         slam_state::UNCERTAIN => "no fix (too uncertain)",
         slam_state::REFUSED => "no fix (refused)",
+        slam_state::REVISED => "revised (moved by later sweeps)",
         _ => "unknown state",
     };
     let sigma = |v: f32| v.max(0.0).sqrt();

@@ -701,6 +701,11 @@ pub mod slam_state {
     /// No fix: the sightings would have made the odometry implausible; they were refused and
     /// the sweep placed by odometry.
     pub const REFUSED: u32 = 4;
+    /// Not a new sweep: an earlier one whose pose later sweeps moved (a loop closure above all),
+    /// as estimated now; its covariances are NaN. A map built with the sweep's first correction
+    /// places that sweep's readings again with this one; the latest correction, for the
+    /// odometry's poses from now on, is the latest message of another state.
+    pub const REVISED: u32 = 5;
 }
 
 /// `sonar-slam`'s estimate after a sweep, on [`SLAM_CORRECTION_SERVICE`]: the `map → odom`
@@ -1084,7 +1089,7 @@ pub fn slam_correction_service(
         .publish_subscribe::<SlamCorrection>()
         .max_publishers(1)
         .max_subscribers(8)
-        .subscriber_max_buffer_size(16)
+        .subscriber_max_buffer_size(256)
         .history_size(1)
         .open_or_create()
         .map_err(|e| IpcError::new(format!("open {SLAM_CORRECTION_SERVICE}"), e))

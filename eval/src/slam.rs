@@ -19,6 +19,14 @@
 //! covariance, whether the truth lies inside the fix's 95 % ellipse (NEES ≤ χ²₃(0.95) = 7.81),
 //! and whether the fix is worse than the odometry (more than [`WORSE_M`] farther or [`WORSE_DEG`]
 //! more turned than the odometry's pose at that instant).
+//!
+//! **The maps** ([`TourMaps`]): the tour's readings fused with the recommended preset three ways
+//! and each scored against the scene's true surfaces as seen from the sweeps' true poses
+//! ([`crate::suite::score_grid`]): with the correction `sonar-slam` had published when each reading
+//! arrived (the previous sweep's: what `sonar-fusion --slam-correction` drew before it followed
+//! the revisions), with each sweep's own correction as the whole tour finally estimates it (what
+//! the fusion's maps converge to as it follows every revision, `fusion/src/history.rs`), and at
+//! the true poses (the best any placement can do with this sensor).
 
 use std::f64::consts::PI;
 use std::fmt::Write as _;
@@ -28,12 +36,14 @@ use nalgebra::{Isometry2, Vector2};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use sonar_common::ipc::Reading;
+use sonar_fusion::{FusionConfig, Mapper, Observation};
 use sonar_sim::{OdometryParams, Pose, PoseSample, Scene};
-use sonar_slam::{FixState, Slam, SlamConfig, SweepEstimate};
+use sonar_slam::{FixState, Slam, SlamConfig, SweepEstimate, SweepPose};
 
 use crate::feature_report::Spread;
 use crate::motion::{POSE_RATE_HZ, Placement, PoseError, fuse_tour, grid_over, nees, truth_at};
-use crate::pipeline::{Scan, TourCapture, capture_tour};
+use crate::pipeline::{Scan, TourCapture, capture_tour, probability_view};
+use crate::suite::{GridScore, score_grid};
 
 /// χ² of 3 degrees of freedom at 95 %: a fix whose NEES is within lies inside its 95 % ellipse.
 pub const CHI2_3_95: f64 = 7.81;
@@ -331,6 +341,30 @@ pub struct Run {
     pub localize: Vec<Placed>,
     /// Sweeps the SLAM refused.
     pub refused: u32,
+    pub maps: TourMaps,
+    /// Each sweep's pose as the whole tour finally estimates it, against the truth.
+    pub revised: Vec<PoseError>,
+}
+
+/// The tour's map placed three ways, against the true surfaces (module documentation).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TourMaps {
+    /// With the correction published when each reading arrived.
+    pub online: GridScore,
+    /// With each sweep's own correction as estimated at the end of the tour.
+    pub revised: GridScore,
+    /// At the true poses.
+    pub truth: GridScore,
+}
+
+/// What the SLAM gave for one tour.
+#[derive(Debug, Clone)]
+pub struct SlamOutput {
+    /// Each sweep's estimate when it was added, in order.
+    pub estimates: Vec<SweepEstimate>,
+    /// Every sweep as estimated at the end of the tour.
+    pub trajectory: Vec<SweepPose>,
+    pub refused: u32,
 }
 
 /// What to run.
@@ -345,7 +379,7 @@ pub struct SlamSettings {
 
 /// Feeds `tour` to the SLAM as a process would get it: every odometry sample up to a reading's
 /// stamp before the reading.
-pub fn run_slam(tour: &TourCapture, config: SlamConfig) -> Result<(Vec<SweepEstimate>, u32)> {
+pub fn run_slam(tour: &TourCapture, config: SlamConfig) -> Result<SlamOutput> {
     let mut slam = Slam::new(config).context("setting up the SLAM")?;
     let mut estimates = Vec::new();
     let mut poses = tour.poses.iter().peekable();
@@ -372,7 +406,84 @@ pub fn run_slam(tour: &TourCapture, config: SlamConfig) -> Result<(Vec<SweepEsti
         landmarks = slam.landmarks().len(),
         "SLAM at the end of the tour (scale error, drift rad/m, turn error)"
     );
-    Ok((estimates, slam.refused()))
+    Ok(SlamOutput {
+        estimates,
+        trajectory: slam.trajectory(),
+        refused: slam.refused(),
+    })
+}
+
+/// The tour's readings fused with the recommended preset, each at `correction(reading) ∘` its
+/// odometry pose (or at its true pose with `None`), scored against the scene.
+fn tour_map(
+    scene: &Scene,
+    tour: &TourCapture,
+    correction: impl Fn(&Reading) -> Option<Isometry2<f64>>,
+) -> Result<GridScore> {
+    let config = FusionConfig {
+        grid: grid_over(scene),
+        ..FusionConfig::default()
+    };
+    let mut mapper = Mapper::new(config).context("setting up the tour's grid")?;
+    let mut views = Vec::new();
+    let mut sweep = None;
+    let mut max_range_m: f64 = 0.0;
+    for r in &tour.capture.readings {
+        let truth = truth_at(&tour.poses, r.host_stamp_ns);
+        if sweep != Some(r.sweep_id) {
+            if sweep.is_some() {
+                mapper.close_region();
+            }
+            sweep = Some(r.sweep_id);
+            views.push(truth);
+        }
+        let pose = match correction(r) {
+            Some(c) => c * pose_iso(&odometry_at(&tour.poses, r.host_stamp_ns)),
+            None => pose_iso(&truth),
+        };
+        let pose = Isometry2::new(
+            Vector2::new(pose.translation.x as f32, pose.translation.y as f32),
+            pose.rotation.angle() as f32,
+        );
+        max_range_m = max_range_m.max(f64::from(r.max_range_m));
+        mapper
+            .update(&Observation::from_reading(r, pose))
+            .with_context(|| format!("fusing reading {}", r.seq))?;
+    }
+    mapper.close_region();
+    Ok(score_grid(
+        &probability_view(&mapper),
+        scene,
+        &views,
+        max_range_m,
+    ))
+}
+
+/// [`TourMaps`] of one tour and the SLAM's output for it.
+fn tour_maps(scene: &Scene, tour: &TourCapture, slam: &SlamOutput) -> Result<TourMaps> {
+    // A sweep is estimated when the next one's first reading arrives: each reading is placed
+    // with the latest estimate of an earlier sweep.
+    let online = |r: &Reading| {
+        Some(
+            slam.estimates
+                .iter()
+                .rev()
+                .find(|e| e.sweep_id < r.sweep_id)
+                .map_or_else(Isometry2::identity, SweepEstimate::correction),
+        )
+    };
+    let revised = |r: &Reading| {
+        slam.trajectory
+            .iter()
+            .find(|p| p.sweep_id == r.sweep_id)
+            .map(SweepPose::correction)
+            .or_else(|| online(r))
+    };
+    Ok(TourMaps {
+        online: tour_map(scene, tour, online)?,
+        revised: tour_map(scene, tour, revised)?,
+        truth: tour_map(scene, tour, |_| None)?,
+    })
 }
 
 fn odometry_at(poses: &[PoseSample], stamp_ns: u64) -> Pose {
@@ -413,8 +524,16 @@ pub fn run(
     .with_context(|| format!("touring {} layout {layout} seed {seed}", family.name()))?;
     let end_ns = tour.poses.last().map_or(1, |s| s.t_us.max(1) * 1000);
     let progress = |stamp_ns: u64| stamp_ns as f64 / end_ns as f64;
-    let (estimates, refused) = run_slam(&tour, config)?;
-    let slam = estimates
+    let output = run_slam(&tour, config)?;
+    let maps = tour_maps(&scene, &tour, &output)?;
+    let revised = output
+        .trajectory
+        .iter()
+        .map(|p| PoseError::of(&p.pose, &truth_at(&tour.poses, p.stamp_ns)))
+        .collect();
+    let refused = output.refused;
+    let slam = output
+        .estimates
         .iter()
         .map(|e| {
             let truth = truth_at(&tour.poses, e.stamp_ns);
@@ -471,6 +590,8 @@ pub fn run(
         slam,
         localize,
         refused,
+        maps,
+        revised,
     })
 }
 
@@ -553,6 +674,22 @@ fn median(p: &[Placed], heading: bool) -> Option<f64> {
 }
 
 /// "median / worst" over runs of a per-run figure.
+/// The runs of one tour at one odometry level.
+fn runs_of(runs: &[Run], family: Family, level: OdometryLevel) -> Vec<&Run> {
+    runs.iter()
+        .filter(|r| r.family == family && r.level == level)
+        .collect()
+}
+
+/// As [`over_runs`] for a figure whose worst is its lowest (precision, recall).
+fn over_runs_lowest_worst(
+    values: impl IntoIterator<Item = f64>,
+    scale: f64,
+    digits: usize,
+) -> String {
+    over_runs(values.into_iter().map(|v| -v), -scale, digits)
+}
+
 fn over_runs(values: impl IntoIterator<Item = f64>, scale: f64, digits: usize) -> String {
     Spread::of(values).map_or("–".into(), |s| {
         format!(
@@ -594,10 +731,7 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
             level.label()
         );
         for &family in &settings.families {
-            let these: Vec<&Run> = runs
-                .iter()
-                .filter(|r| r.family == family && r.level == level)
-                .collect();
+            let these = runs_of(runs, family, level);
             if these.is_empty() {
                 continue;
             }
@@ -655,11 +789,58 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
                 ),
             );
         }
+        let _ = writeln!(
+            s,
+            "\nThe tour's map (recommended preset) against the true surfaces in sight of the \
+             sweeps' true poses: precision and median error of the occupied cells, recall of the \
+             surfaces (median / worst over runs); placed with the correction published when each \
+             reading came (online), with each sweep's own as the whole tour finally estimates it \
+             (revised: what the fusion's maps converge to as it follows `sonar-slam`'s \
+             revisions), and at the true poses; with the largest error of the sweep poses \
+             placing it.\n\n| tour | placement | largest pose error (cm) | largest heading \
+             error (°) | precision | median error (cm) | recall |\n|---|---|---|---|---|---|---|"
+        );
+        for &family in &settings.families {
+            let these = runs_of(runs, family, level);
+            if these.is_empty() {
+                continue;
+            }
+            type PickMap = fn(&TourMaps) -> &GridScore;
+            type PickPoses = fn(&Run, bool) -> f64;
+            let placements: [(&str, PickMap, PickPoses); 3] = [
+                (
+                    "online",
+                    |m| &m.online,
+                    |r, heading| largest(&r.slam, heading),
+                ),
+                (
+                    "revised",
+                    |m| &m.revised,
+                    |r, heading| {
+                        r.revised
+                            .iter()
+                            .map(|e| if heading { e.heading_deg } else { e.position_m })
+                            .fold(0.0, f64::max)
+                    },
+                ),
+                ("true poses", |m| &m.truth, |_, _| 0.0),
+            ];
+            for (name, pick, poses) in placements {
+                let scores = || these.iter().map(|r| pick(&r.maps));
+                let _ = writeln!(
+                    s,
+                    "| {} | {name} | {} | {} | {} | {} | {} |",
+                    family.name(),
+                    over_runs(these.iter().map(|r| poses(r, false)), 100.0, 1),
+                    over_runs(these.iter().map(|r| poses(r, true)), 1.0, 1),
+                    over_runs_lowest_worst(scores().filter_map(|g| g.precision), 1.0, 2),
+                    over_runs(scores().filter_map(|g| g.median_error_m), 100.0, 1),
+                    over_runs_lowest_worst(scores().filter_map(|g| g.recall), 1.0, 2),
+                );
+            }
+        }
         // The loop's laps: the largest error in the first and the last third of the tour.
-        let loops: Vec<&Run> = runs
-            .iter()
-            .filter(|r| r.family == Family::Loop && r.level == level)
-            .collect();
+        let loops = runs_of(runs, Family::Loop, level);
         if !loops.is_empty() {
             let third = |r: &Run, last: bool| {
                 r.slam
@@ -737,10 +918,24 @@ mod tests {
             1,
         )
         .unwrap();
-        let (estimates, _) = run_slam(&tour, SlamConfig::default()).unwrap();
+        let output = run_slam(&tour, SlamConfig::default()).unwrap();
+        let estimates = &output.estimates;
         assert_eq!(estimates.len(), fused_stamps(&tour, usize::MAX).len());
+        // The trajectory holds every sweep, in order, and the maps are scored.
+        assert_eq!(
+            output
+                .trajectory
+                .iter()
+                .map(|p| p.sweep_id)
+                .collect::<Vec<_>>(),
+            estimates.iter().map(|e| e.sweep_id).collect::<Vec<_>>()
+        );
+        let maps = tour_maps(&scene, &tour, &output).unwrap();
+        for score in [maps.online, maps.revised, maps.truth] {
+            assert!(score.occupied > 0 && score.visible > 0, "{score:?}");
+        }
         assert!(estimates.len() >= 3, "{}", estimates.len());
-        for e in &estimates {
+        for e in estimates {
             assert!(
                 e.pose.translation.vector.iter().all(|v| v.is_finite()),
                 "{e:?}"

@@ -43,7 +43,7 @@
 //! the same angles), so they are reported as systematic, and merging does not shrink them.
 
 use crate::config::FeatureConfig;
-use crate::map::FeatureKind;
+use crate::feature::FeatureKind;
 use crate::physics::Reflector;
 use crate::rcd::{End, Rcd};
 
@@ -219,7 +219,7 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
                 h.bearings.iter().map(move |b| Observation {
                     kind,
                     range_m: rcd.range_m,
-                    bearing_deg: crate::wrap_deg(b.deg),
+                    bearing_deg: crate::geometry::wrap_deg(b.deg),
                     range_sigma_random_m: rcd.range_sigma_m,
                     range_sigma_systematic_m: cfg.range_sigma_systematic_m(rcd.range_m),
                     bearing_sigma_deg: b.sigma,
@@ -387,8 +387,8 @@ fn corner_of_planes(
         let sigma = (normal.sigma.powi(2) + dacos_deg2).sqrt();
         for side in [-1.0, 1.0] {
             // The corner's bearing, unwrapped to the region's side of the circle.
-            let deg =
-                rcd.centre_deg() + crate::wrap_deg(normal.deg + side * off - rcd.centre_deg());
+            let deg = rcd.centre_deg()
+                + crate::geometry::wrap_deg(normal.deg + side * off - rcd.centre_deg());
             let margin = 3.0 * sigma + step / 2.0;
             let lo = hidden_below.map_or(rcd.start_edge_deg(), |(from, _)| from) - margin;
             let hi = hidden_above.map_or(rcd.end_edge_deg(), |(_, to)| to) + margin;
@@ -606,7 +606,9 @@ mod tests {
                 let bearing_deg = -149.25 + 1.5 * f64::from(k);
                 let nearest = targets
                     .iter_mut()
-                    .filter(|(t, half)| crate::wrap_deg(bearing_deg - t.bearing_deg).abs() <= *half)
+                    .filter(|(t, half)| {
+                        crate::geometry::wrap_deg(bearing_deg - t.bearing_deg).abs() <= *half
+                    })
                     .min_by(|a, b| a.0.range_m.total_cmp(&b.0.range_m));
                 let range = nearest
                     .map(|(t, _)| {
@@ -634,7 +636,7 @@ mod tests {
     fn assert_room(targets: &[Target], obs: &[Observation], deg: f64, range_m: f64) {
         let matches = |t: &Target, o: &Observation| {
             o.kind == t.kind
-                && crate::wrap_deg(o.bearing_deg - t.bearing_deg).abs() <= deg
+                && crate::geometry::wrap_deg(o.bearing_deg - t.bearing_deg).abs() <= deg
                 && (o.range_m - t.range_m).abs() <= range_m
         };
         for t in targets {

@@ -5,62 +5,10 @@
 use serde::{Deserialize, Serialize};
 use sonar_common::sensor::SensorConfig;
 
-use crate::FeatureError;
-use crate::drift::OdometryErrors;
+use crate::error::FeatureError;
 use crate::noise::NoiseConfig;
-
-/// The physics of the echo, as far as the widths of regions of constant depth depend on it.
-///
-/// The same model as the simulator's echo model (`simulator/src/echo.rs`, `EchoParams`), with the
-/// same defaults, so that the cones this crate expects are the cones the simulator produces; on a
-/// real sensor, measure them (a wall, a corner and a post at a few ranges) and set these. Levels in
-/// dB, 0 dB being a hard flat wall 0.5 m ahead on the axis:
-///
-/// ```text
-/// margin(r) = spreading(reflector, r) − 2·α·r + tvg·min(r, tvg_max) − threshold   (on the axis)
-/// cone half-angle = b₆ · √(margin / 6 dB)   (round-trip beam −6 dB at b₆, falling as θ²)
-/// ```
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct EchoPhysics {
-    /// Off-axis angle where the round-trip beam is 6 dB down: 27° (sensor-facts: ≈ 55° full
-    /// width at −6 dB).
-    pub beam_6db_half_angle_deg: f64,
-    /// Largest incidence at which a flat wall still returns (sensor-facts: a card read correctly
-    /// to ≈ 25–30°; the simulator uses 28°). A wall is heard by every ping aimed within this of
-    /// its normal, and by no other.
-    pub specular_cutoff_deg: f64,
-    /// Air absorption at 40 kHz, one way (ISO 9613-1, 20 °C, 50 % RH).
-    pub absorption_db_per_m: f64,
-    /// The receiver's gain ramp per metre of range (fitted in the simulator to sensor-facts'
-    /// calibration points).
-    pub tvg_db_per_m: f64,
-    /// Range after which the gain ramp holds.
-    pub tvg_max_range_m: f64,
-    /// Detection threshold (fitted: a 5 cm post at 1 m is heard within ≈ ±13°).
-    pub threshold_db: f64,
-    /// A concave corner returns this much less than a flat wall at its range (finite aperture).
-    pub corner_loss_db: f64,
-    /// Radius of the reference point target, the one whose effective cone tells one target from
-    /// two: 2.5 cm, the paper's small obstacles. A thicker post is heard over a wider cone and
-    /// is reported as two targets (see the crate docs).
-    pub point_radius_m: f64,
-}
-
-impl Default for EchoPhysics {
-    fn default() -> Self {
-        Self {
-            beam_6db_half_angle_deg: 27.0,
-            specular_cutoff_deg: 28.0,
-            absorption_db_per_m: 1.3,
-            tvg_db_per_m: 11.0,
-            tvg_max_range_m: 2.0,
-            threshold_db: -15.0,
-            corner_loss_db: 3.0,
-            point_radius_m: 0.025,
-        }
-    }
-}
+use crate::odometry::OdometryErrors;
+use crate::physics::EchoPhysics;
 
 /// How observations are merged into the map and how unconfirmed features fade.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -38,10 +38,10 @@
 //! of the clone, so a fix moves the current pose and the odometry's parameters through their
 //! correlations, and a direction the sonar did not see is left to the odometry.
 use nalgebra::{Isometry2, Matrix3, SMatrix, SVector, Vector2, Vector3};
-use serde::{Deserialize, Serialize};
 
+use crate::geometry::{pose_vector, vector_pose, wrap_rad};
 use crate::localize::{PoseFix, WallAhead};
-use crate::{pose_vector, vector_pose, wrap_rad};
+use crate::odometry::OdometryErrors;
 
 const N: usize = 9;
 type State = SVector<f64, N>;
@@ -53,43 +53,6 @@ const SCALE: usize = 3;
 const DRIFT: usize = 4;
 const TURN: usize = 5;
 const CLONE: usize = 6;
-
-/// How the odometry is expected to err: the prior of its systematic errors and its random error
-/// (`[features.odometry]` in the configuration). Set them from the robot: a calibrated odometry
-/// (UMBmark) has smaller systematic errors, a wheel on carpet larger random ones.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct OdometryErrors {
-    /// σ of the scale error a (fraction). Ordinary wheels: a few percent.
-    pub scale_sigma: f64,
-    /// σ of the heading drift b, degrees per metre.
-    pub drift_sigma_deg_per_m: f64,
-    /// σ of the turn scale error c (fraction).
-    pub turn_sigma: f64,
-    /// Random error of the position, metres per √metre driven.
-    pub position_noise_m_per_sqrt_m: f64,
-    /// Random error of the heading, degrees per √metre driven …
-    pub heading_noise_deg_per_sqrt_m: f64,
-    /// … and per √radian turned.
-    pub turn_noise_deg_per_sqrt_rad: f64,
-}
-
-impl Default for OdometryErrors {
-    /// 5 % scale and turn error, 3°/m of drift: wide enough for a hobby robot's wheels (UMBmark
-    /// reports a few percent and a few degrees per metre before calibration). The random parts
-    /// hold ten times the simulator's default white noise (0.5 mm and 0.05° per 50 ms step at
-    /// 0.2 m/s: 5 mm and 0.5° per √m).
-    fn default() -> Self {
-        Self {
-            scale_sigma: 0.05,
-            drift_sigma_deg_per_m: 3.0,
-            turn_sigma: 0.05,
-            position_noise_m_per_sqrt_m: 0.01,
-            heading_noise_deg_per_sqrt_m: 1.0,
-            turn_noise_deg_per_sqrt_rad: 1.0,
-        }
-    }
-}
 
 /// The odometry's drift as the filter knows it.
 #[derive(Debug, Clone, Copy, PartialEq)]

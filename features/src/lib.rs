@@ -83,74 +83,29 @@
 pub mod classify;
 pub mod config;
 pub mod drift;
+pub mod error;
+pub mod feature;
+pub mod geometry;
 pub mod localize;
 pub mod map;
 pub mod noise;
+pub mod odometry;
 pub mod physics;
 pub mod pings;
 pub mod rcd;
 pub mod segment;
 
 pub use classify::{Class, Classification, Observation, classify};
-pub use config::{EchoPhysics, FeatureConfig, MergeConfig, SegmentConfig};
-pub use drift::{DriftEstimate, DriftFilter, OdometryErrors};
+pub use config::{FeatureConfig, MergeConfig, SegmentConfig};
+pub use drift::{DriftEstimate, DriftFilter};
+pub use error::FeatureError;
+pub use feature::{Feature, FeatureKind};
+pub use geometry::{wrap_deg, wrap_rad};
 pub use localize::{Needs, PoseFix, WallAhead};
-pub use map::{Feature, FeatureKind, FeatureMap, FeatureSummary, SweepReport};
+pub use map::{FeatureMap, FeatureSummary, SweepReport};
 pub use noise::{NoiseConfig, NoiseModel, PingPair};
-pub use physics::Reflector;
+pub use odometry::OdometryErrors;
+pub use physics::{EchoPhysics, Reflector};
 pub use pings::{Ping, Sweep};
 pub use rcd::{End, Rcd};
 pub use segment::{Segment, SegmentEnd};
-
-/// What the library refuses.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum FeatureError {
-    #[error("invalid feature configuration: {0}")]
-    Config(String),
-    #[error(
-        "ping {index}: bearing {bearing_deg}° and range {range_m:?} m must be finite (range > 0)"
-    )]
-    BadPing {
-        index: usize,
-        bearing_deg: f64,
-        range_m: Option<f64>,
-    },
-}
-
-/// `deg` wrapped into (−180, 180].
-pub fn wrap_deg(deg: f64) -> f64 {
-    let d = deg.rem_euclid(360.0);
-    if d > 180.0 { d - 360.0 } else { d }
-}
-
-/// `rad` wrapped into (−π, π].
-pub fn wrap_rad(rad: f64) -> f64 {
-    wrap_deg(rad.to_degrees()).to_radians()
-}
-
-/// A pose as (x, y, θ), the coordinates localisation estimates.
-pub(crate) fn pose_vector(pose: &nalgebra::Isometry2<f64>) -> nalgebra::Vector3<f64> {
-    nalgebra::Vector3::new(
-        pose.translation.x,
-        pose.translation.y,
-        pose.rotation.angle(),
-    )
-}
-
-/// (x, y, θ) as a pose.
-pub(crate) fn vector_pose(x: &nalgebra::Vector3<f64>) -> nalgebra::Isometry2<f64> {
-    nalgebra::Isometry2::new(nalgebra::Vector2::new(x.x, x.y), x.z)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn angles_wrap_into_half_open_intervals() {
-        assert_eq!(wrap_deg(190.0), -170.0);
-        assert_eq!(wrap_deg(-180.0), 180.0);
-        assert_eq!(wrap_deg(540.0), 180.0);
-        assert!((wrap_rad(3.0 * std::f64::consts::PI) - std::f64::consts::PI).abs() < 1e-12);
-    }
-}

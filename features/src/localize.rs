@@ -45,7 +45,8 @@
 use nalgebra::{Isometry2, Matrix2, Matrix3};
 
 use crate::classify::Observation;
-use crate::map::{FeatureKind, FeatureMap, Placed, innovation};
+use crate::feature::FeatureKind;
+use crate::map::{FeatureMap, Placed, innovation};
 
 /// Most Gauss–Newton iterations.
 const MAX_ITERATIONS: usize = 10;
@@ -119,16 +120,18 @@ impl FeatureMap {
             .filter_map(|f| {
                 let (phi, d) = (f.mean_own().x, f.mean_own().y);
                 let range = d - p.dot(&f.normal());
-                (range > 0.0 && crate::wrap_rad(phi - axis).abs() <= cone_rad).then(|| {
-                    (
-                        range,
-                        WallAhead {
-                            normal_rad: phi,
-                            distance_m: d,
-                            distance_sigma_m: f.covariance_own()[(1, 1)].sqrt(),
-                        },
-                    )
-                })
+                (range > 0.0 && crate::geometry::wrap_rad(phi - axis).abs() <= cone_rad).then(
+                    || {
+                        (
+                            range,
+                            WallAhead {
+                                normal_rad: phi,
+                                distance_m: d,
+                                distance_sigma_m: f.covariance_own()[(1, 1)].sqrt(),
+                            },
+                        )
+                    },
+                )
             })
             .min_by(|a, b| a.0.total_cmp(&b.0))
             .map(|(_, wall)| wall)
@@ -146,7 +149,7 @@ impl FeatureMap {
         prior_covariance: &Matrix3<f64>,
     ) -> Option<PoseFix> {
         let prior_information = prior_covariance.try_inverse()?;
-        let x0 = crate::pose_vector(prior);
+        let x0 = crate::geometry::pose_vector(prior);
         let gate = self.config().merge.gate_chi2;
         let anchors = self.features();
         let mut x = x0;
@@ -158,7 +161,7 @@ impl FeatureMap {
             iterations += 1;
             let mut h = prior_information;
             let mut d = x - x0;
-            d.z = crate::wrap_rad(d.z);
+            d.z = crate::geometry::wrap_rad(d.z);
             let mut g = prior_information * d;
             matched = 0;
             walls = 0;
@@ -190,17 +193,17 @@ impl FeatureMap {
             let h_inv = h.try_inverse()?;
             let step = -(h_inv * g);
             x += step;
-            x.z = crate::wrap_rad(x.z);
+            x.z = crate::geometry::wrap_rad(x.z);
             covariance = h_inv;
             if step.norm() < CONVERGED {
                 break;
             }
         }
         let mut d = x - x0;
-        d.z = crate::wrap_rad(d.z);
+        d.z = crate::geometry::wrap_rad(d.z);
         let d2 = (d.transpose() * prior_information * d)[(0, 0)];
         (needs.met_by(matched, walls) && d2 <= FIX_GATE).then_some(PoseFix {
-            pose: crate::vector_pose(&x),
+            pose: crate::geometry::vector_pose(&x),
             covariance,
             matched,
             iterations,
@@ -244,7 +247,7 @@ mod tests {
                         out.push(Observation {
                             kind: FeatureKind::Plane,
                             range_m: d - t.dot(&n),
-                            bearing_deg: crate::wrap_deg(normal_deg - theta.to_degrees()),
+                            bearing_deg: crate::geometry::wrap_deg(normal_deg - theta.to_degrees()),
                             range_sigma_random_m: 0.003,
                             range_sigma_systematic_m: 0.002,
                             bearing_sigma_deg: 0.4,

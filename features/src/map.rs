@@ -24,160 +24,19 @@
 
 use nalgebra::{Isometry2, Matrix2, Matrix2x3, Matrix3, Point2, Vector2, Vector3};
 
-use crate::FeatureError;
 use crate::classify::{Classification, Observation, classify};
 use crate::config::{FeatureConfig, MergeConfig};
+use crate::error::FeatureError;
+use crate::feature::{Feature, FeatureKind};
 use crate::noise::{NoiseLog, NoiseModel};
 use crate::pings::Sweep;
 use crate::rcd::{Gate, Rcd, extract};
 use crate::segment::{Segment, segments};
 use sonar_common::ipc::Reading;
 
-/// What kind of target a feature is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum FeatureKind {
-    /// A post, pillar, table leg or wall edge: a small convex target.
-    Point,
-    /// A concave corner.
-    Corner,
-    /// A wall (a partial plane).
-    Plane,
-}
-
 /// Smallest bearing σ used for the independent part, so its covariance stays invertible (the
 /// bearing has no error independent between sweeps taken from one place).
 const BEARING_FLOOR_DEG: f64 = 0.01;
-
-/// A feature of the map.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Feature {
-    id: u64,
-    kind: FeatureKind,
-    /// Point, corner: (x, y). Plane: (φ in radians, d).
-    mean: Vector2<f64>,
-    /// Covariance of the Kalman recursion, which weighs each observation.
-    weights: Matrix2<f64>,
-    /// Covariance of the part of the error that averages out.
-    random: Matrix2<f64>,
-    /// Covariance of the part that repeats from sweep to sweep (mean over the observations).
-    systematic: Matrix2<f64>,
-    confidence: f64,
-    times_seen: u32,
-    first_seen: u64,
-    last_seen: u64,
-    /// Direction of the sensor's ray to the feature at its last sighting, degrees.
-    ray_deg: f64,
-    /// Plane: where the sensor's own perpendicular met the line, along the line (coordinate along
-    /// the direction 90° counter-clockwise of the normal, from the foot of the map origin's
-    /// perpendicular): the extent of direct evidence.
-    feet: (f64, f64),
-}
-
-impl Feature {
-    pub fn id(&self) -> u64 {
-        self.id
-    }
-
-    pub fn kind(&self) -> FeatureKind {
-        self.kind
-    }
-
-    /// Point: the echo point (the target's surface nearest the sensor). Corner: the vertex.
-    /// Plane: the foot of the perpendicular from the map's origin.
-    pub fn position(&self) -> Point2<f64> {
-        match self.kind {
-            FeatureKind::Plane => Point2::from(self.normal() * self.mean.y),
-            FeatureKind::Point | FeatureKind::Corner => Point2::from(self.mean),
-        }
-    }
-
-    /// The estimate in its own coordinates: (x, y), or (φ, d) for a plane.
-    pub(crate) fn mean_own(&self) -> Vector2<f64> {
-        self.mean
-    }
-
-    /// Reported covariance of the estimate in its own coordinates: (x, y), or (φ, d) for a plane.
-    pub(crate) fn covariance_own(&self) -> Matrix2<f64> {
-        self.random + self.systematic
-    }
-
-    /// Covariance of [`Feature::position`], m².
-    pub fn covariance(&self) -> Matrix2<f64> {
-        let p = self.covariance_own();
-        match self.kind {
-            FeatureKind::Point | FeatureKind::Corner => p,
-            FeatureKind::Plane => {
-                // foot = d·n(φ): ∂/∂φ = d·n'(φ), ∂/∂d = n(φ).
-                let n = self.normal();
-                let j = Matrix2::new(-n.y * self.mean.y, n.x, n.x * self.mean.y, n.y);
-                j * p * j.transpose()
-            }
-        }
-    }
-
-    /// Unit normal of a plane (meaningless for other kinds).
-    pub(crate) fn normal(&self) -> Vector2<f64> {
-        Vector2::new(self.mean.x.cos(), self.mean.x.sin())
-    }
-
-    /// Plane: direction of its normal from the map's origin towards the wall, degrees.
-    pub fn normal_deg(&self) -> Option<f64> {
-        (self.kind == FeatureKind::Plane).then(|| self.mean.x.to_degrees())
-    }
-
-    /// Plane: σ of the normal's direction, degrees.
-    pub fn normal_sigma_deg(&self) -> Option<f64> {
-        (self.kind == FeatureKind::Plane).then(|| self.covariance_own()[(0, 0)].sqrt().to_degrees())
-    }
-
-    /// Plane: perpendicular distance from the map's origin, metres.
-    pub fn distance_m(&self) -> Option<f64> {
-        (self.kind == FeatureKind::Plane).then_some(self.mean.y)
-    }
-
-    /// Plane: σ of that distance, metres.
-    pub fn distance_sigma_m(&self) -> Option<f64> {
-        (self.kind == FeatureKind::Plane).then(|| self.covariance_own()[(1, 1)].sqrt())
-    }
-
-    /// Plane: direction along its line (the normal turned 90° counter-clockwise).
-    pub(crate) fn direction(&self) -> Option<Vector2<f64>> {
-        (self.kind == FeatureKind::Plane).then(|| {
-            let n = self.normal();
-            Vector2::new(-n.y, n.x)
-        })
-    }
-
-    /// Plane: the extent along its line over which the sensor's perpendiculars met it.
-    pub(crate) fn feet(&self) -> (f64, f64) {
-        self.feet
-    }
-
-    /// In [0, 1]: how well recent sweeps confirmed it.
-    pub fn confidence(&self) -> f64 {
-        self.confidence
-    }
-
-    /// Sweeps that observed it.
-    pub fn times_seen(&self) -> u32 {
-        self.times_seen
-    }
-
-    /// Sweep numbers (from 1, counted by the map) of its first and latest sighting.
-    pub fn first_seen(&self) -> u64 {
-        self.first_seen
-    }
-
-    pub fn last_seen(&self) -> u64 {
-        self.last_seen
-    }
-
-    /// Direction of the sensor's ray to the target at its latest sighting, degrees (for a plane,
-    /// the normal as the sensor saw it).
-    pub fn ray_deg(&self) -> f64 {
-        self.ray_deg
-    }
-}
 
 /// An observation in the map's frame.
 #[derive(Debug, Clone, Copy)]
@@ -204,15 +63,15 @@ impl Placed {
     /// `o` placed at the pose `x` = (x, y, θ), and the Jacobian of its mean with respect to `x`:
     /// taken numerically, so that every kind is placed by the one function that merges it.
     pub(crate) fn with_jacobian(o: &Observation, x: &Vector3<f64>) -> (Self, Matrix2x3<f64>) {
-        let at = Self::new(o, &crate::vector_pose(x));
+        let at = Self::new(o, &crate::geometry::vector_pose(x));
         let mut j = Matrix2x3::zeros();
         for k in 0..3 {
             let mut moved = *x;
             moved[k] += STEP;
-            let mut d = Self::new(o, &crate::vector_pose(&moved)).mean - at.mean;
+            let mut d = Self::new(o, &crate::geometry::vector_pose(&moved)).mean - at.mean;
             if o.kind == FeatureKind::Plane {
                 // The plane's angle is wrapped: a step never crosses more than a tiny arc.
-                d.x = crate::wrap_rad(d.x);
+                d.x = crate::geometry::wrap_rad(d.x);
             }
             j.set_column(k, &(d / STEP));
         }
@@ -253,7 +112,7 @@ impl Placed {
                     mean: world.coords,
                     random: j * random * j.transpose(),
                     systematic: j * systematic * j.transpose(),
-                    ray_deg: crate::wrap_deg((beta + theta).to_degrees()),
+                    ray_deg: crate::geometry::wrap_deg((beta + theta).to_degrees()),
                     foot: 0.0,
                 }
             }
@@ -276,10 +135,10 @@ impl Placed {
                 let along = Vector2::new(-phi_map.sin(), phi_map.cos());
                 Self {
                     kind: o.kind,
-                    mean: Vector2::new(crate::wrap_rad(phi_map), d.abs()),
+                    mean: Vector2::new(crate::geometry::wrap_rad(phi_map), d.abs()),
                     random: j * swap(random) * j.transpose(),
                     systematic: j * swap(systematic) * j.transpose(),
-                    ray_deg: crate::wrap_deg(phi.to_degrees()),
+                    ray_deg: crate::geometry::wrap_deg(phi.to_degrees()),
                     foot: t.dot(&along),
                 }
             }
@@ -392,10 +251,11 @@ impl FeatureMap {
             let (_, classification) = self.observe(&sweep);
             let gate = self.gate(&sweep);
             for o in classification.observations {
-                let agrees =
-                    crate::wrap_deg(o.bearing_deg - normal).abs() <= MOVING_NORMAL_STEP_DEG / 2.0;
+                let agrees = crate::geometry::wrap_deg(o.bearing_deg - normal).abs()
+                    <= MOVING_NORMAL_STEP_DEG / 2.0;
                 let known = walls.iter().any(|w| {
-                    crate::wrap_deg(w.bearing_deg - o.bearing_deg).abs() <= MOVING_NORMAL_STEP_DEG
+                    crate::geometry::wrap_deg(w.bearing_deg - o.bearing_deg).abs()
+                        <= MOVING_NORMAL_STEP_DEG
                         && (w.range_m - o.range_m).abs() <= gate.tolerance_at(o.range_m)
                 });
                 if o.kind == FeatureKind::Plane && agrees && !known {
@@ -433,7 +293,7 @@ impl FeatureMap {
     ) -> SweepReport {
         self.sweeps += 1;
         let stamp = self.sweeps;
-        let x = crate::pose_vector(pose);
+        let x = crate::geometry::pose_vector(pose);
         let placed: Vec<Placed> = observations
             .iter()
             .map(|o| {
@@ -566,7 +426,7 @@ pub struct FeatureSummary {
 pub(crate) fn innovation(f: &Feature, z: &Placed) -> Vector2<f64> {
     let mut v = z.mean - f.mean;
     if f.kind == FeatureKind::Plane {
-        v.x = crate::wrap_rad(v.x);
+        v.x = crate::geometry::wrap_rad(v.x);
     }
     v
 }
@@ -592,7 +452,7 @@ fn refine(f: &mut Feature, z: &Placed, stamp: u64, cfg: &MergeConfig) {
     let i_k = Matrix2::identity() - k;
     f.mean += k * v;
     if f.kind == FeatureKind::Plane {
-        f.mean.x = crate::wrap_rad(f.mean.x);
+        f.mean.x = crate::geometry::wrap_rad(f.mean.x);
     }
     f.weights = i_k * f.weights;
     // Joseph form: the random part of the estimate under the gains actually used.

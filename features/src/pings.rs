@@ -23,8 +23,8 @@
 use nalgebra::{Isometry2, Vector2};
 use sonar_common::ipc::{Reading, flags};
 
-use crate::FeatureError;
 use crate::config::FeatureConfig;
+use crate::error::FeatureError;
 use crate::noise::PingPair;
 
 /// One ping: where the head pointed, and the range of the first echo it heard.
@@ -88,7 +88,7 @@ impl Sweep {
         let mut sweep = Self::brought_to_reference(readings, Some(normal_deg), cfg);
         sweep
             .pings
-            .retain(|p| crate::wrap_deg(p.bearing_deg - normal_deg).abs() <= window_deg);
+            .retain(|p| crate::geometry::wrap_deg(p.bearing_deg - normal_deg).abs() <= window_deg);
         sweep
     }
 
@@ -190,7 +190,12 @@ impl Sweep {
     pub fn ping_at(&self, bearing_deg: f64) -> Option<&Ping> {
         self.pings
             .iter()
-            .map(|p| (crate::wrap_deg(p.bearing_deg - bearing_deg).abs(), p))
+            .map(|p| {
+                (
+                    crate::geometry::wrap_deg(p.bearing_deg - bearing_deg).abs(),
+                    p,
+                )
+            })
             .filter(|(off, _)| *off <= self.step_deg / 2.0 + 1e-9)
             .min_by(|a, b| a.0.total_cmp(&b.0))
             .map(|(_, p)| p)

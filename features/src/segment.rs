@@ -15,7 +15,7 @@
 use nalgebra::Point2;
 
 use crate::config::SegmentConfig;
-use crate::map::{Feature, FeatureKind};
+use crate::feature::{Feature, FeatureKind};
 
 /// What fixed an end of a segment.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -18,13 +18,39 @@
 //! the steps are found by bisection over the reference encoder itself, on the same float-to-bucket
 //! mapping the lookup uses. Keys outside the range a rule keeps its cells in (only a hand-made
 //! state could hold them) take the reference encoder. The counts, and whether a cell is
-//! confidently occupied ([`crate::grid::CONFIDENT_PROBABILITY`], the cells the features' walls grow
+//! confidently occupied ([`CONFIDENT_PROBABILITY`], the cells the features' walls grow
 //! along), are thresholds on the key, found the same way.
 
 use sonar_common::ipc::{CELL_UNKNOWN, encode_probability};
 
-use crate::grid::{CONFIDENT_PROBABILITY, CellClass};
 use crate::rule::Combine;
+
+/// Occupancy probability from which a cell is confidently occupied
+/// ([`crate::grid::OccupancyGrid::confident_cells`]): the cells that lend their position to a wall's segment
+/// in the feature map (`crate::features`).
+pub const CONFIDENT_PROBABILITY: f32 = 0.8;
+
+/// What a cell says, for the snapshot header's counts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum CellClass {
+    /// 0.5 < p < [`CONFIDENT_PROBABILITY`].
+    Occupied = 0,
+    /// p < 0.5.
+    Free = 1,
+    /// Never reached by a reading.
+    Unknown = 2,
+    /// p = 0.5 exactly after readings: counted as neither.
+    Even = 3,
+    /// p ≥ [`CONFIDENT_PROBABILITY`]: counted as occupied.
+    Confident = 4,
+}
+
+impl CellClass {
+    pub(crate) const COUNT: usize = 5;
+}
+
+// [`crate::grid::OccupancyGrid::confident_cells`] finds the confident cells by their one bit.
+const _: () = assert!(CellClass::Confident as u8 == 1 << 2 && CellClass::COUNT == 5);
 
 /// Buckets tried first; doubled until no bucket holds two steps.
 const FIRST_BUCKETS: usize = 512;

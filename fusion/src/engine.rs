@@ -8,10 +8,7 @@
 //! the model, the rule or the preset re-fuses the same data: a user compares methods on one scan
 //! instead of waiting for new sweeps.
 
-use std::collections::VecDeque;
-
 use nalgebra::Isometry2;
-use serde::{Deserialize, Serialize};
 use sonar_common::ipc::{
     FusionCommand, FusionCommandKind, GridHeader, LAYOUT_VERSION, Pose2D, RADAR_MAX_BINS, Radar,
     Reading, preset_code,
@@ -19,12 +16,13 @@ use sonar_common::ipc::{
 
 use crate::config::{ConfigError, FusionConfig, Preset};
 use crate::grid::CellCounts;
+use crate::history::{History, Placement, Revised};
 use crate::mapper::Mapper;
 use crate::model::{ModelConfig, ModelKind};
 use crate::observation::Observation;
 use crate::poses::{PlacedPose, PoseError, PoseKind, PoseTrack};
 use crate::rule::{RuleConfig, RuleKind};
-use crate::state::{MapState, SavedMap, SavedObservation, StateError};
+use crate::state::{MapState, SavedObservation, ScanState, StateError};
 
 /// A command the engine refuses; the maps are unchanged.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -37,20 +35,18 @@ pub enum CommandError {
     Config(#[from] ConfigError),
 }
 
-/// What the latest reading said about the scan, for the snapshots' headers.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-pub(crate) struct ScanState {
-    sweep_id: u32,
-    direction: i8,
-    mode: u8,
+/// What a map file holds: the settings the map was built with, and the engine's state.
+#[derive(Debug, Clone, Default)]
+pub struct SavedMap {
+    pub settings: FusionConfig,
+    pub state: MapState,
 }
 
 /// Both maps, the observations behind them, and the scan state.
 #[derive(Debug)]
 pub struct Engine {
     mapper: Mapper,
-    history: VecDeque<Observation>,
-    history_limit: usize,
+    history: History,
     scan: Option<ScanState>,
     /// The robot's recent poses: each reading is placed at its own instant.
     poses: PoseTrack,
@@ -75,8 +71,7 @@ impl Engine {
     pub fn new(config: FusionConfig, history_limit: usize) -> Result<Self, ConfigError> {
         Ok(Self {
             mapper: Mapper::new(config)?,
-            history: VecDeque::new(),
-            history_limit,
+            history: History::new(history_limit),
             scan: None,
             poses: PoseTrack::new(Isometry2::identity()),
             pose: Isometry2::identity(),
@@ -100,13 +95,10 @@ impl Engine {
         let skip = state.history.len().saturating_sub(history_limit);
         Ok(Self {
             mapper: Mapper::restore(config, state.maps)?,
-            history: state
-                .history
-                .into_iter()
-                .skip(skip)
-                .map(Into::into)
-                .collect(),
-            history_limit,
+            history: History::restored(
+                history_limit,
+                state.history.into_iter().skip(skip).map(Into::into),
+            ),
             scan: state.scan,
             poses: PoseTrack::new(state.robot_pose.into()),
             pose: state.robot_pose.into(),
@@ -138,7 +130,7 @@ impl Engine {
         state.history.clear();
         state
             .history
-            .extend(self.history.iter().map(SavedObservation::from));
+            .extend(self.history.observations().map(SavedObservation::from));
         state.scan = self.scan;
         state.robot_pose = self.poses.latest().into();
         state.rejected_readings = self.rejected_readings;
@@ -205,6 +197,35 @@ impl Engine {
         self.correction = correction;
     }
 
+    /// Moves the kept readings of each sweep in `corrections` (sweep id, map ← odometry as now
+    /// estimated; the SLAM's revisions) to where that correction places them, and starts
+    /// rebuilding the maps from them if some moved by more than half a cell
+    /// ([`crate::history`]); [`Self::rebuild_step`] carries it on.
+    pub fn revise(&mut self, corrections: &[(u32, Isometry2<f32>)]) -> Revised {
+        let config = *self.mapper.config();
+        let tolerance = config.grid.resolution_m / 2.0;
+        self.history.revise(corrections, tolerance, || {
+            // The settings are the live maps', which were valid.
+            Mapper::new(config).unwrap_or_else(|_| unreachable!("the live maps' settings"))
+        })
+    }
+
+    /// Carries a rebuild on by up to `budget` readings; true when the rebuilt maps replaced
+    /// the live ones.
+    pub fn rebuild_step(&mut self, budget: usize) -> bool {
+        let Some(mapper) = self.history.rebuild_step(budget) else {
+            return false;
+        };
+        self.mapper = mapper;
+        self.revision += 1;
+        true
+    }
+
+    /// Whether the maps are being rebuilt after a revision.
+    pub fn rebuilding(&self) -> bool {
+        self.history.rebuilding()
+    }
+
     /// Takes a pose of the robot (`robot/pose`); readings are placed at the pose interpolated at
     /// their own stamp ([`crate::poses`]). A non-finite or out-of-order pose is refused.
     pub fn set_pose(&mut self, pose: &Pose2D) -> Result<(), PoseError> {
@@ -253,12 +274,13 @@ impl Engine {
             self.rejected_readings += 1;
             return false;
         }
-        if self.history_limit > 0 {
-            if self.history.len() == self.history_limit {
-                self.history.pop_front();
-            }
-            self.history.push_back(obs);
-        }
+        self.history.push(
+            obs,
+            Some(Placement {
+                sweep_id: reading.sweep_id,
+                correction: self.correction,
+            }),
+        );
         true
     }
 
@@ -307,12 +329,13 @@ impl Engine {
     /// Rebuilds the maps for `config` from the kept observations.
     fn reconfigure(&mut self, config: FusionConfig) -> Result<(), CommandError> {
         let mut mapper = Mapper::new(config)?;
-        for obs in &self.history {
+        for obs in self.history.observations() {
             // Every kept observation was accepted once; the limits of the new configuration are
             // the same (grid and sensor are kept), so none is refused now.
             let _ = mapper.update(obs);
         }
         self.mapper = mapper;
+        self.history.rebuilt_at_once();
         self.revision += 1;
         Ok(())
     }
@@ -358,15 +381,15 @@ impl Engine {
     }
 
     /// The grid's cells in the snapshot encoding and their counts, as kept up to date while
-    /// fusing ([`crate::OccupancyGrid::encoded`]).
+    /// fusing ([`crate::grid::OccupancyGrid::encoded`]).
     pub fn encoded_grid(&mut self) -> (&[u8], CellCounts) {
         self.mapper.grid_mut().encoded()
     }
 
     /// The grid, for reads that bring its kept state up to date first
-    /// ([`crate::OccupancyGrid::confident_cells`], [`crate::OccupancyGrid::encoded`]). Change the
+    /// ([`crate::grid::OccupancyGrid::confident_cells`], [`crate::grid::OccupancyGrid::encoded`]). Change the
     /// maps through [`Self::fuse`] and [`Self::apply`]: they keep the history and the revision.
-    pub fn grid_mut(&mut self) -> &mut crate::OccupancyGrid {
+    pub fn grid_mut(&mut self) -> &mut crate::grid::OccupancyGrid {
         self.mapper.grid_mut()
     }
 
@@ -479,6 +502,39 @@ mod tests {
         assert_eq!(h.model, model_code::PAPER);
         assert_eq!(h.rule, rule_code::BAYES);
         assert_eq!(h.readings_fused, readings.len() as u64);
+    }
+
+    /// The SLAM revises sweep 1, placed before its correction was known: the maps rebuilt in
+    /// steps equal maps fused with that correction from the start.
+    #[test]
+    fn a_revised_sweep_is_fused_again_where_its_correction_places_it() {
+        let readings = sweeps();
+        let correction = Isometry2::new(nalgebra::Vector2::new(0.3, -0.2), 0.1);
+        let mut live = Engine::new(FusionConfig::default(), 1000).unwrap();
+        for r in &readings {
+            if r.sweep_id == 2 {
+                live.set_correction(correction);
+            }
+            live.fuse(r);
+        }
+        let mut right = Engine::new(FusionConfig::default(), 1000).unwrap();
+        right.set_correction(correction);
+        for r in &readings {
+            right.fuse(r);
+        }
+        assert_ne!(encoded(&mut live), encoded(&mut right));
+        assert_eq!(live.revise(&[(1, correction)]), Revised::Rebuilding(50));
+        let before = encoded(&mut live);
+        let mut steps = 0;
+        while !live.rebuild_step(32) {
+            steps += 1;
+            // The live maps stay as they were until the rebuilt ones replace them.
+            assert_eq!(encoded(&mut live), before);
+        }
+        assert_eq!(steps, 3, "100 readings in steps of 32");
+        assert!(!live.rebuilding());
+        assert_eq!(encoded(&mut live), encoded(&mut right));
+        assert_eq!(live.revise(&[(1, correction)]), Revised::Unmoved);
     }
 
     #[test]

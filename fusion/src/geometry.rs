@@ -21,7 +21,7 @@ pub struct GridGeometry {
 
 impl GridGeometry {
     /// The grid of `cells` cells per side of `resolution` metres. The caller has validated both
-    /// (see [`crate::GridConfig`]).
+    /// (see [`crate::config::GridConfig`]).
     pub fn new(cells: usize, resolution: f32) -> Self {
         Self::centred_at(cells, resolution, Vector2::zeros())
     }

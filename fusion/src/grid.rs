@@ -6,17 +6,13 @@ use std::ops::Range;
 
 use sonar_common::ipc::CELL_UNKNOWN;
 
-use crate::encoding::KeyEncoder;
+pub use crate::encoding::CONFIDENT_PROBABILITY;
+use crate::encoding::{CellClass, KeyEncoder};
 use crate::geometry::GridGeometry;
 use crate::rule::{
     BayesRule, Combine, DempsterShaferRule, HimmRule, LogOddsRule, RuleConfig, RuleKind,
 };
 use crate::state::{SavedCells, StateError, check_len};
-
-/// Occupancy probability from which a cell is confidently occupied
-/// ([`OccupancyGrid::confident_cells`]): the cells that lend their position to a wall's segment
-/// in the feature map (`crate::features`).
-pub const CONFIDENT_PROBABILITY: f32 = 0.8;
 
 /// The cells of one rule, with the rule's parameters, and the cells in the snapshot encoding with
 /// their counts ([`crate::encoding`]). The encoding lags behind the cells: a kernel's runs are
@@ -166,28 +162,6 @@ impl<R: Combine> Layer<R> {
         (&self.bytes, counts)
     }
 }
-
-/// What a cell says, for the snapshot header's counts.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum CellClass {
-    /// 0.5 < p < [`CONFIDENT_PROBABILITY`].
-    Occupied = 0,
-    /// p < 0.5.
-    Free = 1,
-    /// Never reached by a reading.
-    Unknown = 2,
-    /// p = 0.5 exactly after readings: counted as neither.
-    Even = 3,
-    /// p ≥ [`CONFIDENT_PROBABILITY`]: counted as occupied.
-    Confident = 4,
-}
-
-impl CellClass {
-    const COUNT: usize = 5;
-}
-
-// [`OccupancyGrid::confident_cells`] finds the confident cells by their one bit.
-const _: () = assert!(CellClass::Confident as u8 == 1 << 2 && CellClass::COUNT == 5);
 
 /// The grid's state, in the representation of its rule.
 pub(crate) enum CellStore {

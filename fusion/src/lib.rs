@@ -186,11 +186,14 @@
 //! from one save to the next.
 
 pub mod config;
+mod config_error;
 mod encoding;
 pub mod engine;
 pub mod features;
+pub mod file;
 pub mod geometry;
 pub mod grid;
+pub mod history;
 pub mod kernel;
 mod lines;
 pub mod mapper;
@@ -205,11 +208,10 @@ pub mod rule;
 pub mod state;
 pub mod status;
 
-pub use config::{
-    ConfigError, FeaturesSection, FusionConfig, FusionFile, FusionFileError, FusionSection,
-    GridConfig, Preset, SensorLimits, UnknownName,
-};
+pub use config::{ConfigError, FusionConfig, GridConfig, Preset, SensorLimits, UnknownName};
+pub use engine::SavedMap;
 pub use features::{FeatureTracker, SweepOutcome};
+pub use file::{FeaturesSection, FusionFile, FusionFileError, FusionSection};
 pub use geometry::GridGeometry;
 pub use grid::{CellCounts, OccupancyGrid};
 pub use mapper::{Kernel, Mapper, Update};
@@ -221,4 +223,4 @@ pub use observation::{Observation, ObservationError};
 pub use persist::{LoadError, PersistConfig, Restore, SaveError, Saver};
 pub use radar::{RadarConfig, RadarMap};
 pub use rule::{HimmRule, LogOddsRule, RuleConfig, RuleKind};
-pub use state::{MapState, SavedMap, StateError};
+pub use state::{MapState, StateError};

@@ -32,13 +32,14 @@ use iceoryx2::waitset::WaitSetRunResult;
 use sonar_common::ipc::{
     self, FeatureRecord, FeaturesHeader, FusionCommand, FusionCommandKind, FusionStatus,
     GRID_SEGMENT_SLOTS, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, LocalizedPose, MAX_FEATURES,
-    Radar, Reading, SlamCorrection, unix_time_ns,
+    Radar, Reading, SlamCorrection, slam_state, unix_time_ns,
 };
 use sonar_common::throttle::Throttle;
+use sonar_fusion::SavedMap;
 use sonar_fusion::engine::Engine;
+use sonar_fusion::history::Revised;
 use sonar_fusion::persist::{self, Restore, SaveReport, Saver};
 use sonar_fusion::poses::MAX_POSE_WAIT;
-use sonar_fusion::state::SavedMap;
 use sonar_fusion::status::{Ledger, SeqStep};
 use sonar_fusion::{
     FeatureTracker, FeaturesSection, FusionConfig, FusionFile, FusionSection, ModelConfig,
@@ -394,6 +395,7 @@ fn run(args: &Args) -> Result<()> {
         pose_log: Throttle::new(LOG_PERIOD),
         waiting: None,
         corrections: 0,
+        revisions: RevisionCount::default(),
     };
     // Readings were left in the buffer at the end of the last turn.
     let mut more = false;
@@ -402,7 +404,7 @@ fn run(args: &Args) -> Result<()> {
         // No sleep while readings wait; else until something arrives, the tick, or the moment a
         // held-back snapshot may go out (so it goes out then, not up to a tick later).
         let now = Instant::now();
-        let timeout = if more {
+        let timeout = if more || engine.rebuilding() {
             Duration::ZERO
         } else if out.waiting.is_some() {
             POSE_POLL
@@ -446,6 +448,7 @@ fn run(args: &Args) -> Result<()> {
         }
         out.take_pose(&mut engine)?;
         more = out.fuse_readings(&mut engine, features.as_mut(), PoseWait::Bounded)?;
+        out.rebuild_step(&mut engine);
         let now = Instant::now();
         if let Some(features) = &mut features {
             features.finish_idle_sweep(&mut engine, now);
@@ -463,6 +466,9 @@ fn run(args: &Args) -> Result<()> {
     // Stopping: the readings already delivered are fused and the map they make is published
     // (pace or not), so a replay's last readings reach the saved map and its subscribers.
     while out.fuse_readings(&mut engine, features.as_mut(), PoseWait::None)? {}
+    while engine.rebuilding() {
+        out.rebuild_step(&mut engine);
+    }
     if out.dirty {
         out.publish(&mut engine)?;
     }
@@ -492,6 +498,8 @@ fn run(args: &Args) -> Result<()> {
         snapshots = out.seq,
         saves = status.saves,
         slam_corrections = out.corrections,
+        slam_revisions = out.revisions.applied,
+        slam_revisions_unapplied = out.revisions.uncovered,
         "fusion stopped"
     );
     Ok(())
@@ -938,6 +946,19 @@ struct Output<'a> {
     waiting: Option<(Reading, Instant)>,
     /// sonar-slam's corrections applied (--slam-correction).
     corrections: u64,
+    /// The maps rebuilt after sonar-slam moved sweeps already fused.
+    revisions: RevisionCount,
+}
+
+/// Revisions of sweeps already fused (`sonar-slam` moving them), counted for the log.
+#[derive(Debug, Default)]
+struct RevisionCount {
+    /// Rebuilds of the maps finished.
+    applied: u64,
+    /// Revisions the maps could not follow (they hold more than the kept readings).
+    uncovered: u64,
+    /// When the rebuild under way started.
+    started: Option<Instant>,
 }
 
 impl Output<'_> {
@@ -994,6 +1015,7 @@ impl Output<'_> {
         let Some(subscriber) = &self.ports.slam_correction else {
             return Ok(());
         };
+        let mut revised = Vec::new();
         while let Some(sample) = subscriber
             .receive()
             .map_err(|e| IpcError::new("receive SLAM correction", e))?
@@ -1006,6 +1028,17 @@ impl Output<'_> {
                 warn!(correction = ?c, "SLAM correction refused: not finite");
                 continue;
             }
+            let correction = nalgebra::Isometry2::new(
+                nalgebra::Vector2::new(c.correction_x_m, c.correction_y_m),
+                c.correction_theta_rad,
+            );
+            // Every message places its sweep's readings, fused with the correction known when
+            // they came; a revision is an earlier sweep moved, the others set the correction
+            // for the readings from now on.
+            revised.push((c.sweep_id, correction));
+            if c.state == slam_state::REVISED {
+                continue;
+            }
             if self.corrections == 0 {
                 info!(
                     sweep = c.sweep_id,
@@ -1014,12 +1047,44 @@ impl Output<'_> {
                 );
             }
             self.corrections += 1;
-            engine.set_correction(nalgebra::Isometry2::new(
-                nalgebra::Vector2::new(c.correction_x_m, c.correction_y_m),
-                c.correction_theta_rad,
-            ));
+            engine.set_correction(correction);
+        }
+        if revised.is_empty() {
+            return Ok(());
+        }
+        match engine.revise(&revised) {
+            Revised::Unmoved => {}
+            Revised::Rebuilding(moved) => {
+                debug!(
+                    moved,
+                    sweeps = revised.len(),
+                    "sweeps revised: rebuilding the maps"
+                );
+                self.revisions.started.get_or_insert_with(Instant::now);
+            }
+            Revised::Uncovered(moved) => {
+                if self.revisions.uncovered == 0 {
+                    warn!(
+                        moved,
+                        "sonar-slam moved sweeps already fused, but the maps hold more readings \
+                         than are kept (--history): they stay where they were placed; a larger \
+                         --history lets the maps follow the SLAM"
+                    );
+                }
+                self.revisions.uncovered += 1;
+            }
         }
         Ok(())
+    }
+
+    /// Carries a rebuild of the maps on by one turn's worth of readings.
+    fn rebuild_step(&mut self, engine: &mut Engine) {
+        if engine.rebuild_step(READINGS_PER_TURN) {
+            self.revisions.applied += 1;
+            let took = self.revisions.started.take().map(|t| t.elapsed());
+            debug!(?took, "maps rebuilt where sonar-slam now places the sweeps");
+            self.dirty = true;
+        }
     }
 
     /// Fuses up to [`READINGS_PER_TURN`] readings; true when it stopped there (more may wait),

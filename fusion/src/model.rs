@@ -17,7 +17,7 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::{ConfigError, UnknownName, check};
+use crate::config_error::{ConfigError, UnknownName, check};
 use crate::observation::Beam;
 use crate::regions::DepthTolerance;
 

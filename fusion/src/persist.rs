@@ -74,8 +74,8 @@ use serde::{Deserialize, Serialize};
 use sonar_common::ipc::unix_time_ns;
 
 use crate::config::{ConfigError, FusionConfig};
-use crate::engine::Engine;
-use crate::state::{SavedMap, StateError};
+use crate::engine::{Engine, SavedMap};
+use crate::state::StateError;
 
 /// The first bytes of every map file.
 pub const MAGIC: [u8; 8] = *b"SONARMAP";

@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 use sonar_common::ipc::{CELL_UNKNOWN, RADAR_MAX_BINS, encode_probability};
 use sonar_common::sensor::SensorConfig;
 
-use crate::config::{ConfigError, check};
+use crate::config_error::{ConfigError, check};
 use crate::geometry::{GridGeometry, wrap_angle};
 use crate::observation::Observation;
 use crate::state::{SavedRadar, StateError, check_len};
@@ -236,7 +236,7 @@ impl RadarMap {
     /// cell thick across the beam width (±`beam_half_angle_rad` around the bin's angle), seen from
     /// the sensor at `pose`. Arc cells are "occupied" (p = 1, the basic method's unchanging
     /// likelihood along the whole arc); every other cell is unknown, since the display says nothing
-    /// about them. The result compares cell by cell with [`crate::OccupancyGrid::encode_into`].
+    /// about them. The result compares cell by cell with [`crate::grid::OccupancyGrid::encode_into`].
     ///
     /// # Panics
     /// If `out` does not hold one byte per cell.

@@ -11,7 +11,7 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::{ConfigError, UnknownName, check};
+use crate::config_error::{ConfigError, UnknownName, check};
 
 /// Which form of a model's evidence a rule consumes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -9,21 +9,21 @@
 //! placed), and the counters. Floats are kept bit for bit, NaN sentinels included. What is left
 //! out is derived: the fast kernel's caches are rebuilt on the first reading (its results do not
 //! depend on them, see [`crate::kernel`]), and the settings travel beside the state
-//! ([`SavedMap`]).
+//! ([`crate::engine::SavedMap`]).
 
 use nalgebra::{Complex, Isometry2, Translation2, Unit};
 use serde::{Deserialize, Serialize};
 
-use crate::config::{ConfigError, FusionConfig};
-use crate::engine::ScanState;
+use crate::config_error::ConfigError;
 use crate::observation::Observation;
 use crate::rule::RuleKind;
 
-/// What a map file holds: the settings the map was built with, and the engine's state.
-#[derive(Debug, Clone, Default)]
-pub struct SavedMap {
-    pub settings: FusionConfig,
-    pub state: MapState,
+/// What the latest reading said about the scan, for the snapshots' headers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub(crate) struct ScanState {
+    pub(crate) sweep_id: u32,
+    pub(crate) direction: i8,
+    pub(crate) mode: u8,
 }
 
 /// The engine's state, taken by [`crate::engine::Engine::capture`].

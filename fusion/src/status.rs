@@ -154,8 +154,8 @@ impl Ledger {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::engine::SavedMap;
     use crate::persist::SaveError;
-    use crate::state::SavedMap;
 
     #[test]
     fn gaps_are_lost_readings_and_a_restart_is_not() {

@@ -6,7 +6,7 @@
 
 use std::io::Write;
 
-use crate::MapError;
+use crate::map::MapError;
 
 /// An RGB picture, 8 bits per channel, rows top to bottom.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -15,7 +15,7 @@ use std::str::FromStr;
 
 use sonar_common::ipc::{FeatureRecord, FeaturesHeader, feature_kind};
 
-use crate::MapError;
+use crate::map::MapError;
 use crate::output::write_file;
 
 /// A features file format.

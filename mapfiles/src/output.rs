@@ -6,10 +6,10 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
+use crate::map::{Map, MapError};
 use crate::picture::{PngOptions, write_png};
 use crate::ros::{map_yaml, write_pgm};
 use crate::table::{write_csv, write_npy};
-use crate::{Map, MapError};
 
 /// A map file format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -154,7 +154,7 @@ pub fn write_file(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_grid;
+    use crate::map::test_grid;
 
     fn scratch(name: &str) -> PathBuf {
         let dir =

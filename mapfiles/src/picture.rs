@@ -9,10 +9,11 @@ use sonar_common::ipc::{FeatureRecord, feature_kind};
 
 use crate::canvas::Canvas;
 use crate::colour::{FEATURE_RGB, UNKNOWN_RGB, cell_rgb};
+use crate::font;
+use crate::map::{Map, MapError};
 use crate::overlay::{self, FeatureMark};
 use crate::settings::{MODELS, RULES, setting_name};
 use crate::viewport::Viewport;
-use crate::{Map, MapError, font};
 
 /// Rows the legend adds below the map.
 pub const LEGEND_HEIGHT: u32 = 24;
@@ -220,7 +221,7 @@ fn draw_legend(canvas: &mut Canvas, top: u32, bar: &ScaleBar) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_grid;
+    use crate::map::test_grid;
     use sonar_common::ipc::CELL_UNKNOWN;
 
     struct Decoded {

@@ -15,7 +15,7 @@ use std::io::Write;
 
 use sonar_common::ipc::decode_probability;
 
-use crate::{Map, MapError};
+use crate::map::{Map, MapError};
 
 /// Cells with p above this are occupied (`occupied_thresh` in the YAML).
 pub const OCCUPIED_THRESH: f32 = 0.65;
@@ -112,7 +112,7 @@ fn yaml_string(s: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_grid;
+    use crate::map::test_grid;
     use sonar_common::ipc::{CELL_UNKNOWN, encode_probability};
 
     #[test]

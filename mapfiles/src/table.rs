@@ -14,7 +14,7 @@ use std::io::Write;
 
 use sonar_common::ipc::decode_probability;
 
-use crate::{Map, MapError};
+use crate::map::{Map, MapError};
 
 /// Writes the probabilities as CSV, row 0 (lowest y) first.
 pub fn write_csv<W: Write>(mut out: W, map: &Map<'_>) -> Result<(), MapError> {
@@ -74,7 +74,7 @@ pub fn write_npy<W: Write>(mut out: W, map: &Map<'_>) -> Result<(), MapError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_grid;
+    use crate::map::test_grid;
 
     #[test]
     fn csv_rows_run_from_the_lowest_y_and_unknown_is_empty() {

@@ -36,7 +36,7 @@ use serde::{Deserialize, Serialize};
 use sonar_common::ipc::Reading;
 use sonar_features::{FeatureConfig, FeatureMap, Sweep, wrap_rad};
 
-use crate::SlamError;
+use crate::error::SlamError;
 use crate::graph::{Graph, LandmarkKind, Measurement, Var, place, predict};
 use crate::odometry::{OdometryTrack, random_covariance};
 
@@ -192,6 +192,25 @@ impl SweepEstimate {
     }
 }
 
+/// One sweep of [`Slam::trajectory`]: its pose in the map as estimated now.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SweepPose {
+    pub sweep_id: u32,
+    /// `host_stamp_ns` of its first reading.
+    pub stamp_ns: u64,
+    /// The sensor's pose in the map at that instant.
+    pub pose: Isometry2<f64>,
+    /// The odometry's pose at that instant.
+    pub odometry: Isometry2<f64>,
+}
+
+impl SweepPose {
+    /// Map ← odometry for this sweep's readings, as [`SweepEstimate::correction`].
+    pub fn correction(&self) -> Isometry2<f64> {
+        self.pose * self.odometry.inverse()
+    }
+}
+
 /// A landmark of the map.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Landmark {
@@ -213,6 +232,9 @@ struct LandmarkNode {
 struct PoseNode {
     var: Var,
     stamp_ns: u64,
+    sweep_id: u32,
+    /// The odometry's pose at `stamp_ns`.
+    odometry: Isometry2<f64>,
 }
 
 /// An observation matched to no landmark, waiting for a second viewpoint.
@@ -382,6 +404,20 @@ impl Slam {
         self.last.as_ref()
     }
 
+    /// Every sweep's pose as estimated now: later sweeps, a loop closure above all, move the
+    /// earlier ones, and a map built with their first estimates should follow.
+    pub fn trajectory(&self) -> Vec<SweepPose> {
+        self.poses
+            .iter()
+            .map(|p| SweepPose {
+                sweep_id: p.sweep_id,
+                stamp_ns: p.stamp_ns,
+                pose: self.graph.pose(p.var),
+                odometry: p.odometry,
+            })
+            .collect()
+    }
+
     /// Sweeps whose sightings were refused to keep the odometry plausible.
     pub fn refused(&self) -> u32 {
         self.refused
@@ -413,7 +449,7 @@ impl Slam {
         sightings: &[Sighting],
         moving: bool,
     ) -> SweepEstimate {
-        let pose = self.add_pose(stamp_ns, &odometry);
+        let pose = self.add_pose(sweep_id, stamp_ns, &odometry);
         let k = self.poses.len() - 1;
         let checkpoint = self.graph.checkpoint();
         let values = self.graph.values().to_vec();
@@ -499,7 +535,7 @@ impl Slam {
 
     /// Adds the sweep's pose: the first anchors the map's frame at the odometry; the others are
     /// predicted by the odometry since the previous sweep, corrected by its errors as known.
-    fn add_pose(&mut self, stamp_ns: u64, odometry: &Isometry2<f64>) -> Var {
+    fn add_pose(&mut self, sweep_id: u32, stamp_ns: u64, odometry: &Isometry2<f64>) -> Var {
         let odo = Vector3::new(
             odometry.translation.x,
             odometry.translation.y,
@@ -527,6 +563,8 @@ impl Slam {
             self.poses.push(PoseNode {
                 var: pose,
                 stamp_ns,
+                sweep_id,
+                odometry: *odometry,
             });
             return pose;
         };
@@ -546,6 +584,8 @@ impl Slam {
         self.poses.push(PoseNode {
             var: pose,
             stamp_ns,
+            sweep_id,
+            odometry: *odometry,
         });
         pose
     }

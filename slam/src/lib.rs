@@ -47,21 +47,16 @@
 //! Huber kernel on every landmark factor, numerical Jacobians (each factor is written once, as
 //! its residual), covariances from the undamped normal matrix at the solution.
 
+pub mod error;
 pub mod estimator;
 pub mod graph;
 pub mod message;
 pub mod odometry;
 pub mod section;
 
-pub use estimator::{FixState, Landmark, Slam, SlamConfig, SweepEstimate, chi2_quantile};
+pub use error::SlamError;
+pub use estimator::{
+    FixState, Landmark, Slam, SlamConfig, SweepEstimate, SweepPose, chi2_quantile,
+};
 pub use graph::LandmarkKind;
 pub use section::SlamSection;
-
-/// What the library refuses.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum SlamError {
-    #[error("invalid SLAM configuration: {0}")]
-    Config(String),
-    #[error(transparent)]
-    Features(#[from] sonar_features::FeatureError),
-}

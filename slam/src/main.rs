@@ -28,7 +28,7 @@ use nalgebra::{Isometry2, Vector2};
 use serde::Deserialize;
 use sonar_common::ipc::{self, IpcArgs, IpcError, Pose2D, Reading, SlamCorrection};
 use sonar_common::throttle::Throttle;
-use sonar_slam::message::{Totals, correction_message};
+use sonar_slam::message::{Totals, correction_message, revision_message};
 use sonar_slam::{FixState, Slam, SlamConfig, SlamSection, SweepEstimate};
 use tracing::{debug, info, warn};
 
@@ -49,6 +49,12 @@ const ODOMETRY_KEPT: Duration = Duration::from_secs(10);
 const REFRESH_PERIOD: Duration = Duration::from_secs(1);
 /// Least time between two log lines about one kind of lost or refused input.
 const LOG_PERIOD: Duration = Duration::from_secs(1);
+/// An earlier sweep whose pose moved more than this (m, degrees) since it was last published is
+/// published again as revised: below a centimetre grid's half cell and the heading at which a
+/// wall 3 m away moves by one, so that the fusion, not this process, decides what is worth
+/// re-fusing.
+const REVISE_M: f64 = 0.005;
+const REVISE_DEG: f64 = 0.1;
 
 /// Estimates the robot's poses and the landmarks its sonar sees (walls, corners, posts) together,
 /// from sonar/readings and the odometry of robot/pose, and publishes after every sweep the
@@ -159,6 +165,7 @@ fn run(args: &Args) -> Result<()> {
         refused = process.slam.refused(),
         landmarks = process.slam.landmarks().len(),
         readings_lost = process.readings_lost,
+        revisions = process.revisions,
         calibration = ?process.slam.calibration(),
         "sonar-slam stopped"
     );
@@ -226,6 +233,10 @@ struct Process<'a> {
     lost_log: Throttle,
     odometry_log: Throttle,
     said_no_odometry: bool,
+    /// Each sweep's pose in the map as last published, in the order of the trajectory.
+    published: Vec<Isometry2<f64>>,
+    /// Revised sweeps published.
+    revisions: u64,
 }
 
 impl<'a> Process<'a> {
@@ -246,6 +257,8 @@ impl<'a> Process<'a> {
             lost_log: Throttle::new(LOG_PERIOD),
             odometry_log: Throttle::new(LOG_PERIOD),
             said_no_odometry: false,
+            published: Vec::new(),
+            revisions: 0,
         }
     }
 
@@ -377,6 +390,39 @@ impl<'a> Process<'a> {
         );
         if let Err(e) = self.ports.corrections.send_copy(message) {
             warn!("send correction: {e:?}");
+        }
+        self.publish_revisions();
+    }
+
+    /// Publishes every earlier sweep that the latest estimate moved (beyond [`REVISE_M`] or
+    /// [`REVISE_DEG`]) with its pose as estimated now.
+    fn publish_revisions(&mut self) {
+        let trajectory = self.slam.trajectory();
+        let mut revised = 0;
+        for (k, sweep) in trajectory.iter().enumerate() {
+            let Some(published) = self.published.get_mut(k) else {
+                self.published.push(sweep.pose);
+                continue;
+            };
+            let moved = published.inverse() * sweep.pose;
+            if moved.translation.vector.norm() <= REVISE_M
+                && moved.rotation.angle().abs() <= REVISE_DEG.to_radians()
+            {
+                continue;
+            }
+            *published = sweep.pose;
+            revised += 1;
+            if let Err(e) = self
+                .ports
+                .corrections
+                .send_copy(revision_message(sweep, self.totals))
+            {
+                warn!("send revision: {e:?}");
+            }
+        }
+        if revised > 0 {
+            self.revisions += revised;
+            debug!(revised, sweeps = trajectory.len(), "earlier sweeps revised");
         }
     }
 }

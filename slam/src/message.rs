@@ -4,7 +4,7 @@
 use nalgebra::{Isometry2, Matrix3};
 use sonar_common::ipc::{LAYOUT_VERSION, SlamCorrection, slam_state};
 
-use crate::{FixState, SweepEstimate};
+use crate::estimator::{FixState, SweepEstimate, SweepPose};
 
 /// The [`slam_state`] code of a fix state.
 pub fn state_code(state: FixState) -> u32 {
@@ -26,18 +26,65 @@ pub struct Totals {
 
 /// The message of one sweep's estimate.
 pub fn correction_message(estimate: &SweepEstimate, totals: Totals) -> SlamCorrection {
-    let correction = estimate.correction();
-    let (cx, cy, ct) = parts(&correction);
-    let [ccxx, ccxy, ccxt, ccyy, ccyt, cctt] = upper(&estimate.correction_covariance());
-    let (x, y, t) = parts(&estimate.pose);
-    let [cxx, cxy, cxt, cyy, cyt, ctt] = upper(&estimate.covariance);
-    let (ox, oy, ot) = parts(&estimate.odometry);
+    message(
+        Estimated {
+            stamp_ns: estimate.stamp_ns,
+            sweep_id: estimate.sweep_id,
+            state: state_code(estimate.state),
+            matched: estimate.matched,
+            pose: &estimate.pose,
+            covariance: &estimate.covariance,
+            correction_covariance: &estimate.correction_covariance(),
+            odometry: &estimate.odometry,
+        },
+        totals,
+    )
+}
+
+/// The message of an earlier sweep whose pose later sweeps moved ([`slam_state::REVISED`]): its
+/// pose and correction as estimated now, so that a map follows. The covariances are not
+/// computed for a revision and are NaN.
+pub fn revision_message(sweep: &SweepPose, totals: Totals) -> SlamCorrection {
+    let unknown = Matrix3::from_element(f64::NAN);
+    message(
+        Estimated {
+            stamp_ns: sweep.stamp_ns,
+            sweep_id: sweep.sweep_id,
+            state: slam_state::REVISED,
+            matched: 0,
+            pose: &sweep.pose,
+            covariance: &unknown,
+            correction_covariance: &unknown,
+            odometry: &sweep.odometry,
+        },
+        totals,
+    )
+}
+
+/// What one message says of one sweep.
+struct Estimated<'a> {
+    stamp_ns: u64,
+    sweep_id: u32,
+    state: u32,
+    matched: usize,
+    pose: &'a Isometry2<f64>,
+    covariance: &'a Matrix3<f64>,
+    correction_covariance: &'a Matrix3<f64>,
+    odometry: &'a Isometry2<f64>,
+}
+
+fn message(e: Estimated, totals: Totals) -> SlamCorrection {
+    let (cx, cy, ct) = parts(&(e.pose * e.odometry.inverse()));
+    let [ccxx, ccxy, ccxt, ccyy, ccyt, cctt] = upper(e.correction_covariance);
+    let (x, y, t) = parts(e.pose);
+    let [cxx, cxy, cxt, cyy, cyt, ctt] = upper(e.covariance);
+    let (ox, oy, ot) = parts(e.odometry);
     SlamCorrection {
-        stamp_ns: estimate.stamp_ns,
+        stamp_ns: e.stamp_ns,
         layout_version: LAYOUT_VERSION,
-        sweep_id: estimate.sweep_id,
-        state: state_code(estimate.state),
-        matched: u32::try_from(estimate.matched).unwrap_or(u32::MAX),
+        sweep_id: e.sweep_id,
+        state: e.state,
+        matched: u32::try_from(e.matched).unwrap_or(u32::MAX),
         correction_x_m: cx,
         correction_y_m: cy,
         correction_theta_rad: ct,
@@ -134,6 +181,29 @@ mod tests {
         // Heading's variance is the pose's; the position's grows with the lever arm.
         assert!((m.correction_cov_thetatheta - 6e-5).abs() < 1e-9);
         assert!(m.correction_cov_xx > 0.0 && m.correction_cov_yy > 0.0);
+    }
+
+    #[test]
+    fn a_revision_carries_the_pose_as_estimated_now_and_no_covariance() {
+        let sweep = SweepPose {
+            sweep_id: 3,
+            stamp_ns: 99,
+            pose: Isometry2::new(Vector2::new(0.5, -1.0), 0.2),
+            odometry: Isometry2::new(Vector2::new(0.6, -0.9), 0.1),
+        };
+        let m = revision_message(&sweep, Totals::default());
+        assert_eq!(
+            (m.stamp_ns, m.sweep_id, m.state),
+            (99, 3, slam_state::REVISED)
+        );
+        assert!(!m.is_fix());
+        let correction = Isometry2::new(
+            Vector2::new(f64::from(m.correction_x_m), f64::from(m.correction_y_m)),
+            f64::from(m.correction_theta_rad),
+        );
+        let placed = correction * sweep.odometry;
+        assert!((placed.translation.vector - sweep.pose.translation.vector).norm() < 1e-6);
+        assert!(m.cov_xx.is_nan() && m.correction_cov_thetatheta.is_nan());
     }
 
     #[test]

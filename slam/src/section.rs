@@ -5,7 +5,7 @@
 use serde::de::Error as _;
 use serde::{Deserialize, Deserializer};
 
-use crate::SlamConfig;
+use crate::estimator::SlamConfig;
 
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct SlamSection {

@@ -35,7 +35,8 @@ fn pose_covariance(c: &SlamCorrection) -> Matrix3<f32> {
 /// `sonar-slam` and a fusion that takes its correction: every fix lies within its own 95 %
 /// ellipse of the truth (the simulator's `robot/true_pose`, same host clock) while the odometry
 /// drifts far from it; the fusion's grid, placed with the corrections, has the rooms' shared back
-/// wall where the scene has it, seen from each room; SIGTERM ends sonar-slam cleanly. (Seen at
+/// wall where the scene has it, seen from each room; earlier sweeps moved by later ones are
+/// published as revisions and the fusion rebuilds its maps with them; SIGTERM ends both cleanly. (Seen at
 /// dc8846d, three runs (one beside a busy core): 6, 7 and 7 fixes in 20 sweeps, the others
 /// "uncertain" or without landmarks; worst 2.1 cm and 1.6°, largest NEES 3.5 against 7.8; the
 /// odometry 1.16 m off.)
@@ -58,7 +59,7 @@ fn sonar_slam_corrects_a_drifting_odometry_and_the_fusion_maps_with_it() {
     // SLAM and fusion first, so that they hear the tour from its start (at 10×, as the drifting
     // localisation test: the stops' sweeps are taken standing still).
     let slam = sandbox.spawn("sonar-slam", &[]);
-    let _fusion = sandbox.spawn(
+    let fusion = sandbox.spawn(
         "sonar-fusion",
         &[
             "--config",
@@ -88,10 +89,18 @@ fn sonar_slam_corrects_a_drifting_odometry_and_the_fusion_maps_with_it() {
     let _driver = sandbox.spawn("sonar-driver", &["--port", &pty]);
 
     // Sweeps until the robot has been into both rooms and back (as the localisation test).
+    // Revisions of earlier sweeps (state 5) come between them; they are kept apart.
+    let mut revisions = Vec::new();
     let (sweeps, true_poses) = collect_with_truth(
         &node,
         &truth,
-        || corrections.receive().unwrap().map(|s| *s.payload()),
+        || loop {
+            let c = *corrections.receive().unwrap()?.payload();
+            if c.state != ipc::slam_state::REVISED {
+                return Some(c);
+            }
+            revisions.push(c);
+        },
         20,
     );
     let truth_at = |stamp_ns: u64| true_poses.at(stamp_ns);
@@ -178,6 +187,29 @@ fn sonar_slam_corrects_a_drifting_odometry_and_the_fusion_maps_with_it() {
         },
         |got| got.last().is_some_and(|both| *both),
     );
+
+    // Later sweeps moved earlier ones, and the fusion rebuilt its maps where they now lie.
+    let latest = sweeps.last().map_or(0, |s| s.sweep_id);
+    assert!(
+        !revisions.is_empty() && revisions.iter().all(|r| r.sweep_id < latest),
+        "revisions: {:?}",
+        revisions.iter().map(|r| r.sweep_id).collect::<Vec<_>>()
+    );
+    let (status, stderr) = fusion.terminate_with_stderr();
+    assert!(
+        status.success(),
+        "sonar-fusion exited with {status:?}: {stderr}"
+    );
+    let rebuilds = stderr
+        .split("slam_revisions=")
+        .nth(1)
+        .and_then(|rest| rest.split_whitespace().next())
+        .and_then(|n| n.parse::<u64>().ok());
+    eprintln!(
+        "revisions received: {}, maps rebuilt: {rebuilds:?}",
+        revisions.len()
+    );
+    assert!(rebuilds.is_some_and(|n| n > 0), "{stderr}");
 
     let (status, stderr) = slam.terminate_with_stderr();
     assert!(

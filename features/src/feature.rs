@@ -1,0 +1,147 @@
+//! A feature of the map: its kind and its estimate (mean, covariance in two parts, confidence,
+//! sightings). The map ([`crate::map`]) merges observations into it; the classification and the
+//! segments read it.
+
+use nalgebra::{Matrix2, Point2, Vector2};
+
+/// What kind of target a feature is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum FeatureKind {
+    /// A post, pillar, table leg or wall edge: a small convex target.
+    Point,
+    /// A concave corner.
+    Corner,
+    /// A wall (a partial plane).
+    Plane,
+}
+
+/// A feature of the map.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Feature {
+    pub(crate) id: u64,
+    pub(crate) kind: FeatureKind,
+    /// Point, corner: (x, y). Plane: (φ in radians, d).
+    pub(crate) mean: Vector2<f64>,
+    /// Covariance of the Kalman recursion, which weighs each observation.
+    pub(crate) weights: Matrix2<f64>,
+    /// Covariance of the part of the error that averages out.
+    pub(crate) random: Matrix2<f64>,
+    /// Covariance of the part that repeats from sweep to sweep (mean over the observations).
+    pub(crate) systematic: Matrix2<f64>,
+    pub(crate) confidence: f64,
+    pub(crate) times_seen: u32,
+    pub(crate) first_seen: u64,
+    pub(crate) last_seen: u64,
+    /// Direction of the sensor's ray to the feature at its last sighting, degrees.
+    pub(crate) ray_deg: f64,
+    /// Plane: where the sensor's own perpendicular met the line, along the line (coordinate along
+    /// the direction 90° counter-clockwise of the normal, from the foot of the map origin's
+    /// perpendicular): the extent of direct evidence.
+    pub(crate) feet: (f64, f64),
+}
+
+impl Feature {
+    pub fn id(&self) -> u64 {
+        self.id
+    }
+
+    pub fn kind(&self) -> FeatureKind {
+        self.kind
+    }
+
+    /// Point: the echo point (the target's surface nearest the sensor). Corner: the vertex.
+    /// Plane: the foot of the perpendicular from the map's origin.
+    pub fn position(&self) -> Point2<f64> {
+        match self.kind {
+            FeatureKind::Plane => Point2::from(self.normal() * self.mean.y),
+            FeatureKind::Point | FeatureKind::Corner => Point2::from(self.mean),
+        }
+    }
+
+    /// The estimate in its own coordinates: (x, y), or (φ, d) for a plane.
+    pub(crate) fn mean_own(&self) -> Vector2<f64> {
+        self.mean
+    }
+
+    /// Reported covariance of the estimate in its own coordinates: (x, y), or (φ, d) for a plane.
+    pub(crate) fn covariance_own(&self) -> Matrix2<f64> {
+        self.random + self.systematic
+    }
+
+    /// Covariance of [`Feature::position`], m².
+    pub fn covariance(&self) -> Matrix2<f64> {
+        let p = self.covariance_own();
+        match self.kind {
+            FeatureKind::Point | FeatureKind::Corner => p,
+            FeatureKind::Plane => {
+                // foot = d·n(φ): ∂/∂φ = d·n'(φ), ∂/∂d = n(φ).
+                let n = self.normal();
+                let j = Matrix2::new(-n.y * self.mean.y, n.x, n.x * self.mean.y, n.y);
+                j * p * j.transpose()
+            }
+        }
+    }
+
+    /// Unit normal of a plane (meaningless for other kinds).
+    pub(crate) fn normal(&self) -> Vector2<f64> {
+        Vector2::new(self.mean.x.cos(), self.mean.x.sin())
+    }
+
+    /// Plane: direction of its normal from the map's origin towards the wall, degrees.
+    pub fn normal_deg(&self) -> Option<f64> {
+        (self.kind == FeatureKind::Plane).then(|| self.mean.x.to_degrees())
+    }
+
+    /// Plane: σ of the normal's direction, degrees.
+    pub fn normal_sigma_deg(&self) -> Option<f64> {
+        (self.kind == FeatureKind::Plane).then(|| self.covariance_own()[(0, 0)].sqrt().to_degrees())
+    }
+
+    /// Plane: perpendicular distance from the map's origin, metres.
+    pub fn distance_m(&self) -> Option<f64> {
+        (self.kind == FeatureKind::Plane).then_some(self.mean.y)
+    }
+
+    /// Plane: σ of that distance, metres.
+    pub fn distance_sigma_m(&self) -> Option<f64> {
+        (self.kind == FeatureKind::Plane).then(|| self.covariance_own()[(1, 1)].sqrt())
+    }
+
+    /// Plane: direction along its line (the normal turned 90° counter-clockwise).
+    pub(crate) fn direction(&self) -> Option<Vector2<f64>> {
+        (self.kind == FeatureKind::Plane).then(|| {
+            let n = self.normal();
+            Vector2::new(-n.y, n.x)
+        })
+    }
+
+    /// Plane: the extent along its line over which the sensor's perpendiculars met it.
+    pub(crate) fn feet(&self) -> (f64, f64) {
+        self.feet
+    }
+
+    /// In [0, 1]: how well recent sweeps confirmed it.
+    pub fn confidence(&self) -> f64 {
+        self.confidence
+    }
+
+    /// Sweeps that observed it.
+    pub fn times_seen(&self) -> u32 {
+        self.times_seen
+    }
+
+    /// Sweep numbers (from 1, counted by the map) of its first and latest sighting.
+    pub fn first_seen(&self) -> u64 {
+        self.first_seen
+    }
+
+    pub fn last_seen(&self) -> u64 {
+        self.last_seen
+    }
+
+    /// Direction of the sensor's ray to the target at its latest sighting, degrees (for a plane,
+    /// the normal as the sensor saw it).
+    pub fn ray_deg(&self) -> f64 {
+        self.ray_deg
+    }
+}
