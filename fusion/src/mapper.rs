@@ -209,8 +209,9 @@ impl Mapper {
     }
 
     /// Places a closed region, if whole, and the free evidence of the readings waiting for it;
-    /// they are forgotten either way. A one-ended region, with `region_one_end`, waits for the
-    /// sweep's end, when the lobe has been learnt from the whole sweep ([`Self::close_region`]).
+    /// they are forgotten either way. A one-ended region (`region_one_end`) and one cut short on
+    /// both sides (`region_corners`) wait for the sweep's end, when the lobe has been learnt from
+    /// the whole sweep and the walls beside a corner placed ([`Self::close_region`]).
     fn close(&mut self, regions: &mut Regions, region: &Region, kernel: Kernel) -> usize {
         let ModelConfig::Smooth(model) = self.config.model else {
             return 0;
