@@ -20,6 +20,9 @@ pub enum Mode {
     Robot,
     /// On a watching machine: a robot's services into this machine's iceoryx2, commands out.
     Remote,
+    /// On the robot, for ROS 2: `/map`, `/scan` and `/tf` in CDR under `rmw_zenoh`'s keys, so a
+    /// ROS 2 machine with `rmw_zenoh` sees them (`bridge::ros2`); no ROS on the robot.
+    Ros2,
 }
 
 /// A configuration the bridge cannot run with.
@@ -174,10 +177,12 @@ fn endpoint(text: &str) -> Result<(Protocol, bool), ConfigError> {
 impl Settings {
     /// The channels that come in from the link (commands on a robot, the rest on a remote).
     pub fn inbound_channels(&self) -> impl Iterator<Item = Channel> + '_ {
-        self.channels
-            .iter()
-            .copied()
-            .filter(|c| c.is_command() == (self.mode == Mode::Robot))
+        self.channels.iter().copied().filter(|c| match self.mode {
+            Mode::Robot => c.is_command(),
+            Mode::Remote => !c.is_command(),
+            // It only publishes.
+            Mode::Ros2 => false,
+        })
     }
 }
 
@@ -242,9 +247,11 @@ fn check_security(
         }
         None
     };
-    if mode == Mode::Remote && allowed > 0 {
+    if mode != Mode::Robot && allowed > 0 {
         return Err(invalid(
-            "allow_read/allow_command are a robot's lists; a remote bridge has none".into(),
+            "allow_read/allow_command are a robot bridge's lists; a remote or ros2 bridge has none \
+             (over TLS only peers with a certificate of the same authority reach it)"
+                .into(),
         ));
     }
     Ok((tls, insecure_endpoints))
@@ -271,13 +278,16 @@ impl Settings {
             }
         };
         // The robot waits for remotes to connect (on this machine only unless told otherwise); a
-        // remote connects to the robots it is told of.
-        let default_listen = match mode {
-            Mode::Robot => vec![format!("tcp/127.0.0.1:{DEFAULT_PORT}")],
-            Mode::Remote => Vec::new(),
+        // remote connects to the robots it is told of; a ros2 bridge connects, as every rmw_zenoh
+        // node does, to the zenoh router on this machine (`ros2 run rmw_zenoh_cpp rmw_zenohd`).
+        let local = format!("tcp/127.0.0.1:{DEFAULT_PORT}");
+        let (default_listen, default_connect) = match mode {
+            Mode::Robot => (vec![local], Vec::new()),
+            Mode::Remote => (Vec::new(), Vec::new()),
+            Mode::Ros2 => (Vec::new(), vec![local]),
         };
         let listen = pick(&flags.listen, &file.listen, default_listen);
-        let connect = pick(&flags.connect, &file.connect, Vec::new());
+        let connect = pick(&flags.connect, &file.connect, default_connect);
         if listen.is_empty() && connect.is_empty() {
             return Err(invalid(
                 "nothing to listen on and nowhere to connect: give --connect tls/ROBOT:7447 \
@@ -473,6 +483,27 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("not built in"), "{err}");
+    }
+
+    #[test]
+    fn a_ros2_bridge_connects_to_this_machine_s_router_and_keeps_the_same_rules() {
+        let ros2 = |extra: &str| parse(&format!("[bridge]\nmode = \"ros2\"\n{extra}")).unwrap();
+        let s = Settings::resolve(&ros2(""), &Overrides::default()).unwrap();
+        assert_eq!(s.mode, Mode::Ros2);
+        assert!(s.listen.is_empty() && s.robot.is_none());
+        assert_eq!(s.connect, ["tcp/127.0.0.1:7447"]);
+        // It takes nothing from the link.
+        assert_eq!(s.inbound_channels().count(), 0);
+        let open = ros2("connect = [\"tcp/192.168.1.30:7447\"]\n");
+        let err = Settings::resolve(&open, &Overrides::default())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("--insecure") && err.contains("tls/"), "{err}");
+        let flags = Overrides {
+            allow_read: vec!["laptop".into()],
+            ..Default::default()
+        };
+        assert!(Settings::resolve(&ros2(""), &flags).is_err());
     }
 
     #[test]

@@ -13,6 +13,7 @@
 //! - [`channel`]: which service goes which way under which key, and how often.
 //! - [`config`]: the `[bridge]` table of the pipeline's TOML file.
 //! - [`ports`]: the iceoryx2 ends, one reader and one writer per service.
+//! - [`ros2`]: `--mode ros2`, the map, scans and transforms as ROS 2 topics under `rmw_zenoh`'s keys.
 //!
 //! One process talks to the network: zenoh and its tokio runtime live only in this crate. The
 //! iceoryx2 side runs on the main thread (its ports are not `Send`) and uses zenoh's synchronous
@@ -22,5 +23,6 @@ pub mod certs;
 pub mod channel;
 pub mod config;
 pub mod ports;
+pub mod ros2;
 pub mod session;
 pub mod wire;

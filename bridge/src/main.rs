@@ -13,11 +13,13 @@ use sonar_bridge::certs::{self, Peer};
 use sonar_bridge::channel::{self, Channel};
 use sonar_bridge::config::{BridgeSection, Mode, Overrides, Settings};
 use sonar_bridge::ports::{self, Reader, WriteError, Writer};
-use sonar_bridge::session;
 use sonar_bridge::wire::FrameError;
+use sonar_bridge::{ros2, session};
 use sonar_common::flood::FloodGuard;
 use sonar_common::ipc::IpcArgs;
 use sonar_common::throttle::Throttle;
+use sonar_wellknown::live::Ports;
+use sonar_wellknown::{Options as WellKnownOptions, Output, WellKnown};
 use tracing::{debug, info, warn};
 use zenoh::Wait;
 use zenoh::handlers::FifoChannelHandler;
@@ -32,6 +34,8 @@ const POLL_PERIOD: Duration = Duration::from_millis(5);
 const REFRESH_PERIOD: Duration = Duration::from_secs(1);
 /// How often the counters are logged (when they changed).
 const STATS_PERIOD: Duration = Duration::from_secs(30);
+/// `--mode ros2`: the map is published again after this long without a new one.
+const MAP_REPEAT_PERIOD: Duration = Duration::from_secs(1);
 /// How long `--list-robots` (and a remote without `--robot`) listens for robots.
 const DISCOVERY_TIME: Duration = Duration::from_secs(3);
 /// How long a query for the robot's latest states may take.
@@ -44,6 +48,12 @@ const QUERY_TIMEOUT: Duration = Duration::from_secs(5);
 /// and forwards commands from those keys into the robot's iceoryx2. On a laptop (--mode remote)
 /// it does the mirror image into the laptop's own iceoryx2, where the unchanged sonar-viewer,
 /// sonar-export, sonar-record and Python scripts then run.
+///
+/// With --mode ros2 it publishes the map, the sweeps and the sensor's pose as the ROS 2 topics
+/// /map (nav_msgs/msg/OccupancyGrid), /scan (sensor_msgs/msg/LaserScan) and /tf
+/// (tf2_msgs/msg/TFMessage) in CDR under rmw_zenoh's keys (Jazzy and later), so a ROS 2 machine
+/// with RMW_IMPLEMENTATION=rmw_zenoh_cpp sees them; by default it connects to the zenoh router on
+/// this machine (tcp/127.0.0.1:7447, as every rmw_zenoh node does).
 ///
 /// Settings come from the [bridge] table of --config, overridden by the flags below.
 ///
@@ -59,6 +69,7 @@ const QUERY_TIMEOUT: Duration = Duration::from_secs(5);
 ///   sonar-bridge --mode remote --connect tls/192.168.1.20:7447 --ca certs/ca.pem \
 ///       --cert certs/laptop1.pem --key certs/laptop1.key        # on the laptop, then sonar-viewer
 ///   sonar-bridge --robot r1                                    # this machine only, no TLS
+///   sonar-bridge --mode ros2                                   # /map, /scan, /tf to rmw_zenohd here
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment, args_conflicts_with_subcommands = true)]
 struct Args {
@@ -67,7 +78,8 @@ struct Args {
     /// Pipeline configuration file (TOML) with a [bridge] table.
     #[arg(long, env = "SONAR_CONFIG")]
     config: Option<PathBuf>,
-    /// robot: this machine's services out, commands in; remote: the mirror image [default: robot].
+    /// robot: this machine's services out, commands in; remote: the mirror image; ros2: /map,
+    /// /scan and /tf for ROS 2's rmw_zenoh [default: robot].
     #[arg(long, env = "SONAR_BRIDGE_MODE", value_enum)]
     mode: Option<Mode>,
     /// This robot's name (robot mode), or the robot to watch (remote mode; without it, the only
@@ -116,6 +128,9 @@ struct Args {
     /// endpoint reads every channel and commands the robot. For a trusted network or a VPN only.
     #[arg(long)]
     insecure: bool,
+    /// --mode ros2: the ROS domain (as ROS_DOMAIN_ID; rmw_zenoh puts it first in every key).
+    #[arg(long, env = "ROS_DOMAIN_ID", default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=232))]
+    ros_domain_id: u32,
     #[command(flatten)]
     ipc: IpcArgs,
 }
@@ -209,6 +224,15 @@ fn run(args: Args, flood: &FloodGuard) -> Result<()> {
         }
         return close(session);
     }
+    let side = match settings.mode {
+        Mode::Robot => Side::Robot,
+        Mode::Remote => Side::Remote,
+        Mode::Ros2 => {
+            let published = publish_ros2(&session, &args, &settings, flood);
+            close(session)?;
+            return published;
+        }
+    };
     let robot = match &settings.robot {
         Some(robot) => robot.clone(),
         None => choose_robot(&session)?,
@@ -228,12 +252,148 @@ fn run(args: Args, flood: &FloodGuard) -> Result<()> {
         allow_command = ?settings.allow_command,
         "bridge running"
     );
-    let mut bridge = Bridge::new(&session, &node, &settings, &robot)?;
+    let mut bridge = Bridge::new(&session, &node, &settings, side, &robot)?;
     bridge.run(&node, flood);
     bridge.log_stats(true);
     flood.report();
     drop(bridge);
     close(session)
+}
+
+/// `--mode ros2`: one ROS 2 topic's publisher, its liveliness token (which makes it visible in the
+/// ROS 2 graph while held) and its count of samples, which is also its last sequence number.
+struct RosPublisher {
+    channel: sonar_wellknown::Channel,
+    publisher: zenoh::pubsub::Publisher<'static>,
+    gid: [u8; ros2::GID_LEN],
+    _token: zenoh::liveliness::LivelinessToken,
+    sent: i64,
+}
+
+impl RosPublisher {
+    fn counts(all: &[Self]) -> Vec<(&'static str, i64)> {
+        all.iter().map(|p| (p.channel.topic(), p.sent)).collect()
+    }
+}
+
+/// `--mode ros2`: the pipeline's map, sweeps and pose as ROS 2's `/map`, `/scan` and `/tf`
+/// (`sonar_bridge::ros2`) until SIGINT/SIGTERM.
+fn publish_ros2(
+    session: &zenoh::Session,
+    args: &Args,
+    settings: &Settings,
+    flood: &FloodGuard,
+) -> Result<()> {
+    let domain = args.ros_domain_id;
+    let node = args.ipc.node("sonar-bridge-ros2").context("iceoryx2")?;
+    // iceoryx2 installs its SIGINT/SIGTERM handler on the first wait.
+    if node.wait(Duration::ZERO).is_err() {
+        info!("signal received before start");
+        return Ok(());
+    }
+    let ports = Ports::open(&node)?;
+    let grid_period = settings
+        .min_interval
+        .get(&Channel::Grid)
+        .copied()
+        .unwrap_or(Duration::ZERO);
+    let mut converter = WellKnown::new(WellKnownOptions {
+        ros2: true,
+        grid_period_ns: u64::try_from(grid_period.as_nanos()).unwrap_or(u64::MAX),
+    });
+    let zid = session.zid().to_string();
+    let liveliness = session.liveliness();
+    let node_token = ros2::node_token(domain, &zid);
+    let _node_token = liveliness
+        .declare_token(node_token.clone())
+        .wait()
+        .map_err(zerr(format!("declare token {node_token}")))?;
+    let mut publishers = Vec::new();
+    for topic in &ros2::TOPICS {
+        let key = topic.key(domain);
+        let token_key = topic.token(domain, &zid);
+        let publisher = session
+            .declare_publisher(key.clone())
+            // A dead link must not stall the loop: drop rather than block.
+            .congestion_control(CongestionControl::Drop)
+            .wait()
+            .map_err(zerr(format!("declare publisher {key}")))?;
+        let token = liveliness
+            .declare_token(token_key.clone())
+            .wait()
+            .map_err(zerr(format!("declare token {token_key}")))?;
+        publishers.push(RosPublisher {
+            channel: topic.channel,
+            publisher,
+            gid: ros2::gid(&token_key),
+            _token: token,
+            sent: 0,
+        });
+    }
+    info!(
+        domain,
+        listen = ?settings.listen,
+        connect = ?settings.connect,
+        tls = settings.tls.is_some(),
+        keys = ?ros2::TOPICS.iter().map(|t| t.key(domain)).collect::<Vec<_>>(),
+        "publishing /map, /scan and /tf for ROS 2 (rmw_zenoh)"
+    );
+    // The map again once a period without a new one (the one kept back by the rate limit, else
+    // the last): a ROS 2 subscriber that comes late (RViz opened later) gets it within a period.
+    let map_period = grid_period.max(MAP_REPEAT_PERIOD);
+    let mut last_map: Option<Vec<u8>> = None;
+    let mut map_at = Instant::now();
+    let mut stats_at = Instant::now();
+    while node.wait(POLL_PERIOD).is_ok() {
+        let mut outputs = ports.drain(&mut converter);
+        if map_at.elapsed() >= map_period {
+            let flushed = converter.flush_map();
+            if flushed.is_empty()
+                && let Some(data) = &last_map
+            {
+                outputs.push(Output {
+                    channel: sonar_wellknown::Channel::Ros2Map,
+                    stamp_ns: 0,
+                    data: data.clone(),
+                });
+            }
+            outputs.extend(flushed);
+            map_at = Instant::now();
+        }
+        for out in outputs {
+            if out.channel == sonar_wellknown::Channel::Ros2Map {
+                last_map = Some(out.data.clone());
+                map_at = Instant::now();
+            }
+            let Some(topic) = publishers.iter_mut().find(|p| p.channel == out.channel) else {
+                continue;
+            };
+            // The sequence number counts from 1, as rmw_zenoh's.
+            topic.sent += 1;
+            let now_ns = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX));
+            if let Err(e) = topic
+                .publisher
+                .put(out.data)
+                .attachment(ros2::attachment(topic.sent, now_ns, &topic.gid))
+                .wait()
+            {
+                warn!("publishing {} failed: {e}", out.channel.topic());
+            }
+        }
+        if stats_at.elapsed() >= STATS_PERIOD {
+            stats_at = Instant::now();
+            flood.report();
+            info!(counts = ?RosPublisher::counts(&publishers), "published");
+        }
+    }
+    flood.report();
+    info!(
+        counts = ?RosPublisher::counts(&publishers),
+        "signal received: stopping"
+    );
+    Ok(())
 }
 
 fn close(session: zenoh::Session) -> Result<()> {
@@ -368,8 +528,15 @@ struct Inbound {
     refused_log: Throttle,
 }
 
+/// Which end of a link of sonar's own frames this bridge is (`--mode robot` or `remote`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Side {
+    Robot,
+    Remote,
+}
+
 struct Bridge {
-    mode: Mode,
+    side: Side,
     robot: String,
     outbound: Vec<Outbound>,
     inbound: Vec<Inbound>,
@@ -398,6 +565,7 @@ impl Bridge {
         session: &zenoh::Session,
         node: &Node<iceoryx2::service::ipc::Service>,
         settings: &Settings,
+        side: Side,
         robot: &str,
     ) -> Result<Self> {
         let mut outbound = Vec::new();
@@ -405,7 +573,7 @@ impl Bridge {
         for &channel in &settings.channels {
             let key = channel.key(robot);
             // Telemetry goes out from the robot, commands from the remote.
-            let goes_out = channel.is_command() == (settings.mode == Mode::Remote);
+            let goes_out = channel.is_command() == (side == Side::Remote);
             if goes_out {
                 let key_expr = KeyExpr::try_from(key.clone()).map_err(zerr(key.clone()))?;
                 let publisher = session
@@ -445,9 +613,9 @@ impl Bridge {
             }
         }
         let liveliness = session.liveliness();
-        let (token_key, watched) = match settings.mode {
-            Mode::Robot => (channel::robot_token(robot), channel::remote_tokens(robot)),
-            Mode::Remote => (
+        let (token_key, watched) = match side {
+            Side::Robot => (channel::robot_token(robot), channel::remote_tokens(robot)),
+            Side::Remote => (
                 channel::remote_token(robot, &session.zid().to_string()),
                 channel::robot_token(robot),
             ),
@@ -461,8 +629,8 @@ impl Bridge {
             .history(true)
             .wait()
             .map_err(zerr(format!("watch {watched}")))?;
-        let queryable = match settings.mode {
-            Mode::Robot => {
+        let queryable = match side {
+            Side::Robot => {
                 let all = format!("{}/{robot}/**", channel::KEY_ROOT);
                 Some(
                     session
@@ -471,11 +639,11 @@ impl Bridge {
                         .map_err(zerr(format!("declare queryable {all}")))?,
                 )
             }
-            Mode::Remote => None,
+            Side::Remote => None,
         };
         let now = Instant::now();
         Ok(Self {
-            mode: settings.mode,
+            side,
             robot: robot.to_owned(),
             outbound,
             inbound,
@@ -528,8 +696,8 @@ impl Bridge {
     fn watch_peers(&mut self) {
         while let Ok(Some(sample)) = self.peers.try_recv() {
             let key = sample.key_expr().as_str();
-            match (self.mode, sample.kind()) {
-                (Mode::Remote, SampleKind::Put) => {
+            match (self.side, sample.kind()) {
+                (Side::Remote, SampleKind::Put) => {
                     self.link_up = true;
                     self.link_ups += 1;
                     info!(
@@ -539,7 +707,7 @@ impl Bridge {
                     );
                     self.ask_latest();
                 }
-                (Mode::Remote, SampleKind::Delete) => {
+                (Side::Remote, SampleKind::Delete) => {
                     self.link_up = false;
                     self.link_downs += 1;
                     warn!(
@@ -548,11 +716,11 @@ impl Bridge {
                         "link down: robot unreachable; retrying"
                     );
                 }
-                (Mode::Robot, SampleKind::Put) => {
+                (Side::Robot, SampleKind::Put) => {
                     self.link_ups += 1;
                     info!(remote = key, "remote bridge connected");
                 }
-                (Mode::Robot, SampleKind::Delete) => {
+                (Side::Robot, SampleKind::Delete) => {
                     self.link_downs += 1;
                     warn!(remote = key, "remote bridge gone (left or link down)");
                 }
@@ -562,7 +730,7 @@ impl Bridge {
 
     /// Local samples onto the link, within each channel's rate.
     fn pump_out(&mut self, now: Instant) {
-        let link_up = self.link_up || self.mode == Mode::Robot;
+        let link_up = self.link_up || self.side == Side::Robot;
         for out in &mut self.outbound {
             loop {
                 match (out.read)() {

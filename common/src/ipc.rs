@@ -901,44 +901,87 @@ fn service_name(name: &str) -> Result<ServiceName, IpcError> {
 pub type PubSub<T> = publish_subscribe::PortFactory<ipc::Service, T, ()>;
 pub type Event = event::PortFactory<ipc::Service>;
 
+/// How a publish-subscribe service of one fixed-size payload is set up (`docs/ipc.md` has each
+/// service's).
+#[derive(Debug, Clone, Copy)]
+struct Qos {
+    publishers: usize,
+    subscribers: usize,
+    /// Samples a subscriber buffers; beyond it the oldest is dropped.
+    buffer: usize,
+    /// Samples a subscriber may hold at once; `None` keeps iceoryx2's default.
+    borrowed: Option<usize>,
+    /// Samples a late subscriber gets at once.
+    history: usize,
+}
+
+/// Opens (or creates) the service `name` of `T` with `qos`.
+fn pubsub<T>(node: &Node<ipc::Service>, name: &str, qos: Qos) -> Result<PubSub<T>, IpcError>
+where
+    T: std::fmt::Debug + ZeroCopySend + 'static,
+{
+    let builder = node
+        .service_builder(&service_name(name)?)
+        .publish_subscribe::<T>()
+        .max_publishers(qos.publishers)
+        .max_subscribers(qos.subscribers)
+        .subscriber_max_buffer_size(qos.buffer)
+        .history_size(qos.history);
+    let builder = match qos.borrowed {
+        Some(borrowed) => builder.subscriber_max_borrowed_samples(borrowed),
+        None => builder,
+    };
+    builder
+        .open_or_create()
+        .map_err(|e| IpcError::new(format!("open {name}"), e))
+}
+
 /// `sonar/readings`. A subscriber buffers a few sweeps so a slow consumer (a recorder on a busy
 /// machine) loses nothing; readings are 104 B, so this costs little memory.
 pub fn readings_service(node: &Node<ipc::Service>) -> Result<PubSub<Reading>, IpcError> {
-    node.service_builder(&service_name(READINGS_SERVICE)?)
-        .publish_subscribe::<Reading>()
-        .max_publishers(2)
-        .max_subscribers(8)
-        .subscriber_max_buffer_size(256)
-        .subscriber_max_borrowed_samples(4)
-        .history_size(0)
-        .open_or_create()
-        .map_err(|e| IpcError::new(format!("open {READINGS_SERVICE}"), e))
+    pubsub(
+        node,
+        READINGS_SERVICE,
+        Qos {
+            publishers: 2,
+            subscribers: 8,
+            buffer: 256,
+            borrowed: Some(4),
+            history: 0,
+        },
+    )
 }
 
 /// `sonar/commands`: many writers (viewer, scripts), one reader that acts (the driver) and
 /// readers that record (recorders, a bridge). Room for 7 of those beside the driver, so recorders
 /// started first never leave the driver without a place (two did, and the driver exited).
 pub fn commands_service(node: &Node<ipc::Service>) -> Result<PubSub<ScanCommand>, IpcError> {
-    node.service_builder(&service_name(COMMANDS_SERVICE)?)
-        .publish_subscribe::<ScanCommand>()
-        .max_publishers(8)
-        .max_subscribers(8)
-        .subscriber_max_buffer_size(16)
-        .history_size(0)
-        .open_or_create()
-        .map_err(|e| IpcError::new(format!("open {COMMANDS_SERVICE}"), e))
+    pubsub(
+        node,
+        COMMANDS_SERVICE,
+        Qos {
+            publishers: 8,
+            subscribers: 8,
+            buffer: 16,
+            borrowed: None,
+            history: 0,
+        },
+    )
 }
 
 /// `sonar/driver_status`, history 1 so a viewer that starts late sees the state at once.
 pub fn driver_status_service(node: &Node<ipc::Service>) -> Result<PubSub<DriverStatus>, IpcError> {
-    node.service_builder(&service_name(DRIVER_STATUS_SERVICE)?)
-        .publish_subscribe::<DriverStatus>()
-        .max_publishers(1)
-        .max_subscribers(8)
-        .subscriber_max_buffer_size(1)
-        .history_size(1)
-        .open_or_create()
-        .map_err(|e| IpcError::new(format!("open {DRIVER_STATUS_SERVICE}"), e))
+    pubsub(
+        node,
+        DRIVER_STATUS_SERVICE,
+        Qos {
+            publishers: 1,
+            subscribers: 8,
+            buffer: 1,
+            borrowed: None,
+            history: 1,
+        },
+    )
 }
 
 pub type GridService = publish_subscribe::PortFactory<ipc::Service, [u8], GridHeader>;
@@ -988,71 +1031,85 @@ where
 
 /// `sonar/radar`, with the same policy as the grid.
 pub fn radar_service(node: &Node<ipc::Service>) -> Result<PubSub<Radar>, IpcError> {
-    node.service_builder(&service_name(RADAR_SERVICE)?)
-        .publish_subscribe::<Radar>()
-        .max_publishers(1)
-        .max_subscribers(6)
-        .subscriber_max_buffer_size(1)
-        .subscriber_max_borrowed_samples(2)
-        .history_size(1)
-        .open_or_create()
-        .map_err(|e| IpcError::new(format!("open {RADAR_SERVICE}"), e))
+    pubsub(
+        node,
+        RADAR_SERVICE,
+        Qos {
+            publishers: 1,
+            subscribers: 6,
+            buffer: 1,
+            borrowed: Some(2),
+            history: 1,
+        },
+    )
 }
 
 /// `sonar/fusion_commands`: many writers, the fusion engine reads.
 pub fn fusion_commands_service(
     node: &Node<ipc::Service>,
 ) -> Result<PubSub<FusionCommand>, IpcError> {
-    node.service_builder(&service_name(FUSION_COMMANDS_SERVICE)?)
-        .publish_subscribe::<FusionCommand>()
-        .max_publishers(8)
-        .max_subscribers(8)
-        .subscriber_max_buffer_size(16)
-        .history_size(0)
-        .open_or_create()
-        .map_err(|e| IpcError::new(format!("open {FUSION_COMMANDS_SERVICE}"), e))
+    pubsub(
+        node,
+        FUSION_COMMANDS_SERVICE,
+        Qos {
+            publishers: 8,
+            subscribers: 8,
+            buffer: 16,
+            borrowed: None,
+            history: 0,
+        },
+    )
 }
 
 /// `robot/pose`, history 1 so the fusion engine starts from the latest pose; a buffer of 256 like
 /// the readings', so a fusion busy with a burst of readings (a replay, a fast simulation) loses
 /// none of the poses that place them.
 pub fn pose_service(node: &Node<ipc::Service>) -> Result<PubSub<Pose2D>, IpcError> {
-    node.service_builder(&service_name(POSE_SERVICE)?)
-        .publish_subscribe::<Pose2D>()
-        .max_publishers(2)
-        .max_subscribers(8)
-        // 2.5 s of a replay at ×40 (800 poses a second): a fusion stalled by a snapshot on a
-        // loaded machine loses no pose, so its readings are placed as in the live run.
-        .subscriber_max_buffer_size(2048)
-        .history_size(1)
-        .open_or_create()
-        .map_err(|e| IpcError::new(format!("open {POSE_SERVICE}"), e))
+    pubsub(
+        node,
+        POSE_SERVICE,
+        Qos {
+            publishers: 2,
+            subscribers: 8,
+            // 2.5 s of a replay at ×40 (800 poses a second): a fusion stalled by a snapshot on a
+            // loaded machine loses no pose, so its readings are placed as in the live run.
+            buffer: 2048,
+            borrowed: None,
+            history: 1,
+        },
+    )
 }
 
 /// `robot/true_pose`, with the policy of [`pose_service`]: the simulator publishes the truth beside
 /// its odometry, at the same instants.
 pub fn true_pose_service(node: &Node<ipc::Service>) -> Result<PubSub<Pose2D>, IpcError> {
-    node.service_builder(&service_name(TRUE_POSE_SERVICE)?)
-        .publish_subscribe::<Pose2D>()
-        .max_publishers(2)
-        .max_subscribers(8)
-        .subscriber_max_buffer_size(16)
-        .history_size(1)
-        .open_or_create()
-        .map_err(|e| IpcError::new(format!("open {TRUE_POSE_SERVICE}"), e))
+    pubsub(
+        node,
+        TRUE_POSE_SERVICE,
+        Qos {
+            publishers: 2,
+            subscribers: 8,
+            buffer: 16,
+            borrowed: None,
+            history: 1,
+        },
+    )
 }
 
 /// `sonar/fusion_status`, with the policy of the driver's status: history 1 so a viewer that
 /// starts late sees the counters at once.
 pub fn fusion_status_service(node: &Node<ipc::Service>) -> Result<PubSub<FusionStatus>, IpcError> {
-    node.service_builder(&service_name(FUSION_STATUS_SERVICE)?)
-        .publish_subscribe::<FusionStatus>()
-        .max_publishers(1)
-        .max_subscribers(8)
-        .subscriber_max_buffer_size(1)
-        .history_size(1)
-        .open_or_create()
-        .map_err(|e| IpcError::new(format!("open {FUSION_STATUS_SERVICE}"), e))
+    pubsub(
+        node,
+        FUSION_STATUS_SERVICE,
+        Qos {
+            publishers: 1,
+            subscribers: 8,
+            buffer: 1,
+            borrowed: None,
+            history: 1,
+        },
+    )
 }
 
 pub type FeaturesService =
@@ -1070,14 +1127,17 @@ pub fn features_service(node: &Node<ipc::Service>) -> Result<FeaturesService, Ip
 pub fn localized_pose_service(
     node: &Node<ipc::Service>,
 ) -> Result<PubSub<LocalizedPose>, IpcError> {
-    node.service_builder(&service_name(LOCALIZED_POSE_SERVICE)?)
-        .publish_subscribe::<LocalizedPose>()
-        .max_publishers(1)
-        .max_subscribers(8)
-        .subscriber_max_buffer_size(16)
-        .history_size(1)
-        .open_or_create()
-        .map_err(|e| IpcError::new(format!("open {LOCALIZED_POSE_SERVICE}"), e))
+    pubsub(
+        node,
+        LOCALIZED_POSE_SERVICE,
+        Qos {
+            publishers: 1,
+            subscribers: 8,
+            buffer: 16,
+            borrowed: None,
+            history: 1,
+        },
+    )
 }
 
 /// `sonar/slam_correction`, with the localised pose's policy: history 1 so a fusion that starts
@@ -1085,14 +1145,17 @@ pub fn localized_pose_service(
 pub fn slam_correction_service(
     node: &Node<ipc::Service>,
 ) -> Result<PubSub<SlamCorrection>, IpcError> {
-    node.service_builder(&service_name(SLAM_CORRECTION_SERVICE)?)
-        .publish_subscribe::<SlamCorrection>()
-        .max_publishers(1)
-        .max_subscribers(8)
-        .subscriber_max_buffer_size(256)
-        .history_size(1)
-        .open_or_create()
-        .map_err(|e| IpcError::new(format!("open {SLAM_CORRECTION_SERVICE}"), e))
+    pubsub(
+        node,
+        SLAM_CORRECTION_SERVICE,
+        Qos {
+            publishers: 1,
+            subscribers: 8,
+            buffer: 256,
+            borrowed: None,
+            history: 1,
+        },
+    )
 }
 
 /// The event service that wakes the consumers of the publish-subscribe service of the same name.

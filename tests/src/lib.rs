@@ -65,7 +65,7 @@ pub fn python() -> PathBuf {
     assert!(
         python.exists(),
         "{} missing: run .ci/run once (it makes .venv and installs iceoryx2, mcap, \
-         mcap-protobuf-support, websockets and rosbags)",
+         mcap-protobuf-support, websockets, rosbags and eclipse-zenoh)",
         python.display()
     );
     python
@@ -825,4 +825,49 @@ pub fn collect_with_truth<T>(
         |got| got.len() >= n,
     );
     (got, TruePoses(true_poses))
+}
+
+/// A network namespace of the test's own with only its loopback up, removed when dropped: the
+/// live server and its client talk inside it, never on the machine's own interfaces.
+#[derive(Debug)]
+pub struct Netns(String);
+
+impl Netns {
+    pub fn new(tag: &str) -> Self {
+        let name = format!("sonar-{tag}-{}", std::process::id());
+        let ip = |args: &[&str]| {
+            let out = Command::new("ip").args(args).output().unwrap();
+            check_ok(&format!("ip {}", args.join(" ")), &out);
+        };
+        ip(&["netns", "add", &name]);
+        let ns = Self(name);
+        ip(&["-n", &ns.0, "link", "set", "lo", "up"]);
+        ns
+    }
+
+    /// Its name, for `Sandbox::in_netns`.
+    pub fn name(&self) -> &str {
+        &self.0
+    }
+
+    /// `command`, run inside the namespace with the same arguments and environment.
+    pub fn wrap(&self, command: &Command) -> Command {
+        let mut wrapped = Command::new("ip");
+        wrapped
+            .args(["netns", "exec", &self.0])
+            .arg(command.get_program())
+            .args(command.get_args());
+        for (key, value) in command.get_envs() {
+            if let Some(value) = value {
+                wrapped.env(key, value);
+            }
+        }
+        wrapped
+    }
+}
+
+impl Drop for Netns {
+    fn drop(&mut self) {
+        let _ = Command::new("ip").args(["netns", "del", &self.0]).status();
+    }
 }

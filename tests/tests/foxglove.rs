@@ -11,8 +11,8 @@ use std::process::{Command, Stdio};
 
 use sonar_common::ipc;
 use sonar_e2e::{
-    Proc, Sandbox, check_ok, collect_until, grid_subscriber, path_str, python, readings_subscriber,
-    readings_subscribers, wait_until, workspace,
+    Netns, Proc, Sandbox, check_ok, collect_until, grid_subscriber, path_str, python,
+    readings_subscriber, readings_subscribers, wait_until, workspace,
 };
 
 /// The room through simulator, driver and fusion, recorded with `--ros2`; the driver stops, the
@@ -143,45 +143,6 @@ fn a_recording_s_grid_scans_and_ros2_messages_decode_to_the_map_and_the_readings
 
     assert!(fusion.terminate().success());
     assert!(sim.terminate().success());
-}
-
-/// A network namespace of the test's own with only its loopback up, removed when dropped: the
-/// live server and its client talk inside it, never on the machine's own interfaces.
-struct Netns(String);
-
-impl Netns {
-    fn new(tag: &str) -> Self {
-        let name = format!("sonar-{tag}-{}", std::process::id());
-        let ip = |args: &[&str]| {
-            let out = Command::new("ip").args(args).output().unwrap();
-            check_ok(&format!("ip {}", args.join(" ")), &out);
-        };
-        ip(&["netns", "add", &name]);
-        let ns = Self(name);
-        ip(&["-n", &ns.0, "link", "set", "lo", "up"]);
-        ns
-    }
-
-    /// `command`, run inside the namespace with the same arguments and environment.
-    fn wrap(&self, command: &Command) -> Command {
-        let mut wrapped = Command::new("ip");
-        wrapped
-            .args(["netns", "exec", &self.0])
-            .arg(command.get_program())
-            .args(command.get_args());
-        for (key, value) in command.get_envs() {
-            if let Some(value) = value {
-                wrapped.env(key, value);
-            }
-        }
-        wrapped
-    }
-}
-
-impl Drop for Netns {
-    fn drop(&mut self) {
-        let _ = Command::new("ip").args(["netns", "del", &self.0]).status();
-    }
 }
 
 /// `sonar-pipeline` starts sonar-foxglove from its `[foxglove]` table, which serves the running

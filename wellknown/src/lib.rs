@@ -14,9 +14,11 @@
 //! placed in `map` by the transforms. [`WellKnown`] turns the pipeline's payloads into these
 //! messages at modest rates (the map at most once a `grid_period`, scans once a sweep, transforms at
 //! most 20 a second); `sonar-record` writes them beside its own channels and `sonar-foxglove`
-//! serves them live. Nothing here does I/O.
+//! serves them live (and `sonar-bridge --mode ros2` publishes the ROS 2 ones over zenoh). The
+//! conversion does no I/O; [`live`] reads the pipeline's services for the live servers.
 
 pub mod foxglove_msgs;
+pub mod live;
 pub mod ros2;
 pub mod scan;
 
@@ -283,12 +285,20 @@ impl WellKnown {
         }
     }
 
+    /// The map kept back by [`Self::grid`] (a snapshot that came within `grid_period` of the last
+    /// one given out), now, if there is one. A live server calls it once a `grid_period` has passed
+    /// without a new snapshot: a pipeline that stopped would otherwise keep its last map back for
+    /// ever.
+    pub fn flush_map(&mut self) -> Vec<Output> {
+        match self.pending_grid.take() {
+            Some((header, cells)) => self.map(&header, &cells),
+            None => Vec::new(),
+        }
+    }
+
     /// The end of the stream: the map kept back and the scan of the sweep in progress.
     pub fn finish(&mut self) -> Vec<Output> {
-        let mut out = Vec::new();
-        if let Some((header, cells)) = self.pending_grid.take() {
-            out.extend(self.map(&header, &cells));
-        }
+        let mut out = self.flush_map();
         if let Some(scan) = self.scans.finish() {
             out.extend(self.scan(&scan));
         }

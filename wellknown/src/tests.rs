@@ -77,6 +77,19 @@ fn the_grid_keeps_size_origin_rows_and_values_of_the_snapshot() {
 }
 
 #[test]
+fn a_kept_back_map_is_flushed_on_request_once() {
+    let mut w = WellKnown::new(options(true));
+    assert!(w.flush_map().is_empty(), "nothing kept back yet");
+    assert!(!w.grid(&header(10 * SECOND), &CELLS).is_empty());
+    assert!(w.grid(&header(10 * SECOND + 7), &CELLS).is_empty());
+    let flushed = w.flush_map();
+    assert!(flushed.iter().any(|o| o.channel == Channel::Ros2Map));
+    assert!(flushed.iter().all(|o| o.stamp_ns == 10 * SECOND + 7));
+    assert!(w.flush_map().is_empty(), "given once");
+    assert!(w.finish().is_empty(), "nor again at the end");
+}
+
+#[test]
 fn maps_come_at_most_once_a_period_and_the_last_one_at_the_end() {
     let mut w = WellKnown::new(options(false));
     // A fixed head: each map brings the sensor's transform from the snapshot.
