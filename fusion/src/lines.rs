@@ -23,6 +23,11 @@ const OTHER_VIEWPOINT_M: f32 = 0.1;
 /// The longest stretch filled between two patches, metres: beyond it, a wall heard at two feet
 /// is as likely to be two walls in line (a corridor's sides across a doorway).
 pub(crate) const LONGEST_STRETCH_M: f32 = 4.0;
+/// Two walls meet at a corner when their facings differ by at least this angle, radians (30°):
+/// closer to parallel, their lines cross far from where either was heard.
+const CORNER_ANGLE: f32 = 30.0 * std::f32::consts::PI / 180.0;
+/// A patch's wall is followed this far beyond its ends, metres, to a corner.
+const CORNER_REACH_M: f32 = 1.5;
 /// Patches kept; the oldest are forgotten first.
 const KEPT: usize = 4096;
 
@@ -59,6 +64,17 @@ impl Patch {
             sensor,
             ends: [foot - along * half, foot + along * half],
         }
+    }
+
+    /// Whether `point` lies on this patch's line, within `tolerance`, and within
+    /// [`CORNER_REACH_M`] of the patch.
+    fn reaches(&self, point: Vector2<f32>, tolerance: f32) -> bool {
+        let (normal, _) = frame(self.facing);
+        (normal.dot(&point) - self.offset).abs() <= tolerance
+            && self
+                .ends
+                .iter()
+                .any(|end| (end - point).norm() <= CORNER_REACH_M)
     }
 
     fn on_line_with(&self, other: &Patch) -> bool {
@@ -133,6 +149,22 @@ impl Lines {
         self.patches.push(patch);
     }
 
+    /// Whether two walls heard so far meet at `point` (within `tolerance`): two patches whose
+    /// lines pass through it, facing ways at least 30° apart, each within 1.5 m of it.
+    pub fn corner_at(&self, point: Vector2<f32>, tolerance: f32) -> bool {
+        let through: Vec<&Patch> = self
+            .patches
+            .iter()
+            .filter(|p| p.reaches(point, tolerance))
+            .collect();
+        through.iter().enumerate().any(|(i, a)| {
+            through[i + 1..].iter().any(|b| {
+                let apart = wrap_angle(a.facing - b.facing).abs();
+                (CORNER_ANGLE..=std::f32::consts::PI - CORNER_ANGLE).contains(&apart)
+            })
+        })
+    }
+
     pub fn clear(&mut self) {
         self.patches.clear();
     }
@@ -165,6 +197,29 @@ mod tests {
         lines.add(heard_from(0.5), &mut out);
         assert_eq!(out.len(), 2);
         assert!(out.iter().all(|s| (s.b - s.a).norm() < 0.5));
+    }
+
+    #[test]
+    fn a_corner_is_where_two_walls_heard_beside_it_meet() {
+        let mut lines = Lines::default();
+        let mut out = Vec::new();
+        // Two walls 0.85 m from the origin square to ±45°: they meet at (1.2, 0).
+        for side in [1.0, -1.0] {
+            lines.add(
+                Patch::new(Vector2::zeros(), side * 45.0 * DEG, 0.85, 13.0 * DEG),
+                &mut out,
+            );
+        }
+        let corner = Vector2::new(0.85 * 2f32.sqrt(), 0.0);
+        assert!(lines.corner_at(corner, 0.05));
+        assert!(!lines.corner_at(corner + Vector2::new(0.1, 0.0), 0.05));
+        // One wall alone, or two walls in line, make no corner.
+        let mut one = Lines::default();
+        one.add(heard_from(0.0), &mut out);
+        one.add(heard_from(1.0), &mut out);
+        assert!(!one.corner_at(Vector2::new(2.0, 0.5), 0.05));
+        // Beyond the reach of both patches: no corner.
+        assert!(!lines.corner_at(corner * 3.0, 10.0));
     }
 
     #[test]

@@ -14,8 +14,11 @@ use crate::model::{CellEvidence, ModelConfig, SmoothModel, with_model};
 use crate::observation::{Beam, Observation, ObservationError};
 use crate::radar::RadarMap;
 use crate::reference::PaperArrays;
-use crate::regions::{DepthTolerance, Heard, Region, RegionTracker};
+use crate::regions::{DepthTolerance, End, Heard, LobeWidth, Region, RegionTracker};
 use crate::state::{MapperState, StateError};
+
+/// One-ended and cut regions kept for the sweep's end at most: more than a 360° sweep at 1.5° holds.
+const DEFERRED_REGIONS: usize = 256;
 
 /// Which kernel fuses a reading into the grid. Both give the same grid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -59,6 +62,12 @@ struct Regions {
     /// The patches placed, for the walls between them ([`crate::lines`]).
     lines: Lines,
     stretches: Vec<Stretch>,
+    /// The lobe's half-width by range, learnt from the whole regions.
+    lobe: LobeWidth,
+    /// With `region_one_end`: the sweep's one-ended regions, placed at its end.
+    one_ended: Vec<Region>,
+    /// With `region_corners`: the sweep's regions cut short on both sides, placed at its end.
+    cut: Vec<Region>,
 }
 
 impl fmt::Debug for Mapper {
@@ -94,6 +103,9 @@ impl Mapper {
                     waiting: Vec::new(),
                     lines: Lines::default(),
                     stretches: Vec::new(),
+                    lobe: LobeWidth::default(),
+                    one_ended: Vec::new(),
+                    cut: Vec::new(),
                 }),
                 _ => None,
             },
@@ -197,16 +209,57 @@ impl Mapper {
     }
 
     /// Places a closed region, if whole, and the free evidence of the readings waiting for it;
-    /// they are forgotten either way.
+    /// they are forgotten either way. A one-ended region (`region_one_end`) and one cut short on
+    /// both sides (`region_corners`) wait for the sweep's end, when the lobe has been learnt from
+    /// the whole sweep and the walls beside a corner placed ([`Self::close_region`]).
     fn close(&mut self, regions: &mut Regions, region: &Region, kernel: Kernel) -> usize {
+        let ModelConfig::Smooth(model) = self.config.model else {
+            return 0;
+        };
+        regions.lobe.learn(region);
         let mut cells = 0;
         if region.is_whole() {
-            cells += self.place_region(regions, region, kernel);
+            let half_angle = model.region_patch_half_angle(region.half_width);
+            cells += self.place_region(regions, region, region.axis, half_angle, kernel);
             for beam in &regions.waiting {
                 cells += self.fuse_beam(beam, kernel);
             }
+        } else if model.region_one_end && region.is_one_ended() {
+            regions.one_ended.push(*region);
+        } else if model.region_corners && !region.ends.contains(&End::Natural) {
+            regions.cut.push(*region);
         }
         regions.waiting.clear();
+        // A head whose sweeps are never told apart still places them, a sweep's worth at a time.
+        if regions.one_ended.len() + regions.cut.len() >= DEFERRED_REGIONS {
+            cells += self.place_one_ended(regions, kernel);
+            cells += self.place_corners(regions, kernel);
+        }
+        cells
+    }
+
+    /// Places the one-ended regions of the sweep one lobe half-width in from their natural ends
+    /// (the lobe learnt at their range, else the sensor's beam half-angle), on a patch half a
+    /// lobe wide each side.
+    fn place_one_ended(&mut self, regions: &mut Regions, kernel: Kernel) -> usize {
+        let ModelConfig::Smooth(model) = self.config.model else {
+            return 0;
+        };
+        let beam = self.config.sensor.limits().half_angle;
+        let mut cells = 0;
+        for region in std::mem::take(&mut regions.one_ended) {
+            let lobe = regions
+                .lobe
+                .at(region.range)
+                .unwrap_or_else(|| region.prior_lobe(beam));
+            if let Some(axis) = region.one_ended_axis(lobe) {
+                // Half the lobe each side: the foot is known to a reading's step at best, and
+                // on the suite's tune split a patch as wide as the lobe cost `srf05` 0.06 of
+                // precision at 8 viewpoints for no recall (docs/fusion.md).
+                let half_angle = model.region_patch_half_angle(0.5 * lobe);
+                cells += self.place_region(regions, &region, axis, half_angle, kernel);
+            }
+        }
         cells
     }
 
@@ -217,32 +270,67 @@ impl Mapper {
         let Some(mut regions) = self.regions.take() else {
             return 0;
         };
-        let cells = match regions.tracker.close() {
+        let mut cells = match regions.tracker.close() {
             Some(region) => self.close(&mut regions, &region, Kernel::Cone),
             None => 0,
         };
+        cells += self.place_one_ended(&mut regions, Kernel::Cone);
+        cells += self.place_corners(&mut regions, Kernel::Cone);
         self.regions = Some(regions);
         cells
     }
 
-    /// Fuses a closed region's occupied evidence: a straight patch at its middle bearing and range;
-    /// then the stretches of wall between it and the patches other viewpoints placed on its line.
-    fn place_region(&mut self, regions: &mut Regions, region: &Region, kernel: Kernel) -> usize {
+    /// Places the sweep's regions cut short on both sides, narrower than the lobe, where two
+    /// walls heard so far meet at their middle bearing and range (within the occupied band and the
+    /// regions' depth tolerance): a corner masked by its walls' nearer feet, placed as a point.
+    fn place_corners(&mut self, regions: &mut Regions, kernel: Kernel) -> usize {
         let ModelConfig::Smooth(model) = self.config.model else {
             return 0;
         };
-        let half_angle = model.region_patch_half_angle(region.half_width);
+        let beam = self.config.sensor.limits().half_angle;
+        let mut cells = 0;
+        for region in std::mem::take(&mut regions.cut) {
+            let lobe = regions
+                .lobe
+                .at(region.range)
+                .unwrap_or_else(|| region.prior_lobe(beam));
+            let point =
+                region.position + Vector2::new(region.axis.cos(), region.axis.sin()) * region.range;
+            let tolerance = model.band(region.range) + regions.tolerance.at(region.range);
+            if region.is_cut_and_narrow(lobe) && regions.lines.corner_at(point, tolerance) {
+                // A point: a cell wide.
+                let half_angle = (self.grid.geometry().resolution() / region.range).atan();
+                cells += self.place_region(regions, &region, region.axis, half_angle, kernel);
+            }
+        }
+        cells
+    }
+
+    /// Fuses a closed region's occupied evidence: a straight patch square to its reflector's
+    /// bearing `axis` at its range, `half_angle` wide each side; then the stretches of wall between
+    /// it and the patches other viewpoints placed on its line.
+    fn place_region(
+        &mut self,
+        regions: &mut Regions,
+        region: &Region,
+        axis: f32,
+        half_angle: f32,
+        kernel: Kernel,
+    ) -> usize {
+        let ModelConfig::Smooth(model) = self.config.model else {
+            return 0;
+        };
         let beam = Beam {
             position: region.position,
-            axis: region.axis,
+            axis,
             half_angle: model.max_half_angle(),
             max_range: self.config.sensor.limits().max_range,
             echo: Some(region.range),
         };
-        let evidence = model.region_echo(region.axis, region.range, half_angle);
+        let evidence = model.region_echo(axis, region.range, half_angle);
         let mut cells = self.apply(&beam, &evidence, kernel);
         regions.lines.add(
-            Patch::new(region.position, region.axis, region.range, half_angle),
+            Patch::new(region.position, axis, region.range, half_angle),
             &mut regions.stretches,
         );
         for stretch in &regions.stretches {
@@ -326,6 +414,8 @@ impl Mapper {
             regions.tracker = RegionTracker::default();
             regions.waiting.clear();
             regions.lines.clear();
+            regions.one_ended.clear();
+            regions.cut.clear();
         }
     }
 }
@@ -772,6 +862,104 @@ mod tests {
         assert_eq!(in_front(&patch), 0, "{patch:?}");
         assert!(patch.iter().all(|c| (c.0 - 1.5).abs() <= 0.05), "{patch:?}");
         assert!(patch.iter().any(|c| c.1 > 0.4) && patch.iter().any(|c| c.1 < -0.4));
+    }
+
+    /// The occupied cells of a local scan from the origin of a corner at (1.2, 0) between two
+    /// walls 0.85 m away square to ±45°: each wall heard from the scan's limit (±57°) to ±21°, the
+    /// corner between (a region cut short by both walls' nearer echoes), one sweep each way.
+    fn corner_local_scan(region_one_end: bool, region_corners: bool) -> Vec<(f32, f32)> {
+        let mut m = Mapper::new(FusionConfig {
+            model: ModelConfig::Smooth(crate::model::SmoothModel {
+                echo_placement: crate::model::EchoPlacement::Region,
+                region_one_end,
+                region_corners,
+                ..Default::default()
+            }),
+            ..FusionConfig::default()
+        })
+        .unwrap();
+        let range = |a: f32| Some(if a.abs() >= 21.0 { 0.85 } else { 1.2 });
+        for k in (-10..=10).chain((-10..=10).rev()) {
+            let a = 3.0 + 6.0 * k as f32;
+            if a.abs() < 60.0 {
+                m.update(&reading(a, range(a))).unwrap();
+            }
+        }
+        m.close_region();
+        let g = *m.grid().geometry();
+        let n = g.cells_per_side();
+        (0..n)
+            .flat_map(|y| (0..n).map(move |x| (x, y)))
+            .filter(|&(x, y)| m.grid().probability(x, y).is_some_and(|p| p > 0.5))
+            .map(|(x, y)| {
+                let c = g.cell_centre(x, y);
+                (c.x, c.y)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_local_scan_of_a_corner_draws_its_walls_and_the_corner_where_they_meet() {
+        // Only whole regions are placed: nothing (both walls run to the scan's limits, the corner
+        // is masked on both sides).
+        assert!(corner_local_scan(false, false).is_empty());
+        let cells = corner_local_scan(true, false);
+        // Every cell on one of the two walls (band ± 2.5 cm and a cell), and both walls drawn.
+        let wall = |c: &(f32, f32), side: f32| {
+            let normal = (-45f32 * side).to_radians();
+            (c.0 * normal.cos() + c.1 * normal.sin() - 0.85).abs()
+        };
+        assert!(
+            cells
+                .iter()
+                .all(|c| wall(c, 1.0).min(wall(c, -1.0)) <= 0.05),
+            "{cells:?}"
+        );
+        for side in [1.0, -1.0] {
+            let on = cells
+                .iter()
+                .filter(|c| wall(c, side) <= 0.05 && c.1 * side < 0.0);
+            assert!(on.count() > 10, "{side}: {cells:?}");
+        }
+        // The corner between them: where the two walls meet, at the range its region heard.
+        let near_corner = |cells: &[(f32, f32)]| {
+            cells
+                .iter()
+                .filter(|c| (c.0 - 1.2).hypot(c.1) <= 0.05)
+                .count()
+        };
+        assert_eq!(near_corner(&cells), 0);
+        let with_corner = corner_local_scan(true, true);
+        assert!(near_corner(&with_corner) > 0, "{with_corner:?}");
+        assert!(with_corner.len() <= cells.len() + 6, "a point, not a patch");
+    }
+
+    #[test]
+    fn one_ended_regions_are_placed_even_if_no_sweep_ever_ends() {
+        let mut m = Mapper::new(FusionConfig {
+            model: ModelConfig::Smooth(crate::model::SmoothModel {
+                echo_placement: crate::model::EchoPlacement::Region,
+                region_one_end: true,
+                ..Default::default()
+            }),
+            ..FusionConfig::default()
+        })
+        .unwrap();
+        // Runs of readings 30° apart (a gap: nothing known before each), 54° of echo at 1 m and
+        // then none: one-ended regions, and no end of a sweep.
+        for run in 0..1000 {
+            let start = -170.0 + 90.0 * (run % 4) as f32;
+            for k in 0..10 {
+                let a = start + 6.0 * k as f32;
+                m.update(&reading(a, (k < 9).then_some(1.0))).unwrap();
+            }
+        }
+        let deferred = m.regions.as_ref().map(|r| r.one_ended.len());
+        assert!(
+            deferred.is_some_and(|n| n < DEFERRED_REGIONS),
+            "{deferred:?}"
+        );
+        assert!(cells(&m).iter().any(|p| p.is_some_and(|p| p > 0.5)));
     }
 
     #[test]

@@ -520,6 +520,15 @@ pub struct SmoothModel {
     /// With `echo_placement = "region"`: half the angle, seen from the sensor, of the straight patch
     /// a region's occupied evidence is drawn on, square to its middle bearing at its range.
     pub region_half_angle_deg: f32,
+    /// With `echo_placement = "region"`: a region heard to stop on one side and running to the
+    /// sweep's limit (or a gap in the angles) on the other is placed at the sweep's end one lobe
+    /// half-width in from its natural end, the lobe learnt from the whole regions
+    /// ([`crate::regions::LobeWidth`]); its readings clear nothing.
+    pub region_one_end: bool,
+    /// With `echo_placement = "region"`: a region cut short on both sides, narrower than the
+    /// lobe, is placed as a point at its middle bearing if two walls heard so far meet there (a
+    /// corner masked by the nearer feet of its own walls); its readings clear nothing.
+    pub region_corners: bool,
 }
 
 /// Where a reading's echo puts its occupied evidence ([`SmoothModel::echo_placement`]).
@@ -553,6 +562,8 @@ impl Default for SmoothModel {
             region_tolerance_m: 0.02,
             region_tolerance_fraction: 0.02,
             region_half_angle_deg: 18.0,
+            region_one_end: false,
+            region_corners: false,
         }
     }
 }

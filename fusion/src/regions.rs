@@ -33,8 +33,13 @@ pub(crate) struct DepthTolerance {
 }
 
 impl DepthTolerance {
+    /// The tolerance at `range`, metres.
+    pub fn at(&self, range: f32) -> f32 {
+        self.absolute_m + self.fraction * range
+    }
+
     fn admits(&self, region_range: f32, range: f32) -> bool {
-        (range - region_range).abs() <= self.absolute_m + self.fraction * region_range
+        (range - region_range).abs() <= self.at(region_range)
     }
 }
 
@@ -73,6 +78,8 @@ pub(crate) struct Region {
     pub readings: u32,
     /// Half the angle between the first and the last reading's axes, radians.
     pub half_width: f32,
+    /// The angle from the first reading's axis to the last one's, signed the way the head turned.
+    pub span: f32,
     /// Beside the first and beside the last reading.
     pub ends: [End; 2],
 }
@@ -84,6 +91,105 @@ impl Region {
     /// regions cut short by a nearer echo on one side and 14 % on both.
     pub fn is_whole(&self) -> bool {
         self.ends == [End::Natural; 2]
+    }
+
+    /// Whether the reflector stopped being heard on one side and nothing is known of the other
+    /// (the sweep's limit, a gap in the angles, the head turning back): its bearing is then one
+    /// lobe half-width in from the natural end ([`Self::one_ended_axis`]). A region cut short by a
+    /// nearer echo is not: on the generated suite, patches placed from those lay on a surface
+    /// only a third to a half of the time.
+    pub fn is_one_ended(&self) -> bool {
+        matches!(
+            self.ends,
+            [End::Natural, End::Unknown] | [End::Unknown, End::Natural]
+        )
+    }
+
+    /// Where the reflector of a one-ended region ([`Self::is_one_ended`]) lies: one lobe
+    /// half-width `lobe` (radians, the half-width of the whole regions heard at this range) in
+    /// from its natural end, as a whole region spans the lobe's width centred on its reflector.
+    /// `None` if the region is not one-ended or does not reach that far in from its natural end
+    /// (the reflector's bearing then lies where nothing was heard).
+    pub fn one_ended_axis(&self, lobe: f32) -> Option<f32> {
+        let half = 0.5 * self.span;
+        // The natural end's axis, and the way in from it.
+        let (end, inwards) = match self.ends {
+            [End::Natural, End::Unknown] => (self.axis - half, self.span.signum()),
+            [End::Unknown, End::Natural] => (self.axis + half, -self.span.signum()),
+            _ => return None,
+        };
+        (self.span.abs() >= lobe).then(|| wrap_angle(end + inwards * lobe))
+    }
+}
+
+impl Region {
+    /// The angle between its neighbouring readings, radians (0 for one reading).
+    pub fn step(&self) -> f32 {
+        if self.readings > 1 {
+            self.span.abs() / (self.readings - 1) as f32
+        } else {
+            0.0
+        }
+    }
+
+    /// The lobe's half-width when no whole region has taught it ([`LobeWidth`]): the sensor's
+    /// beam half-angle `beam`, less half this region's step between readings (a whole region's
+    /// end readings lie on average half a step inside the lobe).
+    pub fn prior_lobe(&self, beam: f32) -> f32 {
+        beam - 0.5 * self.step()
+    }
+
+    /// Whether the region was cut short on both sides by nearer echoes (or on one side and by the
+    /// sweep's limit on the other) and is narrower than the lobe (`lobe`, its half-width): what a
+    /// corner or a post, which answer from any bearing, heard between two nearer reflectors leaves.
+    pub fn is_cut_and_narrow(&self, lobe: f32) -> bool {
+        !self.ends.contains(&End::Natural)
+            && self.ends.contains(&End::Occluded)
+            && self.half_width < lobe
+    }
+}
+
+/// Range bins of the lobe estimate, metres wide.
+const LOBE_BIN_M: f32 = 0.25;
+/// Range bins kept: 0 to 5 m.
+const LOBE_BINS: usize = 20;
+/// Whole regions a bin's running mean weighs at most: it follows a change of sensor over about
+/// this many.
+const LOBE_MEMORY: f32 = 50.0;
+
+/// The half-width of the lobe within which a reflector is heard, as a function of range, learnt
+/// online from the whole regions' half-widths (a whole region spans the lobe's width at its range,
+/// centred on the reflector). Nothing is assumed of the sensor: until a whole region has been
+/// heard at some range, nothing is known.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct LobeWidth {
+    /// Per range bin: the running mean half-width, radians, and the regions it weighs.
+    bins: [(f32, f32); LOBE_BINS],
+}
+
+impl LobeWidth {
+    fn bin(range: f32) -> usize {
+        ((range / LOBE_BIN_M) as usize).min(LOBE_BINS - 1)
+    }
+
+    /// Learns from a whole region of two readings or more (one reading has no width).
+    pub fn learn(&mut self, region: &Region) {
+        if !region.is_whole() || region.readings < 2 {
+            return;
+        }
+        let (mean, weight) = &mut self.bins[Self::bin(region.range)];
+        *weight = (*weight + 1.0).min(LOBE_MEMORY);
+        *mean += (region.half_width - *mean) / *weight;
+    }
+
+    /// The half-width at `range`: its bin's, else the nearest learnt bin's; `None` before any.
+    pub fn at(&self, range: f32) -> Option<f32> {
+        let bin = Self::bin(range) as isize;
+        (0..LOBE_BINS as isize)
+            .flat_map(|k| [bin - k, bin + k])
+            .filter_map(|b| usize::try_from(b).ok().and_then(|b| self.bins.get(b)))
+            .find(|(_, weight)| *weight > 0.0)
+            .map(|(mean, _)| *mean)
     }
 }
 
@@ -109,6 +215,7 @@ impl Open {
             range: self.range(),
             readings: self.readings,
             half_width: 0.5 * wrap_angle(last_axis - self.first_axis).abs(),
+            span: wrap_angle(last_axis - self.first_axis),
             ends: [self.start, end],
         }
     }
@@ -308,6 +415,80 @@ mod tests {
         let found = regions(&[(174.0, Some(1.0)), (180.0, Some(1.0)), (-174.0, Some(1.0))]);
         assert_eq!(found.len(), 1);
         assert!((found[0].axis.abs().to_degrees() - 180.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn a_region_stopping_on_one_side_only_is_placed_one_lobe_in_from_that_side() {
+        let lobe = 27f32.to_radians();
+        // A wall's foot at −45°, its lobe ±27°: heard from the local scan's limit at −57° to
+        // −21°, then a farther echo (a corner). Turning the other way, the same from +57° to +21°.
+        let rising: Vec<_> = (0..7)
+            .map(|k| (-57.0 + 6.0 * k as f32, Some(0.85)))
+            .chain([(-15.0, Some(1.2))])
+            .collect();
+        let falling: Vec<_> = rising.iter().map(|&(a, r)| (-a, r)).collect();
+        for (readings, foot) in [(rising, -48.0), (falling, 48.0)] {
+            let wall = regions(&readings)[0];
+            assert_eq!(wall.ends, [End::Unknown, End::Natural]);
+            assert!(wall.is_one_ended());
+            let axis = wall.one_ended_axis(lobe).unwrap().to_degrees();
+            assert!((axis - foot).abs() < 1e-3, "{axis}");
+            // Narrower than the lobe: the foot lies where nothing was heard.
+            assert_eq!(wall.one_ended_axis(37f32.to_radians()), None);
+        }
+        // Cut short by a nearer echo: not one-ended (placed from those, patches lay on a surface
+        // a third to a half of the time); whole: placed at its middle instead.
+        let cut = regions(&[
+            (0.0, None),
+            (6.0, Some(2.0)),
+            (12.0, Some(2.0)),
+            (18.0, Some(1.0)),
+        ]);
+        assert!(!cut[0].is_one_ended());
+        assert_eq!(cut[0].one_ended_axis(3f32.to_radians()), None);
+        let whole = regions(&[
+            (0.0, None),
+            (6.0, Some(2.0)),
+            (12.0, Some(2.0)),
+            (18.0, None),
+        ]);
+        assert!(!whole[0].is_one_ended());
+    }
+
+    #[test]
+    fn the_lobe_is_learnt_from_whole_regions_by_range() {
+        let mut lobe = LobeWidth::default();
+        assert_eq!(lobe.at(1.0), None);
+        // Whole regions 24° and 30° wide each side at about 1 m; one reading, and a region cut
+        // short, teach nothing.
+        let readings = |half: i32, range: f32| {
+            let mut r = vec![(-(half as f32) - 6.0, None)];
+            r.extend((-half..=half).step_by(6).map(|a| (a as f32, Some(range))));
+            r.push((half as f32 + 6.0, None));
+            r
+        };
+        for found in [
+            regions(&readings(24, 1.0)),
+            regions(&readings(30, 1.1)),
+            regions(&[(0.0, None), (6.0, Some(1.0)), (12.0, None)]),
+            regions(&[
+                (0.0, None),
+                (6.0, Some(1.0)),
+                (12.0, Some(1.0)),
+                (18.0, Some(0.5)),
+            ]),
+        ] {
+            found.iter().for_each(|r| lobe.learn(r));
+        }
+        let at = |lobe: &LobeWidth, range| lobe.at(range).map(|l| l.to_degrees().round() as i32);
+        assert_eq!(at(&lobe, 1.0), Some(27));
+        // Elsewhere: the nearest range learnt.
+        assert_eq!(at(&lobe, 3.0), Some(27));
+        regions(&readings(6, 3.0))
+            .iter()
+            .for_each(|r| lobe.learn(r));
+        assert_eq!(at(&lobe, 3.1), Some(6));
+        assert_eq!(at(&lobe, 1.0), Some(27));
     }
 
     #[test]
