@@ -1053,8 +1053,9 @@ mod tests {
             snapshot.grid.0.seq, 2,
             "one map at the sweep change, then the last"
         );
-        // Two sweeps: 2 maps, 2 transforms, 2 scans; twice, with the ROS 2 messages; one beam.
-        assert_eq!(mcap.finish().unwrap(), 13);
+        // Two sweeps: 2 maps, 2 transforms, 2 scans; twice, with the ROS 2 messages; one beam,
+        // after the sensor's transform on Foxglove's channel (a fixed head before its first map).
+        assert_eq!(mcap.finish().unwrap(), 14);
         // The ROS 2 half went to the bag, stamped with the recording's times: its last message
         // (start + duration) is the recording's last, not the time of the export.
         let yaml = std::fs::read_to_string(bag_dir.join("metadata.yaml")).unwrap();
