@@ -1,9 +1,14 @@
 //! [`WellKnown`]: the pipeline's payloads in, the well-known messages out, at modest rates (see
 //! the crate's documentation); and the channels it writes on.
 
-use sonar_common::ipc::{FeatureRecord, FeaturesHeader, GridHeader, Pose2D, Reading};
+use sonar_common::ipc::{
+    FeatureRecord, FeaturesHeader, GridHeader, LocalizedPose, Pose2D, Reading, SlamCorrection,
+    slam_state,
+};
 
-use crate::frame::{MAP_FRAME, SENSOR_FRAME, Transform};
+use tracing::warn;
+
+use crate::frame::{Correction, MAP_FRAME, SENSOR_FRAME, Transform};
 use crate::scan::{Scan, SweepScans};
 use crate::{foxglove_msgs, ros2};
 /// Transforms closer together than this are left out (the simulator publishes 20 poses a
@@ -119,8 +124,10 @@ pub struct WellKnown {
     /// A pose source exists: the transforms follow it, not the grid's copy of the pose.
     pose_seen: bool,
     last_transform_ns: Option<u64>,
-    /// The sensor's transform last given out.
+    /// The sensor's transform (`odom → sonar`) last given out.
     last_sensor: Option<Transform>,
+    /// The latest correction of the odometry (`map → odom`), sent with each sensor transform.
+    correction: Correction,
     last_beam_ns: Option<u64>,
 }
 
@@ -134,6 +141,7 @@ impl WellKnown {
             pose_seen: false,
             last_transform_ns: None,
             last_sensor: None,
+            correction: Correction::IDENTITY,
             last_beam_ns: None,
         }
     }
@@ -170,13 +178,11 @@ impl WellKnown {
                 // A moving one before its first pose: nowhere known yet.
                 (None, true) => None,
             };
-            // Foxglove's channel only: the same transform again on ROS 2's `/tf` is what tf2
+            // Foxglove's channel only: the same transforms again on ROS 2's `/tf` are what tf2
             // warns about (a repeated stamp).
-            out.extend(sensor.map(|t| Output {
-                channel: Channel::FoxgloveTransform,
-                stamp_ns: t.stamp_ns,
-                data: foxglove_msgs::encode(&foxglove_msgs::frame_transform(&t)),
-            }));
+            if let Some(sensor) = sensor {
+                out.extend(self.foxglove_transforms(sensor));
+            }
             out.push(Output {
                 channel: Channel::FoxgloveBeam,
                 stamp_ns,
@@ -201,6 +207,49 @@ impl WellKnown {
             pose.y_m,
             pose.theta_rad,
         ))
+    }
+
+    /// A correction of the odometry, map ← odom (`x`, `y` in metres, `theta` in radians), as of
+    /// `stamp_ns`: from the next sensor transform on, `map → odom` is this one (the sources
+    /// send theirs in order, one a sweep). One that is not finite is left out with a warning.
+    pub fn correction(&mut self, stamp_ns: u64, x: f64, y: f64, theta: f64) {
+        let correction = Correction { x, y, theta };
+        if correction.is_finite() {
+            self.correction = correction;
+        } else {
+            warn!(
+                stamp_ns,
+                ?correction,
+                "correction of the odometry left out: not finite"
+            );
+        }
+    }
+
+    /// A `sonar-slam` estimate (`sonar/slam_correction`): its correction, unless it revises an
+    /// earlier sweep (state `REVISED`: the current correction is the latest of the others).
+    pub fn slam_correction(&mut self, c: &SlamCorrection) {
+        if c.state != slam_state::REVISED {
+            self.correction(
+                c.stamp_ns,
+                f64::from(c.correction_x_m),
+                f64::from(c.correction_y_m),
+                f64::from(c.correction_theta_rad),
+            );
+        }
+    }
+
+    /// The fusion's localised pose (`sonar/localized_pose`): the correction that carries its
+    /// odometry pose onto its localised one.
+    pub fn localized_pose(&mut self, p: &LocalizedPose) {
+        let c = Correction::between(
+            (f64::from(p.x_m), f64::from(p.y_m), f64::from(p.theta_rad)),
+            (
+                f64::from(p.odometry_x_m),
+                f64::from(p.odometry_y_m),
+                f64::from(p.odometry_theta_rad),
+            ),
+        );
+        self.correction(p.stamp_ns, c.x, c.y, c.theta);
     }
 
     /// A features snapshot: the scene of walls, corners and posts.
@@ -293,21 +342,33 @@ impl WellKnown {
         out
     }
 
+    /// The sensor's transform (`odom → sonar`) with the latest correction (`map → odom`) at its
+    /// stamp, so that every lookup from `sonar` to `map` finds both.
     fn transform(&mut self, t: Transform) -> Vec<Output> {
         self.last_transform_ns = Some(t.stamp_ns);
         self.last_sensor = Some(t);
-        let mut out = vec![Output {
-            channel: Channel::FoxgloveTransform,
-            stamp_ns: t.stamp_ns,
-            data: foxglove_msgs::encode(&foxglove_msgs::frame_transform(&t)),
-        }];
+        let mut out = self.foxglove_transforms(t).to_vec();
         if self.options.ros2 {
             out.push(Output {
                 channel: Channel::Ros2Transform,
                 stamp_ns: t.stamp_ns,
-                data: ros2::tf_message(&[t]),
+                data: ros2::tf_message(&[Transform::correction(t.stamp_ns, self.correction), t]),
             });
         }
         out
+    }
+
+    /// `map → odom` (the latest correction, at the sensor's stamp) and `odom → sonar`, each a
+    /// FrameTransform on Foxglove's channel.
+    fn foxglove_transforms(&self, sensor: Transform) -> [Output; 2] {
+        [
+            Transform::correction(sensor.stamp_ns, self.correction),
+            sensor,
+        ]
+        .map(|t| Output {
+            channel: Channel::FoxgloveTransform,
+            stamp_ns: t.stamp_ns,
+            data: foxglove_msgs::encode(&foxglove_msgs::frame_transform(&t)),
+        })
     }
 }
