@@ -442,3 +442,30 @@ fn a_correction_between_two_poses_carries_one_onto_the_other() {
         (4.0, 5.0)
     );
 }
+
+#[test]
+fn a_beam_repeats_the_transforms_as_they_were_given_out_and_a_fixed_head_is_not_corrected() {
+    let mut w = WellKnown::new(options(false));
+    w.pose(&Pose2D {
+        stamp_ns: SECOND,
+        x_m: 1.0,
+        layout_version: 1,
+        ..Pose2D::default()
+    });
+    // A correction after the pose: the beam's repeat keeps the pair of the pose's stamp.
+    w.correction(SECOND, 0.5, 0.0, 0.0);
+    let beam = w.reading(&Reading {
+        host_stamp_ns: SECOND + 1,
+        distance_m: 1.0,
+        ..Reading::default()
+    });
+    let (parent, _, x, ..) = decoded(&beam[0].data);
+    assert_eq!((parent.as_str(), x), ("map", 0.0));
+
+    // A fixed head's pose is the fusion's, already in the map: no correction below it.
+    let mut fixed = WellKnown::new(options(false));
+    fixed.correction(SECOND, 0.5, 0.0, 0.0);
+    let out = fixed.grid(&header(SECOND), &CELLS);
+    let (parent, _, x, ..) = decoded(&out[1].data);
+    assert_eq!((parent.as_str(), x), ("map", 0.0));
+}
