@@ -7,9 +7,11 @@ use std::collections::BTreeMap;
 use foxglove::Decode;
 use foxglove::messages::{FrameTransform, LaserScan};
 use nalgebra::{Isometry2, Point2, Vector2};
-use sonar_common::ipc;
+use sonar_common::ipc::{self, LocalizedPose, Pose2D, SlamCorrection, slam_state};
 use sonar_e2e::{Sandbox, collect_with_truth, path_str, readings_subscribers, wait_until};
 use sonar_sim::{Scene, Vec2};
+use sonar_wellknown::live::Ports;
+use sonar_wellknown::{Channel, Options, Output, WellKnown};
 
 /// An echo placed with the true pose within this of a wall is one the wall answered on the beam's
 /// axis (the others came from off the axis, anywhere in the cone): those are scored.
@@ -206,4 +208,111 @@ fn the_recorded_frames_keep_a_drifting_robot_s_scans_on_the_walls() {
         odometry > 2.0 * corrected && odometry > 0.08,
         "the odometry alone kept the echoes {odometry} m off the walls: nothing was corrected"
     );
+}
+
+/// The `map → odom` of the first Foxglove transform among `out`, as (x, θ).
+fn map_to_odom(out: &[Output]) -> (f64, f64) {
+    let t = out
+        .iter()
+        .find(|o| o.channel == Channel::FoxgloveTransform)
+        .map(|o| FrameTransform::decode(&o.data[..]).unwrap())
+        .expect("a transform");
+    assert_eq!(
+        (t.parent_frame_id.as_str(), t.child_frame_id.as_str()),
+        ("map", "odom")
+    );
+    let i = isometry(&t);
+    (i.translation.x, i.rotation.angle())
+}
+
+/// The ports the live servers (`sonar-foxglove`, `sonar-bridge --mode ros2`) read take the
+/// corrections from `sonar/slam_correction` (a revision left out) and `sonar/localized_pose` over
+/// shared memory, and the pose's transforms carry the latest above `odom`, on ROS 2's `/tf` in the
+/// same message.
+#[test]
+fn the_live_ports_put_the_latest_correction_above_the_odometry() {
+    let sandbox = Sandbox::new("frames_live");
+    let node = sandbox.node("test-live");
+    let ports = Ports::open(&node).unwrap();
+    let slam = ipc::slam_correction_service(&node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    let localized = ipc::localized_pose_service(&node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    let pose = ipc::pose_service(&node)
+        .unwrap()
+        .publisher_builder()
+        .create()
+        .unwrap();
+    let mut converter = WellKnown::new(Options {
+        ros2: true,
+        grid_period_ns: 1,
+    });
+    let pose_at = |stamp_ns| Pose2D {
+        stamp_ns,
+        x_m: 1.0,
+        layout_version: ipc::LAYOUT_VERSION,
+        ..Pose2D::default()
+    };
+
+    slam.send_copy(SlamCorrection {
+        stamp_ns: 500_000_000,
+        state: slam_state::FIX,
+        correction_x_m: 0.4,
+        correction_theta_rad: 0.2,
+        ..SlamCorrection::default()
+    })
+    .unwrap();
+    slam.send_copy(SlamCorrection {
+        stamp_ns: 400_000_000,
+        state: slam_state::REVISED,
+        correction_x_m: 9.0,
+        ..SlamCorrection::default()
+    })
+    .unwrap();
+    pose.send_copy(pose_at(1_000_000_000)).unwrap();
+    let out = ports.drain(&mut converter);
+    let (x, theta) = map_to_odom(&out);
+    assert!(
+        (x - 0.4).abs() < 1e-6 && (theta - 0.2).abs() < 1e-6,
+        "{x} {theta}"
+    );
+    let tf = out
+        .iter()
+        .find(|o| o.channel == Channel::Ros2Transform)
+        .expect("a ROS 2 transform");
+    assert_eq!(
+        tf.data,
+        sonar_wellknown::ros2::tf_message(&[
+            sonar_wellknown::Transform::correction(
+                1_000_000_000,
+                sonar_wellknown::Correction {
+                    x: f64::from(0.4f32),
+                    y: 0.0,
+                    theta: f64::from(0.2f32),
+                }
+            ),
+            sonar_wellknown::Transform::sensor(1_000_000_000, 1.0, 0.0, 0.0),
+        ]),
+        "map -> odom and odom -> sonar in one TFMessage"
+    );
+
+    // The fusion's localisation: localised 1.5 m where its odometry says 1.0 m.
+    localized
+        .send_copy(LocalizedPose {
+            stamp_ns: 1_500_000_000,
+            x_m: 1.5,
+            odometry_x_m: 1.0,
+            layout_version: ipc::LAYOUT_VERSION,
+            ..LocalizedPose::default()
+        })
+        .unwrap();
+    pose.send_copy(pose_at(2_000_000_000)).unwrap();
+    let (x, theta) = map_to_odom(&ports.drain(&mut converter));
+    assert!((x - 0.5).abs() < 1e-6 && theta.abs() < 1e-9, "{x} {theta}");
 }
