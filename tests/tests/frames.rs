@@ -69,9 +69,9 @@ fn median(values: &mut [f64]) -> f64 {
 /// scene's true walls; through `odom → sonar` alone (the tree before issue 25, the raw odometry)
 /// they do not. An echo is drawn on the beam's axis while the wall that answered may lie anywhere
 /// in its 55° cone, so only the echoes that the simulator's true pose (`robot/true_pose`) places
-/// within 3 cm of a wall are scored: the ones a perfect tree draws on the walls. (Seen: 233 of
-/// 832 echoes scored, median 3.9, 3.1 and 3.9 cm in three runs through the tree, 14.8 cm through the
-/// odometry alone; 6 or 7 fixes in 20 sweeps.)
+/// within 3 cm of a wall are scored: the ones a perfect tree draws on the walls. (Seen in three
+/// runs: 232–233 of 831–832 echoes scored, median 3.9, 3.1 and 3.9 cm through the tree, 14.8 cm
+/// through the odometry alone; 6 or 7 fixes in 20 sweeps.)
 #[test]
 fn the_recorded_frames_keep_a_drifting_robot_s_scans_on_the_walls() {
     let sandbox = Sandbox::new("frames");
