@@ -8,7 +8,7 @@
 use std::collections::BTreeMap;
 use std::io::{Seek, Write};
 
-use sonar_common::ipc::GridHeader;
+use sonar_common::ipc::{GridHeader, LocalizedPose, SlamCorrection};
 /// What to write: ROS 2 too, and how often a map.
 pub use sonar_wellknown::Options;
 use sonar_wellknown::{Channel, Output, WellKnown};
@@ -91,6 +91,17 @@ impl WellKnownChannels {
             Message::ScanCommand(_) | Message::FusionCommand(_) => Vec::new(),
         };
         self.write(writer, log_time_ns, outputs)
+    }
+
+    /// The fusion's localised pose: the correction of the odometry from now on (`map → odom`,
+    /// written with the sensor's next transform).
+    pub fn localized_pose(&mut self, pose: &LocalizedPose) {
+        self.converter.localized_pose(pose);
+    }
+
+    /// A `sonar-slam` estimate: the correction from now on, unless it revises an earlier sweep.
+    pub fn slam_correction(&mut self, correction: &SlamCorrection) {
+        self.converter.slam_correction(correction);
     }
 
     /// A map snapshot (written at most once a grid period; the latest is kept for

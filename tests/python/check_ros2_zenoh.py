@@ -139,7 +139,7 @@ def main():
     check(len(scan.ranges) > 0, "an empty scan")
     tf = typestore.deserialize_cdr(got["/tf"][-1][0], TOPICS["/tf"])
     frames = [(t.header.frame_id, t.child_frame_id) for t in tf.transforms]
-    check(("map", "sonar") in frames, f"transforms {frames}")
+    check(frames == [("map", "odom"), ("odom", "sonar")], f"transforms {frames}")
 
     # The graph, as rmw_zenoh's graph cache reads it.
     tokens = [

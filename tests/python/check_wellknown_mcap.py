@@ -169,8 +169,8 @@ def check_ros2_bag(bag, expected, geometry, sweeps):
             f"ROS scan {k}: angle_max",
         )
         check_scan(scan, sweep, scan.angle_min, scan.angle_max, list(scan.ranges), f"ROS scan {k}")
-    tf = decoded["/tf"][0].transforms[0]
-    check((tf.header.frame_id, tf.child_frame_id) == ("map", "sonar"), "ROS transform frames")
+    frames = [(t.header.frame_id, t.child_frame_id) for t in decoded["/tf"][0].transforms]
+    check(frames == [("map", "odom"), ("odom", "sonar")], f"ROS transform frames {frames}")
 
     # ROS 2 → ROS 1 → ROS 2 with rosbags-convert: the same maps come back.
     convert = Path(sys.executable).with_name("rosbags-convert")
@@ -295,7 +295,8 @@ def main():
             turn = (edge - want + math.pi) % (2 * math.pi) - math.pi
             check(abs(turn) < 1e-4, f"beam {k}: edge at {edge} rad instead of {want}")
 
-    check(decoded["/foxglove/tf"][0].child_frame_id == "sonar", "transform child frame")
+    frames = [(t.parent_frame_id, t.child_frame_id) for t in decoded["/foxglove/tf"][:2]]
+    check(frames == [("map", "odom"), ("odom", "sonar")], f"transform frames {frames}")
     walls = sum(len(e.lines) for e in decoded["/foxglove/features"][-1].entities)
     summary = (
         f"grid {width}x{height} res {resolution} cells {width * height} known {known} "

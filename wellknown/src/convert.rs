@@ -1,9 +1,14 @@
 //! [`WellKnown`]: the pipeline's payloads in, the well-known messages out, at modest rates (see
 //! the crate's documentation); and the channels it writes on.
 
-use sonar_common::ipc::{FeatureRecord, FeaturesHeader, GridHeader, Pose2D, Reading};
+use sonar_common::ipc::{
+    FeatureRecord, FeaturesHeader, GridHeader, LocalizedPose, Pose2D, Reading, SlamCorrection,
+    slam_state,
+};
 
-use crate::frame::{MAP_FRAME, SENSOR_FRAME, Transform};
+use tracing::warn;
+
+use crate::frame::{Correction, MAP_FRAME, SENSOR_FRAME, Transform};
 use crate::scan::{Scan, SweepScans};
 use crate::{foxglove_msgs, ros2};
 /// Transforms closer together than this are left out (the simulator publishes 20 poses a
@@ -119,8 +124,11 @@ pub struct WellKnown {
     /// A pose source exists: the transforms follow it, not the grid's copy of the pose.
     pose_seen: bool,
     last_transform_ns: Option<u64>,
-    /// The sensor's transform last given out.
-    last_sensor: Option<Transform>,
+    /// The sensor's transform (`odom → sonar`) last given out, with the correction (`map →
+    /// odom`) given out with it.
+    last_sensor: Option<(Transform, Correction)>,
+    /// The latest correction of the odometry (`map → odom`), sent with each sensor transform.
+    correction: Correction,
     last_beam_ns: Option<u64>,
 }
 
@@ -134,6 +142,7 @@ impl WellKnown {
             pose_seen: false,
             last_transform_ns: None,
             last_sensor: None,
+            correction: Correction::IDENTITY,
             last_beam_ns: None,
         }
     }
@@ -149,7 +158,8 @@ impl WellKnown {
 
     /// A reading: the previous sweep's scan when it begins a new sweep, and its beam unless one
     /// was given less than [`BEAM_PERIOD_NS`] before (by the readings' stamps), after the
-    /// sensor's latest transform on Foxglove's channel: a live client that connected since the
+    /// sensor's latest transforms (`map → odom` and `odom → sonar` as they were given out) on
+    /// Foxglove's channel: a live client that connected since the
     /// last transform (a pose's come at most 20 a second, a fixed head's with each map) would
     /// otherwise get a beam in frame `sonar` before any transform, a complaint Foxglove keeps.
     pub fn reading(&mut self, reading: &Reading) -> Vec<Output> {
@@ -164,19 +174,20 @@ impl WellKnown {
         if due {
             self.last_beam_ns = Some(stamp_ns);
             let sensor = match (self.last_sensor, self.pose_seen) {
-                (Some(t), _) => Some(t),
+                (Some(sent), _) => Some(sent),
                 // A fixed head before its first map: at the origin, where the fusion places it.
-                (None, false) => Some(Transform::sensor(stamp_ns, 0.0, 0.0, 0.0)),
+                (None, false) => Some((
+                    Transform::sensor(stamp_ns, 0.0, 0.0, 0.0),
+                    Correction::IDENTITY,
+                )),
                 // A moving one before its first pose: nowhere known yet.
                 (None, true) => None,
             };
-            // Foxglove's channel only: the same transform again on ROS 2's `/tf` is what tf2
+            // Foxglove's channel only: the same transforms again on ROS 2's `/tf` are what tf2
             // warns about (a repeated stamp).
-            out.extend(sensor.map(|t| Output {
-                channel: Channel::FoxgloveTransform,
-                stamp_ns: t.stamp_ns,
-                data: foxglove_msgs::encode(&foxglove_msgs::frame_transform(&t)),
-            }));
+            if let Some((sensor, correction)) = sensor {
+                out.extend(foxglove_transforms(sensor, correction));
+            }
             out.push(Output {
                 channel: Channel::FoxgloveBeam,
                 stamp_ns,
@@ -195,12 +206,53 @@ impl WellKnown {
         if !due {
             return Vec::new();
         }
-        self.transform(Transform::sensor(
-            pose.stamp_ns,
-            pose.x_m,
-            pose.y_m,
-            pose.theta_rad,
-        ))
+        self.transform(
+            Transform::sensor(pose.stamp_ns, pose.x_m, pose.y_m, pose.theta_rad),
+            self.correction,
+        )
+    }
+
+    /// A correction of the odometry, map ← odom (`x`, `y` in metres, `theta` in radians), as of
+    /// `stamp_ns`: from the next sensor transform on, `map → odom` is this one (the sources
+    /// send theirs in order, one a sweep). One that is not finite is left out with a warning.
+    pub fn correction(&mut self, stamp_ns: u64, x: f64, y: f64, theta: f64) {
+        let correction = Correction { x, y, theta };
+        if correction.is_finite() {
+            self.correction = correction;
+        } else {
+            warn!(
+                stamp_ns,
+                ?correction,
+                "correction of the odometry left out: not finite"
+            );
+        }
+    }
+
+    /// A `sonar-slam` estimate (`sonar/slam_correction`): its correction, unless it revises an
+    /// earlier sweep (state `REVISED`: the current correction is the latest of the others).
+    pub fn slam_correction(&mut self, c: &SlamCorrection) {
+        if c.state != slam_state::REVISED {
+            self.correction(
+                c.stamp_ns,
+                f64::from(c.correction_x_m),
+                f64::from(c.correction_y_m),
+                f64::from(c.correction_theta_rad),
+            );
+        }
+    }
+
+    /// The fusion's localised pose (`sonar/localized_pose`): the correction that carries its
+    /// odometry pose onto its localised one.
+    pub fn localized_pose(&mut self, p: &LocalizedPose) {
+        let c = Correction::between(
+            (f64::from(p.x_m), f64::from(p.y_m), f64::from(p.theta_rad)),
+            (
+                f64::from(p.odometry_x_m),
+                f64::from(p.odometry_y_m),
+                f64::from(p.odometry_theta_rad),
+            ),
+        );
+        self.correction(p.stamp_ns, c.x, c.y, c.theta);
     }
 
     /// A features snapshot: the scene of walls, corners and posts.
@@ -266,13 +318,17 @@ impl WellKnown {
             });
         }
         if !self.pose_seen {
-            // A fixed head (no pose source): the sensor where the fusion placed it.
-            out.extend(self.transform(Transform::sensor(
-                header.stamp_ns,
-                header.pose_x_m,
-                header.pose_y_m,
-                header.pose_theta_rad,
-            )));
+            // A fixed head (no pose source): the sensor where the fusion placed it, in the map
+            // already (`map → odom` the identity).
+            out.extend(self.transform(
+                Transform::sensor(
+                    header.stamp_ns,
+                    header.pose_x_m,
+                    header.pose_y_m,
+                    header.pose_theta_rad,
+                ),
+                Correction::IDENTITY,
+            ));
         }
         out
     }
@@ -293,21 +349,29 @@ impl WellKnown {
         out
     }
 
-    fn transform(&mut self, t: Transform) -> Vec<Output> {
+    /// The sensor's transform (`odom → sonar`) with a correction (`map → odom`) at its stamp, so
+    /// that every lookup from `sonar` to `map` finds both.
+    fn transform(&mut self, t: Transform, correction: Correction) -> Vec<Output> {
         self.last_transform_ns = Some(t.stamp_ns);
-        self.last_sensor = Some(t);
-        let mut out = vec![Output {
-            channel: Channel::FoxgloveTransform,
-            stamp_ns: t.stamp_ns,
-            data: foxglove_msgs::encode(&foxglove_msgs::frame_transform(&t)),
-        }];
+        self.last_sensor = Some((t, correction));
+        let mut out = foxglove_transforms(t, correction).to_vec();
         if self.options.ros2 {
             out.push(Output {
                 channel: Channel::Ros2Transform,
                 stamp_ns: t.stamp_ns,
-                data: ros2::tf_message(&[t]),
+                data: ros2::tf_message(&[Transform::correction(t.stamp_ns, correction), t]),
             });
         }
         out
     }
+}
+
+/// `map → odom` (`correction`, at the sensor's stamp) and `odom → sonar`, each a FrameTransform on
+/// Foxglove's channel.
+fn foxglove_transforms(sensor: Transform, correction: Correction) -> [Output; 2] {
+    [Transform::correction(sensor.stamp_ns, correction), sensor].map(|t| Output {
+        channel: Channel::FoxgloveTransform,
+        stamp_ns: t.stamp_ns,
+        data: foxglove_msgs::encode(&foxglove_msgs::frame_transform(&t)),
+    })
 }

@@ -9,7 +9,8 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use sonar_common::ipc::{
-    self, FeatureRecord, FeaturesHeader, GridHeader, IpcError, LAYOUT_VERSION, Pose2D, Reading,
+    self, FeatureRecord, FeaturesHeader, GridHeader, IpcError, LAYOUT_VERSION, LocalizedPose,
+    Pose2D, PubSub, Reading, SlamCorrection,
 };
 use tracing::warn;
 
@@ -22,6 +23,9 @@ pub struct Ports {
     readings: Subscriber<Ipc, Reading, ()>,
     grid: Option<Subscriber<Ipc, [u8], GridHeader>>,
     pose: Option<Subscriber<Ipc, Pose2D, ()>>,
+    /// The corrections of the odometry: the fusion's localisation and `sonar-slam`'s.
+    localized_pose: Option<Subscriber<Ipc, LocalizedPose, ()>>,
+    slam_correction: Option<Subscriber<Ipc, SlamCorrection, ()>>,
     features: Option<Subscriber<Ipc, [FeatureRecord], FeaturesHeader>>,
 }
 
@@ -30,6 +34,22 @@ fn snapshot_subscriber<T: Debug + ZeroCopySend + 'static, H: Debug + ZeroCopySen
     name: &str,
 ) -> Option<Subscriber<Ipc, [T], H>> {
     service
+        .and_then(|s| {
+            s.subscriber_builder()
+                .create()
+                .map_err(|e| IpcError::new("create subscriber", e))
+        })
+        .inspect_err(|e| warn!("not serving {name}: {e}"))
+        .ok()
+}
+
+/// A subscriber of an optional service of single messages (left out with a warning).
+fn optional_subscriber<T: Debug + ZeroCopySend>(
+    node: &Node<Ipc>,
+    open: fn(&Node<Ipc>) -> Result<PubSub<T>, IpcError>,
+    name: &str,
+) -> Option<Subscriber<Ipc, T, ()>> {
+    open(node)
         .and_then(|s| {
             s.subscriber_builder()
                 .create()
@@ -56,24 +76,27 @@ macro_rules! for_each_sample {
 }
 
 impl Ports {
-    /// Subscribes to the readings (required), the map, the pose and the features.
+    /// Subscribes to the readings (required), the map, the pose, the corrections of the odometry
+    /// and the features.
     pub fn open(node: &Node<Ipc>) -> Result<Self, IpcError> {
         let readings = ipc::readings_service(node)?
             .subscriber_builder()
             .create()
             .map_err(|e| IpcError::new("create readings subscriber", e))?;
-        let pose = ipc::pose_service(node)
-            .and_then(|s| {
-                s.subscriber_builder()
-                    .create()
-                    .map_err(|e| IpcError::new("create subscriber", e))
-            })
-            .inspect_err(|e| warn!("not serving {}: {e}", ipc::POSE_SERVICE))
-            .ok();
         Ok(Self {
             readings,
             grid: snapshot_subscriber(ipc::grid_service(node), ipc::GRID_SERVICE),
-            pose,
+            pose: optional_subscriber(node, ipc::pose_service, ipc::POSE_SERVICE),
+            localized_pose: optional_subscriber(
+                node,
+                ipc::localized_pose_service,
+                ipc::LOCALIZED_POSE_SERVICE,
+            ),
+            slam_correction: optional_subscriber(
+                node,
+                ipc::slam_correction_service,
+                ipc::SLAM_CORRECTION_SERVICE,
+            ),
             features: snapshot_subscriber(ipc::features_service(node), ipc::FEATURES_SERVICE),
         })
     }
@@ -81,6 +104,17 @@ impl Ports {
     /// Everything that arrived since the last call, converted.
     pub fn drain(&self, converter: &mut WellKnown) -> Vec<Output> {
         let mut out = Vec::new();
+        // The corrections first: the pose's transforms carry the latest with them.
+        if let Some(sub) = &self.localized_pose {
+            for_each_sample!(sub, ipc::LOCALIZED_POSE_SERVICE, |sample| {
+                converter.localized_pose(sample.payload())
+            });
+        }
+        if let Some(sub) = &self.slam_correction {
+            for_each_sample!(sub, ipc::SLAM_CORRECTION_SERVICE, |sample| {
+                converter.slam_correction(sample.payload())
+            });
+        }
         if let Some(sub) = &self.pose {
             for_each_sample!(sub, ipc::POSE_SERVICE, |sample| {
                 out.extend(converter.pose(sample.payload()))

@@ -1,7 +1,8 @@
 use foxglove::Decode;
 use foxglove::messages::{FrameTransform, Grid, LaserScan, SceneUpdate};
 use sonar_common::ipc::{
-    CELL_UNKNOWN, FeatureRecord, FeaturesHeader, GridHeader, Pose2D, Reading, feature_kind, flags,
+    CELL_UNKNOWN, FeatureRecord, FeaturesHeader, GridHeader, LocalizedPose, Pose2D, Reading,
+    SlamCorrection, feature_kind, flags, slam_state,
 };
 
 use super::*;
@@ -97,7 +98,11 @@ fn maps_come_at_most_once_a_period_and_the_last_one_at_the_end() {
     // A fixed head: each map brings the sensor's transform from the snapshot.
     assert_eq!(
         channels(&w.grid(&header(10 * SECOND), &CELLS)),
-        [Channel::FoxgloveMap, Channel::FoxgloveTransform]
+        [
+            Channel::FoxgloveMap,
+            Channel::FoxgloveTransform,
+            Channel::FoxgloveTransform
+        ]
     );
     assert!(w.grid(&header(11 * SECOND), &CELLS).is_empty());
     assert!(w.grid(&header(11 * SECOND + 5), &CELLS).is_empty());
@@ -127,18 +132,22 @@ fn with_a_pose_source_transforms_follow_it_at_most_twenty_a_second() {
     let out = w.pose(&pose(SECOND));
     assert_eq!(
         channels(&out),
-        [Channel::FoxgloveTransform, Channel::Ros2Transform]
+        [
+            Channel::FoxgloveTransform,
+            Channel::FoxgloveTransform,
+            Channel::Ros2Transform
+        ]
     );
-    let t = FrameTransform::decode(&out[0].data[..]).unwrap();
+    let t = FrameTransform::decode(&out[1].data[..]).unwrap();
     assert_eq!(
         (t.parent_frame_id.as_str(), t.child_frame_id.as_str()),
-        ("map", "sonar")
+        ("odom", "sonar")
     );
     let q = t.rotation.unwrap();
     assert!((q.z - 0.5f64.sqrt()).abs() < 1e-6 && (q.w - 0.5f64.sqrt()).abs() < 1e-6);
     assert_eq!(t.translation.unwrap().y, -2.0);
     assert!(w.pose(&pose(SECOND + 49_000_000)).is_empty());
-    assert_eq!(w.pose(&pose(SECOND + 50_000_000)).len(), 2);
+    assert_eq!(w.pose(&pose(SECOND + 50_000_000)).len(), 3);
     // A beam comes after the latest transform again, on Foxglove's channel only (tf2 warns of a
     // repeated stamp on ROS 2's), so a client that connected since gets it first.
     let beam = w.reading(&Reading {
@@ -148,11 +157,14 @@ fn with_a_pose_source_transforms_follow_it_at_most_twenty_a_second() {
     });
     assert_eq!(
         channels(&beam),
-        [Channel::FoxgloveTransform, Channel::FoxgloveBeam]
+        [
+            Channel::FoxgloveTransform,
+            Channel::FoxgloveTransform,
+            Channel::FoxgloveBeam
+        ]
     );
-    assert_eq!(
-        beam[0].stamp_ns,
-        SECOND + 50_000_000,
+    assert!(
+        beam[..2].iter().all(|o| o.stamp_ns == SECOND + 50_000_000),
         "the pose's own stamp"
     );
     // The map no longer brings a transform of its own.
@@ -177,12 +189,16 @@ fn a_sweep_becomes_a_scan_when_the_next_begins_and_the_last_at_the_end() {
     let first = w.reading(&reading(1, 0.0));
     assert_eq!(
         channels(&first),
-        [Channel::FoxgloveTransform, Channel::FoxgloveBeam]
+        [
+            Channel::FoxgloveTransform,
+            Channel::FoxgloveTransform,
+            Channel::FoxgloveBeam
+        ]
     );
-    let t = FrameTransform::decode(&first[0].data[..]).unwrap();
+    let t = FrameTransform::decode(&first[1].data[..]).unwrap();
     assert_eq!(
         (t.parent_frame_id.as_str(), t.child_frame_id.as_str()),
-        ("map", "sonar")
+        ("odom", "sonar")
     );
     assert_eq!(t.translation.unwrap().x, 0.0);
     assert!(w.reading(&reading(1, 6.0)).is_empty());
@@ -302,4 +318,154 @@ fn a_reading_s_beam_is_a_cone_to_its_range_at_most_ten_a_second() {
         (p.x.hypot(p.y) - 4.0).abs() < 1e-6,
         "no echo: to the maximum range"
     );
+}
+
+/// The (parent, child, x, y, θ) of a FrameTransform.
+fn decoded(data: &[u8]) -> (String, String, f64, f64, f64) {
+    let t = FrameTransform::decode(data).unwrap();
+    let p = t.translation.unwrap();
+    let q = t.rotation.unwrap();
+    (
+        t.parent_frame_id,
+        t.child_frame_id,
+        p.x,
+        p.y,
+        2.0 * q.z.atan2(q.w),
+    )
+}
+
+#[test]
+fn the_tree_is_map_odom_sonar_and_map_odom_is_the_latest_correction() {
+    let mut w = WellKnown::new(options(true));
+    let pose = |stamp_ns| Pose2D {
+        stamp_ns,
+        x_m: 2.0,
+        y_m: 1.0,
+        theta_rad: 0.5,
+        layout_version: 1,
+    };
+    // Identity until a correction is known.
+    let out = w.pose(&pose(SECOND));
+    let (parent, child, x, y, theta) = decoded(&out[0].data);
+    assert_eq!((parent.as_str(), child.as_str()), ("map", "odom"));
+    assert_eq!((x, y, theta), (0.0, 0.0, 0.0));
+    assert_eq!(out[0].stamp_ns, SECOND, "at the sensor's stamp");
+
+    // A SLAM estimate sets it; a revision of an earlier sweep does not.
+    w.slam_correction(&SlamCorrection {
+        stamp_ns: SECOND,
+        state: slam_state::FIX,
+        correction_x_m: 0.25,
+        correction_y_m: -0.5,
+        correction_theta_rad: 0.1,
+        ..SlamCorrection::default()
+    });
+    w.slam_correction(&SlamCorrection {
+        stamp_ns: SECOND / 2,
+        state: slam_state::REVISED,
+        correction_x_m: 9.0,
+        ..SlamCorrection::default()
+    });
+    let out = w.pose(&pose(2 * SECOND));
+    let (parent, child, x, y, theta) = decoded(&out[0].data);
+    assert_eq!((parent.as_str(), child.as_str()), ("map", "odom"));
+    assert!((x - 0.25).abs() < 1e-6 && (y + 0.5).abs() < 1e-6 && (theta - 0.1).abs() < 1e-6);
+    let (parent, child, x, ..) = decoded(&out[1].data);
+    assert_eq!((parent.as_str(), child.as_str(), x), ("odom", "sonar", 2.0));
+    assert!(out[..2].iter().all(|o| o.stamp_ns == 2 * SECOND));
+    // ROS 2: both in one TFMessage, map → odom first.
+    assert_eq!(out[2].channel, Channel::Ros2Transform);
+    assert_eq!(
+        out[2].data,
+        ros2::tf_message(&[
+            Transform::correction(
+                2 * SECOND,
+                Correction {
+                    x: f64::from(0.25f32),
+                    y: f64::from(-0.5f32),
+                    theta: f64::from(0.1f32),
+                }
+            ),
+            Transform::sensor(2 * SECOND, 2.0, 1.0, 0.5),
+        ])
+    );
+
+    // A correction that is not a number is left out.
+    w.correction(3 * SECOND, f64::NAN, 0.0, 0.0);
+    let out = w.pose(&pose(3 * SECOND));
+    let (_, _, x, ..) = decoded(&out[0].data);
+    assert!((x - 0.25).abs() < 1e-6);
+
+    // The fusion's localised pose: the correction carries its odometry pose onto it.
+    let localized = LocalizedPose {
+        stamp_ns: 3 * SECOND,
+        x_m: 1.5,
+        y_m: 2.5,
+        theta_rad: 0.8,
+        odometry_x_m: 2.0,
+        odometry_y_m: 1.0,
+        odometry_theta_rad: 0.5,
+        ..LocalizedPose::default()
+    };
+    w.localized_pose(&localized);
+    let out = w.pose(&pose(4 * SECOND));
+    let (_, _, x, y, theta) = decoded(&out[0].data);
+    let c = Correction { x, y, theta };
+    let (px, py) = c.apply(2.0, 1.0);
+    assert!(
+        (px - 1.5).abs() < 1e-5 && (py - 2.5).abs() < 1e-5,
+        "{px} {py}"
+    );
+    assert!((theta - 0.3).abs() < 1e-5);
+}
+
+#[test]
+fn a_fixed_head_keeps_the_grid_pose_below_an_identity_map_to_odom() {
+    let mut w = WellKnown::new(options(false));
+    let out = w.grid(&header(SECOND), &CELLS);
+    let (parent, child, x, y, theta) = decoded(&out[1].data);
+    assert_eq!((parent.as_str(), child.as_str()), ("map", "odom"));
+    assert_eq!((x, y, theta), (0.0, 0.0, 0.0));
+    let (parent, child, x, y, _) = decoded(&out[2].data);
+    assert_eq!((parent.as_str(), child.as_str()), ("odom", "sonar"));
+    assert_eq!((x, y), (f64::from(0.5f32), f64::from(0.25f32)));
+}
+
+#[test]
+fn a_correction_between_two_poses_carries_one_onto_the_other() {
+    let c = Correction::between((1.0, -2.0, 2.5), (-0.5, 3.0, -1.0));
+    let (x, y) = c.apply(-0.5, 3.0);
+    assert!((x - 1.0).abs() < 1e-12 && (y + 2.0).abs() < 1e-12);
+    assert!((c.theta - 3.5).abs() < 1e-12);
+    assert_eq!(
+        Correction::between((1.0, 2.0, 0.3), (1.0, 2.0, 0.3)).apply(4.0, 5.0),
+        (4.0, 5.0)
+    );
+}
+
+#[test]
+fn a_beam_repeats_the_transforms_as_they_were_given_out_and_a_fixed_head_is_not_corrected() {
+    let mut w = WellKnown::new(options(false));
+    w.pose(&Pose2D {
+        stamp_ns: SECOND,
+        x_m: 1.0,
+        layout_version: 1,
+        ..Pose2D::default()
+    });
+    // A correction after the pose: the beam's repeat keeps the pair of the pose's stamp.
+    w.correction(SECOND, 0.5, 0.0, 0.0);
+    let beam = w.reading(&Reading {
+        host_stamp_ns: SECOND + 1,
+        distance_m: 1.0,
+        ..Reading::default()
+    });
+    let (parent, _, x, ..) = decoded(&beam[0].data);
+    assert_eq!((parent.as_str(), x), ("map", 0.0));
+
+    // A fixed head's pose is the fusion's, already in the map: no correction below it.
+    let mut fixed = WellKnown::new(options(false));
+    fixed.correction(SECOND, 0.5, 0.0, 0.0);
+    let out = fixed.grid(&header(SECOND), &CELLS);
+    let (parent, _, x, ..) = decoded(&out[1].data);
+    assert_eq!((parent.as_str(), x), ("map", 0.0));
 }

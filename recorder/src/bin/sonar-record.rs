@@ -9,8 +9,10 @@
 //! reading) instead of being overwritten in shared memory.
 //!
 //! Beside its own channels the writer thread also writes the well-known ones Foxglove (and, with
-//! `--ros2`, ROS 2 tools) draw: the map from `sonar/grid`, each sweep as a laser scan, the sensor's
-//! pose as transforms and the features as a scene (`sonar_wellknown`; `docs/foxglove.md`).
+//! `--ros2`, ROS 2 tools) draw: the map from `sonar/grid`, each sweep as a laser scan, the frames
+//! `map → odom → sonar` as transforms (the pose of `robot/pose` below the latest correction from
+//! `sonar/localized_pose` or `sonar/slam_correction`; those two are not recorded themselves) and
+//! the features as a scene (`sonar_wellknown`; `docs/foxglove.md`).
 
 use std::collections::BTreeMap;
 use std::fmt::Debug;
@@ -53,8 +55,9 @@ const BACKLOG_WARNING: u64 = 10_000;
 /// Records `sonar/readings`, `sonar/commands`, `sonar/fusion_commands`, `robot/pose` and
 /// `sonar/features` to an MCAP file (one channel each; docs/recording.md), until Ctrl-C/SIGTERM,
 /// `--max-readings` or `--duration`. Beside them it writes what Foxglove draws by itself: the map
-/// (`sonar/grid`) as foxglove.Grid, each sweep as foxglove.LaserScan, the sensor's pose as
-/// foxglove.FrameTransform, the features and each reading's beam (at most 10 a second) as
+/// (`sonar/grid`) as foxglove.Grid, each sweep as foxglove.LaserScan, the frames map → odom →
+/// sonar as foxglove.FrameTransform (robot/pose below the latest correction of sonar/localized_pose
+/// or sonar/slam_correction), the features and each reading's beam (at most 10 a second) as
 /// foxglove.SceneUpdate (docs/foxglove.md); with
 /// `--ros2` also /map, /scan and /tf as ROS 2 messages, in a ROS 2 bag of their own beside the
 /// file (run.mcap → run_ros2/, for `ros2 bag play run_ros2`).
@@ -245,6 +248,10 @@ struct Ports {
     features: Option<Subscriber<Ipc, [FeatureRecord], FeaturesHeader>>,
     /// The map, for the well-known channels only (not replayed: the fusion derives it).
     grid: Option<Subscriber<Ipc, [u8], GridHeader>>,
+    /// The corrections of the odometry, for the well-known channels' `map → odom` only (not
+    /// replayed: the fusion or sonar-slam derives them).
+    localized_pose: Option<Subscriber<Ipc, ipc::LocalizedPose, ()>>,
+    slam_correction: Option<Subscriber<Ipc, ipc::SlamCorrection, ()>>,
     /// Wake-up events: the readings' (required), then those of the other services.
     listeners: Vec<Listener<Ipc>>,
 }
@@ -269,12 +276,22 @@ impl Ports {
         } else {
             None
         };
+        let (localized_pose, slam_correction) = if with_grid {
+            (
+                correction_subscriber(node, ipc::localized_pose_service),
+                correction_subscriber(node, ipc::slam_correction_service),
+            )
+        } else {
+            (None, None)
+        };
         for (present, service) in [
             (scan_commands.is_some(), Topic::ScanCommands.service()),
             (fusion_commands.is_some(), Topic::FusionCommands.service()),
             (pose.is_some(), Topic::Pose.service()),
             (features.is_some(), Topic::Features.service()),
             (grid.is_some(), ipc::GRID_SERVICE),
+            (localized_pose.is_some(), ipc::LOCALIZED_POSE_SERVICE),
+            (slam_correction.is_some(), ipc::SLAM_CORRECTION_SERVICE),
         ] {
             if present {
                 match ipc::wakeup_listener(node, service) {
@@ -290,6 +307,8 @@ impl Ports {
             pose,
             features,
             grid,
+            localized_pose,
+            slam_correction,
             listeners,
         })
     }
@@ -305,24 +324,35 @@ fn snapshot_subscriber<T: Debug + ZeroCopySend + 'static, H: Debug + ZeroCopySen
         .map_err(|e| IpcError::new("create subscriber", e))
 }
 
+/// A subscriber of a service of single messages.
+fn subscriber<T: Debug + ZeroCopySend>(
+    node: &Node<Ipc>,
+    open: fn(&Node<Ipc>) -> Result<PubSub<T>, IpcError>,
+) -> Result<Subscriber<Ipc, T, ()>, IpcError> {
+    open(node)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| IpcError::new("create subscriber", e))
+}
+
 fn optional<T: Debug + ZeroCopySend>(
     node: &Node<Ipc>,
     open: fn(&Node<Ipc>) -> Result<PubSub<T>, IpcError>,
     topic: Topic,
 ) -> Option<Subscriber<Ipc, T, ()>> {
-    let result = open(node).and_then(|service| {
-        service
-            .subscriber_builder()
-            .create()
-            .map_err(|e| IpcError::new("create subscriber", e))
-    });
-    match result {
-        Ok(sub) => Some(sub),
-        Err(e) => {
-            warn!("not recording {topic}: {e}");
-            None
-        }
-    }
+    subscriber(node, open)
+        .inspect_err(|e| warn!("not recording {topic}: {e}"))
+        .ok()
+}
+
+/// A subscriber of a correction of the odometry, for Foxglove's and ROS 2's `map → odom`.
+fn correction_subscriber<T: Debug + ZeroCopySend>(
+    node: &Node<Ipc>,
+    open: fn(&Node<Ipc>) -> Result<PubSub<T>, IpcError>,
+) -> Option<Subscriber<Ipc, T, ()>> {
+    subscriber(node, open)
+        .inspect_err(|e| warn!("no correction of the odometry for Foxglove: {e}"))
+        .ok()
 }
 
 /// What the main thread hands the writer thread.
@@ -332,6 +362,9 @@ enum Item {
     Recorded(Message),
     /// A map snapshot, for the well-known channels.
     Grid(GridHeader, Vec<u8>),
+    /// Corrections of the odometry, for the well-known channels.
+    LocalizedPose(ipc::LocalizedPose),
+    SlamCorrection(ipc::SlamCorrection),
 }
 
 struct Recorder {
@@ -431,6 +464,23 @@ impl Recorder {
     /// the readings found in the same wake-up); true once `--max-readings` is reached.
     fn drain_all(&mut self, ports: &Ports) -> bool {
         let now = ipc::unix_time_ns();
+        // The corrections before the poses: a pose's transforms carry the latest with them.
+        if let Some(sub) = &ports.localized_pose {
+            self.drain_items(
+                ipc::LOCALIZED_POSE_SERVICE,
+                || sub.receive(),
+                now,
+                |s| Item::LocalizedPose(*s.payload()),
+            );
+        }
+        if let Some(sub) = &ports.slam_correction {
+            self.drain_items(
+                ipc::SLAM_CORRECTION_SERVICE,
+                || sub.receive(),
+                now,
+                |s| Item::SlamCorrection(*s.payload()),
+            );
+        }
         if let Some(sub) = &ports.scan_commands {
             let next = || Ok::<_, ReceiveError>(sub.receive()?.map(|s| Message::ScanCommand(*s)));
             self.drain(Topic::ScanCommands, next, now);
@@ -502,6 +552,26 @@ impl Recorder {
             return;
         }
         self.send_item(now, Item::Grid(header, cells.to_vec()));
+    }
+
+    /// Hands every sample `receive` yields to the writer as an item (not a recorded message).
+    fn drain_items<S, E: Debug>(
+        &mut self,
+        service: &str,
+        mut receive: impl FnMut() -> Result<Option<S>, E>,
+        now: u64,
+        item: impl Fn(&S) -> Item,
+    ) {
+        loop {
+            match receive() {
+                Ok(Some(sample)) => self.send_item(now, item(&sample)),
+                Ok(None) => return,
+                Err(e) => {
+                    warn!("receiving {service} failed: {e:?}");
+                    return;
+                }
+            }
+        }
     }
 
     /// Takes every message `next` yields: a subscriber's `receive`, the payload copied out of
@@ -599,7 +669,9 @@ fn write_loop(
                     (Item::Grid(header, cells), Some(w)) => {
                         w.grid(&mut writer, log_time, header, cells)?
                     }
-                    (Item::Grid(..), None) => {}
+                    (Item::LocalizedPose(pose), Some(w)) => w.localized_pose(pose),
+                    (Item::SlamCorrection(c), Some(w)) => w.slam_correction(c),
+                    (Item::Grid(..) | Item::LocalizedPose(_) | Item::SlamCorrection(_), None) => {}
                 }
                 dirty = true;
             }
