@@ -1053,9 +1053,10 @@ mod tests {
             snapshot.grid.0.seq, 2,
             "one map at the sweep change, then the last"
         );
-        // Two sweeps: 2 maps, 2 transforms, 2 scans; twice, with the ROS 2 messages; one beam,
-        // after the sensor's transform on Foxglove's channel (a fixed head before its first map).
-        assert_eq!(mcap.finish().unwrap(), 14);
+        // Two sweeps: 2 maps, 2 scans and 2 transforms (on Foxglove's channel each a pair,
+        // map -> odom and odom -> sonar; on ROS 2's one message holding both), each with its
+        // ROS 2 message; one beam, after the sensor's transforms on Foxglove's channel.
+        assert_eq!(mcap.finish().unwrap(), 17);
         // The ROS 2 half went to the bag, stamped with the recording's times: its last message
         // (start + duration) is the recording's last, not the time of the export.
         let yaml = std::fs::read_to_string(bag_dir.join("metadata.yaml")).unwrap();
