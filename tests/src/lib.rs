@@ -916,3 +916,45 @@ impl Drop for Netns {
         let _ = Command::new("ip").args(["netns", "del", &self.0]).status();
     }
 }
+
+/// Scans the simulated room (×100, seed 3) through a driver until at least `readings_wanted`
+/// readings came, stops the driver and waits until the fusion has fused every reading sent;
+/// returns the simulator (still running) and that count.
+pub fn scan_room_until_fused(
+    sandbox: &Sandbox,
+    node: &Node<Ipc>,
+    readings: &Subscriber<Ipc, Reading, ()>,
+    grid: &Subscriber<Ipc, [u8], GridHeader>,
+    readings_wanted: usize,
+) -> (Proc, usize) {
+    let (sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100", "--seed", "3"]);
+    let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+    let got = collect_until(
+        node,
+        || readings.receive().unwrap().map(|s| s.payload().seq),
+        |got| got.len() >= readings_wanted,
+    );
+    let mut count = got.len();
+    assert!(driver.terminate().success(), "driver did not exit cleanly");
+    while readings.receive().unwrap().is_some() {
+        count += 1;
+    }
+    collect_until(
+        node,
+        || {
+            grid.receive()
+                .unwrap()
+                .map(|s| s.user_header().readings_fused)
+        },
+        |got| got.last() == Some(&(count as u64)),
+    );
+    (sim, count)
+}
+
+/// The number written after `key` in `text` (a log line's `key=N`, a status line's `key N `).
+pub fn number_after(text: &str, key: &str) -> Option<u64> {
+    text.split(key)
+        .nth(1)
+        .and_then(|rest| rest.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+}

@@ -793,11 +793,7 @@ fn the_sonar_command_lists_services_echoes_readings_and_measures_a_rate() {
     // The counters decoded (how many readings a debug-build fusion loses at ×100 depends on the
     // machine's load: a count, not zero, is what this checks).
     let status = echo("fusion-status");
-    let lost = status
-        .split(" lost ")
-        .nth(1)
-        .and_then(|rest| rest.split_whitespace().next())
-        .and_then(|n| n.parse::<u64>().ok());
+    let lost = sonar_e2e::number_after(&status, " lost ");
     assert!(
         status.starts_with("received ") && lost.is_some(),
         "{status}"

@@ -12,7 +12,7 @@ use std::process::{Command, Stdio};
 use sonar_common::ipc;
 use sonar_e2e::{
     Netns, Proc, Sandbox, check_ok, collect_until, grid_subscriber, path_str, python,
-    readings_subscriber, readings_subscribers, wait_until, workspace,
+    readings_subscriber, readings_subscribers, scan_room_until_fused, wait_until, workspace,
 };
 
 /// The room through simulator, driver and fusion, recorded with `--ros2`; the driver stops, the
@@ -33,28 +33,8 @@ fn a_recording_s_grid_scans_and_ros2_messages_decode_to_the_map_and_the_readings
     wait_until(&node, "fusion's and the recorder's subscriptions", || {
         readings_subscribers(&node) >= 3
     });
-    let (sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100", "--seed", "3"]);
-    let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
     // Three sweeps and a part (50 readings a sweep).
-    let got = collect_until(
-        &node,
-        || readings.receive().unwrap().map(|s| s.payload().seq),
-        |got| got.len() >= 160,
-    );
-    let mut count = got.len();
-    assert!(driver.terminate().success(), "driver did not exit cleanly");
-    while readings.receive().unwrap().is_some() {
-        count += 1;
-    }
-    collect_until(
-        &node,
-        || {
-            grid.receive()
-                .unwrap()
-                .map(|s| s.user_header().readings_fused)
-        },
-        |got| got.last() == Some(&(count as u64)),
-    );
+    let (sim, count) = scan_room_until_fused(&sandbox, &node, &readings, &grid, 160);
     assert!(
         recorder.terminate().success(),
         "sonar-record did not exit cleanly"

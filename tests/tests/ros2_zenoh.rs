@@ -9,8 +9,8 @@ use std::io::Read;
 use std::process::{Command, Stdio};
 
 use sonar_e2e::{
-    Netns, Proc, Sandbox, check_ok, collect_until, grid_subscriber, path_str, python,
-    readings_subscriber, readings_subscribers, wait_until, workspace,
+    Netns, Proc, Sandbox, check_ok, grid_subscriber, path_str, python, readings_subscriber,
+    readings_subscribers, scan_room_until_fused, wait_until, workspace,
 };
 
 /// The room through simulator, driver and fusion with the bridge in ros2 mode beside them
@@ -47,28 +47,8 @@ fn a_zenoh_peer_following_rmw_zenoh_s_design_receives_and_decodes_map_scan_and_t
     wait_until(&node, "fusion's and the bridge's subscriptions", || {
         readings_subscribers(&node) >= 3
     });
-    let (sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100", "--seed", "3"]);
-    let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
     // Three sweeps and a part (50 readings a sweep).
-    let got = collect_until(
-        &node,
-        || readings.receive().unwrap().map(|s| s.payload().seq),
-        |got| got.len() >= 160,
-    );
-    let mut count = got.len();
-    assert!(driver.terminate().success(), "driver did not exit cleanly");
-    while readings.receive().unwrap().is_some() {
-        count += 1;
-    }
-    collect_until(
-        &node,
-        || {
-            grid.receive()
-                .unwrap()
-                .map(|s| s.user_header().readings_fused)
-        },
-        |got| got.last() == Some(&(count as u64)),
-    );
+    let (sim, _) = scan_room_until_fused(&sandbox, &node, &readings, &grid, 160);
     check_ok(
         "sonar-export",
         &sandbox.run(

@@ -200,11 +200,7 @@ fn sonar_slam_corrects_a_drifting_odometry_and_the_fusion_maps_with_it() {
         status.success(),
         "sonar-fusion exited with {status:?}: {stderr}"
     );
-    let rebuilds = stderr
-        .split("slam_revisions=")
-        .nth(1)
-        .and_then(|rest| rest.split_whitespace().next())
-        .and_then(|n| n.parse::<u64>().ok());
+    let rebuilds = sonar_e2e::number_after(&stderr, "slam_revisions=");
     eprintln!(
         "revisions received: {}, maps rebuilt: {rebuilds:?}",
         revisions.len()
