@@ -70,6 +70,16 @@ struct Regions {
     cut: Vec<Region>,
 }
 
+impl Regions {
+    /// The lobe's half-width at `region`'s range: learnt from the whole regions there, else the
+    /// sensor's beam half-angle `beam` less half a reading step.
+    fn lobe_of(&self, region: &Region, beam: f32) -> f32 {
+        self.lobe
+            .at(region.range)
+            .unwrap_or_else(|| region.prior_lobe(beam))
+    }
+}
+
 impl fmt::Debug for Mapper {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.debug_struct("Mapper")
@@ -248,10 +258,7 @@ impl Mapper {
         let beam = self.config.sensor.limits().half_angle;
         let mut cells = 0;
         for region in std::mem::take(&mut regions.one_ended) {
-            let lobe = regions
-                .lobe
-                .at(region.range)
-                .unwrap_or_else(|| region.prior_lobe(beam));
+            let lobe = regions.lobe_of(&region, beam);
             if let Some(axis) = region.one_ended_axis(lobe) {
                 // Half the lobe each side: the foot is known to a reading's step at best, and
                 // on the suite's tune split a patch as wide as the lobe cost `srf05` 0.06 of
@@ -290,10 +297,7 @@ impl Mapper {
         let beam = self.config.sensor.limits().half_angle;
         let mut cells = 0;
         for region in std::mem::take(&mut regions.cut) {
-            let lobe = regions
-                .lobe
-                .at(region.range)
-                .unwrap_or_else(|| region.prior_lobe(beam));
+            let lobe = regions.lobe_of(&region, beam);
             let point =
                 region.position + Vector2::new(region.axis.cos(), region.axis.sin()) * region.range;
             let tolerance = model.band(region.range) + regions.tolerance.at(region.range);
