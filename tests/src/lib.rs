@@ -951,6 +951,27 @@ pub fn scan_room_until_fused(
     (sim, count)
 }
 
+/// Starts the simulator touring the built-in corridor at ×10 (seed 1) with an odometry 3 % long
+/// and 2°/m of heading drift, and a driver on it: the drifting tour the localisation, SLAM and
+/// frames tests share (at 10× the stops' sweeps are taken standing still). Returns the simulator
+/// and the driver.
+pub fn drive_drifting_corridor(sandbox: &Sandbox) -> (Proc, Proc) {
+    let (sim, pty) = sandbox.spawn_sim(&[
+        "--scene",
+        "corridor",
+        "--speed",
+        "10",
+        "--seed",
+        "1",
+        "--odom-scale-error",
+        "0.03",
+        "--odom-heading-drift",
+        "2",
+    ]);
+    let driver = sandbox.spawn("sonar-driver", &["--port", &pty]);
+    (sim, driver)
+}
+
 /// The number written after `key` in `text` (a log line's `key=N`, a status line's `key N `).
 pub fn number_after(text: &str, key: &str) -> Option<u64> {
     text.split(key)

@@ -8,7 +8,10 @@ use foxglove::Decode;
 use foxglove::messages::{FrameTransform, LaserScan};
 use nalgebra::{Isometry2, Point2, Vector2};
 use sonar_common::ipc::{self, LocalizedPose, Pose2D, SlamCorrection, slam_state};
-use sonar_e2e::{Sandbox, collect_with_truth, path_str, readings_subscribers, wait_until};
+use sonar_e2e::{
+    Sandbox, collect_with_truth, drive_drifting_corridor, path_str, readings_subscribers,
+    wait_until,
+};
 use sonar_sim::{Scene, Vec2};
 use sonar_wellknown::live::Ports;
 use sonar_wellknown::{Channel, Options, Output, WellKnown};
@@ -94,19 +97,7 @@ fn the_recorded_frames_keep_a_drifting_robot_s_scans_on_the_walls() {
         "the readings subscribers of sonar-slam and sonar-record",
         || readings_subscribers(&node) >= 2,
     );
-    let (sim, pty) = sandbox.spawn_sim(&[
-        "--scene",
-        "corridor",
-        "--speed",
-        "10",
-        "--seed",
-        "1",
-        "--odom-scale-error",
-        "0.03",
-        "--odom-heading-drift",
-        "2",
-    ]);
-    let driver = sandbox.spawn("sonar-driver", &["--port", &pty]);
+    let (sim, driver) = drive_drifting_corridor(&sandbox);
     let (sweeps, true_poses) = collect_with_truth(
         &node,
         &truth,

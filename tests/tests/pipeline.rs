@@ -17,9 +17,10 @@ use sonar_common::protocol::{
 };
 use sonar_e2e::{
     FakeSerial, GridSnapshot, PATIENCE, Sandbox, back_wall_seen_at, check_ok, collect_until,
-    collect_with_truth, corridor_grid_config, driver_status_subscriber, features_subscriber,
-    grid_subscriber, localized_pose_subscriber, readings_subscriber, readings_subscribers,
-    receive_reading, room, room_features, send_scan_command, wait_for_status, wait_until,
+    collect_with_truth, corridor_grid_config, drive_drifting_corridor, driver_status_subscriber,
+    features_subscriber, grid_subscriber, localized_pose_subscriber, readings_subscriber,
+    readings_subscribers, receive_reading, room, room_features, send_scan_command, wait_for_status,
+    wait_until,
 };
 
 /// The test plays the microcontroller on a pseudo-terminal of its own.
@@ -1160,19 +1161,7 @@ fn a_drifting_robot_is_localised_near_the_truth() {
     wait_until(&node, "the fusion's readings subscriber", || {
         readings_subscribers(&node) >= 1
     });
-    let (_sim, pty) = sandbox.spawn_sim(&[
-        "--scene",
-        "corridor",
-        "--speed",
-        "10",
-        "--seed",
-        "1",
-        "--odom-scale-error",
-        "0.03",
-        "--odom-heading-drift",
-        "2",
-    ]);
-    let _driver = sandbox.spawn("sonar-driver", &["--port", &pty]);
+    let (_sim, _driver) = drive_drifting_corridor(&sandbox);
 
     // Sweeps until the robot has been into both rooms and back to the corridor's far end (20
     // sweeps, 240 s simulated, 24 s here), the truth beside them.

@@ -7,7 +7,7 @@ use nix::unistd::Pid;
 use sonar_common::ipc::{self, Reading, SlamCorrection};
 use sonar_e2e::{
     Sandbox, back_wall_seen_at, collect_until, collect_with_truth, corridor_grid_config,
-    grid_subscriber, readings_subscribers, wait_until,
+    drive_drifting_corridor, grid_subscriber, readings_subscribers, wait_until,
 };
 
 /// χ² of 3 degrees of freedom at 95 %: the pose's own 95 % ellipsoid.
@@ -74,19 +74,7 @@ fn sonar_slam_corrects_a_drifting_odometry_and_the_fusion_maps_with_it() {
         "the readings subscribers of sonar-slam and the fusion",
         || readings_subscribers(&node) >= 2,
     );
-    let (_sim, pty) = sandbox.spawn_sim(&[
-        "--scene",
-        "corridor",
-        "--speed",
-        "10",
-        "--seed",
-        "1",
-        "--odom-scale-error",
-        "0.03",
-        "--odom-heading-drift",
-        "2",
-    ]);
-    let _driver = sandbox.spawn("sonar-driver", &["--port", &pty]);
+    let (_sim, _driver) = drive_drifting_corridor(&sandbox);
 
     // Sweeps until the robot has been into both rooms and back (as the localisation test).
     // Revisions of earlier sweeps (state 5) come between them; they are kept apart.
