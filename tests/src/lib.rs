@@ -641,6 +641,23 @@ pub fn localized_pose_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, ipc::Local
         .unwrap()
 }
 
+/// `robot/true_pose`: the simulator's truth beside its odometry.
+pub fn true_pose_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, Pose2D, ()> {
+    ipc::true_pose_service(node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap()
+}
+
+pub fn slam_correction_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, ipc::SlamCorrection, ()> {
+    ipc::slam_correction_service(node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap()
+}
+
 pub fn grid_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, [u8], GridHeader> {
     ipc::grid_service(node)
         .unwrap()

@@ -10,7 +10,7 @@ use nalgebra::{Isometry2, Point2, Vector2};
 use sonar_common::ipc::{self, LocalizedPose, Pose2D, SlamCorrection, slam_state};
 use sonar_e2e::{
     Sandbox, collect_with_truth, drive_drifting_corridor, path_str, readings_subscribers,
-    wait_until,
+    slam_correction_subscriber, true_pose_subscriber, wait_until,
 };
 use sonar_sim::{Scene, Vec2};
 use sonar_wellknown::live::Ports;
@@ -79,16 +79,8 @@ fn median(values: &mut [f64]) -> f64 {
 fn the_recorded_frames_keep_a_drifting_robot_s_scans_on_the_walls() {
     let sandbox = Sandbox::new("frames");
     let node = sandbox.node("test-consumer");
-    let truth = ipc::true_pose_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
-    let corrections = ipc::slam_correction_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let truth = true_pose_subscriber(&node);
+    let corrections = slam_correction_subscriber(&node);
     let file = sandbox.root.join("tour.mcap");
     let slam = sandbox.spawn("sonar-slam", &[]);
     let recorder = sandbox.spawn("sonar-record", &[path_str(&file)]);

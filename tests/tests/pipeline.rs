@@ -19,8 +19,8 @@ use sonar_e2e::{
     FakeSerial, GridSnapshot, PATIENCE, Sandbox, back_wall_seen_at, check_ok, collect_until,
     collect_with_truth, corridor_grid_config, drive_drifting_corridor, driver_status_subscriber,
     features_subscriber, grid_subscriber, localized_pose_subscriber, readings_subscriber,
-    readings_subscribers, receive_reading, room, room_features, send_scan_command, wait_for_status,
-    wait_until,
+    readings_subscribers, receive_reading, room, room_features, send_scan_command,
+    true_pose_subscriber, wait_for_status, wait_until,
 };
 
 /// The test plays the microcontroller on a pseudo-terminal of its own.
@@ -1139,11 +1139,7 @@ fn a_drifting_robot_is_localised_near_the_truth() {
     let node = sandbox.node("test-consumer");
     // The truth comes at 800 poses/s and is drained every few milliseconds; a lost one only
     // leaves a sweep without a truth to compare (within 10 ms of its stamp).
-    let truth = ipc::true_pose_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let truth = true_pose_subscriber(&node);
     let localized = localized_pose_subscriber(&node);
     let config = corridor_grid_config("drift");
     // The fusion first, so that it hears the tour from its start. At 10× (not the 40× of the

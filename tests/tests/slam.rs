@@ -7,7 +7,8 @@ use nix::unistd::Pid;
 use sonar_common::ipc::{self, Reading, SlamCorrection};
 use sonar_e2e::{
     Sandbox, back_wall_seen_at, collect_until, collect_with_truth, corridor_grid_config,
-    drive_drifting_corridor, grid_subscriber, readings_subscribers, wait_until,
+    drive_drifting_corridor, grid_subscriber, readings_subscribers, slam_correction_subscriber,
+    true_pose_subscriber, wait_until,
 };
 
 /// χ² of 3 degrees of freedom at 95 %: the pose's own 95 % ellipsoid.
@@ -44,16 +45,8 @@ fn pose_covariance(c: &SlamCorrection) -> Matrix3<f32> {
 fn sonar_slam_corrects_a_drifting_odometry_and_the_fusion_maps_with_it() {
     let sandbox = Sandbox::new("slam");
     let node = sandbox.node("test-consumer");
-    let truth = ipc::true_pose_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
-    let corrections = ipc::slam_correction_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let truth = true_pose_subscriber(&node);
+    let corrections = slam_correction_subscriber(&node);
     let grid = grid_subscriber(&node);
     let config = corridor_grid_config("slam");
     // SLAM and fusion first, so that they hear the tour from its start (at 10×, as the drifting
@@ -215,11 +208,7 @@ fn sonar_slam_alone_starts_waits_for_odometry_and_stops_cleanly_on_sigint() {
     wait_until(&node, "sonar-slam's readings subscriber", || {
         readings_subscribers(&node) >= 1
     });
-    let corrections = ipc::slam_correction_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let corrections = slam_correction_subscriber(&node);
     let readings = ipc::readings_service(&node)
         .unwrap()
         .publisher_builder()
@@ -268,11 +257,7 @@ fn sonar_slam_alone_starts_waits_for_odometry_and_stops_cleanly_on_sigint() {
 fn the_pipeline_starts_sonar_slam_from_its_table() {
     let sandbox = Sandbox::new("slam_pipeline");
     let node = sandbox.node("test-consumer");
-    let corrections = ipc::slam_correction_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let corrections = slam_correction_subscriber(&node);
     let config = sandbox.root.join("pipeline.toml");
     std::fs::write(
         &config,
