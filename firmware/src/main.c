@@ -108,6 +108,20 @@ static void service_rx(void)
 
 /* ---- the loop -------------------------------------------------------------------------------- */
 
+/* Whether a ping is under way; its result, once in, goes to the head. Both heads' loops do
+ * nothing else until it is. */
+static bool ping_in_flight(void)
+{
+    if (!sonar_busy()) {
+        return false;
+    }
+    sonar_result r;
+    if (sonar_poll(&r)) {
+        head_ping_done(&head, r.echo_us, r.silent, clock_ms());
+    }
+    return true;
+}
+
 static void led(bool on)
 {
     if (on) {
@@ -146,11 +160,7 @@ int main(void)
         service_rx();
         uint32_t now = clock_us();
 
-        if (sonar_busy()) {
-            sonar_result r;
-            if (sonar_poll(&r)) {
-                head_ping_done(&head, r.echo_us, r.silent, clock_ms());
-            }
+        if (ping_in_flight()) {
             continue;
         }
         uint8_t action = head_next(&head);
@@ -200,11 +210,7 @@ int main(void)
         service_rx();
         uint32_t now = clock_us();
 
-        if (sonar_busy()) {
-            sonar_result r;
-            if (sonar_poll(&r)) {
-                head_ping_done(&head, r.echo_us, r.silent, clock_ms());
-            }
+        if (ping_in_flight()) {
             continue;
         }
         if (step_pending) {
