@@ -148,7 +148,8 @@ fn run(cli: Cli) -> Result<()> {
 }
 
 /// Driver status messages to wait for after sending the reset: the driver publishes one at least
-/// every second and takes commands every 50 ms, so by the second it has taken the reset.
+/// every second and takes a command as soon as it is woken, so by the second it has taken the
+/// reset.
 const RESET_STATUSES: usize = 2;
 
 /// `reset-head`: sends the reset command and reports what the driver says after it.
@@ -161,9 +162,13 @@ fn reset_head(node: &Node<Ipc>) -> Result<()> {
         .publisher_builder()
         .create()
         .map_err(|e| IpcError::new("publish on the commands service", e))?;
+    // The driver sleeps on the commands' wake-up event between lines from the head.
+    let wake = ipc::wakeup_notifier(node, ipc::COMMANDS_SERVICE)?;
     let delivered = commands
         .send_copy(ScanCommand::new(ScanCommandKind::Reset, 0.0, 0.0))
         .map_err(|e| IpcError::new("send the reset command", e))?;
+    wake.notify()
+        .map_err(|e| IpcError::new("wake the driver", e))?;
     anyhow::ensure!(
         delivered > 0,
         "no driver listens on {} (is sonar-driver running, with the same --iox-* settings?)",

@@ -1189,6 +1189,39 @@ pub fn wakeup_notifier(
         .map_err(|e| IpcError::new(format!("create {name} notifier"), e))
 }
 
+/// Consumes every pending wake-up of `listener`, so the waitset it is attached to sleeps again.
+pub fn drain_wakeups(
+    listener: &iceoryx2::port::listener::Listener<ipc::Service>,
+) -> Result<(), IpcError> {
+    listener
+        .try_wait(|_| {})
+        .map(drop)
+        .map_err(|e| IpcError::new("take wake-ups", e))
+}
+
+/// A file descriptor that a waitset sleeps on beside its listeners: the serial port a driver
+/// reads, the terminal a viewer reads. One wait then covers the device, the pipeline's wake-up
+/// events, the next deadline and SIGINT/SIGTERM, so an idle process sleeps instead of polling.
+///
+/// It does not own the descriptor: the port or terminal must outlive the attachment.
+#[derive(Debug)]
+pub struct WatchedFd(FileDescriptor);
+
+impl WatchedFd {
+    /// `None` when `fd` is not an open descriptor.
+    pub fn new(fd: &impl std::os::fd::AsRawFd) -> Option<Self> {
+        FileDescriptor::non_owning_new(fd.as_raw_fd()).map(Self)
+    }
+}
+
+impl FileDescriptorBased for WatchedFd {
+    fn file_descriptor(&self) -> &FileDescriptor {
+        &self.0
+    }
+}
+
+impl SynchronousMultiplexing for WatchedFd {}
+
 /// Nanoseconds since the Unix epoch (0 if the clock is before it).
 pub fn unix_time_ns() -> u64 {
     std::time::SystemTime::now()
@@ -1200,6 +1233,39 @@ pub fn unix_time_ns() -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::time::Duration;
+
+    /// A watched descriptor wakes the waitset when it has something to read, and not before.
+    #[test]
+    fn a_watched_descriptor_wakes_the_waitset_when_readable() {
+        use std::io::Write;
+        let (mut writer, reader) = std::os::unix::net::UnixStream::pair().unwrap();
+        let watched = WatchedFd::new(&reader).unwrap();
+        let waitset = WaitSetBuilder::new().create::<ipc::Service>().unwrap();
+        let guard = waitset.attach_notification(&watched).unwrap();
+        let mut woke = false;
+        waitset
+            .wait_and_process_once_with_timeout(
+                |id| {
+                    woke |= id.has_event_from(&guard);
+                    CallbackProgression::Continue
+                },
+                Duration::from_millis(10),
+            )
+            .unwrap();
+        assert!(!woke, "nothing was written yet");
+        writer.write_all(b"x").unwrap();
+        waitset
+            .wait_and_process_once_with_timeout(
+                |id| {
+                    woke |= id.has_event_from(&guard);
+                    CallbackProgression::Continue
+                },
+                Duration::from_secs(10),
+            )
+            .unwrap();
+        assert!(woke);
+    }
 
     /// The defaults `--help` names for --iox-prefix and --iox-root are iceoryx2's.
     #[test]

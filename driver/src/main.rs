@@ -16,6 +16,7 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
+use iceoryx2::waitset::WaitSetRunResult;
 use serialport::{DataBits, Parity, SerialPort, StopBits, TTYPort};
 use sonar_common::ipc::{
     self, DriverStatus, IpcArgs, LinkState, Reading, ScanCommand, ScanCommandKind, ScanMode,
@@ -32,7 +33,9 @@ use sonar_driver::decoder::{Decoded, Decoder, Dialect, NoEcho};
 use sonar_driver::sweeps::SweepIds;
 use tracing::{debug, info, warn};
 
-/// How long one read of the port may block: bounds the latency of commands and of shutdown.
+/// How long one read of the port may block during the handshake: bounds the latency of shutdown
+/// there. Once connected, the driver sleeps on the port, the commands' wake-up event and its next
+/// deadline together, and reads only when the port has something.
 const READ_TIMEOUT: Duration = Duration::from_millis(50);
 const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(2);
 const HANDSHAKE_ATTEMPTS: u32 = 3;
@@ -516,6 +519,13 @@ impl Link {
         })
     }
 
+    /// When the silence watchdog must look again (native heads only): a quiet head is asked for
+    /// `STATUS` after the silence timeout, and given as long again to answer.
+    fn silence_deadline(&self) -> Option<Instant> {
+        (self.dialect == Dialect::Native)
+            .then(|| self.probe_sent.unwrap_or(self.last_line) + self.silence_timeout)
+    }
+
     /// The silence watchdog, once per loop while connected: a quiet head is asked for `STATUS`;
     /// `Err` when it did not answer that either.
     fn watch_silence(&mut self, port: &mut TTYPort) -> Result<Result<(), String>> {
@@ -735,15 +745,43 @@ impl Link {
         self.head_state = None;
         self.set_state(LinkState::Connected)?;
 
+        let waitset = WaitSetBuilder::new()
+            .create::<Ipc>()
+            .map_err(|e| ipc::IpcError::new("create waitset", e))?;
+        let serial = ipc::WatchedFd::new(port).context("the serial port has no open descriptor")?;
+        let serial_guard = waitset
+            .attach_notification(&serial)
+            .map_err(|e| ipc::IpcError::new("attach the serial port", e))?;
+        // Wakes the loop when a command is published.
+        let commands_listener = ipc::wakeup_listener(node, ipc::COMMANDS_SERVICE)?;
+        let _commands_guard = waitset
+            .attach_notification(&commands_listener)
+            .map_err(|e| ipc::IpcError::new("attach commands listener", e))?;
         let mut next_status = Instant::now() + STATUS_PERIOD;
         loop {
-            if node.wait(Duration::ZERO).is_err() {
+            // Asleep until the head sends, a command comes, the status or the silence watchdog
+            // is due, or a signal: an idle driver wakes about once a second.
+            let due = self
+                .silence_deadline()
+                .map_or(next_status, |d| d.min(next_status));
+            let mut readable = false;
+            let woke = waitset
+                .wait_and_process_once_with_timeout(
+                    |id| {
+                        readable |= id.has_event_from(&serial_guard);
+                        CallbackProgression::Continue
+                    },
+                    due.saturating_duration_since(Instant::now()),
+                )
+                .map_err(|e| ipc::IpcError::new("wait", e))?;
+            if woke == WaitSetRunResult::TerminationRequest {
                 return Ok(SessionEnd::Shutdown);
             }
+            ipc::drain_wakeups(&commands_listener)?;
             if let Err(e) = self.forward_commands(port) {
                 return Ok(SessionEnd::PortLost(e));
             }
-            if let Err(e) = self.read_some(port, &mut framer, &mut buf)? {
+            if readable && let Err(e) = self.read_some(port, &mut framer, &mut buf)? {
                 return Ok(SessionEnd::PortLost(e));
             }
             if let Some(hello) = self.hello.take() {

@@ -375,9 +375,11 @@ fn run(args: &Args) -> Result<()> {
     let commands_guard = waitset
         .attach_notification(&ports.commands_listener)
         .map_err(|e| IpcError::new("attach commands listener", e))?;
-    let tick = min_interval.clamp(Duration::from_millis(10), REFRESH_PERIOD);
+    // Readings and commands wake the loop, and a held-back snapshot sets its own timeout below:
+    // the tick is only for what comes without a wake-up (poses, corrections, the status, saves),
+    // so an idle fusion wakes once a second.
     let tick_guard = waitset
-        .attach_interval(tick)
+        .attach_interval(REFRESH_PERIOD)
         .map_err(|e| IpcError::new("attach interval", e))?;
 
     let mut out = Output {
@@ -822,8 +824,8 @@ type Listener = iceoryx2::port::listener::Listener<Ipc>;
 
 /// Consumes the pending wake-ups (all of them), so the waitset sleeps again.
 fn drain_wakeups(listener: &Listener) {
-    if let Err(e) = listener.try_wait(|_| {}) {
-        warn!("listener: {e:?}");
+    if let Err(e) = ipc::drain_wakeups(listener) {
+        warn!("{e}");
     }
 }
 

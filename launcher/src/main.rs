@@ -7,6 +7,7 @@
 //! The processes die with the launcher, even with a `kill -9` of it (Linux's parent-death signal).
 
 mod config;
+mod signals;
 mod terminal;
 
 use std::collections::VecDeque;
@@ -16,8 +17,6 @@ use std::os::unix::fs::{DirBuilderExt, OpenOptionsExt, PermissionsExt};
 use std::os::unix::process::{CommandExt, ExitStatusExt};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitCode, ExitStatus, Stdio};
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
@@ -30,10 +29,9 @@ use sonar_common::logging::{self, LogTo};
 use tracing::{info, warn};
 
 use crate::config::{FoxgloveSection, PipelineFile, push_opt};
+use crate::signals::Signals;
 use crate::terminal::Terminal;
 
-/// How often the supervisor looks at its children.
-const SUPERVISE_PERIOD: Duration = Duration::from_millis(100);
 /// A process that exits with an error this soon after its first start has a configuration
 /// problem, not a crash: restarting cannot help, so the pipeline stops and shows its log.
 const STARTUP_GRACE: Duration = Duration::from_secs(2);
@@ -190,19 +188,11 @@ fn run(args: Args) -> Result<ExitCode> {
     init_logging(&log_dir, with_viewer)?;
 
     let mut pipeline = Pipeline::plan(&args, &file, log_dir, with_viewer)?;
-    let stop = Arc::new(AtomicBool::new(false));
-    for signal in [
-        signal_hook::consts::SIGINT,
-        signal_hook::consts::SIGTERM,
-        signal_hook::consts::SIGHUP,
-    ] {
-        signal_hook::flag::register(signal, Arc::clone(&stop))
-            .context("cannot install signal handlers")?;
-    }
+    let signals = Signals::install()?;
 
     let outcome = pipeline
-        .start_all(&stop)
-        .and_then(|()| pipeline.supervise(&stop));
+        .start_all(&signals)
+        .and_then(|()| pipeline.supervise(&signals));
     pipeline.stop_all();
     pipeline.clean_shared_memory(&args.ipc, &file);
     if let Some(link) = &pipeline.sim_link {
@@ -419,9 +409,9 @@ impl Pipeline {
         })
     }
 
-    fn start_all(&mut self, stop: &AtomicBool) -> Result<()> {
+    fn start_all(&mut self, signals: &Signals) -> Result<()> {
         for i in 0..self.processes.len() {
-            if stop.load(Ordering::Relaxed) {
+            if signals.stop_requested() {
                 return Ok(());
             }
             self.start(i)?;
@@ -509,10 +499,10 @@ impl Pipeline {
 
     /// Watches the processes until the viewer quits, a signal arrives, or a process cannot be
     /// kept running.
-    fn supervise(&mut self, stop: &AtomicBool) -> Result<()> {
+    fn supervise(&mut self, signals: &Signals) -> Result<()> {
         let with_viewer = self.processes.iter().any(|p| p.foreground);
         loop {
-            if stop.load(Ordering::Relaxed) {
+            if signals.stop_requested() {
                 info!("signal received: stopping");
                 return Ok(());
             }
@@ -544,7 +534,7 @@ impl Pipeline {
                         };
                     }
                 }
-                if stop.load(Ordering::Relaxed) {
+                if signals.stop_requested() {
                     return Ok(()); // it stopped for the same signal we got
                 }
                 if until_done {
@@ -562,7 +552,9 @@ impl Pipeline {
                 }
                 self.schedule_restart(i, exited, now)?;
             }
-            std::thread::sleep(SUPERVISE_PERIOD);
+            // Until a child ends, a signal comes, or a restart is due.
+            let next_restart = self.processes.iter().filter_map(|p| p.restart_at).min();
+            signals.wait(next_restart.map(|t| t.saturating_duration_since(Instant::now())));
         }
     }
 

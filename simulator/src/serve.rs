@@ -44,8 +44,13 @@ use crate::hobby::HobbySketch;
 
 /// How long a line may wait for room in the terminal's buffer before it is dropped.
 pub const WRITE_PATIENCE: Duration = Duration::from_millis(200);
-/// Longest wait while idle before looking at the stop flag again.
+/// Longest wait of an idle device with a robot or faults: the robot moves and the faults come on
+/// the device's clock, which only the loop advances. (The stop flag needs no poll: its signal
+/// ends the wait.)
 const IDLE_POLL: Duration = Duration::from_millis(100);
+/// Longest wait of an idle device with nothing else to do: it answers the host as soon as a
+/// command comes, so this only bounds how stale its clock may get.
+const IDLE_WAIT: Duration = Duration::from_secs(1);
 /// Falling further behind wall time than this (a stalled reader) restarts the pacing rather than
 /// rushing to catch up.
 const MAX_LAG: Duration = Duration::from_secs(1);
@@ -499,8 +504,10 @@ pub fn serve(
         )?;
         let due = if busy {
             pacer.wall_at(device.now_us())
-        } else {
+        } else if carrier.is_some() || faults.is_some() {
             Instant::now() + IDLE_POLL
+        } else {
+            Instant::now() + IDLE_WAIT
         };
         // Until the action is over in wall time, gather what the host sends; an idle device
         // answers at once.

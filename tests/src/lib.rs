@@ -624,6 +624,22 @@ impl Tmux {
     pub fn hang_up(&self) {
         let _ = self.cmd().arg("kill-server").status();
     }
+
+    /// Resizes the terminal to `cols` × `rows`, as a user dragging the window's corner.
+    pub fn resize(&self, cols: u16, rows: u16) {
+        let status = self
+            .cmd()
+            .args([
+                "resize-window",
+                "-x",
+                &cols.to_string(),
+                "-y",
+                &rows.to_string(),
+            ])
+            .status()
+            .expect("tmux runs");
+        assert!(status.success(), "tmux resize-window failed");
+    }
 }
 
 /// A temporary path as the `&str` a command line takes.

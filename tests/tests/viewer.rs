@@ -111,6 +111,29 @@ fn the_viewer_exits_when_its_terminal_hangs_up() {
     assert!(left.is_empty(), "stale shared memory: {left:?}");
 }
 
+/// An idle viewer sleeps until something happens; a resize is something: it draws again at the
+/// new size at once, before any key or snapshot.
+#[test]
+fn an_idle_viewer_redraws_when_its_terminal_is_resized() {
+    let sandbox = Sandbox::new("viewerresize");
+    let log = sandbox.root.join("viewer.log");
+    let term = Tmux::start(
+        &sandbox,
+        "sonar-viewer",
+        &["--log-file", log.to_str().unwrap()],
+        100,
+        30,
+    );
+    let widest = |s: &str| s.lines().map(|l| l.chars().count()).max().unwrap_or(0);
+    let before = term.wait_for("the viewer", |s| s.contains("waiting for"));
+    assert!(widest(&before) <= 100, "{before}");
+    term.resize(140, 40);
+    term.wait_for("the panels drawn 140 wide", |s| {
+        s.lines()
+            .any(|l| l.chars().count() >= 140 && l.trim_end().ends_with('┐'))
+    });
+}
+
 /// Issue 28: while nothing runs the panel says where the viewer looks; readings from sonar-replay
 /// that end are a finished replay, not a driver gone.
 #[test]

@@ -1,15 +1,18 @@
 //! `sonar-viewer`: terminal setup and teardown, logging, signals and the frame loop. Everything it
 //! shows and every decision about keys lives in the library; see its documentation.
 //!
-//! One thread: each turn of the loop takes the newest snapshots (at most `--fps` times a second),
-//! draws if what it would show changed (`App::needs_redraw`: a snapshot, a status, a key, a
-//! producer's liveness; a terminal resize), and waits for terminal input until the next frame is
-//! due. Keys are handled as soon as they arrive and drawn at once, so the viewer stays responsive
-//! while shared memory is read only at the frame rate. An idle viewer draws nothing, except once
-//! a second while a producer is gone (its "gone for N s" ticks).
+//! One thread, asleep in one waitset on the terminal, the wake-up events of the streams (readings,
+//! grid, radar, features), its next look at the producers and SIGINT/SIGTERM. Each turn takes the
+//! newest snapshots (at most `--fps` times a second), draws if what it would show changed
+//! (`App::needs_redraw`: a snapshot, a status, a key, a producer's liveness; a terminal resize),
+//! and sleeps again. While streams move it looks at the frame rate; idle, once a second (the
+//! statuses and the producers' liveness), so an idle viewer wakes about twice a second and draws
+//! nothing, except once a second while a producer is gone (its "gone for N s" ticks). Keys are
+//! handled as soon as they arrive and drawn at once.
 
 use std::fs::OpenOptions;
-use std::io::{IsTerminal, Stdout, stdout};
+use std::io::{IsTerminal, Read, Stdout, stdout};
+use std::os::unix::net::UnixStream;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -25,16 +28,21 @@ use crossterm::terminal::{
 use crossterm::{cursor, execute};
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
+use iceoryx2::waitset::WaitSetRunResult;
 use ratatui::Terminal;
 use ratatui::backend::CrosstermBackend;
-use sonar_common::ipc::{IpcArgs, unix_time_ns};
+use sonar_common::ipc::{self, IpcArgs, IpcError, WatchedFd, unix_time_ns};
 use sonar_common::logging::{self, LogTo};
 use sonar_viewer::app::{Action, App, Drawn, View, key_help_text};
 use sonar_viewer::export;
 use sonar_viewer::heatmap::{ColorMode, Palette};
-use sonar_viewer::source::Source;
+use sonar_viewer::source::{self, Source};
 use sonar_viewer::ui::{self, DrawInfo, MapCache};
 use tracing::{info, warn};
+
+/// How long an idle viewer sleeps between looks at the producers' statuses and liveness, unless a
+/// key, a resize or a snapshot's wake-up comes first.
+const IDLE_PERIOD: Duration = Duration::from_secs(1);
 
 /// Terminal viewer of the sonar pipeline: the probability map, the radar display and the state of
 /// the driver and the fusion engine. Its keys send scan and fusion commands over iceoryx2.
@@ -233,20 +241,72 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
         Ok(path) => info!(log = %path.display(), ?mode, "viewer starting"),
         Err(problem) => app.message = Some(problem.clone()),
     }
+    // Created before the node moves into the source, dropped before it (declared after it).
+    let wakeups = match source::wakeup_listeners(&node) {
+        Ok(listeners) => listeners,
+        Err(e) => {
+            warn!("{e}: looking for snapshots at the frame rate instead of sleeping on them");
+            Vec::new()
+        }
+    };
     let mut source = Source::new(node, Instant::now());
     let mut cache = MapCache::default();
     let mut tui = Tui::enter()?;
 
+    // One wait covers the terminal, the producers' wake-up events, the next poll and SIGINT/SIGTERM.
+    let waitset = WaitSetBuilder::new()
+        .create::<Ipc>()
+        .map_err(|e| IpcError::new("create waitset", e))?;
+    let stdin = std::io::stdin();
+    let watched_stdin = if stdin.is_terminal() {
+        WatchedFd::new(&stdin)
+    } else {
+        None
+    };
+    let stdin_guard = watched_stdin
+        .as_ref()
+        .map(|fd| waitset.attach_notification(fd))
+        .transpose()
+        .map_err(|e| IpcError::new("attach the terminal", e))?;
+    // A resize is a SIGWINCH, which crossterm hears only once its reader runs (the first key):
+    // the signal also writes to a socket this wait watches.
+    let (resizes, on_resize) = UnixStream::pair().context("cannot create a socket")?;
+    resizes
+        .set_nonblocking(true)
+        .and_then(|()| on_resize.set_nonblocking(true))
+        .context("cannot set up a socket")?;
+    signal_hook::low_level::pipe::register(signal_hook::consts::SIGWINCH, on_resize)
+        .context("cannot handle SIGWINCH")?;
+    let watched_resizes =
+        WatchedFd::new(&resizes).context("the resize socket has no descriptor")?;
+    let resize_guard = waitset
+        .attach_notification(&watched_resizes)
+        .map_err(|e| IpcError::new("attach the resize socket", e))?;
+    let _wakeup_guards = wakeups
+        .iter()
+        .map(|listener| waitset.attach_notification(listener))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| IpcError::new("attach wake-up listeners", e))?;
+
     let frame = Duration::from_secs(1) / args.fps;
+    // Without news the viewer looks again after this long (the statuses and liveness come once a
+    // second), unless a wake-up comes first; it cannot sleep if it cannot hear either.
+    let idle = if wakeups.is_empty() || stdin_guard.is_none() {
+        frame
+    } else {
+        IDLE_PERIOD
+    };
     let mut next_poll = Instant::now();
+    let mut last_poll = next_poll;
     let mut drawn: Option<Drawn> = None;
     // The terminal was resized: not app state, so `needs_redraw` cannot know.
     let mut resized = false;
     while !quit.load(Ordering::Relaxed) {
         let now = Instant::now();
         if now >= next_poll {
-            source.poll(&mut app, now);
-            next_poll = now + frame;
+            let news = source.poll(&mut app, now);
+            last_poll = now;
+            next_poll = now + if news { frame } else { idle };
         }
         if resized || app.needs_redraw(now, drawn.as_ref()) {
             let mut info = DrawInfo::default();
@@ -258,35 +318,61 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
             drawn = Some(app.drawn(now));
             resized = false;
         }
-        let timeout = next_poll.saturating_duration_since(Instant::now());
-        let timeout = match wait_for_input(timeout) {
-            Input::HungUp => {
-                warn!("the terminal went away (hang-up): quitting");
-                return Ok(());
-            }
-            // Waited on stdin already: crossterm only collects what is there (keys, resizes).
-            Input::Waited => Duration::ZERO,
-            Input::NotWaited => timeout,
-        };
-        if event::poll(timeout).context("cannot read the terminal")? {
-            // Take every queued event before drawing again, so held-down keys never lag behind.
-            loop {
-                match event::read().context("cannot read the terminal")? {
-                    Event::Key(key) => {
-                        if let Some(action) = app.on_key(key)
-                            && perform(action, &mut app, &mut source, &args)
-                        {
-                            info!("quit");
-                            return Ok(());
-                        }
+        let (mut typed, mut news, mut resize) = (false, false, false);
+        let woke = waitset
+            .wait_and_process_once_with_timeout(
+                |id| {
+                    if stdin_guard.as_ref().is_some_and(|g| id.has_event_from(g)) {
+                        typed = true;
+                    } else if id.has_event_from(&resize_guard) {
+                        resize = true;
+                    } else {
+                        news = true;
                     }
-                    Event::Mouse(mouse) => app.on_mouse(mouse),
-                    Event::Resize(..) => resized = true,
-                    _ => {}
+                    CallbackProgression::Continue
+                },
+                next_poll.saturating_duration_since(Instant::now()),
+            )
+            .map_err(|e| IpcError::new("wait", e))?;
+        // SIGHUP and SIGQUIT end the wait as an interrupt and set the flag.
+        if woke == WaitSetRunResult::TerminationRequest || quit.load(Ordering::Relaxed) {
+            break;
+        }
+        if news {
+            for listener in &wakeups {
+                ipc::drain_wakeups(listener)?;
+            }
+            // Taken at once, but not more often than the frame rate.
+            next_poll = next_poll.min(last_poll + frame);
+        }
+        if resize {
+            while (&resizes).read(&mut [0u8; 64]).is_ok_and(|n| n > 0) {}
+            resized = true;
+        }
+        if typed && terminal_hung_up() {
+            warn!("the terminal went away (hang-up): quitting");
+            return Ok(());
+        }
+        // Only when the terminal has something (or cannot be watched): on a hung-up terminal
+        // crossterm's poll never returns (see `terminal_hung_up`).
+        if stdin_guard.is_some() && !typed {
+            continue;
+        }
+        // Collects what is there (keys, resizes) without blocking; take every queued event before
+        // drawing again, so held-down keys never lag.
+        while event::poll(Duration::ZERO).context("cannot read the terminal")? {
+            match event::read().context("cannot read the terminal")? {
+                Event::Key(key) => {
+                    if let Some(action) = app.on_key(key)
+                        && perform(action, &mut app, &mut source, &args)
+                    {
+                        info!("quit");
+                        return Ok(());
+                    }
                 }
-                if !event::poll(Duration::ZERO).context("cannot read the terminal")? {
-                    break;
-                }
+                Event::Mouse(mouse) => app.on_mouse(mouse),
+                Event::Resize(..) => resized = true,
+                _ => {}
             }
         }
     }
@@ -294,47 +380,27 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
     Ok(())
 }
 
-/// What waiting for terminal input found.
-enum Input {
-    /// Input may be ready (or the wait was cut short): collect it without blocking.
-    Waited,
-    /// Not waited (stdin is not the terminal): let crossterm wait on /dev/tty.
-    NotWaited,
-    HungUp,
-}
-
-/// Waits up to `timeout` for input on the terminal, and tells whether it hung up (its tmux or SSH
-/// session ended). crossterm alone cannot be trusted with that: on a hung-up terminal its reader
-/// loops on end-of-file inside `event::poll` forever, at full CPU (seen with `tmux kill-server`),
-/// and the hang-up does not always signal us (the kernel sends SIGHUP to the session leader, the
-/// shell that started us). On a hung-up terminal `poll` reports POLLHUP and `tcgetpgrp` fails with
-/// EIO.
-fn wait_for_input(timeout: Duration) -> Input {
+/// Whether the terminal hung up (its tmux or SSH session ended). Asked when the waitset found it
+/// readable. crossterm alone cannot be trusted with that: on a hung-up terminal its reader loops
+/// on end-of-file inside `event::poll` forever, at full CPU (seen with `tmux kill-server`), and
+/// the hang-up does not always signal us (the kernel sends SIGHUP to the session leader, the shell
+/// that started us). On a hung-up terminal `poll` reports POLLHUP, `tcgetpgrp` fails with EIO,
+/// and it no longer counts as a terminal at all.
+fn terminal_hung_up() -> bool {
     use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
     use std::os::fd::AsFd;
     let stdin = std::io::stdin();
     if !stdin.is_terminal() {
-        return Input::NotWaited;
+        return true;
     }
     let mut fds = [PollFd::new(stdin.as_fd(), PollFlags::POLLIN)];
-    // Whole milliseconds, rounded up: rounded down, the wait ended just before the frame was due
-    // and the loop spun through the rest of that millisecond, every frame (2 % of a core, idle).
-    let timeout =
-        PollTimeout::try_from(timeout.as_micros().div_ceil(1000)).unwrap_or(PollTimeout::MAX);
-    if let Ok(n) = poll(&mut fds, timeout)
-        && n > 0
-    {
-        let gone = PollFlags::POLLHUP | PollFlags::POLLERR | PollFlags::POLLNVAL;
-        let hung_up = fds[0].revents().is_some_and(|r| r.intersects(gone))
-            || matches!(
-                nix::unistd::tcgetpgrp(std::io::stdin()),
-                Err(nix::errno::Errno::EIO)
-            );
-        if hung_up {
-            return Input::HungUp;
-        }
-    }
-    Input::Waited
+    let gone = PollFlags::POLLHUP | PollFlags::POLLERR | PollFlags::POLLNVAL;
+    poll(&mut fds, PollTimeout::ZERO).is_ok_and(|n| n > 0)
+        && fds[0].revents().is_some_and(|r| r.intersects(gone))
+        || matches!(
+            nix::unistd::tcgetpgrp(std::io::stdin()),
+            Err(nix::errno::Errno::EIO)
+        )
 }
 
 /// Carries out an action and reports the outcome in the status line; true to quit.

@@ -1,13 +1,13 @@
 //! The viewer's side of iceoryx2: subscribers to the snapshots and the driver's state, publishers of
 //! commands, and the liveness of the processes behind them.
 //!
-//! Called once per frame from the main loop's thread (iceoryx2 ports are not `Send`). Each port is
-//! opened on first use through the functions of `sonar_common::ipc`, so the QoS always matches; a
-//! port that cannot be opened (a producer with another layout version, shared memory trouble) is
-//! retried once a second while everything else keeps working. Opening never waits for a producer:
-//! `open_or_create` creates a missing service and the producer joins it later, and a live
-//! subscriber is reconnected by iceoryx2 to a restarted publisher, so start order and restarts need
-//! no code here.
+//! Called from the main loop's thread (iceoryx2 ports are not `Send`) when a wake-up came or a
+//! look is due, at most once per frame. Each port is opened on first use through the functions of
+//! `sonar_common::ipc`, so the QoS always matches; a port that cannot be opened (a producer with
+//! another layout version, shared memory trouble) is retried once a second while everything else
+//! keeps working. Opening never waits for a producer: `open_or_create` creates a missing service
+//! and the producer joins it later, and a live subscriber is reconnected by iceoryx2 to a
+//! restarted publisher, so start order and restarts need no code here.
 //!
 //! Per frame, each subscriber is drained keeping only its newest sample, whose contents are copied
 //! into the [`App`] before the sample is released: no shared memory is held across frames, and with
@@ -19,6 +19,7 @@ use std::time::{Duration, Instant};
 use iceoryx2::identifiers::UniqueNodeId;
 use iceoryx2::node::NodeView;
 use iceoryx2::port::ReceiveError;
+use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
@@ -154,9 +155,12 @@ impl Source {
         .cloned()
     }
 
-    /// Takes the newest of everything into `app`.
-    pub fn poll(&mut self, app: &mut App, now: Instant) {
+    /// Takes the newest of everything into `app`. True when a stream moved (a snapshot, a
+    /// reading, a pose): more is likely to follow at once. Statuses do not count: they come once
+    /// a second whatever happens.
+    pub fn poll(&mut self, app: &mut App, now: Instant) -> bool {
         let node = &self.node;
+        let mut moved = false;
 
         if let Some((_, sub)) = self.grid.get(now, || {
             let service = ipc::grid_service(node)?;
@@ -168,6 +172,7 @@ impl Source {
         }) {
             match newest(|| sub.receive()) {
                 Ok(Some(sample)) => {
+                    moved = true;
                     if let Err(e) = app.on_grid(sample.user_header(), sample.payload(), now) {
                         reject(app, "grid", &e);
                     }
@@ -180,6 +185,7 @@ impl Source {
         if let Some((_, sub)) = self.radar.get(now, || subscribe(node, ipc::radar_service)) {
             match newest(|| sub.receive()) {
                 Ok(Some(sample)) => {
+                    moved = true;
                     if let Err(e) = app.on_radar(sample.payload(), now) {
                         reject(app, "radar", &e);
                     }
@@ -199,6 +205,7 @@ impl Source {
         }) {
             match newest(|| sub.receive()) {
                 Ok(Some(sample)) => {
+                    moved = true;
                     if let Err(e) = app.on_features(sample.user_header(), sample.payload(), now) {
                         reject(app, "features", &e);
                     }
@@ -214,6 +221,7 @@ impl Source {
         {
             match newest(|| sub.receive()) {
                 Ok(Some(sample)) => {
+                    moved = true;
                     if let Err(e) = app.on_localized_pose(sample.payload(), now) {
                         reject(app, "localized pose", &e);
                     }
@@ -260,6 +268,7 @@ impl Source {
             for _ in 0..MAX_READINGS_PER_POLL {
                 match sub.receive() {
                     Ok(Some(sample)) => {
+                        moved = true;
                         app.on_reading(sample.payload(), now);
                     }
                     Ok(None) => break,
@@ -311,6 +320,7 @@ impl Source {
             );
         }
         app.ipc_problem = self.problem();
+        moved
     }
 
     /// The node names of the live processes behind the publishers that `list` reports (`None`
@@ -367,6 +377,20 @@ impl Source {
             cmd,
         )
     }
+}
+
+/// Listeners on the wake-up events of the services whose producers notify (readings, grid, radar,
+/// features): what the viewer sleeps on between frames.
+pub fn wakeup_listeners(node: &Node<Ipc>) -> Result<Vec<Listener<Ipc>>, IpcError> {
+    [
+        ipc::READINGS_SERVICE,
+        ipc::GRID_SERVICE,
+        ipc::RADAR_SERVICE,
+        ipc::FEATURES_SERVICE,
+    ]
+    .into_iter()
+    .map(|name| ipc::wakeup_listener(node, name))
+    .collect()
 }
 
 /// Drains a subscriber and returns its newest sample; older ones are released on the way.
