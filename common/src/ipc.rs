@@ -1243,28 +1243,25 @@ mod tests {
         let watched = WatchedFd::new(&reader).unwrap();
         let waitset = WaitSetBuilder::new().create::<ipc::Service>().unwrap();
         let guard = waitset.attach_notification(&watched).unwrap();
-        let mut woke = false;
-        waitset
-            .wait_and_process_once_with_timeout(
-                |id| {
-                    woke |= id.has_event_from(&guard);
-                    CallbackProgression::Continue
-                },
-                Duration::from_millis(10),
-            )
-            .unwrap();
-        assert!(!woke, "nothing was written yet");
+        let woke_within = |timeout| {
+            let mut woke = false;
+            waitset
+                .wait_and_process_once_with_timeout(
+                    |id| {
+                        woke |= id.has_event_from(&guard);
+                        CallbackProgression::Continue
+                    },
+                    timeout,
+                )
+                .unwrap();
+            woke
+        };
+        assert!(
+            !woke_within(Duration::from_millis(10)),
+            "nothing written yet"
+        );
         writer.write_all(b"x").unwrap();
-        waitset
-            .wait_and_process_once_with_timeout(
-                |id| {
-                    woke |= id.has_event_from(&guard);
-                    CallbackProgression::Continue
-                },
-                Duration::from_secs(10),
-            )
-            .unwrap();
-        assert!(woke);
+        assert!(woke_within(Duration::from_secs(10)));
     }
 
     /// The defaults `--help` names for --iox-prefix and --iox-root are iceoryx2's.
