@@ -14,6 +14,7 @@
 //! - [`config`]: the `[bridge]` table of the pipeline's TOML file.
 //! - [`ports`]: the iceoryx2 ends, one reader and one writer per service.
 //! - [`ros2`]: `--mode ros2`, the map, scans and transforms as ROS 2 topics under `rmw_zenoh`'s keys.
+//! - [`wake`]: the one wait of the main thread, on zenoh's deliveries and iceoryx2's events.
 //!
 //! One process talks to the network: zenoh and its tokio runtime live only in this crate. The
 //! iceoryx2 side runs on the main thread (its ports are not `Send`) and uses zenoh's synchronous
@@ -25,4 +26,5 @@ pub mod config;
 pub mod ports;
 pub mod ros2;
 pub mod session;
+pub mod wake;
 pub mod wire;

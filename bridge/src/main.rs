@@ -8,15 +8,19 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Parser;
+use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
+use iceoryx2::service::ipc::Service as Ipc;
+use iceoryx2::waitset::WaitSetRunResult;
 use sonar_bridge::certs::{self, Peer};
 use sonar_bridge::channel::{self, Channel};
 use sonar_bridge::config::{BridgeSection, Mode, Overrides, Settings};
 use sonar_bridge::ports::{self, Reader, WriteError, Writer};
+use sonar_bridge::wake::{Wake, waking_fifo};
 use sonar_bridge::wire::FrameError;
 use sonar_bridge::{ros2, session};
 use sonar_common::flood::FloodGuard;
-use sonar_common::ipc::IpcArgs;
+use sonar_common::ipc::{self, IpcArgs, IpcError};
 use sonar_common::throttle::Throttle;
 use sonar_wellknown::live::Ports;
 use sonar_wellknown::{Options as WellKnownOptions, Output, WellKnown};
@@ -28,8 +32,9 @@ use zenoh::qos::{CongestionControl, Priority};
 use zenoh::query::{Query, Reply};
 use zenoh::sample::{Sample, SampleKind};
 
-/// How often the loop looks at both sides: bounds the latency the bridge adds, and its idle CPU.
-const POLL_PERIOD: Duration = Duration::from_millis(5);
+/// How often the services without a wake-up event (statuses, poses, corrections) are looked at:
+/// the latency the bridge adds to them. Everything else wakes the bridge when it comes.
+const STATE_POLL: Duration = Duration::from_millis(100);
 /// How often idle local publishers hand their latest sample to new subscribers.
 const REFRESH_PERIOD: Duration = Duration::from_secs(1);
 /// How often the counters are logged (when they changed).
@@ -253,11 +258,12 @@ fn run(args: Args, flood: &FloodGuard) -> Result<()> {
         "bridge running"
     );
     let mut bridge = Bridge::new(&session, &node, &settings, side, &robot)?;
-    bridge.run(&node, flood);
+    let ran = bridge.run(flood);
     bridge.log_stats(true);
     flood.report();
     drop(bridge);
-    close(session)
+    let closed = close(session);
+    ran.and(closed)
 }
 
 /// `--mode ros2`: one ROS 2 topic's publisher, its liveliness token (which makes it visible in the
@@ -344,7 +350,32 @@ fn publish_ros2(
     let mut last_map: Option<Vec<u8>> = None;
     let mut map_at = Instant::now();
     let mut stats_at = Instant::now();
-    while node.wait(POLL_PERIOD).is_ok() {
+    // Readings, grid and features wake the loop; poses and corrections have no wake-up event, so
+    // they are looked at every STATE_POLL (the /tf's pace).
+    let waitset = WaitSetBuilder::new()
+        .create::<Ipc>()
+        .map_err(|e| IpcError::new("create waitset", e))?;
+    let wakeups: Vec<_> = [
+        ipc::READINGS_SERVICE,
+        ipc::GRID_SERVICE,
+        ipc::FEATURES_SERVICE,
+    ]
+    .into_iter()
+    .filter_map(|name| {
+        ipc::wakeup_listener(&node, name)
+            .inspect_err(|e| warn!("{e}: looked at every {STATE_POLL:?} instead"))
+            .ok()
+    })
+    .collect();
+    let _wakeup_guards = wakeups
+        .iter()
+        .map(|listener| waitset.attach_notification(listener))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| IpcError::new("attach wake-up listeners", e))?;
+    loop {
+        for listener in &wakeups {
+            ipc::drain_wakeups(listener)?;
+        }
         let mut outputs = ports.drain(&mut converter);
         if map_at.elapsed() >= map_period {
             let flushed = converter.flush_map();
@@ -386,6 +417,16 @@ fn publish_ros2(
             stats_at = Instant::now();
             flood.report();
             info!(counts = ?RosPublisher::counts(&publishers), "published");
+        }
+        let due = (map_at + map_period).min(Instant::now() + STATE_POLL);
+        let woke = waitset
+            .wait_and_process_once_with_timeout(
+                |_| CallbackProgression::Continue,
+                due.saturating_duration_since(Instant::now()),
+            )
+            .map_err(|e| IpcError::new("wait", e))?;
+        if woke == WaitSetRunResult::TerminationRequest {
+            break;
         }
     }
     flood.report();
@@ -509,6 +550,8 @@ struct Outbound {
     read: Reader,
     publisher: zenoh::pubsub::Publisher<'static>,
     min_interval: Option<Duration>,
+    /// Its producers' wake-up event wakes the bridge; else it is looked at every STATE_POLL.
+    woken: bool,
     last_sent: Option<Instant>,
     /// A message the rate limit holds back; a newer one replaces it.
     pending: Option<Vec<u8>>,
@@ -554,6 +597,10 @@ struct Bridge {
     last_refresh: Instant,
     last_stats: Instant,
     logged: BTreeMap<Channel, Counts>,
+    /// Poked by every zenoh delivery.
+    wake: Wake,
+    /// The wake-up events of the outbound services that have one (`run` takes them).
+    wakeups: Vec<Listener<Ipc>>,
 }
 
 fn zerr(what: String) -> impl FnOnce(zenoh::Error) -> anyhow::Error {
@@ -568,8 +615,10 @@ impl Bridge {
         side: Side,
         robot: &str,
     ) -> Result<Self> {
+        let wake = Wake::new().context("cannot create the wake-up socket")?;
         let mut outbound = Vec::new();
         let mut inbound = Vec::new();
+        let mut wakeups = Vec::new();
         for &channel in &settings.channels {
             let key = channel.key(robot);
             // Telemetry goes out from the robot, commands from the remote.
@@ -587,11 +636,24 @@ impl Bridge {
                     })
                     .wait()
                     .map_err(zerr(format!("declare publisher {key}")))?;
+                let woken = channel.has_wakeup()
+                    && match ipc::wakeup_listener(node, channel.service()) {
+                        Ok(listener) => {
+                            wakeups.push(listener);
+                            true
+                        }
+                        // E.g. a socket path beyond the system's limit under a long --iox-root.
+                        Err(e) => {
+                            warn!("{e}: {channel} is looked at every {STATE_POLL:?} instead");
+                            false
+                        }
+                    };
                 outbound.push(Outbound {
                     channel,
                     read: ports::reader(node, channel)?,
                     publisher,
                     min_interval: settings.min_interval.get(&channel).copied(),
+                    woken,
                     last_sent: None,
                     pending: None,
                     latest: None,
@@ -600,6 +662,7 @@ impl Bridge {
             } else {
                 let subscriber = session
                     .declare_subscriber(key.clone())
+                    .with(waking_fifo(&wake.poke()))
                     .wait()
                     .map_err(zerr(format!("declare subscriber {key}")))?;
                 inbound.push(Inbound {
@@ -627,6 +690,7 @@ impl Bridge {
         let peers = liveliness
             .declare_subscriber(watched.clone())
             .history(true)
+            .with(waking_fifo(&wake.poke()))
             .wait()
             .map_err(zerr(format!("watch {watched}")))?;
         let queryable = match side {
@@ -635,6 +699,7 @@ impl Bridge {
                 Some(
                     session
                         .declare_queryable(all.clone())
+                        .with(waking_fifo(&wake.poke()))
                         .wait()
                         .map_err(zerr(format!("declare queryable {all}")))?,
                 )
@@ -658,13 +723,37 @@ impl Bridge {
             last_refresh: now,
             last_stats: now,
             logged: BTreeMap::new(),
+            wake,
+            wakeups,
         })
     }
 
     /// Until Ctrl-C or SIGTERM.
-    fn run(&mut self, node: &Node<iceoryx2::service::ipc::Service>, flood: &FloodGuard) {
+    fn run(&mut self, flood: &FloodGuard) -> Result<()> {
+        let waitset = WaitSetBuilder::new()
+            .create::<Ipc>()
+            .map_err(|e| IpcError::new("create waitset", e))?;
+        let watched = self
+            .wake
+            .watched()
+            .context("the wake-up socket has no descriptor")?;
+        let _wake_guard = waitset
+            .attach_notification(&watched)
+            .map_err(|e| IpcError::new("attach the wake-up socket", e))?;
+        // Out of `self`, which the loop changes while the waitset holds them.
+        let wakeups = std::mem::take(&mut self.wakeups);
+        let _wakeup_guards = wakeups
+            .iter()
+            .map(|listener| waitset.attach_notification(listener))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|e| IpcError::new("attach wake-up listeners", e))?;
         let mut last_flood_report = Instant::now();
         loop {
+            // Before taking what came: what arrives meanwhile pokes again.
+            self.wake.drain();
+            for listener in &wakeups {
+                ipc::drain_wakeups(listener)?;
+            }
             let now = Instant::now();
             self.watch_peers();
             self.pump_out(now);
@@ -685,11 +774,44 @@ impl Bridge {
                 self.last_stats = now;
                 self.log_stats(false);
             }
-            if node.wait(POLL_PERIOD).is_err() {
+            let due = self
+                .next_due(now)
+                .min(last_flood_report + sonar_common::flood::PERIOD);
+            let woke = waitset
+                .wait_and_process_once_with_timeout(
+                    |_| CallbackProgression::Continue,
+                    due.saturating_duration_since(Instant::now()),
+                )
+                .map_err(|e| IpcError::new("wait", e))?;
+            if woke == WaitSetRunResult::TerminationRequest {
                 info!("stopping on a signal");
-                return;
+                return Ok(());
             }
         }
+    }
+
+    /// The next moment something is due without a wake-up: the refresh, the counters' log, a
+    /// rate-limited message's turn, a look at the services that have no wake-up event.
+    fn next_due(&self, now: Instant) -> Instant {
+        let polled = self
+            .outbound
+            .iter()
+            .any(|out| !out.woken)
+            .then_some(now + STATE_POLL);
+        let rate_limited = self.outbound.iter().filter_map(|out| {
+            let interval = out.min_interval?;
+            out.pending.as_ref()?;
+            Some(out.last_sent.map_or(now, |last| last + interval))
+        });
+        [
+            self.last_refresh + REFRESH_PERIOD,
+            self.last_stats + STATS_PERIOD,
+        ]
+        .into_iter()
+        .chain(polled)
+        .chain(rate_limited)
+        .min()
+        .unwrap_or(now + REFRESH_PERIOD)
     }
 
     /// Link up and down: the robot's token seen from a remote, the remotes' tokens from a robot.
@@ -791,7 +913,13 @@ impl Bridge {
     /// Remote: asks the robot for its latest states (at start and after the link came back).
     fn ask_latest(&mut self) {
         let all = format!("{}/{}/**", channel::KEY_ROOT, self.robot);
-        match self.session.get(all).timeout(QUERY_TIMEOUT).wait() {
+        match self
+            .session
+            .get(all)
+            .timeout(QUERY_TIMEOUT)
+            .with(waking_fifo(&self.wake.poke()))
+            .wait()
+        {
             Ok(replies) => self.queries.push(replies),
             Err(e) => warn!("ask the robot for its latest states: {e}"),
         }

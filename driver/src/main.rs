@@ -35,7 +35,8 @@ use tracing::{debug, info, warn};
 
 /// How long one read of the port may block during the handshake: bounds the latency of shutdown
 /// there. Once connected, the driver sleeps on the port, the commands' wake-up event and its next
-/// deadline together, and reads only when the port has something.
+/// deadline together, and reads only when the port has something (without the wake-up event, it
+/// looks for commands this often).
 const READ_TIMEOUT: Duration = Duration::from_millis(50);
 const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(2);
 const HANDSHAKE_ATTEMPTS: u32 = 3;
@@ -752,18 +753,26 @@ impl Link {
         let serial_guard = waitset
             .attach_notification(&serial)
             .map_err(|e| ipc::IpcError::new("attach the serial port", e))?;
-        // Wakes the loop when a command is published.
-        let commands_listener = ipc::wakeup_listener(node, ipc::COMMANDS_SERVICE)?;
-        let _commands_guard = waitset
-            .attach_notification(&commands_listener)
+        // Wakes the loop when a command is published. Without it (e.g. a socket path beyond the
+        // system's limit under a long --iox-root) commands are looked for every READ_TIMEOUT.
+        let commands_listener = ipc::wakeup_listener(node, ipc::COMMANDS_SERVICE)
+            .inspect_err(|e| warn!("{e}: looking for commands every {READ_TIMEOUT:?} instead"))
+            .ok();
+        let _commands_guard = commands_listener
+            .as_ref()
+            .map(|listener| waitset.attach_notification(listener))
+            .transpose()
             .map_err(|e| ipc::IpcError::new("attach commands listener", e))?;
         let mut next_status = Instant::now() + STATUS_PERIOD;
         loop {
             // Asleep until the head sends, a command comes, the status or the silence watchdog
             // is due, or a signal: an idle driver wakes about once a second.
-            let due = self
+            let mut due = self
                 .silence_deadline()
                 .map_or(next_status, |d| d.min(next_status));
+            if commands_listener.is_none() {
+                due = due.min(Instant::now() + READ_TIMEOUT);
+            }
             let mut readable = false;
             let woke = waitset
                 .wait_and_process_once_with_timeout(
@@ -777,7 +786,9 @@ impl Link {
             if woke == WaitSetRunResult::TerminationRequest {
                 return Ok(SessionEnd::Shutdown);
             }
-            ipc::drain_wakeups(&commands_listener)?;
+            if let Some(listener) = &commands_listener {
+                ipc::drain_wakeups(listener)?;
+            }
             if let Err(e) = self.forward_commands(port) {
                 return Ok(SessionEnd::PortLost(e));
             }
