@@ -128,6 +128,8 @@ section_mrpt() {
   for g in "${GRIDS[@]}"; do
     set -- $g
     "$PEER" --cells "$1" --resolution "$2" --passes 50 $header; header=
+    # The generated scene from its first viewpoint alone: no move between the readings.
+    "$PEER" --cells "$1" --resolution "$2" --passes 50 --scenes generated --views 1
   done
   echo
   echo "Instructions per reading (valgrind's callgrind, the room's readings, one measured pass after the unmeasured one):"

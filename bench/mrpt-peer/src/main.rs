@@ -6,7 +6,7 @@
 //! - **Readings**: the pipeline's own simulated head and the driver's decoder
 //!   ([`sonar_eval::pipeline`]) scanning two scenes of known geometry: the paper's square room
 //!   (full sweeps from its centre) and a scene of the generated suite ([`sonar_eval::scenegen`],
-//!   full sweeps from three of its viewpoints). Readings without an echo are given to both (our
+//!   two full sweeps from each of its first three viewpoints, `--views`). Readings without an echo are given to both (our
 //!   recommended preset ignores them; MRPT is told its maximum range is the sensor's, so it
 //!   inserts nothing for them either).
 //! - **Ours**: [`Engine::fuse`] with the recommended preset (smooth model, log-odds rule), what
@@ -50,8 +50,7 @@ use mrpt::MrptGrid;
 
 /// Full sweeps of the room from its centre: 8 × 50 readings.
 const ROOM_SWEEPS: u32 = 8;
-/// Viewpoints of the generated scene, and full sweeps from each: 3 × 2 × 50 readings.
-const GENERATED_VIEWS: usize = 3;
+/// Full sweeps of the generated scene from each viewpoint: 2 × 50 readings.
 const GENERATED_SWEEPS: u32 = 2;
 /// Observations `sonar-fusion` keeps for re-fusing by default (`--history`).
 const HISTORY: usize = 20_000;
@@ -69,7 +68,7 @@ struct Cli {
     #[arg(long, default_value_t = 0.02)]
     resolution: f32,
     /// Measured passes over the readings, each from cleared maps, after one unmeasured pass.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 50)]
     passes: u32,
     /// Readings per batch: a batch goes to our engine, then to MRPT, then the next batch.
     #[arg(long, default_value_t = 25)]
@@ -81,6 +80,9 @@ struct Cli {
     /// Which scenes.
     #[arg(long, value_enum, default_value_t = Scenes::Both)]
     scenes: Scenes,
+    /// Viewpoints of the generated scene scanned (its first ones, up to 8), 2 full sweeps each.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=8))]
+    views: u32,
     /// Print the table's header first.
     #[arg(long)]
     header: bool,
@@ -121,15 +123,11 @@ fn room(seed: u64) -> Result<Workload> {
     })
 }
 
-fn generated(seed: u64) -> Result<Workload> {
+fn generated(seed: u64, views: usize) -> Result<Workload> {
     let generated = scenegen::generate(seed).context("generating the scene")?;
     let scene = generated.scene;
     let head = Head::of(&scene);
-    let views: Vec<Pose> = generated
-        .viewpoints
-        .into_iter()
-        .take(GENERATED_VIEWS)
-        .collect();
+    let views: Vec<Pose> = generated.viewpoints.into_iter().take(views).collect();
     let mut readings = Vec::new();
     for (k, &view) in views.iter().enumerate() {
         let seen = scenegen::seen_from(&scene, view)?;
@@ -138,7 +136,12 @@ fn generated(seed: u64) -> Result<Workload> {
         readings.extend(capture.readings.into_iter().map(|r| (r, k)));
     }
     Ok(Workload {
-        name: format!("generated {} ({} views)", scene.name, views.len()),
+        name: format!(
+            "generated {}, {} view{}",
+            scene.name,
+            views.len(),
+            if views.len() == 1 { "" } else { "s" }
+        ),
         scene,
         views,
         readings,
@@ -366,7 +369,7 @@ fn main() -> Result<()> {
         workloads.push(room(cli.seed)?);
     }
     if cli.scenes != Scenes::Room {
-        workloads.push(generated(cli.seed)?);
+        workloads.push(generated(cli.seed, cli.views as usize)?);
     }
     if cli.header {
         println!(
