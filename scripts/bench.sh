@@ -18,22 +18,44 @@
 #   instructions  callgrind instruction counts of fusing and snapshotting a fixed workload, at the
 #                 head's pace and at replay pace (needs valgrind; stable on a loaded machine, so the
 #                 figures to compare against)
+#   mrpt          our engine against MRPT 2.5's COccupancyGridMap2D on the same readings, in one
+#                 process, interleaved, per grid size: time per reading, instructions (valgrind),
+#                 both maps scored against the scene. Installs Debian's libmrpt-dev (apt-get, as
+#                 root) and builds bench/mrpt-peer/, a crate outside the workspace; not run by CI
+#                 and not part of the default set (`scripts/bench.sh mrpt`)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 ALL=(ipc latency throughput idle memory instructions)
+# Sections run only when named: they install system packages.
+OPTIONAL=(mrpt)
 SECTIONS=("$@")
 [ ${#SECTIONS[@]} -eq 0 ] && SECTIONS=("${ALL[@]}")
 for s in "${SECTIONS[@]}"; do
-  [[ " ${ALL[*]} " == *" $s "* ]] || { echo "bench: unknown section '$s' (one of: ${ALL[*]})" >&2; exit 2; }
+  [[ " ${ALL[*]} ${OPTIONAL[*]} " == *" $s "* ]] ||
+    { echo "bench: unknown section '$s' (one of: ${ALL[*]} ${OPTIONAL[*]})" >&2; exit 2; }
 done
 wants() { [[ " ${SECTIONS[*]} " == *" $1 "* ]]; }
 
 if wants instructions && [ -z "${FIXED_WORKLOAD:-}" ]; then
   command -v valgrind >/dev/null || { echo "bench: needs valgrind (apt-get install valgrind)" >&2; exit 1; }
 fi
-echo "bench: building the release binaries (only the packages the suite runs)" >&2
-cargo build --release --quiet -p sonar-bench -p sonar-fusion -p sonar-driver -p sonar-sim -p sonar-viewer --bins
+if wants mrpt; then
+  command -v valgrind >/dev/null || { echo "bench: mrpt needs valgrind (apt-get install valgrind)" >&2; exit 1; }
+  # MRPT 2.5 from Debian (bookworm). Its package has no pkg-config files: bench/mrpt-peer/build.rs
+  # finds the headers in Debian's layout.
+  if ! dpkg -s libmrpt-dev >/dev/null 2>&1; then
+    [ "$(id -u)" = 0 ] || { echo "bench: mrpt needs root to apt-get install libmrpt-dev" >&2; exit 1; }
+    echo "bench: installing libmrpt-dev" >&2
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends libmrpt-dev >/dev/null
+  fi
+  echo "bench: building bench/mrpt-peer (release, into target/)" >&2
+  (cd bench/mrpt-peer && cargo build --release --quiet)
+fi
+if [[ " ${SECTIONS[*]} " != " mrpt " ]]; then
+  echo "bench: building the release binaries (only the packages the suite runs)" >&2
+  cargo build --release --quiet -p sonar-bench -p sonar-fusion -p sonar-driver -p sonar-sim -p sonar-viewer --bins
+fi
 if wants instructions && [ -z "${FIXED_WORKLOAD:-}" ]; then
   cargo build --release --quiet -p sonar-fusion --example fixed_workload
 fi
@@ -95,6 +117,38 @@ section_instructions() {
   callgrind_case "cold start, 1024² × 1 cm (no features)" 1024 0.01 50 replay --no-features --snapshot-every 1000
   echo
   echo "valgrind $(valgrind --version | sed 's/valgrind-//'), binary ${FIXED_WORKLOAD:-target/release/examples/fixed_workload}."
+}
+
+# Our engine against MRPT: timed rows per grid size, then callgrind's instructions per reading
+# (one measured pass of the room's readings; the unmeasured warm-up pass is not counted, since
+# only the measured calls go through measured_ours / measured_mrpt).
+PEER=target/release/sonar-mrpt-peer
+section_mrpt() {
+  local header=--header
+  for g in "${GRIDS[@]}"; do
+    set -- $g
+    "$PEER" --cells "$1" --resolution "$2" --passes 50 $header; header=
+    # The generated scene from its first viewpoint alone: no move between the readings.
+    "$PEER" --cells "$1" --resolution "$2" --passes 50 --scenes generated --views 1
+  done
+  echo
+  echo "Instructions per reading (valgrind's callgrind, the room's readings, one measured pass after the unmeasured one):"
+  echo
+  echo "| grid | readings | ours | MRPT | MRPT ÷ ours |"
+  echo "|---|--:|--:|--:|--:|"
+  local out readings ours mrpt
+  for g in "${GRIDS[@]}"; do
+    set -- $g
+    out="$OUT/peer.$1.cg"
+    valgrind --tool=callgrind --callgrind-out-file="$out" "$PEER" --cells "$1" --resolution "$2" \
+      --passes 1 --scenes room >"$OUT/peer.log" 2>&1 || { cat "$OUT/peer.log" >&2; exit 1; }
+    readings=$(grep -o '^| [^|]*| [^|]*| [0-9]* ×' "$OUT/peer.log" | grep -o '[0-9]* ×$' | cut -d' ' -f1)
+    ours=$(inclusive "$out" 'sonar_mrpt_peer::measured_ours')
+    mrpt=$(inclusive "$out" 'sonar_mrpt_peer::measured_mrpt')
+    echo "| $1² × $(awk -v r="$2" 'BEGIN { print r * 100 }') cm | $readings | $(human $((ours / readings))) | $(human $((mrpt / readings))) | $(awk -v a="$mrpt" -v b="$ours" 'BEGIN { printf "%.2f×", a / b }') |"
+  done
+  echo
+  echo "MRPT $(dpkg-query -W -f='${Version}' libmrpt-dev), valgrind $(valgrind --version | sed 's/valgrind-//')."
 }
 
 MACHINE="$(nproc) CPUs ($(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ *//')), Linux $(uname -r), $(rustc --version | cut -d' ' -f1-2), release profile"
