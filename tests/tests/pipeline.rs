@@ -1021,11 +1021,13 @@ fn the_simulated_robot_tours_the_room_publishing_its_odometry_and_its_true_pose(
         let gap_ms = (pair[1].stamp_ns - pair[0].stamp_ns) as f64 / 1e6;
         assert!(gap_ms > 2.49, "{gap_ms} ms between poses");
     }
-    // It starts at the first waypoint heading for the second (east); up the east side it heads
-    // north.
+    // It starts on the first leg, from the first waypoint heading for the second (east): the
+    // first pose received lies on that leg (on a loaded machine the first few can be gone from
+    // the subscriber's buffer of 16 before the test reads, 40 ms at 20×); up the east side it
+    // heads north.
     let first = true_poses[0];
     assert!(
-        (first.y_m + 0.6).abs() < 1e-3 && first.x_m < -0.4 && first.theta_rad.abs() < 1e-3,
+        (first.y_m + 0.6).abs() < 1e-3 && first.x_m < 0.5 && first.theta_rad.abs() < 1e-3,
         "{first:?}"
     );
     let east_side: Vec<_> = true_poses
