@@ -9,7 +9,7 @@ use crate::geometry::GridGeometry;
 use crate::geometry::wrap_angle;
 use crate::grid::{OccupancyGrid, with_layer};
 use crate::kernel::ConeCache;
-use crate::lines::{Lines, Patch, Stretch};
+use crate::lines::{Echo, Lines, Patch, Stretch};
 use crate::model::{CellEvidence, ModelConfig, SmoothModel, with_model};
 use crate::observation::{Beam, Observation, ObservationError};
 use crate::radar::RadarMap;
@@ -19,6 +19,8 @@ use crate::state::{MapperState, StateError};
 
 /// One-ended and cut regions kept for the sweep's end at most: more than a 360° sweep at 1.5° holds.
 const DEFERRED_REGIONS: usize = 256;
+/// Stretches of wall are drawn in pieces at most this long, metres.
+const STRETCH_PIECE_M: f32 = 1.0;
 
 /// Which kernel fuses a reading into the grid. Both give the same grid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -227,6 +229,15 @@ impl Mapper {
             return 0;
         };
         regions.lobe.learn(region);
+        if model.region_corner_walls {
+            regions.lines.hear(Echo {
+                sensor: region.position,
+                axis: region.axis,
+                half_width: region.half_width,
+                range: region.range,
+                tolerance: regions.tolerance.at(region.range) + model.band(region.range),
+            });
+        }
         let mut cells = 0;
         if region.is_whole() {
             let half_angle = model.region_patch_half_angle(region.half_width);
@@ -283,6 +294,12 @@ impl Mapper {
         };
         cells += self.place_one_ended(&mut regions, Kernel::Cone);
         cells += self.place_corners(&mut regions, Kernel::Cone);
+        if let ModelConfig::Smooth(model) = self.config.model
+            && model.region_corner_walls
+        {
+            regions.lines.join_corners(&mut regions.stretches);
+            cells += self.place_stretches(&model, &regions, Kernel::Cone);
+        }
         self.regions = Some(regions);
         cells
     }
@@ -304,7 +321,7 @@ impl Mapper {
             if region.is_cut_and_narrow(lobe) && regions.lines.corner_at(point, tolerance) {
                 // A point: a cell wide.
                 let half_angle = (self.grid.geometry().resolution() / region.range).atan();
-                cells += self.place_region(regions, &region, region.axis, half_angle, kernel);
+                cells += self.fuse_patch(&model, &region, region.axis, half_angle, kernel);
             }
         }
         cells
@@ -324,6 +341,24 @@ impl Mapper {
         let ModelConfig::Smooth(model) = self.config.model else {
             return 0;
         };
+        let cells = self.fuse_patch(&model, region, axis, half_angle, kernel);
+        regions.lines.add(
+            Patch::new(region.position, axis, region.range, half_angle),
+            &mut regions.stretches,
+        );
+        cells + self.place_stretches(&model, regions, kernel)
+    }
+
+    /// Fuses a region's occupied evidence on a straight patch square to `axis` at its range,
+    /// `half_angle` wide each side.
+    fn fuse_patch(
+        &mut self,
+        model: &SmoothModel,
+        region: &Region,
+        axis: f32,
+        half_angle: f32,
+        kernel: Kernel,
+    ) -> usize {
         let beam = Beam {
             position: region.position,
             axis,
@@ -332,14 +367,15 @@ impl Mapper {
             echo: Some(region.range),
         };
         let evidence = model.region_echo(axis, region.range, half_angle);
-        let mut cells = self.apply(&beam, &evidence, kernel);
-        regions.lines.add(
-            Patch::new(region.position, axis, region.range, half_angle),
-            &mut regions.stretches,
-        );
+        self.apply(&beam, &evidence, kernel)
+    }
+
+    /// Fuses the stretches of wall [`Lines`] last wrote, those readings did not see through.
+    fn place_stretches(&mut self, model: &SmoothModel, regions: &Regions, kernel: Kernel) -> usize {
+        let mut cells = 0;
         for stretch in &regions.stretches {
             if !self.seen_through(stretch) {
-                cells += self.place_stretch(&model, stretch, kernel);
+                cells += self.place_stretch(model, stretch, kernel);
             }
         }
         cells
@@ -371,6 +407,27 @@ impl Mapper {
     /// Fuses a stretch of wall as the patch a sensor square to its middle would have heard, far
     /// enough back that the whole stretch lies within the widest patch's angle.
     fn place_stretch(&mut self, model: &SmoothModel, stretch: &Stretch, kernel: Kernel) -> usize {
+        // In pieces short enough that each lies within the widest patch's angle from no farther
+        // than 3 m: a longer one would be cut at that angle.
+        let pieces = ((stretch.b - stretch.a).norm() / STRETCH_PIECE_M)
+            .ceil()
+            .max(1.0) as usize;
+        (0..pieces)
+            .map(|k| {
+                let at =
+                    |i: usize| stretch.a + (stretch.b - stretch.a) * (i as f32 / pieces as f32);
+                let piece = Stretch {
+                    a: at(k),
+                    b: at(k + 1),
+                    facing: stretch.facing,
+                };
+                self.place_piece(model, &piece, kernel)
+            })
+            .sum()
+    }
+
+    /// Fuses a piece of a stretch ([`Self::place_stretch`]).
+    fn place_piece(&mut self, model: &SmoothModel, stretch: &Stretch, kernel: Kernel) -> usize {
         let half_length = 0.5 * (stretch.b - stretch.a).norm();
         let widest = model.region_half_angle_deg.to_radians();
         let distance = (half_length / widest.tan()).clamp(0.5, 3.0);

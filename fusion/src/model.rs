@@ -529,6 +529,11 @@ pub struct SmoothModel {
     /// lobe, is placed as a point at its middle bearing if two walls heard so far meet there (a
     /// corner masked by the nearer feet of its own walls); its readings clear nothing.
     pub region_corners: bool,
+    /// With `echo_placement = "region"`: two walls heard whose lines meet at a concave corner
+    /// that some region heard (an echo at its range and bearing) are drawn from their patches to
+    /// the corner (at most 3 m each), unless readings saw through the stretch
+    /// ([`crate::lines::Lines::join_corners`]).
+    pub region_corner_walls: bool,
 }
 
 /// Where a reading's echo puts its occupied evidence ([`SmoothModel::echo_placement`]).
@@ -564,6 +569,7 @@ impl Default for SmoothModel {
             region_half_angle_deg: 18.0,
             region_one_end: false,
             region_corners: false,
+            region_corner_walls: false,
         }
     }
 }
