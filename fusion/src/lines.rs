@@ -85,6 +85,12 @@ impl Patch {
                 .any(|end| (end - point).norm() <= CORNER_REACH_M)
     }
 
+    /// Whether `point` lies on this patch's line, within `tolerance`.
+    fn passes_through(&self, point: Vector2<f32>, tolerance: f32) -> bool {
+        let (normal, _) = frame(self.facing);
+        (normal.dot(&point) - self.offset).abs() <= tolerance
+    }
+
     /// The stretch of this patch's wall from its nearer end to `corner`, a point of its line
     /// beyond the patch, at most [`CORNER_WALL_M`] from that end.
     fn towards(&self, corner: Vector2<f32>) -> Option<Stretch> {
@@ -154,11 +160,19 @@ pub(crate) struct Echo {
     pub range: f32,
     /// How far its range may be from a corner's and still be the corner's echo, metres.
     pub tolerance: f32,
+    /// Whether the reflector stopped being heard on both sides (its middle bearing is the
+    /// reflector's).
+    pub whole: bool,
 }
 
 impl Echo {
     /// Whether this region could be the echo of a reflector at `point`: its range, within its
     /// bearings. A concave corner answers from any bearing within the lobe.
+    /// Where its reflector lies if it is whole: at its middle bearing and range.
+    fn reflector(&self) -> Vector2<f32> {
+        self.sensor + Vector2::new(self.axis.cos(), self.axis.sin()) * self.range
+    }
+
     fn heard(&self, point: Vector2<f32>) -> bool {
         let to = point - self.sensor;
         (to.norm() - self.range).abs() <= self.tolerance
@@ -172,8 +186,9 @@ pub(crate) struct Lines {
     patches: Vec<Patch>,
     /// The regions heard, to confirm corners.
     echoes: Vec<Echo>,
-    /// How many of the last patches were added since [`Self::join_corners`] last ran.
+    /// How many of the last patches and echoes were added since [`Self::join_ends`] last ran.
     recent: usize,
+    recent_echoes: usize,
 }
 
 impl Lines {
@@ -221,21 +236,25 @@ impl Lines {
         self.recent = (self.recent + 1).min(self.patches.len());
     }
 
-    /// Remembers a region heard, which may confirm a corner ([`Self::join_corners`]).
+    /// Remembers a region heard, which may confirm a corner ([`Self::join_ends`]).
     pub fn hear(&mut self, echo: Echo) {
         if self.echoes.len() == KEPT_ECHOES {
             self.echoes.remove(0);
         }
         self.echoes.push(echo);
+        self.recent_echoes = (self.recent_echoes + 1).min(self.echoes.len());
     }
 
-    /// Writes into `out` the stretches from the patches added since the last call, and from the
-    /// patches whose walls they meet, to the corners where they meet: two walls whose lines
-    /// cross at least 30° apart, within [`CORNER_WALL_M`] beyond each patch's end, with each
-    /// wall's sensor in front of the other wall (a concave corner, as a room's, seen from
-    /// inside), where some region heard an echo at the corner's range and bearing (a concave
-    /// corner answers from any bearing in the lobe; two walls that end before meeting do not).
-    pub fn join_corners(&mut self, out: &mut Vec<Stretch>) {
+    /// Writes into `out` the stretches of wall from patches to where their walls end, at most
+    /// [`CORNER_WALL_M`] beyond each patch, for the patches and echoes added since the last call:
+    ///
+    /// - to the corner where two walls meet: their lines cross at least 30° apart, each wall's
+    ///   sensor lies in front of the other wall (a concave corner, as a room's, seen from
+    ///   inside), and some region heard an echo at the corner's range and bearing (a concave
+    ///   corner answers from any bearing in the lobe; two walls that end before meeting do not);
+    /// - to a whole region's reflector that lies on a wall's line: the wall's end (a door's jamb,
+    ///   a partition's edge, a corner heard whole).
+    pub fn join_ends(&mut self, out: &mut Vec<Stretch>) {
         out.clear();
         let recent = self.patches.len() - self.recent;
         self.recent = 0;
@@ -250,6 +269,23 @@ impl Lines {
                 out.extend(a.towards(corner));
                 out.extend(b.towards(corner));
             }
+        }
+        // A whole region's reflector on a wall's line beyond its patch: where the wall ends (a
+        // door's jamb, a partition's edge, a corner heard whole), on patches new or old.
+        let new_echoes = self.echoes.len() - self.recent_echoes;
+        self.recent_echoes = 0;
+        for (i, a) in self.patches.iter().enumerate() {
+            let echoes = if i >= recent {
+                &self.echoes[..]
+            } else {
+                &self.echoes[new_echoes..]
+            };
+            out.extend(
+                echoes
+                    .iter()
+                    .filter(|e| e.whole && a.passes_through(e.reflector(), e.tolerance))
+                    .filter_map(|e| a.towards(e.reflector())),
+            );
         }
     }
 
@@ -273,6 +309,7 @@ impl Lines {
         self.patches.clear();
         self.echoes.clear();
         self.recent = 0;
+        self.recent_echoes = 0;
     }
 }
 
@@ -367,13 +404,14 @@ mod tests {
             half_width: 6.0 * DEG,
             range,
             tolerance: 0.05,
+            whole: false,
         };
         let joined = |echoes: &[Echo], walls: &[Patch]| {
             let mut lines = Lines::default();
             let mut out = Vec::new();
             echoes.iter().for_each(|&e| lines.hear(e));
             walls.iter().for_each(|&w| lines.add(w, &mut out));
-            lines.join_corners(&mut out);
+            lines.join_ends(&mut out);
             out
         };
         let out = joined(&[echo(2.5)], &walls);
@@ -404,6 +442,7 @@ mod tests {
             half_width: 6.0 * DEG,
             range: 2f32.sqrt() * 1.0,
             tolerance: 0.05,
+            whole: false,
         };
         assert!(joined(&[heard_outside], &outside).is_empty());
         // Only once per patch added: a second call without new patches draws nothing.
@@ -411,8 +450,45 @@ mod tests {
         let mut out = Vec::new();
         lines.hear(echo(2.5));
         walls.iter().for_each(|&w| lines.add(w, &mut out));
-        lines.join_corners(&mut out);
-        lines.join_corners(&mut out);
+        lines.join_ends(&mut out);
+        lines.join_ends(&mut out);
         assert!(out.is_empty());
+    }
+    #[test]
+    fn a_wall_is_drawn_to_the_edge_a_whole_region_heard_on_its_line() {
+        // A wall along x = 2 m heard square from the origin (patch ±10°, to y = ±0.35 m); its
+        // end at (2, 1.2), a jamb, heard as a whole region from (1, 1.5); a post off the line
+        // heard whole too.
+        let wall = Patch::new(Vector2::zeros(), 0.0, 2.0, 10.0 * DEG);
+        let whole = |sensor: Vector2<f32>, point: Vector2<f32>| {
+            let to: Vector2<f32> = point - sensor;
+            Echo {
+                sensor,
+                axis: to.y.atan2(to.x),
+                half_width: 20.0 * DEG,
+                range: to.norm(),
+                tolerance: 0.05,
+                whole: true,
+            }
+        };
+        let jamb = Vector2::new(2.0, 1.2);
+        let mut lines = Lines::default();
+        let mut out = Vec::new();
+        lines.add(wall, &mut out);
+        lines.hear(whole(Vector2::new(1.0, 1.5), jamb));
+        lines.hear(whole(Vector2::new(1.0, 1.5), Vector2::new(1.7, 0.8)));
+        lines.join_ends(&mut out);
+        assert_eq!(out.len(), 1, "{out:?}");
+        assert!((out[0].b - jamb).norm() < 1e-4, "{out:?}");
+        assert!((out[0].a - wall.ends[1]).norm() < 1e-4, "{out:?}");
+        // The same echo cut short by a nearer one says nothing of where the wall ends.
+        let mut lines = Lines::default();
+        lines.add(wall, &mut out);
+        lines.hear(Echo {
+            whole: false,
+            ..whole(Vector2::new(1.0, 1.5), jamb)
+        });
+        lines.join_ends(&mut out);
+        assert!(out.is_empty(), "{out:?}");
     }
 }

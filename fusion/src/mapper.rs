@@ -236,6 +236,7 @@ impl Mapper {
                 half_width: region.half_width,
                 range: region.range,
                 tolerance: regions.tolerance.at(region.range) + model.band(region.range),
+                whole: region.is_whole(),
             });
         }
         let mut cells = 0;
@@ -297,7 +298,7 @@ impl Mapper {
         if let ModelConfig::Smooth(model) = self.config.model
             && model.region_corner_walls
         {
-            regions.lines.join_corners(&mut regions.stretches);
+            regions.lines.join_ends(&mut regions.stretches);
             cells += self.place_stretches(&model, &regions, Kernel::Cone);
         }
         self.regions = Some(regions);

@@ -529,10 +529,11 @@ pub struct SmoothModel {
     /// lobe, is placed as a point at its middle bearing if two walls heard so far meet there (a
     /// corner masked by the nearer feet of its own walls); its readings clear nothing.
     pub region_corners: bool,
-    /// With `echo_placement = "region"`: two walls heard whose lines meet at a concave corner
-    /// that some region heard (an echo at its range and bearing) are drawn from their patches to
-    /// the corner (at most 3 m each), unless readings saw through the stretch
-    /// ([`crate::lines::Lines::join_corners`]).
+    /// With `echo_placement = "region"`: walls are drawn from their patches to where they end
+    /// (at most 3 m): to the concave corner where two walls' lines meet, if some region heard an
+    /// echo at its range and bearing, and to a whole region's reflector on the wall's line (a
+    /// jamb, an edge); unless readings saw through the stretch
+    /// ([`crate::lines::Lines::join_ends`]).
     pub region_corner_walls: bool,
 }
 
