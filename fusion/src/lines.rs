@@ -263,11 +263,15 @@ impl Lines {
                 let Some(corner) = concave_corner(a, b) else {
                     continue;
                 };
-                if !self.echoes.iter().any(|e| e.heard(corner)) {
+                // Within reach of either patch before the echoes are searched: in a large map
+                // most pairs of walls meet far from both.
+                let stretches = [a.towards(corner), b.towards(corner)];
+                if stretches.iter().all(Option::is_none)
+                    || !self.echoes.iter().any(|e| e.heard(corner))
+                {
                     continue;
                 }
-                out.extend(a.towards(corner));
-                out.extend(b.towards(corner));
+                out.extend(stretches.into_iter().flatten());
             }
         }
         // A whole region's reflector on a wall's line beyond its patch: where the wall ends (a
