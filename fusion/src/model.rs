@@ -536,10 +536,10 @@ pub struct SmoothModel {
     /// ([`crate::lines::Lines::join_ends`]).
     pub region_corner_walls: bool,
     /// With `echo_placement = "region"`: the readings of a region that is not whole put this
-    /// much occupied log-odds on their own axis at their range (0: nothing), no free evidence and
-    /// no bearing (so any later free evidence clears it), unless the grid holds an occupied cell
-    /// on the axis in front of the echo: a standing scan then shows what it heard where no
-    /// region can be placed.
+    /// much occupied log-odds on their own axis at their range (0: nothing), with no free
+    /// evidence, unless the grid holds an occupied cell on the axis in front of the echo: a
+    /// standing scan then shows what it heard where no region can be placed. Like any echo, its
+    /// cells remember the bearing they were heard from.
     pub region_weak_echo_log_odds: f32,
 }
 
@@ -733,8 +733,8 @@ impl SmoothModel {
         }
     }
 
-    /// A weak echo on `beam`'s own axis: occupied evidence `log_odds` on the axis at its range, no
-    /// free evidence, and no bearing remembered (so any later free evidence clears it).
+    /// A weak echo on `beam`'s own axis: occupied evidence `log_odds` on the axis at its range and
+    /// no free evidence; its cells remember the bearing they were heard from, as any echo's.
     pub(crate) fn weak_echo(&self, beam: &Beam, log_odds: f32) -> WeakEcho {
         WeakEcho(SmoothReading {
             l_occ: log_odds,
@@ -818,6 +818,13 @@ impl CellEvidence for RegionEcho {
 pub(crate) struct WeakEcho(SmoothReading);
 
 impl CellEvidence for WeakEcho {
+    const HEARD: bool = true;
+
+    #[inline(always)]
+    fn heard_log_odds(&self, r: f32, alpha: f32, bearing: f32, heard: &mut f32) -> f32 {
+        self.0.heard_log_odds(r, alpha, bearing, heard)
+    }
+
     fn reach(&self) -> f32 {
         self.0.reach()
     }
