@@ -372,6 +372,34 @@ mod tests {
         );
     }
 
+    /// The region maps of `examples/` parse and validate, and differ only in the weak echoes.
+    #[test]
+    fn the_example_region_maps_parse() {
+        #[derive(Deserialize)]
+        struct File {
+            fusion: FusionConfig,
+        }
+        let parse = |text: &str| {
+            let config = toml::from_str::<File>(text).unwrap().fusion;
+            config.validate().unwrap();
+            match config.model {
+                ModelConfig::Smooth(m) => m,
+                other => panic!("{other:?}"),
+            }
+        };
+        let precise = parse(include_str!("../../examples/region-map.toml"));
+        let weak = parse(include_str!("../../examples/region-map-weak-echoes.toml"));
+        assert!(precise.region_corner_walls && precise.region_one_end && precise.region_corners);
+        assert_eq!(precise.region_weak_echo_log_odds, 0.0);
+        assert_eq!(
+            weak,
+            crate::model::SmoothModel {
+                region_weak_echo_log_odds: 0.3,
+                ..precise
+            }
+        );
+    }
+
     #[test]
     fn toml_round_trip_and_partial_files() {
         let cfg = FusionConfig {

@@ -9,7 +9,7 @@ use crate::geometry::GridGeometry;
 use crate::geometry::wrap_angle;
 use crate::grid::{OccupancyGrid, with_layer};
 use crate::kernel::ConeCache;
-use crate::lines::{Lines, Patch, Stretch};
+use crate::lines::{Echo, Lines, Patch, Stretch};
 use crate::model::{CellEvidence, ModelConfig, SmoothModel, with_model};
 use crate::observation::{Beam, Observation, ObservationError};
 use crate::radar::RadarMap;
@@ -19,6 +19,8 @@ use crate::state::{MapperState, StateError};
 
 /// One-ended and cut regions kept for the sweep's end at most: more than a 360° sweep at 1.5° holds.
 const DEFERRED_REGIONS: usize = 256;
+/// Stretches of wall are drawn in pieces at most this long, metres.
+const STRETCH_PIECE_M: f32 = 1.0;
 
 /// Which kernel fuses a reading into the grid. Both give the same grid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -227,6 +229,16 @@ impl Mapper {
             return 0;
         };
         regions.lobe.learn(region);
+        if model.region_corner_walls {
+            regions.lines.hear(Echo {
+                sensor: region.position,
+                axis: region.axis,
+                half_width: region.half_width,
+                range: region.range,
+                tolerance: regions.tolerance.at(region.range) + model.band(region.range),
+                whole: region.is_whole(),
+            });
+        }
         let mut cells = 0;
         if region.is_whole() {
             let half_angle = model.region_patch_half_angle(region.half_width);
@@ -234,10 +246,23 @@ impl Mapper {
             for beam in &regions.waiting {
                 cells += self.fuse_beam(beam, kernel);
             }
-        } else if model.region_one_end && region.is_one_ended() {
-            regions.one_ended.push(*region);
-        } else if model.region_corners && !region.ends.contains(&End::Natural) {
-            regions.cut.push(*region);
+        } else {
+            // The readings of a region not whole may have heard something off their axes: a weak
+            // echo on their own axis, unless the grid already holds an occupied cell in front of
+            // it on that axis (what the axis met would have answered nearer).
+            if model.region_weak_echo_log_odds > 0.0 {
+                for beam in &regions.waiting {
+                    if !self.occupied_in_front(&model, beam) {
+                        let echo = model.weak_echo(beam, model.region_weak_echo_log_odds);
+                        cells += self.apply(beam, &echo, kernel);
+                    }
+                }
+            }
+            if model.region_one_end && region.is_one_ended() {
+                regions.one_ended.push(*region);
+            } else if model.region_corners && !region.ends.contains(&End::Natural) {
+                regions.cut.push(*region);
+            }
         }
         regions.waiting.clear();
         // A head whose sweeps are never told apart still places them, a sweep's worth at a time.
@@ -283,6 +308,12 @@ impl Mapper {
         };
         cells += self.place_one_ended(&mut regions, Kernel::Cone);
         cells += self.place_corners(&mut regions, Kernel::Cone);
+        if let ModelConfig::Smooth(model) = self.config.model
+            && model.region_corner_walls
+        {
+            regions.lines.join_ends(&mut regions.stretches);
+            cells += self.place_stretches(&model, &regions, Kernel::Cone);
+        }
         self.regions = Some(regions);
         cells
     }
@@ -304,7 +335,7 @@ impl Mapper {
             if region.is_cut_and_narrow(lobe) && regions.lines.corner_at(point, tolerance) {
                 // A point: a cell wide.
                 let half_angle = (self.grid.geometry().resolution() / region.range).atan();
-                cells += self.place_region(regions, &region, region.axis, half_angle, kernel);
+                cells += self.fuse_patch(&model, &region, region.axis, half_angle, kernel);
             }
         }
         cells
@@ -324,6 +355,24 @@ impl Mapper {
         let ModelConfig::Smooth(model) = self.config.model else {
             return 0;
         };
+        let cells = self.fuse_patch(&model, region, axis, half_angle, kernel);
+        regions.lines.add(
+            Patch::new(region.position, axis, region.range, half_angle),
+            &mut regions.stretches,
+        );
+        cells + self.place_stretches(&model, regions, kernel)
+    }
+
+    /// Fuses a region's occupied evidence on a straight patch square to `axis` at its range,
+    /// `half_angle` wide each side.
+    fn fuse_patch(
+        &mut self,
+        model: &SmoothModel,
+        region: &Region,
+        axis: f32,
+        half_angle: f32,
+        kernel: Kernel,
+    ) -> usize {
         let beam = Beam {
             position: region.position,
             axis,
@@ -332,17 +381,37 @@ impl Mapper {
             echo: Some(region.range),
         };
         let evidence = model.region_echo(axis, region.range, half_angle);
-        let mut cells = self.apply(&beam, &evidence, kernel);
-        regions.lines.add(
-            Patch::new(region.position, axis, region.range, half_angle),
-            &mut regions.stretches,
-        );
+        self.apply(&beam, &evidence, kernel)
+    }
+
+    /// Fuses the stretches of wall [`Lines`] last wrote, those readings did not see through.
+    fn place_stretches(&mut self, model: &SmoothModel, regions: &Regions, kernel: Kernel) -> usize {
+        let mut cells = 0;
         for stretch in &regions.stretches {
             if !self.seen_through(stretch) {
-                cells += self.place_stretch(&model, stretch, kernel);
+                cells += self.place_stretch(model, stretch, kernel);
             }
         }
         cells
+    }
+
+    /// Whether the grid holds an occupied cell on `beam`'s axis in front of its echo's band.
+    fn occupied_in_front(&self, model: &SmoothModel, beam: &Beam) -> bool {
+        let Some(range) = beam.echo else {
+            return false;
+        };
+        let grid = &self.grid;
+        let step = grid.geometry().resolution();
+        let direction = Vector2::new(beam.axis.cos(), beam.axis.sin());
+        let until = range - 2.0 * model.band(range);
+        let steps = (until / step).floor().max(0.0) as usize;
+        (1..=steps).any(|k| {
+            let p = beam.position + direction * (k as f32 * step);
+            grid.geometry()
+                .cell_at(p.into())
+                .and_then(|(x, y)| grid.probability(x, y))
+                .is_some_and(|p| p > 0.5)
+        })
     }
 
     /// Whether readings saw through `stretch`: three cells in a row along it that the grid holds
@@ -371,6 +440,27 @@ impl Mapper {
     /// Fuses a stretch of wall as the patch a sensor square to its middle would have heard, far
     /// enough back that the whole stretch lies within the widest patch's angle.
     fn place_stretch(&mut self, model: &SmoothModel, stretch: &Stretch, kernel: Kernel) -> usize {
+        // In pieces short enough that each lies within the widest patch's angle from no farther
+        // than 3 m: a longer one would be cut at that angle.
+        let pieces = ((stretch.b - stretch.a).norm() / STRETCH_PIECE_M)
+            .ceil()
+            .max(1.0) as usize;
+        (0..pieces)
+            .map(|k| {
+                let at =
+                    |i: usize| stretch.a + (stretch.b - stretch.a) * (i as f32 / pieces as f32);
+                let piece = Stretch {
+                    a: at(k),
+                    b: at(k + 1),
+                    facing: stretch.facing,
+                };
+                self.place_piece(model, &piece, kernel)
+            })
+            .sum()
+    }
+
+    /// Fuses a piece of a stretch ([`Self::place_stretch`]).
+    fn place_piece(&mut self, model: &SmoothModel, stretch: &Stretch, kernel: Kernel) -> usize {
         let half_length = 0.5 * (stretch.b - stretch.a).norm();
         let widest = model.region_half_angle_deg.to_radians();
         let distance = (half_length / widest.tan()).clamp(0.5, 3.0);
@@ -868,21 +958,29 @@ mod tests {
         assert!(patch.iter().any(|c| c.1 > 0.4) && patch.iter().any(|c| c.1 < -0.4));
     }
 
-    /// The occupied cells of a local scan from the origin of a corner at (1.2, 0) between two
-    /// walls 0.85 m away square to ±45°: each wall heard from the scan's limit (±57°) to ±21°, the
-    /// corner between (a region cut short by both walls' nearer echoes), one sweep each way.
-    fn corner_local_scan(region_one_end: bool, region_corners: bool) -> Vec<(f32, f32)> {
+    /// The occupied cells of a local scan from the origin of a corner on the x axis between two
+    /// walls 0.85 m away square to ±`facing_deg` (at (1.2, 0) for 45°): each wall heard from the
+    /// scan's limit (±57°) to ±21°, the corner between (a region cut short by both walls' nearer
+    /// echoes), one sweep each way.
+    fn corner_local_scan(
+        region_one_end: bool,
+        region_corners: bool,
+        region_corner_walls: bool,
+        facing_deg: f32,
+    ) -> Vec<(f32, f32)> {
         let mut m = Mapper::new(FusionConfig {
             model: ModelConfig::Smooth(crate::model::SmoothModel {
                 echo_placement: crate::model::EchoPlacement::Region,
                 region_one_end,
                 region_corners,
+                region_corner_walls,
                 ..Default::default()
             }),
             ..FusionConfig::default()
         })
         .unwrap();
-        let range = |a: f32| Some(if a.abs() >= 21.0 { 0.85 } else { 1.2 });
+        let corner = 0.85 / facing_deg.to_radians().cos();
+        let range = |a: f32| Some(if a.abs() >= 21.0 { 0.85 } else { corner });
         for k in (-10..=10).chain((-10..=10).rev()) {
             let a = 3.0 + 6.0 * k as f32;
             if a.abs() < 60.0 {
@@ -906,8 +1004,8 @@ mod tests {
     fn a_local_scan_of_a_corner_draws_its_walls_and_the_corner_where_they_meet() {
         // Only whole regions are placed: nothing (both walls run to the scan's limits, the corner
         // is masked on both sides).
-        assert!(corner_local_scan(false, false).is_empty());
-        let cells = corner_local_scan(true, false);
+        assert!(corner_local_scan(false, false, false, 45.0).is_empty());
+        let cells = corner_local_scan(true, false, false, 45.0);
         // Every cell on one of the two walls (band ± 2.5 cm and a cell), and both walls drawn.
         let wall = |c: &(f32, f32), side: f32| {
             let normal = (-45f32 * side).to_radians();
@@ -933,9 +1031,100 @@ mod tests {
                 .count()
         };
         assert_eq!(near_corner(&cells), 0);
-        let with_corner = corner_local_scan(true, true);
+        let with_corner = corner_local_scan(true, true, false, 45.0);
         assert!(near_corner(&with_corner) > 0, "{with_corner:?}");
         assert!(with_corner.len() <= cells.len() + 6, "a point, not a patch");
+        // The walls drawn from their patches to the corner the region between them heard. Square
+        // to ±48°, where the walls' ends at ±21° put them before the lobe is learnt (the beam's
+        // 30° less half a step): the stretch between each patch's end and the corner is drawn,
+        // on the walls, and nothing beyond the corner.
+        let (before, joined) = (
+            corner_local_scan(true, false, false, 48.0),
+            corner_local_scan(true, false, true, 48.0),
+        );
+        let wall = |c: &(f32, f32), side: f32| {
+            let normal = (-48f32 * side).to_radians();
+            (c.0 * normal.cos() + c.1 * normal.sin() - 0.85).abs()
+        };
+        let corner_x = 0.85 / 48f32.to_radians().cos();
+        assert!(
+            joined
+                .iter()
+                .all(|c| wall(c, 1.0).min(wall(c, -1.0)) <= 0.05 && c.0 <= corner_x + 0.05),
+            "{joined:?}"
+        );
+        let before_corner = |cells: &[(f32, f32)], side: f32| {
+            cells
+                .iter()
+                .filter(|c| wall(c, side) <= 0.05 && (c.0 - corner_x + 0.15).abs() <= 0.05)
+                .count()
+        };
+        for side in [1.0, -1.0] {
+            assert_eq!(before_corner(&before, side), 0, "{side}: {before:?}");
+            assert!(before_corner(&joined, side) > 2, "{side}: {joined:?}");
+        }
+        assert!(
+            joined.iter().any(|c| (c.0 - corner_x).hypot(c.1) <= 0.05),
+            "{joined:?}"
+        );
+    }
+
+    #[test]
+    fn weak_echoes_show_what_a_standing_scan_heard_where_no_region_is_placed() {
+        let with = |weak: f32| {
+            Mapper::new(FusionConfig {
+                model: ModelConfig::Smooth(crate::model::SmoothModel {
+                    echo_placement: crate::model::EchoPlacement::Region,
+                    region_weak_echo_log_odds: weak,
+                    ..Default::default()
+                }),
+                ..FusionConfig::default()
+            })
+            .unwrap()
+        };
+        let at = |m: &Mapper, x: f32| {
+            let g = *m.grid().geometry();
+            let (cx, cy) = g.cell_at(nalgebra::Point2::new(x, 0.01)).unwrap();
+            m.grid().probability(cx, cy)
+        };
+        // A wall heard at 1 m from the scan's one limit to the other: no natural end, no region
+        // placed.
+        let wall = |m: &mut Mapper| {
+            for k in -5..=5 {
+                m.update(&reading(6.0 * k as f32, Some(1.0))).unwrap();
+            }
+            m.close_region();
+        };
+        let mut off = with(0.0);
+        wall(&mut off);
+        assert_eq!(at(&off, 1.0), None);
+        let mut on = with(0.3);
+        wall(&mut on);
+        assert!(at(&on, 1.0).is_some_and(|p| p > 0.5), "{:?}", at(&on, 1.0));
+        // Nothing in front of the echo: no free evidence.
+        assert_eq!(at(&on, 0.5), None);
+        // Behind a board heard whole at 0.5 m, what the axis met would have answered nearer: the
+        // echo from beyond it is not drawn.
+        let mut behind = with(0.3);
+        for (a, r) in [(-18.0, None), (-12.0, Some(0.5)), (-6.0, Some(0.5))]
+            .into_iter()
+            .chain([
+                (0.0, Some(0.5)),
+                (6.0, Some(0.5)),
+                (12.0, Some(0.5)),
+                (18.0, None),
+            ])
+        {
+            behind.update(&reading(a, r)).unwrap();
+        }
+        behind.close_region();
+        assert!(at(&behind, 0.5).is_some_and(|p| p > 0.5));
+        wall(&mut behind);
+        assert!(
+            at(&behind, 1.0).is_none_or(|p| p <= 0.5),
+            "{:?}",
+            at(&behind, 1.0)
+        );
     }
 
     #[test]

@@ -529,6 +529,18 @@ pub struct SmoothModel {
     /// lobe, is placed as a point at its middle bearing if two walls heard so far meet there (a
     /// corner masked by the nearer feet of its own walls); its readings clear nothing.
     pub region_corners: bool,
+    /// With `echo_placement = "region"`: walls are drawn from their patches to where they end
+    /// (at most 3 m): to the concave corner where two walls' lines meet, if some region heard an
+    /// echo at its range and bearing, and to a whole region's reflector on the wall's line (a
+    /// jamb, an edge); unless readings saw through the stretch
+    /// ([`crate::lines::Lines::join_ends`]).
+    pub region_corner_walls: bool,
+    /// With `echo_placement = "region"`: the readings of a region that is not whole put this
+    /// much occupied log-odds on their own axis at their range (0: nothing), with no free
+    /// evidence, unless the grid holds an occupied cell on the axis in front of the echo: a
+    /// standing scan then shows what it heard where no region can be placed. Like any echo, its
+    /// cells remember the bearing they were heard from.
+    pub region_weak_echo_log_odds: f32,
 }
 
 /// Where a reading's echo puts its occupied evidence ([`SmoothModel::echo_placement`]).
@@ -564,6 +576,8 @@ impl Default for SmoothModel {
             region_half_angle_deg: 18.0,
             region_one_end: false,
             region_corners: false,
+            region_corner_walls: false,
+            region_weak_echo_log_odds: 0.0,
         }
     }
 }
@@ -630,6 +644,12 @@ impl SmoothModel {
         ] {
             check(name, v, (0.0..1.0).contains(&v), "in [0, 1)")?;
         }
+        check(
+            "model.region_weak_echo_log_odds",
+            self.region_weak_echo_log_odds,
+            (0.0..=self.occupied_log_odds).contains(&self.region_weak_echo_log_odds),
+            "in [0, model.occupied_log_odds]",
+        )?;
         check(
             "model.region_half_angle_deg",
             self.region_half_angle_deg,
@@ -713,6 +733,16 @@ impl SmoothModel {
         }
     }
 
+    /// A weak echo on `beam`'s own axis: occupied evidence `log_odds` on the axis at its range and
+    /// no free evidence; its cells remember the bearing they were heard from, as any echo's.
+    pub(crate) fn weak_echo(&self, beam: &Beam, log_odds: f32) -> WeakEcho {
+        WeakEcho(SmoothReading {
+            l_occ: log_odds,
+            l_free: 0.0,
+            ..self.reading(beam)
+        })
+    }
+
     /// The occupied evidence of a closed region of constant depth seen along world bearing `axis`
     /// (its middle bearing) at `range` (its mean range): a straight patch square to the axis at
     /// the range, `band` thick, fading as 1 − (α/θ)² to the patch's half-angle θ = `half_angle`;
@@ -780,6 +810,32 @@ impl CellEvidence for RegionEcho {
         let l = self.log_odds(r, alpha);
         *heard = if l > 0.0 { self.normal } else { *heard };
         l
+    }
+}
+
+/// A reading's echo alone, weak ([`SmoothModel::weak_echo`]).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct WeakEcho(SmoothReading);
+
+impl CellEvidence for WeakEcho {
+    const HEARD: bool = true;
+
+    #[inline(always)]
+    fn heard_log_odds(&self, r: f32, alpha: f32, bearing: f32, heard: &mut f32) -> f32 {
+        self.0.heard_log_odds(r, alpha, bearing, heard)
+    }
+
+    fn reach(&self) -> f32 {
+        self.0.reach()
+    }
+
+    fn half_angle(&self) -> f32 {
+        self.0.half_angle()
+    }
+
+    #[inline(always)]
+    fn log_odds(&self, r: f32, alpha: f32) -> f32 {
+        self.0.log_odds(r, alpha)
     }
 }
 
