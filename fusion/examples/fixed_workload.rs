@@ -11,6 +11,13 @@
 //! its own grid snapshot**; at replay pace (readings as fast as a replay sends them, 50 a second
 //! and more) the snapshot rate caps them, a snapshot every 5 readings at 50 readings a second.
 //!
+//! The samples: `sonar-fusion` writes each snapshot into a sample the IPC hands back for reuse,
+//! still holding the snapshot it was last sent with, and copies only the cells changed since
+//! ([`Engine::copy_grid_changes_into`]). Here the snapshots go into `--sample-slots` buffers in
+//! turn (2 by default: the fewest a publisher alternates between while its service's history
+//! keeps the last sample sent); `--whole-copies` copies every cell into each, as a sample never
+//! written before gets (and as every snapshot did before issue 29).
+//!
 //! The recording: the head at the origin, sweeps of 50 readings from −147° to 147° in 6° steps,
 //! forth and back, of a 6 × 4 m room whose walls are off-centre (so ranges differ by bearing);
 //! bearings beyond the 4 m range give no echo; ranges carry a deterministic ±1 cm wobble so no two
@@ -24,7 +31,9 @@ use anyhow::{Context, Result};
 use clap::{Parser, ValueEnum};
 use sonar_common::ipc::{LAYOUT_VERSION, MAX_PINGS, Reading, ScanMode, flags};
 use sonar_features::FeatureConfig;
-use sonar_fusion::{CellCounts, FeatureTracker, FusionConfig, GridConfig, engine::Engine};
+use sonar_fusion::{
+    CellCounts, EncodedVersion, FeatureTracker, FusionConfig, GridConfig, engine::Engine,
+};
 
 /// How often the grid is snapshot.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -66,6 +75,13 @@ struct Args {
     /// Without the feature map (no features followed, no features snapshots).
     #[arg(long)]
     no_features: bool,
+    /// Sample buffers the grid snapshots go into in turn, each brought up to date with the cells
+    /// changed since its last snapshot.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=1024))]
+    sample_slots: u32,
+    /// Copy every cell into each snapshot's sample, not only those changed since its last one.
+    #[arg(long)]
+    whole_copies: bool,
 }
 
 const READINGS_PER_SWEEP: u32 = 50;
@@ -149,10 +165,20 @@ fn fuse(engine: &mut Engine, reading: &Reading) -> bool {
     engine.fuse(reading)
 }
 
-/// What a snapshot costs the process besides the loan: the cells into the sample, and the counts.
+/// A sample buffer and the version of the grid's cells it holds (`None`: never written).
+struct Sample {
+    cells: Vec<u8>,
+    held: Option<EncodedVersion>,
+}
+
+/// What a snapshot costs the process besides the loan: the cells into the sample (those changed
+/// since it was last written, or all with `whole`), and the counts.
 #[inline(never)]
-fn snapshot(engine: &mut Engine, sample: &mut [u8]) -> CellCounts {
-    engine.encode_grid(sample)
+fn snapshot(engine: &mut Engine, sample: &mut Sample, whole: bool) -> CellCounts {
+    let held = if whole { None } else { sample.held };
+    let (counts, version) = engine.copy_grid_changes_into(&mut sample.cells, held);
+    sample.held = Some(version);
+    counts
 }
 
 /// What the feature map costs per reading: the reading added to its sweep, and a finished sweep
@@ -191,7 +217,12 @@ fn main() -> Result<()> {
         .snapshot_every
         .unwrap_or_else(|| args.pace.readings_per_snapshot())
         .max(1);
-    let mut sample = vec![0u8; engine.grid_len()];
+    let mut samples: Vec<Sample> = (0..args.sample_slots)
+        .map(|_| Sample {
+            cells: vec![0u8; engine.grid_len()],
+            held: None,
+        })
+        .collect();
     let mut counts = CellCounts::default();
     let (mut fused, mut snapshots, mut feature_snapshots, mut features) = (0u32, 0u32, 0u64, 0);
     for seq in 0..args.readings {
@@ -204,11 +235,13 @@ fn main() -> Result<()> {
             features = features_snapshot(tracker, &mut engine, feature_snapshots);
         }
         if (seq + 1).is_multiple_of(every) {
-            counts = snapshot(&mut engine, &mut sample);
+            let slot = snapshots as usize % samples.len();
+            let sample = &mut samples[slot];
+            counts = snapshot(&mut engine, sample, args.whole_copies);
             snapshots += 1;
         }
     }
-    black_box(&sample);
+    black_box(&samples);
     println!(
         "fused {fused} readings, {snapshots} grid snapshots; last: {} occupied, {} free, {} \
          unknown; {feature_snapshots} features snapshots, last with {features} features",
