@@ -32,8 +32,11 @@ wants() { [[ " ${SECTIONS[*]} " == *" $1 "* ]]; }
 if wants instructions && [ -z "${FIXED_WORKLOAD:-}" ]; then
   command -v valgrind >/dev/null || { echo "bench: needs valgrind (apt-get install valgrind)" >&2; exit 1; }
 fi
-echo "bench: building the release binaries (only the packages the suite runs)" >&2
-cargo build --release --quiet -p sonar-bench -p sonar-fusion -p sonar-driver -p sonar-sim -p sonar-viewer --bins
+# The instruction counts need only the example; every other section runs the pipeline's binaries.
+if [[ " ${SECTIONS[*]} " != " instructions " ]]; then
+  echo "bench: building the release binaries (only the packages the suite runs)" >&2
+  cargo build --release --quiet -p sonar-bench -p sonar-fusion -p sonar-driver -p sonar-sim -p sonar-viewer --bins
+fi
 if wants instructions && [ -z "${FIXED_WORKLOAD:-}" ]; then
   cargo build --release --quiet -p sonar-fusion --example fixed_workload
 fi

@@ -32,7 +32,7 @@ use clap::{Parser, ValueEnum};
 use sonar_common::ipc::{LAYOUT_VERSION, MAX_PINGS, Reading, ScanMode, flags};
 use sonar_features::FeatureConfig;
 use sonar_fusion::{
-    CellCounts, EncodedVersion, FeatureTracker, FusionConfig, GridConfig, engine::Engine,
+    CellCounts, EncodedVersion, FeatureTracker, FusionConfig, GridConfig, Preset, engine::Engine,
 };
 
 /// How often the grid is snapshot.
@@ -82,6 +82,9 @@ struct Args {
     /// Copy every cell into each snapshot's sample, not only those changed since its last one.
     #[arg(long)]
     whole_copies: bool,
+    /// The fusion's preset (`paper` or `recommended`).
+    #[arg(long, default_value = "recommended")]
+    preset: Preset,
 }
 
 const READINGS_PER_SWEEP: u32 = 50;
@@ -197,6 +200,21 @@ fn features_snapshot(tracker: &FeatureTracker, engine: &mut Engine, seq: u64) ->
     header.feature_count as usize
 }
 
+/// FNV-1a over the bits of every cell's probability: equal for equal maps, so a change that must
+/// leave the maps bit for bit as they were can be checked on this workload (a function of the
+/// cells; not part of the counted work, it runs once at the end).
+fn fingerprint(engine: &Engine) -> u64 {
+    let grid = engine.mapper().grid();
+    let mut probabilities = vec![0.0f32; grid.geometry().len()];
+    grid.probabilities_into(&mut probabilities);
+    probabilities
+        .iter()
+        .flat_map(|p| p.to_bits().to_le_bytes())
+        .fold(0xcbf2_9ce4_8422_2325, |h, b| {
+            (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)
+        })
+}
+
 fn main() -> Result<()> {
     let args = Args::parse();
     let config = FusionConfig {
@@ -205,7 +223,7 @@ fn main() -> Result<()> {
             resolution_m: args.resolution,
             ..GridConfig::default()
         },
-        ..FusionConfig::default()
+        ..FusionConfig::preset(args.preset)
     };
     let mut engine = new_engine(config)?;
     let mut tracker = if args.no_features {
@@ -244,8 +262,12 @@ fn main() -> Result<()> {
     black_box(&samples);
     println!(
         "fused {fused} readings, {snapshots} grid snapshots; last: {} occupied, {} free, {} \
-         unknown; {feature_snapshots} features snapshots, last with {features} features",
-        counts.occupied, counts.free, counts.unknown
+         unknown; {feature_snapshots} features snapshots, last with {features} features; map \
+         fingerprint {:016x}",
+        counts.occupied,
+        counts.free,
+        counts.unknown,
+        fingerprint(&engine)
     );
     Ok(())
 }
