@@ -66,7 +66,7 @@ callgrind_case() { # label cells resolution readings pace [extra fixed_workload 
   # Per reading fused and per grid snapshot, and their ratio (at the head's pace a snapshot per
   # reading: issue 29 asks that it cost no more than the fuse).
   local per_reading=$((fuse / readings)) per_snapshot=$((snapshots > 0 ? snap / snapshots : 0))
-  echo "| $label | $pace | $readings | $snapshots | $(human "$(total "$out")") | $(human "$fuse") | $(human "$snap") | $(human "$(inclusive "$out" 'fixed_workload::follow')") | $(human "$(inclusive "$out" 'fixed_workload::features_snapshot')") | $(human $per_reading) | $(human $per_snapshot) | $(awk -v s=$per_snapshot -v f=$per_reading 'BEGIN { printf "%.2f", f > 0 ? s / f : 0 }') | $(human "$(inclusive "$out" 'kernel::Spans::new')") | $(human "$(inclusive "$out" 'ConeCache::prepared_for')") |"
+  echo "| $label | $pace | $readings | $snapshots | $(human "$(total "$out")") | $(human "$fuse") | $(human "$snap") | $(human "$(inclusive "$out" 'fixed_workload::follow')") | $(human "$(inclusive "$out" 'fixed_workload::features_snapshot')") | $(human $per_reading) | $(human $per_snapshot) | $(awk -v s=$per_snapshot -v f=$per_reading 'BEGIN { printf "%.2f", (f > 0 ? s / f : 0) }') | $(human "$(inclusive "$out" 'kernel::Spans::new')") | $(human "$(inclusive "$out" 'ConeCache::prepared_for')") |"
 }
 
 # --- the sections -------------------------------------------------------------------------------
