@@ -33,8 +33,8 @@ use nalgebra::Isometry2;
 use sonar_common::ipc::{LAYOUT_VERSION, MAX_PINGS, Reading, ScanMode, flags};
 use sonar_features::FeatureConfig;
 use sonar_fusion::{
-    CellCounts, EncodedVersion, FeatureTracker, FusionConfig, GridConfig, Mapper, Observation,
-    Preset, engine::Engine,
+    CellCounts, EncodedVersion, FeatureTracker, FusionConfig, GridConfig, Mapper, ModelConfig,
+    ModelKind, Observation, Preset, RuleConfig, RuleKind, engine::Engine,
 };
 
 /// How often the grid is snapshot.
@@ -87,6 +87,14 @@ struct Args {
     /// The fusion's preset (`paper` or `recommended`).
     #[arg(long, default_value = "recommended")]
     preset: Preset,
+    /// The preset's sensor model replaced by this one (`paper`, `log-odds`, `smooth`), with its
+    /// defaults.
+    #[arg(long)]
+    model: Option<ModelKind>,
+    /// The preset's combination rule replaced by this one (`bayes`, `log-odds`,
+    /// `dempster-shafer`, `himm`), with its defaults.
+    #[arg(long)]
+    rule: Option<RuleKind>,
     /// Print a fingerprint of the final map (FNV-1a over every cell's probability), to check
     /// that a change leaves the maps bit for bit as they were (not counted work, but it adds to
     /// the program's total).
@@ -235,6 +243,11 @@ fn main() -> Result<()> {
             ..GridConfig::default()
         },
         ..FusionConfig::preset(args.preset)
+    };
+    let config = FusionConfig {
+        model: args.model.map_or(config.model, ModelConfig::default_for),
+        rule: args.rule.map_or(config.rule, RuleConfig::default_for),
+        ..config
     };
     let mut engine = new_engine(config)?;
     // The head stands at the origin: every reading is placed there, as the engine places it.
