@@ -185,13 +185,9 @@ impl<R: Combine> Layer<R> {
         let cells = &self.cells[run.clone()];
         let bytes = &mut self.bytes[run.clone()];
         let classes = &mut self.classes[run];
-        for ((byte, class), &cell) in bytes.iter_mut().zip(classes.iter_mut()).zip(cells) {
-            let key = rule.key(cell);
-            *byte = self.encoder.byte(&rule, key);
-            let now = self.encoder.class(key) as u8;
-            self.tally[usize::from(*class)] -= 1;
-            self.tally[usize::from(now)] += 1;
-            *class = now;
+        let moved = self.encoder.encode_cells(&rule, cells, bytes, classes);
+        for (tally, moved) in self.tally.iter_mut().zip(moved) {
+            *tally = tally.wrapping_add(moved);
         }
     }
 
