@@ -190,8 +190,8 @@ impl KeyEncoder {
     /// Encodes `cells` into `bytes` ([`Self::byte`]) and their classes into `classes`
     /// ([`Self::class`]), which held the cells' classes before; returns, per class, how many
     /// cells entered it less how many left it (wrapping). Cells that are their own keys (f32
-    /// probabilities and log-odds) go 8 at a time where the CPU has AVX2 ([`Self::encode_keys_avx2`]);
-    /// the rest one by one.
+    /// probabilities and log-odds) go 8 at a time where the CPU has AVX2 ([`Self::encode_keys_avx2`]),
+    /// in optimised builds; the rest one by one.
     ///
     /// # Panics
     /// If the three slices differ in length.
@@ -202,11 +202,27 @@ impl KeyEncoder {
         bytes: &mut [u8],
         classes: &mut [u8],
     ) -> [u32; CellClass::COUNT] {
+        // Unoptimised, each intrinsic is a call: the vector path made a debug build's snapshots
+        // twice as slow as one by one, and the end-to-end tests run debug builds on loaded
+        // machines. Its unit test runs it in every build.
+        self.encode_cells_with(rule, cells, bytes, classes, !cfg!(debug_assertions))
+    }
+
+    /// [`Self::encode_cells`], 8 at a time where possible only if `vectors`.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(unused_variables))]
+    fn encode_cells_with<R: Combine>(
+        &self,
+        rule: &R,
+        cells: &[R::Cell],
+        bytes: &mut [u8],
+        classes: &mut [u8],
+        vectors: bool,
+    ) -> [u32; CellClass::COUNT] {
         assert!(cells.len() == bytes.len() && cells.len() == classes.len());
         let mut moved = [0u32; CellClass::COUNT];
         let mut done = 0;
         #[cfg(target_arch = "x86_64")]
-        if let Some(keys) = R::cells_as_keys(cells)
+        if let Some(keys) = R::cells_as_keys(cells).filter(|_| vectors)
             && std::arch::is_x86_feature_detected!("avx2")
         {
             // SAFETY: the CPU has AVX2, checked just above.
@@ -459,7 +475,8 @@ mod tests {
     }
 
     /// [`KeyEncoder::encode_cells`] on runs of `keys` (cells that are their own keys) against the
-    /// reference key by key: bytes, classes and the counts' moves from random earlier classes.
+    /// reference key by key: bytes, classes and the counts' moves from random earlier classes; 8
+    /// at a time (where the CPU has AVX2) or one by one at random, in every build.
     fn check_runs<R: Combine<Cell = f32>>(
         rule: &R,
         keys: &[f32],
@@ -480,7 +497,8 @@ mod tests {
                 expected_moved[usize::from(old)] = expected_moved[usize::from(old)].wrapping_sub(1);
             }
             let mut bytes = vec![0u8; len];
-            let moved = encoder.encode_cells(rule, run, &mut bytes, &mut classes);
+            let vectors = rng.random_bool(0.8);
+            let moved = encoder.encode_cells_with(rule, run, &mut bytes, &mut classes, vectors);
             for (i, &key) in run.iter().enumerate() {
                 let (byte, class) = reference(rule, key);
                 assert_eq!(
