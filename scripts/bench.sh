@@ -52,7 +52,13 @@ if wants mrpt; then
   echo "bench: building bench/mrpt-peer (release, into target/)" >&2
   (cd bench/mrpt-peer && cargo build --release --quiet)
 fi
-if [[ " ${SECTIONS[*]} " != " mrpt " ]]; then
+# The instruction counts need only the example, mrpt its own crate; every other section runs the
+# pipeline's binaries.
+needs_pipeline=false
+for s in "${SECTIONS[@]}"; do
+  case $s in mrpt | instructions) ;; *) needs_pipeline=true ;; esac
+done
+if $needs_pipeline; then
   echo "bench: building the release binaries (only the packages the suite runs)" >&2
   cargo build --release --quiet -p sonar-bench -p sonar-fusion -p sonar-driver -p sonar-sim -p sonar-viewer --bins
 fi
@@ -74,13 +80,18 @@ total() { callgrind_annotate "$1" 2>/dev/null | awk '/PROGRAM TOTALS/ { gsub(","
 # Thousands separators, for the table.
 human() { echo "$1" | sed ':a;s/\B[0-9]\{3\}\>/,&/;ta'; }
 callgrind_case() { # label cells resolution readings pace [extra fixed_workload flags]
-  local label=$1 cells=$2 resolution=$3 readings=$4 pace=$5 snapshots
+  local label=$1 cells=$2 resolution=$3 readings=$4 pace=$5 snapshots fuse snap
   shift 5
   local out="$OUT/cg.$cells.$readings.$pace.out" bin=${FIXED_WORKLOAD:-target/release/examples/fixed_workload}
   valgrind --tool=callgrind --callgrind-out-file="$out" "$bin" --cells "$cells" --resolution "$resolution" \
     --readings "$readings" --pace "$pace" "$@" >"$OUT/log" 2>&1 || { cat "$OUT/log" >&2; exit 1; }
   snapshots=$(grep -o '[0-9]* grid snapshots' "$OUT/log" | cut -d' ' -f1)
-  echo "| $label | $pace | $readings | $snapshots | $(human "$(total "$out")") | $(human "$(inclusive "$out" 'fixed_workload::fuse')") | $(human "$(inclusive "$out" 'fixed_workload::snapshot')") | $(human "$(inclusive "$out" 'fixed_workload::follow')") | $(human "$(inclusive "$out" 'fixed_workload::features_snapshot')") | $(human "$(inclusive "$out" 'kernel::Spans::new')") | $(human "$(inclusive "$out" 'ConeCache::prepared_for')") |"
+  fuse=$(inclusive "$out" 'fixed_workload::fuse')
+  snap=$(inclusive "$out" 'fixed_workload::snapshot')
+  # Per reading fused and per grid snapshot, and their ratio (at the head's pace a snapshot per
+  # reading: issue 29 asks that it cost no more than the fuse).
+  local per_reading=$((fuse / readings)) per_snapshot=$((snapshots > 0 ? snap / snapshots : 0))
+  echo "| $label | $pace | $readings | $snapshots | $(human "$(total "$out")") | $(human "$fuse") | $(human "$snap") | $(human "$(inclusive "$out" 'fixed_workload::follow')") | $(human "$(inclusive "$out" 'fixed_workload::features_snapshot')") | $(human $per_reading) | $(human $per_snapshot) | $(awk -v s=$per_snapshot -v f=$per_reading 'BEGIN { printf "%.2f", (f > 0 ? s / f : 0) }') | $(human "$(inclusive "$out" 'kernel::Spans::new')") | $(human "$(inclusive "$out" 'ConeCache::prepared_for')") |"
 }
 
 # --- the sections -------------------------------------------------------------------------------
@@ -107,8 +118,8 @@ section_memory() {
   done
 }
 section_instructions() {
-  echo "| case | pace | readings | grid snapshots | total | fuse | grid snapshot | features: follow | features snapshot | row spans | stencil |"
-  echo "|---|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|"
+  echo "| case | pace | readings | grid snapshots | total | fuse | grid snapshots | features: follow | features snapshots | fuse per reading | grid snapshot each | snapshot ÷ fuse | row spans | stencil |"
+  echo "|---|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|"
   for pace in replay head; do
     callgrind_case "400² × 2 cm" 400 0.02 500 $pace
     callgrind_case "1024² × 1 cm" 1024 0.01 500 $pace

@@ -11,6 +11,13 @@
 //! its own grid snapshot**; at replay pace (readings as fast as a replay sends them, 50 a second
 //! and more) the snapshot rate caps them, a snapshot every 5 readings at 50 readings a second.
 //!
+//! The samples: `sonar-fusion` writes each snapshot into a sample the IPC hands back for reuse,
+//! still holding the snapshot it was last sent with, and copies only the cells changed since
+//! ([`Engine::copy_grid_changes_into`]). Here the snapshots go into `--sample-slots` buffers in
+//! turn (2 by default: the fewest a publisher alternates between while its service's history
+//! keeps the last sample sent); `--whole-copies` copies every cell into each, as a sample never
+//! written before gets (and as every snapshot did before issue 29).
+//!
 //! The recording: the head at the origin, sweeps of 50 readings from −147° to 147° in 6° steps,
 //! forth and back, of a 6 × 4 m room whose walls are off-centre (so ranges differ by bearing);
 //! bearings beyond the 4 m range give no echo; ranges carry a deterministic ±1 cm wobble so no two
@@ -22,9 +29,13 @@ use std::hint::black_box;
 
 use anyhow::{Context, Result};
 use clap::{Parser, ValueEnum};
+use nalgebra::Isometry2;
 use sonar_common::ipc::{LAYOUT_VERSION, MAX_PINGS, Reading, ScanMode, flags};
 use sonar_features::FeatureConfig;
-use sonar_fusion::{CellCounts, FeatureTracker, FusionConfig, GridConfig, engine::Engine};
+use sonar_fusion::{
+    CellCounts, EncodedVersion, FeatureTracker, FusionConfig, GridConfig, Mapper, ModelConfig,
+    ModelKind, Observation, Preset, RuleConfig, RuleKind, engine::Engine,
+};
 
 /// How often the grid is snapshot.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -66,6 +77,34 @@ struct Args {
     /// Without the feature map (no features followed, no features snapshots).
     #[arg(long)]
     no_features: bool,
+    /// Sample buffers the grid snapshots go into in turn, each brought up to date with the cells
+    /// changed since its last snapshot.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=1024))]
+    sample_slots: u32,
+    /// Copy every cell into each snapshot's sample, not only those changed since its last one.
+    #[arg(long)]
+    whole_copies: bool,
+    /// The fusion's preset (`paper` or `recommended`).
+    #[arg(long, default_value = "recommended")]
+    preset: Preset,
+    /// The preset's sensor model replaced by this one (`paper`, `log-odds`, `smooth`), with its
+    /// defaults.
+    #[arg(long)]
+    model: Option<ModelKind>,
+    /// The preset's combination rule replaced by this one (`bayes`, `log-odds`,
+    /// `dempster-shafer`, `himm`), with its defaults.
+    #[arg(long)]
+    rule: Option<RuleKind>,
+    /// Print a fingerprint of the final map (FNV-1a over every cell's probability), to check
+    /// that a change leaves the maps bit for bit as they were (not counted work, but it adds to
+    /// the program's total).
+    #[arg(long)]
+    fingerprint: bool,
+    /// Also count the grid cells the readings changed, by a second map fed the same readings
+    /// (doubles the fusing work: for the count alone, not with the timings or the instruction
+    /// counts).
+    #[arg(long)]
+    count_cells: bool,
 }
 
 const READINGS_PER_SWEEP: u32 = 50;
@@ -149,10 +188,20 @@ fn fuse(engine: &mut Engine, reading: &Reading) -> bool {
     engine.fuse(reading)
 }
 
-/// What a snapshot costs the process besides the loan: the cells into the sample, and the counts.
+/// A sample buffer and the version of the grid's cells it holds (`None`: never written).
+struct Sample {
+    cells: Vec<u8>,
+    held: Option<EncodedVersion>,
+}
+
+/// What a snapshot costs the process besides the loan: the cells into the sample (those changed
+/// since it was last written, or all with `whole`), and the counts.
 #[inline(never)]
-fn snapshot(engine: &mut Engine, sample: &mut [u8]) -> CellCounts {
-    engine.encode_grid(sample)
+fn snapshot(engine: &mut Engine, sample: &mut Sample, whole: bool) -> CellCounts {
+    let held = if whole { None } else { sample.held };
+    let (counts, version) = engine.copy_grid_changes_into(&mut sample.cells, held);
+    sample.held = Some(version);
+    counts
 }
 
 /// What the feature map costs per reading: the reading added to its sweep, and a finished sweep
@@ -171,6 +220,20 @@ fn features_snapshot(tracker: &FeatureTracker, engine: &mut Engine, seq: u64) ->
     header.feature_count as usize
 }
 
+/// FNV-1a over the bits of every cell's probability: equal for equal maps, so a change that must
+/// leave the maps bit for bit as they were can be checked on this workload.
+fn fingerprint(engine: &Engine) -> u64 {
+    let grid = engine.mapper().grid();
+    let mut probabilities = vec![0.0f32; grid.geometry().len()];
+    grid.probabilities_into(&mut probabilities);
+    probabilities
+        .iter()
+        .flat_map(|p| p.to_bits().to_le_bytes())
+        .fold(0xcbf2_9ce4_8422_2325, |h, b| {
+            (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)
+        })
+}
+
 fn main() -> Result<()> {
     let args = Args::parse();
     let config = FusionConfig {
@@ -179,9 +242,21 @@ fn main() -> Result<()> {
             resolution_m: args.resolution,
             ..GridConfig::default()
         },
-        ..FusionConfig::default()
+        ..FusionConfig::preset(args.preset)
+    };
+    let config = FusionConfig {
+        model: args.model.map_or(config.model, ModelConfig::default_for),
+        rule: args.rule.map_or(config.rule, RuleConfig::default_for),
+        ..config
     };
     let mut engine = new_engine(config)?;
+    // The head stands at the origin: every reading is placed there, as the engine places it.
+    let mut counter = if args.count_cells {
+        Some(Mapper::new(config).context("mapper")?)
+    } else {
+        None
+    };
+    let mut cells_changed = 0usize;
     let mut tracker = if args.no_features {
         None
     } else {
@@ -191,12 +266,23 @@ fn main() -> Result<()> {
         .snapshot_every
         .unwrap_or_else(|| args.pace.readings_per_snapshot())
         .max(1);
-    let mut sample = vec![0u8; engine.grid_len()];
+    let mut samples: Vec<Sample> = (0..args.sample_slots)
+        .map(|_| Sample {
+            cells: vec![0u8; engine.grid_len()],
+            held: None,
+        })
+        .collect();
     let mut counts = CellCounts::default();
     let (mut fused, mut snapshots, mut feature_snapshots, mut features) = (0u32, 0u32, 0u64, 0);
     for seq in 0..args.readings {
         let r = reading(seq);
         fused += u32::from(fuse(&mut engine, &r));
+        if let Some(counter) = &mut counter
+            && let Ok(update) =
+                counter.update(&Observation::from_reading(&r, Isometry2::identity()))
+        {
+            cells_changed += update.cells_updated;
+        }
         if let Some(tracker) = &mut tracker
             && follow(tracker, &mut engine, &r)
         {
@@ -204,15 +290,23 @@ fn main() -> Result<()> {
             features = features_snapshot(tracker, &mut engine, feature_snapshots);
         }
         if (seq + 1).is_multiple_of(every) {
-            counts = snapshot(&mut engine, &mut sample);
+            let slot = snapshots as usize % samples.len();
+            let sample = &mut samples[slot];
+            counts = snapshot(&mut engine, sample, args.whole_copies);
             snapshots += 1;
         }
     }
-    black_box(&sample);
+    black_box(&samples);
     println!(
         "fused {fused} readings, {snapshots} grid snapshots; last: {} occupied, {} free, {} \
          unknown; {feature_snapshots} features snapshots, last with {features} features",
         counts.occupied, counts.free, counts.unknown
     );
+    if args.fingerprint {
+        println!("map fingerprint {:016x}", fingerprint(&engine));
+    }
+    if counter.is_some() {
+        println!("grid cells changed: {cells_changed}");
+    }
     Ok(())
 }

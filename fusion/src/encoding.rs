@@ -64,8 +64,12 @@ pub(crate) struct KeyEncoder {
     hi: f32,
     /// Buckets per unit of key.
     scale: f32,
-    /// Per bucket, its step.
-    steps: Vec<Step>,
+    /// Per bucket, the first key at which the byte is one higher than at the bucket's first key;
+    /// +∞ if none. Never empty.
+    step_at: Vec<f32>,
+    /// Per bucket, the byte at its first key (as i32: the vectorised lookup gathers 32-bit
+    /// lanes).
+    step_base: Vec<i32>,
     /// Keys at or above this read as p > 0.5.
     occupied_from: f32,
     /// Keys below this read as p < 0.5.
@@ -74,15 +78,6 @@ pub(crate) struct KeyEncoder {
     /// only the rule's range: a rule whose clamp stays below it has no confident cell, and a
     /// hand-made key beyond the clamp is still told right).
     confident_from: f32,
-}
-
-/// One bucket of a [`KeyEncoder`]'s table.
-#[derive(Debug, Clone, Copy)]
-struct Step {
-    /// The first key at which the byte is `base + 1`; +∞ if none.
-    at: f32,
-    /// The byte at the bucket's first key.
-    base: u8,
 }
 
 /// `x`'s position in the order of floats, as an integer (−0 just below +0).
@@ -135,7 +130,7 @@ impl KeyEncoder {
             let starts: Vec<f32> = (0..=last)
                 .map(|i| first_where(lo, hi, |k| bucket(k) >= i).unwrap_or(hi))
                 .collect();
-            let mut steps = Vec::with_capacity(starts.len());
+            let (mut step_at, mut step_base) = (Vec::new(), Vec::new());
             let mut fits = true;
             for (i, &start) in starts.iter().enumerate() {
                 let end = starts
@@ -148,17 +143,16 @@ impl KeyEncoder {
                 } else {
                     first_where(start, end, |k| reference(k) > first)
                 };
-                steps.push(Step {
-                    at: at.unwrap_or(f32::INFINITY),
-                    base: first,
-                });
+                step_at.push(at.unwrap_or(f32::INFINITY));
+                step_base.push(i32::from(first));
             }
             if fits || buckets >= MAX_BUCKETS {
                 return Self {
                     lo,
                     hi,
                     scale,
-                    steps,
+                    step_at,
+                    step_base,
                     occupied_from,
                     free_below,
                     confident_from,
@@ -178,15 +172,197 @@ impl KeyEncoder {
             let bucket = unsafe { ((key - self.lo) * self.scale).to_int_unchecked::<u32>() };
             // The bucket is within the table by construction; `get` keeps a wrong one from
             // reading past it.
-            match self.steps.get(bucket as usize) {
-                Some(step) => step.base + u8::from(key >= step.at),
-                None => encode_probability(rule.key_probability(key)),
+            match (
+                self.step_at.get(bucket as usize),
+                self.step_base.get(bucket as usize),
+            ) {
+                // A byte: the bases are bytes, and a step is one up from a base below 255.
+                (Some(&at), Some(&base)) => (base + i32::from(key >= at)) as u8,
+                _ => encode_probability(rule.key_probability(key)),
             }
         } else if key.is_nan() {
             CELL_UNKNOWN
         } else {
             encode_probability(rule.key_probability(key))
         }
+    }
+
+    /// Encodes `cells` into `bytes` ([`Self::byte`]) and their classes into `classes`
+    /// ([`Self::class`]), which held the cells' classes before; returns, per class, how many
+    /// cells entered it less how many left it (wrapping). Cells that are their own keys (f32
+    /// probabilities and log-odds) go 8 at a time where the CPU has AVX2 ([`Self::encode_keys_avx2`]),
+    /// in optimised builds; the rest one by one.
+    ///
+    /// # Panics
+    /// If the three slices differ in length.
+    pub(crate) fn encode_cells<R: Combine>(
+        &self,
+        rule: &R,
+        cells: &[R::Cell],
+        bytes: &mut [u8],
+        classes: &mut [u8],
+    ) -> [u32; CellClass::COUNT] {
+        // Unoptimised, each intrinsic is a call: the vector path made a debug build's snapshots
+        // twice as slow as one by one, and the end-to-end tests run debug builds on loaded
+        // machines. Its unit test runs it in every build.
+        self.encode_cells_with(rule, cells, bytes, classes, !cfg!(debug_assertions))
+    }
+
+    /// [`Self::encode_cells`], 8 at a time where possible only if `vectors`.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(unused_variables))]
+    fn encode_cells_with<R: Combine>(
+        &self,
+        rule: &R,
+        cells: &[R::Cell],
+        bytes: &mut [u8],
+        classes: &mut [u8],
+        vectors: bool,
+    ) -> [u32; CellClass::COUNT] {
+        assert!(cells.len() == bytes.len() && cells.len() == classes.len());
+        let mut moved = [0u32; CellClass::COUNT];
+        let mut done = 0;
+        #[cfg(target_arch = "x86_64")]
+        if let Some(keys) = R::cells_as_keys(cells).filter(|_| vectors)
+            && std::arch::is_x86_feature_detected!("avx2")
+        {
+            // SAFETY: the CPU has AVX2, checked just above.
+            let (n, outside) = unsafe { self.encode_keys_avx2(keys, bytes, classes, &mut moved) };
+            if outside {
+                // Keys beyond the table (only a hand-made state holds them): the reference.
+                for (byte, &key) in bytes[..n].iter_mut().zip(keys) {
+                    *byte = self.byte(rule, key);
+                }
+            }
+            done = n;
+        }
+        for ((byte, class), &cell) in bytes[done..]
+            .iter_mut()
+            .zip(&mut classes[done..])
+            .zip(&cells[done..])
+        {
+            let key = rule.key(cell);
+            *byte = self.byte(rule, key);
+            let now = self.class(key) as u8;
+            moved[usize::from(*class)] = moved[usize::from(*class)].wrapping_sub(1);
+            moved[usize::from(now)] = moved[usize::from(now)].wrapping_add(1);
+            *class = now;
+        }
+        moved
+    }
+
+    /// The first multiple of 8 of `keys` encoded as [`Self::encode_cells`] does, 8 at a time: the
+    /// same arithmetic as [`Self::byte`] and [`Self::class`] in vector lanes (the table's step by
+    /// a gather), each class's moves added to `moved`. Returns how many were done and whether a
+    /// key other than NaN lay outside the table, whose byte is then wrong (the caller encodes
+    /// those again).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn encode_keys_avx2(
+        &self,
+        keys: &[f32],
+        bytes: &mut [u8],
+        classes: &mut [u8],
+        moved: &mut [u32; CellClass::COUNT],
+    ) -> (usize, bool) {
+        use std::arch::x86_64::*;
+        /// 8 lanes of 0 to 255 to 8 bytes, in order.
+        #[inline]
+        #[target_feature(enable = "avx2")]
+        fn low_bytes(v: __m256i) -> u64 {
+            let words = _mm256_packus_epi32(v, v);
+            let bytes = _mm256_packus_epi16(words, words);
+            let low = _mm256_extract_epi32::<0>(bytes) as u32;
+            let high = _mm256_extract_epi32::<4>(bytes) as u32;
+            u64::from(low) | (u64::from(high) << 32)
+        }
+        let n = keys.len().min(bytes.len()).min(classes.len()) / 8 * 8;
+        let last = self.step_at.len().min(self.step_base.len()) - 1;
+        // The table is small (at most `MAX_BUCKETS` entries): its indices fit in i32.
+        let last_lane = _mm256_set1_epi32(last as i32);
+        let (lo, hi, scale) = (
+            _mm256_set1_ps(self.lo),
+            _mm256_set1_ps(self.hi),
+            _mm256_set1_ps(self.scale),
+        );
+        let (confident, occupied, free) = (
+            _mm256_set1_ps(self.confident_from),
+            _mm256_set1_ps(self.occupied_from),
+            _mm256_set1_ps(self.free_below),
+        );
+        let class_lane = |c: CellClass| _mm256_set1_epi32(c as i32);
+        let mut entered = [_mm256_setzero_si256(); CellClass::COUNT];
+        let mut outside = _mm256_setzero_si256();
+        for i in (0..n).step_by(8) {
+            // SAFETY: i + 8 ≤ n ≤ every slice's length.
+            let key = unsafe { _mm256_loadu_ps(keys.as_ptr().add(i)) };
+            let in_range = _mm256_and_ps(
+                _mm256_cmp_ps::<_CMP_GE_OQ>(key, lo),
+                _mm256_cmp_ps::<_CMP_LE_OQ>(key, hi),
+            );
+            let inside = _mm256_blendv_ps(lo, key, in_range);
+            // Truncation, as `to_int_unchecked` in `byte`: the same bucket.
+            let bucket = _mm256_cvttps_epi32(_mm256_mul_ps(_mm256_sub_ps(inside, lo), scale));
+            let beyond = _mm256_cmpgt_epi32(bucket, last_lane);
+            let index = _mm256_min_epi32(bucket, last_lane);
+            // SAFETY: every index is in 0..=last, within both tables.
+            let (at, base) = unsafe {
+                (
+                    _mm256_i32gather_ps::<4>(self.step_at.as_ptr(), index),
+                    _mm256_i32gather_epi32::<4>(self.step_base.as_ptr(), index),
+                )
+            };
+            // A compare gives −1 where true: subtracting it adds the step.
+            let up = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GE_OQ>(inside, at));
+            let nan = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_UNORD_Q>(key, key));
+            let byte = _mm256_blendv_epi8(
+                _mm256_sub_epi32(base, up),
+                _mm256_set1_epi32(i32::from(CELL_UNKNOWN)),
+                nan,
+            );
+            let out_of_table = _mm256_or_si256(
+                _mm256_xor_si256(_mm256_castps_si256(in_range), _mm256_set1_epi32(-1)),
+                beyond,
+            );
+            outside = _mm256_or_si256(outside, _mm256_andnot_si256(nan, out_of_table));
+            // The classes in the order `class` tests them, the first test last.
+            let below = |t| _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LT_OQ>(key, t));
+            let from = |t| _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GE_OQ>(key, t));
+            let mut class = class_lane(CellClass::Even);
+            class = _mm256_blendv_epi8(class, class_lane(CellClass::Free), below(free));
+            class = _mm256_blendv_epi8(class, class_lane(CellClass::Occupied), from(occupied));
+            class = _mm256_blendv_epi8(class, class_lane(CellClass::Confident), from(confident));
+            class = _mm256_blendv_epi8(class, class_lane(CellClass::Unknown), nan);
+            // SAFETY: i + 8 ≤ n ≤ the classes' length.
+            let old =
+                unsafe { _mm256_cvtepu8_epi32(_mm_loadl_epi64(classes.as_ptr().add(i).cast())) };
+            for (c, entered) in (0..).zip(&mut entered) {
+                let lane = _mm256_set1_epi32(c);
+                *entered = _mm256_sub_epi32(*entered, _mm256_cmpeq_epi32(class, lane));
+                *entered = _mm256_add_epi32(*entered, _mm256_cmpeq_epi32(old, lane));
+            }
+            // SAFETY: i + 8 ≤ n ≤ both slices' lengths; unaligned writes of 8 bytes.
+            unsafe {
+                bytes
+                    .as_mut_ptr()
+                    .add(i)
+                    .cast::<u64>()
+                    .write_unaligned(low_bytes(byte).to_le());
+                classes
+                    .as_mut_ptr()
+                    .add(i)
+                    .cast::<u64>()
+                    .write_unaligned(low_bytes(class).to_le());
+            }
+        }
+        for (moved, entered) in moved.iter_mut().zip(entered) {
+            let mut lanes = [0i32; 8];
+            // SAFETY: 8 i32 lanes into 8 i32s.
+            unsafe { _mm256_storeu_si256(lanes.as_mut_ptr().cast(), entered) };
+            *moved = lanes
+                .iter()
+                .fold(*moved, |sum, &lane| sum.wrapping_add(lane as u32));
+        }
+        (n, _mm256_testz_si256(outside, outside) == 0)
     }
 
     /// What a cell with `key` says, for the snapshot header's counts and the confident cells.
@@ -246,9 +422,9 @@ mod tests {
     fn check_edges<R: Combine>(rule: &R) {
         let encoder = KeyEncoder::new(rule);
         let edges = encoder
-            .steps
+            .step_at
             .iter()
-            .map(|s| s.at)
+            .copied()
             .filter(|at| at.is_finite())
             .chain([
                 encoder.occupied_from,
@@ -257,7 +433,7 @@ mod tests {
                 encoder.lo,
                 encoder.hi,
             ])
-            .chain((0..encoder.steps.len()).map(|i| encoder.lo + i as f32 / encoder.scale));
+            .chain((0..encoder.step_at.len()).map(|i| encoder.lo + i as f32 / encoder.scale));
         for edge in edges {
             for key in [edge.next_down(), edge, edge.next_up()] {
                 check(rule, &encoder, key);
@@ -296,6 +472,101 @@ mod tests {
         let (log_odds, himm) = rules();
         log_odds.iter().for_each(check_edges);
         himm.iter().for_each(check_edges);
+    }
+
+    /// [`KeyEncoder::encode_cells`] on runs of `keys` (cells that are their own keys) against the
+    /// reference key by key: bytes, classes and the counts' moves from random earlier classes; 8
+    /// at a time (where the CPU has AVX2) or one by one at random, in every build.
+    fn check_runs<R: Combine<Cell = f32>>(
+        rule: &R,
+        keys: &[f32],
+        rng: &mut rand_chacha::ChaCha8Rng,
+    ) {
+        use rand::Rng;
+        let encoder = KeyEncoder::new(rule);
+        let mut start = 0;
+        while start < keys.len() {
+            // Runs of every length around the 8 lanes, and long ones.
+            let len = rng.random_range(0..=40).min(keys.len() - start);
+            let run = &keys[start..start + len];
+            let mut classes: Vec<u8> = (0..len)
+                .map(|_| rng.random_range(0..CellClass::COUNT as u8))
+                .collect();
+            let mut expected_moved = [0u32; CellClass::COUNT];
+            for &old in &classes {
+                expected_moved[usize::from(old)] = expected_moved[usize::from(old)].wrapping_sub(1);
+            }
+            let mut bytes = vec![0u8; len];
+            let vectors = rng.random_bool(0.8);
+            let moved = encoder.encode_cells_with(rule, run, &mut bytes, &mut classes, vectors);
+            for (i, &key) in run.iter().enumerate() {
+                let (byte, class) = reference(rule, key);
+                assert_eq!(
+                    (bytes[i], classes[i]),
+                    (byte, class as u8),
+                    "key {key:e} ({:#x}), {i} of a run of {len}",
+                    key.to_bits()
+                );
+                expected_moved[class as usize] = expected_moved[class as usize].wrapping_add(1);
+            }
+            assert_eq!(moved, expected_moved, "a run of {len}");
+            start += len.max(1);
+        }
+    }
+
+    #[test]
+    fn runs_encoded_8_at_a_time_equal_the_reference_key_by_key() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(29);
+        let (log_odds, _) = rules();
+        let check_rule = |rule: &dyn Fn(&[f32], &mut rand_chacha::ChaCha8Rng),
+                          [lo, hi]: [f32; 2],
+                          encoder: &KeyEncoder,
+                          rng: &mut rand_chacha::ChaCha8Rng| {
+            // Every step, bucket edge and threshold with the floats beside them; keys inside and
+            // beyond the range; any float at all; shuffled so a vector mixes them.
+            let mut keys: Vec<f32> = encoder
+                .step_at
+                .iter()
+                .copied()
+                .filter(|at| at.is_finite())
+                .chain([
+                    encoder.occupied_from,
+                    encoder.free_below,
+                    encoder.confident_from,
+                    lo,
+                    hi,
+                ])
+                .flat_map(|edge| [edge.next_down(), edge, edge.next_up()])
+                .chain([f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -0.0, 0.0])
+                .collect();
+            keys.extend((0..3000).map(|_| rng.random_range(lo..=hi)));
+            keys.extend((0..500).map(|_| rng.random_range(lo - 1.0..hi + 1.0)));
+            keys.extend((0..500).map(|_| f32::from_bits(rng.random())));
+            for i in (1..keys.len()).rev() {
+                keys.swap(i, rng.random_range(0..=i));
+            }
+            rule(&keys, rng);
+            // Runs all inside the table, where nothing is encoded again one by one.
+            let inside: Vec<f32> = (0..2000).map(|_| rng.random_range(lo..=hi)).collect();
+            rule(&inside, rng);
+        };
+        let bayes = KeyEncoder::new(&BayesRule);
+        check_rule(
+            &|keys, rng| check_runs(&BayesRule, keys, rng),
+            BayesRule.key_range(),
+            &bayes,
+            &mut rng,
+        );
+        for rule in log_odds {
+            let encoder = KeyEncoder::new(&rule);
+            check_rule(
+                &|keys, rng| check_runs(&rule, keys, rng),
+                rule.key_range(),
+                &encoder,
+                &mut rng,
+            );
+        }
     }
 
     #[test]

@@ -15,7 +15,7 @@ use sonar_common::ipc::{
 };
 
 use crate::config::{ConfigError, FusionConfig, Preset};
-use crate::grid::CellCounts;
+use crate::grid::{CellCounts, EncodedVersion};
 use crate::history::{History, Placement, Revised};
 use crate::mapper::Mapper;
 use crate::model::{ModelConfig, ModelKind};
@@ -378,6 +378,26 @@ impl Engine {
     /// If `out` does not hold one byte per cell: the caller sizes it from the grid.
     pub fn encode_grid(&mut self, out: &mut [u8]) -> CellCounts {
         self.mapper.grid_mut().encode_into(out)
+    }
+
+    /// Brings `out`, a copy of the grid's cells in the snapshot encoding as of `held` (`None`:
+    /// unknown contents), up to date, copying only what changed since where the grid still knows
+    /// it ([`crate::grid::OccupancyGrid::copy_changed_into`]); returns the counts and the version
+    /// `out` now holds.
+    ///
+    /// # Panics
+    /// If `out` does not hold one byte per cell: the caller sizes it from the grid.
+    pub fn copy_grid_changes_into(
+        &mut self,
+        out: &mut [u8],
+        held: Option<EncodedVersion>,
+    ) -> (CellCounts, EncodedVersion) {
+        self.mapper.grid_mut().copy_changed_into(out, held)
+    }
+
+    /// The version of the grid's cells as [`Self::encoded_grid`] returns them now.
+    pub fn encoded_grid_version(&mut self) -> EncodedVersion {
+        self.mapper.grid_mut().encoded_version()
     }
 
     /// The grid's cells in the snapshot encoding and their counts, as kept up to date while

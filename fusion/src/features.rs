@@ -1000,6 +1000,59 @@ mod tests {
     }
 
     #[test]
+    fn snapshots_of_fused_scans_grow_the_walls_as_a_walk_over_every_cell_did() {
+        // The room's sweeps fused by the engine as the process does (each reading fused, then
+        // followed), the room a little nearer or farther each sweep so that cells enter and
+        // leave the confident set; grid snapshots taken now and then between features snapshots,
+        // so the flushes the two trigger interleave.
+        let mut engine = Engine::new(FusionConfig::default(), 1000).unwrap();
+        let mut tracker = FeatureTracker::new(FeatureConfig::default()).unwrap();
+        let (mut compared, mut with_support) = (0, 0);
+        for sweep_id in 1..=8u32 {
+            let nearer = [0.0, 0.03, -0.02, 0.05, 0.0, 0.1, -0.04, 0.02][sweep_id as usize - 1];
+            for k in 0..50 {
+                let mut r = room_reading(sweep_id, -147.0 + 6.0 * k as f32, nearer);
+                let nearest_us = r.echo_us[..4].iter().copied().filter(|&us| us > 0).min();
+                match nearest_us {
+                    Some(us) => r.distance_m = us as f32 * 1e-6 * r.speed_of_sound_mps / 2.0,
+                    None => {
+                        r.flags = flags::NO_ECHO;
+                        r.distance_m = r.max_range_m;
+                    }
+                }
+                r.beam_half_angle_deg = 30.0;
+                r.seq = u64::from(sweep_id * 50 + k);
+                assert!(engine.fuse(&r), "sweep {sweep_id} reading {k}");
+                if k % 7 == 3 {
+                    engine.encoded_grid();
+                }
+                if tracker.follow(&r, &mut engine, false).is_none() {
+                    continue;
+                }
+                let walked = walked_support_points(engine.mapper().grid());
+                let (header, records) = tracker.snapshot(engine.grid_mut(), 5, 7);
+                let (old_header, old_records) = tracker.snapshot_with(&walked, 5, 7);
+                assert_eq!(
+                    support_points(engine.grid_mut()),
+                    walked,
+                    "sweep {sweep_id}"
+                );
+                assert_eq!(
+                    format!("{header:?} {records:?}"),
+                    format!("{old_header:?} {old_records:?}"),
+                    "sweep {sweep_id}"
+                );
+                compared += 1;
+                with_support += usize::from(!walked.is_empty() && tracker.has_planes());
+            }
+        }
+        assert!(
+            compared >= 6 && with_support >= 5,
+            "{compared} {with_support}"
+        );
+    }
+
+    #[test]
     fn clearing_forgets_features_and_the_pending_sweep() {
         let mut tracker = FeatureTracker::new(FeatureConfig::default()).unwrap();
         let pose = Isometry2::identity();

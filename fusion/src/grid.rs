@@ -1,8 +1,9 @@
 //! The probability grid: per-cell state in the rule's own representation, one way to read it.
 
+use std::collections::VecDeque;
 use std::fmt;
-
 use std::ops::Range;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use sonar_common::ipc::CELL_UNKNOWN;
 
@@ -23,6 +24,11 @@ use crate::state::{SavedCells, StateError, check_len};
 /// readings between two snapshots); once per snapshot, a cell costs one encoding however often it
 /// was fused. The class a flush keeps per cell also says whether the cell is confidently occupied,
 /// so the cells the features need are found without a probability per cell.
+///
+/// Each flush that re-encodes anything starts a new *generation* of the bytes and logs the spans
+/// it re-encoded; the last [`RECENT_FLUSHES`] logs are kept, so a copy of the bytes as of a recent
+/// generation (a snapshot's sample that the IPC hands back for reuse) is brought up to date by
+/// copying those spans alone ([`Self::copy_changed_into`]).
 pub(crate) struct Layer<R: Combine> {
     pub rule: R,
     cells: Vec<R::Cell>,
@@ -39,6 +45,22 @@ pub(crate) struct Layer<R: Combine> {
     dirty_spans: Vec<Range<u32>>,
     /// The rows with a non-empty span, in the order first touched.
     dirty_rows: Vec<u32>,
+    /// Flushes that re-encoded cells, and whole re-encodings, so far.
+    generation: u64,
+    /// The spans the last flushes re-encoded, oldest first, of consecutive generations ending at
+    /// `generation` (empty after a whole re-encoding, which no span list stands for).
+    recent: VecDeque<FlushLog>,
+}
+
+/// How many flushes' spans a [`Layer`] keeps for bringing older copies up to date: more than the
+/// snapshots the grid's IPC service keeps in flight (`sonar_common::ipc::GRID_SEGMENT_SLOTS`), so a
+/// reused sample is normally updated span by span; an older one is copied whole.
+pub(crate) const RECENT_FLUSHES: usize = 32;
+
+/// What one flush re-encoded: per row touched, the span of its cells (offsets within the row).
+struct FlushLog {
+    generation: u64,
+    spans: Vec<(u32, Range<u32>)>,
 }
 
 impl<R: Combine> Layer<R> {
@@ -57,6 +79,8 @@ impl<R: Combine> Layer<R> {
             row_len,
             dirty_spans: vec![0..0; rows],
             dirty_rows: Vec::new(),
+            generation: 0,
+            recent: VecDeque::with_capacity(RECENT_FLUSHES),
         }
     }
 
@@ -97,17 +121,63 @@ impl<R: Combine> Layer<R> {
         }
     }
 
-    /// Brings the bytes and counts up to date with the cells: re-encodes each row's dirty span.
+    /// Brings the bytes and counts up to date with the cells: re-encodes each row's dirty span,
+    /// and logs the spans as a new generation if there were any.
     fn flush(&mut self) {
+        if self.dirty_rows.is_empty() {
+            return;
+        }
+        self.generation += 1;
+        // The oldest log's allocation is reused once the ring is full.
+        let mut log = match self.recent.len() {
+            RECENT_FLUSHES => self.recent.pop_front().map(|l| l.spans),
+            _ => None,
+        }
+        .unwrap_or_default();
+        log.clear();
         let mut rows = std::mem::take(&mut self.dirty_rows);
         for row in rows.drain(..) {
-            let row = row as usize;
-            let span = std::mem::replace(&mut self.dirty_spans[row], 0..0);
-            let row_start = row * self.row_len;
+            let span = std::mem::replace(&mut self.dirty_spans[row as usize], 0..0);
+            let row_start = row as usize * self.row_len;
             self.encode_run(row_start + span.start as usize..row_start + span.end as usize);
+            log.push((row, span));
         }
         // The allocation is kept for the next runs.
         self.dirty_rows = rows;
+        self.recent.push_back(FlushLog {
+            generation: self.generation,
+            spans: log,
+        });
+    }
+
+    /// Brings `out`, a copy of the bytes as of generation `held` (`None`: anything, or nothing
+    /// yet), up to date: copies only the spans re-encoded since then if the logs reach back
+    /// that far, else every byte. Returns the counts and the generation `out` now holds.
+    ///
+    /// # Panics
+    /// If `out` does not hold one byte per cell.
+    fn copy_changed_into(&mut self, out: &mut [u8], held: Option<u64>) -> (CellCounts, u64) {
+        assert_eq!(out.len(), self.bytes.len(), "one byte per cell");
+        self.flush();
+        // The logs cover generations `recent.front()`..=`generation`, consecutively.
+        let first_logged = self
+            .recent
+            .front()
+            .map_or(self.generation + 1, |l| l.generation);
+        match held {
+            Some(held) if held == self.generation => {}
+            Some(held) if held < self.generation && held + 1 >= first_logged => {
+                for log in self.recent.iter().filter(|l| l.generation > held) {
+                    for (row, span) in &log.spans {
+                        let start = *row as usize * self.row_len;
+                        let cells = start + span.start as usize..start + span.end as usize;
+                        out[cells.clone()].copy_from_slice(&self.bytes[cells]);
+                    }
+                }
+            }
+            _ => out.copy_from_slice(&self.bytes),
+        }
+        (self.counts(), self.generation)
     }
 
     fn encode_run(&mut self, run: Range<usize>) {
@@ -115,13 +185,9 @@ impl<R: Combine> Layer<R> {
         let cells = &self.cells[run.clone()];
         let bytes = &mut self.bytes[run.clone()];
         let classes = &mut self.classes[run];
-        for ((byte, class), &cell) in bytes.iter_mut().zip(classes.iter_mut()).zip(cells) {
-            let key = rule.key(cell);
-            *byte = self.encoder.byte(&rule, key);
-            let now = self.encoder.class(key) as u8;
-            self.tally[usize::from(*class)] -= 1;
-            self.tally[usize::from(now)] += 1;
-            *class = now;
+        let moved = self.encoder.encode_cells(&rule, cells, bytes, classes);
+        for (tally, moved) in self.tally.iter_mut().zip(moved) {
+            *tally = tally.wrapping_add(moved);
         }
     }
 
@@ -137,6 +203,9 @@ impl<R: Combine> Layer<R> {
             self.dirty_spans[row as usize] = 0..0;
         }
         self.encode_run(0..self.cells.len());
+        // No log stands for it: a copy of an earlier generation is copied whole.
+        self.generation += 1;
+        self.recent.clear();
     }
 
     fn set_cells(&mut self, cells: Vec<R::Cell>) {
@@ -153,13 +222,17 @@ impl<R: Combine> Layer<R> {
     /// The bytes and counts, brought up to date.
     fn encoded(&mut self) -> (&[u8], CellCounts) {
         self.flush();
+        (&self.bytes, self.counts())
+    }
+
+    /// The counts as of the last flush.
+    fn counts(&self) -> CellCounts {
         let tally = self.tally;
-        let counts = CellCounts {
+        CellCounts {
             occupied: tally[CellClass::Occupied as usize] + tally[CellClass::Confident as usize],
             free: tally[CellClass::Free as usize],
             unknown: tally[CellClass::Unknown as usize],
-        };
-        (&self.bytes, counts)
+        }
     }
 }
 
@@ -196,8 +269,23 @@ pub struct CellCounts {
     pub unknown: u32,
 }
 
+/// Which state of which grid a copy of the snapshot bytes holds
+/// ([`OccupancyGrid::copy_changed_into`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct EncodedVersion {
+    /// The grid's identity, unique in the process.
+    grid: u64,
+    /// The bytes' generation in that grid.
+    generation: u64,
+}
+
+/// Identities of grids, so that a copy of one grid's bytes is never taken for another's.
+static NEXT_GRID_ID: AtomicU64 = AtomicU64::new(0);
+
 /// The probability method's map (paper §III.B.2, "Grid-Probability Array").
 pub struct OccupancyGrid {
+    /// Unique in the process ([`EncodedVersion`]).
+    id: u64,
     geometry: GridGeometry,
     store: CellStore,
     /// Per cell, the world bearing from the sensor at which a reading last gave it occupied
@@ -235,6 +323,7 @@ impl OccupancyGrid {
             Vec::new()
         };
         Self {
+            id: NEXT_GRID_ID.fetch_add(1, Ordering::Relaxed),
             geometry,
             store,
             heard,
@@ -313,6 +402,43 @@ impl OccupancyGrid {
                     .filter(move |&(_, &class)| class == confident)
                     .map(move |(i, _)| (i % n, i / n))
             })
+    }
+
+    /// Brings `out`, a copy of the snapshot bytes of version `held` (`None`: unknown contents,
+    /// e.g. a sample never written), up to date with [`Self::encoded`]: only the spans of the
+    /// rows re-encoded since then are copied, if the grid still knows them (the last
+    /// [`RECENT_FLUSHES`] flushes of this grid), else every byte. Returns the counts and the
+    /// version `out` now holds: a snapshot per reading copies what the reading changed, not the
+    /// grid.
+    ///
+    /// # Panics
+    /// If `out` does not hold one byte per cell.
+    pub fn copy_changed_into(
+        &mut self,
+        out: &mut [u8],
+        held: Option<EncodedVersion>,
+    ) -> (CellCounts, EncodedVersion) {
+        let held = held.filter(|v| v.grid == self.id).map(|v| v.generation);
+        let (counts, generation) =
+            with_layer!(&mut self.store, l => l.copy_changed_into(out, held));
+        let version = EncodedVersion {
+            grid: self.id,
+            generation,
+        };
+        (counts, version)
+    }
+
+    /// The version of the bytes [`Self::encoded`] returns: brought up to date first, so the
+    /// same as the bytes of a call to it just before.
+    pub fn encoded_version(&mut self) -> EncodedVersion {
+        let generation = with_layer!(&mut self.store, l => {
+            l.flush();
+            l.generation
+        });
+        EncodedVersion {
+            grid: self.id,
+            generation,
+        }
     }
 
     /// [`Self::encoded`] copied into `out`; returns the counts.
@@ -607,6 +733,65 @@ mod tests {
             }
         );
         assert!(layer.dirty_rows.is_empty() && layer.dirty_spans.iter().all(|s| s.is_empty()));
+    }
+
+    #[test]
+    fn copies_brought_up_to_date_by_their_changes_equal_a_full_encoding_on_random_grids() {
+        use rand::{Rng, SeedableRng};
+        let mut incremental = 0;
+        for kind in RuleKind::ALL {
+            for seed in 0..8 {
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+                let n = rng.random_range(1..=90);
+                let geometry = GridGeometry::new(n, 0.1);
+                let rule = RuleConfig::default_for(kind);
+                let mut g = OccupancyGrid::new(geometry, &rule, false);
+                // Samples handed back in a random order, as an IPC service's slots are; each
+                // starts as garbage that nothing says was written. More samples than flushes are
+                // logged, so some are too old to be brought up to date span by span.
+                let mut samples: Vec<(Vec<u8>, Option<EncodedVersion>)> = (0..RECENT_FLUSHES + 8)
+                    .map(|i| (vec![i as u8; n * n], None))
+                    .collect();
+                for round in 0..120 {
+                    let runs = rng.random_range(0..n / 2 + 2);
+                    fuse_random_runs(&mut g, &mut rng, runs);
+                    if round == 50 {
+                        g.clear();
+                    }
+                    if round % 13 == 0 {
+                        // A features snapshot's flush between two grid snapshots.
+                        let _ = g.confident_cells().count();
+                    }
+                    // Mostly a few recent samples, now and then any (one unused for longer
+                    // than the logs reach).
+                    let reused = if rng.random_bool(0.1) {
+                        samples.len()
+                    } else {
+                        3
+                    };
+                    let slot = rng.random_range(0..reused);
+                    let (sample, held) = &mut samples[slot];
+                    incremental += usize::from(held.is_some());
+                    let (counts, version) = g.copy_changed_into(sample, *held);
+                    *held = Some(version);
+                    assert_eq!(
+                        (sample.clone(), counts),
+                        reference_encoding(&g),
+                        "{kind:?} seed {seed} round {round}"
+                    );
+                }
+                // A copy of another grid's bytes is never taken for this one's.
+                let mut other = OccupancyGrid::new(geometry, &rule, false);
+                let (sample, held) = &mut samples[0];
+                other.copy_changed_into(sample, *held);
+                assert_eq!(
+                    sample.clone(),
+                    reference_encoding(&other).0,
+                    "{kind:?} {seed}"
+                );
+            }
+        }
+        assert!(incremental > 1000, "{incremental}");
     }
 
     #[test]

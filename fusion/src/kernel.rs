@@ -24,7 +24,9 @@
 //!   row's run is widened to whole vectors where the stencil and the grid allow (the extra cells
 //!   lie outside the cone or the reach and get no evidence), so the scalar remainder rarely runs.
 //!   Where the CPU has AVX2 (detected at run time) the row loop is compiled a second time for it,
-//!   with vectors twice as wide as the portable build's SSE2.
+//!   with vectors twice as wide as the portable build's SSE2, and where it has AVX-512 (F and VL)
+//!   a third time: 512-bit vectors and twice as many vector registers (on an Intel Xeon 1.2–1.3×
+//!   faster than the AVX2 build, `docs/benchmarks.md`).
 //! - **Bounding-box fallback.** A moving robot rarely repeats a sub-cell position, and a stencil
 //!   per pose would cost more than it saves, so readings from positions other than the stencil's
 //!   visit the bounding box of their cone instead, computing each cell's range and bearing (a
@@ -390,6 +392,13 @@ impl ConeCache {
             k: (reach / geometry.resolution()).ceil() as i64 + 1,
         };
         #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx512f")
+            && std::arch::is_x86_feature_detected!("avx512vl")
+        {
+            // SAFETY: the CPU has AVX-512F and VL, checked just above.
+            return unsafe { fuse_rows_avx512(layer, heard, evidence, beam.axis, cone, &pass) };
+        }
+        #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2, checked just above.
             return unsafe { fuse_rows_avx2(layer, heard, evidence, beam.axis, cone, &pass) };
@@ -480,6 +489,23 @@ fn fuse_rows<R: Combine, E: CellEvidence>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn fuse_rows_avx2<R: Combine, E: CellEvidence>(
+    layer: &mut Layer<R>,
+    heard: &mut [f32],
+    evidence: &E,
+    axis: f32,
+    cone: f32,
+    pass: &RowPass<'_>,
+) -> usize {
+    fuse_rows(layer, heard, evidence, axis, cone, pass)
+}
+
+/// [`fuse_rows`] compiled for AVX-512 (F and VL): 512-bit vectors and 32 vector registers where
+/// AVX2 has 16 (its loop keeps constants on the stack). As for AVX2, no fused multiply-adds (Rust
+/// does not contract), so the same bits as the other builds: the maps of every model and rule
+/// were compared by fingerprint with the AVX2 build's (`docs/benchmarks.md`).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vl")]
+fn fuse_rows_avx512<R: Combine, E: CellEvidence>(
     layer: &mut Layer<R>,
     heard: &mut [f32],
     evidence: &E,

@@ -213,7 +213,7 @@ pub use engine::SavedMap;
 pub use features::{FeatureTracker, SweepOutcome};
 pub use file::{FeaturesSection, FusionFile, FusionFileError, FusionSection};
 pub use geometry::GridGeometry;
-pub use grid::{CellCounts, OccupancyGrid};
+pub use grid::{CellCounts, EncodedVersion, OccupancyGrid};
 pub use mapper::{Kernel, Mapper, Update};
 pub use model::{
     AlphaSign, BeamWidth, EchoPlacement, LogOddsModel, ModelConfig, ModelKind, PaperModel,

@@ -17,6 +17,8 @@
 //!   subscriber buffer that overflowed), restarts of the numbering, rejected readings and skipped
 //!   snapshots, with the saves, on `sonar/fusion_status`, once a second and at once on news.
 
+use std::collections::HashMap;
+use std::mem::MaybeUninit;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -42,8 +44,8 @@ use sonar_fusion::persist::{self, Restore, SaveReport, Saver};
 use sonar_fusion::poses::MAX_POSE_WAIT;
 use sonar_fusion::status::{Ledger, SeqStep};
 use sonar_fusion::{
-    FeatureTracker, FeaturesSection, FusionConfig, FusionFile, FusionSection, ModelConfig,
-    ModelKind, PersistConfig, Preset, RuleConfig, RuleKind, SweepOutcome,
+    EncodedVersion, FeatureTracker, FeaturesSection, FusionConfig, FusionFile, FusionSection,
+    ModelConfig, ModelKind, PersistConfig, Preset, RuleConfig, RuleKind, SweepOutcome,
 };
 use tracing::{debug, info, warn};
 
@@ -398,6 +400,7 @@ fn run(args: &Args) -> Result<()> {
         waiting: None,
         corrections: 0,
         revisions: RevisionCount::default(),
+        grid_samples: SampleVersions::default(),
     };
     // Readings were left in the buffer at the end of the last turn.
     let mut more = false;
@@ -950,6 +953,34 @@ struct Output<'a> {
     corrections: u64,
     /// The maps rebuilt after sonar-slam moved sweeps already fused.
     revisions: RevisionCount,
+    /// What the grid publisher's samples held when last written.
+    grid_samples: SampleVersions,
+}
+
+/// The version of the grid's bytes each of the grid publisher's samples was last written with,
+/// by the address of its payload. iceoryx2 hands a publisher back its own samples' slots as they
+/// were sent (it neither clears nor writes them, and subscribers map them read-only), so a
+/// reused sample needs only the cells that changed since its version
+/// ([`Engine::copy_grid_changes_into`]): at the head's pace a snapshot per reading copies what
+/// the reading changed, not the whole grid.
+#[derive(Debug, Default)]
+struct SampleVersions(HashMap<usize, EncodedVersion>);
+
+impl SampleVersions {
+    /// The slots of the grid's data segment, with room to spare; beyond that the map is
+    /// forgotten (it cannot happen with a static segment, and costs a whole copy each if it did).
+    const MAX: usize = 4 * GRID_SEGMENT_SLOTS;
+
+    fn held(&self, payload: *const MaybeUninit<u8>) -> Option<EncodedVersion> {
+        self.0.get(&(payload as usize)).copied()
+    }
+
+    fn written(&mut self, payload: *const MaybeUninit<u8>, version: EncodedVersion) {
+        if self.0.len() >= Self::MAX && !self.0.contains_key(&(payload as usize)) {
+            self.0.clear();
+        }
+        self.0.insert(payload as usize, version);
+    }
 }
 
 /// Revisions of sweeps already fused (`sonar-slam` moving them), counted for the log.
@@ -1259,11 +1290,31 @@ impl Output<'_> {
     fn publish(&mut self, engine: &mut Engine) -> Result<()> {
         self.seq += 1;
         // The engine keeps the cells encoded as it fuses: a snapshot is a copy into a sample that
-        // need not be zeroed first. Stamped once the sample is complete, just before it goes.
-        let (cells, counts) = engine.encoded_grid();
-        let stamp = match self.ports.grid.loan_slice_uninit(cells.len()) {
+        // need not be zeroed first, and into a sample written before, a copy of what changed since
+        // ([`SampleVersions`]). Stamped once the sample is complete, just before it goes.
+        let mut whole_copy = false;
+        let stamp = match self.ports.grid.loan_slice_uninit(engine.grid_len()) {
             Ok(sample) => {
-                let mut sample = sample.write_from_slice(cells);
+                let payload = sample.payload().as_ptr();
+                let held = self.grid_samples.held(payload);
+                whole_copy = held.is_none();
+                let (mut sample, counts, version) = match held {
+                    Some(held) => {
+                        // SAFETY: every byte of this slot was written (a whole copy, then
+                        // changes) before it was sent as a sample of version `held`; nothing
+                        // writes to it since (see `SampleVersions`), and any byte is a valid u8.
+                        let mut sample = unsafe { sample.assume_init() };
+                        let (counts, version) =
+                            engine.copy_grid_changes_into(sample.payload_mut(), Some(held));
+                        (sample, counts, version)
+                    }
+                    None => {
+                        let (cells, counts) = engine.encoded_grid();
+                        let sample = sample.write_from_slice(cells);
+                        (sample, counts, engine.encoded_grid_version())
+                    }
+                };
+                self.grid_samples.written(payload, version);
                 let stamp = unix_time_ns();
                 *sample.user_header_mut() = engine.grid_header(self.seq, stamp, counts);
                 match sample.send() {
@@ -1286,7 +1337,7 @@ impl Output<'_> {
             warn!("send radar: {e:?}");
         }
         self.notify();
-        debug!(seq = self.seq, "snapshot published");
+        debug!(seq = self.seq, whole_copy, "snapshot published");
         let now = Instant::now();
         self.dirty = false;
         self.pace.sent(now);

@@ -48,6 +48,13 @@ pub(crate) trait Combine: Copy {
     /// The keys a fused cell can have, `[lowest, highest]`.
     fn key_range(&self) -> [f32; 2];
 
+    /// The cells as their keys, if a cell is its own key (an f32 whose [`Self::key`] is itself):
+    /// then the snapshot encoding reads them 8 at a time
+    /// ([`crate::encoding::KeyEncoder::encode_cells`]).
+    fn cells_as_keys(_cells: &[Self::Cell]) -> Option<&[f32]> {
+        None
+    }
+
     /// Occupancy probability of a cell; `None` if no reading has reached it.
     #[inline(always)]
     fn probability(&self, cell: Self::Cell) -> Option<f32> {
@@ -191,6 +198,10 @@ impl Combine for BayesRule {
     fn key_range(&self) -> [f32; 2] {
         [0.0, 1.0]
     }
+
+    fn cells_as_keys(cells: &[f32]) -> Option<&[f32]> {
+        Some(cells)
+    }
 }
 
 /// Log-odds accumulation, l ← clamp(l + l_reading, min, max): the same posterior as eq. 6 while
@@ -268,6 +279,10 @@ impl Combine for LogOddsRule {
 
     fn key_range(&self) -> [f32; 2] {
         [self.min_log_odds, self.max_log_odds]
+    }
+
+    fn cells_as_keys(cells: &[f32]) -> Option<&[f32]> {
+        Some(cells)
     }
 }
 
