@@ -11,7 +11,6 @@ use clap::Parser;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
-use iceoryx2::waitset::WaitSetRunResult;
 use sonar_bridge::certs::{self, Peer};
 use sonar_bridge::channel::{self, Channel};
 use sonar_bridge::config::{BridgeSection, Mode, Overrides, Settings};
@@ -367,11 +366,7 @@ fn publish_ros2(
             .ok()
     })
     .collect();
-    let _wakeup_guards = wakeups
-        .iter()
-        .map(|listener| waitset.attach_notification(listener))
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| IpcError::new("attach wake-up listeners", e))?;
+    let _wakeup_guards = ipc::attach_all(&waitset, &wakeups)?;
     loop {
         for listener in &wakeups {
             ipc::drain_wakeups(listener)?;
@@ -419,13 +414,7 @@ fn publish_ros2(
             info!(counts = ?RosPublisher::counts(&publishers), "published");
         }
         let due = (map_at + map_period).min(Instant::now() + STATE_POLL);
-        let woke = waitset
-            .wait_and_process_once_with_timeout(
-                |_| CallbackProgression::Continue,
-                due.saturating_duration_since(Instant::now()),
-            )
-            .map_err(|e| IpcError::new("wait", e))?;
-        if woke == WaitSetRunResult::TerminationRequest {
+        if !ipc::sleep_until(&waitset, due)? {
             break;
         }
     }
@@ -742,11 +731,7 @@ impl Bridge {
             .map_err(|e| IpcError::new("attach the wake-up socket", e))?;
         // Out of `self`, which the loop changes while the waitset holds them.
         let wakeups = std::mem::take(&mut self.wakeups);
-        let _wakeup_guards = wakeups
-            .iter()
-            .map(|listener| waitset.attach_notification(listener))
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(|e| IpcError::new("attach wake-up listeners", e))?;
+        let _wakeup_guards = ipc::attach_all(&waitset, &wakeups)?;
         let mut last_flood_report = Instant::now();
         loop {
             // Before taking what came: what arrives meanwhile pokes again.
@@ -777,13 +762,7 @@ impl Bridge {
             let due = self
                 .next_due(now)
                 .min(last_flood_report + sonar_common::flood::PERIOD);
-            let woke = waitset
-                .wait_and_process_once_with_timeout(
-                    |_| CallbackProgression::Continue,
-                    due.saturating_duration_since(Instant::now()),
-                )
-                .map_err(|e| IpcError::new("wait", e))?;
-            if woke == WaitSetRunResult::TerminationRequest {
+            if !ipc::sleep_until(&waitset, due)? {
                 info!("stopping on a signal");
                 return Ok(());
             }

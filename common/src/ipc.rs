@@ -1199,6 +1199,33 @@ pub fn drain_wakeups(
         .map_err(|e| IpcError::new("take wake-ups", e))
 }
 
+/// Attaches every listener of `listeners` to `waitset`: the guards keep them attached.
+pub fn attach_all<'waitset, 'attachment>(
+    waitset: &'waitset WaitSet<ipc::Service>,
+    listeners: &'attachment [iceoryx2::port::listener::Listener<ipc::Service>],
+) -> Result<Vec<WaitSetGuard<'waitset, 'attachment, ipc::Service>>, IpcError> {
+    listeners
+        .iter()
+        .map(|listener| waitset.attach_notification(listener))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| IpcError::new("attach wake-up listeners", e))
+}
+
+/// Sleeps in `waitset` until one of its attachments wakes it or `due` comes (at once if past);
+/// false when SIGINT or SIGTERM asks the process to stop.
+pub fn sleep_until(
+    waitset: &WaitSet<ipc::Service>,
+    due: std::time::Instant,
+) -> Result<bool, IpcError> {
+    let woke = waitset
+        .wait_and_process_once_with_timeout(
+            |_| CallbackProgression::Continue,
+            due.saturating_duration_since(std::time::Instant::now()),
+        )
+        .map_err(|e| IpcError::new("wait", e))?;
+    Ok(woke != iceoryx2::waitset::WaitSetRunResult::TerminationRequest)
+}
+
 /// A file descriptor that a waitset sleeps on beside its listeners: the serial port a driver
 /// reads, the terminal a viewer reads. One wait then covers the device, the pipeline's wake-up
 /// events, the next deadline and SIGINT/SIGTERM, so an idle process sleeps instead of polling.

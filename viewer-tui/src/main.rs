@@ -282,11 +282,7 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
     let resize_guard = waitset
         .attach_notification(&watched_resizes)
         .map_err(|e| IpcError::new("attach the resize socket", e))?;
-    let _wakeup_guards = wakeups
-        .iter()
-        .map(|listener| waitset.attach_notification(listener))
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| IpcError::new("attach wake-up listeners", e))?;
+    let _wakeup_guards = ipc::attach_all(&waitset, &wakeups)?;
 
     let frame = Duration::from_secs(1) / args.fps;
     // Without news the viewer looks again after this long (the statuses and liveness come once a
