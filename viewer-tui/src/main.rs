@@ -306,9 +306,14 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
         }
         if resized || app.needs_redraw(now, drawn.as_ref()) {
             let mut info = DrawInfo::default();
-            tui.terminal
-                .draw(|f| info = ui::draw(f, &app, &mut cache, now))
-                .context("cannot draw")?;
+            let drew = tui
+                .terminal
+                .draw(|f| info = ui::draw(f, &app, &mut cache, now));
+            // A terminal that hung up since the last wait fails the write (EIO): said as what it is.
+            if drew.is_err() && stdin_guard.is_some() && hung_up_said() {
+                return Ok(());
+            }
+            drew.context("cannot draw")?;
             app.map_px = info.map_px;
             app.map_origin = info.map_origin;
             drawn = Some(app.drawn(now));
@@ -330,8 +335,12 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
                 next_poll.saturating_duration_since(Instant::now()),
             )
             .map_err(|e| IpcError::new("wait", e))?;
-        // SIGHUP and SIGQUIT end the wait as an interrupt and set the flag.
+        // SIGHUP and SIGQUIT end the wait as an interrupt and set the flag. A hang-up may come as
+        // SIGHUP before the terminal reads as hung up: said as what it is.
         if woke == WaitSetRunResult::TerminationRequest || quit.load(Ordering::Relaxed) {
+            if stdin_guard.is_some() && hung_up_said() {
+                return Ok(());
+            }
             break;
         }
         if news {
@@ -345,8 +354,7 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
             while (&resizes).read(&mut [0u8; 64]).is_ok_and(|n| n > 0) {}
             resized = true;
         }
-        if typed && terminal_hung_up() {
-            warn!("the terminal went away (hang-up): quitting");
+        if typed && hung_up_said() {
             return Ok(());
         }
         // Only when the terminal has something (or cannot be watched): on a hung-up terminal
@@ -374,6 +382,15 @@ fn run(args: Args, log: Result<PathBuf, String>) -> Result<()> {
     }
     info!("quit on a signal");
     Ok(())
+}
+
+/// [`terminal_hung_up`], and if so says so in the log.
+fn hung_up_said() -> bool {
+    let gone = terminal_hung_up();
+    if gone {
+        warn!("the terminal went away (hang-up): quitting");
+    }
+    gone
 }
 
 /// Whether the terminal hung up (its tmux or SSH session ended). Asked when the waitset found it
