@@ -543,6 +543,7 @@ pub fn run(
                 observations = e.observations,
                 matched = e.matched,
                 admitted = e.admitted,
+                ranged = e.ranged,
                 moving = e.moving,
                 error_cm = PoseError::of(&e.pose, &truth).position_m * 100.0,
                 error_deg = PoseError::of(&e.pose, &truth).heading_deg,
