@@ -101,7 +101,7 @@ impl Default for SlamConfig {
             fix_max_sigma_deg: 2.0,
             odometry_gate_chi2: 16.27,
             range_pings: true,
-            ranging_sigma_m: 0.02,
+            ranging_sigma_m: 0.04,
             ranging_min_sightings: 2,
             ranging_cone_margin_deg: 8.0,
         }
@@ -551,7 +551,16 @@ impl Slam {
         }
         let mut state = FixState::NoLandmarks;
         if matched + admitted + ranges > 0 {
-            if self.graph.odometry_chi2() - chi2_before > self.cfg.odometry_gate_chi2 {
+            let rise = self.graph.odometry_chi2() - chi2_before;
+            tracing::debug!(
+                sweep_id,
+                matched,
+                admitted,
+                ranges,
+                odometry_chi2_rise = rise,
+                "sightings solved"
+            );
+            if rise > self.cfg.odometry_gate_chi2 {
                 self.graph.restore(checkpoint, &values);
                 self.landmarks = landmarks_before;
                 self.candidates = candidates_before;
