@@ -23,11 +23,19 @@
 //!    [`SlamConfig::min_baseline_m`] or [`SlamConfig::min_baseline_deg`] away) that places the
 //!    same landmark within the gate makes it a landmark, with both sightings as factors. A phantom
 //!    of one sweep (a corner at the edge of a sweep taken for a wall) never anchors a pose.
-//! 6. The graph is solved (Huber kernel on the landmark factors). **Never worse than odometry**:
-//!    when the sweep's sightings raise the odometry's own χ² by more than
+//! 6. **Ranging on the move.** Each reading of a sweep taken on the move is placed at its own
+//!    instant's pose — the sweep's pose, then the odometry to that instant corrected by the
+//!    odometry's errors as the graph estimates them — and its pings that face a known wall
+//!    (seen in [`SlamConfig::ranging_min_sightings`] sweeps, its normal inside the specular
+//!    cut-off of the ping's axis) give the distance across that wall: one range factor per
+//!    reading and wall, gated against the joint covariance. So a sweep that lasts a metre or two
+//!    of driving is held along its whole length, and the odometry's drift is learnt as it
+//!    happens, not only between one sweep's start and the next.
+//! 7. The graph is solved (Huber kernel on the landmark and range factors). **Never worse than
+//!    odometry**: when the sweep's sightings and ranges raise the odometry's own χ² by more than
 //!    [`SlamConfig::odometry_gate_chi2`], the odometry would have to be implausibly wrong for
 //!    them: they are taken back, the sweep is placed by odometry, and the refusal is counted.
-//! 7. The sweep's estimate is published with its marginal covariance, and as a **fix** only when
+//! 8. The sweep's estimate is published with its marginal covariance, and as a **fix** only when
 //!    it matched a landmark and the covariance is within [`SlamConfig::fix_max_sigma_m`] and
 //!    [`SlamConfig::fix_max_sigma_deg`]; otherwise "no fix", with the covariance that says why.
 
