@@ -103,7 +103,7 @@ impl Family {
         Self::ALL.into_iter().find(|f| f.name() == name)
     }
 
-    /// The scene of layout `layout`, and the tour's length in metres (two rounds of a loop's
+    /// The scene of layout `layout`, and the tour's length in metres (three rounds of a loop's
     /// ring, three of the office's table; out and back otherwise).
     pub fn scene(self, layout: u64) -> Result<(Scene, f64)> {
         let mut rng =
@@ -164,7 +164,7 @@ impl Family {
                 let mut waypoints = along(&ring, 1.0);
                 waypoints.pop();
                 let lap = 2.0 * (a - w + b - w);
-                (walls, Vec::new(), waypoints, "stop-and-scan", 2.0 * lap)
+                (walls, Vec::new(), waypoints, "stop-and-scan", 3.0 * lap)
             }
             Family::LongCorridor => {
                 let w = rng.random_range(1.0..1.4);
@@ -543,9 +543,11 @@ pub fn run(
                 observations = e.observations,
                 matched = e.matched,
                 admitted = e.admitted,
+                ranged = e.ranged,
                 moving = e.moving,
                 error_cm = PoseError::of(&e.pose, &truth).position_m * 100.0,
                 error_deg = PoseError::of(&e.pose, &truth).heading_deg,
+                odometry_cm = PoseError::of(&e.odometry, &truth).position_m * 100.0,
                 sigma_cm = ?(e.covariance[(0, 0)].sqrt() * 100.0, e.covariance[(1, 1)].sqrt() * 100.0),
                 sigma_deg = e.covariance[(2, 2)].sqrt().to_degrees(),
                 "SLAM sweep"
@@ -839,7 +841,8 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
                 );
             }
         }
-        // The loop's laps: the largest error in the first and the last third of the tour.
+        // The loop's laps: the largest error in the first and the last of its three laps (thirds of
+        // the tour).
         let loops = runs_of(runs, Family::Loop, level);
         if !loops.is_empty() {
             let third = |r: &Run, last: bool| {
@@ -861,18 +864,28 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
                 .count();
             let _ = writeln!(
                 s,
-                "\nLoop, SLAM: largest position error in the first third of the tour {} cm, in the \
-                 last third {} cm (median / worst over runs); the last third no worse than the \
-                 first (within {:.0} cm) in {}. Sweeps refused to keep the odometry plausible: {}.\n",
+                "\nLoop, SLAM (three laps): largest position error in the first lap {} cm, in the \
+                 last lap {} cm (median / worst over runs); the last lap no worse than the \
+                 first (within {:.0} cm) in {}.",
                 over_runs(loops.iter().map(|r| third(r, false)), 100.0, 1),
                 over_runs(loops.iter().map(|r| third(r, true)), 100.0, 1),
                 WORSE_M * 100.0,
                 share(no_worse, loops.len()),
-                loops.iter().map(|r| r.refused).sum::<u32>(),
             );
-        } else {
-            s.push('\n');
         }
+        let refused: Vec<String> = settings
+            .families
+            .iter()
+            .map(|&f| {
+                let n: u32 = runs_of(runs, f, level).iter().map(|r| r.refused).sum();
+                format!("{} {n}", f.name())
+            })
+            .collect();
+        let _ = writeln!(
+            s,
+            "\nSweeps the SLAM refused to keep the odometry plausible: {}.\n",
+            refused.join(", ")
+        );
     }
     s
 }

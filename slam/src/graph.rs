@@ -113,6 +113,17 @@ enum Factor {
         z: Measurement,
         sqrt_information: Matrix2<f64>,
     },
+    /// A ping's range to a wall landmark, taken at the pose `steps` of odometry (corrected by the
+    /// errors at `calibration`) after `pose`: the distance across the wall from the ping's own
+    /// place, under the Huber kernel.
+    Range {
+        pose: Var,
+        calibration: Var,
+        wall: Var,
+        steps: Vec<Step>,
+        range: f64,
+        inverse_sigma: f64,
+    },
 }
 
 fn vec3(x: &[f64], v: Var) -> Vector3<f64> {
@@ -134,6 +145,22 @@ fn relative(from: &Vector3<f64>, to: &Vector3<f64>) -> Vector3<f64> {
     )
 }
 
+/// `motion` (x, y, θ in the frame of `from`) applied after `from`.
+pub fn compose(from: &Vector3<f64>, motion: &Vector3<f64>) -> Vector3<f64> {
+    let (sin, cos) = from.z.sin_cos();
+    Vector3::new(
+        from.x + cos * motion.x - sin * motion.y,
+        from.y + sin * motion.x + cos * motion.y,
+        wrap_rad(from.z + motion.z),
+    )
+}
+
+/// The distance from `pose`'s position to the wall (φ, d) along its normal: what a ping aimed
+/// within the wall's cut-off hears (negative behind the wall).
+pub fn range_to_wall(pose: &Vector3<f64>, wall: &Vector2<f64>) -> f64 {
+    wall.y - (wall.x.cos() * pose.x + wall.x.sin() * pose.y)
+}
+
 impl Factor {
     /// The state indices this factor depends on.
     fn keys(&self) -> Vec<usize> {
@@ -151,6 +178,15 @@ impl Factor {
             Factor::Landmark { pose, landmark, .. } => {
                 (*pose..pose + 3).chain(*landmark..landmark + 2).collect()
             }
+            Factor::Range {
+                pose,
+                calibration,
+                wall,
+                ..
+            } => (*pose..pose + 3)
+                .chain(*calibration..calibration + 3)
+                .chain(*wall..wall + 2)
+                .collect(),
         }
     }
 
@@ -200,11 +236,26 @@ impl Factor {
                     (sqrt_information * r).as_slice(),
                 ))
             }
+            Factor::Range {
+                pose,
+                calibration,
+                wall,
+                steps,
+                range,
+                inverse_sigma,
+            } => {
+                let at = compose(&vec3(x, *pose), &corrected(steps, &vec3(x, *calibration)));
+                let predicted = range_to_wall(&at, &vec2(x, *wall));
+                Some(DVector::from_element(
+                    1,
+                    (range - predicted) * inverse_sigma,
+                ))
+            }
         }
     }
 
     fn robust(&self) -> bool {
-        matches!(self, Factor::Landmark { .. })
+        matches!(self, Factor::Landmark { .. } | Factor::Range { .. })
     }
 
     fn is_odometry(&self) -> bool {
@@ -344,6 +395,27 @@ impl Graph {
             kind,
             z,
             sqrt_information: Matrix2::from_diagonal(&sigma.map(|s| 1.0 / s)),
+        });
+    }
+
+    /// A ping's `range` (σ `sigma`) to the wall landmark `wall`, taken `steps` of odometry after
+    /// `pose`, with the odometry's errors at `calibration`.
+    pub fn add_range_factor(
+        &mut self,
+        pose: Var,
+        calibration: Var,
+        wall: Var,
+        steps: Vec<Step>,
+        range: f64,
+        sigma: f64,
+    ) {
+        self.factors.push(Factor::Range {
+            pose,
+            calibration,
+            wall,
+            steps,
+            range,
+            inverse_sigma: 1.0 / sigma,
         });
     }
 

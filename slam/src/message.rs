@@ -154,6 +154,7 @@ mod tests {
             observations: 5,
             matched: 3,
             admitted: 1,
+            ranged: 0,
             moving: false,
         };
         let totals = Totals {
