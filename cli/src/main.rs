@@ -99,6 +99,10 @@ enum Topic {
     /// fix state, the pose in the map and the odometry's.
     #[value(alias = "slam_correction")]
     SlamCorrection,
+    /// sonar/slam_landmarks: sonar-slam's landmarks after each sweep, in the map frame (walls
+    /// by the foot of their perpendicular, points), one line each.
+    #[value(alias = "slam_landmarks")]
+    SlamLandmarks,
     /// sonar/radar: the basic map's snapshot (bins with a distance, nearest).
     Radar,
     /// sonar/features: each snapshot's counts, then one line per wall, corner and post.
@@ -121,6 +125,7 @@ impl Topic {
             Topic::LocalizedPose => ipc::LOCALIZED_POSE_SERVICE,
             Topic::FusionStatus => ipc::FUSION_STATUS_SERVICE,
             Topic::SlamCorrection => ipc::SLAM_CORRECTION_SERVICE,
+            Topic::SlamLandmarks => ipc::SLAM_LANDMARKS_SERVICE,
             Topic::Radar => ipc::RADAR_SERVICE,
             Topic::Features => ipc::FEATURES_SERVICE,
             Topic::Commands => ipc::COMMANDS_SERVICE,
@@ -377,8 +382,13 @@ fn receive_or_tick(
             fusion_command_line,
             each,
         ),
-        Topic::Features => {
-            let sub = subscribe(&ipc::features_service(node)?, service)?;
+        Topic::Features | Topic::SlamLandmarks => {
+            let port = if topic == Topic::Features {
+                ipc::features_service(node)?
+            } else {
+                ipc::slam_landmarks_service(node)?
+            };
+            let sub = subscribe(&port, service)?;
             poll(node, &mut each, || {
                 Ok(sub
                     .receive()

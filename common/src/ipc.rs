@@ -43,6 +43,8 @@ pub const LOCALIZED_POSE_SERVICE: &str = "sonar/localized_pose";
 /// `sonar-slam`'s correction of the odometry, once per sweep: the `map → odom` transform with its
 /// covariance and whether it is a fix.
 pub const SLAM_CORRECTION_SERVICE: &str = "sonar/slam_correction";
+/// `sonar-slam`'s landmarks (walls, corners, posts) in the map frame, after each sweep.
+pub const SLAM_LANDMARKS_SERVICE: &str = "sonar/slam_landmarks";
 
 /// The iceoryx2 node name of `sonar-replay`: a viewer that sees it behind `sonar/readings` knows
 /// that the readings stop because a recording ended, not because a driver died.
@@ -1121,6 +1123,14 @@ pub type FeaturesService =
 /// [`MAX_FEATURES`] × 72 B a snapshot.
 pub fn features_service(node: &Node<ipc::Service>) -> Result<FeaturesService, IpcError> {
     latest_snapshot_service(node, FEATURES_SERVICE)
+}
+
+/// `sonar/slam_landmarks`, with the features' policy (history 1, the latest snapshot replaces an
+/// unread one) and their layout: a [`FeaturesHeader`] and one [`FeatureRecord`] per landmark, in
+/// the map frame of `sonar/slam_correction` (not the grid's). What the fields mean for a landmark
+/// is in `docs/ipc.md`.
+pub fn slam_landmarks_service(node: &Node<ipc::Service>) -> Result<FeaturesService, IpcError> {
+    latest_snapshot_service(node, SLAM_LANDMARKS_SERVICE)
 }
 
 /// `sonar/localized_pose`, with the driver status's policy: history 1 so a late joiner sees the

@@ -246,6 +246,10 @@ pub struct Landmark {
     /// Point: (x, y). Line: (φ, d), its normal's direction (radians) and distance from the
     /// map's origin.
     pub mean: Vector2<f64>,
+    /// Covariance of `mean` (point: m²; line: (φ, d) in rad², rad·m, m²): the landmark's
+    /// marginal in the joint estimate of poses and landmarks; `None` while that estimate's
+    /// information is singular.
+    pub covariance: Option<Matrix2<f64>>,
     pub sightings: u32,
 }
 
@@ -489,13 +493,30 @@ impl Slam {
         self.refused
     }
 
-    /// The landmarks as currently estimated.
+    /// How many landmarks the map holds.
+    pub fn landmark_count(&self) -> usize {
+        self.landmarks.len()
+    }
+
+    /// The landmarks as currently estimated, with their covariances (one solve of the graph's
+    /// normal equations for all of them: as costly as a sweep's own covariance, so once per
+    /// sweep, not per reading).
     pub fn landmarks(&self) -> Vec<Landmark> {
+        let vars: Vec<(Var, usize)> = self.landmarks.iter().map(|l| (l.var, 2)).collect();
+        let joint = if vars.is_empty() {
+            None
+        } else {
+            self.graph.covariance(&vars)
+        };
         self.landmarks
             .iter()
-            .map(|l| Landmark {
+            .enumerate()
+            .map(|(i, l)| Landmark {
                 kind: l.kind,
                 mean: self.graph.vector2(l.var),
+                covariance: joint
+                    .as_ref()
+                    .map(|c| c.fixed_view::<2, 2>(2 * i, 2 * i).into_owned()),
                 sightings: l.sightings,
             })
             .collect()

@@ -3,7 +3,8 @@
 //! It takes the readings (`sonar/readings`) and the odometry (`robot/pose`), hands them to
 //! [`sonar_slam::Slam`], and after every sweep publishes the estimate on
 //! `sonar/slam_correction`: the `map → odom` transform with its covariance, the sweep's pose in
-//! the map, and whether it is a fix. The fusion (`sonar-fusion --slam-correction`) places its
+//! the map, and whether it is a fix; and on `sonar/slam_landmarks` the landmarks in the map with
+//! their covariances. The fusion (`sonar-fusion --slam-correction`) places its
 //! readings with it; it stays the grid engine, this process estimates and does nothing else.
 //!
 //! A reading newer than the newest odometry waits for the pose that covers its instant, for at
@@ -26,9 +27,14 @@ use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::waitset::WaitSetRunResult;
 use nalgebra::{Isometry2, Vector2};
 use serde::Deserialize;
-use sonar_common::ipc::{self, IpcArgs, IpcError, Pose2D, Reading, SlamCorrection};
+use sonar_common::ipc::{
+    self, FeatureRecord, FeaturesHeader, IpcArgs, IpcError, MAX_FEATURES, Pose2D, Reading,
+    SlamCorrection,
+};
 use sonar_common::throttle::Throttle;
-use sonar_slam::message::{Totals, correction_message, revision_message};
+use sonar_slam::message::{
+    LandmarksStamp, Totals, correction_message, landmarks_snapshot, revision_message,
+};
 use sonar_slam::{FixState, Slam, SlamConfig, SlamSection, SweepEstimate};
 use tracing::{debug, info, warn};
 
@@ -59,7 +65,8 @@ const REVISE_DEG: f64 = 0.1;
 /// Estimates the robot's poses and the landmarks its sonar sees (walls, corners, posts) together,
 /// from sonar/readings and the odometry of robot/pose, and publishes after every sweep the
 /// correction of the odometry on sonar/slam_correction: the map → odom transform with its
-/// covariance, the sweep's pose in the map, and "fix" or "no fix" (docs/ipc.md).
+/// covariance, the sweep's pose in the map, and "fix" or "no fix"; and the landmarks (walls,
+/// points) with their covariances on sonar/slam_landmarks (docs/ipc.md).
 ///
 /// The map's frame is the odometry's at the first sweep estimated. Without robot/pose nothing is
 /// estimated (a sweep needs the odometry of its instant); the process says so once and waits.
@@ -124,10 +131,11 @@ fn run(args: &Args) -> Result<()> {
     info!(
         fix_max_sigma_m = config.fix_max_sigma_m,
         fix_max_sigma_deg = config.fix_max_sigma_deg,
-        "sonar-slam ready: readings from {}, odometry from {}, corrections on {}",
+        "sonar-slam ready: readings from {}, odometry from {}, corrections on {}, landmarks on {}",
         ipc::READINGS_SERVICE,
         ipc::POSE_SERVICE,
-        ipc::SLAM_CORRECTION_SERVICE
+        ipc::SLAM_CORRECTION_SERVICE,
+        ipc::SLAM_LANDMARKS_SERVICE
     );
 
     let mut process = Process::new(slam, &ports);
@@ -163,7 +171,7 @@ fn run(args: &Args) -> Result<()> {
         sweeps = process.sweeps,
         fixes = process.totals.fixes,
         refused = process.slam.refused(),
-        landmarks = process.slam.landmarks().len(),
+        landmarks = process.slam.landmark_count(),
         readings_lost = process.readings_lost,
         revisions = process.revisions,
         calibration = ?process.slam.calibration(),
@@ -178,6 +186,8 @@ struct Ports {
     readings_listener: iceoryx2::port::listener::Listener<Ipc>,
     odometry: Subscriber<Ipc, Pose2D, ()>,
     corrections: Publisher<Ipc, SlamCorrection, ()>,
+    landmarks: Publisher<Ipc, [FeatureRecord], FeaturesHeader>,
+    landmarks_notifier: iceoryx2::port::notifier::Notifier<Ipc>,
 }
 
 impl Ports {
@@ -201,6 +211,12 @@ impl Ports {
                         e,
                     )
                 })?,
+            landmarks: ipc::slam_landmarks_service(node)?
+                .publisher_builder()
+                .initial_max_slice_len(MAX_FEATURES)
+                .create()
+                .map_err(|e| IpcError::new("create landmarks publisher", e))?,
+            landmarks_notifier: ipc::wakeup_notifier(node, ipc::SLAM_LANDMARKS_SERVICE)?,
         })
     }
 }
@@ -300,6 +316,9 @@ impl<'a> Process<'a> {
             if let Err(e) = self.ports.corrections.update_connections() {
                 warn!("update connections: {e:?}");
             }
+            if let Err(e) = self.ports.landmarks.update_connections() {
+                warn!("update connections: {e:?}");
+            }
         }
         Ok(())
     }
@@ -374,7 +393,7 @@ impl<'a> Process<'a> {
         if estimate.state == FixState::Fix {
             self.totals.fixes += 1;
         }
-        self.totals.landmarks = self.slam.landmarks().len();
+        self.totals.landmarks = self.slam.landmark_count();
         self.totals.refused = self.slam.refused();
         let message = correction_message(estimate, self.totals);
         debug!(
@@ -392,6 +411,40 @@ impl<'a> Process<'a> {
             warn!("send correction: {e:?}");
         }
         self.publish_revisions();
+        self.publish_landmarks(estimate);
+    }
+
+    /// The landmarks as estimated after `estimate`'s sweep, on sonar/slam_landmarks.
+    fn publish_landmarks(&mut self, estimate: &SweepEstimate) {
+        let (header, records) = landmarks_snapshot(
+            &self.slam.landmarks(),
+            LandmarksStamp {
+                seq: self.sweeps,
+                stamp_ns: estimate.stamp_ns,
+                sweep_id: estimate.sweep_id,
+                sweeps: self.sweeps,
+            },
+        );
+        let sent = self
+            .ports
+            .landmarks
+            .loan_slice_uninit(records.len())
+            .map_err(|e| format!("loan: {e:?}"))
+            .and_then(|mut sample| {
+                *sample.user_header_mut() = header;
+                sample
+                    .write_from_slice(&records)
+                    .send()
+                    .map_err(|e| format!("send: {e:?}"))
+            });
+        match sent {
+            Ok(_) => {
+                if let Err(e) = self.ports.landmarks_notifier.notify() {
+                    warn!("notify landmarks: {e:?}");
+                }
+            }
+            Err(e) => warn!("landmarks not published: {e}"),
+        }
     }
 
     /// Publishes every earlier sweep that the latest estimate moved (beyond [`REVISE_M`] or

@@ -1,10 +1,15 @@
 //! A sweep's estimate as `sonar-slam` publishes it on `sonar/slam_correction`
-//! ([`SlamCorrection`], byte layout in `docs/ipc.md`).
+//! ([`SlamCorrection`]), and its landmarks on `sonar/slam_landmarks` ([`FeatureRecord`]s; byte
+//! layouts in `docs/ipc.md`).
 
-use nalgebra::{Isometry2, Matrix3};
-use sonar_common::ipc::{LAYOUT_VERSION, SlamCorrection, slam_state};
+use nalgebra::{Isometry2, Matrix2, Matrix3};
+use sonar_common::ipc::{
+    FeatureRecord, FeaturesHeader, LAYOUT_VERSION, MAX_FEATURES, SlamCorrection, feature_kind,
+    slam_state,
+};
 
-use crate::estimator::{FixState, SweepEstimate, SweepPose};
+use crate::estimator::{FixState, Landmark, SweepEstimate, SweepPose};
+use crate::graph::LandmarkKind;
 
 /// The [`slam_state`] code of a fix state.
 pub fn state_code(state: FixState) -> u32 {
@@ -112,6 +117,108 @@ fn message(e: Estimated, totals: Totals) -> SlamCorrection {
     }
 }
 
+/// What a landmarks snapshot says besides the landmarks.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LandmarksStamp {
+    pub seq: u64,
+    /// `host_stamp_ns` of the sweep after which the landmarks were estimated.
+    pub stamp_ns: u64,
+    pub sweep_id: u32,
+    /// Sweeps estimated since the process started.
+    pub sweeps: u64,
+}
+
+/// The `sonar/slam_landmarks` snapshot of the landmarks: the features' layout, in the map frame.
+/// A wall is a plane through the foot of its perpendicular from the map's origin, with the
+/// covariance of that foot carried from the estimate's (φ, d) and the σ of its normal's
+/// direction; SLAM's walls are infinite lines, so the segment is NaN. A point landmark (a post
+/// or a corner: the SLAM does not tell them apart) is a point with its covariance. Landmarks
+/// beyond [`MAX_FEATURES`] are left out, the least seen first, and counted.
+pub fn landmarks_snapshot(
+    landmarks: &[Landmark],
+    stamp: LandmarksStamp,
+) -> (FeaturesHeader, Vec<FeatureRecord>) {
+    let mut order: Vec<usize> = (0..landmarks.len()).collect();
+    order.sort_by_key(|&i| std::cmp::Reverse(landmarks[i].sightings));
+    let kept = order.len().min(MAX_FEATURES);
+    let mut records: Vec<FeatureRecord> = order[..kept]
+        .iter()
+        .map(|&i| landmark_record(i, &landmarks[i]))
+        .collect();
+    records.sort_by_key(|r| r.id);
+    let header = FeaturesHeader {
+        seq: stamp.seq,
+        stamp_ns: stamp.stamp_ns,
+        sweeps: stamp.sweeps,
+        layout_version: LAYOUT_VERSION,
+        feature_count: u32::try_from(records.len()).unwrap_or(u32::MAX),
+        last_sweep_id: stamp.sweep_id,
+        features_left_out: u32::try_from(landmarks.len() - kept).unwrap_or(u32::MAX),
+        ..FeaturesHeader::default()
+    };
+    (header, records)
+}
+
+/// One landmark as a feature record; its id is its index in the map plus one (landmarks are
+/// never removed, so it is stable).
+fn landmark_record(index: usize, l: &Landmark) -> FeatureRecord {
+    let unknown = Matrix2::from_element(f64::NAN);
+    let record = FeatureRecord {
+        id: index as u64 + 1,
+        times_seen: l.sightings,
+        angle_deg: f32::NAN,
+        angle_sigma_deg: f32::NAN,
+        confidence: f32::NAN,
+        segment_ax_m: f32::NAN,
+        segment_ay_m: f32::NAN,
+        segment_bx_m: f32::NAN,
+        segment_by_m: f32::NAN,
+        ..FeatureRecord::default()
+    };
+    let (x, y, c, kind) = match l.kind {
+        LandmarkKind::Point => (
+            l.mean.x,
+            l.mean.y,
+            l.covariance.unwrap_or(unknown),
+            feature_kind::POINT,
+        ),
+        LandmarkKind::Line => {
+            let (phi, d) = (l.mean.x, l.mean.y);
+            let (sin, cos) = phi.sin_cos();
+            // ∂(foot x, foot y) / ∂(φ, d) for the foot d·(cos φ, sin φ).
+            let jacobian = Matrix2::new(-d * sin, cos, d * cos, sin);
+            let c = l
+                .covariance
+                .map_or(unknown, |c| jacobian * c * jacobian.transpose());
+            let (x, y) = (d * cos, d * sin);
+            return FeatureRecord {
+                kind: feature_kind::PLANE,
+                x_m: x as f32,
+                y_m: y as f32,
+                cov_xx: c[(0, 0)] as f32,
+                cov_xy: c[(0, 1)] as f32,
+                cov_yy: c[(1, 1)] as f32,
+                // Towards the wall from the origin: φ, or its opposite when d < 0.
+                angle_deg: y.atan2(x).to_degrees() as f32,
+                angle_sigma_deg: l
+                    .covariance
+                    .map_or(f64::NAN, |c| c[(0, 0)].sqrt().to_degrees())
+                    as f32,
+                ..record
+            };
+        }
+    };
+    FeatureRecord {
+        kind,
+        x_m: x as f32,
+        y_m: y as f32,
+        cov_xx: c[(0, 0)] as f32,
+        cov_xy: c[(0, 1)] as f32,
+        cov_yy: c[(1, 1)] as f32,
+        ..record
+    }
+}
+
 fn parts(pose: &Isometry2<f64>) -> (f32, f32, f32) {
     (
         pose.translation.x as f32,
@@ -205,6 +312,71 @@ mod tests {
         let placed = correction * sweep.odometry;
         assert!((placed.translation.vector - sweep.pose.translation.vector).norm() < 1e-6);
         assert!(m.cov_xx.is_nan() && m.correction_cov_thetatheta.is_nan());
+    }
+
+    #[test]
+    fn landmarks_become_records_in_the_map_frame_with_their_covariance() {
+        use nalgebra::Matrix2;
+        // A wall whose normal points along −y, 2 m from the origin (d < 0 with φ = π/2).
+        let wall = Landmark {
+            kind: LandmarkKind::Line,
+            mean: Vector2::new(std::f64::consts::FRAC_PI_2, -2.0),
+            covariance: Some(Matrix2::new(1e-4, 0.0, 0.0, 4e-4)),
+            sightings: 5,
+        };
+        let post = Landmark {
+            kind: LandmarkKind::Point,
+            mean: Vector2::new(1.0, 0.5),
+            covariance: None,
+            sightings: 2,
+        };
+        let stamp = LandmarksStamp {
+            seq: 3,
+            stamp_ns: 77,
+            sweep_id: 9,
+            sweeps: 10,
+        };
+        let (header, records) = landmarks_snapshot(&[wall, post], stamp);
+        assert_eq!((header.seq, header.stamp_ns, header.sweeps), (3, 77, 10));
+        assert_eq!((header.feature_count, header.last_sweep_id), (2, 9));
+        assert_eq!(header.layout_version, LAYOUT_VERSION);
+        let w = records[0];
+        assert_eq!((w.id, w.kind, w.times_seen), (1, feature_kind::PLANE, 5));
+        // The foot of the perpendicular: (0, −2); the normal from the origin towards it: −90°.
+        assert!(w.x_m.abs() < 1e-6 && (w.y_m + 2.0).abs() < 1e-6, "{w:?}");
+        assert!((w.angle_deg + 90.0).abs() < 1e-4, "{w:?}");
+        // σ_φ = 0.01 rad moves the foot sideways by d·σ_φ = 2 cm; σ_d = 2 cm moves it along y.
+        assert!(
+            (w.cov_xx - 4e-4).abs() < 1e-8 && (w.cov_yy - 4e-4).abs() < 1e-8,
+            "{w:?}"
+        );
+        assert!((w.angle_sigma_deg - 0.01f32.to_degrees()).abs() < 1e-4);
+        assert!(w.segment_ax_m.is_nan());
+        let p = records[1];
+        assert_eq!((p.id, p.kind, p.times_seen), (2, feature_kind::POINT, 2));
+        assert_eq!((p.x_m, p.y_m), (1.0, 0.5));
+        assert!(p.cov_xx.is_nan() && p.angle_deg.is_nan());
+    }
+
+    #[test]
+    fn beyond_the_snapshot_s_room_the_least_seen_landmarks_are_left_out() {
+        let landmarks: Vec<Landmark> = (0..MAX_FEATURES as u32 + 3)
+            .map(|i| Landmark {
+                kind: LandmarkKind::Point,
+                mean: Vector2::new(f64::from(i), 0.0),
+                covariance: None,
+                // The first three are seen once, the others more.
+                sightings: if i < 3 { 1 } else { 2 + i },
+            })
+            .collect();
+        let (header, records) = landmarks_snapshot(&landmarks, LandmarksStamp::default());
+        assert_eq!(records.len(), MAX_FEATURES);
+        assert_eq!(header.features_left_out, 3);
+        assert!(
+            records.iter().all(|r| r.id > 3),
+            "ids kept in order, the first three out"
+        );
+        assert!(records.windows(2).all(|w| w[0].id < w[1].id));
     }
 
     #[test]
