@@ -35,6 +35,7 @@
 pub mod feature_report;
 pub mod features;
 pub mod image;
+pub mod landmarks;
 pub mod metrics;
 pub mod motion;
 pub mod pipeline;

@@ -38,9 +38,10 @@ use rand_chacha::ChaCha8Rng;
 use sonar_common::ipc::Reading;
 use sonar_fusion::{FusionConfig, Mapper, Observation};
 use sonar_sim::{OdometryParams, Pose, PoseSample, Scene};
-use sonar_slam::{FixState, Slam, SlamConfig, SweepEstimate, SweepPose};
+use sonar_slam::{FixState, Landmark, Slam, SlamConfig, SweepEstimate, SweepPose};
 
 use crate::feature_report::Spread;
+use crate::landmarks::{self, LandmarkScore};
 use crate::motion::{POSE_RATE_HZ, Placement, PoseError, fuse_tour, grid_over, nees, truth_at};
 use crate::pipeline::{Scan, TourCapture, capture_tour, probability_view};
 use crate::suite::{GridScore, score_grid};
@@ -344,6 +345,8 @@ pub struct Run {
     pub maps: TourMaps,
     /// Each sweep's pose as the whole tour finally estimates it, against the truth.
     pub revised: Vec<PoseError>,
+    /// The SLAM's landmarks at the end of the tour against the true geometry.
+    pub landmarks: LandmarkScore,
 }
 
 /// The tour's map placed three ways, against the true surfaces (module documentation).
@@ -365,6 +368,8 @@ pub struct SlamOutput {
     /// Every sweep as estimated at the end of the tour.
     pub trajectory: Vec<SweepPose>,
     pub refused: u32,
+    /// The landmarks at the end of the tour.
+    pub landmarks: Vec<Landmark>,
 }
 
 /// What to run.
@@ -403,13 +408,14 @@ pub fn run_slam(tour: &TourCapture, config: SlamConfig) -> Result<SlamOutput> {
     }
     tracing::debug!(
         calibration = ?slam.calibration(),
-        landmarks = slam.landmarks().len(),
+        landmarks = slam.landmark_count(),
         "SLAM at the end of the tour (scale error, drift rad/m, turn error)"
     );
     Ok(SlamOutput {
         estimates,
         trajectory: slam.trajectory(),
         refused: slam.refused(),
+        landmarks: slam.landmarks(),
     })
 }
 
@@ -532,6 +538,7 @@ pub fn run(
         .map(|p| PoseError::of(&p.pose, &truth_at(&tour.poses, p.stamp_ns)))
         .collect();
     let refused = output.refused;
+    let landmarks = landmarks::score(&scene, &output.landmarks);
     let slam = output
         .estimates
         .iter()
@@ -594,6 +601,7 @@ pub fn run(
         refused,
         maps,
         revised,
+        landmarks,
     })
 }
 
@@ -871,6 +879,42 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
                 over_runs(loops.iter().map(|r| third(r, true)), 100.0, 1),
                 WORSE_M * 100.0,
                 share(no_worse, loops.len()),
+            );
+        }
+        let _ = writeln!(
+            s,
+            "\nThe SLAM's landmarks at the end of each tour against the true geometry \
+             (`eval/src/landmarks.rs`): walls and points per run (median / most); walls on no \
+             true wall (none within {:.0}° and {:.0} cm) and points on no surface (none within \
+             {:.0} cm), of all over the runs; walls on a true wall whose error lies inside their \
+             own 95 % ellipse.\n\n| tour | walls per run | points per run | phantom walls | \
+             phantom points | walls inside their 95 % ellipse |\n|---|---|---|---|---|---|",
+            landmarks::WALL_DEGREES,
+            landmarks::WALL_METRES * 100.0,
+            landmarks::POINT_METRES * 100.0,
+        );
+        for &family in &settings.families {
+            let these = runs_of(runs, family, level);
+            if these.is_empty() {
+                continue;
+            }
+            let sum = |f: fn(&LandmarkScore) -> usize| -> usize {
+                these.iter().map(|r| f(&r.landmarks)).sum()
+            };
+            let per_run = |f: fn(&LandmarkScore) -> usize| {
+                let mut n: Vec<usize> = these.iter().map(|r| f(&r.landmarks)).collect();
+                n.sort_unstable();
+                format!("{} / {}", n[n.len() / 2], n[n.len() - 1])
+            };
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {} | {} |",
+                family.name(),
+                per_run(|l| l.walls),
+                per_run(|l| l.points),
+                share(sum(|l| l.phantom_walls), sum(|l| l.walls)),
+                share(sum(|l| l.phantom_points), sum(|l| l.points)),
+                share(sum(|l| l.walls_inside_95), sum(|l| l.walls_with_covariance)),
             );
         }
         let refused: Vec<String> = settings
