@@ -744,17 +744,25 @@ impl SmoothModel {
     }
 
     /// The occupied evidence of a closed region of constant depth seen along world bearing `axis`
-    /// (its middle bearing) at `range` (its mean range): a straight patch square to the axis at
-    /// the range, `band` thick, fading as 1 − (α/θ)² to the patch's half-angle θ = `half_angle`;
+    /// (its middle bearing) at `range` (its mean range), heard by `readings` readings: a straight
+    /// patch square to the axis at the range, `band` thick, fading as 1 − (α/θ)² to the patch's
+    /// half-angle θ = `half_angle`, as strong as the readings' occupied evidence together (each
+    /// of them heard the reflector, as each reading of the per-reading placement puts its own);
     /// each of its cells remembers the axis as the bearing it was heard from (the reflector's
     /// normal, if it is a wall).
-    pub(crate) fn region_echo(&self, axis: f32, range: f32, half_angle: f32) -> RegionEcho {
+    pub(crate) fn region_echo(
+        &self,
+        axis: f32,
+        range: f32,
+        half_angle: f32,
+        readings: u32,
+    ) -> RegionEcho {
         let band = self.band(range);
         RegionEcho {
             d: range,
             band,
             inv_band: 1.0 / band,
-            l_occ: self.occupied_log_odds,
+            l_occ: self.occupied_log_odds * readings as f32,
             inv_sq: 1.0 / (half_angle * half_angle),
             fade_range: self.fade_range_m,
             half_angle: half_angle * 1.001,
