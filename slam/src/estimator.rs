@@ -91,6 +91,11 @@ pub struct SlamConfig {
     /// A ping ranges on a wall whose normal lies this far inside the specular cut-off of its
     /// axis, less 1σ of the heading (near the edge of the cone the wall may not answer).
     pub ranging_cone_margin_deg: f64,
+    /// A sweep on the move whose readings are ranged on walls is cut into pieces of this much
+    /// driving (metres), each with a pose of its own joined to the one before by the odometry
+    /// between them; each reading is ranged from its piece's pose. (One pose for a whole sweep
+    /// is one pose for two metres of driving.)
+    pub piece_m: f64,
 }
 
 impl Default for SlamConfig {
@@ -112,6 +117,7 @@ impl Default for SlamConfig {
             ranging_sigma_m: 0.04,
             ranging_min_sightings: 2,
             ranging_cone_margin_deg: 8.0,
+            piece_m: 0.5,
         }
     }
 }
@@ -128,6 +134,7 @@ impl SlamConfig {
             ("fix_max_sigma_deg", self.fix_max_sigma_deg),
             ("odometry_gate_chi2", self.odometry_gate_chi2),
             ("ranging_sigma_m", self.ranging_sigma_m),
+            ("piece_m", self.piece_m),
         ];
         for (name, v) in positive {
             if !(v.is_finite() && v > 0.0) {
@@ -277,6 +284,8 @@ struct Candidate {
 /// One reading of a sweep taken on the move, for ranging on walls.
 #[derive(Debug, Clone)]
 struct ReadingPings {
+    /// Its `host_stamp_ns`.
+    stamp_ns: u64,
     /// The odometry from the sweep's first reading to this one.
     steps: Vec<Step>,
     /// Its pings that heard something: bearing in the sensor's frame (rad) and range (m).
@@ -316,6 +325,9 @@ pub struct Slam {
     candidates: Vec<Candidate>,
     refused: u32,
     last: Option<SweepEstimate>,
+    /// The latest pose of the chain and its instant: the latest sweep's, or the last piece of a
+    /// sweep on the move. The next sweep's odometry factor starts there.
+    tail: Option<(Var, u64)>,
 }
 
 impl Slam {
@@ -333,6 +345,7 @@ impl Slam {
             candidates: Vec::new(),
             refused: 0,
             last: None,
+            tail: None,
         })
     }
 
@@ -411,6 +424,7 @@ impl Slam {
                 .iter()
                 .zip(steps)
                 .map(|(r, steps)| ReadingPings {
+                    stamp_ns: r.host_stamp_ns,
                     steps,
                     pings: Sweep::from_readings_at(
                         std::iter::once((r, Isometry2::identity())),
@@ -527,6 +541,10 @@ impl Slam {
         let mut vars = vec![(pose, 3)];
         vars.extend(self.landmarks.iter().map(|l| (l.var, 2)));
         let joint = self.graph.covariance(&vars);
+        let predicted = self.graph.vector3(pose);
+        let predicted_cov = joint
+            .as_ref()
+            .map(|j| j.fixed_view::<3, 3>(0, 0).into_owned());
         let (matched, admitted) = match &joint {
             Some(joint) => {
                 let pairs = self.associate(pose, sightings, joint);
@@ -538,14 +556,13 @@ impl Slam {
                         .add_landmark_factor(pose, l.var, l.kind, s.z, s.sigma);
                     l.sightings += 1;
                 }
-                let pose_cov = joint.fixed_view::<3, 3>(0, 0).into_owned();
                 let unmatched: Vec<Sighting> = sightings
                     .iter()
                     .zip(&used)
                     .filter(|(_, u)| !**u)
                     .map(|(s, _)| *s)
                     .collect();
-                let admitted = self.admit(k, &unmatched, &pose_cov);
+                let admitted = self.admit(k, &unmatched);
                 (pairs.len(), admitted)
             }
             None => (0, 0),
@@ -560,7 +577,20 @@ impl Slam {
         let mut state = FixState::NoLandmarks;
         if matched + admitted + ranges > 0 {
             let rise = self.graph.odometry_chi2() - chi2_before;
+            let solved = self.graph.vector3(pose);
+            let turn = wrap_rad(solved.z - predicted.z);
+            let (turn_sigmas, shift_chi2) = predicted_cov.map_or((f64::NAN, f64::NAN), |c| {
+                let mut d = solved - predicted;
+                d.z = turn;
+                let chi2 = c
+                    .try_inverse()
+                    .map_or(f64::NAN, |inv| (d.transpose() * inv * d)[(0, 0)]);
+                (turn / c[(2, 2)].max(0.0).sqrt(), chi2)
+            });
             tracing::debug!(
+                turn_deg = turn.to_degrees(),
+                turn_sigmas,
+                shift_chi2,
                 sweep_id,
                 matched,
                 admitted,
@@ -570,6 +600,7 @@ impl Slam {
             );
             if rise > self.cfg.odometry_gate_chi2 {
                 self.graph.restore(checkpoint, &values);
+                self.tail = Some((pose, stamp_ns));
                 self.landmarks = landmarks_before;
                 self.candidates = candidates_before;
                 self.refused += 1;
@@ -654,8 +685,9 @@ impl Slam {
         let x = self.graph.vector3(pose);
         let c = self.graph.vector3(calibration);
         let errors = self.cfg.features.odometry;
-        let mut added = 0;
-        for reading in ranged {
+        // (reading, wall, range) of the ranges that pass the gate.
+        let mut accepted: Vec<(usize, usize, f64)> = Vec::new();
+        for (index, reading) in ranged.iter().enumerate() {
             let at = compose(&x, &crate::odometry::corrected(&reading.steps, &c));
             // The pings facing each wall.
             let mut facing: Vec<(usize, Vec<f64>)> = Vec::new();
@@ -678,7 +710,8 @@ impl Slam {
                     }
                 }
             }
-            // The odometry's random error from the sweep's pose to this reading.
+            // The odometry's random error from the sweep's pose to this reading: the gate is taken
+            // before the reading's piece has a pose of its own.
             let random = random_covariance(&reading.steps, &errors);
             for (w, mut ranges) in facing {
                 ranges.sort_by(f64::total_cmp);
@@ -716,17 +749,40 @@ impl Slam {
                 let s = (j.transpose() * &joint * &j)[(0, 0)] + sigma * sigma;
                 let v = range - predicted;
                 if v * v <= RANGE_GATE_CHI2 * s {
-                    self.graph.add_range_factor(
-                        pose,
-                        calibration,
-                        walls[w],
-                        reading.steps.clone(),
-                        range,
-                        sigma,
-                    );
-                    added += 1;
+                    accepted.push((index, w, range));
                 }
             }
+        }
+        if accepted.is_empty() {
+            return 0;
+        }
+        // The sweep cut into pieces of `piece_m` of driving, each piece's pose chained to the one
+        // before by the odometry; each range attached to the pose of its reading's piece.
+        let sweep_ns = self.poses.last().map_or(0, |p| p.stamp_ns);
+        let mut piece = (pose, sweep_ns, 0usize);
+        let added = accepted.len();
+        for (index, w, range) in accepted {
+            let reading = &ranged[index];
+            let driven: f64 = reading.steps.iter().map(|s| s.x.hypot(s.y)).sum();
+            let number = (driven / self.cfg.piece_m).floor() as usize;
+            if number > piece.2 {
+                let var = self.chain_pose(piece.0, piece.1, reading.stamp_ns, calibration);
+                piece = (var, reading.stamp_ns, number);
+                self.tail = Some((var, reading.stamp_ns));
+            }
+            let steps = self.track.steps(piece.1, reading.stamp_ns);
+            let wall = self.graph.vector2(walls[w]);
+            let n = Vector2::new(wall.x.cos(), wall.x.sin());
+            // Across the wall, the odometry's random error from the piece's pose to the reading.
+            let heading = self.graph.vector3(piece.0).z;
+            let (sin, cos) = heading.sin_cos();
+            let local = Vector2::new(cos * n.x + sin * n.y, -sin * n.x + cos * n.y);
+            let random = random_covariance(&steps, &errors);
+            let odometry_var =
+                (local.transpose() * random.fixed_view::<2, 2>(0, 0) * local)[(0, 0)];
+            let sigma = self.cfg.ranging_sigma_m.hypot(odometry_var.max(0.0).sqrt());
+            self.graph
+                .add_range_factor(piece.0, calibration, walls[w], steps, range, sigma);
         }
         added
     }
@@ -760,21 +816,31 @@ impl Slam {
                 sweep_id,
                 odometry: *odometry,
             });
+            self.tail = Some((pose, stamp_ns));
             return pose;
         };
-        let steps = self.track.steps(previous.stamp_ns, stamp_ns);
-        let motion = crate::odometry::corrected(&steps, &self.graph.vector3(calibration));
-        let predicted = compose(&self.graph.vector3(previous.var), &motion);
-        let pose = self.graph.add_variable(predicted.as_slice());
-        let covariance = random_covariance(&steps, &errors);
-        self.graph
-            .add_odometry(previous.var, pose, calibration, steps, &covariance);
+        let (from, from_ns) = self.tail.unwrap_or((previous.var, previous.stamp_ns));
+        let pose = self.chain_pose(from, from_ns, stamp_ns, calibration);
         self.poses.push(PoseNode {
             var: pose,
             stamp_ns,
             sweep_id,
             odometry: *odometry,
         });
+        self.tail = Some((pose, stamp_ns));
+        pose
+    }
+
+    /// A pose at `stamp_ns`, predicted from the pose `from` of `from_ns` by the odometry between
+    /// them corrected by its errors as known, and tied to it by an odometry factor.
+    fn chain_pose(&mut self, from: Var, from_ns: u64, stamp_ns: u64, calibration: Var) -> Var {
+        let steps = self.track.steps(from_ns, stamp_ns);
+        let motion = crate::odometry::corrected(&steps, &self.graph.vector3(calibration));
+        let predicted = compose(&self.graph.vector3(from), &motion);
+        let pose = self.graph.add_variable(predicted.as_slice());
+        let covariance = random_covariance(&steps, &self.cfg.features.odometry);
+        self.graph
+            .add_odometry(from, pose, calibration, steps, &covariance);
         pose
     }
 
@@ -871,49 +937,74 @@ impl Slam {
     }
 
     /// Admits landmarks seen a second time: each sighting against the candidates of other
-    /// viewpoints; the rest become candidates. `pose_cov` is the current pose's covariance, used
-    /// for both placements (the candidate's pose is about as well known). The number admitted.
-    fn admit(&mut self, k: usize, unmatched: &[Sighting], pose_cov: &Matrix3<f64>) -> usize {
+    /// viewpoints, the two placements compared with the joint covariance of the two poses (a
+    /// candidate seen from the map's anchor is as sure as its sighting; two poses on one stretch
+    /// of odometry share most of their error); the rest become candidates. The number admitted.
+    fn admit(&mut self, k: usize, unmatched: &[Sighting]) -> usize {
         let pose = self.poses[k].var;
         let x = self.graph.vector3(pose);
+        // The poses the candidates were seen from, after this one, in the joint covariance.
+        let mut seen_from: Vec<usize> = self
+            .candidates
+            .iter()
+            .map(|c| c.pose)
+            .filter(|&p| p != k)
+            .collect();
+        seen_from.sort_unstable();
+        seen_from.dedup();
+        let mut vars = vec![(pose, 3)];
+        vars.extend(seen_from.iter().map(|&p| (self.poses[p].var, 3)));
+        let joint = if seen_from.is_empty() {
+            None
+        } else {
+            self.graph.covariance(&vars)
+        };
         let mut admitted = 0;
         for s in unmatched {
-            let here = placement(s, &x, pose_cov);
-            let best = self
-                .candidates
-                .iter()
-                .enumerate()
-                .filter(|(_, c)| c.kind == s.kind && c.pose != k)
-                .filter_map(|(ci, c)| {
-                    let xc = self.graph.vector3(self.poses[c.pose].var);
-                    let apart = Vector2::new(xc.x - x.x, xc.y - x.y).norm()
-                        >= self.cfg.min_baseline_m
-                        || wrap_rad(xc.z - x.z).abs() >= self.cfg.min_baseline_deg.to_radians();
-                    if !apart {
-                        return None;
-                    }
-                    let there = placement(
-                        &Sighting {
-                            kind: c.kind,
-                            z: c.z,
-                            sigma: c.sigma,
-                        },
-                        &xc,
-                        pose_cov,
-                    );
-                    let mut d = here.0 - there.0;
-                    if s.kind == LandmarkKind::Line {
-                        d.x = wrap_rad(d.x);
-                    }
-                    let inv = (here.1 + there.1).try_inverse()?;
-                    let d2 = (d.transpose() * inv * d)[(0, 0)];
-                    (d2 <= self.cfg.gate_chi2).then_some((d2, ci))
-                })
-                .min_by(|a, b| a.0.total_cmp(&b.0));
+            let here = placement(s, &x);
+            let best = joint.as_ref().and_then(|joint| {
+                self.candidates
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, c)| c.kind == s.kind && c.pose != k)
+                    .filter_map(|(ci, c)| {
+                        let xc = self.graph.vector3(self.poses[c.pose].var);
+                        let apart = Vector2::new(xc.x - x.x, xc.y - x.y).norm()
+                            >= self.cfg.min_baseline_m
+                            || wrap_rad(xc.z - x.z).abs() >= self.cfg.min_baseline_deg.to_radians();
+                        if !apart {
+                            return None;
+                        }
+                        let there = placement(
+                            &Sighting {
+                                kind: c.kind,
+                                z: c.z,
+                                sigma: c.sigma,
+                            },
+                            &xc,
+                        );
+                        let mut d = here.at - there.at;
+                        if s.kind == LandmarkKind::Line {
+                            d.x = wrap_rad(d.x);
+                        }
+                        // d's covariance: both poses through their placements, jointly.
+                        let at = 3 + 3 * seen_from.binary_search(&c.pose).ok()?;
+                        let block =
+                            |r: usize, c: usize| joint.fixed_view::<3, 3>(r, c).into_owned();
+                        let poses = here.by_pose * block(0, 0) * here.by_pose.transpose()
+                            + there.by_pose * block(at, at) * there.by_pose.transpose()
+                            - here.by_pose * block(0, at) * there.by_pose.transpose()
+                            - there.by_pose * block(at, 0) * here.by_pose.transpose();
+                        let inv = (poses + here.sighting + there.sighting).try_inverse()?;
+                        let d2 = (d.transpose() * inv * d)[(0, 0)];
+                        (d2 <= self.cfg.gate_chi2).then_some((d2, ci))
+                    })
+                    .min_by(|a, b| a.0.total_cmp(&b.0))
+            });
             match best {
                 Some((_, ci)) => {
                     let c = self.candidates.remove(ci);
-                    let var = self.graph.add_variable(here.0.as_slice());
+                    let var = self.graph.add_variable(here.at.as_slice());
                     let from = self.poses[c.pose].var;
                     self.graph
                         .add_landmark_factor(from, var, c.kind, c.z, c.sigma);
@@ -983,13 +1074,17 @@ fn calibration_prior_sigma(errors: &OdometryErrors) -> Vector3<f64> {
     )
 }
 
-/// Where `s` seen from `x` puts its landmark, with the covariance of that placement from the
-/// sighting's σ and the pose's covariance `pose_cov`.
-fn placement(
-    s: &Sighting,
-    x: &Vector3<f64>,
-    pose_cov: &Matrix3<f64>,
-) -> (Vector2<f64>, Matrix2<f64>) {
+/// Where a sighting puts its landmark, and how that place moves with the pose it was seen from.
+struct Placement {
+    at: Vector2<f64>,
+    /// ∂at/∂pose.
+    by_pose: Matrix2x3<f64>,
+    /// at's covariance from the sighting's own σ.
+    sighting: Matrix2<f64>,
+}
+
+/// Where `s` seen from `x` puts its landmark.
+fn placement(s: &Sighting, x: &Vector3<f64>) -> Placement {
     let at = place(s.kind, x, &s.z);
     let mut jx = Matrix2x3::zeros();
     for k in 0..3 {
@@ -1012,7 +1107,11 @@ fn placement(
         jz.set_column(k, &(d / STEP));
     }
     let r = Matrix2::from_diagonal(&s.sigma.map(|v| v * v));
-    (at, jx * pose_cov * jx.transpose() + jz * r * jz.transpose())
+    Placement {
+        at,
+        by_pose: jx,
+        sighting: jz * r * jz.transpose(),
+    }
 }
 
 /// Whether more than [`MOVING_SHARE`] of the readings were taken away from the pose of the middle
@@ -1345,6 +1444,7 @@ mod tests {
                         (0.0, 7.0 - truth.x),
                     ];
                     readings.push(ReadingPings {
+                        stamp_ns: last_stamp,
                         steps: steps.clone(),
                         pings: pings
                             .map(|(bearing, range)| (bearing - truth.z, range))
