@@ -91,11 +91,6 @@ pub struct SlamConfig {
     /// A ping ranges on a wall whose normal lies this far inside the specular cut-off of its
     /// axis, less 1σ of the heading (near the edge of the cone the wall may not answer).
     pub ranging_cone_margin_deg: f64,
-    /// A sweep on the move whose readings are ranged on walls is cut into pieces of this much
-    /// driving (metres), each with a pose of its own joined to the one before by the odometry
-    /// between them; each reading is ranged from its piece's pose. (One pose for a whole sweep
-    /// is one pose for two metres of driving.)
-    pub piece_m: f64,
 }
 
 impl Default for SlamConfig {
@@ -117,7 +112,6 @@ impl Default for SlamConfig {
             ranging_sigma_m: 0.04,
             ranging_min_sightings: 2,
             ranging_cone_margin_deg: 8.0,
-            piece_m: 0.5,
         }
     }
 }
@@ -134,7 +128,6 @@ impl SlamConfig {
             ("fix_max_sigma_deg", self.fix_max_sigma_deg),
             ("odometry_gate_chi2", self.odometry_gate_chi2),
             ("ranging_sigma_m", self.ranging_sigma_m),
-            ("piece_m", self.piece_m),
         ];
         for (name, v) in positive {
             if !(v.is_finite() && v > 0.0) {
@@ -284,8 +277,6 @@ struct Candidate {
 /// One reading of a sweep taken on the move, for ranging on walls.
 #[derive(Debug, Clone)]
 struct ReadingPings {
-    /// Its `host_stamp_ns`.
-    stamp_ns: u64,
     /// The odometry from the sweep's first reading to this one.
     steps: Vec<Step>,
     /// Its pings that heard something: bearing in the sensor's frame (rad) and range (m).
@@ -325,9 +316,6 @@ pub struct Slam {
     candidates: Vec<Candidate>,
     refused: u32,
     last: Option<SweepEstimate>,
-    /// The latest pose of the chain and its instant: the latest sweep's, or the last piece of a
-    /// sweep on the move. The next sweep's odometry factor starts there.
-    tail: Option<(Var, u64)>,
 }
 
 impl Slam {
@@ -345,7 +333,6 @@ impl Slam {
             candidates: Vec::new(),
             refused: 0,
             last: None,
-            tail: None,
         })
     }
 
@@ -424,7 +411,6 @@ impl Slam {
                 .iter()
                 .zip(steps)
                 .map(|(r, steps)| ReadingPings {
-                    stamp_ns: r.host_stamp_ns,
                     steps,
                     pings: Sweep::from_readings_at(
                         std::iter::once((r, Isometry2::identity())),
@@ -600,7 +586,6 @@ impl Slam {
             );
             if rise > self.cfg.odometry_gate_chi2 {
                 self.graph.restore(checkpoint, &values);
-                self.tail = Some((pose, stamp_ns));
                 self.landmarks = landmarks_before;
                 self.candidates = candidates_before;
                 self.refused += 1;
@@ -685,9 +670,8 @@ impl Slam {
         let x = self.graph.vector3(pose);
         let c = self.graph.vector3(calibration);
         let errors = self.cfg.features.odometry;
-        // (reading, wall, range) of the ranges that pass the gate.
-        let mut accepted: Vec<(usize, usize, f64)> = Vec::new();
-        for (index, reading) in ranged.iter().enumerate() {
+        let mut added = 0;
+        for reading in ranged {
             let at = compose(&x, &crate::odometry::corrected(&reading.steps, &c));
             // The pings facing each wall.
             let mut facing: Vec<(usize, Vec<f64>)> = Vec::new();
@@ -710,8 +694,7 @@ impl Slam {
                     }
                 }
             }
-            // The odometry's random error from the sweep's pose to this reading: the gate is taken
-            // before the reading's piece has a pose of its own.
+            // The odometry's random error from the sweep's pose to this reading.
             let random = random_covariance(&reading.steps, &errors);
             for (w, mut ranges) in facing {
                 ranges.sort_by(f64::total_cmp);
@@ -749,40 +732,17 @@ impl Slam {
                 let s = (j.transpose() * &joint * &j)[(0, 0)] + sigma * sigma;
                 let v = range - predicted;
                 if v * v <= RANGE_GATE_CHI2 * s {
-                    accepted.push((index, w, range));
+                    self.graph.add_range_factor(
+                        pose,
+                        calibration,
+                        walls[w],
+                        reading.steps.clone(),
+                        range,
+                        sigma,
+                    );
+                    added += 1;
                 }
             }
-        }
-        if accepted.is_empty() {
-            return 0;
-        }
-        // The sweep cut into pieces of `piece_m` of driving, each piece's pose chained to the one
-        // before by the odometry; each range attached to the pose of its reading's piece.
-        let sweep_ns = self.poses.last().map_or(0, |p| p.stamp_ns);
-        let mut piece = (pose, sweep_ns, 0usize);
-        let added = accepted.len();
-        for (index, w, range) in accepted {
-            let reading = &ranged[index];
-            let driven: f64 = reading.steps.iter().map(|s| s.x.hypot(s.y)).sum();
-            let number = (driven / self.cfg.piece_m).floor() as usize;
-            if number > piece.2 {
-                let var = self.chain_pose(piece.0, piece.1, reading.stamp_ns, calibration);
-                piece = (var, reading.stamp_ns, number);
-                self.tail = Some((var, reading.stamp_ns));
-            }
-            let steps = self.track.steps(piece.1, reading.stamp_ns);
-            let wall = self.graph.vector2(walls[w]);
-            let n = Vector2::new(wall.x.cos(), wall.x.sin());
-            // Across the wall, the odometry's random error from the piece's pose to the reading.
-            let heading = self.graph.vector3(piece.0).z;
-            let (sin, cos) = heading.sin_cos();
-            let local = Vector2::new(cos * n.x + sin * n.y, -sin * n.x + cos * n.y);
-            let random = random_covariance(&steps, &errors);
-            let odometry_var =
-                (local.transpose() * random.fixed_view::<2, 2>(0, 0) * local)[(0, 0)];
-            let sigma = self.cfg.ranging_sigma_m.hypot(odometry_var.max(0.0).sqrt());
-            self.graph
-                .add_range_factor(piece.0, calibration, walls[w], steps, range, sigma);
         }
         added
     }
@@ -816,31 +776,21 @@ impl Slam {
                 sweep_id,
                 odometry: *odometry,
             });
-            self.tail = Some((pose, stamp_ns));
             return pose;
         };
-        let (from, from_ns) = self.tail.unwrap_or((previous.var, previous.stamp_ns));
-        let pose = self.chain_pose(from, from_ns, stamp_ns, calibration);
+        let steps = self.track.steps(previous.stamp_ns, stamp_ns);
+        let motion = crate::odometry::corrected(&steps, &self.graph.vector3(calibration));
+        let predicted = compose(&self.graph.vector3(previous.var), &motion);
+        let pose = self.graph.add_variable(predicted.as_slice());
+        let covariance = random_covariance(&steps, &errors);
+        self.graph
+            .add_odometry(previous.var, pose, calibration, steps, &covariance);
         self.poses.push(PoseNode {
             var: pose,
             stamp_ns,
             sweep_id,
             odometry: *odometry,
         });
-        self.tail = Some((pose, stamp_ns));
-        pose
-    }
-
-    /// A pose at `stamp_ns`, predicted from the pose `from` of `from_ns` by the odometry between
-    /// them corrected by its errors as known, and tied to it by an odometry factor.
-    fn chain_pose(&mut self, from: Var, from_ns: u64, stamp_ns: u64, calibration: Var) -> Var {
-        let steps = self.track.steps(from_ns, stamp_ns);
-        let motion = crate::odometry::corrected(&steps, &self.graph.vector3(calibration));
-        let predicted = compose(&self.graph.vector3(from), &motion);
-        let pose = self.graph.add_variable(predicted.as_slice());
-        let covariance = random_covariance(&steps, &self.cfg.features.odometry);
-        self.graph
-            .add_odometry(from, pose, calibration, steps, &covariance);
         pose
     }
 
@@ -1444,7 +1394,6 @@ mod tests {
                         (0.0, 7.0 - truth.x),
                     ];
                     readings.push(ReadingPings {
-                        stamp_ns: last_stamp,
                         steps: steps.clone(),
                         pings: pings
                             .map(|(bearing, range)| (bearing - truth.z, range))
@@ -1463,6 +1412,52 @@ mod tests {
         assert!(ranged > 100, "{ranged}");
         assert!(with < 0.01, "{with} m with ranging, {without} m without");
         assert!(without > 0.04, "{with} m with ranging, {without} m without");
+    }
+
+    /// A wall seen from the map's anchor (exact) and again from a pose 2 m on, whose heading the
+    /// odometry knows to σ: the two placements are compared with the two poses' joint covariance,
+    /// so the wall is admitted when the second sighting is turned by 1σ and not at 3.5σ. (With
+    /// the second pose's covariance taken for both, 3.5σ passed: a room tour took a perpendicular
+    /// wall for one seen before and turned by 81°.)
+    #[test]
+    fn a_wall_is_admitted_from_two_viewpoints_with_their_joint_covariance() {
+        let admitted = |turned_sigmas: f64| {
+            let mut slam = Slam::new(SlamConfig::default()).unwrap();
+            slam.push_odometry(0, Isometry2::identity());
+            slam.add_sweep(0, 0, Isometry2::identity(), &[], &[], false);
+            for k in 1..=200u32 {
+                let x = 0.01 * f64::from(k);
+                slam.push_odometry(
+                    u64::from(k) * 1000,
+                    Isometry2::new(Vector2::new(x, 0.0), 0.0),
+                );
+            }
+            let odometry = Isometry2::new(Vector2::new(2.0, 0.0), 0.0);
+            slam.add_sweep(1, 200_000, odometry, &[], &[], false);
+            let pose = slam.poses[1].var;
+            let heading_sigma = slam.graph.covariance(&[(pose, 3)]).unwrap()[(2, 2)].sqrt();
+            assert!(heading_sigma > 3.0_f64.to_radians(), "{heading_sigma}");
+            // The end wall x = 5, seen straight ahead from the anchor …
+            let sigma = Vector2::new(0.01, 0.2_f64.to_radians());
+            slam.candidates.push(Candidate {
+                pose: 0,
+                kind: LandmarkKind::Line,
+                z: Vector2::new(5.0, 0.0),
+                sigma,
+            });
+            // … and from the second pose as if it were turned by δ, at the same distance.
+            let turn = turned_sigmas * heading_sigma;
+            let x = slam.graph.vector3(pose);
+            let z = Vector2::new(5.0 - x.x * turn.cos() - x.y * turn.sin(), turn - x.z);
+            let sighting = Sighting {
+                kind: LandmarkKind::Line,
+                z,
+                sigma,
+            };
+            slam.admit(1, &[sighting])
+        };
+        assert_eq!(admitted(1.0), 1);
+        assert_eq!(admitted(3.5), 0);
     }
 
     #[test]
