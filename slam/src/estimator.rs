@@ -21,9 +21,13 @@
 //! 5. **Admission.** An observation matched to no landmark waits as a candidate; a later
 //!    observation of the same kind from another viewpoint (at least
 //!    [`SlamConfig::min_baseline_m`] or [`SlamConfig::min_baseline_deg`] away) that places the
-//!    same landmark within the gate makes it a landmark, with both sightings as factors. A phantom
-//!    of one sweep (a corner at the edge of a sweep taken for a wall) never anchors a pose.
-//! 6. **Ranging on the move.** Each reading of a sweep taken on the move is placed at its own
+//!    same landmark within the gate makes it a landmark, with both sightings as factors. The two
+//!    placements are compared with the joint covariance of the two poses: a wall seen from the
+//!    anchor and again from a pose whose heading the odometry knows poorly is gated by that
+//!    pose's σ, not by √2 times it (the current pose's covariance once counted for both, and a
+//!    room tour took a wall for another seen before and turned by 81°). A phantom of one sweep
+//!    (a corner at the edge of a sweep taken for a wall) never anchors a pose.
+//! 6. **Ranging on the move** (with [`SlamConfig::range_pings`], off by default). Each reading of a sweep taken on the move is placed at its own
 //!    instant's pose — the sweep's pose, then the odometry to that instant corrected by the
 //!    odometry's errors as the graph estimates them — and its pings that face a known wall
 //!    (seen in [`SlamConfig::ranging_min_sightings`] sweeps, its normal inside the specular
@@ -81,7 +85,9 @@ pub struct SlamConfig {
     pub odometry_gate_chi2: f64,
     /// The readings of a sweep taken on the move are ranged on the wall landmarks they face, each
     /// at the pose of its own instant (the sweep's pose, then the odometry to that instant
-    /// corrected by the odometry's errors as the graph estimates them).
+    /// corrected by the odometry's errors as the graph estimates them). Off by default: it lowers
+    /// the median error of tours scanned while driving, but on the report split more of their runs
+    /// ended worse than the odometry with it at 5 % / 3°/m (`docs/results.md`, "SLAM").
     pub range_pings: bool,
     /// σ of one reading's range to a wall it faces, metres: the pings of neighbouring readings
     /// hear the same stretch of wall and are not independent.
@@ -108,7 +114,7 @@ impl Default for SlamConfig {
             fix_max_sigma_m: 0.05,
             fix_max_sigma_deg: 2.0,
             odometry_gate_chi2: 16.27,
-            range_pings: true,
+            range_pings: false,
             ranging_sigma_m: 0.04,
             ranging_min_sightings: 2,
             ranging_cone_margin_deg: 8.0,
@@ -548,6 +554,10 @@ impl Slam {
         let mut vars = vec![(pose, 3)];
         vars.extend(self.landmarks.iter().map(|l| (l.var, 2)));
         let joint = self.graph.covariance(&vars);
+        let predicted = self.graph.vector3(pose);
+        let predicted_cov = joint
+            .as_ref()
+            .map(|j| j.fixed_view::<3, 3>(0, 0).into_owned());
         let (matched, admitted) = match &joint {
             Some(joint) => {
                 let pairs = self.associate(pose, sightings, joint);
@@ -559,14 +569,13 @@ impl Slam {
                         .add_landmark_factor(pose, l.var, l.kind, s.z, s.sigma);
                     l.sightings += 1;
                 }
-                let pose_cov = joint.fixed_view::<3, 3>(0, 0).into_owned();
                 let unmatched: Vec<Sighting> = sightings
                     .iter()
                     .zip(&used)
                     .filter(|(_, u)| !**u)
                     .map(|(s, _)| *s)
                     .collect();
-                let admitted = self.admit(k, &unmatched, &pose_cov);
+                let admitted = self.admit(k, &unmatched);
                 (pairs.len(), admitted)
             }
             None => (0, 0),
@@ -581,7 +590,20 @@ impl Slam {
         let mut state = FixState::NoLandmarks;
         if matched + admitted + ranges > 0 {
             let rise = self.graph.odometry_chi2() - chi2_before;
+            let solved = self.graph.vector3(pose);
+            let turn = wrap_rad(solved.z - predicted.z);
+            let (turn_sigmas, shift_chi2) = predicted_cov.map_or((f64::NAN, f64::NAN), |c| {
+                let mut d = solved - predicted;
+                d.z = turn;
+                let chi2 = c
+                    .try_inverse()
+                    .map_or(f64::NAN, |inv| (d.transpose() * inv * d)[(0, 0)]);
+                (turn / c[(2, 2)].max(0.0).sqrt(), chi2)
+            });
             tracing::debug!(
+                turn_deg = turn.to_degrees(),
+                turn_sigmas,
+                shift_chi2,
                 sweep_id,
                 matched,
                 admitted,
@@ -892,49 +914,74 @@ impl Slam {
     }
 
     /// Admits landmarks seen a second time: each sighting against the candidates of other
-    /// viewpoints; the rest become candidates. `pose_cov` is the current pose's covariance, used
-    /// for both placements (the candidate's pose is about as well known). The number admitted.
-    fn admit(&mut self, k: usize, unmatched: &[Sighting], pose_cov: &Matrix3<f64>) -> usize {
+    /// viewpoints, the two placements compared with the joint covariance of the two poses (a
+    /// candidate seen from the map's anchor is as sure as its sighting; two poses on one stretch
+    /// of odometry share most of their error); the rest become candidates. The number admitted.
+    fn admit(&mut self, k: usize, unmatched: &[Sighting]) -> usize {
         let pose = self.poses[k].var;
         let x = self.graph.vector3(pose);
+        // The poses the candidates were seen from, after this one, in the joint covariance.
+        let mut seen_from: Vec<usize> = self
+            .candidates
+            .iter()
+            .map(|c| c.pose)
+            .filter(|&p| p != k)
+            .collect();
+        seen_from.sort_unstable();
+        seen_from.dedup();
+        let mut vars = vec![(pose, 3)];
+        vars.extend(seen_from.iter().map(|&p| (self.poses[p].var, 3)));
+        let joint = if seen_from.is_empty() {
+            None
+        } else {
+            self.graph.covariance(&vars)
+        };
         let mut admitted = 0;
         for s in unmatched {
-            let here = placement(s, &x, pose_cov);
-            let best = self
-                .candidates
-                .iter()
-                .enumerate()
-                .filter(|(_, c)| c.kind == s.kind && c.pose != k)
-                .filter_map(|(ci, c)| {
-                    let xc = self.graph.vector3(self.poses[c.pose].var);
-                    let apart = Vector2::new(xc.x - x.x, xc.y - x.y).norm()
-                        >= self.cfg.min_baseline_m
-                        || wrap_rad(xc.z - x.z).abs() >= self.cfg.min_baseline_deg.to_radians();
-                    if !apart {
-                        return None;
-                    }
-                    let there = placement(
-                        &Sighting {
-                            kind: c.kind,
-                            z: c.z,
-                            sigma: c.sigma,
-                        },
-                        &xc,
-                        pose_cov,
-                    );
-                    let mut d = here.0 - there.0;
-                    if s.kind == LandmarkKind::Line {
-                        d.x = wrap_rad(d.x);
-                    }
-                    let inv = (here.1 + there.1).try_inverse()?;
-                    let d2 = (d.transpose() * inv * d)[(0, 0)];
-                    (d2 <= self.cfg.gate_chi2).then_some((d2, ci))
-                })
-                .min_by(|a, b| a.0.total_cmp(&b.0));
+            let here = placement(s, &x);
+            let best = joint.as_ref().and_then(|joint| {
+                self.candidates
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, c)| c.kind == s.kind && c.pose != k)
+                    .filter_map(|(ci, c)| {
+                        let xc = self.graph.vector3(self.poses[c.pose].var);
+                        let apart = Vector2::new(xc.x - x.x, xc.y - x.y).norm()
+                            >= self.cfg.min_baseline_m
+                            || wrap_rad(xc.z - x.z).abs() >= self.cfg.min_baseline_deg.to_radians();
+                        if !apart {
+                            return None;
+                        }
+                        let there = placement(
+                            &Sighting {
+                                kind: c.kind,
+                                z: c.z,
+                                sigma: c.sigma,
+                            },
+                            &xc,
+                        );
+                        let mut d = here.at - there.at;
+                        if s.kind == LandmarkKind::Line {
+                            d.x = wrap_rad(d.x);
+                        }
+                        // d's covariance: both poses through their placements, jointly.
+                        let at = 3 + 3 * seen_from.binary_search(&c.pose).ok()?;
+                        let block =
+                            |r: usize, c: usize| joint.fixed_view::<3, 3>(r, c).into_owned();
+                        let poses = here.by_pose * block(0, 0) * here.by_pose.transpose()
+                            + there.by_pose * block(at, at) * there.by_pose.transpose()
+                            - here.by_pose * block(0, at) * there.by_pose.transpose()
+                            - there.by_pose * block(at, 0) * here.by_pose.transpose();
+                        let inv = (poses + here.sighting + there.sighting).try_inverse()?;
+                        let d2 = (d.transpose() * inv * d)[(0, 0)];
+                        (d2 <= self.cfg.gate_chi2).then_some((d2, ci))
+                    })
+                    .min_by(|a, b| a.0.total_cmp(&b.0))
+            });
             match best {
                 Some((_, ci)) => {
                     let c = self.candidates.remove(ci);
-                    let var = self.graph.add_variable(here.0.as_slice());
+                    let var = self.graph.add_variable(here.at.as_slice());
                     let from = self.poses[c.pose].var;
                     self.graph
                         .add_landmark_factor(from, var, c.kind, c.z, c.sigma);
@@ -1004,13 +1051,17 @@ fn calibration_prior_sigma(errors: &OdometryErrors) -> Vector3<f64> {
     )
 }
 
-/// Where `s` seen from `x` puts its landmark, with the covariance of that placement from the
-/// sighting's σ and the pose's covariance `pose_cov`.
-fn placement(
-    s: &Sighting,
-    x: &Vector3<f64>,
-    pose_cov: &Matrix3<f64>,
-) -> (Vector2<f64>, Matrix2<f64>) {
+/// Where a sighting puts its landmark, and how that place moves with the pose it was seen from.
+struct Placement {
+    at: Vector2<f64>,
+    /// ∂at/∂pose.
+    by_pose: Matrix2x3<f64>,
+    /// at's covariance from the sighting's own σ.
+    sighting: Matrix2<f64>,
+}
+
+/// Where `s` seen from `x` puts its landmark.
+fn placement(s: &Sighting, x: &Vector3<f64>) -> Placement {
     let at = place(s.kind, x, &s.z);
     let mut jx = Matrix2x3::zeros();
     for k in 0..3 {
@@ -1033,7 +1084,11 @@ fn placement(
         jz.set_column(k, &(d / STEP));
     }
     let r = Matrix2::from_diagonal(&s.sigma.map(|v| v * v));
-    (at, jx * pose_cov * jx.transpose() + jz * r * jz.transpose())
+    Placement {
+        at,
+        by_pose: jx,
+        sighting: jz * r * jz.transpose(),
+    }
 }
 
 /// Whether more than [`MOVING_SHARE`] of the readings were taken away from the pose of the middle
@@ -1384,6 +1439,52 @@ mod tests {
         assert!(ranged > 100, "{ranged}");
         assert!(with < 0.01, "{with} m with ranging, {without} m without");
         assert!(without > 0.04, "{with} m with ranging, {without} m without");
+    }
+
+    /// A wall seen from the map's anchor (exact) and again from a pose 2 m on, whose heading the
+    /// odometry knows to σ: the two placements are compared with the two poses' joint covariance,
+    /// so the wall is admitted when the second sighting is turned by 1σ and not at 3.5σ. (With
+    /// the second pose's covariance taken for both, 3.5σ passed: a room tour took a perpendicular
+    /// wall for one seen before and turned by 81°.)
+    #[test]
+    fn a_wall_is_admitted_from_two_viewpoints_with_their_joint_covariance() {
+        let admitted = |turned_sigmas: f64| {
+            let mut slam = Slam::new(SlamConfig::default()).unwrap();
+            slam.push_odometry(0, Isometry2::identity());
+            slam.add_sweep(0, 0, Isometry2::identity(), &[], &[], false);
+            for k in 1..=200u32 {
+                let x = 0.01 * f64::from(k);
+                slam.push_odometry(
+                    u64::from(k) * 1000,
+                    Isometry2::new(Vector2::new(x, 0.0), 0.0),
+                );
+            }
+            let odometry = Isometry2::new(Vector2::new(2.0, 0.0), 0.0);
+            slam.add_sweep(1, 200_000, odometry, &[], &[], false);
+            let pose = slam.poses[1].var;
+            let heading_sigma = slam.graph.covariance(&[(pose, 3)]).unwrap()[(2, 2)].sqrt();
+            assert!(heading_sigma > 3.0_f64.to_radians(), "{heading_sigma}");
+            // The end wall x = 5, seen straight ahead from the anchor …
+            let sigma = Vector2::new(0.01, 0.2_f64.to_radians());
+            slam.candidates.push(Candidate {
+                pose: 0,
+                kind: LandmarkKind::Line,
+                z: Vector2::new(5.0, 0.0),
+                sigma,
+            });
+            // … and from the second pose as if it were turned by δ, at the same distance.
+            let turn = turned_sigmas * heading_sigma;
+            let x = slam.graph.vector3(pose);
+            let z = Vector2::new(5.0 - x.x * turn.cos() - x.y * turn.sin(), turn - x.z);
+            let sighting = Sighting {
+                kind: LandmarkKind::Line,
+                z,
+                sigma,
+            };
+            slam.admit(1, &[sighting])
+        };
+        assert_eq!(admitted(1.0), 1);
+        assert_eq!(admitted(3.5), 0);
     }
 
     #[test]
