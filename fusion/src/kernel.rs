@@ -284,32 +284,78 @@ impl Sector {
 struct Stencil {
     /// The sensor's position in its cell ([`SensorCell::to_centre`]), bit for bit.
     to_centre: [u32; 2],
+    /// That position, to compute the cells not yet filled.
+    sensor: SensorCell,
     radius: i64,
     side: usize,
     range: Vec<f32>,
     bearing: Vec<f32>,
+    /// Per row, the columns filled so far (`lo > hi`: none): cells are computed the first time a
+    /// reading from here visits them, so a sensor parked for one sweep pays for the cells its
+    /// readings reach, not for the whole square.
+    filled: Vec<[i64; 2]>,
 }
 
 impl Stencil {
     fn new(sensor: &SensorCell, radius: i64) -> Self {
         let side = (2 * radius + 1) as usize;
-        let mut range = vec![0.0; side * side];
-        let mut bearing = vec![0.0; side * side];
-        let rows = range
-            .chunks_exact_mut(side)
-            .zip(bearing.chunks_exact_mut(side));
-        for (oy, (range, bearing)) in (-radius..=radius).zip(rows) {
-            let cells = range.iter_mut().zip(bearing.iter_mut());
-            for ((r, a), polar) in cells.zip(sensor.row(oy, -radius, side)) {
-                (*r, *a) = polar;
-            }
-        }
-        Self {
-            to_centre: sensor.to_centre.map(f32::to_bits),
+        let mut stencil = Self {
+            to_centre: [0; 2],
+            sensor: *sensor,
             radius,
             side,
-            range,
-            bearing,
+            range: vec![0.0; side * side],
+            bearing: vec![0.0; side * side],
+            filled: vec![EMPTY_SPAN; side],
+        };
+        stencil.park(sensor);
+        stencil
+    }
+
+    /// Empties the stencil for a sensor parked at `sensor`; the memory is kept.
+    fn park(&mut self, sensor: &SensorCell) {
+        self.to_centre = sensor.to_centre.map(f32::to_bits);
+        self.sensor = *sensor;
+        self.filled.fill(EMPTY_SPAN);
+    }
+
+    /// Fills the cells `lo..=hi` of row `oy` that are not yet (keeping each row's filled columns
+    /// one stretch).
+    #[inline(always)]
+    fn cover(&mut self, oy: i64, lo: i64, hi: i64) {
+        let [from, to] = self.filled[(oy + self.radius) as usize];
+        if from > lo || to < hi {
+            self.extend(oy, lo, hi);
+        }
+    }
+
+    /// [`Self::cover`] for a row not yet filled as far as `lo..=hi`.
+    #[inline(never)]
+    fn extend(&mut self, oy: i64, lo: i64, hi: i64) {
+        let row = (oy + self.radius) as usize;
+        let [from, to] = self.filled[row];
+        if from > to {
+            self.compute(oy, lo, hi);
+            self.filled[row] = [lo, hi];
+            return;
+        }
+        if lo < from {
+            self.compute(oy, lo, from - 1);
+        }
+        if hi > to {
+            self.compute(oy, to + 1, hi);
+        }
+        self.filled[row] = [lo.min(from), hi.max(to)];
+    }
+
+    /// Computes the cells `lo..=hi` of row `oy`.
+    fn compute(&mut self, oy: i64, lo: i64, hi: i64) {
+        let (s, len) = (self.at(lo, oy), (hi - lo + 1) as usize);
+        let cells = self.range[s..s + len]
+            .iter_mut()
+            .zip(&mut self.bearing[s..s + len]);
+        for ((r, a), polar) in cells.zip(self.sensor.row(oy, lo, len)) {
+            (*r, *a) = polar;
         }
     }
 
@@ -318,17 +364,20 @@ impl Stencil {
     }
 }
 
+/// A row's span with no cells.
+const EMPTY_SPAN: [i64; 2] = [i64::MAX, i64::MIN];
+
 /// Where the cells' ranges and bearings of a row come from: computed from the sensor's position
 /// ([`SensorCell`]), or loaded from the [`Stencil`] of a parked sensor. Both give the same bits.
 trait RowPolar {
     /// Range and bearing of the cells `lo`, `lo` + 1, … (`len` of them) of row `oy`, in offsets
     /// from the sensor's cell.
-    fn row(&self, oy: i64, lo: i64, len: usize) -> impl Iterator<Item = (f32, f32)>;
+    fn row(&mut self, oy: i64, lo: i64, len: usize) -> impl Iterator<Item = (f32, f32)>;
 }
 
 impl RowPolar for SensorCell {
     #[inline(always)]
-    fn row(&self, oy: i64, lo: i64, _len: usize) -> impl Iterator<Item = (f32, f32)> {
+    fn row(&mut self, oy: i64, lo: i64, _len: usize) -> impl Iterator<Item = (f32, f32)> {
         let dy = oy as f32 + self.to_centre[1];
         let (to_x, resolution) = (self.to_centre[0], self.resolution());
         // Offsets in i32, whose lanes are as wide as the cells' (an i64 counter would halve the
@@ -339,7 +388,8 @@ impl RowPolar for SensorCell {
 
 impl RowPolar for Stencil {
     #[inline(always)]
-    fn row(&self, oy: i64, lo: i64, len: usize) -> impl Iterator<Item = (f32, f32)> {
+    fn row(&mut self, oy: i64, lo: i64, len: usize) -> impl Iterator<Item = (f32, f32)> {
+        self.cover(oy, lo, lo + len as i64 - 1);
         let s = self.at(lo, oy);
         let range = self.range[s..s + len].iter().copied();
         range.zip(self.bearing[s..s + len].iter().copied())
@@ -370,14 +420,14 @@ struct Parking {
 impl Parking {
     /// The stencil for a sensor at `sensor` if it is parked there: built (`radius` cells each
     /// way) once [`PARKED_AFTER`] readings in a row came from its position within its cell.
-    fn stencil_for(&mut self, sensor: &SensorCell, radius: i64) -> Option<&Stencil> {
+    fn stencil_for(&mut self, sensor: &SensorCell, radius: i64) -> Option<&mut Stencil> {
         let position = sensor.to_centre.map(f32::to_bits);
         if self
             .stencil
             .as_ref()
             .is_some_and(|s| s.to_centre == position)
         {
-            return self.stencil.as_ref();
+            return self.stencil.as_mut();
         }
         let seen = match self.candidate {
             Some((p, n)) if p == position => n + 1,
@@ -388,7 +438,14 @@ impl Parking {
             return None;
         }
         self.candidate = None;
-        Some(self.stencil.insert(Stencil::new(sensor, radius)))
+        let stencil = match self.stencil.take() {
+            Some(mut stencil) => {
+                stencil.park(sensor);
+                stencil
+            }
+            None => Stencil::new(sensor, radius),
+        };
+        Some(self.stencil.insert(stencil))
     }
 }
 
@@ -439,29 +496,18 @@ impl ConeCache {
         };
         let (cell, n) = (sensor.cell, geometry.cells_per_side() as i64);
         let k = (reach / resolution).ceil() as i64 + 1;
+        let pass = RowPass {
+            spans,
+            cell,
+            radius,
+            n,
+            k,
+        };
         match stencil {
-            Some(polar) => {
-                let pass = RowPass {
-                    spans,
-                    polar,
-                    cell,
-                    radius,
-                    n,
-                    k,
-                };
-                dispatch(layer, heard, evidence, beam.axis, cone, &pass)
-            }
-            None => {
-                let pass = RowPass {
-                    spans,
-                    polar: &sensor,
-                    cell,
-                    radius,
-                    n,
-                    k,
-                };
-                dispatch(layer, heard, evidence, beam.axis, cone, &pass)
-            }
+            Some(stencil) => dispatch(layer, heard, evidence, beam.axis, cone, &pass, stencil),
+            None => dispatch(layer, heard, evidence, beam.axis, cone, &pass, &mut {
+                sensor
+            }),
         }
     }
 }
@@ -474,27 +520,27 @@ fn dispatch<R: Combine, E: CellEvidence, P: RowPolar>(
     evidence: &E,
     axis: f32,
     cone: f32,
-    pass: &RowPass<'_, P>,
+    pass: &RowPass<'_>,
+    polar: &mut P,
 ) -> usize {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx512f")
         && std::arch::is_x86_feature_detected!("avx512vl")
     {
         // SAFETY: the CPU has AVX-512F and VL, checked just above.
-        return unsafe { fuse_rows_avx512(layer, heard, evidence, axis, cone, pass) };
+        return unsafe { fuse_rows_avx512(layer, heard, evidence, axis, cone, pass, polar) };
     }
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { fuse_rows_avx2(layer, heard, evidence, axis, cone, pass) };
+        return unsafe { fuse_rows_avx2(layer, heard, evidence, axis, cone, pass, polar) };
     }
-    fuse_rows(layer, heard, evidence, axis, cone, pass)
+    fuse_rows(layer, heard, evidence, axis, cone, pass, polar)
 }
 
 /// What a reading's pass over the rows needs besides the layer and the evidence.
-struct RowPass<'a, P> {
+struct RowPass<'a> {
     spans: &'a Spans,
-    polar: &'a P,
     /// The sensor's cell.
     cell: [i64; 2],
     /// Rows and columns the spans (and a stencil) reach from the sensor's cell.
@@ -506,7 +552,7 @@ struct RowPass<'a, P> {
 }
 
 /// The fast kernel's pass: [`fuse_run`] along each row's span, clipped to the reach and the
-/// grid, the cells' ranges and bearings from `pass.polar`.
+/// grid, the cells' ranges and bearings from `polar`.
 #[inline(always)]
 fn fuse_rows<R: Combine, E: CellEvidence, P: RowPolar>(
     layer: &mut Layer<R>,
@@ -514,11 +560,11 @@ fn fuse_rows<R: Combine, E: CellEvidence, P: RowPolar>(
     evidence: &E,
     axis: f32,
     cone: f32,
-    pass: &RowPass<'_, P>,
+    pass: &RowPass<'_>,
+    polar: &mut P,
 ) -> usize {
     let RowPass {
         spans,
-        polar,
         cell: [cx, cy],
         radius,
         n,
@@ -571,9 +617,10 @@ fn fuse_rows_avx2<R: Combine, E: CellEvidence, P: RowPolar>(
     evidence: &E,
     axis: f32,
     cone: f32,
-    pass: &RowPass<'_, P>,
+    pass: &RowPass<'_>,
+    polar: &mut P,
 ) -> usize {
-    fuse_rows(layer, heard, evidence, axis, cone, pass)
+    fuse_rows(layer, heard, evidence, axis, cone, pass, polar)
 }
 
 /// [`fuse_rows`] compiled for AVX-512 (F and VL): 512-bit vectors and 32 vector registers where
@@ -588,9 +635,10 @@ fn fuse_rows_avx512<R: Combine, E: CellEvidence, P: RowPolar>(
     evidence: &E,
     axis: f32,
     cone: f32,
-    pass: &RowPass<'_, P>,
+    pass: &RowPass<'_>,
+    polar: &mut P,
 ) -> usize {
-    fuse_rows(layer, heard, evidence, axis, cone, pass)
+    fuse_rows(layer, heard, evidence, axis, cone, pass, polar)
 }
 
 /// The heard bearings of the cells of `run`: none when the model does not hear (`heard` empty).
