@@ -34,11 +34,14 @@
 //! - **Stencil of a parked sensor.** Loading a range and a bearing is still cheaper than
 //!   computing them (the square root and the division share one unit of the core), so once
 //!   [`PARKED_AFTER`] readings in a row came from one position within a cell, as from a head
-//!   scanning standing still, the kernel computes every cell's range and bearing within reach once
-//!   ([`Stencil`], the same [`polar`], vectorised) and loads them for the readings from there.
+//!   scanning standing still, the kernel keeps the cells' ranges and bearings around it
+//!   ([`Stencil`], the same [`polar`]) and loads them for the readings from there. It fills each
+//!   row's cells the first time a reading from there visits them: filling the whole square at
+//!   once (641 k cells at 1 cm) cost about 1.2 ms per stop, more than a stop-and-scan robot's two
+//!   sweeps there saved.
 //!
-//! No path allocates once warm: the spans of a direction are made on its first reading and the
-//! stencil when a sensor parks.
+//! No path allocates once warm: the spans of a direction are made on its first reading, the
+//! stencil's memory when a sensor first parks (and kept when it parks elsewhere).
 //!
 //! Every path computes a cell's range and bearing with the same function and fuses it with
 //! [`fuse_run`], so they agree with the reference to the last bit.
