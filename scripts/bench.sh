@@ -89,10 +89,13 @@ callgrind_case() { # label cells resolution readings pace [extra fixed_workload 
   snapshots=$(grep -o '[0-9]* grid snapshots' "$OUT/log" | cut -d' ' -f1)
   fuse=$(inclusive "$out" 'fixed_workload::fuse')
   snap=$(inclusive "$out" 'fixed_workload::snapshot')
+  # The stencil column: filling a parked sensor's stencil (`Stencil::extend`, the cells a reading
+  # from there visits first; before issue 29's kernel change, `ConeCache::prepared_for`, the whole
+  # stencil at once).
   # Per reading fused and per grid snapshot, and their ratio (at the head's pace a snapshot per
   # reading: issue 29 asks that it cost no more than the fuse).
   local per_reading=$((fuse / readings)) per_snapshot=$((snapshots > 0 ? snap / snapshots : 0))
-  echo "| $label | $pace | $readings | $snapshots | $(human "$(total "$out")") | $(human "$fuse") | $(human "$snap") | $(human "$(inclusive "$out" 'fixed_workload::follow')") | $(human "$(inclusive "$out" 'fixed_workload::features_snapshot')") | $(human $per_reading) | $(human $per_snapshot) | $(awk -v s=$per_snapshot -v f=$per_reading 'BEGIN { printf "%.2f", (f > 0 ? s / f : 0) }') | $(human "$(inclusive "$out" 'kernel::Spans::new')") | $(human "$(inclusive "$out" 'ConeCache::prepared_for')") |"
+  echo "| $label | $pace | $readings | $snapshots | $(human "$(total "$out")") | $(human "$fuse") | $(human "$snap") | $(human "$(inclusive "$out" 'fixed_workload::follow')") | $(human "$(inclusive "$out" 'fixed_workload::features_snapshot')") | $(human $per_reading) | $(human $per_snapshot) | $(awk -v s=$per_snapshot -v f=$per_reading 'BEGIN { printf "%.2f", (f > 0 ? s / f : 0) }') | $(human "$(inclusive "$out" 'kernel::Spans::new')") | $(human "$(inclusive "$out" 'kernel::Stencil::extend')") |"
 }
 
 # --- the sections -------------------------------------------------------------------------------
