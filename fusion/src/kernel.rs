@@ -488,15 +488,11 @@ impl ConeCache {
             .min(self.model_half_angle);
         let key = ((beam.axis + PI) / ANGLE_STEP).round() as usize % ANGLE_KEYS;
         let (radius, max_reach, resolution) = (self.radius, self.reach, geometry.resolution());
-        if self.spans[key].is_none() {
+        let spans = self.spans[key].get_or_insert_with(|| {
             let axis = key as f32 * ANGLE_STEP - PI;
-            let spans = Spans::new(radius, resolution, axis, envelope, max_reach);
-            self.spans[key] = Some(Box::new(spans));
-        }
+            Box::new(Spans::new(radius, resolution, axis, envelope, max_reach))
+        });
         let stencil = self.parking.stencil_for(&sensor, radius);
-        let Some(spans) = self.spans[key].as_deref() else {
-            unreachable!("the spans of key {key} were made just above");
-        };
         let (cell, n) = (sensor.cell, geometry.cells_per_side() as i64);
         let k = (reach / resolution).ceil() as i64 + 1;
         let pass = RowPass {
