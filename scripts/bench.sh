@@ -19,7 +19,8 @@
 #                 head's pace and at replay pace (needs valgrind; stable on a loaded machine, so the
 #                 figures to compare against)
 #   mrpt          our engine against MRPT 2.5's COccupancyGridMap2D on the same readings, in one
-#                 process, interleaved, per grid size: time per reading, instructions (valgrind),
+#                 process, interleaved, per grid size (a standing head, three viewpoints, one, and a
+#                 robot scanning while it drives): time per reading, instructions (valgrind),
 #                 both maps scored against the scene. Installs Debian's libmrpt-dev (apt-get, as
 #                 root) and builds bench/mrpt-peer/, a crate outside the workspace; not run by CI
 #                 and not part of the default set (`scripts/bench.sh mrpt`)
@@ -88,10 +89,13 @@ callgrind_case() { # label cells resolution readings pace [extra fixed_workload 
   snapshots=$(grep -o '[0-9]* grid snapshots' "$OUT/log" | cut -d' ' -f1)
   fuse=$(inclusive "$out" 'fixed_workload::fuse')
   snap=$(inclusive "$out" 'fixed_workload::snapshot')
+  # The stencil column: filling a parked sensor's stencil (`Stencil::extend`, the cells a reading
+  # from there visits first; before issue 29's kernel change, `ConeCache::prepared_for`, the whole
+  # stencil at once).
   # Per reading fused and per grid snapshot, and their ratio (at the head's pace a snapshot per
   # reading: issue 29 asks that it cost no more than the fuse).
   local per_reading=$((fuse / readings)) per_snapshot=$((snapshots > 0 ? snap / snapshots : 0))
-  echo "| $label | $pace | $readings | $snapshots | $(human "$(total "$out")") | $(human "$fuse") | $(human "$snap") | $(human "$(inclusive "$out" 'fixed_workload::follow')") | $(human "$(inclusive "$out" 'fixed_workload::features_snapshot')") | $(human $per_reading) | $(human $per_snapshot) | $(awk -v s=$per_snapshot -v f=$per_reading 'BEGIN { printf "%.2f", (f > 0 ? s / f : 0) }') | $(human "$(inclusive "$out" 'kernel::Spans::new')") | $(human "$(inclusive "$out" 'ConeCache::prepared_for')") |"
+  echo "| $label | $pace | $readings | $snapshots | $(human "$(total "$out")") | $(human "$fuse") | $(human "$snap") | $(human "$(inclusive "$out" 'fixed_workload::follow')") | $(human "$(inclusive "$out" 'fixed_workload::features_snapshot')") | $(human $per_reading) | $(human $per_snapshot) | $(awk -v s=$per_snapshot -v f=$per_reading 'BEGIN { printf "%.2f", (f > 0 ? s / f : 0) }') | $(human "$(inclusive "$out" 'kernel::Spans::new')") | $(human "$(inclusive "$out" 'kernel::Stencil::extend')") |"
 }
 
 # --- the sections -------------------------------------------------------------------------------
@@ -141,22 +145,26 @@ section_mrpt() {
     "$PEER" --cells "$1" --resolution "$2" --passes 50 $header; header=
     # The generated scene from its first viewpoint alone: no move between the readings.
     "$PEER" --cells "$1" --resolution "$2" --passes 50 --scenes generated --views 1
+    # The room scanned while the robot drives: every reading from a new position.
+    "$PEER" --cells "$1" --resolution "$2" --passes 50 --scenes tour
   done
   echo
-  echo "Instructions per reading (valgrind's callgrind, the room's readings, one measured pass after the unmeasured one):"
+  echo "Instructions per reading (valgrind's callgrind, one measured pass after the unmeasured one; the room from its centre, and toured):"
   echo
-  echo "| grid | readings | ours | MRPT | MRPT ÷ ours |"
-  echo "|---|--:|--:|--:|--:|"
-  local out readings ours mrpt
-  for g in "${GRIDS[@]}"; do
-    set -- $g
-    out="$OUT/peer.$1.cg"
-    valgrind --tool=callgrind --callgrind-out-file="$out" "$PEER" --cells "$1" --resolution "$2" \
-      --passes 1 --scenes room >"$OUT/peer.log" 2>&1 || { cat "$OUT/peer.log" >&2; exit 1; }
-    readings=$(grep -o '^| [^|]*| [^|]*| [0-9]* ×' "$OUT/peer.log" | grep -o '[0-9]* ×$' | cut -d' ' -f1)
-    ours=$(inclusive "$out" 'sonar_mrpt_peer::measured_ours')
-    mrpt=$(inclusive "$out" 'sonar_mrpt_peer::measured_mrpt')
-    echo "| $1² × $(awk -v r="$2" 'BEGIN { print r * 100 }') cm | $readings | $(human $((ours / readings))) | $(human $((mrpt / readings))) | $(awk -v a="$mrpt" -v b="$ours" 'BEGIN { printf "%.2f×", a / b }') |"
+  echo "| grid | scene | readings | ours | MRPT | MRPT ÷ ours |"
+  echo "|---|---|--:|--:|--:|--:|"
+  local out readings ours mrpt scene
+  for scene in room tour; do
+    for g in "${GRIDS[@]}"; do
+      set -- $g
+      out="$OUT/peer.$1.$scene.cg"
+      valgrind --tool=callgrind --callgrind-out-file="$out" "$PEER" --cells "$1" --resolution "$2" \
+        --passes 1 --scenes "$scene" >"$OUT/peer.log" 2>&1 || { cat "$OUT/peer.log" >&2; exit 1; }
+      readings=$(grep -o '^| [^|]*| [^|]*| [0-9]* ×' "$OUT/peer.log" | grep -o '[0-9]* ×$' | cut -d' ' -f1)
+      ours=$(inclusive "$out" 'sonar_mrpt_peer::measured_ours')
+      mrpt=$(inclusive "$out" 'sonar_mrpt_peer::measured_mrpt')
+      echo "| $1² × $(awk -v r="$2" 'BEGIN { print r * 100 }') cm | $scene | $readings | $(human $((ours / readings))) | $(human $((mrpt / readings))) | $(awk -v a="$mrpt" -v b="$ours" 'BEGIN { printf "%.2f×", a / b }') |"
+    done
   done
   echo
   echo "MRPT $(dpkg-query -W -f='${Version}' libmrpt-dev), valgrind $(valgrind --version | sed 's/valgrind-//')."

@@ -185,8 +185,9 @@ impl FusionConfig {
         Preset::ALL.into_iter().find(|&p| *self == Self::preset(p))
     }
 
-    /// Side of the fast kernel's cone stencil, in cells: the farthest reach of any reading, both
-    /// ways, plus a cell of margin each side.
+    /// Side of the square around the sensor's cell that the fast kernel's row spans (and a parked
+    /// sensor's stencil) cover, in cells: the farthest reach of any reading, both ways, plus a
+    /// cell of margin each side.
     pub(crate) fn stencil_side(&self) -> usize {
         let reach = self.model.max_reach(self.sensor.max_range_m);
         let radius = (f64::from(reach) / f64::from(self.grid.resolution_m)).ceil() + 1.0;

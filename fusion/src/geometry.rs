@@ -1,11 +1,12 @@
 //! Where the cells are: the square grid centred on the world origin, and the polar coordinates of a
 //! cell as seen from the sensor.
 //!
-//! Every kernel (the paper-style whole-grid pass, the cone stencil and the bounding-box fallback)
-//! obtains a cell's range and bearing from [`SensorCell::polar`], with the same operands in the
-//! same order, so the kernels agree to the last bit and their grids can be compared exactly.
+//! Every kernel (the paper-style whole-grid pass and the cone kernel's row loop) obtains a cell's
+//! range and bearing from [`polar`], with the same operands in the same order and an arctangent of
+//! our own ([`atan2`], branch-free so that it vectorises), so the kernels agree to the last bit
+//! and their grids can be compared exactly.
 
-use std::f32::consts::{PI, TAU};
+use std::f32::consts::{FRAC_PI_2, FRAC_PI_4, PI, TAU};
 
 use nalgebra::{Point2, Vector2};
 
@@ -85,8 +86,7 @@ impl GridGeometry {
     pub(crate) fn sensor_cell(&self, p: Vector2<f32>) -> SensorCell {
         // Continuous cell coordinates: cell i spans [i, i + 1). Splitting them into an integer cell
         // and a fraction is exact in f32, so a sensor that stays put (or returns to a position a
-        // whole number of cells away, when that sum is exact) gets the same fraction bit for bit:
-        // that is what lets one cone stencil serve every reading taken there.
+        // whole number of cells away, when that sum is exact) gets the same fraction bit for bit.
         let u = (p - self.origin) / self.resolution;
         let (cx, cy) = (u.x.floor(), u.y.floor());
         SensorCell {
@@ -113,18 +113,62 @@ impl SensorCell {
     pub fn polar(&self, offset_x: i64, offset_y: i64) -> (f32, f32) {
         let dx = offset_x as f32 + self.to_centre[0];
         let dy = offset_y as f32 + self.to_centre[1];
-        ((dx * dx + dy * dy).sqrt() * self.resolution, dy.atan2(dx))
+        polar(dx, dy, self.resolution)
     }
 
     /// Cell edge, metres.
     pub fn resolution(&self) -> f32 {
         self.resolution
     }
+}
 
-    /// Bit pattern of the sub-cell position: equal for positions a whole number of cells apart.
-    pub fn fraction_bits(&self) -> [u32; 2] {
-        self.to_centre.map(f32::to_bits)
+/// Range (metres) and bearing of the point `dx`, `dy` cells from the sensor, cells of
+/// `resolution` metres: the one formula every kernel uses (through [`SensorCell::polar`], or, in
+/// the cone kernel's row loop, with `dy` fixed per row), so they agree to the last bit.
+#[inline(always)]
+pub(crate) fn polar(dx: f32, dy: f32, resolution: f32) -> (f32, f32) {
+    ((dx * dx + dy * dy).sqrt() * resolution, atan2(dy, dx))
+}
+
+/// atan(t) − t = t³·Q(t²) on [0, 1]: Q's coefficients, highest power first (Chebyshev fit of degree
+/// 7 with mpmath's `chebyfit`, |error of Q| < 1e-7, so atan within about an ulp of f32).
+const ATAN_Q: [f32; 8] = [
+    0.003_866_739,
+    -0.020_026_748,
+    0.048_914_32,
+    -0.080_096_82,
+    0.108_657_59,
+    -0.142_570_45,
+    0.199_986_82,
+    -0.333_333_22,
+];
+
+/// The four-quadrant arctangent of `y`/`x`, in [−π, π], as `f32::atan2` to about an ulp: the
+/// angle folded into [0, π/4] by selects, a polynomial there, unfolded by selects. Unlike the
+/// C library's `atan2f` (a call per cell, with branches) it has no branches and no calls, so
+/// the kernels' loops vectorise with it; and as it is plain IEEE arithmetic (+, ×, ÷, no fused
+/// multiply-adds), every vector width gives the same bits as the scalar code.
+#[inline(always)]
+pub(crate) fn atan2(y: f32, x: f32) -> f32 {
+    let (ax, ay) = (x.abs(), y.abs());
+    let steep = ay > ax;
+    let (num, den) = if steep { (ax, ay) } else { (ay, ax) };
+    // 0 / 0 only at the origin, whose angle is 0 (as atan2(±0, +0)).
+    let t = num / den;
+    let t = if den > 0.0 { t } else { 0.0 };
+    let t2 = t * t;
+    let mut q = ATAN_Q[0];
+    for c in &ATAN_Q[1..] {
+        q = q * t2 + c;
     }
+    let a = t + t * t2 * q;
+    // The diagonals exactly, as the C library has them: the stepper's beam edges fall on them
+    // (15° + 30°), and so do whole lines of cells, which would otherwise flip in or out of a cone
+    // on an ulp.
+    let a = if t == 1.0 { FRAC_PI_4 } else { a };
+    let a = if steep { FRAC_PI_2 - a } else { a };
+    let a = if x.is_sign_negative() { PI - a } else { a };
+    a.copysign(y)
 }
 
 /// `angle` wrapped into [−π, π].
@@ -183,10 +227,55 @@ mod tests {
         let g = GridGeometry::new(64, 0.25);
         let a = g.sensor_cell(Vector2::new(0.125, -0.0625));
         let b = g.sensor_cell(Vector2::new(0.125 + 1.5, -0.0625 - 0.75));
-        assert_eq!(a.fraction_bits(), b.fraction_bits());
+        assert_eq!(a.to_centre.map(f32::to_bits), b.to_centre.map(f32::to_bits));
         assert_eq!([b.cell[0] - a.cell[0], b.cell[1] - a.cell[1]], [6, -3]);
         let c = g.sensor_cell(Vector2::new(0.1, -0.0625));
-        assert_ne!(a.fraction_bits(), c.fraction_bits());
+        assert_ne!(a.to_centre.map(f32::to_bits), c.to_centre.map(f32::to_bits));
+    }
+
+    #[test]
+    fn atan2_is_within_two_epsilons_of_the_exact_angle_everywhere() {
+        // Every octant, the axes, both zeros, tiny and huge operands, and a dense sweep of
+        // directions: against f64's atan2 (exact to f32's precision).
+        let mut checked = 0;
+        let mut worst = 0.0f64;
+        let mut check = |y: f32, x: f32| {
+            let got = atan2(y, x);
+            let exact = f64::from(y).atan2(f64::from(x));
+            let ulp = f64::from(f32::EPSILON) * exact.abs().max(f64::from(f32::MIN_POSITIVE));
+            let err = (f64::from(got) - exact).abs() / ulp.max(f64::from(f32::EPSILON) / 2.0);
+            assert!(err <= 2.0, "atan2({y}, {x}) = {got}, exact {exact}");
+            assert!((-PI..=PI).contains(&got), "atan2({y}, {x}) = {got}");
+            worst = worst.max(err);
+            checked += 1;
+        };
+        for i in 0..200_000 {
+            let angle = -std::f64::consts::PI + std::f64::consts::TAU * f64::from(i) / 200_000.0;
+            for r in [1e-3f64, 0.7, 3.0, 451.5] {
+                check((r * angle.sin()) as f32, (r * angle.cos()) as f32);
+            }
+        }
+        for (y, x) in [
+            (0.0, 1.0),
+            (1.0, 0.0),
+            (0.0, -1.0),
+            (-1.0, 0.0),
+            (1.0, 1.0),
+            (-1.0, -1.0),
+            (3.0, -3.0),
+            (1e-30, 1.0),
+            (1.0, 1e-30),
+            (-400.5, 0.5),
+        ] {
+            check(y, x);
+        }
+        assert!(checked > 800_000 && worst > 0.0, "{checked} {worst}");
+        assert_eq!(atan2(0.0, 0.0), 0.0);
+        for (y, x) in [(1.0f32, 1.0f32), (2.5, -2.5), (-0.5, 0.5), (-7.0, -7.0)] {
+            assert_eq!(atan2(y, x), y.atan2(x), "the diagonal ({y}, {x})");
+        }
+        assert_eq!(atan2(0.0, -1.0), PI);
+        assert_eq!(atan2(-0.0, -1.0), -PI);
     }
 
     #[test]

@@ -2,46 +2,54 @@
 //!
 //! The paper's arrays (GridAngles, GridLength, AngleInside; see [`crate::reference`]) imply a pass
 //! over the whole grid per reading, though a 60° cone to 4 m covers a sixth of the disc around the
-//! sensor and far less of a large grid. The fast kernel visits only the cells of the cone:
+//! sensor and far less of a large grid. The fast kernel visits only the cells of the cone, from any
+//! position of the sensor:
 //!
-//! - **Stencil.** The range and bearing of every cell within reach, relative to the sensor's cell,
-//!   computed once (the paper's GridLength and GridAngles, cut to the reach instead of the grid).
-//!   It depends only on where the sensor sits inside its cell, so it serves every reading taken
-//!   from there, and, for a sensor parked elsewhere, is rebuilt once it has stayed put for
-//!   [`REBUILD_AFTER`] readings.
-//! - **Row spans per beam angle.** The stepper's angles are discrete (reading centres every 6°,
-//!   pings every 1.5°), so per beam direction, quantised to [`ANGLE_STEP`], the cache keeps for
-//!   each stencil row the first and last column inside the cone (widened by half a step and a
-//!   rounding margin), worked out on first use by testing only the cells near the ends of each
-//!   row's stretch across the cone (a new direction costs a few cells per row, not the whole
-//!   stencil: the first sweep of a new mapper at 1 cm cells no longer costs a scan of 645 k cells
-//!   per direction). A reading clips those spans to its own reach and
-//!   to the grid and runs along contiguous row slices of cells and stencil values: no gathers, no
-//!   branches in the loop (models and rules are written with selects), so it vectorises; and the
-//!   exact cone test in the loop makes the result independent of the quantisation. The cone is the
-//!   beam's, narrowed to the rule's (HIMM updates only near the axis) and to the angles at which
-//!   the model can give evidence at all (the smooth model's profiles end inside the beam). Each
-//!   row's run is widened to whole vectors where the stencil and the grid allow (the extra cells
-//!   lie outside the cone or the reach and get no evidence), so the scalar remainder rarely runs.
-//!   Where the CPU has AVX2 (detected at run time) the row loop is compiled a second time for it,
-//!   with vectors twice as wide as the portable build's SSE2, and where it has AVX-512 (F and VL)
-//!   a third time: 512-bit vectors and twice as many vector registers (on an Intel Xeon 1.2–1.3×
-//!   faster than the AVX2 build, `docs/benchmarks.md`).
-//! - **Bounding-box fallback.** A moving robot rarely repeats a sub-cell position, and a stencil
-//!   per pose would cost more than it saves, so readings from positions other than the stencil's
-//!   visit the bounding box of their cone instead, computing each cell's range and bearing (a
-//!   square root and an arctangent), still touching a fraction of the grid.
+//! - **Row spans per beam direction.** The stepper's angles are discrete (reading centres every
+//!   6°, pings every 1.5°), so per beam direction, quantised to [`ANGLE_STEP`], the cache keeps for
+//!   each row of cells around the sensor's cell the first and last column that can lie inside the
+//!   cone (widened by half a step and a rounding margin) **wherever the sensor sits within its
+//!   cell**: the row's stretch across the sector within the band of the cells' centres, worked out
+//!   in f64 from the sector's geometry ([`Sector`]). They depend on the direction alone, not on
+//!   the position, so a moving robot reuses them like a standing one. A reading clips those spans
+//!   to its own reach and to the grid and runs along contiguous row slices of cells: no gathers,
+//!   no branches in the loop (models and rules are written with selects), so it vectorises; and
+//!   the exact cone test in the loop makes the result independent of the quantisation. The cone
+//!   is the beam's, narrowed to the rule's (HIMM updates only near the axis) and to the angles at
+//!   which the model can give evidence at all (the smooth model's profiles end inside the beam).
+//!   Each row's run is widened to whole vectors where the grid allows (the extra cells lie outside
+//!   the cone or the reach and get no evidence), so the scalar remainder rarely runs. Where the
+//!   CPU has AVX2 (detected at run time) the row loop is compiled a second time for it, with
+//!   vectors twice as wide as the portable build's SSE2, and where it has AVX-512 (F and VL) a
+//!   third time: 512-bit vectors and twice as many vector registers.
+//! - **Range and bearing computed in the loop.** Each cell's range and bearing are computed in the
+//!   row loop from its offset and the sensor's position in its cell ([`polar`]: a square root and
+//!   a branch-free arctangent of our own, [`crate::geometry::atan2`], both of which vectorise), so
+//!   a reading from a new position costs what one from an old position does. Until issue 29 the
+//!   kernel kept only a stencil of precomputed ranges and bearings for one sub-cell position;
+//!   readings from anywhere else took a scalar pass over the bounding box of the cone with the C
+//!   library's `atan2f` per cell, and a robot that moves never repeats a sub-cell position: on a
+//!   driven tour of the room that fallback cost 30× the fast path (`docs/benchmarks.md`, "Against
+//!   MRPT").
+//! - **Stencil of a parked sensor.** Loading a range and a bearing is still cheaper than
+//!   computing them (the square root and the division share one unit of the core), so once
+//!   [`PARKED_AFTER`] readings in a row came from one position within a cell, as from a head
+//!   scanning standing still, the kernel keeps the cells' ranges and bearings around it
+//!   ([`Stencil`], the same [`polar`]) and loads them for the readings from there. It fills each
+//!   row's cells the first time a reading from there visits them: filling the whole square at
+//!   once (641 k cells at 1 cm) cost about 1.2 ms per stop, more than a stop-and-scan robot's two
+//!   sweeps there saved.
 //!
-//! No path allocates once warm: the stencil and the spans of an angle are built the first time
-//! they are needed and kept.
+//! No path allocates once warm: the spans of a direction are made on its first reading, the
+//! stencil's memory when a sensor first parks (and kept when it parks elsewhere).
 //!
 //! Every path computes a cell's range and bearing with the same function and fuses it with
 //! [`fuse_run`], so they agree with the reference to the last bit.
 
-use std::f32::consts::{FRAC_PI_2, PI};
+use std::f32::consts::PI;
 
 use crate::config::FusionConfig;
-use crate::geometry::{GridGeometry, SensorCell, off_axis};
+use crate::geometry::{GridGeometry, SensorCell, off_axis, polar};
 use crate::grid::Layer;
 use crate::model::CellEvidence;
 use crate::observation::{Beam, Limits};
@@ -51,8 +59,8 @@ use crate::rule::{Combine, Domain};
 /// so the spans are only 0.125° wider each side than the cone itself.
 pub(crate) const ANGLE_STEP: f32 = PI / 720.0;
 const ANGLE_KEYS: usize = 1440;
-/// Readings in a row from one new sub-cell position before the stencil moves there.
-pub(crate) const REBUILD_AFTER: u32 = 16;
+/// Readings in a row from one position within a cell before the kernel keeps a [`Stencil`] there.
+pub(crate) const PARKED_AFTER: u32 = 16;
 
 /// A reading's evidence for the cell at range `r` and world bearing `bearing`, in the rule's
 /// domain; NaN (no evidence) outside the rule's cone of `cone` radians around `axis`.
@@ -125,90 +133,31 @@ pub(crate) fn fuse_run<R: Combine, E: CellEvidence>(
     updated as usize
 }
 
-/// Range and bearing of the cells around a sensor's cell, row-major, `side` = 2·radius + 1.
-struct Stencil {
-    fraction: [u32; 2],
-    /// From the sensor to the centre of its cell, cells ([`SensorCell`]).
-    to_centre: [f32; 2],
-    resolution: f32,
-    radius: i64,
-    side: usize,
-    range: Vec<f32>,
-    bearing: Vec<f32>,
-}
-
-impl Stencil {
-    fn new(sensor: &SensorCell, radius: i64) -> Self {
-        let side = (2 * radius + 1) as usize;
-        let mut range = Vec::with_capacity(side * side);
-        let mut bearing = Vec::with_capacity(side * side);
-        for oy in -radius..=radius {
-            for ox in -radius..=radius {
-                let (r, a) = sensor.polar(ox, oy);
-                range.push(r);
-                bearing.push(a);
-            }
-        }
-        Self {
-            fraction: sensor.fraction_bits(),
-            to_centre: sensor.to_centre,
-            resolution: sensor.resolution(),
-            radius,
-            side,
-            range,
-            bearing,
-        }
-    }
-
-    fn at(&self, ox: i64, oy: i64) -> usize {
-        (oy + self.radius) as usize * self.side + (ox + self.radius) as usize
-    }
-}
-
-/// For one beam direction, per stencil row from `first_row` on, the first and last column offset
-/// of the cells that can lie in the cone (`lo > hi`: none).
+/// For one beam direction, per row of cells from `first_row` on (row offsets from the sensor's
+/// cell), the first and last column offset of the cells that can lie in the cone for a sensor
+/// anywhere in its cell (`lo > hi`: none).
 struct Spans {
     first_row: i64,
     rows: Vec<[i64; 2]>,
 }
 
 impl Spans {
-    /// The spans of the cone of half-angle `cone` around `axis`, up to `reach`: per row, the first
-    /// and last cell for which the stencil's own range and bearing pass the cone test (the same
-    /// test the eager scan of every stencil cell made, so the spans are the same). Only a few
-    /// cells per row are tested: those near the ends of the row's stretch across the cone, worked
-    /// out in f64 for a cone a little wider and longer than the test's (by far more than the f32
-    /// values' rounding), scanning inwards from each end to the first cell that passes.
-    fn new(stencil: &Stencil, axis: f32, cone: f32, reach: f32) -> Self {
-        let window = RowWindows::new(stencil, axis, cone_margin(cone), reach);
-        Self::from_rows(stencil, axis, cone, reach, |oy, inside| {
-            let [from, to] = window.at(oy);
-            match (from..=to).find(|&ox| inside(ox)) {
-                Some(lo) => [lo, (lo..=to).rev().find(|&ox| inside(ox)).unwrap_or(lo)],
-                None => [i64::MAX, i64::MIN],
-            }
-        })
-    }
-
-    /// The spans whose row `oy` is `span(oy, inside)`, where `inside(ox)` is the cone test of the
-    /// cell (`ox`, `oy`), from the first row with a cell on (so `first_row` is that row's).
-    fn from_rows(
-        stencil: &Stencil,
-        axis: f32,
-        cone: f32,
-        reach: f32,
-        span: impl Fn(i64, &dyn Fn(i64) -> bool) -> [i64; 2],
-    ) -> Self {
-        let margin = cone_margin(cone);
-        let k = stencil.radius;
+    /// The spans of the cone of half-angle `cone` around `axis`, up to `reach` metres, rows within
+    /// `radius` cells of the sensor's cell, cells of `resolution` metres.
+    fn new(radius: i64, resolution: f32, axis: f32, cone: f32, reach: f32) -> Self {
+        let sector = Sector::new(axis, cone_margin(cone), reach / resolution);
         let mut first_row = None;
         let mut rows = Vec::new();
-        for oy in -k..=k {
-            let inside = |ox: i64| {
-                let i = stencil.at(ox, oy);
-                stencil.range[i] <= reach && off_axis(stencil.bearing[i], axis).abs() <= margin
+        for oy in -radius..=radius {
+            let span = match sector.across_band(oy as f64 - 0.5, oy as f64 + 0.5) {
+                // The cell `ox` holds a sector point (x, y) of the band, for some sensor position
+                // in the cell, when |ox − x| ≤ 1/2.
+                Some([lo, hi]) => [
+                    ((lo - 0.5).ceil() as i64).max(-radius),
+                    ((hi + 0.5).floor() as i64).min(radius),
+                ],
+                None => [i64::MAX, i64::MIN],
             };
-            let span = span(oy, &inside);
             if span[0] <= span[1] || first_row.is_some() {
                 first_row.get_or_insert(oy);
                 rows.push(span);
@@ -231,86 +180,276 @@ fn cone_margin(cone: f32) -> f32 {
     cone + ANGLE_STEP / 2.0 + 1e-4
 }
 
-/// Where along each stencil row a cone can hold cells: the row's stretch across a sector a little
-/// wider and longer than the cone, in column offsets, clipped to the stencil.
-struct RowWindows {
-    radius: i64,
-    to_centre: [f64; 2],
-    /// The sector's radius, cells.
+/// A sector with its apex at the origin, in cells, a little wider and longer than a cone (by far
+/// more than the f32 values' rounding), worked out in f64.
+struct Sector {
+    /// Its radius, cells.
     reach: f64,
     /// Its two edges, as unit vectors: the sector is the set left of `edges[0]` and right of
-    /// `edges[1]` (< 180° wide), or `None` for a sector of 180° or more (then the window is the
-    /// whole row within reach).
+    /// `edges[1]` (< 180° wide, so convex), or `None` for a sector of 180° or more, taken as the
+    /// whole disc.
     edges: Option<[[f64; 2]; 2]>,
+    axis: f64,
+    half: f64,
 }
 
 /// How much wider than the cone the sector is, radians: far more than the f32 bearing's rounding
-/// (about 1e-7 rad), so no cell the cone test passes lies outside it.
+/// (a few 1e-7 rad), so no cell the cone test passes lies outside it.
 const WINDOW_ANGLE_SLACK: f64 = 1e-5;
 /// How much longer, cells (the test compares ranges in f32 metres).
 const WINDOW_REACH_SLACK: f64 = 2.0;
-/// Cells added at each end of a row's window for rounding the stretch to columns.
-const WINDOW_CELL_SLACK: i64 = 2;
 
-impl RowWindows {
-    fn new(stencil: &Stencil, axis: f32, margin: f32, reach: f32) -> Self {
+impl Sector {
+    fn new(axis: f32, margin: f32, reach_cells: f32) -> Self {
         let half = f64::from(margin) + WINDOW_ANGLE_SLACK;
         let axis = f64::from(axis);
         let edge = |a: f64| [a.cos(), a.sin()];
         Self {
-            radius: stencil.radius,
-            to_centre: stencil.to_centre.map(f64::from),
-            reach: f64::from(reach) / f64::from(stencil.resolution) + WINDOW_REACH_SLACK,
+            reach: f64::from(reach_cells) + WINDOW_REACH_SLACK,
             edges: (half < std::f64::consts::FRAC_PI_2 - 1e-6)
                 .then(|| [edge(axis - half), edge(axis + half)]),
+            axis,
+            half,
         }
     }
 
-    /// The window of row `oy`: columns `[from, to]`, empty if `from > to`.
-    fn at(&self, oy: i64) -> [i64; 2] {
-        let dy = oy as f64 + self.to_centre[1];
-        let chord = self.reach * self.reach - dy * dy;
+    /// Whether the direction `angle` lies within the sector's angle.
+    fn holds_direction(&self, angle: f64) -> bool {
+        self.edges.is_none() || {
+            let d = (angle - self.axis).rem_euclid(std::f64::consts::TAU);
+            d.min(std::f64::consts::TAU - d) <= self.half
+        }
+    }
+
+    /// The stretch in x of the sector's points on the line y = `y`, if any.
+    fn across_line(&self, y: f64) -> Option<[f64; 2]> {
+        let chord = self.reach * self.reach - y * y;
         if chord < 0.0 {
-            return [1, 0];
+            return None;
         }
         let chord = chord.sqrt();
-        // The stretch in x (relative to the sensor) of the sector's points on the line y = dy.
         let (mut lo, mut hi) = (-chord, chord);
         if let Some([d1, d2]) = self.edges {
-            // Left of edge 1: d1.x·dy − d1.y·x ≥ 0; right of edge 2: x·d2.y − dy·d2.x ≥ 0.
-            for (normal, offset) in [(-d1[1], d1[0] * dy), (d2[1], -dy * d2[0])] {
+            // Left of edge 1: d1.x·y − d1.y·x ≥ 0; right of edge 2: x·d2.y − y·d2.x ≥ 0.
+            for (normal, offset) in [(-d1[1], d1[0] * y), (d2[1], -y * d2[0])] {
                 // normal·x + offset ≥ 0
                 if normal > 0.0 {
                     lo = lo.max(-offset / normal);
                 } else if normal < 0.0 {
                     hi = hi.min(-offset / normal);
                 } else if offset < 0.0 {
-                    return [1, 0];
+                    return None;
                 }
             }
         }
-        let from = (lo - self.to_centre[0]).ceil() as i64 - WINDOW_CELL_SLACK;
-        let to = (hi - self.to_centre[0]).floor() as i64 + WINDOW_CELL_SLACK;
-        [from.max(-self.radius), to.min(self.radius)]
+        (lo <= hi).then_some([lo, hi])
+    }
+
+    /// The stretch in x of the sector's points with `y0` ≤ y ≤ `y1`, if any. The sector is convex
+    /// (or the disc), so its part within the band is too, and the extremes in x lie on the band's
+    /// edges, at the sector's corners (apex and the arc's ends) within the band, or where the arc
+    /// runs vertical (straight ahead or behind, at y = 0).
+    fn across_band(&self, y0: f64, y1: f64) -> Option<[f64; 2]> {
+        let mut stretch: Option<[f64; 2]> = None;
+        let mut include = |x: f64| {
+            stretch = Some(stretch.map_or([x, x], |[lo, hi]| [lo.min(x), hi.max(x)]));
+        };
+        for y in [y0, y1] {
+            if let Some([lo, hi]) = self.across_line(y) {
+                include(lo);
+                include(hi);
+            }
+        }
+        let in_band = |y: f64| (y0..=y1).contains(&y);
+        if in_band(0.0) {
+            include(0.0);
+            for (x, angle) in [(self.reach, 0.0), (-self.reach, std::f64::consts::PI)] {
+                if self.holds_direction(angle) {
+                    include(x);
+                }
+            }
+        }
+        if self.edges.is_some() {
+            for angle in [self.axis - self.half, self.axis + self.half] {
+                let (s, c) = angle.sin_cos();
+                if in_band(self.reach * s) {
+                    include(self.reach * c);
+                }
+            }
+        }
+        stretch
     }
 }
 
-/// A stencil and the row spans worked out on it so far, per angle key.
-struct Prepared {
-    stencil: Stencil,
-    spans: Vec<Option<Box<Spans>>>,
+/// Range and bearing of every cell within reach of a sensor parked at one position within its
+/// cell, row-major, `side` = 2·radius + 1 cells a side: computed once with [`polar`], as the row
+/// loop would compute them, so a reading from there loads them instead.
+struct Stencil {
+    /// The sensor's position in its cell ([`SensorCell::to_centre`]), bit for bit.
+    to_centre: [u32; 2],
+    /// That position, to compute the cells not yet filled.
+    sensor: SensorCell,
+    radius: i64,
+    side: usize,
+    range: Vec<f32>,
+    bearing: Vec<f32>,
+    /// Per row, the columns filled so far (`lo > hi`: none): cells are computed the first time a
+    /// reading from here visits them, so a sensor parked for one sweep pays for the cells its
+    /// readings reach, not for the whole square.
+    filled: Vec<[i64; 2]>,
 }
 
-/// The fast kernel's caches for one grid geometry, one reach and one rule.
+impl Stencil {
+    fn new(sensor: &SensorCell, radius: i64) -> Self {
+        let side = (2 * radius + 1) as usize;
+        let mut stencil = Self {
+            to_centre: [0; 2],
+            sensor: *sensor,
+            radius,
+            side,
+            range: vec![0.0; side * side],
+            bearing: vec![0.0; side * side],
+            filled: vec![EMPTY_SPAN; side],
+        };
+        stencil.park(sensor);
+        stencil
+    }
+
+    /// Empties the stencil for a sensor parked at `sensor`; the memory is kept.
+    fn park(&mut self, sensor: &SensorCell) {
+        self.to_centre = sensor.to_centre.map(f32::to_bits);
+        self.sensor = *sensor;
+        self.filled.fill(EMPTY_SPAN);
+    }
+
+    /// Fills the cells `lo..=hi` of row `oy` that are not yet (keeping each row's filled columns
+    /// one stretch).
+    #[inline(always)]
+    fn cover(&mut self, oy: i64, lo: i64, hi: i64) {
+        let [from, to] = self.filled[(oy + self.radius) as usize];
+        if from > lo || to < hi {
+            self.extend(oy, lo, hi);
+        }
+    }
+
+    /// [`Self::cover`] for a row not yet filled as far as `lo..=hi`.
+    #[inline(never)]
+    fn extend(&mut self, oy: i64, lo: i64, hi: i64) {
+        let row = (oy + self.radius) as usize;
+        let [from, to] = self.filled[row];
+        if from > to {
+            self.compute(oy, lo, hi);
+            self.filled[row] = [lo, hi];
+            return;
+        }
+        if lo < from {
+            self.compute(oy, lo, from - 1);
+        }
+        if hi > to {
+            self.compute(oy, to + 1, hi);
+        }
+        self.filled[row] = [lo.min(from), hi.max(to)];
+    }
+
+    /// Computes the cells `lo..=hi` of row `oy`.
+    fn compute(&mut self, oy: i64, lo: i64, hi: i64) {
+        let (s, len) = (self.at(lo, oy), (hi - lo + 1) as usize);
+        let cells = self.range[s..s + len]
+            .iter_mut()
+            .zip(&mut self.bearing[s..s + len]);
+        for ((r, a), polar) in cells.zip(self.sensor.row(oy, lo, len)) {
+            (*r, *a) = polar;
+        }
+    }
+
+    fn at(&self, ox: i64, oy: i64) -> usize {
+        (oy + self.radius) as usize * self.side + (ox + self.radius) as usize
+    }
+}
+
+/// A row's span with no cells.
+const EMPTY_SPAN: [i64; 2] = [i64::MAX, i64::MIN];
+
+/// Where the cells' ranges and bearings of a row come from: computed from the sensor's position
+/// ([`SensorCell`]), or loaded from the [`Stencil`] of a parked sensor. Both give the same bits.
+trait RowPolar {
+    /// Range and bearing of the cells `lo`, `lo` + 1, … (`len` of them) of row `oy`, in offsets
+    /// from the sensor's cell.
+    fn row(&mut self, oy: i64, lo: i64, len: usize) -> impl Iterator<Item = (f32, f32)>;
+}
+
+impl RowPolar for SensorCell {
+    #[inline(always)]
+    fn row(&mut self, oy: i64, lo: i64, _len: usize) -> impl Iterator<Item = (f32, f32)> {
+        let dy = oy as f32 + self.to_centre[1];
+        let (to_x, resolution) = (self.to_centre[0], self.resolution());
+        // Offsets in i32, whose lanes are as wide as the cells' (an i64 counter would halve the
+        // vectors, as for `fuse_run`'s count); a row's offsets are within the grid's side.
+        (lo as i32..).map(move |ox| polar(ox as f32 + to_x, dy, resolution))
+    }
+}
+
+impl RowPolar for Stencil {
+    #[inline(always)]
+    fn row(&mut self, oy: i64, lo: i64, len: usize) -> impl Iterator<Item = (f32, f32)> {
+        self.cover(oy, lo, lo + len as i64 - 1);
+        let s = self.at(lo, oy);
+        let range = self.range[s..s + len].iter().copied();
+        range.zip(self.bearing[s..s + len].iter().copied())
+    }
+}
+
+/// The fast kernel's caches for one grid geometry, one reach and one rule: the row spans per beam
+/// direction, worked out on its first reading and kept, and the stencil of a parked sensor.
 pub(crate) struct ConeCache {
     radius: i64,
     reach: f32,
     /// The model's angular reach (see [`CellEvidence::half_angle`]).
     model_half_angle: f32,
     limits: Limits,
-    prepared: Option<Prepared>,
-    /// A sub-cell position other than the stencil's, and how many readings in a row came from it.
+    spans: Vec<Option<Box<Spans>>>,
+    parking: Parking,
+}
+
+/// The stencil of a parked sensor, and the position a sensor may be parking at.
+#[derive(Default)]
+struct Parking {
+    stencil: Option<Stencil>,
+    /// The position within its cell of the latest reading not from the stencil's, and how many
+    /// readings in a row came from there.
     candidate: Option<([u32; 2], u32)>,
+}
+
+impl Parking {
+    /// The stencil for a sensor at `sensor` if it is parked there: built (`radius` cells each
+    /// way) once [`PARKED_AFTER`] readings in a row came from its position within its cell.
+    fn stencil_for(&mut self, sensor: &SensorCell, radius: i64) -> Option<&mut Stencil> {
+        let position = sensor.to_centre.map(f32::to_bits);
+        if self
+            .stencil
+            .as_ref()
+            .is_some_and(|s| s.to_centre == position)
+        {
+            return self.stencil.as_mut();
+        }
+        let seen = match self.candidate {
+            Some((p, n)) if p == position => n + 1,
+            _ => 1,
+        };
+        if seen < PARKED_AFTER {
+            self.candidate = Some((position, seen));
+            return None;
+        }
+        self.candidate = None;
+        let stencil = match self.stencil.take() {
+            Some(mut stencil) => {
+                stencil.park(sensor);
+                stencil
+            }
+            None => Stencil::new(sensor, radius),
+        };
+        Some(self.stencil.insert(stencil))
+    }
 }
 
 impl ConeCache {
@@ -320,34 +459,9 @@ impl ConeCache {
             reach: config.model.max_reach(config.sensor.max_range_m),
             model_half_angle: config.model.max_half_angle(),
             limits: config.sensor.limits(),
-            prepared: None,
-            candidate: None,
+            spans: (0..ANGLE_KEYS).map(|_| None).collect(),
+            parking: Parking::default(),
         }
-    }
-
-    /// The stencil for a sensor at `sensor`, built or moved there when due; `None` while the
-    /// sensor is elsewhere.
-    fn prepared_for(&mut self, sensor: &SensorCell) -> Option<&mut Prepared> {
-        let fraction = sensor.fraction_bits();
-        let current = self.prepared.as_ref().map(|p| p.stencil.fraction);
-        if current.is_some_and(|f| f != fraction) {
-            let seen = match self.candidate {
-                Some((f, n)) if f == fraction => n + 1,
-                _ => 1,
-            };
-            self.candidate = Some((fraction, seen));
-            if seen < REBUILD_AFTER {
-                return None;
-            }
-        }
-        if current != Some(fraction) {
-            self.candidate = None;
-            self.prepared = Some(Prepared {
-                stencil: Stencil::new(sensor, self.radius),
-                spans: (0..ANGLE_KEYS).map(|_| None).collect(),
-            });
-        }
-        self.prepared.as_mut()
     }
 
     /// Fuses the reading of `beam` (whose evidence is `evidence`) into `layer` and, if the model
@@ -368,73 +482,91 @@ impl ConeCache {
             .cone_half_angle(beam.half_angle)
             .min(evidence.half_angle());
         let reach = evidence.reach().min(self.reach);
-        let (max_reach, envelope) = (
-            self.reach,
-            layer
-                .rule
-                .cone_half_angle(self.limits.half_angle)
-                .min(self.model_half_angle),
-        );
-        let Some(Prepared { stencil, spans }) = self.prepared_for(&sensor) else {
-            return bounding_box(layer, heard, geometry, &sensor, beam, cone, reach, evidence);
-        };
+        let envelope = layer
+            .rule
+            .cone_half_angle(self.limits.half_angle)
+            .min(self.model_half_angle);
         let key = ((beam.axis + PI) / ANGLE_STEP).round() as usize % ANGLE_KEYS;
-        let spans = spans[key].get_or_insert_with(|| {
+        let (radius, max_reach, resolution) = (self.radius, self.reach, geometry.resolution());
+        let spans = self.spans[key].get_or_insert_with(|| {
             let axis = key as f32 * ANGLE_STEP - PI;
-            Box::new(Spans::new(stencil, axis, envelope, max_reach))
+            Box::new(Spans::new(radius, resolution, axis, envelope, max_reach))
         });
-
+        let stencil = self.parking.stencil_for(&sensor, radius);
+        let (cell, n) = (sensor.cell, geometry.cells_per_side() as i64);
+        let k = (reach / resolution).ceil() as i64 + 1;
         let pass = RowPass {
-            stencil,
             spans,
-            n: geometry.cells_per_side() as i64,
-            sensor: sensor.cell,
-            k: (reach / geometry.resolution()).ceil() as i64 + 1,
+            cell,
+            radius,
+            n,
+            k,
         };
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx512f")
-            && std::arch::is_x86_feature_detected!("avx512vl")
-        {
-            // SAFETY: the CPU has AVX-512F and VL, checked just above.
-            return unsafe { fuse_rows_avx512(layer, heard, evidence, beam.axis, cone, &pass) };
+        match stencil {
+            Some(stencil) => dispatch(layer, heard, evidence, beam.axis, cone, &pass, stencil),
+            None => dispatch(layer, heard, evidence, beam.axis, cone, &pass, &mut {
+                sensor
+            }),
         }
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2, checked just above.
-            return unsafe { fuse_rows_avx2(layer, heard, evidence, beam.axis, cone, &pass) };
-        }
-        fuse_rows(layer, heard, evidence, beam.axis, cone, &pass)
     }
 }
 
-/// What a reading's pass over the stencil rows needs besides the layer and the evidence.
-struct RowPass<'a> {
-    stencil: &'a Stencil,
-    spans: &'a Spans,
-    /// Cells per side of the grid.
-    n: i64,
-    /// The sensor's cell.
-    sensor: [i64; 2],
-    /// The reading's reach in cells, plus one.
-    k: i64,
-}
-
-/// The fast kernel's pass: [`fuse_run`] along each stencil row's span, clipped to the reach and
-/// the grid.
+/// [`fuse_rows`] in the widest build the CPU runs.
 #[inline(always)]
-fn fuse_rows<R: Combine, E: CellEvidence>(
+fn dispatch<R: Combine, E: CellEvidence, P: RowPolar>(
     layer: &mut Layer<R>,
     heard: &mut [f32],
     evidence: &E,
     axis: f32,
     cone: f32,
     pass: &RowPass<'_>,
+    polar: &mut P,
+) -> usize {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx512f")
+        && std::arch::is_x86_feature_detected!("avx512vl")
+    {
+        // SAFETY: the CPU has AVX-512F and VL, checked just above.
+        return unsafe { fuse_rows_avx512(layer, heard, evidence, axis, cone, pass, polar) };
+    }
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        return unsafe { fuse_rows_avx2(layer, heard, evidence, axis, cone, pass, polar) };
+    }
+    fuse_rows(layer, heard, evidence, axis, cone, pass, polar)
+}
+
+/// What a reading's pass over the rows needs besides the layer and the evidence.
+struct RowPass<'a> {
+    spans: &'a Spans,
+    /// The sensor's cell.
+    cell: [i64; 2],
+    /// Rows and columns the spans (and a stencil) reach from the sensor's cell.
+    radius: i64,
+    /// Cells per side of the grid.
+    n: i64,
+    /// The reading's reach in cells, plus one.
+    k: i64,
+}
+
+/// The fast kernel's pass: [`fuse_run`] along each row's span, clipped to the reach and the
+/// grid, the cells' ranges and bearings from `polar`.
+#[inline(always)]
+fn fuse_rows<R: Combine, E: CellEvidence, P: RowPolar>(
+    layer: &mut Layer<R>,
+    heard: &mut [f32],
+    evidence: &E,
+    axis: f32,
+    cone: f32,
+    pass: &RowPass<'_>,
+    polar: &mut P,
 ) -> usize {
     let RowPass {
-        stencil,
         spans,
+        cell: [cx, cy],
+        radius,
         n,
-        sensor: [cx, cy],
         k,
     } = *pass;
     let mut updated = 0;
@@ -452,19 +584,9 @@ fn fuse_rows<R: Combine, E: CellEvidence>(
         if lo > hi {
             continue;
         }
-        let (lo, hi) = whole_vectors(
-            lo,
-            hi,
-            (-stencil.radius).max(-cx),
-            stencil.radius.min(n - 1 - cx),
-        );
+        let (lo, hi) = whole_vectors(lo, hi, (-radius).max(-cx), radius.min(n - 1 - cx));
         let first = (gy * n + cx + lo) as usize;
         let len = (hi - lo + 1) as usize;
-        let s = stencil.at(lo, row);
-        let polar = stencil.range[s..s + len]
-            .iter()
-            .copied()
-            .zip(stencil.bearing[s..s + len].iter().copied());
         let run = first..first + len;
         let (rule, cells) = layer.begin_run(run.clone());
         let changed = fuse_run(
@@ -474,7 +596,7 @@ fn fuse_rows<R: Combine, E: CellEvidence>(
             cone,
             cells,
             heard_run(heard, &run),
-            polar,
+            polar.row(row, lo, len),
         );
         layer.end_run(run, changed);
         updated += changed;
@@ -488,15 +610,16 @@ fn fuse_rows<R: Combine, E: CellEvidence>(
 /// multiply-adds), so both versions give the same bits.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn fuse_rows_avx2<R: Combine, E: CellEvidence>(
+fn fuse_rows_avx2<R: Combine, E: CellEvidence, P: RowPolar>(
     layer: &mut Layer<R>,
     heard: &mut [f32],
     evidence: &E,
     axis: f32,
     cone: f32,
     pass: &RowPass<'_>,
+    polar: &mut P,
 ) -> usize {
-    fuse_rows(layer, heard, evidence, axis, cone, pass)
+    fuse_rows(layer, heard, evidence, axis, cone, pass, polar)
 }
 
 /// [`fuse_rows`] compiled for AVX-512 (F and VL): 512-bit vectors and 32 vector registers where
@@ -505,15 +628,16 @@ fn fuse_rows_avx2<R: Combine, E: CellEvidence>(
 /// were compared by fingerprint with the AVX2 build's (`docs/benchmarks.md`).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512vl")]
-fn fuse_rows_avx512<R: Combine, E: CellEvidence>(
+fn fuse_rows_avx512<R: Combine, E: CellEvidence, P: RowPolar>(
     layer: &mut Layer<R>,
     heard: &mut [f32],
     evidence: &E,
     axis: f32,
     cone: f32,
     pass: &RowPass<'_>,
+    polar: &mut P,
 ) -> usize {
-    fuse_rows(layer, heard, evidence, axis, cone, pass)
+    fuse_rows(layer, heard, evidence, axis, cone, pass, polar)
 }
 
 /// The heard bearings of the cells of `run`: none when the model does not hear (`heard` empty).
@@ -540,124 +664,145 @@ fn whole_vectors(lo: i64, hi: i64, min: i64, max: i64) -> (i64, i64) {
     (lo - down, hi + up)
 }
 
-/// The fallback: every cell of the bounding box of the cone, up to `reach`.
-#[allow(clippy::too_many_arguments)]
-fn bounding_box<R: Combine, E: CellEvidence>(
-    layer: &mut Layer<R>,
-    heard: &mut [f32],
-    geometry: &GridGeometry,
-    sensor: &SensorCell,
-    beam: &Beam,
-    cone: f32,
-    reach: f32,
-    evidence: &E,
-) -> usize {
-    // The sector's extreme points: its apex, the ends of its arc, and the arc's crossings of the
-    // axes' directions.
-    let mut lo = [0.0f32; 2];
-    let mut hi = [0.0f32; 2];
-    let mut include = |angle: f32| {
-        let (s, c) = angle.sin_cos();
-        for (i, v) in [c * reach, s * reach].into_iter().enumerate() {
-            lo[i] = lo[i].min(v);
-            hi[i] = hi[i].max(v);
-        }
-    };
-    include(beam.axis - cone);
-    include(beam.axis + cone);
-    for quarter in -2..=2 {
-        let angle = quarter as f32 * FRAC_PI_2;
-        if off_axis(angle, beam.axis).abs() <= cone {
-            include(angle);
-        }
-    }
-    let n = geometry.cells_per_side() as i64;
-    let res = geometry.resolution();
-    // Offsets from the sensor's cell, a cell wider each side for the sub-cell position.
-    let span = |axis: usize| {
-        let c = sensor.cell[axis];
-        let from = ((lo[axis] / res).floor() as i64 - 1).max(-c);
-        let to = ((hi[axis] / res).ceil() as i64 + 1).min(n - 1 - c);
-        (from, to)
-    };
-    let ((x0, x1), (y0, y1)) = (span(0), span(1));
-    if x0 > x1 {
-        return 0;
-    }
-    let mut updated = 0;
-    for oy in y0..=y1 {
-        let first = ((sensor.cell[1] + oy) * n + sensor.cell[0] + x0) as usize;
-        let len = (x1 - x0 + 1) as usize;
-        let run = first..first + len;
-        let (rule, cells) = layer.begin_run(run.clone());
-        let polar = (x0..=x1).map(|ox| sensor.polar(ox, oy));
-        let heard = heard_run(heard, &run);
-        let changed = fuse_run(rule, evidence, beam.axis, cone, cells, heard, polar);
-        layer.end_run(run, changed);
-        updated += changed;
-    }
-    updated
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::GridConfig;
     use crate::geometry::GridGeometry;
-    use nalgebra::Vector2;
-
-    /// The spans as first written: every stencil cell tested.
-    fn eager_spans(stencil: &Stencil, axis: f32, cone: f32, reach: f32) -> Spans {
-        let k = stencil.radius;
-        Spans::from_rows(stencil, axis, cone, reach, |_, inside| {
-            let mut span = [i64::MAX, i64::MIN];
-            for ox in (-k..=k).filter(|&ox| inside(ox)) {
-                span = [span[0].min(ox), span[1].max(ox)];
-            }
-            span
-        })
-    }
+    use crate::mapper::{Kernel, Mapper};
+    use crate::model::{ModelConfig, ModelKind};
+    use crate::observation::Observation;
+    use crate::rule::{RuleConfig, RuleKind};
+    use nalgebra::{Isometry2, Vector2};
+    use proptest::prelude::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
 
     #[test]
-    fn spans_equal_those_of_a_scan_of_the_whole_stencil() {
-        // 10 cm cells and a 4 m reach (a stencil of 83² cells; the test is the same at 1 cm, only
-        // slower); sensors on a corner, a centre and odd fractions of a cell; every 29th
-        // direction key and the four axes; the cones of HIMM, the smooth model, the beam, and
-        // one of 90° and more (where the windows give up and scan whole rows).
+    fn spans_hold_every_cell_of_the_cone_from_anywhere_in_the_cell() {
+        // 10 cm cells and a 4 m reach (rows of 83 cells; the test is the same at 1 cm, only
+        // slower); sensors on a corner, a centre, odd fractions of a cell and random positions;
+        // every 11th direction key and the four axes; the cones of HIMM, the smooth model, the
+        // beam, and of 90° and more (whole discs). Every cell whose range and bearing, as the
+        // row loop computes them, pass the cone test at the key's own axis and at the ends of the
+        // directions the key serves, lies in its row's span; and the spans are not much wider
+        // than the cone.
         let geometry = GridGeometry::new(100, 0.1);
-        let positions = [
+        let mut rng = ChaCha8Rng::seed_from_u64(29);
+        let positions: Vec<Vector2<f32>> = [
             Vector2::new(0.0, 0.0),
             Vector2::new(0.05, 0.05),
             Vector2::new(0.0137, -0.0411),
             Vector2::new(-0.099, 0.0001),
-        ];
-        let keys = (0..ANGLE_KEYS).step_by(11).chain([
-            0,
-            ANGLE_KEYS / 4,
-            ANGLE_KEYS / 2,
-            3 * ANGLE_KEYS / 4,
-        ]);
-        let keys: Vec<usize> = keys.collect();
-        let mut compared = 0;
-        for position in positions {
-            let stencil = Stencil::new(&geometry.sensor_cell(position), 41);
-            for cone_deg in [3.0f32, 14.0, 30.0, 89.9, 120.0] {
-                for reach in [0.4f32, 4.0] {
-                    for &key in &keys {
-                        let axis = key as f32 * ANGLE_STEP - PI;
-                        let cone = cone_deg.to_radians();
-                        let lazy = Spans::new(&stencil, axis, cone, reach);
-                        let eager = eager_spans(&stencil, axis, cone, reach);
-                        assert_eq!(
-                            (lazy.first_row, &lazy.rows),
-                            (eager.first_row, &eager.rows),
-                            "{position:?} cone {cone_deg}° reach {reach} key {key}"
-                        );
-                        compared += usize::from(!eager.rows.is_empty());
+            Vector2::new(0.049_999, -0.050_001),
+        ]
+        .into_iter()
+        .chain(
+            (0..8).map(|_| Vector2::new(rng.random_range(-0.5..0.5), rng.random_range(-0.5..0.5))),
+        )
+        .collect();
+        let keys: Vec<usize> = (0..ANGLE_KEYS)
+            .step_by(11)
+            .chain([0, ANGLE_KEYS / 4, ANGLE_KEYS / 2, 3 * ANGLE_KEYS / 4])
+            .collect();
+        let radius = 41;
+        let (mut inside, mut spanned) = (0usize, 0usize);
+        for cone_deg in [3.0f32, 14.0, 30.0, 89.9, 120.0] {
+            for reach in [0.4f32, 4.0] {
+                for &key in &keys {
+                    let axis = key as f32 * ANGLE_STEP - PI;
+                    let cone = cone_deg.to_radians();
+                    let spans = Spans::new(radius, geometry.resolution(), axis, cone, reach);
+                    for position in &positions {
+                        let sensor = geometry.sensor_cell(*position);
+                        for oy in -radius..=radius {
+                            let row = usize::try_from(oy - spans.first_row)
+                                .ok()
+                                .and_then(|i| spans.rows.get(i));
+                            let [lo, hi] = row.copied().unwrap_or([i64::MAX, i64::MIN]);
+                            spanned += if lo <= hi { (hi - lo + 1) as usize } else { 0 };
+                            for ox in -radius..=radius {
+                                let (r, bearing) = sensor.polar(ox, oy);
+                                let held = [-0.5f32, 0.0, 0.5].iter().any(|step| {
+                                    let beam_axis = axis + step * ANGLE_STEP;
+                                    off_axis(bearing, beam_axis).abs() <= cone
+                                });
+                                if r <= reach && held {
+                                    inside += 1;
+                                    assert!(
+                                        (lo..=hi).contains(&ox),
+                                        "{position:?} cone {cone_deg}° reach {reach} key {key}: \
+                                         cell ({ox}, {oy}) outside {lo}..={hi}"
+                                    );
+                                }
+                            }
+                        }
                     }
                 }
             }
         }
-        assert!(compared > 500, "{compared}");
+        assert!(inside > 100_000, "{inside}");
+        assert!(
+            spanned < 3 * inside,
+            "{spanned} cells spanned for {inside} inside"
+        );
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(96))]
+        /// Every path of the cone kernel (ranges and bearings computed in the loop, or loaded from
+        /// the stencil of a parked sensor) gives the whole-grid reference's map to the last bit:
+        /// random poses (on and off the grid, any heading), grid centres, beam widths, angles,
+        /// ranges, models and rules.
+        #[test]
+        fn every_path_agrees_with_the_reference_to_the_last_bit(
+            model in 0..ModelKind::ALL.len(),
+            rule in 0..RuleKind::ALL.len(),
+            centre in (-0.2f32..0.2, -0.2f32..0.2),
+            pose in (-2.5f32..2.5, -2.5f32..2.5, -3.2f32..3.2),
+            half_angle_deg in 5.0f32..45.0,
+            parked in any::<bool>(),
+            readings in prop::collection::vec(
+                (-180.0f32..180.0, prop::option::of(0.05f32..4.3), (-0.2f32..0.2, -0.2f32..0.2)),
+                1..8,
+            ),
+        ) {
+            let config = FusionConfig {
+                grid: GridConfig {
+                    cells: 90,
+                    resolution_m: 0.05,
+                    centre_x_m: centre.0,
+                    centre_y_m: centre.1,
+                },
+                model: ModelConfig::default_for(ModelKind::ALL[model]),
+                rule: RuleConfig::default_for(RuleKind::ALL[rule]),
+                ..FusionConfig::default()
+            };
+            let mut fast = Mapper::new(config).unwrap();
+            let mut reference = Mapper::new(config).unwrap();
+            // Parked: enough readings from the first pose for the stencil; else each from its own.
+            let count = if parked { PARKED_AFTER as usize + readings.len() } else { readings.len() };
+            for &(angle_deg, range_m, moved) in readings.iter().cycle().take(count) {
+                let moved = if parked { (0.0, 0.0) } else { moved };
+                let obs = Observation {
+                    pose: Isometry2::new(Vector2::new(pose.0 + moved.0, pose.1 + moved.1), pose.2),
+                    angle_rad: angle_deg.to_radians(),
+                    range_m,
+                    beam_half_angle_rad: half_angle_deg.to_radians(),
+                    max_range_m: 4.0,
+                };
+                let a = fast.update_with(&obs, Kernel::Cone).unwrap();
+                let b = reference.update_with(&obs, Kernel::WholeGrid).unwrap();
+                prop_assert_eq!(a, b);
+            }
+            let n = config.grid.cells as usize;
+            for y in 0..n {
+                for x in 0..n {
+                    let bits = |m: &Mapper| m.grid().probability(x, y).map(f32::to_bits);
+                    prop_assert_eq!(bits(&fast), bits(&reference), "cell ({}, {})", x, y);
+                }
+            }
+        }
     }
 
     #[test]

@@ -135,15 +135,18 @@
 //! grid per reading, and the model and rule at every cell inside it. It is the yardstick.
 //! [`Kernel::Cone`] ([`kernel`], the default) visits only the cells of the cone, narrowed to the
 //! angles at which the rule updates and the model gives evidence (HIMM's ±3°, the smooth model's
-//! profiles): a stencil of ranges and bearings around the sensor's cell, cut to the farthest reach
-//! and reused for every reading taken at the same position within a cell (moved after 16 readings
-//! from another one); per beam direction, the cone's first and last column in each stencil row;
-//! branch-free inner loops over contiguous rows, widened to whole vectors, that the compiler
-//! vectorises (with 256-bit vectors where the CPU has AVX2, detected at run time); and, for a
-//! moving sensor, the bounding box of the cone. Both kernels compute each cell's range and bearing
-//! the same way and update the same cells with the same values, to the last bit by construction: a
-//! unit test runs random readings (stepper angles and arbitrary ones, parked and moving poses, with
-//! and without echoes) through both for every model and rule and compares the grids to 1e-6.
+//! profiles): per beam direction, the first and last column in each row around the sensor's cell
+//! that the cone can hold wherever the sensor sits within its cell; branch-free inner loops over
+//! contiguous rows, widened to whole vectors, that the compiler vectorises (with 256-bit vectors
+//! where the CPU has AVX2 and 512-bit ones with AVX-512, detected at run time), each cell's range
+//! and bearing computed in the loop, so a moving sensor keeps the fast path; for a sensor parked
+//! at one position within a cell (16 readings in a row), a stencil of those ranges and bearings,
+//! filled as readings visit its cells, loaded instead. Both kernels compute each cell's range and
+//! bearing with the same function (a square root and an arctangent of our own that vectorises) and
+//! update the same cells with the same values, to the last bit by construction: a property test
+//! runs random readings (poses on and off the grid, parked and moving, every model and rule)
+//! through both and compares the grids bit for bit, and a unit test runs stepper angles and
+//! arbitrary ones through both and compares the grids and their encodings.
 //! `docs/benchmarks.md` has the figures.
 //!
 //! # A moving robot, and the features beside the grid
@@ -177,9 +180,10 @@
 //!
 //! Per grid cell: 4 bytes (f32) for Bayes and log-odds, 8 for Dempster–Shafer, 1 for HIMM; a
 //! 2048² grid of f32 is 16 MiB, and [`config::MAX_CELLS_PER_SIDE`] (4096) bounds the largest at
-//! 128 MiB. The fast kernel's stencil holds 8 bytes per cell of a square twice the reach across
-//! (about 1.3 MiB at 2 cm cells, 5.4 MiB at 1 cm, for the 4.2 m reach of the paper's model), plus
-//! per beam direction used one span pair (16 bytes) per stencil row the cone crosses. The
+//! 128 MiB. The fast kernel's stencil (once a sensor parks) holds 8 bytes per cell of a square
+//! twice the reach across, plus 16 bytes per row (about 1.3 MiB at 2 cm cells, 5.4 MiB at 1 cm,
+//! for the 4.2 m reach of the paper's model), and per beam direction used one span pair (16
+//! bytes) per row the cone crosses. The
 //! whole-grid pass keeps 9 bytes per grid cell, allocated only when it is used. Nothing is
 //! allocated per reading once the caches are warm. A process that saves its map keeps a second
 //! copy of the state (cells and kept observations, about 33 bytes each) for the saver, reused

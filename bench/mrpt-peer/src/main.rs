@@ -6,7 +6,9 @@
 //! - **Readings**: the pipeline's own simulated head and the driver's decoder
 //!   ([`sonar_eval::pipeline`]) scanning two scenes of known geometry: the paper's square room
 //!   (full sweeps from its centre) and a scene of the generated suite ([`sonar_eval::scenegen`],
-//!   two full sweeps from each of its first three viewpoints, `--views`). Readings without an echo are given to both (our
+//!   two full sweeps from each of its first three viewpoints, `--views`), and, with `--scenes tour`,
+//!   the room toured by a robot that scans while it drives (every reading from a new position,
+//!   placed at the robot's true pose of its instant). Readings without an echo are given to both (our
 //!   recommended preset ignores them; MRPT is told its maximum range is the sensor's, so it
 //!   inserts nothing for them either).
 //! - **Ours**: [`Engine::fuse`] with the recommended preset (smooth model, log-odds rule), what
@@ -37,12 +39,13 @@ use clap::{Parser, ValueEnum};
 use nalgebra::{Isometry2, Vector2};
 use sonar_common::ipc::{FusionCommand, FusionCommandKind, Reading};
 use sonar_eval::metrics::{MapKind, MapView, quantile};
-use sonar_eval::pipeline::{Head, Scan, capture_with, probability_view};
+use sonar_eval::motion::{POSE_RATE_HZ, truth_at};
+use sonar_eval::pipeline::{Head, Scan, capture_tour, capture_with, probability_view};
 use sonar_eval::scenegen;
 use sonar_eval::suite::{GridScore, score_grid};
 use sonar_fusion::engine::Engine;
 use sonar_fusion::{FusionConfig, GridConfig, GridGeometry, Preset};
-use sonar_sim::{Pose, Scene};
+use sonar_sim::{OdometryParams, Pose, Scene};
 
 mod mrpt;
 
@@ -52,6 +55,8 @@ use mrpt::MrptGrid;
 const ROOM_SWEEPS: u32 = 8;
 /// Full sweeps of the generated scene from each viewpoint: 2 × 50 readings.
 const GENERATED_SWEEPS: u32 = 2;
+/// Metres the robot of the room tour drives: two laps of its 1.2 m square and a little more.
+const TOUR_METRES: f64 = 10.0;
 /// Observations `sonar-fusion` keeps for re-fusing by default (`--history`).
 const HISTORY: usize = 20_000;
 
@@ -92,7 +97,11 @@ struct Cli {
 enum Scenes {
     Room,
     Generated,
+    /// Room and generated.
     Both,
+    /// The built-in `room-tour`: the head scanning while the robot drives round the room, so
+    /// every reading is taken from a new position (not part of `both`).
+    Tour,
 }
 
 /// The readings of one scene, where each was taken, and the truth to score against.
@@ -142,6 +151,36 @@ fn generated(seed: u64, views: usize) -> Result<Workload> {
             views.len(),
             if views.len() == 1 { "" } else { "s" }
         ),
+        scene,
+        views,
+        readings,
+        max_range_m: head.sensor.max_range_m,
+        beam_half_angle_deg: head.sensor.beam_half_angle_deg,
+    })
+}
+
+/// The room toured by a robot scanning while it drives (one lap), each reading placed at the
+/// robot's true pose of its instant: no two readings from the same position.
+fn tour(seed: u64) -> Result<Workload> {
+    let scene = Scene::builtin("room-tour").context("the built-in room-tour scene")?;
+    let head = Head::of(&scene);
+    let tour = capture_tour(
+        scene.clone(),
+        Scan::Full,
+        TOUR_METRES,
+        OdometryParams::default(),
+        POSE_RATE_HZ,
+        seed,
+    )
+    .context("touring the room")?;
+    let mut views = Vec::new();
+    let mut readings = Vec::new();
+    for reading in tour.capture.readings {
+        views.push(truth_at(&tour.poses, reading.host_stamp_ns));
+        readings.push((reading, views.len() - 1));
+    }
+    Ok(Workload {
+        name: format!("room tour, {TOUR_METRES} m driven"),
         scene,
         views,
         readings,
@@ -365,11 +404,14 @@ fn main() -> Result<()> {
         bail!("--batch and --passes must be at least 1");
     }
     let mut workloads = Vec::new();
-    if cli.scenes != Scenes::Generated {
+    if matches!(cli.scenes, Scenes::Room | Scenes::Both) {
         workloads.push(room(cli.seed)?);
     }
-    if cli.scenes != Scenes::Room {
+    if matches!(cli.scenes, Scenes::Generated | Scenes::Both) {
         workloads.push(generated(cli.seed, cli.views as usize)?);
+    }
+    if cli.scenes == Scenes::Tour {
+        workloads.push(tour(cli.seed)?);
     }
     if cli.header {
         println!(
