@@ -27,8 +27,9 @@
 //!   only, whatever the number of viewpoints fused (the denominator does not grow, so a fall means
 //!   that adding viewpoints erased walls). **Recall faced**: over the visible samples that some
 //!   viewpoint seeing them faces within 28° of the surface's normal ([`FACED_DEG`], the SRF05's
-//!   specular cut-off): the part a specular sensor can hear at all, to tell what a model could
-//!   not have drawn from what it erased.
+//!   specular cut-off) from a bearing its sweep covers (the head's 300° between the limit
+//!   switches, [`Reach`]; the 60° behind the head are never aimed at): the part a specular sensor
+//!   can hear at all, to tell what a model could not have drawn from what it erased.
 //! - **Precision**: the share of occupied cells whose centre lies within 5 cm of a true surface
 //!   (any, visible or not). **Median error**: the median distance from the occupied cells'
 //!   centres to the nearest true surface.
@@ -71,6 +72,41 @@ pub const TOLERANCE_M: f64 = 0.05;
 /// SRF05's specular cut-off (28°, `sensor-facts.md`: a card read correctly to ≈ 25–30°), so that
 /// a ping aimed at it could hear it at all.
 pub const FACED_DEG: f64 = 28.0;
+/// What a viewpoint's sensor can reach: how far, and over which bearings its sweep aims.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Reach {
+    /// Samples farther than this are not visible.
+    pub max_range_m: f64,
+    /// The bearings the readings are aimed over, degrees from the viewpoint's heading,
+    /// counter-clockwise (lower, upper); a surface faced only from outside them is never heard.
+    pub sweep_deg: (f64, f64),
+}
+
+impl Reach {
+    /// A head's full sweep: its range and the arc between its limit switches.
+    pub fn of(sensor: &SensorConfig) -> Self {
+        Self {
+            max_range_m: f64::from(sensor.max_range_m),
+            sweep_deg: (
+                f64::from(sensor.sweep_min_deg),
+                f64::from(sensor.sweep_max_deg),
+            ),
+        }
+    }
+
+    /// Whether a reading from `view` can be aimed at `p` (its bearing within the sweep).
+    fn aims_at(&self, view: Pose, p: Vec2) -> bool {
+        let d = p - view.at;
+        let bearing = (d.y.atan2(d.x) - view.heading_rad).to_degrees();
+        // Into [-180, 180): the sweep's limits are given that way.
+        let bearing = (bearing + 180.0).rem_euclid(360.0) - 180.0;
+        let (lower, upper) = self.sweep_deg;
+        [bearing - 360.0, bearing, bearing + 360.0]
+            .iter()
+            .any(|b| (lower..=upper).contains(b))
+    }
+}
+
 /// Surfaces are sampled this often for visibility (one cell).
 const SAMPLE_M: f64 = 0.02;
 /// A post is expected of the features within this range of its echo point.
@@ -362,8 +398,8 @@ pub struct GridScore {
     pub recall: Option<f64>,
     /// Share of the surface visible from the first viewpoint drawn.
     pub recall_first_view: Option<f64>,
-    /// Share of the visible surface faced within [`FACED_DEG`] by a viewpoint that sees it
-    /// drawn.
+    /// Share of the visible surface faced within [`FACED_DEG`] by a viewpoint that sees it, from
+    /// a bearing its sweep covers, drawn.
     pub recall_faced: Option<f64>,
     /// Share of occupied cells on a surface; `None` when no cell is occupied.
     pub precision: Option<f64>,
@@ -457,8 +493,8 @@ fn drawn_near(map: &MapView, p: Vec2) -> bool {
 }
 
 /// Scores `map` (world frame) against `scene`'s surfaces as seen from `views` (see the module
-/// documentation); `first_view_visible` marks the samples visible from the first viewpoint.
-pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], max_range_m: f64) -> GridScore {
+/// documentation), each viewpoint's sensor reaching as far and over the bearings `reach` says.
+pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], reach: Reach) -> GridScore {
     let samples = surface_samples(scene);
     let mut visible = 0;
     let mut drawn = 0;
@@ -470,7 +506,7 @@ pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], max_range_m: f64
     for &(p, owner) in &samples {
         let seen: Vec<bool> = views
             .iter()
-            .map(|v| in_sight(scene, v.at, p, owner, max_range_m))
+            .map(|v| in_sight(scene, v.at, p, owner, reach.max_range_m))
             .collect();
         if !seen.iter().any(|&s| s) {
             continue;
@@ -485,7 +521,7 @@ pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], max_range_m: f64
         let normal = surface_normal(scene, p, owner);
         let is_faced = views.iter().zip(&seen).any(|(v, &s)| {
             let to_view = v.at - p;
-            s && normal.dot(to_view).abs() >= faced_cos * to_view.norm()
+            s && normal.dot(to_view).abs() >= faced_cos * to_view.norm() && reach.aims_at(*v, p)
         });
         if is_faced {
             faced += 1;
@@ -647,7 +683,7 @@ pub fn run_scene(
         scene.noise.range_sigma_fraction = n.fraction;
     }
     let head = Head::of(&scene);
-    let max_range_m = f64::from(head.sensor.max_range_m);
+    let reach = Reach::of(&head.sensor);
     let most = settings.viewpoints.iter().copied().max().unwrap_or(1);
     let views = &generated.viewpoints[..most];
     let mut mappers = settings
@@ -678,7 +714,7 @@ pub fn run_scene(
             mapper.close_region();
             if settings.viewpoints.contains(&(k + 1)) {
                 let map = probability_view(mapper);
-                scores.push(score_grid(&map, &scene, &views[..=k], max_range_m));
+                scores.push(score_grid(&map, &scene, &views[..=k], reach));
             }
         }
     }
@@ -859,7 +895,8 @@ fn grid_markdown(
          {} full sweeps per viewpoint. Median / worst over scenes × seeds. Recall and precision \
          within {:.0} cm of the true surfaces visible from the viewpoints fused; \"view 1\" is \
          the recall of what the first viewpoint sees alone; \"faced\" of what some viewpoint \
-         sees within {FACED_DEG:.0}° of the surface's normal (what a specular sensor can hear); \
+         sees within {FACED_DEG:.0}° of the surface's normal from a bearing its sweep covers (what a \
+         specular sensor can hear); \
          \"fell\" counts runs where recall fell when viewpoints were added (from the previous \
          count).\n",
         settings.scenes,
@@ -997,7 +1034,7 @@ mod tests {
             ((p.x - 1.0).abs() < 0.011 && p.y.abs() < 1.0)
                 || ((p.x - 0.5).abs() < 0.011 && p.y.abs() < 0.2)
         });
-        let s = score_grid(&map, &scene, &views, 4.0);
+        let s = score_grid(&map, &scene, &views, paper_reach());
         // Visible: the near wall (2 m) and the far wall's ends beyond the near wall's shadow:
         // the shadow at x = 2 spans |y| <= 2, so none of the far wall is visible.
         let near_samples = 100;
@@ -1009,7 +1046,12 @@ mod tests {
         assert!((s.precision.unwrap() - 200.0 / 240.0).abs() < 1e-12);
         assert!(s.median_error_m.unwrap() < 0.011);
         // Seen from (0, 1.9) the far wall's upper end is in sight past the near wall.
-        let s2 = score_grid(&map, &scene, &[views[0], Pose::new(1.5, 1.9, 0.0)], 4.0);
+        let s2 = score_grid(
+            &map,
+            &scene,
+            &[views[0], Pose::new(1.5, 1.9, 0.0)],
+            paper_reach(),
+        );
         assert!(s2.visible > s.visible, "{s2:?}");
         assert!(s2.recall.unwrap() < 1.0);
         assert_eq!(s2.recall_first_view, Some(1.0));
@@ -1025,7 +1067,7 @@ mod tests {
         )
         .unwrap();
         let empty = map_of(|_| false);
-        let s3 = score_grid(&empty, &post, &views, 4.0);
+        let s3 = score_grid(&empty, &post, &views, paper_reach());
         let all = surface_samples(&post).len();
         assert!(
             s3.visible * 2 <= all + 2 && s3.visible * 2 >= all - 2,
@@ -1036,9 +1078,55 @@ mod tests {
         // Only the part of the near wall within 28° of its normal is faced: a map drawing just
         // that (|y| <= tan 28° = 0.53 m) has every faced sample and half the visible ones.
         let faced_only = map_of(|p| (p.x - 1.0).abs() < 0.011 && p.y.abs() < 0.5);
-        let s4 = score_grid(&faced_only, &scene, &views, 4.0);
+        let s4 = score_grid(&faced_only, &scene, &views, paper_reach());
         assert!(s4.recall_faced.unwrap() > 0.95, "{s4:?}");
         assert!((0.5..0.6).contains(&s4.recall.unwrap()), "{s4:?}");
+    }
+
+    /// The paper's head: 4 m, readings aimed over ±150° of its heading.
+    fn paper_reach() -> Reach {
+        Reach::of(&SensorConfig::default())
+    }
+
+    #[test]
+    fn a_sweep_aims_only_between_its_limits() {
+        let reach = paper_reach();
+        let at = |deg: f64| Vec2::new(deg.to_radians().cos(), deg.to_radians().sin());
+        let ahead = Pose::new(0.0, 0.0, 0.0);
+        for (deg, aimed) in [(0.0, true), (149.0, true), (-149.0, true), (151.0, false)] {
+            assert_eq!(reach.aims_at(ahead, at(deg)), aimed, "{deg}°");
+        }
+        assert!(!reach.aims_at(ahead, at(-151.0)));
+        assert!(!reach.aims_at(ahead, at(180.0)));
+        // Turned by 170°, the head aims at 180° (20° off its heading) but no longer at 0°
+        // (190° off, behind it).
+        let turned = Pose::new(0.0, 0.0, 170f64.to_radians());
+        assert!(reach.aims_at(turned, at(180.0)));
+        assert!(reach.aims_at(turned, at(-170.0)));
+        assert!(!reach.aims_at(turned, at(0.0)));
+        assert!(!reach.aims_at(turned, at(-30.0)));
+    }
+
+    #[test]
+    fn a_wall_behind_the_head_is_visible_but_not_faced() {
+        // The wall at x = 1 from |y| <= 1, squarely in front of a head at the origin; turned
+        // round (heading 180°) the head never aims at it: it is in sight, not faced.
+        let scene = Scene::new("one wall", vec![wall([1.0, -1.0], [1.0, 1.0])], vec![]).unwrap();
+        let empty = map_of(|_| false);
+        let facing = score_grid(&empty, &scene, &[Pose::new(0.0, 0.0, 0.0)], paper_reach());
+        assert_eq!((facing.visible, facing.recall_faced), (100, Some(0.0)));
+        let behind = Pose::new(0.0, 0.0, std::f64::consts::PI);
+        let turned = score_grid(&empty, &scene, &[behind], paper_reach());
+        assert_eq!((turned.visible, turned.recall_faced), (100, None));
+        // Facing it sideways (heading 90°) the wall lies at bearings -135..-45°: faced again,
+        // and drawn it counts.
+        let drawn = map_of(|p| (p.x - 1.0).abs() < 0.011 && p.y.abs() < 1.0);
+        let side = Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2);
+        let sideways = score_grid(&drawn, &scene, &[side], paper_reach());
+        assert_eq!(sideways.recall_faced, Some(1.0));
+        // Two viewpoints: faced if either aims at it.
+        let both = score_grid(&empty, &scene, &[behind, side], paper_reach());
+        assert_eq!(both.recall_faced, Some(0.0));
     }
 
     #[test]
@@ -1099,7 +1187,12 @@ mod pose_tests {
                 .update(&Observation::from_reading(r, isometry(fused_at)))
                 .unwrap();
         }
-        score_grid(&probability_view(&mapper), &room, &[pose], 4.0)
+        score_grid(
+            &probability_view(&mapper),
+            &room,
+            &[pose],
+            Reach::of(&SensorConfig::default()),
+        )
     }
 
     #[test]
