@@ -30,6 +30,10 @@
 //!   specular cut-off) from a bearing its sweep covers (the head's 300° between the limit
 //!   switches, [`Reach`]; the 60° behind the head are never aimed at): the part a specular sensor
 //!   can hear at all, to tell what a model could not have drawn from what it erased.
+//!   **Erased**: the samples drawn at the previous viewpoint count that are drawn no more. Recall
+//!   of the growing visible set also falls when the added viewpoints bring surfaces into sight
+//!   that they cannot hear (at a grazing angle, behind the head) and the map already held a
+//!   larger share of the rest; only erased samples say that fusing a viewpoint removed a wall.
 //! - **Precision**: the share of occupied cells whose centre lies within 5 cm of a true surface
 //!   (any, visible or not). **Median error**: the median distance from the occupied cells'
 //!   centres to the nearest true surface.
@@ -405,6 +409,9 @@ pub struct GridScore {
     pub precision: Option<f64>,
     /// Median distance of the occupied cells to the nearest surface, metres.
     pub median_error_m: Option<f64>,
+    /// Surface samples the map drew at the previous viewpoint count and no longer draws (walls
+    /// the added viewpoints erased); `None` for a map scored alone ([`score_grid`]).
+    pub erased: Option<usize>,
     pub occupied: usize,
     pub visible: usize,
 }
@@ -495,7 +502,19 @@ fn drawn_near(map: &MapView, p: Vec2) -> bool {
 /// Scores `map` (world frame) against `scene`'s surfaces as seen from `views` (see the module
 /// documentation), each viewpoint's sensor reaching as far and over the bearings `reach` says.
 pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], reach: Reach) -> GridScore {
+    score_samples(map, scene, views, reach).0
+}
+
+/// [`score_grid`], and for each of the scene's surface samples ([`surface_samples`], in order)
+/// whether it is visible and drawn.
+fn score_samples(
+    map: &MapView,
+    scene: &Scene,
+    views: &[Pose],
+    reach: Reach,
+) -> (GridScore, Vec<bool>) {
     let samples = surface_samples(scene);
+    let mut drawn_samples = vec![false; samples.len()];
     let mut visible = 0;
     let mut drawn = 0;
     let mut first = 0;
@@ -503,7 +522,7 @@ pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], reach: Reach) ->
     let mut faced = 0;
     let mut faced_drawn = 0;
     let faced_cos = FACED_DEG.to_radians().cos();
-    for &(p, owner) in &samples {
+    for (&(p, owner), drawn_sample) in samples.iter().zip(&mut drawn_samples) {
         let seen: Vec<bool> = views
             .iter()
             .map(|v| in_sight(scene, v.at, p, owner, reach.max_range_m))
@@ -512,6 +531,7 @@ pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], reach: Reach) ->
             continue;
         }
         let hit = drawn_near(map, p);
+        *drawn_sample = hit;
         visible += 1;
         drawn += usize::from(hit);
         if seen.first() == Some(&true) {
@@ -537,15 +557,22 @@ pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], reach: Reach) ->
     errors.sort_by(f64::total_cmp);
     let on_surface = errors.iter().filter(|&&e| e <= TOLERANCE_M).count();
     let share = |a: usize, b: usize| (b > 0).then(|| a as f64 / b as f64);
-    GridScore {
+    let score = GridScore {
         recall: share(drawn, visible),
         recall_first_view: share(first_drawn, first),
         recall_faced: share(faced_drawn, faced),
         precision: share(on_surface, errors.len()),
         median_error_m: quantile(&errors, 0.5),
+        erased: None,
         occupied: errors.len(),
         visible,
-    }
+    };
+    (score, drawn_samples)
+}
+
+/// How many of the samples drawn `before` are not drawn `after` (the same scene's samples).
+fn erased(before: &[bool], after: &[bool]) -> usize {
+    before.iter().zip(after).filter(|&(&b, &a)| b && !a).count()
 }
 
 /// The features of one viewpoint against its scene.
@@ -692,6 +719,8 @@ pub fn run_scene(
         .map(|f| Mapper::new(f.config).with_context(|| format!("setting up fusion {}", f.name)))
         .collect::<Result<Vec<_>>>()?;
     let mut grid = vec![Vec::new(); settings.fusion.len()];
+    // Per fusion, the samples drawn at the last viewpoint count scored.
+    let mut drawn_before: Vec<Option<Vec<bool>>> = vec![None; settings.fusion.len()];
     let mut features = Vec::new();
     for (k, &view) in views.iter().enumerate() {
         let view_scene = scenegen::seen_from(&scene, view)?;
@@ -705,7 +734,7 @@ pub fn run_scene(
         .with_context(|| format!("scene {} viewpoint {}", scene.name, k + 1))?;
         features.push(score_features(&view_scene, &capture.readings, head.sensor)?);
         let pose = isometry(view);
-        for (mapper, scores) in mappers.iter_mut().zip(&mut grid) {
+        for ((mapper, scores), before) in mappers.iter_mut().zip(&mut grid).zip(&mut drawn_before) {
             for r in &capture.readings {
                 mapper
                     .update(&Observation::from_reading(r, pose))
@@ -714,7 +743,10 @@ pub fn run_scene(
             mapper.close_region();
             if settings.viewpoints.contains(&(k + 1)) {
                 let map = probability_view(mapper);
-                scores.push(score_grid(&map, &scene, &views[..=k], reach));
+                let (mut score, drawn) = score_samples(&map, &scene, &views[..=k], reach);
+                score.erased = before.as_deref().map(|b| erased(b, &drawn));
+                *before = Some(drawn);
+                scores.push(score);
             }
         }
     }
@@ -813,6 +845,10 @@ pub struct GridSummary {
     pub recall_fell: usize,
     /// Runs where the recall of view 1's walls fell from the previous viewpoint count.
     pub first_view_recall_fell: usize,
+    /// Runs where a surface sample drawn at the previous viewpoint count was no longer drawn.
+    pub erased_runs: usize,
+    /// The most samples one run erased from the previous viewpoint count.
+    pub erased_worst: usize,
     pub runs: usize,
 }
 
@@ -859,6 +895,8 @@ pub fn grid_summaries(settings: &SuiteSettings, runs: &[Run]) -> Vec<GridSummary
                     ),
                     recall_fell: fell(|s| s.recall),
                     first_view_recall_fell: fell(|s| s.recall_first_view),
+                    erased_runs: scores.iter().filter(|s| s.erased > Some(0)).count(),
+                    erased_worst: scores.iter().filter_map(|s| s.erased).max().unwrap_or(0),
                     runs: scores.len(),
                 });
             }
@@ -898,7 +936,8 @@ fn grid_markdown(
          sees within {FACED_DEG:.0}° of the surface's normal from a bearing its sweep covers (what a \
          specular sensor can hear); \
          \"fell\" counts runs where recall fell when viewpoints were added (from the previous \
-         count).\n",
+         count); \"erased\": runs where a surface sample drawn at the previous count is no longer \
+         drawn, and the most samples one run lost so.\n",
         settings.scenes,
         seeds.join(", "),
         settings.sweeps,
@@ -906,13 +945,13 @@ fn grid_markdown(
     );
     let _ = writeln!(
         t,
-        "| sensor | fusion | viewpoints | recall | precision | median error (cm) | recall of view 1's walls | recall faced | recall fell | view-1 recall fell | runs |"
+        "| sensor | fusion | viewpoints | recall | precision | median error (cm) | recall of view 1's walls | recall faced | recall fell | view-1 recall fell | erased | runs |"
     );
-    let _ = writeln!(t, "|---|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(t, "|---|---|---|---|---|---|---|---|---|---|---|---|");
     for s in grid_summaries(settings, runs) {
         let _ = writeln!(
             t,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {}, {} | {} |",
             s.sensor,
             s.fusion,
             s.viewpoints,
@@ -923,6 +962,8 @@ fn grid_markdown(
             cell(s.recall_faced, 1.0, 2),
             s.recall_fell,
             s.first_view_recall_fell,
+            s.erased_runs,
+            s.erased_worst,
             s.runs
         );
     }
@@ -1127,6 +1168,27 @@ mod tests {
         // Two viewpoints: faced if either aims at it.
         let both = score_grid(&empty, &scene, &[behind, side], paper_reach());
         assert_eq!(both.recall_faced, Some(0.0));
+    }
+
+    #[test]
+    fn erased_counts_samples_drawn_before_and_not_after() {
+        assert_eq!(
+            erased(&[true, true, false, false], &[true, false, true, false]),
+            1
+        );
+        // The hand-checked scene: the near wall drawn, then only its faced middle: the 50 cm
+        // either end (|y| in [0.5, 1]) are erased.
+        let scene = Scene::new("tiny", vec![wall([1.0, -1.0], [1.0, 1.0])], vec![]).unwrap();
+        let views = [Pose::new(0.0, 0.0, 0.0)];
+        let whole = map_of(|p| (p.x - 1.0).abs() < 0.011 && p.y.abs() < 1.0);
+        let middle = map_of(|p| (p.x - 1.0).abs() < 0.011 && p.y.abs() < 0.5);
+        let (s, before) = score_samples(&whole, &scene, &views, paper_reach());
+        let (_, after) = score_samples(&middle, &scene, &views, paper_reach());
+        assert_eq!(s.erased, None);
+        // Samples every 2 cm: 50 cm each end less the 5 cm the middle's cells still reach.
+        let lost = erased(&before, &after);
+        assert!((44..=48).contains(&lost), "{lost}");
+        assert_eq!(erased(&after, &before), 0);
     }
 
     #[test]
