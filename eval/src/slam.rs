@@ -44,7 +44,7 @@ use crate::feature_report::Spread;
 use crate::landmarks::{self, LandmarkScore};
 use crate::motion::{POSE_RATE_HZ, Placement, PoseError, fuse_tour, grid_over, nees, truth_at};
 use crate::pipeline::{Scan, TourCapture, capture_tour, probability_view};
-use crate::suite::{GridScore, score_grid};
+use crate::suite::{GridScore, Reach, score_grid};
 
 /// χ² of 3 degrees of freedom at 95 %: a fix whose NEES is within lies inside its 95 % ellipse.
 pub const CHI2_3_95: f64 = 7.81;
@@ -434,6 +434,8 @@ fn tour_map(
     let mut views = Vec::new();
     let mut sweep = None;
     let mut max_range_m: f64 = 0.0;
+    // The bearings the tour's readings were aimed over (their axes).
+    let mut sweep_deg = (f64::INFINITY, f64::NEG_INFINITY);
     for r in &tour.capture.readings {
         let truth = truth_at(&tour.poses, r.host_stamp_ns);
         if sweep != Some(r.sweep_id) {
@@ -452,6 +454,8 @@ fn tour_map(
             pose.rotation.angle() as f32,
         );
         max_range_m = max_range_m.max(f64::from(r.max_range_m));
+        let angle = f64::from(r.angle_deg);
+        sweep_deg = (sweep_deg.0.min(angle), sweep_deg.1.max(angle));
         mapper
             .update(&Observation::from_reading(r, pose))
             .with_context(|| format!("fusing reading {}", r.seq))?;
@@ -461,7 +465,10 @@ fn tour_map(
         &probability_view(&mapper),
         scene,
         &views,
-        max_range_m,
+        Reach {
+            max_range_m,
+            sweep_deg,
+        },
     ))
 }
 

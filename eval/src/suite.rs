@@ -27,8 +27,13 @@
 //!   only, whatever the number of viewpoints fused (the denominator does not grow, so a fall means
 //!   that adding viewpoints erased walls). **Recall faced**: over the visible samples that some
 //!   viewpoint seeing them faces within 28° of the surface's normal ([`FACED_DEG`], the SRF05's
-//!   specular cut-off): the part a specular sensor can hear at all, to tell what a model could
-//!   not have drawn from what it erased.
+//!   specular cut-off) from a bearing its sweep covers (the head's 300° between the limit
+//!   switches, [`Reach`]; the 60° behind the head are never aimed at): the part a specular sensor
+//!   can hear at all, to tell what a model could not have drawn from what it erased.
+//!   **Erased**: the samples drawn at the previous viewpoint count that are drawn no more. Recall
+//!   of the growing visible set also falls when the added viewpoints bring surfaces into sight
+//!   that they cannot hear (at a grazing angle, behind the head) and the map already held a
+//!   larger share of the rest; only erased samples say that fusing a viewpoint removed a wall.
 //! - **Precision**: the share of occupied cells whose centre lies within 5 cm of a true surface
 //!   (any, visible or not). **Median error**: the median distance from the occupied cells'
 //!   centres to the nearest true surface.
@@ -71,6 +76,41 @@ pub const TOLERANCE_M: f64 = 0.05;
 /// SRF05's specular cut-off (28°, `sensor-facts.md`: a card read correctly to ≈ 25–30°), so that
 /// a ping aimed at it could hear it at all.
 pub const FACED_DEG: f64 = 28.0;
+/// What a viewpoint's sensor can reach: how far, and over which bearings its sweep aims.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Reach {
+    /// Samples farther than this are not visible.
+    pub max_range_m: f64,
+    /// The bearings the readings are aimed over, degrees from the viewpoint's heading,
+    /// counter-clockwise (lower, upper); a surface faced only from outside them is never heard.
+    pub sweep_deg: (f64, f64),
+}
+
+impl Reach {
+    /// A head's full sweep: its range and the arc between its limit switches.
+    pub fn of(sensor: &SensorConfig) -> Self {
+        Self {
+            max_range_m: f64::from(sensor.max_range_m),
+            sweep_deg: (
+                f64::from(sensor.sweep_min_deg),
+                f64::from(sensor.sweep_max_deg),
+            ),
+        }
+    }
+
+    /// Whether a reading from `view` can be aimed at `p` (its bearing within the sweep).
+    fn aims_at(&self, view: Pose, p: Vec2) -> bool {
+        let d = p - view.at;
+        let bearing = (d.y.atan2(d.x) - view.heading_rad).to_degrees();
+        // Into [-180, 180): the sweep's limits are given that way.
+        let bearing = (bearing + 180.0).rem_euclid(360.0) - 180.0;
+        let (lower, upper) = self.sweep_deg;
+        [bearing - 360.0, bearing, bearing + 360.0]
+            .iter()
+            .any(|b| (lower..=upper).contains(b))
+    }
+}
+
 /// Surfaces are sampled this often for visibility (one cell).
 const SAMPLE_M: f64 = 0.02;
 /// A post is expected of the features within this range of its echo point.
@@ -362,13 +402,16 @@ pub struct GridScore {
     pub recall: Option<f64>,
     /// Share of the surface visible from the first viewpoint drawn.
     pub recall_first_view: Option<f64>,
-    /// Share of the visible surface faced within [`FACED_DEG`] by a viewpoint that sees it
-    /// drawn.
+    /// Share of the visible surface faced within [`FACED_DEG`] by a viewpoint that sees it, from
+    /// a bearing its sweep covers, drawn.
     pub recall_faced: Option<f64>,
     /// Share of occupied cells on a surface; `None` when no cell is occupied.
     pub precision: Option<f64>,
     /// Median distance of the occupied cells to the nearest surface, metres.
     pub median_error_m: Option<f64>,
+    /// Surface samples the map drew at the previous viewpoint count and no longer draws (walls
+    /// the added viewpoints erased); `None` for a map scored alone ([`score_grid`]).
+    pub erased: Option<usize>,
     pub occupied: usize,
     pub visible: usize,
 }
@@ -457,9 +500,21 @@ fn drawn_near(map: &MapView, p: Vec2) -> bool {
 }
 
 /// Scores `map` (world frame) against `scene`'s surfaces as seen from `views` (see the module
-/// documentation); `first_view_visible` marks the samples visible from the first viewpoint.
-pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], max_range_m: f64) -> GridScore {
+/// documentation), each viewpoint's sensor reaching as far and over the bearings `reach` says.
+pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], reach: Reach) -> GridScore {
+    score_samples(map, scene, views, reach).0
+}
+
+/// [`score_grid`], and for each of the scene's surface samples ([`surface_samples`], in order)
+/// whether it is visible and drawn.
+fn score_samples(
+    map: &MapView,
+    scene: &Scene,
+    views: &[Pose],
+    reach: Reach,
+) -> (GridScore, Vec<bool>) {
     let samples = surface_samples(scene);
+    let mut drawn_samples = vec![false; samples.len()];
     let mut visible = 0;
     let mut drawn = 0;
     let mut first = 0;
@@ -467,15 +522,16 @@ pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], max_range_m: f64
     let mut faced = 0;
     let mut faced_drawn = 0;
     let faced_cos = FACED_DEG.to_radians().cos();
-    for &(p, owner) in &samples {
+    for (&(p, owner), drawn_sample) in samples.iter().zip(&mut drawn_samples) {
         let seen: Vec<bool> = views
             .iter()
-            .map(|v| in_sight(scene, v.at, p, owner, max_range_m))
+            .map(|v| in_sight(scene, v.at, p, owner, reach.max_range_m))
             .collect();
         if !seen.iter().any(|&s| s) {
             continue;
         }
         let hit = drawn_near(map, p);
+        *drawn_sample = hit;
         visible += 1;
         drawn += usize::from(hit);
         if seen.first() == Some(&true) {
@@ -485,7 +541,7 @@ pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], max_range_m: f64
         let normal = surface_normal(scene, p, owner);
         let is_faced = views.iter().zip(&seen).any(|(v, &s)| {
             let to_view = v.at - p;
-            s && normal.dot(to_view).abs() >= faced_cos * to_view.norm()
+            s && normal.dot(to_view).abs() >= faced_cos * to_view.norm() && reach.aims_at(*v, p)
         });
         if is_faced {
             faced += 1;
@@ -501,15 +557,22 @@ pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], max_range_m: f64
     errors.sort_by(f64::total_cmp);
     let on_surface = errors.iter().filter(|&&e| e <= TOLERANCE_M).count();
     let share = |a: usize, b: usize| (b > 0).then(|| a as f64 / b as f64);
-    GridScore {
+    let score = GridScore {
         recall: share(drawn, visible),
         recall_first_view: share(first_drawn, first),
         recall_faced: share(faced_drawn, faced),
         precision: share(on_surface, errors.len()),
         median_error_m: quantile(&errors, 0.5),
+        erased: None,
         occupied: errors.len(),
         visible,
-    }
+    };
+    (score, drawn_samples)
+}
+
+/// How many of the samples drawn `before` are not drawn `after` (the same scene's samples).
+fn erased(before: &[bool], after: &[bool]) -> usize {
+    before.iter().zip(after).filter(|&(&b, &a)| b && !a).count()
 }
 
 /// The features of one viewpoint against its scene.
@@ -647,7 +710,7 @@ pub fn run_scene(
         scene.noise.range_sigma_fraction = n.fraction;
     }
     let head = Head::of(&scene);
-    let max_range_m = f64::from(head.sensor.max_range_m);
+    let reach = Reach::of(&head.sensor);
     let most = settings.viewpoints.iter().copied().max().unwrap_or(1);
     let views = &generated.viewpoints[..most];
     let mut mappers = settings
@@ -656,6 +719,8 @@ pub fn run_scene(
         .map(|f| Mapper::new(f.config).with_context(|| format!("setting up fusion {}", f.name)))
         .collect::<Result<Vec<_>>>()?;
     let mut grid = vec![Vec::new(); settings.fusion.len()];
+    // Per fusion, the samples drawn at the last viewpoint count scored.
+    let mut drawn_before: Vec<Option<Vec<bool>>> = vec![None; settings.fusion.len()];
     let mut features = Vec::new();
     for (k, &view) in views.iter().enumerate() {
         let view_scene = scenegen::seen_from(&scene, view)?;
@@ -669,7 +734,7 @@ pub fn run_scene(
         .with_context(|| format!("scene {} viewpoint {}", scene.name, k + 1))?;
         features.push(score_features(&view_scene, &capture.readings, head.sensor)?);
         let pose = isometry(view);
-        for (mapper, scores) in mappers.iter_mut().zip(&mut grid) {
+        for ((mapper, scores), before) in mappers.iter_mut().zip(&mut grid).zip(&mut drawn_before) {
             for r in &capture.readings {
                 mapper
                     .update(&Observation::from_reading(r, pose))
@@ -678,7 +743,10 @@ pub fn run_scene(
             mapper.close_region();
             if settings.viewpoints.contains(&(k + 1)) {
                 let map = probability_view(mapper);
-                scores.push(score_grid(&map, &scene, &views[..=k], max_range_m));
+                let (mut score, drawn) = score_samples(&map, &scene, &views[..=k], reach);
+                score.erased = before.as_deref().map(|b| erased(b, &drawn));
+                *before = Some(drawn);
+                scores.push(score);
             }
         }
     }
@@ -777,6 +845,10 @@ pub struct GridSummary {
     pub recall_fell: usize,
     /// Runs where the recall of view 1's walls fell from the previous viewpoint count.
     pub first_view_recall_fell: usize,
+    /// Runs where a surface sample drawn at the previous viewpoint count was no longer drawn.
+    pub erased_runs: usize,
+    /// The most samples one run erased from the previous viewpoint count.
+    pub erased_worst: usize,
     pub runs: usize,
 }
 
@@ -823,6 +895,8 @@ pub fn grid_summaries(settings: &SuiteSettings, runs: &[Run]) -> Vec<GridSummary
                     ),
                     recall_fell: fell(|s| s.recall),
                     first_view_recall_fell: fell(|s| s.recall_first_view),
+                    erased_runs: scores.iter().filter(|s| s.erased > Some(0)).count(),
+                    erased_worst: scores.iter().filter_map(|s| s.erased).max().unwrap_or(0),
                     runs: scores.len(),
                 });
             }
@@ -859,9 +933,11 @@ fn grid_markdown(
          {} full sweeps per viewpoint. Median / worst over scenes × seeds. Recall and precision \
          within {:.0} cm of the true surfaces visible from the viewpoints fused; \"view 1\" is \
          the recall of what the first viewpoint sees alone; \"faced\" of what some viewpoint \
-         sees within {FACED_DEG:.0}° of the surface's normal (what a specular sensor can hear); \
+         sees within {FACED_DEG:.0}° of the surface's normal from a bearing its sweep covers (what a \
+         specular sensor can hear); \
          \"fell\" counts runs where recall fell when viewpoints were added (from the previous \
-         count).\n",
+         count); \"erased\": runs where a surface sample drawn at the previous count is no longer \
+         drawn, and the most samples one run lost so.\n",
         settings.scenes,
         seeds.join(", "),
         settings.sweeps,
@@ -869,13 +945,13 @@ fn grid_markdown(
     );
     let _ = writeln!(
         t,
-        "| sensor | fusion | viewpoints | recall | precision | median error (cm) | recall of view 1's walls | recall faced | recall fell | view-1 recall fell | runs |"
+        "| sensor | fusion | viewpoints | recall | precision | median error (cm) | recall of view 1's walls | recall faced | recall fell | view-1 recall fell | erased | runs |"
     );
-    let _ = writeln!(t, "|---|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(t, "|---|---|---|---|---|---|---|---|---|---|---|---|");
     for s in grid_summaries(settings, runs) {
         let _ = writeln!(
             t,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {}, {} | {} |",
             s.sensor,
             s.fusion,
             s.viewpoints,
@@ -886,6 +962,8 @@ fn grid_markdown(
             cell(s.recall_faced, 1.0, 2),
             s.recall_fell,
             s.first_view_recall_fell,
+            s.erased_runs,
+            s.erased_worst,
             s.runs
         );
     }
@@ -997,7 +1075,7 @@ mod tests {
             ((p.x - 1.0).abs() < 0.011 && p.y.abs() < 1.0)
                 || ((p.x - 0.5).abs() < 0.011 && p.y.abs() < 0.2)
         });
-        let s = score_grid(&map, &scene, &views, 4.0);
+        let s = score_grid(&map, &scene, &views, paper_reach());
         // Visible: the near wall (2 m) and the far wall's ends beyond the near wall's shadow:
         // the shadow at x = 2 spans |y| <= 2, so none of the far wall is visible.
         let near_samples = 100;
@@ -1009,7 +1087,12 @@ mod tests {
         assert!((s.precision.unwrap() - 200.0 / 240.0).abs() < 1e-12);
         assert!(s.median_error_m.unwrap() < 0.011);
         // Seen from (0, 1.9) the far wall's upper end is in sight past the near wall.
-        let s2 = score_grid(&map, &scene, &[views[0], Pose::new(1.5, 1.9, 0.0)], 4.0);
+        let s2 = score_grid(
+            &map,
+            &scene,
+            &[views[0], Pose::new(1.5, 1.9, 0.0)],
+            paper_reach(),
+        );
         assert!(s2.visible > s.visible, "{s2:?}");
         assert!(s2.recall.unwrap() < 1.0);
         assert_eq!(s2.recall_first_view, Some(1.0));
@@ -1025,7 +1108,7 @@ mod tests {
         )
         .unwrap();
         let empty = map_of(|_| false);
-        let s3 = score_grid(&empty, &post, &views, 4.0);
+        let s3 = score_grid(&empty, &post, &views, paper_reach());
         let all = surface_samples(&post).len();
         assert!(
             s3.visible * 2 <= all + 2 && s3.visible * 2 >= all - 2,
@@ -1036,9 +1119,76 @@ mod tests {
         // Only the part of the near wall within 28° of its normal is faced: a map drawing just
         // that (|y| <= tan 28° = 0.53 m) has every faced sample and half the visible ones.
         let faced_only = map_of(|p| (p.x - 1.0).abs() < 0.011 && p.y.abs() < 0.5);
-        let s4 = score_grid(&faced_only, &scene, &views, 4.0);
+        let s4 = score_grid(&faced_only, &scene, &views, paper_reach());
         assert!(s4.recall_faced.unwrap() > 0.95, "{s4:?}");
         assert!((0.5..0.6).contains(&s4.recall.unwrap()), "{s4:?}");
+    }
+
+    /// The paper's head: 4 m, readings aimed over ±150° of its heading.
+    fn paper_reach() -> Reach {
+        Reach::of(&SensorConfig::default())
+    }
+
+    #[test]
+    fn a_sweep_aims_only_between_its_limits() {
+        let reach = paper_reach();
+        let at = |deg: f64| Vec2::new(deg.to_radians().cos(), deg.to_radians().sin());
+        let ahead = Pose::new(0.0, 0.0, 0.0);
+        for (deg, aimed) in [(0.0, true), (149.0, true), (-149.0, true), (151.0, false)] {
+            assert_eq!(reach.aims_at(ahead, at(deg)), aimed, "{deg}°");
+        }
+        assert!(!reach.aims_at(ahead, at(-151.0)));
+        assert!(!reach.aims_at(ahead, at(180.0)));
+        // Turned by 170°, the head aims at 180° (20° off its heading) but no longer at 0°
+        // (190° off, behind it).
+        let turned = Pose::new(0.0, 0.0, 170f64.to_radians());
+        assert!(reach.aims_at(turned, at(180.0)));
+        assert!(reach.aims_at(turned, at(-170.0)));
+        assert!(!reach.aims_at(turned, at(0.0)));
+        assert!(!reach.aims_at(turned, at(-30.0)));
+    }
+
+    #[test]
+    fn a_wall_behind_the_head_is_visible_but_not_faced() {
+        // The wall at x = 1 from |y| <= 1, squarely in front of a head at the origin; turned
+        // round (heading 180°) the head never aims at it: it is in sight, not faced.
+        let scene = Scene::new("one wall", vec![wall([1.0, -1.0], [1.0, 1.0])], vec![]).unwrap();
+        let empty = map_of(|_| false);
+        let facing = score_grid(&empty, &scene, &[Pose::new(0.0, 0.0, 0.0)], paper_reach());
+        assert_eq!((facing.visible, facing.recall_faced), (100, Some(0.0)));
+        let behind = Pose::new(0.0, 0.0, std::f64::consts::PI);
+        let turned = score_grid(&empty, &scene, &[behind], paper_reach());
+        assert_eq!((turned.visible, turned.recall_faced), (100, None));
+        // Facing it sideways (heading 90°) the wall lies at bearings -135..-45°: faced again,
+        // and drawn it counts.
+        let drawn = map_of(|p| (p.x - 1.0).abs() < 0.011 && p.y.abs() < 1.0);
+        let side = Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2);
+        let sideways = score_grid(&drawn, &scene, &[side], paper_reach());
+        assert_eq!(sideways.recall_faced, Some(1.0));
+        // Two viewpoints: faced if either aims at it.
+        let both = score_grid(&empty, &scene, &[behind, side], paper_reach());
+        assert_eq!(both.recall_faced, Some(0.0));
+    }
+
+    #[test]
+    fn erased_counts_samples_drawn_before_and_not_after() {
+        assert_eq!(
+            erased(&[true, true, false, false], &[true, false, true, false]),
+            1
+        );
+        // The hand-checked scene: the near wall drawn, then only its faced middle: the 50 cm
+        // either end (|y| in [0.5, 1]) are erased.
+        let scene = Scene::new("tiny", vec![wall([1.0, -1.0], [1.0, 1.0])], vec![]).unwrap();
+        let views = [Pose::new(0.0, 0.0, 0.0)];
+        let whole = map_of(|p| (p.x - 1.0).abs() < 0.011 && p.y.abs() < 1.0);
+        let middle = map_of(|p| (p.x - 1.0).abs() < 0.011 && p.y.abs() < 0.5);
+        let (s, before) = score_samples(&whole, &scene, &views, paper_reach());
+        let (_, after) = score_samples(&middle, &scene, &views, paper_reach());
+        assert_eq!(s.erased, None);
+        // Samples every 2 cm: 50 cm each end less the 5 cm the middle's cells still reach.
+        let lost = erased(&before, &after);
+        assert!((44..=48).contains(&lost), "{lost}");
+        assert_eq!(erased(&after, &before), 0);
     }
 
     #[test]
@@ -1099,7 +1249,12 @@ mod pose_tests {
                 .update(&Observation::from_reading(r, isometry(fused_at)))
                 .unwrap();
         }
-        score_grid(&probability_view(&mapper), &room, &[pose], 4.0)
+        score_grid(
+            &probability_view(&mapper),
+            &room,
+            &[pose],
+            Reach::of(&SensorConfig::default()),
+        )
     }
 
     #[test]

@@ -42,7 +42,7 @@ use sonar_eval::metrics::{MapKind, MapView, quantile};
 use sonar_eval::motion::{POSE_RATE_HZ, truth_at};
 use sonar_eval::pipeline::{Head, Scan, capture_tour, capture_with, probability_view};
 use sonar_eval::scenegen;
-use sonar_eval::suite::{GridScore, score_grid};
+use sonar_eval::suite::{GridScore, Reach, score_grid};
 use sonar_fusion::engine::Engine;
 use sonar_fusion::{FusionConfig, GridConfig, GridGeometry, Preset};
 use sonar_sim::{OdometryParams, Pose, Scene};
@@ -115,6 +115,8 @@ struct Workload {
     readings: Vec<(Reading, usize)>,
     max_range_m: f32,
     beam_half_angle_deg: f32,
+    /// The head's range and sweep, for the scoring.
+    reach: Reach,
 }
 
 fn room(seed: u64) -> Result<Workload> {
@@ -129,6 +131,7 @@ fn room(seed: u64) -> Result<Workload> {
         readings: capture.readings.into_iter().map(|r| (r, 0)).collect(),
         max_range_m: head.sensor.max_range_m,
         beam_half_angle_deg: head.sensor.beam_half_angle_deg,
+        reach: Reach::of(&head.sensor),
     })
 }
 
@@ -156,6 +159,7 @@ fn generated(seed: u64, views: usize) -> Result<Workload> {
         readings,
         max_range_m: head.sensor.max_range_m,
         beam_half_angle_deg: head.sensor.beam_half_angle_deg,
+        reach: Reach::of(&head.sensor),
     })
 }
 
@@ -364,9 +368,8 @@ fn run(cli: &Cli, workload: &Workload) -> Result<String> {
             .map(Some)
             .collect(),
     );
-    let max_range = f64::from(workload.max_range_m);
-    let ours_score = score_grid(&ours_map, &workload.scene, &workload.views, max_range);
-    let mrpt_score = score_grid(&mrpt_map, &workload.scene, &workload.views, max_range);
+    let ours_score = score_grid(&ours_map, &workload.scene, &workload.views, workload.reach);
+    let mrpt_score = score_grid(&mrpt_map, &workload.scene, &workload.views, workload.reach);
     let stats = |v: &mut Vec<f64>| {
         v.sort_by(f64::total_cmp);
         let mean = v.iter().sum::<f64>() / v.len() as f64;
