@@ -1199,6 +1199,31 @@ pub fn wakeup_notifier(
         .map_err(|e| IpcError::new(format!("create {name} notifier"), e))
 }
 
+/// Publishes a snapshot of `records` under `header` on a slice service (`sonar/features`,
+/// `sonar/slam_landmarks`) and wakes its consumers through `notifier`. The error says which step
+/// failed; the caller logs it (a lost snapshot is replaced by the next).
+pub fn send_snapshot<T, H>(
+    publisher: &iceoryx2::port::publisher::Publisher<ipc::Service, [T], H>,
+    notifier: &iceoryx2::port::notifier::Notifier<ipc::Service>,
+    header: H,
+    records: &[T],
+) -> Result<(), String>
+where
+    T: Copy + std::fmt::Debug + ZeroCopySend + 'static,
+    H: Default + std::fmt::Debug + ZeroCopySend + 'static,
+{
+    let mut sample = publisher
+        .loan_slice_uninit(records.len())
+        .map_err(|e| format!("loan: {e:?}"))?;
+    *sample.user_header_mut() = header;
+    sample
+        .write_from_slice(records)
+        .send()
+        .map_err(|e| format!("send: {e:?}"))?;
+    notifier.notify().map_err(|e| format!("notify: {e:?}"))?;
+    Ok(())
+}
+
 /// Consumes every pending wake-up of `listener`, so the waitset it is attached to sleeps again.
 pub fn drain_wakeups(
     listener: &iceoryx2::port::listener::Listener<ipc::Service>,

@@ -751,24 +751,8 @@ impl Features {
         let (header, records) = self
             .tracker
             .snapshot(engine.grid_mut(), self.seq, unix_time_ns());
-        let sent = self
-            .publisher
-            .loan_slice_uninit(records.len())
-            .map_err(|e| format!("loan: {e:?}"))
-            .and_then(|mut sample| {
-                *sample.user_header_mut() = header;
-                sample
-                    .write_from_slice(&records)
-                    .send()
-                    .map_err(|e| format!("send: {e:?}"))
-            });
-        match sent {
-            Ok(_) => {
-                if let Err(e) = self.notifier.notify() {
-                    warn!("notify features: {e:?}");
-                }
-            }
-            Err(e) => warn!("features snapshot not published: {e}"),
+        if let Err(e) = ipc::send_snapshot(&self.publisher, &self.notifier, header, &records) {
+            warn!("features snapshot not published: {e}");
         }
     }
 }

@@ -425,25 +425,13 @@ impl<'a> Process<'a> {
                 sweeps: self.sweeps,
             },
         );
-        let sent = self
-            .ports
-            .landmarks
-            .loan_slice_uninit(records.len())
-            .map_err(|e| format!("loan: {e:?}"))
-            .and_then(|mut sample| {
-                *sample.user_header_mut() = header;
-                sample
-                    .write_from_slice(&records)
-                    .send()
-                    .map_err(|e| format!("send: {e:?}"))
-            });
-        match sent {
-            Ok(_) => {
-                if let Err(e) = self.ports.landmarks_notifier.notify() {
-                    warn!("notify landmarks: {e:?}");
-                }
-            }
-            Err(e) => warn!("landmarks not published: {e}"),
+        if let Err(e) = ipc::send_snapshot(
+            &self.ports.landmarks,
+            &self.ports.landmarks_notifier,
+            header,
+            &records,
+        ) {
+            warn!("landmarks not published: {e}");
         }
     }
 
