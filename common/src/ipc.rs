@@ -95,7 +95,10 @@ impl ScanMode {
 pub struct Reading {
     /// Driver's sequence number, from 0, without gaps.
     pub seq: u64,
-    /// Host wall-clock time when the line arrived, ns since the Unix epoch.
+    /// Host wall-clock time of the reading's instant (its last ping), ns since the Unix epoch:
+    /// the head's clock (`device_time_ms`) mapped onto the host's by the driver
+    /// (`sonar_driver::clock`), never later than the line arrived; the arrival time for a head
+    /// without a clock (the hobby dialect) and for a native head's first 8 readings.
     pub host_stamp_ns: u64,
     /// [`LAYOUT_VERSION`].
     pub layout_version: u32,
