@@ -64,8 +64,10 @@ const READINGS_PER_TURN: usize = 256;
 /// Readings taken out of the subscriber's buffer and not yet fused, at most: a fusion that falls
 /// behind for a while (a sweep merged or a snapshot copied on a loaded machine, a fast replay)
 /// keeps them here, 104 B each, instead of letting iceoryx2 overwrite them in its buffer of 256.
-/// Beyond this the buffer is left to overflow, and its losses are counted as before.
-const MAX_BACKLOG: usize = 65_536;
+/// Beyond this the buffer is left to overflow, and its losses are counted as before: a fusion
+/// overloaded for good lags its readings by no more than this and the buffer (2 s of a replay at
+/// 1 000 a second), not by all it was ever sent.
+const MAX_BACKLOG: usize = 2048;
 /// How often robot/pose is looked at while a reading waits for its pose (poses bring no wake-up).
 const POSE_POLL: Duration = Duration::from_millis(1);
 
