@@ -95,7 +95,10 @@ impl ScanMode {
 pub struct Reading {
     /// Driver's sequence number, from 0, without gaps.
     pub seq: u64,
-    /// Host wall-clock time when the line arrived, ns since the Unix epoch.
+    /// Host wall-clock time of the reading's instant (its last ping), ns since the Unix epoch:
+    /// the head's clock (`device_time_ms`) mapped onto the host's by the driver
+    /// (`sonar_driver::clock`), never later than the line arrived; the arrival time for a head
+    /// without a clock (the hobby dialect) and for a native head's first 8 readings.
     pub host_stamp_ns: u64,
     /// [`LAYOUT_VERSION`].
     pub layout_version: u32,
@@ -1068,35 +1071,26 @@ pub fn fusion_commands_service(
 /// the readings', so a fusion busy with a burst of readings (a replay, a fast simulation) loses
 /// none of the poses that place them.
 pub fn pose_service(node: &Node<ipc::Service>) -> Result<PubSub<Pose2D>, IpcError> {
-    pubsub(
-        node,
-        POSE_SERVICE,
-        Qos {
-            publishers: 2,
-            subscribers: 8,
-            // 2.5 s of a replay at ×40 (800 poses a second): a fusion stalled by a snapshot on a
-            // loaded machine loses no pose, so its readings are placed as in the live run.
-            buffer: 2048,
-            borrowed: None,
-            history: 1,
-        },
-    )
+    pubsub(node, POSE_SERVICE, POSE_QOS)
 }
 
+/// The policy of `robot/pose` and `robot/true_pose`.
+const POSE_QOS: Qos = Qos {
+    publishers: 2,
+    subscribers: 8,
+    // 2.5 s of a replay at ×40 (800 poses a second): a fusion stalled by a snapshot on a
+    // loaded machine loses no pose, so its readings are placed as in the live run.
+    buffer: 2048,
+    borrowed: None,
+    history: 1,
+};
+
 /// `robot/true_pose`, with the policy of [`pose_service`]: the simulator publishes the truth beside
-/// its odometry, at the same instants.
+/// its odometry, at the same instants, and a consumer descheduled on a loaded machine loses the
+/// truth no sooner than the odometry (a buffer of 16, 40 ms at ×20, lost a tenth of the truth
+/// beside two busy loops, and the tour's first poses when the consumer read late).
 pub fn true_pose_service(node: &Node<ipc::Service>) -> Result<PubSub<Pose2D>, IpcError> {
-    pubsub(
-        node,
-        TRUE_POSE_SERVICE,
-        Qos {
-            publishers: 2,
-            subscribers: 8,
-            buffer: 16,
-            borrowed: None,
-            history: 1,
-        },
-    )
+    pubsub(node, TRUE_POSE_SERVICE, POSE_QOS)
 }
 
 /// `sonar/fusion_status`, with the policy of the driver's status: history 1 so a viewer that

@@ -29,6 +29,7 @@ use sonar_common::protocol::{
 use sonar_common::sensor::SensorConfig;
 use sonar_common::throttle::Throttle;
 use sonar_driver::averaging::PingPolicy;
+use sonar_driver::clock::DeviceClock;
 use sonar_driver::decoder::{Decoded, Decoder, Dialect, NoEcho};
 use sonar_driver::sweeps::SweepIds;
 use tracing::{debug, info, warn};
@@ -452,6 +453,8 @@ struct Link {
     status_wanted: bool,
     /// Sweep ids as published, continued across resets of the head.
     sweeps: SweepIds,
+    /// Stamps a native head's readings at their instant, from its clock (restarted with it).
+    clock: DeviceClock,
     /// The device on the port answered the handshake as the head served: until then its
     /// readings are not published (they may be another head's) and nothing but `HELLO` is sent.
     identified: bool,
@@ -513,6 +516,7 @@ impl Link {
             head_fault: false,
             status_wanted: false,
             sweeps: SweepIds::default(),
+            clock: DeviceClock::default(),
             // The hobby dialect has no identity to wait for.
             identified: args.dialect != Dialect::Native,
             unidentified_readings: 0,
@@ -650,8 +654,9 @@ impl Link {
     /// Runs one connection: handshake, scan request, then lines until the port fails or we stop.
     fn session(&mut self, port: &mut TTYPort, node: &Node<Ipc>) -> Result<SessionEnd> {
         self.set_state(LinkState::Connecting)?;
-        // Whoever is on the port now has to identify itself again.
+        // Whoever is on the port now has to identify itself again, with its own clock.
         self.identified = self.dialect != Dialect::Native;
+        self.clock.restart();
         // Bytes queued before we opened belong to nobody (or a previous driver, or a session that
         // failed): dropped, but counted and said.
         let queued = port.bytes_to_read().unwrap_or(0);
@@ -908,6 +913,12 @@ impl Link {
             }
             Ok(Decoded::Reading(mut reading)) => {
                 reading.sweep_id = self.sweeps.of(reading.sweep_id);
+                // The hobby sketches send no clock: their readings keep the arrival time.
+                if self.dialect == Dialect::Native {
+                    reading.host_stamp_ns = self
+                        .clock
+                        .stamp(reading.device_time_ms, reading.host_stamp_ns);
+                }
                 self.publish(&reading)?
             }
             Ok(Decoded::Message(msg)) => self.on_message(msg)?,
@@ -924,6 +935,8 @@ impl Link {
                 if !self.identified && self.accept_head(&msg).is_ok() {
                     self.identified = true;
                 }
+                // A head says HELLO when it (re)starts: its clock starts again.
+                self.clock.restart();
                 self.hello = Some(msg);
             }
             DeviceMessage::Error { code, text } => {

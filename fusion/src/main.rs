@@ -17,7 +17,7 @@
 //!   subscriber buffer that overflowed), restarts of the numbering, rejected readings and skipped
 //!   snapshots, with the saves, on `sonar/fusion_status`, once a second and at once on news.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::mem::MaybeUninit;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -61,6 +61,13 @@ const SWEEP_IDLE: Duration = Duration::from_secs(2);
 /// Readings fused per turn of the loop at most: one subscriber buffer's worth. Under overload the
 /// buffer never empties, and commands, status, saves and held-back snapshots must still get turns.
 const READINGS_PER_TURN: usize = 256;
+/// Readings taken out of the subscriber's buffer and not yet fused, at most: a fusion that falls
+/// behind for a while (a sweep merged or a snapshot copied on a loaded machine, a fast replay)
+/// keeps them here, 104 B each, instead of letting iceoryx2 overwrite them in its buffer of 256.
+/// Beyond this the buffer is left to overflow, and its losses are counted as before: a fusion
+/// overloaded for good lags its readings by no more than this and the buffer (2 s of a replay at
+/// 1 000 a second), not by all it was ever sent.
+const MAX_BACKLOG: usize = 2048;
 /// How often robot/pose is looked at while a reading waits for its pose (poses bring no wake-up).
 const POSE_POLL: Duration = Duration::from_millis(1);
 
@@ -397,6 +404,8 @@ fn run(args: &Args) -> Result<()> {
         restart_log: Throttle::new(LOG_PERIOD),
         rejected_log: Throttle::new(LOG_PERIOD),
         pose_log: Throttle::new(LOG_PERIOD),
+        backlog: VecDeque::new(),
+        backlog_peak: 0,
         waiting: None,
         corrections: 0,
         revisions: RevisionCount::default(),
@@ -505,6 +514,7 @@ fn run(args: &Args) -> Result<()> {
         slam_corrections = out.corrections,
         slam_revisions = out.revisions.applied,
         slam_revisions_unapplied = out.revisions.uncovered,
+        backlog_peak = out.backlog_peak,
         "fusion stopped"
     );
     Ok(())
@@ -930,8 +940,12 @@ struct Output<'a> {
     restart_log: Throttle,
     rejected_log: Throttle,
     pose_log: Throttle,
-    /// A reading waiting for the pose that covers its instant, and when it was received
-    /// ([`sonar_fusion::poses::MAX_POSE_WAIT`]); the readings after it wait in the buffer.
+    /// Readings received and not yet fused, oldest first ([`MAX_BACKLOG`]).
+    backlog: VecDeque<Reading>,
+    /// The most readings the backlog held: how far the fusion fell behind.
+    backlog_peak: usize,
+    /// A reading waiting for the pose that covers its instant, and since when it is the next to
+    /// fuse ([`sonar_fusion::poses::MAX_POSE_WAIT`]); the readings after it wait behind it.
     waiting: Option<(Reading, Instant)>,
     /// sonar-slam's corrections applied (--slam-correction).
     corrections: u64,
@@ -1105,7 +1119,9 @@ impl Output<'_> {
     }
 
     /// Fuses up to [`READINGS_PER_TURN`] readings; true when it stopped there (more may wait),
-    /// false when the buffer is empty or a reading waits for its pose (`out.waiting`).
+    /// false when no reading is left or one waits for its pose (`out.waiting`). Before each, it
+    /// takes every reading the subscriber's buffer holds into the backlog, so that only a single
+    /// step longer than 256 readings' worth (not a long run of slow ones) can overflow it.
     fn fuse_readings(
         &mut self,
         engine: &mut Engine,
@@ -1113,9 +1129,12 @@ impl Output<'_> {
         pose_wait: PoseWait,
     ) -> Result<bool> {
         for _ in 0..READINGS_PER_TURN {
+            self.take_readings()?;
+            // The wait for a pose is timed from when the reading is next, not from when it was
+            // taken: a reading that waited in the backlog waits for its pose as long as any.
             let (reading, received) = match self.waiting.take() {
                 Some(waiting) => waiting,
-                None => match self.receive_reading()? {
+                None => match self.backlog.pop_front() {
                     Some(reading) => (reading, Instant::now()),
                     None => return Ok(false),
                 },
@@ -1170,6 +1189,18 @@ impl Output<'_> {
             self.dirty = true;
         }
         Ok(true)
+    }
+
+    /// Moves what the subscriber's buffer holds into the backlog, up to [`MAX_BACKLOG`].
+    fn take_readings(&mut self) -> Result<()> {
+        while self.backlog.len() < MAX_BACKLOG {
+            match self.receive_reading()? {
+                Some(reading) => self.backlog.push_back(reading),
+                None => break,
+            }
+        }
+        self.backlog_peak = self.backlog_peak.max(self.backlog.len());
+        Ok(())
     }
 
     /// The next reading of the buffer that can be fused (of this layout version), counted.

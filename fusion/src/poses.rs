@@ -7,7 +7,8 @@
 //! # Clocks
 //!
 //! Both stamps are the host's wall clock in ns since the Unix epoch: the driver stamps a reading
-//! when its line arrives (a few ms after the last of its pings), the pose's publisher stamps the
+//! with the instant of its last ping (the head's clock mapped onto the host's, not the line's
+//! arrival, which a loaded machine delays by up to a second), the pose's publisher stamps the
 //! instant the pose describes. On one machine they are one clock; a pose source on another machine
 //! must be synchronised to it (NTP/PTP) — an offset shows as readings placed where the robot was
 //! that much earlier or later.
