@@ -212,9 +212,14 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
             *c = corner_of_planes(rcds, &hypotheses, &planes, i, cfg).map(|(b, _)| b);
         }
     }
-    for (h, c) in hypotheses.iter_mut().zip(corners) {
+    for ((h, c), rcd) in hypotheses.iter_mut().zip(corners).zip(rcds) {
         if let Some(b) = c {
             *h = Hypothesis::one(Class::Corner, b.deg, b.sigma);
+        } else if h.class == Class::Corner && heard_over_the_beam_by_a_point(rcd, cfg) {
+            // A corner by its width alone, which no wall of the sweep meets, where a point target
+            // stronger than the reference (a thick post near the sensor) fills the beam too.
+            let sigma = rcd.start_edge_sigma_deg().hypot(rcd.end_edge_sigma_deg()) / 2.0;
+            *h = Hypothesis::one(Class::Point, rcd.centre_deg(), sigma);
         }
     }
     let observations = hypotheses
@@ -245,6 +250,19 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
         classes: hypotheses.iter().map(|h| h.class).collect(),
         observations,
     }
+}
+
+/// Whether `rcd`, seen whole, lies where the reference point target's cone is already within
+/// the width tolerance of a corner's: both filled by the beam, so that a stronger point target
+/// there is heard as wide as a corner.
+fn heard_over_the_beam_by_a_point(rcd: &Rcd, cfg: &FeatureConfig) -> bool {
+    let cones = Cones::at(rcd.range_m, cfg);
+    let tol = rcd.width_tolerance_deg(cfg.cone_sigma_deg);
+    rcd.start.is_natural()
+        && rcd.end.is_natural()
+        && cones
+            .corner
+            .is_some_and(|corner| 2.0 * corner - 2.0 * cones.point <= 2.0 * tol)
 }
 
 /// The class a region's width and ends allow, before corners are tested.
@@ -831,6 +849,18 @@ mod tests {
             [Class::Plane, Class::Corner, Class::Plane],
             "{rcds:?}"
         );
+    }
+
+    #[test]
+    fn a_thick_post_near_the_sensor_filling_the_beam_is_a_point_not_a_corner() {
+        // A 10 cm post 0.4 m away is heard over the whole beam, 60° as a corner (the reference
+        // 5 cm post there within a few degrees of it); no wall of the sweep meets it, so it is a
+        // point at the centre (a corner as near has walls as near, which the sweep would hear:
+        // `room_corners_are_found_between_their_walls`).
+        let ranges = cone_sweep(-45.75, 90, &[(20.0, 30.0, 0.4)]);
+        let (rcds, c) = classified(-45.75, &ranges);
+        assert_eq!(c.classes, [Class::Point], "{rcds:?}");
+        assert!((c.observations[0].bearing_deg - 20.0).abs() <= 0.75);
     }
 
     #[test]
