@@ -192,6 +192,14 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
     let mut corners: Vec<Option<Bearing>> = (0..rcds.len())
         .map(|i| corner_of_planes(rcds, &hypotheses, &whole, i, cfg).map(|(b, _)| b))
         .collect();
+    // A region taken for a plane from its one natural end may be a corner whose other end its
+    // own wall hides, when that wall is not seen whole (cut by the scan, or itself partly
+    // hidden): tested against the wall beside the hidden end.
+    for (i, c) in corners.iter_mut().enumerate() {
+        if c.is_none() && hypotheses[i].class == Class::Plane {
+            *c = corner_beside_its_wall(rcds, i, cfg);
+        }
+    }
     // Then what is left against every plane, the partly seen ones too (a corner between two
     // walls cut by the scan's ends).
     let planes: Vec<Option<Bearing>> = hypotheses
@@ -204,9 +212,14 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
             *c = corner_of_planes(rcds, &hypotheses, &planes, i, cfg).map(|(b, _)| b);
         }
     }
-    for (h, c) in hypotheses.iter_mut().zip(corners) {
+    for ((h, c), rcd) in hypotheses.iter_mut().zip(corners).zip(rcds) {
         if let Some(b) = c {
             *h = Hypothesis::one(Class::Corner, b.deg, b.sigma);
+        } else if h.class == Class::Corner && heard_over_the_beam_by_a_point(rcd, cfg) {
+            // A corner by its width alone, which no wall of the sweep meets, where a point target
+            // stronger than the reference (a thick post near the sensor) fills the beam too.
+            let sigma = rcd.start_edge_sigma_deg().hypot(rcd.end_edge_sigma_deg()) / 2.0;
+            *h = Hypothesis::one(Class::Point, rcd.centre_deg(), sigma);
         }
     }
     let observations = hypotheses
@@ -237,6 +250,19 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
         classes: hypotheses.iter().map(|h| h.class).collect(),
         observations,
     }
+}
+
+/// Whether `rcd`, seen whole, lies where the reference point target's cone is already within
+/// the width tolerance of a corner's: both filled by the beam, so that a stronger point target
+/// there is heard as wide as a corner.
+fn heard_over_the_beam_by_a_point(rcd: &Rcd, cfg: &FeatureConfig) -> bool {
+    let cones = Cones::at(rcd.range_m, cfg);
+    let tol = rcd.width_tolerance_deg(cfg.cone_sigma_deg);
+    rcd.start.is_natural()
+        && rcd.end.is_natural()
+        && cones
+            .corner
+            .is_some_and(|corner| 2.0 * corner - 2.0 * cones.point <= 2.0 * tol)
 }
 
 /// The class a region's width and ends allow, before corners are tested.
@@ -379,6 +405,10 @@ fn corner_of_planes(
         }
     };
     let (hidden_below, hidden_above) = (hidden(false), hidden(true));
+    let (lost_below, lost_above) = (
+        lost_before_nearer(rcds, i, false),
+        lost_before_nearer(rcds, i, true),
+    );
     let mut estimates: Vec<(Bearing, usize, bool)> = Vec::new();
     for (j, plane) in rcds.iter().enumerate() {
         let Some(normal) = planes[j].filter(|_| j != i) else {
@@ -409,9 +439,33 @@ fn corner_of_planes(
             let margin = 3.0 * sigma + step / 2.0;
             let lo = hidden_below.map_or(rcd.start_edge_deg(), |(from, _)| from) - margin;
             let hi = hidden_above.map_or(rcd.end_edge_deg(), |(_, to)| to) + margin;
+            // A natural end is the corner's cone edge: one half-cone from the vertex, not
+            // nearer (a wall's free end on its line is heard over a point target's narrow cone)
+            // — unless only lost pings lie between it and a nearer region, which may have hidden
+            // the rest of the corner's.
+            let at_cone_edge = |end: End, lost: bool, edge: f64, cone_edge: f64, interval: f64| {
+                !end.is_natural()
+                    || lost
+                    || (edge - cone_edge).abs()
+                        <= margin + interval / 2.0 + 2.0 * cfg.cone_sigma_deg
+            };
             let inside = (lo..=hi).contains(&deg)
                 && rcd.start_edge_deg() >= deg - corner_half - margin
-                && rcd.end_edge_deg() <= deg + corner_half + margin;
+                && rcd.end_edge_deg() <= deg + corner_half + margin
+                && at_cone_edge(
+                    rcd.start,
+                    lost_below,
+                    rcd.start_edge_deg(),
+                    deg - corner_half,
+                    rcd.start_interval_deg,
+                )
+                && at_cone_edge(
+                    rcd.end,
+                    lost_above,
+                    rcd.end_edge_deg(),
+                    deg + corner_half,
+                    rcd.end_interval_deg,
+                );
             if inside {
                 estimates.push((Bearing { deg, sigma }, j, beside(plane)));
             }
@@ -439,6 +493,102 @@ fn corner_of_planes(
         .map(|(_, j, _)| *j)
         .collect();
     Some((Bearing { deg, sigma }, agree))
+}
+
+/// Whether region `i`'s end (the higher-bearing one if `toward_higher`) is followed by a few
+/// pings in no region — lost, no more than [`crate::rcd`] bridges inside a run — and then by a
+/// nearer region: the end may be where pings were lost rather than where its cone ends.
+fn lost_before_nearer(rcds: &[Rcd], i: usize, toward_higher: bool) -> bool {
+    let rcd = &rcds[i];
+    let step = rcd.step_deg;
+    let gap = |p: &Rcd| {
+        if toward_higher {
+            p.first_deg - rcd.last_deg
+        } else {
+            rcd.first_deg - p.last_deg
+        }
+    };
+    rcds.iter()
+        .filter(|p| gap(p) > step / 2.0)
+        .min_by(|a, b| gap(a).total_cmp(&gap(b)))
+        .is_some_and(|p| {
+            let lost = (gap(p) / step).round() - 1.0;
+            p.range_m < rcd.range_m && lost >= 1.0 && lost <= crate::rcd::MAX_BRIDGED as f64
+        })
+}
+
+/// If region `i`, seen from one natural end and hidden at the other by a nearer region, is a
+/// concave corner whose own wall hides it there: the corner's bearing.
+///
+/// With one natural end, a wall's region and a corner's differ only by their cones (28° and 30°
+/// for the SRF05), so the region alone cannot tell them apart. The nearer region beside the
+/// hidden end can: it ends naturally on the side facing this one, and if it is the corner's
+/// wall, that end is its cut-off, its normal lies one plane half-cone beyond it, and its line
+/// meets this region's range at φ ± acos(d / r) — where this region's natural edge puts a
+/// corner's vertex, one corner half-cone inward. A wall partly hidden behind a post or a
+/// board's end fails the test: the occluder's line (were it a wall) meets that range elsewhere.
+/// Used when the occluder is no plane by its width (cut by the scan, or itself partly hidden):
+/// a whole plane there is tested by [`corner_of_planes`].
+fn corner_beside_its_wall(rcds: &[Rcd], i: usize, cfg: &FeatureConfig) -> Option<Bearing> {
+    let rcd = &rcds[i];
+    let r = rcd.range_m;
+    let step = rcd.step_deg;
+    let corner_half = Cones::at(r, cfg).corner?;
+    // The natural edge, the direction from it into the region, and towards the hidden end.
+    let (edge, edge_sigma, inward, interval) = match (rcd.start, rcd.end) {
+        (End::Natural, End::Occluded) => (
+            rcd.start_edge_deg(),
+            rcd.start_edge_sigma_deg(),
+            1.0,
+            rcd.end_interval_deg,
+        ),
+        (End::Occluded, End::Natural) => (
+            rcd.end_edge_deg(),
+            rcd.end_edge_sigma_deg(),
+            -1.0,
+            rcd.start_interval_deg,
+        ),
+        _ => return None,
+    };
+    let next = |gap: f64| gap > 0.0 && gap < interval + step / 2.0;
+    let wall = rcds.iter().find(|p| {
+        p.range_m < r
+            && if inward > 0.0 {
+                next(p.first_deg - rcd.last_deg) && p.start.is_natural()
+            } else {
+                next(rcd.first_deg - p.last_deg) && p.end.is_natural()
+            }
+    })?;
+    let d = wall.range_m;
+    let (wall_edge, wall_edge_sigma) = if inward > 0.0 {
+        (wall.start_edge_deg(), wall.start_edge_sigma_deg())
+    } else {
+        (wall.end_edge_deg(), wall.end_edge_sigma_deg())
+    };
+    let sigma_r2 = rcd.range_sigma_m.powi(2) + (cfg.range_sigma_rel * r).powi(2);
+    let sigma_d2 = wall.range_sigma_m.powi(2) + (cfg.range_sigma_rel * d).powi(2);
+    // A corner lies beyond its wall's foot by more than the ranges' noise.
+    if r - d <= 3.0 * (sigma_r2 + sigma_d2).sqrt() {
+        return None;
+    }
+    let normal = wall_edge + inward * Cones::at(d, cfg).plane?;
+    let from_wall = normal - inward * (d / r).acos().to_degrees();
+    let dacos2 = (sigma_d2 + (d / r).powi(2) * sigma_r2) / (r * r - d * d);
+    let wall_sigma = (wall_edge_sigma.powi(2)
+        + cfg.cone_sigma_deg.powi(2)
+        + dacos2 * (180.0 / std::f64::consts::PI).powi(2))
+    .sqrt();
+    let from_edge = edge + inward * corner_half;
+    let edge_sigma = edge_sigma.hypot(cfg.cone_sigma_deg);
+    let apart = crate::geometry::wrap_deg(from_wall - from_edge);
+    if apart.abs() > 3.0 * wall_sigma.hypot(edge_sigma) + step / 2.0 {
+        return None;
+    }
+    let (w_wall, w_edge) = (wall_sigma.powi(-2), edge_sigma.powi(-2));
+    Some(Bearing {
+        deg: from_edge + apart * w_wall / (w_wall + w_edge),
+        sigma: (w_wall + w_edge).powf(-0.5),
+    })
 }
 
 #[cfg(test)]
@@ -637,6 +787,80 @@ mod tests {
             .unwrap();
         assert!((corner.bearing_deg - 45.0).abs() < 0.75, "{corner:?}");
         assert!((corner.range_m - 1.7).abs() < 0.001);
+    }
+
+    #[test]
+    fn a_corner_hidden_at_one_end_by_its_own_wall_cut_by_the_scan_is_a_corner() {
+        // A wall 0.88 m away, its normal at −165°, is heard from the scan's start (−149.25°) to
+        // its cut-off at −137°: too little of it to be a plane. Its corner with a wall whose foot
+        // the sensor does not see lies on its line 1.135 m away; the corner's region runs from
+        // behind the wall to its cone's edge, 30° past the vertex. One natural end: a plane's
+        // and a corner's axis 2° apart, but the wall's line puts the vertex there.
+        let (phi, d, r) = (-165.0, 0.88, 1.135);
+        let vertex = phi + f64::acos(d / r).to_degrees();
+        let ranges = cone_sweep(-149.25, 60, &[(phi, 28.0, d), (vertex, 30.0, r)]);
+        let (rcds, c) = classified(-149.25, &ranges);
+        assert_eq!(c.classes, [Class::Unclassified, Class::Corner], "{rcds:?}");
+        let o = c.observations[0];
+        assert_eq!(o.kind, FeatureKind::Corner);
+        assert!((o.bearing_deg - vertex).abs() <= 1.0, "{o:?} {vertex}");
+    }
+
+    #[test]
+    fn a_wall_partly_hidden_by_a_post_stays_a_plane() {
+        // A 5 cm post at 1 m hides the near end of a wall 2 m away, normal at 30°: the post's
+        // cone edge is no wall's cut-off whose line meets the wall's range at a corner there.
+        let ranges = cone_sweep(-45.75, 80, &[(0.0, 13.4, 0.975), (30.0, 28.0, 2.0)]);
+        let (rcds, c) = classified(-45.75, &ranges);
+        assert_eq!(c.classes, [Class::Point, Class::Plane], "{rcds:?}");
+        assert!((c.observations[1].bearing_deg - 30.0).abs() <= 0.75);
+    }
+
+    #[test]
+    fn a_walls_free_end_on_its_line_is_no_corner() {
+        // A wall 0.587 m away, normal at −108°, whose free end (a weak point target, heard
+        // within 11°) lies on its line 0.632 m away, just past the cut-off: where a corner of
+        // that wall would be, but its region ends naturally 11° from it, not at a corner's 30°.
+        let (phi, d, r) = (-108.0, 0.587, 0.632);
+        let end = phi + f64::acos(d / r).to_degrees();
+        let ranges = cone_sweep(-149.25, 80, &[(phi, 28.0, d), (end, 11.0, r)]);
+        let (rcds, c) = classified(-149.25, &ranges);
+        assert_eq!(rcds.len(), 2, "{rcds:?}");
+        assert!(
+            c.observations.iter().all(|o| o.kind != FeatureKind::Corner),
+            "{c:?}"
+        );
+    }
+
+    #[test]
+    fn a_corner_whose_first_pings_were_lost_beside_its_wall_is_still_a_corner() {
+        // The room corner above, the walls seen whole, the two pings right after the wall at 0°
+        // lost (29.25° and 30.75°): the corner's region ends 'naturally' 17° inside its cone.
+        let mut ranges = cone_sweep(
+            -35.25,
+            110,
+            &[(0.0, 28.0, 1.2), (90.0, 28.0, 1.2), (45.0, 30.0, 1.7)],
+        );
+        ranges[43] = 0.0;
+        ranges[44] = 0.0;
+        let (rcds, c) = classified(-35.25, &ranges);
+        assert_eq!(
+            c.classes,
+            [Class::Plane, Class::Corner, Class::Plane],
+            "{rcds:?}"
+        );
+    }
+
+    #[test]
+    fn a_thick_post_near_the_sensor_filling_the_beam_is_a_point_not_a_corner() {
+        // A 10 cm post 0.4 m away is heard over the whole beam, 60° as a corner (the reference
+        // 5 cm post there within a few degrees of it); no wall of the sweep meets it, so it is a
+        // point at the centre (a corner as near has walls as near, which the sweep would hear:
+        // `room_corners_are_found_between_their_walls`).
+        let ranges = cone_sweep(-45.75, 90, &[(20.0, 30.0, 0.4)]);
+        let (rcds, c) = classified(-45.75, &ranges);
+        assert_eq!(c.classes, [Class::Point], "{rcds:?}");
+        assert!((c.observations[0].bearing_deg - 20.0).abs() <= 0.75);
     }
 
     #[test]
