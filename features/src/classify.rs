@@ -499,6 +499,7 @@ mod tests {
         let o = c.observations[0];
         assert!((o.bearing_deg - 10.0).abs() <= 0.75, "{o:?}");
         assert!((o.range_m - 1.2).abs() < 0.001);
+        assert!(o.whole, "both edges are the cone's: {o:?}");
     }
 
     #[test]
@@ -602,6 +603,7 @@ mod tests {
             o.bearing_sigma_deg > 0.6,
             "one edge and the cut-off's uncertainty"
         );
+        assert!(!o.whole, "placed from one edge: {o:?}");
     }
 
     #[test]
