@@ -931,7 +931,8 @@ impl Slam {
     /// Admits landmarks seen a second time: each sighting against the candidates of other
     /// viewpoints, the two placements compared with the joint covariance of the two poses (a
     /// candidate seen from the map's anchor is as sure as its sighting; two poses on one stretch
-    /// of odometry share most of their error); the rest become candidates. The number admitted.
+    /// of odometry share most of their error), and at least one of the two [`Sighting::certain`];
+    /// the rest become candidates. The number admitted.
     fn admit(&mut self, k: usize, unmatched: &[Sighting]) -> usize {
         let pose = self.poses[k].var;
         let x = self.graph.vector3(pose);
