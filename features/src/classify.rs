@@ -76,6 +76,11 @@ pub struct Observation {
     pub bearing_sigma_deg: f64,
     /// Index of the region it came from.
     pub rcd: usize,
+    /// Its region was seen whole: both ends natural, so its width was measured rather than
+    /// bounded. A region cut short at one end (by a nearer target, or where the pings looked at
+    /// stop) that is wider than a point is taken for a plane placed from its natural end, and a
+    /// corner or an edge cut short looks the same: such a plane is the classifier's guess.
+    pub whole: bool,
 }
 
 /// The classes of a sweep's regions (one per region, same order) and the targets they gave.
@@ -242,6 +247,7 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
                     range_sigma_systematic_m: cfg.range_sigma_systematic_m(rcd.range_m),
                     bearing_sigma_deg: b.sigma,
                     rcd: i,
+                    whole: rcd.start.is_natural() && rcd.end.is_natural(),
                 })
             })
         })
@@ -643,6 +649,7 @@ mod tests {
         let o = c.observations[0];
         assert!((o.bearing_deg - 10.0).abs() <= 0.75, "{o:?}");
         assert!((o.range_m - 1.2).abs() < 0.001);
+        assert!(o.whole, "both edges are the cone's: {o:?}");
     }
 
     #[test]
@@ -746,6 +753,7 @@ mod tests {
             o.bearing_sigma_deg > 0.6,
             "one edge and the cut-off's uncertainty"
         );
+        assert!(!o.whole, "placed from one edge: {o:?}");
     }
 
     #[test]

@@ -234,6 +234,7 @@ mod tests {
                 range_sigma_systematic_m: 0.002,
                 bearing_sigma_deg: 0.4,
                 rcd: 0,
+                whole: true,
             }
         };
         for kind in with {
@@ -252,6 +253,7 @@ mod tests {
                             range_sigma_systematic_m: 0.002,
                             bearing_sigma_deg: 0.4,
                             rcd: 0,
+                            whole: true,
                         });
                     }
                 }

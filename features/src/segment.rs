@@ -140,6 +140,7 @@ mod tests {
             range_sigma_systematic_m: 0.002,
             bearing_sigma_deg: 0.3,
             rcd: 0,
+            whole: true,
         }
     }
 

@@ -26,7 +26,12 @@
 //!    anchor and again from a pose whose heading the odometry knows poorly is gated by that
 //!    pose's σ, not by √2 times it (the current pose's covariance once counted for both, and a
 //!    room tour took a wall for another seen before and turned by 81°). A phantom of one sweep
-//!    (a corner at the edge of a sweep taken for a wall) never anchors a pose.
+//!    (a corner at the edge of a sweep taken for a wall) never anchors a pose. Nor does a wall
+//!    seen only on the move from regions cut short at one end: the features take such a region
+//!    for a plane placed from its natural end, and a corner or a door's edge cut short gives the
+//!    same region, seen alike from nearby viewpoints. A wall needs one of its two sightings to
+//!    be a region seen whole, or a sweep's standing still (there the features test a plane cut
+//!    short as a corner of the sweep's whole planes).
 //! 6. **Ranging on the move** (with [`SlamConfig::range_pings`], off by default). Each reading of a sweep taken on the move is placed at its own
 //!    instant's pose — the sweep's pose, then the odometry to that instant corrected by the
 //!    odometry's errors as the graph estimates them — and its pings that face a known wall
@@ -282,6 +287,7 @@ struct Candidate {
     kind: LandmarkKind,
     z: Measurement,
     sigma: Vector2<f64>,
+    certain: bool,
 }
 
 /// One reading of a sweep taken on the move, for ranging on walls.
@@ -299,6 +305,14 @@ struct Sighting {
     kind: LandmarkKind,
     z: Measurement,
     sigma: Vector2<f64>,
+    /// Its class is the features' finding, not their guess: everything a sweep standing still
+    /// saw (a plane cut short there is tested as a corner of the sweep's whole planes), and the
+    /// walls of a sweep on the move whose region was seen whole. A wall on the move whose region
+    /// was cut short at one end may be a corner or an edge cut short ([`Observation::whole`]);
+    /// two such sightings alone never make a landmark.
+    ///
+    /// [`Observation::whole`]: sonar_features::Observation::whole
+    certain: bool,
 }
 
 /// A reading more than this (m, degrees) from the pose of the sweep's middle reading was taken
@@ -413,6 +427,7 @@ impl Slam {
                     o.bearing_sigma_deg.to_radians(),
                 )
                 .zip_map(&floor, f64::hypot),
+                certain: !moving || o.whole,
             })
             .collect();
         let ranged: Vec<ReadingPings> = if moving && self.cfg.range_pings {
@@ -916,7 +931,8 @@ impl Slam {
     /// Admits landmarks seen a second time: each sighting against the candidates of other
     /// viewpoints, the two placements compared with the joint covariance of the two poses (a
     /// candidate seen from the map's anchor is as sure as its sighting; two poses on one stretch
-    /// of odometry share most of their error); the rest become candidates. The number admitted.
+    /// of odometry share most of their error), and at least one of the two [`Sighting::certain`];
+    /// the rest become candidates. The number admitted.
     fn admit(&mut self, k: usize, unmatched: &[Sighting]) -> usize {
         let pose = self.poses[k].var;
         let x = self.graph.vector3(pose);
@@ -943,7 +959,7 @@ impl Slam {
                 self.candidates
                     .iter()
                     .enumerate()
-                    .filter(|(_, c)| c.kind == s.kind && c.pose != k)
+                    .filter(|(_, c)| c.kind == s.kind && c.pose != k && (c.certain || s.certain))
                     .filter_map(|(ci, c)| {
                         let xc = self.graph.vector3(self.poses[c.pose].var);
                         let apart = Vector2::new(xc.x - x.x, xc.y - x.y).norm()
@@ -957,6 +973,7 @@ impl Slam {
                                 kind: c.kind,
                                 z: c.z,
                                 sigma: c.sigma,
+                                certain: c.certain,
                             },
                             &xc,
                         );
@@ -999,6 +1016,7 @@ impl Slam {
                     kind: s.kind,
                     z: s.z,
                     sigma: s.sigma,
+                    certain: s.certain,
                 }),
             }
         }
@@ -1265,6 +1283,7 @@ mod tests {
                 kind: LandmarkKind::Line,
                 z,
                 sigma,
+                certain: true,
             })
         });
         let posts = POSTS.iter().filter_map(|&(px, py)| {
@@ -1273,6 +1292,7 @@ mod tests {
                 kind: LandmarkKind::Point,
                 z,
                 sigma,
+                certain: true,
             })
         });
         walls.chain(posts).collect()
@@ -1471,6 +1491,7 @@ mod tests {
                 kind: LandmarkKind::Line,
                 z: Vector2::new(5.0, 0.0),
                 sigma,
+                certain: true,
             });
             // … and from the second pose as if it were turned by δ, at the same distance.
             let turn = turned_sigmas * heading_sigma;
@@ -1480,11 +1501,53 @@ mod tests {
                 kind: LandmarkKind::Line,
                 z,
                 sigma,
+                certain: true,
             };
             slam.admit(1, &[sighting])
         };
         assert_eq!(admitted(1.0), 1);
         assert_eq!(admitted(3.5), 0);
+    }
+
+    /// A wall seen on the move from two viewpoints 50 cm apart, each time from a region cut
+    /// short at one end (what a corner or a door's edge cut short gives too): the two sightings
+    /// agree, but make no landmark; with either of them seen whole, they do.
+    #[test]
+    fn walls_cut_short_on_the_move_need_a_whole_sighting_to_be_admitted() {
+        let admitted = |first_certain: bool, second_certain: bool| {
+            let mut slam = Slam::new(SlamConfig::default()).unwrap();
+            slam.push_odometry(0, Isometry2::identity());
+            slam.add_sweep(0, 0, Isometry2::identity(), &[], &[], false);
+            for k in 1..=50u32 {
+                let x = 0.01 * f64::from(k);
+                slam.push_odometry(
+                    u64::from(k) * 1000,
+                    Isometry2::new(Vector2::new(x, 0.0), 0.0),
+                );
+            }
+            let odometry = Isometry2::new(Vector2::new(0.5, 0.0), 0.0);
+            slam.add_sweep(1, 50_000, odometry, &[], &[], true);
+            // The end wall x = 5 straight ahead, from the anchor and from 0.5 m on.
+            let sigma = Vector2::new(0.01, 1.0_f64.to_radians());
+            slam.candidates.push(Candidate {
+                pose: 0,
+                kind: LandmarkKind::Line,
+                z: Vector2::new(5.0, 0.0),
+                sigma,
+                certain: first_certain,
+            });
+            let sighting = Sighting {
+                kind: LandmarkKind::Line,
+                z: Vector2::new(4.5, 0.0),
+                sigma,
+                certain: second_certain,
+            };
+            slam.admit(1, &[sighting])
+        };
+        assert_eq!(admitted(false, false), 0);
+        assert_eq!(admitted(true, false), 1);
+        assert_eq!(admitted(false, true), 1);
+        assert_eq!(admitted(true, true), 1);
     }
 
     #[test]
@@ -1495,6 +1558,7 @@ mod tests {
             kind: LandmarkKind::Point,
             z: Vector2::new(0.8, 0.3),
             sigma: Vector2::new(0.01, 0.02),
+            certain: true,
         };
         tour(&mut slam, 8, |k| {
             if k == 4 { vec![phantom] } else { Vec::new() }
