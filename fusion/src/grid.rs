@@ -359,6 +359,13 @@ impl OccupancyGrid {
         with_layer!(&self.store, l => l.rule.probability(l.cells[i]))
     }
 
+    /// The world bearing from which cell (`x`, `y`) was last heard occupied, if it was and the
+    /// model hears.
+    pub(crate) fn heard_from(&self, x: usize, y: usize) -> Option<f32> {
+        let i = self.geometry.index(x, y);
+        self.heard.get(i).copied().filter(|b| !b.is_nan())
+    }
+
     /// Every cell's occupancy probability, row-major, unknown cells at the prior 0.5.
     ///
     /// # Panics

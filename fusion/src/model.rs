@@ -541,6 +541,10 @@ pub struct SmoothModel {
     /// standing scan then shows what it heard where no region can be placed. Like any echo, its
     /// cells remember the bearing they were heard from.
     pub region_weak_echo_log_odds: f32,
+    /// With weak echoes: at each sweep's end, a weak echo is taken back (its log-odds subtracted)
+    /// once the grid holds an occupied cell on its axis in front of it, a wall drawn after it
+    /// that its axis would have met first (the echo came from off the axis, behind that wall).
+    pub region_weak_echo_withdrawn: bool,
 }
 
 /// Where a reading's echo puts its occupied evidence ([`SmoothModel::echo_placement`]).
@@ -578,6 +582,7 @@ impl Default for SmoothModel {
             region_corners: false,
             region_corner_walls: false,
             region_weak_echo_log_odds: 0.0,
+            region_weak_echo_withdrawn: false,
         }
     }
 }
