@@ -411,10 +411,6 @@ fn corner_of_planes(
         }
     };
     let (hidden_below, hidden_above) = (hidden(false), hidden(true));
-    let (lost_below, lost_above) = (
-        lost_before_nearer(rcds, i, false),
-        lost_before_nearer(rcds, i, true),
-    );
     let mut estimates: Vec<(Bearing, usize, bool)> = Vec::new();
     for (j, plane) in rcds.iter().enumerate() {
         let Some(normal) = planes[j].filter(|_| j != i) else {
@@ -446,12 +442,9 @@ fn corner_of_planes(
             let lo = hidden_below.map_or(rcd.start_edge_deg(), |(from, _)| from) - margin;
             let hi = hidden_above.map_or(rcd.end_edge_deg(), |(_, to)| to) + margin;
             // A natural end is the corner's cone edge: one half-cone from the vertex, not
-            // nearer (a wall's free end on its line is heard over a point target's narrow cone)
-            // — unless only lost pings lie between it and a nearer region, which may have hidden
-            // the rest of the corner's.
-            let at_cone_edge = |end: End, lost: bool, edge: f64, cone_edge: f64, interval: f64| {
+            // nearer (a wall's free end on its line is heard over a point target's narrow cone).
+            let at_cone_edge = |end: End, edge: f64, cone_edge: f64, interval: f64| {
                 !end.is_natural()
-                    || lost
                     || (edge - cone_edge).abs()
                         <= margin + interval / 2.0 + 2.0 * cfg.cone_sigma_deg
             };
@@ -460,14 +453,12 @@ fn corner_of_planes(
                 && rcd.end_edge_deg() <= deg + corner_half + margin
                 && at_cone_edge(
                     rcd.start,
-                    lost_below,
                     rcd.start_edge_deg(),
                     deg - corner_half,
                     rcd.start_interval_deg,
                 )
                 && at_cone_edge(
                     rcd.end,
-                    lost_above,
                     rcd.end_edge_deg(),
                     deg + corner_half,
                     rcd.end_interval_deg,
@@ -499,28 +490,6 @@ fn corner_of_planes(
         .map(|(_, j, _)| *j)
         .collect();
     Some((Bearing { deg, sigma }, agree))
-}
-
-/// Whether region `i`'s end (the higher-bearing one if `toward_higher`) is followed by a few
-/// pings in no region — lost, no more than [`crate::rcd`] bridges inside a run — and then by a
-/// nearer region: the end may be where pings were lost rather than where its cone ends.
-fn lost_before_nearer(rcds: &[Rcd], i: usize, toward_higher: bool) -> bool {
-    let rcd = &rcds[i];
-    let step = rcd.step_deg;
-    let gap = |p: &Rcd| {
-        if toward_higher {
-            p.first_deg - rcd.last_deg
-        } else {
-            rcd.first_deg - p.last_deg
-        }
-    };
-    rcds.iter()
-        .filter(|p| gap(p) > step / 2.0)
-        .min_by(|a, b| gap(a).total_cmp(&gap(b)))
-        .is_some_and(|p| {
-            let lost = (gap(p) / step).round() - 1.0;
-            p.range_m < rcd.range_m && lost >= 1.0 && lost <= crate::rcd::MAX_BRIDGED as f64
-        })
 }
 
 /// If region `i`, seen from one natural end and hidden at the other by a nearer region, is a
@@ -837,25 +806,6 @@ mod tests {
         assert!(
             c.observations.iter().all(|o| o.kind != FeatureKind::Corner),
             "{c:?}"
-        );
-    }
-
-    #[test]
-    fn a_corner_whose_first_pings_were_lost_beside_its_wall_is_still_a_corner() {
-        // The room corner above, the walls seen whole, the two pings right after the wall at 0°
-        // lost (29.25° and 30.75°): the corner's region ends 'naturally' 17° inside its cone.
-        let mut ranges = cone_sweep(
-            -35.25,
-            110,
-            &[(0.0, 28.0, 1.2), (90.0, 28.0, 1.2), (45.0, 30.0, 1.7)],
-        );
-        ranges[43] = 0.0;
-        ranges[44] = 0.0;
-        let (rcds, c) = classified(-35.25, &ranges);
-        assert_eq!(
-            c.classes,
-            [Class::Plane, Class::Corner, Class::Plane],
-            "{rcds:?}"
         );
     }
 

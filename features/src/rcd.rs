@@ -285,7 +285,7 @@ pub fn extract(sweep: &Sweep, cfg: &FeatureConfig, gate: &Gate) -> Vec<Rcd> {
 /// loses two in a row p² of the time, often enough to break a wall's region in a few sweeps at
 /// 2 %, and a transient beside a lost ping as often; three (p³) almost never. A gap between two
 /// targets with nothing behind them is wider: each target's cone is 10° or more.
-pub(crate) const MAX_BRIDGED: usize = 3;
+const MAX_BRIDGED: usize = 3;
 
 /// How far past a run's end a burst of lost pings is looked through for the run's range again.
 const RESUME_LOOKAHEAD: usize = 6;
@@ -623,10 +623,6 @@ fn end_kind(sweep: &Sweep, run: &Run, gate: &Gate, side: Side) -> (End, f64) {
     if resumes {
         return (End::Unknown, 1.0);
     }
-    // Lost pings (as many as a run bridges) and then `ends`: a nearer target, or the scan's end.
-    let lost_then = |ends: &dyn Fn(Option<usize>) -> bool| {
-        (2..=MAX_BRIDGED + 1).any(|steps| lost(steps) && ends(outside(steps)))
-    };
     match pings[k].range_m {
         // A lost ping right before a nearer target: that target may hide the rest.
         None if outside(2)
@@ -634,8 +630,6 @@ fn end_kind(sweep: &Sweep, run: &Run, gate: &Gate, side: Side) -> (End, f64) {
         {
             (End::Occluded, 1.0)
         }
-        // Lost pings up to the end of the scan (or lost readings): the edge is not known.
-        None if lost_then(&|j| j.is_none()) => (End::Unknown, 1.0),
         r if past(r) => (End::Natural, 1.0),
         Some(r) if gate.nearer(&run.stats, r) => {
             // A lone nearer ping with nothing or something farther beyond it is a transient, not
@@ -757,10 +751,9 @@ pub(crate) mod tests {
 
     #[test]
     fn a_post_is_a_run_with_natural_ends_centred_on_its_bearing() {
-        // 18 pings at 0.98 m between no-echo pings (more than a run bridges, so not lost ones
-        // before the scan's ends): a 5 cm post at 1 m.
-        let ranges = cat(&[run(4, 0.0), run(18, 0.98), run(4, 0.0)]);
-        let r = rcds(-31.5, &ranges);
+        // 18 pings at 0.98 m between no-echo pings: a 5 cm post at 1 m.
+        let ranges = cat(&[run(3, 0.0), run(18, 0.98), run(3, 0.0)]);
+        let r = rcds(-30.0, &ranges);
         assert_eq!(r.len(), 1);
         let r = r[0];
         assert_eq!((r.start, r.end), (End::Natural, End::Natural));
@@ -835,13 +828,13 @@ pub(crate) mod tests {
     fn a_wall_behind_a_post_is_joined_across_it() {
         // Wall at 2 m, a post at 1 m hides its middle.
         let ranges = cat(&[
-            run(4, 0.0),
+            run(2, 0.0),
             run(6, 2.0),
             run(10, 0.98),
             run(6, 2.0),
-            run(4, 0.0),
+            run(2, 0.0),
         ]);
-        let r = rcds(-23.0, &ranges);
+        let r = rcds(-20.0, &ranges);
         assert_eq!(r.len(), 2, "{r:?}");
         let post = r.iter().find(|r| r.range_m < 1.5).unwrap();
         let wall = r.iter().find(|r| r.range_m > 1.5).unwrap();
@@ -882,18 +875,5 @@ pub(crate) mod tests {
         let r = regions(&gapped);
         assert_eq!(r.len(), 2);
         assert_eq!((r[0].end, r[1].start), (End::Unknown, End::Unknown));
-    }
-
-    #[test]
-    fn pings_lost_at_the_scan_ends_leave_the_edges_unknown() {
-        // The scan's first ping and its last two heard nothing: the wall may go on there, its
-        // cone's edges are not seen (a natural end would put a wall's normal one cut-off in).
-        let ranges = cat(&[vec![0.0], run(20, 1.2), vec![0.0, 0.0]]);
-        let r = rcds(0.0, &ranges);
-        assert_eq!(r.len(), 1);
-        assert_eq!((r[0].start, r[0].end), (End::Unknown, End::Unknown));
-        // Past more lost pings than a run bridges, nothing was heard there: natural.
-        let ranges = cat(&[run(20, 1.2), vec![0.0; 5]]);
-        assert_eq!(rcds(0.0, &ranges)[0].end, End::Natural);
     }
 }
