@@ -1308,6 +1308,7 @@ impl Output<'_> {
         // need not be zeroed first, and into a sample written before, a copy of what changed since
         // ([`SampleVersions`]). Stamped once the sample is complete, just before it goes.
         let mut whole_copy = false;
+        let mut sent = false;
         let stamp = match self.ports.grid.loan_slice_uninit(engine.grid_len()) {
             Ok(sample) => {
                 let payload = sample.payload().as_ptr();
@@ -1333,7 +1334,10 @@ impl Output<'_> {
                 let stamp = unix_time_ns();
                 *sample.user_header_mut() = engine.grid_header(self.seq, stamp, counts);
                 match sample.send() {
-                    Ok(_) => self.ledger.snapshot_published(),
+                    Ok(_) => {
+                        sent = true;
+                        self.ledger.snapshot_published();
+                    }
                     Err(e) => {
                         self.ledger.snapshot_skipped();
                         warn!("send grid: {e:?}");
@@ -1341,7 +1345,8 @@ impl Output<'_> {
                 }
                 stamp
             }
-            // Every slot held by slow subscribers: skip this snapshot, the next one comes.
+            // Every slot held by slow subscribers: skip this snapshot; the map stays dirty, so
+            // it is tried again after the pace's period even if no reading comes after it.
             Err(e) => {
                 self.ledger.snapshot_skipped();
                 warn!("loan grid sample: {e:?}");
@@ -1352,9 +1357,11 @@ impl Output<'_> {
             warn!("send radar: {e:?}");
         }
         self.notify();
-        debug!(seq = self.seq, whole_copy, "snapshot published");
+        debug!(seq = self.seq, whole_copy, sent, "snapshot published");
         let now = Instant::now();
-        self.dirty = false;
+        // A snapshot that did not go leaves the map dirty: the last readings' map must still be
+        // published when no reading follows them.
+        self.dirty = !sent;
         self.pace.sent(now);
         self.last_refresh = now;
         Ok(())
