@@ -452,46 +452,43 @@ impl Mapper {
         cells
     }
 
+    /// The cells on `beam`'s axis in front of its echo's band, nearest first, one per grid step
+    /// (none without an echo).
+    fn cells_in_front<'a>(
+        &'a self,
+        model: &SmoothModel,
+        beam: &'a Beam,
+    ) -> impl Iterator<Item = (usize, usize)> + 'a {
+        let geometry = self.grid.geometry();
+        let step = geometry.resolution();
+        let direction = Vector2::new(beam.axis.cos(), beam.axis.sin());
+        let steps = beam.echo.map_or(0, |range| {
+            let until = range - 2.0 * model.band(range);
+            (until / step).floor().max(0.0) as usize
+        });
+        (1..=steps).filter_map(move |k| {
+            let p = beam.position + direction * (k as f32 * step);
+            geometry.cell_at(p.into())
+        })
+    }
+
     /// Whether the grid holds an occupied cell on `beam`'s axis in front of its echo's band.
     fn occupied_in_front(&self, model: &SmoothModel, beam: &Beam, above: f32) -> bool {
-        let Some(range) = beam.echo else {
-            return false;
-        };
-        let grid = &self.grid;
-        let step = grid.geometry().resolution();
-        let direction = Vector2::new(beam.axis.cos(), beam.axis.sin());
-        let until = range - 2.0 * model.band(range);
-        let steps = (until / step).floor().max(0.0) as usize;
-        (1..=steps).any(|k| {
-            let p = beam.position + direction * (k as f32 * step);
-            grid.geometry()
-                .cell_at(p.into())
-                .and_then(|(x, y)| grid.probability(x, y))
-                .is_some_and(|p| p > above)
-        })
+        self.cells_in_front(model, beam)
+            .any(|(x, y)| self.grid.probability(x, y).is_some_and(|p| p > above))
     }
 
     /// Whether the grid holds a cell on `beam`'s axis in front of its echo's band that is occupied
     /// (p > [`WITHDRAW_ABOVE`]) and was heard from a bearing at least [`WITHDRAW_INCIDENCE_DEG`]
     /// off the axis: a wall the axis meets at a slant, which could not answer the reading.
     fn slanted_wall_in_front(&self, model: &SmoothModel, beam: &Beam) -> bool {
-        let Some(range) = beam.echo else {
-            return false;
-        };
-        let grid = &self.grid;
-        let step = grid.geometry().resolution();
-        let direction = Vector2::new(beam.axis.cos(), beam.axis.sin());
-        let until = range - 2.0 * model.band(range);
-        let steps = (until / step).floor().max(0.0) as usize;
         let min_incidence = WITHDRAW_INCIDENCE_DEG.to_radians();
-        (1..=steps).any(|k| {
-            let p = beam.position + direction * (k as f32 * step);
-            grid.geometry().cell_at(p.into()).is_some_and(|(x, y)| {
-                grid.probability(x, y).is_some_and(|p| p > WITHDRAW_ABOVE)
-                    && grid
-                        .heard_from(x, y)
-                        .is_none_or(|h| incidence(beam.axis, h) >= min_incidence)
-            })
+        let grid = &self.grid;
+        self.cells_in_front(model, beam).any(|(x, y)| {
+            grid.probability(x, y).is_some_and(|p| p > WITHDRAW_ABOVE)
+                && grid
+                    .heard_from(x, y)
+                    .is_none_or(|h| incidence(beam.axis, h) >= min_incidence)
         })
     }
 
