@@ -52,6 +52,22 @@ fn probe() -> Result<Flags, String> {
     Ok(flags)
 }
 
+/// The folders `pkg-config` looks for `.pc` files in, those that exist: `PKG_CONFIG_PATH`, then
+/// `PKG_CONFIG_LIBDIR` or else its built-in path.
+fn pkg_config_search_path() -> Vec<String> {
+    let builtin = env::var("PKG_CONFIG_LIBDIR")
+        .ok()
+        .or_else(|| pkg_config(&["--variable", "pc_path", "pkg-config"]).ok())
+        .unwrap_or_default();
+    env::var("PKG_CONFIG_PATH")
+        .unwrap_or_default()
+        .split(':')
+        .chain(builtin.trim().split(':'))
+        .filter(|dir| !dir.is_empty() && std::path::Path::new(dir).is_dir())
+        .map(str::to_owned)
+        .collect()
+}
+
 fn main() {
     println!("cargo::rustc-check-cfg=cfg(simavr)");
     println!("cargo::rerun-if-changed=build.rs");
@@ -73,6 +89,7 @@ fn main() {
         "SONAR_FIRMWARE_SIM_NO_SIMAVR",
         "PKG_CONFIG",
         "PKG_CONFIG_PATH",
+        "PKG_CONFIG_LIBDIR",
     ] {
         println!("cargo::rerun-if-env-changed={var}");
     }
@@ -85,6 +102,11 @@ fn main() {
     let flags = match probe() {
         Ok(flags) => flags,
         Err(why) => {
+            // Installing simavr adds its `.pc` file to one of these folders: watching them makes
+            // the next `cargo build` probe again, as the hint below promises.
+            for dir in pkg_config_search_path() {
+                println!("cargo::rerun-if-changed={dir}");
+            }
             println!(
                 "cargo::warning=simavr not found ({why}): sonar-firmware-sim is built without it and \
                  will only say so; {INSTALL_HINT}, then cargo build again"
