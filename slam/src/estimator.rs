@@ -1461,6 +1461,24 @@ mod tests {
         assert!(without > 0.04, "{with} m with ranging, {without} m without");
     }
 
+    /// A SLAM with its anchor's sweep at the origin and a second sweep (taken on the move or not)
+    /// `centimetres` straight on along x, the odometry exact and sampled every centimetre.
+    fn anchor_and_a_sweep_ahead(centimetres: u32, moving: bool) -> Slam {
+        let mut slam = Slam::new(SlamConfig::default()).unwrap();
+        slam.push_odometry(0, Isometry2::identity());
+        slam.add_sweep(0, 0, Isometry2::identity(), &[], &[], false);
+        for k in 1..=centimetres {
+            let x = 0.01 * f64::from(k);
+            slam.push_odometry(
+                u64::from(k) * 1000,
+                Isometry2::new(Vector2::new(x, 0.0), 0.0),
+            );
+        }
+        let odometry = Isometry2::new(Vector2::new(0.01 * f64::from(centimetres), 0.0), 0.0);
+        slam.add_sweep(1, u64::from(centimetres) * 1000, odometry, &[], &[], moving);
+        slam
+    }
+
     /// A wall seen from the map's anchor (exact) and again from a pose 2 m on, whose heading the
     /// odometry knows to σ: the two placements are compared with the two poses' joint covariance,
     /// so the wall is admitted when the second sighting is turned by 1σ and not at 3.5σ. (With
@@ -1469,18 +1487,7 @@ mod tests {
     #[test]
     fn a_wall_is_admitted_from_two_viewpoints_with_their_joint_covariance() {
         let admitted = |turned_sigmas: f64| {
-            let mut slam = Slam::new(SlamConfig::default()).unwrap();
-            slam.push_odometry(0, Isometry2::identity());
-            slam.add_sweep(0, 0, Isometry2::identity(), &[], &[], false);
-            for k in 1..=200u32 {
-                let x = 0.01 * f64::from(k);
-                slam.push_odometry(
-                    u64::from(k) * 1000,
-                    Isometry2::new(Vector2::new(x, 0.0), 0.0),
-                );
-            }
-            let odometry = Isometry2::new(Vector2::new(2.0, 0.0), 0.0);
-            slam.add_sweep(1, 200_000, odometry, &[], &[], false);
+            let mut slam = anchor_and_a_sweep_ahead(200, false);
             let pose = slam.poses[1].var;
             let heading_sigma = slam.graph.covariance(&[(pose, 3)]).unwrap()[(2, 2)].sqrt();
             assert!(heading_sigma > 3.0_f64.to_radians(), "{heading_sigma}");
@@ -1515,18 +1522,7 @@ mod tests {
     #[test]
     fn walls_cut_short_on_the_move_need_a_whole_sighting_to_be_admitted() {
         let admitted = |first_certain: bool, second_certain: bool| {
-            let mut slam = Slam::new(SlamConfig::default()).unwrap();
-            slam.push_odometry(0, Isometry2::identity());
-            slam.add_sweep(0, 0, Isometry2::identity(), &[], &[], false);
-            for k in 1..=50u32 {
-                let x = 0.01 * f64::from(k);
-                slam.push_odometry(
-                    u64::from(k) * 1000,
-                    Isometry2::new(Vector2::new(x, 0.0), 0.0),
-                );
-            }
-            let odometry = Isometry2::new(Vector2::new(0.5, 0.0), 0.0);
-            slam.add_sweep(1, 50_000, odometry, &[], &[], true);
+            let mut slam = anchor_and_a_sweep_ahead(50, true);
             // The end wall x = 5 straight ahead, from the anchor and from 0.5 m on.
             let sigma = Vector2::new(0.01, 1.0_f64.to_radians());
             slam.candidates.push(Candidate {
