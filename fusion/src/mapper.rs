@@ -359,16 +359,14 @@ impl Mapper {
             return 0;
         };
         let mut cells = 0;
-        let mut kept = VecDeque::with_capacity(regions.weak.len());
-        for beam in regions.weak.drain(..) {
-            if self.slanted_wall_in_front(&model, &beam) {
-                let echo = model.weak_echo(&beam, -model.region_weak_echo_log_odds);
-                cells += self.apply(&beam, &echo, kernel);
-            } else {
-                kept.push_back(beam);
+        regions.weak.retain(|beam| {
+            let withdrawn = self.slanted_wall_in_front(&model, beam);
+            if withdrawn {
+                let echo = model.weak_echo(beam, -model.region_weak_echo_log_odds);
+                cells += self.apply(beam, &echo, kernel);
             }
-        }
-        regions.weak = kept;
+            !withdrawn
+        });
         cells
     }
 
