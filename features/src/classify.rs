@@ -171,10 +171,7 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
     let whole_planes = |hs: &[Hypothesis]| -> Vec<Option<Bearing>> {
         hs.iter()
             .zip(rcds)
-            .map(|(h, r)| {
-                h.plane()
-                    .filter(|_| r.start.is_natural() && r.end.is_natural())
-            })
+            .map(|(h, r)| h.plane().filter(|_| r.is_whole()))
             .collect()
     };
     let candidates = whole_planes(&hypotheses);
@@ -247,7 +244,7 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
                     range_sigma_systematic_m: cfg.range_sigma_systematic_m(rcd.range_m),
                     bearing_sigma_deg: b.sigma,
                     rcd: i,
-                    whole: rcd.start.is_natural() && rcd.end.is_natural(),
+                    whole: rcd.is_whole(),
                 })
             })
         })
@@ -264,8 +261,7 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
 fn heard_over_the_beam_by_a_point(rcd: &Rcd, cfg: &FeatureConfig) -> bool {
     let cones = Cones::at(rcd.range_m, cfg);
     let tol = rcd.width_tolerance_deg(cfg.cone_sigma_deg);
-    rcd.start.is_natural()
-        && rcd.end.is_natural()
+    rcd.is_whole()
         && cones
             .corner
             .is_some_and(|corner| 2.0 * corner - 2.0 * cones.point <= 2.0 * tol)
@@ -365,7 +361,7 @@ fn corner_of_planes(
     cfg: &FeatureConfig,
 ) -> Option<(Bearing, Vec<usize>)> {
     let rcd = &rcds[i];
-    let whole = rcd.start.is_natural() && rcd.end.is_natural();
+    let whole = rcd.is_whole();
     match hypotheses[i].class {
         Class::Point | Class::TwoPoints => return None,
         Class::Plane if whole && !hypotheses[i].or_corner => return None,

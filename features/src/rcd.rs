@@ -86,6 +86,12 @@ pub struct Rcd {
 }
 
 impl Rcd {
+    /// Both ends natural: the target left its cone on each side, so the width was measured,
+    /// not bounded.
+    pub fn is_whole(&self) -> bool {
+        self.start.is_natural() && self.end.is_natural()
+    }
+
     /// Estimated edge of the cone at the lower bearing: the middle of its interval.
     pub fn start_edge_deg(&self) -> f64 {
         self.first_deg - self.start_interval_deg / 2.0
