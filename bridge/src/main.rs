@@ -296,7 +296,7 @@ fn publish_ros2(
         info!("signal received before start");
         return Ok(());
     }
-    let ports = Ports::open(&node)?;
+    let mut ports = Ports::open(&node)?;
     let grid_period = settings
         .min_interval
         .get(&Channel::Grid)
@@ -371,6 +371,7 @@ fn publish_ros2(
         for listener in &wakeups {
             ipc::drain_wakeups(listener)?;
         }
+        ports.retry_missing(&node);
         let mut outputs = ports.drain(&mut converter);
         if map_at.elapsed() >= map_period {
             let flushed = converter.flush_map();

@@ -6,6 +6,7 @@
 //! - [`ipc`]: the `#[repr(C)]` payloads exchanged over iceoryx2, their service names, and one function
 //!   per service so every process opens it with the same quality of service.
 //! - [`namespace`]: removes what processes killed while creating iceoryx2 resources left behind.
+//! - [`optional_port`]: a port a process can do without, opened again while it cannot be had.
 //! - [`logging`]: one way for every program to log and to report the error it stops with.
 //! - [`speed`]: simulated time against wall time; [`throttle`]: rate limits for frequent log lines.
 //! - [`toml_file`]: configuration files parsed with errors placed at the value at fault.
@@ -19,6 +20,7 @@ pub mod flood;
 pub mod ipc;
 pub mod logging;
 pub mod namespace;
+pub mod optional_port;
 pub mod protocol;
 pub mod sensor;
 pub mod speed;

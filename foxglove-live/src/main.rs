@@ -77,7 +77,7 @@ fn run(args: Args, flood: &FloodGuard) -> Result<()> {
         info!("signal received before start");
         return Ok(());
     }
-    let ports = Ports::open(&node)?;
+    let mut ports = Ports::open(&node)?;
     let mut converter = WellKnown::new(Options {
         ros2: false,
         grid_period_ns: u64::try_from(args.grid_period.as_nanos()).unwrap_or(u64::MAX),
@@ -118,6 +118,7 @@ fn run(args: Args, flood: &FloodGuard) -> Result<()> {
             last_flood_report = std::time::Instant::now();
             flood.report();
         }
+        ports.retry_missing(&node);
         for out in ports.drain(&mut converter) {
             if let Some(channel) = channels.get(&out.channel) {
                 channel.log_with_meta(&out.data, PartialMetadata::with_log_time(out.stamp_ns));

@@ -471,9 +471,9 @@ fn replaying_a_recorded_tour_gives_the_live_map() {
     // Odometry without errors: the map is where the scene has its walls.
     let (sim, count) = drive_tour(&live, &node, &readings, "5", ("0", "0"));
     let (live_header, live_cells) = map_after(&node, &live_grid, count);
-    for p in [recorder, sim] {
-        assert!(p.terminate().success());
-    }
+    let (status, recorder_log) = recorder.terminate_with_stderr();
+    assert!(status.success(), "{recorder_log}");
+    assert!(sim.terminate().success());
     let live_log = stopped_line(fusion);
     // The fusion placed the readings at the robot's poses: the last snapshot's is in the second
     // room's half of the corridor, 3 m and more from the start.
@@ -487,7 +487,7 @@ fn replaying_a_recorded_tour_gives_the_live_map() {
         .find_map(|l| l.strip_prefix("robot/pose: "))
         .and_then(|n| n.split_whitespace().next()?.parse().ok())
         .unwrap_or_else(|| panic!("no robot/pose line in\n{info_out}"));
-    assert!(poses > 100, "{info_out}");
+    assert!(poses > 100, "{info_out}\nsonar-record: {recorder_log}");
 
     let replay_box = Sandbox::new("rec_tour_replay");
     let replay_node = replay_box.node("test-replay");

@@ -3,6 +3,7 @@
 //! into the converter. The conversion itself stays free of I/O; this is its only reader.
 
 use std::fmt::Debug;
+use std::time::Instant;
 
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
@@ -12,51 +13,43 @@ use sonar_common::ipc::{
     self, FeatureRecord, FeaturesHeader, GridHeader, IpcError, LAYOUT_VERSION, LocalizedPose,
     Pose2D, PubSub, Reading, SlamCorrection,
 };
+use sonar_common::optional_port::OptionalPort;
 use tracing::warn;
 
 use crate::convert::{Output, WellKnown};
 
-/// The pipeline's services a live server reads; the optional ones are left out with a warning
-/// when their QoS has no room for another subscriber.
+/// The pipeline's services a live server reads; an optional one that cannot be had is left out
+/// with a warning and tried again every second ([`Ports::retry_missing`]): its QoS may have no
+/// room for another subscriber, or another process may be creating it at the same instant.
 #[derive(Debug)]
 pub struct Ports {
     readings: Subscriber<Ipc, Reading, ()>,
-    grid: Option<Subscriber<Ipc, [u8], GridHeader>>,
-    pose: Option<Subscriber<Ipc, Pose2D, ()>>,
+    grid: OptionalPort<Subscriber<Ipc, [u8], GridHeader>>,
+    pose: OptionalPort<Subscriber<Ipc, Pose2D, ()>>,
     /// The corrections of the odometry: the fusion's localisation and `sonar-slam`'s.
-    localized_pose: Option<Subscriber<Ipc, LocalizedPose, ()>>,
-    slam_correction: Option<Subscriber<Ipc, SlamCorrection, ()>>,
-    features: Option<Subscriber<Ipc, [FeatureRecord], FeaturesHeader>>,
+    localized_pose: OptionalPort<Subscriber<Ipc, LocalizedPose, ()>>,
+    slam_correction: OptionalPort<Subscriber<Ipc, SlamCorrection, ()>>,
+    features: OptionalPort<Subscriber<Ipc, [FeatureRecord], FeaturesHeader>>,
 }
 
 fn snapshot_subscriber<T: Debug + ZeroCopySend + 'static, H: Debug + ZeroCopySend + 'static>(
     service: Result<PortFactory<Ipc, [T], H>, IpcError>,
-    name: &str,
-) -> Option<Subscriber<Ipc, [T], H>> {
-    service
-        .and_then(|s| {
-            s.subscriber_builder()
-                .create()
-                .map_err(|e| IpcError::new("create subscriber", e))
-        })
-        .inspect_err(|e| warn!("not serving {name}: {e}"))
-        .ok()
+) -> Result<Subscriber<Ipc, [T], H>, IpcError> {
+    service?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| IpcError::new("create subscriber", e))
 }
 
-/// A subscriber of an optional service of single messages (left out with a warning).
-fn optional_subscriber<T: Debug + ZeroCopySend>(
+/// A subscriber of a service of single messages.
+fn subscriber<T: Debug + ZeroCopySend>(
     node: &Node<Ipc>,
     open: fn(&Node<Ipc>) -> Result<PubSub<T>, IpcError>,
-    name: &str,
-) -> Option<Subscriber<Ipc, T, ()>> {
-    open(node)
-        .and_then(|s| {
-            s.subscriber_builder()
-                .create()
-                .map_err(|e| IpcError::new("create subscriber", e))
-        })
-        .inspect_err(|e| warn!("not serving {name}: {e}"))
-        .ok()
+) -> Result<Subscriber<Ipc, T, ()>, IpcError> {
+    open(node)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| IpcError::new("create subscriber", e))
 }
 
 /// Each sample a subscriber holds (a failed receive is logged and ends the round).
@@ -85,47 +78,60 @@ impl Ports {
             .map_err(|e| IpcError::new("create readings subscriber", e))?;
         Ok(Self {
             readings,
-            grid: snapshot_subscriber(ipc::grid_service(node), ipc::GRID_SERVICE),
-            pose: optional_subscriber(node, ipc::pose_service, ipc::POSE_SERVICE),
-            localized_pose: optional_subscriber(
-                node,
-                ipc::localized_pose_service,
-                ipc::LOCALIZED_POSE_SERVICE,
-            ),
-            slam_correction: optional_subscriber(
-                node,
-                ipc::slam_correction_service,
-                ipc::SLAM_CORRECTION_SERVICE,
-            ),
-            features: snapshot_subscriber(ipc::features_service(node), ipc::FEATURES_SERVICE),
+            grid: OptionalPort::open(node, ipc::GRID_SERVICE, |n| {
+                snapshot_subscriber(ipc::grid_service(n))
+            }),
+            pose: OptionalPort::open(node, ipc::POSE_SERVICE, |n| {
+                subscriber(n, ipc::pose_service)
+            }),
+            localized_pose: OptionalPort::open(node, ipc::LOCALIZED_POSE_SERVICE, |n| {
+                subscriber(n, ipc::localized_pose_service)
+            }),
+            slam_correction: OptionalPort::open(node, ipc::SLAM_CORRECTION_SERVICE, |n| {
+                subscriber(n, ipc::slam_correction_service)
+            }),
+            features: OptionalPort::open(node, ipc::FEATURES_SERVICE, |n| {
+                snapshot_subscriber(ipc::features_service(n))
+            }),
         })
+    }
+
+    /// Tries again, once the retry period has passed, the optional subscriptions that could not
+    /// be had so far.
+    pub fn retry_missing(&mut self, node: &Node<Ipc>) {
+        let now = Instant::now();
+        self.grid.retry(node, now);
+        self.pose.retry(node, now);
+        self.localized_pose.retry(node, now);
+        self.slam_correction.retry(node, now);
+        self.features.retry(node, now);
     }
 
     /// Everything that arrived since the last call, converted.
     pub fn drain(&self, converter: &mut WellKnown) -> Vec<Output> {
         let mut out = Vec::new();
         // The corrections first: the pose's transforms carry the latest with them.
-        if let Some(sub) = &self.localized_pose {
+        if let Some(sub) = self.localized_pose.get() {
             for_each_sample!(sub, ipc::LOCALIZED_POSE_SERVICE, |sample| {
                 converter.localized_pose(sample.payload())
             });
         }
-        if let Some(sub) = &self.slam_correction {
+        if let Some(sub) = self.slam_correction.get() {
             for_each_sample!(sub, ipc::SLAM_CORRECTION_SERVICE, |sample| {
                 converter.slam_correction(sample.payload())
             });
         }
-        if let Some(sub) = &self.pose {
+        if let Some(sub) = self.pose.get() {
             for_each_sample!(sub, ipc::POSE_SERVICE, |sample| {
                 out.extend(converter.pose(sample.payload()))
             });
         }
-        if let Some(sub) = &self.features {
+        if let Some(sub) = self.features.get() {
             for_each_sample!(sub, ipc::FEATURES_SERVICE, |sample| {
                 out.extend(converter.features(sample.user_header(), sample.payload()))
             });
         }
-        if let Some(sub) = &self.grid {
+        if let Some(sub) = self.grid.get() {
             for_each_sample!(sub, ipc::GRID_SERVICE, |sample| {
                 let header = sample.user_header();
                 if header.layout_version == LAYOUT_VERSION {

@@ -38,6 +38,7 @@ use sonar_common::ipc::{
     self, FeatureRecord, FeaturesHeader, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, PubSub,
     Reading,
 };
+use sonar_common::optional_port::OptionalPort;
 use sonar_recorder::format::{FeatureSnapshot, Message, RecordingWriter, Topic};
 use sonar_recorder::{Ros2Bag, WellKnownChannels};
 use sonar_wellknown::Options as WellKnownOptions;
@@ -127,7 +128,7 @@ fn run(args: Args) -> Result<()> {
     // the process outright. Install it before subscribing, so that anyone who sees our
     // subscription may stop us cleanly.
     let signalled_early = node.wait(Duration::ZERO).is_err();
-    let ports = Ports::open(&node, !args.no_foxglove)?;
+    let mut ports = Ports::open(&node, !args.no_foxglove)?;
 
     // The file after the ports: a failure to set those up leaves no file behind.
     let started_ns = ipc::unix_time_ns();
@@ -195,7 +196,7 @@ fn run(args: Args) -> Result<()> {
         info!("signal received before the recording started");
         Ok(())
     } else {
-        recorder.run(&ports, &node, &args, &written)
+        recorder.run(&mut ports, &node, &args, &written)
     };
 
     // Closing the channel tells the writer to write what is queued and finish the file.
@@ -239,20 +240,23 @@ fn run(args: Args) -> Result<()> {
 }
 
 /// The subscriptions. Readings are required; the other services are recorded when a subscriber
-/// can be had (the commands' QoS allows only two subscribers, e.g. the driver and one recorder).
+/// can be had (the commands' QoS allows only two subscribers, e.g. the driver and one recorder),
+/// and tried again every second while it cannot (a service another process is creating at the
+/// same instant may fail to open for a moment on a loaded machine).
 struct Ports {
     readings: Subscriber<Ipc, Reading, ()>,
-    scan_commands: Option<Subscriber<Ipc, ipc::ScanCommand, ()>>,
-    fusion_commands: Option<Subscriber<Ipc, ipc::FusionCommand, ()>>,
-    pose: Option<Subscriber<Ipc, ipc::Pose2D, ()>>,
-    features: Option<Subscriber<Ipc, [FeatureRecord], FeaturesHeader>>,
+    scan_commands: OptionalPort<Subscriber<Ipc, ipc::ScanCommand, ()>>,
+    fusion_commands: OptionalPort<Subscriber<Ipc, ipc::FusionCommand, ()>>,
+    pose: OptionalPort<Subscriber<Ipc, ipc::Pose2D, ()>>,
+    features: OptionalPort<Subscriber<Ipc, [FeatureRecord], FeaturesHeader>>,
     /// The map, for the well-known channels only (not replayed: the fusion derives it).
-    grid: Option<Subscriber<Ipc, [u8], GridHeader>>,
+    grid: OptionalPort<Subscriber<Ipc, [u8], GridHeader>>,
     /// The corrections of the odometry, for the well-known channels' `map → odom` only (not
     /// replayed: the fusion or sonar-slam derives them).
-    localized_pose: Option<Subscriber<Ipc, ipc::LocalizedPose, ()>>,
-    slam_correction: Option<Subscriber<Ipc, ipc::SlamCorrection, ()>>,
-    /// Wake-up events: the readings' (required), then those of the other services.
+    localized_pose: OptionalPort<Subscriber<Ipc, ipc::LocalizedPose, ()>>,
+    slam_correction: OptionalPort<Subscriber<Ipc, ipc::SlamCorrection, ()>>,
+    /// Wake-up events: the readings' (required), then those of the other services had at start
+    /// (one had later is polled).
     listeners: Vec<Listener<Ipc>>,
 }
 
@@ -263,35 +267,54 @@ impl Ports {
             .create()
             .map_err(|e| IpcError::new("create readings subscriber", e))?;
         let mut listeners = vec![ipc::wakeup_listener(node, ipc::READINGS_SERVICE)?];
-        let scan_commands = optional(node, ipc::commands_service, Topic::ScanCommands);
-        let fusion_commands = optional(node, ipc::fusion_commands_service, Topic::FusionCommands);
-        let pose = optional(node, ipc::pose_service, Topic::Pose);
-        let features = snapshot_subscriber(ipc::features_service(node))
-            .inspect_err(|e| warn!("not recording {}: {e}", Topic::Features))
-            .ok();
-        let grid = if with_grid {
-            snapshot_subscriber(ipc::grid_service(node))
-                .inspect_err(|e| warn!("no map for Foxglove ({}): {e}", ipc::GRID_SERVICE))
-                .ok()
-        } else {
-            None
-        };
-        let (localized_pose, slam_correction) = if with_grid {
-            (
-                correction_subscriber(node, ipc::localized_pose_service),
-                correction_subscriber(node, ipc::slam_correction_service),
-            )
-        } else {
-            (None, None)
+        let ports = Self {
+            readings,
+            scan_commands: OptionalPort::open(node, ipc::COMMANDS_SERVICE, |n| {
+                subscriber(n, ipc::commands_service)
+            }),
+            fusion_commands: OptionalPort::open(node, ipc::FUSION_COMMANDS_SERVICE, |n| {
+                subscriber(n, ipc::fusion_commands_service)
+            }),
+            pose: OptionalPort::open(node, ipc::POSE_SERVICE, |n| {
+                subscriber(n, ipc::pose_service)
+            }),
+            features: OptionalPort::open(node, ipc::FEATURES_SERVICE, |n| {
+                snapshot_subscriber(ipc::features_service(n))
+            }),
+            grid: OptionalPort::open_if(with_grid, node, ipc::GRID_SERVICE, |n| {
+                snapshot_subscriber(ipc::grid_service(n))
+            }),
+            localized_pose: OptionalPort::open_if(
+                with_grid,
+                node,
+                ipc::LOCALIZED_POSE_SERVICE,
+                |n| subscriber(n, ipc::localized_pose_service),
+            ),
+            slam_correction: OptionalPort::open_if(
+                with_grid,
+                node,
+                ipc::SLAM_CORRECTION_SERVICE,
+                |n| subscriber(n, ipc::slam_correction_service),
+            ),
+            listeners: Vec::new(),
         };
         for (present, service) in [
-            (scan_commands.is_some(), Topic::ScanCommands.service()),
-            (fusion_commands.is_some(), Topic::FusionCommands.service()),
-            (pose.is_some(), Topic::Pose.service()),
-            (features.is_some(), Topic::Features.service()),
-            (grid.is_some(), ipc::GRID_SERVICE),
-            (localized_pose.is_some(), ipc::LOCALIZED_POSE_SERVICE),
-            (slam_correction.is_some(), ipc::SLAM_CORRECTION_SERVICE),
+            (ports.scan_commands.get().is_some(), ipc::COMMANDS_SERVICE),
+            (
+                ports.fusion_commands.get().is_some(),
+                ipc::FUSION_COMMANDS_SERVICE,
+            ),
+            (ports.pose.get().is_some(), ipc::POSE_SERVICE),
+            (ports.features.get().is_some(), ipc::FEATURES_SERVICE),
+            (ports.grid.get().is_some(), ipc::GRID_SERVICE),
+            (
+                ports.localized_pose.get().is_some(),
+                ipc::LOCALIZED_POSE_SERVICE,
+            ),
+            (
+                ports.slam_correction.get().is_some(),
+                ipc::SLAM_CORRECTION_SERVICE,
+            ),
         ] {
             if present {
                 match ipc::wakeup_listener(node, service) {
@@ -300,17 +323,20 @@ impl Ports {
                 }
             }
         }
-        Ok(Self {
-            readings,
-            scan_commands,
-            fusion_commands,
-            pose,
-            features,
-            grid,
-            localized_pose,
-            slam_correction,
-            listeners,
-        })
+        Ok(Self { listeners, ..ports })
+    }
+
+    /// Tries again, once the retry period has passed, the optional subscriptions that could not
+    /// be had so far.
+    fn retry_missing(&mut self, node: &Node<Ipc>) {
+        let now = Instant::now();
+        self.scan_commands.retry(node, now);
+        self.fusion_commands.retry(node, now);
+        self.pose.retry(node, now);
+        self.features.retry(node, now);
+        self.grid.retry(node, now);
+        self.localized_pose.retry(node, now);
+        self.slam_correction.retry(node, now);
     }
 }
 
@@ -333,26 +359,6 @@ fn subscriber<T: Debug + ZeroCopySend>(
         .subscriber_builder()
         .create()
         .map_err(|e| IpcError::new("create subscriber", e))
-}
-
-fn optional<T: Debug + ZeroCopySend>(
-    node: &Node<Ipc>,
-    open: fn(&Node<Ipc>) -> Result<PubSub<T>, IpcError>,
-    topic: Topic,
-) -> Option<Subscriber<Ipc, T, ()>> {
-    subscriber(node, open)
-        .inspect_err(|e| warn!("not recording {topic}: {e}"))
-        .ok()
-}
-
-/// A subscriber of a correction of the odometry, for Foxglove's and ROS 2's `map → odom`.
-fn correction_subscriber<T: Debug + ZeroCopySend>(
-    node: &Node<Ipc>,
-    open: fn(&Node<Ipc>) -> Result<PubSub<T>, IpcError>,
-) -> Option<Subscriber<Ipc, T, ()>> {
-    subscriber(node, open)
-        .inspect_err(|e| warn!("no correction of the odometry for Foxglove: {e}"))
-        .ok()
 }
 
 /// What the main thread hands the writer thread.
@@ -380,7 +386,7 @@ struct Recorder {
 impl Recorder {
     fn run(
         &mut self,
-        ports: &Ports,
+        ports: &mut Ports,
         node: &Node<Ipc>,
         args: &Args,
         written: &Written,
@@ -388,8 +394,11 @@ impl Recorder {
         let waitset = WaitSetBuilder::new()
             .create::<Ipc>()
             .map_err(|e| IpcError::new("create waitset", e))?;
+        // The listeners apart from the ports: the waitset holds them while missing ports are
+        // tried again.
+        let listeners = std::mem::take(&mut ports.listeners);
         let mut _guards = Vec::new();
-        for l in &ports.listeners {
+        for l in &listeners {
             _guards.push(
                 waitset
                     .attach_notification(l)
@@ -414,9 +423,10 @@ impl Recorder {
                 Ok(_) => {}
                 Err(e) => return Err(IpcError::new("wait for readings", e).into()),
             }
-            for l in &ports.listeners {
+            for l in &listeners {
                 let _ = l.try_wait(|_| {});
             }
+            ports.retry_missing(node);
             let done = self.drain_all(ports);
             if self.writer_gone {
                 bail!("the writer stopped");
@@ -465,7 +475,7 @@ impl Recorder {
     fn drain_all(&mut self, ports: &Ports) -> bool {
         let now = ipc::unix_time_ns();
         // The corrections before the poses: a pose's transforms carry the latest with them.
-        if let Some(sub) = &ports.localized_pose {
+        if let Some(sub) = ports.localized_pose.get() {
             self.drain_items(
                 ipc::LOCALIZED_POSE_SERVICE,
                 || sub.receive(),
@@ -473,7 +483,7 @@ impl Recorder {
                 |s| Item::LocalizedPose(*s.payload()),
             );
         }
-        if let Some(sub) = &ports.slam_correction {
+        if let Some(sub) = ports.slam_correction.get() {
             self.drain_items(
                 ipc::SLAM_CORRECTION_SERVICE,
                 || sub.receive(),
@@ -481,19 +491,19 @@ impl Recorder {
                 |s| Item::SlamCorrection(*s.payload()),
             );
         }
-        if let Some(sub) = &ports.scan_commands {
+        if let Some(sub) = ports.scan_commands.get() {
             let next = || Ok::<_, ReceiveError>(sub.receive()?.map(|s| Message::ScanCommand(*s)));
             self.drain(Topic::ScanCommands, next, now);
         }
-        if let Some(sub) = &ports.fusion_commands {
+        if let Some(sub) = ports.fusion_commands.get() {
             let next = || Ok::<_, ReceiveError>(sub.receive()?.map(|s| Message::FusionCommand(*s)));
             self.drain(Topic::FusionCommands, next, now);
         }
-        if let Some(sub) = &ports.pose {
+        if let Some(sub) = ports.pose.get() {
             let next = || Ok::<_, ReceiveError>(sub.receive()?.map(|s| Message::Pose(*s)));
             self.drain(Topic::Pose, next, now);
         }
-        if let Some(sub) = &ports.features {
+        if let Some(sub) = ports.features.get() {
             // History 1 and one snapshot a sweep: rarely more than one per wake-up.
             let next = || {
                 Ok::<_, ReceiveError>(sub.receive()?.map(|s| {
@@ -505,7 +515,7 @@ impl Recorder {
             };
             self.drain(Topic::Features, next, now);
         }
-        if let Some(sub) = &ports.grid {
+        if let Some(sub) = ports.grid.get() {
             self.drain_grid(sub, now);
         }
         self.drain_readings(&ports.readings)
