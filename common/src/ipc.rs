@@ -807,6 +807,12 @@ impl IpcError {
             message,
         }
     }
+
+    /// Whether the service had no room for another port of this kind: a limit of its QoS, not a
+    /// passing state (a port had later would take the place of one the pipeline needs).
+    pub fn is_service_full(&self) -> bool {
+        self.message.contains("ExceedsMaxSupported")
+    }
 }
 
 /// Where the iceoryx2 services live. Every process of one pipeline must get the same values.

@@ -1,13 +1,14 @@
 //! A port of a service a process can do without, opened again while it cannot be had.
 //!
 //! A recorder or a live server subscribes to what it finds useful (the odometry, the map, the
-//! corrections) and goes on without what it cannot have: a subscriber QoS already full, say. But
-//! an opening can also fail for a moment, when another process of the pipeline is creating the
-//! same service at the same instant on a loaded machine; given up for good, the port would be
-//! missing for the rest of the run, silently (a recording of a tour without its odometry). So a
-//! port that could not be had is tried again, at most every [`RETRY_PERIOD`], for as long as the
-//! process runs: the first failure is a warning, later ones are debug lines, the success an info
-//! line.
+//! corrections) and goes on without what it cannot have. A service whose QoS has no room for
+//! another port is left out for good: a port had later would take the place of a process the
+//! pipeline needs (a restarted fusion's, say). But an opening can also fail for a moment, when
+//! another process of the pipeline is creating the same service at the same instant on a loaded
+//! machine; given up for good, the port would be missing for the rest of the run, silently (a
+//! recording of a tour without its odometry). So such a port is tried again, at most every
+//! [`RETRY_PERIOD`], for as long as the process runs: the first failure is a warning, later ones
+//! are debug lines, the success an info line.
 
 use std::time::{Duration, Instant};
 
@@ -27,27 +28,34 @@ pub struct OptionalPort<P> {
     name: &'static str,
     open: fn(&Node<Ipc>) -> Result<P, IpcError>,
     port: Option<P>,
-    /// When it is tried next; never for a port not wanted.
+    /// When it is tried next; never for a port had, not wanted, or whose service is full.
     next_try: Option<Instant>,
 }
 
 impl<P> OptionalPort<P> {
-    /// Opens the port with `open`; on failure warns once and leaves it to [`Self::retry`].
+    /// Opens the port with `open`; on a failure other than a full service, warns once and leaves
+    /// it to [`Self::retry`].
     pub fn open(
         node: &Node<Ipc>,
         name: &'static str,
         open: fn(&Node<Ipc>) -> Result<P, IpcError>,
     ) -> Self {
-        let port = open(node)
-            .inspect_err(|e| {
-                warn!("{name} cannot be had for now (tried again every {RETRY_PERIOD:?}): {e}")
-            })
-            .ok();
+        let (port, next_try) = match open(node) {
+            Ok(port) => (Some(port), None),
+            Err(e) if e.is_service_full() => {
+                warn!("left out {name}: {e}");
+                (None, None)
+            }
+            Err(e) => {
+                warn!("{name} cannot be had for now (tried again every {RETRY_PERIOD:?}): {e}");
+                (None, Some(Instant::now() + RETRY_PERIOD))
+            }
+        };
         Self {
             name,
             open,
             port,
-            next_try: Some(Instant::now() + RETRY_PERIOD),
+            next_try,
         }
     }
 
@@ -87,6 +95,11 @@ impl<P> OptionalPort<P> {
                 self.port = Some(port);
                 true
             }
+            Err(e) if e.is_service_full() => {
+                warn!("left out {}: {e}", self.name);
+                self.next_try = None;
+                false
+            }
             Err(e) => {
                 debug!("{} still cannot be had: {e}", self.name);
                 false
@@ -114,6 +127,17 @@ mod tests {
         }
     }
 
+    static FULL_CALLS: AtomicUsize = AtomicUsize::new(0);
+
+    /// Always full.
+    fn full(_: &Node<Ipc>) -> Result<u32, IpcError> {
+        FULL_CALLS.fetch_add(1, Ordering::SeqCst);
+        Err(IpcError::new(
+            "create subscriber",
+            "ExceedsMaxSupportedSubscribers",
+        ))
+    }
+
     #[test]
     fn a_port_that_fails_is_tried_again_each_period_until_it_opens() {
         let root = std::env::temp_dir().join(format!("sonar_optport_{}", std::process::id()));
@@ -135,6 +159,12 @@ mod tests {
         assert_eq!(port.get(), Some(&7));
         assert!(!port.retry(&node, start + RETRY_PERIOD * 8));
         assert_eq!(CALLS.load(Ordering::SeqCst), 3);
+
+        // A full service is left out for good: a place had later would be someone else's.
+        let mut port = OptionalPort::open(&node, "test/full", full);
+        assert!(!port.retry(&node, start + RETRY_PERIOD * 2));
+        assert!(port.get().is_none());
+        assert_eq!(FULL_CALLS.load(Ordering::SeqCst), 1);
         drop(node);
         let _ = std::fs::remove_dir_all(root);
     }
