@@ -815,6 +815,18 @@ impl IpcError {
     }
 }
 
+/// How long iceoryx2 waits for another process to finish creating what both share (a service, a
+/// connection between a publisher and a subscriber), unless a config file says otherwise;
+/// iceoryx2's default is 1 s. A connection that times out is never tried again by iceoryx2 (not
+/// until the port list changes: `port::details::receiver`), so a subscriber whose publisher is
+/// descheduled for a second while creating their connection receives nothing from it for the
+/// rest of the run, and the publisher's sends still succeed. (On a loaded 2-core CI machine a
+/// recording of a tour came out without its odometry while the simulator had sent every pose;
+/// this is the one way found to lose a whole stream like that, not reproduced here.) Waiting
+/// longer costs nothing when the creator is alive; a dead creator's leftovers are removed before
+/// a node starts ([`crate::namespace`]), whose own patience this matches.
+pub const CREATION_PATIENCE: std::time::Duration = crate::namespace::PATIENCE;
+
 /// Where the iceoryx2 services live. Every process of one pipeline must get the same values.
 #[derive(Debug, Clone, Default, clap::Args)]
 pub struct IpcArgs {
@@ -842,7 +854,11 @@ impl IpcArgs {
                 Config::from_file(&path)
                     .map_err(|e| IpcError::new(format!("read {}", file.display()), e))?
             }
-            None => Config::global_config().clone(),
+            None => {
+                let mut cfg = Config::global_config().clone();
+                cfg.global.creation_timeout = cfg.global.creation_timeout.max(CREATION_PATIENCE);
+                cfg
+            }
         };
         if let Some(prefix) = &self.iox_prefix {
             cfg.global.prefix = FileName::new(prefix.as_bytes())
@@ -1324,6 +1340,15 @@ mod tests {
         );
         writer.write_all(b"x").unwrap();
         assert!(woke_within(Duration::from_secs(10)));
+    }
+
+    /// Without a config file, iceoryx2 waits at least [`CREATION_PATIENCE`] for a creation by
+    /// another process (its own default, 1 s, is shorter than a loaded machine's stalls).
+    #[test]
+    fn without_a_config_file_a_creation_is_waited_for_patiently() {
+        let cfg = IpcArgs::default().config().unwrap();
+        assert!(cfg.global.creation_timeout >= CREATION_PATIENCE);
+        assert!(Config::default().global.creation_timeout < CREATION_PATIENCE);
     }
 
     /// The defaults `--help` names for --iox-prefix and --iox-root are iceoryx2's.
