@@ -51,7 +51,7 @@ use std::f32::consts::PI;
 use crate::config::FusionConfig;
 use crate::geometry::{GridGeometry, SensorCell, off_axis, polar};
 use crate::grid::Layer;
-use crate::model::CellEvidence;
+use crate::model::{CellEvidence, radial_trust};
 use crate::observation::{Beam, Limits};
 use crate::rule::{Combine, Domain};
 
@@ -63,7 +63,9 @@ const ANGLE_KEYS: usize = 1440;
 pub(crate) const PARKED_AFTER: u32 = 16;
 
 /// A reading's evidence for the cell at range `r` and world bearing `bearing`, in the rule's
-/// domain; NaN (no evidence) outside the rule's cone of `cone` radians around `axis`.
+/// domain; NaN (no evidence) outside the rule's cone of `cone` radians around `axis`. `trust`
+/// is the cell's radial trust if the caller keeps it ([`CellEvidence::FADES`]; log-odds rules
+/// only), else `None` and the model works it out: the same bits either way.
 #[inline(always)]
 pub(crate) fn cell_evidence<R: Combine, E: CellEvidence>(
     evidence: &E,
@@ -71,11 +73,13 @@ pub(crate) fn cell_evidence<R: Combine, E: CellEvidence>(
     cone: f32,
     r: f32,
     bearing: f32,
+    trust: Option<f32>,
 ) -> f32 {
     let alpha = off_axis(bearing, axis);
-    let e = match R::DOMAIN {
-        Domain::Probability => evidence.probability(r, alpha),
-        Domain::LogOdds => evidence.log_odds(r, alpha),
+    let e = match (R::DOMAIN, trust) {
+        (Domain::Probability, _) => evidence.probability(r, alpha),
+        (Domain::LogOdds, None) => evidence.log_odds(r, alpha),
+        (Domain::LogOdds, Some(trust)) => evidence.trusted_log_odds(r, alpha, trust),
     };
     if alpha.abs() <= cone { e } else { f32::NAN }
 }
@@ -87,23 +91,29 @@ pub(crate) fn heard_cell_evidence<R: Combine, E: CellEvidence>(
     evidence: &E,
     axis: f32,
     cone: f32,
-    r: f32,
-    bearing: f32,
+    (r, bearing): (f32, f32),
     heard: &mut f32,
+    trust: Option<f32>,
 ) -> f32 {
     let alpha = off_axis(bearing, axis);
     let inside = alpha.abs() <= cone;
     let mut h = *heard;
-    let e = match R::DOMAIN {
-        Domain::Probability => evidence.heard_probability(r, alpha, bearing, &mut h),
-        Domain::LogOdds => evidence.heard_log_odds(r, alpha, bearing, &mut h),
+    let e = match (R::DOMAIN, trust) {
+        (Domain::Probability, _) => evidence.heard_probability(r, alpha, bearing, &mut h),
+        (Domain::LogOdds, None) => evidence.heard_log_odds(r, alpha, bearing, &mut h),
+        (Domain::LogOdds, Some(trust)) => {
+            evidence.trusted_heard_log_odds(r, alpha, bearing, &mut h, trust)
+        }
     };
     *heard = if inside { h } else { *heard };
     if inside { e } else { f32::NAN }
 }
 
-/// Fuses a reading into a run of cells whose (range, bearing) `polar` yields in order; returns how
-/// many cells it updated. `heard` holds the run's bearings each cell was last heard occupied from
+/// A cell's range (metres), world bearing and radial trust, as the row loop takes them.
+pub(crate) type Polar = (f32, f32, f32);
+
+/// Fuses a reading into a run of cells whose (range, bearing, radial trust) `polar` yields in
+/// order; returns how many cells it updated. `heard` holds the run's bearings each cell was last heard occupied from
 /// if the model hears ([`CellEvidence::HEARD`]), and is empty otherwise.
 #[inline(always)]
 pub(crate) fn fuse_run<R: Combine, E: CellEvidence>(
@@ -113,20 +123,21 @@ pub(crate) fn fuse_run<R: Combine, E: CellEvidence>(
     cone: f32,
     cells: &mut [R::Cell],
     heard: &mut [f32],
-    polar: impl Iterator<Item = (f32, f32)>,
+    polar: impl Iterator<Item = Polar>,
 ) -> usize {
     // Counted in u32, the width of the cells' lanes: a usize counter would make the vectoriser
     // pair each f32 lane with a 64-bit one and halve the vector width. A run is at most a grid
     // row (≤ `MAX_CELLS_PER_SIDE` cells), so it cannot overflow.
     let mut updated = 0u32;
     if E::HEARD {
-        for ((cell, heard), (r, bearing)) in cells.iter_mut().zip(heard).zip(polar) {
-            let e = heard_cell_evidence::<R, E>(evidence, axis, cone, r, bearing, heard);
+        for ((cell, heard), (r, bearing, trust)) in cells.iter_mut().zip(heard).zip(polar) {
+            let e =
+                heard_cell_evidence::<R, E>(evidence, axis, cone, (r, bearing), heard, Some(trust));
             updated += u32::from(rule.fuse(cell, e));
         }
     } else {
-        for (cell, (r, bearing)) in cells.iter_mut().zip(polar) {
-            let e = cell_evidence::<R, E>(evidence, axis, cone, r, bearing);
+        for (cell, (r, bearing, trust)) in cells.iter_mut().zip(polar) {
+            let e = cell_evidence::<R, E>(evidence, axis, cone, r, bearing, Some(trust));
             updated += u32::from(rule.fuse(cell, e));
         }
     }
@@ -293,6 +304,9 @@ struct Stencil {
     side: usize,
     range: Vec<f32>,
     bearing: Vec<f32>,
+    /// The cells' radial trust at `fade` ([`radial_trust`]), if `fade` is a range (not NaN).
+    trust: Vec<f32>,
+    fade: f32,
     /// Per row, the columns filled so far (`lo > hi`: none): cells are computed the first time a
     /// reading from here visits them, so a sensor parked for one sweep pays for the cells its
     /// readings reach, not for the whole square.
@@ -309,6 +323,8 @@ impl Stencil {
             side,
             range: vec![0.0; side * side],
             bearing: vec![0.0; side * side],
+            trust: vec![0.0; side * side],
+            fade: f32::NAN,
             filled: vec![EMPTY_SPAN; side],
         };
         stencil.park(sensor);
@@ -351,14 +367,23 @@ impl Stencil {
         self.filled[row] = [lo.min(from), hi.max(to)];
     }
 
-    /// Computes the cells `lo..=hi` of row `oy`.
+    /// Computes the cells `lo..=hi` of row `oy` (their trust only if the stencil keeps it).
     fn compute(&mut self, oy: i64, lo: i64, hi: i64) {
         let (s, len) = (self.at(lo, oy), (hi - lo + 1) as usize);
         let cells = self.range[s..s + len]
             .iter_mut()
             .zip(&mut self.bearing[s..s + len]);
-        for ((r, a), polar) in cells.zip(self.sensor.row(oy, lo, len)) {
-            (*r, *a) = polar;
+        for ((r, a), (range, bearing, _)) in cells.zip(self.sensor.row(oy, lo, len, f32::NAN)) {
+            (*r, *a) = (range, bearing);
+        }
+        if !self.fade.is_nan() {
+            let fade = self.fade;
+            for (t, &r) in self.trust[s..s + len]
+                .iter_mut()
+                .zip(&self.range[s..s + len])
+            {
+                *t = radial_trust(r, fade);
+            }
         }
     }
 
@@ -370,32 +395,52 @@ impl Stencil {
 /// A row's span with no cells.
 const EMPTY_SPAN: [i64; 2] = [i64::MAX, i64::MIN];
 
-/// Where the cells' ranges and bearings of a row come from: computed from the sensor's position
-/// ([`SensorCell`]), or loaded from the [`Stencil`] of a parked sensor. Both give the same bits.
+/// Where the cells' ranges, bearings and radial trust of a row come from: computed from the
+/// sensor's position ([`SensorCell`]), or loaded from the [`Stencil`] of a parked sensor. Both
+/// give the same bits.
 trait RowPolar {
-    /// Range and bearing of the cells `lo`, `lo` + 1, … (`len` of them) of row `oy`, in offsets
-    /// from the sensor's cell.
-    fn row(&mut self, oy: i64, lo: i64, len: usize) -> impl Iterator<Item = (f32, f32)>;
+    /// Range, bearing and radial trust at `fade` (NaN: the reading has no use for it, and it is
+    /// not to be relied on) of the cells `lo`, `lo` + 1, … (`len` of them) of row `oy`, in
+    /// offsets from the sensor's cell.
+    fn row(&mut self, oy: i64, lo: i64, len: usize, fade: f32) -> impl Iterator<Item = Polar>;
 }
 
 impl RowPolar for SensorCell {
     #[inline(always)]
-    fn row(&mut self, oy: i64, lo: i64, _len: usize) -> impl Iterator<Item = (f32, f32)> {
+    fn row(&mut self, oy: i64, lo: i64, _len: usize, fade: f32) -> impl Iterator<Item = Polar> {
         let dy = oy as f32 + self.to_centre[1];
         let (to_x, resolution) = (self.to_centre[0], self.resolution());
         // Offsets in i32, whose lanes are as wide as the cells' (an i64 counter would halve the
-        // vectors, as for `fuse_run`'s count); a row's offsets are within the grid's side.
-        (lo as i32..).map(move |ox| polar(ox as f32 + to_x, dy, resolution))
+        // vectors, as for `fuse_run`'s count); a row's offsets are within the grid's side. The
+        // trust, where the reading does not use it, is optimised away with its square root.
+        (lo as i32..).map(move |ox| {
+            let (r, bearing) = polar(ox as f32 + to_x, dy, resolution);
+            (r, bearing, radial_trust(r, fade))
+        })
     }
 }
 
 impl RowPolar for Stencil {
     #[inline(always)]
-    fn row(&mut self, oy: i64, lo: i64, len: usize) -> impl Iterator<Item = (f32, f32)> {
+    fn row(&mut self, oy: i64, lo: i64, len: usize, fade: f32) -> impl Iterator<Item = Polar> {
+        if !fade.is_nan() && fade.to_bits() != self.fade.to_bits() {
+            // The trust kept is for another fade range (or none): fill the cells again.
+            self.fade = fade;
+            self.filled.fill(EMPTY_SPAN);
+        }
         self.cover(oy, lo, lo + len as i64 - 1);
         let s = self.at(lo, oy);
+        // Without a fade the trust is not used, and its loads are optimised away.
+        let trust = if fade.is_nan() {
+            &self.range
+        } else {
+            &self.trust
+        };
         let range = self.range[s..s + len].iter().copied();
-        range.zip(self.bearing[s..s + len].iter().copied())
+        let polar = range.zip(self.bearing[s..s + len].iter().copied());
+        polar
+            .zip(trust[s..s + len].iter().copied())
+            .map(|((r, bearing), trust)| (r, bearing, trust))
     }
 }
 
@@ -495,12 +540,20 @@ impl ConeCache {
         let stencil = self.parking.stencil_for(&sensor, radius);
         let (cell, n) = (sensor.cell, geometry.cells_per_side() as i64);
         let k = (reach / resolution).ceil() as i64 + 1;
+        // The cells' radial trust, for the evidence that is weighted by it and a rule that takes
+        // log-odds (the probability forms work it out themselves).
+        let fade = if E::FADES && R::DOMAIN == Domain::LogOdds {
+            evidence.fade_range()
+        } else {
+            f32::NAN
+        };
         let pass = RowPass {
             spans,
             cell,
             radius,
             n,
             k,
+            fade,
         };
         match stencil {
             Some(stencil) => dispatch(layer, heard, evidence, beam.axis, cone, &pass, stencil),
@@ -548,6 +601,8 @@ struct RowPass<'a> {
     n: i64,
     /// The reading's reach in cells, plus one.
     k: i64,
+    /// The range at which the evidence's radial trust is one half, NaN if it is not used.
+    fade: f32,
 }
 
 /// The fast kernel's pass: [`fuse_run`] along each row's span, clipped to the reach and the
@@ -568,6 +623,7 @@ fn fuse_rows<R: Combine, E: CellEvidence, P: RowPolar>(
         radius,
         n,
         k,
+        fade,
     } = *pass;
     let mut updated = 0;
     for (row, &[lo, hi]) in (spans.first_row..).zip(&spans.rows) {
@@ -596,7 +652,7 @@ fn fuse_rows<R: Combine, E: CellEvidence, P: RowPolar>(
             cone,
             cells,
             heard_run(heard, &run),
-            polar.row(row, lo, len),
+            polar.row(row, lo, len, fade),
         );
         layer.end_run(run, changed);
         updated += changed;
