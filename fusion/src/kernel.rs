@@ -331,6 +331,15 @@ impl Stencil {
         stencil
     }
 
+    /// Keeps the cells' radial trust at `fade` from now on (NaN: as it was); the cells filled so
+    /// far are filled again if it kept another (or none).
+    fn keep_trust(&mut self, fade: f32) {
+        if !fade.is_nan() && fade.to_bits() != self.fade.to_bits() {
+            self.fade = fade;
+            self.filled.fill(EMPTY_SPAN);
+        }
+    }
+
     /// Empties the stencil for a sensor parked at `sensor`; the memory is kept.
     fn park(&mut self, sensor: &SensorCell) {
         self.to_centre = sensor.to_centre.map(f32::to_bits);
@@ -399,15 +408,19 @@ const EMPTY_SPAN: [i64; 2] = [i64::MAX, i64::MIN];
 /// sensor's position ([`SensorCell`]), or loaded from the [`Stencil`] of a parked sensor. Both
 /// give the same bits.
 trait RowPolar {
+    /// Makes the cells `lo`, `lo` + 1, … (`len` of them) of row `oy` ready for [`Self::row`]
+    /// (before the pass over the rows: the stencil fills them).
+    fn prepare(&mut self, _oy: i64, _lo: i64, _len: usize) {}
+
     /// Range, bearing and radial trust at `fade` (NaN: the reading has no use for it, and it is
     /// not to be relied on) of the cells `lo`, `lo` + 1, … (`len` of them) of row `oy`, in
     /// offsets from the sensor's cell.
-    fn row(&mut self, oy: i64, lo: i64, len: usize, fade: f32) -> impl Iterator<Item = Polar>;
+    fn row(&self, oy: i64, lo: i64, len: usize, fade: f32) -> impl Iterator<Item = Polar>;
 }
 
 impl RowPolar for SensorCell {
     #[inline(always)]
-    fn row(&mut self, oy: i64, lo: i64, _len: usize, fade: f32) -> impl Iterator<Item = Polar> {
+    fn row(&self, oy: i64, lo: i64, _len: usize, fade: f32) -> impl Iterator<Item = Polar> {
         let dy = oy as f32 + self.to_centre[1];
         let (to_x, resolution) = (self.to_centre[0], self.resolution());
         // Offsets in i32, whose lanes are as wide as the cells' (an i64 counter would halve the
@@ -422,13 +435,12 @@ impl RowPolar for SensorCell {
 
 impl RowPolar for Stencil {
     #[inline(always)]
-    fn row(&mut self, oy: i64, lo: i64, len: usize, fade: f32) -> impl Iterator<Item = Polar> {
-        if !fade.is_nan() && fade.to_bits() != self.fade.to_bits() {
-            // The trust kept is for another fade range (or none): fill the cells again.
-            self.fade = fade;
-            self.filled.fill(EMPTY_SPAN);
-        }
+    fn prepare(&mut self, oy: i64, lo: i64, len: usize) {
         self.cover(oy, lo, lo + len as i64 - 1);
+    }
+
+    #[inline(always)]
+    fn row(&self, oy: i64, lo: i64, len: usize, fade: f32) -> impl Iterator<Item = Polar> {
         let s = self.at(lo, oy);
         // Without a fade the trust is not used, and its loads are optimised away.
         let trust = if fade.is_nan() {
@@ -454,6 +466,8 @@ pub(crate) struct ConeCache {
     limits: Limits,
     spans: Vec<Option<Box<Spans>>>,
     parking: Parking,
+    /// The current reading's runs of cells, one per row ([`plan_runs`]); kept for the memory.
+    runs: Vec<RowRun>,
 }
 
 /// The stencil of a parked sensor, and the position a sensor may be parking at.
@@ -506,6 +520,7 @@ impl ConeCache {
             limits: config.sensor.limits(),
             spans: (0..ANGLE_KEYS).map(|_| None).collect(),
             parking: Parking::default(),
+            runs: Vec::new(),
         }
     }
 
@@ -547,19 +562,35 @@ impl ConeCache {
         } else {
             f32::NAN
         };
-        let pass = RowPass {
-            spans,
-            cell,
-            radius,
-            n,
-            k,
-            fade,
-        };
+        let reach = RowReach { cell, radius, n, k };
+        let runs = &mut self.runs;
         match stencil {
-            Some(stencil) => dispatch(layer, heard, evidence, beam.axis, cone, &pass, stencil),
-            None => dispatch(layer, heard, evidence, beam.axis, cone, &pass, &mut {
-                sensor
-            }),
+            Some(stencil) => {
+                stencil.keep_trust(fade);
+                plan_runs(spans, &reach, runs, stencil);
+                dispatch(
+                    layer,
+                    heard,
+                    evidence,
+                    beam.axis,
+                    cone,
+                    (runs, fade),
+                    stencil,
+                )
+            }
+            None => {
+                let mut sensor = sensor;
+                plan_runs(spans, &reach, runs, &mut sensor);
+                dispatch(
+                    layer,
+                    heard,
+                    evidence,
+                    beam.axis,
+                    cone,
+                    (runs, fade),
+                    &sensor,
+                )
+            }
         }
     }
 }
@@ -572,8 +603,8 @@ fn dispatch<R: Combine, E: CellEvidence, P: RowPolar>(
     evidence: &E,
     axis: f32,
     cone: f32,
-    pass: &RowPass<'_>,
-    polar: &mut P,
+    pass: RowPass<'_>,
+    polar: &P,
 ) -> usize {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx512f")
@@ -590,9 +621,8 @@ fn dispatch<R: Combine, E: CellEvidence, P: RowPolar>(
     fuse_rows(layer, heard, evidence, axis, cone, pass, polar)
 }
 
-/// What a reading's pass over the rows needs besides the layer and the evidence.
-struct RowPass<'a> {
-    spans: &'a Spans,
+/// Where a reading's rows may run: what [`plan_runs`] clips the spans to.
+struct RowReach {
     /// The sensor's cell.
     cell: [i64; 2],
     /// Rows and columns the spans (and a stencil) reach from the sensor's cell.
@@ -601,39 +631,42 @@ struct RowPass<'a> {
     n: i64,
     /// The reading's reach in cells, plus one.
     k: i64,
-    /// The range at which the evidence's radial trust is one half, NaN if it is not used.
-    fade: f32,
 }
 
-/// The fast kernel's pass: [`fuse_run`] along each row's span, clipped to the reach and the
-/// grid, the cells' ranges and bearings from `polar`.
-#[inline(always)]
-fn fuse_rows<R: Combine, E: CellEvidence, P: RowPolar>(
-    layer: &mut Layer<R>,
-    heard: &mut [f32],
-    evidence: &E,
-    axis: f32,
-    cone: f32,
-    pass: &RowPass<'_>,
-    polar: &mut P,
-) -> usize {
-    let RowPass {
-        spans,
+/// One row's run of cells for a reading: its cells `first..first + len` of the grid, which are
+/// the columns `lo`, `lo` + 1, … of row `oy` in offsets from the sensor's cell.
+#[derive(Clone, Copy)]
+struct RowRun {
+    oy: i64,
+    lo: i64,
+    first: usize,
+    len: usize,
+}
+
+/// What the pass over the rows takes besides the layer and the evidence: the runs, and the
+/// range at which the evidence's radial trust is one half (NaN: not used).
+type RowPass<'a> = (&'a [RowRun], f32);
+
+/// The runs of a reading: each row's span clipped to the reach and the grid and widened to whole
+/// vectors, the cells of each made ready by `polar` ([`RowPolar::prepare`]). Worked out before
+/// the pass over the rows ([`fuse_rows`]), so that the pass carries only the vector loop and
+/// what each run needs (the clipping kept the loop's constants from staying in registers).
+fn plan_runs<P: RowPolar>(spans: &Spans, reach: &RowReach, runs: &mut Vec<RowRun>, polar: &mut P) {
+    let RowReach {
         cell: [cx, cy],
         radius,
         n,
         k,
-        fade,
-    } = *pass;
-    let mut updated = 0;
-    for (row, &[lo, hi]) in (spans.first_row..).zip(&spans.rows) {
-        let gy = cy + row;
-        if row.abs() > k || !(0..n).contains(&gy) {
+    } = *reach;
+    runs.clear();
+    for (oy, &[lo, hi]) in (spans.first_row..).zip(&spans.rows) {
+        let gy = cy + oy;
+        if oy.abs() > k || !(0..n).contains(&gy) {
             continue;
         }
         // The reach's disc, conservatively: a cell centre lies within half a cell of its
         // offset, so the disc is widened by a cell.
-        let near = (row.abs() - 1).max(0) as f32;
+        let near = (oy.abs() - 1).max(0) as f32;
         let half = ((k * k) as f32 - near * near).max(0.0).sqrt().ceil() as i64 + 1;
         let lo = lo.max(-half).max(-cx);
         let hi = hi.min(half).min(n - 1 - cx);
@@ -641,8 +674,31 @@ fn fuse_rows<R: Combine, E: CellEvidence, P: RowPolar>(
             continue;
         }
         let (lo, hi) = whole_vectors(lo, hi, (-radius).max(-cx), radius.min(n - 1 - cx));
-        let first = (gy * n + cx + lo) as usize;
         let len = (hi - lo + 1) as usize;
+        polar.prepare(oy, lo, len);
+        runs.push(RowRun {
+            oy,
+            lo,
+            first: (gy * n + cx + lo) as usize,
+            len,
+        });
+    }
+}
+
+/// The fast kernel's pass: [`fuse_run`] along each run of the reading ([`plan_runs`]), the
+/// cells' ranges, bearings and radial trust from `polar`.
+#[inline(always)]
+fn fuse_rows<R: Combine, E: CellEvidence, P: RowPolar>(
+    layer: &mut Layer<R>,
+    heard: &mut [f32],
+    evidence: &E,
+    axis: f32,
+    cone: f32,
+    (runs, fade): RowPass<'_>,
+    polar: &P,
+) -> usize {
+    let mut updated = 0;
+    for &RowRun { oy, lo, first, len } in runs {
         let run = first..first + len;
         let (rule, cells) = layer.begin_run(run.clone());
         let changed = fuse_run(
@@ -652,7 +708,7 @@ fn fuse_rows<R: Combine, E: CellEvidence, P: RowPolar>(
             cone,
             cells,
             heard_run(heard, &run),
-            polar.row(row, lo, len, fade),
+            polar.row(oy, lo, len, fade),
         );
         layer.end_run(run, changed);
         updated += changed;
@@ -672,8 +728,8 @@ fn fuse_rows_avx2<R: Combine, E: CellEvidence, P: RowPolar>(
     evidence: &E,
     axis: f32,
     cone: f32,
-    pass: &RowPass<'_>,
-    polar: &mut P,
+    pass: RowPass<'_>,
+    polar: &P,
 ) -> usize {
     fuse_rows(layer, heard, evidence, axis, cone, pass, polar)
 }
@@ -690,8 +746,8 @@ fn fuse_rows_avx512<R: Combine, E: CellEvidence, P: RowPolar>(
     evidence: &E,
     axis: f32,
     cone: f32,
-    pass: &RowPass<'_>,
-    polar: &mut P,
+    pass: RowPass<'_>,
+    polar: &P,
 ) -> usize {
     fuse_rows(layer, heard, evidence, axis, cone, pass, polar)
 }
