@@ -633,10 +633,11 @@ struct RowReach {
     k: i64,
 }
 
-/// One row's run of cells for a reading: its cells `first..first + len` of the grid, which are
-/// the columns `lo`, `lo` + 1, … of row `oy` in offsets from the sensor's cell.
+/// One row's run of cells for a reading: its cells `first..first + len` of the grid, in its row
+/// `row`, which are the columns `lo`, `lo` + 1, … of row `oy` in offsets from the sensor's cell.
 #[derive(Clone, Copy)]
 struct RowRun {
+    row: usize,
     oy: i64,
     lo: i64,
     first: usize,
@@ -677,6 +678,7 @@ fn plan_runs<P: RowPolar>(spans: &Spans, reach: &RowReach, runs: &mut Vec<RowRun
         let len = (hi - lo + 1) as usize;
         polar.prepare(oy, lo, len);
         runs.push(RowRun {
+            row: gy as usize,
             oy,
             lo,
             first: (gy * n + cx + lo) as usize,
@@ -698,7 +700,14 @@ fn fuse_rows<R: Combine, E: CellEvidence, P: RowPolar>(
     polar: &P,
 ) -> usize {
     let mut updated = 0;
-    for &RowRun { oy, lo, first, len } in runs {
+    for &RowRun {
+        row,
+        oy,
+        lo,
+        first,
+        len,
+    } in runs
+    {
         let run = first..first + len;
         let (rule, cells) = layer.begin_run(run.clone());
         let changed = fuse_run(
@@ -710,7 +719,7 @@ fn fuse_rows<R: Combine, E: CellEvidence, P: RowPolar>(
             heard_run(heard, &run),
             polar.row(oy, lo, len, fade),
         );
-        layer.end_run(run, changed);
+        layer.end_row_run(row, run, changed);
         updated += changed;
     }
     updated
