@@ -35,10 +35,15 @@
 //!   computing them (the square root and the division share one unit of the core), so once
 //!   [`PARKED_AFTER`] readings in a row came from one position within a cell, as from a head
 //!   scanning standing still, the kernel keeps the cells' ranges and bearings around it
-//!   ([`Stencil`], the same [`polar`]) and loads them for the readings from there. It fills each
-//!   row's cells the first time a reading from there visits them: filling the whole square at
-//!   once (641 k cells at 1 cm) cost about 1.2 ms per stop, more than a stop-and-scan robot's two
-//!   sweeps there saved.
+//!   ([`Stencil`], the same [`polar`]), with their radial trust (a pure function of the range,
+//!   [`crate::model::radial_trust`], for the models weighted by it), and loads them for the
+//!   readings from there. It fills each row's cells the first time a reading from there visits
+//!   them: filling the whole square at once (641 k cells at 1 cm) cost about 1.2 ms per stop,
+//!   more than a stop-and-scan robot's two sweeps there saved.
+//! - **Runs planned, then fused.** A reading first clips each row's span and fills the stencil
+//!   ([`plan_runs`], scalar), then the vectorised pass runs along those runs alone: the clipping
+//!   inside the pass kept the loop's constants from staying in registers across rows, and cost as
+//!   many instructions per row as a row's loop (`docs/benchmarks.md`, "The kernel per reading").
 //!
 //! No path allocates once warm: the spans of a direction are made on its first reading, the
 //! stencil's memory when a sensor first parks (and kept when it parks elsewhere).
