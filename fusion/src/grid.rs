@@ -84,7 +84,7 @@ impl<R: Combine> Layer<R> {
         }
     }
 
-    /// The cells of `run`, for a kernel to fuse into; hand the run back to [`Self::end_run`] with
+    /// The cells of `run`, for a kernel to fuse into; hand the run back to [`Self::end_row_run`] with
     /// how many cells changed. (Two calls rather than one taking the kernel as a closure: a
     /// closure is not inlined into the kernel's AVX2 build, and the kernel's loop would lose its
     /// vectors.)
@@ -94,30 +94,47 @@ impl<R: Combine> Layer<R> {
     }
 
     /// Notes `run` for the next [`Self::flush`] if the kernel changed any of its cells: widens
-    /// the dirty span of each row it covers (a kernel's runs lie within a row).
-    #[inline(always)]
+    /// the dirty span of each row it covers. The tests' random runs may span rows; the cone
+    /// kernel's lie within one, and it calls [`Self::end_row_run`].
+    #[cfg(test)]
     pub fn end_run(&mut self, run: Range<usize>, updated: usize) {
         if updated > 0 {
             self.note_dirty(run);
         }
     }
 
+    /// Notes `run`, within row `row`, for the next [`Self::flush`] if the kernel changed any of
+    /// its cells: widens the row's dirty span (the kernel knows the row: no division to find it).
+    #[inline(always)]
+    pub fn end_row_run(&mut self, row: usize, run: Range<usize>, updated: usize) {
+        if updated > 0 {
+            let row_start = row * self.row_len;
+            self.note_dirty_in_row(row, run.start - row_start, run.end - row_start);
+        }
+    }
+
+    #[cfg(test)]
     fn note_dirty(&mut self, run: Range<usize>) {
         let mut start = run.start;
         while start < run.end {
             let row = start / self.row_len;
             let row_start = row * self.row_len;
             let end = run.end.min(row_start + self.row_len);
-            // Offsets within a row fit: a row is a side of the grid.
-            let (a, b) = ((start - row_start) as u32, (end - row_start) as u32);
-            let span = &mut self.dirty_spans[row];
-            if Range::is_empty(span) {
-                self.dirty_rows.push(row as u32);
-                *span = a..b;
-            } else {
-                *span = span.start.min(a)..span.end.max(b);
-            }
+            self.note_dirty_in_row(row, start - row_start, end - row_start);
             start = end;
+        }
+    }
+
+    /// Widens the dirty span of row `row` to hold its cells `a..b`.
+    fn note_dirty_in_row(&mut self, row: usize, a: usize, b: usize) {
+        // Offsets within a row fit: a row is a side of the grid.
+        let (a, b) = (a as u32, b as u32);
+        let span = &mut self.dirty_spans[row];
+        if Range::is_empty(span) {
+            self.dirty_rows.push(row as u32);
+            *span = a..b;
+        } else {
+            *span = span.start.min(a)..span.end.max(b);
         }
     }
 

@@ -35,10 +35,15 @@
 //!   computing them (the square root and the division share one unit of the core), so once
 //!   [`PARKED_AFTER`] readings in a row came from one position within a cell, as from a head
 //!   scanning standing still, the kernel keeps the cells' ranges and bearings around it
-//!   ([`Stencil`], the same [`polar`]) and loads them for the readings from there. It fills each
-//!   row's cells the first time a reading from there visits them: filling the whole square at
-//!   once (641 k cells at 1 cm) cost about 1.2 ms per stop, more than a stop-and-scan robot's two
-//!   sweeps there saved.
+//!   ([`Stencil`], the same [`polar`]), with their radial trust (a pure function of the range,
+//!   [`crate::model::radial_trust`], for the models weighted by it), and loads them for the
+//!   readings from there. It fills each row's cells the first time a reading from there visits
+//!   them: filling the whole square at once (641 k cells at 1 cm) cost about 1.2 ms per stop,
+//!   more than a stop-and-scan robot's two sweeps there saved.
+//! - **Runs planned, then fused.** A reading first clips each row's span and fills the stencil
+//!   ([`plan_runs`], scalar), then the vectorised pass runs along those runs alone: the clipping
+//!   inside the pass kept the loop's constants from staying in registers across rows, and cost as
+//!   many instructions per row as a row's loop (`docs/benchmarks.md`, "The kernel per reading").
 //!
 //! No path allocates once warm: the spans of a direction are made on its first reading, the
 //! stencil's memory when a sensor first parks (and kept when it parks elsewhere).
@@ -51,7 +56,7 @@ use std::f32::consts::PI;
 use crate::config::FusionConfig;
 use crate::geometry::{GridGeometry, SensorCell, off_axis, polar};
 use crate::grid::Layer;
-use crate::model::CellEvidence;
+use crate::model::{CellEvidence, radial_trust};
 use crate::observation::{Beam, Limits};
 use crate::rule::{Combine, Domain};
 
@@ -63,7 +68,9 @@ const ANGLE_KEYS: usize = 1440;
 pub(crate) const PARKED_AFTER: u32 = 16;
 
 /// A reading's evidence for the cell at range `r` and world bearing `bearing`, in the rule's
-/// domain; NaN (no evidence) outside the rule's cone of `cone` radians around `axis`.
+/// domain; NaN (no evidence) outside the rule's cone of `cone` radians around `axis`. `trust`
+/// is the cell's radial trust if the caller keeps it ([`CellEvidence::FADES`]; log-odds rules
+/// only), else `None` and the model works it out: the same bits either way.
 #[inline(always)]
 pub(crate) fn cell_evidence<R: Combine, E: CellEvidence>(
     evidence: &E,
@@ -71,11 +78,13 @@ pub(crate) fn cell_evidence<R: Combine, E: CellEvidence>(
     cone: f32,
     r: f32,
     bearing: f32,
+    trust: Option<f32>,
 ) -> f32 {
     let alpha = off_axis(bearing, axis);
-    let e = match R::DOMAIN {
-        Domain::Probability => evidence.probability(r, alpha),
-        Domain::LogOdds => evidence.log_odds(r, alpha),
+    let e = match (R::DOMAIN, trust) {
+        (Domain::Probability, _) => evidence.probability(r, alpha),
+        (Domain::LogOdds, None) => evidence.log_odds(r, alpha),
+        (Domain::LogOdds, Some(trust)) => evidence.trusted_log_odds(r, alpha, trust),
     };
     if alpha.abs() <= cone { e } else { f32::NAN }
 }
@@ -87,23 +96,29 @@ pub(crate) fn heard_cell_evidence<R: Combine, E: CellEvidence>(
     evidence: &E,
     axis: f32,
     cone: f32,
-    r: f32,
-    bearing: f32,
+    (r, bearing): (f32, f32),
     heard: &mut f32,
+    trust: Option<f32>,
 ) -> f32 {
     let alpha = off_axis(bearing, axis);
     let inside = alpha.abs() <= cone;
     let mut h = *heard;
-    let e = match R::DOMAIN {
-        Domain::Probability => evidence.heard_probability(r, alpha, bearing, &mut h),
-        Domain::LogOdds => evidence.heard_log_odds(r, alpha, bearing, &mut h),
+    let e = match (R::DOMAIN, trust) {
+        (Domain::Probability, _) => evidence.heard_probability(r, alpha, bearing, &mut h),
+        (Domain::LogOdds, None) => evidence.heard_log_odds(r, alpha, bearing, &mut h),
+        (Domain::LogOdds, Some(trust)) => {
+            evidence.trusted_heard_log_odds(r, alpha, bearing, &mut h, trust)
+        }
     };
     *heard = if inside { h } else { *heard };
     if inside { e } else { f32::NAN }
 }
 
-/// Fuses a reading into a run of cells whose (range, bearing) `polar` yields in order; returns how
-/// many cells it updated. `heard` holds the run's bearings each cell was last heard occupied from
+/// A cell's range (metres), world bearing and radial trust, as the row loop takes them.
+pub(crate) type Polar = (f32, f32, f32);
+
+/// Fuses a reading into a run of cells whose (range, bearing, radial trust) `polar` yields in
+/// order; returns how many cells it updated. `heard` holds the run's bearings each cell was last heard occupied from
 /// if the model hears ([`CellEvidence::HEARD`]), and is empty otherwise.
 #[inline(always)]
 pub(crate) fn fuse_run<R: Combine, E: CellEvidence>(
@@ -113,20 +128,21 @@ pub(crate) fn fuse_run<R: Combine, E: CellEvidence>(
     cone: f32,
     cells: &mut [R::Cell],
     heard: &mut [f32],
-    polar: impl Iterator<Item = (f32, f32)>,
+    polar: impl Iterator<Item = Polar>,
 ) -> usize {
     // Counted in u32, the width of the cells' lanes: a usize counter would make the vectoriser
     // pair each f32 lane with a 64-bit one and halve the vector width. A run is at most a grid
     // row (≤ `MAX_CELLS_PER_SIDE` cells), so it cannot overflow.
     let mut updated = 0u32;
     if E::HEARD {
-        for ((cell, heard), (r, bearing)) in cells.iter_mut().zip(heard).zip(polar) {
-            let e = heard_cell_evidence::<R, E>(evidence, axis, cone, r, bearing, heard);
+        for ((cell, heard), (r, bearing, trust)) in cells.iter_mut().zip(heard).zip(polar) {
+            let e =
+                heard_cell_evidence::<R, E>(evidence, axis, cone, (r, bearing), heard, Some(trust));
             updated += u32::from(rule.fuse(cell, e));
         }
     } else {
-        for (cell, (r, bearing)) in cells.iter_mut().zip(polar) {
-            let e = cell_evidence::<R, E>(evidence, axis, cone, r, bearing);
+        for (cell, (r, bearing, trust)) in cells.iter_mut().zip(polar) {
+            let e = cell_evidence::<R, E>(evidence, axis, cone, r, bearing, Some(trust));
             updated += u32::from(rule.fuse(cell, e));
         }
     }
@@ -293,6 +309,9 @@ struct Stencil {
     side: usize,
     range: Vec<f32>,
     bearing: Vec<f32>,
+    /// The cells' radial trust at `fade` ([`radial_trust`]), if `fade` is a range (not NaN).
+    trust: Vec<f32>,
+    fade: f32,
     /// Per row, the columns filled so far (`lo > hi`: none): cells are computed the first time a
     /// reading from here visits them, so a sensor parked for one sweep pays for the cells its
     /// readings reach, not for the whole square.
@@ -309,10 +328,21 @@ impl Stencil {
             side,
             range: vec![0.0; side * side],
             bearing: vec![0.0; side * side],
+            trust: vec![0.0; side * side],
+            fade: f32::NAN,
             filled: vec![EMPTY_SPAN; side],
         };
         stencil.park(sensor);
         stencil
+    }
+
+    /// Keeps the cells' radial trust at `fade` from now on (NaN: as it was); the cells filled so
+    /// far are filled again if it kept another (or none).
+    fn keep_trust(&mut self, fade: f32) {
+        if !fade.is_nan() && fade.to_bits() != self.fade.to_bits() {
+            self.fade = fade;
+            self.filled.fill(EMPTY_SPAN);
+        }
     }
 
     /// Empties the stencil for a sensor parked at `sensor`; the memory is kept.
@@ -351,14 +381,23 @@ impl Stencil {
         self.filled[row] = [lo.min(from), hi.max(to)];
     }
 
-    /// Computes the cells `lo..=hi` of row `oy`.
+    /// Computes the cells `lo..=hi` of row `oy` (their trust only if the stencil keeps it).
     fn compute(&mut self, oy: i64, lo: i64, hi: i64) {
         let (s, len) = (self.at(lo, oy), (hi - lo + 1) as usize);
         let cells = self.range[s..s + len]
             .iter_mut()
             .zip(&mut self.bearing[s..s + len]);
-        for ((r, a), polar) in cells.zip(self.sensor.row(oy, lo, len)) {
-            (*r, *a) = polar;
+        for ((r, a), (range, bearing, _)) in cells.zip(self.sensor.row(oy, lo, len, f32::NAN)) {
+            (*r, *a) = (range, bearing);
+        }
+        if !self.fade.is_nan() {
+            let fade = self.fade;
+            for (t, &r) in self.trust[s..s + len]
+                .iter_mut()
+                .zip(&self.range[s..s + len])
+            {
+                *t = radial_trust(r, fade);
+            }
         }
     }
 
@@ -370,32 +409,55 @@ impl Stencil {
 /// A row's span with no cells.
 const EMPTY_SPAN: [i64; 2] = [i64::MAX, i64::MIN];
 
-/// Where the cells' ranges and bearings of a row come from: computed from the sensor's position
-/// ([`SensorCell`]), or loaded from the [`Stencil`] of a parked sensor. Both give the same bits.
+/// Where the cells' ranges, bearings and radial trust of a row come from: computed from the
+/// sensor's position ([`SensorCell`]), or loaded from the [`Stencil`] of a parked sensor. Both
+/// give the same bits.
 trait RowPolar {
-    /// Range and bearing of the cells `lo`, `lo` + 1, … (`len` of them) of row `oy`, in offsets
-    /// from the sensor's cell.
-    fn row(&mut self, oy: i64, lo: i64, len: usize) -> impl Iterator<Item = (f32, f32)>;
+    /// Makes the cells `lo`, `lo` + 1, … (`len` of them) of row `oy` ready for [`Self::row`]
+    /// (before the pass over the rows: the stencil fills them).
+    fn prepare(&mut self, _oy: i64, _lo: i64, _len: usize) {}
+
+    /// Range, bearing and radial trust at `fade` (NaN: the reading has no use for it, and it is
+    /// not to be relied on) of the cells `lo`, `lo` + 1, … (`len` of them) of row `oy`, in
+    /// offsets from the sensor's cell.
+    fn row(&self, oy: i64, lo: i64, len: usize, fade: f32) -> impl Iterator<Item = Polar>;
 }
 
 impl RowPolar for SensorCell {
     #[inline(always)]
-    fn row(&mut self, oy: i64, lo: i64, _len: usize) -> impl Iterator<Item = (f32, f32)> {
+    fn row(&self, oy: i64, lo: i64, _len: usize, fade: f32) -> impl Iterator<Item = Polar> {
         let dy = oy as f32 + self.to_centre[1];
         let (to_x, resolution) = (self.to_centre[0], self.resolution());
         // Offsets in i32, whose lanes are as wide as the cells' (an i64 counter would halve the
-        // vectors, as for `fuse_run`'s count); a row's offsets are within the grid's side.
-        (lo as i32..).map(move |ox| polar(ox as f32 + to_x, dy, resolution))
+        // vectors, as for `fuse_run`'s count); a row's offsets are within the grid's side. The
+        // trust, where the reading does not use it, is optimised away with its square root.
+        (lo as i32..).map(move |ox| {
+            let (r, bearing) = polar(ox as f32 + to_x, dy, resolution);
+            (r, bearing, radial_trust(r, fade))
+        })
     }
 }
 
 impl RowPolar for Stencil {
     #[inline(always)]
-    fn row(&mut self, oy: i64, lo: i64, len: usize) -> impl Iterator<Item = (f32, f32)> {
+    fn prepare(&mut self, oy: i64, lo: i64, len: usize) {
         self.cover(oy, lo, lo + len as i64 - 1);
+    }
+
+    #[inline(always)]
+    fn row(&self, oy: i64, lo: i64, len: usize, fade: f32) -> impl Iterator<Item = Polar> {
         let s = self.at(lo, oy);
+        // Without a fade the trust is not used, and its loads are optimised away.
+        let trust = if fade.is_nan() {
+            &self.range
+        } else {
+            &self.trust
+        };
         let range = self.range[s..s + len].iter().copied();
-        range.zip(self.bearing[s..s + len].iter().copied())
+        let polar = range.zip(self.bearing[s..s + len].iter().copied());
+        polar
+            .zip(trust[s..s + len].iter().copied())
+            .map(|((r, bearing), trust)| (r, bearing, trust))
     }
 }
 
@@ -409,6 +471,8 @@ pub(crate) struct ConeCache {
     limits: Limits,
     spans: Vec<Option<Box<Spans>>>,
     parking: Parking,
+    /// The current reading's runs of cells, one per row ([`plan_runs`]); kept for the memory.
+    runs: Vec<RowRun>,
 }
 
 /// The stencil of a parked sensor, and the position a sensor may be parking at.
@@ -461,6 +525,7 @@ impl ConeCache {
             limits: config.sensor.limits(),
             spans: (0..ANGLE_KEYS).map(|_| None).collect(),
             parking: Parking::default(),
+            runs: Vec::new(),
         }
     }
 
@@ -495,18 +560,42 @@ impl ConeCache {
         let stencil = self.parking.stencil_for(&sensor, radius);
         let (cell, n) = (sensor.cell, geometry.cells_per_side() as i64);
         let k = (reach / resolution).ceil() as i64 + 1;
-        let pass = RowPass {
-            spans,
-            cell,
-            radius,
-            n,
-            k,
+        // The cells' radial trust, for the evidence that is weighted by it and a rule that takes
+        // log-odds (the probability forms work it out themselves).
+        let fade = if E::FADES && R::DOMAIN == Domain::LogOdds {
+            evidence.fade_range()
+        } else {
+            f32::NAN
         };
+        let reach = RowReach { cell, radius, n, k };
+        let runs = &mut self.runs;
         match stencil {
-            Some(stencil) => dispatch(layer, heard, evidence, beam.axis, cone, &pass, stencil),
-            None => dispatch(layer, heard, evidence, beam.axis, cone, &pass, &mut {
-                sensor
-            }),
+            Some(stencil) => {
+                stencil.keep_trust(fade);
+                plan_runs(spans, &reach, runs, stencil);
+                dispatch(
+                    layer,
+                    heard,
+                    evidence,
+                    beam.axis,
+                    cone,
+                    (runs, fade),
+                    stencil,
+                )
+            }
+            None => {
+                let mut sensor = sensor;
+                plan_runs(spans, &reach, runs, &mut sensor);
+                dispatch(
+                    layer,
+                    heard,
+                    evidence,
+                    beam.axis,
+                    cone,
+                    (runs, fade),
+                    &sensor,
+                )
+            }
         }
     }
 }
@@ -519,8 +608,8 @@ fn dispatch<R: Combine, E: CellEvidence, P: RowPolar>(
     evidence: &E,
     axis: f32,
     cone: f32,
-    pass: &RowPass<'_>,
-    polar: &mut P,
+    pass: RowPass<'_>,
+    polar: &P,
 ) -> usize {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx512f")
@@ -537,9 +626,8 @@ fn dispatch<R: Combine, E: CellEvidence, P: RowPolar>(
     fuse_rows(layer, heard, evidence, axis, cone, pass, polar)
 }
 
-/// What a reading's pass over the rows needs besides the layer and the evidence.
-struct RowPass<'a> {
-    spans: &'a Spans,
+/// Where a reading's rows may run: what [`plan_runs`] clips the spans to.
+struct RowReach {
     /// The sensor's cell.
     cell: [i64; 2],
     /// Rows and columns the spans (and a stencil) reach from the sensor's cell.
@@ -550,34 +638,41 @@ struct RowPass<'a> {
     k: i64,
 }
 
-/// The fast kernel's pass: [`fuse_run`] along each row's span, clipped to the reach and the
-/// grid, the cells' ranges and bearings from `polar`.
-#[inline(always)]
-fn fuse_rows<R: Combine, E: CellEvidence, P: RowPolar>(
-    layer: &mut Layer<R>,
-    heard: &mut [f32],
-    evidence: &E,
-    axis: f32,
-    cone: f32,
-    pass: &RowPass<'_>,
-    polar: &mut P,
-) -> usize {
-    let RowPass {
-        spans,
+/// One row's run of cells for a reading: its cells `first..first + len` of the grid, in its row
+/// `row`, which are the columns `lo`, `lo` + 1, … of row `oy` in offsets from the sensor's cell.
+#[derive(Clone, Copy)]
+struct RowRun {
+    row: usize,
+    oy: i64,
+    lo: i64,
+    first: usize,
+    len: usize,
+}
+
+/// What the pass over the rows takes besides the layer and the evidence: the runs, and the
+/// range at which the evidence's radial trust is one half (NaN: not used).
+type RowPass<'a> = (&'a [RowRun], f32);
+
+/// The runs of a reading: each row's span clipped to the reach and the grid and widened to whole
+/// vectors, the cells of each made ready by `polar` ([`RowPolar::prepare`]). Worked out before
+/// the pass over the rows ([`fuse_rows`]), so that the pass carries only the vector loop and
+/// what each run needs (the clipping kept the loop's constants from staying in registers).
+fn plan_runs<P: RowPolar>(spans: &Spans, reach: &RowReach, runs: &mut Vec<RowRun>, polar: &mut P) {
+    let RowReach {
         cell: [cx, cy],
         radius,
         n,
         k,
-    } = *pass;
-    let mut updated = 0;
-    for (row, &[lo, hi]) in (spans.first_row..).zip(&spans.rows) {
-        let gy = cy + row;
-        if row.abs() > k || !(0..n).contains(&gy) {
+    } = *reach;
+    runs.clear();
+    for (oy, &[lo, hi]) in (spans.first_row..).zip(&spans.rows) {
+        let gy = cy + oy;
+        if oy.abs() > k || !(0..n).contains(&gy) {
             continue;
         }
         // The reach's disc, conservatively: a cell centre lies within half a cell of its
         // offset, so the disc is widened by a cell.
-        let near = (row.abs() - 1).max(0) as f32;
+        let near = (oy.abs() - 1).max(0) as f32;
         let half = ((k * k) as f32 - near * near).max(0.0).sqrt().ceil() as i64 + 1;
         let lo = lo.max(-half).max(-cx);
         let hi = hi.min(half).min(n - 1 - cx);
@@ -585,8 +680,39 @@ fn fuse_rows<R: Combine, E: CellEvidence, P: RowPolar>(
             continue;
         }
         let (lo, hi) = whole_vectors(lo, hi, (-radius).max(-cx), radius.min(n - 1 - cx));
-        let first = (gy * n + cx + lo) as usize;
         let len = (hi - lo + 1) as usize;
+        polar.prepare(oy, lo, len);
+        runs.push(RowRun {
+            row: gy as usize,
+            oy,
+            lo,
+            first: (gy * n + cx + lo) as usize,
+            len,
+        });
+    }
+}
+
+/// The fast kernel's pass: [`fuse_run`] along each run of the reading ([`plan_runs`]), the
+/// cells' ranges, bearings and radial trust from `polar`.
+#[inline(always)]
+fn fuse_rows<R: Combine, E: CellEvidence, P: RowPolar>(
+    layer: &mut Layer<R>,
+    heard: &mut [f32],
+    evidence: &E,
+    axis: f32,
+    cone: f32,
+    (runs, fade): RowPass<'_>,
+    polar: &P,
+) -> usize {
+    let mut updated = 0;
+    for &RowRun {
+        row,
+        oy,
+        lo,
+        first,
+        len,
+    } in runs
+    {
         let run = first..first + len;
         let (rule, cells) = layer.begin_run(run.clone());
         let changed = fuse_run(
@@ -596,9 +722,9 @@ fn fuse_rows<R: Combine, E: CellEvidence, P: RowPolar>(
             cone,
             cells,
             heard_run(heard, &run),
-            polar.row(row, lo, len),
+            polar.row(oy, lo, len, fade),
         );
-        layer.end_run(run, changed);
+        layer.end_row_run(row, run, changed);
         updated += changed;
     }
     updated
@@ -616,8 +742,8 @@ fn fuse_rows_avx2<R: Combine, E: CellEvidence, P: RowPolar>(
     evidence: &E,
     axis: f32,
     cone: f32,
-    pass: &RowPass<'_>,
-    polar: &mut P,
+    pass: RowPass<'_>,
+    polar: &P,
 ) -> usize {
     fuse_rows(layer, heard, evidence, axis, cone, pass, polar)
 }
@@ -634,8 +760,8 @@ fn fuse_rows_avx512<R: Combine, E: CellEvidence, P: RowPolar>(
     evidence: &E,
     axis: f32,
     cone: f32,
-    pass: &RowPass<'_>,
-    polar: &mut P,
+    pass: RowPass<'_>,
+    polar: &P,
 ) -> usize {
     fuse_rows(layer, heard, evidence, axis, cone, pass, polar)
 }

@@ -51,6 +51,36 @@ pub(crate) trait CellEvidence: Copy {
         self.log_odds(r, alpha)
     }
 
+    /// Whether this evidence is weighted by the [`radial_trust`] of the cell's range (at
+    /// [`Self::fade_range`]): a pure function of the range, so a kernel that keeps the cells'
+    /// ranges keeps their trust too and passes it to [`Self::trusted_heard_log_odds`].
+    const FADES: bool = false;
+
+    /// The range at which the evidence's [`radial_trust`] is one half, if [`Self::FADES`].
+    fn fade_range(&self) -> f32 {
+        f32::NAN
+    }
+
+    /// [`Self::heard_log_odds`] given the cell's `trust`, `radial_trust(r, self.fade_range())`
+    /// computed by the caller (ignored unless [`Self::FADES`]): the same bits.
+    #[inline(always)]
+    fn trusted_heard_log_odds(
+        &self,
+        r: f32,
+        alpha: f32,
+        bearing: f32,
+        heard: &mut f32,
+        _trust: f32,
+    ) -> f32 {
+        self.heard_log_odds(r, alpha, bearing, heard)
+    }
+
+    /// [`Self::log_odds`] given the cell's `trust`, as [`Self::trusted_heard_log_odds`].
+    #[inline(always)]
+    fn trusted_log_odds(&self, r: f32, alpha: f32, _trust: f32) -> f32 {
+        self.log_odds(r, alpha)
+    }
+
     /// [`Self::heard_log_odds`] as a probability.
     #[inline(always)]
     fn heard_probability(&self, r: f32, alpha: f32, bearing: f32, heard: &mut f32) -> f32 {
@@ -73,7 +103,7 @@ fn positive(v: f32) -> f32 {
 /// How much a reading counts at range `r`: 1 near the sensor, one half at `fade_range`, towards
 /// 0 beyond (ROS `range_sensor_layer`'s φ_v, as a smooth step).
 #[inline(always)]
-fn radial_trust(r: f32, fade_range: f32) -> f32 {
+pub(crate) fn radial_trust(r: f32, fade_range: f32) -> f32 {
     let x = 2.0 * (r - fade_range);
     0.5 - 0.5 * x / (1.0 + x * x).sqrt()
 }
@@ -808,7 +838,23 @@ impl CellEvidence for RegionEcho {
 
     #[inline(always)]
     fn log_odds(&self, r: f32, alpha: f32) -> f32 {
+        self.trusted_log_odds(r, alpha, radial_trust(r, self.fade_range))
+    }
+
+    #[inline(always)]
+    fn heard_log_odds(&self, r: f32, alpha: f32, bearing: f32, heard: &mut f32) -> f32 {
         let trust = radial_trust(r, self.fade_range);
+        self.trusted_heard_log_odds(r, alpha, bearing, heard, trust)
+    }
+
+    const FADES: bool = true;
+
+    fn fade_range(&self) -> f32 {
+        self.fade_range
+    }
+
+    #[inline(always)]
+    fn trusted_log_odds(&self, r: f32, alpha: f32, trust: f32) -> f32 {
         // The distance along the axis, not the range: the patch is straight, as a wall is.
         let j = (r * alpha.cos() - self.d) * self.inv_band;
         let l = self.l_occ
@@ -819,8 +865,15 @@ impl CellEvidence for RegionEcho {
     }
 
     #[inline(always)]
-    fn heard_log_odds(&self, r: f32, alpha: f32, _bearing: f32, heard: &mut f32) -> f32 {
-        let l = self.log_odds(r, alpha);
+    fn trusted_heard_log_odds(
+        &self,
+        r: f32,
+        alpha: f32,
+        _bearing: f32,
+        heard: &mut f32,
+        trust: f32,
+    ) -> f32 {
+        let l = self.trusted_log_odds(r, alpha, trust);
         *heard = if l > 0.0 { self.normal } else { *heard };
         l
     }
@@ -836,6 +889,30 @@ impl CellEvidence for WeakEcho {
     #[inline(always)]
     fn heard_log_odds(&self, r: f32, alpha: f32, bearing: f32, heard: &mut f32) -> f32 {
         self.0.heard_log_odds(r, alpha, bearing, heard)
+    }
+
+    const FADES: bool = true;
+
+    fn fade_range(&self) -> f32 {
+        self.0.fade_range
+    }
+
+    #[inline(always)]
+    fn trusted_heard_log_odds(
+        &self,
+        r: f32,
+        alpha: f32,
+        bearing: f32,
+        heard: &mut f32,
+        trust: f32,
+    ) -> f32 {
+        self.0
+            .trusted_heard_log_odds(r, alpha, bearing, heard, trust)
+    }
+
+    #[inline(always)]
+    fn trusted_log_odds(&self, r: f32, alpha: f32, trust: f32) -> f32 {
+        self.0.trusted_log_odds(r, alpha, trust)
     }
 
     fn reach(&self) -> f32 {
@@ -870,12 +947,12 @@ pub(crate) struct SmoothReading {
 }
 
 impl SmoothReading {
-    /// The evidence with free evidence weighted by `free_weight`: the model's formula, written as
-    /// arithmetic and selects, without early returns, so the loop vectorises.
+    /// The evidence with free evidence weighted by `free_weight`, for a cell whose radial trust is
+    /// `trust`: the model's formula, written as arithmetic and selects, without early returns, so
+    /// the loop vectorises.
     #[inline(always)]
-    fn weighted_log_odds(&self, r: f32, alpha: f32, free_weight: f32) -> f32 {
+    fn weighted_log_odds(&self, r: f32, alpha: f32, free_weight: f32, trust: f32) -> f32 {
         let a2 = alpha * alpha;
-        let trust = radial_trust(r, self.fade_range);
         // `positive` rather than f32::max: the same values, one instruction in the loop.
         let t = positive((r - self.ramp_from) * self.inv_band);
         let j = (r - self.d) * self.inv_band;
@@ -921,12 +998,37 @@ impl CellEvidence for SmoothReading {
 
     #[inline(always)]
     fn log_odds(&self, r: f32, alpha: f32) -> f32 {
-        self.weighted_log_odds(r, alpha, 1.0)
+        self.trusted_log_odds(r, alpha, radial_trust(r, self.fade_range))
     }
 
     #[inline(always)]
     fn heard_log_odds(&self, r: f32, alpha: f32, bearing: f32, heard: &mut f32) -> f32 {
-        let l = self.weighted_log_odds(r, alpha, self.free_weight(bearing, *heard));
+        let trust = radial_trust(r, self.fade_range);
+        self.trusted_heard_log_odds(r, alpha, bearing, heard, trust)
+    }
+
+    const FADES: bool = true;
+
+    fn fade_range(&self) -> f32 {
+        self.fade_range
+    }
+
+    #[inline(always)]
+    fn trusted_log_odds(&self, r: f32, alpha: f32, trust: f32) -> f32 {
+        self.weighted_log_odds(r, alpha, 1.0, trust)
+    }
+
+    #[inline(always)]
+    fn trusted_heard_log_odds(
+        &self,
+        r: f32,
+        alpha: f32,
+        bearing: f32,
+        heard: &mut f32,
+        trust: f32,
+    ) -> f32 {
+        let free_weight = self.free_weight(bearing, *heard);
+        let l = self.weighted_log_odds(r, alpha, free_weight, trust);
         // Occupied evidence (NaN compares false): the sensor lay near this cell's perpendicular.
         *heard = if l > 0.0 { bearing } else { *heard };
         l

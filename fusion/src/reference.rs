@@ -52,9 +52,16 @@ impl PaperArrays {
                 if self.angle_inside[i] == 1 {
                     let (r, a) = (self.grid_length[i], self.grid_angles[i]);
                     let e = if E::HEARD {
-                        heard_cell_evidence::<R, E>(evidence, beam.axis, cone, r, a, &mut heard[i])
+                        heard_cell_evidence::<R, E>(
+                            evidence,
+                            beam.axis,
+                            cone,
+                            (r, a),
+                            &mut heard[i],
+                            None,
+                        )
                     } else {
-                        cell_evidence::<R, E>(evidence, beam.axis, cone, r, a)
+                        cell_evidence::<R, E>(evidence, beam.axis, cone, r, a, None)
                     };
                     updated += usize::from(rule.fuse(cell, e));
                 }

@@ -190,6 +190,7 @@ fn tour(seed: u64) -> Result<Workload> {
         readings,
         max_range_m: head.sensor.max_range_m,
         beam_half_angle_deg: head.sensor.beam_half_angle_deg,
+        reach: Reach::of(&head.sensor),
     })
 }
 
