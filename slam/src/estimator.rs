@@ -479,7 +479,8 @@ impl Slam {
     /// steps corrected by the odometry's errors in the graph. Its σ takes the odometry's random
     /// error over them; the systematic part is the graph's to estimate. (Before, the whole
     /// sweep's odometry error, systematic part included, was added to every wall's σ: 6 cm and
-    /// 4° over a 2 m sweep at 3 % / 2°/m, and the odometry's errors were never learnt.)
+    /// 4° over a 2 m sweep at 3 % / 2°/m, as noise of its own: a wall could neither teach the
+    /// graph the odometry's errors nor be corrected by them.)
     fn seen_on_the_move(
         &self,
         sighting: &mut Sighting,
