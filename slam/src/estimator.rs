@@ -8,7 +8,10 @@
 //!    instant, interpolated between the odometry's samples, relative to the sweep's first reading.
 //! 2. The features crate extracts what the sweep saw: regions of constant depth classified into
 //!    walls, corners and posts when it was taken standing still; walls only, found under the
-//!    motion along each normal, when it was taken on the move.
+//!    motion along each normal, when it was taken on the move. Such a wall is measured from the
+//!    reading that faced it: the sweep's pose, then the odometry to that reading corrected by
+//!    the odometry's errors in the graph, so the walls of a sweep on the move teach the graph
+//!    those errors as they hold the pose.
 //! 3. A pose joins the graph, predicted from the previous one by the odometry with its systematic
 //!    errors as estimated so far, tied to it by an odometry factor.
 //! 4. **Association.** The joint covariance of the new pose and every landmark (the columns of
@@ -54,7 +57,9 @@ use sonar_common::ipc::Reading;
 use sonar_features::{FeatureConfig, FeatureMap, OdometryErrors, Sweep, wrap_rad};
 
 use crate::error::SlamError;
-use crate::graph::{Graph, LandmarkKind, Measurement, Var, compose, place, predict, range_to_wall};
+use crate::graph::{
+    Graph, LandmarkKind, Measurement, SeenAfter, Var, compose, place, predict, range_to_wall,
+};
 use crate::odometry::{OdometryTrack, Step, random_covariance};
 
 /// Settings of the SLAM (`[slam]` in a configuration file); every field has a default.
@@ -281,13 +286,10 @@ struct PoseNode {
 }
 
 /// An observation matched to no landmark, waiting for a second viewpoint.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 struct Candidate {
     pose: usize,
-    kind: LandmarkKind,
-    z: Measurement,
-    sigma: Vector2<f64>,
-    certain: bool,
+    sighting: Sighting,
 }
 
 /// One reading of a sweep taken on the move, for ranging on walls.
@@ -300,7 +302,7 @@ struct ReadingPings {
 }
 
 /// One observation as the graph measures it.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 struct Sighting {
     kind: LandmarkKind,
     z: Measurement,
@@ -313,6 +315,10 @@ struct Sighting {
     ///
     /// [`Observation::whole`]: sonar_features::Observation::whole
     certain: bool,
+    /// The odometry from the sweep's pose to where it was seen from: a wall of a sweep on the
+    /// move is measured from the reading that faced it, `z` in that reading's frame. Empty: from
+    /// the sweep's pose.
+    after: Vec<Step>,
 }
 
 /// A reading more than this (m, degrees) from the pose of the sweep's middle reading was taken
@@ -407,27 +413,29 @@ impl Slam {
             self.extractor.observe(&sweep).1.observations
         };
         self.extractor.learn_noise(&sweep);
-        let mut floor = Vector2::new(
+        let floor = Vector2::new(
             self.cfg.range_sigma_floor_m,
             self.cfg.bearing_sigma_floor_deg.to_radians(),
         );
-        if moving && let Some(last) = steps.last() {
-            // The pings of a sweep on the move were brought to its first reading by the odometry,
-            // which errs over the sweep: its walls are no better than that.
-            let within = self.sweep_odometry_sigma(last);
-            floor = floor.zip_map(&within, f64::hypot);
-        }
         let sightings: Vec<Sighting> = observations
             .iter()
-            .map(|o| Sighting {
-                kind: LandmarkKind::of(o.kind),
-                z: Vector2::new(o.range_m, o.bearing_deg.to_radians()),
-                sigma: Vector2::new(
-                    (o.range_sigma_random_m.powi(2) + o.range_sigma_systematic_m.powi(2)).sqrt(),
-                    o.bearing_sigma_deg.to_radians(),
-                )
-                .zip_map(&floor, f64::hypot),
-                certain: !moving || o.whole,
+            .map(|o| {
+                let mut sighting = Sighting {
+                    kind: LandmarkKind::of(o.kind),
+                    z: Vector2::new(o.range_m, o.bearing_deg.to_radians()),
+                    sigma: Vector2::new(
+                        (o.range_sigma_random_m.powi(2) + o.range_sigma_systematic_m.powi(2))
+                            .sqrt(),
+                        o.bearing_sigma_deg.to_radians(),
+                    )
+                    .zip_map(&floor, f64::hypot),
+                    certain: !moving || o.whole,
+                    after: Vec::new(),
+                };
+                if moving {
+                    self.seen_on_the_move(&mut sighting, &placed, &steps);
+                }
+                sighting
             })
             .collect();
         let ranged: Vec<ReadingPings> = if moving && self.cfg.range_pings {
@@ -463,22 +471,48 @@ impl Slam {
         Some(estimate)
     }
 
-    /// σ of the odometry's error (position, heading) over `steps`: its random part and the
-    /// systematic part its error model allows (scale error times the distance, drift times the
-    /// distance and turn error times the turn).
-    fn sweep_odometry_sigma(&self, steps: &[Step]) -> Vector2<f64> {
-        let errors = &self.cfg.features.odometry;
-        let systematic = calibration_prior_sigma(errors);
-        let random = random_covariance(steps, errors);
-        let distance: f64 = steps.iter().map(|s| s.x.hypot(s.y)).sum();
-        let turned: f64 = steps.iter().map(|s| s.z.abs()).sum();
-        let position = (random[(0, 0)] + random[(1, 1)])
-            .sqrt()
-            .hypot(systematic.x * distance);
-        let heading = random[(2, 2)]
-            .sqrt()
-            .hypot(systematic.y * distance + systematic.z * turned);
-        Vector2::new(position, heading)
+    /// A wall of a sweep on the move, measured from the reading that faced it rather than from
+    /// the sweep's first: the features bring every ping to the first reading by the odometry as
+    /// reported, so the wall is moved back to the middle one of the readings aimed within the
+    /// specular cut-off of its normal (`placed`: each reading at its odometry pose relative to
+    /// the first; `steps`: the odometry's steps to each), and tied to the sweep's pose by those
+    /// steps corrected by the odometry's errors in the graph. Its σ takes the odometry's random
+    /// error over them; the systematic part is the graph's to estimate. (Before, the whole
+    /// sweep's odometry error, systematic part included, was added to every wall's σ: 6 cm and
+    /// 4° over a 2 m sweep at 3 % / 2°/m, as noise of its own: a wall could neither teach the
+    /// graph the odometry's errors nor be corrected by them.)
+    fn seen_on_the_move(
+        &self,
+        sighting: &mut Sighting,
+        placed: &[(Reading, Isometry2<f64>)],
+        steps: &[Vec<Step>],
+    ) {
+        let cutoff = self.cfg.features.echo.specular_cutoff_deg.to_radians();
+        let facing: Vec<usize> = placed
+            .iter()
+            .enumerate()
+            .filter(|(_, (r, pose))| {
+                let axis = pose.rotation.angle() + f64::from(r.angle_deg).to_radians();
+                wrap_rad(axis - sighting.z.y).abs() <= cutoff
+            })
+            .map(|(i, _)| i)
+            .collect();
+        let Some(after) = facing.get(facing.len() / 2).and_then(|&i| steps.get(i)) else {
+            return;
+        };
+        let reached = crate::odometry::corrected(after, &Vector3::zeros());
+        let wall = place(sighting.kind, &Vector3::zeros(), &sighting.z);
+        let Some(z) = predict(sighting.kind, &reached, &wall) else {
+            return;
+        };
+        let random = random_covariance(after, &self.cfg.features.odometry);
+        let odometry = Vector2::new(
+            (random[(0, 0)] + random[(1, 1)]).max(0.0).sqrt(),
+            random[(2, 2)].max(0.0).sqrt(),
+        );
+        sighting.z = z;
+        sighting.sigma = sighting.sigma.zip_map(&odometry, f64::hypot);
+        sighting.after = after.clone();
     }
 
     /// Forgets the odometry before `stamp_ns` while no sweep is pending (its readings need the
@@ -568,6 +602,7 @@ impl Slam {
 
         let mut vars = vec![(pose, 3)];
         vars.extend(self.landmarks.iter().map(|l| (l.var, 2)));
+        vars.extend(self.calibration.map(|c| (c, 3)));
         let joint = self.graph.covariance(&vars);
         let predicted = self.graph.vector3(pose);
         let predicted_cov = joint
@@ -579,16 +614,18 @@ impl Slam {
                 let mut used = vec![false; sightings.len()];
                 for &(i, j) in &pairs {
                     used[i] = true;
-                    let (s, l) = (sightings[i], &mut self.landmarks[j]);
+                    let s = &sightings[i];
+                    let seen_after = self.seen_after(&s.after);
+                    let l = &mut self.landmarks[j];
                     self.graph
-                        .add_landmark_factor(pose, l.var, l.kind, s.z, s.sigma);
+                        .add_landmark_factor(pose, l.var, l.kind, s.z, s.sigma, seen_after);
                     l.sightings += 1;
                 }
                 let unmatched: Vec<Sighting> = sightings
                     .iter()
                     .zip(&used)
                     .filter(|(_, u)| !**u)
-                    .map(|(s, _)| *s)
+                    .map(|(s, _)| s.clone())
                     .collect();
                 let admitted = self.admit(k, &unmatched);
                 (pairs.len(), admitted)
@@ -836,9 +873,24 @@ impl Slam {
         pose
     }
 
+    /// How the graph ties a sighting seen `after` the odometry's steps from its sweep's pose.
+    fn seen_after(&self, after: &[Step]) -> Option<SeenAfter> {
+        let calibration = self.calibration?;
+        (!after.is_empty()).then(|| SeenAfter {
+            calibration,
+            steps: after.to_vec(),
+        })
+    }
+
+    /// The odometry's errors as estimated now (zero before the first sweep).
+    fn calibration_now(&self) -> Vector3<f64> {
+        self.calibration().unwrap_or_else(Vector3::zeros)
+    }
+
     /// Pairs (sighting, landmark) by individual compatibility, nearest first and one to one, then
-    /// pruned until the set is jointly compatible. `joint` is the covariance of the pose (first 3)
-    /// and every landmark (2 each, in order).
+    /// pruned until the set is jointly compatible. `joint` is the covariance of the pose (first
+    /// 3), every landmark (2 each, in order) and the odometry's errors (last 3: a sighting on
+    /// the move is seen from a pose they move).
     fn associate(
         &self,
         pose: Var,
@@ -846,28 +898,16 @@ impl Slam {
         joint: &DMatrix<f64>,
     ) -> Vec<(usize, usize)> {
         let x = self.graph.vector3(pose);
+        let c = self.calibration_now();
         let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
         for (i, s) in sightings.iter().enumerate() {
             for (j, l) in self.landmarks.iter().enumerate() {
                 if l.kind != s.kind {
                     continue;
                 }
-                let Some((v, hx, hl)) = innovation(s, &x, &self.graph.vector2(l.var)) else {
+                let Some(d2) = self.innovation_distance(&x, &c, &[(i, j)], sightings, joint) else {
                     continue;
                 };
-                let at = 3 + 2 * j;
-                let pp = joint.fixed_view::<3, 3>(0, 0).into_owned();
-                let pl = joint.fixed_view::<3, 2>(0, at).into_owned();
-                let ll = joint.fixed_view::<2, 2>(at, at).into_owned();
-                let s_cov = hx * pp * hx.transpose()
-                    + hx * pl * hl.transpose()
-                    + hl * pl.transpose() * hx.transpose()
-                    + hl * ll * hl.transpose()
-                    + Matrix2::from_diagonal(&s.sigma.map(|v| v * v));
-                let Some(inv) = s_cov.try_inverse() else {
-                    continue;
-                };
-                let d2 = (v.transpose() * inv * v)[(0, 0)];
                 if d2 <= self.cfg.gate_chi2 {
                     pairs.push((d2, i, j));
                 }
@@ -880,7 +920,7 @@ impl Slam {
                 taken.push(p);
             }
         }
-        while !taken.is_empty() && !self.jointly_compatible(&x, sightings, &taken, joint) {
+        while !taken.is_empty() && !self.jointly_compatible(&x, &c, sightings, &taken, joint) {
             // The least compatible pair goes first.
             let worst = taken
                 .iter()
@@ -895,48 +935,68 @@ impl Slam {
     }
 
     /// Whether the pairs' joint innovation passes χ² of its degrees of freedom at
-    /// [`SlamConfig::joint_probability`], with the cross-covariances between landmarks and pose.
+    /// [`SlamConfig::joint_probability`], with the cross-covariances between landmarks, pose and
+    /// the odometry's errors.
     fn jointly_compatible(
         &self,
         x: &Vector3<f64>,
+        c: &Vector3<f64>,
         sightings: &[Sighting],
         pairs: &[(f64, usize, usize)],
         joint: &DMatrix<f64>,
     ) -> bool {
+        let pairs: Vec<(usize, usize)> = pairs.iter().map(|&(_, i, j)| (i, j)).collect();
+        self.innovation_distance(x, c, &pairs, sightings, joint)
+            .is_some_and(|d2| d2 <= chi2_quantile(2 * pairs.len(), self.cfg.joint_probability))
+    }
+
+    /// The Mahalanobis distance² of the joint innovation of `pairs` (sighting, landmark) against
+    /// `joint` (as in [`Self::associate`]); `None` when a prediction is undefined or the
+    /// innovation's covariance singular.
+    fn innovation_distance(
+        &self,
+        x: &Vector3<f64>,
+        c: &Vector3<f64>,
+        pairs: &[(usize, usize)],
+        sightings: &[Sighting],
+        joint: &DMatrix<f64>,
+    ) -> Option<f64> {
         let m = pairs.len();
         let n = joint.nrows();
         let mut h = DMatrix::zeros(2 * m, n);
         let mut v = DVector::zeros(2 * m);
         let mut r = DMatrix::zeros(2 * m, 2 * m);
-        for (row, &(_, i, j)) in pairs.iter().enumerate() {
+        for (row, &(i, j)) in pairs.iter().enumerate() {
             let s = &sightings[i];
-            let Some((vi, hx, hl)) = innovation(s, x, &self.graph.vector2(self.landmarks[j].var))
-            else {
-                return false;
-            };
-            h.view_mut((2 * row, 0), (2, 3)).copy_from(&hx);
-            h.view_mut((2 * row, 3 + 2 * j), (2, 2)).copy_from(&hl);
-            v.rows_mut(2 * row, 2).copy_from(&vi);
+            let i = innovation(s, x, c, &self.graph.vector2(self.landmarks[j].var))?;
+            h.view_mut((2 * row, 0), (2, 3)).copy_from(&i.by_pose);
+            h.view_mut((2 * row, 3 + 2 * j), (2, 2))
+                .copy_from(&i.by_landmark);
+            if self.calibration.is_some() {
+                h.view_mut((2 * row, n - 3), (2, 3))
+                    .copy_from(&i.by_calibration);
+            }
+            v.rows_mut(2 * row, 2).copy_from(&i.v);
             r[(2 * row, 2 * row)] = s.sigma.x * s.sigma.x;
             r[(2 * row + 1, 2 * row + 1)] = s.sigma.y * s.sigma.y;
         }
         let s = &h * joint * h.transpose() + r;
-        let Some(inv) = s.try_inverse() else {
-            return false;
-        };
-        let d2 = (v.transpose() * inv * &v)[(0, 0)];
-        d2 <= chi2_quantile(2 * m, self.cfg.joint_probability)
+        let inv = s.try_inverse()?;
+        Some((v.transpose() * inv * &v)[(0, 0)])
     }
 
     /// Admits landmarks seen a second time: each sighting against the candidates of other
-    /// viewpoints, the two placements compared with the joint covariance of the two poses (a
-    /// candidate seen from the map's anchor is as sure as its sighting; two poses on one stretch
-    /// of odometry share most of their error), and at least one of the two [`Sighting::certain`];
-    /// the rest become candidates. The number admitted.
+    /// viewpoints, the two placements compared with the joint covariance of the two poses and
+    /// the odometry's errors (a candidate seen from the map's anchor is as sure as its sighting;
+    /// two poses on one stretch of odometry share most of their error; a wall seen on the move is
+    /// placed from where the odometry's errors put the reading that faced it), and at least one
+    /// of the two [`Sighting::certain`]; the rest become candidates. The number admitted.
     fn admit(&mut self, k: usize, unmatched: &[Sighting]) -> usize {
         let pose = self.poses[k].var;
         let x = self.graph.vector3(pose);
-        // The poses the candidates were seen from, after this one, in the joint covariance.
+        let calibration = self.calibration_now();
+        // The poses the candidates were seen from, after this one, then the odometry's errors,
+        // in the joint covariance.
         let mut seen_from: Vec<usize> = self
             .candidates
             .iter()
@@ -947,6 +1007,7 @@ impl Slam {
         seen_from.dedup();
         let mut vars = vec![(pose, 3)];
         vars.extend(seen_from.iter().map(|&p| (self.poses[p].var, 3)));
+        vars.extend(self.calibration.map(|c| (c, 3)));
         let joint = if seen_from.is_empty() {
             None
         } else {
@@ -954,41 +1015,48 @@ impl Slam {
         };
         let mut admitted = 0;
         for s in unmatched {
-            let here = placement(s, &x);
+            let here = placement(s, &x, &calibration);
             let best = joint.as_ref().and_then(|joint| {
+                let n = joint.nrows();
                 self.candidates
                     .iter()
                     .enumerate()
-                    .filter(|(_, c)| c.kind == s.kind && c.pose != k && (c.certain || s.certain))
+                    .filter(|(_, c)| {
+                        c.sighting.kind == s.kind
+                            && c.pose != k
+                            && (c.sighting.certain || s.certain)
+                    })
                     .filter_map(|(ci, c)| {
                         let xc = self.graph.vector3(self.poses[c.pose].var);
-                        let apart = Vector2::new(xc.x - x.x, xc.y - x.y).norm()
+                        let there = placement(&c.sighting, &xc, &calibration);
+                        let (a, b) = (here.from, there.from);
+                        let apart = Vector2::new(b.x - a.x, b.y - a.y).norm()
                             >= self.cfg.min_baseline_m
-                            || wrap_rad(xc.z - x.z).abs() >= self.cfg.min_baseline_deg.to_radians();
+                            || wrap_rad(b.z - a.z).abs() >= self.cfg.min_baseline_deg.to_radians();
                         if !apart {
                             return None;
                         }
-                        let there = placement(
-                            &Sighting {
-                                kind: c.kind,
-                                z: c.z,
-                                sigma: c.sigma,
-                                certain: c.certain,
-                            },
-                            &xc,
-                        );
                         let mut d = here.at - there.at;
                         if s.kind == LandmarkKind::Line {
                             d.x = wrap_rad(d.x);
                         }
-                        // d's covariance: both poses through their placements, jointly.
+                        // d's covariance: both poses and the odometry's errors through the two
+                        // placements, jointly.
                         let at = 3 + 3 * seen_from.binary_search(&c.pose).ok()?;
-                        let block =
-                            |r: usize, c: usize| joint.fixed_view::<3, 3>(r, c).into_owned();
-                        let poses = here.by_pose * block(0, 0) * here.by_pose.transpose()
-                            + there.by_pose * block(at, at) * there.by_pose.transpose()
-                            - here.by_pose * block(0, at) * there.by_pose.transpose()
-                            - there.by_pose * block(at, 0) * here.by_pose.transpose();
+                        let mut by = DMatrix::<f64>::zeros(2, n);
+                        by.view_mut((0, 0), (2, 3)).copy_from(&here.by_pose);
+                        by.view_mut((0, at), (2, 3)).copy_from(&(-there.by_pose));
+                        if self.calibration.is_some() {
+                            by.view_mut((0, n - 3), (2, 3))
+                                .copy_from(&(here.by_calibration - there.by_calibration));
+                        }
+                        let poses = &by * joint * by.transpose();
+                        let poses = Matrix2::new(
+                            poses[(0, 0)],
+                            poses[(0, 1)],
+                            poses[(1, 0)],
+                            poses[(1, 1)],
+                        );
                         let inv = (poses + here.sighting + there.sighting).try_inverse()?;
                         let d2 = (d.transpose() * inv * d)[(0, 0)];
                         (d2 <= self.cfg.gate_chi2).then_some((d2, ci))
@@ -1000,10 +1068,23 @@ impl Slam {
                     let c = self.candidates.remove(ci);
                     let var = self.graph.add_variable(here.at.as_slice());
                     let from = self.poses[c.pose].var;
-                    self.graph
-                        .add_landmark_factor(from, var, c.kind, c.z, c.sigma);
-                    self.graph
-                        .add_landmark_factor(pose, var, s.kind, s.z, s.sigma);
+                    let (first, second) = (&c.sighting, s);
+                    self.graph.add_landmark_factor(
+                        from,
+                        var,
+                        first.kind,
+                        first.z,
+                        first.sigma,
+                        self.seen_after(&first.after),
+                    );
+                    self.graph.add_landmark_factor(
+                        pose,
+                        var,
+                        second.kind,
+                        second.z,
+                        second.sigma,
+                        self.seen_after(&second.after),
+                    );
                     self.landmarks.push(LandmarkNode {
                         var,
                         kind: s.kind,
@@ -1013,10 +1094,7 @@ impl Slam {
                 }
                 None => self.candidates.push(Candidate {
                     pose: k,
-                    kind: s.kind,
-                    z: s.z,
-                    sigma: s.sigma,
-                    certain: s.certain,
+                    sighting: s.clone(),
                 }),
             }
         }
@@ -1030,33 +1108,74 @@ const STEP: f64 = 1e-7;
 /// χ² of one degree of freedom at 99 %: the gate of a reading's range to a wall.
 const RANGE_GATE_CHI2: f64 = 6.63;
 
-/// Innovation z − h(x, l) of `s` against a landmark at `l` seen from `x`, with the Jacobians of
-/// h with respect to the pose and the landmark; `None` when h is undefined (a wall from behind).
+/// Where `s` was seen from: the sweep's pose `x`, or the odometry's steps after it corrected by
+/// the errors `c`.
+fn viewpoint(s: &Sighting, x: &Vector3<f64>, c: &Vector3<f64>) -> Vector3<f64> {
+    if s.after.is_empty() {
+        *x
+    } else {
+        compose(x, &crate::odometry::corrected(&s.after, c))
+    }
+}
+
+/// A sighting's innovation against a landmark, and how the prediction moves with the state.
+struct Innovation {
+    /// z − h(x, c, l).
+    v: Vector2<f64>,
+    /// ∂h/∂x, the sweep's pose.
+    by_pose: Matrix2x3<f64>,
+    /// ∂h/∂l.
+    by_landmark: Matrix2<f64>,
+    /// ∂h/∂c, the odometry's errors: zero but on the move.
+    by_calibration: Matrix2x3<f64>,
+}
+
+/// Innovation z − h(x, c, l) of `s` against a landmark at `l` seen from the sweep's pose `x`
+/// with the odometry's errors `c`, with the Jacobians of h with respect to the pose, the
+/// landmark and the errors; `None` when h is undefined (a wall from behind).
 fn innovation(
     s: &Sighting,
     x: &Vector3<f64>,
+    c: &Vector3<f64>,
     l: &Vector2<f64>,
-) -> Option<(Vector2<f64>, Matrix2x3<f64>, Matrix2<f64>)> {
-    let h = predict(s.kind, x, l)?;
+) -> Option<Innovation> {
+    let h = |x: &Vector3<f64>, c: &Vector3<f64>, l: &Vector2<f64>| {
+        predict(s.kind, &viewpoint(s, x, c), l)
+    };
+    let at = h(x, c, l)?;
+    let derivative = |moved: Option<Measurement>| {
+        moved.map(|m| {
+            let mut d = m - at;
+            d.y = wrap_rad(d.y);
+            d / STEP
+        })
+    };
     let mut hx = Matrix2x3::zeros();
+    let mut hc = Matrix2x3::zeros();
     for k in 0..3 {
         let mut moved = *x;
         moved[k] += STEP;
-        let mut d = predict(s.kind, &moved, l)? - h;
-        d.y = wrap_rad(d.y);
-        hx.set_column(k, &(d / STEP));
+        hx.set_column(k, &derivative(h(&moved, c, l))?);
+        if !s.after.is_empty() {
+            let mut moved = *c;
+            moved[k] += STEP;
+            hc.set_column(k, &derivative(h(x, &moved, l))?);
+        }
     }
     let mut hl = Matrix2::zeros();
     for k in 0..2 {
         let mut moved = *l;
         moved[k] += STEP;
-        let mut d = predict(s.kind, x, &moved)? - h;
-        d.y = wrap_rad(d.y);
-        hl.set_column(k, &(d / STEP));
+        hl.set_column(k, &derivative(h(x, c, &moved))?);
     }
-    let mut v = s.z - h;
+    let mut v = s.z - at;
     v.y = wrap_rad(v.y);
-    Some((v, hx, hl))
+    Some(Innovation {
+        v,
+        by_pose: hx,
+        by_landmark: hl,
+        by_calibration: hc,
+    })
 }
 
 /// σ of the odometry's systematic errors before any sweep: scale error, drift (rad per metre),
@@ -1072,39 +1191,57 @@ fn calibration_prior_sigma(errors: &OdometryErrors) -> Vector3<f64> {
 /// Where a sighting puts its landmark, and how that place moves with the pose it was seen from.
 struct Placement {
     at: Vector2<f64>,
-    /// ∂at/∂pose.
+    /// The pose it was seen from (see [`viewpoint`]).
+    from: Vector3<f64>,
+    /// ∂at/∂pose, the sweep's pose.
     by_pose: Matrix2x3<f64>,
+    /// ∂at/∂(the odometry's errors): zero but on the move.
+    by_calibration: Matrix2x3<f64>,
     /// at's covariance from the sighting's own σ.
     sighting: Matrix2<f64>,
 }
 
-/// Where `s` seen from `x` puts its landmark.
-fn placement(s: &Sighting, x: &Vector3<f64>) -> Placement {
-    let at = place(s.kind, x, &s.z);
-    let mut jx = Matrix2x3::zeros();
-    for k in 0..3 {
-        let mut moved = *x;
-        moved[k] += STEP;
-        let mut d = place(s.kind, &moved, &s.z) - at;
+/// Where `s`, seen from the sweep's pose `x` with the odometry's errors `c`, puts its landmark.
+fn placement(s: &Sighting, x: &Vector3<f64>, c: &Vector3<f64>) -> Placement {
+    let from = viewpoint(s, x, c);
+    let at = place(s.kind, &from, &s.z);
+    let derivative = |moved: Vector2<f64>| {
+        let mut d = moved - at;
         if s.kind == LandmarkKind::Line {
             d.x = wrap_rad(d.x);
         }
-        jx.set_column(k, &(d / STEP));
+        d / STEP
+    };
+    let mut by_pose = Matrix2x3::zeros();
+    let mut by_calibration = Matrix2x3::zeros();
+    for k in 0..3 {
+        let mut moved = *x;
+        moved[k] += STEP;
+        by_pose.set_column(
+            k,
+            &derivative(place(s.kind, &viewpoint(s, &moved, c), &s.z)),
+        );
+        if !s.after.is_empty() {
+            let mut moved = *c;
+            moved[k] += STEP;
+            by_calibration.set_column(
+                k,
+                &derivative(place(s.kind, &viewpoint(s, x, &moved), &s.z)),
+            );
+        }
     }
     let mut jz = Matrix2::zeros();
     for k in 0..2 {
         let mut moved = s.z;
         moved[k] += STEP;
-        let mut d = place(s.kind, x, &moved) - at;
-        if s.kind == LandmarkKind::Line {
-            d.x = wrap_rad(d.x);
-        }
-        jz.set_column(k, &(d / STEP));
+        jz.set_column(k, &derivative(place(s.kind, &from, &moved)));
     }
     let r = Matrix2::from_diagonal(&s.sigma.map(|v| v * v));
     Placement {
         at,
-        by_pose: jx,
+        from,
+        by_pose,
+        by_calibration,
         sighting: jz * r * jz.transpose(),
     }
 }
@@ -1284,6 +1421,7 @@ mod tests {
                 z,
                 sigma,
                 certain: true,
+                after: Vec::new(),
             })
         });
         let posts = POSTS.iter().filter_map(|&(px, py)| {
@@ -1293,6 +1431,7 @@ mod tests {
                 z,
                 sigma,
                 certain: true,
+                after: Vec::new(),
             })
         });
         walls.chain(posts).collect()
@@ -1495,10 +1634,13 @@ mod tests {
             let sigma = Vector2::new(0.01, 0.2_f64.to_radians());
             slam.candidates.push(Candidate {
                 pose: 0,
-                kind: LandmarkKind::Line,
-                z: Vector2::new(5.0, 0.0),
-                sigma,
-                certain: true,
+                sighting: Sighting {
+                    kind: LandmarkKind::Line,
+                    z: Vector2::new(5.0, 0.0),
+                    sigma,
+                    certain: true,
+                    after: Vec::new(),
+                },
             });
             // … and from the second pose as if it were turned by δ, at the same distance.
             let turn = turned_sigmas * heading_sigma;
@@ -1509,11 +1651,61 @@ mod tests {
                 z,
                 sigma,
                 certain: true,
+                after: Vec::new(),
             };
             slam.admit(1, &[sighting])
         };
         assert_eq!(admitted(1.0), 1);
         assert_eq!(admitted(3.5), 0);
+    }
+
+    /// A sweep on the move along x, 10 cm between readings aimed from −150° to 150°: the end
+    /// wall x = 3, which the features place 3 m ahead of the first reading, is measured from the
+    /// middle reading that faced it (1 m on: 2 m ahead), with the odometry's steps to it.
+    #[test]
+    fn a_wall_on_the_move_is_measured_from_the_reading_that_faced_it() {
+        let slam = Slam::new(SlamConfig::default()).unwrap();
+        let placed: Vec<(Reading, Isometry2<f64>)> = (0..21)
+            .map(|i| {
+                let reading = Reading {
+                    angle_deg: -150.0 + 15.0 * i as f32,
+                    ..Reading::default()
+                };
+                (
+                    reading,
+                    Isometry2::new(Vector2::new(0.1 * i as f64, 0.0), 0.0),
+                )
+            })
+            .collect();
+        let steps: Vec<Vec<Step>> = (0..21)
+            .map(|i| vec![Vector3::new(0.1, 0.0, 0.0); i])
+            .collect();
+        let sigma = Vector2::new(0.01, 1.0_f64.to_radians());
+        let mut wall = Sighting {
+            kind: LandmarkKind::Line,
+            z: Vector2::new(3.0, 0.0),
+            sigma,
+            certain: true,
+            after: Vec::new(),
+        };
+        slam.seen_on_the_move(&mut wall, &placed, &steps);
+        assert_eq!(wall.after, steps[10]);
+        assert!(
+            (wall.z - Vector2::new(2.0, 0.0)).norm() < 1e-9,
+            "{}",
+            wall.z
+        );
+        // Its σ takes the odometry's random error over that metre, and only that.
+        assert!(
+            wall.sigma.x > sigma.x && wall.sigma.x < 0.03,
+            "{}",
+            wall.sigma
+        );
+        assert!(
+            wall.sigma.y > sigma.y && wall.sigma.y < 2.0_f64.to_radians(),
+            "{}",
+            wall.sigma
+        );
     }
 
     /// A wall seen on the move from two viewpoints 50 cm apart, each time from a region cut
@@ -1527,16 +1719,20 @@ mod tests {
             let sigma = Vector2::new(0.01, 1.0_f64.to_radians());
             slam.candidates.push(Candidate {
                 pose: 0,
-                kind: LandmarkKind::Line,
-                z: Vector2::new(5.0, 0.0),
-                sigma,
-                certain: first_certain,
+                sighting: Sighting {
+                    kind: LandmarkKind::Line,
+                    z: Vector2::new(5.0, 0.0),
+                    sigma,
+                    certain: first_certain,
+                    after: Vec::new(),
+                },
             });
             let sighting = Sighting {
                 kind: LandmarkKind::Line,
                 z: Vector2::new(4.5, 0.0),
                 sigma,
                 certain: second_certain,
+                after: Vec::new(),
             };
             slam.admit(1, &[sighting])
         };
@@ -1555,9 +1751,14 @@ mod tests {
             z: Vector2::new(0.8, 0.3),
             sigma: Vector2::new(0.01, 0.02),
             certain: true,
+            after: Vec::new(),
         };
         tour(&mut slam, 8, |k| {
-            if k == 4 { vec![phantom] } else { Vec::new() }
+            if k == 4 {
+                vec![phantom.clone()]
+            } else {
+                Vec::new()
+            }
         });
         assert_eq!(
             slam.landmarks()

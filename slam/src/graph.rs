@@ -86,6 +86,27 @@ pub fn place(kind: LandmarkKind, pose: &Vector3<f64>, z: &Measurement) -> Vector
 /// Where a variable starts in the state vector.
 pub type Var = usize;
 
+/// A sighting taken on the move: from the pose the odometry's `steps` reached after the sweep's
+/// pose, those steps corrected by the odometry's errors at `calibration`. So a wall heard a metre
+/// into a sweep is tied to the sweep's pose by the odometry's systematic errors as the graph
+/// estimates them, and teaches the graph those errors, instead of carrying their prior as noise.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SeenAfter {
+    pub calibration: Var,
+    pub steps: Vec<Step>,
+}
+
+/// The pose `seen_after` (if any) reaches from `pose`, with the errors in the state `x`.
+fn viewpoint(x: &[f64], pose: Var, seen_after: Option<&SeenAfter>) -> Vector3<f64> {
+    match seen_after {
+        Some(s) => compose(
+            &vec3(x, pose),
+            &corrected(&s.steps, &vec3(x, s.calibration)),
+        ),
+        None => vec3(x, pose),
+    }
+}
+
 /// One factor: a residual of some variables, whitened.
 #[derive(Debug, Clone)]
 enum Factor {
@@ -105,13 +126,15 @@ enum Factor {
         steps: Vec<Step>,
         sqrt_information: Matrix3<f64>,
     },
-    /// A landmark seen from a pose, under the Huber kernel.
+    /// A landmark seen from a pose, or from where the odometry's `steps` (corrected by the errors
+    /// at `calibration`) took the robot after it, under the Huber kernel.
     Landmark {
         pose: Var,
         landmark: Var,
         kind: LandmarkKind,
         z: Measurement,
         sqrt_information: Matrix2<f64>,
+        seen_after: Option<SeenAfter>,
     },
     /// A ping's range to a wall landmark, taken at the pose `steps` of odometry (corrected by the
     /// errors at `calibration`) after `pose`: the distance across the wall from the ping's own
@@ -175,9 +198,19 @@ impl Factor {
                 .chain(*to..to + 3)
                 .chain(*calibration..calibration + 3)
                 .collect(),
-            Factor::Landmark { pose, landmark, .. } => {
-                (*pose..pose + 3).chain(*landmark..landmark + 2).collect()
-            }
+            Factor::Landmark {
+                pose,
+                landmark,
+                seen_after,
+                ..
+            } => (*pose..pose + 3)
+                .chain(*landmark..landmark + 2)
+                .chain(
+                    seen_after
+                        .iter()
+                        .flat_map(|s| s.calibration..s.calibration + 3),
+                )
+                .collect(),
             Factor::Range {
                 pose,
                 calibration,
@@ -228,8 +261,10 @@ impl Factor {
                 kind,
                 z,
                 sqrt_information,
+                seen_after,
             } => {
-                let predicted = predict(*kind, &vec3(x, *pose), &vec2(x, *landmark))?;
+                let at = viewpoint(x, *pose, seen_after.as_ref());
+                let predicted = predict(*kind, &at, &vec2(x, *landmark))?;
                 let mut r = z - predicted;
                 r.y = wrap_rad(r.y);
                 Some(DVector::from_column_slice(
@@ -379,8 +414,8 @@ impl Graph {
         true
     }
 
-    /// Landmark `landmark` of `kind` measured as `z` from pose `pose`, with σ of range and
-    /// bearing `sigma`.
+    /// Landmark `landmark` of `kind` measured as `z` from pose `pose` (or, taken on the move, from
+    /// where `seen_after` reached after it), with σ of range and bearing `sigma`.
     pub fn add_landmark_factor(
         &mut self,
         pose: Var,
@@ -388,6 +423,7 @@ impl Graph {
         kind: LandmarkKind,
         z: Measurement,
         sigma: Vector2<f64>,
+        seen_after: Option<SeenAfter>,
     ) {
         self.factors.push(Factor::Landmark {
             pose,
@@ -395,6 +431,7 @@ impl Graph {
             kind,
             z,
             sqrt_information: Matrix2::from_diagonal(&sigma.map(|s| 1.0 / s)),
+            seen_after,
         });
     }
 
@@ -564,6 +601,7 @@ fn sqrt_information3(covariance: &Matrix3<f64>) -> Option<Matrix3<f64>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::f64::consts::FRAC_PI_2;
 
     const SIGMA: f64 = 0.01;
 
@@ -638,7 +676,7 @@ mod tests {
             let truth = Vector3::new(k as f64, 0.0, 0.0);
             for &(kind, at, var) in &landmarks {
                 let z = predict(kind, &truth, &at).unwrap();
-                g.add_landmark_factor(v, var, kind, z, Vector2::new(SIGMA, 0.01));
+                g.add_landmark_factor(v, var, kind, z, Vector2::new(SIGMA, 0.01), None);
             }
         }
         let odometry_only = g.covariance(&[(poses[2], 3)]).unwrap();
@@ -663,6 +701,56 @@ mod tests {
         );
     }
 
+    /// A sweep on the move: the end wall x = 3 seen from the sweep's pose, and again after 2 m
+    /// of driving that the odometry reports as 2.1 m (5 % long) and 2° of turn it did not make.
+    /// Tied to the sweep's pose by those steps corrected by the odometry's errors, the second
+    /// sighting teaches the graph the scale error, and a side wall seen there the drift; from
+    /// the sweep's pose itself it could teach neither.
+    #[test]
+    fn a_wall_seen_after_the_odometrys_steps_teaches_the_graph_their_errors() {
+        let mut g = Graph::new(1.5);
+        let calib = calibration(&mut g, 0.1);
+        let pose = anchored(&mut g, Vector3::zeros());
+        let (end, side) = (Vector2::new(0.0, 3.0), Vector2::new(FRAC_PI_2, 1.0));
+        let end_var = g.add_variable(end.as_slice());
+        let side_var = g.add_variable(side.as_slice());
+        let sigma = Vector2::new(0.005, 0.2_f64.to_radians());
+        for (kind, at, var) in [
+            (LandmarkKind::Line, end, end_var),
+            (LandmarkKind::Line, side, side_var),
+        ] {
+            let z = predict(kind, &Vector3::zeros(), &at).unwrap();
+            g.add_landmark_factor(pose, var, kind, z, sigma, None);
+        }
+        // 20 steps of 10.5 cm reported, each turned by 0.1° (2° over 2 m reported: drift of
+        // 1°/m) while the robot drove straight.
+        let drift = 0.1_f64.to_radians() / 0.105;
+        let steps: Vec<Step> = (0..20)
+            .map(|_| Vector3::new(0.105, 0.0, 0.1_f64.to_radians()))
+            .collect();
+        let there = Vector3::new(2.0, 0.0, 0.0);
+        for (at, var) in [(end, end_var), (side, side_var)] {
+            let z = predict(LandmarkKind::Line, &there, &at).unwrap();
+            g.add_landmark_factor(
+                pose,
+                var,
+                LandmarkKind::Line,
+                z,
+                sigma,
+                Some(SeenAfter {
+                    calibration: calib,
+                    steps: steps.clone(),
+                }),
+            );
+        }
+        g.optimize();
+        let c = g.vector3(calib);
+        assert!((c.x - 0.05).abs() < 0.005, "scale error {c}");
+        assert!((c.y - drift).abs() < 0.1 * drift, "drift {c}");
+        let reached = compose(&g.vector3(pose), &corrected(&steps, &c));
+        assert!((reached - there).norm() < 0.01, "{reached}");
+    }
+
     #[test]
     fn the_huber_kernel_limits_a_wrong_sighting_and_a_checkpoint_takes_a_sweep_back() {
         let mut g = Graph::new(1.5);
@@ -675,6 +763,7 @@ mod tests {
                 LandmarkKind::Point,
                 Vector2::new(1.0, 0.0),
                 Vector2::new(0.01, 0.01),
+                None,
             );
         }
         let before = g.checkpoint();
@@ -686,6 +775,7 @@ mod tests {
             LandmarkKind::Point,
             Vector2::new(1.5, 0.0),
             Vector2::new(0.01, 0.01),
+            None,
         );
         g.optimize();
         let moved = g.vector2(post).x - 1.0;
