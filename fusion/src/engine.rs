@@ -540,6 +540,11 @@ mod tests {
         let mut right = Engine::new(FusionConfig::default(), 1000).unwrap();
         right.set_correction(correction);
         for r in &readings {
+            // As the process does, and the rebuild after it: a sweep's last region of constant
+            // depth is placed when the next sweep begins.
+            if right.starts_new_sweep(r) {
+                right.close_region();
+            }
             right.fuse(r);
         }
         assert_ne!(encoded(&mut live), encoded(&mut right));
