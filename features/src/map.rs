@@ -161,6 +161,8 @@ pub struct SweepReport {
     pub missed: usize,
     /// Features removed.
     pub removed: usize,
+    /// Point features merged into another (one post seen from two places).
+    pub merged: usize,
 }
 
 /// The feature map.
@@ -336,10 +338,37 @@ impl FeatureMap {
         let offset = self.cfg.range_offset_m;
         let merge_cfg = self.cfg.merge;
         for (f, used) in self.features.iter_mut().zip(&feature_used) {
-            if !used && heard_past(f, sweep, pose, &gate, offset) {
-                f.confidence *= merge_cfg.miss_factor;
-                report.missed += 1;
+            if *used {
+                continue;
             }
+            match heard_at(f, sweep, pose, &gate, offset) {
+                // Seen once and not again by the next sweep that heard where it is: one sweep's
+                // misreading of what is there (a corner's echo taken for a wall, a wall's for a
+                // post), or noise.
+                Some(Heard::There | Heard::Past) if f.times_seen == 1 => {
+                    f.confidence = 0.0;
+                    report.missed += 1;
+                }
+                Some(Heard::Past) => {
+                    f.confidence *= merge_cfg.miss_factor;
+                    report.missed += 1;
+                }
+                Some(Heard::There | Heard::Nearer) | None => {}
+            }
+        }
+        for (kept, merged) in same_posts(&self.features, &merge_cfg) {
+            let other = self.features[merged].clone();
+            let f = &mut self.features[kept];
+            f.times_seen += other.times_seen;
+            f.confidence = f.confidence.max(other.confidence);
+            f.first_seen = f.first_seen.min(other.first_seen);
+            f.last_seen = f.last_seen.max(other.last_seen);
+            self.features[merged].confidence = 0.0;
+            report.merged += 1;
+        }
+        let explained = explained_by_corners(&self.features, &self.cfg);
+        for f in self.features.iter_mut().filter(|f| explained.contains(&f.id)) {
+            f.confidence = 0.0;
         }
         let before = self.features.len();
         self.features
@@ -473,14 +502,26 @@ fn refine(f: &mut Feature, z: &Placed, stamp: u64, cfg: &MergeConfig) {
     }
 }
 
-/// Whether `sweep`, taken at `pose`, aimed a ping at the feature and heard farther or nothing.
-fn heard_past(
+/// What a sweep heard where a feature is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Heard {
+    /// Something nearer: the feature is hidden.
+    Nearer,
+    /// Something at the feature's range.
+    There,
+    /// Farther, or nothing: a target there would have been heard on its axis.
+    Past,
+}
+
+/// What `sweep`, taken at `pose`, heard on the ping aimed at the feature; `None` if it aimed none
+/// at it (or stands behind a plane).
+fn heard_at(
     f: &Feature,
     sweep: &Sweep,
     pose: &Isometry2<f64>,
     gate: &Gate,
     range_offset_m: f64,
-) -> bool {
+) -> Option<Heard> {
     let inverse = pose.inverse();
     let (bearing_deg, range) = match f.kind {
         FeatureKind::Point | FeatureKind::Corner => {
@@ -492,7 +533,7 @@ fn heard_past(
             let d = f.mean.y - pose.translation.vector.dot(&n);
             if d <= 0.0 {
                 // The sensor stands behind the wall's line.
-                return false;
+                return None;
             }
             let phi = f.mean.x - pose.rotation.angle();
             (phi.to_degrees(), d)
@@ -503,10 +544,95 @@ fn heard_past(
         FeatureKind::Plane => f.covariance_own()[(1, 1)].sqrt(),
         FeatureKind::Point | FeatureKind::Corner => f.covariance().trace().sqrt(),
     };
-    sweep.ping_at(bearing_deg).is_some_and(|p| {
-        p.range_m
-            .is_none_or(|r| r - range_offset_m > range + gate.tolerance_at(range) + 3.0 * sigma)
+    let margin = gate.tolerance_at(range) + 3.0 * sigma;
+    let ping = sweep.ping_at(bearing_deg)?;
+    Some(match ping.range_m.map(|r| r - range_offset_m) {
+        None => Heard::Past,
+        Some(r) if r > range + margin => Heard::Past,
+        Some(r) if r < range - margin => Heard::Nearer,
+        Some(_) => Heard::There,
     })
+}
+
+/// A plane seen from one place is a corner's echo when its foot lies this close to a corner (one
+/// of the map's, or where it crosses another such plane): the foot of a corner's echo taken for
+/// a wall is the vertex up to the bearing's error of its region's centre (a degree or two, a few
+/// centimetres at 2 m).
+const EXPLAINED_M: f64 = 0.10;
+/// Two planes cross at a corner only at this angle or more (a corner's echoes taken for walls
+/// from two places have normals that differ by the angle between the places, seen from it).
+const CROSSING_DEG: f64 = 10.0;
+
+/// Planes seen from one place only (their feet within [`SegmentConfig::corner_tolerance_m`] of
+/// each other) whose foot lies on a corner: one of the map's corners, or where the plane crosses
+/// another such plane. From where it was heard, a corner's vertex is the nearest point of a line
+/// across the ray: its echo looks like a wall's, with the vertex as the foot, and from two places
+/// it looks like two walls whose feet are where they cross. A real wall's foot lies on it, at a
+/// corner only when heard from along the other wall.
+///
+/// [`SegmentConfig::corner_tolerance_m`]: crate::config::SegmentConfig::corner_tolerance_m
+fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
+    let tolerance = cfg.segments.corner_tolerance_m;
+    let corners: Vec<Point2<f64>> = features
+        .iter()
+        .filter(|f| f.kind == FeatureKind::Corner)
+        .map(Feature::position)
+        .collect();
+    // Planes seen from one place: id, foot, normal, distance.
+    let single: Vec<(u64, Vector2<f64>, Vector2<f64>, f64)> = features
+        .iter()
+        .filter_map(|f| {
+            let along = f.direction()?;
+            let (lo, hi) = f.feet;
+            (f.kind == FeatureKind::Plane && hi - lo <= tolerance).then(|| {
+                let n = f.normal();
+                (f.id, n * f.mean.y + along * (lo + hi) / 2.0, n, f.mean.y)
+            })
+        })
+        .collect();
+    let mut explained = Vec::new();
+    for (k, &(id, foot, n, d)) in single.iter().enumerate() {
+        let at_corner = corners
+            .iter()
+            .any(|c| (c.coords - foot).norm() <= EXPLAINED_M);
+        let crossing = single.iter().enumerate().any(|(j, &(_, other_foot, m, e))| {
+            let sin = n.perp(&m);
+            if j == k || sin.abs() < CROSSING_DEG.to_radians().sin() {
+                return false;
+            }
+            // n·x = d and m·x = e.
+            let x = Vector2::new(d * m.y - e * n.y, n.x * e - m.x * d) / sin;
+            (x - foot).norm() <= EXPLAINED_M && (x - other_foot).norm() <= EXPLAINED_M
+        });
+        if at_corner || crossing {
+            explained.push(id);
+        }
+    }
+    explained
+}
+
+/// Point features seen from different directions (their latest rays more than
+/// [`MergeConfig::post_turn_deg`] apart) within [`MergeConfig::post_spread_m`] of each other:
+/// one post, whose echo point (its surface nearest the sensor) moves round it with the sensor.
+/// Each pair as (kept, merged into it): the one seen more often is kept.
+fn same_posts(features: &[Feature], cfg: &MergeConfig) -> Vec<(usize, usize)> {
+    let mut pairs = Vec::new();
+    let mut taken = vec![false; features.len()];
+    for i in 0..features.len() {
+        for j in i + 1..features.len() {
+            let (a, b) = (&features[i], &features[j]);
+            if taken[i] || taken[j] || a.kind != FeatureKind::Point || b.kind != FeatureKind::Point {
+                continue;
+            }
+            let turned = crate::geometry::wrap_deg(a.ray_deg - b.ray_deg).abs();
+            if turned > cfg.post_turn_deg && (a.mean - b.mean).norm() <= cfg.post_spread_m {
+                taken[i] = true;
+                taken[j] = true;
+                pairs.push(if a.times_seen >= b.times_seen { (i, j) } else { (j, i) });
+            }
+        }
+    }
+    pairs
 }
 
 #[cfg(test)]
