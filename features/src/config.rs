@@ -47,7 +47,7 @@ impl Default for MergeConfig {
             // The thickest posts of the generated scenes are 10 cm across; from one place two
             // posts stand along rays a few degrees apart at most.
             post_spread_m: 0.10,
-            post_turn_deg: 20.0,
+            post_turn_deg: 10.0,
         }
     }
 }

@@ -355,6 +355,10 @@ impl FeatureMap {
                 }
                 Some(Heard::There | Heard::Nearer) | None => {}
             }
+            if foot_heard_off_normal(f, sweep, pose, &gate, &self.cfg) {
+                f.confidence = 0.0;
+                report.missed += 1;
+            }
         }
         for (kept, merged) in same_posts(&self.features, &merge_cfg) {
             let other = self.features[merged].clone();
@@ -544,7 +548,17 @@ fn heard_at(
         FeatureKind::Plane => f.covariance_own()[(1, 1)].sqrt(),
         FeatureKind::Point | FeatureKind::Corner => f.covariance().trace().sqrt(),
     };
-    let margin = gate.tolerance_at(range) + 3.0 * sigma;
+    heard(sweep, bearing_deg, range, gate.tolerance_at(range) + 3.0 * sigma, range_offset_m)
+}
+
+/// What `sweep` heard on its ping at `bearing_deg` about a target at `range` (± `margin`).
+fn heard(
+    sweep: &Sweep,
+    bearing_deg: f64,
+    range: f64,
+    margin: f64,
+    range_offset_m: f64,
+) -> Option<Heard> {
     let ping = sweep.ping_at(bearing_deg)?;
     Some(match ping.range_m.map(|r| r - range_offset_m) {
         None => Heard::Past,
@@ -552,6 +566,44 @@ fn heard_at(
         Some(r) if r < range - margin => Heard::Nearer,
         Some(_) => Heard::There,
     })
+}
+
+/// The foot of a plane seen from one place (its feet within `tolerance` of each other), if any.
+fn single_foot(f: &Feature, tolerance: f64) -> Option<Vector2<f64>> {
+    let along = f.direction()?;
+    let (lo, hi) = f.feet;
+    (f.kind == FeatureKind::Plane && hi - lo <= tolerance)
+        .then(|| f.normal() * f.mean.y + along * (lo + hi) / 2.0)
+}
+
+/// Whether `sweep`, taken at `pose` beyond the specular cut-off of a plane seen from one place,
+/// heard something at the plane's foot: a wall does not return an echo from there, a corner's
+/// vertex, a post or a wall's end does — the plane was their echo taken for a wall.
+fn foot_heard_off_normal(
+    f: &Feature,
+    sweep: &Sweep,
+    pose: &Isometry2<f64>,
+    gate: &Gate,
+    cfg: &FeatureConfig,
+) -> bool {
+    let Some(foot) = single_foot(f, cfg.segments.corner_tolerance_m) else {
+        return false;
+    };
+    let to_sensor = pose.translation.vector - foot;
+    let off_normal = to_sensor.angle(&f.normal()).to_degrees();
+    if off_normal <= cfg.echo.specular_cutoff_deg {
+        return false;
+    }
+    let local = pose.inverse() * Point2::from(foot);
+    let range = local.coords.norm();
+    let sigma = f.covariance().trace().sqrt();
+    heard(
+        sweep,
+        local.y.atan2(local.x).to_degrees(),
+        range,
+        gate.tolerance_at(range) + 3.0 * sigma,
+        cfg.range_offset_m,
+    ) == Some(Heard::There)
 }
 
 /// A plane seen from one place is a corner's echo when its foot lies this close to a corner (one
@@ -581,14 +633,7 @@ fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
     // Planes seen from one place: id, foot, normal, distance.
     let single: Vec<(u64, Vector2<f64>, Vector2<f64>, f64)> = features
         .iter()
-        .filter_map(|f| {
-            let along = f.direction()?;
-            let (lo, hi) = f.feet;
-            (f.kind == FeatureKind::Plane && hi - lo <= tolerance).then(|| {
-                let n = f.normal();
-                (f.id, n * f.mean.y + along * (lo + hi) / 2.0, n, f.mean.y)
-            })
-        })
+        .filter_map(|f| Some((f.id, single_foot(f, tolerance)?, f.normal(), f.mean.y)))
         .collect();
     let mut explained = Vec::new();
     for (k, &(id, foot, n, d)) in single.iter().enumerate() {
