@@ -795,8 +795,11 @@ pub fn score_scene_map(scene: &Scene, map: &FeatureMap, expected: &Expected) -> 
                     .find(|g| g.plane_id == f.id())
                     .map_or(f.position(), |g| nalgebra::center(&g.a, &g.b));
                 let distance = wn.dot(&seen_at.coords) - wd;
-                (angle.abs() <= PLANE_MATCH_DEG && distance.abs() <= MATCH_M)
-                    .then_some((i, angle.abs(), distance.abs()))
+                (angle.abs() <= PLANE_MATCH_DEG && distance.abs() <= MATCH_M).then_some((
+                    i,
+                    angle.abs(),
+                    distance.abs(),
+                ))
             })
             .min_by(|a, b| {
                 let cost = |e: &(usize, f64, f64)| e.1 / PLANE_MATCH_DEG + e.2 / MATCH_M;
@@ -814,46 +817,17 @@ pub fn score_scene_map(scene: &Scene, map: &FeatureMap, expected: &Expected) -> 
             }
         }
     }
-    for (f, _) in features.iter().zip(&used).filter(|(_, u)| **u) {
-        tracing::debug!(kind = ?f.kind(), seen = f.times_seen(), first = f.first_seen(), last = f.last_seen(), "true feature in a scene's map");
-    }
     for (f, _) in features.iter().zip(&used).filter(|(_, u)| !**u) {
-        let p = segments
-            .iter()
-            .find(|g| g.plane_id == f.id())
-            .map_or(f.position(), |g| nalgebra::center(&g.a, &g.b));
-        let v = Vec2::new(p.x, p.y);
-        let post_m = scene
-            .posts()
-            .iter()
-            .map(|q| ((q.centre - v).norm() - q.radius).abs())
-            .fold(f64::INFINITY, f64::min);
-        let corner_m = (truth.corners.iter().map(|c| (c.0 - v).norm())).fold(f64::INFINITY, f64::min);
-        let edge_m = (truth.edges.iter().map(|&e| (e - v).norm())).fold(f64::INFINITY, f64::min);
-        let wall_m = (scene.walls().iter().map(|w| distance_to_segment(v, w.a, w.b))).fold(f64::INFINITY, f64::min);
-        let plane = f.normal_deg().map(|normal_deg| {
-            let n = Vector2::new(normal_deg.to_radians().cos(), normal_deg.to_radians().sin());
-            let seen_at = segments
-                .iter()
-                .find(|g| g.plane_id == f.id())
-                .map_or(f.position(), |g| nalgebra::center(&g.a, &g.b));
-            scene.walls().iter().map(|w| {
-                let (wn, wd) = wall_line(w, n);
-                let angle = sonar_features::wrap_deg(wn.y.atan2(wn.x).to_degrees() - normal_deg);
-                (angle.abs(), wn.dot(&seen_at.coords) - wd, distance_to_segment(Vec2::new(seen_at.x, seen_at.y), w.a, w.b))
-            }).min_by(|a, b| (a.0 / 5.0 + a.1.abs() / 0.1).total_cmp(&(b.0 / 5.0 + b.1.abs() / 0.1)))
-        });
+        let p = f.position();
         tracing::debug!(
             kind = ?f.kind(),
             x = p.x,
             y = p.y,
+            normal_deg = f.normal_deg(),
             seen = f.times_seen(),
-            first = f.first_seen(),
-            last = f.last_seen(),
+            first_sweep = f.first_seen(),
+            last_sweep = f.last_seen(),
             confidence = f.confidence(),
-            post_m, corner_m, edge_m, wall_m,
-            plane = ?plane,
-            normal = f.normal_deg(),
             "false feature in a scene's map"
         );
         out.false_features += 1;
@@ -1222,7 +1196,10 @@ fn features_table(
             .flat_map(&pick)
             .collect();
         let all = |pick: fn(&FeatureScore) -> &Vec<f64>| -> Vec<f64> {
-            scores.iter().flat_map(|v| pick(v).iter().copied()).collect()
+            scores
+                .iter()
+                .flat_map(|v| pick(v).iter().copied())
+                .collect()
         };
         let found = |k: usize| {
             let f: usize = scores.iter().map(|v| v.found[k]).sum();
