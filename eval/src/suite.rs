@@ -1519,6 +1519,38 @@ mod structural_tests {
     }
 
     #[test]
+    fn a_scene_map_expects_what_some_viewpoint_expects_and_finds_its_walls() {
+        let a = Expected {
+            posts: vec![true, false],
+            walls: vec![false, false, true],
+            corners: vec![],
+        };
+        let b = Expected {
+            posts: vec![false, false],
+            walls: vec![true, false, false],
+            corners: vec![true],
+        };
+        let both = a.or(&b);
+        assert_eq!(both.posts, vec![true, false]);
+        assert_eq!(both.walls, vec![true, false, true]);
+        assert_eq!(both.corners, vec![true]);
+        // A generated scene's map, scored in the scene's frame, finds walls and corners there
+        // (4 of 10 walls and 5 of 8 corners with `srf05`, scene 0 of the report split).
+        let generated = scenegen::generate(0).unwrap();
+        let s = settings(every_profile());
+        let run = run_scene(&generated, 0, 1, s.sensors[0], &s).unwrap();
+        let scene = &run.scene_features;
+        assert!(scene.expected[1] > 0, "{scene:?}");
+        assert!(scene.found[1] >= 3 && scene.found[2] >= 3, "{scene:?}");
+        assert!(
+            scene
+                .wall_angle_errors_deg
+                .iter()
+                .all(|&e| e <= PLANE_MATCH_DEG)
+        );
+    }
+
+    #[test]
     fn an_empty_scene_gives_no_features_and_no_occupied_cells() {
         let empty = Generated {
             scene: Scene::new("empty", vec![], vec![]).unwrap(),
@@ -1534,6 +1566,7 @@ mod structural_tests {
                 assert_eq!(f.false_features, 0, "{profile}, viewpoint {}", k + 1);
                 assert_eq!(f.expected, [0, 0, 0]);
             }
+            assert_eq!(run.scene_features, FeatureScore::default(), "{profile}");
             for score in &run.grid[0] {
                 assert_eq!(score.visible, 0);
                 assert_eq!(score.occupied, 0, "{profile}: {score:?}");

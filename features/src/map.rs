@@ -642,49 +642,39 @@ fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
         .iter()
         .filter(|f| f.kind == FeatureKind::Corner)
         .collect();
-    // Planes seen from one place: id, foot, normal, distance, σ of the distance.
-    let single: Vec<(u64, Vector2<f64>, Vector2<f64>, f64, f64, f64)> = features
+    // Planes seen from one place, with their foot.
+    let single: Vec<(&Feature, Vector2<f64>)> = features
         .iter()
-        .filter_map(|f| {
-            let sigma = f.distance_sigma_m()?;
-            Some((
-                f.id,
-                single_foot(f, tolerance)?,
-                f.normal(),
-                f.mean.y,
-                sigma,
-                f.ray_deg,
-            ))
-        })
+        .filter_map(|f| Some((f, single_foot(f, tolerance)?)))
         .collect();
     let mut explained = Vec::new();
-    for (k, &(id, foot, n, d, sigma, ray_deg)) in single.iter().enumerate() {
+    for &(plane, foot) in &single {
+        let (n, d) = (plane.normal(), plane.mean.y);
+        let sigma = plane.covariance_own()[(1, 1)].sqrt();
         // The vertex lies on the line (its echo's range is the plane's distance), up to both
         // ranges' errors; along it, up to the bearing's.
         let at_corner = corners.iter().any(|c| {
             let v = c.position().coords;
             let across_sigma =
                 (sigma.powi(2) + (n.transpose() * c.covariance() * n)[(0, 0)]).sqrt();
-            let elsewhere =
-                crate::geometry::wrap_deg(c.ray_deg - ray_deg).abs() > cfg.merge.post_turn_deg;
+            let elsewhere = crate::geometry::wrap_deg(c.ray_deg - plane.ray_deg).abs()
+                > cfg.merge.post_turn_deg;
             elsewhere
                 && (v - foot).norm() <= EXPLAINED_M
                 && (n.dot(&v) - d).abs() <= 3.0 * across_sigma
         });
-        let crossing = single
-            .iter()
-            .enumerate()
-            .any(|(j, &(_, other_foot, m, e, _, _))| {
-                let sin = n.perp(&m);
-                if j == k || sin.abs() < CROSSING_DEG.to_radians().sin() {
-                    return false;
-                }
-                // n·x = d and m·x = e.
-                let x = Vector2::new(d * m.y - e * n.y, n.x * e - m.x * d) / sin;
-                (x - foot).norm() <= EXPLAINED_M && (x - other_foot).norm() <= EXPLAINED_M
-            });
+        let crossing = single.iter().any(|&(other, other_foot)| {
+            let (m, e) = (other.normal(), other.mean.y);
+            let sin = n.perp(&m);
+            if other.id == plane.id || sin.abs() < CROSSING_DEG.to_radians().sin() {
+                return false;
+            }
+            // n·x = d and m·x = e.
+            let x = Vector2::new(d * m.y - e * n.y, n.x * e - m.x * d) / sin;
+            (x - foot).norm() <= EXPLAINED_M && (x - other_foot).norm() <= EXPLAINED_M
+        });
         if at_corner || crossing {
-            explained.push(id);
+            explained.push(plane.id);
         }
     }
     explained
