@@ -291,6 +291,8 @@ pub fn feature_maps(readings: &[Reading]) -> Result<FeatureMaps> {
 /// A wall in normal form as seen from the sensor.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WallTruth {
+    /// Its index in the scene's walls.
+    pub wall: usize,
     pub normal_deg: f64,
     pub distance_m: f64,
     /// The scan's pings reach its foot's bearing, in the line of sight.
@@ -354,12 +356,13 @@ impl Truth {
                 truth.edges.push(v.at);
             }
         }
-        for w in scene.walls() {
+        for (index, w) in scene.walls().iter().enumerate() {
             let e = w.b - w.a;
             let t = -w.a.dot(e) / e.dot(e);
             if (0.0..=1.0).contains(&t) {
                 let foot = w.a + e * t;
                 truth.walls.push(WallTruth {
+                    wall: index,
                     normal_deg: foot.angle_deg(),
                     distance_m: foot.norm(),
                     expected: reached(foot),
@@ -955,6 +958,7 @@ mod tests {
     #[test]
     fn a_segment_is_measured_along_its_wall() {
         let wall = WallTruth {
+            wall: 0,
             normal_deg: 0.0,
             distance_m: 1.0,
             expected: true,

@@ -56,16 +56,16 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, Result, bail};
-use nalgebra::{Isometry2, Vector2};
+use nalgebra::{Isometry2, Point2, Vector2};
 use sonar_common::ipc::Reading;
 use sonar_common::sensor::SensorConfig;
-use sonar_features::{EchoPhysics, FeatureConfig, FeatureMap, Sweep};
+use sonar_features::{EchoPhysics, FeatureConfig, FeatureKind, FeatureMap, Sweep};
 use sonar_fusion::{FusionConfig, FusionSection, Mapper, Observation, Preset};
 use sonar_sim::geometry::{distance_to_segment, segments_intersect};
-use sonar_sim::{Pose, Scene, SensorProfile, Vec2};
+use sonar_sim::{Pose, Scene, SensorProfile, Vec2, Wall};
 use tracing::info;
 
-use crate::features::{Truth, feature_physics, score};
+use crate::features::{MATCH_M, PLANE_MATCH_DEG, Truth, feature_physics, score};
 use crate::metrics::{MapView, quantile};
 use crate::pipeline::{Head, Scan, capture_with, probability_view};
 use crate::scenegen::{self, Generated, VIEWPOINTS};
@@ -575,10 +575,11 @@ fn erased(before: &[bool], after: &[bool]) -> usize {
     before.iter().zip(after).filter(|&(&b, &a)| b && !a).count()
 }
 
-/// The features of one viewpoint against its scene.
+/// Features against the truth: one viewpoint's, or the feature map of a scene's viewpoints.
 #[derive(Debug, Clone, PartialEq, Default)]
-pub struct ViewFeatures {
-    /// Distance of each expected post's point feature from its echo point, metres.
+pub struct FeatureScore {
+    /// Distance of each expected post's point feature from its echo point (a scene's map: from
+    /// the post's surface), metres.
     pub post_errors_m: Vec<f64>,
     /// |normal angle error| of each expected wall found, degrees.
     pub wall_angle_errors_deg: Vec<f64>,
@@ -591,46 +592,98 @@ pub struct ViewFeatures {
     pub false_features: usize,
 }
 
-/// The features of `readings` (one viewpoint, several sweeps), with the feature pipeline's
-/// defaults but the head's own geometry (its step between pings, its range limits) and its
-/// sensor's beam (`echo`), as a robot builder would configure it for that sensor.
-fn feature_map(
-    readings: &[Reading],
-    sensor: SensorConfig,
-    echo: EchoPhysics,
-) -> Result<FeatureMap> {
-    let cfg = FeatureConfig {
+/// Which of a scene's posts, walls and corners (concave vertices, in [`Truth`]'s order) a
+/// feature map is expected to find.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Expected {
+    pub posts: Vec<bool>,
+    pub walls: Vec<bool>,
+    pub corners: Vec<bool>,
+}
+
+impl Expected {
+    /// What one viewpoint is expected to find (`view_scene` in its frame, `truth` of it): posts
+    /// whose echo point is in line of sight within [`POST_EXPECTED_M`], walls whose
+    /// perpendicular foot is in sight and range, corners in sight and range.
+    fn of_view(view_scene: &Scene, truth: &Truth, max_range_m: f64) -> Self {
+        let origin = Vec2::default();
+        let posts = truth
+            .posts
+            .iter()
+            .enumerate()
+            .map(|(i, &echo_point)| {
+                echo_point.norm() <= POST_EXPECTED_M
+                    && in_sight(view_scene, origin, echo_point, Owner::Post(i), max_range_m)
+            })
+            .collect();
+        let mut walls = vec![false; view_scene.walls().len()];
+        for w in &truth.walls {
+            walls[w.wall] = w.expected && w.distance_m <= max_range_m;
+        }
+        let corners = truth
+            .corners
+            .iter()
+            .map(|&(at, expected)| expected && at.norm() <= max_range_m)
+            .collect();
+        Self {
+            posts,
+            walls,
+            corners,
+        }
+    }
+
+    /// Expected of the map of several viewpoints: whatever one of them is expected to find.
+    fn or(mut self, other: &Self) -> Self {
+        let either = |a: &mut Vec<bool>, b: &[bool]| {
+            a.resize(a.len().max(b.len()), false);
+            a.iter_mut().zip(b).for_each(|(a, b)| *a |= b);
+        };
+        either(&mut self.posts, &other.posts);
+        either(&mut self.walls, &other.walls);
+        either(&mut self.corners, &other.corners);
+        self
+    }
+}
+
+/// The feature pipeline's defaults with the head's own geometry (its step between pings, its
+/// range limits) and its sensor's beam (`echo`), as a robot builder would configure it for that
+/// sensor.
+fn feature_config(sensor: SensorConfig, echo: EchoPhysics) -> FeatureConfig {
+    FeatureConfig {
         sensor,
         echo,
         ..FeatureConfig::default()
-    };
-    let mut map = FeatureMap::new(cfg).context("setting up the feature map")?;
-    for sweep in readings.chunk_by(|a, b| a.sweep_id == b.sweep_id) {
-        map.update(&Sweep::from_readings(sweep, &cfg), &Isometry2::identity());
     }
-    Ok(map)
+}
+
+/// Merges `readings` (one viewpoint, several sweeps) into `map`, each sweep taken at `pose`.
+fn merge_sweeps(map: &mut FeatureMap, readings: &[Reading], pose: &Isometry2<f64>) {
+    let cfg = *map.config();
+    for sweep in readings.chunk_by(|a, b| a.sweep_id == b.sweep_id) {
+        map.update(&Sweep::from_readings(sweep, &cfg), pose);
+    }
 }
 
 /// Runs the features on `readings` (one viewpoint, in its frame: `view_scene`, heard by a head
-/// of geometry `sensor`) and scores them.
+/// of geometry `sensor`) and scores them; with what the viewpoint was expected to find.
 pub fn score_features(
     view_scene: &Scene,
     readings: &[Reading],
     sensor: SensorConfig,
-) -> Result<ViewFeatures> {
+) -> Result<(FeatureScore, Expected)> {
     let max_range_m = f64::from(sensor.max_range_m);
-    let map = feature_map(readings, sensor, feature_physics(&view_scene.echo))?;
+    let cfg = feature_config(sensor, feature_physics(&view_scene.echo));
+    let mut map = FeatureMap::new(cfg).context("setting up the feature map")?;
+    merge_sweeps(&mut map, readings, &Isometry2::identity());
     let truth = Truth::of(view_scene, Scan::Full);
+    let expected = Expected::of_view(view_scene, &truth, max_range_m);
     let scored = score(&map, &truth, &[]);
-    let origin = Vec2::default();
-    let mut out = ViewFeatures {
+    let mut out = FeatureScore {
         false_features: scored.false_features.len(),
-        ..ViewFeatures::default()
+        ..FeatureScore::default()
     };
-    for (i, (&echo_point, error)) in truth.posts.iter().zip(&scored.posts).enumerate() {
-        let expected = echo_point.norm() <= POST_EXPECTED_M
-            && in_sight(view_scene, origin, echo_point, Owner::Post(i), max_range_m);
-        if expected {
+    for (&expect, error) in expected.posts.iter().zip(&scored.posts) {
+        if expect {
             out.expected[0] += 1;
             if let Some(e) = error {
                 out.found[0] += 1;
@@ -638,9 +691,10 @@ pub fn score_features(
             }
         }
     }
+    // `scored` holds the walls and corners its truth expects, of which the ones in range are.
     let walls = truth.walls.iter().filter(|w| w.expected);
     for (w, error) in walls.zip(&scored.walls) {
-        if w.distance_m <= max_range_m {
+        if expected.walls[w.wall] {
             out.expected[1] += 1;
             if let Some(e) = error {
                 out.found[1] += 1;
@@ -649,9 +703,9 @@ pub fn score_features(
             }
         }
     }
-    let corners = truth.corners.iter().filter(|c| c.1);
-    for (&(at, _), error) in corners.zip(&scored.corners) {
-        if at.norm() <= max_range_m {
+    let corners = (truth.corners.iter().zip(&expected.corners)).filter(|(c, _)| c.1);
+    for ((_, &expect), error) in corners.zip(&scored.corners) {
+        if expect {
             out.expected[2] += 1;
             if let Some(e) = error {
                 out.found[2] += 1;
@@ -659,7 +713,126 @@ pub fn score_features(
             }
         }
     }
-    Ok(out)
+    Ok((out, expected))
+}
+
+/// A wall's line in normal form, its normal on the side of `towards`: (normal, distance from the
+/// origin, possibly negative).
+fn wall_line(w: &Wall, towards: Vector2<f64>) -> (Vector2<f64>, f64) {
+    let e = w.b - w.a;
+    let mut n = Vector2::new(-e.y, e.x) / e.norm();
+    if n.dot(&towards) < 0.0 {
+        n = -n;
+    }
+    (n, n.dot(&Vector2::new(w.a.x, w.a.y)))
+}
+
+/// Scores `map` (the features of a whole scene, in its frame) against `scene`: as
+/// [`crate::features::score`] does a viewpoint's, with the same tolerances, in the scene's
+/// frame. A post is matched by a point feature within [`MATCH_M`] of its surface (each
+/// viewpoint sees its own echo point), a wall end or convex joint by one within [`MATCH_M`], a
+/// corner by a corner feature within [`MATCH_M`], a wall by a plane within [`PLANE_MATCH_DEG`]
+/// of its normal and [`MATCH_M`] of its line where the plane was seen (its segment's middle);
+/// each element by one feature, closest first; the features left are false.
+pub fn score_scene_map(scene: &Scene, map: &FeatureMap, expected: &Expected) -> FeatureScore {
+    let truth = Truth::of(scene, Scan::Full);
+    let features = map.features();
+    let segments = map.segments(&[]);
+    let mut used = vec![false; features.len()];
+    let mut out = FeatureScore::default();
+    let mut nearest = |kind: FeatureKind, distance: &dyn Fn(Point2<f64>) -> f64| {
+        let best = features
+            .iter()
+            .enumerate()
+            .filter(|(i, f)| !used[*i] && f.kind() == kind)
+            .map(|(i, f)| (i, distance(f.position())))
+            .filter(|(_, d)| *d <= MATCH_M)
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        if let Some((i, _)) = best {
+            used[i] = true;
+        }
+        best.map(|(_, d)| d)
+    };
+    let point = |v: Vec2| Point2::new(v.x, v.y);
+    for (post, &expect) in scene.posts().iter().zip(&expected.posts) {
+        let centre = point(post.centre);
+        let error = nearest(FeatureKind::Point, &|p| {
+            ((p - centre).norm() - post.radius).abs()
+        });
+        if expect {
+            out.expected[0] += 1;
+            if let Some(e) = error {
+                out.found[0] += 1;
+                out.post_errors_m.push(e);
+            }
+        }
+    }
+    for &edge in &truth.edges {
+        nearest(FeatureKind::Point, &|p| (p - point(edge)).norm());
+    }
+    for (&(at, _), &expect) in truth.corners.iter().zip(&expected.corners) {
+        let error = nearest(FeatureKind::Corner, &|p| (p - point(at)).norm());
+        if expect {
+            out.expected[2] += 1;
+            if let Some(e) = error {
+                out.found[2] += 1;
+                out.corner_errors_m.push(e);
+            }
+        }
+    }
+    for (w, &expect) in scene.walls().iter().zip(&expected.walls) {
+        let best = features
+            .iter()
+            .enumerate()
+            .filter(|(i, f)| !used[*i] && f.kind() == FeatureKind::Plane)
+            .filter_map(|(i, f)| {
+                let normal_deg = f.normal_deg()?;
+                let n = Vector2::new(normal_deg.to_radians().cos(), normal_deg.to_radians().sin());
+                let (wn, wd) = wall_line(w, n);
+                let angle = sonar_features::wrap_deg(wn.y.atan2(wn.x).to_degrees() - normal_deg);
+                let seen_at = segments
+                    .iter()
+                    .find(|g| g.plane_id == f.id())
+                    .map_or(f.position(), |g| nalgebra::center(&g.a, &g.b));
+                let distance = wn.dot(&seen_at.coords) - wd;
+                (angle.abs() <= PLANE_MATCH_DEG && distance.abs() <= MATCH_M).then_some((
+                    i,
+                    angle.abs(),
+                    distance.abs(),
+                ))
+            })
+            .min_by(|a, b| {
+                let cost = |e: &(usize, f64, f64)| e.1 / PLANE_MATCH_DEG + e.2 / MATCH_M;
+                cost(a).total_cmp(&cost(b))
+            });
+        if let Some((i, _, _)) = best {
+            used[i] = true;
+        }
+        if expect {
+            out.expected[1] += 1;
+            if let Some((_, angle, distance)) = best {
+                out.found[1] += 1;
+                out.wall_angle_errors_deg.push(angle);
+                out.wall_distance_errors_m.push(distance);
+            }
+        }
+    }
+    for (f, _) in features.iter().zip(&used).filter(|(_, u)| !**u) {
+        let p = f.position();
+        tracing::debug!(
+            kind = ?f.kind(),
+            x = p.x,
+            y = p.y,
+            normal_deg = f.normal_deg(),
+            seen = f.times_seen(),
+            first_sweep = f.first_seen(),
+            last_sweep = f.last_seen(),
+            confidence = f.confidence(),
+            "false feature in a scene's map"
+        );
+        out.false_features += 1;
+    }
+    out
 }
 
 /// One scene, seed and sensor.
@@ -672,7 +845,10 @@ pub struct Run {
     /// Per fusion configuration (in the settings' order), per viewpoint count (the settings').
     pub grid: Vec<Vec<GridScore>>,
     /// Per viewpoint.
-    pub features: Vec<ViewFeatures>,
+    pub features: Vec<FeatureScore>,
+    /// The feature map of every viewpoint in order, each at its true pose, as the fusion
+    /// builds what it publishes on `sonar/features`.
+    pub scene_features: FeatureScore,
 }
 
 fn mix(seed: u64, scene: u64, view: usize) -> u64 {
@@ -722,6 +898,9 @@ pub fn run_scene(
     // Per fusion, the samples drawn at the last viewpoint count scored.
     let mut drawn_before: Vec<Option<Vec<bool>>> = vec![None; settings.fusion.len()];
     let mut features = Vec::new();
+    let cfg = feature_config(head.sensor, feature_physics(&scene.echo));
+    let mut scene_map = FeatureMap::new(cfg).context("setting up the scene's feature map")?;
+    let mut scene_expected = Expected::default();
     for (k, &view) in views.iter().enumerate() {
         let view_scene = scenegen::seen_from(&scene, view)?;
         let capture = capture_with(
@@ -732,7 +911,12 @@ pub fn run_scene(
             mix(seed, index, k),
         )
         .with_context(|| format!("scene {} viewpoint {}", scene.name, k + 1))?;
-        features.push(score_features(&view_scene, &capture.readings, head.sensor)?);
+        let (view_features, expected) =
+            score_features(&view_scene, &capture.readings, head.sensor)?;
+        features.push(view_features);
+        scene_expected = scene_expected.or(&expected);
+        let true_pose = Isometry2::new(Vector2::new(view.at.x, view.at.y), view.heading_rad);
+        merge_sweeps(&mut scene_map, &capture.readings, &true_pose);
         let pose = isometry(view);
         for ((mapper, scores), before) in mappers.iter_mut().zip(&mut grid).zip(&mut drawn_before) {
             for r in &capture.readings {
@@ -756,6 +940,7 @@ pub fn run_scene(
         sensor,
         grid,
         features,
+        scene_features: score_scene_map(&scene, &scene_map, &scene_expected),
     })
 }
 
@@ -978,28 +1163,52 @@ fn features_markdown(t: &mut String, settings: &SuiteSettings, runs: &[Run]) {
          is in sight and range; corners in sight and range); false features per viewpoint, mean \
          and worst.\n"
     );
+    features_table(t, settings, runs, "view", |r| r.features.iter().collect());
     let _ = writeln!(
         t,
-        "| sensor | post error (cm) | wall angle error (°) | wall distance error (cm) | corner error (cm) | posts found | walls found | corners found | false features / view | views |"
+        "\n### Generated scene suite: features (the scene's feature map)\n\n\
+         The feature map of every viewpoint in order, each at its true pose, as the fusion \
+         publishes it on `sonar/features`, scored in the scene's frame with the same tolerances \
+         (a post's error from its surface, a wall's where its plane was seen); expected = what \
+         some viewpoint is expected to find; false features per scene, mean and worst.\n"
+    );
+    features_table(t, settings, runs, "scene", |r| vec![&r.scene_features]);
+}
+
+/// One row per sensor: the feature scores `pick` takes from every run, each scoring one `unit`
+/// (a viewpoint, a scene).
+fn features_table(
+    t: &mut String,
+    settings: &SuiteSettings,
+    runs: &[Run],
+    unit: &str,
+    pick: impl Fn(&Run) -> Vec<&FeatureScore>,
+) {
+    let _ = writeln!(
+        t,
+        "| sensor | post error (cm) | wall angle error (°) | wall distance error (cm) | corner error (cm) | posts found | walls found | corners found | false features / {unit} | {unit}s |"
     );
     let _ = writeln!(t, "|---|---|---|---|---|---|---|---|---|---|");
     for &sensor in &settings.sensors {
-        let views: Vec<&ViewFeatures> = runs
+        let scores: Vec<&FeatureScore> = runs
             .iter()
             .filter(|r| r.sensor == sensor)
-            .flat_map(|r| &r.features)
+            .flat_map(&pick)
             .collect();
-        let all = |pick: fn(&ViewFeatures) -> &Vec<f64>| -> Vec<f64> {
-            views.iter().flat_map(|v| pick(v).iter().copied()).collect()
+        let all = |pick: fn(&FeatureScore) -> &Vec<f64>| -> Vec<f64> {
+            scores
+                .iter()
+                .flat_map(|v| pick(v).iter().copied())
+                .collect()
         };
         let found = |k: usize| {
-            let f: usize = views.iter().map(|v| v.found[k]).sum();
-            let e: usize = views.iter().map(|v| v.expected[k]).sum();
+            let f: usize = scores.iter().map(|v| v.found[k]).sum();
+            let e: usize = scores.iter().map(|v| v.expected[k]).sum();
             format!("{f} / {e}")
         };
-        let false_total: usize = views.iter().map(|v| v.false_features).sum();
-        let false_worst = views.iter().map(|v| v.false_features).max().unwrap_or(0);
-        let false_mean = false_total as f64 / views.len().max(1) as f64;
+        let false_total: usize = scores.iter().map(|v| v.false_features).sum();
+        let false_worst = scores.iter().map(|v| v.false_features).max().unwrap_or(0);
+        let false_mean = false_total as f64 / scores.len().max(1) as f64;
         let _ = writeln!(
             t,
             "| {sensor} | {} | {} | {} | {} | {} | {} | {} | {false_mean:.2} / {false_worst} | {} |",
@@ -1018,7 +1227,7 @@ fn features_markdown(t: &mut String, settings: &SuiteSettings, runs: &[Run]) {
             found(0),
             found(1),
             found(2),
-            views.len()
+            scores.len()
         );
     }
 }
@@ -1310,6 +1519,38 @@ mod structural_tests {
     }
 
     #[test]
+    fn a_scene_map_expects_what_some_viewpoint_expects_and_finds_its_walls() {
+        let a = Expected {
+            posts: vec![true, false],
+            walls: vec![false, false, true],
+            corners: vec![],
+        };
+        let b = Expected {
+            posts: vec![false, false],
+            walls: vec![true, false, false],
+            corners: vec![true],
+        };
+        let both = a.or(&b);
+        assert_eq!(both.posts, vec![true, false]);
+        assert_eq!(both.walls, vec![true, false, true]);
+        assert_eq!(both.corners, vec![true]);
+        // A generated scene's map, scored in the scene's frame, finds walls and corners there
+        // (4 of 10 walls and 5 of 8 corners with `srf05`, scene 0 of the report split).
+        let generated = scenegen::generate(0).unwrap();
+        let s = settings(every_profile());
+        let run = run_scene(&generated, 0, 1, s.sensors[0], &s).unwrap();
+        let scene = &run.scene_features;
+        assert!(scene.expected[1] > 0, "{scene:?}");
+        assert!(scene.found[1] >= 3 && scene.found[2] >= 3, "{scene:?}");
+        assert!(
+            scene
+                .wall_angle_errors_deg
+                .iter()
+                .all(|&e| e <= PLANE_MATCH_DEG)
+        );
+    }
+
+    #[test]
     fn an_empty_scene_gives_no_features_and_no_occupied_cells() {
         let empty = Generated {
             scene: Scene::new("empty", vec![], vec![]).unwrap(),
@@ -1325,6 +1566,7 @@ mod structural_tests {
                 assert_eq!(f.false_features, 0, "{profile}, viewpoint {}", k + 1);
                 assert_eq!(f.expected, [0, 0, 0]);
             }
+            assert_eq!(run.scene_features, FeatureScore::default(), "{profile}");
             for score in &run.grid[0] {
                 assert_eq!(score.visible, 0);
                 assert_eq!(score.occupied, 0, "{profile}: {score:?}");

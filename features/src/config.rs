@@ -26,6 +26,12 @@ pub struct MergeConfig {
     pub miss_factor: f64,
     /// Features whose confidence falls below this are removed.
     pub remove_below: f64,
+    /// Two point features this close, seen along rays more than [`Self::post_turn_deg`] apart,
+    /// are one post seen from two places: its echo point (the surface nearest the sensor) moves
+    /// round it, by up to its diameter.
+    pub post_spread_m: f64,
+    /// See [`Self::post_spread_m`].
+    pub post_turn_deg: f64,
 }
 
 impl Default for MergeConfig {
@@ -38,6 +44,10 @@ impl Default for MergeConfig {
             // (confidence near 1) goes after five.
             miss_factor: 0.7,
             remove_below: 0.2,
+            // The thickest posts of the generated scenes are 10 cm across; from one place two
+            // posts stand along rays a few degrees apart at most.
+            post_spread_m: 0.10,
+            post_turn_deg: 10.0,
         }
     }
 }
