@@ -10,13 +10,16 @@
 //! [`RETRY_PERIOD`], for as long as the process runs: the first failure is a warning, later ones
 //! are debug lines, the success an info line.
 
+use std::fmt::Debug;
 use std::time::{Duration, Instant};
 
+use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use tracing::{debug, info, warn};
 
-use crate::ipc::IpcError;
+use crate::ipc::{IpcError, PubSub};
 
 /// How often a port that could not be had is tried again.
 pub const RETRY_PERIOD: Duration = Duration::from_secs(1);
@@ -106,6 +109,32 @@ impl<P> OptionalPort<P> {
             }
         }
     }
+}
+
+/// A subscriber of the service of single messages `open` opens: the opening an optional port of
+/// one usually is (`OptionalPort::open(node, name, |n| subscriber(n, ipc::pose_service))`).
+pub fn subscriber<T: Debug + ZeroCopySend>(
+    node: &Node<Ipc>,
+    open: fn(&Node<Ipc>) -> Result<PubSub<T>, IpcError>,
+) -> Result<Subscriber<Ipc, T, ()>, IpcError> {
+    open(node)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| IpcError::new("create subscriber", e))
+}
+
+/// A subscriber of a snapshot service (`sonar/features`, `sonar/grid`: a slice behind a header).
+pub fn snapshot_subscriber<T, H>(
+    service: Result<PortFactory<Ipc, [T], H>, IpcError>,
+) -> Result<Subscriber<Ipc, [T], H>, IpcError>
+where
+    T: Debug + ZeroCopySend + 'static,
+    H: Debug + ZeroCopySend + 'static,
+{
+    service?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| IpcError::new("create subscriber", e))
 }
 
 #[cfg(test)]

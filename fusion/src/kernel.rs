@@ -568,34 +568,14 @@ impl ConeCache {
             f32::NAN
         };
         let reach = RowReach { cell, radius, n, k };
-        let runs = &mut self.runs;
+        let plan = (&**spans, &reach, &mut self.runs);
+        let angles = (beam.axis, cone, fade);
         match stencil {
             Some(stencil) => {
                 stencil.keep_trust(fade);
-                plan_runs(spans, &reach, runs, stencil);
-                dispatch(
-                    layer,
-                    heard,
-                    evidence,
-                    beam.axis,
-                    cone,
-                    (runs, fade),
-                    stencil,
-                )
+                plan_and_fuse(stencil, plan, layer, heard, evidence, angles)
             }
-            None => {
-                let mut sensor = sensor;
-                plan_runs(spans, &reach, runs, &mut sensor);
-                dispatch(
-                    layer,
-                    heard,
-                    evidence,
-                    beam.axis,
-                    cone,
-                    (runs, fade),
-                    &sensor,
-                )
-            }
+            None => plan_and_fuse(&mut { sensor }, plan, layer, heard, evidence, angles),
         }
     }
 }
@@ -652,6 +632,22 @@ struct RowRun {
 /// What the pass over the rows takes besides the layer and the evidence: the runs, and the
 /// range at which the evidence's radial trust is one half (NaN: not used).
 type RowPass<'a> = (&'a [RowRun], f32);
+
+/// A reading's runs planned over `polar` (the parked sensor's stencil, or its own cell) from
+/// `plan` (the spans of its direction, its reach, where the runs go), then fused; `angles` are
+/// its axis, its cone's half-angle and its fade range ([`RowPass`]).
+fn plan_and_fuse<R: Combine, E: CellEvidence, P: RowPolar>(
+    polar: &mut P,
+    plan: (&Spans, &RowReach, &mut Vec<RowRun>),
+    layer: &mut Layer<R>,
+    heard: &mut [f32],
+    evidence: &E,
+    (axis, cone, fade): (f32, f32, f32),
+) -> usize {
+    let (spans, reach, runs) = plan;
+    plan_runs(spans, reach, runs, polar);
+    dispatch(layer, heard, evidence, axis, cone, (runs, fade), polar)
+}
 
 /// The runs of a reading: each row's span clipped to the reach and the grid and widened to whole
 /// vectors, the cells of each made ready by `polar` ([`RowPolar::prepare`]). Worked out before

@@ -88,6 +88,30 @@ pub(crate) trait CellEvidence: Copy {
     }
 }
 
+/// The items of a [`CellEvidence`] whose evidence is weighted by the [`radial_trust`] at its
+/// `fade_range` field: the forms without a trust work it out and call the trusted forms, which
+/// the type writes itself (one definition of the model per type, whoever computes the trust).
+macro_rules! fades_at_its_fade_range {
+    () => {
+        #[inline(always)]
+        fn log_odds(&self, r: f32, alpha: f32) -> f32 {
+            self.trusted_log_odds(r, alpha, radial_trust(r, self.fade_range))
+        }
+
+        #[inline(always)]
+        fn heard_log_odds(&self, r: f32, alpha: f32, bearing: f32, heard: &mut f32) -> f32 {
+            let trust = radial_trust(r, self.fade_range);
+            self.trusted_heard_log_odds(r, alpha, bearing, heard, trust)
+        }
+
+        const FADES: bool = true;
+
+        fn fade_range(&self) -> f32 {
+            self.fade_range
+        }
+    };
+}
+
 /// ln(p / (1 − p)); ±∞ at 0 and 1, which the log-odds rule's clamping absorbs.
 pub(crate) fn logit(p: f32) -> f32 {
     (p / (1.0 - p)).ln()
@@ -836,22 +860,7 @@ impl CellEvidence for RegionEcho {
         self.half_angle
     }
 
-    #[inline(always)]
-    fn log_odds(&self, r: f32, alpha: f32) -> f32 {
-        self.trusted_log_odds(r, alpha, radial_trust(r, self.fade_range))
-    }
-
-    #[inline(always)]
-    fn heard_log_odds(&self, r: f32, alpha: f32, bearing: f32, heard: &mut f32) -> f32 {
-        let trust = radial_trust(r, self.fade_range);
-        self.trusted_heard_log_odds(r, alpha, bearing, heard, trust)
-    }
-
-    const FADES: bool = true;
-
-    fn fade_range(&self) -> f32 {
-        self.fade_range
-    }
+    fades_at_its_fade_range!();
 
     #[inline(always)]
     fn trusted_log_odds(&self, r: f32, alpha: f32, trust: f32) -> f32 {
@@ -996,22 +1005,7 @@ impl CellEvidence for SmoothReading {
         self.half_angle
     }
 
-    #[inline(always)]
-    fn log_odds(&self, r: f32, alpha: f32) -> f32 {
-        self.trusted_log_odds(r, alpha, radial_trust(r, self.fade_range))
-    }
-
-    #[inline(always)]
-    fn heard_log_odds(&self, r: f32, alpha: f32, bearing: f32, heard: &mut f32) -> f32 {
-        let trust = radial_trust(r, self.fade_range);
-        self.trusted_heard_log_odds(r, alpha, bearing, heard, trust)
-    }
-
-    const FADES: bool = true;
-
-    fn fade_range(&self) -> f32 {
-        self.fade_range
-    }
+    fades_at_its_fade_range!();
 
     #[inline(always)]
     fn trusted_log_odds(&self, r: f32, alpha: f32, trust: f32) -> f32 {

@@ -8,12 +8,11 @@ use std::time::Instant;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
-use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use sonar_common::ipc::{
     self, FeatureRecord, FeaturesHeader, GridHeader, IpcError, LAYOUT_VERSION, LocalizedPose,
-    Pose2D, PubSub, Reading, SlamCorrection,
+    Pose2D, Reading, SlamCorrection,
 };
-use sonar_common::optional_port::OptionalPort;
+use sonar_common::optional_port::{OptionalPort, snapshot_subscriber, subscriber};
 use tracing::warn;
 
 use crate::convert::{Output, WellKnown};
@@ -30,26 +29,6 @@ pub struct Ports {
     localized_pose: OptionalPort<Subscriber<Ipc, LocalizedPose, ()>>,
     slam_correction: OptionalPort<Subscriber<Ipc, SlamCorrection, ()>>,
     features: OptionalPort<Subscriber<Ipc, [FeatureRecord], FeaturesHeader>>,
-}
-
-fn snapshot_subscriber<T: Debug + ZeroCopySend + 'static, H: Debug + ZeroCopySend + 'static>(
-    service: Result<PortFactory<Ipc, [T], H>, IpcError>,
-) -> Result<Subscriber<Ipc, [T], H>, IpcError> {
-    service?
-        .subscriber_builder()
-        .create()
-        .map_err(|e| IpcError::new("create subscriber", e))
-}
-
-/// A subscriber of a service of single messages.
-fn subscriber<T: Debug + ZeroCopySend>(
-    node: &Node<Ipc>,
-    open: fn(&Node<Ipc>) -> Result<PubSub<T>, IpcError>,
-) -> Result<Subscriber<Ipc, T, ()>, IpcError> {
-    open(node)?
-        .subscriber_builder()
-        .create()
-        .map_err(|e| IpcError::new("create subscriber", e))
 }
 
 /// Each sample a subscriber holds (a failed receive is logged and ends the round).

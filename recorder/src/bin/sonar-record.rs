@@ -32,13 +32,11 @@ use iceoryx2::port::listener::Listener;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
-use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use iceoryx2::waitset::WaitSetRunResult;
 use sonar_common::ipc::{
-    self, FeatureRecord, FeaturesHeader, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, PubSub,
-    Reading,
+    self, FeatureRecord, FeaturesHeader, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, Reading,
 };
-use sonar_common::optional_port::OptionalPort;
+use sonar_common::optional_port::{OptionalPort, snapshot_subscriber, subscriber};
 use sonar_recorder::format::{FeatureSnapshot, Message, RecordingWriter, Topic};
 use sonar_recorder::{Ros2Bag, WellKnownChannels};
 use sonar_wellknown::Options as WellKnownOptions;
@@ -338,27 +336,6 @@ impl Ports {
         self.localized_pose.retry(node, now);
         self.slam_correction.retry(node, now);
     }
-}
-
-/// A subscriber of a snapshot service (`sonar/features`, `sonar/grid`).
-fn snapshot_subscriber<T: Debug + ZeroCopySend + 'static, H: Debug + ZeroCopySend + 'static>(
-    service: Result<PortFactory<Ipc, [T], H>, IpcError>,
-) -> Result<Subscriber<Ipc, [T], H>, IpcError> {
-    service?
-        .subscriber_builder()
-        .create()
-        .map_err(|e| IpcError::new("create subscriber", e))
-}
-
-/// A subscriber of a service of single messages.
-fn subscriber<T: Debug + ZeroCopySend>(
-    node: &Node<Ipc>,
-    open: fn(&Node<Ipc>) -> Result<PubSub<T>, IpcError>,
-) -> Result<Subscriber<Ipc, T, ()>, IpcError> {
-    open(node)?
-        .subscriber_builder()
-        .create()
-        .map_err(|e| IpcError::new("create subscriber", e))
 }
 
 /// What the main thread hands the writer thread.
