@@ -392,12 +392,13 @@ mod tests {
         let weak = parse(include_str!("../../examples/region-map-weak-echoes.toml"));
         assert!(precise.region_corner_walls && precise.region_one_end && precise.region_corners);
         assert_eq!(precise.region_weak_echo_log_odds, 0.0);
-        assert!(!precise.region_weak_echo_withdrawn);
+        assert!(!precise.region_weak_echo_withdrawn && !precise.region_masked_free);
         assert_eq!(
             weak,
             crate::model::SmoothModel {
                 region_weak_echo_log_odds: 0.3,
                 region_weak_echo_withdrawn: true,
+                region_masked_free: true,
                 ..precise
             }
         );

@@ -246,7 +246,9 @@ impl Mapper {
         })
     }
 
-    /// Places a closed region, if whole, and the free evidence of the readings waiting for it;
+    /// Places a closed region, if whole, and the free evidence of the readings waiting for it
+    /// (with `region_masked_free`, of a region cut short on both sides, up to the nearer of the
+    /// echoes that cut it);
     /// they are forgotten either way. A one-ended region (`region_one_end`) and one cut short on
     /// both sides (`region_corners`) wait for the sweep's end, when the lobe has been learnt from
     /// the whole sweep and the walls beside a corner placed ([`Self::close_region`]).
@@ -288,6 +290,19 @@ impl Mapper {
                             regions.weak.push_back(*beam);
                         }
                     }
+                }
+            }
+            if model.region_masked_free
+                && region.ends == [End::Occluded; 2]
+                && let Some(masking) = region.masking_range()
+            {
+                let reach = masking - regions.tolerance.at(masking);
+                for beam in &regions.waiting {
+                    let masked = Beam {
+                        echo: Some(reach),
+                        ..*beam
+                    };
+                    cells += self.fuse_beam(&masked, kernel);
                 }
             }
             if model.region_one_end && region.is_one_ended() {
@@ -1180,6 +1195,50 @@ mod tests {
             joined.iter().any(|c| (c.0 - corner_x).hypot(c.1) <= 0.05),
             "{joined:?}"
         );
+    }
+
+    #[test]
+    fn a_region_cut_short_by_nearer_echoes_clears_up_to_them_when_asked() {
+        let scan = |masked_free: bool| {
+            let mut m = Mapper::new(FusionConfig {
+                model: ModelConfig::Smooth(crate::model::SmoothModel {
+                    echo_placement: crate::model::EchoPlacement::Region,
+                    region_masked_free: masked_free,
+                    ..Default::default()
+                }),
+                ..FusionConfig::default()
+            })
+            .unwrap();
+            // Two posts at 1 m, heard whole on either side; the reading between them, along +x,
+            // hears the wall behind at 2 m, its region cut short on both sides.
+            for (a, r) in [
+                (-36.0, None),
+                (-24.0, Some(1.0)),
+                (-12.0, Some(1.0)),
+                (0.0, Some(2.0)),
+                (12.0, Some(1.0)),
+                (24.0, Some(1.0)),
+                (36.0, None),
+            ] {
+                m.update(&reading(a, r)).unwrap();
+            }
+            m.close_region();
+            m
+        };
+        let at = |m: &Mapper, x: f32| {
+            let g = *m.grid().geometry();
+            let (cx, cy) = g.cell_at(nalgebra::Point2::new(x, 0.01)).unwrap();
+            m.grid().probability(cx, cy)
+        };
+        // Without the option the gap is never observed: the posts' readings are 12° off.
+        let off = scan(false);
+        assert_eq!(at(&off, 0.5), None);
+        let on = scan(true);
+        assert!(at(&on, 0.5).is_some_and(|p| p < 0.5), "{:?}", at(&on, 0.5));
+        // Free only in front of the posts' range less its tolerance (4 cm) and band (2.5 cm);
+        // nothing at the wall, whose region is not placed.
+        assert_eq!(at(&on, 0.97), None);
+        assert_eq!(at(&on, 2.0), None);
     }
 
     #[test]

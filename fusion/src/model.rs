@@ -599,6 +599,14 @@ pub struct SmoothModel {
     /// once the grid holds an occupied cell on its axis in front of it, a wall drawn after it
     /// that its axis would have met first (the echo came from off the axis, behind that wall).
     pub region_weak_echo_withdrawn: bool,
+    /// With `echo_placement = "region"`: the readings of a region cut short on both sides by
+    /// nearer echoes clear their axes up to the nearer of those echoes' ranges
+    /// ([`crate::regions::Region::masking_range`]) less its depth tolerance and band: whatever
+    /// their own echo came from, a reflector on their axes nearer than the ones heard a step of
+    /// the head away on either side would have answered them first (the space in front of a
+    /// corner heard between its walls' feet). Not up to their own range: a region not whole may
+    /// have heard its echo off its axes, and clearing up to it erased the room's walls.
+    pub region_masked_free: bool,
 }
 
 /// Where a reading's echo puts its occupied evidence ([`SmoothModel::echo_placement`]).
@@ -637,6 +645,7 @@ impl Default for SmoothModel {
             region_corner_walls: false,
             region_weak_echo_log_odds: 0.0,
             region_weak_echo_withdrawn: false,
+            region_masked_free: false,
         }
     }
 }

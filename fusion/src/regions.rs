@@ -82,6 +82,8 @@ pub(crate) struct Region {
     pub span: f32,
     /// Beside the first and beside the last reading.
     pub ends: [End; 2],
+    /// The range of the nearer echo beside each end that is [`End::Occluded`], else `None`.
+    pub masking: [Option<f32>; 2],
 }
 
 impl Region {
@@ -147,6 +149,14 @@ impl Region {
             && self.ends.contains(&End::Occluded)
             && self.half_width < lobe
     }
+
+    /// The range of the nearest echo that cut the region short ([`End::Occluded`]), if any. Its
+    /// readings heard farther than that echo's reflector, a step of the head away: along their
+    /// axes nothing answered nearer, so the space in front of that range is free even when the
+    /// region's own reflector cannot be placed.
+    pub fn masking_range(&self) -> Option<f32> {
+        self.masking.into_iter().flatten().reduce(f32::min)
+    }
 }
 
 /// Range bins of the lobe estimate, metres wide.
@@ -201,6 +211,8 @@ struct Open {
     range_sum: f32,
     readings: u32,
     start: End,
+    /// The nearer echo's range beside the first reading, if it was cut short there.
+    start_masking: Option<f32>,
 }
 
 impl Open {
@@ -208,7 +220,9 @@ impl Open {
         self.range_sum / self.readings as f32
     }
 
-    fn close(&self, last_axis: f32, end: End) -> Region {
+    /// The region, closed on `last_axis` with `end` beside it: `masking` is the next reading's
+    /// range when that reading was nearer ([`End::Occluded`]).
+    fn close(&self, last_axis: f32, end: End, masking: Option<f32>) -> Region {
         Region {
             position: (self.first_position + self.last_position) * 0.5,
             axis: wrap_angle(self.first_axis + 0.5 * wrap_angle(last_axis - self.first_axis)),
@@ -217,6 +231,7 @@ impl Open {
             half_width: 0.5 * wrap_angle(last_axis - self.first_axis).abs(),
             span: wrap_angle(last_axis - self.first_axis),
             ends: [self.start, end],
+            masking: [self.start_masking, masking],
         }
     }
 }
@@ -256,7 +271,7 @@ impl RegionTracker {
         let last_axis = last.map_or(heard.axis, |l| l.axis);
         let Some(range) = heard.range else {
             let end = if adjacent { End::Natural } else { End::Unknown };
-            return self.open.take().map(|o| o.close(last_axis, end));
+            return self.open.take().map(|o| o.close(last_axis, end, None));
         };
         if let Some(open) = &mut self.open
             && adjacent
@@ -286,8 +301,12 @@ impl RegionTracker {
             } else {
                 End::Unknown
             };
-            o.close(last_axis, end)
+            o.close(last_axis, end, (end == End::Occluded).then_some(range))
         });
+        let start_masking = match last {
+            Some(Last { range: Some(r), .. }) if start == End::Occluded => Some(r),
+            _ => None,
+        };
         self.open = Some(Open {
             first_position: heard.position,
             first_axis: heard.axis,
@@ -295,6 +314,7 @@ impl RegionTracker {
             range_sum: range,
             readings: 1,
             start,
+            start_masking,
         });
         closed
     }
@@ -304,7 +324,7 @@ impl RegionTracker {
     pub fn close(&mut self) -> Option<Region> {
         let last = self.last.take();
         let open = self.open.take()?;
-        Some(open.close(last.map_or(open.first_axis, |l| l.axis), End::Unknown))
+        Some(open.close(last.map_or(open.first_axis, |l| l.axis), End::Unknown, None))
     }
 }
 
@@ -408,6 +428,25 @@ mod tests {
         ]);
         assert_eq!(found[0].ends, [End::Natural, End::Occluded]);
         assert_eq!(found[1].ends, [End::Natural, End::Natural]);
+        assert_eq!(found[0].masking, [None, Some(1.0)]);
+        assert_eq!(found[0].masking_range(), Some(1.0));
+        assert_eq!(found[1].masking_range(), None);
+    }
+
+    #[test]
+    fn a_region_between_two_nearer_echoes_is_masked_at_the_nearer_of_them() {
+        // A wall at 2 m heard between two posts, at 1.2 m and 1.0 m.
+        let found = regions(&[
+            (0.0, Some(1.2)),
+            (6.0, Some(2.0)),
+            (12.0, Some(2.0)),
+            (18.0, Some(1.0)),
+        ]);
+        assert_eq!(found[1].ends, [End::Occluded, End::Occluded]);
+        assert_eq!(found[1].masking, [Some(1.2), Some(1.0)]);
+        assert_eq!(found[1].masking_range(), Some(1.0));
+        // The first post's own region: the wall beside it is farther, nothing masks it.
+        assert_eq!(found[0].masking_range(), None);
     }
 
     #[test]
