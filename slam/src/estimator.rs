@@ -1618,6 +1618,20 @@ mod tests {
         slam
     }
 
+    /// The end wall x = 5 straight ahead, a candidate sighting from the anchor (pose 0).
+    fn end_wall_from_the_anchor(sigma: Vector2<f64>, certain: bool) -> Candidate {
+        Candidate {
+            pose: 0,
+            sighting: Sighting {
+                kind: LandmarkKind::Line,
+                z: Vector2::new(5.0, 0.0),
+                sigma,
+                certain,
+                after: Vec::new(),
+            },
+        }
+    }
+
     /// A wall seen from the map's anchor (exact) and again from a pose 2 m on, whose heading the
     /// odometry knows to σ: the two placements are compared with the two poses' joint covariance,
     /// so the wall is admitted when the second sighting is turned by 1σ and not at 3.5σ. (With
@@ -1632,16 +1646,7 @@ mod tests {
             assert!(heading_sigma > 3.0_f64.to_radians(), "{heading_sigma}");
             // The end wall x = 5, seen straight ahead from the anchor …
             let sigma = Vector2::new(0.01, 0.2_f64.to_radians());
-            slam.candidates.push(Candidate {
-                pose: 0,
-                sighting: Sighting {
-                    kind: LandmarkKind::Line,
-                    z: Vector2::new(5.0, 0.0),
-                    sigma,
-                    certain: true,
-                    after: Vec::new(),
-                },
-            });
+            slam.candidates.push(end_wall_from_the_anchor(sigma, true));
             // … and from the second pose as if it were turned by δ, at the same distance.
             let turn = turned_sigmas * heading_sigma;
             let x = slam.graph.vector3(pose);
@@ -1717,16 +1722,8 @@ mod tests {
             let mut slam = anchor_and_a_sweep_ahead(50, true);
             // The end wall x = 5 straight ahead, from the anchor and from 0.5 m on.
             let sigma = Vector2::new(0.01, 1.0_f64.to_radians());
-            slam.candidates.push(Candidate {
-                pose: 0,
-                sighting: Sighting {
-                    kind: LandmarkKind::Line,
-                    z: Vector2::new(5.0, 0.0),
-                    sigma,
-                    certain: first_certain,
-                    after: Vec::new(),
-                },
-            });
+            slam.candidates
+                .push(end_wall_from_the_anchor(sigma, first_certain));
             let sighting = Sighting {
                 kind: LandmarkKind::Line,
                 z: Vector2::new(4.5, 0.0),
