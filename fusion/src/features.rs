@@ -2,8 +2,11 @@
 //! [`sonar_features::FeatureMap`], the result flattened into the records of `sonar/features`.
 //!
 //! A sweep ends when a reading of the next one arrives ([`FeatureTracker::push`]) or when the
-//! process has heard nothing for a while and asks for it ([`FeatureTracker::finish_sweep`]): a
-//! stopped scan's last sweep still counts. Each sweep is placed at the robot's pose of its first
+//! readings end ([`FeatureTracker::finish_sweep`]). A process that has heard nothing for
+//! [`SWEEP_IDLE`] shows the pending sweep merged ([`FeatureTracker::with_pending_merged`]) but keeps
+//! it open: a stopped scan's last sweep is seen at once, and a head that only stalled goes on with
+//! the same sweep, so sweeps end where their readings say, however the readings were delivered,
+//! and an offline fusion of a recording ends them where the live fusion did. Each sweep is placed at the robot's pose of its first
 //! reading, its reference, and every reading's pings are brought from the pose they were taken at
 //! to the reference. A sweep taken standing still gives regions of constant depth, classified
 //! into walls, corners and posts ([`Sweep::from_readings_at`]). On the move those break up — a
@@ -49,6 +52,10 @@ const STILL_DEG: f64 = 0.5;
 /// ping, so the first and last readings of a stop can be placed at the arrival and departure.
 const MOVING_SHARE: f64 = 0.1;
 
+/// Quiet time after which the pending sweep is shown merged: the scan stopped (a sweep of the
+/// paper's head takes seconds, its readings come every ~0.1 s).
+pub const SWEEP_IDLE: std::time::Duration = std::time::Duration::from_secs(2);
+
 /// What one finished sweep did to the feature map.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct SweepOutcome {
@@ -85,7 +92,7 @@ struct Localization {
 }
 
 /// Collects one sweep's readings and merges each finished sweep into the feature map.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct FeatureTracker {
     map: FeatureMap,
     /// The pending sweep's readings, each with the pose it was placed at relative to the first's.
@@ -321,6 +328,15 @@ impl FeatureTracker {
         self.ranged = 0;
         self.merged_standing = false;
         self.last = None;
+    }
+
+    /// A copy with the pending sweep merged now, and what that did (`None` when nothing is
+    /// pending): what to show while the readings have stopped. This tracker keeps the sweep open,
+    /// so readings that come after a stall join it as they would have without one.
+    pub fn with_pending_merged(&self) -> Option<(Self, SweepOutcome)> {
+        let mut merged = self.clone();
+        let outcome = merged.finish_sweep()?;
+        Some((merged, outcome))
     }
 
     /// Readings whose pings could not be placed, in every sweep so far.
@@ -566,6 +582,32 @@ mod tests {
         );
         assert!(post.segment_ax_m.is_nan() && post.angle_sigma_deg.is_nan());
         assert_eq!(tracker.readings_skipped(), 0, "every ping placed");
+    }
+
+    #[test]
+    fn a_pending_sweep_shown_merged_stays_open_for_the_readings_after_a_stall() {
+        let mut tracker = FeatureTracker::new(FeatureConfig::default()).unwrap();
+        let pose = Isometry2::identity();
+        let readings = sweep(1);
+        assert!(tracker.with_pending_merged().is_none(), "nothing pending");
+        for r in &readings[..25] {
+            tracker.push(r, &pose);
+        }
+        let (shown, outcome) = tracker.with_pending_merged().expect("25 readings pending");
+        assert_eq!((outcome.sweep_id, outcome.readings), (1, 25));
+        assert_eq!((shown.has_pending(), shown.map.sweeps()), (false, 1));
+        assert_eq!(tracker.map.sweeps(), 0, "the tracker itself merged nothing");
+        // The head goes on after its stall: one sweep of 50, as if it had never stalled.
+        for r in &readings[25..] {
+            assert_eq!(tracker.push(r, &pose), None);
+        }
+        let whole = tracker.finish_sweep().expect("the sweep pending");
+        assert_eq!((whole.sweep_id, whole.readings), (1, 50));
+        let mut unstalled = FeatureTracker::new(FeatureConfig::default()).unwrap();
+        for r in &readings {
+            unstalled.push(r, &pose);
+        }
+        assert_eq!(unstalled.finish_sweep(), Some(whole));
     }
 
     #[test]

@@ -39,6 +39,7 @@ use sonar_common::ipc::{
 use sonar_common::throttle::Throttle;
 use sonar_fusion::SavedMap;
 use sonar_fusion::engine::Engine;
+use sonar_fusion::features::SWEEP_IDLE;
 use sonar_fusion::history::Revised;
 use sonar_fusion::persist::{self, Restore, SaveReport, Saver};
 use sonar_fusion::poses::MAX_POSE_WAIT;
@@ -55,9 +56,6 @@ const REFRESH_PERIOD: Duration = Duration::from_secs(1);
 const STATUS_PERIOD: Duration = Duration::from_secs(1);
 /// Least time between two log lines about one kind of lost or rejected reading.
 const LOG_PERIOD: Duration = Duration::from_secs(1);
-/// Quiet time after which the readings of an unfinished sweep are merged into the features: the
-/// scan stopped (a sweep of the paper's head takes seconds, its readings come every ~0.1 s).
-const SWEEP_IDLE: Duration = Duration::from_secs(2);
 /// Readings fused per turn of the loop at most: one subscriber buffer's worth. Under overload the
 /// buffer never empties, and commands, status, saves and held-back snapshots must still get turns.
 const READINGS_PER_TURN: usize = 256;
@@ -405,6 +403,7 @@ fn run(args: &Args) -> Result<()> {
         rejected_log: Throttle::new(LOG_PERIOD),
         pose_log: Throttle::new(LOG_PERIOD),
         backlog: VecDeque::new(),
+        last_arrival: Instant::now(),
         backlog_peak: 0,
         waiting: None,
         corrections: 0,
@@ -465,7 +464,9 @@ fn run(args: &Args) -> Result<()> {
         out.rebuild_step(&mut engine);
         let now = Instant::now();
         if let Some(features) = &mut features {
-            features.finish_idle_sweep(&mut engine, now);
+            if let Some(quiet_since) = out.quiet_since() {
+                features.finish_idle_sweep(&mut engine, quiet_since, now);
+            }
             features.publish_if_due(&mut engine, now);
             features.refresh(now);
             out.ledger
@@ -618,6 +619,9 @@ impl Saving {
 /// the walls' support cells of every cell fused since the last flush) and grows every wall.
 struct Features {
     tracker: FeatureTracker,
+    /// While the readings have stopped: the tracker with its pending sweep merged, published in
+    /// its place until the next reading ([`Self::finish_idle_sweep`]).
+    shown: Option<FeatureTracker>,
     publisher: Publisher<Ipc, [FeatureRecord], FeaturesHeader>,
     notifier: Notifier<Ipc>,
     /// With --localize: where the corrected poses go.
@@ -626,7 +630,6 @@ struct Features {
     /// A sweep was merged since the last snapshot.
     dirty: bool,
     pace: Pace,
-    last_reading: Instant,
     last_refresh: Instant,
     /// The readings the features cannot use were named in the log.
     said_skipped: bool,
@@ -649,6 +652,7 @@ impl Features {
             .transpose()?;
         Ok(Self {
             tracker,
+            shown: None,
             localized,
             publisher: ipc::features_service(node)?
                 .publisher_builder()
@@ -659,7 +663,6 @@ impl Features {
             seq: 0,
             dirty: false,
             pace: Pace::new(min_interval),
-            last_reading: Instant::now(),
             last_refresh: Instant::now(),
             said_skipped: false,
         })
@@ -667,7 +670,7 @@ impl Features {
 
     /// Adds a reading; publishes when it ended a sweep.
     fn push(&mut self, reading: &sonar_common::ipc::Reading, engine: &mut Engine) {
-        self.last_reading = Instant::now();
+        self.shown = None;
         let finished = self
             .tracker
             .follow(reading, engine, self.localized.is_some());
@@ -676,13 +679,31 @@ impl Features {
         }
     }
 
-    /// Merges a sweep whose readings stopped coming [`SWEEP_IDLE`] ago.
-    fn finish_idle_sweep(&mut self, engine: &mut Engine, now: Instant) {
-        if now.duration_since(self.last_reading) >= SWEEP_IDLE
-            && let Some(outcome) = self.tracker.finish_sweep()
-        {
-            self.sweep_done(&outcome, engine);
+    /// Shows the pending sweep merged once its readings stopped coming [`SWEEP_IDLE`] ago
+    /// (`quiet_since`): the head stopped, and its last sweep is published (and, localising, its
+    /// pose) without waiting for another reading. The sweep itself stays open and the engine's
+    /// correction unchanged: if the head only stalled, its next readings join the sweep as they
+    /// would have without the stall, and the map is what an offline fusion of the recording
+    /// makes, whatever the delivery's timing.
+    fn finish_idle_sweep(&mut self, engine: &mut Engine, quiet_since: Instant, now: Instant) {
+        if self.shown.is_some() || now.duration_since(quiet_since) < SWEEP_IDLE {
+            return;
         }
+        let Some((shown, outcome)) = self.tracker.with_pending_merged() else {
+            return;
+        };
+        debug!(
+            ?outcome,
+            "the readings stopped: the pending sweep shown merged"
+        );
+        if let Some(publisher) = &self.localized
+            && let Err(e) = publisher.send_copy(localized_pose(&outcome, shown.fixes()))
+        {
+            warn!("send localized pose: {e:?}");
+        }
+        self.shown = Some(shown);
+        self.dirty = true;
+        self.publish_if_due(engine, now);
     }
 
     /// Offers the latest snapshots to subscribers that joined since, once per [`REFRESH_PERIOD`]:
@@ -751,6 +772,7 @@ impl Features {
 
     fn clear(&mut self, engine: &mut Engine) {
         self.tracker.clear();
+        self.shown = None;
         self.publish(engine);
     }
 
@@ -758,9 +780,11 @@ impl Features {
         self.dirty = false;
         self.pace.sent(Instant::now());
         self.seq += 1;
-        let (header, records) = self
-            .tracker
-            .snapshot(engine.grid_mut(), self.seq, unix_time_ns());
+        let (header, records) = self.shown.as_ref().unwrap_or(&self.tracker).snapshot(
+            engine.grid_mut(),
+            self.seq,
+            unix_time_ns(),
+        );
         if let Err(e) = ipc::send_snapshot(&self.publisher, &self.notifier, header, &records) {
             warn!("features snapshot not published: {e}");
         }
@@ -942,6 +966,10 @@ struct Output<'a> {
     pose_log: Throttle,
     /// Readings received and not yet fused, oldest first ([`MAX_BACKLOG`]).
     backlog: VecDeque<Reading>,
+    /// When the latest reading was taken from the subscriber: the quiet after it is measured from
+    /// its arrival, as a recorder logs it, not from when it was fused (it may have waited for its
+    /// pose, or behind others).
+    last_arrival: Instant,
     /// The most readings the backlog held: how far the fusion fell behind.
     backlog_peak: usize,
     /// A reading waiting for the pose that covers its instant, and since when it is the next to
@@ -1191,11 +1219,20 @@ impl Output<'_> {
         Ok(true)
     }
 
+    /// When the readings went quiet: the arrival of the latest, if every reading received has been
+    /// fused (none in the backlog or waiting for its pose).
+    fn quiet_since(&self) -> Option<Instant> {
+        (self.backlog.is_empty() && self.waiting.is_none()).then_some(self.last_arrival)
+    }
+
     /// Moves what the subscriber's buffer holds into the backlog, up to [`MAX_BACKLOG`].
     fn take_readings(&mut self) -> Result<()> {
         while self.backlog.len() < MAX_BACKLOG {
             match self.receive_reading()? {
-                Some(reading) => self.backlog.push_back(reading),
+                Some(reading) => {
+                    self.last_arrival = Instant::now();
+                    self.backlog.push_back(reading);
+                }
                 None => break,
             }
         }

@@ -810,7 +810,14 @@ fn fuse_recording<W: Write + Seek>(
     if fused == 0 {
         warn!("the recording holds no usable reading: the map is empty");
     }
-    info!(fused, refused, "recording fused");
+    info!(
+        fused,
+        refused,
+        extrapolated_pose = engine.extrapolated_pose_readings(),
+        stale_pose = engine.stale_pose_readings(),
+        early_pose = engine.early_pose_readings(),
+        "recording fused"
+    );
     let grid = grid_snapshot(&mut engine, snapshots + 1, stamp);
     if let Some(mcap) = mcap {
         let log_time = recording.entries.last().map_or(stamp, |e| e.log_time_ns);
