@@ -496,6 +496,13 @@ fn replaying_a_recorded_tour_gives_the_live_map() {
         .and_then(|n| n.split_whitespace().next()?.parse().ok())
         .unwrap_or_else(|| panic!("no robot/pose line in\n{info_out}"));
     assert!(poses > 100, "{info_out}\nsonar-record: {recorder_log}");
+    // Every reading the driver published is in the file (else the replay can never match).
+    let recorded: u64 = info_out
+        .lines()
+        .find_map(|l| l.strip_prefix(&format!("{}: ", ipc::READINGS_SERVICE)))
+        .and_then(|n| n.split_whitespace().next()?.parse().ok())
+        .unwrap_or_else(|| panic!("no readings line in\n{info_out}"));
+    assert_eq!(recorded, count, "{info_out}\nsonar-record: {recorder_log}");
 
     let replay_box = Sandbox::new("rec_tour_replay");
     let replay_node = replay_box.node("test-replay");
