@@ -32,9 +32,10 @@ pub struct MergeConfig {
     pub post_spread_m: f64,
     /// See [`Self::post_spread_m`].
     pub post_turn_deg: f64,
-    /// Two point features this close are one target, whatever the rays they were seen along:
-    /// a thick post or a wall's end heard as two points. Below the closest posts the features
-    /// resolve (two posts 10 cm apart, `docs/results.md`).
+    /// Two point features, or two corners, this close are one target, whatever the rays they
+    /// were seen along: a thick post or a wall's end heard as two points, a corner as two
+    /// vertices. Below the closest posts the features resolve (two posts 10 cm apart,
+    /// `docs/results.md`).
     pub one_target_m: f64,
 }
 

@@ -174,7 +174,8 @@ pub struct SweepReport {
     pub missed: usize,
     /// Features removed.
     pub removed: usize,
-    /// Point features merged into another (one post seen from two places).
+    /// Point or corner features merged into another (one post seen from two places, one target
+    /// heard as two).
     pub merged: usize,
 }
 
@@ -374,7 +375,7 @@ impl FeatureMap {
             self.next_id += 1;
             report.added += 1;
         }
-        for (kept, merged) in same_posts(&self.features, &merge_cfg) {
+        for (kept, merged) in same_targets(&self.features, &merge_cfg) {
             let other = self.features[merged].clone();
             let f = &mut self.features[kept];
             f.times_seen += other.times_seen;
@@ -744,23 +745,23 @@ fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
 /// Point features seen from different directions (their latest rays more than
 /// [`MergeConfig::post_turn_deg`] apart) within [`MergeConfig::post_spread_m`] of each other:
 /// one post, whose echo point (its surface nearest the sensor) moves round it with the sensor;
-/// and any two within [`MergeConfig::one_target_m`]: one target heard as two points.
-/// Each pair as (kept, merged into it): the one seen more often is kept.
-fn same_posts(features: &[Feature], cfg: &MergeConfig) -> Vec<(usize, usize)> {
+/// and any two points, or two corners, within [`MergeConfig::one_target_m`]: one target heard
+/// as two. Each pair as (kept, merged into it): the one seen more often is kept.
+fn same_targets(features: &[Feature], cfg: &MergeConfig) -> Vec<(usize, usize)> {
     let mut pairs = Vec::new();
     let mut taken = vec![false; features.len()];
     for i in 0..features.len() {
         for j in i + 1..features.len() {
             let (a, b) = (&features[i], &features[j]);
-            if taken[i] || taken[j] || a.kind != FeatureKind::Point || b.kind != FeatureKind::Point
-            {
+            if taken[i] || taken[j] || a.kind != b.kind || a.kind == FeatureKind::Plane {
                 continue;
             }
             let turned = crate::geometry::wrap_deg(a.ray_deg - b.ray_deg).abs();
             let apart = (a.mean - b.mean).norm();
-            if apart <= cfg.one_target_m
-                || (turned > cfg.post_turn_deg && apart <= cfg.post_spread_m)
-            {
+            let one_post = a.kind == FeatureKind::Point
+                && turned > cfg.post_turn_deg
+                && apart <= cfg.post_spread_m;
+            if apart <= cfg.one_target_m || one_post {
                 taken[i] = true;
                 taken[j] = true;
                 pairs.push(if a.times_seen >= b.times_seen {
@@ -1014,12 +1015,17 @@ mod tests {
         let cfg = MergeConfig::default();
         let a = feature(1, FeatureKind::Point, Vector2::new(1.0, 0.0), 0.0);
         let b = feature(2, FeatureKind::Point, Vector2::new(1.0, 0.08), 5.0);
-        assert!(same_posts(&[a.clone(), b.clone()], &cfg).is_empty());
+        assert!(same_targets(&[a.clone(), b.clone()], &cfg).is_empty());
         let b = feature(2, FeatureKind::Point, Vector2::new(1.0, 0.08), 90.0);
-        assert_eq!(same_posts(&[a.clone(), b], &cfg), vec![(0, 1)]);
+        assert_eq!(same_targets(&[a.clone(), b], &cfg), vec![(0, 1)]);
         // Two points 3 cm apart along one ray: one target heard as two.
         let b = feature(2, FeatureKind::Point, Vector2::new(1.03, 0.0), 1.0);
-        assert_eq!(same_posts(&[a, b], &cfg), vec![(0, 1)]);
+        assert_eq!(same_targets(&[a.clone(), b], &cfg), vec![(0, 1)]);
+        // So are two corners; a corner and a point are two targets.
+        let c = |id, x| feature(id, FeatureKind::Corner, Vector2::new(x, 0.0), 1.0);
+        assert_eq!(same_targets(&[c(1, 1.0), c(2, 1.03)], &cfg), vec![(0, 1)]);
+        assert!(same_targets(&[c(1, 1.0), c(2, 1.08)], &cfg).is_empty());
+        assert!(same_targets(&[a, c(2, 1.03)], &cfg).is_empty());
     }
 
     #[test]
