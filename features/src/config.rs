@@ -32,11 +32,9 @@ pub struct MergeConfig {
     pub post_spread_m: f64,
     /// See [`Self::post_spread_m`].
     pub post_turn_deg: f64,
-    /// Two point features, or two corners, this close are one target, whatever the rays they
-    /// were seen along: a thick post or a wall's end heard as two points, a corner as two
-    /// vertices. Below the closest posts the features resolve (two posts 10 cm apart,
-    /// `docs/results.md`).
-    pub one_target_m: f64,
+    /// Two corner features this close are one corner heard as two vertices, whatever the rays
+    /// they were seen along (two concave corners 5 cm apart make a niche no sonar resolves).
+    pub one_corner_m: f64,
 }
 
 impl Default for MergeConfig {
@@ -53,7 +51,7 @@ impl Default for MergeConfig {
             // posts stand along rays a few degrees apart at most.
             post_spread_m: 0.10,
             post_turn_deg: 10.0,
-            one_target_m: 0.05,
+            one_corner_m: 0.05,
         }
     }
 }
@@ -208,7 +206,7 @@ impl FeatureConfig {
         share(m.initial_confidence, "merge.initial_confidence")?;
         share(m.confirm_gain, "merge.confirm_gain")?;
         share(m.miss_factor, "merge.miss_factor")?;
-        non_negative(m.one_target_m, "merge.one_target_m")?;
+        non_negative(m.one_corner_m, "merge.one_corner_m")?;
         check(
             m.remove_below >= 0.0 && m.remove_below < m.initial_confidence,
             "merge.remove_below must be >= 0 and below merge.initial_confidence",

@@ -174,7 +174,7 @@ pub struct SweepReport {
     pub missed: usize,
     /// Features removed.
     pub removed: usize,
-    /// Point or corner features merged into another (one post seen from two places, one target
+    /// Point or corner features merged into another (one post seen from two places, one corner
     /// heard as two).
     pub merged: usize,
 }
@@ -745,8 +745,8 @@ fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
 /// Point features seen from different directions (their latest rays more than
 /// [`MergeConfig::post_turn_deg`] apart) within [`MergeConfig::post_spread_m`] of each other:
 /// one post, whose echo point (its surface nearest the sensor) moves round it with the sensor;
-/// and any two points, or two corners, within [`MergeConfig::one_target_m`]: one target heard
-/// as two. Each pair as (kept, merged into it): the one seen more often is kept.
+/// and two corner features within [`MergeConfig::one_corner_m`]: one corner heard as two
+/// vertices. Each pair as (kept, merged into it): the one seen more often is kept.
 fn same_targets(features: &[Feature], cfg: &MergeConfig) -> Vec<(usize, usize)> {
     let mut pairs = Vec::new();
     let mut taken = vec![false; features.len()];
@@ -758,10 +758,12 @@ fn same_targets(features: &[Feature], cfg: &MergeConfig) -> Vec<(usize, usize)> 
             }
             let turned = crate::geometry::wrap_deg(a.ray_deg - b.ray_deg).abs();
             let apart = (a.mean - b.mean).norm();
-            let one_post = a.kind == FeatureKind::Point
-                && turned > cfg.post_turn_deg
-                && apart <= cfg.post_spread_m;
-            if apart <= cfg.one_target_m || one_post {
+            let one = match a.kind {
+                FeatureKind::Point => turned > cfg.post_turn_deg && apart <= cfg.post_spread_m,
+                FeatureKind::Corner => apart <= cfg.one_corner_m,
+                FeatureKind::Plane => false,
+            };
+            if one {
                 taken[i] = true;
                 taken[j] = true;
                 pairs.push(if a.times_seen >= b.times_seen {
@@ -1018,10 +1020,7 @@ mod tests {
         assert!(same_targets(&[a.clone(), b.clone()], &cfg).is_empty());
         let b = feature(2, FeatureKind::Point, Vector2::new(1.0, 0.08), 90.0);
         assert_eq!(same_targets(&[a.clone(), b], &cfg), vec![(0, 1)]);
-        // Two points 3 cm apart along one ray: one target heard as two.
-        let b = feature(2, FeatureKind::Point, Vector2::new(1.03, 0.0), 1.0);
-        assert_eq!(same_targets(&[a.clone(), b], &cfg), vec![(0, 1)]);
-        // So are two corners; a corner and a point are two targets.
+        // Two corners 3 cm apart are one; 8 cm apart, two; a corner and a point are two targets.
         let c = |id, x| feature(id, FeatureKind::Corner, Vector2::new(x, 0.0), 1.0);
         assert_eq!(same_targets(&[c(1, 1.0), c(2, 1.03)], &cfg), vec![(0, 1)]);
         assert!(same_targets(&[c(1, 1.0), c(2, 1.08)], &cfg).is_empty());
