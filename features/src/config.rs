@@ -32,6 +32,9 @@ pub struct MergeConfig {
     pub post_spread_m: f64,
     /// See [`Self::post_spread_m`].
     pub post_turn_deg: f64,
+    /// Two corner features this close are one corner heard as two vertices, whatever the rays
+    /// they were seen along (two concave corners 5 cm apart make a niche no sonar resolves).
+    pub one_corner_m: f64,
 }
 
 impl Default for MergeConfig {
@@ -48,6 +51,7 @@ impl Default for MergeConfig {
             // posts stand along rays a few degrees apart at most.
             post_spread_m: 0.10,
             post_turn_deg: 10.0,
+            one_corner_m: 0.05,
         }
     }
 }
@@ -202,6 +206,7 @@ impl FeatureConfig {
         share(m.initial_confidence, "merge.initial_confidence")?;
         share(m.confirm_gain, "merge.confirm_gain")?;
         share(m.miss_factor, "merge.miss_factor")?;
+        non_negative(m.one_corner_m, "merge.one_corner_m")?;
         check(
             m.remove_below >= 0.0 && m.remove_below < m.initial_confidence,
             "merge.remove_below must be >= 0 and below merge.initial_confidence",

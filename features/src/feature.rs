@@ -38,6 +38,11 @@ pub struct Feature {
     /// the direction 90° counter-clockwise of the normal, from the foot of the map origin's
     /// perpendicular): the extent of direct evidence.
     pub(crate) feet: (f64, f64),
+    /// Where the sensor stood at the first sighting, in the map's frame.
+    pub(crate) seen_from: Vector2<f64>,
+    /// Whether every sighting was taken within [`crate::map::ONE_PLACE_M`] of
+    /// [`Self::seen_from`]: the same view repeated, whose misreading repeats with it.
+    pub(crate) one_place: bool,
 }
 
 impl Feature {
