@@ -393,12 +393,14 @@ mod tests {
         assert!(precise.region_corner_walls && precise.region_one_end && precise.region_corners);
         assert_eq!(precise.region_weak_echo_log_odds, 0.0);
         assert!(!precise.region_weak_echo_withdrawn && !precise.region_masked_free);
+        assert!(!precise.region_small_cutters_free);
         assert_eq!(
             weak,
             crate::model::SmoothModel {
                 region_weak_echo_log_odds: 0.3,
                 region_weak_echo_withdrawn: true,
                 region_masked_free: true,
+                region_small_cutters_free: true,
                 ..precise
             }
         );

@@ -95,9 +95,32 @@ struct Regions {
     /// With `region_weak_echo_withdrawn`: the weak echoes placed and not yet taken back, oldest
     /// first.
     weak: VecDeque<Beam>,
+    /// The region closed last: what cut short the next one's start, if it did.
+    previous: Option<Region>,
+    /// With `region_small_cutters_free`: the readings of a region cut short on both sides, the
+    /// first cutter small, waiting for the region after it (the second cutter) to close.
+    between: Option<Between>,
+}
+
+/// A region cut short on both sides whose free evidence waits for its second cutter.
+#[derive(Debug)]
+struct Between {
+    region: Region,
+    readings: Vec<Beam>,
 }
 
 impl Regions {
+    /// Whether `region` is a small reflector's ([`Region::is_small`]), measured against the
+    /// lobe over which the sensor hears a wall met squarely: the widest learnt
+    /// ([`LobeWidth::widest`]), else the sensor's beam half-angle `beam` less half a reading step.
+    fn is_small(&self, region: &Region, beam: f32) -> bool {
+        region.is_small(
+            self.lobe
+                .widest()
+                .unwrap_or_else(|| region.prior_lobe(beam)),
+        )
+    }
+
     /// The lobe's half-width at `region`'s range: learnt from the whole regions there, else the
     /// sensor's beam half-angle `beam` less half a reading step.
     fn lobe_of(&self, region: &Region, beam: f32) -> f32 {
@@ -144,6 +167,8 @@ impl Mapper {
                     one_ended: Vec::new(),
                     cut: Vec::new(),
                     weak: VecDeque::new(),
+                    previous: None,
+                    between: None,
                 }),
                 _ => None,
             },
@@ -257,6 +282,20 @@ impl Mapper {
             return 0;
         };
         regions.lobe.learn(region);
+        let mut cells = 0;
+        // This region cut short the one waiting before it on its far side: if it too is a small
+        // reflector's, that one's readings passed beside two.
+        if let Some(between) = regions.between.take() {
+            let beam = self.config.sensor.limits().half_angle;
+            let beside_small = regions.is_small(region, beam);
+            cells += self.clear_masked(
+                regions.tolerance,
+                &between.region,
+                &between.readings,
+                beside_small,
+                kernel,
+            );
+        }
         if model.region_corner_walls {
             regions.lines.hear(Echo {
                 sensor: region.position,
@@ -267,7 +306,6 @@ impl Mapper {
                 whole: region.is_whole(),
             });
         }
-        let mut cells = 0;
         if region.is_whole() {
             let half_angle = model.region_patch_half_angle(region.half_width);
             cells += self.place_region(regions, region, region.axis, half_angle, kernel);
@@ -292,17 +330,25 @@ impl Mapper {
                     }
                 }
             }
-            if model.region_masked_free
-                && region.ends == [End::Occluded; 2]
-                && let Some(masking) = region.masking_range()
-            {
-                let reach = masking - regions.tolerance.at(masking);
-                for beam in &regions.waiting {
-                    let masked = Beam {
-                        echo: Some(reach),
-                        ..*beam
-                    };
-                    cells += self.fuse_beam(&masked, kernel);
+            if model.region_masked_free && region.ends == [End::Occluded; 2] {
+                let beam = self.config.sensor.limits().half_angle;
+                let first_small = regions
+                    .previous
+                    .is_some_and(|previous| regions.is_small(&previous, beam));
+                if model.region_small_cutters_free && first_small {
+                    // Its second cutter is the region the next reading opened.
+                    regions.between = Some(Between {
+                        region: *region,
+                        readings: regions.waiting.clone(),
+                    });
+                } else {
+                    cells += self.clear_masked(
+                        regions.tolerance,
+                        region,
+                        &regions.waiting,
+                        false,
+                        kernel,
+                    );
                 }
             }
             if model.region_one_end && region.is_one_ended() {
@@ -312,10 +358,39 @@ impl Mapper {
             }
         }
         regions.waiting.clear();
+        regions.previous = Some(*region);
         // A head whose sweeps are never told apart still places them, a sweep's worth at a time.
         if regions.one_ended.len() + regions.cut.len() >= DEFERRED_REGIONS {
             cells += self.place_one_ended(regions, kernel);
             cells += self.place_corners(regions, kernel);
+        }
+        cells
+    }
+
+    /// Clears the axes of `readings`, the readings of `region`, cut short on both sides
+    /// (`region_masked_free`): up to the nearer of the echoes that cut it less its depth
+    /// tolerance, or, when both cutters are small reflectors' (`beside_small`,
+    /// `region_small_cutters_free`), up to each reading's own range less its tolerance; the
+    /// model's band comes off either, as for any echo.
+    fn clear_masked(
+        &mut self,
+        tolerance: DepthTolerance,
+        region: &Region,
+        readings: &[Beam],
+        beside_small: bool,
+        kernel: Kernel,
+    ) -> usize {
+        let masking = region.masking_range();
+        let mut cells = 0;
+        for beam in readings {
+            let Some(reach) = (if beside_small { beam.echo } else { masking }) else {
+                continue;
+            };
+            let cleared = Beam {
+                echo: Some(reach - tolerance.at(reach)),
+                ..*beam
+            };
+            cells += self.fuse_beam(&cleared, kernel);
         }
         cells
     }
@@ -603,6 +678,8 @@ impl Mapper {
             regions.one_ended.clear();
             regions.cut.clear();
             regions.weak.clear();
+            regions.previous = None;
+            regions.between = None;
         }
     }
 }
@@ -1239,6 +1316,60 @@ mod tests {
         // nothing at the wall, whose region is not placed.
         assert_eq!(at(&on, 0.97), None);
         assert_eq!(at(&on, 2.0), None);
+    }
+
+    #[test]
+    fn a_region_between_two_small_reflectors_clears_up_to_its_own_range_when_asked() {
+        // Two reflectors at 1 m, `side` readings each (6° apart), either side of five readings
+        // that hear a wall at 2 m along +x; nothing heard beyond them.
+        let scan = |side: i32, small_cutters: bool| {
+            let mut m = Mapper::new(FusionConfig {
+                model: ModelConfig::Smooth(crate::model::SmoothModel {
+                    echo_placement: crate::model::EchoPlacement::Region,
+                    region_masked_free: true,
+                    region_small_cutters_free: small_cutters,
+                    ..Default::default()
+                }),
+                ..FusionConfig::default()
+            })
+            .unwrap();
+            let edge = 12 + 6 * side;
+            for a in (-edge - 6..=edge + 6).step_by(6) {
+                let range = match a.abs() {
+                    a if a <= 12 => Some(2.0),
+                    a if a <= edge => Some(1.0),
+                    _ => None,
+                };
+                m.update(&reading(a as f32, range)).unwrap();
+            }
+            m.close_region();
+            m
+        };
+        let at = |m: &Mapper, x: f32| {
+            let g = *m.grid().geometry();
+            let (cx, cy) = g.cell_at(nalgebra::Point2::new(x, 0.01)).unwrap();
+            m.grid().probability(cx, cy)
+        };
+        let free = |p: Option<f32>| p.is_some_and(|p| p < 0.5);
+        // Two posts (three readings each, ±6°, less than half the beam's 27° lobe): the gap
+        // readings clear through the posts' range to their own less its tolerance (6 cm) and
+        // band (2.5 cm); the wall itself, whose region is not placed, stays unknown.
+        let posts = scan(3, true);
+        assert!(
+            free(at(&posts, 1.0)) && free(at(&posts, 1.85)),
+            "{:?}",
+            at(&posts, 1.0)
+        );
+        assert_eq!(at(&posts, 2.0), None);
+        // Without the option, only up to the posts' range less tolerance and band.
+        let ninth = scan(3, false);
+        assert!(free(at(&ninth, 0.5)));
+        assert_eq!(at(&ninth, 1.0), None);
+        // Two walls' feet (eight readings each, ±21°): the axes may have crossed either wall at a
+        // slant, so only up to the nearer echo, as without the option.
+        let walls = scan(8, true);
+        assert!(free(at(&walls, 0.5)));
+        assert_eq!(at(&walls, 1.0), None);
     }
 
     #[test]
