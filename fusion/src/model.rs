@@ -633,7 +633,9 @@ pub enum EchoPlacement {
 }
 
 impl Default for SmoothModel {
-    /// The recommended parameters; `lib.rs` explains the choice.
+    /// The recommended preset's parameters, but for where echoes go and the parts of the region
+    /// model (each reading's echo on its own axis here; the preset places them by region,
+    /// [`crate::config::FusionConfig::preset`]); `lib.rs` explains the choice.
     fn default() -> Self {
         Self {
             occupied_log_odds: 1.0,
