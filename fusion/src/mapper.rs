@@ -95,6 +95,12 @@ struct Regions {
     /// With `region_weak_echo_withdrawn`: the weak echoes placed and not yet taken back, oldest
     /// first.
     weak: VecDeque<Beam>,
+    /// With `region_weak_echo_withdrawn`: the weak echoes at the back of [`Self::weak`] not yet
+    /// looked at for withdrawal.
+    weak_unchecked: usize,
+    /// Whether a region, a corner or a stretch placed occupied evidence since the weak echoes
+    /// were last looked at: only such walls can withdraw one ([`WITHDRAW_ABOVE`]).
+    walls_placed: bool,
     /// The region closed last: what cut short the next one's start, if it did.
     previous: Option<Region>,
     /// With `region_small_cutters_free`: the readings of a region cut short on both sides, the
@@ -167,6 +173,8 @@ impl Mapper {
                     one_ended: Vec::new(),
                     cut: Vec::new(),
                     weak: VecDeque::new(),
+                    weak_unchecked: 0,
+                    walls_placed: false,
                     previous: None,
                     between: None,
                 }),
@@ -326,6 +334,8 @@ impl Mapper {
                                 regions.weak.pop_front();
                             }
                             regions.weak.push_back(*beam);
+                            regions.weak_unchecked =
+                                (regions.weak_unchecked + 1).min(regions.weak.len());
                         }
                     }
                 }
@@ -434,6 +444,7 @@ impl Mapper {
             && model.region_corner_walls
         {
             regions.lines.join_ends(&mut regions.stretches);
+            regions.walls_placed |= !regions.stretches.is_empty();
             cells += self.place_stretches(&model, &regions, Kernel::Cone);
         }
         cells += self.withdraw_weak_echoes(&mut regions, Kernel::Cone);
@@ -448,8 +459,23 @@ impl Mapper {
         let ModelConfig::Smooth(model) = self.config.model else {
             return 0;
         };
+        // A cell above WITHDRAW_ABOVE is more than weak echoes make: unless a wall was placed
+        // since the last look, only the weak echoes added since can find one in front of them
+        // (a head whose sweeps are never told apart ends a sweep every reading or two).
+        let first_unchecked = if regions.walls_placed {
+            0
+        } else {
+            regions.weak.len() - regions.weak_unchecked
+        };
+        regions.walls_placed = false;
+        regions.weak_unchecked = 0;
         let mut cells = 0;
+        let mut index = 0;
         regions.weak.retain(|beam| {
+            index += 1;
+            if index <= first_unchecked {
+                return true;
+            }
             let withdrawn = self.slanted_wall_in_front(&model, beam);
             if withdrawn {
                 let echo = model.weak_echo(beam, -model.region_weak_echo_log_odds);
@@ -478,6 +504,7 @@ impl Mapper {
                 // A point: a cell wide.
                 let half_angle = (self.grid.geometry().resolution() / region.range).atan();
                 cells += self.fuse_patch(&model, &region, region.axis, half_angle, kernel);
+                regions.walls_placed = true;
             }
         }
         cells
@@ -498,6 +525,7 @@ impl Mapper {
             return 0;
         };
         let cells = self.fuse_patch(&model, region, axis, half_angle, kernel);
+        regions.walls_placed = true;
         regions.lines.add(
             Patch::new(region.position, axis, region.range, half_angle),
             &mut regions.stretches,
@@ -678,6 +706,8 @@ impl Mapper {
             regions.one_ended.clear();
             regions.cut.clear();
             regions.weak.clear();
+            regions.weak_unchecked = 0;
+            regions.walls_placed = false;
             regions.previous = None;
             regions.between = None;
         }
@@ -1432,26 +1462,18 @@ mod tests {
 
     #[test]
     fn a_weak_echo_is_taken_back_once_a_wall_its_axis_meets_at_a_slant_is_drawn_in_front() {
-        let mapper = |withdrawn: bool| {
-            let mut m = Mapper::new(FusionConfig {
-                model: ModelConfig::Smooth(crate::model::SmoothModel {
-                    echo_placement: crate::model::EchoPlacement::Region,
-                    region_weak_echo_log_odds: 0.3,
-                    region_weak_echo_withdrawn: withdrawn,
-                    ..Default::default()
-                }),
-                ..FusionConfig::default()
-            })
-            .unwrap();
-            // From the origin, an echo at 1 m heard from one limit of the scan to the other: no
-            // region, a weak echo on each axis, among them (1, 0) on the axis along +x.
+        // From the origin, an echo at 1 m heard from one limit of the scan to the other: no
+        // region, a weak echo on each axis, among them (1, 0) on the axis along +x.
+        let far = |m: &mut Mapper| {
             for k in -5..=5 {
                 m.update(&reading(6.0 * k as f32, Some(1.0))).unwrap();
             }
             m.close_region();
-            // Then a board lying along that axis, x in [0.3, 0.7] on y = 0, heard whole from
-            // (0.5, -0.5) looking along +y: the axis meets it edge-on (90° from the bearing it was
-            // heard from), so it could not have answered; the echo came from beside the axis.
+        };
+        // A board lying along that axis, x in [0.3, 0.7] on y = 0, heard whole from (0.5, -0.5)
+        // looking along +y: the axis meets it edge-on (90° from the bearing it was heard from),
+        // so it could not have answered; the echo came from beside the axis.
+        let board = |m: &mut Mapper| {
             let below = Isometry2::new(Vector2::new(0.5, -0.5), std::f32::consts::FRAC_PI_2);
             for (a, r) in [
                 (-24.0, None),
@@ -1471,6 +1493,25 @@ mod tests {
                 .unwrap();
             }
             m.close_region();
+        };
+        let mapper = |withdrawn: bool, board_first: bool| {
+            let mut m = Mapper::new(FusionConfig {
+                model: ModelConfig::Smooth(crate::model::SmoothModel {
+                    echo_placement: crate::model::EchoPlacement::Region,
+                    region_weak_echo_log_odds: 0.3,
+                    region_weak_echo_withdrawn: withdrawn,
+                    ..Default::default()
+                }),
+                ..FusionConfig::default()
+            })
+            .unwrap();
+            if board_first {
+                board(&mut m);
+                far(&mut m);
+            } else {
+                far(&mut m);
+                board(&mut m);
+            }
             m
         };
         let at = |m: &Mapper, x: f32, y: f32| {
@@ -1478,22 +1519,29 @@ mod tests {
             let (cx, cy) = g.cell_at(nalgebra::Point2::new(x, y)).unwrap();
             m.grid().probability(cx, cy)
         };
-        let kept = mapper(false);
+        let kept = mapper(false, false);
         assert!(at(&kept, 0.5, 0.0).is_some_and(|p| p > 0.75));
         assert!(at(&kept, 1.0, 0.0).is_some_and(|p| p > 0.55));
-        let taken_back = mapper(true);
-        assert!(at(&taken_back, 0.5, 0.0).is_some_and(|p| p > 0.75));
-        // Back to about the prior: the weak echo (0.3, p = 0.57) is gone, what the neighbouring
-        // axes' echoes put at the edge of their footprint (6° off) stays.
-        let behind = at(&taken_back, 1.0, 0.0);
-        assert!(behind.is_some_and(|p| p < 0.52), "{behind:?}");
-        // An axis the board does not cross keeps its weak echo.
-        let beside = at(
-            &taken_back,
-            1.0 * (30.0 * DEG).cos(),
-            1.0 * (30.0 * DEG).sin(),
-        );
-        assert!(beside.is_some_and(|p| p > 0.5), "{beside:?}");
+        // The wall drawn after the weak echoes, in a sweep of its own, takes them back at its
+        // end; drawn before them, it keeps the one behind it from being put at all.
+        for board_first in [false, true] {
+            let taken_back = mapper(true, board_first);
+            assert!(at(&taken_back, 0.5, 0.0).is_some_and(|p| p > 0.75));
+            // Back to about the prior: the weak echo (0.3, p = 0.57) is gone, what the
+            // neighbouring axes' echoes put at the edge of their footprint (6° off) stays.
+            let behind = at(&taken_back, 1.0, 0.0);
+            assert!(
+                behind.is_some_and(|p| p < 0.52),
+                "{board_first}: {behind:?}"
+            );
+            // An axis the board does not cross keeps its weak echo.
+            let beside = at(
+                &taken_back,
+                1.0 * (30.0 * DEG).cos(),
+                1.0 * (30.0 * DEG).sin(),
+            );
+            assert!(beside.is_some_and(|p| p > 0.5), "{board_first}: {beside:?}");
+        }
     }
 
     #[test]
