@@ -42,7 +42,8 @@
 //!   since a specular board seen edge-on or at a slant is silent and its silence is no evidence
 //!   that it is gone (`docs/fusion.md`, "Free space only where a reflector would have been heard").
 //!
-//! Why the recommended parameters ([`SmoothModel::default`]; `docs/results.md` has the evaluation
+//! Why the recommended parameters ([`SmoothModel::default`], to which the recommended preset adds
+//! echoes placed by region of constant depth, `docs/fusion.md`; `docs/results.md` has the evaluation
 //! they come from, on the simulator; the angles and the incidence weighting were re-chosen on the
 //! generated scene suite for issue 23, `docs/fusion.md`): a small or weak target is heard only
 //! near the axis (a 5 cm post at 1 m within roughly ±10–15°, a thin board less), a wall across

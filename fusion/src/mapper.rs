@@ -95,9 +95,38 @@ struct Regions {
     /// With `region_weak_echo_withdrawn`: the weak echoes placed and not yet taken back, oldest
     /// first.
     weak: VecDeque<Beam>,
+    /// With `region_weak_echo_withdrawn`: the weak echoes at the back of [`Self::weak`] not yet
+    /// looked at for withdrawal.
+    weak_unchecked: usize,
+    /// Whether a region, a corner or a stretch placed occupied evidence since the weak echoes
+    /// were last looked at: only such walls can withdraw one ([`WITHDRAW_ABOVE`]).
+    walls_placed: bool,
+    /// The region closed last: what cut short the next one's start, if it did.
+    previous: Option<Region>,
+    /// With `region_small_cutters_free`: the readings of a region cut short on both sides, the
+    /// first cutter small, waiting for the region after it (the second cutter) to close.
+    between: Option<Between>,
+}
+
+/// A region cut short on both sides whose free evidence waits for its second cutter.
+#[derive(Debug)]
+struct Between {
+    region: Region,
+    readings: Vec<Beam>,
 }
 
 impl Regions {
+    /// Whether `region` is a small reflector's ([`Region::is_small`]), measured against the
+    /// lobe over which the sensor hears a wall met squarely: the widest learnt
+    /// ([`LobeWidth::widest`]), else the sensor's beam half-angle `beam` less half a reading step.
+    fn is_small(&self, region: &Region, beam: f32) -> bool {
+        region.is_small(
+            self.lobe
+                .widest()
+                .unwrap_or_else(|| region.prior_lobe(beam)),
+        )
+    }
+
     /// The lobe's half-width at `region`'s range: learnt from the whole regions there, else the
     /// sensor's beam half-angle `beam` less half a reading step.
     fn lobe_of(&self, region: &Region, beam: f32) -> f32 {
@@ -144,6 +173,10 @@ impl Mapper {
                     one_ended: Vec::new(),
                     cut: Vec::new(),
                     weak: VecDeque::new(),
+                    weak_unchecked: 0,
+                    walls_placed: false,
+                    previous: None,
+                    between: None,
                 }),
                 _ => None,
             },
@@ -257,6 +290,20 @@ impl Mapper {
             return 0;
         };
         regions.lobe.learn(region);
+        let mut cells = 0;
+        // This region cut short the one waiting before it on its far side: if it too is a small
+        // reflector's, that one's readings passed beside two.
+        if let Some(between) = regions.between.take() {
+            let beam = self.config.sensor.limits().half_angle;
+            let beside_small = regions.is_small(region, beam);
+            cells += self.clear_masked(
+                regions.tolerance,
+                &between.region,
+                &between.readings,
+                beside_small,
+                kernel,
+            );
+        }
         if model.region_corner_walls {
             regions.lines.hear(Echo {
                 sensor: region.position,
@@ -267,7 +314,6 @@ impl Mapper {
                 whole: region.is_whole(),
             });
         }
-        let mut cells = 0;
         if region.is_whole() {
             let half_angle = model.region_patch_half_angle(region.half_width);
             cells += self.place_region(regions, region, region.axis, half_angle, kernel);
@@ -288,21 +334,31 @@ impl Mapper {
                                 regions.weak.pop_front();
                             }
                             regions.weak.push_back(*beam);
+                            regions.weak_unchecked =
+                                (regions.weak_unchecked + 1).min(regions.weak.len());
                         }
                     }
                 }
             }
-            if model.region_masked_free
-                && region.ends == [End::Occluded; 2]
-                && let Some(masking) = region.masking_range()
-            {
-                let reach = masking - regions.tolerance.at(masking);
-                for beam in &regions.waiting {
-                    let masked = Beam {
-                        echo: Some(reach),
-                        ..*beam
-                    };
-                    cells += self.fuse_beam(&masked, kernel);
+            if model.region_masked_free && region.ends == [End::Occluded; 2] {
+                let beam = self.config.sensor.limits().half_angle;
+                let first_small = regions
+                    .previous
+                    .is_some_and(|previous| regions.is_small(&previous, beam));
+                if model.region_small_cutters_free && first_small {
+                    // Its second cutter is the region the next reading opened.
+                    regions.between = Some(Between {
+                        region: *region,
+                        readings: regions.waiting.clone(),
+                    });
+                } else {
+                    cells += self.clear_masked(
+                        regions.tolerance,
+                        region,
+                        &regions.waiting,
+                        false,
+                        kernel,
+                    );
                 }
             }
             if model.region_one_end && region.is_one_ended() {
@@ -312,10 +368,39 @@ impl Mapper {
             }
         }
         regions.waiting.clear();
+        regions.previous = Some(*region);
         // A head whose sweeps are never told apart still places them, a sweep's worth at a time.
         if regions.one_ended.len() + regions.cut.len() >= DEFERRED_REGIONS {
             cells += self.place_one_ended(regions, kernel);
             cells += self.place_corners(regions, kernel);
+        }
+        cells
+    }
+
+    /// Clears the axes of `readings`, the readings of `region`, cut short on both sides
+    /// (`region_masked_free`): up to the nearer of the echoes that cut it less its depth
+    /// tolerance, or, when both cutters are small reflectors' (`beside_small`,
+    /// `region_small_cutters_free`), up to each reading's own range less its tolerance; the
+    /// model's band comes off either, as for any echo.
+    fn clear_masked(
+        &mut self,
+        tolerance: DepthTolerance,
+        region: &Region,
+        readings: &[Beam],
+        beside_small: bool,
+        kernel: Kernel,
+    ) -> usize {
+        let masking = region.masking_range();
+        let mut cells = 0;
+        for beam in readings {
+            let Some(reach) = (if beside_small { beam.echo } else { masking }) else {
+                continue;
+            };
+            let cleared = Beam {
+                echo: Some(reach - tolerance.at(reach)),
+                ..*beam
+            };
+            cells += self.fuse_beam(&cleared, kernel);
         }
         cells
     }
@@ -359,6 +444,7 @@ impl Mapper {
             && model.region_corner_walls
         {
             regions.lines.join_ends(&mut regions.stretches);
+            regions.walls_placed |= !regions.stretches.is_empty();
             cells += self.place_stretches(&model, &regions, Kernel::Cone);
         }
         cells += self.withdraw_weak_echoes(&mut regions, Kernel::Cone);
@@ -373,8 +459,23 @@ impl Mapper {
         let ModelConfig::Smooth(model) = self.config.model else {
             return 0;
         };
+        // A cell above WITHDRAW_ABOVE is more than weak echoes make: unless a wall was placed
+        // since the last look, only the weak echoes added since can find one in front of them
+        // (a head whose sweeps are never told apart ends a sweep every reading or two).
+        let first_unchecked = if regions.walls_placed {
+            0
+        } else {
+            regions.weak.len() - regions.weak_unchecked
+        };
+        regions.walls_placed = false;
+        regions.weak_unchecked = 0;
         let mut cells = 0;
+        let mut index = 0;
         regions.weak.retain(|beam| {
+            index += 1;
+            if index <= first_unchecked {
+                return true;
+            }
             let withdrawn = self.slanted_wall_in_front(&model, beam);
             if withdrawn {
                 let echo = model.weak_echo(beam, -model.region_weak_echo_log_odds);
@@ -403,6 +504,7 @@ impl Mapper {
                 // A point: a cell wide.
                 let half_angle = (self.grid.geometry().resolution() / region.range).atan();
                 cells += self.fuse_patch(&model, &region, region.axis, half_angle, kernel);
+                regions.walls_placed = true;
             }
         }
         cells
@@ -423,6 +525,7 @@ impl Mapper {
             return 0;
         };
         let cells = self.fuse_patch(&model, region, axis, half_angle, kernel);
+        regions.walls_placed = true;
         regions.lines.add(
             Patch::new(region.position, axis, region.range, half_angle),
             &mut regions.stretches,
@@ -603,6 +706,10 @@ impl Mapper {
             regions.one_ended.clear();
             regions.cut.clear();
             regions.weak.clear();
+            regions.weak_unchecked = 0;
+            regions.walls_placed = false;
+            regions.previous = None;
+            regions.between = None;
         }
     }
 }
@@ -1242,6 +1349,60 @@ mod tests {
     }
 
     #[test]
+    fn a_region_between_two_small_reflectors_clears_up_to_its_own_range_when_asked() {
+        // Two reflectors at 1 m, `side` readings each (6° apart), either side of five readings
+        // that hear a wall at 2 m along +x; nothing heard beyond them.
+        let scan = |side: i32, small_cutters: bool| {
+            let mut m = Mapper::new(FusionConfig {
+                model: ModelConfig::Smooth(crate::model::SmoothModel {
+                    echo_placement: crate::model::EchoPlacement::Region,
+                    region_masked_free: true,
+                    region_small_cutters_free: small_cutters,
+                    ..Default::default()
+                }),
+                ..FusionConfig::default()
+            })
+            .unwrap();
+            let edge = 12 + 6 * side;
+            for a in (-edge - 6..=edge + 6).step_by(6) {
+                let range = match a.abs() {
+                    a if a <= 12 => Some(2.0),
+                    a if a <= edge => Some(1.0),
+                    _ => None,
+                };
+                m.update(&reading(a as f32, range)).unwrap();
+            }
+            m.close_region();
+            m
+        };
+        let at = |m: &Mapper, x: f32| {
+            let g = *m.grid().geometry();
+            let (cx, cy) = g.cell_at(nalgebra::Point2::new(x, 0.01)).unwrap();
+            m.grid().probability(cx, cy)
+        };
+        let free = |p: Option<f32>| p.is_some_and(|p| p < 0.5);
+        // Two posts (three readings each, ±6°, less than half the beam's 27° lobe): the gap
+        // readings clear through the posts' range to their own less its tolerance (6 cm) and
+        // band (2.5 cm); the wall itself, whose region is not placed, stays unknown.
+        let posts = scan(3, true);
+        assert!(
+            free(at(&posts, 1.0)) && free(at(&posts, 1.85)),
+            "{:?}",
+            at(&posts, 1.0)
+        );
+        assert_eq!(at(&posts, 2.0), None);
+        // Without the option, only up to the posts' range less tolerance and band.
+        let ninth = scan(3, false);
+        assert!(free(at(&ninth, 0.5)));
+        assert_eq!(at(&ninth, 1.0), None);
+        // Two walls' feet (eight readings each, ±21°): the axes may have crossed either wall at a
+        // slant, so only up to the nearer echo, as without the option.
+        let walls = scan(8, true);
+        assert!(free(at(&walls, 0.5)));
+        assert_eq!(at(&walls, 1.0), None);
+    }
+
+    #[test]
     fn weak_echoes_show_what_a_standing_scan_heard_where_no_region_is_placed() {
         let with = |weak: f32| {
             Mapper::new(FusionConfig {
@@ -1301,26 +1462,18 @@ mod tests {
 
     #[test]
     fn a_weak_echo_is_taken_back_once_a_wall_its_axis_meets_at_a_slant_is_drawn_in_front() {
-        let mapper = |withdrawn: bool| {
-            let mut m = Mapper::new(FusionConfig {
-                model: ModelConfig::Smooth(crate::model::SmoothModel {
-                    echo_placement: crate::model::EchoPlacement::Region,
-                    region_weak_echo_log_odds: 0.3,
-                    region_weak_echo_withdrawn: withdrawn,
-                    ..Default::default()
-                }),
-                ..FusionConfig::default()
-            })
-            .unwrap();
-            // From the origin, an echo at 1 m heard from one limit of the scan to the other: no
-            // region, a weak echo on each axis, among them (1, 0) on the axis along +x.
+        // From the origin, an echo at 1 m heard from one limit of the scan to the other: no
+        // region, a weak echo on each axis, among them (1, 0) on the axis along +x.
+        let far = |m: &mut Mapper| {
             for k in -5..=5 {
                 m.update(&reading(6.0 * k as f32, Some(1.0))).unwrap();
             }
             m.close_region();
-            // Then a board lying along that axis, x in [0.3, 0.7] on y = 0, heard whole from
-            // (0.5, -0.5) looking along +y: the axis meets it edge-on (90° from the bearing it was
-            // heard from), so it could not have answered; the echo came from beside the axis.
+        };
+        // A board lying along that axis, x in [0.3, 0.7] on y = 0, heard whole from (0.5, -0.5)
+        // looking along +y: the axis meets it edge-on (90° from the bearing it was heard from),
+        // so it could not have answered; the echo came from beside the axis.
+        let board = |m: &mut Mapper| {
             let below = Isometry2::new(Vector2::new(0.5, -0.5), std::f32::consts::FRAC_PI_2);
             for (a, r) in [
                 (-24.0, None),
@@ -1340,6 +1493,25 @@ mod tests {
                 .unwrap();
             }
             m.close_region();
+        };
+        let mapper = |withdrawn: bool, board_first: bool| {
+            let mut m = Mapper::new(FusionConfig {
+                model: ModelConfig::Smooth(crate::model::SmoothModel {
+                    echo_placement: crate::model::EchoPlacement::Region,
+                    region_weak_echo_log_odds: 0.3,
+                    region_weak_echo_withdrawn: withdrawn,
+                    ..Default::default()
+                }),
+                ..FusionConfig::default()
+            })
+            .unwrap();
+            if board_first {
+                board(&mut m);
+                far(&mut m);
+            } else {
+                far(&mut m);
+                board(&mut m);
+            }
             m
         };
         let at = |m: &Mapper, x: f32, y: f32| {
@@ -1347,22 +1519,29 @@ mod tests {
             let (cx, cy) = g.cell_at(nalgebra::Point2::new(x, y)).unwrap();
             m.grid().probability(cx, cy)
         };
-        let kept = mapper(false);
+        let kept = mapper(false, false);
         assert!(at(&kept, 0.5, 0.0).is_some_and(|p| p > 0.75));
         assert!(at(&kept, 1.0, 0.0).is_some_and(|p| p > 0.55));
-        let taken_back = mapper(true);
-        assert!(at(&taken_back, 0.5, 0.0).is_some_and(|p| p > 0.75));
-        // Back to about the prior: the weak echo (0.3, p = 0.57) is gone, what the neighbouring
-        // axes' echoes put at the edge of their footprint (6° off) stays.
-        let behind = at(&taken_back, 1.0, 0.0);
-        assert!(behind.is_some_and(|p| p < 0.52), "{behind:?}");
-        // An axis the board does not cross keeps its weak echo.
-        let beside = at(
-            &taken_back,
-            1.0 * (30.0 * DEG).cos(),
-            1.0 * (30.0 * DEG).sin(),
-        );
-        assert!(beside.is_some_and(|p| p > 0.5), "{beside:?}");
+        // The wall drawn after the weak echoes, in a sweep of its own, takes them back at its
+        // end; drawn before them, it keeps the one behind it from being put at all.
+        for board_first in [false, true] {
+            let taken_back = mapper(true, board_first);
+            assert!(at(&taken_back, 0.5, 0.0).is_some_and(|p| p > 0.75));
+            // Back to about the prior: the weak echo (0.3, p = 0.57) is gone, what the
+            // neighbouring axes' echoes put at the edge of their footprint (6° off) stays.
+            let behind = at(&taken_back, 1.0, 0.0);
+            assert!(
+                behind.is_some_and(|p| p < 0.52),
+                "{board_first}: {behind:?}"
+            );
+            // An axis the board does not cross keeps its weak echo.
+            let beside = at(
+                &taken_back,
+                1.0 * (30.0 * DEG).cos(),
+                1.0 * (30.0 * DEG).sin(),
+            );
+            assert!(beside.is_some_and(|p| p > 0.5), "{board_first}: {beside:?}");
+        }
     }
 
     #[test]

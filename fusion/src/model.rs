@@ -607,6 +607,15 @@ pub struct SmoothModel {
     /// corner heard between its walls' feet). Not up to their own range: a region not whole may
     /// have heard its echo off its axes, and clearing up to it erased the room's walls.
     pub region_masked_free: bool,
+    /// With `region_masked_free`: when both regions that cut it short are small reflectors'
+    /// ([`crate::regions::Region::is_small`]: whole, two readings or more, narrower than half the
+    /// lobe over which a wall is heard, as a post's or an edge's is and a wall's foot is not), the
+    /// region's readings clear their axes up to their own ranges less the depth tolerance and
+    /// band instead: their axes passed beside two small reflectors, and a reflector on an axis
+    /// nearer than its echo would have answered first (the gap between two posts). Cut short by
+    /// a wall's foot, an axis may have crossed that wall at a slant, which is silent, and its
+    /// echo come from off the axis: only up to the nearer cutting echo, as without this.
+    pub region_small_cutters_free: bool,
 }
 
 /// Where a reading's echo puts its occupied evidence ([`SmoothModel::echo_placement`]).
@@ -624,7 +633,9 @@ pub enum EchoPlacement {
 }
 
 impl Default for SmoothModel {
-    /// The recommended parameters; `lib.rs` explains the choice.
+    /// The recommended preset's parameters, but for where echoes go and the parts of the region
+    /// model (each reading's echo on its own axis here; the preset places them by region,
+    /// [`crate::config::FusionConfig::preset`]); `lib.rs` explains the choice.
     fn default() -> Self {
         Self {
             occupied_log_odds: 1.0,
@@ -646,6 +657,7 @@ impl Default for SmoothModel {
             region_weak_echo_log_odds: 0.0,
             region_weak_echo_withdrawn: false,
             region_masked_free: false,
+            region_small_cutters_free: false,
         }
     }
 }

@@ -150,6 +150,15 @@ impl Region {
             && self.half_width < lobe
     }
 
+    /// Whether the region is a small reflector's, a post's or an edge's: whole, two readings or
+    /// more (one reading measures no width), and narrower than half of `lobe`, the half-width
+    /// over which the sensor hears a wall met squarely. A wall answers across the lobe; a small
+    /// reflector sends back too little off the axis to be heard that far out (in the paper
+    /// scenes a 5 cm post at 1 m is heard within ±13.4°, the walls within ±27°).
+    pub fn is_small(&self, lobe: f32) -> bool {
+        self.is_whole() && self.readings >= 2 && self.half_width < 0.5 * lobe
+    }
+
     /// The range of the nearest echo that cut the region short ([`End::Occluded`]), if any. Its
     /// readings heard farther than that echo's reflector, a step of the head away: along their
     /// axes nothing answered nearer, so the space in front of that range is free even when the
@@ -163,6 +172,8 @@ impl Region {
 const LOBE_BIN_M: f32 = 0.25;
 /// Range bins kept: 0 to 5 m.
 const LOBE_BINS: usize = 20;
+/// Range bins a lobe must have been learnt in before [`LobeWidth::widest`] is trusted.
+const WIDEST_MIN_BINS: usize = 2;
 /// Whole regions a bin's running mean weighs at most: it follows a change of sensor over about
 /// this many.
 const LOBE_MEMORY: f32 = 50.0;
@@ -190,6 +201,17 @@ impl LobeWidth {
         let (mean, weight) = &mut self.bins[Self::bin(region.range)];
         *weight = (*weight + 1.0).min(LOBE_MEMORY);
         *mean += (region.half_width - *mean) / *weight;
+    }
+
+    /// The widest half-width learnt at any range, once whole regions have been heard in
+    /// [`WIDEST_MIN_BINS`] range bins or more, else `None`: the lobe over which the sensor hears
+    /// its strongest reflectors, walls met squarely (on the suite about 27° for `srf05`, but 9°
+    /// for `hc-sr04`, whose configured beam is the paper's ±30°). Learnt at one range only, the
+    /// regions may all be small reflectors' (two posts at the same range).
+    pub fn widest(&self) -> Option<f32> {
+        let learnt = self.bins.iter().filter(|(_, weight)| *weight > 0.0);
+        (learnt.clone().count() >= WIDEST_MIN_BINS)
+            .then(|| learnt.map(|(mean, _)| *mean).fold(0.0, f32::max))
     }
 
     /// The half-width at `range`: its bin's, else the nearest learnt bin's; `None` before any.
@@ -528,6 +550,59 @@ mod tests {
             .for_each(|r| lobe.learn(r));
         assert_eq!(at(&lobe, 3.1), Some(6));
         assert_eq!(at(&lobe, 1.0), Some(27));
+    }
+
+    #[test]
+    fn a_small_reflector_is_heard_over_less_than_half_the_lobe_of_a_wall() {
+        let lobe = 27f32.to_radians();
+        // A post at 1 m heard by four readings (±9°) in front of a wall at 2 m; a wall's foot
+        // heard by nine (±24°); one reading alone; a post cut short by a nearer echo.
+        let post = regions(&[
+            (-18.0, Some(2.0)),
+            (-12.0, None),
+            (-9.0, Some(1.0)),
+            (-3.0, Some(1.0)),
+            (3.0, Some(1.0)),
+            (9.0, Some(1.0)),
+            (15.0, Some(2.0)),
+        ]);
+        assert!(post[1].is_small(lobe), "{:?}", post[1]);
+        let mut wall = vec![(-30.0, None)];
+        wall.extend((-24..=24).step_by(6).map(|a| (a as f32, Some(1.5))));
+        wall.push((30.0, None));
+        let wall = regions(&wall);
+        assert!(wall[0].is_whole() && !wall[0].is_small(lobe));
+        let single = regions(&[(0.0, None), (6.0, Some(1.0)), (12.0, None)]);
+        assert!(single[0].is_whole() && !single[0].is_small(lobe));
+        let cut = regions(&[
+            (0.0, None),
+            (6.0, Some(1.0)),
+            (12.0, Some(1.0)),
+            (18.0, Some(0.5)),
+        ]);
+        assert!(!cut[0].is_small(lobe));
+    }
+
+    #[test]
+    fn the_widest_lobe_is_trusted_once_learnt_at_two_ranges() {
+        let mut lobe = LobeWidth::default();
+        let whole = |half: i32, range: f32| {
+            let mut r = vec![(-(half as f32) - 6.0, None)];
+            r.extend((-half..=half).step_by(6).map(|a| (a as f32, Some(range))));
+            r.push((half as f32 + 6.0, None));
+            regions(&r)
+        };
+        assert_eq!(lobe.widest(), None);
+        // Two posts at 1 m teach their own width, which says nothing of a wall's.
+        whole(6, 1.0).iter().for_each(|r| lobe.learn(r));
+        whole(12, 1.05).iter().for_each(|r| lobe.learn(r));
+        assert_eq!(lobe.widest(), None);
+        // A wall at 2 m: the widest of the ranges learnt.
+        whole(24, 2.0).iter().for_each(|r| lobe.learn(r));
+        assert_eq!(
+            lobe.widest().map(|l| l.to_degrees().round() as i32),
+            Some(24)
+        );
     }
 
     #[test]
