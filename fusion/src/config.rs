@@ -172,6 +172,7 @@ impl FusionConfig {
                 ModelConfig::Smooth(SmoothModel {
                     echo_placement: EchoPlacement::Region,
                     region_one_end: true,
+                    region_one_end_free: true,
                     region_corners: true,
                     region_corner_walls: true,
                     region_weak_echo_log_odds: 0.3,
@@ -411,6 +412,7 @@ mod tests {
         assert_eq!(
             weak,
             crate::model::SmoothModel {
+                region_one_end_free: true,
                 region_weak_echo_log_odds: 0.3,
                 region_weak_echo_withdrawn: true,
                 region_masked_free: true,

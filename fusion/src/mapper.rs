@@ -88,8 +88,9 @@ struct Regions {
     stretches: Vec<Stretch>,
     /// The lobe's half-width by range, learnt from the whole regions.
     lobe: LobeWidth,
-    /// With `region_one_end`: the sweep's one-ended regions, placed at its end.
-    one_ended: Vec<Region>,
+    /// With `region_one_end`: the sweep's one-ended regions, placed at its end, each with its
+    /// readings (with `region_one_end_free`, else none).
+    one_ended: Vec<(Region, Vec<Beam>)>,
     /// With `region_corners`: the sweep's regions cut short on both sides, placed at its end.
     cut: Vec<Region>,
     /// With `region_weak_echo_withdrawn`: the weak echoes placed and not yet taken back, oldest
@@ -362,7 +363,12 @@ impl Mapper {
                 }
             }
             if model.region_one_end && region.is_one_ended() {
-                regions.one_ended.push(*region);
+                let readings = if model.region_one_end_free {
+                    regions.waiting.clone()
+                } else {
+                    Vec::new()
+                };
+                regions.one_ended.push((*region, readings));
             } else if model.region_corners && !region.ends.contains(&End::Natural) {
                 regions.cut.push(*region);
             }
@@ -414,7 +420,7 @@ impl Mapper {
         };
         let beam = self.config.sensor.limits().half_angle;
         let mut cells = 0;
-        for region in std::mem::take(&mut regions.one_ended) {
+        for (region, readings) in std::mem::take(&mut regions.one_ended) {
             let lobe = regions.lobe_of(&region, beam);
             if let Some(axis) = region.one_ended_axis(lobe) {
                 // Half the lobe each side: the foot is known to a reading's step at best, and
@@ -422,6 +428,10 @@ impl Mapper {
                 // precision at 8 viewpoints for no recall (docs/fusion.md).
                 let half_angle = model.region_patch_half_angle(0.5 * lobe);
                 cells += self.place_region(regions, &region, axis, half_angle, kernel);
+                // Placed, its readings heard that reflector as a whole region's do theirs.
+                for beam in &readings {
+                    cells += self.fuse_beam(beam, kernel);
+                }
             }
         }
         cells
@@ -720,7 +730,7 @@ mod tests {
     use crate::config::{GridConfig, Preset};
     use crate::model::{AlphaSign, BeamWidth, ModelConfig, ModelKind, PaperModel};
     use crate::rule::{RuleConfig, RuleKind};
-    use nalgebra::Vector2;
+    use nalgebra::{Point2, Vector2};
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
     use sonar_common::sensor::SensorConfig;
@@ -1542,6 +1552,44 @@ mod tests {
             );
             assert!(beside.is_some_and(|p| p > 0.5), "{board_first}: {beside:?}");
         }
+    }
+
+    #[test]
+    fn a_placed_one_ended_region_clears_in_front_of_it_with_region_one_end_free() {
+        // A wall 1 m ahead heard from the sweep's start (nothing known before it) over 48°, then
+        // not: one-ended, as a servo head's side wall heard up to its limit is.
+        let probability_half_way = |free: bool| {
+            let mut m = Mapper::new(FusionConfig {
+                model: ModelConfig::Smooth(crate::model::SmoothModel {
+                    echo_placement: crate::model::EchoPlacement::Region,
+                    region_one_end: true,
+                    region_one_end_free: free,
+                    ..Default::default()
+                }),
+                ..FusionConfig::default()
+            })
+            .unwrap();
+            for k in 0..10 {
+                let a = -27.0 + 6.0 * k as f32;
+                m.update(&reading(a, (k < 9).then_some(1.0))).unwrap();
+            }
+            m.close_region();
+            let geometry = m.grid().geometry();
+            let (x, y) = geometry
+                .cell_at(Point2::new(
+                    0.5 * (-15.0 * DEG).cos(),
+                    0.5 * (-15.0 * DEG).sin(),
+                ))
+                .unwrap();
+            let wall = cells(&m).iter().any(|p| p.is_some_and(|p| p > 0.5));
+            (m.grid().probability(x, y), wall)
+        };
+        let (without, wall) = probability_half_way(false);
+        assert!(wall, "the region is placed");
+        assert_eq!(without, None, "its readings clear nothing");
+        let (with, wall) = probability_half_way(true);
+        assert!(wall, "the region is placed");
+        assert!(with.is_some_and(|p| p < 0.5), "{with:?}");
     }
 
     #[test]

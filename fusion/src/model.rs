@@ -577,8 +577,15 @@ pub struct SmoothModel {
     /// With `echo_placement = "region"`: a region heard to stop on one side and running to the
     /// sweep's limit (or a gap in the angles) on the other is placed at the sweep's end one lobe
     /// half-width in from its natural end, the lobe learnt from the whole regions
-    /// ([`crate::regions::LobeWidth`]); its readings clear nothing.
+    /// ([`crate::regions::LobeWidth`]); its readings clear nothing unless
+    /// [`Self::region_one_end_free`].
     pub region_one_end: bool,
+    /// With `region_one_end`: a one-ended region that is placed gives its readings' free evidence
+    /// as a whole region's do (each up to its own range less the depth tolerance and band): its
+    /// reflector's bearing is known from its natural end, and its readings heard that reflector.
+    /// Without it, the space in front of a wall heard up to the sweep's limit (a servo head's
+    /// side walls) is never observed.
+    pub region_one_end_free: bool,
     /// With `echo_placement = "region"`: a region cut short on both sides, narrower than the
     /// lobe, is placed as a point at its middle bearing if two walls heard so far meet there (a
     /// corner masked by the nearer feet of its own walls); its readings clear nothing.
@@ -652,6 +659,7 @@ impl Default for SmoothModel {
             region_tolerance_fraction: 0.02,
             region_half_angle_deg: 18.0,
             region_one_end: false,
+            region_one_end_free: false,
             region_corners: false,
             region_corner_walls: false,
             region_weak_echo_log_odds: 0.0,

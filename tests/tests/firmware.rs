@@ -782,7 +782,9 @@ fn the_servo_head_maps_the_room_through_driver_and_fusion_within_its_travel() {
         assert!(p > 0.5, "wall at ({x}, {y}) has p = {p}");
     }
     for (x, y) in [(0.5, 0.0), (0.0, 0.6), (0.0, -0.6), (0.5, 0.5), (0.5, -0.5)] {
-        let p = map.max_near(x, y, 1).expect("observed");
+        let p = map
+            .max_near(x, y, 1)
+            .unwrap_or_else(|| panic!("({x}, {y}) never observed"));
         assert!(p < 0.5, "free space at ({x}, {y}) has p = {p}");
     }
     assert_eq!(map.max_near(-1.0, 0.0, 2), None, "behind the servo's sweep");
