@@ -747,6 +747,18 @@ mod tests {
         }
     }
 
+    /// A mapper placing echoes by region, with `model`'s other settings.
+    fn region_mapper(model: crate::model::SmoothModel) -> Mapper {
+        Mapper::new(FusionConfig {
+            model: ModelConfig::Smooth(crate::model::SmoothModel {
+                echo_placement: crate::model::EchoPlacement::Region,
+                ..model
+            }),
+            ..FusionConfig::default()
+        })
+        .unwrap()
+    }
+
     /// Every probability of the grid, `None` for unknown cells.
     fn cells(m: &Mapper) -> Vec<Option<f32>> {
         let n = m.grid().geometry().cells_per_side();
@@ -1172,14 +1184,7 @@ mod tests {
 
     #[test]
     fn a_region_outweighs_the_free_evidence_its_cells_had_as_all_its_readings_together() {
-        let mut m = Mapper::new(FusionConfig {
-            model: ModelConfig::Smooth(crate::model::SmoothModel {
-                echo_placement: crate::model::EchoPlacement::Region,
-                ..Default::default()
-            }),
-            ..FusionConfig::default()
-        })
-        .unwrap();
+        let mut m = region_mapper(crate::model::SmoothModel::default());
         let sweep = |m: &mut Mapper, range: f32, half_deg: f32| {
             for k in -10..=10 {
                 let a = 6.0 * k as f32;
@@ -1213,17 +1218,12 @@ mod tests {
         region_corner_walls: bool,
         facing_deg: f32,
     ) -> Vec<(f32, f32)> {
-        let mut m = Mapper::new(FusionConfig {
-            model: ModelConfig::Smooth(crate::model::SmoothModel {
-                echo_placement: crate::model::EchoPlacement::Region,
-                region_one_end,
-                region_corners,
-                region_corner_walls,
-                ..Default::default()
-            }),
-            ..FusionConfig::default()
-        })
-        .unwrap();
+        let mut m = region_mapper(crate::model::SmoothModel {
+            region_one_end,
+            region_corners,
+            region_corner_walls,
+            ..Default::default()
+        });
         let corner = 0.85 / facing_deg.to_radians().cos();
         let range = |a: f32| Some(if a.abs() >= 21.0 { 0.85 } else { corner });
         for k in (-10..=10).chain((-10..=10).rev()) {
@@ -1317,15 +1317,10 @@ mod tests {
     #[test]
     fn a_region_cut_short_by_nearer_echoes_clears_up_to_them_when_asked() {
         let scan = |masked_free: bool| {
-            let mut m = Mapper::new(FusionConfig {
-                model: ModelConfig::Smooth(crate::model::SmoothModel {
-                    echo_placement: crate::model::EchoPlacement::Region,
-                    region_masked_free: masked_free,
-                    ..Default::default()
-                }),
-                ..FusionConfig::default()
-            })
-            .unwrap();
+            let mut m = region_mapper(crate::model::SmoothModel {
+                region_masked_free: masked_free,
+                ..Default::default()
+            });
             // Two posts at 1 m, heard whole on either side; the reading between them, along +x,
             // hears the wall behind at 2 m, its region cut short on both sides.
             for (a, r) in [
@@ -1363,16 +1358,11 @@ mod tests {
         // Two reflectors at 1 m, `side` readings each (6° apart), either side of five readings
         // that hear a wall at 2 m along +x; nothing heard beyond them.
         let scan = |side: i32, small_cutters: bool| {
-            let mut m = Mapper::new(FusionConfig {
-                model: ModelConfig::Smooth(crate::model::SmoothModel {
-                    echo_placement: crate::model::EchoPlacement::Region,
-                    region_masked_free: true,
-                    region_small_cutters_free: small_cutters,
-                    ..Default::default()
-                }),
-                ..FusionConfig::default()
-            })
-            .unwrap();
+            let mut m = region_mapper(crate::model::SmoothModel {
+                region_masked_free: true,
+                region_small_cutters_free: small_cutters,
+                ..Default::default()
+            });
             let edge = 12 + 6 * side;
             for a in (-edge - 6..=edge + 6).step_by(6) {
                 let range = match a.abs() {
@@ -1415,15 +1405,10 @@ mod tests {
     #[test]
     fn weak_echoes_show_what_a_standing_scan_heard_where_no_region_is_placed() {
         let with = |weak: f32| {
-            Mapper::new(FusionConfig {
-                model: ModelConfig::Smooth(crate::model::SmoothModel {
-                    echo_placement: crate::model::EchoPlacement::Region,
-                    region_weak_echo_log_odds: weak,
-                    ..Default::default()
-                }),
-                ..FusionConfig::default()
+            region_mapper(crate::model::SmoothModel {
+                region_weak_echo_log_odds: weak,
+                ..Default::default()
             })
-            .unwrap()
         };
         let at = |m: &Mapper, x: f32| {
             let g = *m.grid().geometry();
@@ -1505,16 +1490,11 @@ mod tests {
             m.close_region();
         };
         let mapper = |withdrawn: bool, board_first: bool| {
-            let mut m = Mapper::new(FusionConfig {
-                model: ModelConfig::Smooth(crate::model::SmoothModel {
-                    echo_placement: crate::model::EchoPlacement::Region,
-                    region_weak_echo_log_odds: 0.3,
-                    region_weak_echo_withdrawn: withdrawn,
-                    ..Default::default()
-                }),
-                ..FusionConfig::default()
-            })
-            .unwrap();
+            let mut m = region_mapper(crate::model::SmoothModel {
+                region_weak_echo_log_odds: 0.3,
+                region_weak_echo_withdrawn: withdrawn,
+                ..Default::default()
+            });
             if board_first {
                 board(&mut m);
                 far(&mut m);
@@ -1559,16 +1539,11 @@ mod tests {
         // A wall 1 m ahead heard from the sweep's start (nothing known before it) over 48°, then
         // not: one-ended, as a servo head's side wall heard up to its limit is.
         let probability_half_way = |free: bool| {
-            let mut m = Mapper::new(FusionConfig {
-                model: ModelConfig::Smooth(crate::model::SmoothModel {
-                    echo_placement: crate::model::EchoPlacement::Region,
-                    region_one_end: true,
-                    region_one_end_free: free,
-                    ..Default::default()
-                }),
-                ..FusionConfig::default()
-            })
-            .unwrap();
+            let mut m = region_mapper(crate::model::SmoothModel {
+                region_one_end: true,
+                region_one_end_free: free,
+                ..Default::default()
+            });
             for k in 0..10 {
                 let a = -27.0 + 6.0 * k as f32;
                 m.update(&reading(a, (k < 9).then_some(1.0))).unwrap();
@@ -1594,15 +1569,10 @@ mod tests {
 
     #[test]
     fn one_ended_regions_are_placed_even_if_no_sweep_ever_ends() {
-        let mut m = Mapper::new(FusionConfig {
-            model: ModelConfig::Smooth(crate::model::SmoothModel {
-                echo_placement: crate::model::EchoPlacement::Region,
-                region_one_end: true,
-                ..Default::default()
-            }),
-            ..FusionConfig::default()
-        })
-        .unwrap();
+        let mut m = region_mapper(crate::model::SmoothModel {
+            region_one_end: true,
+            ..Default::default()
+        });
         // Runs of readings 30° apart (a gap: nothing known before each), 54° of echo at 1 m and
         // then none: one-ended regions, and no end of a sweep.
         for run in 0..1000 {
