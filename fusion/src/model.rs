@@ -34,6 +34,11 @@ pub(crate) trait CellEvidence: Copy {
     fn half_angle(&self) -> f32 {
         f32::INFINITY
     }
+    /// Nearest range at which this reading can give evidence: cells nearer get none at any
+    /// angle, so the kernels need not visit them (an echo without free evidence).
+    fn near(&self) -> f32 {
+        0.0
+    }
     /// P(occupied | this reading) for a cell at range `r`, `alpha` radians off the axis; NaN for
     /// no evidence. By default from [`Self::log_odds`], for models native in log-odds.
     #[inline(always)]
@@ -889,6 +894,11 @@ impl CellEvidence for RegionEcho {
         self.half_angle
     }
 
+    /// Nearer than the band, r·cos α < d − band: no evidence at any angle.
+    fn near(&self) -> f32 {
+        self.d - self.band
+    }
+
     fades_at_its_fade_range!();
 
     #[inline(always)]
@@ -959,6 +969,12 @@ impl CellEvidence for WeakEcho {
 
     fn half_angle(&self) -> f32 {
         self.0.half_angle()
+    }
+
+    /// Its free evidence is zero ([`SmoothModel::weak_echo`]): nothing in front of the echo's
+    /// band.
+    fn near(&self) -> f32 {
+        self.0.free_to
     }
 
     #[inline(always)]
@@ -1108,6 +1124,27 @@ mod tests {
             echo_placement: EchoPlacement::Reading,
             ..SmoothModel::default()
         }
+    }
+
+    /// A weak echo and a region's echo give nothing nearer than their [`CellEvidence::near`],
+    /// at any angle (the kernel leaves those cells out), and something just beyond it.
+    #[test]
+    fn echoes_give_no_evidence_nearer_than_their_near_range() {
+        fn nothing_nearer<E: CellEvidence>(evidence: &E) {
+            let near = evidence.near();
+            assert!(near > 1.5 && near < 2.0, "{near}");
+            for k in 0..400 {
+                let r = near * k as f32 / 400.0;
+                for deg in -90..=90 {
+                    let l = evidence.log_odds(r, (deg as f32).to_radians());
+                    assert!(l.is_nan(), "{l} at {r} m, {deg}°");
+                }
+            }
+            assert!(!evidence.log_odds(near + 0.01, 0.0).is_nan());
+        }
+        let model = SmoothModel::default();
+        nothing_nearer(&model.weak_echo(&beam(Some(2.0)), 0.4));
+        nothing_nearer(&model.region_echo(0.0, 2.0, 10f32.to_radians(), 3));
     }
 
     /// The worked example of `docs/fusion.md`: one echo at 2 m straight ahead (R = 4 m, β = 30°),
