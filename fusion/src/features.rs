@@ -236,7 +236,7 @@ impl FeatureTracker {
         !self.pending.is_empty()
     }
 
-    /// Merges the pending sweep now (the scan stopped, or went quiet).
+    /// Merges the pending sweep now (the readings ended).
     pub fn finish_sweep(&mut self) -> Option<SweepOutcome> {
         let (first, _) = *self.pending.first()?;
         let sweep = Sweep::from_readings_at(

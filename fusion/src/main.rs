@@ -465,7 +465,7 @@ fn run(args: &Args) -> Result<()> {
         let now = Instant::now();
         if let Some(features) = &mut features {
             if let Some(quiet_since) = out.quiet_since() {
-                features.finish_idle_sweep(&mut engine, quiet_since, now);
+                features.show_idle_sweep(&mut engine, quiet_since, now);
             }
             features.publish_if_due(&mut engine, now);
             features.refresh(now);
@@ -620,7 +620,7 @@ impl Saving {
 struct Features {
     tracker: FeatureTracker,
     /// While the readings have stopped: the tracker with its pending sweep merged, published in
-    /// its place until the next reading ([`Self::finish_idle_sweep`]).
+    /// its place until the next reading ([`Self::show_idle_sweep`]).
     shown: Option<FeatureTracker>,
     publisher: Publisher<Ipc, [FeatureRecord], FeaturesHeader>,
     notifier: Notifier<Ipc>,
@@ -685,7 +685,7 @@ impl Features {
     /// correction unchanged: if the head only stalled, its next readings join the sweep as they
     /// would have without the stall, and the map is what an offline fusion of the recording
     /// makes, whatever the delivery's timing.
-    fn finish_idle_sweep(&mut self, engine: &mut Engine, quiet_since: Instant, now: Instant) {
+    fn show_idle_sweep(&mut self, engine: &mut Engine, quiet_since: Instant, now: Instant) {
         if self.shown.is_some() || now.duration_since(quiet_since) < SWEEP_IDLE {
             return;
         }
@@ -696,11 +696,7 @@ impl Features {
             ?outcome,
             "the readings stopped: the pending sweep shown merged"
         );
-        if let Some(publisher) = &self.localized
-            && let Err(e) = publisher.send_copy(localized_pose(&outcome, shown.fixes()))
-        {
-            warn!("send localized pose: {e:?}");
-        }
+        self.send_localized(&outcome, &shown);
         self.shown = Some(shown);
         self.dirty = true;
         self.publish_if_due(engine, now);
@@ -748,15 +744,21 @@ impl Features {
                  Counted in sonar/fusion_status feature_readings_skipped (`sonar echo fusion-status`)"
             );
         }
-        if let Some(publisher) = &self.localized {
+        if self.localized.is_some() {
             engine.set_correction(self.tracker.correction());
-            let pose = localized_pose(outcome, self.tracker.fixes());
-            if let Err(e) = publisher.send_copy(pose) {
-                warn!("send localized pose: {e:?}");
-            }
+            self.send_localized(outcome, &self.tracker);
         }
         self.dirty = true;
         self.publish_if_due(engine, Instant::now());
+    }
+
+    /// With --localize: the pose of `outcome`'s sweep as `tracker` has it, on its service.
+    fn send_localized(&self, outcome: &SweepOutcome, tracker: &FeatureTracker) {
+        if let Some(publisher) = &self.localized
+            && let Err(e) = publisher.send_copy(localized_pose(outcome, tracker.fixes()))
+        {
+            warn!("send localized pose: {e:?}");
+        }
     }
 
     fn publish_if_due(&mut self, engine: &mut Engine, now: Instant) {
