@@ -15,7 +15,8 @@ use sonar_common::ipc::{
 };
 use sonar_e2e::{
     CpuHog, PATIENCE, Sandbox, check_ok, collect_until, corridor_grid_config, driver_ports,
-    path_str, readings_subscriber, readings_subscribers, receive_reading, wait_until,
+    fusion_status_subscriber, path_str, readings_subscriber, readings_subscribers, receive_reading,
+    wait_until,
 };
 use sonar_fusion::features::SWEEP_IDLE;
 
@@ -355,10 +356,13 @@ fn grid_subscriber(node: &Node<Ipc>) -> GridSubscriber {
 }
 
 /// The first `sonar/grid` snapshot with exactly `readings` fused: its header and cells. Gives up
-/// after [`PATIENCE`] naming the last snapshot had (a reading lost on the way never comes).
+/// after [`PATIENCE`] naming the last snapshot had and the fusion's latest status (a reading lost
+/// on the way never comes: its `readings_lost`).
 fn map_after(node: &Node<Ipc>, grid: &GridSubscriber, readings: u64) -> (ipc::GridHeader, Vec<u8>) {
+    let status = fusion_status_subscriber(node);
     let deadline = Instant::now() + PATIENCE;
     let mut last = None;
+    let mut last_status = None;
     loop {
         while let Some(sample) = grid.receive().unwrap() {
             let header = *sample.user_header();
@@ -367,9 +371,13 @@ fn map_after(node: &Node<Ipc>, grid: &GridSubscriber, readings: u64) -> (ipc::Gr
             }
             last = Some(header);
         }
+        while let Some(sample) = status.receive().unwrap() {
+            last_status = Some(*sample.payload());
+        }
         assert!(
             Instant::now() < deadline,
-            "no snapshot with {readings} readings fused; the last: {last:?}"
+            "no snapshot with {readings} readings fused; the last: {last:?}; the fusion's status: \
+             {last_status:?}"
         );
         let _ = node.wait(Duration::from_millis(5));
     }
@@ -391,12 +399,8 @@ fn replaying_a_recording_into_the_fusion_engine_gives_the_live_map() {
     let driver = live.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
     // More than two sweeps (50 readings each), then the head stops: the live map is the one of
     // every reading published, whenever the fusion publishes it.
-    let mut count =
-        collect_until(&node, || receive_reading(&readings), |got| got.len() >= 101).len() as u64;
-    assert!(driver.terminate().success(), "driver did not exit cleanly");
-    while receive_reading(&readings).is_some() {
-        count += 1;
-    }
+    collect_until(&node, || receive_reading(&readings), |got| got.len() >= 101);
+    let count = stop_driver(driver);
     let (live_header, live_cells) = map_after(&node, &live_grid, count);
     for p in [recorder, sim, fusion] {
         assert!(p.terminate().success());
@@ -458,9 +462,9 @@ const TOUR_READINGS: usize = 850;
 /// The corridor tour recorded with its odometry on `robot/pose`, replayed at the pace it was
 /// recorded at into a fresh fusion: the map of the tour again, cell for cell, on a machine whose
 /// every core is kept busy (where a reading lands must not depend on the load: issue 24). A
-/// debug-build fusion beside busy loops fuses the ×40 tour slower than it comes: it keeps what
-/// it has not fused in its backlog (before, its buffer of 256 overflowed and 97-147 of the 850
-/// readings were lost in 5 of 6 runs, so no snapshot ever held them all).
+/// debug-build fusion beside busy loops fuses the tour slower than it comes: it keeps what it has
+/// not fused in its backlog (before, its buffer of 256 overflowed and 97-147 of the 850 readings
+/// were lost in 5 of 6 runs, so no snapshot ever held them all).
 #[test]
 fn replaying_a_recorded_tour_gives_the_live_map() {
     let _hog = CpuHog::start();
@@ -515,8 +519,12 @@ fn replaying_a_recorded_tour_gives_the_live_map() {
         "sonar-replay",
         &[
             path_str(&file),
+            // The pace it was recorded at (the factor is of the recorded stamps' pace, so the
+            // `--speed 40` this test had ran into the replay's ceiling of 1000 messages a
+            // second, and a debug-build fusion beside busy loops lost readings whenever one of
+            // its steps, a sweep's end, took longer than 256 of them: 0.26 s).
             "--speed",
-            "40",
+            "1",
             "--wait-for-subscribers",
             "1",
         ],
@@ -593,7 +601,7 @@ fn an_offline_export_with_the_pipelines_config_gives_the_live_localised_map() {
     assert_ne!(unlocalised_map, live_map);
 }
 
-/// The corridor tour at 40× with `seed` and odometry errors `(scale, heading drift °/m)` through a
+/// The corridor tour at 20× with `seed` and odometry errors `(scale, heading drift °/m)` through a
 /// driver in `sandbox`, until [`TOUR_READINGS`] readings; the driver stopped, the simulator still
 /// running. With `stall_after`, the simulator is stopped (SIGSTOP) for longer than the fusion's
 /// [`SWEEP_IDLE`] once that many readings have come, then let go on (its readings' stamps, from
@@ -606,11 +614,17 @@ fn drive_tour(
     (scale, drift): (&str, &str),
     stall_after: Option<usize>,
 ) -> (sonar_e2e::Proc, u64) {
+    // 20× with poses at 5 Hz: 83 readings and 100 poses a second, so the readings' (256) and the
+    // poses' (2048) subscriber buffers hold 3 s and 20 s of them for a consumer descheduled on a
+    // loaded machine (at 40× and 20 Hz, 1.5 s and 2.5 s: the recorder and the fusion lost poses
+    // and readings beside two busy loops, and the maps differed for that alone).
     let (sim, pty) = sandbox.spawn_sim(&[
         "--scene",
         "corridor",
         "--speed",
-        "40",
+        "20",
+        "--pose-rate",
+        "5",
         "--seed",
         seed,
         "--odom-scale-error",
@@ -622,7 +636,7 @@ fn drive_tour(
     let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--silence-timeout", "10"]);
     let mut collected = 0;
     if let Some(stall_after) = stall_after {
-        collected += collect_until(
+        collected = collect_until(
             node,
             || receive_reading(readings),
             |got| got.len() >= stall_after,
@@ -634,18 +648,30 @@ fn drive_tour(
         std::thread::sleep(SWEEP_IDLE + Duration::from_secs(1));
         kill(pid, Signal::SIGCONT).unwrap();
     }
-    collected += collect_until(
+    collect_until(
         node,
         || receive_reading(readings),
         |got| collected + got.len() >= TOUR_READINGS,
-    )
-    .len();
-    let mut count = collected as u64;
-    assert!(driver.terminate().success(), "driver did not exit cleanly");
-    while receive_reading(readings).is_some() {
-        count += 1;
-    }
-    (sim, count)
+    );
+    (sim, stop_driver(driver))
+}
+
+/// Stops a driver and returns how many readings it published, from its stop line. Not counted
+/// by a subscriber of the test's: on a loaded machine the readings published while the driver
+/// shuts down can overflow its buffer, and a reading dropped there was still fused.
+fn stop_driver(driver: sonar_e2e::Proc) -> u64 {
+    let (status, stderr) = driver.terminate_with_stderr();
+    assert!(status.success(), "driver did not exit cleanly: {stderr}");
+    stderr
+        .lines()
+        .filter(|l| l.contains("driver stopped"))
+        .find_map(|l| {
+            let field = l
+                .split_whitespace()
+                .find_map(|w| w.strip_prefix("readings="))?;
+            field.parse().ok()
+        })
+        .unwrap_or_else(|| panic!("no 'driver stopped readings=N' line in\n{stderr}"))
 }
 
 /// Runs `sonar-export --format npy` with `args` into the sandbox as `name.npy`; the file's bytes.
