@@ -234,6 +234,24 @@ fn wait_timeout(child: &mut Child) -> Option<ExitStatus> {
     None
 }
 
+/// Stops a driver and returns how many readings it published, from its stop line. Not counted
+/// by a subscriber of the test's: on a loaded machine the readings published while the driver
+/// shuts down can overflow its buffer, and a reading dropped there was still fused.
+pub fn stop_driver(driver: Proc) -> u64 {
+    let (status, stderr) = driver.terminate_with_stderr();
+    assert!(status.success(), "driver did not exit cleanly: {stderr}");
+    stderr
+        .lines()
+        .filter(|l| l.contains("driver stopped"))
+        .find_map(|l| {
+            let field = l
+                .split_whitespace()
+                .find_map(|w| w.strip_prefix("readings="))?;
+            field.parse().ok()
+        })
+        .unwrap_or_else(|| panic!("no 'driver stopped readings=N' line in\n{stderr}"))
+}
+
 /// One test's private iceoryx2 namespace and the processes it started.
 #[derive(Debug)]
 pub struct Sandbox {

@@ -13,7 +13,7 @@ use std::path::PathBuf;
 use sonar_common::ipc::{self, FeatureRecord, FeaturesHeader, GridHeader, feature_kind};
 use sonar_e2e::{
     PATIENCE, Proc, Sandbox, check_ok, collect_until, grid_subscriber, path_str, python,
-    readings_subscribers, wait_until, workspace,
+    readings_subscribers, stop_driver, wait_until, workspace,
 };
 
 /// Grid of the default fusion settings: 400 × 400 cells of 2 cm, centred on the sensor.
@@ -403,27 +403,19 @@ fn an_export_from_a_recording_equals_the_live_map_of_the_same_readings() {
     });
     let (sim, pty) = sandbox.spawn_sim(&["--scene", "room", "--speed", "100", "--seed", "8"]);
     let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
-    let got = collect_until(
+    collect_until(
         &node,
         || readings.receive().unwrap().map(|s| s.payload().sweep_id),
         |got| got.len() >= 60,
     );
-    let (mut count, mut last_sweep) = (got.len(), got.last().copied().unwrap());
-    assert!(driver.terminate().success(), "driver did not exit cleanly");
-    while let Some(sample) = readings.receive().unwrap() {
-        count += 1;
-        last_sweep = sample.payload().sweep_id;
-    }
-    // The live engine has fused every reading the driver published.
-    collect_until(
+    let count = stop_driver(driver);
+    // The live engine has fused every reading the driver published; the last one's sweep.
+    let fused = collect_until(
         &node,
-        || {
-            grid.receive()
-                .unwrap()
-                .map(|s| s.user_header().readings_fused)
-        },
-        |got| got.last() == Some(&(count as u64)),
+        || grid.receive().unwrap().map(|s| *s.user_header()),
+        |got| got.last().is_some_and(|h| h.readings_fused == count),
     );
+    let last_sweep = fused.last().unwrap().sweep_id;
     // The fusion merges the last, unfinished sweep into the features once the readings stopped
     // (2 s): that snapshot holds every reading, as the offline export's does.
     let live_features = collect_until(

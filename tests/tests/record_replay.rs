@@ -16,7 +16,7 @@ use sonar_common::ipc::{
 use sonar_e2e::{
     CpuHog, PATIENCE, Sandbox, check_ok, collect_until, corridor_grid_config, driver_ports,
     fusion_status_subscriber, path_str, readings_subscriber, readings_subscribers, receive_reading,
-    wait_until,
+    stop_driver, wait_until,
 };
 use sonar_fusion::features::SWEEP_IDLE;
 
@@ -654,24 +654,6 @@ fn drive_tour(
         |got| collected + got.len() >= TOUR_READINGS,
     );
     (sim, stop_driver(driver))
-}
-
-/// Stops a driver and returns how many readings it published, from its stop line. Not counted
-/// by a subscriber of the test's: on a loaded machine the readings published while the driver
-/// shuts down can overflow its buffer, and a reading dropped there was still fused.
-fn stop_driver(driver: sonar_e2e::Proc) -> u64 {
-    let (status, stderr) = driver.terminate_with_stderr();
-    assert!(status.success(), "driver did not exit cleanly: {stderr}");
-    stderr
-        .lines()
-        .filter(|l| l.contains("driver stopped"))
-        .find_map(|l| {
-            let field = l
-                .split_whitespace()
-                .find_map(|w| w.strip_prefix("readings="))?;
-            field.parse().ok()
-        })
-        .unwrap_or_else(|| panic!("no 'driver stopped readings=N' line in\n{stderr}"))
 }
 
 /// Runs `sonar-export --format npy` with `args` into the sandbox as `name.npy`; the file's bytes.
