@@ -421,6 +421,14 @@ impl FeatureMap {
                 f.confidence = 0.0;
             }
         }
+        let on_walls = points_on_confirmed_walls(&self.features);
+        for f in self
+            .features
+            .iter_mut()
+            .filter(|f| on_walls.contains(&f.id))
+        {
+            f.confidence = 0.0;
+        }
         let explained = explained_by_corners(&self.features, &self.cfg);
         for f in self
             .features
@@ -624,6 +632,38 @@ fn point_outweighed(f: &Feature, past: &VecDeque<PastSweep>, range_offset_m: f64
         }
     }
     misses >= OUTWEIGHING_MISSES
+}
+
+/// Point features heard from one place only that lie on a wall heard from two places or more:
+/// on its line (within three σ of both estimates across it) and within the stretch where the
+/// sensor's perpendiculars met it (its feet). There a wall returned its echo along its normal, so
+/// what one place took for a post there is a piece of that wall's region cut short (by a lost
+/// ping, a post beside it); a real post stands out of the wall's line by its radius at least, and
+/// a wall's end lies at the end of that stretch, not inside it. Not a corner: two walls meeting in
+/// a T have their corners inside the stretch of the wall they meet (on the tune split the same
+/// rule for corners lost 3–9 corners a profile).
+fn points_on_confirmed_walls(features: &[Feature]) -> Vec<u64> {
+    features
+        .iter()
+        .filter(|p| p.kind == FeatureKind::Point && p.one_place)
+        .filter(|p| {
+            let at = p.position().coords;
+            features.iter().any(|wall| {
+                let Some(along) = wall.direction() else {
+                    return false;
+                };
+                let n = wall.normal();
+                let across_sigma = (wall.covariance_own()[(1, 1)]
+                    + (n.transpose() * p.covariance() * n)[(0, 0)])
+                    .sqrt();
+                let foot = along.dot(&at);
+                !wall.one_place
+                    && (n.dot(&at) - wall.mean.y).abs() <= 3.0 * across_sigma
+                    && (wall.feet.0..=wall.feet.1).contains(&foot)
+            })
+        })
+        .map(|p| p.id)
+        .collect()
 }
 
 /// A place is no farther from a feature than another up to this: the ranges' errors.
@@ -1165,6 +1205,31 @@ mod tests {
         assert_eq!(posts_after(&[&nothing, &nothing], farther), 1);
         // From the same place the misses are the one view's.
         assert_eq!(posts_after(&[&nothing, &nothing], Isometry2::identity()), 1);
+    }
+
+    #[test]
+    fn a_point_from_one_place_inside_a_confirmed_wall_is_that_wall() {
+        // A wall along y = 2 (normal 90°, 2 m from the origin) heard along its normal from x = -1
+        // to x = 1, from two places.
+        let mut wall = feature(1, FeatureKind::Plane, Vector2::new(FRAC_PI_2, 2.0), 90.0);
+        wall.feet = (-1.0, 1.0);
+        wall.one_place = false;
+        let point = |x: f64, y: f64| feature(2, FeatureKind::Point, Vector2::new(x, y), 80.0);
+        let on_walls = |p: Feature, w: &Feature| points_on_confirmed_walls(&[w.clone(), p]);
+        // On its line inside the stretch: the wall's echo taken for a post.
+        assert_eq!(on_walls(point(0.3, 2.001), &wall), vec![2]);
+        // A post standing 2 cm out of the line (1 mm estimates): a post.
+        assert!(on_walls(point(0.3, 1.98), &wall).is_empty());
+        // Past the stretch's end (where the wall may end): a wall's end.
+        assert!(on_walls(point(1.05, 2.0), &wall).is_empty());
+        // The point heard from two places: confirmed on its own.
+        let mut confirmed = point(0.3, 2.0);
+        confirmed.one_place = false;
+        assert!(on_walls(confirmed, &wall).is_empty());
+        // The wall heard from one place only: it may be a corner's echo itself.
+        let mut tentative = wall.clone();
+        tentative.one_place = true;
+        assert!(on_walls(point(0.3, 2.0), &tentative).is_empty());
     }
 
     /// A feature of `kind` at `mean` ((x, y), or (φ, d) for a plane), known to 1 mm (1 mrad), last
