@@ -260,9 +260,11 @@ impl FeatureMap {
         self.noise.add(sweep.pairs(), &self.cfg.noise);
     }
 
-    /// Forgets every feature (the sweep count, feature ids and the noise estimate go on).
+    /// Forgets every feature and the sweeps remembered with their poses (the sweep count, feature
+    /// ids and the noise estimate go on): a map started again may stand in another frame.
     pub fn clear(&mut self) {
         self.features.clear();
+        self.past.clear();
     }
 
     /// A sweep's regions of constant depth and what they are, in the sensor's frame: what
