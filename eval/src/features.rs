@@ -989,10 +989,10 @@ mod tests {
         let truth = Truth::of(&scene, Scan::for_scene(&scene));
         let mut map = FeatureMap::new(FeatureConfig::default()).unwrap();
         let obs = [
-            // The post, 0.5° off (0.85 cm); a second point 3 cm beside it; the wall; a corner
-            // where there is none.
+            // The post, 0.5° off (0.85 cm); a second point 7 cm beside it (two points within
+            // 5 cm are merged as one target); the wall; a corner where there is none.
             observation(FeatureKind::Point, 0.975, 0.5),
-            observation(FeatureKind::Point, 0.975, 2.3),
+            observation(FeatureKind::Point, 0.975, 4.6),
             observation(FeatureKind::Plane, 2.002, -0.4),
             observation(FeatureKind::Corner, 1.5, 20.0),
         ];

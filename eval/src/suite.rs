@@ -59,7 +59,7 @@ use anyhow::{Context, Result, bail};
 use nalgebra::{Isometry2, Point2, Vector2};
 use sonar_common::ipc::Reading;
 use sonar_common::sensor::SensorConfig;
-use sonar_features::{EchoPhysics, FeatureConfig, FeatureKind, FeatureMap, Sweep};
+use sonar_features::{EchoPhysics, Feature, FeatureConfig, FeatureKind, FeatureMap, Sweep};
 use sonar_fusion::{FusionConfig, FusionSection, Mapper, Observation, Preset};
 use sonar_sim::geometry::{distance_to_segment, segments_intersect};
 use sonar_sim::{Pose, Scene, SensorProfile, Vec2, Wall};
@@ -733,12 +733,18 @@ fn wall_line(w: &Wall, towards: Vector2<f64>) -> (Vector2<f64>, f64) {
 /// viewpoint sees its own echo point), a wall end or convex joint by one within [`MATCH_M`], a
 /// corner by a corner feature within [`MATCH_M`], a wall by a plane within [`PLANE_MATCH_DEG`]
 /// of its normal and [`MATCH_M`] of its line where the plane was seen (its segment's middle);
-/// each element by one feature, closest first; the features left are false.
-pub fn score_scene_map(scene: &Scene, map: &FeatureMap, expected: &Expected) -> FeatureScore {
+/// each element by one feature, closest first; the features left are false. Only the features
+/// `scored` takes are scored (the rest neither find anything nor count as false).
+pub fn score_scene_map(
+    scene: &Scene,
+    map: &FeatureMap,
+    expected: &Expected,
+    scored: impl Fn(&Feature) -> bool,
+) -> FeatureScore {
     let truth = Truth::of(scene, Scan::Full);
     let features = map.features();
     let segments = map.segments(&[]);
-    let mut used = vec![false; features.len()];
+    let mut used: Vec<bool> = features.iter().map(|f| !scored(f)).collect();
     let mut out = FeatureScore::default();
     let mut nearest = |kind: FeatureKind, distance: &dyn Fn(Point2<f64>) -> f64| {
         let best = features
@@ -828,6 +834,7 @@ pub fn score_scene_map(scene: &Scene, map: &FeatureMap, expected: &Expected) -> 
             first_sweep = f.first_seen(),
             last_sweep = f.last_seen(),
             confidence = f.confidence(),
+            confirmed = f.confirmed(),
             "false feature in a scene's map"
         );
         out.false_features += 1;
@@ -849,6 +856,9 @@ pub struct Run {
     /// The feature map of every viewpoint in order, each at its true pose, as the fusion
     /// builds what it publishes on `sonar/features`.
     pub scene_features: FeatureScore,
+    /// The same map's confirmed features only ([`Feature::confirmed`]: heard from two places or
+    /// more).
+    pub scene_features_confirmed: FeatureScore,
 }
 
 fn mix(seed: u64, scene: u64, view: usize) -> u64 {
@@ -940,7 +950,13 @@ pub fn run_scene(
         sensor,
         grid,
         features,
-        scene_features: score_scene_map(&scene, &scene_map, &scene_expected),
+        scene_features: score_scene_map(&scene, &scene_map, &scene_expected, |_| true),
+        scene_features_confirmed: score_scene_map(
+            &scene,
+            &scene_map,
+            &scene_expected,
+            Feature::confirmed,
+        ),
     })
 }
 
@@ -1173,6 +1189,16 @@ fn features_markdown(t: &mut String, settings: &SuiteSettings, runs: &[Run]) {
          some viewpoint is expected to find; false features per scene, mean and worst.\n"
     );
     features_table(t, settings, runs, "scene", |r| vec![&r.scene_features]);
+    let _ = writeln!(
+        t,
+        "\n### Generated scene suite: features (the scene's feature map, confirmed only)\n\n\
+         The same maps' confirmed features only: those heard from two places or more (a \
+         tentative feature, heard from one place, neither finds anything nor counts as false); \
+         expected as above.\n"
+    );
+    features_table(t, settings, runs, "scene", |r| {
+        vec![&r.scene_features_confirmed]
+    });
 }
 
 /// One row per sensor: the feature scores `pick` takes from every run, each scoring one `unit`
@@ -1567,6 +1593,11 @@ mod structural_tests {
                 assert_eq!(f.expected, [0, 0, 0]);
             }
             assert_eq!(run.scene_features, FeatureScore::default(), "{profile}");
+            assert_eq!(
+                run.scene_features_confirmed,
+                FeatureScore::default(),
+                "{profile}"
+            );
             for score in &run.grid[0] {
                 assert_eq!(score.visible, 0);
                 assert_eq!(score.occupied, 0, "{profile}: {score:?}");

@@ -35,6 +35,9 @@ pub struct MergeConfig {
     /// Two corner features this close are one corner heard as two vertices, whatever the rays
     /// they were seen along (two concave corners 5 cm apart make a niche no sonar resolves).
     pub one_corner_m: f64,
+    /// Two point features this close are one target, whatever the rays they were seen along: a
+    /// thick post or a wall's end heard as two points (two posts this close make one echo).
+    pub one_point_m: f64,
 }
 
 impl Default for MergeConfig {
@@ -52,6 +55,7 @@ impl Default for MergeConfig {
             post_spread_m: 0.10,
             post_turn_deg: 10.0,
             one_corner_m: 0.05,
+            one_point_m: 0.05,
         }
     }
 }
@@ -207,6 +211,7 @@ impl FeatureConfig {
         share(m.confirm_gain, "merge.confirm_gain")?;
         share(m.miss_factor, "merge.miss_factor")?;
         non_negative(m.one_corner_m, "merge.one_corner_m")?;
+        non_negative(m.one_point_m, "merge.one_point_m")?;
         check(
             m.remove_below >= 0.0 && m.remove_below < m.initial_confidence,
             "merge.remove_below must be >= 0 and below merge.initial_confidence",

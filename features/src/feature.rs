@@ -149,4 +149,15 @@ impl Feature {
     pub fn ray_deg(&self) -> f64 {
         self.ray_deg
     }
+
+    /// Whether it was heard from two places or more (sightings more than 20 cm apart):
+    /// **confirmed**. A feature heard from one place only is
+    /// **tentative**: every sighting repeats one view, and whatever that view misread (a corner's
+    /// echo taken for a wall, a wall's echo for a post) they misread alike, so only another place
+    /// can tell it from a true target. Most false features of a scene's map are tentative
+    /// (`docs/results.md`, "Confirmed and tentative features"); so are the true ones only one
+    /// place heard.
+    pub fn confirmed(&self) -> bool {
+        !self.one_place
+    }
 }

@@ -26,6 +26,8 @@
 //! so a point seen from one place only and missed by a ping from elsewhere, no farther from it,
 //! is removed at once (a post returns the same echo from every side).
 
+use std::collections::VecDeque;
+
 use nalgebra::{Isometry2, Matrix2, Matrix2x3, Matrix3, Point2, Vector2, Vector3};
 
 use crate::classify::{Classification, Observation, classify};
@@ -188,7 +190,26 @@ pub struct FeatureMap {
     sweeps: u64,
     /// Pairs of pings of the last sweeps merged: the sensor's noise ([`crate::noise`]).
     noise: NoiseLog,
+    /// The last [`PAST_SWEEPS`] sweeps merged, each with its pose and range gate: what the places
+    /// before a feature's own heard where it is.
+    past: VecDeque<PastSweep>,
 }
+
+/// A sweep merged into the map, where it was taken and how far its ranges may be off.
+#[derive(Debug, Clone)]
+struct PastSweep {
+    sweep: Sweep,
+    pose: Isometry2<f64>,
+    gate: Gate,
+}
+
+/// Sweeps remembered for [`point_outweighed`]: the places of the last minutes of a robot's
+/// tour (two sweeps a place in the generated suite, so its eight places and more).
+const PAST_SWEEPS: usize = 32;
+
+/// Pings from elsewhere that aimed at a point heard from one place only and heard past it — with
+/// none from elsewhere that heard anything at its range — that outweigh the place that heard it.
+const OUTWEIGHING_MISSES: usize = 2;
 
 impl FeatureMap {
     pub fn new(cfg: FeatureConfig) -> Result<Self, FeatureError> {
@@ -199,6 +220,7 @@ impl FeatureMap {
             next_id: 1,
             sweeps: 0,
             noise: NoiseLog::default(),
+            past: VecDeque::new(),
         })
     }
 
@@ -238,9 +260,11 @@ impl FeatureMap {
         self.noise.add(sweep.pairs(), &self.cfg.noise);
     }
 
-    /// Forgets every feature (the sweep count, feature ids and the noise estimate go on).
+    /// Forgets every feature and the sweeps remembered with their poses (the sweep count, feature
+    /// ids and the noise estimate go on): a map started again may stand in another frame.
     pub fn clear(&mut self) {
         self.features.clear();
+        self.past.clear();
     }
 
     /// A sweep's regions of constant depth and what they are, in the sensor's frame: what
@@ -386,6 +410,27 @@ impl FeatureMap {
             self.features[merged].confidence = 0.0;
             report.merged += 1;
         }
+        self.past.push_back(PastSweep {
+            sweep: sweep.clone(),
+            pose: *pose,
+            gate,
+        });
+        if self.past.len() > PAST_SWEEPS {
+            self.past.pop_front();
+        }
+        for f in &mut self.features {
+            if point_outweighed(f, &self.past, self.cfg.range_offset_m) {
+                f.confidence = 0.0;
+            }
+        }
+        let on_walls = points_on_confirmed_walls(&self.features);
+        for f in self
+            .features
+            .iter_mut()
+            .filter(|f| on_walls.contains(&f.id))
+        {
+            f.confidence = 0.0;
+        }
         let explained = explained_by_corners(&self.features, &self.cfg);
         for f in self
             .features
@@ -429,6 +474,7 @@ impl FeatureMap {
                     confidence: f.confidence,
                     times_seen: f.times_seen,
                     last_seen: f.last_seen,
+                    confirmed: f.confirmed(),
                     segment: segments
                         .iter()
                         .find(|s| s.plane_id == f.id)
@@ -459,6 +505,8 @@ pub struct FeatureSummary {
     pub confidence: f64,
     pub times_seen: u32,
     pub last_seen: u64,
+    /// [`Feature::confirmed`]: heard from two places or more (otherwise tentative).
+    pub confirmed: bool,
     /// Plane: end points of its segment.
     pub segment: Option<[Point2<f64>; 2]>,
 }
@@ -555,6 +603,69 @@ fn refuted_from_elsewhere(f: &Feature, pose: &Isometry2<f64>) -> bool {
         && f.one_place
         && (here - f.seen_from).norm() > ONE_PLACE_M
         && (at - here).norm() <= (at - f.seen_from).norm() + NO_FARTHER_M
+}
+
+/// Whether the places that aimed at the point feature `f`, heard from one place only, outweigh
+/// that place: [`OUTWEIGHING_MISSES`] sweeps or more among `past` (the sweeps remembered, before
+/// and after its own), from elsewhere and no farther from it than its own place (up to
+/// [`NO_FARTHER_M`]), whose pings aimed at it heard farther or nothing, and none from elsewhere
+/// that heard anything at its range. A post returns the same echo from every side and is heard
+/// from nearer, so a ping from there that heard past it is evidence against it; but a weak post
+/// is not heard by every ping aimed at it (a lost echo, the edge of its range), so one such ping
+/// does not outweigh the place that heard it; two do. A ping that heard something at its range
+/// may have heard the post in a region not classified as one: no evidence against it. (A sweep
+/// after its own that misses it from elsewhere removes it at once: [`refuted_from_elsewhere`].)
+fn point_outweighed(f: &Feature, past: &VecDeque<PastSweep>, range_offset_m: f64) -> bool {
+    if f.kind != FeatureKind::Point || !f.one_place {
+        return false;
+    }
+    let at = f.position().coords;
+    let own_range = (at - f.seen_from).norm();
+    let mut misses = 0;
+    for p in past {
+        let here = p.pose.translation.vector;
+        if (here - f.seen_from).norm() <= ONE_PLACE_M {
+            continue;
+        }
+        match heard_at(f, &p.sweep, &p.pose, &p.gate, range_offset_m) {
+            Some(Heard::There) => return false,
+            Some(Heard::Past) if (at - here).norm() <= own_range + NO_FARTHER_M => misses += 1,
+            Some(Heard::Past | Heard::Nearer) | None => {}
+        }
+    }
+    misses >= OUTWEIGHING_MISSES
+}
+
+/// Point features heard from one place only that lie on a wall heard from two places or more:
+/// on its line (within three σ of both estimates across it) and within the stretch where the
+/// sensor's perpendiculars met it (its feet). There a wall returned its echo along its normal, so
+/// what one place took for a post there is a piece of that wall's region cut short (by a lost
+/// ping, a post beside it); a real post stands out of the wall's line by its radius at least, and
+/// a wall's end lies at the end of that stretch, not inside it. Not a corner: two walls meeting in
+/// a T have their corners inside the stretch of the wall they meet (on the tune split the same
+/// rule for corners lost 3–9 corners a profile).
+fn points_on_confirmed_walls(features: &[Feature]) -> Vec<u64> {
+    features
+        .iter()
+        .filter(|p| p.kind == FeatureKind::Point && p.one_place)
+        .filter(|p| {
+            let at = p.position().coords;
+            features.iter().any(|wall| {
+                let Some(along) = wall.direction() else {
+                    return false;
+                };
+                let n = wall.normal();
+                let across_sigma = (wall.covariance_own()[(1, 1)]
+                    + (n.transpose() * p.covariance() * n)[(0, 0)])
+                    .sqrt();
+                let foot = along.dot(&at);
+                !wall.one_place
+                    && (n.dot(&at) - wall.mean.y).abs() <= 3.0 * across_sigma
+                    && (wall.feet.0..=wall.feet.1).contains(&foot)
+            })
+        })
+        .map(|p| p.id)
+        .collect()
 }
 
 /// A place is no farther from a feature than another up to this: the ranges' errors.
@@ -745,8 +856,9 @@ fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
 /// Point features seen from different directions (their latest rays more than
 /// [`MergeConfig::post_turn_deg`] apart) within [`MergeConfig::post_spread_m`] of each other:
 /// one post, whose echo point (its surface nearest the sensor) moves round it with the sensor;
-/// and two corner features within [`MergeConfig::one_corner_m`]: one corner heard as two
-/// vertices. Each pair as (kept, merged into it): the one seen more often is kept.
+/// two point features within [`MergeConfig::one_point_m`] whatever their rays: one thick post
+/// or wall end heard as two points; and two corner features within
+/// [`MergeConfig::one_corner_m`]: one corner heard as two vertices. Each pair as (kept, merged into it): the one seen more often is kept.
 fn same_targets(features: &[Feature], cfg: &MergeConfig) -> Vec<(usize, usize)> {
     let mut pairs = Vec::new();
     let mut taken = vec![false; features.len()];
@@ -759,7 +871,10 @@ fn same_targets(features: &[Feature], cfg: &MergeConfig) -> Vec<(usize, usize)> 
             let turned = crate::geometry::wrap_deg(a.ray_deg - b.ray_deg).abs();
             let apart = (a.mean - b.mean).norm();
             let one = match a.kind {
-                FeatureKind::Point => turned > cfg.post_turn_deg && apart <= cfg.post_spread_m,
+                FeatureKind::Point => {
+                    (turned > cfg.post_turn_deg && apart <= cfg.post_spread_m)
+                        || apart <= cfg.one_point_m
+                }
                 FeatureKind::Corner => apart <= cfg.one_corner_m,
                 FeatureKind::Plane => false,
             };
@@ -1013,11 +1128,15 @@ mod tests {
         assert_eq!(posts.len(), 1, "{posts:?}");
         assert_eq!(posts[0].times_seen(), 3);
         assert!(!posts[0].one_place, "seen from two places");
-        // Two points 8 cm apart seen along rays 5° apart (two posts from one place) stay two.
+        assert!(posts[0].confirmed());
+        // Two points 8 cm apart seen along rays 5° apart (two posts from one place) stay two;
+        // 4 cm apart they are one target heard as two points.
         let cfg = MergeConfig::default();
         let a = feature(1, FeatureKind::Point, Vector2::new(1.0, 0.0), 0.0);
         let b = feature(2, FeatureKind::Point, Vector2::new(1.0, 0.08), 5.0);
         assert!(same_targets(&[a.clone(), b.clone()], &cfg).is_empty());
+        let near = feature(2, FeatureKind::Point, Vector2::new(1.0, 0.04), 2.0);
+        assert_eq!(same_targets(&[a.clone(), near], &cfg), vec![(0, 1)]);
         let b = feature(2, FeatureKind::Point, Vector2::new(1.0, 0.08), 90.0);
         assert_eq!(same_targets(&[a.clone(), b], &cfg), vec![(0, 1)]);
         // Two corners 3 cm apart are one; 8 cm apart, two; a corner and a point are two targets.
@@ -1057,6 +1176,62 @@ mod tests {
         assert!(same_place[0] < 0.75, "{same_place:?}");
         // From farther away a post may be too weak to hear: a miss fades it too.
         assert_eq!(posts_after(Isometry2::translation(-0.5, 0.0)).len(), 1);
+    }
+
+    #[test]
+    fn a_post_heard_from_one_place_where_two_pings_from_nearer_heard_past_it_is_removed() {
+        // Sweeps from (0.3, 0), 0.3 m nearer the post the origin then hears at (0.975, 0), each
+        // hearing `there` on every ping; then the origin's sweep: the posts left.
+        let posts_after = |sweeps: &[&dyn Fn(f64) -> f64], from: Isometry2<f64>| {
+            let mut m = map();
+            for (k, there) in sweeps.iter().enumerate() {
+                let direction = if k % 2 == 0 { 1 } else { -1 };
+                let sweep = Sweep::from_readings(&sweep_readings(direction, there), m.config());
+                m.update(&sweep, &from);
+            }
+            update(&mut m, &sweep_readings(1, post_scene(0.0)));
+            of_kind(&m, FeatureKind::Point).len()
+        };
+        let nearer = Isometry2::translation(0.3, 0.0);
+        let nothing = |_: f64| 0.0;
+        // Two pings from nearer heard nothing where it stands: the one place is outweighed.
+        assert_eq!(posts_after(&[&nothing, &nothing], nearer), 0);
+        // One such ping may have lost a weak post's echo.
+        assert_eq!(posts_after(&[&nothing], nearer), 1);
+        // Something heard at its range from there (a wall across the ray): the post may have
+        // been in that region; no evidence against it.
+        let something = |b: f64| if b.abs() <= 28.0 { 0.675 } else { 0.0 };
+        assert_eq!(posts_after(&[&nothing, &something, &nothing], nearer), 1);
+        // From farther away a post may be too weak to hear.
+        let farther = Isometry2::translation(-0.5, 0.0);
+        assert_eq!(posts_after(&[&nothing, &nothing], farther), 1);
+        // From the same place the misses are the one view's.
+        assert_eq!(posts_after(&[&nothing, &nothing], Isometry2::identity()), 1);
+    }
+
+    #[test]
+    fn a_point_from_one_place_inside_a_confirmed_wall_is_that_wall() {
+        // A wall along y = 2 (normal 90°, 2 m from the origin) heard along its normal from x = -1
+        // to x = 1, from two places.
+        let mut wall = feature(1, FeatureKind::Plane, Vector2::new(FRAC_PI_2, 2.0), 90.0);
+        wall.feet = (-1.0, 1.0);
+        wall.one_place = false;
+        let point = |x: f64, y: f64| feature(2, FeatureKind::Point, Vector2::new(x, y), 80.0);
+        let on_walls = |p: Feature, w: &Feature| points_on_confirmed_walls(&[w.clone(), p]);
+        // On its line inside the stretch: the wall's echo taken for a post.
+        assert_eq!(on_walls(point(0.3, 2.001), &wall), vec![2]);
+        // A post standing 2 cm out of the line (1 mm estimates): a post.
+        assert!(on_walls(point(0.3, 1.98), &wall).is_empty());
+        // Past the stretch's end (where the wall may end): a wall's end.
+        assert!(on_walls(point(1.05, 2.0), &wall).is_empty());
+        // The point heard from two places: confirmed on its own.
+        let mut confirmed = point(0.3, 2.0);
+        confirmed.one_place = false;
+        assert!(on_walls(confirmed, &wall).is_empty());
+        // The wall heard from one place only: it may be a corner's echo itself.
+        let mut tentative = wall.clone();
+        tentative.one_place = true;
+        assert!(on_walls(point(0.3, 2.0), &tentative).is_empty());
     }
 
     /// A feature of `kind` at `mean` ((x, y), or (φ, d) for a plane), known to 1 mm (1 mrad), last
@@ -1147,6 +1322,7 @@ mod tests {
         assert!(post.angle_sigma_deg.is_none() && post.segment.is_none());
         assert!(post.cov_xx > 0.0 && post.cov_yy > 0.0);
         assert_eq!((post.times_seen, post.last_seen), (1, 1));
+        assert!(!post.confirmed, "heard from one place: tentative");
         // Clearing forgets the features; sweeps and ids go on.
         m.clear();
         assert!(m.features().is_empty());
