@@ -420,6 +420,16 @@ mod tests {
                 ..precise
             }
         );
+        let points = parse(include_str!(
+            "../../examples/region-map-weak-echo-points.toml"
+        ));
+        assert_eq!(
+            points,
+            crate::model::SmoothModel {
+                region_weak_echo_half_width_m: 0.02,
+                ..weak
+            }
+        );
     }
 
     #[test]

@@ -1456,6 +1456,32 @@ mod tests {
     }
 
     #[test]
+    fn a_weak_echo_drawn_as_a_point_claims_nothing_across_its_axis() {
+        // One reading at 0° hearing 1 m, alone in its sweep: its region has no natural end, so
+        // only a weak echo is drawn, on the axis y = 0 at x = 1 m.
+        let heard = |half_width_m: f32| {
+            let mut m = region_mapper(crate::model::SmoothModel {
+                region_weak_echo_log_odds: 0.3,
+                region_weak_echo_half_width_m: half_width_m,
+                ..Default::default()
+            });
+            m.update(&reading(0.0, Some(1.0))).unwrap();
+            m.close_region();
+            let g = *m.grid().geometry();
+            // The cell centres beside the axis (cell edges lie on multiples of 2 cm): 1 cm off
+            // it (0.6° at 1 m) and 5 cm off it (2.9°, within the occupied profile's 6°).
+            [0.01, 0.05].map(|y| {
+                let (cx, cy) = g.cell_at(nalgebra::Point2::new(1.01, y)).unwrap();
+                m.grid().probability(cx, cy).is_some_and(|p| p > 0.5)
+            })
+        };
+        // Across the occupied profile, an arc: 5 cm off the axis is drawn too.
+        assert_eq!(heard(0.0), [true, true]);
+        // A point a cell (2 cm) wide: the axis's cells only.
+        assert_eq!(heard(0.02), [true, false]);
+    }
+
+    #[test]
     fn a_weak_echo_is_taken_back_once_a_wall_its_axis_meets_at_a_slant_is_drawn_in_front() {
         // From the origin, an echo at 1 m heard from one limit of the scan to the other: no
         // region, a weak echo on each axis, among them (1, 0) on the axis along +x.

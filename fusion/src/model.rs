@@ -611,6 +611,14 @@ pub struct SmoothModel {
     /// once the grid holds an occupied cell on its axis in front of it, a wall drawn after it
     /// that its axis would have met first (the echo came from off the axis, behind that wall).
     pub region_weak_echo_withdrawn: bool,
+    /// With weak echoes: how far across its axis each is drawn at its range, metres (its
+    /// profile falls to nothing there, never wider than the occupied profile's
+    /// ±`occupied_half_angle_deg`); 0: across the occupied profile. A weak echo is one reading of
+    /// a region that is not whole: it measured a range along its axis and nothing across it (a
+    /// region's width is what tells a reflector's extent), and its reflector may lie anywhere in
+    /// the lobe; an arc across the axis draws cells on no surface wherever the axis meets a wall
+    /// at a slant or the echo came from off the axis. A grid cell (0.02) draws it as a point.
+    pub region_weak_echo_half_width_m: f32,
     /// With `echo_placement = "region"`: the readings of a region cut short on both sides by
     /// nearer echoes clear their axes up to the nearer of those echoes' ranges
     /// ([`crate::regions::Region::masking_range`]) less its depth tolerance and band: whatever
@@ -669,6 +677,7 @@ impl Default for SmoothModel {
             region_corner_walls: false,
             region_weak_echo_log_odds: 0.0,
             region_weak_echo_withdrawn: false,
+            region_weak_echo_half_width_m: 0.0,
             region_masked_free: false,
             region_small_cutters_free: false,
         }
@@ -742,6 +751,12 @@ impl SmoothModel {
             self.region_weak_echo_log_odds,
             (0.0..=self.occupied_log_odds).contains(&self.region_weak_echo_log_odds),
             "in [0, model.occupied_log_odds]",
+        )?;
+        check(
+            "model.region_weak_echo_half_width_m",
+            self.region_weak_echo_half_width_m,
+            (0.0..=1.0).contains(&self.region_weak_echo_half_width_m),
+            "in [0, 1] metres",
         )?;
         check(
             "model.region_half_angle_deg",
@@ -827,12 +842,24 @@ impl SmoothModel {
     }
 
     /// A weak echo on `beam`'s own axis: occupied evidence `log_odds` on the axis at its range and
-    /// no free evidence; its cells remember the bearing they were heard from, as any echo's.
+    /// no free evidence; its cells remember the bearing they were heard from, as any echo's. With
+    /// `region_weak_echo_half_width_m`, the profile falls to nothing that far off the axis at the
+    /// echo's range, if nearer than the occupied profile does.
     pub(crate) fn weak_echo(&self, beam: &Beam, log_odds: f32) -> WeakEcho {
+        let reading = self.reading(beam);
+        let half_width = self.region_weak_echo_half_width_m;
+        let inv_sq_occ = match beam.echo {
+            Some(range) if half_width > 0.0 => {
+                let half_angle = (half_width / range).atan();
+                (1.0 / (half_angle * half_angle)).max(reading.inv_sq_occ)
+            }
+            _ => reading.inv_sq_occ,
+        };
         WeakEcho(SmoothReading {
             l_occ: log_odds,
             l_free: 0.0,
-            ..self.reading(beam)
+            inv_sq_occ,
+            ..reading
         })
     }
 
