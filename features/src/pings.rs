@@ -47,9 +47,6 @@ pub struct Sweep {
     range_quantum_m: Option<f64>,
     /// A full circle (a continuous head's revolution): its last ping is next to its first.
     circular: bool,
-    /// Taken on the move and brought to one normal ([`Sweep::facing`]): bearings between its
-    /// pings that no ping was aimed at lie between readings a robot's turn spread apart.
-    on_the_move: bool,
 }
 
 /// Two neighbouring pings farther apart than this many steps have lost readings between them.
@@ -98,7 +95,6 @@ impl Sweep {
             .pings
             .retain(|p| crate::geometry::wrap_deg(p.bearing_deg - normal_deg).abs() <= window_deg);
         sweep.circular = false;
-        sweep.on_the_move = true;
         sweep
     }
 
@@ -138,7 +134,6 @@ impl Sweep {
             pairs,
             range_quantum_m: None,
             circular: false,
-            on_the_move: false,
         };
         sweep.sort();
         if per_angle_pairs {
@@ -172,7 +167,6 @@ impl Sweep {
             pairs: Vec::new(),
             range_quantum_m: None,
             circular: false,
-            on_the_move: false,
         };
         sweep.sort();
         // Without readings, neighbours in bearing stand in for a reading's pings.
@@ -245,20 +239,6 @@ impl Sweep {
     /// end.
     pub fn is_circular(&self) -> bool {
         self.circular
-    }
-
-    /// The same pings, as brought to one normal on the move (tests of what that changes).
-    #[cfg(test)]
-    pub(crate) fn brought_to_a_normal(mut self) -> Self {
-        self.on_the_move = true;
-        self
-    }
-
-    /// Whether it was taken on the move and brought to one normal ([`Sweep::facing`]): the
-    /// bearings no ping was aimed at between its pings are then where a robot turning with the
-    /// head spread its readings apart, not lost readings.
-    pub fn is_on_the_move(&self) -> bool {
-        self.on_the_move
     }
 
     /// The ranges' resolution when every one is a whole number of it (1 cm: a sensor or a

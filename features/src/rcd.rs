@@ -463,16 +463,9 @@ fn split_steps(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) 
     out
 }
 
-/// Joins runs that touch (nothing but lost pings between them, or bearings no ping was aimed
-/// at) at one range: a piece a step split off the neighbouring run and this one, a run that a
-/// transient ended early, or the pieces of one target between which no ping looked, are one
+/// Joins runs that touch (nothing but lost pings between them) at one range: a piece a step
+/// split off the neighbouring run and this one, or a run that a transient ended early, are one
 /// target again.
-///
-/// On the move ([`Sweep::is_on_the_move`]), bearings no ping was aimed at lie between the
-/// readings of a head that turned with the robot (each reading's pings a few degrees wide, the
-/// next one that much farther on, plus the robot's turn): they say nothing about the target, so
-/// the pieces on either side at its range are its region, as wide as it is from their outer
-/// ends. Standing, such a gap is lost readings, which end a region as the scan's end does.
 fn join_touching(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) -> Vec<Run> {
     let pings = sweep.pings();
     let beam = f64::from(cfg.sensor.beam_half_angle_deg);
@@ -482,8 +475,7 @@ fn join_touching(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate
             let between = prev.last + 1..run.first;
             let touching = between.len() <= MAX_BRIDGED
                 && between.clone().all(|k| pings[k].range_m.is_none())
-                && (sweep.is_on_the_move()
-                    || (prev.last + 1..=run.first).all(|k| !sweep.gap_before(k)));
+                && (prev.last + 1..=run.first).all(|k| !sweep.gap_before(k));
             // Not where a step split them, nor wider than one target can be.
             let width =
                 pings[run.last].bearing_deg - pings[prev.first].bearing_deg + sweep.step_deg();
@@ -889,53 +881,5 @@ pub(crate) mod tests {
         let r = regions(&gapped);
         assert_eq!(r.len(), 2);
         assert_eq!((r[0].end, r[1].start), (End::Unknown, End::Unknown));
-    }
-
-    /// The pings of `pieces` (each: pings 1.5° apart at one range, 0 = no echo), each piece
-    /// `gap_deg` past the end of the one before: readings whose bearings a turning robot spread.
-    fn pieces_apart(gap_deg: f64, pieces: &[Vec<f64>]) -> Sweep {
-        let mut pings = Vec::new();
-        let mut at = 0.0;
-        for piece in pieces {
-            for &r in piece {
-                pings.push(Ping {
-                    bearing_deg: at,
-                    range_m: (r > 0.0).then_some(r),
-                });
-                at += 1.5;
-            }
-            at += gap_deg;
-        }
-        Sweep::from_pings(pings, 1.5).unwrap().brought_to_a_normal()
-    }
-
-    #[test]
-    fn pieces_of_one_range_between_which_no_ping_looked_are_one_region() {
-        // A wall 1.7 m away heard by four readings of four pings, 10° apart (the head turning
-        // with the robot), nothing before and after: one region, both ends natural, as wide as
-        // from the first piece's first ping to the last piece's last.
-        let wall = pieces_apart(
-            10.0,
-            &[
-                cat(&[run(4, 0.0), run(4, 1.7)]),
-                run(4, 1.7),
-                run(4, 1.7),
-                cat(&[run(4, 1.7), run(4, 0.0)]),
-            ],
-        );
-        let r = regions(&wall);
-        assert_eq!(r.len(), 1, "{r:?}");
-        assert!(r[0].is_whole());
-        assert_eq!(r[0].pings, 16);
-        assert!((r[0].width_deg() - (15.0 * 1.5 + 3.0 * 10.0 + 1.5)).abs() < 1e-9);
-        // Pieces at different ranges stay apart: two targets.
-        let two = pieces_apart(10.0, &[run(4, 1.7), run(4, 2.2)]);
-        assert_eq!(regions(&two).len(), 2);
-        // And pieces that together would be wider than any one target at their range.
-        let wide = pieces_apart(80.0, &[run(4, 1.7), run(4, 1.7)]);
-        assert_eq!(regions(&wide).len(), 2);
-        // Standing, the same gaps are lost readings: they end the regions.
-        let standing = Sweep::from_pings(wall.pings().to_vec(), 1.5).unwrap();
-        assert_eq!(regions(&standing).len(), 4);
     }
 }
