@@ -200,7 +200,11 @@ fn median(values: impl Iterator<Item = f64>) -> f64 {
         middle
     } else {
         // The largest of the lower half is the other middle value.
-        let lower = below.iter().copied().max_by(f64::total_cmp).unwrap_or(middle);
+        let lower = below
+            .iter()
+            .copied()
+            .max_by(f64::total_cmp)
+            .unwrap_or(middle);
         (lower + middle) / 2.0
     }
 }
