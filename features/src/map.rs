@@ -294,8 +294,9 @@ impl FeatureMap {
                 MOVING_WINDOW_DEG,
                 &self.cfg,
             );
-            let (_, classification) = self.observe(&sweep);
+            // One noise estimate per direction (the gate), for the regions and the check below.
             let gate = self.gate(&sweep);
+            let classification = classify(&extract(&sweep, &self.cfg, &gate), &self.cfg);
             for o in classification.observations {
                 let agrees = crate::geometry::wrap_deg(o.bearing_deg - normal).abs()
                     <= MOVING_NORMAL_STEP_DEG / 2.0;
