@@ -859,7 +859,8 @@ fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
 /// one post, whose echo point (its surface nearest the sensor) moves round it with the sensor;
 /// two point features within [`MergeConfig::one_point_m`] whatever their rays: one thick post
 /// or wall end heard as two points; and two corner features within
-/// [`MergeConfig::one_corner_m`]: one corner heard as two vertices. Each pair as (kept, merged into it): the one seen more often is kept.
+/// [`MergeConfig::one_corner_m`]: one corner heard as two vertices. Each pair as (kept, merged
+/// into it): the one seen more often is kept.
 fn same_targets(features: &[Feature], cfg: &MergeConfig) -> Vec<(usize, usize)> {
     let mut pairs = Vec::new();
     let mut taken = vec![false; features.len()];
