@@ -567,8 +567,10 @@ fn features_lines(h: &FeaturesHeader, records: &[FeatureRecord]) -> String {
             feature_kind::POINT => "post",
             _ => "unknown",
         };
+        // Heard from one place only: it may be a phantom (`docs/features.md`).
+        let tentative = if f.is_confirmed() { "" } else { " tentative" };
         out.push_str(&format!(
-            "\n  {kind} {} at {:+.3} {:+.3} seen {}",
+            "\n  {kind} {} at {:+.3} {:+.3} seen {}{tentative}",
             f.id, f.x_m, f.y_m, f.times_seen
         ));
     }
@@ -697,6 +699,36 @@ fn pose_line(p: &Pose2D) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_feature_heard_from_one_place_only_is_marked_tentative() {
+        let post = FeatureRecord {
+            id: 4,
+            kind: feature_kind::POINT,
+            times_seen: 3,
+            x_m: 0.975,
+            flags: ipc::feature_flags::CONFIRMED,
+            ..FeatureRecord::default()
+        };
+        let wall = FeatureRecord {
+            id: 5,
+            kind: feature_kind::PLANE,
+            x_m: 2.0,
+            flags: 0,
+            ..post
+        };
+        let header = FeaturesHeader {
+            seq: 2,
+            sweeps: 6,
+            feature_count: 2,
+            ..FeaturesHeader::default()
+        };
+        assert_eq!(
+            features_lines(&header, &[post, wall]),
+            "seq 2 sweeps 6 features 2 (left out 0)\n  post 4 at +0.975 +0.000 seen 3\n  \
+             wall 5 at +2.000 +0.000 seen 3 tentative"
+        );
+    }
 
     #[test]
     fn a_slam_correction_says_whether_it_is_a_fix_and_how_sure() {

@@ -11,7 +11,10 @@ use std::path::PathBuf;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 
-/// Version of the payload layouts below; bumped together with every type name's `V` suffix.
+/// The `layout_version` every payload below carries. A type whose layout changed since says so in
+/// its type name's `V` suffix instead ([`DriverStatus`] is at `V3`, [`FeatureRecord`] at `V2`): the
+/// type name is what tells layouts apart, in shared memory (iceoryx2 refuses a subscriber of
+/// another), over the bridge (its type tag) and in recordings (the schema's name).
 pub const LAYOUT_VERSION: u32 = 1;
 /// Most raw pings a reading carries.
 pub const MAX_PINGS: usize = crate::protocol::MAX_PINGS_PER_READING;
@@ -596,6 +599,15 @@ pub mod feature_kind {
     pub const PLANE: u32 = 3;
 }
 
+/// [`FeatureRecord::flags`] bits.
+pub mod feature_flags {
+    /// Heard from two places or more: a *confirmed* feature. Without it the feature is
+    /// *tentative*, heard from one place only, where a phantom (an echo off two surfaces, a
+    /// corner's echo taken for a wall, a wall's edge taken for a post) cannot be told from a
+    /// true feature (`docs/features.md`, "Confirmed and tentative").
+    pub const CONFIRMED: u32 = 1;
+}
+
 /// The fixed part of a `sonar/features` snapshot; the payload is `feature_count`
 /// [`FeatureRecord`]s. Positions are in the grid's frame (metres from the sensor's start).
 #[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
@@ -626,7 +638,7 @@ const _: () = assert!(std::mem::size_of::<FeaturesHeader>() == 56);
 
 /// One feature of a `sonar/features` snapshot. Absent values are NaN.
 #[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("sonar::FeatureRecordV1")]
+#[type_name("sonar::FeatureRecordV2")]
 #[repr(C)]
 pub struct FeatureRecord {
     /// Stable while the feature lives: a feature seen again keeps its id.
@@ -658,9 +670,20 @@ pub struct FeatureRecord {
     pub segment_by_m: f32,
     /// Sweep (counted from the last clear) it was last seen in.
     pub last_seen_sweep: u64,
+    /// [`feature_flags`] bits; unknown bits are 0.
+    pub flags: u32,
+    /// Explicit padding to the record's alignment; 0.
+    pub reserved: u32,
 }
 
-const _: () = assert!(std::mem::size_of::<FeatureRecord>() == 72);
+const _: () = assert!(std::mem::size_of::<FeatureRecord>() == 80);
+
+impl FeatureRecord {
+    /// [`feature_flags::CONFIRMED`]: heard from two places or more.
+    pub fn is_confirmed(&self) -> bool {
+        self.flags & feature_flags::CONFIRMED != 0
+    }
+}
 
 /// Sonar localisation's pose of the sensor in the map after a sweep, on
 /// [`LOCALIZED_POSE_SERVICE`], with its uncertainty and what it rests on.
@@ -1136,7 +1159,7 @@ pub type FeaturesService =
 
 /// `sonar/features`, with the grid's policy: history 1 so a late joiner gets the current features
 /// at once, a buffer of one (the latest snapshot replaces an unread one). Small: at most
-/// [`MAX_FEATURES`] × 72 B a snapshot.
+/// [`MAX_FEATURES`] × 80 B a snapshot.
 pub fn features_service(node: &Node<ipc::Service>) -> Result<FeaturesService, IpcError> {
     latest_snapshot_service(node, FEATURES_SERVICE)
 }
@@ -1436,6 +1459,8 @@ mod tests {
         assert_eq!(offset_of!(FeatureRecord, segment_ax_m), 48);
         assert_eq!(offset_of!(FeatureRecord, segment_by_m), 60);
         assert_eq!(offset_of!(FeatureRecord, last_seen_sweep), 64);
+        assert_eq!(offset_of!(FeatureRecord, flags), 72);
+        assert_eq!(offset_of!(FeatureRecord, reserved), 76);
         assert_eq!(std::mem::align_of::<FeatureRecord>(), 8);
     }
 

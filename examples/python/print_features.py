@@ -11,9 +11,11 @@ For every snapshot (the fusion engine publishes one after each sweep and after a
 
 and then one line per feature, the most confident first:
 
-    feature <id> <point|corner|plane> x <m> y <m> cov <xx> <xy> <yy> angle <deg> sigma <deg|-> confidence <c> seen <n> segment <ax> <ay> <bx> <by>|-
+    feature <id> <point|corner|plane> x <m> y <m> cov <xx> <xy> <yy> angle <deg> sigma <deg|-> confidence <c> seen <n> segment <ax> <ay> <bx> <by>|- <confirmed|tentative>
 
-where `-` is an absent value (NaN in the record: a post has no segment and no angle sigma). A new
+where `-` is an absent value (NaN in the record: a post has no segment and no angle sigma), and
+`tentative` a feature heard from one place only (it may be a phantom; `confirmed`: from two or
+more). A new
 subscriber gets the current features with the next snapshot, at the end of the sweep in progress.
 
 The prefix and root default to SONAR_IOX_PREFIX / SONAR_IOX_ROOT like the Rust processes do; without
@@ -51,7 +53,7 @@ class FeaturesHeader(ctypes.Structure):
 
 
 class FeatureRecord(ctypes.Structure):
-    """sonar::FeatureRecordV1, 72 bytes, alignment 8, see docs/ipc.md."""
+    """sonar::FeatureRecordV2, 80 bytes, alignment 8, see docs/ipc.md."""
 
     _fields_ = [
         ("id", ctypes.c_uint64),
@@ -70,15 +72,18 @@ class FeatureRecord(ctypes.Structure):
         ("segment_bx_m", ctypes.c_float),
         ("segment_by_m", ctypes.c_float),
         ("last_seen_sweep", ctypes.c_uint64),
+        ("flags", ctypes.c_uint32),
+        ("reserved", ctypes.c_uint32),
     ]
 
     @staticmethod
     def type_name() -> str:
-        return "sonar::FeatureRecordV1"  # must equal the Rust #[type_name]
+        return "sonar::FeatureRecordV2"  # must equal the Rust #[type_name]
 
 
 LAYOUT_VERSION = 1
 KINDS = {1: "point", 2: "corner", 3: "plane"}
+CONFIRMED = 1  # the flags bit: heard from two places or more
 
 
 def number(x: float, digits: int) -> str:
@@ -92,7 +97,7 @@ def describe(r: FeatureRecord) -> str:
     return (f"feature {r.id} {KINDS.get(r.kind, str(r.kind))} x {r.x_m:.3f} y {r.y_m:.3f} "
             f"cov {r.cov_xx:.3g} {r.cov_xy:.3g} {r.cov_yy:.3g} angle {r.angle_deg:.1f} "
             f"sigma {number(r.angle_sigma_deg, 2)} confidence {r.confidence:.3f} seen {r.times_seen} "
-            f"segment {ends}")
+            f"segment {ends} {'confirmed' if r.flags & CONFIRMED else 'tentative'}")
 
 
 def main() -> int:
@@ -105,7 +110,7 @@ def main() -> int:
     args = parser.parse_args()
     assert ctypes.sizeof(FeaturesHeader) == 56 and ctypes.alignment(FeaturesHeader) == 8, \
         "layout drifted from docs/ipc.md"
-    assert ctypes.sizeof(FeatureRecord) == 72 and ctypes.alignment(FeatureRecord) == 8, \
+    assert ctypes.sizeof(FeatureRecord) == 80 and ctypes.alignment(FeatureRecord) == 8, \
         "layout drifted from docs/ipc.md"
 
     cfg = iox2.config.default()

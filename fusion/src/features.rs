@@ -33,7 +33,7 @@
 use nalgebra::{Isometry2, Matrix3, Point2};
 use sonar_common::ipc::Reading;
 use sonar_common::ipc::{
-    FeatureRecord, FeaturesHeader, LAYOUT_VERSION, MAX_FEATURES, feature_kind,
+    FeatureRecord, FeaturesHeader, LAYOUT_VERSION, MAX_FEATURES, feature_flags, feature_kind,
 };
 use sonar_features::{
     DriftEstimate, DriftFilter, FeatureConfig, FeatureError, FeatureKind, FeatureMap,
@@ -495,6 +495,12 @@ fn record(s: &FeatureSummary) -> FeatureRecord {
         segment_bx_m: b.x as f32,
         segment_by_m: b.y as f32,
         last_seen_sweep: s.last_seen,
+        flags: if s.confirmed {
+            feature_flags::CONFIRMED
+        } else {
+            0
+        },
+        reserved: 0,
     }
 }
 
@@ -581,7 +587,28 @@ mod tests {
             "{post:?}"
         );
         assert!(post.segment_ax_m.is_nan() && post.angle_sigma_deg.is_nan());
+        assert!(!post.is_confirmed(), "heard from one place only: tentative");
         assert_eq!(tracker.readings_skipped(), 0, "every ping placed");
+
+        // The flag is the feature map's: set for a feature heard from two places.
+        let summary = |confirmed| FeatureSummary {
+            id: 1,
+            kind: FeatureKind::Point,
+            x: 1.0,
+            y: 0.0,
+            cov_xx: 1e-4,
+            cov_xy: 0.0,
+            cov_yy: 1e-4,
+            angle_deg: 0.0,
+            angle_sigma_deg: None,
+            confidence: 0.5,
+            times_seen: 2,
+            last_seen: 2,
+            confirmed,
+            segment: None,
+        };
+        assert!(record(&summary(true)).is_confirmed());
+        assert_eq!(record(&summary(false)).flags, 0);
     }
 
     #[test]

@@ -19,6 +19,11 @@ pub const OCCUPIED_RGB: [u8; 3] = [205, 25, 25];
 /// (blue, pale, red, grey) never uses, bright enough for dark and light cells alike.
 pub const FEATURE_RGB: [u8; 3] = [60, 255, 60];
 
+/// The colour of *tentative* features, heard from one place only (no
+/// [`CONFIRMED`](sonar_common::ipc::feature_flags::CONFIRMED) flag): amber, apart from the
+/// confirmed ones' green and from the colour code's hues, because such a feature may be a phantom.
+pub const TENTATIVE_FEATURE_RGB: [u8; 3] = [255, 176, 0];
+
 /// The colour of an occupancy probability (clamped to 0..=1): linear from [`FREE_RGB`] to
 /// [`EVEN_RGB`] to [`OCCUPIED_RGB`]; [`UNKNOWN_RGB`] for `None`, a never-observed cell.
 pub fn probability_rgb(p: Option<f32>) -> [u8; 3] {

@@ -5,7 +5,8 @@
 //! reads back as the same `f32`, so nothing is lost.
 //!
 //! - CSV: a header line naming the columns ([`CSV_COLUMNS`]), then one line per feature, most
-//!   confident first (the snapshot's order).
+//!   confident first (the snapshot's order); `confirmed` says whether it was heard from two places
+//!   or more (`true`) or from one only (`false`, tentative).
 //! - JSON: one object with the snapshot header's fields and `features`, an array of one object per
 //!   feature with the CSV's columns as keys.
 
@@ -77,7 +78,7 @@ pub fn kind_name(code: u32) -> Option<&'static str> {
 }
 
 /// The columns of the CSV file and the keys of each JSON feature object, in order.
-pub const CSV_COLUMNS: [&str; 16] = [
+pub const CSV_COLUMNS: [&str; 17] = [
     "id",
     "kind",
     "x_m",
@@ -94,19 +95,21 @@ pub const CSV_COLUMNS: [&str; 16] = [
     "segment_ay_m",
     "segment_bx_m",
     "segment_by_m",
+    "confirmed",
 ];
 
-/// One field of a feature: text, a count, or a number that may be absent (not finite).
+/// One field of a feature: text, a count, a number that may be absent (not finite), or yes/no.
 enum Value {
     Text(String),
     Count(u64),
     Number(f32),
+    Flag(bool),
 }
 
 /// The values of [`CSV_COLUMNS`] for one record. A kind code this version does not know is
 /// written as its number.
-fn values(r: &FeatureRecord) -> [Value; 16] {
-    use Value::{Count, Number, Text};
+fn values(r: &FeatureRecord) -> [Value; 17] {
+    use Value::{Count, Flag, Number, Text};
     let kind = kind_name(r.kind).map_or_else(|| r.kind.to_string(), str::to_owned);
     [
         Count(r.id),
@@ -125,6 +128,7 @@ fn values(r: &FeatureRecord) -> [Value; 16] {
         Number(r.segment_ay_m),
         Number(r.segment_bx_m),
         Number(r.segment_by_m),
+        Flag(r.is_confirmed()),
     ]
 }
 
@@ -140,6 +144,7 @@ pub fn write_features_csv<W: Write>(mut out: W, records: &[FeatureRecord]) -> Re
                 Value::Count(n) => n.to_string(),
                 Value::Number(x) if x.is_finite() => x.to_string(),
                 Value::Number(_) => String::new(),
+                Value::Flag(b) => b.to_string(),
             })
             .collect();
         writeln!(out, "{}", fields.join(","))?;
@@ -183,6 +188,7 @@ pub fn write_features_json<W: Write>(
                 Value::Count(n) => format!("\"{key}\": {n}"),
                 Value::Number(x) if x.is_finite() => format!("\"{key}\": {x}"),
                 Value::Number(_) => format!("\"{key}\": null"),
+                Value::Flag(b) => format!("\"{key}\": {b}"),
             })
             .collect();
         let sep = if i == 0 { "" } else { "," };
@@ -216,6 +222,8 @@ pub fn write_features(
 
 #[cfg(test)]
 mod tests {
+    use sonar_common::ipc::feature_flags;
+
     use super::*;
 
     /// A post with its absent values, and a wall with its segment.
@@ -237,6 +245,8 @@ mod tests {
             segment_bx_m: f32::NAN,
             segment_by_m: f32::NAN,
             last_seen_sweep: 4,
+            flags: feature_flags::CONFIRMED,
+            reserved: 0,
         };
         let wall = FeatureRecord {
             id: 12,
@@ -251,6 +261,7 @@ mod tests {
             segment_ay_m: -0.5,
             segment_bx_m: 2.0,
             segment_by_m: 0.625,
+            flags: 0,
             ..post
         };
         let header = FeaturesHeader {
@@ -277,9 +288,10 @@ mod tests {
         assert_eq!(
             String::from_utf8(bytes).unwrap(),
             "id,kind,x_m,y_m,cov_xx,cov_xy,cov_yy,angle_deg,angle_sigma_deg,confidence,\
-             times_seen,last_seen_sweep,segment_ax_m,segment_ay_m,segment_bx_m,segment_by_m\n\
-             7,point,0.975,-0.0125,0.0001,-0.0000025,0.0003,-0.5,,0.875,3,4,,,,\n\
-             12,plane,2,0,0.0001,-0.0000025,0.0003,180,0.75,0.5,2,4,2,-0.5,2,0.625\n"
+             times_seen,last_seen_sweep,segment_ax_m,segment_ay_m,segment_bx_m,segment_by_m,\
+             confirmed\n\
+             7,point,0.975,-0.0125,0.0001,-0.0000025,0.0003,-0.5,,0.875,3,4,,,,,true\n\
+             12,plane,2,0,0.0001,-0.0000025,0.0003,180,0.75,0.5,2,4,2,-0.5,2,0.625,false\n"
         );
     }
 
@@ -322,8 +334,8 @@ mod tests {
   "last_sweep_removed": 1,
   "features_left_out": 0,
   "features": [
-    {"id": 7, "kind": "point", "x_m": 0.975, "y_m": -0.0125, "cov_xx": 0.0001, "cov_xy": -0.0000025, "cov_yy": 0.0003, "angle_deg": -0.5, "angle_sigma_deg": null, "confidence": 0.875, "times_seen": 3, "last_seen_sweep": 4, "segment_ax_m": null, "segment_ay_m": null, "segment_bx_m": null, "segment_by_m": null},
-    {"id": 12, "kind": "plane", "x_m": 2, "y_m": 0, "cov_xx": 0.0001, "cov_xy": -0.0000025, "cov_yy": 0.0003, "angle_deg": 180, "angle_sigma_deg": 0.75, "confidence": 0.5, "times_seen": 2, "last_seen_sweep": 4, "segment_ax_m": 2, "segment_ay_m": -0.5, "segment_bx_m": 2, "segment_by_m": 0.625}
+    {"id": 7, "kind": "point", "x_m": 0.975, "y_m": -0.0125, "cov_xx": 0.0001, "cov_xy": -0.0000025, "cov_yy": 0.0003, "angle_deg": -0.5, "angle_sigma_deg": null, "confidence": 0.875, "times_seen": 3, "last_seen_sweep": 4, "segment_ax_m": null, "segment_ay_m": null, "segment_bx_m": null, "segment_by_m": null, "confirmed": true},
+    {"id": 12, "kind": "plane", "x_m": 2, "y_m": 0, "cov_xx": 0.0001, "cov_xy": -0.0000025, "cov_yy": 0.0003, "angle_deg": 180, "angle_sigma_deg": 0.75, "confidence": 0.5, "times_seen": 2, "last_seen_sweep": 4, "segment_ax_m": 2, "segment_ay_m": -0.5, "segment_bx_m": 2, "segment_by_m": 0.625, "confirmed": false}
   ]
 }
 "#

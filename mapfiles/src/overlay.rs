@@ -164,6 +164,20 @@ pub fn feature_pixels(
     out
 }
 
+/// The records apart by [`FeatureRecord::is_confirmed`], in the order an overlay draws them: the
+/// tentative ones (heard from one place only, `false`) first, so that a confirmed feature's mark is
+/// drawn over one beside it.
+pub fn tentative_then_confirmed(records: &[FeatureRecord]) -> [(bool, Vec<FeatureRecord>); 2] {
+    [false, true].map(|confirmed| {
+        let subset = records
+            .iter()
+            .filter(|r| r.is_confirmed() == confirmed)
+            .copied()
+            .collect();
+        (confirmed, subset)
+    })
+}
+
 /// The part of the segment `a`–`b` inside the rectangle (`x0`, `x1`, `y0`, `y1`) (Liang–Barsky);
 /// `None` when none is, or when a coordinate is not finite or absurdly far.
 fn clip(

@@ -8,7 +8,7 @@ use std::io::Write;
 use sonar_common::ipc::{FeatureRecord, feature_kind};
 
 use crate::canvas::Canvas;
-use crate::colour::{FEATURE_RGB, UNKNOWN_RGB, cell_rgb};
+use crate::colour::{FEATURE_RGB, TENTATIVE_FEATURE_RGB, UNKNOWN_RGB, cell_rgb};
 use crate::font;
 use crate::map::{Map, MapError};
 use crate::overlay::{self, FeatureMark};
@@ -38,10 +38,11 @@ pub struct PngOptions<'a> {
     /// narrower than the legend. Without it (`sonar-export --no-legend`), the picture is exactly
     /// one pixel per cell.
     pub legend: bool,
-    /// Walls, corners and posts to draw over the map in [`FEATURE_RGB`] (`sonar-export
-    /// --features`, the viewer's `s` while its overlay is on): a wall as a line along its segment
-    /// (a tick across its normal when its extent is unknown), a corner as a cross, a post as a
-    /// square around its cell.
+    /// Walls, corners and posts to draw over the map in [`FEATURE_RGB`], those heard from one
+    /// place only (tentative) in [`TENTATIVE_FEATURE_RGB`] (`sonar-export --features`, the
+    /// viewer's `s` while its overlay is on): a wall as a line along its segment (a tick across
+    /// its normal when its extent is unknown), a corner as a cross, a post as a square around its
+    /// cell.
     pub features: Option<&'a [FeatureRecord]>,
 }
 
@@ -120,10 +121,12 @@ pub fn write_png<W: Write>(out: W, map: &Map<'_>, options: &PngOptions) -> Resul
         let count = |kind| records.iter().filter(|r| r.kind == kind).count();
         comment.push_str(&format!(
             "; features drawn over the map in green (RGB {FEATURE_RGB:?}): {} walls as lines, {} \
-             corners as crosses, {} posts as squares",
+             corners as crosses, {} posts as squares; of them {} heard from one place only \
+             (tentative) in amber (RGB {TENTATIVE_FEATURE_RGB:?})",
             count(feature_kind::PLANE),
             count(feature_kind::CORNER),
-            count(feature_kind::POINT)
+            count(feature_kind::POINT),
+            records.iter().filter(|r| !r.is_confirmed()).count()
         ));
     }
     if let Some(bar) = &bar {
@@ -135,14 +138,26 @@ pub fn write_png<W: Write>(out: W, map: &Map<'_>, options: &PngOptions) -> Resul
 }
 
 /// The features over the map: the pixels the viewer's overlay uses at one pixel per cell, a corner
-/// and a post widened to a mark a reader can find. Marks reaching over the map's edge are clipped
-/// to it, never drawn on the legend.
+/// and a post widened to a mark a reader can find; the tentative ones (heard from one place only)
+/// in their own colour and first ([`overlay::tentative_then_confirmed`]). Marks
+/// reaching over the map's edge are clipped to it, never drawn on the legend.
 fn draw_features(canvas: &mut Canvas, map: &Map<'_>, records: &[FeatureRecord]) {
+    for (confirmed, records) in overlay::tentative_then_confirmed(records) {
+        let rgb = if confirmed {
+            FEATURE_RGB
+        } else {
+            TENTATIVE_FEATURE_RGB
+        };
+        draw_feature_marks(canvas, map, &records, rgb);
+    }
+}
+
+fn draw_feature_marks(canvas: &mut Canvas, map: &Map<'_>, records: &[FeatureRecord], rgb: [u8; 3]) {
     let hd = map.header();
     let (w, h) = (i64::from(hd.width), i64::from(hd.height));
     let mut set = |x: i64, y: i64| {
         if (0..w).contains(&x) && (0..h).contains(&y) {
-            canvas.set(x as usize, y as usize, FEATURE_RGB);
+            canvas.set(x as usize, y as usize, rgb);
         }
     };
     let viewport = Viewport::one_to_one(hd.width, hd.height);
@@ -222,7 +237,7 @@ fn draw_legend(canvas: &mut Canvas, top: u32, bar: &ScaleBar) {
 mod tests {
     use super::*;
     use crate::map::test_grid;
-    use sonar_common::ipc::CELL_UNKNOWN;
+    use sonar_common::ipc::{CELL_UNKNOWN, feature_flags};
 
     struct Decoded {
         width: u32,
@@ -338,6 +353,7 @@ mod tests {
             segment_ay_m: nan,
             segment_bx_m: nan,
             segment_by_m: nan,
+            flags: feature_flags::CONFIRMED,
             ..FeatureRecord::default()
         };
         let records = [
@@ -350,9 +366,13 @@ mod tests {
                 ..feature(feature_kind::PLANE, 0.0, 0.0)
             },
             // A corner at cell (30, 10), picture (30, 19); a post at cell (10, 10), picture
-            // (10, 19); a post on the top-right corner cell, picture (39, 0).
+            // (10, 19), heard from one place only; a post on the top-right corner cell, picture
+            // (39, 0).
             feature(feature_kind::CORNER, 1.05, -0.45),
-            feature(feature_kind::POINT, -0.95, -0.45),
+            FeatureRecord {
+                flags: 0,
+                ..feature(feature_kind::POINT, -0.95, -0.45)
+            },
             feature(feature_kind::POINT, 1.95, 1.45),
         ];
         let mut bytes = Vec::new();
@@ -371,16 +391,19 @@ mod tests {
         let plain = decode(&plain_bytes);
         assert_eq!((img.width, img.height), (plain.width, plain.height));
 
-        let green: Vec<(u32, u32)> = (0..img.height)
-            .flat_map(|y| (0..img.width).map(move |x| (x, y)))
-            .filter(|&(x, y)| img.px(x, y) == FEATURE_RGB)
-            .collect();
+        let of_colour = |rgb| -> Vec<(u32, u32)> {
+            (0..img.height)
+                .flat_map(|y| (0..img.width).map(move |x| (x, y)))
+                .filter(|&(x, y)| img.px(x, y) == rgb)
+                .collect()
+        };
         let mut expected: Vec<(u32, u32)> = (5..=25).map(|x| (x, 4)).collect();
+        let mut tentative = Vec::new();
         for d in -2i32..=2 {
             expected.push(((30 + d) as u32, (19 + d) as u32));
             expected.push(((30 + d) as u32, (19 - d) as u32));
             for (x, y) in [(10 + d, 17), (10 + d, 21), (8, 19 + d), (12, 19 + d)] {
-                expected.push((x as u32, y as u32));
+                tentative.push((x as u32, y as u32));
             }
             // The edge post: only the parts of its square inside the map.
             for (x, y) in [(39 + d, -2), (39 + d, 2), (37, d), (41, d)] {
@@ -389,9 +412,13 @@ mod tests {
                 }
             }
         }
-        expected.sort_by_key(|&(x, y)| (y, x));
-        expected.dedup();
-        assert_eq!(green, expected);
+        for marks in [&mut expected, &mut tentative] {
+            marks.sort_by_key(|&(x, y)| (y, x));
+            marks.dedup();
+        }
+        assert_eq!(of_colour(FEATURE_RGB), expected);
+        assert_eq!(of_colour(TENTATIVE_FEATURE_RGB), tentative);
+        expected.extend(tentative);
         // Every other pixel is the plain picture's, the legend included.
         for y in 0..img.height {
             for x in 0..img.width {
@@ -402,7 +429,7 @@ mod tests {
         }
         assert!(
             img.comment
-                .ends_with("1 walls as lines, 1 corners as crosses, 2 posts as squares"),
+                .contains("1 walls as lines, 1 corners as crosses, 2 posts as squares; of them 1 heard from one place only (tentative)"),
             "{}",
             img.comment
         );

@@ -90,12 +90,14 @@ float32 theta_rad
 uint32 layout_version
 ";
 
-/// `sonar::FeaturesHeaderV1` followed by its `sonar::FeatureRecordV1`s. ROS 1 writes a
+/// `sonar::FeaturesHeaderV1` followed by its `sonar::FeatureRecordV2`s. ROS 1 writes a
 /// variable-length array as a `uint32` count and the elements, so the message is the 56-byte
-/// header, the number of records, then 72 bytes a record; the record type follows the separator
-/// line, as `ros1msg` carries dependent types.
+/// header, the number of records, then 80 bytes a record; the record type follows the separator
+/// line, as `ros1msg` carries dependent types. Recordings made before the records had their flags
+/// name the schema [`FEATURES_V1_SCHEMA_NAME`] (72 bytes a record, without `flags` and
+/// `reserved`); they are read with `flags` 0.
 pub const FEATURES_SCHEMA: &str = "\
-# sonar::FeaturesHeaderV1 + [sonar::FeatureRecordV1] (docs/ipc.md): 56 + 4 + 72 bytes a record
+# sonar::FeaturesHeaderV1 + [sonar::FeatureRecordV2] (docs/ipc.md): 56 + 4 + 80 bytes a record
 uint64 seq
 uint64 stamp_ns
 uint64 sweeps
@@ -107,9 +109,9 @@ uint32 last_sweep_refined
 uint32 last_sweep_added
 uint32 last_sweep_removed
 uint32 features_left_out
-sonar/FeatureRecordV1[] features
+sonar/FeatureRecordV2[] features
 ================================================================================
-MSG: sonar/FeatureRecordV1
+MSG: sonar/FeatureRecordV2
 uint64 id
 uint32 kind
 uint32 times_seen
@@ -126,7 +128,14 @@ float32 segment_ay_m
 float32 segment_bx_m
 float32 segment_by_m
 uint64 last_seen_sweep
+uint32 flags
+uint32 reserved
 ";
+
+/// The features' schema name in recordings made before the records had their flags.
+pub const FEATURES_V1_SCHEMA_NAME: &str = "sonar/FeaturesV1";
+/// Bytes of a record in those recordings: [`FeatureRecord`] without `flags` and `reserved`.
+const FEATURE_RECORD_V1_SIZE: usize = 72;
 
 /// Bytes of a features message before its records: the header and the records' count.
 pub const FEATURES_PREFIX_SIZE: usize = size_of::<FeaturesHeader>() + 4;
@@ -174,7 +183,7 @@ impl Topic {
             Topic::ScanCommands => "sonar/ScanCommandV1",
             Topic::FusionCommands => "sonar/FusionCommandV1",
             Topic::Pose => "sonar/Pose2DV1",
-            Topic::Features => "sonar/FeaturesV1",
+            Topic::Features => "sonar/FeaturesV2",
         }
     }
 
@@ -190,7 +199,7 @@ impl Topic {
     }
 
     /// Size of every message on this channel, bytes; `None` for [`Topic::Features`], whose size
-    /// depends on its number of records ([`FEATURES_PREFIX_SIZE`] + 72 bytes a record).
+    /// depends on its number of records ([`FEATURES_PREFIX_SIZE`] + 80 bytes a record).
     pub fn message_size(self) -> Option<usize> {
         match self {
             Topic::Readings => Some(size_of::<Reading>()),
@@ -202,8 +211,8 @@ impl Topic {
     }
 
     /// The size a message on this channel must have, judged from its first bytes (a features
-    /// message names its number of records after the header).
-    fn expected_size(self, bytes: &[u8]) -> usize {
+    /// message names its number of records after the header, each `record_size` bytes).
+    fn expected_size(self, bytes: &[u8], record_size: usize) -> usize {
         if let Some(size) = self.message_size() {
             return size;
         }
@@ -213,7 +222,7 @@ impl Topic {
             .map_or(0, u32::from_le_bytes);
         usize::try_from(count)
             .ok()
-            .and_then(|n| n.checked_mul(size_of::<FeatureRecord>()))
+            .and_then(|n| n.checked_mul(record_size))
             .and_then(|n| n.checked_add(FEATURES_PREFIX_SIZE))
             .unwrap_or(usize::MAX)
     }
@@ -230,6 +239,23 @@ impl Topic {
 impl std::fmt::Display for Topic {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(self.service())
+    }
+}
+
+/// How a recorded channel's messages are laid out: as this program writes them, or as an older
+/// one wrote the features (see [`FEATURES_V1_SCHEMA_NAME`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Layout {
+    Current,
+    FeaturesV1,
+}
+
+impl Layout {
+    fn feature_record_size(self) -> usize {
+        match self {
+            Layout::Current => size_of::<FeatureRecord>(),
+            Layout::FeaturesV1 => FEATURE_RECORD_V1_SIZE,
+        }
     }
 }
 
@@ -298,7 +324,12 @@ impl Message {
     /// The inverse of [`encode`](Self::encode); the length must be the topic's message size (for
     /// features: that of the number of records the message names).
     pub fn decode(topic: Topic, bytes: &[u8]) -> Result<Self, FormatError> {
-        let expected = topic.expected_size(bytes);
+        Self::decode_layout(topic, bytes, Layout::Current)
+    }
+
+    fn decode_layout(topic: Topic, bytes: &[u8], layout: Layout) -> Result<Self, FormatError> {
+        let record_size = layout.feature_record_size();
+        let expected = topic.expected_size(bytes, record_size);
         if bytes.len() != expected {
             return Err(FormatError::BadMessage {
                 topic,
@@ -326,7 +357,7 @@ impl Message {
                 theta_rad: d.f32(),
                 layout_version: d.u32(),
             }),
-            Topic::Features => Message::Features(decode_features(&mut d)),
+            Topic::Features => Message::Features(decode_features(&mut d, layout)),
         })
     }
 
@@ -433,11 +464,14 @@ fn encode_features(e: &mut Encoder, f: &FeatureSnapshot) {
             e.f32(v);
         }
         e.u64(r.last_seen_sweep);
+        e.u32(r.flags);
+        e.u32(r.reserved);
     }
 }
 
 /// Only called with a buffer whose length matches the count it names.
-fn decode_features(d: &mut Decoder) -> FeatureSnapshot {
+fn decode_features(d: &mut Decoder, layout: Layout) -> FeatureSnapshot {
+    let record_size = layout.feature_record_size();
     let header = FeaturesHeader {
         seq: d.u64(),
         stamp_ns: d.u64(),
@@ -454,7 +488,7 @@ fn decode_features(d: &mut Decoder) -> FeatureSnapshot {
     let count = d.u32() as usize;
     let records = (0..count)
         .map_while(|_| {
-            (d.0.len() >= size_of::<FeatureRecord>()).then(|| FeatureRecord {
+            (d.0.len() >= record_size).then(|| FeatureRecord {
                 id: d.u64(),
                 kind: d.u32(),
                 times_seen: d.u32(),
@@ -471,6 +505,14 @@ fn decode_features(d: &mut Decoder) -> FeatureSnapshot {
                 segment_bx_m: d.f32(),
                 segment_by_m: d.f32(),
                 last_seen_sweep: d.u64(),
+                flags: match layout {
+                    Layout::Current => d.u32(),
+                    Layout::FeaturesV1 => 0,
+                },
+                reserved: match layout {
+                    Layout::Current => d.u32(),
+                    Layout::FeaturesV1 => 0,
+                },
             })
         })
         .collect();
@@ -947,8 +989,8 @@ struct Reader {
     version_seen: bool,
     /// schema id → (name, encoding)
     schemas: BTreeMap<u16, (String, String)>,
-    /// channel id → `Some(topic)` for ours, `None` for channels we skip
-    channels: BTreeMap<u16, Option<Topic>>,
+    /// channel id → `Some(topic, its layout)` for ours, `None` for channels we skip
+    channels: BTreeMap<u16, Option<(Topic, Layout)>>,
 }
 
 impl Reader {
@@ -1003,18 +1045,24 @@ impl Reader {
                     Some(topic) => {
                         let (name, encoding) =
                             self.schemas.get(&c.schema_id).cloned().unwrap_or_default();
-                        if name != topic.schema_name()
-                            || encoding != SCHEMA_ENCODING
-                            || c.message_encoding != MESSAGE_ENCODING
-                        {
+                        let layout = if name == topic.schema_name() {
+                            Some(Layout::Current)
+                        } else if topic == Topic::Features && name == FEATURES_V1_SCHEMA_NAME {
+                            Some(Layout::FeaturesV1)
+                        } else {
+                            None
+                        };
+                        let Some(layout) = layout.filter(|_| {
+                            encoding == SCHEMA_ENCODING && c.message_encoding == MESSAGE_ENCODING
+                        }) else {
                             return Err(FormatError::UnsupportedSchema {
                                 topic,
                                 found: name,
                                 encoding: format!("{encoding}/{}", c.message_encoding),
                                 expected: topic.schema_name(),
                             });
-                        }
-                        Some(topic)
+                        };
+                        Some((topic, layout))
                     }
                 };
                 self.channels.insert(c.id, topic);
@@ -1026,8 +1074,8 @@ impl Reader {
                 match self.channels.get(&header.channel_id) {
                     None => return Err(FormatError::UndeclaredChannel(header.channel_id)),
                     Some(None) => self.recording.skipped += 1,
-                    Some(Some(topic)) => {
-                        let message = Message::decode(*topic, &data)?;
+                    Some(Some((topic, layout))) => {
+                        let message = Message::decode_layout(*topic, &data, *layout)?;
                         self.recording.entries.push(Entry {
                             log_time_ns: header.log_time,
                             message,

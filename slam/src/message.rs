@@ -4,8 +4,8 @@
 
 use nalgebra::{Isometry2, Matrix2, Matrix3};
 use sonar_common::ipc::{
-    FeatureRecord, FeaturesHeader, LAYOUT_VERSION, MAX_FEATURES, SlamCorrection, feature_kind,
-    slam_state,
+    FeatureRecord, FeaturesHeader, LAYOUT_VERSION, MAX_FEATURES, SlamCorrection, feature_flags,
+    feature_kind, slam_state,
 };
 
 use crate::estimator::{FixState, Landmark, SweepEstimate, SweepPose};
@@ -173,6 +173,8 @@ fn landmark_record(index: usize, l: &Landmark) -> FeatureRecord {
         segment_ay_m: f32::NAN,
         segment_bx_m: f32::NAN,
         segment_by_m: f32::NAN,
+        // A landmark is admitted only from sightings at two poses or more.
+        flags: feature_flags::CONFIRMED,
         ..FeatureRecord::default()
     };
     let (x, y, c, kind) = match l.kind {
@@ -340,6 +342,10 @@ mod tests {
         assert_eq!((header.seq, header.stamp_ns, header.sweeps), (3, 77, 10));
         assert_eq!((header.feature_count, header.last_sweep_id), (2, 9));
         assert_eq!(header.layout_version, LAYOUT_VERSION);
+        assert!(
+            records.iter().all(FeatureRecord::is_confirmed),
+            "landmarks are admitted from two poses"
+        );
         let w = records[0];
         assert_eq!((w.id, w.kind, w.times_seen), (1, feature_kind::PLANE, 5));
         // The foot of the perpendicular: (0, −2); the normal from the origin towards it: −90°.

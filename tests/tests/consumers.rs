@@ -94,7 +94,7 @@ fn yaml_fields(text: &str) -> Vec<(String, String)> {
 /// The columns of `sonar-export`'s features CSV (docs/export.md).
 const FEATURE_COLUMNS: &str = "id,kind,x_m,y_m,cov_xx,cov_xy,cov_yy,angle_deg,angle_sigma_deg,\
                                confidence,times_seen,last_seen_sweep,segment_ax_m,segment_ay_m,\
-                               segment_bx_m,segment_by_m";
+                               segment_bx_m,segment_by_m,confirmed";
 
 /// The rows of a features CSV below its header line, split into fields.
 fn feature_rows(csv: &str) -> Vec<Vec<String>> {
@@ -103,7 +103,7 @@ fn feature_rows(csv: &str) -> Vec<Vec<String>> {
     lines
         .map(|l| {
             let fields: Vec<String> = l.split(',').map(str::to_owned).collect();
-            assert_eq!(fields.len(), 16, "{l}");
+            assert_eq!(fields.len(), 17, "{l}");
             fields
         })
         .collect()
@@ -145,6 +145,7 @@ fn row_is_record(row: &[String], r: &FeatureRecord) -> bool {
         && row[1] == kind
         && row[10] == r.times_seen.to_string()
         && row[11] == r.last_seen_sweep.to_string()
+        && row[16] == r.is_confirmed().to_string()
         && floats.iter().all(|&(i, v)| {
             let f = field_f32(&row[i]);
             f.to_bits() == v.to_bits() || (f.is_nan() && v.is_nan())
@@ -343,14 +344,19 @@ fn sonar_export_writes_the_live_room_as_png_ros_map_csv_and_npy() {
     let mut pixels = vec![0; reader.output_buffer_size().unwrap()];
     let info = reader.next_frame(&mut pixels).unwrap();
     let width = info.width as usize;
-    let green: Vec<(usize, usize)> = (0..SIDE)
-        .flat_map(|y| (0..SIDE).map(move |x| (x, y)))
-        .filter(|&(x, y)| {
-            let i = ((SIDE - 1 - y) * width + x) * 3;
-            // The overlay's green, as docs/export.md gives it.
-            pixels[i..i + 3] == [60, 255, 60]
-        })
-        .collect();
+    let of_colour = |rgb: [u8; 3]| -> Vec<(usize, usize)> {
+        (0..SIDE)
+            .flat_map(|y| (0..SIDE).map(move |x| (x, y)))
+            .filter(|&(x, y)| {
+                let i = ((SIDE - 1 - y) * width + x) * 3;
+                pixels[i..i + 3] == rgb
+            })
+            .collect()
+    };
+    // The overlay's colours, as docs/export.md gives them: green for features heard from two
+    // places or more, amber for those heard from one. The sensor stands still: all are amber.
+    assert!(of_colour([60, 255, 60]).is_empty());
+    let amber = of_colour([255, 176, 0]);
     let comment = &reader.info().uncompressed_latin1_text[0].text;
     assert!(comment.contains(" walls as lines"), "{comment}");
     let on_a_wall = |&(x, y): &(usize, usize)| {
@@ -361,9 +367,9 @@ fn sonar_export_writes_the_live_room_as_png_ros_map_csv_and_npy() {
         (wx.abs().max(wy.abs()) - 1.2).abs() < 0.1
     };
     assert!(
-        green.iter().filter(|c| on_a_wall(c)).count() >= 20,
-        "a wall drawn on the room's walls: {} green pixels, {comment}",
-        green.len()
+        amber.iter().filter(|c| on_a_wall(c)).count() >= 20,
+        "a wall drawn on the room's walls: {} amber pixels, {comment}",
+        amber.len()
     );
     // Only the PNG carries the overlay: asked without it, a clear error before any wait.
     let out = sandbox.run(
@@ -681,6 +687,15 @@ fn the_python_example_prints_the_post_and_the_wall_of_the_obstacle_scene() {
         near("point", 0.975) && near("plane", 2.0)
     });
     assert!(found, "no snapshot with the post and the wall:\n{stdout}");
+    // The sensor never moves: every feature was heard from one place only, and says so.
+    let lines: Vec<&str> = stdout
+        .lines()
+        .filter(|l| l.starts_with("feature "))
+        .collect();
+    assert!(
+        !lines.is_empty() && lines.iter().all(|l| l.ends_with(" tentative")),
+        "{stdout}"
+    );
 }
 
 /// A consumer started by another user (the systemd example runs the pipeline as its own user)

@@ -12,7 +12,9 @@ use ratatui::style::Color;
 use sonar_common::ipc::{CELL_UNKNOWN, decode_probability};
 // The picture's geometry and the features overlay are the PNG's too (sonar_mapfiles), so the
 // saved map and the screen show the same pixels.
-pub use sonar_mapfiles::overlay::{FeatureMark, Slope, WALL_TICK_HALF_M, feature_pixels};
+pub use sonar_mapfiles::overlay::{
+    FeatureMark, Slope, WALL_TICK_HALF_M, feature_pixels, tentative_then_confirmed,
+};
 use sonar_mapfiles::viewport::pixel_cells;
 pub use sonar_mapfiles::viewport::{CellBox, MAX_PIXELS_PER_CELL, Viewport};
 
@@ -291,7 +293,7 @@ pub fn nearest_xterm256(rgb: [u8; 3]) -> u8 {
     }
 }
 
-pub use sonar_mapfiles::colour::FEATURE_RGB;
+pub use sonar_mapfiles::colour::{FEATURE_RGB, TENTATIVE_FEATURE_RGB};
 /// The colour of the robot's trail: violet, another hue the colour code never uses and apart from
 /// the features' green, so the path reads as neither map nor wall.
 pub const TRAIL_RGB: [u8; 3] = [200, 130, 255];
@@ -302,6 +304,7 @@ pub struct Palette {
     mode: ColorMode,
     colors: [Color; 256],
     feature: Color,
+    tentative_feature: Color,
     trail: Color,
 }
 
@@ -317,6 +320,7 @@ impl Palette {
             mode,
             colors: std::array::from_fn(|v| color(cell_rgb(v as u8), ansi16(v as u8))),
             feature: color(FEATURE_RGB, Color::LightGreen),
+            tentative_feature: color(TENTATIVE_FEATURE_RGB, Color::Yellow),
             trail: color(TRAIL_RGB, Color::LightMagenta),
         }
     }
@@ -338,6 +342,11 @@ impl Palette {
     /// The colour of walls, corners and posts drawn over the map.
     pub fn feature(&self) -> Color {
         self.feature
+    }
+
+    /// The colour of features heard from one place only (tentative).
+    pub fn tentative_feature(&self) -> Color {
+        self.tentative_feature
     }
 
     /// The colour of a pooled pixel; the terminal's own background outside the grid.
@@ -568,6 +577,8 @@ mod tests {
         );
         assert_eq!(p16.color(Some(CELL_UNKNOWN)), Color::DarkGray);
         assert!(!bands.contains(&p16.feature()) && !bands.contains(&p16.trail()));
+        assert!(!bands.contains(&p16.tentative_feature()));
+        assert_ne!(p16.tentative_feature(), p16.feature());
 
         let mono = Palette::new(ColorMode::Mono);
         assert!(mono.is_mono());

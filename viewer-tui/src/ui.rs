@@ -35,7 +35,7 @@ use crate::app::{
 };
 use crate::heatmap::{
     FeatureMark, Palette, Pooled, Slope, Viewport, cell_rgb, feature_pixels, is_occupied,
-    mono_glyph,
+    mono_glyph, tentative_then_confirmed,
 };
 
 /// Width of the status panel, borders included.
@@ -239,13 +239,16 @@ fn render_map(
     paint_pixels(inner, buf, &cache.pooled, &app.palette);
     paint_trail(inner, buf, app, grid, &vp, &cache.pooled);
     if let Some(features) = app.features.as_ref().filter(|_| app.show_features) {
-        paint_features(
-            inner,
-            buf,
-            &feature_pixels(&features.records, &grid.header, &vp),
-            &cache.pooled,
-            &app.palette,
-        );
+        for (confirmed, records) in tentative_then_confirmed(&features.records) {
+            paint_features(
+                inner,
+                buf,
+                &feature_pixels(&records, &grid.header, &vp),
+                &cache.pooled,
+                &app.palette,
+                feature_style(&app.palette, confirmed),
+            );
+        }
     }
 
     let mut mark = |cell: Option<(u32, u32)>, glyph: char| {
@@ -429,18 +432,31 @@ fn paint_trail(
     }
 }
 
+/// How a feature's glyph is drawn: confirmed ones (heard from two places or more) bold in the
+/// overlay colour, tentative ones dim in their own (without colours, bold against dim tells them
+/// apart).
+fn feature_style(palette: &Palette, confirmed: bool) -> Style {
+    if confirmed {
+        Style::new()
+            .fg(palette.feature())
+            .add_modifier(Modifier::BOLD)
+    } else {
+        Style::new()
+            .fg(palette.tentative_feature())
+            .add_modifier(Modifier::DIM)
+    }
+}
+
 /// The features over the heatmap: each marked pixel's terminal cell gets the feature's glyph in
-/// the overlay colour, on the colour of that pixel, so the map under it still shows.
+/// `style`, on the colour of that pixel, so the map under it still shows.
 fn paint_features(
     area: Rect,
     buf: &mut Buffer,
     marks: &[(u32, u32, FeatureMark)],
     pooled: &Pooled,
     palette: &Palette,
+    style: Style,
 ) {
-    let style = Style::new()
-        .fg(palette.feature())
-        .add_modifier(Modifier::BOLD);
     for &(px, py, mark) in marks {
         let (Ok(col), Ok(row)) = (u16::try_from(px), u16::try_from(py / 2)) else {
             continue;
@@ -980,6 +996,7 @@ fn feature_summary(app: &App) -> Vec<Line<'static>> {
         return vec![row("features", vec![text("–")])];
     };
     let of_kind = |kind: u32| f.records.iter().filter(|r| r.kind == kind).count();
+    let tentative = f.records.iter().filter(|r| !r.is_confirmed()).count();
     let mut merged = vec![text(count_of(
         usize::try_from(f.header.sweeps).unwrap_or(usize::MAX),
         "sweep",
@@ -1003,14 +1020,20 @@ fn feature_summary(app: &App) -> Vec<Line<'static>> {
                 count_of(of_kind(feature_kind::CORNER), "corner", "corners"),
             ))],
         ),
-        row(
-            "",
-            vec![text(count_of(
+        row("", {
+            let mut posts = vec![text(count_of(
                 of_kind(feature_kind::POINT),
                 "post",
                 "posts",
-            ))],
-        ),
+            ))];
+            if tentative > 0 {
+                posts.push(Span::styled(
+                    format!(" · {tentative} tentative"),
+                    feature_style(&app.palette, false),
+                ));
+            }
+            posts
+        }),
         row("merged", merged),
     ]
 }
@@ -1038,9 +1061,6 @@ fn confident_features(app: &App, n: usize) -> Vec<Line<'static>> {
         let key = |c: f32| if c.is_nan() { f32::NEG_INFINITY } else { c };
         key(b.confidence).total_cmp(&key(a.confidence))
     });
-    let green = Style::new()
-        .fg(app.palette.feature())
-        .add_modifier(Modifier::BOLD);
     known
         .into_iter()
         .take(n)
@@ -1070,7 +1090,10 @@ fn confident_features(app: &App, n: usize) -> Vec<Line<'static>> {
             row(
                 name,
                 vec![
-                    Span::styled(feature_glyph(mark).to_string(), green),
+                    Span::styled(
+                        feature_glyph(mark).to_string(),
+                        feature_style(&app.palette, r.is_confirmed()),
+                    ),
                     text(format!(
                         " {x:+.2}, {y:+.2} m {:>3.0}%",
                         r.confidence * 100.0

@@ -10,8 +10,8 @@ use ratatui::backend::TestBackend;
 use ratatui::buffer::Buffer;
 use sonar_common::ipc::{
     CELL_UNKNOWN, DriverStatus, FeatureRecord, FeaturesHeader, FusionStatus, GridHeader,
-    LAYOUT_VERSION, LinkState, LocalizedPose, Radar, Reading, ScanMode, encode_probability, flags,
-    model_code, preset_code, rule_code,
+    LAYOUT_VERSION, LinkState, LocalizedPose, Radar, Reading, ScanMode, encode_probability,
+    feature_flags, flags, model_code, preset_code, rule_code,
 };
 
 use super::*;
@@ -218,8 +218,8 @@ fn map_view_shows_walls_free_and_unknown_apart() {
 }
 
 /// What fusion would find in [`room_grid`]: the north wall seen in part, the west wall without
-/// extent yet, the south-east corner and the post. Positions are cell centres (x = -3 + 0.05·(cx +
-/// 0.5) m).
+/// extent yet and heard from one place only (tentative), the south-east corner and the post.
+/// Positions are cell centres (x = -3 + 0.05·(cx + 0.5) m).
 fn room_features() -> (FeaturesHeader, Vec<FeatureRecord>) {
     let none = FeatureRecord {
         angle_sigma_deg: f32::NAN,
@@ -227,6 +227,7 @@ fn room_features() -> (FeaturesHeader, Vec<FeatureRecord>) {
         segment_ay_m: f32::NAN,
         segment_bx_m: f32::NAN,
         segment_by_m: f32::NAN,
+        flags: feature_flags::CONFIRMED,
         ..FeatureRecord::default()
     };
     let north = FeatureRecord {
@@ -251,6 +252,7 @@ fn room_features() -> (FeaturesHeader, Vec<FeatureRecord>) {
         angle_deg: 0.0,
         angle_sigma_deg: 8.0,
         confidence: 0.4,
+        flags: 0,
         ..none
     };
     let corner = FeatureRecord {
@@ -323,9 +325,15 @@ fn walls_corners_and_posts_are_drawn_over_the_map() {
     }
     assert_eq!(buf[(from.0 - 2, from.1)].symbol(), "▄");
     assert_eq!(buf[(to.0 + 2, to.1)].symbol(), "▄");
-    // The west wall without extent: a short vertical tick on its foot point.
+    // The west wall without extent: a short vertical tick on its foot point, tentative (heard from
+    // one place only): dim, in its own colour.
     let (foot, _) = cell_of(&app, inner, 10, 40);
-    assert_eq!((buf[foot].symbol(), buf[foot].fg), ("│", green));
+    assert_eq!(
+        (buf[foot].symbol(), buf[foot].fg),
+        ("│", app.palette.tentative_feature())
+    );
+    assert!(buf[foot].modifier.contains(Modifier::DIM));
+    assert!(buf[post].modifier.contains(Modifier::BOLD));
     let ticks = area_text(buf, inner).matches('│').count();
     assert!((2..=5).contains(&ticks), "{ticks} tick cells");
     // Sensor and cursor stay on top.
@@ -350,7 +358,7 @@ fn the_status_panel_counts_the_features_and_lists_the_most_confident() {
     let text = screen_text(terminal.backend().buffer());
     for expected in [
         "features 2 walls · 1 corner",
-        "         1 post",
+        "         1 post · 1 tentative",
         "merged   12 sweeps",
         // Most confident first; a wall at the middle of its segment.
         "wall     ─ +0.02, +1.52 m  90%",

@@ -137,6 +137,20 @@ const fn opaque(r: f64, g: f64, b: f64) -> Color {
 const WALL: Color = opaque(0.95, 0.55, 0.1);
 const CORNER: Color = opaque(0.2, 0.8, 0.3);
 const POST: Color = opaque(0.2, 0.6, 1.0);
+/// Opacity of a feature heard from one place only (tentative: it may be a phantom).
+const TENTATIVE_ALPHA: f64 = 0.35;
+
+/// `color` as a feature `r` is drawn: opaque when confirmed, translucent when tentative.
+fn feature_color(color: Color, r: &FeatureRecord) -> Color {
+    if r.is_confirmed() {
+        color
+    } else {
+        Color {
+            a: TENTATIVE_ALPHA,
+            ..color
+        }
+    }
+}
 /// Edge of a corner's cube and diameter of a post's sphere, metres.
 const MARKER_SIZE: f64 = 0.08;
 /// Thickness of a wall's line, metres.
@@ -162,7 +176,8 @@ fn line(
 }
 
 /// A features snapshot as one `foxglove.SceneUpdate` entity `features` in frame `map` (replacing the
-/// previous snapshot's): walls as line segments, corners as cubes, posts as spheres.
+/// previous snapshot's): walls as line segments, corners as cubes, posts as spheres; those heard
+/// from one place only (tentative) translucent.
 pub fn features(header: &FeaturesHeader, records: &[FeatureRecord]) -> SceneUpdate {
     let size = Some(Vector3 {
         x: MARKER_SIZE,
@@ -175,7 +190,8 @@ pub fn features(header: &FeaturesHeader, records: &[FeatureRecord]) -> SceneUpda
         y: f64::from(y),
         z: 0.0,
     };
-    let mut walls = Vec::new();
+    // Confirmed walls, then tentative ones: one line list each (a list has one colour).
+    let mut walls = [Vec::new(), Vec::new()];
     let mut cubes = Vec::new();
     let mut spheres = Vec::new();
     for r in records {
@@ -188,33 +204,41 @@ pub fn features(header: &FeaturesHeader, records: &[FeatureRecord]) -> SceneUpda
                     r.segment_by_m,
                 ];
                 if ends.iter().all(|v| v.is_finite()) {
-                    walls.push(point(r.segment_ax_m, r.segment_ay_m));
-                    walls.push(point(r.segment_bx_m, r.segment_by_m));
+                    let list = &mut walls[usize::from(!r.is_confirmed())];
+                    list.push(point(r.segment_ax_m, r.segment_ay_m));
+                    list.push(point(r.segment_bx_m, r.segment_by_m));
                 }
             }
             feature_kind::CORNER => cubes.push(CubePrimitive {
                 pose: at(r),
                 size,
-                color: Some(CORNER),
+                color: Some(feature_color(CORNER, r)),
             }),
             feature_kind::POINT => spheres.push(SpherePrimitive {
                 pose: at(r),
                 size,
-                color: Some(POST),
+                color: Some(feature_color(POST, r)),
             }),
             _ => {}
         }
     }
-    let lines = if walls.is_empty() {
-        Vec::new()
-    } else {
-        vec![line(
-            line_primitive::Type::LineList,
-            WALL_THICKNESS,
-            walls,
-            WALL,
-        )]
+    let tentative_wall = Color {
+        a: TENTATIVE_ALPHA,
+        ..WALL
     };
+    let lines = walls
+        .into_iter()
+        .zip([WALL, tentative_wall])
+        .filter(|(points, _)| !points.is_empty())
+        .map(|(points, color)| {
+            line(
+                line_primitive::Type::LineList,
+                WALL_THICKNESS,
+                points,
+                color,
+            )
+        })
+        .collect();
     SceneUpdate {
         deletions: Vec::new(),
         entities: vec![SceneEntity {

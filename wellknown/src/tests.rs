@@ -1,8 +1,8 @@
 use foxglove::Decode;
-use foxglove::messages::{FrameTransform, Grid, LaserScan, SceneUpdate};
+use foxglove::messages::{Color, FrameTransform, Grid, LaserScan, SceneUpdate};
 use sonar_common::ipc::{
     CELL_UNKNOWN, FeatureRecord, FeaturesHeader, GridHeader, LocalizedPose, Pose2D, Reading,
-    SlamCorrection, feature_kind, flags, slam_state,
+    SlamCorrection, feature_flags, feature_kind, flags, slam_state,
 };
 
 use super::*;
@@ -220,6 +220,7 @@ fn features_become_lines_cubes_and_spheres() {
         segment_ay_m: f32::NAN,
         segment_bx_m: f32::NAN,
         segment_by_m: f32::NAN,
+        flags: feature_flags::CONFIRMED,
         ..FeatureRecord::default()
     };
     let mut wall = record(feature_kind::PLANE, 1.0);
@@ -229,22 +230,37 @@ fn features_become_lines_cubes_and_spheres() {
         wall.segment_bx_m,
         wall.segment_by_m,
     ) = (1.0, -1.0, 1.0, 1.0);
+    // Heard from one place only: drawn translucent.
+    let tentative = |r: FeatureRecord| FeatureRecord { flags: 0, ..r };
     let records = [
         wall,
         record(feature_kind::CORNER, 2.0),
         record(feature_kind::POINT, 3.0),
         record(feature_kind::PLANE, 4.0), // without extent: not drawn
+        tentative(FeatureRecord { x_m: 5.0, ..wall }),
+        tentative(record(feature_kind::POINT, 6.0)),
     ];
     let mut w = WellKnown::new(options(false));
     let out = w.features(&FeaturesHeader::default(), &records);
     let scene = SceneUpdate::decode(&out[0].data[..]).unwrap();
     let entity = &scene.entities[0];
     assert_eq!(entity.id, "features");
-    assert_eq!(entity.lines.len(), 1);
-    assert_eq!(entity.lines[0].points.len(), 2);
+    assert_eq!(
+        entity.lines.len(),
+        2,
+        "confirmed walls, then tentative ones"
+    );
+    let alpha = |c: Option<Color>| c.unwrap().a;
+    for (line, a) in entity.lines.iter().zip([1.0, 0.35]) {
+        assert_eq!(line.points.len(), 2);
+        assert_eq!(alpha(line.color), a);
+    }
     assert_eq!(entity.cubes.len(), 1);
-    assert_eq!(entity.spheres.len(), 1);
+    assert_eq!(alpha(entity.cubes[0].color), 1.0);
+    assert_eq!(entity.spheres.len(), 2);
     assert_eq!(entity.spheres[0].pose.unwrap().position.unwrap().x, 3.0);
+    assert_eq!(alpha(entity.spheres[0].color), 1.0);
+    assert_eq!(alpha(entity.spheres[1].color), 0.35);
 }
 
 #[test]

@@ -90,6 +90,12 @@ fn features(n: usize) -> FeatureSnapshot {
                 segment_bx_m: nan_unless_wall(2.0),
                 segment_by_m: nan_unless_wall(0.5),
                 last_seen_sweep: 6,
+                flags: if k % 2 == 0 {
+                    ipc::feature_flags::CONFIRMED
+                } else {
+                    0
+                },
+                reserved: 0,
             }
         })
         .collect::<Vec<_>>();
@@ -247,9 +253,9 @@ fn schemas_match_the_rust_layouts_field_by_field() {
     // record type after the separator line.
     let (header, rest) = Topic::Features
         .schema()
-        .split_once("sonar/FeatureRecordV1[] features\n")
+        .split_once("sonar/FeatureRecordV2[] features\n")
         .unwrap();
-    let (separator, record) = rest.split_once("MSG: sonar/FeatureRecordV1\n").unwrap();
+    let (separator, record) = rest.split_once("MSG: sonar/FeatureRecordV2\n").unwrap();
     assert_eq!(separator, format!("{}\n", "=".repeat(80)));
     assert_layout!(
         header,
@@ -288,6 +294,8 @@ fn schemas_match_the_rust_layouts_field_by_field() {
             segment_bx_m,
             segment_by_m,
             last_seen_sweep,
+            flags,
+            reserved,
         ]
     );
     assert_eq!(Topic::Features.message_size(), None);
@@ -338,8 +346,8 @@ fn a_message_of_the_wrong_size_is_an_error() {
 #[test]
 fn a_features_message_must_hold_the_records_it_counts() {
     let bytes = Message::Features(features(2)).encode();
-    assert_eq!(bytes.len(), 60 + 2 * 72);
-    for len in [0, 59, 60, 60 + 72, 60 + 2 * 72 - 1] {
+    assert_eq!(bytes.len(), 60 + 2 * 80);
+    for len in [0, 59, 60, 60 + 80, 60 + 2 * 80 - 1] {
         assert!(
             matches!(
                 Message::decode(Topic::Features, &bytes[..len]),
@@ -353,8 +361,8 @@ fn a_features_message_must_hold_the_records_it_counts() {
     assert!(matches!(
         Message::decode(Topic::Features, &three),
         Err(FormatError::BadMessage {
-            len: 204,
-            expected: 276,
+            len: 220,
+            expected: 300,
             ..
         })
     ));
@@ -363,7 +371,7 @@ fn a_features_message_must_hold_the_records_it_counts() {
     huge[56..60].copy_from_slice(&u32::MAX.to_le_bytes());
     assert!(matches!(
         Message::decode(Topic::Features, &huge),
-        Err(FormatError::BadMessage { len: 204, .. })
+        Err(FormatError::BadMessage { len: 220, .. })
     ));
     let empty = Message::Features(features(0));
     assert_eq!(
@@ -386,11 +394,11 @@ proptest! {
     /// The same for features messages of any number of records.
     #[test]
     fn every_bit_of_features_round_trips(
-        mut bytes in proptest::collection::vec(any::<u8>(), 60 + 3 * 72),
+        mut bytes in proptest::collection::vec(any::<u8>(), 60 + 3 * 80),
         count in 0usize..=3,
     ) {
         bytes[56..60].copy_from_slice(&(count as u32).to_le_bytes());
-        let bytes = &bytes[..60 + count * 72];
+        let bytes = &bytes[..60 + count * 80];
         let m = Message::decode(Topic::Features, bytes).unwrap();
         prop_assert_eq!(m.encode(), bytes.to_vec());
     }
@@ -673,6 +681,95 @@ fn versions_and_schemas_are_checked() {
     assert!(
         matches!(&err, FormatError::UnsupportedSchema { found, .. } if found == "sonar/ReadingV2")
     );
+}
+
+/// A recording of one `sonar/features` channel with the given schema name and messages.
+fn features_mcap(schema_name: &str, messages: &[&[u8]]) -> Vec<u8> {
+    let mut w = mcap::Writer::new(Cursor::new(Vec::new())).unwrap();
+    w.write_metadata(&Metadata {
+        name: METADATA_NAME.into(),
+        metadata: [("format_version".to_owned(), "1".to_owned())].into(),
+    })
+    .unwrap();
+    let schema = w.add_schema(schema_name, SCHEMA_ENCODING, b"").unwrap();
+    let channel = w
+        .add_channel(
+            schema,
+            ipc::FEATURES_SERVICE,
+            MESSAGE_ENCODING,
+            &BTreeMap::new(),
+        )
+        .unwrap();
+    for data in messages {
+        w.write_to_known_channel(
+            &MessageHeader {
+                channel_id: channel,
+                sequence: 0,
+                log_time: 1,
+                publish_time: 1,
+            },
+            data,
+        )
+        .unwrap();
+    }
+    w.finish().unwrap();
+    w.into_inner().into_inner()
+}
+
+/// A recording made before the feature records had their flags (schema `sonar/FeaturesV1`,
+/// 72 bytes a record) still reads, every field as written and the flags 0; a message of the
+/// current layout on such a channel is refused.
+#[test]
+fn features_recorded_before_their_flags_still_read() {
+    let snapshot = features(3);
+    let current = Message::Features(snapshot.clone()).encode();
+    // The older layout: the same bytes without each record's trailing flags and padding.
+    let mut older = current[..FEATURES_PREFIX_SIZE].to_vec();
+    for record in current[FEATURES_PREFIX_SIZE..].chunks(size_of::<FeatureRecord>()) {
+        older.extend_from_slice(&record[..FEATURE_RECORD_V1_SIZE]);
+    }
+
+    let rec = read(
+        &features_mcap(FEATURES_V1_SCHEMA_NAME, &[&older]),
+        ReadOptions::default(),
+    )
+    .unwrap();
+    let [
+        Entry {
+            message: Message::Features(read_back),
+            ..
+        },
+    ] = rec.entries.as_slice()
+    else {
+        panic!("one features message expected: {:?}", rec.entries);
+    };
+    let mut expected = snapshot;
+    for r in &mut expected.records {
+        r.flags = 0;
+    }
+    // Bit for bit: the records hold NaNs, which `==` never equals.
+    assert_eq!(
+        Message::Features(read_back.clone()).encode(),
+        Message::Features(expected).encode()
+    );
+
+    assert!(matches!(
+        read(
+            &features_mcap(FEATURES_V1_SCHEMA_NAME, &[&current]),
+            ReadOptions::default()
+        ),
+        Err(FormatError::BadMessage {
+            topic: Topic::Features,
+            ..
+        })
+    ));
+    assert!(matches!(
+        read(
+            &features_mcap("sonar/FeaturesV0", &[&older]),
+            ReadOptions::default()
+        ),
+        Err(FormatError::UnsupportedSchema { .. })
+    ));
 }
 
 proptest! {
