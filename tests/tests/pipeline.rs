@@ -1076,13 +1076,15 @@ fn the_simulated_robot_tours_the_room_publishing_its_odometry_and_its_true_pose(
 
 /// The corridor tour through simulator, driver and a localising fusion: the back wall that both
 /// rooms share is mapped where the scene has it, seen from each room, and sweeps are localised
-/// against the features (odometry without errors, so the map is the robot's path's own).
+/// against the features (odometry without errors, so the map is the robot's path's own); features
+/// heard from more than one stop are published as confirmed.
 #[test]
 fn a_touring_robot_maps_both_rooms_in_one_frame_and_is_localised() {
     let sandbox = Sandbox::new("corridor");
     let node = sandbox.node("test-consumer");
     let grid = grid_subscriber(&node);
     let localized = localized_pose_subscriber(&node);
+    let features = features_subscriber(&node);
     let config = corridor_grid_config("corridor");
     let (_sim, pty) = sandbox.spawn_sim(&[
         "--scene",
@@ -1135,6 +1137,18 @@ fn a_touring_robot_maps_both_rooms_in_one_frame_and_is_localised() {
     let off = (fix.x_m - fix.odometry_x_m).hypot(fix.y_m - fix.odometry_y_m);
     assert!(off < 0.05, "{fix:?}");
     assert!(fix.cov_xx.is_finite() && fix.cov_xx > 0.0, "{fix:?}");
+    // The fix matched features the map had from an earlier stop: heard from two places now, they
+    // are confirmed on `sonar/features` (a standing sensor's are all tentative: consumers.rs).
+    collect_until(
+        &node,
+        || {
+            features
+                .receive()
+                .unwrap()
+                .map(|s| s.payload().iter().filter(|r| r.is_confirmed()).count())
+        },
+        |confirmed| confirmed.last().is_some_and(|&n| n >= 1),
+    );
     let _ = std::fs::remove_file(&config);
 }
 
