@@ -1426,6 +1426,51 @@ mod tests {
         assert_eq!(at(&on, 2.0), None);
     }
 
+    /// A wall along x = 2 m heard square from (0, 0) and from (0, 1.6) (the foot in a ±9° lobe),
+    /// after readings from (1.2, −0.6) crossed it at 62–66° of incidence near y = 1 m, silent
+    /// there, and heard something at 3 m beyond it; with `doorway`, readings from (0.5, 1.1)
+    /// square to it there heard 3.5 m through it. Returns the occupancy at (2, 0.45), on the
+    /// stretch between the two patches and out of the other readings' cones (`None`: unknown).
+    fn stretch_after_slanted_readings(foot_check: bool, doorway: bool) -> Option<f32> {
+        let mut m = region_mapper(crate::model::SmoothModel {
+            region_stretch_foot_check: foot_check,
+            ..Default::default()
+        });
+        let wall = |a: f32| (a.abs() <= 9.0).then_some(2.0);
+        let mut sweeps = vec![
+            sweep((1.2, -0.6), (40.0, 80.0), 1, |a| {
+                (62.0..=66.0).contains(&a).then_some(3.0)
+            }),
+            sweep((0.0, 0.0), (-30.0, 30.0), 1, wall),
+        ];
+        if doorway {
+            sweeps.push(sweep((0.5, 1.1), (-30.0, 30.0), 1, |a| {
+                (a.abs() <= 9.0).then_some(3.5)
+            }));
+        }
+        sweeps.push(sweep((0.0, 1.6), (-30.0, 30.0), 1, wall));
+        for one in &sweeps {
+            for obs in one {
+                m.update(obs).unwrap();
+            }
+            m.close_region();
+        }
+        let (x, y) = m.grid().geometry().cell_at(Point2::new(2.0, 0.45))?;
+        m.grid().probability(x, y)
+    }
+
+    #[test]
+    fn a_wall_between_two_feet_is_refused_by_a_reading_that_should_have_heard_it_not_by_slanted_ones()
+     {
+        // The grid's free cells near y = 1 m refuse the whole stretch: the slanted readings
+        // cleared them.
+        assert!(stretch_after_slanted_readings(false, false).is_none_or(|p| p < 0.5));
+        // No reading's lobe held a foot on the stretch: drawn.
+        assert!(stretch_after_slanted_readings(true, false).is_some_and(|p| p > 0.5));
+        // The readings from (0.5, 1.1) had its foot on their axes and heard 1.5 m beyond it.
+        assert!(stretch_after_slanted_readings(true, true).is_none_or(|p| p < 0.5));
+    }
+
     #[test]
     fn a_region_between_two_small_reflectors_clears_up_to_its_own_range_when_asked() {
         // Two reflectors at 1 m, `side` readings each (6° apart), either side of five readings
