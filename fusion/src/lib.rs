@@ -210,6 +210,7 @@ pub mod radar;
 pub mod reference;
 mod regions;
 pub mod rule;
+mod sightlines;
 pub mod state;
 pub mod status;
 

@@ -16,6 +16,7 @@ use crate::observation::{Beam, Observation, ObservationError};
 use crate::radar::RadarMap;
 use crate::reference::PaperArrays;
 use crate::regions::{DepthTolerance, End, Heard, LobeWidth, Region, RegionTracker};
+use crate::sightlines::{Sightline, Sightlines};
 use crate::state::{MapperState, StateError};
 
 /// One-ended and cut regions kept for the sweep's end at most: more than a 360° sweep at 1.5° holds.
@@ -88,6 +89,9 @@ struct Regions {
     stretches: Vec<Stretch>,
     /// The lobe's half-width by range, learnt from the whole regions.
     lobe: LobeWidth,
+    /// With a stretch's foot check on: the latest readings with an echo, which may refute a
+    /// stretch of wall ([`crate::sightlines`]).
+    sightlines: Sightlines,
     /// With `region_one_end`: the sweep's one-ended regions, placed at its end, each with its
     /// readings (with `region_one_end_free`, else none).
     one_ended: Vec<(Region, Vec<Beam>)>,
@@ -107,6 +111,14 @@ struct Regions {
     /// With `region_small_cutters_free`: the readings of a region cut short on both sides, the
     /// first cutter small, waiting for the region after it (the second cutter) to close.
     between: Option<Between>,
+}
+
+/// Which stretches of wall [`Lines`] wrote: those between two patches of one wall, or those
+/// from a patch on to where its wall ends ([`Lines::join_ends`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Stretches {
+    BetweenFeet,
+    ToEnds,
 }
 
 /// A region cut short on both sides whose free evidence waits for its second cutter.
@@ -171,6 +183,7 @@ impl Mapper {
                     lines: Lines::default(),
                     stretches: Vec::new(),
                     lobe: LobeWidth::default(),
+                    sightlines: Sightlines::default(),
                     one_ended: Vec::new(),
                     cut: Vec::new(),
                     weak: VecDeque::new(),
@@ -240,6 +253,16 @@ impl Mapper {
                 axis: wrap_angle(obs.pose.rotation.angle() + obs.angle_rad),
                 range: beam.and_then(|b| b.echo),
             };
+            if let ModelConfig::Smooth(model) = self.config.model
+                && (model.region_stretch_foot_check || model.region_corner_walls_foot_check)
+                && let Some(range) = heard.range
+            {
+                regions.sightlines.push(Sightline {
+                    position: heard.position,
+                    axis: heard.axis,
+                    range,
+                });
+            }
             // A region this reading closes is placed first: it lies before this reading.
             if let Some(region) = regions.tracker.push(&heard, &regions.tolerance) {
                 cells_updated += self.close(&mut regions, &region, kernel);
@@ -455,7 +478,7 @@ impl Mapper {
         {
             regions.lines.join_ends(&mut regions.stretches);
             regions.walls_placed |= !regions.stretches.is_empty();
-            cells += self.place_stretches(&model, &regions, Kernel::Cone);
+            cells += self.place_stretches(&model, &regions, Stretches::ToEnds, Kernel::Cone);
         }
         cells += self.withdraw_weak_echoes(&mut regions, Kernel::Cone);
         self.regions = Some(regions);
@@ -540,7 +563,7 @@ impl Mapper {
             Patch::new(region.position, axis, region.range, half_angle),
             &mut regions.stretches,
         );
-        cells + self.place_stretches(&model, regions, kernel)
+        cells + self.place_stretches(&model, regions, Stretches::BetweenFeet, kernel)
     }
 
     /// Fuses a region's occupied evidence on a straight patch square to `axis` at its range,
@@ -567,11 +590,29 @@ impl Mapper {
         self.apply(&beam, &evidence, kernel)
     }
 
-    /// Fuses the stretches of wall [`Lines`] last wrote, those readings did not see through.
-    fn place_stretches(&mut self, model: &SmoothModel, regions: &Regions, kernel: Kernel) -> usize {
+    /// Fuses the stretches of wall [`Lines`] last wrote (of the kind `kind`), those readings did
+    /// not see through: with the kind's foot check on, those no reading refutes
+    /// ([`Self::refuted`]), else those along which the grid holds no three free cells in a row
+    /// ([`Self::seen_through`]).
+    fn place_stretches(
+        &mut self,
+        model: &SmoothModel,
+        regions: &Regions,
+        kind: Stretches,
+        kernel: Kernel,
+    ) -> usize {
+        let foot_check = match kind {
+            Stretches::BetweenFeet => model.region_stretch_foot_check,
+            Stretches::ToEnds => model.region_corner_walls_foot_check,
+        };
         let mut cells = 0;
         for stretch in &regions.stretches {
-            if !self.seen_through(stretch) {
+            let refused = if foot_check {
+                self.refuted(model, regions, stretch)
+            } else {
+                self.seen_through(stretch)
+            };
+            if !refused {
                 cells += self.place_stretch(model, stretch, kernel);
             }
         }
@@ -616,6 +657,37 @@ impl Mapper {
                     .heard_from(x, y)
                     .is_none_or(|h| incidence(beam.axis, h) >= min_incidence)
         })
+    }
+
+    /// Whether a reading refutes `stretch` ([`Sightlines::refute`]): one whose lobe (learnt at
+    /// that range) held the foot of its sensor's perpendicular on the stretch, with no occupied
+    /// cell between them, heard its first echo farther than the foot by more than the depth
+    /// tolerance and band: a flat wall there would have answered it at the foot.
+    fn refuted(&self, model: &SmoothModel, regions: &Regions, stretch: &Stretch) -> bool {
+        let grid = &self.grid;
+        let step = grid.geometry().resolution();
+        let unhidden = |from: Vector2<f32>, foot: Vector2<f32>| {
+            let distance = (foot - from).norm();
+            // Up to two bands short of the foot: the stretch's own cells may be drawn already.
+            let steps = ((distance - 2.0 * model.band(distance)) / step)
+                .floor()
+                .max(0.0) as usize;
+            let direction = (foot - from) / distance;
+            (1..=steps).all(|k| {
+                let p = from + direction * (k as f32 * step);
+                grid.geometry()
+                    .cell_at(p.into())
+                    .and_then(|(x, y)| grid.probability(x, y))
+                    .is_none_or(|p| p <= 0.5)
+            })
+        };
+        regions.sightlines.refute(
+            stretch.a,
+            stretch.b,
+            |distance| regions.lobe.at(distance),
+            |range| regions.tolerance.at(range) + model.band(range),
+            unhidden,
+        )
     }
 
     /// Whether readings saw through `stretch`: three cells in a row along it that the grid holds
@@ -713,6 +785,7 @@ impl Mapper {
             regions.tracker = RegionTracker::default();
             regions.waiting.clear();
             regions.lines.clear();
+            regions.sightlines.clear();
             regions.one_ended.clear();
             regions.cut.clear();
             regions.weak.clear();
@@ -1351,6 +1424,51 @@ mod tests {
         // nothing at the wall, whose region is not placed.
         assert_eq!(at(&on, 0.97), None);
         assert_eq!(at(&on, 2.0), None);
+    }
+
+    /// A wall along x = 2 m heard square from (0, 0) and from (0, 1.6) (the foot in a ±9° lobe),
+    /// after readings from (1.2, −0.6) crossed it at 62–66° of incidence near y = 1 m, silent
+    /// there, and heard something at 3 m beyond it; with `doorway`, readings from (0.5, 1.1)
+    /// square to it there heard 3.5 m through it. Returns the occupancy at (2, 0.45), on the
+    /// stretch between the two patches and out of the other readings' cones (`None`: unknown).
+    fn stretch_after_slanted_readings(foot_check: bool, doorway: bool) -> Option<f32> {
+        let mut m = region_mapper(crate::model::SmoothModel {
+            region_stretch_foot_check: foot_check,
+            ..Default::default()
+        });
+        let wall = |a: f32| (a.abs() <= 9.0).then_some(2.0);
+        let mut sweeps = vec![
+            sweep((1.2, -0.6), (40.0, 80.0), 1, |a| {
+                (62.0..=66.0).contains(&a).then_some(3.0)
+            }),
+            sweep((0.0, 0.0), (-30.0, 30.0), 1, wall),
+        ];
+        if doorway {
+            sweeps.push(sweep((0.5, 1.1), (-30.0, 30.0), 1, |a| {
+                (a.abs() <= 9.0).then_some(3.5)
+            }));
+        }
+        sweeps.push(sweep((0.0, 1.6), (-30.0, 30.0), 1, wall));
+        for one in &sweeps {
+            for obs in one {
+                m.update(obs).unwrap();
+            }
+            m.close_region();
+        }
+        let (x, y) = m.grid().geometry().cell_at(Point2::new(2.0, 0.45))?;
+        m.grid().probability(x, y)
+    }
+
+    #[test]
+    fn a_wall_between_two_feet_is_refused_by_a_reading_that_should_have_heard_it_not_by_slanted_ones()
+     {
+        // The grid's free cells near y = 1 m refuse the whole stretch: the slanted readings
+        // cleared them.
+        assert!(stretch_after_slanted_readings(false, false).is_none_or(|p| p < 0.5));
+        // No reading's lobe held a foot on the stretch: drawn.
+        assert!(stretch_after_slanted_readings(true, false).is_some_and(|p| p > 0.5));
+        // The readings from (0.5, 1.1) had its foot on their axes and heard 1.5 m beyond it.
+        assert!(stretch_after_slanted_readings(true, true).is_none_or(|p| p < 0.5));
     }
 
     #[test]

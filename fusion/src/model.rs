@@ -636,6 +636,18 @@ pub struct SmoothModel {
     /// a wall's foot, an axis may have crossed that wall at a slant, which is silent, and its
     /// echo come from off the axis: only up to the nearer cutting echo, as without this.
     pub region_small_cutters_free: bool,
+    /// With `echo_placement = "region"`: a stretch of wall between two patches of one wall
+    /// (which no reading heard) is refused only where a reading refutes it
+    /// ([`crate::sightlines`]): the foot of the perpendicular from its sensor lies on the
+    /// stretch, within the lobe learnt at that range, unhidden, and it heard its first echo
+    /// farther than the foot (a flat wall there would have answered at the foot). Off: refused
+    /// where the grid holds three cells in a row along it free, which the free evidence of
+    /// readings that crossed the wall at a slant, towards an echo heard beyond it in the lobe,
+    /// also makes.
+    pub region_stretch_foot_check: bool,
+    /// With `region_corner_walls`: the same check for the stretches drawn from a patch on to
+    /// where its wall ends, instead of the grid's free cells.
+    pub region_corner_walls_foot_check: bool,
 }
 
 /// Where a reading's echo puts its occupied evidence ([`SmoothModel::echo_placement`]).
@@ -680,6 +692,8 @@ impl Default for SmoothModel {
             region_weak_echo_half_width_m: 0.0,
             region_masked_free: false,
             region_small_cutters_free: false,
+            region_stretch_foot_check: false,
+            region_corner_walls_foot_check: false,
         }
     }
 }
