@@ -276,7 +276,8 @@ impl FeatureMap {
     }
 
     /// The walls of a sweep taken on the move, each reading with its pose relative to the
-    /// sweep's reference: for every normal direction in steps of [`MOVING_NORMAL_STEP_DEG`], the
+    /// sweep's reference at its stamp (its pings each at their own instant, [`Sweep::facing`]):
+    /// for every normal direction in steps of [`MOVING_NORMAL_STEP_DEG`], the
     /// pings facing it compensated for the motion along it ([`Sweep::facing`]), and a plane found
     /// there whose own normal agrees with the one assumed (within half a step). Regions of
     /// constant depth from the pings as they were taken break up on the move — a wall's foot
@@ -987,6 +988,28 @@ mod tests {
         // Under the wall's own normal the ranges are one again.
         let walls = m.walls_on_the_move(&readings);
         assert_eq!(walls.iter().filter(|o| near(o)).count(), 1, "{walls:?}");
+    }
+
+    #[test]
+    fn a_wall_seen_while_turning_is_placed_from_each_pings_own_heading() {
+        // Turning in place at 45°/s while the head turns the other way: a reading's pings span
+        // 8.1° of the robot's heading. The wall 1 m ahead of the reference is found square on
+        // and whole. (With every ping at its reading's pose, each reading's pings land up to
+        // 8.1° from where they were aimed, and no wall is found there at all.)
+        let (readings, _) = crate::pings::tests::turning_in_place();
+        let walls = map().walls_on_the_move(&readings);
+        let wall = walls
+            .iter()
+            .find(|o| o.kind == FeatureKind::Plane && (o.range_m - 1.0).abs() < 0.01)
+            .unwrap_or_else(|| panic!("{walls:?}"));
+        assert!(wall.whole, "{wall:?}");
+        assert!(wall.bearing_deg.abs() < 1.0, "{wall:?}");
+        assert!(
+            walls
+                .iter()
+                .all(|o| o == wall || (o.range_m - 1.0).abs() >= 0.01),
+            "one wall, once: {walls:?}"
+        );
     }
 
     #[test]

@@ -19,6 +19,12 @@
 //! a wall's (a wall is heard around its normal from anywhere in front of it). Bearings stay on the
 //! stepper's grid (turned as a whole), so the widths of the regions of constant depth keep the
 //! meaning the classification gives them.
+//!
+//! A reading's pose is the one at its stamp, its last ping's instant; its earlier pings were taken
+//! one ping interval apart before it, while the robot moved on. Each ping is placed at the pose of
+//! its own instant, interpolated between the readings' poses ([`ReadingPoses`]): a robot turning at
+//! 45°/s turns 2.7° between two pings (60 ms), so a reading's first ping taken at its last one's
+//! pose would be 8° off where it was aimed, and the edge of a wall's region with it.
 
 use nalgebra::{Isometry2, Vector2};
 use sonar_common::ipc::{Reading, flags};
@@ -103,15 +109,21 @@ impl Sweep {
         normal_deg: Option<f64>,
         cfg: &FeatureConfig,
     ) -> Self {
+        let readings: Vec<(&Reading, Isometry2<f64>)> = readings.into_iter().collect();
+        let reading_poses = ReadingPoses::of(&readings);
         let mut pings = Vec::new();
         let mut pairs = Vec::new();
         let mut per_angle = Vec::new();
         let mut skipped = 0;
-        for (r, pose) in readings {
+        for &(r, pose) in &readings {
             match placed_pings(r, cfg) {
                 Placed::Raw(p) => {
                     let first = pings.len();
-                    pings.extend(p.map(|ping| at_reference(ping, &pose, normal_deg)));
+                    let count = usize::from(r.ping_count).min(r.echo_us.len());
+                    pings.extend(p.enumerate().map(|(j, ping)| {
+                        let own = reading_poses.ping_pose(r, &pose, j, count);
+                        at_reference(ping, &own, normal_deg)
+                    }));
                     pairs.extend(neighbour_pairs(&pings[first..]));
                 }
                 Placed::PerAngle(ping) => per_angle.push(at_reference(ping, &pose, normal_deg)),
@@ -271,6 +283,71 @@ impl Sweep {
     }
 }
 
+/// The poses of a sweep's readings in time, for placing each ping at its own instant.
+///
+/// A reading's stamp is its last ping's instant (`Reading::host_stamp_ns`), and the head takes a
+/// reading's pings one after another over the time since the reading before: on the move, ping
+/// j of P was taken (P − 1 − j) ping intervals before its reading's pose, where one interval is
+/// the readings' period (the median time between consecutive stamps) over P. Each ping's pose is
+/// the readings' poses interpolated to its instant (extrapolated from the first two before the
+/// first reading). At a turn of 45°/s with 60 ms between pings, a reading's first ping is 8° off
+/// the pose of its stamp; placed there, a wall's region ends several degrees early or late, and a
+/// wall placed from one natural end is that far off.
+struct ReadingPoses {
+    /// Stamp (ns) and pose of each reading, in order of time.
+    poses: Vec<(u64, Isometry2<f64>)>,
+    /// Time between readings, ns; 0 when it cannot be told (fewer than two stamps).
+    period_ns: f64,
+}
+
+impl ReadingPoses {
+    fn of(readings: &[(&Reading, Isometry2<f64>)]) -> Self {
+        let mut poses: Vec<(u64, Isometry2<f64>)> = readings
+            .iter()
+            .map(|(r, pose)| (r.host_stamp_ns, *pose))
+            .collect();
+        poses.sort_by_key(|(t, _)| *t);
+        let mut periods: Vec<u64> = poses
+            .windows(2)
+            .map(|w| w[1].0 - w[0].0)
+            .filter(|&d| d > 0)
+            .collect();
+        periods.sort_unstable();
+        let period_ns = periods.get(periods.len() / 2).map_or(0.0, |&d| d as f64);
+        Self { poses, period_ns }
+    }
+
+    /// The pose of ping `j` of the `count` of `reading` (taken at `pose`).
+    fn ping_pose(
+        &self,
+        reading: &Reading,
+        pose: &Isometry2<f64>,
+        j: usize,
+        count: usize,
+    ) -> Isometry2<f64> {
+        let before = (count.saturating_sub(1 + j)) as f64 * self.period_ns / count.max(1) as f64;
+        if before <= 0.0 || self.poses.len() < 2 {
+            return *pose;
+        }
+        let t = reading.host_stamp_ns as f64 - before;
+        // The two readings around the instant, or the first two before the first one.
+        let after = self
+            .poses
+            .partition_point(|(s, _)| (*s as f64) < t)
+            .clamp(1, self.poses.len() - 1);
+        let ((t0, p0), (t1, p1)) = (self.poses[after - 1], self.poses[after]);
+        if t1 <= t0 {
+            return *pose;
+        }
+        let f = (t - t0 as f64) / (t1 - t0) as f64;
+        let turn = crate::geometry::wrap_rad(p1.rotation.angle() - p0.rotation.angle());
+        Isometry2::new(
+            p0.translation.vector + (p1.translation.vector - p0.translation.vector) * f,
+            p0.rotation.angle() + turn * f,
+        )
+    }
+}
+
 /// `ping`, taken at `pose` (relative to the reference), as seen from the reference: bearing turned
 /// by the pose's heading, range plus the pose's displacement along `along_deg` (the beam's axis
 /// when `None`).
@@ -420,6 +497,83 @@ pub(crate) mod tests {
         assert!((range_at(&ccw, 0.75) - 1.0).abs() < 1e-3);
         assert!((range_at(&cw, 0.75) - 1.3).abs() < 1e-3);
         assert!((range_at(&cw, 5.25) - 1.0).abs() < 1e-3);
+    }
+
+    /// Readings of a head turning counter-clockwise from −50° to 52° in 6° readings, 60 ms
+    /// between pings (the last at the reading's stamp), on a robot turning clockwise in place at
+    /// 45°/s from 90° left of the reference: from the reference the pings go clockwise, 1.2°
+    /// apart, from 42° to −44°. A wall 1 m ahead of the reference is heard by every ping within the 28°
+    /// cut-off of its normal, each at its own instant's heading. Each reading with the robot's
+    /// pose at its stamp, and each ping's true bearing from the reference, sorted.
+    pub(crate) fn turning_in_place() -> (Vec<(Reading, Isometry2<f64>)>, Vec<f64>) {
+        let ping_ns = 60_000_000u64;
+        let rate_deg_per_ns = -45.0 / 1e9;
+        let mut readings = Vec::new();
+        let mut bearings = Vec::new();
+        for k in 0..18u64 {
+            let centre = -50.0 + 6.0 * k as f64;
+            let stamp = 1_000_000_000 + 4 * ping_ns * k;
+            let ranges: Vec<f64> = (0..4)
+                .map(|j| {
+                    let instant = stamp - (3 - j) * ping_ns;
+                    let heading = 90.0 + rate_deg_per_ns * (instant as f64 - 1e9);
+                    let bearing = centre + 1.5 * (j as f64 - 1.5) + heading;
+                    bearings.push(bearing);
+                    if bearing.abs() <= 28.0 { 1.0 } else { 0.0 }
+                })
+                .collect();
+            let mut r = reading(centre as f32, 1, &ranges);
+            r.host_stamp_ns = stamp;
+            let heading = 90.0 + rate_deg_per_ns * (stamp as f64 - 1e9);
+            readings.push((r, Isometry2::rotation(heading.to_radians())));
+        }
+        bearings.sort_by(f64::total_cmp);
+        (readings, bearings)
+    }
+
+    #[test]
+    fn pings_taken_while_turning_are_placed_at_their_own_instants() {
+        let cfg = FeatureConfig::default();
+        let (readings, truth) = turning_in_place();
+        let s = Sweep::from_readings_at(readings.iter().map(|(r, p)| (r, *p)), &cfg);
+        let bearings: Vec<f64> = s.pings().iter().map(|p| p.bearing_deg).collect();
+        // At the reading's pose a reading's first ping would be 8.1° off (three intervals of
+        // 2.7° turned); at its own instant, where it was aimed.
+        assert_eq!(bearings.len(), truth.len());
+        assert!(
+            bearings
+                .iter()
+                .zip(&truth)
+                .all(|(b, t)| (b - t).abs() < 1e-6),
+            "{bearings:?} against {truth:?}"
+        );
+        // The wall's pings are those within its cut-off, and heard at 1 m.
+        assert!(s.pings().iter().all(|p| match p.range_m {
+            Some(r) => p.bearing_deg.abs() <= 28.0 + 1e-6 && (r - 1.0).abs() < 1e-3,
+            None => p.bearing_deg.abs() > 28.0 - 1e-6,
+        }));
+        // Readings without stamps (or all at one instant) keep every ping at their pose.
+        let unstamped: Vec<(Reading, Isometry2<f64>)> = readings
+            .iter()
+            .map(|(r, p)| {
+                (
+                    Reading {
+                        host_stamp_ns: 0,
+                        ..*r
+                    },
+                    *p,
+                )
+            })
+            .collect();
+        let at_readings = Sweep::from_readings_at(unstamped.iter().map(|(r, p)| (r, *p)), &cfg);
+        let first =
+            readings[1].1.rotation.angle().to_degrees() + f64::from(readings[1].0.angle_deg) - 2.25;
+        assert!(
+            at_readings
+                .pings()
+                .iter()
+                .any(|p| (p.bearing_deg - first).abs() < 1e-6)
+        );
     }
 
     #[test]
