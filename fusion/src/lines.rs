@@ -28,6 +28,12 @@ pub(crate) const LONGEST_STRETCH_M: f32 = 4.0;
 const CORNER_ANGLE: f32 = 30.0 * std::f32::consts::PI / 180.0;
 /// A patch's wall is followed this far beyond its ends, metres, to a corner.
 const CORNER_REACH_M: f32 = 1.5;
+/// A patch or a region repeats one kept only if their bearings (a patch's facing, a region's
+/// middle and half-width) differ by at most this much, radians (0.5°, a twelfth of a 6° reading):
+/// where two walls' lines cross moves by a wall's range per radian of either's facing, so a patch
+/// 3° off the kept one (the same wall to [`SAME_FACING`]) may put their corner beyond the echo
+/// that confirms it (the paper's corner scene: 80 % of its walls drawn, 49 % with 3°).
+const SAME_BEARING: f32 = 0.5 * std::f32::consts::PI / 180.0;
 /// Patches kept; the oldest are forgotten first.
 const KEPT: usize = 4096;
 /// A wall is followed from its patch along its line this far at most to a corner, metres: on the
@@ -53,6 +59,12 @@ pub(crate) struct Patch {
     pub sensor: Vector2<f32>,
     /// The patch's ends in the world, at `from` and at `to`.
     pub ends: [Vector2<f32>; 2],
+    /// The unit normal along `facing` and the line's direction ([`frame`]), kept: every pair of
+    /// patches [`Lines::join_ends`] looks at needs both of them.
+    normal: Vector2<f32>,
+    along: Vector2<f32>,
+    /// How far the offsets of the patches it stands for ([`Self::absorb`]) lay from its own.
+    spread: f32,
 }
 
 impl Patch {
@@ -71,14 +83,40 @@ impl Patch {
             range,
             sensor,
             ends: [foot - along * half, foot + along * half],
+            normal,
+            along,
+            spread: 0.0,
         }
+    }
+
+    /// Stands for `other` too if `other` repeats it ([`Self::repeats`]), widening its spread to
+    /// `other`'s offset; returns whether it does.
+    fn absorb(&mut self, other: &Patch) -> bool {
+        let repeats = other.repeats(self);
+        if repeats {
+            self.spread = self.spread.max((other.offset - self.offset).abs());
+        }
+        repeats
+    }
+
+    /// Whether this patch repeats `kept`: the same wall heard again from the same viewpoint
+    /// (its next sweeps, a head standing still), both ends where `kept`'s are within the
+    /// tolerance of one line. Such a patch says nothing `kept` does not.
+    fn repeats(&self, kept: &Patch) -> bool {
+        let tolerance = SAME_LINE_M + SAME_LINE_FRACTION * self.range.max(kept.range);
+        (self.sensor - kept.sensor).norm() < OTHER_VIEWPOINT_M
+            && wrap_angle(self.facing - kept.facing).abs() <= SAME_BEARING
+            && self
+                .ends
+                .iter()
+                .zip(&kept.ends)
+                .all(|(end, kept_end)| (end - kept_end).norm() <= tolerance)
     }
 
     /// Whether `point` lies on this patch's line, within `tolerance`, and within
     /// [`CORNER_REACH_M`] of the patch.
     fn reaches(&self, point: Vector2<f32>, tolerance: f32) -> bool {
-        let (normal, _) = frame(self.facing);
-        (normal.dot(&point) - self.offset).abs() <= tolerance
+        self.passes_through(point, tolerance)
             && self
                 .ends
                 .iter()
@@ -87,15 +125,13 @@ impl Patch {
 
     /// Whether `point` lies on this patch's line, within `tolerance`.
     fn passes_through(&self, point: Vector2<f32>, tolerance: f32) -> bool {
-        let (normal, _) = frame(self.facing);
-        (normal.dot(&point) - self.offset).abs() <= tolerance
+        (self.normal.dot(&point) - self.offset).abs() <= tolerance
     }
 
     /// The stretch of this patch's wall from its nearer end to `corner`, a point of its line
     /// beyond the patch, at most [`CORNER_WALL_M`] from that end.
     fn towards(&self, corner: Vector2<f32>) -> Option<Stretch> {
-        let (_, along) = frame(self.facing);
-        let t = along.dot(&corner);
+        let t = self.along.dot(&corner);
         let end = if t > self.to {
             self.ends[1]
         } else if t < self.from {
@@ -107,6 +143,7 @@ impl Patch {
             a: end,
             b: corner,
             facing: self.facing,
+            readings: 1,
         })
     }
 
@@ -125,8 +162,7 @@ fn concave_corner(a: &Patch, b: &Patch) -> Option<Vector2<f32>> {
     if !(CORNER_ANGLE..=std::f32::consts::PI - CORNER_ANGLE).contains(&apart) {
         return None;
     }
-    let (na, _) = frame(a.facing);
-    let (nb, _) = frame(b.facing);
+    let (na, nb) = (a.normal, b.normal);
     // na·p = a.offset and nb·p = b.offset.
     let det = na.x * nb.y - na.y * nb.x;
     let p = Vector2::new(
@@ -142,12 +178,26 @@ fn frame(facing: f32) -> (Vector2<f32>, Vector2<f32>) {
     (Vector2::new(c, s), Vector2::new(-s, c))
 }
 
-/// A stretch of wall between two patches: its ends, and the bearing it is faced from.
+/// A stretch of wall between two patches: its ends, the bearing it is faced from, and as how
+/// many readings it counts.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Stretch {
     pub a: Vector2<f32>,
     pub b: Vector2<f32>,
     pub facing: f32,
+    /// A stretch was not heard: it counts as one reading for each pair of hearings that drew it
+    /// (a wall's patch heard again joins the other wall's every hearing to their corner again).
+    pub readings: u32,
+}
+
+impl Stretch {
+    /// Whether this stretch is `other` again: faced the same way, each end within
+    /// [`SAME_LINE_M`] of `other`'s (two patches of one wall joined to the same corner).
+    fn repeats(&self, other: &Stretch) -> bool {
+        wrap_angle(self.facing - other.facing).abs() <= SAME_FACING
+            && (self.a - other.a).norm() <= SAME_LINE_M
+            && (self.b - other.b).norm() <= SAME_LINE_M
+    }
 }
 
 /// A region of constant depth heard: where from, the bearings it spans and its range.
@@ -166,29 +216,97 @@ pub(crate) struct Echo {
 }
 
 impl Echo {
-    /// Whether this region could be the echo of a reflector at `point`: its range, within its
-    /// bearings. A concave corner answers from any bearing within the lobe.
     /// Where its reflector lies if it is whole: at its middle bearing and range.
     fn reflector(&self) -> Vector2<f32> {
         self.sensor + Vector2::new(self.axis.cos(), self.axis.sin()) * self.range
     }
 
-    fn heard(&self, point: Vector2<f32>) -> bool {
+    /// Whether this region could be the echo of a reflector at `point`: its range, within its
+    /// bearings. A concave corner answers from any bearing within the lobe.
+    /// `slack` widens its tolerance: how far the point is known.
+    fn heard(&self, point: Vector2<f32>, slack: f32) -> bool {
         let to = point - self.sensor;
-        (to.norm() - self.range).abs() <= self.tolerance
+        (to.norm() - self.range).abs() <= self.tolerance + slack
             && wrap_angle(to.y.atan2(to.x) - self.axis).abs() <= self.half_width + ECHO_MARGIN
+    }
+
+    /// Whether this region repeats `kept`: heard from where `kept` was, over the same bearings,
+    /// whole or not as it was, and its sensor and range together within half the smaller depth
+    /// tolerance of `kept`'s (a head standing still hears its walls so sweep after sweep). Its
+    /// reflector and the points it hears are then `kept`'s within that tolerance.
+    fn repeats(&self, kept: &Echo) -> bool {
+        self.whole == kept.whole
+            && (self.sensor - kept.sensor).norm() + (self.range - kept.range).abs()
+                <= 0.5 * self.tolerance.min(kept.tolerance)
+            && wrap_angle(self.axis - kept.axis).abs() <= SAME_BEARING
+            && (self.half_width - kept.half_width).abs() <= SAME_BEARING
     }
 }
 
-/// The patches placed so far, and the regions heard.
+/// What [`Lines`] keeps of a patch or a region: it, how many times it was heard (added, or heard
+/// again: [`Patch::repeats`], [`Echo::repeats`]), and how many of those since [`Lines::join_ends`]
+/// last ran.
+#[derive(Debug, Clone, Copy)]
+struct Kept<T> {
+    item: T,
+    heard: u32,
+    fresh: u32,
+}
+
+impl<T> Kept<T> {
+    /// How many pairs of a hearing of this and one of `other` have a fresh one in them: as many
+    /// times as [`Lines::join_ends`] would draw what the two make if every hearing were kept
+    /// apart, each paired once with every other.
+    fn fresh_pairs<U>(&self, other: &Kept<U>) -> u32 {
+        let all = u64::from(self.heard) * u64::from(other.heard);
+        let stale = u64::from(self.heard - self.fresh) * u64::from(other.heard - other.fresh);
+        u32::try_from(all - stale).unwrap_or(u32::MAX)
+    }
+}
+
+/// Keeps `item` in `kept`, at most `most` of them: if one kept already `absorb`s it (stands for
+/// it too), that one counts one more hearing instead, else it is added, the oldest forgotten
+/// first.
+fn keep<T>(kept: &mut Vec<Kept<T>>, item: T, most: usize, absorb: impl Fn(&mut T, &T) -> bool) {
+    if let Some(same) = kept
+        .iter_mut()
+        .find_map(|k| absorb(&mut k.item, &item).then_some(k))
+    {
+        same.heard = same.heard.saturating_add(1);
+        same.fresh = same.fresh.saturating_add(1).min(same.heard);
+        return;
+    }
+    if kept.len() == most {
+        kept.remove(0);
+    }
+    kept.push(Kept {
+        item,
+        heard: 1,
+        fresh: 1,
+    });
+}
+
+/// Adds `stretch`, counting `readings`, to `out`: to the one there it repeats, if any, else as a
+/// new one.
+fn push_new(out: &mut Vec<Stretch>, stretch: Stretch, readings: u32) {
+    match out.iter_mut().find(|s| stretch.repeats(s)) {
+        Some(same) => same.readings = same.readings.saturating_add(readings),
+        None => out.push(Stretch {
+            readings,
+            ..stretch
+        }),
+    }
+}
+
+/// The patches placed so far, and the regions heard, each kept once: a patch or a region that
+/// repeats one kept ([`Patch::repeats`], [`Echo::repeats`]) counts as one more hearing of that
+/// one instead, so a head standing still for hours keeps what it heard in its first sweeps, not
+/// thousands of copies that every new patch would be paired with ([`Self::join_ends`]).
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Lines {
-    patches: Vec<Patch>,
+    patches: Vec<Kept<Patch>>,
     /// The regions heard, to confirm corners.
-    echoes: Vec<Echo>,
-    /// How many of the last patches and echoes were added since [`Self::join_ends`] last ran.
-    recent: usize,
-    recent_echoes: usize,
+    echoes: Vec<Kept<Echo>>,
 }
 
 impl Lines {
@@ -199,7 +317,12 @@ impl Lines {
         // The nearest gap before the patch and after it, and the patch across it.
         let mut before: Option<(f32, &Patch)> = None;
         let mut after: Option<(f32, &Patch)> = None;
-        for other in self.patches.iter().filter(|o| patch.on_line_with(o)) {
+        for other in self
+            .patches
+            .iter()
+            .map(|k| &k.item)
+            .filter(|o| patch.on_line_with(o))
+        {
             if other.to < patch.from {
                 let gap = patch.from - other.to;
                 if before.is_none_or(|(g, _)| gap < g) {
@@ -226,27 +349,23 @@ impl Lines {
                     a,
                     b,
                     facing: patch.facing + 0.5 * wrap_angle(other.facing - patch.facing),
+                    readings: 1,
                 });
             }
         }
-        if self.patches.len() == KEPT {
-            self.patches.remove(0);
-        }
-        self.patches.push(patch);
-        self.recent = (self.recent + 1).min(self.patches.len());
+        keep(&mut self.patches, patch, KEPT, Patch::absorb);
     }
 
     /// Remembers a region heard, which may confirm a corner ([`Self::join_ends`]).
     pub fn hear(&mut self, echo: Echo) {
-        if self.echoes.len() == KEPT_ECHOES {
-            self.echoes.remove(0);
-        }
-        self.echoes.push(echo);
-        self.recent_echoes = (self.recent_echoes + 1).min(self.echoes.len());
+        keep(&mut self.echoes, echo, KEPT_ECHOES, |kept, echo| {
+            echo.repeats(kept)
+        });
     }
 
     /// Writes into `out` the stretches of wall from patches to where their walls end, at most
-    /// [`CORNER_WALL_M`] beyond each patch, for the patches and echoes added since the last call:
+    /// [`CORNER_WALL_M`] beyond each patch, for the patches and echoes added or heard again since
+    /// the last call, each stretch once:
     ///
     /// - to the corner where two walls meet: their lines cross at least 30° apart, each wall's
     ///   sensor lies in front of the other wall (a concave corner, as a room's, seen from
@@ -256,40 +375,55 @@ impl Lines {
     ///   a partition's edge, a corner heard whole).
     pub fn join_ends(&mut self, out: &mut Vec<Stretch>) {
         out.clear();
-        let recent = self.patches.len() - self.recent;
-        self.recent = 0;
-        for (i, a) in self.patches.iter().enumerate().skip(recent) {
-            for b in &self.patches[..i] {
+        // Each pair with a fresh patch once: a fresh one with every patch before it, and with
+        // those after it that are not fresh.
+        for (i, a) in self.patches.iter().enumerate().filter(|(_, k)| k.fresh > 0) {
+            let partners = self.patches[..i]
+                .iter()
+                .chain(self.patches[i + 1..].iter().filter(|k| k.fresh == 0));
+            for b in partners {
+                let readings = a.fresh_pairs(b);
+                let (a, b) = (&a.item, &b.item);
                 let Some(corner) = concave_corner(a, b) else {
                     continue;
                 };
                 // Within reach of either patch before the echoes are searched: in a large map
                 // most pairs of walls meet far from both.
                 let stretches = [a.towards(corner), b.towards(corner)];
+                // The corner of two patches that stand for others moves with their lines: as
+                // far as their spreads together across the sine of the angle between them, so
+                // that it is confirmed if the corner of any two of the patches they stand for
+                // would have been.
+                let slack = (a.spread + b.spread) / a.normal.perp(&b.normal).abs();
                 if stretches.iter().all(Option::is_none)
-                    || !self.echoes.iter().any(|e| e.heard(corner))
+                    || !self.echoes.iter().any(|e| e.item.heard(corner, slack))
                 {
                     continue;
                 }
-                out.extend(stretches.into_iter().flatten());
+                for stretch in stretches.into_iter().flatten() {
+                    push_new(out, stretch, readings);
+                }
             }
         }
         // A whole region's reflector on a wall's line beyond its patch: where the wall ends (a
         // door's jamb, a partition's edge, a corner heard whole), on patches new or old.
-        let new_echoes = self.echoes.len() - self.recent_echoes;
-        self.recent_echoes = 0;
-        for (i, a) in self.patches.iter().enumerate() {
-            let echoes = if i >= recent {
-                &self.echoes[..]
-            } else {
-                &self.echoes[new_echoes..]
-            };
-            out.extend(
-                echoes
-                    .iter()
-                    .filter(|e| e.whole && a.passes_through(e.reflector(), e.tolerance))
-                    .filter_map(|e| a.towards(e.reflector())),
-            );
+        for a in &self.patches {
+            for e in self.echoes.iter().filter(|e| a.fresh > 0 || e.fresh > 0) {
+                let echo = &e.item;
+                if echo.whole
+                    && let reflector = echo.reflector()
+                    && a.item.passes_through(reflector, echo.tolerance)
+                    && let Some(stretch) = a.item.towards(reflector)
+                {
+                    push_new(out, stretch, a.fresh_pairs(e));
+                }
+            }
+        }
+        for kept in &mut self.patches {
+            kept.fresh = 0;
+        }
+        for kept in &mut self.echoes {
+            kept.fresh = 0;
         }
     }
 
@@ -299,6 +433,7 @@ impl Lines {
         let through: Vec<&Patch> = self
             .patches
             .iter()
+            .map(|k| &k.item)
             .filter(|p| p.reaches(point, tolerance))
             .collect();
         through.iter().enumerate().any(|(i, a)| {
@@ -312,8 +447,6 @@ impl Lines {
     pub fn clear(&mut self) {
         self.patches.clear();
         self.echoes.clear();
-        self.recent = 0;
-        self.recent_echoes = 0;
     }
 }
 
@@ -494,5 +627,92 @@ mod tests {
         });
         lines.join_ends(&mut out);
         assert!(out.is_empty(), "{out:?}");
+    }
+
+    #[test]
+    fn a_room_heard_a_thousand_times_from_one_place_keeps_its_first_hearings_and_its_corner() {
+        // The walls x = 2 m and y = 1.5 m heard square from the origin sweep after sweep, their
+        // ranges within ±1 cm of noise, and the corner between them heard at 2.5 m.
+        let corner = Vector2::new(2.0, 1.5);
+        let noise = |sweep: u32, k: u32| ((sweep * 7 + k * 3) % 21) as f32 * 0.001 - 0.01;
+        let mut lines = Lines::default();
+        let mut out = Vec::new();
+        for sweep in 0..1000 {
+            lines.add(
+                Patch::new(Vector2::zeros(), 0.0, 2.0 + noise(sweep, 0), 10.0 * DEG),
+                &mut out,
+            );
+            lines.add(
+                Patch::new(
+                    Vector2::zeros(),
+                    90.0 * DEG,
+                    1.5 + noise(sweep, 1),
+                    10.0 * DEG,
+                ),
+                &mut out,
+            );
+            lines.hear(Echo {
+                sensor: Vector2::zeros(),
+                axis: 36.9 * DEG,
+                half_width: 6.0 * DEG,
+                range: 2.5 + noise(sweep, 2),
+                tolerance: 0.05,
+                whole: false,
+            });
+            lines.join_ends(&mut out);
+            // Both walls drawn on to the corner, every sweep, each once: as many readings as
+            // pairs of hearings of the two walls with this sweep's in them.
+            assert_eq!(out.len(), 2, "sweep {sweep}: {out:?}");
+            for stretch in &out {
+                assert!((stretch.b - corner).norm() < 0.05, "{stretch:?}");
+                assert_eq!(stretch.readings, 2 * sweep + 1, "{stretch:?}");
+            }
+        }
+        // One patch per wall (the noise lies within the tolerance of one line), one region.
+        assert_eq!(lines.patches.len(), 2);
+        assert_eq!(lines.echoes.len(), 1);
+        assert!(
+            lines
+                .patches
+                .iter()
+                .all(|k| k.heard == 1000 && k.fresh == 0)
+        );
+        // Heard from elsewhere, the same wall is a patch of its own, joined to the one kept.
+        lines.add(heard_from(1.0), &mut out);
+        assert_eq!(lines.patches.len(), 3);
+        assert_eq!(out.len(), 1, "{out:?}");
+    }
+
+    #[test]
+    fn a_patch_kept_for_many_confirms_the_corner_any_of_them_would_have() {
+        // Two walls whose corner lies just beyond the echo's tolerance as first heard, and
+        // within it as heard next, 2 cm nearer: the second hearing is kept as the first, which
+        // stands for both.
+        let walls = |range: f32| {
+            [
+                Patch::new(Vector2::zeros(), 45.0 * DEG, range, 10.0 * DEG),
+                Patch::new(Vector2::zeros(), -45.0 * DEG, range, 10.0 * DEG),
+            ]
+        };
+        let echo = Echo {
+            sensor: Vector2::zeros(),
+            axis: 0.0,
+            half_width: 10.0 * DEG,
+            range: 1.2,
+            tolerance: 0.05,
+            whole: false,
+        };
+        // The corner of walls at 0.9 m lies at 1.273 m: 0.073 from the echo's range.
+        let mut lines = Lines::default();
+        let mut out = Vec::new();
+        lines.hear(echo);
+        walls(0.9).iter().for_each(|&w| lines.add(w, &mut out));
+        lines.join_ends(&mut out);
+        assert!(out.is_empty(), "{out:?}");
+        // At 0.88 m, 1.245 m: within. Kept apart, those would have been joined.
+        walls(0.88).iter().for_each(|&w| lines.add(w, &mut out));
+        assert_eq!(lines.patches.len(), 2);
+        lines.join_ends(&mut out);
+        assert_eq!(out.len(), 2, "{out:?}");
     }
 }

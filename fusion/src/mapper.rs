@@ -728,7 +728,7 @@ impl Mapper {
                 let piece = Stretch {
                     a: at(k),
                     b: at(k + 1),
-                    facing: stretch.facing,
+                    ..*stretch
                 };
                 self.place_piece(model, &piece, kernel)
             })
@@ -751,8 +751,8 @@ impl Mapper {
             echo: Some(distance),
         };
         // The profile reaches past the stretch's ends, so that they get more than a trace.
-        // A stretch was not heard: it counts as one reading.
-        let evidence = model.region_echo(stretch.facing, distance, 1.5 * cut, 1);
+        // A stretch was not heard: it counts as a reading for each pair of hearings that drew it.
+        let evidence = model.region_echo(stretch.facing, distance, 1.5 * cut, stretch.readings);
         self.apply(&beam, &evidence, kernel)
     }
 

@@ -1,0 +1,80 @@
+//! The readings `sonar-bench throughput` offers (its `synthetic_reading`: a head standing at the
+//! origin, sweeps of 50 from −147° to 147° in 6° steps, forth and back, walls 1.5–3.5 m away, every
+//! reading at its own range, so that every reading is a region of its own), fused in this process
+//! as `sonar-fusion` fuses them (a sweep's last region closed when the next sweep starts), without
+//! snapshots or features: for instruction counts of a long run's fusing at a given point of it
+//! (`valgrind --tool=callgrind`, the inclusive count of `bench_readings::measured`).
+//!
+//!   bench_readings READINGS SKIP   # fuses SKIP readings, then READINGS more in `measured`
+
+use anyhow::{Context, Result};
+use sonar_common::ipc::{LAYOUT_VERSION, Reading};
+use sonar_fusion::{FusionConfig, Preset, engine::Engine};
+
+/// Reading `seq`, as `sonar-bench throughput` sends it (bench/src/throughput.rs).
+fn synthetic_reading(seq: u64) -> Reading {
+    let sweep = seq / 50;
+    let index = (seq % 50) as f32;
+    let (angle_deg, direction) = if sweep.is_multiple_of(2) {
+        (-147.0 + 6.0 * index, 1)
+    } else {
+        (147.0 - 6.0 * index, -1)
+    };
+    let distance_m = 1.5 + ((angle_deg + 150.0) % 20.0) / 10.0;
+    Reading {
+        seq,
+        layout_version: LAYOUT_VERSION,
+        sweep_id: sweep as u32,
+        angle_deg,
+        beam_half_angle_deg: 30.0,
+        tof_us: distance_m * 2.0 / 343.0 * 1e6,
+        distance_m,
+        speed_of_sound_mps: 343.0,
+        min_range_m: 0.03,
+        max_range_m: 4.0,
+        direction,
+        mode: 1,
+        ping_count: 4,
+        pings_used: 4,
+        ..Reading::default()
+    }
+}
+
+/// A reading fused, the finished sweep's last region closed first if it starts a new one.
+#[inline(never)]
+fn fuse(engine: &mut Engine, r: &Reading) -> bool {
+    if engine.starts_new_sweep(r) {
+        engine.close_region();
+    }
+    engine.fuse(r)
+}
+
+fn main() -> Result<()> {
+    let number = |i: usize, default: u64| {
+        std::env::args()
+            .nth(i)
+            .map_or(Ok(default), |a| a.parse::<u64>())
+            .context("READINGS and SKIP are numbers of readings")
+    };
+    let (n, skip) = (number(1, 500)?, number(2, 0)?);
+    let mut engine =
+        Engine::new(FusionConfig::preset(Preset::Recommended), 20_000).context("engine")?;
+    for seq in 0..skip {
+        fuse(&mut engine, &synthetic_reading(seq));
+    }
+    println!(
+        "fused {} readings after {skip}",
+        measured(&mut engine, skip, n)
+    );
+    Ok(())
+}
+
+/// Fuses readings `skip`..`skip + n`; returns how many were fused.
+#[inline(never)]
+fn measured(engine: &mut Engine, skip: u64, n: u64) -> u32 {
+    let mut fused = 0;
+    for seq in skip..skip + n {
+        fused += u32::from(fuse(engine, &synthetic_reading(seq)));
+    }
+    fused
+}
