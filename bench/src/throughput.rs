@@ -14,39 +14,10 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use sonar_common::ipc::{self as sonar_ipc, IpcError, LAYOUT_VERSION, Reading, unix_time_ns};
+use sonar_bench::synthetic_reading;
+use sonar_common::ipc::{self as sonar_ipc, IpcError, unix_time_ns};
 
 use crate::sandbox::{ProcUsage, Sandbox, clock_ticks_per_second, load_average, wait_until};
-
-/// A reading the driver could have published: reading `seq` of the synthetic room.
-pub fn synthetic_reading(seq: u64) -> Reading {
-    let sweep = seq / 50;
-    let index = (seq % 50) as f32;
-    let (angle_deg, direction) = if sweep.is_multiple_of(2) {
-        (-147.0 + 6.0 * index, 1)
-    } else {
-        (147.0 - 6.0 * index, -1)
-    };
-    let distance_m = 1.5 + ((angle_deg + 150.0) % 20.0) / 10.0;
-    Reading {
-        seq,
-        host_stamp_ns: unix_time_ns(),
-        layout_version: LAYOUT_VERSION,
-        sweep_id: sweep as u32,
-        angle_deg,
-        beam_half_angle_deg: 30.0,
-        tof_us: distance_m * 2.0 / 343.0 * 1e6,
-        distance_m,
-        speed_of_sound_mps: 343.0,
-        min_range_m: 0.03,
-        max_range_m: 4.0,
-        direction,
-        mode: 1,
-        ping_count: 4,
-        pings_used: 4,
-        ..Reading::default()
-    }
-}
 
 /// One offered load and what the fusion made of it.
 #[derive(Debug, Clone, Copy)]
@@ -101,7 +72,7 @@ fn offer(
     // cold start, measured apart) before the load is offered; not counted in the rates.
     for seq in 0..WARMUP {
         publisher
-            .send_copy(synthetic_reading(seq))
+            .send_copy(synthetic_reading(seq, unix_time_ns()))
             .map_err(|e| IpcError::new("send reading", e))?;
         notifier.notify().map_err(|e| IpcError::new("notify", e))?;
         std::thread::sleep(Duration::from_millis(1));
@@ -114,7 +85,7 @@ fn offer(
         let due = (WARMUP + (start.elapsed().as_secs_f64() * offered_per_s) as u64).min(total);
         while sent < due {
             publisher
-                .send_copy(synthetic_reading(sent))
+                .send_copy(synthetic_reading(sent, unix_time_ns()))
                 .map_err(|e| IpcError::new("send reading", e))?;
             sent += 1;
         }
@@ -231,22 +202,5 @@ mod tests {
         assert_eq!(field(line, "received"), 125);
         assert_eq!(field(line, "snapshots"), 14);
         assert_eq!(field(line, "missing"), 0);
-    }
-
-    #[test]
-    fn synthetic_sweeps_go_forth_and_back_within_range() {
-        let first = synthetic_reading(0);
-        let last = synthetic_reading(49);
-        let back = synthetic_reading(50);
-        assert_eq!(
-            (first.angle_deg, last.angle_deg, back.angle_deg),
-            (-147.0, 147.0, 147.0)
-        );
-        assert_eq!((first.sweep_id, back.sweep_id), (0, 1));
-        assert_eq!((first.direction, back.direction), (1, -1));
-        for seq in 0..100 {
-            let r = synthetic_reading(seq);
-            assert!((1.5..=3.5).contains(&r.distance_m), "{r:?}");
-        }
     }
 }

@@ -1,4 +1,4 @@
-//! The readings `sonar-bench throughput` offers (its `synthetic_reading`: a head standing at the
+//! The readings `sonar-bench throughput` offers (`sonar_bench::synthetic_reading`: a head standing at the
 //! origin, sweeps of 50 from −147° to 147° in 6° steps, forth and back, walls 1.5–3.5 m away, every
 //! reading at its own range, so that every reading is a region of its own), fused in this process
 //! as `sonar-fusion` fuses them (a sweep's last region closed when the next sweep starts), without
@@ -8,37 +8,9 @@
 //!   bench_readings READINGS SKIP   # fuses SKIP readings, then READINGS more in `measured`
 
 use anyhow::{Context, Result};
-use sonar_common::ipc::{LAYOUT_VERSION, Reading};
+use sonar_bench::synthetic_reading;
+use sonar_common::ipc::Reading;
 use sonar_fusion::{FusionConfig, Preset, engine::Engine};
-
-/// Reading `seq`, as `sonar-bench throughput` sends it (bench/src/throughput.rs).
-fn synthetic_reading(seq: u64) -> Reading {
-    let sweep = seq / 50;
-    let index = (seq % 50) as f32;
-    let (angle_deg, direction) = if sweep.is_multiple_of(2) {
-        (-147.0 + 6.0 * index, 1)
-    } else {
-        (147.0 - 6.0 * index, -1)
-    };
-    let distance_m = 1.5 + ((angle_deg + 150.0) % 20.0) / 10.0;
-    Reading {
-        seq,
-        layout_version: LAYOUT_VERSION,
-        sweep_id: sweep as u32,
-        angle_deg,
-        beam_half_angle_deg: 30.0,
-        tof_us: distance_m * 2.0 / 343.0 * 1e6,
-        distance_m,
-        speed_of_sound_mps: 343.0,
-        min_range_m: 0.03,
-        max_range_m: 4.0,
-        direction,
-        mode: 1,
-        ping_count: 4,
-        pings_used: 4,
-        ..Reading::default()
-    }
-}
 
 /// A reading fused, the finished sweep's last region closed first if it starts a new one.
 #[inline(never)]
@@ -60,7 +32,7 @@ fn main() -> Result<()> {
     let mut engine =
         Engine::new(FusionConfig::preset(Preset::Recommended), 20_000).context("engine")?;
     for seq in 0..skip {
-        fuse(&mut engine, &synthetic_reading(seq));
+        fuse(&mut engine, &synthetic_reading(seq, 0));
     }
     println!(
         "fused {} readings after {skip}",
@@ -74,7 +46,7 @@ fn main() -> Result<()> {
 fn measured(engine: &mut Engine, skip: u64, n: u64) -> u32 {
     let mut fused = 0;
     for seq in skip..skip + n {
-        fused += u32::from(fuse(engine, &synthetic_reading(seq)));
+        fused += u32::from(fuse(engine, &synthetic_reading(seq, 0)));
     }
     fused
 }
