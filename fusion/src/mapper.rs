@@ -22,7 +22,8 @@ use crate::state::{MapperState, StateError};
 /// One-ended and cut regions kept for the sweep's end at most: more than a 360° sweep at 1.5° holds.
 const DEFERRED_REGIONS: usize = 256;
 /// With `region_weak_echo_withdrawn`: the weak echoes kept to be taken back, the latest this many
-/// (a 300° sweep at 1.5° has 200 readings; this holds the weak echoes of many sweeps).
+/// (a 300° sweep at 1.5° has 200 readings; this holds the weak echoes of many sweeps), those
+/// looking at the same cells kept together ([`WeakEchoes`]).
 const WEAK_ECHOES_KEPT: usize = 4096;
 /// With `region_weak_echo_withdrawn`: a weak echo is taken back for a cell in front of it only
 /// when that cell is more than a few weak echoes (0.3 each) would make it: a wall placed by a
@@ -97,12 +98,8 @@ struct Regions {
     one_ended: Vec<(Region, Vec<Beam>)>,
     /// With `region_corners`: the sweep's regions cut short on both sides, placed at its end.
     cut: Vec<Region>,
-    /// With `region_weak_echo_withdrawn`: the weak echoes placed and not yet taken back, oldest
-    /// first.
-    weak: VecDeque<Beam>,
-    /// With `region_weak_echo_withdrawn`: the weak echoes at the back of [`Self::weak`] not yet
-    /// looked at for withdrawal.
-    weak_unchecked: usize,
+    /// With `region_weak_echo_withdrawn`: the weak echoes placed and not yet taken back.
+    weak: WeakEchoes,
     /// Whether a region, a corner or a stretch placed occupied evidence since the weak echoes
     /// were last looked at: only such walls can withdraw one ([`WITHDRAW_ABOVE`]).
     walls_placed: bool,
@@ -111,6 +108,82 @@ struct Regions {
     /// With `region_small_cutters_free`: the readings of a region cut short on both sides, the
     /// first cutter small, waiting for the region after it (the second cutter) to close.
     between: Option<Between>,
+}
+
+/// With `region_weak_echo_withdrawn`: the weak echoes placed and not yet taken back, those that
+/// look at the same cells for a wall in front of them ([`Mapper::slanted_wall_in_front`]) kept
+/// together, so that each such set is looked at once. A head standing still places the same weak
+/// echoes sweep after sweep: kept apart, every sweep's end that placed a wall looked at all of
+/// them again, up to 4096 (issue 29).
+#[derive(Debug, Default)]
+struct WeakEchoes {
+    /// Oldest first, at most [`WEAK_ECHOES_KEPT`].
+    kept: VecDeque<LookedAtTogether>,
+    /// Whether some weak echo was kept since they were last looked at for withdrawal.
+    unchecked: bool,
+}
+
+/// Weak echoes from one sensor position along one axis, as far in front of their echoes: the
+/// same cells in front of them, so the same answer to whether a wall lies there.
+#[derive(Debug)]
+struct LookedAtTogether {
+    /// How many cells in front of their echoes are looked at ([`Mapper::cells_in_front`]).
+    steps: usize,
+    /// Each beam once, oldest first, at most [`SAME_WEAK_ECHOES_KEPT`].
+    placed: VecDeque<Placed>,
+}
+
+/// A weak echo's beam, and how many readings placed it: all of them, and those not yet looked at
+/// for withdrawal.
+#[derive(Debug)]
+struct Placed {
+    beam: Beam,
+    heard: u32,
+    unchecked: u32,
+}
+
+/// Distinct beams kept in one [`LookedAtTogether`]: a head standing still hears one range, or a
+/// few within its noise, again and again.
+const SAME_WEAK_ECHOES_KEPT: usize = 64;
+
+impl WeakEchoes {
+    /// Keeps the weak echo of `beam`, looking at `steps` cells in front of its echo: with those
+    /// from its sensor position along its axis looking at as many, counting one more hearing of
+    /// the same beam; else as the newest, the oldest forgotten first.
+    fn keep(&mut self, beam: Beam, steps: usize) {
+        self.unchecked = true;
+        let same_cells = self.kept.iter().rposition(|kept| {
+            let first = &kept.placed[0].beam;
+            kept.steps == steps && first.position == beam.position && first.axis == beam.axis
+        });
+        let index = match same_cells {
+            Some(index) => index,
+            None => {
+                if self.kept.len() >= WEAK_ECHOES_KEPT {
+                    self.kept.pop_front();
+                }
+                self.kept.push_back(LookedAtTogether {
+                    steps,
+                    placed: VecDeque::new(),
+                });
+                self.kept.len() - 1
+            }
+        };
+        let together = &mut self.kept[index];
+        if let Some(same) = together.placed.iter_mut().find(|p| p.beam == beam) {
+            same.heard = same.heard.saturating_add(1);
+            same.unchecked = same.unchecked.saturating_add(1);
+            return;
+        }
+        if together.placed.len() >= SAME_WEAK_ECHOES_KEPT {
+            together.placed.pop_front();
+        }
+        together.placed.push_back(Placed {
+            beam,
+            heard: 1,
+            unchecked: 1,
+        });
+    }
 }
 
 /// Which stretches of wall [`Lines`] wrote: those between two patches of one wall, or those
@@ -186,8 +259,7 @@ impl Mapper {
                     sightlines: Sightlines::default(),
                     one_ended: Vec::new(),
                     cut: Vec::new(),
-                    weak: VecDeque::new(),
-                    weak_unchecked: 0,
+                    weak: WeakEchoes::default(),
                     walls_placed: false,
                     previous: None,
                     between: None,
@@ -354,12 +426,7 @@ impl Mapper {
                         let echo = model.weak_echo(beam, model.region_weak_echo_log_odds);
                         cells += self.apply(beam, &echo, kernel);
                         if model.region_weak_echo_withdrawn {
-                            if regions.weak.len() >= WEAK_ECHOES_KEPT {
-                                regions.weak.pop_front();
-                            }
-                            regions.weak.push_back(*beam);
-                            regions.weak_unchecked =
-                                (regions.weak_unchecked + 1).min(regions.weak.len());
+                            regions.weak.keep(*beam, self.steps_in_front(&model, beam));
                         }
                     }
                 }
@@ -495,26 +562,31 @@ impl Mapper {
         // A cell above WITHDRAW_ABOVE is more than weak echoes make: unless a wall was placed
         // since the last look, only the weak echoes added since can find one in front of them
         // (a head whose sweeps are never told apart ends a sweep every reading or two).
-        let first_unchecked = if regions.walls_placed {
-            0
-        } else {
-            regions.weak.len() - regions.weak_unchecked
-        };
-        regions.walls_placed = false;
-        regions.weak_unchecked = 0;
+        let all = std::mem::take(&mut regions.walls_placed);
+        let unchecked = std::mem::take(&mut regions.weak.unchecked);
+        if !all && !unchecked {
+            return 0;
+        }
         let mut cells = 0;
-        let mut index = 0;
-        regions.weak.retain(|beam| {
-            index += 1;
-            if index <= first_unchecked {
-                return true;
+        regions.weak.kept.retain_mut(|together| {
+            let looked_at = |p: &Placed| if all { p.heard } else { p.unchecked };
+            let withdrawn = together.placed.iter().any(|p| looked_at(p) > 0)
+                && self.slanted_wall_in_front(&model, &together.placed[0].beam);
+            for placed in &mut together.placed {
+                if withdrawn {
+                    // Log-odds add: one weak echo as strong as its hearings stands for them.
+                    let hearings = looked_at(placed);
+                    if hearings > 0 {
+                        let log_odds = model.region_weak_echo_log_odds * hearings as f32;
+                        let echo = model.weak_echo(&placed.beam, -log_odds);
+                        cells += self.apply(&placed.beam, &echo, kernel);
+                        placed.heard -= hearings;
+                    }
+                }
+                placed.unchecked = 0;
             }
-            let withdrawn = self.slanted_wall_in_front(&model, beam);
-            if withdrawn {
-                let echo = model.weak_echo(beam, -model.region_weak_echo_log_odds);
-                cells += self.apply(beam, &echo, kernel);
-            }
-            !withdrawn
+            together.placed.retain(|p| p.heard > 0);
+            !together.placed.is_empty()
         });
         cells
     }
@@ -619,6 +691,16 @@ impl Mapper {
         cells
     }
 
+    /// How many cells [`Self::cells_in_front`] looks at: a cell's width apart on `beam`'s axis up
+    /// to two bands short of its echo.
+    fn steps_in_front(&self, model: &SmoothModel, beam: &Beam) -> usize {
+        let step = self.grid.geometry().resolution();
+        beam.echo.map_or(0, |range| {
+            let until = range - 2.0 * model.band(range);
+            (until / step).floor().max(0.0) as usize
+        })
+    }
+
     /// The cells on `beam`'s axis in front of its echo's band, nearest first, one per grid step
     /// (none without an echo).
     fn cells_in_front<'a>(
@@ -629,11 +711,7 @@ impl Mapper {
         let geometry = self.grid.geometry();
         let step = geometry.resolution();
         let direction = Vector2::new(beam.axis.cos(), beam.axis.sin());
-        let steps = beam.echo.map_or(0, |range| {
-            let until = range - 2.0 * model.band(range);
-            (until / step).floor().max(0.0) as usize
-        });
-        (1..=steps).filter_map(move |k| {
+        (1..=self.steps_in_front(model, beam)).filter_map(move |k| {
             let p = beam.position + direction * (k as f32 * step);
             geometry.cell_at(p.into())
         })
@@ -788,8 +866,7 @@ impl Mapper {
             regions.sightlines.clear();
             regions.one_ended.clear();
             regions.cut.clear();
-            regions.weak.clear();
-            regions.weak_unchecked = 0;
+            regions.weak = WeakEchoes::default();
             regions.walls_placed = false;
             regions.previous = None;
             regions.between = None;
@@ -1599,40 +1676,52 @@ mod tests {
         assert_eq!(heard(0.02), [true, false]);
     }
 
+    /// From the origin, an echo at 1 m heard from one limit of the scan to the other: no region,
+    /// a weak echo on each of its 11 axes, among them (1, 0) on the axis along +x.
+    fn hear_far_echo_across_the_scan(m: &mut Mapper) {
+        for k in -5..=5 {
+            m.update(&reading(6.0 * k as f32, Some(1.0))).unwrap();
+        }
+        m.close_region();
+    }
+
+    /// A board lying along the +x axis, x in [0.3, 0.7] on y = 0, heard whole from (0.5, -0.5)
+    /// looking along +y: the axis meets it edge-on (90° from the bearing it was heard from), so
+    /// it could not have answered [`hear_far_echo_across_the_scan`]'s reading along +x; that
+    /// echo came from beside the axis.
+    fn hear_board_across_the_x_axis(m: &mut Mapper) {
+        let below = Isometry2::new(Vector2::new(0.5, -0.5), std::f32::consts::FRAC_PI_2);
+        for (a, r) in [
+            (-24.0, None),
+            (-18.0, Some(0.5)),
+            (-12.0, Some(0.5)),
+            (-6.0, Some(0.5)),
+            (0.0, Some(0.5)),
+            (6.0, Some(0.5)),
+            (12.0, Some(0.5)),
+            (18.0, Some(0.5)),
+            (24.0, None),
+        ] {
+            m.update(&Observation {
+                pose: below,
+                ..reading(a, r)
+            })
+            .unwrap();
+        }
+        m.close_region();
+    }
+
+    /// The probability of the cell holding (x, y).
+    fn probability_at(m: &Mapper, x: f32, y: f32) -> Option<f32> {
+        let g = *m.grid().geometry();
+        let (cx, cy) = g.cell_at(nalgebra::Point2::new(x, y)).unwrap();
+        m.grid().probability(cx, cy)
+    }
+
     #[test]
     fn a_weak_echo_is_taken_back_once_a_wall_its_axis_meets_at_a_slant_is_drawn_in_front() {
-        // From the origin, an echo at 1 m heard from one limit of the scan to the other: no
-        // region, a weak echo on each axis, among them (1, 0) on the axis along +x.
-        let far = |m: &mut Mapper| {
-            for k in -5..=5 {
-                m.update(&reading(6.0 * k as f32, Some(1.0))).unwrap();
-            }
-            m.close_region();
-        };
-        // A board lying along that axis, x in [0.3, 0.7] on y = 0, heard whole from (0.5, -0.5)
-        // looking along +y: the axis meets it edge-on (90° from the bearing it was heard from),
-        // so it could not have answered; the echo came from beside the axis.
-        let board = |m: &mut Mapper| {
-            let below = Isometry2::new(Vector2::new(0.5, -0.5), std::f32::consts::FRAC_PI_2);
-            for (a, r) in [
-                (-24.0, None),
-                (-18.0, Some(0.5)),
-                (-12.0, Some(0.5)),
-                (-6.0, Some(0.5)),
-                (0.0, Some(0.5)),
-                (6.0, Some(0.5)),
-                (12.0, Some(0.5)),
-                (18.0, Some(0.5)),
-                (24.0, None),
-            ] {
-                m.update(&Observation {
-                    pose: below,
-                    ..reading(a, r)
-                })
-                .unwrap();
-            }
-            m.close_region();
-        };
+        let far = hear_far_echo_across_the_scan;
+        let board = hear_board_across_the_x_axis;
         let mapper = |withdrawn: bool, board_first: bool| {
             let mut m = region_mapper(crate::model::SmoothModel {
                 region_weak_echo_log_odds: 0.3,
@@ -1648,11 +1737,7 @@ mod tests {
             }
             m
         };
-        let at = |m: &Mapper, x: f32, y: f32| {
-            let g = *m.grid().geometry();
-            let (cx, cy) = g.cell_at(nalgebra::Point2::new(x, y)).unwrap();
-            m.grid().probability(cx, cy)
-        };
+        let at = probability_at;
         let kept = mapper(false, false);
         assert!(at(&kept, 0.5, 0.0).is_some_and(|p| p > 0.75));
         assert!(at(&kept, 1.0, 0.0).is_some_and(|p| p > 0.55));
@@ -1676,6 +1761,39 @@ mod tests {
             );
             assert!(beside.is_some_and(|p| p > 0.5), "{board_first}: {beside:?}");
         }
+    }
+
+    #[test]
+    fn weak_echoes_heard_a_thousand_times_from_one_place_are_kept_once_and_still_taken_back() {
+        let mut m = region_mapper(crate::model::SmoothModel {
+            region_weak_echo_log_odds: 0.3,
+            region_weak_echo_withdrawn: true,
+            ..Default::default()
+        });
+        for _ in 0..1000 {
+            hear_far_echo_across_the_scan(&mut m);
+        }
+        // How many sets of weak echoes are kept, and the hearings of the one along +x.
+        let kept = |m: &Mapper| {
+            let weak = &m.regions.as_ref().unwrap().weak.kept;
+            let along_x = weak
+                .iter()
+                .find(|k| k.placed[0].beam.axis.abs() < 1e-3)
+                .map(|k| (k.placed.len(), k.placed[0].heard));
+            (weak.len(), along_x)
+        };
+        // One kept per axis, counting its 1000 hearings, not 1000 copies of each (4096 kept).
+        assert_eq!(kept(&m), (11, Some((1, 1000))));
+        assert!(probability_at(&m, 1.0, 0.0).is_some_and(|p| p > 0.9));
+        hear_board_across_the_x_axis(&mut m);
+        // The one along +x is taken back with all its hearings: the cell behind the board falls
+        // below the prior (the log-odds clamp held the 1000 hearings at 0.97), …
+        assert_eq!(kept(&m), (10, None));
+        let behind = probability_at(&m, 1.0, 0.0);
+        assert!(behind.is_some_and(|p| p < 0.5), "{behind:?}");
+        // … an axis the board does not cross keeps its weak echo.
+        let beside = probability_at(&m, 1.0 * (30.0 * DEG).cos(), 1.0 * (30.0 * DEG).sin());
+        assert!(beside.is_some_and(|p| p > 0.9), "{beside:?}");
     }
 
     #[test]
