@@ -98,7 +98,7 @@ pub fn write_png(picture: &Canvas, path: &Path) -> Result<()> {
 }
 
 /// Draws cells of the window through `colour`, `scale` pixels per cell, highest row on top.
-fn cells_panel(
+pub fn cells_panel(
     window: Window,
     scale: usize,
     mut colour: impl FnMut(usize, usize) -> [u8; 3],
@@ -133,7 +133,18 @@ fn pixel_of(
 }
 
 fn mark_sensor(c: &mut Canvas, geometry: &GridGeometry, window: Window, scale: usize) {
-    if let Some((x, y)) = pixel_of(geometry, window, scale, Vec2::default()) {
+    mark_sensor_at(c, geometry, window, scale, Vec2::default());
+}
+
+/// Marks a sensor standing at `at` (world frame) with a green cross.
+pub fn mark_sensor_at(
+    c: &mut Canvas,
+    geometry: &GridGeometry,
+    window: Window,
+    scale: usize,
+    at: Vec2,
+) {
+    if let Some((x, y)) = pixel_of(geometry, window, scale, at) {
         let arm = 1 + scale;
         for d in 0..=2 * arm {
             c.set((x + d).saturating_sub(arm), y, SENSOR_RGB);

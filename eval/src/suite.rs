@@ -66,6 +66,7 @@ use sonar_sim::{Pose, Scene, SensorProfile, Vec2, Wall};
 use tracing::info;
 
 use crate::features::{MATCH_M, PLANE_MATCH_DEG, Truth, feature_physics, score};
+use crate::image::{self, Canvas, Window};
 use crate::metrics::{MapView, quantile};
 use crate::pipeline::{Head, Scan, capture_with, probability_view};
 use crate::scenegen::{self, Generated, VIEWPOINTS};
@@ -343,6 +344,14 @@ pub struct SuiteArgs {
     /// Score only the features (no grid: --suite-fusion and --suite-viewpoints are ignored).
     #[arg(long)]
     pub suite_features_only: bool,
+    /// Also write one picture per run into this directory (created if missing): the map of each
+    /// --suite-fusion, side by side, with every viewpoint fused, coloured by its score. Occupied
+    /// cells: green within 5 cm of a true surface, red farther off and in line of sight of a
+    /// viewpoint, orange farther off and out of sight of every viewpoint. Other cells: the true
+    /// surface black where drawn, blue where visible and missed, grey where no viewpoint sees
+    /// it; free space white, cells never observed light grey; viewpoints as green crosses.
+    #[arg(long, value_name = "DIR")]
+    pub suite_pictures: Option<PathBuf>,
 }
 
 /// How the suite is run.
@@ -358,6 +367,8 @@ pub struct SuiteSettings {
     pub split: Split,
     pub sweeps: u32,
     pub jobs: usize,
+    /// Where to write a picture of each run's maps ([`score_picture`]), if anywhere.
+    pub pictures: Option<PathBuf>,
 }
 
 impl SuiteSettings {
@@ -378,6 +389,10 @@ impl SuiteSettings {
         if args.suite_seeds.0.is_empty() || sensors.is_empty() || viewpoints.is_empty() {
             bail!("the suite needs at least one seed, profile, noise level and viewpoint count");
         }
+        if let Some(dir) = &args.suite_pictures {
+            std::fs::create_dir_all(dir)
+                .with_context(|| format!("creating the pictures' directory {}", dir.display()))?;
+        }
         Ok(Self {
             scenes: args.suite_scenes,
             seeds: args.suite_seeds.0.clone(),
@@ -391,6 +406,7 @@ impl SuiteSettings {
             split: args.suite_split,
             sweeps: args.suite_sweeps,
             jobs: usize::try_from(args.suite_jobs).unwrap_or(1),
+            pictures: args.suite_pictures.clone(),
         })
     }
 }
@@ -461,8 +477,15 @@ fn surface_normal(scene: &Scene, sample: Vec2, owner: Owner) -> Vec2 {
     }
 }
 
-/// Whether `sample` (of `owner`) is in line of sight from `from` within `max_range_m`.
-fn in_sight(scene: &Scene, from: Vec2, sample: Vec2, owner: Owner, max_range_m: f64) -> bool {
+/// Whether `sample` (of `owner`, if a surface's) is in line of sight from `from` within
+/// `max_range_m`.
+fn in_sight(
+    scene: &Scene,
+    from: Vec2,
+    sample: Vec2,
+    owner: Option<Owner>,
+    max_range_m: f64,
+) -> bool {
     let d = sample - from;
     let dist = d.norm();
     if dist > max_range_m || dist < 1e-9 {
@@ -470,14 +493,13 @@ fn in_sight(scene: &Scene, from: Vec2, sample: Vec2, owner: Owner, max_range_m: 
     }
     // Stop a millimetre short: the sample's own wall, or one meeting it there, does not hide it.
     let end = from + d * ((dist - 0.001) / dist);
-    let walls_clear = scene
-        .walls()
-        .iter()
-        .enumerate()
-        .all(|(i, w)| owner == Owner::Wall(i) || !segments_intersect(from, end, w.a, w.b));
+    let walls_clear =
+        scene.walls().iter().enumerate().all(|(i, w)| {
+            owner == Some(Owner::Wall(i)) || !segments_intersect(from, end, w.a, w.b)
+        });
     walls_clear
         && scene.posts().iter().enumerate().all(|(i, p)| {
-            if owner == Owner::Post(i) {
+            if owner == Some(Owner::Post(i)) {
                 (sample - p.centre).dot(from - sample) > 0.0
             } else {
                 distance_to_segment(from, end, p.centre) >= p.radius
@@ -525,7 +547,7 @@ fn score_samples(
     for (&(p, owner), drawn_sample) in samples.iter().zip(&mut drawn_samples) {
         let seen: Vec<bool> = views
             .iter()
-            .map(|v| in_sight(scene, v.at, p, owner, reach.max_range_m))
+            .map(|v| in_sight(scene, v.at, p, Some(owner), reach.max_range_m))
             .collect();
         if !seen.iter().any(|&s| s) {
             continue;
@@ -568,6 +590,70 @@ fn score_samples(
         visible,
     };
     (score, drawn_samples)
+}
+
+/// Occupied within [`TOLERANCE_M`] of a true surface.
+const ON_SURFACE_RGB: [u8; 3] = [0, 160, 0];
+/// Occupied, farther off, in line of sight of a viewpoint: drawn in space a viewpoint looked
+/// through.
+const OFF_IN_SIGHT_RGB: [u8; 3] = [220, 0, 0];
+/// Occupied, farther off, out of sight of every viewpoint: behind a surface.
+const OFF_HIDDEN_RGB: [u8; 3] = [255, 150, 0];
+const SURFACE_DRAWN_RGB: [u8; 3] = [0, 0, 0];
+const SURFACE_MISSED_RGB: [u8; 3] = [0, 90, 255];
+const SURFACE_UNSEEN_RGB: [u8; 3] = [170, 170, 170];
+const FREE_CELL_RGB: [u8; 3] = [255, 255, 255];
+const UNOBSERVED_CELL_RGB: [u8; 3] = [230, 230, 230];
+/// Pixels per cell of [`score_picture`].
+const PICTURE_SCALE: usize = 2;
+
+/// `map` coloured by its score against `scene` as seen from `views` (the colours are listed at
+/// `--suite-pictures`), the viewpoints marked.
+pub fn score_picture(map: &MapView, scene: &Scene, views: &[Pose], reach: Reach) -> Canvas {
+    let g = *map.geometry();
+    // Per cell, the surface samples' worst news: missed over drawn over unseen.
+    let mut surface = std::collections::HashMap::new();
+    for (p, owner) in surface_samples(scene) {
+        let Some(cell) = map.cell_at(p) else { continue };
+        let seen = views
+            .iter()
+            .any(|v| in_sight(scene, v.at, p, Some(owner), reach.max_range_m));
+        let rank = match (seen, seen && drawn_near(map, p)) {
+            (false, _) => 0,
+            (true, true) => 1,
+            (true, false) => 2,
+        };
+        let kept = surface.entry(cell).or_insert(rank);
+        *kept = (*kept).max(rank);
+    }
+    let window = Window::around(scene, &g, 0.3);
+    let mut c = image::cells_panel(window, PICTURE_SCALE, |x, y| {
+        if map.is_occupied(x, y) {
+            let centre = map.centre(x, y);
+            if scene.distance_to_surface(centre) <= TOLERANCE_M {
+                ON_SURFACE_RGB
+            } else if views
+                .iter()
+                .any(|v| in_sight(scene, v.at, centre, None, f64::INFINITY))
+            {
+                OFF_IN_SIGHT_RGB
+            } else {
+                OFF_HIDDEN_RGB
+            }
+        } else {
+            match (surface.get(&(x, y)), map.value(x, y)) {
+                (Some(2), _) => SURFACE_MISSED_RGB,
+                (Some(1), _) => SURFACE_DRAWN_RGB,
+                (Some(_), _) => SURFACE_UNSEEN_RGB,
+                (None, Some(_)) => FREE_CELL_RGB,
+                (None, None) => UNOBSERVED_CELL_RGB,
+            }
+        }
+    });
+    for v in views {
+        image::mark_sensor_at(&mut c, &g, window, PICTURE_SCALE, v.at);
+    }
+    c
 }
 
 /// How many of the samples drawn `before` are not drawn `after` (the same scene's samples).
@@ -613,7 +699,13 @@ impl Expected {
             .enumerate()
             .map(|(i, &echo_point)| {
                 echo_point.norm() <= POST_EXPECTED_M
-                    && in_sight(view_scene, origin, echo_point, Owner::Post(i), max_range_m)
+                    && in_sight(
+                        view_scene,
+                        origin,
+                        echo_point,
+                        Some(Owner::Post(i)),
+                        max_range_m,
+                    )
             })
             .collect();
         let mut walls = vec![false; view_scene.walls().len()];
@@ -943,6 +1035,19 @@ pub fn run_scene(
                 scores.push(score);
             }
         }
+    }
+    if let Some(dir) = &settings.pictures {
+        let panels: Vec<Canvas> = mappers
+            .iter()
+            .map(|m| score_picture(&probability_view(m), &scene, views, reach))
+            .collect();
+        let name = format!("{:?}-{index:03}-seed{seed}-{sensor}.png", settings.split)
+            .to_lowercase()
+            .replace(
+                |c: char| !c.is_ascii_alphanumeric() && c != '.' && c != '-',
+                "-",
+            );
+        image::write_png(&image::compose(&[panels], None), &dir.join(name))?;
     }
     Ok(Run {
         scene: index,
@@ -1295,6 +1400,35 @@ mod tests {
     }
 
     #[test]
+    fn the_score_picture_colours_each_cell_by_its_score() {
+        // One wall at x = 1, |y| <= 1, seen from the origin; the map draws its upper half only,
+        // a false cell in front of it (in sight) and one behind it (hidden).
+        let scene = Scene::new("one wall", vec![wall([1.0, -1.0], [1.0, 1.0])], vec![]).unwrap();
+        let views = [Pose::new(0.0, 0.0, 0.0)];
+        let near = |p: Vec2, x: f64, y: f64| (p.x - x).abs() < 0.011 && (p.y - y).abs() < 0.011;
+        let map = map_of(|p| {
+            ((p.x - 1.0).abs() < 0.011 && p.y > 0.0 && p.y < 1.0)
+                || near(p, 0.5, 0.0)
+                || near(p, 1.2, 0.0)
+        });
+        let picture = score_picture(&map, &scene, &views, paper_reach());
+        let window = Window::around(&scene, map.geometry(), 0.3);
+        let colour_at = |x: f64, y: f64| {
+            let (cx, cy) = map.cell_at(Vec2::new(x, y)).unwrap();
+            picture.pixel(
+                (cx - window.x0) * PICTURE_SCALE,
+                (window.y1 - 1 - cy) * PICTURE_SCALE,
+            )
+        };
+        assert_eq!(colour_at(1.005, 0.5), ON_SURFACE_RGB);
+        assert_eq!(colour_at(0.505, 0.005), OFF_IN_SIGHT_RGB);
+        assert_eq!(colour_at(1.205, 0.005), OFF_HIDDEN_RGB);
+        // The lower half is visible and missed; the free cells of the map are white.
+        assert_eq!(colour_at(1.005, -0.5), SURFACE_MISSED_RGB);
+        assert_eq!(colour_at(0.305, -0.5), FREE_CELL_RGB);
+    }
+
+    #[test]
     fn grid_scoring_of_a_hand_checked_scene() {
         // Two walls, 2 m long, at x = 1 (facing the sensor) and x = 2 behind it (hidden where
         // the first covers it: |y| <= 1 is hidden, 1 < |y| <= 1.5 not).
@@ -1533,6 +1667,7 @@ mod structural_tests {
             split: Split::Report,
             sweeps: 2,
             jobs: 1,
+            pictures: None,
         }
     }
 
