@@ -191,9 +191,20 @@ pub(crate) struct Stretch {
 }
 
 impl Stretch {
+    /// The stretch cut into as few pieces as make each at most `longest` long, in order.
+    pub(crate) fn pieces(self, longest: f32) -> impl Iterator<Item = Stretch> {
+        let count = ((self.b - self.a).norm() / longest).ceil().max(1.0) as usize;
+        let at = move |i: usize| self.a + (self.b - self.a) * (i as f32 / count as f32);
+        (0..count).map(move |k| Stretch {
+            a: at(k),
+            b: at(k + 1),
+            ..self
+        })
+    }
+
     /// Whether this stretch is `other` again: faced the same way, each end within
     /// [`SAME_LINE_M`] of `other`'s (two patches of one wall joined to the same corner).
-    fn repeats(&self, other: &Stretch) -> bool {
+    pub(crate) fn repeats(&self, other: &Stretch) -> bool {
         wrap_angle(self.facing - other.facing).abs() <= SAME_FACING
             && (self.a - other.a).norm() <= SAME_LINE_M
             && (self.b - other.b).norm() <= SAME_LINE_M

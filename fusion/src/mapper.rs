@@ -93,6 +93,9 @@ struct Regions {
     /// With a stretch's foot check on: the latest readings with an echo, which may refute a
     /// stretch of wall ([`crate::sightlines`]).
     sightlines: Sightlines,
+    /// With a stretch's foot check on: the stretches of that kind drawn, newest last, at most
+    /// [`DRAWN_KEPT`], each taken back if a later reading refutes it.
+    drawn: VecDeque<Drawn>,
     /// With `region_one_end`: the sweep's one-ended regions, placed at its end, each with its
     /// readings (with `region_one_end_free`, else none).
     one_ended: Vec<(Region, Vec<Beam>)>,
@@ -186,6 +189,17 @@ impl WeakEchoes {
     }
 }
 
+/// A stretch of wall drawn, as many readings as drew it all together, and the first reading kept
+/// in [`Sightlines`] it has not yet been checked against.
+#[derive(Debug)]
+struct Drawn {
+    stretch: Stretch,
+    unchecked_from: u64,
+}
+
+/// Stretches kept to be taken back if refuted: about eight viewpoints' worth of walls.
+const DRAWN_KEPT: usize = 1024;
+
 /// Which stretches of wall [`Lines`] wrote: those between two patches of one wall, or those
 /// from a patch on to where its wall ends ([`Lines::join_ends`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -202,6 +216,24 @@ struct Between {
 }
 
 impl Regions {
+    /// Keeps `stretch`, just drawn and checked against every reading kept, to be taken back if
+    /// a later reading refutes it: with the one kept it repeats, counting its readings too, else
+    /// as the newest, the oldest forgotten first.
+    fn keep_drawn(&mut self, stretch: Stretch) {
+        let now = self.sightlines.pushed();
+        if let Some(same) = self.drawn.iter_mut().find(|d| stretch.repeats(&d.stretch)) {
+            same.stretch.readings = same.stretch.readings.saturating_add(stretch.readings);
+            return;
+        }
+        if self.drawn.len() >= DRAWN_KEPT {
+            self.drawn.pop_front();
+        }
+        self.drawn.push_back(Drawn {
+            stretch,
+            unchecked_from: now,
+        });
+    }
+
     /// Whether `region` is a small reflector's ([`Region::is_small`]), measured against the
     /// lobe over which the sensor hears a wall met squarely: the widest learnt
     /// ([`LobeWidth::widest`]), else the sensor's beam half-angle `beam` less half a reading step.
@@ -257,6 +289,7 @@ impl Mapper {
                     stretches: Vec::new(),
                     lobe: LobeWidth::default(),
                     sightlines: Sightlines::default(),
+                    drawn: VecDeque::new(),
                     one_ended: Vec::new(),
                     cut: Vec::new(),
                     weak: WeakEchoes::default(),
@@ -545,8 +578,9 @@ impl Mapper {
         {
             regions.lines.join_ends(&mut regions.stretches);
             regions.walls_placed |= !regions.stretches.is_empty();
-            cells += self.place_stretches(&model, &regions, Stretches::ToEnds, Kernel::Cone);
+            cells += self.place_stretches(&model, &mut regions, Stretches::ToEnds, Kernel::Cone);
         }
+        cells += self.withdraw_refuted_stretches(&mut regions, Kernel::Cone);
         cells += self.withdraw_weak_echoes(&mut regions, Kernel::Cone);
         self.regions = Some(regions);
         cells
@@ -658,18 +692,19 @@ impl Mapper {
             max_range: self.config.sensor.limits().max_range,
             echo: Some(region.range),
         };
-        let evidence = model.region_echo(axis, region.range, half_angle, region.readings);
+        let evidence = model.region_echo(axis, region.range, half_angle, region.readings as f32);
         self.apply(&beam, &evidence, kernel)
     }
 
     /// Fuses the stretches of wall [`Lines`] last wrote (of the kind `kind`), those readings did
     /// not see through: with the kind's foot check on, those no reading refutes
-    /// ([`Self::refuted`]), else those along which the grid holds no three free cells in a row
-    /// ([`Self::seen_through`]).
+    /// ([`Self::refuted`]), kept to be taken back if a later one does
+    /// ([`Self::withdraw_refuted_stretches`]); else those along which the grid holds no three
+    /// free cells in a row ([`Self::seen_through`]).
     fn place_stretches(
         &mut self,
         model: &SmoothModel,
-        regions: &Regions,
+        regions: &mut Regions,
         kind: Stretches,
         kernel: Kernel,
     ) -> usize {
@@ -677,17 +712,52 @@ impl Mapper {
             Stretches::BetweenFeet => model.region_stretch_foot_check,
             Stretches::ToEnds => model.region_corner_walls_foot_check,
         };
+        let stretches = std::mem::take(&mut regions.stretches);
         let mut cells = 0;
-        for stretch in &regions.stretches {
+        for stretch in &stretches {
             let refused = if foot_check {
-                self.refuted(model, regions, stretch)
+                self.refuted(model, regions, stretch, 0)
             } else {
                 self.seen_through(stretch)
             };
             if !refused {
-                cells += self.place_stretch(model, stretch, kernel);
+                cells += self.place_stretch(model, stretch, 1.0, kernel);
+                if foot_check {
+                    // Piece by piece: a wall drawn on past where it ends is wrong only there.
+                    for piece in stretch.pieces(STRETCH_PIECE_M) {
+                        regions.keep_drawn(piece);
+                    }
+                }
             }
         }
+        regions.stretches = stretches;
+        cells
+    }
+
+    /// Takes back the stretches drawn that a reading since refutes ([`Self::refuted`]): the
+    /// readings of viewpoints that came later, which would have heard the wall at their foot on
+    /// it. A stretch is a guess no reading heard; without this it stayed drawn whatever the
+    /// robot heard after it (on the suite, walls drawn across rooms from the first viewpoints).
+    fn withdraw_refuted_stretches(&mut self, regions: &mut Regions, kernel: Kernel) -> usize {
+        let ModelConfig::Smooth(model) = self.config.model else {
+            return 0;
+        };
+        let now = regions.sightlines.pushed();
+        let mut drawn = std::mem::take(&mut regions.drawn);
+        let mut cells = 0;
+        drawn.retain_mut(|d| {
+            if d.unchecked_from == now {
+                return true;
+            }
+            if self.refuted(&model, regions, &d.stretch, d.unchecked_from) {
+                cells += self.place_stretch(&model, &d.stretch, -1.0, kernel);
+                regions.walls_placed = true;
+                return false;
+            }
+            d.unchecked_from = now;
+            true
+        });
+        regions.drawn = drawn;
         cells
     }
 
@@ -737,11 +807,18 @@ impl Mapper {
         })
     }
 
-    /// Whether a reading refutes `stretch` ([`Sightlines::refute`]): one whose lobe (learnt at
-    /// that range) held the foot of its sensor's perpendicular on the stretch, with no occupied
-    /// cell between them, heard its first echo farther than the foot by more than the depth
-    /// tolerance and band: a flat wall there would have answered it at the foot.
-    fn refuted(&self, model: &SmoothModel, regions: &Regions, stretch: &Stretch) -> bool {
+    /// Whether a reading refutes `stretch` ([`Sightlines::refute`], those kept from number
+    /// `since` on): one whose lobe (learnt at that range) held the foot of its sensor's
+    /// perpendicular on the stretch, with no occupied cell between them, heard its first echo
+    /// farther than the foot by more than the depth tolerance and band: a flat wall there would
+    /// have answered it at the foot.
+    fn refuted(
+        &self,
+        model: &SmoothModel,
+        regions: &Regions,
+        stretch: &Stretch,
+        since: u64,
+    ) -> bool {
         let grid = &self.grid;
         let step = grid.geometry().resolution();
         let unhidden = |from: Vector2<f32>, foot: Vector2<f32>| {
@@ -760,6 +837,7 @@ impl Mapper {
             })
         };
         regions.sightlines.refute(
+            since,
             stretch.a,
             stretch.b,
             |distance| regions.lobe.at(distance),
@@ -792,29 +870,31 @@ impl Mapper {
     }
 
     /// Fuses a stretch of wall as the patch a sensor square to its middle would have heard, far
-    /// enough back that the whole stretch lies within the widest patch's angle.
-    fn place_stretch(&mut self, model: &SmoothModel, stretch: &Stretch, kernel: Kernel) -> usize {
+    /// enough back that the whole stretch lies within the widest patch's angle; `sign` −1 takes
+    /// it back.
+    fn place_stretch(
+        &mut self,
+        model: &SmoothModel,
+        stretch: &Stretch,
+        sign: f32,
+        kernel: Kernel,
+    ) -> usize {
         // In pieces short enough that each lies within the widest patch's angle from no farther
         // than 3 m: a longer one would be cut at that angle.
-        let pieces = ((stretch.b - stretch.a).norm() / STRETCH_PIECE_M)
-            .ceil()
-            .max(1.0) as usize;
-        (0..pieces)
-            .map(|k| {
-                let at =
-                    |i: usize| stretch.a + (stretch.b - stretch.a) * (i as f32 / pieces as f32);
-                let piece = Stretch {
-                    a: at(k),
-                    b: at(k + 1),
-                    ..*stretch
-                };
-                self.place_piece(model, &piece, kernel)
-            })
+        stretch
+            .pieces(STRETCH_PIECE_M)
+            .map(|piece| self.place_piece(model, &piece, sign, kernel))
             .sum()
     }
 
     /// Fuses a piece of a stretch ([`Self::place_stretch`]).
-    fn place_piece(&mut self, model: &SmoothModel, stretch: &Stretch, kernel: Kernel) -> usize {
+    fn place_piece(
+        &mut self,
+        model: &SmoothModel,
+        stretch: &Stretch,
+        sign: f32,
+        kernel: Kernel,
+    ) -> usize {
         let half_length = 0.5 * (stretch.b - stretch.a).norm();
         let widest = model.region_half_angle_deg.to_radians();
         let distance = (half_length / widest.tan()).clamp(0.5, 3.0);
@@ -830,7 +910,12 @@ impl Mapper {
         };
         // The profile reaches past the stretch's ends, so that they get more than a trace.
         // A stretch was not heard: it counts as a reading for each pair of hearings that drew it.
-        let evidence = model.region_echo(stretch.facing, distance, 1.5 * cut, stretch.readings);
+        let evidence = model.region_echo(
+            stretch.facing,
+            distance,
+            1.5 * cut,
+            sign * stretch.readings as f32,
+        );
         self.apply(&beam, &evidence, kernel)
     }
 
@@ -864,6 +949,7 @@ impl Mapper {
             regions.waiting.clear();
             regions.lines.clear();
             regions.sightlines.clear();
+            regions.drawn.clear();
             regions.one_ended.clear();
             regions.cut.clear();
             regions.weak = WeakEchoes::default();
@@ -1508,7 +1594,15 @@ mod tests {
     /// there, and heard something at 3 m beyond it; with `doorway`, readings from (0.5, 1.1)
     /// square to it there heard 3.5 m through it. Returns the occupancy at (2, 0.45), on the
     /// stretch between the two patches and out of the other readings' cones (`None`: unknown).
-    fn stretch_after_slanted_readings(foot_check: bool, doorway: bool) -> Option<f32> {
+    /// Where a doorway's readings come: none, between the two feet's sweeps, after both.
+    #[derive(Clone, Copy, PartialEq)]
+    enum Doorway {
+        None,
+        Between,
+        Last,
+    }
+
+    fn stretch_after_slanted_readings(foot_check: bool, doorway: Doorway) -> Option<f32> {
         let mut m = region_mapper(crate::model::SmoothModel {
             region_stretch_foot_check: foot_check,
             ..Default::default()
@@ -1520,12 +1614,18 @@ mod tests {
             }),
             sweep((0.0, 0.0), (-30.0, 30.0), 1, wall),
         ];
-        if doorway {
-            sweeps.push(sweep((0.5, 1.1), (-30.0, 30.0), 1, |a| {
+        let doorway_sweep = || {
+            sweep((0.5, 1.1), (-30.0, 30.0), 1, |a| {
                 (a.abs() <= 9.0).then_some(3.5)
-            }));
+            })
+        };
+        if doorway == Doorway::Between {
+            sweeps.push(doorway_sweep());
         }
         sweeps.push(sweep((0.0, 1.6), (-30.0, 30.0), 1, wall));
+        if doorway == Doorway::Last {
+            sweeps.push(doorway_sweep());
+        }
         for one in &sweeps {
             for obs in one {
                 m.update(obs).unwrap();
@@ -1541,11 +1641,22 @@ mod tests {
      {
         // The grid's free cells near y = 1 m refuse the whole stretch: the slanted readings
         // cleared them.
-        assert!(stretch_after_slanted_readings(false, false).is_none_or(|p| p < 0.5));
+        assert!(stretch_after_slanted_readings(false, Doorway::None).is_none_or(|p| p < 0.5));
         // No reading's lobe held a foot on the stretch: drawn.
-        assert!(stretch_after_slanted_readings(true, false).is_some_and(|p| p > 0.5));
+        assert!(stretch_after_slanted_readings(true, Doorway::None).is_some_and(|p| p > 0.5));
         // The readings from (0.5, 1.1) had its foot on their axes and heard 1.5 m beyond it.
-        assert!(stretch_after_slanted_readings(true, true).is_none_or(|p| p < 0.5));
+        assert!(stretch_after_slanted_readings(true, Doorway::Between).is_none_or(|p| p < 0.5));
+    }
+
+    #[test]
+    fn a_wall_drawn_between_two_feet_is_taken_back_when_a_later_reading_refutes_it() {
+        // The doorway's readings come after the stretch was drawn: it is taken back at the
+        // sweep's end, its cell back to what it was without it.
+        let before = stretch_after_slanted_readings(false, Doorway::None);
+        let after = stretch_after_slanted_readings(true, Doorway::Last);
+        assert!(after.is_none_or(|p| p <= 0.5), "{after:?}");
+        let (before, after) = (before.unwrap_or(0.5), after.unwrap_or(0.5));
+        assert!((before - after).abs() < 0.05, "{before} against {after}");
     }
 
     #[test]

@@ -881,22 +881,22 @@ impl SmoothModel {
     /// (its middle bearing) at `range` (its mean range), heard by `readings` readings: a straight
     /// patch square to the axis at the range, `band` thick, fading as 1 − (α/θ)² to the patch's
     /// half-angle θ = `half_angle`, as strong as the readings' occupied evidence together (each
-    /// of them heard the reflector, as each reading of the per-reading placement puts its own);
-    /// each of its cells remembers the axis as the bearing it was heard from (the reflector's
-    /// normal, if it is a wall).
+    /// of them heard the reflector, as each reading of the per-reading placement puts its own;
+    /// a negative count takes as many back); each of its cells remembers the axis as the bearing
+    /// it was heard from (the reflector's normal, if it is a wall).
     pub(crate) fn region_echo(
         &self,
         axis: f32,
         range: f32,
         half_angle: f32,
-        readings: u32,
+        readings: f32,
     ) -> RegionEcho {
         let band = self.band(range);
         RegionEcho {
             d: range,
             band,
             inv_band: 1.0 / band,
-            l_occ: self.occupied_log_odds * readings as f32,
+            l_occ: self.occupied_log_odds * readings,
             inv_sq: 1.0 / (half_angle * half_angle),
             fade_range: self.fade_range_m,
             half_angle: half_angle * 1.001,
@@ -1185,7 +1185,7 @@ mod tests {
         }
         let model = SmoothModel::default();
         nothing_nearer(&model.weak_echo(&beam(Some(2.0)), 0.4));
-        nothing_nearer(&model.region_echo(0.0, 2.0, 10f32.to_radians(), 3));
+        nothing_nearer(&model.region_echo(0.0, 2.0, 10f32.to_radians(), 3.0));
     }
 
     /// The worked example of `docs/fusion.md`: one echo at 2 m straight ahead (R = 4 m, β = 30°),

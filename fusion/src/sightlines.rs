@@ -38,6 +38,8 @@ pub(crate) struct Sightline {
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Sightlines {
     kept: VecDeque<Sightline>,
+    /// How many readings were ever pushed: the number of the next one.
+    pushed: u64,
 }
 
 impl Sightlines {
@@ -47,18 +49,26 @@ impl Sightlines {
             self.kept.pop_front();
         }
         self.kept.push_back(reading);
+        self.pushed += 1;
+    }
+
+    /// The number the next reading pushed will have (readings are numbered from 0 as pushed):
+    /// those pushed from now on are the ones [`Self::refute`] from it looks at.
+    pub fn pushed(&self) -> u64 {
+        self.pushed
     }
 
     pub fn clear(&mut self) {
         self.kept.clear();
     }
 
-    /// Whether a reading kept refutes a wall from `a` to `b`: the foot of its sensor's
-    /// perpendicular lies on the stretch, at most `lobe(distance)` off its axis (`None`: no lobe
+    /// Whether a reading kept, pushed as number `since` ([`Self::pushed`]) or later, refutes a
+    /// wall from `a` to `b`: the foot of its sensor's perpendicular lies on the stretch, at most `lobe(distance)` off its axis (`None`: no lobe
     /// known at that distance, so no reading refutes), nearer than its echo by more than
     /// `margin(echo range)`, and `clear(sensor, foot)` says nothing hides the foot from the sensor.
     pub fn refute(
         &self,
+        since: u64,
         a: Vector2<f32>,
         b: Vector2<f32>,
         lobe: impl Fn(f32) -> Option<f32>,
@@ -70,7 +80,9 @@ impl Sightlines {
         if length2 <= f32::EPSILON {
             return false;
         }
-        self.kept.iter().any(|reading| {
+        let first_kept = self.pushed - self.kept.len() as u64;
+        let skip = usize::try_from(since.saturating_sub(first_kept)).unwrap_or(usize::MAX);
+        self.kept.iter().skip(skip).any(|reading| {
             let t = (reading.position - a).dot(&along) / length2;
             if !(0.0..=1.0).contains(&t) {
                 return false;
@@ -110,7 +122,7 @@ mod tests {
 
     fn refutes(lines: &Sightlines) -> bool {
         let (a, b) = stretch();
-        lines.refute(a, b, |_| Some(10.0 * DEG), |_| 0.05, |_, _| true)
+        lines.refute(0, a, b, |_| Some(10.0 * DEG), |_| 0.05, |_, _| true)
     }
 
     #[test]
@@ -146,9 +158,27 @@ mod tests {
         assert!(!refutes(&lines));
         // Hidden: something between the sensor and the foot.
         let (a, b) = stretch();
-        assert!(!heard(0.0, 3.0).refute(a, b, |_| Some(10.0 * DEG), |_| 0.05, |_, _| false));
+        assert!(!heard(0.0, 3.0).refute(0, a, b, |_| Some(10.0 * DEG), |_| 0.05, |_, _| false));
         // No lobe known at that distance.
-        assert!(!heard(0.0, 3.0).refute(a, b, |_| None, |_| 0.05, |_, _| true));
+        assert!(!heard(0.0, 3.0).refute(0, a, b, |_| None, |_| 0.05, |_, _| true));
+    }
+
+    #[test]
+    fn only_readings_pushed_since_the_number_given_refute() {
+        // Reading 0 refutes; reading 1, heard at the wall's distance, does not.
+        let mut lines = heard(8.0, 3.0);
+        lines.push(Sightline {
+            position: Vector2::zeros(),
+            axis: 8.0 * DEG,
+            range: 2.02,
+        });
+        assert_eq!(lines.pushed(), 2);
+        let (a, b) = stretch();
+        let refutes_since =
+            |since| lines.refute(since, a, b, |_| Some(10.0 * DEG), |_| 0.05, |_, _| true);
+        assert!(refutes_since(0));
+        assert!(!refutes_since(1));
+        assert!(!refutes_since(2));
     }
 
     #[test]
