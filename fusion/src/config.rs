@@ -183,6 +183,8 @@ impl FusionConfig {
                     region_masked_free: true,
                     region_small_cutters_free: true,
                     region_stretch_foot_check: true,
+                    region_corner_walls_foot_check: true,
+                    region_weak_echo_half_width_m: 0.02,
                     ..SmoothModel::default()
                 }),
                 RuleConfig::LogOdds(LogOddsRule::default()),
@@ -393,7 +395,7 @@ mod tests {
     }
 
     /// The region maps of `examples/` parse and validate, and differ only in the weak echoes (and
-    /// the corner walls' foot check from the recommended preset's).
+    /// the previous preset's, in the corner walls' foot check and weak echoes drawn as points).
     #[test]
     fn the_example_region_maps_parse() {
         #[derive(Deserialize)]
@@ -435,15 +437,16 @@ mod tests {
                 ..weak
             }
         );
-        let corner_foot = parse(include_str!("../../examples/region-map-corner-foot.toml"));
+        let fewer_walls = parse(include_str!("../../examples/region-map-fewer-walls.toml"));
         let ModelConfig::Smooth(preset) = FusionConfig::preset(Preset::Recommended).model else {
             panic!("the recommended preset's model is the smooth one");
         };
         assert_eq!(
-            corner_foot,
+            preset,
             crate::model::SmoothModel {
                 region_corner_walls_foot_check: true,
-                ..preset
+                region_weak_echo_half_width_m: 0.02,
+                ..fewer_walls
             }
         );
     }

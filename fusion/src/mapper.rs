@@ -751,7 +751,6 @@ impl Mapper {
             }
             if self.refuted(&model, regions, &d.stretch, d.unchecked_from) {
                 cells += self.place_stretch(&model, &d.stretch, -1.0, kernel);
-                regions.walls_placed = true;
                 return false;
             }
             d.unchecked_from = now;
