@@ -184,7 +184,6 @@ impl FusionConfig {
                     region_small_cutters_free: true,
                     region_stretch_foot_check: true,
                     region_corner_walls_foot_check: true,
-                    region_weak_echo_half_width_m: 0.02,
                     ..SmoothModel::default()
                 }),
                 RuleConfig::LogOdds(LogOddsRule::default()),
@@ -395,7 +394,7 @@ mod tests {
     }
 
     /// The region maps of `examples/` parse and validate, and differ only in the weak echoes (and
-    /// the previous preset's, in the corner walls' foot check and weak echoes drawn as points).
+    /// the previous preset's, in the corner walls' foot check).
     #[test]
     fn the_example_region_maps_parse() {
         #[derive(Deserialize)]
@@ -445,7 +444,6 @@ mod tests {
             preset,
             crate::model::SmoothModel {
                 region_corner_walls_foot_check: true,
-                region_weak_echo_half_width_m: 0.02,
                 ..fewer_walls
             }
         );
