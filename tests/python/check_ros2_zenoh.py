@@ -14,10 +14,14 @@ ROS 2 Jazzy (`Typestore.hash_rihs01`), subscribes to exactly those keys, and che
   of each topic with its type and hash, as `ros2 topic list` would find them.
 
 It runs beside the pipeline from its start (scans and transforms are volatile, as in ROS 2: a
-subscriber sees those published after it came); once the file READY exists (the test writes it
-after the final map was exported to MAP_STEM) it takes two more maps and checks the last.
+subscriber sees those published after it came). With --connected FILE it writes FILE once the
+bridge's node token reaches it, so that the test sends readings only when the bridge's session has
+found this peer (the bridge retries its connection, and on a loaded machine it may come after a
+short scan is over). Once the file READY exists (the test writes it after the final map was
+exported to MAP_STEM) it takes two more maps and checks the last.
 
-Usage: check_ros2_zenoh.py LISTEN_ENDPOINT MAP_STEM READY [--domain 0] [--timeout 60]
+Usage: check_ros2_zenoh.py LISTEN_ENDPOINT MAP_STEM READY [--connected FILE] [--domain 0]
+       [--timeout 60]
 Prints one summary line; exits 1 with the first mismatch.
 """
 
@@ -60,11 +64,21 @@ def parse_attachment(raw):
     return sequence, stamp, bytes(raw[17:])
 
 
+def tokens_of(session, domain):
+    """The liveliness tokens of the ROS 2 graph, as rmw_zenoh's graph cache reads them."""
+    return [
+        str(reply.ok.key_expr)
+        for reply in session.liveliness().get(f"@ros2_lv/{domain}/**", timeout=10.0)
+        if reply.ok is not None
+    ]
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("listen")
     parser.add_argument("map_stem")
     parser.add_argument("ready", help="a file that exists once MAP_STEM holds the final map")
+    parser.add_argument("--connected", help="a file to write once the bridge's node token arrives")
     parser.add_argument("--domain", type=int, default=0)
     parser.add_argument("--timeout", type=float, default=60.0)
     args = parser.parse_args()
@@ -88,9 +102,15 @@ def main():
 
         subscribers.append(session.declare_subscriber(key(args.domain, topic, ros_type, typestore), store))
 
+    deadline = time.monotonic() + args.timeout
+    if args.connected:
+        while not any(t.endswith("/NN/%/%/sonar_bridge") for t in tokens_of(session, args.domain)):
+            check(time.monotonic() < deadline, f"no node token of the bridge within {args.timeout} s")
+            time.sleep(0.1)
+        Path(args.connected).write_text("")
+
     # The final map: two more after the export (the one kept back by the rate limit when the
     # pipeline stopped comes within a second, then it repeats each second).
-    deadline = time.monotonic() + args.timeout
     maps_before = None
     while time.monotonic() < deadline:
         with lock:
@@ -142,11 +162,7 @@ def main():
     check(frames == [("map", "odom"), ("odom", "sonar")], f"transforms {frames}")
 
     # The graph, as rmw_zenoh's graph cache reads it.
-    tokens = [
-        str(reply.ok.key_expr)
-        for reply in session.liveliness().get(f"@ros2_lv/{args.domain}/**", timeout=10.0)
-        if reply.ok is not None
-    ]
+    tokens = tokens_of(session, args.domain)
     check(any(t.endswith("/NN/%/%/sonar_bridge") for t in tokens), f"no node token in {tokens}")
     for topic, ros_type in TOPICS.items():
         middle = f"/MP/%/%/sonar_bridge/{topic.replace('/', '%')}/{dds_type(ros_type)}/{typestore.hash_rihs01(ros_type)}/"

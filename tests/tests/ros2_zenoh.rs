@@ -27,10 +27,11 @@ fn a_zenoh_peer_following_rmw_zenoh_s_design_receives_and_decodes_map_scan_and_t
     let readings = readings_subscriber(&node);
     let stem = sandbox.root.join("final");
     let ready = sandbox.root.join("final.ready");
+    let connected = sandbox.root.join("peer.connected");
     let mut peer = Command::new(python());
     peer.arg(workspace().join("tests/python/check_ros2_zenoh.py"))
         .args(["tcp/127.0.0.1:7447", path_str(&stem), path_str(&ready)])
-        .args(["--timeout", "120"]);
+        .args(["--connected", path_str(&connected), "--timeout", "120"]);
     // A Proc: stopped if the test fails before it ends by itself.
     let mut peer = Proc {
         name: "check_ros2_zenoh.py".into(),
@@ -46,6 +47,11 @@ fn a_zenoh_peer_following_rmw_zenoh_s_design_receives_and_decodes_map_scan_and_t
     let bridge = sandbox.spawn("sonar-bridge", &["--mode", "ros2"]);
     wait_until(&node, "fusion's and the bridge's subscriptions", || {
         readings_subscribers(&node) >= 3
+    });
+    // Scans and transforms are volatile: the readings start once the bridge's session has found
+    // the peer, which starts Python and retries its connection in its own time.
+    wait_until(&node, "the peer to hear the bridge's node", || {
+        connected.exists()
     });
     // Three sweeps and a part (50 readings a sweep).
     let (sim, _) = scan_room_until_fused(&sandbox, &node, &readings, &grid, 160);
