@@ -63,9 +63,10 @@ impl Sightlines {
     }
 
     /// Whether a reading kept, pushed as number `since` ([`Self::pushed`]) or later, refutes a
-    /// wall from `a` to `b`: the foot of its sensor's perpendicular lies on the stretch, at most `lobe(distance)` off its axis (`None`: no lobe
-    /// known at that distance, so no reading refutes), nearer than its echo by more than
-    /// `margin(echo range)`, and `clear(sensor, foot)` says nothing hides the foot from the sensor.
+    /// wall from `a` to `b`: the foot of its sensor's perpendicular lies on the stretch, at most
+    /// `lobe(distance)` off its axis (`None`: no lobe known at that distance, so no reading
+    /// refutes), nearer than its echo by more than `margin(echo range)`, and `clear(sensor,
+    /// foot)` says nothing hides the foot from the sensor.
     pub fn refute(
         &self,
         since: u64,
