@@ -760,30 +760,43 @@ impl Mapper {
         cells
     }
 
+    /// How many grid steps lie in front of something at `range`, up to two of its bands short
+    /// of it (its own cells may be drawn already).
+    fn steps_short_of(&self, model: &SmoothModel, range: f32) -> usize {
+        let step = self.grid.geometry().resolution();
+        ((range - 2.0 * model.band(range)) / step).floor().max(0.0) as usize
+    }
+
     /// How many cells [`Self::cells_in_front`] looks at: a cell's width apart on `beam`'s axis up
     /// to two bands short of its echo.
     fn steps_in_front(&self, model: &SmoothModel, beam: &Beam) -> usize {
-        let step = self.grid.geometry().resolution();
-        beam.echo.map_or(0, |range| {
-            let until = range - 2.0 * model.band(range);
-            (until / step).floor().max(0.0) as usize
-        })
+        beam.echo
+            .map_or(0, |range| self.steps_short_of(model, range))
+    }
+
+    /// The `steps` cells a grid step apart from `from` along the unit vector `direction`,
+    /// nearest first (those off the grid left out).
+    fn cells_along(
+        &self,
+        from: Vector2<f32>,
+        direction: Vector2<f32>,
+        steps: usize,
+    ) -> impl Iterator<Item = (usize, usize)> + '_ {
+        let geometry = self.grid.geometry();
+        let step = geometry.resolution();
+        (1..=steps)
+            .filter_map(move |k| geometry.cell_at((from + direction * (k as f32 * step)).into()))
     }
 
     /// The cells on `beam`'s axis in front of its echo's band, nearest first, one per grid step
     /// (none without an echo).
-    fn cells_in_front<'a>(
-        &'a self,
+    fn cells_in_front(
+        &self,
         model: &SmoothModel,
-        beam: &'a Beam,
-    ) -> impl Iterator<Item = (usize, usize)> + 'a {
-        let geometry = self.grid.geometry();
-        let step = geometry.resolution();
+        beam: &Beam,
+    ) -> impl Iterator<Item = (usize, usize)> + '_ {
         let direction = Vector2::new(beam.axis.cos(), beam.axis.sin());
-        (1..=self.steps_in_front(model, beam)).filter_map(move |k| {
-            let p = beam.position + direction * (k as f32 * step);
-            geometry.cell_at(p.into())
-        })
+        self.cells_along(beam.position, direction, self.steps_in_front(model, beam))
     }
 
     /// Whether the grid holds an occupied cell on `beam`'s axis in front of its echo's band.
@@ -818,22 +831,11 @@ impl Mapper {
         stretch: &Stretch,
         since: u64,
     ) -> bool {
-        let grid = &self.grid;
-        let step = grid.geometry().resolution();
         let unhidden = |from: Vector2<f32>, foot: Vector2<f32>| {
             let distance = (foot - from).norm();
-            // Up to two bands short of the foot: the stretch's own cells may be drawn already.
-            let steps = ((distance - 2.0 * model.band(distance)) / step)
-                .floor()
-                .max(0.0) as usize;
             let direction = (foot - from) / distance;
-            (1..=steps).all(|k| {
-                let p = from + direction * (k as f32 * step);
-                grid.geometry()
-                    .cell_at(p.into())
-                    .and_then(|(x, y)| grid.probability(x, y))
-                    .is_none_or(|p| p <= 0.5)
-            })
+            self.cells_along(from, direction, self.steps_short_of(model, distance))
+                .all(|(x, y)| self.grid.probability(x, y).is_none_or(|p| p <= 0.5))
         };
         regions.sightlines.refute(
             since,
