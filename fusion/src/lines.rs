@@ -65,6 +65,9 @@ pub(crate) struct Patch {
     along: Vector2<f32>,
     /// How far the offsets of the patches it stands for ([`Self::absorb`]) lay from its own.
     spread: f32,
+    /// Whether a patch from another viewpoint lies on its line ([`Self::on_line_with`]): its
+    /// wall's line is known from two places.
+    confirmed: bool,
 }
 
 impl Patch {
@@ -86,6 +89,7 @@ impl Patch {
             normal,
             along,
             spread: 0.0,
+            confirmed: false,
         }
     }
 
@@ -95,6 +99,7 @@ impl Patch {
         let repeats = other.repeats(self);
         if repeats {
             self.spread = self.spread.max((other.offset - self.offset).abs());
+            self.confirmed |= other.confirmed;
         }
         repeats
     }
@@ -323,17 +328,21 @@ pub(crate) struct Lines {
 impl Lines {
     /// Adds `patch`; writes into `out` the stretches between it and the nearest patch on its line
     /// on either side, from another viewpoint, at most [`LONGEST_STRETCH_M`] away.
-    pub fn add(&mut self, patch: Patch, out: &mut Vec<Stretch>) {
+    pub fn add(&mut self, mut patch: Patch, out: &mut Vec<Stretch>) {
         out.clear();
         // The nearest gap before the patch and after it, and the patch across it.
-        let mut before: Option<(f32, &Patch)> = None;
-        let mut after: Option<(f32, &Patch)> = None;
+        let mut before: Option<(f32, Patch)> = None;
+        let mut after: Option<(f32, Patch)> = None;
+        let mut confirmed = false;
         for other in self
             .patches
-            .iter()
-            .map(|k| &k.item)
+            .iter_mut()
+            .map(|k| &mut k.item)
             .filter(|o| patch.on_line_with(o))
         {
+            other.confirmed = true;
+            confirmed = true;
+            let other = *other;
             if other.to < patch.from {
                 let gap = patch.from - other.to;
                 if before.is_none_or(|(g, _)| gap < g) {
@@ -364,6 +373,7 @@ impl Lines {
                 });
             }
         }
+        patch.confirmed = confirmed;
         keep(&mut self.patches, patch, KEPT, Patch::absorb);
     }
 
@@ -384,7 +394,11 @@ impl Lines {
     ///   corner answers from any bearing in the lobe; two walls that end before meeting do not);
     /// - to a whole region's reflector that lies on a wall's line: the wall's end (a door's jamb,
     ///   a partition's edge, a corner heard whole).
-    pub fn join_ends(&mut self, out: &mut Vec<Stretch>) {
+    ///
+    /// With `confirmed_corners`, a wall is followed to a corner only from a patch
+    /// [`Patch::confirmed`] from another viewpoint, or from either of two patches heard from one
+    /// place ([`crate::model::SmoothModel::region_corner_walls_confirmed`]).
+    pub fn join_ends(&mut self, confirmed_corners: bool, out: &mut Vec<Stretch>) {
         out.clear();
         // Each pair with a fresh patch once: a fresh one with every patch before it, and with
         // those after it that are not fresh.
@@ -400,7 +414,12 @@ impl Lines {
                 };
                 // Within reach of either patch before the echoes are searched: in a large map
                 // most pairs of walls meet far from both.
-                let stretches = [a.towards(corner), b.towards(corner)];
+                let one_place = (a.sensor - b.sensor).norm() < OTHER_VIEWPOINT_M;
+                let followed = |p: &Patch| !confirmed_corners || one_place || p.confirmed;
+                let stretches = [
+                    a.towards(corner).filter(|_| followed(a)),
+                    b.towards(corner).filter(|_| followed(b)),
+                ];
                 // The corner of two patches that stand for others moves with their lines: as
                 // far as their spreads together across the sine of the angle between them, so
                 // that it is confirmed if the corner of any two of the patches they stand for
@@ -559,7 +578,7 @@ mod tests {
             let mut out = Vec::new();
             echoes.iter().for_each(|&e| lines.hear(e));
             walls.iter().for_each(|&w| lines.add(w, &mut out));
-            lines.join_ends(&mut out);
+            lines.join_ends(false, &mut out);
             out
         };
         let out = joined(&[echo(2.5)], &walls);
@@ -598,10 +617,51 @@ mod tests {
         let mut out = Vec::new();
         lines.hear(echo(2.5));
         walls.iter().for_each(|&w| lines.add(w, &mut out));
-        lines.join_ends(&mut out);
-        lines.join_ends(&mut out);
+        lines.join_ends(false, &mut out);
+        lines.join_ends(false, &mut out);
         assert!(out.is_empty());
     }
+    #[test]
+    fn with_confirmed_corners_a_wall_is_followed_from_patches_two_places_agree_on() {
+        // The room of the test above, but its wall y = 1.5 heard from (1, 0) instead: the two
+        // patches come from two places, each alone on its line. A post there, heard from each
+        // place, would give the same patches.
+        let corner = Vector2::new(2.0, 1.5);
+        let echo = Echo {
+            sensor: Vector2::zeros(),
+            axis: 36.9 * DEG,
+            half_width: 6.0 * DEG,
+            range: 2.5,
+            tolerance: 0.05,
+            whole: false,
+        };
+        let east = Patch::new(Vector2::zeros(), 0.0, 2.0, 10.0 * DEG);
+        let north = Patch::new(Vector2::new(1.0, 0.0), 90.0 * DEG, 1.5, 10.0 * DEG);
+        let joined = |confirmed: bool, walls: &[Patch]| {
+            let mut lines = Lines::default();
+            let mut out = Vec::new();
+            lines.hear(echo);
+            walls.iter().for_each(|&w| lines.add(w, &mut out));
+            lines.join_ends(confirmed, &mut out);
+            out
+        };
+        assert_eq!(joined(false, &[east, north]).len(), 2);
+        assert!(joined(true, &[east, north]).is_empty());
+        // The wall y = 1.5 heard from a third place, (-0.5, 0), too: that wall's line is known
+        // from two places and is followed to the corner; the east wall's is not.
+        let north_again = Patch::new(Vector2::new(-0.5, 0.0), 90.0 * DEG, 1.5, 10.0 * DEG);
+        let out = joined(true, &[east, north, north_again]);
+        assert!(!out.is_empty(), "{out:?}");
+        assert!(
+            out.iter()
+                .all(|s| (s.facing - 90.0 * DEG).abs() < 1e-4 && (s.b - corner).norm() < 1e-4),
+            "{out:?}"
+        );
+        // Both walls heard from one place: followed, as without the rule.
+        let north_here = Patch::new(Vector2::zeros(), 90.0 * DEG, 1.5, 10.0 * DEG);
+        assert_eq!(joined(true, &[east, north_here]).len(), 2);
+    }
+
     #[test]
     fn a_wall_is_drawn_to_the_edge_a_whole_region_heard_on_its_line() {
         // A wall along x = 2 m heard square from the origin (patch ±10°, to y = ±0.35 m); its
@@ -625,7 +685,7 @@ mod tests {
         lines.add(wall, &mut out);
         lines.hear(whole(Vector2::new(1.0, 1.5), jamb));
         lines.hear(whole(Vector2::new(1.0, 1.5), Vector2::new(1.7, 0.8)));
-        lines.join_ends(&mut out);
+        lines.join_ends(false, &mut out);
         assert_eq!(out.len(), 1, "{out:?}");
         assert!((out[0].b - jamb).norm() < 1e-4, "{out:?}");
         assert!((out[0].a - wall.ends[1]).norm() < 1e-4, "{out:?}");
@@ -636,7 +696,7 @@ mod tests {
             whole: false,
             ..whole(Vector2::new(1.0, 1.5), jamb)
         });
-        lines.join_ends(&mut out);
+        lines.join_ends(false, &mut out);
         assert!(out.is_empty(), "{out:?}");
     }
 
@@ -670,7 +730,7 @@ mod tests {
                 tolerance: 0.05,
                 whole: false,
             });
-            lines.join_ends(&mut out);
+            lines.join_ends(false, &mut out);
             // Both walls drawn on to the corner, every sweep, each once: as many readings as
             // pairs of hearings of the two walls with this sweep's in them.
             assert_eq!(out.len(), 2, "sweep {sweep}: {out:?}");
@@ -718,12 +778,12 @@ mod tests {
         let mut out = Vec::new();
         lines.hear(echo);
         walls(0.9).iter().for_each(|&w| lines.add(w, &mut out));
-        lines.join_ends(&mut out);
+        lines.join_ends(false, &mut out);
         assert!(out.is_empty(), "{out:?}");
         // At 0.88 m, 1.245 m: within. Kept apart, those would have been joined.
         walls(0.88).iter().for_each(|&w| lines.add(w, &mut out));
         assert_eq!(lines.patches.len(), 2);
-        lines.join_ends(&mut out);
+        lines.join_ends(false, &mut out);
         assert_eq!(out.len(), 2, "{out:?}");
     }
 }

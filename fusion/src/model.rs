@@ -648,6 +648,19 @@ pub struct SmoothModel {
     /// With `region_corner_walls`: the same check for the stretches drawn from a patch on to
     /// where its wall ends, instead of the grid's free cells.
     pub region_corner_walls_foot_check: bool,
+    /// With `region_corner_walls`: a wall is drawn on to a corner from its patch only if another
+    /// viewpoint's patch lies on its line (the wall's line is then known from two places), or if
+    /// both walls that meet there were heard from one place (a room's walls around its
+    /// viewpoint). A patch heard from one place may be a post's or an edge's, square to the
+    /// bearing it was heard from: followed on to wherever its line crosses another wall's near
+    /// some echo, it drew walls across rooms, a star of them around each post heard from several
+    /// places.
+    pub region_corner_walls_confirmed: bool,
+    /// With `region_weak_echo_withdrawn`: a weak echo is also taken back once the grid holds a
+    /// wall (p > 0.9) at its range within its beam but off its own occupied profile: that wall
+    /// explains the echo, which came from off the axis (a wall heard at its foot by a reading
+    /// aimed beside it), and drawn on the axis it lay in front of the wall.
+    pub region_weak_echo_explained: bool,
 }
 
 /// Where a reading's echo puts its occupied evidence ([`SmoothModel::echo_placement`]).
@@ -694,6 +707,8 @@ impl Default for SmoothModel {
             region_small_cutters_free: false,
             region_stretch_foot_check: false,
             region_corner_walls_foot_check: false,
+            region_corner_walls_confirmed: false,
+            region_weak_echo_explained: false,
         }
     }
 }
