@@ -184,8 +184,6 @@ impl FusionConfig {
                     region_small_cutters_free: true,
                     region_stretch_foot_check: true,
                     region_corner_walls_foot_check: true,
-                    region_corner_walls_confirmed: true,
-                    region_weak_echo_explained: true,
                     ..SmoothModel::default()
                 }),
                 RuleConfig::LogOdds(LogOddsRule::default()),
@@ -396,8 +394,8 @@ mod tests {
     }
 
     /// The region maps of `examples/` parse and validate, and differ only in the weak echoes (and
-    /// the previous presets', in the corner walls' foot check, then in which patches are followed
-    /// to corners and which weak echoes are taken back).
+    /// the previous preset's, in the corner walls' foot check; the confirmed corners', in which
+    /// patches are followed to corners).
     #[test]
     fn the_example_region_maps_parse() {
         #[derive(Deserialize)]
@@ -440,23 +438,24 @@ mod tests {
             }
         );
         let fewer_walls = parse(include_str!("../../examples/region-map-fewer-walls.toml"));
-        let more_walls = parse(include_str!("../../examples/region-map-more-walls.toml"));
-        assert_eq!(
-            more_walls,
-            crate::model::SmoothModel {
-                region_corner_walls_foot_check: true,
-                ..fewer_walls
-            }
-        );
         let ModelConfig::Smooth(preset) = FusionConfig::preset(Preset::Recommended).model else {
             panic!("the recommended preset's model is the smooth one");
         };
         assert_eq!(
             preset,
             crate::model::SmoothModel {
+                region_corner_walls_foot_check: true,
+                ..fewer_walls
+            }
+        );
+        let confirmed = parse(include_str!(
+            "../../examples/region-map-confirmed-corners.toml"
+        ));
+        assert_eq!(
+            confirmed,
+            crate::model::SmoothModel {
                 region_corner_walls_confirmed: true,
-                region_weak_echo_explained: true,
-                ..more_walls
+                ..preset
             }
         );
     }

@@ -606,11 +606,8 @@ impl Mapper {
         let mut cells = 0;
         regions.weak.kept.retain_mut(|together| {
             let looked_at = |p: &Placed| if all { p.heard } else { p.unchecked };
-            let beam = &together.placed[0].beam;
             let withdrawn = together.placed.iter().any(|p| looked_at(p) > 0)
-                && (self.slanted_wall_in_front(&model, beam)
-                    || (model.region_weak_echo_explained
-                        && self.wall_off_axis_at_echo(&model, beam)));
+                && self.slanted_wall_in_front(&model, &together.placed[0].beam);
             for placed in &mut together.placed {
                 if withdrawn {
                     // Log-odds add: one weak echo as strong as its hearings stands for them.
@@ -822,38 +819,6 @@ impl Mapper {
                     .heard_from(x, y)
                     .is_none_or(|h| incidence(beam.axis, h) >= min_incidence)
         })
-    }
-
-    /// Whether the grid holds a wall (p > [`WITHDRAW_ABOVE`]) at `beam`'s echo range, within its
-    /// band, inside its beam but off the weak echo's own occupied profile (so never the weak
-    /// echo's own cells): a reflector that explains the echo
-    /// ([`SmoothModel::region_weak_echo_explained`]).
-    fn wall_off_axis_at_echo(&self, model: &SmoothModel, beam: &Beam) -> bool {
-        let Some(range) = beam.echo else {
-            return false;
-        };
-        let geometry = self.grid.geometry();
-        let step = geometry.resolution();
-        let band = model.band(range);
-        // A cell's width apart across the beam at the echo's range, and along it.
-        let angle_step = step / range.max(step);
-        let own = model.occupied_half_angle_deg.to_radians();
-        let across = ((beam.half_angle - own) / angle_step).max(0.0) as usize;
-        let along = (2.0 * band / step) as usize;
-        (0..=across)
-            .flat_map(|i| {
-                [-1.0f32, 1.0].map(|side| beam.axis + side * (own + i as f32 * angle_step))
-            })
-            .any(|bearing| {
-                let direction = Vector2::new(bearing.cos(), bearing.sin());
-                let nearest = beam.position + direction * (range - band - step);
-                self.cells_along(nearest, direction, along + 1)
-                    .any(|(x, y)| {
-                        self.grid
-                            .probability(x, y)
-                            .is_some_and(|p| p > WITHDRAW_ABOVE)
-                    })
-            })
     }
 
     /// Whether a reading refutes `stretch` ([`Sightlines::refute`], those kept from number
@@ -1909,55 +1874,6 @@ mod tests {
                 1.0 * (30.0 * DEG).sin(),
             );
             assert!(beside.is_some_and(|p| p > 0.5), "{board_first}: {beside:?}");
-        }
-    }
-
-    #[test]
-    fn a_weak_echo_is_taken_back_once_a_wall_in_its_beam_at_its_range_explains_it() {
-        // A wall along x = 1 m heard whole from the origin (a region placed at its foot), and a
-        // reading aimed 12° off its normal, alone in its sweep, that heard the wall's foot at
-        // 1 m: a weak echo on its axis at (0.978, 0.208), 2 cm in front of the wall there and
-        // 21 cm beside the foot.
-        let wall = |m: &mut Mapper| {
-            for k in -4i32..=4 {
-                let a = 6.0 * k as f32;
-                m.update(&reading(a, (k.abs() < 4).then_some(1.0))).unwrap();
-            }
-            m.close_region();
-        };
-        let aside = |m: &mut Mapper| {
-            m.update(&reading(12.0, Some(1.0))).unwrap();
-            m.close_region();
-        };
-        let mapper = |explained: bool, wall_first: bool| {
-            let mut m = region_mapper(crate::model::SmoothModel {
-                region_weak_echo_log_odds: 0.3,
-                region_weak_echo_withdrawn: true,
-                region_weak_echo_explained: explained,
-                ..Default::default()
-            });
-            if wall_first {
-                wall(&mut m);
-                aside(&mut m);
-            } else {
-                aside(&mut m);
-                wall(&mut m);
-            }
-            m
-        };
-        let (x, y) = (12.0 * DEG).sin_cos();
-        for wall_first in [true, false] {
-            let kept = mapper(false, wall_first);
-            assert!(probability_at(&kept, 1.0, 0.0).is_some_and(|p| p > 0.9));
-            let on_axis = probability_at(&kept, y, x);
-            assert!(on_axis.is_some_and(|p| p > 0.5), "{on_axis:?}");
-            let taken_back = mapper(true, wall_first);
-            assert!(probability_at(&taken_back, 1.0, 0.0).is_some_and(|p| p > 0.9));
-            let on_axis = probability_at(&taken_back, y, x);
-            assert!(
-                on_axis.is_none_or(|p| p <= 0.5),
-                "{wall_first}: {on_axis:?}"
-            );
         }
     }
 

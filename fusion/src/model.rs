@@ -656,11 +656,6 @@ pub struct SmoothModel {
     /// some echo, it drew walls across rooms, a star of them around each post heard from several
     /// places.
     pub region_corner_walls_confirmed: bool,
-    /// With `region_weak_echo_withdrawn`: a weak echo is also taken back once the grid holds a
-    /// wall (p > 0.9) at its range within its beam but off its own occupied profile: that wall
-    /// explains the echo, which came from off the axis (a wall heard at its foot by a reading
-    /// aimed beside it), and drawn on the axis it lay in front of the wall.
-    pub region_weak_echo_explained: bool,
 }
 
 /// Where a reading's echo puts its occupied evidence ([`SmoothModel::echo_placement`]).
@@ -708,7 +703,6 @@ impl Default for SmoothModel {
             region_stretch_foot_check: false,
             region_corner_walls_foot_check: false,
             region_corner_walls_confirmed: false,
-            region_weak_echo_explained: false,
         }
     }
 }
