@@ -12,7 +12,8 @@
 # figure means):
 #   ipc           snapshot delivery 64 KiB–16 MiB, iceoryx2 against a Unix socket with bincode
 #   latency       reading line on the serial line → snapshot visible, at 400², 1024², 2048²
-#   throughput    lossless throughput and the fused rate at 2× and 4× that, per grid size
+#   throughput    lossless throughput and the fused rate at 2× and 4× that, per grid size, for a
+#                 standing head and a moving robot
 #   idle          CPU and wake-ups/s of every process of an idle pipeline over 60 s
 #   memory        RSS and shared memory per grid size with 1 and 6 grid subscribers
 #   instructions  callgrind instruction counts of fusing and snapshotting a fixed workload, at the
@@ -106,11 +107,14 @@ section_latency() {
   for g in "${GRIDS[@]}"; do set -- $g; "$BENCH" latency --cells "$1" --resolution "$2" $header; header=; done
 }
 section_throughput() {
-  local header=--header start
-  for g in "${GRIDS[@]}"; do
-    set -- $g
-    case $1 in 400) start=2000 ;; *) start=500 ;; esac
-    "$BENCH" throughput --cells "$1" --resolution "$2" --start-rate "$start" $header; header=
+  local header=--header start head
+  # A standing head (its sweeps repeat) and a moving robot (none does).
+  for head in "" --moving; do
+    for g in "${GRIDS[@]}"; do
+      set -- $g
+      case $1 in 400) start=2000 ;; *) start=500 ;; esac
+      "$BENCH" throughput --cells "$1" --resolution "$2" --start-rate "$start" $head $header; header=
+    done
   done
 }
 section_idle() { "$BENCH" idle --seconds 60; }

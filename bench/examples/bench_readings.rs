@@ -5,10 +5,12 @@
 //! snapshots or features: for instruction counts of a long run's fusing at a given point of it
 //! (`valgrind --tool=callgrind`, the inclusive count of `bench_readings::measured`).
 //!
-//!   bench_readings READINGS SKIP   # fuses SKIP readings, then READINGS more in `measured`
+//!   bench_readings READINGS SKIP           # fuses SKIP readings, then READINGS more in `measured`
+//!   bench_readings READINGS SKIP moving    # the same with the robot driving round a room
+//!                                          # (`sonar_bench::room_reading`, `moving_pose`)
 
 use anyhow::{Context, Result};
-use sonar_bench::synthetic_reading;
+use sonar_bench::{moving_pose, room_reading, synthetic_reading};
 use sonar_common::ipc::Reading;
 use sonar_fusion::{FusionConfig, Preset, engine::Engine};
 
@@ -21,6 +23,19 @@ fn fuse(engine: &mut Engine, r: &Reading) -> bool {
     engine.fuse(r)
 }
 
+/// Reading `seq` (stamped `seq` µs), the standing head's or, `moving`, the driving robot's with
+/// its pose given first (stamped half a microsecond later).
+fn next(engine: &mut Engine, seq: u64, moving: bool) -> Result<Reading> {
+    let stamp = seq * 1_000;
+    if !moving {
+        return Ok(synthetic_reading(seq, stamp));
+    }
+    engine
+        .set_pose(&moving_pose(seq, stamp + 500))
+        .context("the moving robot's pose")?;
+    Ok(room_reading(seq, stamp))
+}
+
 fn main() -> Result<()> {
     let number = |i: usize, default: u64| {
         std::env::args()
@@ -29,24 +44,31 @@ fn main() -> Result<()> {
             .context("READINGS and SKIP are numbers of readings")
     };
     let (n, skip) = (number(1, 500)?, number(2, 0)?);
+    let moving = match std::env::args().nth(3).as_deref() {
+        None => false,
+        Some("moving") => true,
+        Some(other) => anyhow::bail!("the third argument is `moving` or nothing, not {other:?}"),
+    };
     let mut engine =
         Engine::new(FusionConfig::preset(Preset::Recommended), 20_000).context("engine")?;
     for seq in 0..skip {
-        fuse(&mut engine, &synthetic_reading(seq, 0));
+        let reading = next(&mut engine, seq, moving)?;
+        fuse(&mut engine, &reading);
     }
     println!(
         "fused {} readings after {skip}",
-        measured(&mut engine, skip, n)
+        measured(&mut engine, skip, n, moving)?
     );
     Ok(())
 }
 
 /// Fuses readings `skip`..`skip + n`; returns how many were fused.
 #[inline(never)]
-fn measured(engine: &mut Engine, skip: u64, n: u64) -> u32 {
+fn measured(engine: &mut Engine, skip: u64, n: u64, moving: bool) -> Result<u32> {
     let mut fused = 0;
     for seq in skip..skip + n {
-        fused += u32::from(fuse(engine, &synthetic_reading(seq, 0)));
+        let reading = next(engine, seq, moving)?;
+        fused += u32::from(fuse(engine, &reading));
     }
-    fused
+    Ok(fused)
 }

@@ -81,6 +81,11 @@ enum Command {
         /// Seconds of readings offered per step.
         #[arg(long, default_value_t = 3.0)]
         seconds: f64,
+        /// Drive the robot 10 cm per sweep round a 2 m circle, its pose on robot/pose, so that no
+        /// sweep repeats the one before (a standing head's sweeps repeat: the region model keeps
+        /// them once, its best case).
+        #[arg(long)]
+        moving: bool,
         #[arg(long)]
         header: bool,
     },
@@ -135,12 +140,13 @@ fn run(cli: Cli) -> Result<()> {
             resolution,
             start_rate,
             seconds,
+            moving,
             header,
         } => {
             if header {
                 throughput::print_header();
             }
-            throughput::run(&bin_dir, cells, resolution, start_rate, seconds)
+            throughput::run(&bin_dir, cells, resolution, start_rate, seconds, moving)
         }
         Command::Idle { seconds } => resources::idle(&bin_dir, seconds),
         Command::Memory {

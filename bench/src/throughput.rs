@@ -9,13 +9,21 @@
 //! the readings fused and received and the snapshots. The offered rate climbs by 1.5× from
 //! `--start-rate` while no more than 0.1 % is lost; the last such rate is the lossless
 //! throughput, then 2× and 4× of it are offered.
+//!
+//! The head stands still by default, so every sweep repeats the one before: the best case for
+//! the region model, which keeps a repeated patch or weak echo once. With `--moving` the robot
+//! drives 10 cm per sweep round a circle in a square room ([`sonar_bench::room_reading`]), its
+//! pose published on `robot/pose` beside the readings (each burst's readings stamped just before
+//! its pose), so no sweep repeats another.
 
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use sonar_bench::synthetic_reading;
-use sonar_common::ipc::{self as sonar_ipc, IpcError, unix_time_ns};
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::prelude::ipc;
+use sonar_bench::{moving_pose, room_reading, synthetic_reading};
+use sonar_common::ipc::{self as sonar_ipc, IpcError, Pose2D, Reading, unix_time_ns};
 
 use crate::sandbox::{ProcUsage, Sandbox, clock_ticks_per_second, load_average, wait_until};
 
@@ -48,12 +56,43 @@ fn field(line: &str, key: &str) -> u64 {
         .unwrap_or(0)
 }
 
+/// Publishes the readings `from..to` (the moving robot's, with `poses`), then, with `poses`, the
+/// pose of the last one's sweep stamped a microsecond after them (the readings wait for a pose at
+/// or after their stamp).
+fn send_burst(
+    readings: &Publisher<ipc::Service, Reading, ()>,
+    poses: Option<&Publisher<ipc::Service, Pose2D, ()>>,
+    from: u64,
+    to: u64,
+) -> Result<()> {
+    let stamp = unix_time_ns();
+    for seq in from..to {
+        let reading = if poses.is_some() {
+            room_reading(seq, stamp)
+        } else {
+            synthetic_reading(seq, stamp)
+        };
+        readings
+            .send_copy(reading)
+            .map_err(|e| IpcError::new("send reading", e))?;
+    }
+    if let Some(poses) = poses
+        && to > from
+    {
+        poses
+            .send_copy(moving_pose(to - 1, stamp + 1_000))
+            .map_err(|e| IpcError::new("send pose", e))?;
+    }
+    Ok(())
+}
+
 fn offer(
     sandbox: &mut Sandbox,
     cells: u32,
     resolution: f32,
     offered_per_s: f64,
     seconds: f64,
+    moving: bool,
 ) -> Result<Step> {
     let fusion = sandbox.spawn_fusion(cells, resolution)?;
     let node = sandbox.node("bench-driver")?;
@@ -62,6 +101,14 @@ fn offer(
         .publisher_builder()
         .create()
         .map_err(|e| IpcError::new("create readings publisher", e))?;
+    let pose_publisher = moving
+        .then(|| {
+            sonar_ipc::pose_service(&node)?
+                .publisher_builder()
+                .create()
+                .map_err(|e| IpcError::new("create pose publisher", e))
+        })
+        .transpose()?;
     let notifier = sonar_ipc::wakeup_notifier(&node, sonar_ipc::READINGS_SERVICE)?;
     wait_until("the fusion to subscribe", Duration::from_secs(30), || {
         use iceoryx2::service::port_factory::PortFactory;
@@ -71,9 +118,7 @@ fn offer(
     // Warm-up: two sweeps at 1 k/s, so that the cone's spans of every direction are built (the
     // cold start, measured apart) before the load is offered; not counted in the rates.
     for seq in 0..WARMUP {
-        publisher
-            .send_copy(synthetic_reading(seq, unix_time_ns()))
-            .map_err(|e| IpcError::new("send reading", e))?;
+        send_burst(&publisher, pose_publisher.as_ref(), seq, seq + 1)?;
         notifier.notify().map_err(|e| IpcError::new("notify", e))?;
         std::thread::sleep(Duration::from_millis(1));
     }
@@ -83,12 +128,8 @@ fn offer(
     let mut sent = WARMUP;
     while sent < total {
         let due = (WARMUP + (start.elapsed().as_secs_f64() * offered_per_s) as u64).min(total);
-        while sent < due {
-            publisher
-                .send_copy(synthetic_reading(sent, unix_time_ns()))
-                .map_err(|e| IpcError::new("send reading", e))?;
-            sent += 1;
-        }
+        send_burst(&publisher, pose_publisher.as_ref(), sent, due.max(sent))?;
+        sent = due.max(sent);
         notifier.notify().map_err(|e| IpcError::new("notify", e))?;
         std::thread::sleep(Duration::from_micros(200));
     }
@@ -100,7 +141,7 @@ fn offer(
         .lines()
         .find(|l| l.contains("fusion stopped"))
         .with_context(|| format!("no `fusion stopped` line in the fusion's log:\n{log}"))?;
-    drop((publisher, notifier, service, node));
+    drop((publisher, pose_publisher, notifier, service, node));
     Ok(Step {
         offered_per_s: (sent - WARMUP) as f64 / wall.as_secs_f64(),
         sent,
@@ -147,13 +188,15 @@ pub fn run(
     resolution: f32,
     start_rate: f64,
     seconds: f64,
+    moving: bool,
 ) -> Result<()> {
     let mut sandbox = Sandbox::new("tput", bin_dir)?;
-    let grid = format!("{cells}² × {} cm", (resolution * 100.0).round());
+    let head = if moving { ", moving" } else { "" };
+    let grid = format!("{cells}² × {} cm{head}", (resolution * 100.0).round());
     let mut lossless: Option<Step> = None;
     let mut rate = start_rate;
     loop {
-        let step = offer(&mut sandbox, cells, resolution, rate, seconds)?;
+        let step = offer(&mut sandbox, cells, resolution, rate, seconds, moving)?;
         let passed = step.lost_fraction() <= LOSSLESS;
         print_row(&grid, if passed { "climb" } else { "climb (lossy)" }, &step);
         if !passed {
@@ -177,6 +220,7 @@ pub fn run(
             resolution,
             lossless.offered_per_s * factor,
             seconds,
+            moving,
         )?;
         print_row(
             &grid,

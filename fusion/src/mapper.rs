@@ -16,7 +16,7 @@ use crate::observation::{Beam, Observation, ObservationError};
 use crate::radar::RadarMap;
 use crate::reference::PaperArrays;
 use crate::regions::{DepthTolerance, End, Heard, LobeWidth, Region, RegionTracker};
-use crate::sightlines::{Sightline, Sightlines};
+use crate::sightlines::{Lobe, Sightline, Sightlines};
 use crate::state::{MapperState, StateError};
 
 /// One-ended and cut regions kept for the sweep's end at most: more than a 360° sweep at 1.5° holds.
@@ -843,7 +843,10 @@ impl Mapper {
             since,
             stretch.a,
             stretch.b,
-            |distance| regions.lobe.at(distance),
+            Lobe {
+                at: |distance| regions.lobe.at(distance),
+                widest: regions.lobe.widest_learnt(),
+            },
             |range| regions.tolerance.at(range) + model.band(range),
             unhidden,
         )

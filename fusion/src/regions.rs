@@ -214,6 +214,16 @@ impl LobeWidth {
             .then(|| learnt.map(|(mean, _)| *mean).fold(0.0, f32::max))
     }
 
+    /// The widest half-width learnt at any range, however few bins are learnt (so at least
+    /// [`Self::at`] at every range); `None` before any.
+    pub fn widest_learnt(&self) -> Option<f32> {
+        self.bins
+            .iter()
+            .filter(|(_, weight)| *weight > 0.0)
+            .map(|(mean, _)| *mean)
+            .reduce(f32::max)
+    }
+
     /// The half-width at `range`: its bin's, else the nearest learnt bin's; `None` before any.
     pub fn at(&self, range: f32) -> Option<f32> {
         let bin = Self::bin(range) as isize;

@@ -34,21 +34,73 @@ pub(crate) struct Sightline {
     pub range: f32,
 }
 
+/// A sightline kept, with the unit vector along its axis (what [`Sightlines::refute`] compares
+/// with the direction to a foot, without an angle per reading) and its number.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Kept {
+    sightline: Sightline,
+    direction: Vector2<f32>,
+    number: u64,
+}
+
+/// Sightlines are kept by the bearing of their axis, in this many sectors of equal width: a
+/// stretch is refuted only by readings aimed within the lobe of its normal (the direction to any
+/// foot on its line), so [`Sightlines::refute`] looks into the few sectors about the normal's
+/// two bearings instead of every reading kept.
+const SECTORS: usize = 72;
+const SECTOR_WIDTH: f32 = std::f32::consts::TAU / SECTORS as f32;
+
+/// The sector of world bearing `bearing` (any angle).
+fn sector(bearing: f32) -> usize {
+    let turns = bearing.rem_euclid(std::f32::consts::TAU) / SECTOR_WIDTH;
+    (turns as usize).min(SECTORS - 1)
+}
+
+/// The lobe within which a reading hears a wall at its foot, as learnt: its half-width at a
+/// distance (`None`: none learnt there), and the widest at any distance (at least every `at`;
+/// `None`: none learnt at all).
+pub(crate) struct Lobe<F: Fn(f32) -> Option<f32>> {
+    pub at: F,
+    pub widest: Option<f32>,
+}
+
 /// The latest readings with an echo.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub(crate) struct Sightlines {
-    kept: VecDeque<Sightline>,
+    /// Per sector of axis bearing, oldest first.
+    sectors: Vec<VecDeque<Kept>>,
+    /// The sector of every reading kept, oldest first: the oldest is forgotten first.
+    order: VecDeque<u8>,
     /// How many readings were ever pushed: the number of the next one.
     pushed: u64,
+}
+
+impl Default for Sightlines {
+    fn default() -> Self {
+        Self {
+            sectors: vec![VecDeque::new(); SECTORS],
+            order: VecDeque::new(),
+            pushed: 0,
+        }
+    }
 }
 
 impl Sightlines {
     /// Remembers a reading with an echo.
     pub fn push(&mut self, reading: Sightline) {
-        if self.kept.len() == KEPT {
-            self.kept.pop_front();
+        if self.order.len() == KEPT
+            && let Some(oldest) = self.order.pop_front()
+        {
+            self.sectors[usize::from(oldest)].pop_front();
         }
-        self.kept.push_back(reading);
+        let sector = sector(reading.axis);
+        self.sectors[sector].push_back(Kept {
+            sightline: reading,
+            direction: Vector2::new(reading.axis.cos(), reading.axis.sin()),
+            number: self.pushed,
+        });
+        // SECTORS < 256.
+        self.order.push_back(sector as u8);
         self.pushed += 1;
     }
 
@@ -59,44 +111,72 @@ impl Sightlines {
     }
 
     pub fn clear(&mut self) {
-        self.kept.clear();
+        self.sectors.iter_mut().for_each(VecDeque::clear);
+        self.order.clear();
     }
 
     /// Whether a reading kept, pushed as number `since` ([`Self::pushed`]) or later, refutes a
     /// wall from `a` to `b`: the foot of its sensor's perpendicular lies on the stretch, at most
-    /// `lobe(distance)` off its axis (`None`: no lobe known at that distance, so no reading
+    /// `lobe.at(distance)` off its axis (`None`: no lobe known at that distance, so no reading
     /// refutes), nearer than its echo by more than `margin(echo range)`, and `clear(sensor,
-    /// foot)` says nothing hides the foot from the sensor.
-    pub fn refute(
+    /// foot)` says nothing hides the foot from the sensor. Only readings aimed within
+    /// `lobe.widest` of the stretch's normal are looked at.
+    pub fn refute<L: Fn(f32) -> Option<f32>>(
         &self,
         since: u64,
         a: Vector2<f32>,
         b: Vector2<f32>,
-        lobe: impl Fn(f32) -> Option<f32>,
+        lobe: Lobe<L>,
         margin: impl Fn(f32) -> f32,
         clear: impl Fn(Vector2<f32>, Vector2<f32>) -> bool,
     ) -> bool {
         let along = b - a;
         let length2 = along.norm_squared();
+        let Some(widest_lobe) = lobe.widest else {
+            return false;
+        };
         if length2 <= f32::EPSILON {
             return false;
         }
-        let first_kept = self.pushed - self.kept.len() as u64;
-        let skip = usize::try_from(since.saturating_sub(first_kept)).unwrap_or(usize::MAX);
-        self.kept.iter().skip(skip).any(|reading| {
+        // A little wider than the widest lobe, so that rounding never passes over a reading the
+        // exact test below would take.
+        let reach = widest_lobe + 1e-3;
+        let refutes = |kept: &Kept| {
+            let reading = &kept.sightline;
+            if kept.number < since {
+                return false;
+            }
             let t = (reading.position - a).dot(&along) / length2;
             if !(0.0..=1.0).contains(&t) {
                 return false;
             }
             let foot = a + along * t;
             let to_foot = foot - reading.position;
+            // Aimed away from the foot: the exact test below would fail too.
+            if to_foot.dot(&kept.direction) <= 0.0 && reach < std::f32::consts::FRAC_PI_2 {
+                return false;
+            }
             let distance = to_foot.norm();
             distance < reading.range - margin(reading.range)
-                && lobe(distance).is_some_and(|lobe| {
+                && (lobe.at)(distance).is_some_and(|lobe| {
                     wrap_angle(to_foot.y.atan2(to_foot.x) - reading.axis).abs() <= lobe
                 })
                 && clear(reading.position, foot)
-        })
+        };
+        if reach >= std::f32::consts::FRAC_PI_2 {
+            return self.sectors.iter().flatten().any(refutes);
+        }
+        // The direction to any foot on the line is its normal, one way or the other.
+        let normal = along.y.atan2(along.x) + std::f32::consts::FRAC_PI_2;
+        [normal, normal + std::f32::consts::PI]
+            .into_iter()
+            .flat_map(|towards| {
+                let first = sector(towards - reach);
+                let count = ((towards + reach) / SECTOR_WIDTH).floor()
+                    - ((towards - reach) / SECTOR_WIDTH).floor();
+                (0..=count as usize).map(move |k| (first + k) % SECTORS)
+            })
+            .any(|sector| self.sectors[sector].iter().any(refutes))
     }
 }
 
@@ -105,6 +185,14 @@ mod tests {
     use super::*;
 
     const DEG: f32 = std::f32::consts::PI / 180.0;
+
+    /// A lobe of ±10° at every distance.
+    fn ten_degrees() -> Lobe<impl Fn(f32) -> Option<f32>> {
+        Lobe {
+            at: |_| Some(10.0 * DEG),
+            widest: Some(10.0 * DEG),
+        }
+    }
 
     /// A stretch along x = 2 m from y = −0.5 to y = 0.5: its foot from the origin is (2, 0).
     fn stretch() -> (Vector2<f32>, Vector2<f32>) {
@@ -123,7 +211,7 @@ mod tests {
 
     fn refutes(lines: &Sightlines) -> bool {
         let (a, b) = stretch();
-        lines.refute(0, a, b, |_| Some(10.0 * DEG), |_| 0.05, |_, _| true)
+        lines.refute(0, a, b, ten_degrees(), |_| 0.05, |_, _| true)
     }
 
     #[test]
@@ -159,9 +247,56 @@ mod tests {
         assert!(!refutes(&lines));
         // Hidden: something between the sensor and the foot.
         let (a, b) = stretch();
-        assert!(!heard(0.0, 3.0).refute(0, a, b, |_| Some(10.0 * DEG), |_| 0.05, |_, _| false));
+        assert!(!heard(0.0, 3.0).refute(0, a, b, ten_degrees(), |_| 0.05, |_, _| false));
         // No lobe known at that distance.
-        assert!(!heard(0.0, 3.0).refute(0, a, b, |_| None, |_| 0.05, |_, _| true));
+        assert!(!heard(0.0, 3.0).refute(
+            0,
+            a,
+            b,
+            Lobe {
+                at: |_| None,
+                widest: None
+            },
+            |_| 0.05,
+            |_, _| true
+        ));
+    }
+
+    #[test]
+    fn readings_aimed_across_the_half_turn_or_from_behind_are_found_and_the_oldest_forgotten() {
+        // A stretch along x = -2 m: its foot from the origin is (-2, 0), at 180°.
+        let (a, b) = (Vector2::new(-2.0, -0.5), Vector2::new(-2.0, 0.5));
+        let refuted =
+            |lines: &Sightlines| lines.refute(0, a, b, ten_degrees(), |_| 0.05, |_, _| true);
+        // Aimed 1° either side of the half turn (the sectors' seam), echo at 3 m: both refute.
+        assert!(refuted(&heard(179.0, 3.0)));
+        assert!(refuted(&heard(-179.0, 3.0)));
+        // From behind the wall, at (-4, 0) aimed along +x: the foot lies 2 m ahead.
+        let mut behind = Sightlines::default();
+        behind.push(Sightline {
+            position: Vector2::new(-4.0, 0.0),
+            axis: 0.0,
+            range: 3.0,
+        });
+        assert!(refuted(&behind));
+        // Aimed square to the foot's direction: nothing.
+        assert!(!refuted(&heard(90.0, 3.0)));
+        // The refuting reading is forgotten once as many others as are kept came after it.
+        let mut lines = heard(180.0, 3.0);
+        for _ in 0..KEPT - 1 {
+            lines.push(Sightline {
+                position: Vector2::zeros(),
+                axis: 90.0 * DEG,
+                range: 3.0,
+            });
+        }
+        assert!(refuted(&lines));
+        lines.push(Sightline {
+            position: Vector2::zeros(),
+            axis: 90.0 * DEG,
+            range: 3.0,
+        });
+        assert!(!refuted(&lines));
     }
 
     #[test]
@@ -175,8 +310,7 @@ mod tests {
         });
         assert_eq!(lines.pushed(), 2);
         let (a, b) = stretch();
-        let refutes_since =
-            |since| lines.refute(since, a, b, |_| Some(10.0 * DEG), |_| 0.05, |_, _| true);
+        let refutes_since = |since| lines.refute(since, a, b, ten_degrees(), |_| 0.05, |_, _| true);
         assert!(refutes_since(0));
         assert!(!refutes_since(1));
         assert!(!refutes_since(2));
