@@ -81,9 +81,9 @@ enum Command {
         /// Seconds of readings offered per step.
         #[arg(long, default_value_t = 3.0)]
         seconds: f64,
-        /// Drive the robot 10 cm per sweep round a 2 m circle, its pose on robot/pose, so that no
-        /// sweep repeats the one before (a standing head's sweeps repeat: the region model keeps
-        /// them once, its best case).
+        /// Drive the robot 10 cm per sweep round a circle of 1.5 m radius in a 6 m square room, its
+        /// pose on robot/pose, so that no sweep repeats the one before (a standing head's sweeps
+        /// repeat: the region model keeps them once, its best case).
         #[arg(long)]
         moving: bool,
         #[arg(long)]
