@@ -210,10 +210,143 @@ impl Stretch {
     /// Whether this stretch is `other` again: faced the same way, each end within
     /// [`SAME_LINE_M`] of `other`'s (two patches of one wall joined to the same corner).
     pub(crate) fn repeats(&self, other: &Stretch) -> bool {
-        wrap_angle(self.facing - other.facing).abs() <= SAME_FACING
-            && (self.a - other.a).norm() <= SAME_LINE_M
-            && (self.b - other.b).norm() <= SAME_LINE_M
+        // The ends first: most stretches kept lie elsewhere, and they are cheaper to compare.
+        (self.a - other.a).norm_squared() <= SAME_LINE_M * SAME_LINE_M
+            && (self.b - other.b).norm_squared() <= SAME_LINE_M * SAME_LINE_M
+            && wrap_angle(self.facing - other.facing).abs() <= SAME_FACING
     }
+}
+
+/// Stretches that lie on one line and overlap, as one ([`overlapping`]): the line, and each
+/// stretch's span along it with its readings.
+///
+/// A robot that moves hears each wall from many places, and [`Lines::join_ends`] follows the wall
+/// on to its corner from every patch of it, the whole way each time: in a 6 m room, a hundred
+/// metres of wall a sweep and more, the same few metres drawn over and over (issue 29). Drawn as
+/// the pieces of their union, each with the readings of every stretch that covers it, they put
+/// the same evidence on the wall at the cost of the union.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Overlapping {
+    /// A point of the line, its unit direction and the bearing it is faced from: spans are
+    /// measured along the direction from the point.
+    origin: Vector2<f32>,
+    along: Vector2<f32>,
+    facing: f32,
+    /// Each stretch's span, `[from, to]` in metres along the line, and its readings.
+    spans: Vec<(f32, f32, u32)>,
+}
+
+impl Overlapping {
+    fn new(stretch: &Stretch) -> Self {
+        let length = (stretch.b - stretch.a).norm();
+        let along = if length > 0.0 {
+            (stretch.b - stretch.a) / length
+        } else {
+            frame(stretch.facing).1
+        };
+        Self {
+            origin: stretch.a,
+            along,
+            facing: stretch.facing,
+            spans: vec![(0.0, length, stretch.readings)],
+        }
+    }
+
+    /// `stretch`'s span along the line if it lies on it and overlaps the spans so far.
+    fn span_of(&self, stretch: &Stretch) -> Option<(f32, f32)> {
+        let on_line = |p: Vector2<f32>| self.along.perp(&(p - self.origin)).abs() <= SAME_LINE_M;
+        let [u, v] = [stretch.a, stretch.b].map(|p| self.along.dot(&(p - self.origin)));
+        let (from, to) = (u.min(v), u.max(v));
+        let (first, last) = self.extent();
+        (wrap_angle(stretch.facing - self.facing).abs() <= SAME_FACING
+            && on_line(stretch.a)
+            && on_line(stretch.b)
+            && from <= last
+            && to >= first)
+            .then_some((from, to))
+    }
+
+    /// Where the union begins and ends along the line.
+    fn extent(&self) -> (f32, f32) {
+        self.spans.iter().fold(
+            (f32::INFINITY, f32::NEG_INFINITY),
+            |(first, last), &(from, to, _)| (first.min(from), last.max(to)),
+        )
+    }
+
+    fn at(&self, t: f32) -> Vector2<f32> {
+        self.origin + self.along * t
+    }
+
+    /// The union's ends.
+    pub(crate) fn ends(&self) -> (Vector2<f32>, Vector2<f32>) {
+        let (first, last) = self.extent();
+        (self.at(first), self.at(last))
+    }
+
+    /// The pieces of the union covered by the stretches `kept` keeps (given each one's span as
+    /// fractions of the way from the union's first end to its last), in order along the line,
+    /// each with the readings of the kept stretches covering it; neighbours with as many
+    /// readings make one piece.
+    pub(crate) fn pieces(&self, kept: impl Fn(f32, f32) -> bool) -> Vec<Stretch> {
+        let (first, last) = self.extent();
+        let length = last - first;
+        let fraction = |t: f32| {
+            if length > 0.0 {
+                (t - first) / length
+            } else {
+                0.0
+            }
+        };
+        let kept: Vec<(f32, f32, u32)> = self
+            .spans
+            .iter()
+            .copied()
+            .filter(|&(from, to, _)| kept(fraction(from), fraction(to)))
+            .collect();
+        let mut bounds: Vec<f32> = kept.iter().flat_map(|&(from, to, _)| [from, to]).collect();
+        bounds.sort_by(f32::total_cmp);
+        bounds.dedup();
+        let mut pieces: Vec<Stretch> = Vec::new();
+        // Whether the last piece ends where this one begins (no uncovered gap between them).
+        let mut joined = false;
+        for pair in bounds.windows(2) {
+            let (from, to) = (pair[0], pair[1]);
+            let readings = kept
+                .iter()
+                .filter(|&&(f, t, _)| f <= from && t >= to)
+                .map(|&(_, _, r)| r)
+                .fold(0u32, u32::saturating_add);
+            match pieces.last_mut() {
+                _ if readings == 0 => {}
+                Some(last) if joined && last.readings == readings => last.b = self.at(to),
+                _ => pieces.push(Stretch {
+                    a: self.at(from),
+                    b: self.at(to),
+                    facing: self.facing,
+                    readings,
+                }),
+            }
+            joined = readings > 0;
+        }
+        pieces
+    }
+}
+
+/// `stretches` grouped into those that lie on one line and overlap ([`Overlapping`]), each
+/// stretch in the first group whose line it lies on and whose union it overlaps, in order.
+pub(crate) fn overlapping(stretches: &[Stretch]) -> Vec<Overlapping> {
+    let mut groups: Vec<Overlapping> = Vec::new();
+    for stretch in stretches {
+        match groups
+            .iter_mut()
+            .find_map(|g| g.span_of(stretch).map(|span| (g, span)))
+        {
+            Some((group, (from, to))) => group.spans.push((from, to, stretch.readings)),
+            None => groups.push(Overlapping::new(stretch)),
+        }
+    }
+    groups
 }
 
 /// A region of constant depth heard: where from, the bearings it spans and its range.
@@ -785,5 +918,66 @@ mod tests {
         assert_eq!(lines.patches.len(), 2);
         lines.join_ends(false, &mut out);
         assert_eq!(out.len(), 2, "{out:?}");
+    }
+
+    /// A stretch along the wall y = 3 (faced from below, 90°) from x = `from` to x = `to`.
+    fn along_y3(from: f32, to: f32, readings: u32) -> Stretch {
+        Stretch {
+            a: Vector2::new(from, 3.0),
+            b: Vector2::new(to, 3.0),
+            facing: 90.0 * DEG,
+            readings,
+        }
+    }
+
+    #[test]
+    fn one_wall_followed_to_its_corner_from_two_patches_is_drawn_once_with_both_readings() {
+        // From patches ending at x = 0 and x = 1 on to the corner at x = 3 (the corner 1 cm off
+        // in the second); and the other wall's stretch, elsewhere.
+        let other = Stretch {
+            a: Vector2::new(3.0, 0.0),
+            b: Vector2::new(3.0, 3.0),
+            facing: 0.0,
+            readings: 1,
+        };
+        let mut second = along_y3(1.0, 3.0, 3);
+        second.b.y += 0.01;
+        let groups = overlapping(&[along_y3(0.0, 3.0, 2), other, second]);
+        assert_eq!(groups.len(), 2, "{groups:?}");
+        let pieces = groups[0].pieces(|_, _| true);
+        assert_eq!(pieces.len(), 2, "{pieces:?}");
+        let (near, far) = (pieces[0], pieces[1]);
+        assert!((near.a - Vector2::new(0.0, 3.0)).norm() < 1e-5, "{near:?}");
+        assert!((near.b - Vector2::new(1.0, 3.0)).norm() < 1e-5, "{near:?}");
+        assert!((far.b - Vector2::new(3.0, 3.0)).norm() < 0.011, "{far:?}");
+        assert_eq!((near.readings, far.readings), (2, 5));
+        assert_eq!(groups[1].pieces(|_, _| true), vec![other]);
+        // The longer stretch refused (a reading's foot at x = 0.5, a sixth of the way): the
+        // shorter alone is drawn.
+        let refused = |from: f32, to: f32| !(from..=to).contains(&(1.0 / 6.0));
+        let pieces = groups[0].pieces(refused);
+        assert_eq!(pieces.len(), 1, "{pieces:?}");
+        assert!((pieces[0].a - Vector2::new(1.0, 3.0)).norm() < 1e-5);
+        assert_eq!(pieces[0].readings, 3);
+    }
+
+    #[test]
+    fn stretches_apart_on_one_line_or_on_other_lines_are_drawn_apart() {
+        let apart = along_y3(2.0, 3.0, 1);
+        let behind = Stretch {
+            a: Vector2::new(0.0, 3.2),
+            b: Vector2::new(1.0, 3.2),
+            ..along_y3(0.0, 1.0, 1)
+        };
+        let facing_away = Stretch {
+            facing: -90.0 * DEG,
+            ..along_y3(0.0, 1.0, 1)
+        };
+        let stretches = [along_y3(0.0, 1.0, 1), apart, behind, facing_away];
+        let groups = overlapping(&stretches);
+        assert_eq!(groups.len(), 4, "{groups:?}");
+        for (group, stretch) in groups.iter().zip(&stretches) {
+            assert_eq!(group.pieces(|_, _| true), vec![*stretch]);
+        }
     }
 }

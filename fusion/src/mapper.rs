@@ -10,7 +10,7 @@ use crate::geometry::GridGeometry;
 use crate::geometry::wrap_angle;
 use crate::grid::{OccupancyGrid, with_layer};
 use crate::kernel::ConeCache;
-use crate::lines::{Echo, Lines, Patch, Stretch};
+use crate::lines::{self, Echo, Lines, Patch, Stretch};
 use crate::model::{CellEvidence, ModelConfig, SmoothModel, with_model};
 use crate::observation::{Beam, Observation, ObservationError};
 use crate::radar::RadarMap;
@@ -702,7 +702,10 @@ impl Mapper {
     /// not see through: with the kind's foot check on, those no reading refutes
     /// ([`Self::refuted`]), kept to be taken back if a later one does
     /// ([`Self::withdraw_refuted_stretches`]); else those along which the grid holds no three
-    /// free cells in a row ([`Self::seen_through`]).
+    /// free cells in a row ([`Self::seen_through`]). With the foot check, stretches that lie on
+    /// one line and overlap are checked and drawn as the pieces of their union
+    /// ([`lines::Overlapping`]): a stretch is refused if a reading's foot lies on it, and each
+    /// piece drawn counts the readings of the stretches not refused that cover it.
     fn place_stretches(
         &mut self,
         model: &SmoothModel,
@@ -716,19 +719,27 @@ impl Mapper {
         };
         let stretches = std::mem::take(&mut regions.stretches);
         let mut cells = 0;
-        for stretch in &stretches {
-            let refused = if foot_check {
-                self.refuted(model, regions, stretch, 0)
-            } else {
-                self.seen_through(stretch)
-            };
-            if !refused {
-                cells += self.place_stretch(model, stretch, 1.0, kernel);
-                if foot_check {
+        if foot_check {
+            for group in lines::overlapping(&stretches) {
+                let (a, b) = group.ends();
+                let mut feet: Vec<f32> = self.refuted_at(model, regions, a, b, 0).collect();
+                feet.sort_by(f32::total_cmp);
+                let unrefuted = |from: f32, to: f32| {
+                    let first = feet.partition_point(|&t| t < from);
+                    feet.get(first).is_none_or(|&t| t > to)
+                };
+                for piece in group.pieces(unrefuted) {
+                    cells += self.place_stretch(model, &piece, 1.0, kernel);
                     // Piece by piece: a wall drawn on past where it ends is wrong only there.
-                    for piece in stretch.pieces(STRETCH_PIECE_M) {
-                        regions.keep_drawn(piece);
+                    for part in piece.pieces(STRETCH_PIECE_M) {
+                        regions.keep_drawn(part);
                     }
+                }
+            }
+        } else {
+            for stretch in &stretches {
+                if !self.seen_through(stretch) {
+                    cells += self.place_stretch(model, stretch, 1.0, kernel);
                 }
             }
         }
@@ -821,7 +832,7 @@ impl Mapper {
         })
     }
 
-    /// Whether a reading refutes `stretch` ([`Sightlines::refute`], those kept from number
+    /// Whether a reading refutes `stretch` ([`Sightlines::refuted_at`], those kept from number
     /// `since` on): one whose lobe (learnt at that range) held the foot of its sensor's
     /// perpendicular on the stretch, with no occupied cell between them, heard its first echo
     /// farther than the foot by more than the depth tolerance and band: a flat wall there would
@@ -833,16 +844,31 @@ impl Mapper {
         stretch: &Stretch,
         since: u64,
     ) -> bool {
+        self.refuted_at(model, regions, stretch.a, stretch.b, since)
+            .next()
+            .is_some()
+    }
+
+    /// Where the readings that refute the wall from `a` to `b` ([`Self::refuted`]) have their
+    /// feet on it, as fractions of the way from `a` to `b` ([`Sightlines::refuted_at`]).
+    fn refuted_at<'a>(
+        &'a self,
+        model: &'a SmoothModel,
+        regions: &'a Regions,
+        a: Vector2<f32>,
+        b: Vector2<f32>,
+        since: u64,
+    ) -> impl Iterator<Item = f32> + 'a {
         let unhidden = |from: Vector2<f32>, foot: Vector2<f32>| {
             let distance = (foot - from).norm();
             let direction = (foot - from) / distance;
             self.cells_along(from, direction, self.steps_short_of(model, distance))
                 .all(|(x, y)| self.grid.probability(x, y).is_none_or(|p| p <= 0.5))
         };
-        regions.sightlines.refute(
+        regions.sightlines.refuted_at(
             since,
-            stretch.a,
-            stretch.b,
+            a,
+            b,
             Lobe {
                 at: |distance| regions.lobe.at(distance),
                 widest: regions.lobe.widest_learnt(),

@@ -34,7 +34,7 @@ pub(crate) struct Sightline {
     pub range: f32,
 }
 
-/// A sightline kept, with the unit vector along its axis (what [`Sightlines::refute`] compares
+/// A sightline kept, with the unit vector along its axis (what [`Sightlines::refuted_at`] compares
 /// with the direction to a foot, without an angle per reading) and its number.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Kept {
@@ -45,7 +45,7 @@ struct Kept {
 
 /// Sightlines are kept by the bearing of their axis, in this many sectors of equal width: a
 /// stretch is refuted only by readings aimed within the lobe of its normal (the direction to any
-/// foot on its line), so [`Sightlines::refute`] looks into the few sectors about the normal's
+/// foot on its line), so [`Sightlines::refuted_at`] looks into the few sectors about the normal's
 /// two bearings instead of every reading kept.
 const SECTORS: usize = 72;
 const SECTOR_WIDTH: f32 = std::f32::consts::TAU / SECTORS as f32;
@@ -105,7 +105,7 @@ impl Sightlines {
     }
 
     /// The number the next reading pushed will have (readings are numbered from 0 as pushed):
-    /// those pushed from now on are the ones [`Self::refute`] from it looks at.
+    /// those pushed from now on are the ones [`Self::refuted_at`] from it looks at.
     pub fn pushed(&self) -> u64 {
         self.pushed
     }
@@ -115,13 +115,15 @@ impl Sightlines {
         self.order.clear();
     }
 
-    /// Whether a reading kept, pushed as number `since` ([`Self::pushed`]) or later, refutes a
-    /// wall from `a` to `b`: the foot of its sensor's perpendicular lies on the stretch, at most
-    /// `lobe.at(distance)` off its axis (`None`: no lobe known at that distance, so no reading
-    /// refutes), nearer than its echo by more than `margin(echo range)`, and `clear(sensor,
-    /// foot)` says nothing hides the foot from the sensor. Only readings aimed within
-    /// `lobe.widest` of the stretch's normal are looked at.
-    pub fn refute<L: Fn(f32) -> Option<f32>>(
+    /// Where the readings kept, pushed as number `since` ([`Self::pushed`]) or later, that refute
+    /// a wall from `a` to `b` have their feet on it, as fractions of the way from `a` to `b`, one
+    /// per reading, in no order. A reading refutes the wall if the foot of its sensor's
+    /// perpendicular lies on it, at most `lobe.at(distance)` off its axis (`None`: no lobe known
+    /// at that distance, so no reading refutes), nearer than its echo by more than
+    /// `margin(echo range)`, and `clear(sensor, foot)` says nothing hides the foot from the
+    /// sensor. Only readings aimed within `lobe.widest` of the wall's normal are looked at. A
+    /// stretch of that line is refuted if a foot lies on it: the wall is refuted if there is one.
+    pub fn refuted_at<L: Fn(f32) -> Option<f32>>(
         &self,
         since: u64,
         a: Vector2<f32>,
@@ -129,60 +131,92 @@ impl Sightlines {
         lobe: Lobe<L>,
         margin: impl Fn(f32) -> f32,
         clear: impl Fn(Vector2<f32>, Vector2<f32>) -> bool,
-    ) -> bool {
+    ) -> impl Iterator<Item = f32> {
         let along = b - a;
         let length2 = along.norm_squared();
-        let Some(widest_lobe) = lobe.widest else {
-            return false;
-        };
-        if length2 <= f32::EPSILON {
-            return false;
-        }
+        let widest_lobe = lobe.widest.filter(|_| length2 > f32::EPSILON);
         // A little wider than the widest lobe, so that rounding never passes over a reading the
         // exact test below would take.
-        let reach = widest_lobe + 1e-3;
-        let refutes = |kept: &Kept| {
+        let reach = widest_lobe.map_or(0.0, |w| w + 1e-3);
+        let refuted_at = move |kept: &Kept| {
             let reading = &kept.sightline;
             if kept.number < since {
-                return false;
+                return None;
             }
             let t = (reading.position - a).dot(&along) / length2;
             if !(0.0..=1.0).contains(&t) {
-                return false;
+                return None;
             }
             let foot = a + along * t;
             let to_foot = foot - reading.position;
             // Aimed away from the foot: the exact test below would fail too.
             if to_foot.dot(&kept.direction) <= 0.0 && reach < std::f32::consts::FRAC_PI_2 {
-                return false;
+                return None;
             }
             let distance = to_foot.norm();
-            distance < reading.range - margin(reading.range)
+            (distance < reading.range - margin(reading.range)
                 && (lobe.at)(distance).is_some_and(|lobe| {
                     wrap_angle(to_foot.y.atan2(to_foot.x) - reading.axis).abs() <= lobe
                 })
-                && clear(reading.position, foot)
+                && clear(reading.position, foot))
+            .then_some(t)
         };
-        if reach >= std::f32::consts::FRAC_PI_2 {
-            return self.sectors.iter().flatten().any(refutes);
-        }
-        // The direction to any foot on the line is its normal, one way or the other.
+        // Every sector if the lobe reaches a right angle; else those about the normal's two
+        // bearings (the direction to any foot on the line is its normal, one way or the other);
+        // none if no lobe is learnt.
+        let sectors = |towards: f32| {
+            let first = sector(towards - reach);
+            let count = ((towards + reach) / SECTOR_WIDTH).floor()
+                - ((towards - reach) / SECTOR_WIDTH).floor();
+            (first, count as usize + 1)
+        };
         let normal = along.y.atan2(along.x) + std::f32::consts::FRAC_PI_2;
-        [normal, normal + std::f32::consts::PI]
+        // (first, how many) sectors, twice.
+        let ranges = match widest_lobe {
+            None => [(0, 0); 2],
+            Some(_) if reach >= std::f32::consts::FRAC_PI_2 => [(0, SECTORS), (0, 0)],
+            Some(_) => [sectors(normal), sectors(normal + std::f32::consts::PI)],
+        };
+        ranges
             .into_iter()
-            .flat_map(|towards| {
-                let first = sector(towards - reach);
-                let count = ((towards + reach) / SECTOR_WIDTH).floor()
-                    - ((towards - reach) / SECTOR_WIDTH).floor();
-                (0..=count as usize).map(move |k| (first + k) % SECTORS)
-            })
-            .any(|sector| self.sectors[sector].iter().any(refutes))
+            .flat_map(|(first, count)| (0..count).map(move |k| (first + k) % SECTORS))
+            .flat_map(move |k| self.sectors[k].iter())
+            .filter_map(refuted_at)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Whether some reading refutes the wall ([`Sightlines::refuted_at`]).
+    trait Refute {
+        fn refute<L: Fn(f32) -> Option<f32>>(
+            &self,
+            since: u64,
+            a: Vector2<f32>,
+            b: Vector2<f32>,
+            lobe: Lobe<L>,
+            margin: impl Fn(f32) -> f32,
+            clear: impl Fn(Vector2<f32>, Vector2<f32>) -> bool,
+        ) -> bool;
+    }
+
+    impl Refute for Sightlines {
+        fn refute<L: Fn(f32) -> Option<f32>>(
+            &self,
+            since: u64,
+            a: Vector2<f32>,
+            b: Vector2<f32>,
+            lobe: Lobe<L>,
+            margin: impl Fn(f32) -> f32,
+            clear: impl Fn(Vector2<f32>, Vector2<f32>) -> bool,
+        ) -> bool {
+            self.refuted_at(since, a, b, lobe, margin, clear)
+                .next()
+                .is_some()
+        }
+    }
 
     const DEG: f32 = std::f32::consts::PI / 180.0;
 
@@ -212,6 +246,31 @@ mod tests {
     fn refutes(lines: &Sightlines) -> bool {
         let (a, b) = stretch();
         lines.refute(0, a, b, ten_degrees(), |_| 0.05, |_, _| true)
+    }
+
+    #[test]
+    fn each_refuting_reading_gives_where_its_foot_lies_on_the_wall() {
+        // Sensors at y = -0.25 and 0.25 aimed square at the wall x = 2, echoes at 3 m: feet at a
+        // quarter and three quarters of the way from (2, -0.5) to (2, 0.5); one at y = 0.3 heard
+        // the wall itself.
+        let mut lines = Sightlines::default();
+        for (y, range) in [(-0.25, 3.0), (0.25, 3.0), (0.3, 2.0)] {
+            lines.push(Sightline {
+                position: Vector2::new(0.0, y),
+                axis: 0.0,
+                range,
+            });
+        }
+        let (a, b) = stretch();
+        let mut feet: Vec<f32> = lines
+            .refuted_at(0, a, b, ten_degrees(), |_| 0.05, |_, _| true)
+            .collect();
+        feet.sort_by(f32::total_cmp);
+        assert_eq!(feet.len(), 2, "{feet:?}");
+        assert!(
+            (feet[0] - 0.25).abs() < 1e-6 && (feet[1] - 0.75).abs() < 1e-6,
+            "{feet:?}"
+        );
     }
 
     #[test]
