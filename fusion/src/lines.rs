@@ -211,8 +211,8 @@ impl Stretch {
     /// [`SAME_LINE_M`] of `other`'s (two patches of one wall joined to the same corner).
     pub(crate) fn repeats(&self, other: &Stretch) -> bool {
         // The ends first: most stretches kept lie elsewhere, and they are cheaper to compare.
-        (self.a - other.a).norm_squared() <= SAME_LINE_M * SAME_LINE_M
-            && (self.b - other.b).norm_squared() <= SAME_LINE_M * SAME_LINE_M
+        (self.a - other.a).norm() <= SAME_LINE_M
+            && (self.b - other.b).norm() <= SAME_LINE_M
             && wrap_angle(self.facing - other.facing).abs() <= SAME_FACING
     }
 }
@@ -569,9 +569,17 @@ impl Lines {
             }
         }
         // A whole region's reflector on a wall's line beyond its patch: where the wall ends (a
-        // door's jamb, a partition's edge, a corner heard whole), on patches new or old.
+        // door's jamb, a partition's edge, a corner heard whole), on patches new or old: a fresh
+        // patch with every echo, the others with the fresh echoes alone (found once, not looked
+        // for among thousands for each of thousands of patches).
+        let fresh_echoes: Vec<&Kept<Echo>> = self.echoes.iter().filter(|e| e.fresh > 0).collect();
         for a in &self.patches {
-            for e in self.echoes.iter().filter(|e| a.fresh > 0 || e.fresh > 0) {
+            let echoes: &mut dyn Iterator<Item = &Kept<Echo>> = if a.fresh > 0 {
+                &mut self.echoes.iter()
+            } else {
+                &mut fresh_echoes.iter().copied()
+            };
+            for e in echoes {
                 let echo = &e.item;
                 if echo.whole
                     && let reflector = echo.reflector()

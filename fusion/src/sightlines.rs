@@ -140,9 +140,6 @@ impl Sightlines {
         let reach = widest_lobe.map_or(0.0, |w| w + 1e-3);
         let refuted_at = move |kept: &Kept| {
             let reading = &kept.sightline;
-            if kept.number < since {
-                return None;
-            }
             let t = (reading.position - a).dot(&along) / length2;
             if !(0.0..=1.0).contains(&t) {
                 return None;
@@ -180,7 +177,19 @@ impl Sightlines {
         ranges
             .into_iter()
             .flat_map(|(first, count)| (0..count).map(move |k| (first + k) % SECTORS))
-            .flat_map(move |k| self.sectors[k].iter())
+            // Each sector holds its readings in the order they were pushed: those before `since`
+            // are skipped whole (a stretch checked again at each sweep's end looks at that
+            // sweep's readings alone).
+            .flat_map(move |k| {
+                let sector = &self.sectors[k];
+                let first = match sector.back() {
+                    Some(newest) if newest.number >= since => {
+                        sector.partition_point(|kept| kept.number < since)
+                    }
+                    _ => sector.len(),
+                };
+                sector.range(first..)
+            })
             .filter_map(refuted_at)
     }
 }
