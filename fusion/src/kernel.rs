@@ -676,15 +676,21 @@ fn plan_runs<P: RowPolar>(spans: &Spans, reach: &RowReach, runs: &mut Vec<RowRun
         near: skipped,
     } = *reach;
     runs.clear();
-    for (oy, &[lo, hi]) in (spans.first_row..).zip(&spans.rows) {
+    // The rows within the reach and the grid alone: the spans run to the longest reach.
+    let first = spans.first_row.max(-k).max(-cy);
+    let last = (spans.first_row + spans.rows.len() as i64 - 1)
+        .min(k)
+        .min(n - 1 - cy);
+    if first > last {
+        return;
+    }
+    let rows = &spans.rows[(first - spans.first_row) as usize..=(last - spans.first_row) as usize];
+    for (oy, &[lo, hi]) in (first..).zip(rows) {
         let gy = cy + oy;
-        if oy.abs() > k || !(0..n).contains(&gy) {
-            continue;
-        }
         // The reach's disc, conservatively: a cell centre lies within half a cell of its
         // offset, so the disc is widened by a cell.
         let near = (oy.abs() - 1).max(0) as f32;
-        let half = ((k * k) as f32 - near * near).max(0.0).sqrt().ceil() as i64 + 1;
+        let half = ceil_of_non_negative(((k * k) as f32 - near * near).max(0.0).sqrt()) + 1;
         let lo = lo.max(-half).max(-cx);
         let hi = hi.min(half).min(n - 1 - cx);
         let (lo, hi) = outside_near(lo, hi, oy, skipped);
@@ -704,6 +710,15 @@ fn plan_runs<P: RowPolar>(spans: &Spans, reach: &RowReach, runs: &mut Vec<RowRun
     }
 }
 
+/// ⌈`x`⌉ of a non-negative `x` below 2⁵², without the C library's `ceil` (a call per row where
+/// the CPU the build targets has no rounding instruction).
+#[inline(always)]
+fn ceil_of_non_negative(x: impl Into<f64>) -> i64 {
+    let x: f64 = x.into();
+    let t = x as i64;
+    t + i64::from((t as f64) < x)
+}
+
 /// The columns `lo..=hi` of row `oy` less those whose cells lie wholly within `near` cells of the
 /// sensor for a sensor anywhere in its cell, where that leaves one stretch (`lo > hi`: none): the
 /// cells of an echo without free evidence lie about its range, not all along the cone. A cell
@@ -715,7 +730,7 @@ fn outside_near(lo: i64, hi: i64, oy: i64, near: i64) -> (i64, i64) {
         return (lo, hi);
     }
     // The columns |ox| ≤ w, with (w + 1)² < room.
-    let w = (room as f64).sqrt().ceil() as i64 - 2;
+    let w = ceil_of_non_negative((room as f64).sqrt()) - 2;
     if w < 0 || hi < -w || lo > w {
         (lo, hi)
     } else if lo >= -w {
