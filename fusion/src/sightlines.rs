@@ -198,35 +198,6 @@ impl Sightlines {
 mod tests {
     use super::*;
 
-    /// Whether some reading refutes the wall ([`Sightlines::refuted_at`]).
-    trait Refute {
-        fn refute<L: Fn(f32) -> Option<f32>>(
-            &self,
-            since: u64,
-            a: Vector2<f32>,
-            b: Vector2<f32>,
-            lobe: Lobe<L>,
-            margin: impl Fn(f32) -> f32,
-            clear: impl Fn(Vector2<f32>, Vector2<f32>) -> bool,
-        ) -> bool;
-    }
-
-    impl Refute for Sightlines {
-        fn refute<L: Fn(f32) -> Option<f32>>(
-            &self,
-            since: u64,
-            a: Vector2<f32>,
-            b: Vector2<f32>,
-            lobe: Lobe<L>,
-            margin: impl Fn(f32) -> f32,
-            clear: impl Fn(Vector2<f32>, Vector2<f32>) -> bool,
-        ) -> bool {
-            self.refuted_at(since, a, b, lobe, margin, clear)
-                .next()
-                .is_some()
-        }
-    }
-
     const DEG: f32 = std::f32::consts::PI / 180.0;
 
     /// A lobe of ±10° at every distance.
@@ -254,7 +225,10 @@ mod tests {
 
     fn refutes(lines: &Sightlines) -> bool {
         let (a, b) = stretch();
-        lines.refute(0, a, b, ten_degrees(), |_| 0.05, |_, _| true)
+        lines
+            .refuted_at(0, a, b, ten_degrees(), |_| 0.05, |_, _| true)
+            .next()
+            .is_some()
     }
 
     #[test]
@@ -315,27 +289,41 @@ mod tests {
         assert!(!refutes(&lines));
         // Hidden: something between the sensor and the foot.
         let (a, b) = stretch();
-        assert!(!heard(0.0, 3.0).refute(0, a, b, ten_degrees(), |_| 0.05, |_, _| false));
+        assert!(
+            heard(0.0, 3.0)
+                .refuted_at(0, a, b, ten_degrees(), |_| 0.05, |_, _| false)
+                .next()
+                .is_none()
+        );
         // No lobe known at that distance.
-        assert!(!heard(0.0, 3.0).refute(
-            0,
-            a,
-            b,
-            Lobe {
-                at: |_| None,
-                widest: None
-            },
-            |_| 0.05,
-            |_, _| true
-        ));
+        assert!(
+            heard(0.0, 3.0)
+                .refuted_at(
+                    0,
+                    a,
+                    b,
+                    Lobe {
+                        at: |_| None,
+                        widest: None
+                    },
+                    |_| 0.05,
+                    |_, _| true
+                )
+                .next()
+                .is_none()
+        );
     }
 
     #[test]
     fn readings_aimed_across_the_half_turn_or_from_behind_are_found_and_the_oldest_forgotten() {
         // A stretch along x = -2 m: its foot from the origin is (-2, 0), at 180°.
         let (a, b) = (Vector2::new(-2.0, -0.5), Vector2::new(-2.0, 0.5));
-        let refuted =
-            |lines: &Sightlines| lines.refute(0, a, b, ten_degrees(), |_| 0.05, |_, _| true);
+        let refuted = |lines: &Sightlines| {
+            lines
+                .refuted_at(0, a, b, ten_degrees(), |_| 0.05, |_, _| true)
+                .next()
+                .is_some()
+        };
         // Aimed 1° either side of the half turn (the sectors' seam), echo at 3 m: both refute.
         assert!(refuted(&heard(179.0, 3.0)));
         assert!(refuted(&heard(-179.0, 3.0)));
@@ -378,7 +366,12 @@ mod tests {
         });
         assert_eq!(lines.pushed(), 2);
         let (a, b) = stretch();
-        let refutes_since = |since| lines.refute(since, a, b, ten_degrees(), |_| 0.05, |_, _| true);
+        let refutes_since = |since| {
+            lines
+                .refuted_at(since, a, b, ten_degrees(), |_| 0.05, |_, _| true)
+                .next()
+                .is_some()
+        };
         assert!(refutes_since(0));
         assert!(!refutes_since(1));
         assert!(!refutes_since(2));
