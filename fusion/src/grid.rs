@@ -299,6 +299,10 @@ pub struct EncodedVersion {
 /// Identities of grids, so that a copy of one grid's bytes is never taken for another's.
 static NEXT_GRID_ID: AtomicU64 = AtomicU64::new(0);
 
+/// A probability as a threshold on a grid's cell keys ([`OccupancyGrid::above`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Above(f32);
+
 /// The probability method's map (paper §III.B.2, "Grid-Probability Array").
 pub struct OccupancyGrid {
     /// Unique in the process ([`EncodedVersion`]).
@@ -374,6 +378,51 @@ impl OccupancyGrid {
         assert!(x < n && y < n, "cell ({x}, {y}) outside a {n}² grid");
         let i = self.geometry.index(x, y);
         with_layer!(&self.store, l => l.rule.probability(l.cells[i]))
+    }
+
+    /// `p` as a threshold on the cells' keys ([`Combine::key`]): a cell's probability is above
+    /// `p` exactly when its key is above the threshold ([`Self::is_above`]). The probability of a
+    /// key never falls as the key rises, so the threshold is the highest key whose probability is
+    /// at most `p`, found by halving the rule's range of keys down to neighbouring floats.
+    pub(crate) fn above(&self, p: f32) -> Above {
+        fn threshold<R: Combine>(rule: &R, p: f32) -> f32 {
+            let [mut low, mut high] = rule.key_range();
+            if rule.key_probability(high) <= p {
+                return high;
+            }
+            if rule.key_probability(low) > p {
+                return f32::NEG_INFINITY;
+            }
+            // probability(low) <= p < probability(high) throughout.
+            while low.next_up() < high {
+                let middle = low + 0.5 * (high - low);
+                let middle = if middle <= low || middle >= high {
+                    low.next_up()
+                } else {
+                    middle
+                };
+                if rule.key_probability(middle) <= p {
+                    low = middle;
+                } else {
+                    high = middle;
+                }
+            }
+            low
+        }
+        Above(with_layer!(&self.store, l => threshold(&l.rule, p)))
+    }
+
+    /// Whether cell (`x`, `y`) is reached and its probability above the threshold `above` was
+    /// made from ([`Self::above`]): what `probability(x, y) > p` says, without the probability.
+    ///
+    /// # Panics
+    /// If the cell lies outside the grid.
+    pub(crate) fn is_above(&self, x: usize, y: usize, above: Above) -> bool {
+        let n = self.geometry.cells_per_side();
+        assert!(x < n && y < n, "cell ({x}, {y}) outside a {n}² grid");
+        let i = self.geometry.index(x, y);
+        // An unreached cell's key is NaN: not above.
+        with_layer!(&self.store, l => l.rule.key(l.cells[i]) > above.0)
     }
 
     /// The world bearing from which cell (`x`, `y`) was last heard occupied, if it was and the
@@ -841,6 +890,33 @@ mod tests {
                         reference_encoding(&g),
                         "{kind:?} seed {seed} round {round}"
                     );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_probability_threshold_on_the_keys_says_what_the_probabilities_say() {
+        use rand::SeedableRng;
+        for kind in RuleKind::ALL {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+            let mut g = OccupancyGrid::new(
+                GridGeometry::new(64, 0.1),
+                &RuleConfig::default_for(kind),
+                false,
+            );
+            fuse_random_runs(&mut g, &mut rng, 2000);
+            for p in [0.1, 0.3, 0.5, 0.7, 0.9, 0.97, 0.999] {
+                let above = g.above(p);
+                for y in 0..64 {
+                    for x in 0..64 {
+                        assert_eq!(
+                            g.is_above(x, y, above),
+                            g.probability(x, y).is_some_and(|q| q > p),
+                            "{kind:?} p {p} at ({x}, {y}): {:?}",
+                            g.probability(x, y)
+                        );
+                    }
                 }
             }
         }

@@ -8,7 +8,7 @@ use nalgebra::{Isometry2, Vector2};
 use crate::config::{ConfigError, FusionConfig};
 use crate::geometry::GridGeometry;
 use crate::geometry::wrap_angle;
-use crate::grid::{OccupancyGrid, with_layer};
+use crate::grid::{Above, OccupancyGrid, with_layer};
 use crate::kernel::ConeCache;
 use crate::lines::{self, Echo, Lines, Patch, Stretch};
 use crate::model::{CellEvidence, ModelConfig, SmoothModel, with_model};
@@ -69,6 +69,10 @@ pub struct Update {
 pub struct Mapper {
     config: FusionConfig,
     grid: OccupancyGrid,
+    /// Occupied (p > 0.5) and [`WITHDRAW_ABOVE`] as thresholds on the grid's cell keys: the walks
+    /// along readings' axes test thousands of cells a sweep without a probability each.
+    above_half: Above,
+    above_withdraw: Above,
     radar: RadarMap,
     cones: ConeCache,
     paper_arrays: PaperArrays,
@@ -273,8 +277,11 @@ impl Mapper {
             config.grid.resolution_m,
             Vector2::new(config.grid.centre_x_m, config.grid.centre_y_m),
         );
+        let grid = OccupancyGrid::new(geometry, &config.rule, config.model.hears());
         Ok(Self {
-            grid: OccupancyGrid::new(geometry, &config.rule, config.model.hears()),
+            above_half: grid.above(0.5),
+            above_withdraw: grid.above(WITHDRAW_ABOVE),
+            grid,
             radar: RadarMap::new(config.radar)?,
             cones: ConeCache::new(&config),
             paper_arrays: PaperArrays::default(),
@@ -455,7 +462,7 @@ impl Mapper {
             // it on that axis (what the axis met would have answered nearer).
             if model.region_weak_echo_log_odds > 0.0 {
                 for beam in &regions.waiting {
-                    if !self.occupied_in_front(&model, beam, 0.5) {
+                    if !self.occupied_in_front(&model, beam) {
                         let echo = model.weak_echo(beam, model.region_weak_echo_log_odds);
                         cells += self.apply(beam, &echo, kernel);
                         if model.region_weak_echo_withdrawn {
@@ -812,10 +819,11 @@ impl Mapper {
         self.cells_along(beam.position, direction, self.steps_in_front(model, beam))
     }
 
-    /// Whether the grid holds an occupied cell on `beam`'s axis in front of its echo's band.
-    fn occupied_in_front(&self, model: &SmoothModel, beam: &Beam, above: f32) -> bool {
+    /// Whether the grid holds an occupied cell (p > 0.5) on `beam`'s axis in front of its echo's
+    /// band.
+    fn occupied_in_front(&self, model: &SmoothModel, beam: &Beam) -> bool {
         self.cells_in_front(model, beam)
-            .any(|(x, y)| self.grid.probability(x, y).is_some_and(|p| p > above))
+            .any(|(x, y)| self.grid.is_above(x, y, self.above_half))
     }
 
     /// Whether the grid holds a cell on `beam`'s axis in front of its echo's band that is occupied
@@ -825,7 +833,7 @@ impl Mapper {
         let min_incidence = WITHDRAW_INCIDENCE_DEG.to_radians();
         let grid = &self.grid;
         self.cells_in_front(model, beam).any(|(x, y)| {
-            grid.probability(x, y).is_some_and(|p| p > WITHDRAW_ABOVE)
+            grid.is_above(x, y, self.above_withdraw)
                 && grid
                     .heard_from(x, y)
                     .is_none_or(|h| incidence(beam.axis, h) >= min_incidence)
@@ -863,7 +871,7 @@ impl Mapper {
             let distance = (foot - from).norm();
             let direction = (foot - from) / distance;
             self.cells_along(from, direction, self.steps_short_of(model, distance))
-                .all(|(x, y)| self.grid.probability(x, y).is_none_or(|p| p <= 0.5))
+                .all(|(x, y)| !self.grid.is_above(x, y, self.above_half))
         };
         regions.sightlines.refuted_at(
             since,
