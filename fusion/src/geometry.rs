@@ -176,6 +176,12 @@ pub(crate) fn wrap_angle(angle: f32) -> f32 {
     angle - TAU * (angle / TAU).round()
 }
 
+/// The angle between two bearings folded into [0, π/2] (a wall answers from either side).
+pub(crate) fn incidence(a: f32, b: f32) -> f32 {
+    let d = wrap_angle(a - b).abs();
+    if d > FRAC_PI_2 { PI - d } else { d }
+}
+
 /// Signed angle of bearing `bearing` off the beam axis `axis`, both in [−π, π]; the difference is
 /// brought back into [−π, π] with selects rather than a division so the kernels' loops vectorise.
 #[inline(always)]

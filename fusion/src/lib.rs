@@ -205,6 +205,7 @@ pub mod mapper;
 pub mod model;
 pub mod observation;
 pub mod persist;
+mod points;
 pub mod poses;
 pub mod radar;
 pub mod reference;

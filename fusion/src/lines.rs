@@ -615,6 +615,17 @@ impl Lines {
         })
     }
 
+    /// Forgets the patches heard from `sensor` square to `facing` at `range` (within `tolerance`):
+    /// a point's ([`crate::points`]), which is no wall to follow.
+    pub fn forget(&mut self, sensor: Vector2<f32>, facing: f32, range: f32, tolerance: f32) {
+        self.patches.retain(|k| {
+            let p = &k.item;
+            !((p.sensor - sensor).norm() < OTHER_VIEWPOINT_M
+                && wrap_angle(p.facing - facing).abs() <= SAME_BEARING
+                && (p.range - range).abs() <= tolerance)
+        });
+    }
+
     pub fn clear(&mut self) {
         self.patches.clear();
         self.echoes.clear();

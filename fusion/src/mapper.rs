@@ -7,12 +7,13 @@ use nalgebra::{Isometry2, Vector2};
 
 use crate::config::{ConfigError, FusionConfig};
 use crate::geometry::GridGeometry;
-use crate::geometry::wrap_angle;
+use crate::geometry::{incidence, wrap_angle};
 use crate::grid::{Above, OccupancyGrid, with_layer};
 use crate::kernel::ConeCache;
 use crate::lines::{self, Echo, Lines, Patch, Stretch};
 use crate::model::{CellEvidence, ModelConfig, SmoothModel, with_model};
 use crate::observation::{Beam, Observation, ObservationError};
+use crate::points::{self, Points};
 use crate::radar::RadarMap;
 use crate::reference::PaperArrays;
 use crate::regions::{DepthTolerance, End, Heard, LobeWidth, Region, RegionTracker};
@@ -34,15 +35,6 @@ const WITHDRAW_ABOVE: f32 = 0.9;
 /// SRF05's specular cut-off, beyond which the wall could not have answered the reading.
 const WITHDRAW_INCIDENCE_DEG: f32 = 28.0;
 
-/// The angle between two bearings folded into [0, π/2] (a wall answers from either side).
-fn incidence(a: f32, b: f32) -> f32 {
-    let d = wrap_angle(a - b).abs();
-    if d > std::f32::consts::FRAC_PI_2 {
-        std::f32::consts::PI - d
-    } else {
-        d
-    }
-}
 /// Stretches of wall are drawn in pieces at most this long, metres.
 const STRETCH_PIECE_M: f32 = 1.0;
 
@@ -91,6 +83,8 @@ struct Regions {
     waiting: Vec<Beam>,
     /// The patches placed, for the walls between them ([`crate::lines`]).
     lines: Lines,
+    /// With `region_points`: the whole regions' patches drawn, to tell points from walls.
+    points: Points,
     stretches: Vec<Stretch>,
     /// The lobe's half-width by range, learnt from the whole regions.
     lobe: LobeWidth,
@@ -293,6 +287,7 @@ impl Mapper {
                     tracker: RegionTracker::default(),
                     waiting: Vec::new(),
                     lines: Lines::default(),
+                    points: Points::default(),
                     stretches: Vec::new(),
                     lobe: LobeWidth::default(),
                     sightlines: Sightlines::default(),
@@ -651,7 +646,15 @@ impl Mapper {
             if region.is_cut_and_narrow(lobe) && regions.lines.corner_at(point, tolerance) {
                 // A point: a cell wide.
                 let half_angle = (self.grid.geometry().resolution() / region.range).atan();
-                cells += self.fuse_patch(&model, &region, region.axis, half_angle, kernel);
+                let point = points::Drawn {
+                    position: region.position,
+                    axis: region.axis,
+                    range: region.range,
+                    half_angle,
+                    readings: region.readings as f32,
+                    point: true,
+                };
+                cells += self.fuse_patch(&model, &point, 1.0, kernel);
                 regions.walls_placed = true;
             }
         }
@@ -672,13 +675,47 @@ impl Mapper {
         let ModelConfig::Smooth(model) = self.config.model else {
             return 0;
         };
-        let cells = self.fuse_patch(&model, region, axis, half_angle, kernel);
+        let drawn = points::Drawn {
+            position: region.position,
+            axis,
+            range: region.range,
+            half_angle,
+            readings: region.readings as f32,
+            point: false,
+        };
+        let found = if model.region_points {
+            let tolerance = regions.tolerance.at(region.range) + model.band(region.range);
+            regions.points.add(drawn, tolerance)
+        } else {
+            points::Found::default()
+        };
+        let mut cells = 0;
+        for kept in &found.became_points {
+            let tolerance = regions.tolerance.at(kept.range) + model.band(kept.range);
+            regions
+                .lines
+                .forget(kept.position, kept.axis, kept.range, tolerance);
+            cells += self.fuse_patch(&model, kept, -1.0, kernel);
+            cells += self.fuse_patch(&model, &self.as_point(kept), 1.0, kernel);
+        }
         regions.walls_placed = true;
+        if found.point {
+            return cells + self.fuse_patch(&model, &self.as_point(&drawn), 1.0, kernel);
+        }
+        cells += self.fuse_patch(&model, &drawn, 1.0, kernel);
         regions.lines.add(
             Patch::new(region.position, axis, region.range, half_angle),
             &mut regions.stretches,
         );
         cells + self.place_stretches(&model, regions, Stretches::BetweenFeet, kernel)
+    }
+
+    /// `patch` drawn as a point: a cell wide.
+    fn as_point(&self, patch: &points::Drawn) -> points::Drawn {
+        points::Drawn {
+            half_angle: (self.grid.geometry().resolution() / patch.range).atan(),
+            ..*patch
+        }
     }
 
     /// Fuses a region's occupied evidence on a straight patch square to `axis` at its range,
@@ -689,19 +726,26 @@ impl Mapper {
     fn fuse_patch(
         &mut self,
         model: &SmoothModel,
-        region: &Region,
-        axis: f32,
-        half_angle: f32,
+        patch: &points::Drawn,
+        sign: f32,
         kernel: Kernel,
     ) -> usize {
+        let points::Drawn {
+            position,
+            axis,
+            range,
+            half_angle,
+            readings,
+            ..
+        } = *patch;
         let beam = Beam {
-            position: region.position,
+            position,
             axis,
             half_angle: model.max_half_angle(),
             max_range: self.config.sensor.limits().max_range,
-            echo: Some(region.range),
+            echo: Some(range),
         };
-        let evidence = model.region_echo(axis, region.range, half_angle, region.readings as f32);
+        let evidence = model.region_echo(axis, range, half_angle, sign * readings);
         self.apply(&beam, &evidence, kernel)
     }
 
@@ -988,6 +1032,7 @@ impl Mapper {
             regions.tracker = RegionTracker::default();
             regions.waiting.clear();
             regions.lines.clear();
+            regions.points.clear();
             regions.sightlines.clear();
             regions.drawn.clear();
             regions.one_ended.clear();
@@ -1441,6 +1486,53 @@ mod tests {
                 (c.x, c.y)
             })
             .collect()
+    }
+
+    /// Sweeps from `at` over ±40° about the bearing of `target`, whose readings within ±15° of it
+    /// hear `range(bearing)`, the others nothing; the region closed after.
+    fn hear_around(m: &mut Mapper, at: (f32, f32), target: (f32, f32), range: impl Fn(f32) -> f32) {
+        let to = (target.1 - at.1).atan2(target.0 - at.0).to_degrees();
+        let readings = sweep(at, (to - 40.0, to + 40.0), 2, |a| {
+            ((a - to).abs() <= 15.0).then(|| range(a))
+        });
+        for obs in &readings {
+            m.update(obs).unwrap();
+        }
+        m.close_region();
+    }
+
+    #[test]
+    fn a_post_heard_whole_from_two_bearings_is_drawn_as_a_point_and_a_wall_stays_a_wall() {
+        let model = |points: bool| crate::model::SmoothModel {
+            region_points: points,
+            ..crate::model::SmoothModel::default()
+        };
+        let occupied =
+            |m: &Mapper, x: f32, y: f32| probability_at(m, x, y).is_some_and(|p| p > 0.5);
+        let post = (1.5, 0.0);
+        let distance = |from: (f32, f32)| (post.0 - from.0).hypot(post.1 - from.1);
+        for points in [false, true] {
+            let mut m = region_mapper(model(points));
+            hear_around(&mut m, (0.0, 0.0), post, |_| distance((0.0, 0.0)));
+            // One viewpoint: a patch across the bearing, as a wall's foot would give.
+            assert!(
+                occupied(&m, 1.51, 0.01) && occupied(&m, 1.51, 0.21),
+                "{points}"
+            );
+            hear_around(&mut m, (0.5, -1.0), post, |_| distance((0.5, -1.0)));
+            assert!(occupied(&m, 1.51, 0.01), "{points}");
+            // From 45° round, the same spot: a point, the first patch's flank taken back.
+            assert_eq!(occupied(&m, 1.51, 0.21), !points);
+        }
+        // A wall along x = 2 heard from (0, 0) and (0, 1): each viewpoint at its own foot, along
+        // one bearing; its patches stay as wide.
+        let mut m = region_mapper(model(true));
+        for y in [0.0, 1.0] {
+            hear_around(&mut m, (0.0, y), (2.0, y), |a| 2.0 / a.to_radians().cos());
+        }
+        for y in [-0.19, 0.21, 0.81, 1.21] {
+            assert!(occupied(&m, 2.01, y), "{y}");
+        }
     }
 
     #[test]

@@ -656,6 +656,11 @@ pub struct SmoothModel {
     /// some echo, it drew walls across rooms, a star of them around each post heard from several
     /// places.
     pub region_corner_walls_confirmed: bool,
+    /// With `echo_placement = "region"`: a reflector heard whole at one spot from two viewpoints
+    /// whose bearings to it differ by 6° or more is a point (a post, an edge, a corner: a wall
+    /// answers each viewpoint at its own foot), and its patches are drawn a cell wide, those
+    /// drawn before taken back ([`crate::points`]); nor is it followed as a wall.
+    pub region_points: bool,
 }
 
 /// Where a reading's echo puts its occupied evidence ([`SmoothModel::echo_placement`]).
@@ -703,6 +708,7 @@ impl Default for SmoothModel {
             region_stretch_foot_check: false,
             region_corner_walls_foot_check: false,
             region_corner_walls_confirmed: false,
+            region_points: false,
         }
     }
 }

@@ -1,0 +1,180 @@
+//! Point reflectors: a reflector heard whole from two viewpoints at two bearings.
+//!
+//! A whole region of constant depth ([`crate::regions`]) is drawn as a straight patch square to
+//! its middle bearing: what a wall met squarely gives. A post, an edge or a corner gives the same
+//! region from one viewpoint, and its patch is then a stretch of wall that is not there, across
+//! the room in front of a corner and outside it behind (Leonard and Durrant-Whyte's regions of
+//! constant depth: one viewpoint cannot tell a plane from a point). Two viewpoints can: a wall
+//! answers each at the foot of its own perpendicular, so two viewpoints hear it at one spot only
+//! along one bearing; a point answers every viewpoint at itself, whatever the bearing. So a
+//! reflector heard whole at the same spot from two viewpoints whose bearings to it differ by
+//! [`POINT_APART`] or more is a point, and both its patches are drawn again a cell wide. Bearings
+//! are compared folded, as a wall's incidence is: a thin wall heard at one spot from its two sides
+//! is heard along one line from opposite ways.
+
+use std::collections::VecDeque;
+
+use nalgebra::Vector2;
+
+use crate::geometry::{incidence, wrap_angle};
+
+/// Two viewpoints' bearings to one spot differ by at least this much for it to be a point,
+/// radians (6°, a reading's step): a wall's foot is heard at one spot from one bearing only, to
+/// within the few degrees a region's middle bearing is off (its ends are known to a reading).
+const POINT_APART: f32 = 6.0 * std::f32::consts::PI / 180.0;
+/// Patches from sensor positions closer than this are from one viewpoint, metres.
+const OTHER_VIEWPOINT_M: f32 = 0.1;
+/// A patch repeats one kept if from the same viewpoint and bearing within this much, radians
+/// (0.5°).
+const SAME_BEARING: f32 = 0.5 * std::f32::consts::PI / 180.0;
+/// Patches kept; the oldest are forgotten first.
+const KEPT: usize = 4096;
+
+/// A whole region's patch as drawn: from where, along which bearing, how far, how wide, as
+/// strong as how many readings (all its hearings together), and whether it is drawn as a point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Drawn {
+    pub position: Vector2<f32>,
+    pub axis: f32,
+    pub range: f32,
+    pub half_angle: f32,
+    pub readings: f32,
+    pub point: bool,
+}
+
+impl Drawn {
+    /// Where the reflector is: on the middle bearing, at the range.
+    fn reflector(&self) -> Vector2<f32> {
+        self.position + Vector2::new(self.axis.cos(), self.axis.sin()) * self.range
+    }
+
+    fn same_viewpoint(&self, other: &Drawn) -> bool {
+        (self.position - other.position).norm() < OTHER_VIEWPOINT_M
+    }
+}
+
+/// The whole regions' patches drawn so far (each repeated hearing counted in the one it repeats).
+#[derive(Debug, Default)]
+pub(crate) struct Points {
+    kept: VecDeque<Drawn>,
+}
+
+/// What [`Points::add`] found: whether the new patch's reflector is a point, and the patches kept
+/// that became points with it (as they were drawn, to be taken back).
+#[derive(Debug, Default, PartialEq)]
+pub(crate) struct Found {
+    pub point: bool,
+    pub became_points: Vec<Drawn>,
+}
+
+impl Points {
+    /// Adds `patch` (its `point` ignored), whose reflector lies within `tolerance` of where it
+    /// is; says whether it is a point and which kept patches became points with it, marking
+    /// them so.
+    pub fn add(&mut self, mut patch: Drawn, tolerance: f32) -> Found {
+        let reflector = patch.reflector();
+        let mut found = Found::default();
+        for kept in &mut self.kept {
+            if !kept.same_viewpoint(&patch)
+                && incidence(kept.axis, patch.axis) >= POINT_APART
+                && (kept.reflector() - reflector).norm() <= tolerance
+            {
+                found.point = true;
+                if !kept.point {
+                    found.became_points.push(*kept);
+                    kept.point = true;
+                }
+            }
+        }
+        patch.point = found.point;
+        let repeated = self.kept.iter_mut().find(|kept| {
+            kept.same_viewpoint(&patch)
+                && wrap_angle(kept.axis - patch.axis).abs() <= SAME_BEARING
+                && (kept.range - patch.range).abs() <= tolerance
+        });
+        match repeated {
+            // Drawn as the kept one is: a point again, or a wall that may become one.
+            Some(kept) => {
+                kept.readings += patch.readings;
+                found.point = kept.point;
+            }
+            None => {
+                if self.kept.len() >= KEPT {
+                    self.kept.pop_front();
+                }
+                self.kept.push_back(patch);
+            }
+        }
+        found
+    }
+
+    pub fn clear(&mut self) {
+        self.kept.clear();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn heard_from(x: f32, y: f32, at: Vector2<f32>, readings: f32) -> Drawn {
+        let position = Vector2::new(x, y);
+        let to = at - position;
+        Drawn {
+            position,
+            axis: to.y.atan2(to.x),
+            range: to.norm(),
+            half_angle: 0.3,
+            readings,
+            point: false,
+        }
+    }
+
+    #[test]
+    fn a_post_heard_from_two_bearings_is_a_point_and_the_first_patch_becomes_one() {
+        let post = Vector2::new(2.0, 0.0);
+        let mut points = Points::default();
+        assert_eq!(
+            points.add(heard_from(0.0, 0.0, post, 5.0), 0.05),
+            Found::default()
+        );
+        let found = points.add(heard_from(0.5, -1.0, post, 4.0), 0.05);
+        assert!(found.point);
+        assert_eq!(found.became_points, vec![heard_from(0.0, 0.0, post, 5.0)]);
+        // A third viewpoint: a point, and nothing kept to draw again.
+        let found = points.add(heard_from(1.0, 1.0, post, 4.0), 0.05);
+        assert_eq!((found.point, found.became_points.len()), (true, 0));
+    }
+
+    #[test]
+    fn a_wall_heard_at_two_feet_or_twice_from_one_place_is_no_point() {
+        let mut points = Points::default();
+        // The wall x = 2 from (0, 0) and (0, 1): each at its own foot, along one bearing.
+        points.add(heard_from(0.0, 0.0, Vector2::new(2.0, 0.0), 5.0), 0.05);
+        let found = points.add(heard_from(0.0, 1.0, Vector2::new(2.0, 1.0), 5.0), 0.05);
+        assert_eq!(found, Found::default());
+        // From (1, 0), on the first foot's perpendicular: the same spot, the same bearing.
+        let found = points.add(heard_from(1.0, 0.0, Vector2::new(2.0, 0.0), 5.0), 0.05);
+        assert_eq!(found, Found::default());
+        // A thin wall heard at that foot from its other side, from (3, 0): the opposite way.
+        let found = points.add(heard_from(3.0, 0.0, Vector2::new(2.0, 0.0), 5.0), 0.05);
+        assert_eq!(found, Found::default());
+        // One viewpoint, 10° round, within the tolerance: one viewpoint cannot tell.
+        let mut points = Points::default();
+        points.add(heard_from(0.0, 0.0, Vector2::new(2.0, 0.0), 5.0), 0.4);
+        let found = points.add(heard_from(0.05, 0.0, Vector2::new(2.0, 0.35), 5.0), 0.4);
+        assert!(!found.point);
+    }
+
+    #[test]
+    fn a_point_heard_again_from_one_place_stays_a_point_and_counts_its_readings() {
+        let post = Vector2::new(2.0, 0.0);
+        let mut points = Points::default();
+        points.add(heard_from(0.0, 0.0, post, 5.0), 0.05);
+        points.add(heard_from(0.5, -1.0, post, 4.0), 0.05);
+        let found = points.add(heard_from(0.0, 0.0, post, 3.0), 0.05);
+        assert_eq!((found.point, found.became_points.len()), (true, 0));
+        let first = points.kept.front().copied();
+        assert_eq!(first.map(|d| (d.readings, d.point)), Some((8.0, true)));
+    }
+}
