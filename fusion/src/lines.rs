@@ -531,8 +531,22 @@ impl Lines {
     /// With `confirmed_corners`, a wall is followed to a corner only from a patch
     /// [`Patch::confirmed`] from another viewpoint, or from either of two patches heard from one
     /// place ([`crate::model::SmoothModel::region_corner_walls_confirmed`]).
-    pub fn join_ends(&mut self, confirmed_corners: bool, out: &mut Vec<Stretch>) {
+    pub fn join_ends(
+        &mut self,
+        confirmed_corners: bool,
+        seen: impl Fn(Vector2<f32>, &Stretch, &mut Vec<Stretch>),
+        out: &mut Vec<Stretch>,
+    ) {
         out.clear();
+        let mut pieces = Vec::new();
+        // The pieces of `stretch`, followed on from `p`, that `p`'s sensor sees.
+        let mut push_seen = |out: &mut Vec<Stretch>, p: &Patch, stretch: &Stretch, readings| {
+            pieces.clear();
+            seen(p.sensor, stretch, &mut pieces);
+            for piece in &pieces {
+                push_new(out, *piece, readings);
+            }
+        };
         // Each pair with a fresh patch once: a fresh one with every patch before it, and with
         // those after it that are not fresh.
         for (i, a) in self.patches.iter().enumerate().filter(|(_, k)| k.fresh > 0) {
@@ -550,8 +564,8 @@ impl Lines {
                 let one_place = (a.sensor - b.sensor).norm() < OTHER_VIEWPOINT_M;
                 let followed = |p: &Patch| !confirmed_corners || one_place || p.confirmed;
                 let stretches = [
-                    a.towards(corner).filter(|_| followed(a)),
-                    b.towards(corner).filter(|_| followed(b)),
+                    a.towards(corner).filter(|_| followed(a)).map(|s| (a, s)),
+                    b.towards(corner).filter(|_| followed(b)).map(|s| (b, s)),
                 ];
                 // The corner of two patches that stand for others moves with their lines: as
                 // far as their spreads together across the sine of the angle between them, so
@@ -563,8 +577,8 @@ impl Lines {
                 {
                     continue;
                 }
-                for stretch in stretches.into_iter().flatten() {
-                    push_new(out, stretch, readings);
+                for (p, stretch) in stretches.into_iter().flatten() {
+                    push_seen(out, p, &stretch, readings);
                 }
             }
         }
@@ -586,7 +600,7 @@ impl Lines {
                     && a.item.passes_through(reflector, echo.tolerance)
                     && let Some(stretch) = a.item.towards(reflector)
                 {
-                    push_new(out, stretch, a.fresh_pairs(e));
+                    push_seen(out, &a.item, &stretch, a.fresh_pairs(e));
                 }
             }
         }
@@ -637,6 +651,11 @@ mod tests {
     use super::*;
 
     const DEG: f32 = std::f32::consts::PI / 180.0;
+
+    /// Every stretch seen whole from where its patch was heard.
+    fn all_seen(_: Vector2<f32>, stretch: &Stretch, out: &mut Vec<Stretch>) {
+        out.push(*stretch);
+    }
 
     /// A wall along x = 2 m heard square (facing 0) from (0, y) at 2 m, patch ±5°.
     fn heard_from(y: f32) -> Patch {
@@ -730,7 +749,7 @@ mod tests {
             let mut out = Vec::new();
             echoes.iter().for_each(|&e| lines.hear(e));
             walls.iter().for_each(|&w| lines.add(w, &mut out));
-            lines.join_ends(false, &mut out);
+            lines.join_ends(false, all_seen, &mut out);
             out
         };
         let out = joined(&[echo(2.5)], &walls);
@@ -769,8 +788,8 @@ mod tests {
         let mut out = Vec::new();
         lines.hear(echo(2.5));
         walls.iter().for_each(|&w| lines.add(w, &mut out));
-        lines.join_ends(false, &mut out);
-        lines.join_ends(false, &mut out);
+        lines.join_ends(false, all_seen, &mut out);
+        lines.join_ends(false, all_seen, &mut out);
         assert!(out.is_empty());
     }
     #[test]
@@ -794,7 +813,7 @@ mod tests {
             let mut out = Vec::new();
             lines.hear(echo);
             walls.iter().for_each(|&w| lines.add(w, &mut out));
-            lines.join_ends(confirmed, &mut out);
+            lines.join_ends(confirmed, all_seen, &mut out);
             out
         };
         assert_eq!(joined(false, &[east, north]).len(), 2);
@@ -837,7 +856,7 @@ mod tests {
         lines.add(wall, &mut out);
         lines.hear(whole(Vector2::new(1.0, 1.5), jamb));
         lines.hear(whole(Vector2::new(1.0, 1.5), Vector2::new(1.7, 0.8)));
-        lines.join_ends(false, &mut out);
+        lines.join_ends(false, all_seen, &mut out);
         assert_eq!(out.len(), 1, "{out:?}");
         assert!((out[0].b - jamb).norm() < 1e-4, "{out:?}");
         assert!((out[0].a - wall.ends[1]).norm() < 1e-4, "{out:?}");
@@ -848,7 +867,7 @@ mod tests {
             whole: false,
             ..whole(Vector2::new(1.0, 1.5), jamb)
         });
-        lines.join_ends(false, &mut out);
+        lines.join_ends(false, all_seen, &mut out);
         assert!(out.is_empty(), "{out:?}");
     }
 
@@ -882,7 +901,7 @@ mod tests {
                 tolerance: 0.05,
                 whole: false,
             });
-            lines.join_ends(false, &mut out);
+            lines.join_ends(false, all_seen, &mut out);
             // Both walls drawn on to the corner, every sweep, each once: as many readings as
             // pairs of hearings of the two walls with this sweep's in them.
             assert_eq!(out.len(), 2, "sweep {sweep}: {out:?}");
@@ -930,12 +949,12 @@ mod tests {
         let mut out = Vec::new();
         lines.hear(echo);
         walls(0.9).iter().for_each(|&w| lines.add(w, &mut out));
-        lines.join_ends(false, &mut out);
+        lines.join_ends(false, all_seen, &mut out);
         assert!(out.is_empty(), "{out:?}");
         // At 0.88 m, 1.245 m: within. Kept apart, those would have been joined.
         walls(0.88).iter().for_each(|&w| lines.add(w, &mut out));
         assert_eq!(lines.patches.len(), 2);
-        lines.join_ends(false, &mut out);
+        lines.join_ends(false, all_seen, &mut out);
         assert_eq!(out.len(), 2, "{out:?}");
     }
 

@@ -37,6 +37,10 @@ const WITHDRAW_INCIDENCE_DEG: f32 = 28.0;
 
 /// Stretches of wall are drawn in pieces at most this long, metres.
 const STRETCH_PIECE_M: f32 = 1.0;
+/// With `region_corner_walls_seen`: the viewpoints kept to see walls drawn on from, the latest
+/// this many, each at least [`OTHER_VIEWPOINT_M`] from the others.
+const VIEWPOINTS_KEPT: usize = 32;
+const OTHER_VIEWPOINT_M: f32 = 0.25;
 
 /// Which kernel fuses a reading into the grid. Both give the same grid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -85,6 +89,9 @@ struct Regions {
     lines: Lines,
     /// With `region_points`: the whole regions' patches drawn, to tell points from walls.
     points: Points,
+    /// Where whole regions were heard from: the latest [`VIEWPOINTS_KEPT`], each at least
+    /// [`OTHER_VIEWPOINT_M`] from the others.
+    viewpoints: VecDeque<Vector2<f32>>,
     stretches: Vec<Stretch>,
     /// The lobe's half-width by range, learnt from the whole regions.
     lobe: LobeWidth,
@@ -288,6 +295,7 @@ impl Mapper {
                     waiting: Vec::new(),
                     lines: Lines::default(),
                     points: Points::default(),
+                    viewpoints: VecDeque::new(),
                     stretches: Vec::new(),
                     lobe: LobeWidth::default(),
                     sightlines: Sightlines::default(),
@@ -578,9 +586,19 @@ impl Mapper {
         if let ModelConfig::Smooth(model) = self.config.model
             && model.region_corner_walls
         {
-            regions
-                .lines
-                .join_ends(model.region_corner_walls_confirmed, &mut regions.stretches);
+            let viewpoints = &regions.viewpoints;
+            let seen = |sensor: Vector2<f32>, stretch: &Stretch, out: &mut Vec<Stretch>| {
+                if model.region_corner_walls_seen {
+                    self.seen_parts(&model, sensor, viewpoints, stretch, out);
+                } else {
+                    out.push(*stretch);
+                }
+            };
+            regions.lines.join_ends(
+                model.region_corner_walls_confirmed,
+                seen,
+                &mut regions.stretches,
+            );
             regions.walls_placed |= !regions.stretches.is_empty();
             cells += self.place_stretches(&model, &mut regions, Stretches::ToEnds, Kernel::Cone);
         }
@@ -703,6 +721,16 @@ impl Mapper {
             return cells + self.fuse_patch(&model, &self.as_point(&drawn), 1.0, kernel);
         }
         cells += self.fuse_patch(&model, &drawn, 1.0, kernel);
+        if !regions
+            .viewpoints
+            .iter()
+            .any(|v| (v - region.position).norm() < OTHER_VIEWPOINT_M)
+        {
+            if regions.viewpoints.len() >= VIEWPOINTS_KEPT {
+                regions.viewpoints.pop_front();
+            }
+            regions.viewpoints.push_back(region.position);
+        }
         regions.lines.add(
             Patch::new(region.position, axis, region.range, half_angle),
             &mut regions.stretches,
@@ -870,6 +898,76 @@ impl Mapper {
             .any(|(x, y)| self.grid.is_above(x, y, self.above_half))
     }
 
+    /// Writes into `out` the parts of `stretch`, a wall drawn on from a patch heard from
+    /// `sensor`, that `sensor` or one of `viewpoints` sees, as far as the grid shows (looked at
+    /// every two grid steps): within the sensor's reach, with no wall (p > [`WITHDRAW_ABOVE`])
+    /// between, leaving out the cells within two bands of the stretch's own line (a sight line
+    /// that meets the wall at a slant runs near it). No viewpoint could have heard the rest: a
+    /// wall followed on behind another wall is a guess nothing can check or refute.
+    fn seen_parts(
+        &self,
+        model: &SmoothModel,
+        sensor: Vector2<f32>,
+        viewpoints: &VecDeque<Vector2<f32>>,
+        stretch: &Stretch,
+        out: &mut Vec<Stretch>,
+    ) {
+        let geometry = self.grid.geometry();
+        let reach = self.config.sensor.limits().max_range;
+        let step = 2.0 * geometry.resolution();
+        let length = (stretch.b - stretch.a).norm();
+        if length <= step {
+            out.push(*stretch);
+            return;
+        }
+        let along = (stretch.b - stretch.a) / length;
+        let normal = Vector2::new(-along.y, along.x);
+        let samples = (length / step).ceil() as usize;
+        let at = |k: usize| stretch.a + along * (k as f32 * step).min(length);
+        let seen_from = |from: Vector2<f32>, point: Vector2<f32>| {
+            let distance = (point - from).norm();
+            let near_line = 2.0 * model.band(distance);
+            let direction = (point - from) / distance;
+            distance <= reach
+                && !self
+                    .cells_along(from, direction, self.steps_short_of(model, distance))
+                    .any(|(x, y)| {
+                        let centre: Vector2<f32> = geometry.cell_centre(x, y).coords;
+                        normal.dot(&(centre - stretch.a)).abs() > near_line
+                            && self.grid.is_above(x, y, self.above_withdraw)
+                    })
+        };
+        let seen = |k: usize| {
+            let point = at(k);
+            seen_from(sensor, point) || viewpoints.iter().any(|&v| seen_from(v, point))
+        };
+        // Runs of seen samples, each drawn from its first sample to its last.
+        let mut first_seen = None;
+        for k in 0..=samples {
+            match (seen(k), first_seen) {
+                (true, None) => first_seen = Some(k),
+                (false, Some(first)) => {
+                    if k - 1 > first {
+                        out.push(Stretch {
+                            a: at(first),
+                            b: at(k - 1),
+                            ..*stretch
+                        });
+                    }
+                    first_seen = None;
+                }
+                _ => {}
+            }
+        }
+        if let Some(first) = first_seen.filter(|&first| first < samples) {
+            out.push(Stretch {
+                a: at(first),
+                b: at(samples),
+                ..*stretch
+            });
+        }
+    }
+
     /// Whether the grid holds a cell on `beam`'s axis in front of its echo's band that is occupied
     /// (p > [`WITHDRAW_ABOVE`]) and was heard from a bearing at least [`WITHDRAW_INCIDENCE_DEG`]
     /// off the axis: a wall the axis meets at a slant, which could not answer the reading.
@@ -1033,6 +1131,7 @@ impl Mapper {
             regions.waiting.clear();
             regions.lines.clear();
             regions.points.clear();
+            regions.viewpoints.clear();
             regions.sightlines.clear();
             regions.drawn.clear();
             regions.one_ended.clear();
@@ -1533,6 +1632,44 @@ mod tests {
         for y in [-0.19, 0.21, 0.81, 1.21] {
             assert!(occupied(&m, 2.01, y), "{y}");
         }
+    }
+
+    #[test]
+    fn a_wall_drawn_on_is_drawn_only_where_some_viewpoint_sees_it() {
+        let model = crate::model::SmoothModel {
+            echo_placement: crate::model::EchoPlacement::Region,
+            ..crate::model::SmoothModel::default()
+        };
+        let mut m = region_mapper(model);
+        // A wall along x = 1 from y = −0.3 to 0.3, between the sensor at the origin and a wall
+        // along x = 2 followed on from y = −1 to 1.
+        let near = Stretch {
+            a: Vector2::new(1.0, -0.3),
+            b: Vector2::new(1.0, 0.3),
+            facing: 0.0,
+            readings: 5,
+        };
+        m.place_stretch(&model, &near, 1.0, Kernel::Cone);
+        assert!(probability_at(&m, 1.01, 0.01).is_some_and(|p| p > 0.9));
+        let far = Stretch {
+            a: Vector2::new(2.0, -1.0),
+            b: Vector2::new(2.0, 1.0),
+            facing: 0.0,
+            readings: 1,
+        };
+        let seen = |viewpoints: &[Vector2<f32>]| {
+            let mut out = Vec::new();
+            let viewpoints: VecDeque<Vector2<f32>> = viewpoints.iter().copied().collect();
+            m.seen_parts(&model, Vector2::zeros(), &viewpoints, &far, &mut out);
+            out.iter().map(|s| (s.a.y, s.b.y)).collect::<Vec<_>>()
+        };
+        // From the origin the near wall hides the far one where |y| < 0.6 and a little more.
+        let parts = seen(&[]);
+        assert_eq!(parts.len(), 2, "{parts:?}");
+        assert!((parts[0].0 + 1.0).abs() < 1e-6 && (-0.72..-0.6).contains(&parts[0].1));
+        assert!((0.6..0.72).contains(&parts[1].0) && (parts[1].1 - 1.0).abs() < 1e-6);
+        // A viewpoint between the walls sees it all.
+        assert_eq!(seen(&[Vector2::new(1.5, 0.0)]), vec![(-1.0, 1.0)]);
     }
 
     #[test]

@@ -661,6 +661,10 @@ pub struct SmoothModel {
     /// answers each viewpoint at its own foot), and its patches are drawn a cell wide, those
     /// drawn before taken back ([`crate::points`]); nor is it followed as a wall.
     pub region_points: bool,
+    /// With `region_corner_walls`: a wall is drawn on from its patch only where the sensor that
+    /// heard the patch, or another viewpoint a whole region was heard from, sees it, as far as
+    /// the grid shows (no wall between): not behind walls, where no reading could check it.
+    pub region_corner_walls_seen: bool,
 }
 
 /// Where a reading's echo puts its occupied evidence ([`SmoothModel::echo_placement`]).
@@ -709,6 +713,7 @@ impl Default for SmoothModel {
             region_corner_walls_foot_check: false,
             region_corner_walls_confirmed: false,
             region_points: false,
+            region_corner_walls_seen: false,
         }
     }
 }
