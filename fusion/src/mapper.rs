@@ -38,9 +38,9 @@ const WITHDRAW_INCIDENCE_DEG: f32 = 28.0;
 /// Stretches of wall are drawn in pieces at most this long, metres.
 const STRETCH_PIECE_M: f32 = 1.0;
 /// With `region_corner_walls_seen`: the viewpoints kept to see walls drawn on from, the latest
-/// this many, each at least [`OTHER_VIEWPOINT_M`] from the others.
+/// this many, each at least [`VIEWPOINTS_APART_M`] from the others.
 const VIEWPOINTS_KEPT: usize = 32;
-const OTHER_VIEWPOINT_M: f32 = 0.25;
+const VIEWPOINTS_APART_M: f32 = 0.25;
 
 /// Which kernel fuses a reading into the grid. Both give the same grid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -89,8 +89,8 @@ struct Regions {
     lines: Lines,
     /// With `region_points`: the whole regions' patches drawn, to tell points from walls.
     points: Points,
-    /// Where whole regions were heard from: the latest [`VIEWPOINTS_KEPT`], each at least
-    /// [`OTHER_VIEWPOINT_M`] from the others.
+    /// With `region_corner_walls_seen`: where whole regions were heard from, the latest
+    /// [`VIEWPOINTS_KEPT`], each at least [`VIEWPOINTS_APART_M`] from the others.
     viewpoints: VecDeque<Vector2<f32>>,
     stretches: Vec<Stretch>,
     /// The lobe's half-width by range, learnt from the whole regions.
@@ -721,10 +721,11 @@ impl Mapper {
             return cells + self.fuse_patch(&model, &self.as_point(&drawn), 1.0, kernel);
         }
         cells += self.fuse_patch(&model, &drawn, 1.0, kernel);
-        if !regions
-            .viewpoints
-            .iter()
-            .any(|v| (v - region.position).norm() < OTHER_VIEWPOINT_M)
+        if model.region_corner_walls_seen
+            && !regions
+                .viewpoints
+                .iter()
+                .any(|v| (v - region.position).norm() < VIEWPOINTS_APART_M)
         {
             if regions.viewpoints.len() >= VIEWPOINTS_KEPT {
                 regions.viewpoints.pop_front();
