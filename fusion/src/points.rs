@@ -93,8 +93,14 @@ impl Points {
                 && (kept.range - patch.range).abs() <= tolerance
         });
         match repeated {
-            // Drawn as the kept one is: a point again, or a wall that may become one.
+            // Drawn as the kept one is: a point again, or a wall that may become one; or, when
+            // another viewpoint now shows the spot to be a point (within this hearing's
+            // tolerance, wider than the kept one's was), a point, the kept one with it.
             Some(kept) => {
+                if found.point && !kept.point {
+                    found.became_points.push(*kept);
+                    kept.point = true;
+                }
                 kept.readings += patch.readings;
                 found.point = kept.point;
             }
@@ -164,6 +170,28 @@ mod tests {
         points.add(heard_from(0.0, 0.0, Vector2::new(2.0, 0.0), 5.0), 0.4);
         let found = points.add(heard_from(0.05, 0.0, Vector2::new(2.0, 0.35), 5.0), 0.4);
         assert!(!found.point);
+    }
+
+    #[test]
+    fn a_wall_heard_again_where_another_viewpoint_heard_a_point_becomes_one() {
+        let post = Vector2::new(2.0, 0.0);
+        let beside = Vector2::new(2.0, 0.03);
+        let mut points = Points::default();
+        // From (0.5, -1.0) at the post; from the origin 3 cm beside it, within neither's 1 cm.
+        points.add(heard_from(0.5, -1.0, post, 4.0), 0.01);
+        let first = heard_from(0.0, 0.0, beside, 5.0);
+        assert_eq!(points.add(first, 0.01), Found::default());
+        // Heard again from the origin with a 5 cm tolerance: the post from (0.5, -1.0) lies
+        // within it, so this hearing is a point, and both kept patches become points: the one
+        // from (0.5, -1.0) and the first from the origin, which this hearing repeats.
+        let found = points.add(first, 0.05);
+        assert!(found.point);
+        assert_eq!(
+            found.became_points,
+            vec![heard_from(0.5, -1.0, post, 4.0), first]
+        );
+        let kept: Vec<(f32, bool)> = points.kept.iter().map(|d| (d.readings, d.point)).collect();
+        assert_eq!(kept, vec![(4.0, true), (10.0, true)]);
     }
 
     #[test]
