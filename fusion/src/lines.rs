@@ -19,7 +19,7 @@ const SAME_LINE_M: f32 = 0.03;
 const SAME_LINE_FRACTION: f32 = 0.01;
 /// Patches from sensor positions closer than this are from one viewpoint (its repeated sweeps),
 /// and say nothing about the wall between their feet.
-const OTHER_VIEWPOINT_M: f32 = 0.1;
+pub(crate) const OTHER_VIEWPOINT_M: f32 = 0.1;
 /// The longest stretch filled between two patches, metres: beyond it, a wall heard at two feet
 /// is as likely to be two walls in line (a corridor's sides across a doorway).
 pub(crate) const LONGEST_STRETCH_M: f32 = 4.0;
@@ -33,7 +33,7 @@ const CORNER_REACH_M: f32 = 1.5;
 /// where two walls' lines cross moves by a wall's range per radian of either's facing, so a patch
 /// 3° off the kept one (the same wall to [`SAME_FACING`]) may put their corner beyond the echo
 /// that confirms it (the paper's corner scene: 80 % of its walls drawn, 49 % with 3°).
-const SAME_BEARING: f32 = 0.5 * std::f32::consts::PI / 180.0;
+pub(crate) const SAME_BEARING: f32 = 0.5 * std::f32::consts::PI / 180.0;
 /// Patches kept; the oldest are forgotten first.
 const KEPT: usize = 4096;
 /// A wall is followed from its patch along its line this far at most to a corner, metres: on the

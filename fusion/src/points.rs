@@ -17,16 +17,13 @@ use std::collections::VecDeque;
 use nalgebra::Vector2;
 
 use crate::geometry::{incidence, wrap_angle};
+// One viewpoint, and one bearing heard again, as the lines tell them.
+use crate::lines::{OTHER_VIEWPOINT_M, SAME_BEARING};
 
 /// Two viewpoints' bearings to one spot differ by at least this much for it to be a point,
 /// radians (6°, a reading's step): a wall's foot is heard at one spot from one bearing only, to
 /// within the few degrees a region's middle bearing is off (its ends are known to a reading).
 const POINT_APART: f32 = 6.0 * std::f32::consts::PI / 180.0;
-/// Patches from sensor positions closer than this are from one viewpoint, metres.
-const OTHER_VIEWPOINT_M: f32 = 0.1;
-/// A patch repeats one kept if from the same viewpoint and bearing within this much, radians
-/// (0.5°).
-const SAME_BEARING: f32 = 0.5 * std::f32::consts::PI / 180.0;
 /// Patches kept; the oldest are forgotten first.
 const KEPT: usize = 4096;
 
