@@ -32,9 +32,13 @@
 //!    (a corner at the edge of a sweep taken for a wall) never anchors a pose. Nor does a wall
 //!    seen only on the move from regions cut short at one end: the features take such a region
 //!    for a plane placed from its natural end, and a corner or a door's edge cut short gives the
-//!    same region, seen alike from nearby viewpoints. A wall needs one of its two sightings to
+//!    same region, seen alike from nearby viewpoints. A wall needs one of its sightings to
 //!    be a region seen whole, or a sweep's standing still (there the features test a plane cut
-//!    short as a corner of the sweep's whole planes).
+//!    short as a corner of the sweep's whole planes), or [`SlamConfig::uncertain_views`]
+//!    viewpoints that agree; a pair with such a sighting passes only the tighter
+//!    [`SlamConfig::uncertain_gate_chi2`]. Every candidate of another viewpoint that places the
+//!    landmark alike joins it (closest first, at most one per viewpoint, the group within the
+//!    joint compatibility test as in association), each with its factor.
 //! 6. **Ranging on the move** (with [`SlamConfig::range_pings`], off by default). Each reading of a sweep taken on the move is placed at its own
 //!    instant's pose — the sweep's pose, then the odometry to that instant corrected by the
 //!    odometry's errors as the graph estimates them — and its pings that face a known wall
@@ -78,6 +82,16 @@ pub struct SlamConfig {
     pub gate_chi2: f64,
     /// Probability of the joint compatibility test (χ² of 2 per pair).
     pub joint_probability: f64,
+    /// Gate of a candidate pair at admission when one of the two sightings is a wall cut short
+    /// on the move (`certain` false), χ² of 2 degrees of freedom (5.99: 95 %). Such a sighting
+    /// may be a corner or an edge cut short, an error its σ does not hold; under a pose
+    /// covariance of 10–20 cm two different walls 45 cm and 10° apart pass the 99 % gate, and
+    /// the admission turns the pose by as much (`docs/results.md`, "SLAM").
+    pub uncertain_gate_chi2: f64,
+    /// A landmark is admitted from sightings of this many viewpoints that agree jointly even when
+    /// none of them is certain: a corner or an edge cut short moves along its wall as the
+    /// viewpoint moves, and three viewpoints rarely place it alike.
+    pub uncertain_views: usize,
     /// Huber threshold of a landmark factor, in σ.
     pub huber_k: f64,
     /// Two sightings are two viewpoints when their poses lie this far apart …
@@ -117,6 +131,8 @@ impl Default for SlamConfig {
             bearing_sigma_floor_deg: 1.0,
             gate_chi2: 9.21,
             joint_probability: 0.99,
+            uncertain_gate_chi2: 5.99,
+            uncertain_views: 3,
             huber_k: 1.5,
             min_baseline_m: 0.1,
             min_baseline_deg: 10.0,
@@ -139,6 +155,7 @@ impl SlamConfig {
             ("range_sigma_floor_m", self.range_sigma_floor_m),
             ("bearing_sigma_floor_deg", self.bearing_sigma_floor_deg),
             ("gate_chi2", self.gate_chi2),
+            ("uncertain_gate_chi2", self.uncertain_gate_chi2),
             ("huber_k", self.huber_k),
             ("fix_max_sigma_m", self.fix_max_sigma_m),
             ("fix_max_sigma_deg", self.fix_max_sigma_deg),
@@ -158,6 +175,12 @@ impl SlamConfig {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(SlamError::Config(format!("{name} must be ≥ 0, got {v}")));
             }
+        }
+        if self.uncertain_views < 2 {
+            return Err(SlamError::Config(format!(
+                "uncertain_views must be ≥ 2 (a landmark needs two viewpoints), got {}",
+                self.uncertain_views
+            )));
         }
         if !(self.joint_probability > 0.0 && self.joint_probability < 1.0) {
             return Err(SlamError::Config(format!(
@@ -980,17 +1003,17 @@ impl Slam {
             r[(2 * row, 2 * row)] = s.sigma.x * s.sigma.x;
             r[(2 * row + 1, 2 * row + 1)] = s.sigma.y * s.sigma.y;
         }
-        let s = &h * joint * h.transpose() + r;
-        let inv = s.try_inverse()?;
-        Some((v.transpose() * inv * &v)[(0, 0)])
+        stacked_distance(&h, joint, r, &v)
     }
 
     /// Admits landmarks seen a second time: each sighting against the candidates of other
     /// viewpoints, the two placements compared with the joint covariance of the two poses and
     /// the odometry's errors (a candidate seen from the map's anchor is as sure as its sighting;
     /// two poses on one stretch of odometry share most of their error; a wall seen on the move is
-    /// placed from where the odometry's errors put the reading that faced it), and at least one
-    /// of the two [`Sighting::certain`]; the rest become candidates. The number admitted.
+    /// placed from where the odometry's errors put the reading that faced it); the candidates
+    /// that agree ([`Self::agreeing_candidates`]) make a landmark with it when one of them is
+    /// [`Sighting::certain`] or they come from [`SlamConfig::uncertain_views`] viewpoints; the
+    /// rest become candidates. The number admitted.
     fn admit(&mut self, k: usize, unmatched: &[Sighting]) -> usize {
         let pose = self.poses[k].var;
         let x = self.graph.vector3(pose);
@@ -1016,90 +1039,186 @@ impl Slam {
         let mut admitted = 0;
         for s in unmatched {
             let here = placement(s, &x, &calibration);
-            let best = joint.as_ref().and_then(|joint| {
-                let n = joint.nrows();
-                self.candidates
+            let group = joint
+                .as_ref()
+                .map(|joint| self.agreeing_candidates(s, &here, &calibration, &seen_from, joint))
+                .unwrap_or_default();
+            let certain = usize::from(s.certain)
+                + group
                     .iter()
-                    .enumerate()
-                    .filter(|(_, c)| {
-                        c.sighting.kind == s.kind
-                            && c.pose != k
-                            && (c.sighting.certain || s.certain)
-                    })
-                    .filter_map(|(ci, c)| {
-                        let xc = self.graph.vector3(self.poses[c.pose].var);
-                        let there = placement(&c.sighting, &xc, &calibration);
-                        let (a, b) = (here.from, there.from);
-                        let apart = Vector2::new(b.x - a.x, b.y - a.y).norm()
-                            >= self.cfg.min_baseline_m
-                            || wrap_rad(b.z - a.z).abs() >= self.cfg.min_baseline_deg.to_radians();
-                        if !apart {
-                            return None;
-                        }
-                        let mut d = here.at - there.at;
-                        if s.kind == LandmarkKind::Line {
-                            d.x = wrap_rad(d.x);
-                        }
-                        // d's covariance: both poses and the odometry's errors through the two
-                        // placements, jointly.
-                        let at = 3 + 3 * seen_from.binary_search(&c.pose).ok()?;
-                        let mut by = DMatrix::<f64>::zeros(2, n);
-                        by.view_mut((0, 0), (2, 3)).copy_from(&here.by_pose);
-                        by.view_mut((0, at), (2, 3)).copy_from(&(-there.by_pose));
-                        if self.calibration.is_some() {
-                            by.view_mut((0, n - 3), (2, 3))
-                                .copy_from(&(here.by_calibration - there.by_calibration));
-                        }
-                        let poses = &by * joint * by.transpose();
-                        let poses = Matrix2::new(
-                            poses[(0, 0)],
-                            poses[(0, 1)],
-                            poses[(1, 0)],
-                            poses[(1, 1)],
-                        );
-                        let inv = (poses + here.sighting + there.sighting).try_inverse()?;
-                        let d2 = (d.transpose() * inv * d)[(0, 0)];
-                        (d2 <= self.cfg.gate_chi2).then_some((d2, ci))
-                    })
-                    .min_by(|a, b| a.0.total_cmp(&b.0))
-            });
-            match best {
-                Some((_, ci)) => {
-                    let c = self.candidates.remove(ci);
-                    let var = self.graph.add_variable(here.at.as_slice());
-                    let from = self.poses[c.pose].var;
-                    let (first, second) = (&c.sighting, s);
-                    self.graph.add_landmark_factor(
-                        from,
-                        var,
-                        first.kind,
-                        first.z,
-                        first.sigma,
-                        self.seen_after(&first.after),
-                    );
-                    self.graph.add_landmark_factor(
-                        pose,
-                        var,
-                        second.kind,
-                        second.z,
-                        second.sigma,
-                        self.seen_after(&second.after),
-                    );
-                    self.landmarks.push(LandmarkNode {
-                        var,
-                        kind: s.kind,
-                        sightings: 2,
-                    });
-                    admitted += 1;
-                }
-                None => self.candidates.push(Candidate {
+                    .filter(|&&ci| self.candidates[ci].sighting.certain)
+                    .count();
+            let views = 1 + group.len();
+            let enough = views >= 2 && certain >= 1 || views >= self.cfg.uncertain_views;
+            if !enough {
+                self.candidates.push(Candidate {
                     pose: k,
                     sighting: s.clone(),
-                }),
+                });
+                continue;
             }
+            let var = self.graph.add_variable(here.at.as_slice());
+            let mut group = group;
+            group.sort_unstable_by(|a, b| b.cmp(a));
+            for ci in group {
+                let c = self.candidates.remove(ci);
+                self.graph.add_landmark_factor(
+                    self.poses[c.pose].var,
+                    var,
+                    c.sighting.kind,
+                    c.sighting.z,
+                    c.sighting.sigma,
+                    self.seen_after(&c.sighting.after),
+                );
+            }
+            self.graph.add_landmark_factor(
+                pose,
+                var,
+                s.kind,
+                s.z,
+                s.sigma,
+                self.seen_after(&s.after),
+            );
+            self.landmarks.push(LandmarkNode {
+                var,
+                kind: s.kind,
+                sightings: u32::try_from(views).unwrap_or(u32::MAX),
+            });
+            admitted += 1;
         }
         admitted
     }
+
+    /// The candidates that place the landmark of `s` (placed at `here`) where it does, at most
+    /// one from each other viewpoint: each within the gate against the joint covariance `joint`
+    /// of this pose, the poses `seen_from` and the odometry's errors, and all of them together
+    /// within χ² of their degrees of freedom at [`SlamConfig::joint_probability`] (closest first;
+    /// one that breaks the group's agreement is left out). Indices into the candidates.
+    fn agreeing_candidates(
+        &self,
+        s: &Sighting,
+        here: &Placement,
+        calibration: &Vector3<f64>,
+        seen_from: &[usize],
+        joint: &DMatrix<f64>,
+    ) -> Vec<usize> {
+        let n = joint.nrows();
+        let k = self.poses.len() - 1;
+        // Each pair's difference of placements and how it moves with the joint state.
+        let mut pairs: Vec<Agreement> = Vec::new();
+        for (ci, c) in self.candidates.iter().enumerate() {
+            if c.sighting.kind != s.kind || c.pose == k {
+                continue;
+            }
+            let xc = self.graph.vector3(self.poses[c.pose].var);
+            let there = placement(&c.sighting, &xc, calibration);
+            let (a, b) = (here.from, there.from);
+            let apart = Vector2::new(b.x - a.x, b.y - a.y).norm() >= self.cfg.min_baseline_m
+                || wrap_rad(b.z - a.z).abs() >= self.cfg.min_baseline_deg.to_radians();
+            if !apart {
+                continue;
+            }
+            let Ok(at) = seen_from.binary_search(&c.pose) else {
+                continue;
+            };
+            let mut d = here.at - there.at;
+            if s.kind == LandmarkKind::Line {
+                d.x = wrap_rad(d.x);
+            }
+            let mut by = DMatrix::<f64>::zeros(2, n);
+            by.view_mut((0, 0), (2, 3)).copy_from(&here.by_pose);
+            by.view_mut((0, 3 + 3 * at), (2, 3))
+                .copy_from(&(-there.by_pose));
+            if self.calibration.is_some() {
+                by.view_mut((0, n - 3), (2, 3))
+                    .copy_from(&(here.by_calibration - there.by_calibration));
+            }
+            let mut pair = Agreement {
+                d2: f64::NAN,
+                candidate: ci,
+                d,
+                by,
+                there: there.sighting,
+            };
+            let Some(d2) = group_distance(&[&pair], &here.sighting, joint) else {
+                continue;
+            };
+            pair.d2 = d2;
+            let gate = if s.certain && c.sighting.certain {
+                self.cfg.gate_chi2
+            } else {
+                self.cfg.uncertain_gate_chi2
+            };
+            if d2 <= gate {
+                pairs.push(pair);
+            }
+        }
+        pairs.sort_by(|a, b| a.d2.total_cmp(&b.d2));
+        let mut group: Vec<&Agreement> = Vec::new();
+        for p in &pairs {
+            let pose = self.candidates[p.candidate].pose;
+            if group
+                .iter()
+                .any(|g| self.candidates[g.candidate].pose == pose)
+            {
+                continue;
+            }
+            group.push(p);
+            let agree = group_distance(&group, &here.sighting, joint)
+                .is_some_and(|d2| d2 <= chi2_quantile(2 * group.len(), self.cfg.joint_probability));
+            if !agree {
+                group.pop();
+            }
+        }
+        group.into_iter().map(|g| g.candidate).collect()
+    }
+}
+
+/// A candidate that places a sighting's landmark alike ([`Slam::agreeing_candidates`]).
+struct Agreement {
+    /// Its Mahalanobis distance², alone.
+    d2: f64,
+    /// Its index among the candidates.
+    candidate: usize,
+    /// The sighting's placement less the candidate's.
+    d: Vector2<f64>,
+    /// ∂d/∂ the joint state (this pose, the candidates' poses, the odometry's errors).
+    by: DMatrix<f64>,
+    /// The candidate's placement's covariance from its own σ.
+    there: Matrix2<f64>,
+}
+
+/// The Mahalanobis distance² of the stacked differences of placements `pairs`, against the joint
+/// covariance of the state and `here`, the covariance of the sighting's own placement (shared by
+/// every difference). `None` when the covariance is singular.
+fn group_distance(pairs: &[&Agreement], here: &Matrix2<f64>, joint: &DMatrix<f64>) -> Option<f64> {
+    let m = pairs.len();
+    let n = joint.nrows();
+    let mut by = DMatrix::<f64>::zeros(2 * m, n);
+    let mut d = DVector::<f64>::zeros(2 * m);
+    let mut r = DMatrix::<f64>::zeros(2 * m, 2 * m);
+    for (i, pair) in pairs.iter().enumerate() {
+        by.view_mut((2 * i, 0), (2, n)).copy_from(&pair.by);
+        d.rows_mut(2 * i, 2).copy_from(&pair.d);
+        for j in 0..m {
+            r.view_mut((2 * i, 2 * j), (2, 2)).copy_from(here);
+        }
+        let own = r.fixed_view::<2, 2>(2 * i, 2 * i) + pair.there;
+        r.view_mut((2 * i, 2 * i), (2, 2)).copy_from(&own);
+    }
+    stacked_distance(&by, joint, r, &d)
+}
+
+/// The Mahalanobis distance² of `v`, whose covariance is `by` · `joint` · `by`ᵀ + `r`; `None`
+/// when that is singular.
+fn stacked_distance(
+    by: &DMatrix<f64>,
+    joint: &DMatrix<f64>,
+    r: DMatrix<f64>,
+    v: &DVector<f64>,
+) -> Option<f64> {
+    let inv = (by * joint * by.transpose() + r).try_inverse()?;
+    Some((v.transpose() * inv * v)[(0, 0)])
 }
 
 /// Step of the numerical Jacobians of a measurement.
@@ -1632,6 +1751,30 @@ mod tests {
         }
     }
 
+    /// How many landmarks `admit` makes of the end wall x = 5 seen straight ahead from the map's
+    /// anchor (exact, a whole sighting) and again from a pose 2 m on, whose heading the odometry
+    /// knows to σ (> 3°), as if that pose were turned by `turned_sigmas` σ, at the same distance;
+    /// the second sighting whole when `certain`.
+    fn end_wall_seen_turned(turned_sigmas: f64, certain: bool) -> usize {
+        let mut slam = anchor_and_a_sweep_ahead(200, false);
+        let pose = slam.poses[1].var;
+        let heading_sigma = slam.graph.covariance(&[(pose, 3)]).unwrap()[(2, 2)].sqrt();
+        assert!(heading_sigma > 3.0_f64.to_radians(), "{heading_sigma}");
+        let sigma = Vector2::new(0.01, 0.2_f64.to_radians());
+        slam.candidates.push(end_wall_from_the_anchor(sigma, true));
+        let turn = turned_sigmas * heading_sigma;
+        let x = slam.graph.vector3(pose);
+        let z = Vector2::new(5.0 - x.x * turn.cos() - x.y * turn.sin(), turn - x.z);
+        let sighting = Sighting {
+            kind: LandmarkKind::Line,
+            z,
+            sigma,
+            certain,
+            after: Vec::new(),
+        };
+        slam.admit(1, &[sighting])
+    }
+
     /// A wall seen from the map's anchor (exact) and again from a pose 2 m on, whose heading the
     /// odometry knows to σ: the two placements are compared with the two poses' joint covariance,
     /// so the wall is admitted when the second sighting is turned by 1σ and not at 3.5σ. (With
@@ -1639,29 +1782,55 @@ mod tests {
     /// wall for one seen before and turned by 81°.)
     #[test]
     fn a_wall_is_admitted_from_two_viewpoints_with_their_joint_covariance() {
-        let admitted = |turned_sigmas: f64| {
-            let mut slam = anchor_and_a_sweep_ahead(200, false);
-            let pose = slam.poses[1].var;
-            let heading_sigma = slam.graph.covariance(&[(pose, 3)]).unwrap()[(2, 2)].sqrt();
-            assert!(heading_sigma > 3.0_f64.to_radians(), "{heading_sigma}");
-            // The end wall x = 5, seen straight ahead from the anchor …
-            let sigma = Vector2::new(0.01, 0.2_f64.to_radians());
-            slam.candidates.push(end_wall_from_the_anchor(sigma, true));
-            // … and from the second pose as if it were turned by δ, at the same distance.
-            let turn = turned_sigmas * heading_sigma;
-            let x = slam.graph.vector3(pose);
-            let z = Vector2::new(5.0 - x.x * turn.cos() - x.y * turn.sin(), turn - x.z);
-            let sighting = Sighting {
+        assert_eq!(end_wall_seen_turned(1.0, true), 1);
+        assert_eq!(end_wall_seen_turned(3.5, true), 0);
+    }
+
+    /// As above, with the second sighting a wall cut short on the move (it may be a corner or
+    /// an edge cut short): it is admitted within the tighter gate of such a pair (95 %), not
+    /// between that and the 99 % gate of two whole sightings.
+    #[test]
+    fn a_pair_with_a_wall_cut_short_passes_only_the_tighter_gate() {
+        // χ² ≈ 7.3: inside 9.21, outside 5.99.
+        assert_eq!(end_wall_seen_turned(2.7, true), 1);
+        assert_eq!(end_wall_seen_turned(2.7, false), 0);
+        assert_eq!(end_wall_seen_turned(1.0, false), 1);
+    }
+
+    /// Three viewpoints on the move, 50 cm apart, each seeing the end wall from a region cut
+    /// short: two such sightings make no landmark (above), the third that agrees with both makes
+    /// one with all three as factors; a third that places the wall 30 cm farther does not.
+    #[test]
+    fn walls_cut_short_from_three_viewpoints_that_agree_are_admitted() {
+        let admitted = |third_offset_m: f64| {
+            let mut slam = anchor_and_a_sweep_ahead(50, true);
+            for k in 51..=100_u32 {
+                let x = 0.01 * f64::from(k);
+                slam.push_odometry(
+                    u64::from(k) * 1000,
+                    Isometry2::new(Vector2::new(x, 0.0), 0.0),
+                );
+            }
+            let odometry = Isometry2::new(Vector2::new(1.0, 0.0), 0.0);
+            slam.add_sweep(2, 100_000, odometry, &[], &[], true);
+            let sigma = Vector2::new(0.01, 1.0_f64.to_radians());
+            let seen = |distance: f64| Sighting {
                 kind: LandmarkKind::Line,
-                z,
+                z: Vector2::new(distance, 0.0),
                 sigma,
-                certain: true,
+                certain: false,
                 after: Vec::new(),
             };
-            slam.admit(1, &[sighting])
+            slam.candidates.push(end_wall_from_the_anchor(sigma, false));
+            slam.candidates.push(Candidate {
+                pose: 1,
+                sighting: seen(4.5),
+            });
+            let n = slam.admit(2, &[seen(4.0 + third_offset_m)]);
+            (n, slam.landmarks.first().map(|l| l.sightings))
         };
-        assert_eq!(admitted(1.0), 1);
-        assert_eq!(admitted(3.5), 0);
+        assert_eq!(admitted(0.0), (1, Some(3)));
+        assert_eq!(admitted(0.3), (0, None));
     }
 
     /// A sweep on the move along x, 10 cm between readings aimed from −150° to 150°: the end
