@@ -90,25 +90,44 @@ impl Sweep {
     /// distance to such a wall changes by exactly that, wherever in the cone the ping pointed.
     /// Under the right normal a wall's pings have one range again, as from one place, and its
     /// region of constant depth is whole; under another they spread as the robot drove along it.
+    ///
+    /// Bearings are given within `window_deg` of the normal, whatever the heading the robot
+    /// gained (a robot that turned 90° during the sweep brings pings to 230° and to −130° alike).
+    /// A robot turning the way the head turns spreads its pings wider than the head's step (at
+    /// 45°/s against the head's 25°/s, 4.2° instead of 1.5°): the sweep's step is then the widest
+    /// spacing of one reading's pings in the window, so that such pings stay neighbours rather
+    /// than gaps and a region's width is known to that step.
     pub fn facing<'a>(
         readings: impl IntoIterator<Item = (&'a Reading, Isometry2<f64>)>,
         normal_deg: f64,
         window_deg: f64,
         cfg: &FeatureConfig,
     ) -> Self {
-        let mut sweep = Self::brought_to_reference(readings, Some(normal_deg), cfg);
-        sweep
-            .pings
-            .retain(|p| crate::geometry::wrap_deg(p.bearing_deg - normal_deg).abs() <= window_deg);
+        let mut sweep = Self::brought_to_reference(readings, Some((normal_deg, window_deg)), cfg);
+        sweep.pings.retain_mut(|p| {
+            let off = crate::geometry::wrap_deg(p.bearing_deg - normal_deg);
+            p.bearing_deg = normal_deg + off;
+            off.abs() <= window_deg
+        });
         sweep.circular = false;
+        sweep.sort();
         sweep
     }
 
+    /// `facing`: the normal along which each range is moved, and the window of bearings around
+    /// it whose pings' spacing sets the step.
     fn brought_to_reference<'a>(
         readings: impl IntoIterator<Item = (&'a Reading, Isometry2<f64>)>,
-        normal_deg: Option<f64>,
+        facing: Option<(f64, f64)>,
         cfg: &FeatureConfig,
     ) -> Self {
+        let normal_deg = facing.map(|(normal, _)| normal);
+        let in_window = |p: &Ping| {
+            facing.is_some_and(|(normal, window)| {
+                crate::geometry::wrap_deg(p.bearing_deg - normal).abs() <= window
+            })
+        };
+        let mut widest_spacing_deg: f64 = 0.0;
         let readings: Vec<(&Reading, Isometry2<f64>)> = readings.into_iter().collect();
         let reading_poses = ReadingPoses::of(&readings);
         let mut pings = Vec::new();
@@ -125,6 +144,14 @@ impl Sweep {
                         at_reference(ping, &own, normal_deg)
                     }));
                     pairs.extend(neighbour_pairs(&pings[first..]));
+                    for w in pings[first..].windows(2) {
+                        if in_window(&w[0]) && in_window(&w[1]) {
+                            widest_spacing_deg = widest_spacing_deg.max(
+                                crate::geometry::wrap_deg(w[1].bearing_deg - w[0].bearing_deg)
+                                    .abs(),
+                            );
+                        }
+                    }
                 }
                 Placed::PerAngle(ping) => per_angle.push(at_reference(ping, &pose, normal_deg)),
                 Placed::Unknown => skipped += 1,
@@ -135,7 +162,7 @@ impl Sweep {
         let step_deg = if pings.is_empty() && per_angle.len() > 1 {
             per_angle_step_deg(&per_angle).unwrap_or(cfg.step_deg())
         } else {
-            cfg.step_deg()
+            cfg.step_deg().max(widest_spacing_deg)
         };
         let per_angle_pairs = pings.is_empty() && !per_angle.is_empty();
         pings.extend(per_angle);
@@ -506,8 +533,20 @@ pub(crate) mod tests {
     /// cut-off of its normal, each at its own instant's heading. Each reading with the robot's
     /// pose at its stamp, and each ping's true bearing from the reference, sorted.
     pub(crate) fn turning_in_place() -> (Vec<(Reading, Isometry2<f64>)>, Vec<f64>) {
+        turning_in_place_at(-45.0, 90.0, 0.0)
+    }
+
+    /// [`turning_in_place`] with the robot turning at `rate_deg_per_s` (counter-clockwise
+    /// positive) from `start_deg` of the reference and the wall's normal at `wall_deg` of it;
+    /// the head still counter-clockwise, from −50° to 52°. Turning counter-clockwise at 45°/s
+    /// the pings go 4.2° apart instead of 1.5°.
+    pub(crate) fn turning_in_place_at(
+        rate_deg_per_s: f64,
+        start_deg: f64,
+        wall_deg: f64,
+    ) -> (Vec<(Reading, Isometry2<f64>)>, Vec<f64>) {
         let ping_ns = 60_000_000u64;
-        let rate_deg_per_ns = -45.0 / 1e9;
+        let rate_deg_per_ns = rate_deg_per_s / 1e9;
         let mut readings = Vec::new();
         let mut bearings = Vec::new();
         for k in 0..18u64 {
@@ -516,15 +555,19 @@ pub(crate) mod tests {
             let ranges: Vec<f64> = (0..4)
                 .map(|j| {
                     let instant = stamp - (3 - j) * ping_ns;
-                    let heading = 90.0 + rate_deg_per_ns * (instant as f64 - 1e9);
+                    let heading = start_deg + rate_deg_per_ns * (instant as f64 - 1e9);
                     let bearing = centre + 1.5 * (j as f64 - 1.5) + heading;
                     bearings.push(bearing);
-                    if bearing.abs() <= 28.0 { 1.0 } else { 0.0 }
+                    if crate::geometry::wrap_deg(bearing - wall_deg).abs() <= 28.0 {
+                        1.0
+                    } else {
+                        0.0
+                    }
                 })
                 .collect();
             let mut r = reading(centre as f32, 1, &ranges);
             r.host_stamp_ns = stamp;
-            let heading = 90.0 + rate_deg_per_ns * (stamp as f64 - 1e9);
+            let heading = start_deg + rate_deg_per_ns * (stamp as f64 - 1e9);
             readings.push((r, Isometry2::rotation(heading.to_radians())));
         }
         bearings.sort_by(f64::total_cmp);
@@ -574,6 +617,33 @@ pub(crate) mod tests {
                 .iter()
                 .any(|p| (p.bearing_deg - first).abs() < 1e-6)
         );
+    }
+
+    #[test]
+    fn pings_facing_a_normal_lie_around_it_at_the_spacing_the_turn_gave_them() {
+        let cfg = FeatureConfig::default();
+        // Turning counter-clockwise with the head from 100° to 294° of the reference: the pose's
+        // heading crosses ±180° on the way, and the pings go 4.2° apart.
+        let (readings, _) = turning_in_place_at(45.0, 100.0, 180.0);
+        let normal = -160.0;
+        let s = Sweep::facing(readings.iter().map(|(r, p)| (r, *p)), normal, 45.0, &cfg);
+        let bearings: Vec<f64> = s.pings().iter().map(|p| p.bearing_deg).collect();
+        assert!(bearings.len() > 15, "{bearings:?}");
+        assert!(
+            bearings.iter().all(|b| (b - normal).abs() <= 45.0),
+            "{bearings:?}"
+        );
+        assert!(bearings.windows(2).all(|w| w[0] <= w[1]), "{bearings:?}");
+        // One step is the pings' own spacing, so that neighbours are no gap.
+        assert!((s.step_deg() - 4.2).abs() < 0.01, "{}", s.step_deg());
+        assert!(
+            (1..s.pings().len()).all(|i| !s.gap_before(i)),
+            "{bearings:?}"
+        );
+        // Turning against the head the pings are closer than a step: the head's step stands.
+        let (against, _) = turning_in_place();
+        let s = Sweep::facing(against.iter().map(|(r, p)| (r, *p)), 0.0, 45.0, &cfg);
+        assert_eq!(s.step_deg(), cfg.step_deg());
     }
 
     #[test]
