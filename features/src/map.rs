@@ -284,8 +284,17 @@ impl FeatureMap {
     /// slides along it with the robot — so this is how such a sweep sees walls. Points and
     /// corners are not looked for: their range changes with the motion in a direction the beam
     /// does not tell.
+    ///
+    /// One wall is often found under several normals a few degrees apart: a wrong normal spreads
+    /// the ranges a little, and a region may still pass as whole, only narrower, with its
+    /// middle off the wall's normal (a hallway's end wall, 5° off, from a robot that turned into
+    /// it). Under the right normal all of the wall's pings agree, so of the planes at one range
+    /// whose normals lie within the specular cut-off of each other (from one place such walls
+    /// share their pings) the one kept is whole if any is, and of those the one whose region
+    /// holds the most pings.
     pub fn walls_on_the_move(&self, readings: &[(Reading, Isometry2<f64>)]) -> Vec<Observation> {
-        let mut walls: Vec<Observation> = Vec::new();
+        // (whole, pings in its region, range tolerance, the plane), every normal's.
+        let mut found: Vec<(bool, u32, f64, Observation)> = Vec::new();
         let steps = (360.0 / MOVING_NORMAL_STEP_DEG).round() as usize;
         for k in 0..steps {
             let normal = -180.0 + MOVING_NORMAL_STEP_DEG * k as f64;
@@ -297,18 +306,27 @@ impl FeatureMap {
             );
             // One noise estimate per direction (the gate), for the regions and the check below.
             let gate = self.gate(&sweep);
-            let classification = classify(&extract(&sweep, &self.cfg, &gate), &self.cfg);
-            for o in classification.observations {
+            let rcds = extract(&sweep, &self.cfg, &gate);
+            for o in classify(&rcds, &self.cfg).observations {
                 let agrees = crate::geometry::wrap_deg(o.bearing_deg - normal).abs()
                     <= MOVING_NORMAL_STEP_DEG / 2.0;
-                let known = walls.iter().any(|w| {
-                    crate::geometry::wrap_deg(w.bearing_deg - o.bearing_deg).abs()
-                        <= MOVING_NORMAL_STEP_DEG
-                        && (w.range_m - o.range_m).abs() <= gate.tolerance_at(o.range_m)
-                });
-                if o.kind == FeatureKind::Plane && agrees && !known {
-                    walls.push(o);
+                if o.kind == FeatureKind::Plane && agrees {
+                    let pings = rcds.get(o.rcd).map_or(0, |r| r.pings);
+                    found.push((o.whole, pings, gate.tolerance_at(o.range_m), o));
                 }
+            }
+        }
+        // Whole first, then the most pings; a stable sort keeps the normals' order on ties.
+        found.sort_by_key(|f| std::cmp::Reverse((f.0, f.1)));
+        let same_wall_deg = self.cfg.echo.specular_cutoff_deg;
+        let mut walls: Vec<Observation> = Vec::new();
+        for (_, _, tolerance, o) in found {
+            let known = walls.iter().any(|w| {
+                crate::geometry::wrap_deg(w.bearing_deg - o.bearing_deg).abs() <= same_wall_deg
+                    && (w.range_m - o.range_m).abs() <= tolerance
+            });
+            if !known {
+                walls.push(o);
             }
         }
         walls
@@ -1010,6 +1028,29 @@ mod tests {
                 .all(|o| o == wall || (o.range_m - 1.0).abs() >= 0.01),
             "one wall, once: {walls:?}"
         );
+    }
+
+    #[test]
+    fn a_wall_seen_while_turning_with_the_head_is_found_whole() {
+        // Turning counter-clockwise at 45°/s with the head: the pings go 4.2° apart, more than
+        // the head's step. A wall 1 m from the reference is found whole and square on, once:
+        // ahead of it (the turn from −100° to 94°), and behind it while the turn crosses ±180°
+        // of the reference's heading (from 100° to 294°).
+        for (start, wall_deg) in [(-100.0, 0.0), (100.0, 180.0)] {
+            let (readings, _) = crate::pings::tests::turning_in_place_at(45.0, start, wall_deg);
+            let walls = map().walls_on_the_move(&readings);
+            let at_wall: Vec<&Observation> = walls
+                .iter()
+                .filter(|o| (o.range_m - 1.0).abs() < 0.01)
+                .collect();
+            assert_eq!(at_wall.len(), 1, "start {start}: {walls:?}");
+            let wall = at_wall[0];
+            assert!(wall.kind == FeatureKind::Plane && wall.whole, "{wall:?}");
+            assert!(
+                crate::geometry::wrap_deg(wall.bearing_deg - wall_deg).abs() < 2.0,
+                "start {start}: {wall:?}"
+            );
+        }
     }
 
     #[test]
