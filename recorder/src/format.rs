@@ -22,8 +22,8 @@ use std::path::{Path, PathBuf};
 use mcap::records::{MessageHeader, Metadata, Record};
 use mcap::{McapError, WriteOptions};
 use sonar_common::ipc::{
-    self, FeatureRecord, FeaturesHeader, FusionCommand, LAYOUT_VERSION, MAX_PINGS, Pose2D, Reading,
-    ScanCommand,
+    self, FeatureRecord, FeaturesHeader, FusionCommand, LAYOUT_VERSION, LocalizedPose, MAX_PINGS,
+    Pose2D, Reading, ScanCommand, SlamCorrection,
 };
 
 /// Version of the recording format this crate writes and the newest it reads.
@@ -90,6 +90,62 @@ float32 theta_rad
 uint32 layout_version
 ";
 
+/// `sonar::LocalizedPoseV1`: the fusion's localised pose of a sweep (`--localize`).
+pub const LOCALIZED_POSE_SCHEMA: &str = "\
+# sonar::LocalizedPoseV1 (common/src/ipc.rs): 72 bytes, little-endian
+uint64 stamp_ns
+float32 x_m
+float32 y_m
+float32 theta_rad
+uint32 layout_version
+float32 cov_xx
+float32 cov_xy
+float32 cov_xtheta
+float32 cov_yy
+float32 cov_ytheta
+float32 cov_thetatheta
+uint32 matched
+uint32 fixes
+float32 odometry_x_m
+float32 odometry_y_m
+float32 odometry_theta_rad
+uint32 reserved
+";
+
+/// `sonar::SlamCorrectionV1`: `sonar-slam`'s correction of the odometry (`map → odom`) at a sweep.
+pub const SLAM_CORRECTION_SCHEMA: &str = "\
+# sonar::SlamCorrectionV1 (common/src/ipc.rs): 120 bytes, little-endian
+uint64 stamp_ns
+uint32 layout_version
+uint32 sweep_id
+uint32 state
+uint32 matched
+float32 correction_x_m
+float32 correction_y_m
+float32 correction_theta_rad
+float32 correction_cov_xx
+float32 correction_cov_xy
+float32 correction_cov_xtheta
+float32 correction_cov_yy
+float32 correction_cov_ytheta
+float32 correction_cov_thetatheta
+float32 x_m
+float32 y_m
+float32 theta_rad
+float32 cov_xx
+float32 cov_xy
+float32 cov_xtheta
+float32 cov_yy
+float32 cov_ytheta
+float32 cov_thetatheta
+float32 odometry_x_m
+float32 odometry_y_m
+float32 odometry_theta_rad
+uint32 landmarks
+uint32 fixes
+uint32 refused
+";
+
 /// `sonar::FeaturesHeaderV1` followed by its `sonar::FeatureRecordV2`s. ROS 1 writes a
 /// variable-length array as a `uint32` count and the elements, so the message is the 56-byte
 /// header, the number of records, then 80 bytes a record; the record type follows the separator
@@ -154,15 +210,24 @@ pub enum Topic {
     /// `sonar/features`, [`FeatureSnapshot`]: recorded, never replayed (the fusion derives the
     /// features from the readings).
     Features,
+    /// `sonar/localized_pose`, [`LocalizedPose`]: recorded, never replayed (the fusion's
+    /// `--localize` derives it); what an export draws `map → odom` with.
+    LocalizedPose,
+    /// `sonar/slam_correction`, [`SlamCorrection`]: recorded, never replayed (`sonar-slam`
+    /// derives it); what an export draws `map → odom` with, and places the readings with when
+    /// asked to (`sonar-export --slam-correction`).
+    SlamCorrection,
 }
 
 impl Topic {
-    pub const ALL: [Topic; 5] = [
+    pub const ALL: [Topic; 7] = [
         Topic::Readings,
         Topic::ScanCommands,
         Topic::FusionCommands,
         Topic::Pose,
         Topic::Features,
+        Topic::LocalizedPose,
+        Topic::SlamCorrection,
     ];
 
     /// The iceoryx2 service name, which is also the MCAP topic.
@@ -173,6 +238,8 @@ impl Topic {
             Topic::FusionCommands => ipc::FUSION_COMMANDS_SERVICE,
             Topic::Pose => ipc::POSE_SERVICE,
             Topic::Features => ipc::FEATURES_SERVICE,
+            Topic::LocalizedPose => ipc::LOCALIZED_POSE_SERVICE,
+            Topic::SlamCorrection => ipc::SLAM_CORRECTION_SERVICE,
         }
     }
 
@@ -184,6 +251,8 @@ impl Topic {
             Topic::FusionCommands => "sonar/FusionCommandV1",
             Topic::Pose => "sonar/Pose2DV1",
             Topic::Features => "sonar/FeaturesV2",
+            Topic::LocalizedPose => "sonar/LocalizedPoseV1",
+            Topic::SlamCorrection => "sonar/SlamCorrectionV1",
         }
     }
 
@@ -195,6 +264,8 @@ impl Topic {
             Topic::FusionCommands => FUSION_COMMAND_SCHEMA,
             Topic::Pose => POSE_SCHEMA,
             Topic::Features => FEATURES_SCHEMA,
+            Topic::LocalizedPose => LOCALIZED_POSE_SCHEMA,
+            Topic::SlamCorrection => SLAM_CORRECTION_SCHEMA,
         }
     }
 
@@ -207,6 +278,8 @@ impl Topic {
             Topic::FusionCommands => Some(size_of::<FusionCommand>()),
             Topic::Pose => Some(size_of::<Pose2D>()),
             Topic::Features => None,
+            Topic::LocalizedPose => Some(size_of::<LocalizedPose>()),
+            Topic::SlamCorrection => Some(size_of::<SlamCorrection>()),
         }
     }
 
@@ -274,6 +347,8 @@ pub enum Message {
     FusionCommand(FusionCommand),
     Pose(Pose2D),
     Features(FeatureSnapshot),
+    LocalizedPose(LocalizedPose),
+    SlamCorrection(SlamCorrection),
 }
 
 impl Message {
@@ -284,6 +359,8 @@ impl Message {
             Message::FusionCommand(_) => Topic::FusionCommands,
             Message::Pose(_) => Topic::Pose,
             Message::Features(_) => Topic::Features,
+            Message::LocalizedPose(_) => Topic::LocalizedPose,
+            Message::SlamCorrection(_) => Topic::SlamCorrection,
         }
     }
 
@@ -317,6 +394,8 @@ impl Message {
                 e.u32(p.layout_version);
             }
             Message::Features(f) => encode_features(&mut e, f),
+            Message::LocalizedPose(p) => encode_localized_pose(&mut e, p),
+            Message::SlamCorrection(c) => encode_slam_correction(&mut e, c),
         }
         e.0
     }
@@ -358,18 +437,133 @@ impl Message {
                 layout_version: d.u32(),
             }),
             Topic::Features => Message::Features(decode_features(&mut d, layout)),
+            Topic::LocalizedPose => Message::LocalizedPose(decode_localized_pose(&mut d)),
+            Topic::SlamCorrection => Message::SlamCorrection(decode_slam_correction(&mut d)),
         })
     }
 
-    /// The payload's own time stamp, if it has one (readings: `host_stamp_ns`, poses and
-    /// features: `stamp_ns`).
+    /// The payload's own time stamp, if it has one (readings: `host_stamp_ns`, poses, features
+    /// and corrections: `stamp_ns`).
     pub fn stamp_ns(&self) -> Option<u64> {
         match self {
             Message::Reading(r) => Some(r.host_stamp_ns),
             Message::Pose(p) => Some(p.stamp_ns),
             Message::Features(f) => Some(f.header.stamp_ns),
+            Message::LocalizedPose(p) => Some(p.stamp_ns),
+            Message::SlamCorrection(c) => Some(c.stamp_ns),
             Message::ScanCommand(_) | Message::FusionCommand(_) => None,
         }
+    }
+}
+
+fn encode_localized_pose(e: &mut Encoder, p: &LocalizedPose) {
+    e.u64(p.stamp_ns);
+    for v in [p.x_m, p.y_m, p.theta_rad] {
+        e.f32(v);
+    }
+    e.u32(p.layout_version);
+    for v in [p.cov_xx, p.cov_xy, p.cov_xtheta, p.cov_yy, p.cov_ytheta] {
+        e.f32(v);
+    }
+    e.f32(p.cov_thetatheta);
+    e.u32(p.matched);
+    e.u32(p.fixes);
+    for v in [p.odometry_x_m, p.odometry_y_m, p.odometry_theta_rad] {
+        e.f32(v);
+    }
+    e.u32(p.reserved);
+}
+
+/// Only called with exactly `size_of::<LocalizedPose>()` bytes.
+fn decode_localized_pose(d: &mut Decoder) -> LocalizedPose {
+    LocalizedPose {
+        stamp_ns: d.u64(),
+        x_m: d.f32(),
+        y_m: d.f32(),
+        theta_rad: d.f32(),
+        layout_version: d.u32(),
+        cov_xx: d.f32(),
+        cov_xy: d.f32(),
+        cov_xtheta: d.f32(),
+        cov_yy: d.f32(),
+        cov_ytheta: d.f32(),
+        cov_thetatheta: d.f32(),
+        matched: d.u32(),
+        fixes: d.u32(),
+        odometry_x_m: d.f32(),
+        odometry_y_m: d.f32(),
+        odometry_theta_rad: d.f32(),
+        reserved: d.u32(),
+    }
+}
+
+fn encode_slam_correction(e: &mut Encoder, c: &SlamCorrection) {
+    e.u64(c.stamp_ns);
+    for v in [c.layout_version, c.sweep_id, c.state, c.matched] {
+        e.u32(v);
+    }
+    for v in [
+        c.correction_x_m,
+        c.correction_y_m,
+        c.correction_theta_rad,
+        c.correction_cov_xx,
+        c.correction_cov_xy,
+        c.correction_cov_xtheta,
+        c.correction_cov_yy,
+        c.correction_cov_ytheta,
+        c.correction_cov_thetatheta,
+        c.x_m,
+        c.y_m,
+        c.theta_rad,
+        c.cov_xx,
+        c.cov_xy,
+        c.cov_xtheta,
+        c.cov_yy,
+        c.cov_ytheta,
+        c.cov_thetatheta,
+        c.odometry_x_m,
+        c.odometry_y_m,
+        c.odometry_theta_rad,
+    ] {
+        e.f32(v);
+    }
+    for v in [c.landmarks, c.fixes, c.refused] {
+        e.u32(v);
+    }
+}
+
+/// Only called with exactly `size_of::<SlamCorrection>()` bytes.
+fn decode_slam_correction(d: &mut Decoder) -> SlamCorrection {
+    SlamCorrection {
+        stamp_ns: d.u64(),
+        layout_version: d.u32(),
+        sweep_id: d.u32(),
+        state: d.u32(),
+        matched: d.u32(),
+        correction_x_m: d.f32(),
+        correction_y_m: d.f32(),
+        correction_theta_rad: d.f32(),
+        correction_cov_xx: d.f32(),
+        correction_cov_xy: d.f32(),
+        correction_cov_xtheta: d.f32(),
+        correction_cov_yy: d.f32(),
+        correction_cov_ytheta: d.f32(),
+        correction_cov_thetatheta: d.f32(),
+        x_m: d.f32(),
+        y_m: d.f32(),
+        theta_rad: d.f32(),
+        cov_xx: d.f32(),
+        cov_xy: d.f32(),
+        cov_xtheta: d.f32(),
+        cov_yy: d.f32(),
+        cov_ytheta: d.f32(),
+        cov_thetatheta: d.f32(),
+        odometry_x_m: d.f32(),
+        odometry_y_m: d.f32(),
+        odometry_theta_rad: d.f32(),
+        landmarks: d.u32(),
+        fixes: d.u32(),
+        refused: d.u32(),
     }
 }
 

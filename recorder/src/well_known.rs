@@ -8,7 +8,7 @@
 use std::collections::BTreeMap;
 use std::io::{Seek, Write};
 
-use sonar_common::ipc::{GridHeader, LocalizedPose, SlamCorrection};
+use sonar_common::ipc::GridHeader;
 /// What to write: ROS 2 too, and how often a map.
 pub use sonar_wellknown::Options;
 use sonar_wellknown::{Channel, Output, WellKnown};
@@ -77,7 +77,8 @@ impl WellKnownChannels {
     }
 
     /// One of the pipeline's messages (readings, poses and features give something; commands
-    /// nothing), received at `log_time_ns`.
+    /// nothing; a correction of the odometry is the `map → odom` written with the sensor's next
+    /// transform), received at `log_time_ns`.
     pub fn message<W: Write + Seek>(
         &mut self,
         writer: &mut RecordingWriter<W>,
@@ -88,20 +89,24 @@ impl WellKnownChannels {
             Message::Reading(r) => self.converter.reading(r),
             Message::Pose(p) => self.converter.pose(p),
             Message::Features(f) => self.converter.features(&f.header, &f.records),
+            Message::LocalizedPose(p) => {
+                self.converter.localized_pose(p);
+                Vec::new()
+            }
+            Message::SlamCorrection(c) => {
+                self.converter.slam_correction(c);
+                Vec::new()
+            }
             Message::ScanCommand(_) | Message::FusionCommand(_) => Vec::new(),
         };
         self.write(writer, log_time_ns, outputs)
     }
 
-    /// The fusion's localised pose: the correction of the odometry from now on (`map → odom`,
-    /// written with the sensor's next transform).
-    pub fn localized_pose(&mut self, pose: &LocalizedPose) {
-        self.converter.localized_pose(pose);
-    }
-
-    /// A `sonar-slam` estimate: the correction from now on, unless it revises an earlier sweep.
-    pub fn slam_correction(&mut self, correction: &SlamCorrection) {
-        self.converter.slam_correction(correction);
+    /// A correction of the odometry (map ← odom, `x`, `y` in metres, `theta` in radians) as of
+    /// `stamp_ns`, from another source than a recorded message (an export's own localisation):
+    /// the `map → odom` written with the sensor's next transform.
+    pub fn correction(&mut self, stamp_ns: u64, x: f64, y: f64, theta: f64) {
+        self.converter.correction(stamp_ns, x, y, theta);
     }
 
     /// A map snapshot (written at most once a grid period; the latest is kept for

@@ -1,5 +1,6 @@
-//! End to end: the frames `map → odom → sonar` that `sonar-record` writes for Foxglove keep a
-//! drifting robot's scans on the walls (issue 25).
+//! End to end: the frames `map → odom → sonar` that `sonar-record` writes for Foxglove, and
+//! `sonar-export --slam-correction` writes from that recording, keep a drifting robot's scans on
+//! the walls (issue 25).
 #![allow(clippy::unwrap_used, clippy::expect_used)] // a panic is a failure
 
 use std::collections::BTreeMap;
@@ -9,8 +10,8 @@ use foxglove::messages::{FrameTransform, LaserScan};
 use nalgebra::{Isometry2, Point2, Vector2};
 use sonar_common::ipc::{self, LocalizedPose, Pose2D, SlamCorrection, slam_state};
 use sonar_e2e::{
-    Sandbox, collect_with_truth, drive_drifting_corridor, path_str, readings_subscribers,
-    slam_correction_subscriber, true_pose_subscriber, wait_until,
+    Sandbox, TruePoses, check_ok, collect_with_truth, drive_drifting_corridor, path_str,
+    readings_subscribers, slam_correction_subscriber, true_pose_subscriber, wait_until,
 };
 use sonar_sim::{Scene, Vec2};
 use sonar_wellknown::live::Ports;
@@ -63,7 +64,7 @@ impl Tree {
 
 fn median(values: &mut [f64]) -> f64 {
     values.sort_by(f64::total_cmp);
-    values[values.len() / 2]
+    values.get(values.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 /// The corridor tour with drifting odometry (3 % long, 2°/m), `sonar-slam` correcting it and
@@ -74,7 +75,9 @@ fn median(values: &mut [f64]) -> f64 {
 /// in its 55° cone, so only the echoes that the simulator's true pose (`robot/true_pose`) places
 /// within 3 cm of a wall are scored: the ones a perfect tree draws on the walls. (Seen in three
 /// runs: 232–233 of 831–832 echoes scored, median 3.9, 3.1 and 3.9 cm through the tree, 14.8 cm
-/// through the odometry alone; 6 or 7 fixes in 20 sweeps.)
+/// through the odometry alone; 6 or 7 fixes in 20 sweeps.) The recording exported with
+/// `sonar-export --mcap --slam-correction` is scored alike: its frames come from the recorded
+/// corrections.
 #[test]
 fn the_recorded_frames_keep_a_drifting_robot_s_scans_on_the_walls() {
     let sandbox = Sandbox::new("frames");
@@ -113,92 +116,159 @@ fn the_recorded_frames_keep_a_drifting_robot_s_scans_on_the_walls() {
     assert!(sim.terminate().success(), "simulator did not exit cleanly");
     let fixes = sweeps.iter().filter(|c| c.is_fix()).count();
 
-    let bytes = std::fs::read(&file).unwrap();
-    let mut tree = Tree::default();
-    let mut scans = Vec::new();
-    for message in mcap::MessageStream::new(&bytes).unwrap() {
-        let message = message.unwrap();
-        match message.channel.topic.as_str() {
-            "/foxglove/tf" => tree.insert(&FrameTransform::decode(&message.data[..]).unwrap()),
-            "/foxglove/scan" => scans.push(LaserScan::decode(&message.data[..]).unwrap()),
-            _ => {}
-        }
-    }
-    let edges: Vec<_> = tree.0.keys().cloned().collect();
-    assert_eq!(
-        edges,
-        [
-            ("map".to_owned(), "odom".to_owned()),
-            ("odom".to_owned(), "sonar".to_owned())
+    // The recording as sonar-record wrote it, and its export with the recorded corrections.
+    let recorded = Scored::of(&std::fs::read(&file).unwrap(), &true_poses);
+    let stem = sandbox.root.join("exported");
+    let out = sandbox.run(
+        "sonar-export",
+        &[
+            "--mcap",
+            "--from-recording",
+            path_str(&file),
+            "--slam-correction",
+            "--out",
+            path_str(&stem),
         ],
-        "the frames written"
     );
-
-    let scene = Scene::builtin("corridor").unwrap();
-    let off_wall = |p: Point2<f64>| scene.distance_to_surface(Vec2::new(p.x, p.y));
-    let (mut corrected, mut odometry) = (Vec::new(), Vec::new());
-    let mut echoes = 0;
-    // Each scan's median through the tree (scans with at least 5 scored echoes): the worst scan.
-    let mut worst_scan = 0.0f64;
-    let mut placed_scans = 0;
-    for scan in &scans {
-        assert_eq!(scan.frame_id, "sonar");
-        let stamp = stamp_ns(scan.timestamp.as_ref().unwrap());
-        let (Some(map_odom), Some(odom_sonar)) = (
-            tree.at("map", "odom", stamp),
-            tree.at("odom", "sonar", stamp),
-        ) else {
-            continue;
-        };
-        let Some(true_pose) = true_poses.at(stamp).map(|t| t.cast::<f64>()) else {
-            continue;
-        };
-        placed_scans += 1;
-        let mut this_scan = Vec::new();
-        let n = scan.ranges.len();
-        let step = if n > 1 {
-            (scan.end_angle - scan.start_angle) / (n - 1) as f64
-        } else {
-            0.0
-        };
-        for (i, &range) in scan.ranges.iter().enumerate() {
-            if !range.is_finite() {
-                continue;
-            }
-            let bearing = scan.start_angle + i as f64 * step;
-            let p = Point2::new(range * bearing.cos(), range * bearing.sin());
-            echoes += 1;
-            if off_wall(true_pose * p) <= ON_WALL_M {
-                this_scan.push(off_wall(map_odom * odom_sonar * p));
-                odometry.push(off_wall(odom_sonar * p));
-            }
-        }
-        if this_scan.len() >= 5 {
-            worst_scan = worst_scan.max(median(&mut this_scan));
-        }
-        corrected.extend(this_scan);
-    }
-    let scored = corrected.len();
-    let (corrected, odometry) = (median(&mut corrected), median(&mut odometry));
+    check_ok("sonar-export --slam-correction", &out);
+    let exported = Scored::of(
+        &std::fs::read(stem.with_extension("mcap")).unwrap(),
+        &true_poses,
+    );
     eprintln!(
-        "{} sweeps ({fixes} fixes), {placed_scans} of {} scans placed, {scored} of {echoes} \
-         echoes on a wall by the truth; their median distance to the true walls: map → odom → \
-         sonar {corrected:.3} m (the worst scan's median {worst_scan:.3} m), odom → sonar alone \
-         {odometry:.3} m",
+        "{} sweeps ({fixes} fixes); the echoes on a wall by the truth, their median distance to \
+         the true walls:\n  recorded: {recorded}\n  exported with --slam-correction: {exported}",
         sweeps.len(),
-        scans.len()
     );
-    assert!(scored >= 100, "only {scored} echoes scored");
     assert!(fixes >= 4, "only {fixes} of {} sweeps fixed", sweeps.len());
-    assert!(placed_scans >= SWEEPS / 2, "{placed_scans} scans placed");
-    assert!(
-        corrected < 0.06,
-        "the corrected frames put the echoes {corrected} m off the walls"
-    );
-    assert!(
-        odometry > 2.0 * corrected && odometry > 0.08,
-        "the odometry alone kept the echoes {odometry} m off the walls: nothing was corrected"
-    );
+    for (what, s) in [("recorded", &recorded), ("exported", &exported)] {
+        assert!(s.scored >= 100, "{what}: only {} echoes scored", s.scored);
+        assert!(
+            s.placed_scans >= SWEEPS / 2,
+            "{what}: {} scans placed",
+            s.placed_scans
+        );
+        assert!(
+            s.corrected < 0.06,
+            "{what}: the corrected frames put the echoes {} m off the walls",
+            s.corrected
+        );
+        assert!(
+            s.odometry > 2.0 * s.corrected && s.odometry > 0.08,
+            "{what}: the odometry alone kept the echoes {} m off the walls: nothing was corrected",
+            s.odometry
+        );
+    }
+}
+
+/// A file's scans placed in `map` as Foxglove draws them, scored against the corridor's walls.
+struct Scored {
+    scans: usize,
+    placed_scans: usize,
+    echoes: usize,
+    /// Echoes that the true pose puts within [`ON_WALL_M`] of a wall.
+    scored: usize,
+    /// Their median distance to the true walls through `map → odom → sonar`, and through
+    /// `odom → sonar` alone.
+    corrected: f64,
+    odometry: f64,
+    /// The largest of the scans' own medians through the tree (scans with 5 scored echoes or
+    /// more).
+    worst_scan: f64,
+}
+
+impl Scored {
+    fn of(bytes: &[u8], true_poses: &TruePoses) -> Self {
+        let mut tree = Tree::default();
+        let mut scans = Vec::new();
+        for message in mcap::MessageStream::new(bytes).unwrap() {
+            let message = message.unwrap();
+            match message.channel.topic.as_str() {
+                "/foxglove/tf" => tree.insert(&FrameTransform::decode(&message.data[..]).unwrap()),
+                "/foxglove/scan" => scans.push(LaserScan::decode(&message.data[..]).unwrap()),
+                _ => {}
+            }
+        }
+        let edges: Vec<_> = tree.0.keys().cloned().collect();
+        assert_eq!(
+            edges,
+            [
+                ("map".to_owned(), "odom".to_owned()),
+                ("odom".to_owned(), "sonar".to_owned())
+            ],
+            "the frames written"
+        );
+
+        let scene = Scene::builtin("corridor").unwrap();
+        let off_wall = |p: Point2<f64>| scene.distance_to_surface(Vec2::new(p.x, p.y));
+        let (mut corrected, mut odometry) = (Vec::new(), Vec::new());
+        let mut echoes = 0;
+        let mut worst_scan = 0.0f64;
+        let mut placed_scans = 0;
+        for scan in &scans {
+            assert_eq!(scan.frame_id, "sonar");
+            let stamp = stamp_ns(scan.timestamp.as_ref().unwrap());
+            let (Some(map_odom), Some(odom_sonar)) = (
+                tree.at("map", "odom", stamp),
+                tree.at("odom", "sonar", stamp),
+            ) else {
+                continue;
+            };
+            let Some(true_pose) = true_poses.at(stamp).map(|t| t.cast::<f64>()) else {
+                continue;
+            };
+            placed_scans += 1;
+            let mut this_scan = Vec::new();
+            let n = scan.ranges.len();
+            let step = if n > 1 {
+                (scan.end_angle - scan.start_angle) / (n - 1) as f64
+            } else {
+                0.0
+            };
+            for (i, &range) in scan.ranges.iter().enumerate() {
+                if !range.is_finite() {
+                    continue;
+                }
+                let bearing = scan.start_angle + i as f64 * step;
+                let p = Point2::new(range * bearing.cos(), range * bearing.sin());
+                echoes += 1;
+                if off_wall(true_pose * p) <= ON_WALL_M {
+                    this_scan.push(off_wall(map_odom * odom_sonar * p));
+                    odometry.push(off_wall(odom_sonar * p));
+                }
+            }
+            if this_scan.len() >= 5 {
+                worst_scan = worst_scan.max(median(&mut this_scan));
+            }
+            corrected.extend(this_scan);
+        }
+        Self {
+            scans: scans.len(),
+            placed_scans,
+            echoes,
+            scored: corrected.len(),
+            corrected: median(&mut corrected),
+            odometry: median(&mut odometry),
+            worst_scan,
+        }
+    }
+}
+
+impl std::fmt::Display for Scored {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} of {} scans placed, {} of {} echoes scored; map → odom → sonar {:.3} m (the worst \
+             scan's median {:.3} m), odom → sonar alone {:.3} m",
+            self.placed_scans,
+            self.scans,
+            self.scored,
+            self.echoes,
+            self.corrected,
+            self.worst_scan,
+            self.odometry
+        )
+    }
 }
 
 /// The `map → odom` of the first Foxglove transform among `out`, as (x, θ).

@@ -586,7 +586,13 @@ fn an_offline_export_with_the_pipelines_config_gives_the_live_localised_map() {
     let offline_map = export_npy(
         &sandbox,
         "offline",
-        &["--from-recording", path_str(&file), "--config", config_arg],
+        &[
+            "--from-recording",
+            path_str(&file),
+            "--config",
+            config_arg,
+            "--mcap",
+        ],
     );
     assert_same_cells(&live_map, &offline_map, &format!("live: {live_log}"));
     // The localisation made a difference: the same grid without it is another map.
@@ -594,11 +600,49 @@ fn an_offline_export_with_the_pipelines_config_gives_the_live_localised_map() {
     let unlocalised_map = export_npy(
         &sandbox,
         "unlocalised",
-        &["--from-recording", path_str(&file), "--config", config_arg],
+        &[
+            "--from-recording",
+            path_str(&file),
+            "--config",
+            config_arg,
+            "--mcap",
+        ],
     );
     let _ = std::fs::remove_file(&config);
     assert_eq!(unlocalised_map.len(), live_map.len());
     assert_ne!(unlocalised_map, live_map);
+    // The frames say where the readings were placed: the localised export's `map → odom` takes
+    // the drift out (the odometry 3 % long: centimetres by the tour's end), the other's is the
+    // identity, as its readings lie at the odometry's poses.
+    let localised = maps_to_odom(&sandbox.root.join("offline.mcap"));
+    let (x, y, theta) = *localised.last().expect("map → odom written");
+    assert!(
+        x.hypot(y) > 0.01 || theta.abs() > 0.2f64.to_radians(),
+        "the localised export's last map → odom is ({x}, {y}, {theta})"
+    );
+    let unlocalised = maps_to_odom(&sandbox.root.join("unlocalised.mcap"));
+    assert!(!unlocalised.is_empty());
+    assert!(
+        unlocalised.iter().all(|&t| t == (0.0, 0.0, 0.0)),
+        "the unlocalised export's map → odom is not the identity"
+    );
+}
+
+/// Every `map → odom` of an MCAP file's `/foxglove/tf`, as (x, y, θ), in file order.
+fn maps_to_odom(file: &std::path::Path) -> Vec<(f64, f64, f64)> {
+    use foxglove::Decode;
+    let bytes = std::fs::read(file).unwrap();
+    mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(Result::unwrap)
+        .filter(|m| m.channel.topic == "/foxglove/tf")
+        .map(|m| foxglove::messages::FrameTransform::decode(&m.data[..]).unwrap())
+        .filter(|t| t.parent_frame_id == "map" && t.child_frame_id == "odom")
+        .map(|t| {
+            let (p, q) = (t.translation.unwrap(), t.rotation.unwrap());
+            (p.x, p.y, 2.0 * q.z.atan2(q.w))
+        })
+        .collect()
 }
 
 /// The corridor tour at 20× with `seed` and odometry errors `(scale, heading drift °/m)` through a

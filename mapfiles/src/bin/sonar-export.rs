@@ -27,10 +27,13 @@ use clap::Parser;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::waitset::WaitSetRunResult;
+use nalgebra::{Isometry2, Vector2};
 use sonar_common::ipc::{
     self, FusionCommandKind, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, Reading,
+    SlamCorrection, slam_state,
 };
 use sonar_fusion::engine::Engine;
+use sonar_fusion::history::Revised;
 use sonar_fusion::poses::MAX_POSE_WAIT;
 use sonar_fusion::{
     FeatureTracker, FeaturesSection, FusionConfig, FusionFile, FusionSection, Preset,
@@ -38,7 +41,8 @@ use sonar_fusion::{
 use sonar_mapfiles::{FeatureFormat, Format, Map, PngOptions, output, write_features};
 use sonar_recorder::well_known::Options as WellKnownOptions;
 use sonar_recorder::{
-    FeatureSnapshot, Message, ReadOptions, Recording, RecordingWriter, Ros2Bag, WellKnownChannels,
+    FeatureSnapshot, Message, ReadOptions, Recording, RecordingWriter, Ros2Bag, Topic,
+    WellKnownChannels,
 };
 use tracing::{debug, info, warn};
 
@@ -62,7 +66,10 @@ const TICK: Duration = Duration::from_millis(500);
 /// publishes one per sweep).
 ///
 /// Offline (--from-recording): fuses the readings of a sonar-record file with the fusion engine
-/// (poses and fusion commands as recorded) and writes the final map and features.
+/// (poses and fusion commands as recorded) and writes the final map and features. The readings lie
+/// where the odometry (robot/pose) put them, unless --localize corrects it anew or
+/// --slam-correction takes the corrections sonar-slam published while recording (sonar-record
+/// keeps them), as sonar-fusion does with the same flags.
 ///
 /// Files are named after --out without its extension: STEM.png, STEM.pgm + STEM.yaml, STEM.csv,
 /// STEM.npy, STEM.features.csv, STEM.features.json, STEM.mcap; missing directories are created.
@@ -70,7 +77,9 @@ const TICK: Duration = Duration::from_millis(500);
 ///
 /// --mcap writes STEM.mcap for Foxglove (and with --ros2 for ROS 2 tools; docs/foxglove.md): from a
 /// recording, the map (re-fused, at most one every --grid-period), each sweep as a laser scan, the
-/// poses and the recorded features; live, the map taken, the sensor's pose and the latest features.
+/// frames map → odom → sonar (map → odom the correction the readings were placed with: identity,
+/// --localize's or the recorded SLAM's) and the recorded features; live, the map taken, the
+/// sensor's pose and the latest features.
 ///
 /// Examples:
 ///   sonar-export --format png --out room.png
@@ -79,6 +88,7 @@ const TICK: Duration = Duration::from_millis(500);
 ///   sonar-export --format pgm --out map --from-recording run.mcap --preset paper
 ///   sonar-export --format features-csv,features-json --out maps/room
 ///   sonar-export --mcap --ros2 --out room --from-recording old.mcap   # room.mcap for Foxglove, RViz
+///   sonar-export --mcap --out tour --from-recording tour.mcap --slam-correction
 ///   ros2 run nav2_map_server map_server --ros-args -p yaml_filename:=map.yaml
 ///
 /// Exit status: 0 written, 1 error, 130 interrupted (Ctrl-C/SIGTERM) before a map arrived.
@@ -152,6 +162,12 @@ struct Args {
     /// `sonar-fusion --localize` does (`[features] localize = true` in --config does the same).
     #[arg(long, requires = "from_recording")]
     localize: bool,
+    /// Offline: place the readings with the corrections of the odometry that sonar-slam published
+    /// while the recording was made (sonar/slam_correction, kept by sonar-record), earlier sweeps
+    /// moved where its later estimates put them, as `sonar-fusion --slam-correction` does
+    /// (`[fusion] slam_correction = true` in --config does the same).
+    #[arg(long, requires = "from_recording", conflicts_with = "localize")]
+    slam_correction: bool,
     /// Offline: ignore the recorded fusion commands (clear, preset/model/rule switches), so every
     /// reading is fused with --preset.
     #[arg(long, requires = "from_recording")]
@@ -637,6 +653,11 @@ impl<W: Write + Seek> McapExport<W> {
             .message(&mut self.writer, log_time_ns, message)?)
     }
 
+    /// The correction the readings are placed with from `stamp_ns` on: the next `map → odom`.
+    fn correction(&mut self, stamp_ns: u64, x: f64, y: f64, theta: f64) {
+        self.channels.correction(stamp_ns, x, y, theta);
+    }
+
     fn grid(&mut self, log_time_ns: u64, (header, cells): &Grid) -> Result<()> {
         self.last_log_ns = self.last_log_ns.max(Some(log_time_ns));
         Ok(self
@@ -682,9 +703,12 @@ fn from_recording<W: Write + Seek>(
         warn!("the recording ends early; fusing the messages before the cut");
     }
     let FusionFile {
-        fusion: FusionSection {
-            engine: mut config, ..
-        },
+        fusion:
+            FusionSection {
+                engine: mut config,
+                slam_correction,
+                ..
+            },
         features,
     } = FusionFile::read(args.config.as_deref())?;
     if let Some(preset) = args.preset {
@@ -694,12 +718,41 @@ fn from_recording<W: Write + Seek>(
     if localize && !features.enabled {
         bail!("localisation needs the features: [features] enabled = false in the config file");
     }
+    let placement = match (localize, args.slam_correction || slam_correction) {
+        (true, true) => bail!(
+            "the readings are placed by the export's own localisation (--localize, [features] \
+             localize) or by the recorded SLAM corrections (--slam-correction, [fusion] \
+             slam_correction), not both"
+        ),
+        (true, false) => Placement::Localize,
+        (false, true) => {
+            if recording.count(Topic::SlamCorrection) == 0 {
+                bail!(
+                    "--slam-correction: {} holds no SLAM corrections (was sonar-slam running, \
+                     and the recording made by a sonar-record that keeps them?)",
+                    file.display()
+                );
+            }
+            Placement::SlamCorrection
+        }
+        (false, false) => {
+            let corrections = recording.count(Topic::SlamCorrection);
+            if corrections > 0 {
+                info!(
+                    corrections,
+                    "the recording holds sonar-slam's corrections: the readings stay where the \
+                     odometry put them unless --slam-correction"
+                );
+            }
+            Placement::Odometry
+        }
+    };
     fuse_recording(
         &recording,
         Offline {
             config,
             features,
-            localize,
+            placement,
             commands: !args.ignore_fusion_commands,
             with_features,
         },
@@ -707,13 +760,24 @@ fn from_recording<W: Write + Seek>(
     )
 }
 
+/// Where the offline fusion places the readings, and what the frames' `map → odom` says.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Placement {
+    /// At the recorded odometry's poses; `map → odom` the identity.
+    Odometry,
+    /// Corrected by the export's own localisation against the features (`--localize`).
+    Localize,
+    /// Corrected by the recorded `sonar/slam_correction` (`--slam-correction`).
+    SlamCorrection,
+}
+
 /// How a recording is fused offline.
 struct Offline {
     config: FusionConfig,
     /// The feature settings (the file's `[features]` table).
     features: FeaturesSection,
-    /// Whether each sweep is localised against the features (they are then extracted).
-    localize: bool,
+    /// Where the readings are placed (with `Localize`, the features are extracted).
+    placement: Placement,
     /// Whether the recorded fusion commands are carried out.
     commands: bool,
     /// Whether the features are written.
@@ -736,10 +800,11 @@ fn fuse_recording<W: Write + Seek>(
     let Offline {
         config,
         features,
-        localize,
+        placement,
         commands,
         with_features,
     } = offline;
+    let localize = placement == Placement::Localize;
     let engine = Engine::new(config, OFFLINE_HISTORY).context("invalid fusion settings")?;
     let tracker = (with_features || localize)
         .then(|| {
@@ -760,6 +825,8 @@ fn fuse_recording<W: Write + Seek>(
         refused: 0,
         stamp: 0,
         snapshots: 0,
+        corrections: 0,
+        revisions: 0,
     };
     for entry in &recording.entries {
         match &entry.message {
@@ -774,6 +841,9 @@ fn fuse_recording<W: Write + Seek>(
                 if let Err(e) = run.engine.set_pose(p) {
                     warn!(pose = ?p, "pose refused: {e}");
                 }
+            }
+            Message::SlamCorrection(c) if placement == Placement::SlamCorrection => {
+                run.slam_correction(c);
             }
             Message::FusionCommand(c) if commands => {
                 // The readings before a command are fused before it, as the fusion receives them.
@@ -790,10 +860,20 @@ fn fuse_recording<W: Write + Seek>(
                 }
             }
             // Recorded features are the live fusion's; these are computed anew from the readings.
-            Message::FusionCommand(_) | Message::ScanCommand(_) | Message::Features(_) => {}
+            // The recorded corrections the readings are not placed with stay out of the frames.
+            Message::FusionCommand(_)
+            | Message::ScanCommand(_)
+            | Message::Features(_)
+            | Message::SlamCorrection(_)
+            | Message::LocalizedPose(_) => {}
         }
         run.release(entry.log_time_ns, mcap.as_deref_mut())?;
-        if let Some(mcap) = mcap.as_deref_mut() {
+        let placed_with = match &entry.message {
+            Message::SlamCorrection(_) => placement == Placement::SlamCorrection,
+            Message::LocalizedPose(_) => false,
+            _ => true,
+        };
+        if let Some(mcap) = mcap.as_deref_mut().filter(|_| placed_with) {
             mcap.message(entry.log_time_ns, &entry.message)?;
         }
     }
@@ -805,6 +885,8 @@ fn fuse_recording<W: Write + Seek>(
         refused,
         stamp,
         snapshots,
+        corrections: run_corrections,
+        revisions: run_revisions,
         ..
     } = run;
     if fused == 0 {
@@ -813,6 +895,8 @@ fn fuse_recording<W: Write + Seek>(
     info!(
         fused,
         refused,
+        slam_corrections = run_corrections,
+        revisions = run_revisions,
         extrapolated_pose = engine.extrapolated_pose_readings(),
         stale_pose = engine.stale_pose_readings(),
         early_pose = engine.early_pose_readings(),
@@ -844,6 +928,10 @@ struct Run {
     /// The stamp of the last reading fused.
     stamp: u64,
     snapshots: u64,
+    /// SLAM corrections taken (`Placement::SlamCorrection`), and the rebuilds of the maps they
+    /// caused.
+    corrections: u64,
+    revisions: u64,
 }
 
 impl Run {
@@ -869,6 +957,39 @@ impl Run {
         Ok(())
     }
 
+    /// A recorded `sonar-slam` correction, taken as `sonar-fusion --slam-correction` takes it: a
+    /// new sweep's correction places the readings from now on; every message (revisions too)
+    /// moves its sweep's readings where it places them, and the maps are rebuilt from them at once.
+    fn slam_correction(&mut self, c: &SlamCorrection) {
+        let finite = [c.correction_x_m, c.correction_y_m, c.correction_theta_rad]
+            .iter()
+            .all(|v| v.is_finite());
+        if !finite {
+            warn!(correction = ?c, "recorded SLAM correction left out: not finite");
+            return;
+        }
+        let correction = Isometry2::new(
+            Vector2::new(c.correction_x_m, c.correction_y_m),
+            c.correction_theta_rad,
+        );
+        if c.state != slam_state::REVISED {
+            self.corrections += 1;
+            self.engine.set_correction(correction);
+        }
+        match self.engine.revise(&[(c.sweep_id, correction)]) {
+            Revised::Unmoved => {}
+            Revised::Rebuilding(_) => {
+                while !self.engine.rebuild_step(usize::MAX) {}
+                self.revisions += 1;
+            }
+            Revised::Uncovered(moved) => warn!(
+                moved,
+                sweep = c.sweep_id,
+                "a revised sweep's readings are no longer kept: they stay where they were placed"
+            ),
+        }
+    }
+
     /// One reading, in the fusion's order: a new sweep's first reading closes the last region
     /// and ends the map of the sweep before it; then the engine fuses the reading; then the
     /// features take it where the engine placed it (and localisation corrects the next).
@@ -876,11 +997,11 @@ impl Run {
         &mut self,
         logged_ns: u64,
         r: &Reading,
-        mcap: Option<&mut McapExport<W>>,
+        mut mcap: Option<&mut McapExport<W>>,
     ) -> Result<()> {
         if self.engine.starts_new_sweep(r) {
             self.engine.close_region();
-            if let Some(mcap) = mcap {
+            if let Some(mcap) = mcap.as_deref_mut() {
                 self.snapshots += 1;
                 mcap.grid(
                     logged_ns,
@@ -895,6 +1016,18 @@ impl Run {
         }
         if let Some(tracker) = &mut self.tracker {
             tracker.follow(r, &mut self.engine, self.localize);
+            if self.localize
+                && let Some(mcap) = mcap
+            {
+                // The correction the next reading is placed with: the frames say the same.
+                let c = tracker.correction();
+                mcap.correction(
+                    r.host_stamp_ns,
+                    f64::from(c.translation.x),
+                    f64::from(c.translation.y),
+                    f64::from(c.rotation.angle()),
+                );
+            }
         }
         self.stamp = r.host_stamp_ns;
         Ok(())
@@ -1020,7 +1153,7 @@ mod tests {
         let offline = Offline {
             config,
             features: FeaturesSection::default(),
-            localize: false,
+            placement: Placement::Odometry,
             commands,
             with_features: features,
         };
@@ -1049,7 +1182,7 @@ mod tests {
             Offline {
                 config: FusionConfig::default(),
                 features: FeaturesSection::default(),
-                localize: false,
+                placement: Placement::Odometry,
                 commands: true,
                 with_features: false,
             },
@@ -1080,6 +1213,93 @@ mod tests {
         let end = number_after("nanoseconds_since_epoch:") + number_after("nanoseconds:");
         assert_eq!(end, rec.entries.last().unwrap().log_time_ns, "{yaml}");
         let _ = std::fs::remove_dir_all(&bag_dir);
+    }
+
+    /// The row of the x axis.
+    fn cell_y(h: &GridHeader) -> usize {
+        ((0.0 - h.origin_y_m) / h.resolution_m) as usize
+    }
+
+    /// The strongest occupancy along the x axis: its x (m).
+    fn wall_x(snapshot: &Snapshot) -> f32 {
+        let (h, cells) = &snapshot.grid;
+        let map = Map::new(h, cells).unwrap();
+        let y = cell_y(h);
+        let (x, _) = (0..map.width())
+            .filter_map(|x| map.probability(x, y).map(|p| (x, p)))
+            .fold(
+                (0, 0.0f32),
+                |best, (x, p)| if p > best.1 { (x, p) } else { best },
+            );
+        h.origin_x_m + (x as f32 + 0.5) * h.resolution_m
+    }
+
+    /// `sonar-slam` said while recording that the odometry's frame lies 0.5 m along x in the map
+    /// (the first sweep's correction revised to it later, the second sweep's given before it):
+    /// with `Placement::SlamCorrection` the wall ahead is drawn there for both sweeps, at the
+    /// odometry's place without it.
+    #[test]
+    fn recorded_slam_corrections_place_the_readings_when_asked() {
+        let correction = |sweep_id, state| {
+            Message::SlamCorrection(SlamCorrection {
+                layout_version: LAYOUT_VERSION,
+                sweep_id,
+                state,
+                correction_x_m: 0.5,
+                ..SlamCorrection::default()
+            })
+        };
+        let mut entries: Vec<Entry> = Vec::new();
+        let mut push = |message| {
+            entries.push(Entry {
+                log_time_ns: entries.len() as u64,
+                message,
+            })
+        };
+        for sweep in 1..=2 {
+            if sweep == 2 {
+                push(correction(2, slam_state::FIX));
+                push(correction(1, slam_state::REVISED));
+            }
+            for k in 0..50 {
+                let angle = -147.0 + 6.0 * k as f32;
+                let d = 1.2 / angle.to_radians().cos().abs().max(0.3);
+                push(Message::Reading(reading(sweep, angle, d.min(3.9))));
+            }
+        }
+        let rec = Recording {
+            entries,
+            ..Recording::default()
+        };
+        let fused = |placement| {
+            fuse_recording::<Cursor<Vec<u8>>>(
+                &rec,
+                Offline {
+                    config: FusionConfig::default(),
+                    features: FeaturesSection::default(),
+                    placement,
+                    commands: true,
+                    with_features: false,
+                },
+                None,
+            )
+            .unwrap()
+        };
+        let odometry = wall_x(&fused(Placement::Odometry));
+        assert!((odometry - 1.2).abs() < 0.05, "wall at {odometry} m");
+        let corrected = fused(Placement::SlamCorrection);
+        assert_eq!(corrected.grid.0.readings_fused, 100);
+        let at = wall_x(&corrected);
+        assert!((at - 1.7).abs() < 0.05, "wall at {at} m");
+        // Both sweeps moved: nothing is left at the odometry's place.
+        let (h, cells) = &corrected.grid;
+        let map = Map::new(h, cells).unwrap();
+        let cell = |x: f32| ((x - h.origin_x_m) / h.resolution_m) as usize;
+        let y = cell_y(h);
+        let left = (cell(1.15)..=cell(1.25))
+            .filter_map(|x| map.probability(x, y))
+            .fold(0.0f32, f32::max);
+        assert!(left < 0.5, "p = {left} at the odometry's wall");
     }
 
     #[test]

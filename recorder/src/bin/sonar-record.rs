@@ -11,8 +11,9 @@
 //! Beside its own channels the writer thread also writes the well-known ones Foxglove (and, with
 //! `--ros2`, ROS 2 tools) draw: the map from `sonar/grid`, each sweep as a laser scan, the frames
 //! `map → odom → sonar` as transforms (the pose of `robot/pose` below the latest correction from
-//! `sonar/localized_pose` or `sonar/slam_correction`; those two are not recorded themselves) and
-//! the features as a scene (`sonar_wellknown`; `docs/foxglove.md`).
+//! `sonar/localized_pose` or `sonar/slam_correction`, both also recorded in their own channels,
+//! so an export of the recording draws the same frames) and the features as a scene
+//! (`sonar_wellknown`; `docs/foxglove.md`).
 
 use std::collections::BTreeMap;
 use std::fmt::Debug;
@@ -51,8 +52,9 @@ const FLUSH_PERIOD: Duration = Duration::from_secs(1);
 /// Readings waiting for the disk before the progress log warns about it.
 const BACKLOG_WARNING: u64 = 10_000;
 
-/// Records `sonar/readings`, `sonar/commands`, `sonar/fusion_commands`, `robot/pose` and
-/// `sonar/features` to an MCAP file (one channel each; docs/recording.md), until Ctrl-C/SIGTERM,
+/// Records `sonar/readings`, `sonar/commands`, `sonar/fusion_commands`, `robot/pose`,
+/// `sonar/features` and the corrections of the odometry (`sonar/localized_pose`,
+/// `sonar/slam_correction`) to an MCAP file (one channel each; docs/recording.md), until Ctrl-C/SIGTERM,
 /// `--max-readings` or `--duration`. Beside them it writes what Foxglove draws by itself: the map
 /// (`sonar/grid`) as foxglove.Grid, each sweep as foxglove.LaserScan, the frames map → odom →
 /// sonar as foxglove.FrameTransform (robot/pose below the latest correction of sonar/localized_pose
@@ -223,6 +225,8 @@ fn run(args: Args) -> Result<()> {
         fusion_commands = count(Topic::FusionCommands),
         poses = count(Topic::Pose),
         features = count(Topic::Features),
+        localized_poses = count(Topic::LocalizedPose),
+        slam_corrections = count(Topic::SlamCorrection),
         well_known = finished.well_known,
         lost,
         bytes = finished.bytes,
@@ -249,7 +253,7 @@ struct Ports {
     features: OptionalPort<Subscriber<Ipc, [FeatureRecord], FeaturesHeader>>,
     /// The map, for the well-known channels only (not replayed: the fusion derives it).
     grid: OptionalPort<Subscriber<Ipc, [u8], GridHeader>>,
-    /// The corrections of the odometry, for the well-known channels' `map → odom` only (not
+    /// The corrections of the odometry: recorded, and the well-known channels' `map → odom` (not
     /// replayed: the fusion or sonar-slam derives them).
     localized_pose: OptionalPort<Subscriber<Ipc, ipc::LocalizedPose, ()>>,
     slam_correction: OptionalPort<Subscriber<Ipc, ipc::SlamCorrection, ()>>,
@@ -345,9 +349,6 @@ enum Item {
     Recorded(Message),
     /// A map snapshot, for the well-known channels.
     Grid(GridHeader, Vec<u8>),
-    /// Corrections of the odometry, for the well-known channels.
-    LocalizedPose(ipc::LocalizedPose),
-    SlamCorrection(ipc::SlamCorrection),
 }
 
 struct Recorder {
@@ -453,20 +454,13 @@ impl Recorder {
         let now = ipc::unix_time_ns();
         // The corrections before the poses: a pose's transforms carry the latest with them.
         if let Some(sub) = ports.localized_pose.get() {
-            self.drain_items(
-                ipc::LOCALIZED_POSE_SERVICE,
-                || sub.receive(),
-                now,
-                |s| Item::LocalizedPose(*s.payload()),
-            );
+            let next = || Ok::<_, ReceiveError>(sub.receive()?.map(|s| Message::LocalizedPose(*s)));
+            self.drain(Topic::LocalizedPose, next, now);
         }
         if let Some(sub) = ports.slam_correction.get() {
-            self.drain_items(
-                ipc::SLAM_CORRECTION_SERVICE,
-                || sub.receive(),
-                now,
-                |s| Item::SlamCorrection(*s.payload()),
-            );
+            let next =
+                || Ok::<_, ReceiveError>(sub.receive()?.map(|s| Message::SlamCorrection(*s)));
+            self.drain(Topic::SlamCorrection, next, now);
         }
         if let Some(sub) = ports.scan_commands.get() {
             let next = || Ok::<_, ReceiveError>(sub.receive()?.map(|s| Message::ScanCommand(*s)));
@@ -539,26 +533,6 @@ impl Recorder {
             return;
         }
         self.send_item(now, Item::Grid(header, cells.to_vec()));
-    }
-
-    /// Hands every sample `receive` yields to the writer as an item (not a recorded message).
-    fn drain_items<S, E: Debug>(
-        &mut self,
-        service: &str,
-        mut receive: impl FnMut() -> Result<Option<S>, E>,
-        now: u64,
-        item: impl Fn(&S) -> Item,
-    ) {
-        loop {
-            match receive() {
-                Ok(Some(sample)) => self.send_item(now, item(&sample)),
-                Ok(None) => return,
-                Err(e) => {
-                    warn!("receiving {service} failed: {e:?}");
-                    return;
-                }
-            }
-        }
     }
 
     /// Takes every message `next` yields: a subscriber's `receive`, the payload copied out of
@@ -656,9 +630,7 @@ fn write_loop(
                     (Item::Grid(header, cells), Some(w)) => {
                         w.grid(&mut writer, log_time, header, cells)?
                     }
-                    (Item::LocalizedPose(pose), Some(w)) => w.localized_pose(pose),
-                    (Item::SlamCorrection(c), Some(w)) => w.slam_correction(c),
-                    (Item::Grid(..) | Item::LocalizedPose(_) | Item::SlamCorrection(_), None) => {}
+                    (Item::Grid(..), None) => {}
                 }
                 dirty = true;
             }

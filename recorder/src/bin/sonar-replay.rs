@@ -143,8 +143,11 @@ fn run(args: Args) -> Result<()> {
         .iter()
         .filter(|e| match e.message.topic() {
             Topic::Readings => true,
-            // Addressed to the driver, or derived by the fusion from the readings.
-            Topic::ScanCommands | Topic::Features => false,
+            // Addressed to the driver, or derived from the readings by the fusion or sonar-slam.
+            Topic::ScanCommands
+            | Topic::Features
+            | Topic::LocalizedPose
+            | Topic::SlamCorrection => false,
             Topic::FusionCommands | Topic::Pose => !args.readings_only,
         })
         .collect();
@@ -318,7 +321,10 @@ impl Ports {
                 }
                 None => Ok(()),
             },
-            Message::ScanCommand(_) | Message::Features(_) => Ok(()),
+            Message::ScanCommand(_)
+            | Message::Features(_)
+            | Message::LocalizedPose(_)
+            | Message::SlamCorrection(_) => Ok(()),
         }
     }
 }
