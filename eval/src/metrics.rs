@@ -43,12 +43,17 @@ pub enum MapKind {
     Basic,
 }
 
+/// A cell is occupied above this probability unless a view says otherwise
+/// ([`MapView::with_occupied_above`]): more likely occupied than not.
+pub const OCCUPIED_ABOVE: f32 = 0.5;
+
 /// One value per cell of a grid, row-major, row 0 at the lowest y (the fusion grid's layout).
 #[derive(Debug, Clone)]
 pub struct MapView {
     geometry: GridGeometry,
     kind: MapKind,
     cells: Vec<Option<f32>>,
+    occupied_above: f32,
 }
 
 impl MapView {
@@ -60,6 +65,16 @@ impl MapView {
             geometry,
             kind,
             cells,
+            occupied_above: OCCUPIED_ABOVE,
+        }
+    }
+
+    /// The same map with its cells counted occupied above `p` instead of [`OCCUPIED_ABOVE`]: the
+    /// map as a consumer with another threshold reads it (a ROS map's `occupied_thresh`).
+    pub fn with_occupied_above(self, p: f32) -> Self {
+        Self {
+            occupied_above: p,
+            ..self
         }
     }
 
@@ -76,7 +91,7 @@ impl MapView {
     }
 
     pub fn is_occupied(&self, x: usize, y: usize) -> bool {
-        self.value(x, y).is_some_and(|p| p > 0.5)
+        self.value(x, y).is_some_and(|p| p > self.occupied_above)
     }
 
     /// How occupied a cell counts for the gap test: its probability; a never-observed cell 0.5 in
@@ -93,7 +108,7 @@ impl MapView {
     pub fn occupied_count(&self) -> usize {
         self.cells
             .iter()
-            .filter(|c| c.is_some_and(|p| p > 0.5))
+            .filter(|c| c.is_some_and(|p| p > self.occupied_above))
             .count()
     }
 
@@ -502,6 +517,19 @@ mod tests {
             set(m, Vec2::new(t.cos(), t.sin()) * r, v);
             deg += 0.05;
         }
+    }
+
+    #[test]
+    fn a_view_with_another_threshold_counts_only_the_cells_above_it() {
+        let mut m = map(MapKind::Probability, Some(0.2));
+        set(&mut m, Vec2::new(0.5, 0.0), Some(0.6));
+        set(&mut m, Vec2::new(1.0, 0.0), Some(0.9));
+        let (x, y) = m.cell_at(Vec2::new(0.5, 0.0)).unwrap();
+        assert!(m.is_occupied(x, y));
+        assert_eq!(m.occupied_count(), 2);
+        let ros = m.with_occupied_above(0.65);
+        assert!(!ros.is_occupied(x, y));
+        assert_eq!(ros.occupied_count(), 1);
     }
 
     #[test]

@@ -352,6 +352,20 @@ pub struct SuiteArgs {
     /// it; free space white, cells never observed light grey; viewpoints as green crosses.
     #[arg(long, value_name = "DIR")]
     pub suite_pictures: Option<PathBuf>,
+    /// Score the grids with their cells counted occupied above this probability (0.5 to 1): 0.5,
+    /// more likely occupied than not, or 0.65, the `occupied_thresh` of the ROS map that
+    /// `sonar-export --format pgm` writes (what nav2 takes for an obstacle).
+    #[arg(long, value_name = "P", default_value_t = crate::metrics::OCCUPIED_ABOVE, value_parser = parse_occupied_above)]
+    pub suite_occupied_above: f32,
+}
+
+fn parse_occupied_above(s: &str) -> Result<f32, String> {
+    match s.trim().parse::<f32>() {
+        Ok(p) if (0.5..1.0).contains(&p) => Ok(p),
+        _ => Err(format!(
+            "an occupied threshold is a probability from 0.5 to below 1, got {s:?}"
+        )),
+    }
 }
 
 /// How the suite is run.
@@ -369,6 +383,8 @@ pub struct SuiteSettings {
     pub jobs: usize,
     /// Where to write a picture of each run's maps ([`score_picture`]), if anywhere.
     pub pictures: Option<PathBuf>,
+    /// Cells above this probability count as occupied in the grids' scores.
+    pub occupied_above: f32,
 }
 
 impl SuiteSettings {
@@ -407,6 +423,7 @@ impl SuiteSettings {
             sweeps: args.suite_sweeps,
             jobs: usize::try_from(args.suite_jobs).unwrap_or(1),
             pictures: args.suite_pictures.clone(),
+            occupied_above: args.suite_occupied_above,
         })
     }
 }
@@ -1028,7 +1045,7 @@ pub fn run_scene(
             }
             mapper.close_region();
             if settings.viewpoints.contains(&(k + 1)) {
-                let map = probability_view(mapper);
+                let map = probability_view(mapper).with_occupied_above(settings.occupied_above);
                 let (mut score, drawn) = score_samples(&map, &scene, &views[..=k], reach);
                 score.erased = before.as_deref().map(|b| erased(b, &drawn));
                 *before = Some(drawn);
@@ -1039,7 +1056,10 @@ pub fn run_scene(
     if let Some(dir) = &settings.pictures {
         let panels: Vec<Canvas> = mappers
             .iter()
-            .map(|m| score_picture(&probability_view(m), &scene, views, reach))
+            .map(|m| {
+                let map = probability_view(m).with_occupied_above(settings.occupied_above);
+                score_picture(&map, &scene, views, reach)
+            })
             .collect();
         let name = format!("{:?}-{index:03}-seed{seed}-{sensor}.png", settings.split)
             .to_lowercase()
@@ -1243,11 +1263,20 @@ fn grid_markdown(
          specular sensor can hear); \
          \"fell\" counts runs where recall fell when viewpoints were added (from the previous \
          count); \"erased\": runs where a surface sample drawn at the previous count is no longer \
-         drawn, and the most samples one run lost so.\n",
+         drawn, and the most samples one run lost so.{}\n",
         settings.scenes,
         seeds.join(", "),
         settings.sweeps,
-        TOLERANCE_M * 100.0
+        TOLERANCE_M * 100.0,
+        // Said when it is not the usual one, so that a default run prints what it always did.
+        if settings.occupied_above == crate::metrics::OCCUPIED_ABOVE {
+            String::new()
+        } else {
+            format!(
+                " A cell counts as occupied above p = {}.",
+                settings.occupied_above
+            )
+        }
     );
     let _ = writeln!(
         t,
@@ -1668,6 +1697,7 @@ mod structural_tests {
             sweeps: 2,
             jobs: 1,
             pictures: None,
+            occupied_above: crate::metrics::OCCUPIED_ABOVE,
         }
     }
 
