@@ -14,7 +14,7 @@ use crossterm::event::{
 use sonar_common::ipc::{
     DriverStatus, FeatureRecord, FeaturesHeader, FusionCommand, FusionCommandKind, FusionStatus,
     GridHeader, LAYOUT_VERSION, LocalizedPose, MAX_FEATURES, RADAR_MAX_BINS, Radar, Reading,
-    ScanCommand, ScanCommandKind, ScanMode, preset_code,
+    ScanCommand, ScanCommandKind, ScanMode, SlamCorrection, preset_code, slam_state,
 };
 use sonar_common::sensor::SensorConfig;
 
@@ -615,6 +615,9 @@ pub struct App {
     pub trail: Trail,
     /// The latest `sonar/localized_pose`; `None` until the fusion localises (it may not).
     pub localized: Option<LocalizedPose>,
+    /// The latest estimate of `sonar-slam` (`sonar/slam_correction`) for a new sweep, revisions
+    /// of earlier sweeps left out; `None` until one comes (no `sonar-slam`, or no sweep yet).
+    pub slam: Option<SlamCorrection>,
     /// `t` was pressed: the user decides about following, no more automatic switching on.
     pub follow_by_key: bool,
     /// The first position the viewer saw, from which [`AUTO_FOLLOW_M`] is measured.
@@ -657,6 +660,7 @@ impl App {
             },
             trail: Trail::default(),
             localized: None,
+            slam: None,
             follow_by_key: false,
             start_position: None,
         }
@@ -722,6 +726,22 @@ impl App {
         }
         self.localized = Some(*fix);
         self.revision += 1;
+        Ok(())
+    }
+
+    /// Takes a copy of a `sonar/slam_correction` sample: the estimate of a new sweep is kept, one
+    /// that revises an earlier sweep (after a loop closure) is not the state now and is left out.
+    pub fn on_slam_correction(&mut self, c: &SlamCorrection) -> Result<(), String> {
+        if c.layout_version != LAYOUT_VERSION {
+            return Err(format!(
+                "SLAM correction layout version {} (this viewer reads {LAYOUT_VERSION})",
+                c.layout_version
+            ));
+        }
+        if c.state != slam_state::REVISED {
+            self.slam = Some(*c);
+            self.revision += 1;
+        }
         Ok(())
     }
 

@@ -29,7 +29,7 @@ use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::service::port_factory::PortFactory;
 use sonar_common::ipc::{
     self, DriverStatus, FeatureRecord, FeaturesHeader, FusionCommand, FusionStatus, GridHeader,
-    IpcError, LocalizedPose, PubSub, Radar, Reading, ScanCommand,
+    IpcError, LocalizedPose, PubSub, Radar, Reading, ScanCommand, SlamCorrection,
 };
 use tracing::{info, warn};
 
@@ -42,6 +42,8 @@ const LIVENESS_PERIOD: Duration = Duration::from_secs(1);
 /// Readings taken per frame at most; the rest wait in the subscriber's buffer (or are dropped by
 /// iceoryx2 when it overflows, which costs the driver nothing).
 const MAX_READINGS_PER_POLL: usize = 256;
+/// SLAM estimates taken per frame at most: `sonar/slam_correction`'s buffer.
+const SLAM_PER_POLL: usize = 256;
 
 /// A port that is opened on first use and again after a failure, at most once per [`RETRY`].
 struct Lazy<T> {
@@ -100,6 +102,7 @@ pub struct Source {
     radar: Lazy<Sub<Radar>>,
     features: Lazy<FeaturesSub>,
     localized: Lazy<Sub<LocalizedPose>>,
+    slam: Lazy<Sub<SlamCorrection>>,
     status: Lazy<Sub<DriverStatus>>,
     fusion_status: Lazy<Sub<FusionStatus>>,
     readings: Lazy<Sub<Reading>>,
@@ -126,6 +129,7 @@ impl Source {
             radar: Lazy::new(ipc::RADAR_SERVICE),
             features: Lazy::new(ipc::FEATURES_SERVICE),
             localized: Lazy::new(ipc::LOCALIZED_POSE_SERVICE),
+            slam: Lazy::new(ipc::SLAM_CORRECTION_SERVICE),
             status: Lazy::new(ipc::DRIVER_STATUS_SERVICE),
             fusion_status: Lazy::new(ipc::FUSION_STATUS_SERVICE),
             readings: Lazy::new(ipc::READINGS_SERVICE),
@@ -143,6 +147,7 @@ impl Source {
             &self.radar.error,
             &self.features.error,
             &self.localized.error,
+            &self.slam.error,
             &self.status.error,
             &self.fusion_status.error,
             &self.readings.error,
@@ -228,6 +233,29 @@ impl Source {
                 }
                 Ok(None) => {}
                 Err(e) => self.localized.fail(now, format!("receive: {e:?}")),
+            }
+        }
+
+        if let Some((_, sub)) = self
+            .slam
+            .get(now, || subscribe(node, ipc::slam_correction_service))
+        {
+            // Every sample: the newest may revise an earlier sweep, and the state is the latest
+            // new sweep's. At most a buffer's worth a frame.
+            for _ in 0..SLAM_PER_POLL {
+                match sub.receive() {
+                    Ok(Some(sample)) => {
+                        moved = true;
+                        if let Err(e) = app.on_slam_correction(sample.payload()) {
+                            reject(app, "SLAM correction", &e);
+                        }
+                    }
+                    Ok(None) => break,
+                    Err(e) => {
+                        self.slam.fail(now, format!("receive: {e:?}"));
+                        break;
+                    }
+                }
             }
         }
 

@@ -24,8 +24,8 @@ use ratatui::text::{Line, Span};
 use ratatui::widgets::canvas::{Canvas, Circle, Context, Line as CanvasLine, Points};
 use ratatui::widgets::{Block, Clear, Paragraph, Widget, Wrap};
 use sonar_common::ipc::{
-    CELL_UNKNOWN, LinkState, LocalizedPose, Radar, Reading, ScanMode, decode_probability,
-    encode_probability, feature_kind, flags,
+    CELL_UNKNOWN, LinkState, LocalizedPose, Radar, Reading, ScanMode, SlamCorrection,
+    decode_probability, encode_probability, feature_kind, flags, slam_state,
 };
 use sonar_mapfiles::picture::scale_bar;
 
@@ -1261,6 +1261,9 @@ fn status_lines(app: &App, now: Instant, width: u16, height: u16) -> Vec<Line<'s
     if let Some(fix) = &app.localized {
         lines.extend(fix_lines(fix));
     }
+    if let Some(slam) = &app.slam {
+        lines.extend(slam_lines(slam));
+    }
     let ipc = app.ipc_problem.as_ref().map(|problem| {
         row(
             "ipc",
@@ -1437,6 +1440,51 @@ fn fix_lines(fix: &LocalizedPose) -> Vec<Line<'static>> {
     };
     lines.push(row("drift", vec![text(drift)]));
     lines
+}
+
+/// The latest estimate of `sonar-slam`: fix or why not, the pose's σ per axis (what the SLAM
+/// promises about the robot's place, fix or not), and its map. Values that are not numbers show
+/// as "–", as in [`fix_lines`].
+fn slam_lines(c: &SlamCorrection) -> Vec<Line<'static>> {
+    let sigma = |variance: f32| {
+        let s = f64::from(variance).sqrt();
+        s.is_finite().then_some(s)
+    };
+    let or_dash = |v: Option<f64>| v.map_or_else(|| "–".to_owned(), |v| format!("{v:.1}"));
+    let state = match c.state {
+        slam_state::FIX => Span::styled(
+            format!("fix · {} matched", c.matched),
+            Style::new().fg(Color::Green),
+        ),
+        other => {
+            let why = match other {
+                slam_state::NO_LANDMARKS => "no landmarks seen",
+                slam_state::UNCERTAIN => "too uncertain",
+                slam_state::REFUSED => "refused, odometry kept",
+                _ => "unknown state",
+            };
+            Span::styled(format!("no fix: {why}"), Style::new().fg(Color::Yellow))
+        }
+    };
+    vec![
+        row("slam", vec![state]),
+        row(
+            "σ x,y,θ",
+            vec![text(format!(
+                "{}, {} cm, {}°",
+                or_dash(sigma(c.cov_xx).map(|s| 100.0 * s)),
+                or_dash(sigma(c.cov_yy).map(|s| 100.0 * s)),
+                or_dash(sigma(c.cov_thetatheta).map(f64::to_degrees)),
+            ))],
+        ),
+        row(
+            "map",
+            vec![text(format!(
+                "{} landmarks, {} refused",
+                c.landmarks, c.refused
+            ))],
+        ),
+    ]
 }
 
 /// The keys, or the selection's or a message's line.

@@ -10,8 +10,8 @@ use ratatui::backend::TestBackend;
 use ratatui::buffer::Buffer;
 use sonar_common::ipc::{
     CELL_UNKNOWN, DriverStatus, FeatureRecord, FeaturesHeader, FusionStatus, GridHeader,
-    LAYOUT_VERSION, LinkState, LocalizedPose, Radar, Reading, ScanMode, encode_probability,
-    feature_flags, flags, model_code, preset_code, rule_code,
+    LAYOUT_VERSION, LinkState, LocalizedPose, Radar, Reading, ScanMode, SlamCorrection,
+    encode_probability, feature_flags, flags, model_code, preset_code, rule_code, slam_state,
 };
 
 use super::*;
@@ -1166,6 +1166,66 @@ fn a_moving_robot_is_drawn_with_its_heading_its_trail_and_its_fix() {
     assert!(text.contains("fix      no fix"), "{text}");
     assert!(!text.contains("σ x,y,θ"), "{text}");
     assert!(text.contains("drift    10 cm · +2.0°"), "{text}");
+}
+
+/// Issue 25: with `sonar-slam` running, the status panel says whether its latest sweep is a fix
+/// (or why not), with the σ it publishes, fix or not: a robot far off its map says so in
+/// centimetres, not "matched". A revision of an earlier sweep changes nothing shown.
+#[test]
+fn the_slam_s_state_and_sigma_are_shown_fix_or_not() {
+    let t0 = Instant::now();
+    let mut app = live_app(t0);
+    drive_through_the_room(&mut app, t0);
+    let fix = SlamCorrection {
+        layout_version: LAYOUT_VERSION,
+        sweep_id: 7,
+        state: slam_state::FIX,
+        matched: 3,
+        cov_xx: 0.0004,
+        cov_yy: 0.0009,
+        cov_thetatheta: 1.5f32.to_radians().powi(2),
+        landmarks: 12,
+        fixes: 5,
+        refused: 1,
+        ..SlamCorrection::default()
+    };
+    app.on_slam_correction(&fix).unwrap();
+    let text = screen_text(draw(&mut app, 120, 32, t0).backend().buffer());
+    for expected in [
+        "slam     fix · 3 matched",
+        "σ x,y,θ  2.0, 3.0 cm, 1.5°",
+        "map      12 landmarks, 1 refused",
+    ] {
+        assert!(text.contains(expected), "missing {expected:?} in\n{text}");
+    }
+
+    let uncertain = SlamCorrection {
+        sweep_id: 8,
+        state: slam_state::UNCERTAIN,
+        matched: 1,
+        cov_xx: 0.12f32.powi(2),
+        cov_yy: 0.40f32.powi(2),
+        cov_thetatheta: f32::NAN,
+        ..fix
+    };
+    app.on_slam_correction(&uncertain).unwrap();
+    let revised = SlamCorrection {
+        sweep_id: 2,
+        state: slam_state::REVISED,
+        ..fix
+    };
+    app.on_slam_correction(&revised).unwrap();
+    let text = screen_text(draw(&mut app, 120, 32, t0).backend().buffer());
+    assert!(text.contains("slam     no fix: too uncertain"), "{text}");
+    assert!(text.contains("σ x,y,θ  12.0, 40.0 cm, –°"), "{text}");
+    assert!(!text.contains("matched"), "{text}");
+
+    let old = SlamCorrection {
+        layout_version: LAYOUT_VERSION + 1,
+        ..fix
+    };
+    assert!(app.on_slam_correction(&old).is_err());
+    assert_eq!(app.slam.map(|c| c.sweep_id), Some(8));
 }
 
 /// Issue 16, #10: at 80×24 the radar's ring labels do not run into each other and the titles fit;
