@@ -60,6 +60,38 @@ pub struct FusionFile {
     pub fusion: FusionSection,
     #[serde(default)]
     pub features: FeaturesSection,
+    /// Whether the pipeline runs `sonar-slam` (`[slam] enabled`; the table's other keys are
+    /// sonar-slam's own and left to it).
+    #[serde(default)]
+    pub slam: SlamSwitch,
+}
+
+/// `enabled` of the `[slam]` table: `sonar-pipeline` then starts `sonar-slam` and the fusion places
+/// its readings with its correction, as with `[fusion] slam_correction = true`.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SlamSwitch {
+    pub enabled: bool,
+}
+
+impl<'de> Deserialize<'de> for SlamSwitch {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let table = toml::Table::deserialize(deserializer)?;
+        match table.get("enabled") {
+            None => Ok(Self::default()),
+            Some(toml::Value::Boolean(enabled)) => Ok(Self { enabled: *enabled }),
+            Some(other) => Err(D::Error::custom(format!(
+                "slam.enabled must be true or false, got {other}"
+            ))),
+        }
+    }
+}
+
+impl FusionFile {
+    /// Whether the readings are placed with `sonar-slam`'s correction: `[fusion]
+    /// slam_correction = true`, or `[slam] enabled = true` (the pipeline runs sonar-slam).
+    pub fn slam_correction(&self) -> bool {
+        self.fusion.slam_correction || self.slam.enabled
+    }
 }
 
 /// A configuration file that cannot be used.
@@ -143,6 +175,24 @@ impl<'de> Deserialize<'de> for FeaturesSection {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_pipeline_running_sonar_slam_places_the_readings_with_its_correction() {
+        let file = |text: &str| toml::from_str::<FusionFile>(text);
+        assert!(!file("").unwrap().slam_correction());
+        // sonar-slam's own keys are its business, not the fusion's.
+        let slam = file(
+            "[slam]\nenabled = true\ngate_chi2 = 9.0\n[slam.features.odometry]\nscale_sigma = 0.01\n",
+        );
+        assert!(slam.unwrap().slam_correction());
+        assert!(!file("[slam]\nenabled = false\n").unwrap().slam_correction());
+        assert!(
+            file("[fusion]\nslam_correction = true\n")
+                .unwrap()
+                .slam_correction()
+        );
+        assert!(file("[slam]\nenabled = \"yes\"\n").is_err());
+    }
 
     #[test]
     fn the_fusion_table_holds_the_engine_and_the_persistence_keys() {

@@ -218,7 +218,7 @@ pub mod status;
 pub use config::{ConfigError, FusionConfig, GridConfig, Preset, SensorLimits, UnknownName};
 pub use engine::SavedMap;
 pub use features::{FeatureTracker, SweepOutcome};
-pub use file::{FeaturesSection, FusionFile, FusionFileError, FusionSection};
+pub use file::{FeaturesSection, FusionFile, FusionFileError, FusionSection, SlamSwitch};
 pub use geometry::GridGeometry;
 pub use grid::{CellCounts, EncodedVersion, OccupancyGrid};
 pub use mapper::{Kernel, Mapper, Update};

@@ -172,7 +172,8 @@ struct Args {
     localize: bool,
     /// Place readings with sonar-slam's correction of the odometry (sonar/slam_correction, the
     /// latest map → odom transform) instead of localising here; `[fusion] slam_correction = true`
-    /// does the same. Excludes --localize.
+    /// or `[slam] enabled = true` (the pipeline runs sonar-slam) does the same. Excludes
+    /// --localize.
     #[arg(long, conflicts_with = "localize")]
     slam_correction: bool,
     #[command(flatten)]
@@ -192,15 +193,18 @@ fn main() -> ExitCode {
 /// The configuration from the file, the preset and the flags, validated; and the file's
 /// persistence and feature settings.
 fn fusion_config(args: &Args) -> Result<(FusionConfig, PersistConfig, FeaturesSection, bool)> {
+    let file = FusionFile::read(args.config.as_deref())?;
+    let slam_correction = file.slam_correction();
     let FusionFile {
         fusion:
             FusionSection {
                 engine: mut config,
                 persistence,
-                slam_correction,
+                ..
             },
         features,
-    } = FusionFile::read(args.config.as_deref())?;
+        ..
+    } = file;
     if let Some(preset) = args.preset {
         config.use_preset(preset);
     }

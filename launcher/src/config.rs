@@ -260,11 +260,11 @@ mod tests {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/corridor.toml");
         let tour = PipelineFile::load(&path).unwrap();
         assert_eq!(tour.simulator.scene.as_deref(), Some("corridor"));
-        assert!(tour.features.localize);
+        assert!(tour.slam.enabled && !tour.features.localize);
         assert_eq!(tour.fusion.engine.grid.centre_x_m, 3.0);
-        // Its [features.odometry] spells out the defaults.
+        // Its [slam.features.odometry] spells out the defaults.
         assert_eq!(
-            tour.features.config.odometry,
+            tour.slam.config.features.odometry,
             sonar_fusion::FeaturesSection::default().config.odometry
         );
     }

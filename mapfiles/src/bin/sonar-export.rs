@@ -165,7 +165,7 @@ struct Args {
     /// Offline: place the readings with the corrections of the odometry that sonar-slam published
     /// while the recording was made (sonar/slam_correction, kept by sonar-record), earlier sweeps
     /// moved where its later estimates put them, as `sonar-fusion --slam-correction` does
-    /// (`[fusion] slam_correction = true` in --config does the same).
+    /// (`[fusion] slam_correction = true` or `[slam] enabled = true` in --config do the same).
     #[arg(long, requires = "from_recording", conflicts_with = "localize")]
     slam_correction: bool,
     /// Offline: ignore the recorded fusion commands (clear, preset/model/rule switches), so every
@@ -702,15 +702,15 @@ fn from_recording<W: Write + Seek>(
     if recording.truncated {
         warn!("the recording ends early; fusing the messages before the cut");
     }
+    let settings = FusionFile::read(args.config.as_deref())?;
+    let slam_correction = settings.slam_correction();
     let FusionFile {
-        fusion:
-            FusionSection {
-                engine: mut config,
-                slam_correction,
-                ..
-            },
+        fusion: FusionSection {
+            engine: mut config, ..
+        },
         features,
-    } = FusionFile::read(args.config.as_deref())?;
+        ..
+    } = settings;
     if let Some(preset) = args.preset {
         config.use_preset(preset);
     }
@@ -878,6 +878,7 @@ fn fuse_recording<W: Write + Seek>(
         }
     }
     run.release(u64::MAX, mcap.as_deref_mut())?;
+    run.finish_rebuild();
     let Run {
         mut engine,
         tracker,
@@ -959,7 +960,9 @@ impl Run {
 
     /// A recorded `sonar-slam` correction, taken as `sonar-fusion --slam-correction` takes it: a
     /// new sweep's correction places the readings from now on; every message (revisions too)
-    /// moves its sweep's readings where it places them, and the maps are rebuilt from them at once.
+    /// moves its sweep's readings where it places them, and the maps are rebuilt from them before
+    /// the next reading is fused ([`Self::finish_rebuild`]: once for a burst of revisions, as a
+    /// loop closure sends one per sweep it moved).
     fn slam_correction(&mut self, c: &SlamCorrection) {
         let finite = [c.correction_x_m, c.correction_y_m, c.correction_theta_rad]
             .iter()
@@ -977,16 +980,25 @@ impl Run {
             self.engine.set_correction(correction);
         }
         match self.engine.revise(&[(c.sweep_id, correction)]) {
-            Revised::Unmoved => {}
-            Revised::Rebuilding(_) => {
-                while !self.engine.rebuild_step(usize::MAX) {}
-                self.revisions += 1;
-            }
+            Revised::Unmoved | Revised::Rebuilding(_) => {}
             Revised::Uncovered(moved) => warn!(
                 moved,
                 sweep = c.sweep_id,
                 "a revised sweep's readings are no longer kept: they stay where they were placed"
             ),
+        }
+    }
+
+    /// Completes the rebuild of the maps that revisions started, in one step (offline nothing
+    /// waits for it).
+    fn finish_rebuild(&mut self) {
+        if !self.engine.rebuilding() {
+            return;
+        }
+        if self.engine.rebuild_step(usize::MAX) {
+            self.revisions += 1;
+        } else {
+            warn!("the maps could not be rebuilt where sonar-slam moved the sweeps");
         }
     }
 
@@ -999,6 +1011,7 @@ impl Run {
         r: &Reading,
         mut mcap: Option<&mut McapExport<W>>,
     ) -> Result<()> {
+        self.finish_rebuild();
         if self.engine.starts_new_sweep(r) {
             self.engine.close_region();
             if let Some(mcap) = mcap.as_deref_mut() {
