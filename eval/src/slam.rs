@@ -299,7 +299,7 @@ impl OdometryLevel {
 
     /// The simulator's odometry for run `seed`: this level with signs from the seed, and the tour
     /// scenes' small white noise.
-    fn params(self, seed: u64) -> OdometryParams {
+    pub fn params(self, seed: u64) -> OdometryParams {
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed);
         let sign = |b: bool| if b { 1.0 } else { -1.0 };
         OdometryParams {

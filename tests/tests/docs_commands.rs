@@ -159,7 +159,8 @@ fn split_commands(words: Vec<String>) -> Vec<Vec<String>> {
     commands
 }
 
-/// `cargo run -p PKG [--release] [--bin NAME] -- ARGS`: the program it runs and its arguments.
+/// `cargo run -p PKG [--release] [--bin NAME | --example NAME] -- ARGS`: the program it runs (an
+/// example as `examples/NAME`, where cargo puts it) and its arguments.
 fn cargo_run(words: &[String]) -> Option<(String, Vec<String>)> {
     if words.get(1).map(String::as_str) != Some("run") {
         return None;
@@ -173,7 +174,10 @@ fn cargo_run(words: &[String]) -> Option<(String, Vec<String>)> {
             .and_then(|i| cargo.get(i + 1))
             .cloned()
     };
-    let program = value_of("--bin").or_else(|| value_of("-p"))?;
+    let program = value_of("--example")
+        .map(|example| format!("examples/{example}"))
+        .or_else(|| value_of("--bin"))
+        .or_else(|| value_of("-p"))?;
     Some((program, args.iter().skip(1).cloned().collect()))
 }
 
@@ -192,6 +196,13 @@ fn check_of(program: &str) -> Check {
         .or_else(|| program.strip_prefix("target/debug/"))
         .unwrap_or(program);
     if (name == "sonar" || name.starts_with("sonar-")) && !name.contains('/') {
+        return Check::Ours(name.to_owned());
+    }
+    // An example of this workspace, built by `cargo test` (or `cargo build --examples`).
+    if name
+        .strip_prefix("examples/")
+        .is_some_and(|example| !example.is_empty() && !example.contains('/'))
+    {
         return Check::Ours(name.to_owned());
     }
     match program {
