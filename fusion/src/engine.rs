@@ -8,10 +8,10 @@
 //! the model, the rule or the preset re-fuses the same data: a user compares methods on one scan
 //! instead of waiting for new sweeps.
 
-use nalgebra::Isometry2;
+use nalgebra::{Isometry2, Vector2};
 use sonar_common::ipc::{
     FusionCommand, FusionCommandKind, GridHeader, LAYOUT_VERSION, Pose2D, RADAR_MAX_BINS, Radar,
-    Reading, preset_code,
+    Reading, SlamCorrection, preset_code, slam_state,
 };
 
 use crate::config::{ConfigError, FusionConfig, Preset};
@@ -195,6 +195,29 @@ impl Engine {
     /// latest estimate of the odometry's drift (map ← odometry).
     pub fn set_correction(&mut self, correction: Isometry2<f32>) {
         self.correction = correction;
+    }
+
+    /// Takes one of sonar-slam's estimates (`sonar/slam_correction`): the correction of a new
+    /// sweep places the readings from now on ([`Self::set_correction`]; fix or not, it is the
+    /// SLAM's best estimate of map → odom), one that revises an earlier sweep does not. Returns
+    /// the sweep and its correction for [`Self::revise`] (every message: the revisions move their
+    /// sweeps, the others the sweep just fused), or `None`, changing nothing, when the correction
+    /// is not finite.
+    pub fn take_slam_correction(&mut self, c: &SlamCorrection) -> Option<(u32, Isometry2<f32>)> {
+        let finite = [c.correction_x_m, c.correction_y_m, c.correction_theta_rad]
+            .iter()
+            .all(|v| v.is_finite());
+        if !finite {
+            return None;
+        }
+        let correction = Isometry2::new(
+            Vector2::new(c.correction_x_m, c.correction_y_m),
+            c.correction_theta_rad,
+        );
+        if c.state != slam_state::REVISED {
+            self.set_correction(correction);
+        }
+        Some((c.sweep_id, correction))
     }
 
     /// Moves the kept readings of each sweep in `corrections` (sweep id, map ← odometry as now
@@ -497,6 +520,39 @@ mod tests {
         engine.fuse(&r1);
         assert!(!engine.starts_new_sweep(&reading(1, 6.0, 1.0)));
         assert!(engine.starts_new_sweep(&reading(2, 6.0, 1.0)));
+    }
+
+    /// A new sweep's SLAM correction places the next reading; a revision or a correction that is
+    /// not finite does not.
+    #[test]
+    fn a_new_sweep_s_slam_correction_places_the_readings_and_a_revision_does_not() {
+        let mut engine = Engine::new(FusionConfig::default(), 100).unwrap();
+        let estimate = |sweep_id, state, x| SlamCorrection {
+            layout_version: LAYOUT_VERSION,
+            sweep_id,
+            state,
+            correction_x_m: x,
+            ..SlamCorrection::default()
+        };
+        let placed_x = |engine: &mut Engine| {
+            engine.fuse(&reading(3, 0.0, 1.0));
+            engine.pose().translation.x
+        };
+        let revised = engine.take_slam_correction(&estimate(1, slam_state::REVISED, 0.7));
+        assert_eq!(
+            revised.map(|(sweep, c)| (sweep, c.translation.x)),
+            Some((1, 0.7))
+        );
+        assert_eq!(placed_x(&mut engine), 0.0);
+        assert!(
+            engine
+                .take_slam_correction(&estimate(2, slam_state::FIX, f32::NAN))
+                .is_none()
+        );
+        assert_eq!(placed_x(&mut engine), 0.0);
+        let new = engine.take_slam_correction(&estimate(2, slam_state::UNCERTAIN, 0.5));
+        assert_eq!(new.map(|(sweep, _)| sweep), Some(2));
+        assert_eq!(placed_x(&mut engine), 0.5);
     }
 
     #[test]

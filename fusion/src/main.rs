@@ -1087,21 +1087,14 @@ impl Output<'_> {
             .map_err(|e| IpcError::new("receive SLAM correction", e))?
         {
             let c = *sample.payload();
-            let finite = [c.correction_x_m, c.correction_y_m, c.correction_theta_rad]
-                .iter()
-                .all(|v| v.is_finite());
-            if !finite {
-                warn!(correction = ?c, "SLAM correction refused: not finite");
-                continue;
-            }
-            let correction = nalgebra::Isometry2::new(
-                nalgebra::Vector2::new(c.correction_x_m, c.correction_y_m),
-                c.correction_theta_rad,
-            );
             // Every message places its sweep's readings, fused with the correction known when
             // they came; a revision is an earlier sweep moved, the others set the correction
             // for the readings from now on.
-            revised.push((c.sweep_id, correction));
+            let Some(sweep) = engine.take_slam_correction(&c) else {
+                warn!(correction = ?c, "SLAM correction refused: not finite");
+                continue;
+            };
+            revised.push(sweep);
             if c.state == slam_state::REVISED {
                 continue;
             }
@@ -1113,7 +1106,6 @@ impl Output<'_> {
                 );
             }
             self.corrections += 1;
-            engine.set_correction(correction);
         }
         if revised.is_empty() {
             return Ok(());

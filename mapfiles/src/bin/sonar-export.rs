@@ -27,7 +27,6 @@ use clap::Parser;
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::waitset::WaitSetRunResult;
-use nalgebra::{Isometry2, Vector2};
 use sonar_common::ipc::{
     self, FusionCommandKind, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, Reading,
     SlamCorrection, slam_state,
@@ -964,22 +963,14 @@ impl Run {
     /// the next reading is fused ([`Self::finish_rebuild`]: once for a burst of revisions, as a
     /// loop closure sends one per sweep it moved).
     fn slam_correction(&mut self, c: &SlamCorrection) {
-        let finite = [c.correction_x_m, c.correction_y_m, c.correction_theta_rad]
-            .iter()
-            .all(|v| v.is_finite());
-        if !finite {
+        let Some(sweep) = self.engine.take_slam_correction(c) else {
             warn!(correction = ?c, "recorded SLAM correction left out: not finite");
             return;
-        }
-        let correction = Isometry2::new(
-            Vector2::new(c.correction_x_m, c.correction_y_m),
-            c.correction_theta_rad,
-        );
+        };
         if c.state != slam_state::REVISED {
             self.corrections += 1;
-            self.engine.set_correction(correction);
         }
-        match self.engine.revise(&[(c.sweep_id, correction)]) {
+        match self.engine.revise(&[sweep]) {
             Revised::Unmoved | Revised::Rebuilding(_) => {}
             Revised::Uncovered(moved) => warn!(
                 moved,
