@@ -721,14 +721,17 @@ fn from_recording<W: Write + Seek>(
         (true, true) => bail!(
             "the readings are placed by the export's own localisation (--localize, [features] \
              localize) or by the recorded SLAM corrections (--slam-correction, [fusion] \
-             slam_correction), not both"
+             slam_correction, [slam] enabled), not both"
         ),
         (true, false) => Placement::Localize,
         (false, true) => {
             if recording.count(Topic::SlamCorrection) == 0 {
                 bail!(
-                    "--slam-correction: {} holds no SLAM corrections (was sonar-slam running, \
-                     and the recording made by a sonar-record that keeps them?)",
+                    "the readings are to be placed with the recorded SLAM corrections \
+                     (--slam-correction, or [fusion] slam_correction / [slam] enabled in \
+                     --config), but {} holds none (was sonar-slam running, and the recording made \
+                     by a sonar-record that keeps them?); --localize or a config without them \
+                     fuses it at the odometry's poses",
                     file.display()
                 );
             }
