@@ -1222,6 +1222,54 @@ mod tests {
         let _ = std::fs::remove_dir_all(&bag_dir);
     }
 
+    /// `recording()` written to a file in a directory of its own, with `extra` messages first.
+    fn recorded(name: &str, extra: &[Message]) -> std::path::PathBuf {
+        let dir = std::env::temp_dir().join(format!("sonar_export_{name}_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("run.mcap");
+        let mut writer = RecordingWriter::create(&file, true, &BTreeMap::new()).unwrap();
+        for (t, m) in extra
+            .iter()
+            .chain(recording().entries.iter().map(|e| &e.message))
+            .enumerate()
+        {
+            writer.write(t as u64, m).unwrap();
+        }
+        writer.finish().unwrap();
+        file
+    }
+
+    /// Asked for the recorded SLAM corrections (by the flag or by the config's keys) of a
+    /// recording that has none, or for them and the export's own localisation at once, the
+    /// export says so instead of writing the odometry's map.
+    #[test]
+    fn slam_corrections_asked_of_a_recording_without_them_are_an_error() {
+        let file = recorded("no_slam", &[]);
+        let config = file.with_file_name("slam.toml");
+        std::fs::write(&config, "[slam]\nenabled = true\n").unwrap();
+        let export = |extra: &[&str]| {
+            let mut words = vec!["sonar-export", "--from-recording", file.to_str().unwrap()];
+            words.extend_from_slice(extra);
+            let args = Args::parse_from(words);
+            from_recording::<Cursor<Vec<u8>>>(&file, &args, false, None).map(|s| s.grid.0)
+        };
+        for asked in [
+            &["--slam-correction"][..],
+            &["--config", config.to_str().unwrap()],
+        ] {
+            let e = format!("{:#}", export(asked).unwrap_err());
+            assert!(e.contains("holds none"), "{asked:?}: {e}");
+        }
+        let both = export(&["--config", config.to_str().unwrap(), "--localize"]);
+        assert!(format!("{:#}", both.unwrap_err()).contains("not both"));
+        assert_eq!(
+            export(&[]).unwrap().readings_fused,
+            50,
+            "the odometry's map"
+        );
+        let _ = std::fs::remove_dir_all(file.parent().unwrap());
+    }
+
     /// The row of the x axis.
     fn cell_y(h: &GridHeader) -> usize {
         ((0.0 - h.origin_y_m) / h.resolution_m) as usize
