@@ -12,10 +12,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use nalgebra::{Isometry2, Vector2};
 use sonar_eval::motion::POSE_RATE_HZ;
 use sonar_eval::pipeline::{Scan, capture_tour};
-use sonar_eval::slam::{Family, OdometryLevel};
+use sonar_eval::slam::{Family, OdometryLevel, feed_tour};
 use sonar_slam::{Slam, SlamConfig};
 
 #[derive(Debug, Parser)]
@@ -49,18 +48,10 @@ fn main() -> Result<()> {
     )
     .context("touring the loop")?;
     let mut slam = Slam::new(SlamConfig::default()).context("setting up the SLAM")?;
-    let mut poses = tour.poses.iter().peekable();
     let (mut sweeps, mut spent, mut slowest) = (0u64, Duration::ZERO, Duration::ZERO);
     println!("| sweeps | landmarks | mean time to close a sweep (ms) | slowest (ms) |");
     println!("|--:|--:|--:|--:|");
-    for r in &tour.capture.readings {
-        while let Some(s) = poses.next_if(|s| s.t_us * 1000 <= r.host_stamp_ns) {
-            let odometry = Isometry2::new(
-                Vector2::new(s.odometry.at.x, s.odometry.at.y),
-                s.odometry.heading_rad,
-            );
-            slam.push_odometry(s.t_us * 1000, odometry);
-        }
+    feed_tour(&tour, &mut slam, |slam, r| {
         let started = Instant::now();
         let closed = slam.push_reading(r).is_some();
         let took = started.elapsed();
@@ -78,6 +69,6 @@ fn main() -> Result<()> {
                 (spent, slowest) = (Duration::ZERO, Duration::ZERO);
             }
         }
-    }
+    });
     Ok(())
 }

@@ -382,27 +382,32 @@ pub struct SlamSettings {
     pub config: SlamConfig,
 }
 
-/// Feeds `tour` to the SLAM as a process would get it: every odometry sample up to a reading's
-/// stamp before the reading.
-pub fn run_slam(tour: &TourCapture, config: SlamConfig) -> Result<SlamOutput> {
-    let mut slam = Slam::new(config).context("setting up the SLAM")?;
-    let mut estimates = Vec::new();
+/// Feeds `tour` to `slam` as a process would get it: every odometry sample up to a reading's
+/// stamp before the reading, which `push` hands to the SLAM (`Slam::push_reading`, timed or
+/// not); the odometry after the last reading at the end.
+pub fn feed_tour(tour: &TourCapture, slam: &mut Slam, mut push: impl FnMut(&mut Slam, &Reading)) {
     let mut poses = tour.poses.iter().peekable();
     let to_iso = |p: &Pose| Isometry2::new(Vector2::new(p.at.x, p.at.y), p.heading_rad);
-    let push_reading = |slam: &mut Slam, r: &Reading, out: &mut Vec<SweepEstimate>| {
-        if let Some(e) = slam.push_reading(r) {
-            out.push(e);
-        }
-    };
     for r in &tour.capture.readings {
         while let Some(s) = poses.next_if(|s| s.t_us * 1000 <= r.host_stamp_ns) {
             slam.push_odometry(s.t_us * 1000, to_iso(&s.odometry));
         }
-        push_reading(&mut slam, r, &mut estimates);
+        push(slam, r);
     }
     for s in poses {
         slam.push_odometry(s.t_us * 1000, to_iso(&s.odometry));
     }
+}
+
+/// Feeds `tour` to a new SLAM ([`feed_tour`]) and finishes its last sweep.
+pub fn run_slam(tour: &TourCapture, config: SlamConfig) -> Result<SlamOutput> {
+    let mut slam = Slam::new(config).context("setting up the SLAM")?;
+    let mut estimates = Vec::new();
+    feed_tour(tour, &mut slam, |slam, r| {
+        if let Some(e) = slam.push_reading(r) {
+            estimates.push(e);
+        }
+    });
     if let Some(e) = slam.finish_sweep() {
         estimates.push(e);
     }
