@@ -717,6 +717,7 @@ fn from_recording<W: Write + Seek>(
     if localize && !features.enabled {
         bail!("localisation needs the features: [features] enabled = false in the config file");
     }
+    let corrections = recording.count(Topic::SlamCorrection);
     let placement = match (localize, args.slam_correction || slam_correction) {
         (true, true) => bail!(
             "the readings are placed by the export's own localisation (--localize, [features] \
@@ -725,7 +726,7 @@ fn from_recording<W: Write + Seek>(
         ),
         (true, false) => Placement::Localize,
         (false, true) => {
-            if recording.count(Topic::SlamCorrection) == 0 {
+            if corrections == 0 {
                 bail!(
                     "the readings are to be placed with the recorded SLAM corrections \
                      (--slam-correction, or [fusion] slam_correction / [slam] enabled in \
@@ -738,7 +739,6 @@ fn from_recording<W: Write + Seek>(
             Placement::SlamCorrection
         }
         (false, false) => {
-            let corrections = recording.count(Topic::SlamCorrection);
             if corrections > 0 {
                 info!(
                     corrections,
