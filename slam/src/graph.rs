@@ -1,12 +1,27 @@
 //! The factor graph: poses, landmarks and the odometry's systematic errors as one state, solved
-//! by Gauss–Newton with Levenberg's damping on dense normal equations (nalgebra), a Huber kernel
-//! on the landmark factors, and covariances read from the inverse of the undamped normal matrix.
+//! by Gauss–Newton with Levenberg's damping on sparse normal equations (nalgebra-sparse's
+//! Cholesky factorisation), a Huber kernel on the landmark factors, and covariances read from the
+//! inverse of the undamped normal matrix.
 //!
 //! Variables are appended as they come (the odometry's errors first, then a pose per sweep and a
 //! landmark when one is admitted); a [`Checkpoint`] lets the caller take back what one sweep
 //! added. Jacobians are taken numerically, so each factor is written once, as its residual.
+//!
+//! # Why sparse, and in which order
+//!
+//! Each factor ties a pose to the next, or a pose to a landmark, and the odometry's errors to
+//! both: the normal matrix H is nearly empty, and a dense factorisation of it costs the cube of
+//! the tour's length (1.8 s a sweep at 600 sweeps, docs/benchmarks.md). nalgebra-sparse factors
+//! it without a fill-reducing ordering of its own, so the graph gives one: variables are
+//! eliminated in the order of the last factor that uses them. A pose no later factor touches goes
+//! first, a landmark when it is no longer seen, the odometry's errors (used by every odometry
+//! factor) and the current pose last. Eliminating a pose then joins only its successor, the
+//! landmarks still in view and the errors, so the factor holds one pose after another plus a
+//! dense block of the landmarks alive at that time: its size grows with the tour, not its square.
 
-use nalgebra::{Cholesky, DMatrix, DVector, Dyn, Isometry2, Matrix2, Matrix3, Vector2, Vector3};
+use nalgebra::{DMatrix, DVector, Isometry2, Matrix2, Matrix3, Vector2, Vector3};
+use nalgebra_sparse::factorization::{CscCholesky, CscSymbolicCholesky};
+use nalgebra_sparse::{CooMatrix, CscMatrix};
 use sonar_features::{FeatureKind, wrap_rad};
 
 use crate::odometry::{Step, corrected};
@@ -94,17 +109,6 @@ pub type Var = usize;
 pub struct SeenAfter {
     pub calibration: Var,
     pub steps: Vec<Step>,
-}
-
-/// The pose `seen_after` (if any) reaches from `pose`, with the errors in the state `x`.
-fn viewpoint(x: &[f64], pose: Var, seen_after: Option<&SeenAfter>) -> Vector3<f64> {
-    match seen_after {
-        Some(s) => compose(
-            &vec3(x, pose),
-            &corrected(&s.steps, &vec3(x, s.calibration)),
-        ),
-        None => vec3(x, pose),
-    }
 }
 
 /// One factor: a residual of some variables, whitened.
@@ -223,9 +227,49 @@ impl Factor {
         }
     }
 
+    /// Where the factor's odometry steps start in the state and the errors that correct them,
+    /// if it has steps.
+    fn steps(&self) -> Option<(&[Step], Var)> {
+        match self {
+            Factor::Prior { .. } => None,
+            Factor::Odometry {
+                steps, calibration, ..
+            }
+            | Factor::Range {
+                steps, calibration, ..
+            } => Some((steps, *calibration)),
+            Factor::Landmark { seen_after, .. } => seen_after
+                .as_ref()
+                .map(|s| (s.steps.as_slice(), s.calibration)),
+        }
+    }
+
+    /// The factor's steps corrected by the odometry's errors in `x` (the costly part of its
+    /// residual: a turn per step), if it has steps.
+    fn motion(&self, x: &[f64]) -> Option<Vector3<f64>> {
+        self.steps()
+            .map(|(steps, calibration)| corrected(steps, &vec3(x, calibration)))
+    }
+
+    /// Whether state index `k` is one of the odometry's errors that correct the factor's steps.
+    fn corrects_steps(&self, k: usize) -> bool {
+        self.steps()
+            .is_some_and(|(_, calibration)| (calibration..calibration + 3).contains(&k))
+    }
+
     /// The whitened residual at state `x`; `None` when it is undefined there (a wall seen from
     /// behind).
     fn residual(&self, x: &[f64]) -> Option<DVector<f64>> {
+        self.residual_moved(x, self.motion(x).as_ref())
+    }
+
+    /// The whitened residual at state `x`, the factor's steps having moved it by `motion` (its
+    /// [`Self::motion`] at `x`, given so that moving a pose or a landmark need not recompute it).
+    fn residual_moved(&self, x: &[f64], motion: Option<&Vector3<f64>>) -> Option<DVector<f64>> {
+        let pose_moved = |pose: Var| match motion {
+            Some(m) => compose(&vec3(x, pose), m),
+            None => vec3(x, pose),
+        };
         match self {
             Factor::Prior {
                 var,
@@ -244,12 +288,11 @@ impl Factor {
             Factor::Odometry {
                 from,
                 to,
-                calibration,
-                steps,
                 sqrt_information,
+                ..
             } => {
                 let estimated = relative(&vec3(x, *from), &vec3(x, *to));
-                let mut r = estimated - corrected(steps, &vec3(x, *calibration));
+                let mut r = estimated - motion.copied().unwrap_or_else(Vector3::zeros);
                 r.z = wrap_rad(r.z);
                 Some(DVector::from_column_slice(
                     (sqrt_information * r).as_slice(),
@@ -261,9 +304,9 @@ impl Factor {
                 kind,
                 z,
                 sqrt_information,
-                seen_after,
+                ..
             } => {
-                let at = viewpoint(x, *pose, seen_after.as_ref());
+                let at = pose_moved(*pose);
                 let predicted = predict(*kind, &at, &vec2(x, *landmark))?;
                 let mut r = z - predicted;
                 r.y = wrap_rad(r.y);
@@ -273,13 +316,12 @@ impl Factor {
             }
             Factor::Range {
                 pose,
-                calibration,
                 wall,
-                steps,
                 range,
                 inverse_sigma,
+                ..
             } => {
-                let at = compose(&vec3(x, *pose), &corrected(steps, &vec3(x, *calibration)));
+                let at = pose_moved(*pose);
                 let predicted = range_to_wall(&at, &vec2(x, *wall));
                 Some(DVector::from_element(
                     1,
@@ -310,10 +352,51 @@ pub struct Checkpoint {
     factors: usize,
 }
 
-/// The graph: state, factors, and the Huber threshold of the landmark factors.
+/// The normal equations H δ = −g, with H's rows and columns (and g's) in elimination order.
+struct NormalEquations {
+    /// `order[p]`: the state index eliminated p-th.
+    order: Vec<usize>,
+    h: CscMatrix<f64>,
+    /// The symbolic factorisation of `h`'s pattern, shared by every damping tried.
+    symbolic: CscSymbolicCholesky,
+    /// Where each column's diagonal entry sits in `h`'s values.
+    diagonal: Vec<usize>,
+    /// The gradient Jᵀr as one column.
+    g: DMatrix<f64>,
+}
+
+impl NormalEquations {
+    /// The Cholesky factor of H with Levenberg's damping λ·(1 + Hᵢᵢ) on the diagonal (λ = 0:
+    /// H itself); `None` when that is not positive definite.
+    fn factor(&self, lambda: f64) -> Option<CscCholesky<f64>> {
+        let mut values = self.h.values().to_vec();
+        for &d in &self.diagonal {
+            values[d] += lambda * (1.0 + values[d]);
+        }
+        CscCholesky::factor_numerical(self.symbolic.clone(), &values).ok()
+    }
+
+    /// `rhs` (rows in state order) solved through `factor`, rows back in state order.
+    fn solve(&self, factor: &CscCholesky<f64>, rhs: &DMatrix<f64>) -> DMatrix<f64> {
+        let mut eliminated = DMatrix::zeros(rhs.nrows(), rhs.ncols());
+        for (p, &i) in self.order.iter().enumerate() {
+            eliminated.set_row(p, &rhs.row(i));
+        }
+        factor.solve_mut(&mut eliminated);
+        let mut out = DMatrix::zeros(rhs.nrows(), rhs.ncols());
+        for (p, &i) in self.order.iter().enumerate() {
+            out.set_row(i, &eliminated.row(p));
+        }
+        out
+    }
+}
+
+/// The graph: state, where each variable starts, factors, and the Huber threshold of the
+/// landmark factors.
 #[derive(Debug, Clone)]
 pub struct Graph {
     x: Vec<f64>,
+    starts: Vec<Var>,
     factors: Vec<Factor>,
     huber_k: f64,
 }
@@ -322,6 +405,7 @@ impl Graph {
     pub fn new(huber_k: f64) -> Self {
         Self {
             x: Vec::new(),
+            starts: Vec::new(),
             factors: Vec::new(),
             huber_k,
         }
@@ -347,6 +431,7 @@ impl Graph {
     pub fn restore(&mut self, c: Checkpoint, values: &[f64]) {
         self.factors.truncate(c.factors);
         self.x.truncate(c.variables);
+        self.starts.retain(|&v| v < c.variables);
         let n = self.x.len().min(values.len());
         self.x[..n].copy_from_slice(&values[..n]);
     }
@@ -359,6 +444,7 @@ impl Graph {
     pub fn add_variable(&mut self, initial: &[f64]) -> Var {
         let v = self.x.len();
         self.x.extend_from_slice(initial);
+        self.starts.push(v);
         v
     }
 
@@ -482,19 +568,63 @@ impl Graph {
             .sum()
     }
 
+    /// The state's indices in elimination order: variables by the last factor that uses them
+    /// (unused ones first), then by where they start (see the module's docs).
+    fn elimination_order(&self) -> Vec<usize> {
+        let mut last_use = vec![None; self.x.len()];
+        for (f, factor) in self.factors.iter().enumerate() {
+            for k in factor.keys() {
+                last_use[k] = Some(f);
+            }
+        }
+        let mut variables: Vec<(Option<usize>, Var, Var)> = self
+            .starts
+            .iter()
+            .zip(self.starts.iter().skip(1).chain([&self.x.len()]))
+            .map(|(&start, &end)| {
+                (
+                    last_use[start..end].iter().max().copied().flatten(),
+                    start,
+                    end,
+                )
+            })
+            .collect();
+        variables.sort_unstable();
+        variables
+            .into_iter()
+            .flat_map(|(_, start, end)| start..end)
+            .collect()
+    }
+
     /// The normal equations at `x` (Huber weights at `x`): H and the gradient Jᵀr.
-    fn normal_equations(&self, x: &[f64]) -> (DMatrix<f64>, DVector<f64>) {
+    fn normal_equations(&self, x: &[f64]) -> NormalEquations {
         let n = x.len();
-        let mut h = DMatrix::zeros(n, n);
-        let mut g = DVector::zeros(n);
+        let order = self.elimination_order();
+        let mut position = vec![0; n];
+        for (p, &i) in order.iter().enumerate() {
+            position[i] = p;
+        }
+        let mut h = CooMatrix::new(n, n);
+        // The diagonal is always stored, for the damping to land on.
+        for p in 0..n {
+            h.push(p, p, 0.0);
+        }
+        let mut g = DMatrix::zeros(n, 1);
         let mut moved = x.to_vec();
         for f in &self.factors {
-            let Some(r) = f.residual(x) else { continue };
+            let motion = f.motion(x);
+            let Some(r) = f.residual_moved(x, motion.as_ref()) else {
+                continue;
+            };
             let keys = f.keys();
             let mut j = DMatrix::zeros(r.len(), keys.len());
             for (c, &k) in keys.iter().enumerate() {
                 moved[k] += STEP;
-                let shifted = f.residual(&moved);
+                let shifted = if f.corrects_steps(k) {
+                    f.residual(&moved)
+                } else {
+                    f.residual_moved(&moved, motion.as_ref())
+                };
                 moved[k] = x[k];
                 if let Some(shifted) = shifted {
                     let mut d = (shifted - &r) / STEP;
@@ -515,13 +645,28 @@ impl Graph {
             let jt_j = j.transpose() * &j * w;
             let jt_r = j.transpose() * &r * w;
             for (a, &ka) in keys.iter().enumerate() {
-                g[ka] += jt_r[a];
+                g[(position[ka], 0)] += jt_r[a];
                 for (b, &kb) in keys.iter().enumerate() {
-                    h[(ka, kb)] += jt_j[(a, b)];
+                    h.push(position[ka], position[kb], jt_j[(a, b)]);
                 }
             }
         }
-        (h, g)
+        let h = CscMatrix::from(&h);
+        let diagonal = (0..n)
+            .map(|c| {
+                let column = h.col_offsets()[c]..h.col_offsets()[c + 1];
+                let rows = &h.row_indices()[column.clone()];
+                column.start + rows.partition_point(|&r| r < c)
+            })
+            .collect();
+        let symbolic = CscSymbolicCholesky::factor(h.pattern().clone());
+        NormalEquations {
+            order,
+            h,
+            symbolic,
+            diagonal,
+            g,
+        }
     }
 
     /// Minimises the robust cost from the current state: Gauss–Newton steps, damped (Levenberg)
@@ -530,19 +675,18 @@ impl Graph {
         let mut lambda = 1e-6;
         let mut cost = self.cost(&self.x);
         for iteration in 1..=MAX_ITERATIONS {
-            let (h, g) = self.normal_equations(&self.x);
+            let normal = self.normal_equations(&self.x);
             let mut accepted = false;
             for _ in 0..8 {
-                let mut damped = h.clone();
-                for i in 0..damped.nrows() {
-                    damped[(i, i)] += lambda * (1.0 + h[(i, i)]);
-                }
-                let Some(chol) = Cholesky::new(damped) else {
+                let Some(factor) = normal.factor(lambda) else {
                     lambda *= 10.0;
                     continue;
                 };
-                let step = -chol.solve(&g);
-                let trial: Vec<f64> = self.x.iter().zip(step.iter()).map(|(a, b)| a + b).collect();
+                let step = -factor.solve(&normal.g);
+                let mut trial = self.x.clone();
+                for (p, &i) in normal.order.iter().enumerate() {
+                    trial[i] += step[p];
+                }
                 let trial_cost = self.cost(&trial);
                 if trial_cost <= cost {
                     self.x = trial;
@@ -567,14 +711,14 @@ impl Graph {
     /// undamped normal matrix at the current state: the rows and columns of H⁻¹ they take, found
     /// by solving for those columns only. `None` when H is singular.
     pub fn covariance(&self, vars: &[(Var, usize)]) -> Option<DMatrix<f64>> {
-        let (h, _) = self.normal_equations(&self.x);
-        let chol: Cholesky<f64, Dyn> = Cholesky::new(h)?;
+        let normal = self.normal_equations(&self.x);
+        let factor = normal.factor(0.0)?;
         let idx: Vec<usize> = vars.iter().flat_map(|&(v, d)| v..v + d).collect();
         let mut e = DMatrix::zeros(self.x.len(), idx.len());
         for (c, &i) in idx.iter().enumerate() {
             e[(i, c)] = 1.0;
         }
-        let columns = chol.solve(&e);
+        let columns = normal.solve(&factor, &e);
         let mut out = DMatrix::zeros(idx.len(), idx.len());
         for (r, &i) in idx.iter().enumerate() {
             for c in 0..idx.len() {
@@ -646,6 +790,64 @@ mod tests {
             ),
             None
         );
+    }
+
+    /// A chain of poses, a post seen only from the first two and a wall from every one: the
+    /// post and the early poses are eliminated before the later ones, the odometry's errors (used
+    /// by the last odometry factor) after them, the wall and the last pose (used to the end)
+    /// last; and the covariance read through that order is H's inverse in the state's own order.
+    #[test]
+    fn variables_are_eliminated_by_their_last_use_and_the_covariance_is_h_inverse() {
+        let mut g = Graph::new(1.5);
+        let calib = calibration(&mut g, 0.1);
+        let mut poses = vec![anchored(&mut g, Vector3::zeros())];
+        let post = g.add_variable(&[1.0, 1.0]);
+        let wall = g.add_variable(&[0.0, 6.0]);
+        let noise = Matrix3::identity().scale(0.05 * 0.05);
+        let sigma = Vector2::new(SIGMA, 0.01);
+        for k in 0..5 {
+            let at = Vector3::new(k as f64, 0.0, 0.0);
+            if k > 0 {
+                let v = g.add_variable(at.as_slice());
+                assert!(g.add_odometry(poses[k - 1], v, calib, vec![Vector3::x()], &noise));
+                poses.push(v);
+            }
+            let seen = if k < 2 {
+                vec![(LandmarkKind::Point, post)]
+            } else {
+                vec![]
+            };
+            for (kind, var) in seen.into_iter().chain([(LandmarkKind::Line, wall)]) {
+                let z = predict(kind, &at, &g.vector2(var)).unwrap();
+                g.add_landmark_factor(poses[k], var, kind, z, sigma, None);
+            }
+        }
+        let order = g.elimination_order();
+        let rank = |v: Var| order.iter().position(|&i| i == v).unwrap();
+        assert!(
+            rank(poses[0]) < rank(post) && rank(post) < rank(poses[2]),
+            "{order:?}"
+        );
+        assert!(
+            (1..5).all(|k| rank(poses[k - 1]) < rank(poses[k])),
+            "{order:?}"
+        );
+        assert!(
+            rank(poses[2]) < rank(calib) && rank(calib) < rank(wall),
+            "{order:?}"
+        );
+
+        let normal = g.normal_equations(g.values());
+        let n = g.len();
+        let mut h = DMatrix::zeros(n, n);
+        for (c, column) in (0..n).map(|c| (c, normal.h.col(c))) {
+            for (&r, &value) in column.row_indices().iter().zip(column.values()) {
+                h[(normal.order[r], normal.order[c])] = value;
+            }
+        }
+        let all: Vec<(Var, usize)> = (0..n).map(|i| (i, 1)).collect();
+        let identity = h * g.covariance(&all).unwrap();
+        assert!((identity - DMatrix::identity(n, n)).amax() < 1e-6);
     }
 
     /// Three poses 1 m apart along x, a post and a wall seen from each; the odometry reports

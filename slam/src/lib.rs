@@ -10,7 +10,7 @@
 //! readings and returns a [`SweepEstimate`] per sweep; [`estimator`] describes one sweep's steps,
 //! [`graph`] the factor graph and its solver, [`odometry`] the odometry's error model.
 //!
-//! # Why the graph is solved by hand-written Gauss–Newton on nalgebra
+//! # Why the graph is solved by hand-written Gauss–Newton on nalgebra(-sparse)
 //!
 //! The issue asks for a maintained crate chosen by measurement. Measured on this machine
 //! (2 cores shared with other builds, each crate alone in a fresh project with its own target
@@ -21,7 +21,7 @@
 //! | tiny-solver | 0.18.8 | 117 (faer, rayon, num-dual) | 145 s | 0.34 | Huber, Cauchy, … | none exposed |
 //! | factrs | 0.3.0 | 99 (faer, statrs, num-dual) | 193 s | 0.34 | Huber, Cauchy, … | none exposed |
 //! | apex-solver | 1.5.0 | 305 (faer 0.24, clap, chrono, tracing-subscriber, camera models) | 480 s | 0.33 | 15 kernels | full matrix, blocks and block pairs |
-//! | nalgebra (already in the workspace) | 0.35 | 0 new | 0 s | 0.35 | written here (Huber) | any block of H⁻¹ |
+//! | nalgebra (already in the workspace) and nalgebra-sparse 0.12 | 0.35 | 1 new (nalgebra-sparse) | – | 0.35 | written here (Huber) | any block of H⁻¹ |
 //!
 //! What decided it:
 //! - **The joint covariance.** Joint-compatibility data association needs the covariance of the
@@ -35,17 +35,22 @@
 //!   (tiny-solver, apex-solver) rayon's thread pool in a process meant to share 2 cores with the
 //!   driver and the fusion; apex-solver also brings a command-line parser, chrono and a tracing
 //!   subscriber into a library: 305 crates and 8 minutes of build for a few hundred unknowns.
-//! - **Size.** A tour of hundreds of sweeps and tens of landmarks is a state of a few hundred
-//!   numbers: a dense Cholesky factorisation of it takes milliseconds, so the sparse machinery
-//!   the crates bring buys nothing here. Should tours grow to thousands of sweeps, the choice
-//!   should be measured again (apex-solver or factrs with a marginals solver of our own).
+//! - **Size.** A tour of hundreds of sweeps and tens of landmarks is a state of a few hundred to
+//!   a few thousand numbers, nearly all of H empty: a sparse Cholesky factorisation in the
+//!   order the graph knows (variables by their last use, [`graph`]) is all the sparse machinery
+//!   it needs. nalgebra-sparse (dimforge's, on the workspace's nalgebra 0.35, no new stack)
+//!   factors it; a dense factorisation had cost the cube of the tour (1.8 s a sweep at 600 sweeps,
+//!   docs/benchmarks.md). Should tours grow to many thousands of sweeps, the choice should be
+//!   measured again (apex-solver or factrs with a marginals solver of our own, or a window of
+//!   recent poses).
 //!
 //! Not measured: the three crates on our pose graph itself (time ran out after the build
 //! measurements); the decision rests on the build and API facts above.
 //!
 //! The solver here: Gauss–Newton with Levenberg damping when a step would raise the cost, a
 //! Huber kernel on every landmark factor, numerical Jacobians (each factor is written once, as
-//! its residual), covariances from the undamped normal matrix at the solution.
+//! its residual; the odometry's steps are re-corrected only when the errors that correct them
+//! move), covariances from the undamped normal matrix at the solution.
 
 pub mod error;
 pub mod estimator;
