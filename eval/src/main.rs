@@ -504,7 +504,7 @@ mod tests {
         assert!(Args::try_parse_from(["sonar-eval", "--motion-only", "--features-only"]).is_err());
         let a = Args::try_parse_from(["sonar-eval", "--slam"]).unwrap();
         assert!(a.slam);
-        assert_eq!(a.slam_tours.0.len(), 7);
+        assert_eq!(a.slam_tours.0.len(), 8);
         assert_eq!(
             a.slam_odometry.0,
             [slam::OdometryLevel::MEDIUM, slam::OdometryLevel::POOR]

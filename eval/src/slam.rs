@@ -66,6 +66,9 @@ pub enum Family {
     LongCorridor,
     /// An office with a table (four legs) and a pillar, driven round the table while scanning.
     Office,
+    /// A hall 20–28 m long and 10–14 m wide, crossed along its length and back, stopping to
+    /// scan: for most of the way no wall within the sensor's reach.
+    OpenHall,
     /// The built-in `corridor` tour (stop and scan).
     Corridor,
     /// The built-in `room-tour` (scan while driving).
@@ -73,12 +76,13 @@ pub enum Family {
 }
 
 impl Family {
-    pub const ALL: [Family; 7] = [
+    pub const ALL: [Family; 8] = [
         Family::Hallway,
         Family::HallwayDriving,
         Family::Loop,
         Family::LongCorridor,
         Family::Office,
+        Family::OpenHall,
         Family::Corridor,
         Family::RoomTour,
     ];
@@ -90,6 +94,7 @@ impl Family {
             Family::Loop => "loop",
             Family::LongCorridor => "long-corridor",
             Family::Office => "office",
+            Family::OpenHall => "open-hall",
             Family::Corridor => "corridor",
             Family::RoomTour => "room-tour",
         }
@@ -131,15 +136,7 @@ impl Family {
                     [[0.0, -h], [0.0, h]],
                     [[l1 - h, l2], [l1 + h, l2]],
                 ];
-                let mut out = along(&[[0.5, 0.0], [l1, 0.0], [l1, l2 - 0.5]], 1.0);
-                let back: Vec<[f64; 2]> = out
-                    .iter()
-                    .rev()
-                    .skip(1)
-                    .take(out.len().saturating_sub(2))
-                    .copied()
-                    .collect();
-                out.extend(back);
+                let out = out_and_back(along(&[[0.5, 0.0], [l1, 0.0], [l1, l2 - 0.5]], 1.0));
                 let mode = if self == Family::Hallway {
                     "stop-and-scan"
                 } else {
@@ -150,16 +147,8 @@ impl Family {
             Family::Loop => {
                 let (a, b) = (rng.random_range(5.0..7.0), rng.random_range(3.5..5.0));
                 let w = 1.2;
-                let rect = |x0: f64, y0: f64, x1: f64, y1: f64| {
-                    vec![
-                        [[x0, y0], [x1, y0]],
-                        [[x1, y0], [x1, y1]],
-                        [[x1, y1], [x0, y1]],
-                        [[x0, y1], [x0, y0]],
-                    ]
-                };
-                let mut walls = rect(0.0, 0.0, a, b);
-                walls.extend(rect(w, w, a - w, b - w));
+                let mut walls = rectangle(0.0, 0.0, a, b);
+                walls.extend(rectangle(w, w, a - w, b - w));
                 let h = w / 2.0;
                 let ring = [[h, h], [a - h, h], [a - h, b - h], [h, b - h], [h, h]];
                 let mut waypoints = along(&ring, 1.0);
@@ -177,25 +166,24 @@ impl Family {
                     [[0.0, -h], [0.0, h]],
                     [[l, -h], [l, h]],
                 ];
-                let mut out = along(&[[0.5, 0.0], [l - 0.5, 0.0]], 1.0);
-                let back: Vec<[f64; 2]> = out
-                    .iter()
-                    .rev()
-                    .skip(1)
-                    .take(out.len().saturating_sub(2))
-                    .copied()
-                    .collect();
-                out.extend(back);
+                let out = out_and_back(along(&[[0.5, 0.0], [l - 0.5, 0.0]], 1.0));
                 (walls, Vec::new(), out, "stop-and-scan", 2.0 * (l - 1.0))
+            }
+            Family::OpenHall => {
+                let (a, b) = (rng.random_range(20.0..28.0), rng.random_range(10.0..14.0));
+                // A stop every 2 m: the middle is out of the sensor's reach either way.
+                let out = out_and_back(along(&[[1.0, b / 2.0], [a - 1.0, b / 2.0]], 2.0));
+                (
+                    rectangle(0.0, 0.0, a, b),
+                    Vec::new(),
+                    out,
+                    "stop-and-scan",
+                    2.0 * (a - 2.0),
+                )
             }
             Family::Office => {
                 let (a, b) = (rng.random_range(4.5..6.0), rng.random_range(3.5..4.5));
-                let walls = vec![
-                    [[0.0, 0.0], [a, 0.0]],
-                    [[a, 0.0], [a, b]],
-                    [[a, b], [0.0, b]],
-                    [[0.0, b], [0.0, 0.0]],
-                ];
+                let walls = rectangle(0.0, 0.0, a, b);
                 let (cx, cy) = (a / 2.0, b / 2.0);
                 let (tx, ty) = (0.6, 0.4);
                 let mut posts: Vec<([f64; 2], f64)> = [(-tx, -ty), (tx, -ty), (tx, ty), (-tx, ty)]
@@ -256,6 +244,29 @@ impl Family {
             .with_context(|| format!("generated scene {} {layout}:\n{toml}", self.name()))?;
         Ok((scene, metres))
     }
+}
+
+/// The four walls of the rectangle from (x0, y0) to (x1, y1).
+fn rectangle(x0: f64, y0: f64, x1: f64, y1: f64) -> Vec<[[f64; 2]; 2]> {
+    vec![
+        [[x0, y0], [x1, y0]],
+        [[x1, y0], [x1, y1]],
+        [[x1, y1], [x0, y1]],
+        [[x0, y1], [x0, y0]],
+    ]
+}
+
+/// The waypoints `out` followed by the way back to just short of the first (the tour loops).
+fn out_and_back(mut out: Vec<[f64; 2]>) -> Vec<[f64; 2]> {
+    let back: Vec<[f64; 2]> = out
+        .iter()
+        .rev()
+        .skip(1)
+        .take(out.len().saturating_sub(2))
+        .copied()
+        .collect();
+    out.extend(back);
+    out
 }
 
 /// Points along the polyline `corners`, at most `spacing` apart, corners included.
@@ -319,6 +330,10 @@ pub struct Placed {
     pub odometry: PoseError,
     /// The method called it a fix; with the fix's NEES.
     pub fix: Option<f64>,
+    /// The NEES of the pose published for the sweep against the covariance published with it,
+    /// fix or not (the SLAM publishes one with every sweep; today's localisation only with a
+    /// fix): a sweep that is no fix must still not claim centimetres while metres off.
+    pub nees: Option<f64>,
     /// Sweep's share of the tour's time (0 at the start, 1 at the end).
     pub progress: f64,
 }
@@ -556,6 +571,7 @@ pub fn run(
         .iter()
         .map(|e| {
             let truth = truth_at(&tour.poses, e.stamp_ns);
+            let published = nees(&e.pose, &e.covariance, &truth);
             tracing::debug!(
                 sweep = e.sweep_id,
                 state = ?e.state,
@@ -569,14 +585,14 @@ pub fn run(
                 odometry_cm = PoseError::of(&e.odometry, &truth).position_m * 100.0,
                 sigma_cm = ?(e.covariance[(0, 0)].sqrt() * 100.0, e.covariance[(1, 1)].sqrt() * 100.0),
                 sigma_deg = e.covariance[(2, 2)].sqrt().to_degrees(),
+                nees = published,
                 "SLAM sweep"
             );
             Placed {
                 error: PoseError::of(&e.pose, &truth),
                 odometry: PoseError::of(&e.odometry, &truth),
-                fix: (e.state == FixState::Fix)
-                    .then(|| nees(&e.pose, &e.covariance, &truth))
-                    .flatten(),
+                fix: published.filter(|_| e.state == FixState::Fix),
+                nees: published,
                 progress: progress(e.stamp_ns),
             }
         })
@@ -590,14 +606,16 @@ pub fn run(
         .map(|(s, stamp)| {
             let truth = truth_at(&tour.poses, stamp);
             let odo = odometry_at(&tour.poses, stamp);
+            let fix = if s.fixed {
+                s.fix_nees.or(Some(f64::INFINITY))
+            } else {
+                None
+            };
             Placed {
                 error: s.error,
                 odometry: PoseError::of(&pose_iso(&odo), &truth),
-                fix: if s.fixed {
-                    s.fix_nees.or(Some(f64::INFINITY))
-                } else {
-                    None
-                },
+                fix,
+                nees: fix,
                 progress: progress(stamp),
             }
         })
@@ -748,8 +766,8 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
             s,
             "#### Odometry {}\n\n| tour | method | largest position error (cm) | largest heading \
              error (°) | median position error (cm) | fixes inside their 95 % ellipse | fixes \
-             worse than odometry | sweeps fixed | runs whose largest error exceeds odometry's \
-             |\n|---|---|---|---|---|---|---|---|---|",
+             worse than odometry | sweeps fixed | sweeps inside their 95 % ellipse, fixed or \
+             not | runs whose largest error exceeds odometry's |\n|---|---|---|---|---|---|---|---|---|---|",
             level.label()
         );
         for &family in &settings.families {
@@ -774,13 +792,19 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
                     .count();
                 let worse = fixes.iter().filter(|p| p.worse_than_odometry()).count();
                 let sweeps: usize = these.iter().map(|r| pick(r).len()).sum();
+                let published: Vec<f64> = these
+                    .iter()
+                    .flat_map(|r| pick(r).iter())
+                    .filter_map(|p| p.nees)
+                    .collect();
+                let covered = published.iter().filter(|&&n| n <= CHI2_3_95).count();
                 let runs_worse = these
                     .iter()
                     .filter(|r| largest(pick(r), false) > largest_odometry(pick(r), false))
                     .count();
                 let _ = writeln!(
                     s,
-                    "| {} | {name} | {} | {} | {} | {} | {} | {} | {} |",
+                    "| {} | {name} | {} | {} | {} | {} | {} | {} | {} | {} |",
                     family.name(),
                     over_runs(these.iter().map(|r| largest(pick(r), false)), 100.0, 1),
                     over_runs(these.iter().map(|r| largest(pick(r), true)), 1.0, 1),
@@ -792,12 +816,13 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
                     share(inside, fixes.len()),
                     share(worse, fixes.len()),
                     share(fixes.len(), sweeps),
+                    share(covered, published.len()),
                     share(runs_worse, these.len()),
                 );
             }
             let _ = writeln!(
                 s,
-                "| {} | odometry alone | {} | {} | – | – | – | – | – |",
+                "| {} | odometry alone | {} | {} | – | – | – | – | – | – |",
                 family.name(),
                 over_runs(
                     these.iter().map(|r| largest_odometry(&r.slam, false)),

@@ -351,8 +351,8 @@ const STILL_M: f64 = 0.01;
 const STILL_DEG: f64 = 0.5;
 const MOVING_SHARE: f64 = 0.1;
 
-/// The first pose is the map's origin: the odometry's pose where it starts, taken as known to
-/// this (m, rad).
+/// The map's origin is the odometry's pose where it starts (its oldest sample kept), taken as
+/// known to this (m, rad).
 const ANCHOR_SIGMA: f64 = 1e-4;
 
 /// The SLAM: feed it odometry and readings; it returns an estimate for every finished sweep.
@@ -865,12 +865,27 @@ impl Slam {
             self.graph
                 .add_prior(calibration, Vector3::zeros(), &prior, false);
             let pose = self.graph.add_variable(odo.as_slice());
-            self.graph.add_prior(
-                pose,
-                odo,
-                &Matrix3::from_diagonal_element(ANCHOR_SIGMA * ANCHOR_SIGMA),
-                true,
-            );
+            let anchor = Matrix3::from_diagonal_element(ANCHOR_SIGMA * ANCHOR_SIGMA);
+            match self.track.first() {
+                // A robot that drove before its first sweep: the odometry has erred since its
+                // start, so the first pose is the odometry's steps from there, not the origin.
+                Some((start_ns, start)) if moved(&start, odometry) => {
+                    let at = Vector3::new(
+                        start.translation.x,
+                        start.translation.y,
+                        start.rotation.angle(),
+                    );
+                    let origin = self.graph.add_variable(at.as_slice());
+                    self.graph.add_prior(origin, at, &anchor, true);
+                    let steps = self.track.steps(start_ns, stamp_ns);
+                    let covariance = random_covariance(&steps, &errors);
+                    self.graph
+                        .add_odometry(origin, pose, calibration, steps, &covariance);
+                }
+                _ => {
+                    self.graph.add_prior(pose, odo, &anchor, true);
+                }
+            }
             self.calibration = Some(calibration);
             self.poses.push(PoseNode {
                 var: pose,
@@ -1367,18 +1382,17 @@ fn placement(s: &Sighting, x: &Vector3<f64>, c: &Vector3<f64>) -> Placement {
 
 /// Whether more than [`MOVING_SHARE`] of the readings were taken away from the pose of the middle
 /// one.
+/// Whether `to` lies more than [`STILL_M`] or [`STILL_DEG`] from `from`.
+fn moved(from: &Isometry2<f64>, to: &Isometry2<f64>) -> bool {
+    let d = from.inverse() * to;
+    d.translation.vector.norm() > STILL_M || d.rotation.angle().abs() > STILL_DEG.to_radians()
+}
+
 fn taken_on_the_move(placed: &[(Reading, Isometry2<f64>)]) -> bool {
     let Some((_, middle)) = placed.get(placed.len() / 2) else {
         return false;
     };
-    let away = placed
-        .iter()
-        .filter(|(_, p)| {
-            let d = middle.inverse() * p;
-            d.translation.vector.norm() > STILL_M
-                || d.rotation.angle().abs() > STILL_DEG.to_radians()
-        })
-        .count();
+    let away = placed.iter().filter(|(_, p)| moved(middle, p)).count();
     away as f64 > MOVING_SHARE * placed.len() as f64
 }
 
@@ -1598,6 +1612,51 @@ mod tests {
             (p.translation.vector - Vector2::new(truth.x, truth.y)).norm(),
             wrap_rad(p.rotation.angle() - truth.z).abs().to_degrees(),
         )
+    }
+
+    /// The map's origin is where the odometry starts: a robot that drove 3 m (odometry 3 %
+    /// long, 2°/m of drift) before its first sweep has that sweep's pose as uncertain as the
+    /// odometry's errors since the start, with the truth inside its 95 % ellipse; a robot that
+    /// stood still has it exact (before, both were exact: the driven one 9 cm off).
+    #[test]
+    fn the_first_sweep_after_driving_carries_the_odometrys_errors_since_its_start() {
+        let first_sweep = |metres: usize| {
+            let mut slam = Slam::new(SlamConfig::default()).unwrap();
+            let (a, b) = (0.03, 2.0_f64.to_radians());
+            let mut odo = Vector3::<f64>::zeros();
+            let mut stamp = 0;
+            slam.push_odometry(stamp, Isometry2::identity());
+            for _ in 0..metres * 100 {
+                let reported = 0.01 * (1.0 + a);
+                odo.x += reported * odo.z.cos();
+                odo.y += reported * odo.z.sin();
+                odo.z += b * reported;
+                stamp += 1000;
+                slam.push_odometry(stamp, Isometry2::new(Vector2::new(odo.x, odo.y), odo.z));
+            }
+            let odometry = Isometry2::new(Vector2::new(odo.x, odo.y), odo.z);
+            let e = slam.add_sweep(0, stamp, odometry, &[], &[], false);
+            let truth = Vector3::new(metres as f64, 0.0, 0.0);
+            let mut d = Vector3::new(
+                e.pose.translation.x - truth.x,
+                e.pose.translation.y - truth.y,
+                e.pose.rotation.angle() - truth.z,
+            );
+            d.z = wrap_rad(d.z);
+            let nees = (d.transpose() * e.covariance.try_inverse().unwrap() * d)[(0, 0)];
+            (d.xy().norm(), e.covariance[(1, 1)].sqrt(), nees)
+        };
+        let (error, sigma_y, nees) = first_sweep(3);
+        assert!(error > 0.08, "{error}");
+        assert!(
+            sigma_y > error / 2.0 && nees < 7.81,
+            "σ_y {sigma_y}, NEES {nees}"
+        );
+        let (error, sigma_y, _) = first_sweep(0);
+        assert!(
+            error < 1e-12 && sigma_y <= ANCHOR_SIGMA * 1.01,
+            "{error} {sigma_y}"
+        );
     }
 
     #[test]

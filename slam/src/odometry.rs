@@ -49,6 +49,11 @@ impl OdometryTrack {
         self.samples.is_empty()
     }
 
+    /// The oldest sample kept: its stamp and pose.
+    pub fn first(&self) -> Option<(u64, Isometry2<f64>)> {
+        self.samples.first().copied()
+    }
+
     /// The pose at `stamp_ns`, interpolated between the samples around it (linearly in
     /// position, the shorter way in heading) and held beyond them; `None` without samples.
     pub fn at(&self, stamp_ns: u64) -> Option<Isometry2<f64>> {
