@@ -21,7 +21,9 @@
 
 use nalgebra::{DMatrix, DVector, Isometry2, Matrix2, Matrix3, Vector2, Vector3};
 use nalgebra_sparse::factorization::{CscCholesky, CscSymbolicCholesky};
+use nalgebra_sparse::pattern::SparsityPattern;
 use nalgebra_sparse::{CooMatrix, CscMatrix};
+use std::cell::RefCell;
 use sonar_features::{FeatureKind, wrap_rad};
 
 use crate::odometry::{Step, corrected};
@@ -399,6 +401,10 @@ pub struct Graph {
     starts: Vec<Var>,
     factors: Vec<Factor>,
     huber_k: f64,
+    /// The last symbolic factorisation and the pattern it is of, reused while H's pattern stays
+    /// the same (every iteration of a solve, the covariances after it): nalgebra-sparse's
+    /// symbolic step grows faster with the graph than the numeric one.
+    symbolic: RefCell<Option<(SparsityPattern, CscSymbolicCholesky)>>,
 }
 
 impl Graph {
@@ -408,6 +414,7 @@ impl Graph {
             starts: Vec::new(),
             factors: Vec::new(),
             huber_k,
+            symbolic: RefCell::new(None),
         }
     }
 
@@ -659,13 +666,26 @@ impl Graph {
                 column.start + rows.partition_point(|&r| r < c)
             })
             .collect();
-        let symbolic = CscSymbolicCholesky::factor(h.pattern().clone());
+        let symbolic = self.symbolic_factorisation(h.pattern());
         NormalEquations {
             order,
             h,
             symbolic,
             diagonal,
             g,
+        }
+    }
+
+    /// The symbolic factorisation of `pattern`: the last one if it was of the same pattern.
+    fn symbolic_factorisation(&self, pattern: &SparsityPattern) -> CscSymbolicCholesky {
+        let mut last = self.symbolic.borrow_mut();
+        match last.as_ref() {
+            Some((of, symbolic)) if of == pattern => symbolic.clone(),
+            _ => {
+                let symbolic = CscSymbolicCholesky::factor(pattern.clone());
+                *last = Some((pattern.clone(), symbolic.clone()));
+                symbolic
+            }
         }
     }
 
