@@ -127,8 +127,12 @@ struct Args {
     #[arg(long)]
     slam: bool,
     /// Tours of the SLAM evaluation: comma-separated hallway, hallway-driving, loop,
-    /// long-corridor, office, corridor, room-tour.
-    #[arg(long, default_value = "hallway,hallway-driving,loop,long-corridor,office,corridor,room-tour", value_parser = parse_families)]
+    /// long-corridor, office, open-hall, corridor, room-tour.
+    #[arg(
+        long,
+        default_value = "hallway,hallway-driving,loop,long-corridor,office,open-hall,corridor,room-tour",
+        value_parser = parse_families
+    )]
     slam_tours: Families,
     /// Layout seeds of the SLAM evaluation's generated tours (as --motion-seeds).
     #[arg(long, default_value = "4..8:1", value_parser = parse_seeds)]
