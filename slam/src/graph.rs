@@ -23,8 +23,8 @@ use nalgebra::{DMatrix, DVector, Isometry2, Matrix2, Matrix3, Vector2, Vector3};
 use nalgebra_sparse::factorization::{CscCholesky, CscSymbolicCholesky};
 use nalgebra_sparse::pattern::SparsityPattern;
 use nalgebra_sparse::{CooMatrix, CscMatrix};
-use std::cell::RefCell;
 use sonar_features::{FeatureKind, wrap_rad};
+use std::cell::RefCell;
 
 use crate::odometry::{Step, corrected};
 
