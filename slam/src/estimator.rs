@@ -121,6 +121,15 @@ pub struct SlamConfig {
     /// A ping ranges on a wall whose normal lies this far inside the specular cut-off of its
     /// axis, less 1σ of the heading (near the edge of the cone the wall may not answer).
     pub ranging_cone_margin_deg: f64,
+    /// A wall seen on the move farther than this from the reading that faced it (metres; half
+    /// a metre inside the SRF05's 4 m reach) was heard near the sensor's reach, where how wide a
+    /// wall answers changes quickly with its range: driving towards or away from it during the
+    /// sweep, its region of constant depth grows on one side, and the region's middle, the
+    /// wall's bearing, lies off its normal (7–11° in an open hall, `docs/results.md`, "Open
+    /// space"), which the graph would learn as the odometry's drift …
+    pub near_reach_m: f64,
+    /// … so its bearing σ is at least this, degrees.
+    pub near_reach_bearing_sigma_deg: f64,
 }
 
 impl Default for SlamConfig {
@@ -144,6 +153,8 @@ impl Default for SlamConfig {
             ranging_sigma_m: 0.04,
             ranging_min_sightings: 2,
             ranging_cone_margin_deg: 8.0,
+            near_reach_m: 3.5,
+            near_reach_bearing_sigma_deg: 10.0,
         }
     }
 }
@@ -161,6 +172,7 @@ impl SlamConfig {
             ("fix_max_sigma_deg", self.fix_max_sigma_deg),
             ("odometry_gate_chi2", self.odometry_gate_chi2),
             ("ranging_sigma_m", self.ranging_sigma_m),
+            ("near_reach_m", self.near_reach_m),
         ];
         for (name, v) in positive {
             if !(v.is_finite() && v > 0.0) {
@@ -171,6 +183,10 @@ impl SlamConfig {
             ("min_baseline_m", self.min_baseline_m),
             ("min_baseline_deg", self.min_baseline_deg),
             ("ranging_cone_margin_deg", self.ranging_cone_margin_deg),
+            (
+                "near_reach_bearing_sigma_deg",
+                self.near_reach_bearing_sigma_deg,
+            ),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(SlamError::Config(format!("{name} must be ≥ 0, got {v}")));
@@ -503,7 +519,8 @@ impl Slam {
     /// error over them; the systematic part is the graph's to estimate. (Before, the whole
     /// sweep's odometry error, systematic part included, was added to every wall's σ: 6 cm and
     /// 4° over a 2 m sweep at 3 % / 2°/m, as noise of its own: a wall could neither teach the
-    /// graph the odometry's errors nor be corrected by them.)
+    /// graph the odometry's errors nor be corrected by them.) A wall that reading heard near the
+    /// sensor's reach gets the bearing σ of [`SlamConfig::near_reach_m`].
     fn seen_on_the_move(
         &self,
         sighting: &mut Sighting,
@@ -535,6 +552,10 @@ impl Slam {
         );
         sighting.z = z;
         sighting.sigma = sighting.sigma.zip_map(&odometry, f64::hypot);
+        if z.x > self.cfg.near_reach_m {
+            let floor = self.cfg.near_reach_bearing_sigma_deg.to_radians();
+            sighting.sigma.y = sighting.sigma.y.max(floor);
+        }
         sighting.after = after.clone();
     }
 
@@ -1939,6 +1960,22 @@ mod tests {
             "{}",
             wall.sigma
         );
+        // The same wall 2 m farther: heard 4 m from the reading that faced it, near the
+        // sensor's reach, its bearing σ is the near-reach floor.
+        let mut far = Sighting {
+            z: Vector2::new(5.0, 0.0),
+            after: Vec::new(),
+            ..wall
+        };
+        far.sigma = sigma;
+        slam.seen_on_the_move(&mut far, &placed, &steps);
+        assert!((far.z.x - 4.0).abs() < 1e-9, "{}", far.z);
+        assert!(
+            (far.sigma.y.to_degrees() - SlamConfig::default().near_reach_bearing_sigma_deg).abs()
+                < 1e-9,
+            "{}",
+            far.sigma
+        );
     }
 
     /// A wall seen on the move from two viewpoints 50 cm apart, each time from a region cut
@@ -2065,5 +2102,17 @@ mod tests {
             ..SlamConfig::default()
         };
         assert!(Slam::new(cfg).is_err());
+        for cfg in [
+            SlamConfig {
+                near_reach_m: 0.0,
+                ..SlamConfig::default()
+            },
+            SlamConfig {
+                near_reach_bearing_sigma_deg: f64::NAN,
+                ..SlamConfig::default()
+            },
+        ] {
+            assert!(Slam::new(cfg).is_err(), "{cfg:?}");
+        }
     }
 }
