@@ -125,7 +125,7 @@ pub fn corrected(steps: &[Step], calibration: &Vector3<f64>) -> Vector3<f64> {
 }
 
 /// Covariance of the random error of `steps` composed, in the frame of their start (x, y, θ),
-/// propagated step by step, with a floor of [`FLOOR_M`] and [`FLOOR_DEG`].
+/// propagated step by step, with a floor of 1 mm and 0.05° (`FLOOR_M`, `FLOOR_DEG`).
 pub fn random_covariance(steps: &[Step], errors: &OdometryErrors) -> Matrix3<f64> {
     let position = errors.position_noise_m_per_sqrt_m.powi(2);
     let heading = errors.heading_noise_deg_per_sqrt_m.to_radians().powi(2);
