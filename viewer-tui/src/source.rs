@@ -242,20 +242,18 @@ impl Source {
         {
             // Every sample: the newest may revise an earlier sweep, and the state is the latest
             // new sweep's. At most a buffer's worth a frame.
-            for _ in 0..SLAM_PER_POLL {
-                match sub.receive() {
-                    Ok(Some(sample)) => {
-                        moved = true;
-                        if let Err(e) = app.on_slam_correction(sample.payload()) {
-                            reject(app, "SLAM correction", &e);
-                        }
+            let taken = each(
+                SLAM_PER_POLL,
+                || sub.receive(),
+                |sample| {
+                    moved = true;
+                    if let Err(e) = app.on_slam_correction(sample.payload()) {
+                        reject(app, "SLAM correction", &e);
                     }
-                    Ok(None) => break,
-                    Err(e) => {
-                        self.slam.fail(now, format!("receive: {e:?}"));
-                        break;
-                    }
-                }
+                },
+            );
+            if let Err(e) = taken {
+                self.slam.fail(now, format!("receive: {e:?}"));
             }
         }
 
@@ -293,18 +291,16 @@ impl Source {
             .readings
             .get(now, || subscribe(node, ipc::readings_service))
         {
-            for _ in 0..MAX_READINGS_PER_POLL {
-                match sub.receive() {
-                    Ok(Some(sample)) => {
-                        moved = true;
-                        app.on_reading(sample.payload(), now);
-                    }
-                    Ok(None) => break,
-                    Err(e) => {
-                        self.readings.fail(now, format!("receive: {e:?}"));
-                        break;
-                    }
-                }
+            let taken = each(
+                MAX_READINGS_PER_POLL,
+                || sub.receive(),
+                |sample| {
+                    moved = true;
+                    app.on_reading(sample.payload(), now);
+                },
+            );
+            if let Err(e) = taken {
+                self.readings.fail(now, format!("receive: {e:?}"));
             }
         }
 
@@ -430,6 +426,20 @@ fn newest<S>(
         latest = Some(sample);
     }
     Ok(latest)
+}
+
+/// Hands each sample of a subscriber to `take`, at most `max` of them (the rest wait for the next
+/// frame). On an error the samples before it have been taken.
+fn each<S>(
+    max: usize,
+    mut receive: impl FnMut() -> Result<Option<S>, ReceiveError>,
+    mut take: impl FnMut(S),
+) -> Result<(), ReceiveError> {
+    for _ in 0..max {
+        let Some(sample) = receive()? else { break };
+        take(sample);
+    }
+    Ok(())
 }
 
 fn reject(app: &mut App, what: &str, error: &str) {
