@@ -830,6 +830,17 @@ pub fn feature_physics(echo: &sonar_sim::EchoParams) -> EchoPhysics {
     }
 }
 
+/// The features' settings for the head and echoes of `scene` (its sensor profile's, or the
+/// paper head's and the simulator's defaults without one): what a robot builder configures for
+/// the sensor they own (`[features]`, `[features.echo]`).
+pub fn scene_feature_config(scene: &Scene) -> FeatureConfig {
+    FeatureConfig {
+        sensor: crate::pipeline::Head::of(scene).sensor,
+        echo: feature_physics(&scene.echo),
+        ..FeatureConfig::default()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -134,6 +134,11 @@ struct Args {
         value_parser = parse_families
     )]
     slam_tours: Families,
+    /// Sensors every SLAM tour is heard through: comma-separated simulator profiles (srf05,
+    /// hc-sr04, nxt) or default (the simulator without a profile); the SLAM and the localisation
+    /// are told each one's head and echo cones.
+    #[arg(long, default_value = "default", value_delimiter = ',')]
+    slam_profiles: Vec<suite::ProfileChoice>,
     /// Layout seeds of the SLAM evaluation's generated tours (as --motion-seeds).
     #[arg(long, default_value = "4..8:1", value_parser = parse_seeds)]
     slam_layouts: Values,
@@ -313,6 +318,7 @@ fn run(args: Args) -> Result<()> {
     if args.slam {
         let settings = slam::SlamSettings {
             families: args.slam_tours.0,
+            profiles: args.slam_profiles,
             layouts: args.slam_layouts.0.iter().map(|&s| s as u64).collect(),
             seeds: args.slam_seeds.0.iter().map(|&s| s as u64).collect(),
             levels: args.slam_odometry.0,

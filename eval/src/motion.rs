@@ -46,6 +46,7 @@ use sonar_sim::geometry::angle_diff_rad;
 use sonar_sim::{OdometryParams, Pose, PoseSample, Scene};
 
 use crate::feature_report::Spread;
+use crate::features::scene_feature_config;
 use crate::image::{self, Canvas, Window};
 use crate::metrics::{MapView, SceneWalls, quantile, scene_walls};
 use crate::pipeline::{Scan, TourCapture, capture_tour, probability_view};
@@ -291,19 +292,20 @@ fn wire(sample: &PoseSample, placement: Placement) -> Pose2D {
 }
 
 /// Fuses `tour` as `sonar-fusion` would with `placement`'s poses on `robot/pose` (and, for
-/// [`Placement::Localized`], `--localize`), on `grid`, and measures it against `scene`.
+/// [`Placement::Localized`], `--localize`), on `grid`, the features with `features`, and
+/// measures it against `scene`.
 pub fn fuse_tour(
     scene: &Scene,
     tour: &TourCapture,
     placement: Placement,
     grid: GridConfig,
+    features: FeatureConfig,
 ) -> Result<Fused> {
     let config = FusionConfig {
         grid,
         ..FusionConfig::preset(Preset::Recommended)
     };
     let mut engine = Engine::new(config, 0).context("setting up the fusion engine")?;
-    let features = FeatureConfig::default();
     let mut tracker = match placement {
         Placement::Localized => FeatureTracker::with_localization(features),
         Placement::Truth | Placement::Odometry => FeatureTracker::new(features),
@@ -458,7 +460,7 @@ pub fn tour_run(scene: &Scene, settings: &MotionSettings, seed: u64) -> Result<T
     let fused = Placement::ALL
         .iter()
         .map(|&p| {
-            fuse_tour(scene, &tour, p, grid)
+            fuse_tour(scene, &tour, p, grid, scene_feature_config(scene))
                 .with_context(|| format!("fusing {} with {}", scene.name, p.label()))
         })
         .collect::<Result<_>>()?;

@@ -169,9 +169,10 @@ pub fn capture_tour(
         poses: Vec::new(),
         driven_m: 0.0,
     };
+    let head = Head::of(&scene);
     let capture = run_device(
         scene,
-        Head::default(),
+        head,
         scan,
         seed,
         Until::Driven(metres),

@@ -36,6 +36,7 @@ use nalgebra::{Isometry2, Vector2};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use sonar_common::ipc::Reading;
+use sonar_features::FeatureConfig;
 use sonar_fusion::{FusionConfig, Mapper, Observation};
 use sonar_sim::{OdometryParams, Pose, PoseSample, Scene};
 use sonar_slam::{FixState, Landmark, Slam, SlamConfig, SweepEstimate, SweepPose};
@@ -44,7 +45,8 @@ use crate::feature_report::Spread;
 use crate::landmarks::{self, LandmarkScore};
 use crate::motion::{POSE_RATE_HZ, Placement, PoseError, fuse_tour, grid_over, nees, truth_at};
 use crate::pipeline::{Scan, TourCapture, capture_tour, probability_view};
-use crate::suite::{GridScore, Reach, score_grid};
+use crate::features::scene_feature_config;
+use crate::suite::{GridScore, ProfileChoice, Reach, score_grid};
 
 /// χ² of 3 degrees of freedom at 95 %: a fix whose NEES is within lies inside its 95 % ellipse.
 pub const CHI2_3_95: f64 = 7.81;
@@ -349,6 +351,7 @@ impl Placed {
 #[derive(Debug, Clone)]
 pub struct Run {
     pub family: Family,
+    pub profile: ProfileChoice,
     pub layout: u64,
     pub seed: u64,
     pub level: OdometryLevel,
@@ -391,6 +394,8 @@ pub struct SlamOutput {
 #[derive(Debug, Clone, PartialEq)]
 pub struct SlamSettings {
     pub families: Vec<Family>,
+    /// The sensors every tour is heard through (the simulator's profiles, or its default).
+    pub profiles: Vec<ProfileChoice>,
     pub layouts: Vec<u64>,
     pub seeds: Vec<u64>,
     pub levels: Vec<OdometryLevel>,
@@ -542,9 +547,21 @@ pub fn run(
     layout: u64,
     seed: u64,
     level: OdometryLevel,
-    config: SlamConfig,
+    profile: ProfileChoice,
+    mut config: SlamConfig,
 ) -> Result<Run> {
-    let (scene, metres) = family.scene(layout)?;
+    let (mut scene, metres) = family.scene(layout)?;
+    if let Some(p) = profile.0 {
+        scene.set_profile(p);
+    }
+    // The SLAM and the localisation are told the sensor's head and echoes, as a robot builder
+    // configures them for the sensor they own; the rest of the SLAM's settings stay as given.
+    let features = scene_feature_config(&scene);
+    config.features = FeatureConfig {
+        sensor: features.sensor,
+        echo: features.echo,
+        ..config.features
+    };
     let odometry = level.params(seed);
     let tour = capture_tour(
         scene.clone(),
@@ -597,7 +614,13 @@ pub fn run(
             }
         })
         .collect();
-    let fused = fuse_tour(&scene, &tour, Placement::Localized, grid_over(&scene))
+    let fused = fuse_tour(
+        &scene,
+        &tour,
+        Placement::Localized,
+        grid_over(&scene),
+        features,
+    )
         .context("today's localisation on the same tour")?;
     let localize = fused
         .sweeps
@@ -622,6 +645,7 @@ pub fn run(
         .collect();
     Ok(Run {
         family,
+        profile,
         layout,
         seed,
         level,
@@ -653,7 +677,7 @@ fn fused_stamps(tour: &TourCapture, n: usize) -> Vec<u64> {
 /// Every run of `settings`.
 pub fn evaluate(settings: &SlamSettings) -> Result<Vec<Run>> {
     let mut runs = Vec::new();
-    for &family in &settings.families {
+    for (family, profile) in tours(settings) {
         for &layout in &settings.layouts {
             for &level in &settings.levels {
                 for &seed in &settings.seeds {
@@ -664,9 +688,10 @@ pub fn evaluate(settings: &SlamSettings) -> Result<Vec<Run>> {
                     } else {
                         seed
                     };
-                    let r = run(family, layout, seed, level, settings.config)?;
+                    let r = run(family, layout, seed, level, profile, settings.config)?;
                     tracing::info!(
                         family = family.name(),
+                        %profile,
                         layout,
                         seed,
                         level = level.label(),
@@ -714,11 +739,32 @@ fn median(p: &[Placed], heading: bool) -> Option<f64> {
 }
 
 /// "median / worst" over runs of a per-run figure.
-/// The runs of one tour at one odometry level.
-fn runs_of(runs: &[Run], family: Family, level: OdometryLevel) -> Vec<&Run> {
+/// The runs of one tour heard through one sensor at one odometry level.
+fn runs_of(runs: &[Run], tour: Tour, level: OdometryLevel) -> Vec<&Run> {
     runs.iter()
-        .filter(|r| r.family == family && r.level == level)
+        .filter(|r| (r.family, r.profile) == tour && r.level == level)
         .collect()
+}
+
+/// A tour and the sensor it was heard through.
+type Tour = (Family, ProfileChoice);
+
+/// Every tour of `settings` in the order of the report.
+fn tours(settings: &SlamSettings) -> Vec<Tour> {
+    settings
+        .families
+        .iter()
+        .flat_map(|&f| settings.profiles.iter().map(move |&p| (f, p)))
+        .collect()
+}
+
+/// A tour's name in the report: the family's, and the sensor's unless it is the simulator's
+/// default.
+fn tour_name((family, profile): Tour) -> String {
+    match profile.0 {
+        Some(p) => format!("{}, {p}", family.name()),
+        None => family.name().to_string(),
+    }
 }
 
 /// As [`over_runs`] for a figure whose worst is its lowest (precision, recall).
@@ -770,8 +816,8 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
              not | runs whose largest error exceeds odometry's |\n|---|---|---|---|---|---|---|---|---|---|",
             level.label()
         );
-        for &family in &settings.families {
-            let these = runs_of(runs, family, level);
+        for tour in tours(settings) {
+            let these = runs_of(runs, tour, level);
             if these.is_empty() {
                 continue;
             }
@@ -805,7 +851,7 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
                 let _ = writeln!(
                     s,
                     "| {} | {name} | {} | {} | {} | {} | {} | {} | {} | {} |",
-                    family.name(),
+                    tour_name(tour),
                     over_runs(these.iter().map(|r| largest(pick(r), false)), 100.0, 1),
                     over_runs(these.iter().map(|r| largest(pick(r), true)), 1.0, 1),
                     over_runs(
@@ -823,7 +869,7 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
             let _ = writeln!(
                 s,
                 "| {} | odometry alone | {} | {} | – | – | – | – | – | – |",
-                family.name(),
+                tour_name(tour),
                 over_runs(
                     these.iter().map(|r| largest_odometry(&r.slam, false)),
                     100.0,
@@ -847,8 +893,8 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
              placing it.\n\n| tour | placement | largest pose error (cm) | largest heading \
              error (°) | precision | median error (cm) | recall |\n|---|---|---|---|---|---|---|"
         );
-        for &family in &settings.families {
-            let these = runs_of(runs, family, level);
+        for tour in tours(settings) {
+            let these = runs_of(runs, tour, level);
             if these.is_empty() {
                 continue;
             }
@@ -877,7 +923,7 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
                 let _ = writeln!(
                     s,
                     "| {} | {name} | {} | {} | {} | {} | {} |",
-                    family.name(),
+                    tour_name(tour),
                     over_runs(these.iter().map(|r| poses(r, false)), 100.0, 1),
                     over_runs(these.iter().map(|r| poses(r, true)), 1.0, 1),
                     over_runs_lowest_worst(scores().filter_map(|g| g.precision), 1.0, 2),
@@ -888,8 +934,11 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
         }
         // The loop's laps: the largest error in the first and the last of its three laps (thirds of
         // the tour).
-        let loops = runs_of(runs, Family::Loop, level);
-        if !loops.is_empty() {
+        for tour in tours(settings).into_iter().filter(|t| t.0 == Family::Loop) {
+            let loops = runs_of(runs, tour, level);
+            if loops.is_empty() {
+                continue;
+            }
             let third = |r: &Run, last: bool| {
                 r.slam
                     .iter()
@@ -909,9 +958,10 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
                 .count();
             let _ = writeln!(
                 s,
-                "\nLoop, SLAM (three laps): largest position error in the first lap {} cm, in the \
+                "\n{}, SLAM (three laps): largest position error in the first lap {} cm, in the \
                  last lap {} cm (median / worst over runs); the last lap no worse than the \
                  first (within {:.0} cm) in {}.",
+                tour_name(tour),
                 over_runs(loops.iter().map(|r| third(r, false)), 100.0, 1),
                 over_runs(loops.iter().map(|r| third(r, true)), 100.0, 1),
                 WORSE_M * 100.0,
@@ -930,8 +980,8 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
             landmarks::WALL_METRES * 100.0,
             landmarks::POINT_METRES * 100.0,
         );
-        for &family in &settings.families {
-            let these = runs_of(runs, family, level);
+        for tour in tours(settings) {
+            let these = runs_of(runs, tour, level);
             if these.is_empty() {
                 continue;
             }
@@ -946,7 +996,7 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
             let _ = writeln!(
                 s,
                 "| {} | {} | {} | {} | {} | {} |",
-                family.name(),
+                tour_name(tour),
                 per_run(|l| l.walls),
                 per_run(|l| l.points),
                 share(sum(|l| l.phantom_walls), sum(|l| l.walls)),
@@ -954,12 +1004,11 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
                 share(sum(|l| l.walls_inside_95), sum(|l| l.walls_with_covariance)),
             );
         }
-        let refused: Vec<String> = settings
-            .families
-            .iter()
-            .map(|&f| {
-                let n: u32 = runs_of(runs, f, level).iter().map(|r| r.refused).sum();
-                format!("{} {n}", f.name())
+        let refused: Vec<String> = tours(settings)
+            .into_iter()
+            .map(|t| {
+                let n: u32 = runs_of(runs, t, level).iter().map(|r| r.refused).sum();
+                format!("{} {n}", tour_name(t))
             })
             .collect();
         let _ = writeln!(
