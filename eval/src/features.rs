@@ -991,6 +991,7 @@ mod tests {
             bearing_sigma_deg: 0.3,
             rcd: 0,
             whole: true,
+            also_plane: false,
         }
     }
 

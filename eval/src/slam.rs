@@ -42,10 +42,10 @@ use sonar_sim::{OdometryParams, Pose, PoseSample, Scene};
 use sonar_slam::{FixState, Landmark, Slam, SlamConfig, SweepEstimate, SweepPose};
 
 use crate::feature_report::Spread;
+use crate::features::scene_feature_config;
 use crate::landmarks::{self, LandmarkScore};
 use crate::motion::{POSE_RATE_HZ, Placement, PoseError, fuse_tour, grid_over, nees, truth_at};
 use crate::pipeline::{Scan, TourCapture, capture_tour, probability_view};
-use crate::features::scene_feature_config;
 use crate::suite::{GridScore, ProfileChoice, Reach, score_grid};
 
 /// χ² of 3 degrees of freedom at 95 %: a fix whose NEES is within lies inside its 95 % ellipse.
@@ -621,7 +621,7 @@ pub fn run(
         grid_over(&scene),
         features,
     )
-        .context("today's localisation on the same tour")?;
+    .context("today's localisation on the same tour")?;
     let localize = fused
         .sweeps
         .iter()

@@ -81,6 +81,11 @@ pub struct Observation {
     /// stop) that is wider than a point is taken for a plane placed from its natural end, and a
     /// corner or an edge cut short looks the same: such a plane is the classifier's guess.
     pub whole: bool,
+    /// A point whose region is as wide as a wall's would be at its range (near the sensor a
+    /// post's cone is as wide as a wall's region) and that no corner beside it told apart: it
+    /// may as well be a wall at `range_m` whose normal lies at `bearing_deg`. One viewpoint
+    /// cannot tell a plane from a point (Leonard & Durrant-Whyte); sightings from several can.
+    pub also_plane: bool,
 }
 
 /// The classes of a sweep's regions (one per region, same order) and the targets they gave.
@@ -105,6 +110,8 @@ struct Hypothesis {
     /// A point whose width is also a plane's (near, a post's cone is as wide as a wall's): the
     /// plane's normal, should another region be that plane's corner.
     or_plane: Option<Bearing>,
+    /// It had an `or_plane` that no corner settled: still a point or a plane.
+    also_plane: bool,
     /// A plane whose width is also a corner's (a narrow beam hears a wall and a corner over
     /// nearly the same cone): a corner should another region's plane meet it there.
     or_corner: bool,
@@ -116,6 +123,7 @@ impl Hypothesis {
             class: Class::Unclassified,
             bearings: Vec::new(),
             or_plane: None,
+            also_plane: false,
             or_corner: false,
         }
     }
@@ -125,6 +133,7 @@ impl Hypothesis {
             class,
             bearings: vec![Bearing { deg, sigma }],
             or_plane: None,
+            also_plane: false,
             or_corner: false,
         }
     }
@@ -184,10 +193,12 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
         }
     }
     for (h, supported) in hypotheses.iter_mut().zip(supported) {
-        if let Some(normal) = h.or_plane.take()
-            && supported
-        {
-            *h = Hypothesis::one(Class::Plane, normal.deg, normal.sigma);
+        if let Some(normal) = h.or_plane.take() {
+            if supported {
+                *h = Hypothesis::one(Class::Plane, normal.deg, normal.sigma);
+            } else {
+                h.also_plane = true;
+            }
         }
     }
     let whole = whole_planes(&hypotheses);
@@ -245,6 +256,7 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
                     bearing_sigma_deg: b.sigma,
                     rcd: i,
                     whole: rcd.is_whole(),
+                    also_plane: h.also_plane && h.class == Class::Point,
                 })
             })
         })
@@ -301,6 +313,7 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
                 Hypothesis {
                     class: Class::TwoPoints,
                     or_plane: None,
+                    also_plane: false,
                     or_corner: false,
                     bearings: vec![
                         Bearing {

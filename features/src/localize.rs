@@ -235,6 +235,7 @@ mod tests {
                 bearing_sigma_deg: 0.4,
                 rcd: 0,
                 whole: true,
+                also_plane: false,
             }
         };
         for kind in with {
@@ -254,6 +255,7 @@ mod tests {
                             bearing_sigma_deg: 0.4,
                             rcd: 0,
                             whole: true,
+                            also_plane: false,
                         });
                     }
                 }

@@ -340,6 +340,25 @@ struct ReadingPings {
     pings: Vec<(f64, f64)>,
 }
 
+/// `pairs` (sighting, landmark) with at most one reading of each twin matched: the wall when
+/// both readings of a region found a landmark (a point landmark at a wall's foot, seen again
+/// from where it was first seen, matches as well as the wall does).
+fn one_of_each_twin(sightings: &[Sighting], pairs: Vec<(usize, usize)>) -> Vec<(usize, usize)> {
+    let walls: Vec<(u32, usize)> = pairs
+        .iter()
+        .map(|&(i, _)| &sightings[i])
+        .filter(|s| s.kind == LandmarkKind::Line)
+        .filter_map(|s| s.twin)
+        .collect();
+    pairs
+        .into_iter()
+        .filter(|&(i, _)| {
+            let s = &sightings[i];
+            s.kind == LandmarkKind::Line || s.twin.is_none_or(|t| !walls.contains(&t))
+        })
+        .collect()
+}
+
 /// One observation as the graph measures it.
 #[derive(Debug, Clone)]
 struct Sighting {
@@ -354,6 +373,11 @@ struct Sighting {
     ///
     /// [`Observation::whole`]: sonar_features::Observation::whole
     certain: bool,
+    /// One region read two ways: a region as wide as both a post's cone and a wall's, which
+    /// one viewpoint cannot tell apart, is sighted as a point and as a wall with the same twin
+    /// (its sweep and region). The graph takes at most one of the two: the one that matches a
+    /// landmark (the wall when both do), or the one a later viewpoint agrees with.
+    twin: Option<(u32, usize)>,
     /// The odometry from the sweep's pose to where it was seen from: a wall of a sweep on the
     /// move is measured from the reading that faced it, `z` in that reading's frame. Empty: from
     /// the sweep's pose.
@@ -458,7 +482,8 @@ impl Slam {
         );
         let sightings: Vec<Sighting> = observations
             .iter()
-            .map(|o| {
+            .flat_map(|o| {
+                let twin = o.also_plane.then_some((first.sweep_id, o.rcd));
                 let mut sighting = Sighting {
                     kind: LandmarkKind::of(o.kind),
                     z: Vector2::new(o.range_m, o.bearing_deg.to_radians()),
@@ -469,12 +494,17 @@ impl Slam {
                     )
                     .zip_map(&floor, f64::hypot),
                     certain: !moving || o.whole,
+                    twin,
                     after: Vec::new(),
                 };
                 if moving {
                     self.seen_on_the_move(&mut sighting, &placed, &steps);
                 }
-                sighting
+                let as_wall = twin.map(|_| Sighting {
+                    kind: LandmarkKind::Line,
+                    ..sighting.clone()
+                });
+                std::iter::once(sighting).chain(as_wall)
             })
             .collect();
         let ranged: Vec<ReadingPings> = if moving && self.cfg.range_pings {
@@ -654,10 +684,20 @@ impl Slam {
             .map(|j| j.fixed_view::<3, 3>(0, 0).into_owned());
         let (matched, admitted) = match &joint {
             Some(joint) => {
-                let pairs = self.associate(pose, sightings, joint);
+                let pairs = one_of_each_twin(sightings, self.associate(pose, sightings, joint));
                 let mut used = vec![false; sightings.len()];
-                for &(i, j) in &pairs {
+                for &(i, _) in &pairs {
                     used[i] = true;
+                }
+                // A region matched one way is not sighted the other.
+                let matched_twins: Vec<(u32, usize)> = pairs
+                    .iter()
+                    .filter_map(|&(i, _)| sightings[i].twin)
+                    .collect();
+                for (u, s) in used.iter_mut().zip(sightings) {
+                    *u |= s.twin.is_some_and(|t| matched_twins.contains(&t));
+                }
+                for &(i, j) in &pairs {
                     let s = &sightings[i];
                     let seen_after = self.seen_after(&s.after);
                     let l = &mut self.landmarks[j];
@@ -747,7 +787,10 @@ impl Slam {
             covariance,
             odometry,
             state,
-            observations: sightings.len(),
+            observations: sightings
+                .iter()
+                .filter(|s| s.twin.is_none() || s.kind == LandmarkKind::Line)
+                .count(),
             matched: matched + admitted,
             admitted,
             ranged: ranges,
@@ -1073,7 +1116,11 @@ impl Slam {
             self.graph.covariance(&vars)
         };
         let mut admitted = 0;
+        let mut admitted_twins = Vec::new();
         for s in unmatched {
+            if s.twin.is_some_and(|t| admitted_twins.contains(&t)) {
+                continue;
+            }
             let here = placement(s, &x, &calibration);
             let group = joint
                 .as_ref()
@@ -1096,8 +1143,10 @@ impl Slam {
             let var = self.graph.add_variable(here.at.as_slice());
             let mut group = group;
             group.sort_unstable_by(|a, b| b.cmp(a));
+            let mut settled: Vec<(u32, usize)> = s.twin.into_iter().collect();
             for ci in group {
                 let c = self.candidates.remove(ci);
+                settled.extend(c.sighting.twin);
                 self.graph.add_landmark_factor(
                     self.poses[c.pose].var,
                     var,
@@ -1120,6 +1169,10 @@ impl Slam {
                 kind: s.kind,
                 sightings: u32::try_from(views).unwrap_or(u32::MAX),
             });
+            // The other readings of the regions now settled are no longer candidates.
+            self.candidates
+                .retain(|c| c.sighting.twin.is_none_or(|t| !settled.contains(&t)));
+            admitted_twins.extend(settled);
             admitted += 1;
         }
         admitted
@@ -1575,6 +1628,7 @@ mod tests {
                 z,
                 sigma,
                 certain: true,
+                twin: None,
                 after: Vec::new(),
             })
         });
@@ -1585,6 +1639,7 @@ mod tests {
                 z,
                 sigma,
                 certain: true,
+                twin: None,
                 after: Vec::new(),
             })
         });
@@ -1592,11 +1647,12 @@ mod tests {
     }
 
     /// Drives along the corridor in 0.5 m legs, odometry 3 % long with 2°/m of drift, a sweep at
-    /// each stop; returns the estimates and the true poses.
+    /// each stop, whose sightings `look` makes from the stop's index and what is [`seen`] there;
+    /// returns the estimates and the true poses.
     fn tour(
         slam: &mut Slam,
         legs: usize,
-        extra: impl Fn(usize) -> Vec<Sighting>,
+        look: impl Fn(usize, Vec<Sighting>) -> Vec<Sighting>,
     ) -> Vec<(SweepEstimate, Vector3<f64>)> {
         let (a, b) = (0.03, 2.0_f64.to_radians());
         let mut truth = Vector3::<f64>::zeros();
@@ -1618,8 +1674,7 @@ mod tests {
             } else {
                 slam.push_odometry(stamp, Isometry2::identity());
             }
-            let mut sightings = seen(&truth);
-            sightings.extend(extra(k));
+            let sightings = look(k, seen(&truth));
             let odometry = Isometry2::new(Vector2::new(odo.x, odo.y), odo.z);
             let estimate = slam.add_sweep(k as u32, stamp, odometry, &sightings, &[], false);
             out.push((estimate, truth));
@@ -1683,7 +1738,7 @@ mod tests {
     #[test]
     fn landmarks_need_two_viewpoints_and_then_hold_the_pose_against_a_drifting_odometry() {
         let mut slam = Slam::new(SlamConfig::default()).unwrap();
-        let run = tour(&mut slam, 12, |_| Vec::new());
+        let run = tour(&mut slam, 12, |_, seen| seen);
         // The first sweep has nothing to match: its sightings wait for a second viewpoint.
         assert_eq!(run[0].0.state, FixState::NoLandmarks);
         assert!(slam.landmarks().len() >= 5, "{:?}", slam.landmarks());
@@ -1826,6 +1881,7 @@ mod tests {
                 z: Vector2::new(5.0, 0.0),
                 sigma,
                 certain,
+                twin: None,
                 after: Vec::new(),
             },
         }
@@ -1850,6 +1906,7 @@ mod tests {
             z,
             sigma,
             certain,
+            twin: None,
             after: Vec::new(),
         };
         slam.admit(1, &[sighting])
@@ -1899,6 +1956,7 @@ mod tests {
                 z: Vector2::new(distance, 0.0),
                 sigma,
                 certain: false,
+                twin: None,
                 after: Vec::new(),
             };
             slam.candidates.push(end_wall_from_the_anchor(sigma, false));
@@ -1940,6 +1998,7 @@ mod tests {
             z: Vector2::new(3.0, 0.0),
             sigma,
             certain: true,
+            twin: None,
             after: Vec::new(),
         };
         slam.seen_on_the_move(&mut wall, &placed, &steps);
@@ -1994,6 +2053,7 @@ mod tests {
                 z: Vector2::new(4.5, 0.0),
                 sigma,
                 certain: second_certain,
+                twin: None,
                 after: Vec::new(),
             };
             slam.admit(1, &[sighting])
@@ -2013,14 +2073,14 @@ mod tests {
             z: Vector2::new(0.8, 0.3),
             sigma: Vector2::new(0.01, 0.02),
             certain: true,
+            twin: None,
             after: Vec::new(),
         };
-        tour(&mut slam, 8, |k| {
+        tour(&mut slam, 8, |k, mut seen| {
             if k == 4 {
-                vec![phantom.clone()]
-            } else {
-                Vec::new()
+                seen.push(phantom.clone());
             }
+            seen
         });
         assert_eq!(
             slam.landmarks()
@@ -2033,10 +2093,52 @@ mod tests {
         );
     }
 
+    /// Near the sensor a post's region is as wide as a wall's, and one viewpoint cannot tell
+    /// them apart: every side wall and post of the corridor sighted only so, as a point and as
+    /// a wall at once (twins), becomes the landmark its viewpoints agree on. The side walls are
+    /// walls and the posts points, none of them twice, and the tour stays on course.
+    #[test]
+    fn a_region_either_a_point_or_a_wall_becomes_what_its_viewpoints_agree_on() {
+        let mut slam = Slam::new(SlamConfig::default()).unwrap();
+        let run = tour(&mut slam, 12, |k, seen| {
+            seen.into_iter()
+                .enumerate()
+                .flat_map(|(region, s)| {
+                    let side_wall = s.kind == LandmarkKind::Line && s.z.x < 1.0;
+                    if !side_wall && s.kind == LandmarkKind::Line {
+                        return vec![s];
+                    }
+                    let twin = Some((k as u32, region));
+                    [LandmarkKind::Point, LandmarkKind::Line]
+                        .into_iter()
+                        .map(|kind| Sighting {
+                            kind,
+                            twin,
+                            ..s.clone()
+                        })
+                        .collect()
+                })
+                .collect()
+        });
+        let landmarks = slam.landmarks();
+        let count = |kind| landmarks.iter().filter(|l| l.kind == kind).count();
+        // The two side walls and the two end walls, and the three posts.
+        assert_eq!(count(LandmarkKind::Line), 4, "{landmarks:?}");
+        assert_eq!(count(LandmarkKind::Point), 3, "{landmarks:?}");
+        for l in landmarks.iter().filter(|l| l.kind == LandmarkKind::Point) {
+            let at = |&(x, y): &(f64, f64)| (l.mean - Vector2::new(x, y)).norm() < 0.05;
+            assert!(POSTS.iter().any(at), "{l:?} is no post");
+        }
+        for (e, truth) in &run {
+            let (metres, degrees) = error(e, truth);
+            assert!(metres < 0.05 && degrees < 2.0, "{metres} m, {degrees}°");
+        }
+    }
+
     #[test]
     fn sightings_from_a_wrong_place_do_not_drag_the_pose() {
         let mut slam = Slam::new(SlamConfig::default()).unwrap();
-        let run = tour(&mut slam, 6, |_| Vec::new());
+        let run = tour(&mut slam, 6, |_, seen| seen);
         // The corridor as seen from 30 cm further along than the robot is: the end walls and
         // posts fail the gate (the side walls fit either way); the pose stays where it is.
         let last = run.last().unwrap().0;
@@ -2060,7 +2162,7 @@ mod tests {
             ..SlamConfig::default()
         };
         let mut slam = Slam::new(cfg).unwrap();
-        let run = tour(&mut slam, 3, |_| Vec::new());
+        let run = tour(&mut slam, 3, |_, seen| seen);
         let refused = run
             .iter()
             .filter(|(e, _)| e.state == FixState::Refused)
