@@ -630,6 +630,22 @@ mod tests {
         assert!(o.whole, "both edges are the cone's: {o:?}");
     }
 
+    /// Near the sensor a wall's region is as wide as a post's: one sweep cannot tell them, and
+    /// says so; farther off it can.
+    #[test]
+    fn a_region_as_wide_as_a_post_and_a_wall_is_a_point_that_may_be_a_plane() {
+        let near = cone_sweep(-45.75, 62, &[(10.0, 28.0, 0.5)]);
+        let (rcds, c) = classified(-45.75, &near);
+        assert_eq!(c.classes, [Class::Point], "{rcds:?}");
+        assert!(c.observations[0].also_plane, "{:?}", c.observations);
+        let far = cone_sweep(-45.75, 62, &[(10.0, 28.0, 1.2)]);
+        let (_, c) = classified(-45.75, &far);
+        assert!(!c.observations[0].also_plane, "{:?}", c.observations);
+        let post = cone_sweep(-45.75, 62, &[(2.0, 13.4, 0.975)]);
+        let (_, c) = classified(-45.75, &post);
+        assert!(!c.observations[0].also_plane, "{:?}", c.observations);
+    }
+
     #[test]
     fn with_a_narrow_beam_a_corner_as_wide_as_a_wall_is_found_from_its_walls() {
         // An HC-SR04-like beam (round trip 6 dB down at 6°): a wall 1.2 m away is heard within
