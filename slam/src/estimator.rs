@@ -21,6 +21,12 @@
 //!    of freedom, the pair with the largest individual distance is dropped. A landmark seen again
 //!    after a loop is found here, with the covariance the loop has grown: that is the loop
 //!    closure, and the solve that follows carries it back along the loop.
+//!
+//!    A region as wide as both a post's cone and a wall's (near the sensor, or with a narrow
+//!    cut-off; [`sonar_features::Observation::also_plane`]) is sighted twice, as a point and as
+//!    a wall (twins): the wall is kept when both match, and a twin matched or admitted takes
+//!    the other out of the sweep's sightings and of the candidates. Seen from several places a
+//!    wall's twins agree as a wall (its foot moves along it) and a post's as a point.
 //! 5. **Admission.** An observation matched to no landmark waits as a candidate; a later
 //!    observation of the same kind from another viewpoint (at least
 //!    [`SlamConfig::min_baseline_m`] or [`SlamConfig::min_baseline_deg`] away) that places the
