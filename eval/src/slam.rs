@@ -1096,6 +1096,28 @@ mod tests {
         assert_eq!(estimates[0].state, FixState::NoLandmarks);
     }
 
+    /// A tour heard through a sensor profile is captured with that profile's head: the `nxt`'s
+    /// two pings per 6° reading and 2.54 m reach, not the paper head's four and 4 m.
+    #[test]
+    fn a_tour_through_a_profile_is_heard_by_its_head() {
+        let (mut scene, _) = Family::Hallway.scene(1).unwrap();
+        scene.set_profile(sonar_sim::SensorProfile::Nxt);
+        let tour = capture_tour(
+            scene.clone(),
+            Scan::for_scene(&scene),
+            1.0,
+            OdometryLevel::MEDIUM.params(1),
+            POSE_RATE_HZ,
+            1,
+        )
+        .unwrap();
+        let readings = &tour.capture.readings;
+        assert!(!readings.is_empty());
+        for r in readings {
+            assert_eq!((r.ping_count, r.max_range_m), (2, 2.54), "{r:?}");
+        }
+    }
+
     /// A driven hallway's second sweep (layout 35, seed 3), taken while the robot turns 90° into
     /// the second leg against the head, read at the true poses: the end wall ahead, 1.88 m from
     /// where the sweep began, is found once and square on. (A normal 4° off once gave it a second
