@@ -59,13 +59,13 @@ use anyhow::{Context, Result, bail};
 use nalgebra::{Isometry2, Point2, Vector2};
 use sonar_common::ipc::Reading;
 use sonar_common::sensor::SensorConfig;
-use sonar_features::{EchoPhysics, Feature, FeatureConfig, FeatureKind, FeatureMap, Sweep};
+use sonar_features::{Feature, FeatureKind, FeatureMap, Sweep};
 use sonar_fusion::{FusionConfig, FusionSection, Mapper, Observation, Preset};
 use sonar_sim::geometry::{distance_to_segment, segments_intersect};
 use sonar_sim::{Pose, Scene, SensorProfile, Vec2, Wall};
 use tracing::info;
 
-use crate::features::{MATCH_M, PLANE_MATCH_DEG, Truth, feature_physics, score};
+use crate::features::{MATCH_M, PLANE_MATCH_DEG, Truth, scene_feature_config, score};
 use crate::image::{self, Canvas, Window};
 use crate::metrics::{MapView, quantile};
 use crate::pipeline::{Head, Scan, capture_with, probability_view};
@@ -757,14 +757,6 @@ impl Expected {
 /// The feature pipeline's defaults with the head's own geometry (its step between pings, its
 /// range limits) and its sensor's beam (`echo`), as a robot builder would configure it for that
 /// sensor.
-fn feature_config(sensor: SensorConfig, echo: EchoPhysics) -> FeatureConfig {
-    FeatureConfig {
-        sensor,
-        echo,
-        ..FeatureConfig::default()
-    }
-}
-
 /// Merges `readings` (one viewpoint, several sweeps) into `map`, each sweep taken at `pose`.
 fn merge_sweeps(map: &mut FeatureMap, readings: &[Reading], pose: &Isometry2<f64>) {
     let cfg = *map.config();
@@ -773,15 +765,14 @@ fn merge_sweeps(map: &mut FeatureMap, readings: &[Reading], pose: &Isometry2<f64
     }
 }
 
-/// Runs the features on `readings` (one viewpoint, in its frame: `view_scene`, heard by a head
-/// of geometry `sensor`) and scores them; with what the viewpoint was expected to find.
+/// Runs the features on `readings` (one viewpoint, in its frame: `view_scene`, heard by the
+/// head of its sensor profile) and scores them; with what the viewpoint was expected to find.
 pub fn score_features(
     view_scene: &Scene,
     readings: &[Reading],
-    sensor: SensorConfig,
 ) -> Result<(FeatureScore, Expected)> {
-    let max_range_m = f64::from(sensor.max_range_m);
-    let cfg = feature_config(sensor, feature_physics(&view_scene.echo));
+    let cfg = scene_feature_config(view_scene);
+    let max_range_m = f64::from(cfg.sensor.max_range_m);
     let mut map = FeatureMap::new(cfg).context("setting up the feature map")?;
     merge_sweeps(&mut map, readings, &Isometry2::identity());
     let truth = Truth::of(view_scene, Scan::Full);
@@ -1017,7 +1008,7 @@ pub fn run_scene(
     // Per fusion, the samples drawn at the last viewpoint count scored.
     let mut drawn_before: Vec<Option<Vec<bool>>> = vec![None; settings.fusion.len()];
     let mut features = Vec::new();
-    let cfg = feature_config(head.sensor, feature_physics(&scene.echo));
+    let cfg = scene_feature_config(&scene);
     let mut scene_map = FeatureMap::new(cfg).context("setting up the scene's feature map")?;
     let mut scene_expected = Expected::default();
     for (k, &view) in views.iter().enumerate() {
@@ -1030,8 +1021,7 @@ pub fn run_scene(
             mix(seed, index, k),
         )
         .with_context(|| format!("scene {} viewpoint {}", scene.name, k + 1))?;
-        let (view_features, expected) =
-            score_features(&view_scene, &capture.readings, head.sensor)?;
+        let (view_features, expected) = score_features(&view_scene, &capture.readings)?;
         features.push(view_features);
         scene_expected = scene_expected.or(&expected);
         let true_pose = Isometry2::new(Vector2::new(view.at.x, view.at.y), view.heading_rad);
