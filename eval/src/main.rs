@@ -519,6 +519,7 @@ mod tests {
             a.slam_odometry.0,
             [slam::OdometryLevel::MEDIUM, slam::OdometryLevel::POOR]
         );
+        assert_eq!(a.slam_profiles, [suite::ProfileChoice(None)]);
         let a = Args::try_parse_from([
             "sonar-eval",
             "--slam",
@@ -526,11 +527,24 @@ mod tests {
             "loop, office",
             "--slam-odometry",
             "good",
+            "--slam-profiles",
+            "nxt,default",
         ])
         .unwrap();
+        assert_eq!(
+            a.slam_profiles,
+            [
+                suite::ProfileChoice(Some(sonar_sim::SensorProfile::Nxt)),
+                suite::ProfileChoice(None)
+            ]
+        );
         assert_eq!(a.slam_tours.0, [slam::Family::Loop, slam::Family::Office]);
         assert_eq!(a.slam_odometry.0, [slam::OdometryLevel::GOOD]);
-        for bad in [["--slam-tours", "maze"], ["--slam-odometry", "perfect"]] {
+        for bad in [
+            ["--slam-tours", "maze"],
+            ["--slam-odometry", "perfect"],
+            ["--slam-profiles", "srf04"],
+        ] {
             assert!(Args::try_parse_from(["sonar-eval", "--slam", bad[0], bad[1]]).is_err());
         }
     }
