@@ -738,7 +738,6 @@ fn median(p: &[Placed], heading: bool) -> Option<f64> {
     .map(|s| s.median)
 }
 
-/// "median / worst" over runs of a per-run figure.
 /// The runs of one tour heard through one sensor at one odometry level.
 fn runs_of(runs: &[Run], tour: Tour, level: OdometryLevel) -> Vec<&Run> {
     runs.iter()
@@ -776,6 +775,7 @@ fn over_runs_lowest_worst(
     over_runs(values.into_iter().map(|v| -v), -scale, digits)
 }
 
+/// "median / worst" over runs of a per-run figure.
 fn over_runs(values: impl IntoIterator<Item = f64>, scale: f64, digits: usize) -> String {
     Spread::of(values).map_or("–".into(), |s| {
         format!(
