@@ -124,11 +124,8 @@ fn foxglove_studio_in_chromium_opens_a_recording_and_the_live_server() {
         report.contains("recording: no error in the 3D panel's settings"),
         "{report}"
     );
-    // Live, the one known complaint at connection may stand (docs/foxglove.md); the driver
-    // failed on any other.
     assert!(
-        report.contains("live: no error in the 3D panel's settings")
-            || report.contains("live: known error at connection"),
+        report.contains("live: no error in the 3D panel's settings"),
         "{report}"
     );
     for shot in ["foxglove-recording.png", "foxglove-live.png"] {

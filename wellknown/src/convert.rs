@@ -157,37 +157,32 @@ impl WellKnown {
     }
 
     /// A reading: the previous sweep's scan when it begins a new sweep, and its beam unless one
-    /// was given less than [`BEAM_PERIOD_NS`] before (by the readings' stamps), after the
+    /// was given less than [`BEAM_PERIOD_NS`] before (by the readings' stamps); either after the
     /// sensor's latest transforms (`map → odom` and `odom → sonar` as they were given out) on
-    /// Foxglove's channel: a live client that connected since the
-    /// last transform (a pose's come at most 20 a second, a fixed head's with each map) would
-    /// otherwise get a beam in frame `sonar` before any transform, a complaint Foxglove keeps.
+    /// Foxglove's channel. A live client that connected since the last transform (a pose's come at
+    /// most 20 a second, a fixed head's with each map) would otherwise get a scan or a beam in
+    /// frame `sonar` before any transform: Foxglove 1.48 keeps that complaint on a scan for good
+    /// (its point history adds the error and never removes it).
     pub fn reading(&mut self, reading: &Reading) -> Vec<Output> {
-        let mut out = match self.scans.push(reading) {
-            Some(scan) => self.scan(&scan),
-            None => Vec::new(),
-        };
+        let scan = self.scans.push(reading);
         let stamp_ns = reading.host_stamp_ns;
-        let due = self
+        let beam_due = self
             .last_beam_ns
             .is_none_or(|last| stamp_ns < last || stamp_ns >= last.saturating_add(BEAM_PERIOD_NS));
-        if due {
+        let mut out = Vec::new();
+        if scan.is_none() && !beam_due {
+            return out;
+        }
+        // Foxglove's channel only: the same transforms again on ROS 2's `/tf` are what tf2 warns
+        // about (a repeated stamp).
+        if let Some((sensor, correction)) = self.sensor_as_given_out(stamp_ns) {
+            out.extend(foxglove_transforms(sensor, correction));
+        }
+        if let Some(scan) = scan {
+            out.extend(self.scan(&scan));
+        }
+        if beam_due {
             self.last_beam_ns = Some(stamp_ns);
-            let sensor = match (self.last_sensor, self.pose_seen) {
-                (Some(sent), _) => Some(sent),
-                // A fixed head before its first map: at the origin, where the fusion places it.
-                (None, false) => Some((
-                    Transform::sensor(stamp_ns, 0.0, 0.0, 0.0),
-                    Correction::IDENTITY,
-                )),
-                // A moving one before its first pose: nowhere known yet.
-                (None, true) => None,
-            };
-            // Foxglove's channel only: the same transforms again on ROS 2's `/tf` are what tf2
-            // warns about (a repeated stamp).
-            if let Some((sensor, correction)) = sensor {
-                out.extend(foxglove_transforms(sensor, correction));
-            }
             out.push(Output {
                 channel: Channel::FoxgloveBeam,
                 stamp_ns,
@@ -195,6 +190,20 @@ impl WellKnown {
             });
         }
         out
+    }
+
+    /// The sensor's transform and correction as last given out; a fixed head before its first
+    /// map at the origin (where the fusion places it) as of `stamp_ns`; a moving one before its
+    /// first pose nowhere known yet.
+    fn sensor_as_given_out(&self, stamp_ns: u64) -> Option<(Transform, Correction)> {
+        match (self.last_sensor, self.pose_seen) {
+            (Some(sent), _) => Some(sent),
+            (None, false) => Some((
+                Transform::sensor(stamp_ns, 0.0, 0.0, 0.0),
+                Correction::IDENTITY,
+            )),
+            (None, true) => None,
+        }
     }
 
     /// A pose of the sensor: its transform, unless one was given less than 50 ms before.

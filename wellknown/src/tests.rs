@@ -202,9 +202,18 @@ fn a_sweep_becomes_a_scan_when_the_next_begins_and_the_last_at_the_end() {
     );
     assert_eq!(t.translation.unwrap().x, 0.0);
     assert!(w.reading(&reading(1, 6.0)).is_empty());
+    // A scan, too, comes after the sensor's transforms: a live client that connected since gets
+    // them first.
     let out = w.reading(&reading(2, 6.0));
-    assert_eq!(channels(&out), [Channel::FoxgloveScan]);
-    let scan = LaserScan::decode(&out[0].data[..]).unwrap();
+    assert_eq!(
+        channels(&out),
+        [
+            Channel::FoxgloveTransform,
+            Channel::FoxgloveTransform,
+            Channel::FoxgloveScan
+        ]
+    );
+    let scan = LaserScan::decode(&out[2].data[..]).unwrap();
     assert_eq!(scan.frame_id, SENSOR_FRAME);
     assert_eq!(scan.ranges, [f64::from(1.0f32); 2]);
     assert!((scan.end_angle - 6f64.to_radians()).abs() < 1e-9);
