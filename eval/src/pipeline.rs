@@ -273,8 +273,9 @@ fn run_device(
         bail!("the device refused the scan {scan:?}: {err}");
     }
 
-    // Then the device's actions (one motor step or ping each) until `until`. A full sweep is
-    // about 400 actions, a metre of a tour under 2 000 (5 s driving, a sweep standing); the bound
+    // Then the device's actions (one motor step, ping or the rest of a ping's interval each)
+    // until `until`. A full sweep is about 600 actions, a metre of a tour under 2 500 (5 s
+    // driving, a sweep standing); the bound
     // only guards against a device that never ends a sweep or a robot that never gets there.
     let limit = match until {
         Until::Sweeps(sweeps) => 10_000 * u64::from(sweeps),

@@ -109,6 +109,9 @@ pub struct Firmware<T> {
     /// Readings sent since the simulator started, across resets.
     readings_sent: u64,
     echoes: [u32; MAX_PINGS_PER_READING],
+    /// What is left of the ping interval after the last echo came in: the head waits it out
+    /// before its next action, so that the burst dies away.
+    holdoff_us: u64,
     commands: u64,
     rejected_lines: u64,
     version: ProtocolVersion,
@@ -145,6 +148,7 @@ impl<T: Transducer> Firmware<T> {
             last_sweep: 0,
             seq: 0,
             boot_us: 0,
+            holdoff_us: 0,
             readings_sent: 0,
             echoes: [0; MAX_PINGS_PER_READING],
             commands: 0,
@@ -288,6 +292,7 @@ impl<T: Transducer> Firmware<T> {
         self.last_sweep = 0;
         self.seq = 0;
         self.echoes = [0; MAX_PINGS_PER_READING];
+        self.holdoff_us = 0;
         self.boot_us = self.now_us;
         self.power_on(out);
     }
@@ -469,7 +474,14 @@ impl<T: Transducer> Firmware<T> {
     /// returns false when idle. Messages carry the time at the end of the action.
     pub fn act(&mut self, out: &mut Vec<DeviceMessage>) -> bool {
         match self.activity {
-            Activity::Idle | Activity::Fault => return false,
+            Activity::Idle | Activity::Fault => {
+                self.holdoff_us = 0;
+                return false;
+            }
+            _ if self.holdoff_us > 0 => {
+                self.now_us += std::mem::take(&mut self.holdoff_us);
+                return true;
+            }
             Activity::Travel {
                 scan,
                 target,
@@ -500,8 +512,20 @@ impl<T: Transducer> Firmware<T> {
                     self.step_toward(target, out);
                     return true;
                 }
-                self.echoes[ping] = self.transducer.ping(self.angle_deg());
-                self.now_us += u64::from(self.timing.ping_interval_ms) * 1000;
+                let echo_us = self.transducer.ping(self.angle_deg());
+                self.echoes[ping] = echo_us;
+                // The echo is in when the echo line falls (its time of flight, or the sensor's
+                // time-out without one): then the firmware sends a reading whose last ping this
+                // was, stamped with its clock. The rest of the ping interval is waited out after.
+                let interval_us = u64::from(self.timing.ping_interval_ms) * 1000;
+                let line_us = if echo_us == 0 {
+                    self.cfg.echo_timeout_us
+                } else {
+                    echo_us
+                };
+                let heard_us = u64::from(line_us).min(interval_us);
+                self.now_us += heard_us;
+                self.holdoff_us = interval_us - heard_us;
                 let pings = usize::from(self.cfg.pings_per_reading);
                 if ping + 1 < pings {
                     self.activity = Activity::Sweep {
@@ -901,9 +925,9 @@ mod tests {
         }
         let all = readings(&msgs);
         assert!(all.iter().enumerate().all(|(i, r)| r.seq == i as u32));
-        // Half a step off the switch, then 3 steps and 4 pings: 5 + 30 + 200 ms; then 4 steps and
-        // 4 pings per reading.
-        assert_eq!(all[0].time_ms, 235);
+        // Half a step off the switch, then 3 steps and 4 pings, the reading sent as its last
+        // echo (1 m: 5.8 ms) is in: 5 + 30 + 3 × 50 + 5.8 ms; then 4 steps and 4 pings per reading.
+        assert_eq!(all[0].time_ms, 190);
         assert!(
             all[..50]
                 .windows(2)
@@ -949,7 +973,7 @@ mod tests {
         // Counter and ms clock from 0 again, as the first reading after power-on.
         assert_eq!(
             (r.seq, r.sweep, r.angle_cdeg, r.time_ms),
-            (0, 1, -14700, 235)
+            (0, 1, -14700, 190)
         );
         assert_eq!(fw.readings(), 3, "the simulator's count goes on");
 

@@ -71,10 +71,13 @@
 //! - Commands are obeyed between actions (after the current motor step or ping), as the PIC's main
 //!   loop would; a reply comes at most one ping (50 ms simulated) late.
 //! - `RD,<seq>,<time_ms>,<sweep>,<dir>,<centre_cdeg>,<P>,<e1>,…,<eP>`: `seq` from 0, +1 per `RD`
-//!   for the life of the process; `time_ms` the simulated clock when the last ping ended; `P` pings
+//!   for the life of the process; `time_ms` the simulated clock when the last ping's echo came in
+//!   (its time of flight after the trigger, or the sensor's time-out without one), when the line is
+//!   sent, as the firmware does (`firmware/src/motion.c`, `head_ping_done`); `P` pings
 //!   (4), taken at the P stepper positions of the reading, centre + (j − (P−1)/2)·step, in the order
 //!   of motion (−2.25°, −0.75°, +0.75°, +2.25° going CCW); echo times in µs, 0 = no echo.
-//! - Timing ([`Timing`]): a ping takes 50 ms (echo wait included), a 1.5° step 10 ms. The limit
+//! - Timing ([`Timing`]): a ping takes 50 ms (echo wait included: the rest of it is waited out
+//!   after the reading is sent), a 1.5° step 10 ms. The limit
 //!   switches sit half a step beyond the outermost ping positions. A full sweep takes
 //!   50 × (4 × 10 + 4 × 50) ms ≈ 12 s.
 //!
