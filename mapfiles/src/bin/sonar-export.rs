@@ -1202,8 +1202,9 @@ mod tests {
         );
         // Two sweeps: 2 maps, 2 scans and 2 transforms (on Foxglove's channel each a pair,
         // map -> odom and odom -> sonar; on ROS 2's one message holding both), each with its
-        // ROS 2 message; one beam, after the sensor's transforms on Foxglove's channel.
-        assert_eq!(mcap.finish().unwrap(), 17);
+        // ROS 2 message; one beam and the scan that ends the first sweep, each after the
+        // sensor's transforms on Foxglove's channel.
+        assert_eq!(mcap.finish().unwrap(), 19);
         // The ROS 2 half went to the bag, stamped with the recording's times: its last message
         // (start + duration) is the recording's last, not the time of the export.
         let yaml = std::fs::read_to_string(bag_dir.join("metadata.yaml")).unwrap();
