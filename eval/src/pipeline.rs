@@ -275,8 +275,8 @@ fn run_device(
 
     // Then the device's actions (one motor step, ping or the rest of a ping's interval each)
     // until `until`. A full sweep is about 600 actions, a metre of a tour under 2 500 (5 s
-    // driving, a sweep standing); the bound
-    // only guards against a device that never ends a sweep or a robot that never gets there.
+    // driving, a sweep standing); the bound only guards against a device that never ends a
+    // sweep or a robot that never gets there.
     let limit = match until {
         Until::Sweeps(sweeps) => 10_000 * u64::from(sweeps),
         Until::Driven(metres) => 10_000 + (metres * 4_000.0) as u64,
