@@ -20,8 +20,12 @@
 //! stepper's grid (turned as a whole), so the widths of the regions of constant depth keep the
 //! meaning the classification gives them.
 //!
-//! A reading's pose is the one at its stamp, its last ping's instant; its earlier pings were taken
-//! one ping interval apart before it, while the robot moved on. Each ping is placed at the pose of
+//! A reading's pose is the one at its stamp, its last ping's instant (the head stamps a reading
+//! when its last echo is in, the echo's time of flight after the ping: at most 23 ms at 4 m, and
+//! the sensor's time-out without an echo; a stamp a whole ping interval late put every ping on
+//! the move where the robot was 50–60 ms later, `docs/results.md`, "Readings stamped when their
+//! echo is in"); its earlier pings were taken one ping interval apart before it, while the robot
+//! moved on. Each ping is placed at the pose of
 //! its own instant, interpolated between the readings' poses ([`ReadingPoses`]): a robot turning at
 //! 45°/s turns 2.7° between two pings (60 ms), so a reading's first ping taken at its last one's
 //! pose would be 8° off where it was aimed, and the edge of a wall's region with it.
