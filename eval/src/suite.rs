@@ -754,9 +754,6 @@ impl Expected {
     }
 }
 
-/// The feature pipeline's defaults with the head's own geometry (its step between pings, its
-/// range limits) and its sensor's beam (`echo`), as a robot builder would configure it for that
-/// sensor.
 /// Merges `readings` (one viewpoint, several sweeps) into `map`, each sweep taken at `pose`.
 fn merge_sweeps(map: &mut FeatureMap, readings: &[Reading], pose: &Isometry2<f64>) {
     let cfg = *map.config();
