@@ -333,7 +333,11 @@ pub fn fuse_tour(
     let mut readings = Vec::with_capacity(tour.capture.readings.len());
     let mut poses = tour.poses.iter().peekable();
     for r in &tour.capture.readings {
-        while let Some(s) = poses.next_if(|s| s.t_us * 1000 <= r.host_stamp_ns) {
+        // As the process does: every pose up to the reading's stamp, and the first after it, for
+        // which the fusion waits to place the reading by interpolation (`docs/fusion.md`).
+        while let Some(s) = poses.next_if(|s| {
+            s.t_us * 1000 <= r.host_stamp_ns || engine.awaits_pose(r.host_stamp_ns)
+        }) {
             engine
                 .set_pose(&wire(s, placement))
                 .with_context(|| format!("pose at {} µs refused", s.t_us))?;
