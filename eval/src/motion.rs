@@ -335,9 +335,9 @@ pub fn fuse_tour(
     for r in &tour.capture.readings {
         // As the process does: every pose up to the reading's stamp, and the first after it, for
         // which the fusion waits to place the reading by interpolation (`docs/fusion.md`).
-        while let Some(s) = poses.next_if(|s| {
-            s.t_us * 1000 <= r.host_stamp_ns || engine.awaits_pose(r.host_stamp_ns)
-        }) {
+        while let Some(s) = poses
+            .next_if(|s| s.t_us * 1000 <= r.host_stamp_ns || engine.awaits_pose(r.host_stamp_ns))
+        {
             engine
                 .set_pose(&wire(s, placement))
                 .with_context(|| format!("pose at {} µs refused", s.t_us))?;

@@ -624,10 +624,19 @@ impl Mapper {
             return 0;
         }
         let mut cells = 0;
+        // The lobe within which a reflector may have answered: the widest learnt, else the beam.
+        let lobe = regions
+            .lobe
+            .widest_learnt()
+            .unwrap_or(self.config.sensor.limits().half_angle);
+        let tolerance = regions.tolerance;
         regions.weak.kept.retain_mut(|together| {
             let looked_at = |p: &Placed| if all { p.heard } else { p.unchecked };
+            let beam = &together.placed[0].beam;
             let withdrawn = together.placed.iter().any(|p| looked_at(p) > 0)
-                && self.slanted_wall_in_front(&model, &together.placed[0].beam);
+                && (self.slanted_wall_in_front(&model, beam)
+                    || (model.region_weak_echo_explained
+                        && self.explained_off_axis(&model, lobe, tolerance, beam)));
             for placed in &mut together.placed {
                 if withdrawn {
                     // Log-odds add: one weak echo as strong as its hearings stands for them.
@@ -972,6 +981,63 @@ impl Mapper {
     /// Whether the grid holds a cell on `beam`'s axis in front of its echo's band that is occupied
     /// (p > [`WITHDRAW_ABOVE`]) and was heard from a bearing at least [`WITHDRAW_INCIDENCE_DEG`]
     /// off the axis: a wall the axis meets at a slant, which could not answer the reading.
+    /// Whether a wall drawn (a cell above [`WITHDRAW_ABOVE`]) within `lobe` of `beam`'s axis at
+    /// its echo's range (within the depth tolerance and band) explains the echo, and no such wall
+    /// runs through the echo on the axis: the reading heard that wall at its foot, off its axis,
+    /// so what its weak echo drew on the axis lies in front of that wall or beyond its end. Each
+    /// wall cell stands for the line through it square to the bearing it was heard from.
+    fn explained_off_axis(
+        &self,
+        model: &SmoothModel,
+        lobe: f32,
+        tolerance: DepthTolerance,
+        beam: &Beam,
+    ) -> bool {
+        let Some(range) = beam.echo else {
+            return false;
+        };
+        let depth = tolerance.at(range) + model.band(range);
+        let geometry = self.grid.geometry();
+        // Half a grid step apart, so that no cell of the sector is missed.
+        let step = 0.5 * geometry.resolution();
+        let axis = Vector2::new(beam.axis.cos(), beam.axis.sin());
+        // The annulus sector at the echo's range, sampled both ways.
+        let arcs = (2.0 * depth / step).ceil() as usize;
+        let rays = (2.0 * lobe * (range + depth) / step).ceil() as usize;
+        let mut off_line = false;
+        for j in 0..=rays {
+            let bearing = beam.axis - lobe + 2.0 * lobe * j as f32 / rays.max(1) as f32;
+            let direction = Vector2::new(bearing.cos(), bearing.sin());
+            for i in 0..=arcs {
+                let r = range - depth + 2.0 * depth * i as f32 / arcs.max(1) as f32;
+                let Some((x, y)) = geometry.cell_at((beam.position + direction * r).into()) else {
+                    continue;
+                };
+                // Most cells hold no wall: that test first, the cell's own place after.
+                if !self.grid.is_above(x, y, self.above_withdraw) {
+                    continue;
+                }
+                let to_cell = geometry.cell_centre(x, y).coords - beam.position;
+                let cell_bearing = to_cell.y.atan2(to_cell.x);
+                if (to_cell.norm() - range).abs() > depth
+                    || wrap_angle(cell_bearing - beam.axis).abs() > lobe
+                {
+                    continue;
+                }
+                let heard = self.grid.heard_from(x, y).unwrap_or(cell_bearing);
+                let normal = Vector2::new(heard.cos(), heard.sin());
+                // Where the axis meets the wall's line, as a range along it.
+                let across = normal.dot(&axis);
+                let meets = (across.abs() > f32::EPSILON).then(|| normal.dot(&to_cell) / across);
+                if meets.is_some_and(|t| (t - range).abs() <= depth) {
+                    return false;
+                }
+                off_line = true;
+            }
+        }
+        off_line
+    }
+
     fn slanted_wall_in_front(&self, model: &SmoothModel, beam: &Beam) -> bool {
         let min_incidence = WITHDRAW_INCIDENCE_DEG.to_radians();
         let grid = &self.grid;
@@ -2142,6 +2208,63 @@ mod tests {
             );
             assert!(beside.is_some_and(|p| p > 0.5), "{board_first}: {beside:?}");
         }
+    }
+
+    /// A wall square to the +x axis at x = 1 m, heard whole from the origin: readings −18°…18°
+    /// answered at its foot, 1 m away, none at ±24° (its lobe's edges).
+    fn hear_wall_square_to_the_x_axis(m: &mut Mapper) {
+        for k in -4i32..=4 {
+            let heard = k.abs() < 4;
+            m.update(&reading(6.0 * k as f32, heard.then_some(1.0)))
+                .unwrap();
+        }
+        m.close_region();
+    }
+
+    #[test]
+    fn a_weak_echo_a_wall_in_its_lobe_explains_is_taken_back_unless_it_lies_on_that_wall() {
+        // Weak echoes at 1 m on the axes −30°…30° (a region the scan's ends cut), then the wall
+        // at x = 1 m heard whole from the same place: it answers any reading whose lobe holds
+        // its foot at 1 m, so those echoes may all be its. Along an axis more than about 20° off
+        // the wall's perpendicular the wall lies farther than 1 m plus the depth tolerance and
+        // band (6.5 cm here): that axis's weak echo was drawn in front of the wall.
+        let mapper = |explained: bool| {
+            let mut m = region_mapper(crate::model::SmoothModel {
+                region_weak_echo_log_odds: 0.3,
+                region_weak_echo_withdrawn: true,
+                region_weak_echo_explained: explained,
+                ..Default::default()
+            });
+            hear_far_echo_across_the_scan(&mut m);
+            hear_wall_square_to_the_x_axis(&mut m);
+            m
+        };
+        let kept_axes = |m: &Mapper| {
+            let mut axes: Vec<i32> = m
+                .regions
+                .as_ref()
+                .unwrap()
+                .weak
+                .kept
+                .iter()
+                .map(|k| (k.placed[0].beam.axis / DEG).round() as i32)
+                .collect();
+            axes.sort_unstable();
+            axes
+        };
+        let (without, with) = (mapper(false), mapper(true));
+        assert_eq!(
+            kept_axes(&without),
+            (-5..=5).map(|k| 6 * k).collect::<Vec<_>>()
+        );
+        assert_eq!(kept_axes(&with), vec![-18, -12, -6, 0, 6, 12, 18]);
+        // The echo on the 30° axis, in front of the wall, is gone; without the check it stays
+        // (0.3, p = 0.57).
+        let (x, y) = ((30.0 * DEG).cos(), (30.0 * DEG).sin());
+        let kept = probability_at(&without, x, y);
+        assert!(kept.is_some_and(|p| p > 0.55), "{kept:?}");
+        let gone = probability_at(&with, x, y);
+        assert!(gone.is_some_and(|p| p < 0.51), "{gone:?}");
     }
 
     #[test]

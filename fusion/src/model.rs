@@ -611,6 +611,13 @@ pub struct SmoothModel {
     /// once the grid holds an occupied cell on its axis in front of it, a wall drawn after it
     /// that its axis would have met first (the echo came from off the axis, behind that wall).
     pub region_weak_echo_withdrawn: bool,
+    /// With `region_weak_echo_withdrawn`: a weak echo is also taken back once a wall drawn since
+    /// (a cell above what weak echoes make) lies in the lobe at the echo's range, within the
+    /// depth tolerance and band, and the axis does not meet that wall's line (square to the
+    /// bearing it was heard from) at the echo's range: the reading heard that wall at its foot,
+    /// off its axis, and the echo put on the axis lies in front of the wall or beyond its end.
+    /// A weak echo on the line of such a wall is kept (the wall may run on beyond what was drawn).
+    pub region_weak_echo_explained: bool,
     /// With weak echoes: how far across its axis each is drawn at its range, metres (its
     /// profile falls to nothing there, never wider than the occupied profile's
     /// ±`occupied_half_angle_deg`); 0: across the occupied profile. A weak echo is one reading of
@@ -706,6 +713,7 @@ impl Default for SmoothModel {
             region_corner_walls: false,
             region_weak_echo_log_odds: 0.0,
             region_weak_echo_withdrawn: false,
+            region_weak_echo_explained: false,
             region_weak_echo_half_width_m: 0.0,
             region_masked_free: false,
             region_small_cutters_free: false,
