@@ -42,6 +42,31 @@ const STRETCH_PIECE_M: f32 = 1.0;
 const VIEWPOINTS_KEPT: usize = 32;
 const VIEWPOINTS_APART_M: f32 = 0.25;
 
+/// A box (lower and upper corners, world metres) holding the sector of a lobe seen from
+/// `position`, `lobe` radians each side of `axis`, from `range` less `depth` to `range` plus
+/// `depth`: the square about the point at `range` on the axis that holds every point of it.
+fn lobe_box(
+    position: Vector2<f32>,
+    axis: f32,
+    range: f32,
+    lobe: f32,
+    depth: f32,
+) -> (Vector2<f32>, Vector2<f32>) {
+    let middle = position + Vector2::new(axis.cos(), axis.sin()) * range;
+    // The sector's farthest points from its middle are its corners.
+    let corner = |r: f32| Vector2::new(r * lobe.cos() - range, r * lobe.sin()).norm();
+    let reach = corner(range + depth)
+        .max(corner((range - depth).max(0.0)))
+        .max(depth);
+    let reach = Vector2::repeat(reach);
+    (middle - reach, middle + reach)
+}
+
+/// Whether two boxes (lower and upper corners) overlap.
+fn boxes_meet(a: (Vector2<f32>, Vector2<f32>), b: (Vector2<f32>, Vector2<f32>)) -> bool {
+    a.0.x <= b.1.x && b.0.x <= a.1.x && a.0.y <= b.1.y && b.0.y <= a.1.y
+}
+
 /// Which kernel fuses a reading into the grid. Both give the same grid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Kernel {
@@ -76,6 +101,10 @@ pub struct Mapper {
     pose: Isometry2<f32>,
     /// With echoes placed by region: the tolerance of a region's depth, and the open region.
     regions: Option<Regions>,
+    /// With `region_weak_echo_explained`: the boxes (lower and upper corners, world metres) of
+    /// the walls drawn since the weak echoes were last looked at, where a weak echo looked at
+    /// before can have become explained ([`Mapper::withdraw_weak_echoes`]).
+    walls_drawn: Vec<(Vector2<f32>, Vector2<f32>)>,
 }
 
 /// With echoes placed by region: the tracker, and the readings of the open region, whose free
@@ -288,6 +317,7 @@ impl Mapper {
             paper_arrays: PaperArrays::default(),
             readings: 0,
             pose: Isometry2::identity(),
+            walls_drawn: Vec::new(),
             regions: match &config.model {
                 ModelConfig::Smooth(m) => m.regions().map(|tolerance| Regions {
                     tolerance,
@@ -630,12 +660,24 @@ impl Mapper {
             .widest_learnt()
             .unwrap_or(self.config.sensor.limits().half_angle);
         let tolerance = regions.tolerance;
+        let walls_drawn = std::mem::take(&mut self.walls_drawn);
         regions.weak.kept.retain_mut(|together| {
             let looked_at = |p: &Placed| if all { p.heard } else { p.unchecked };
             let beam = &together.placed[0].beam;
+            // A set looked at before can have become explained only where a wall was drawn
+            // since; the scan of its lobe is the costly part (a moving robot keeps thousands).
+            let explainable = || {
+                together.placed.iter().any(|p| p.unchecked > 0)
+                    || beam.echo.is_some_and(|range| {
+                        let depth = tolerance.at(range) + model.band(range);
+                        let sector = lobe_box(beam.position, beam.axis, range, lobe, depth);
+                        walls_drawn.iter().any(|&drawn| boxes_meet(drawn, sector))
+                    })
+            };
             let withdrawn = together.placed.iter().any(|p| looked_at(p) > 0)
                 && (self.slanted_wall_in_front(&model, beam)
                     || (model.region_weak_echo_explained
+                        && explainable()
                         && self.explained_off_axis(&model, lobe, tolerance, beam)));
             for placed in &mut together.placed {
                 if withdrawn {
@@ -783,8 +825,30 @@ impl Mapper {
             max_range: self.config.sensor.limits().max_range,
             echo: Some(range),
         };
+        if sign > 0.0 && model.region_weak_echo_explained {
+            let band = model.band(range);
+            let end = |side: f32| {
+                let bearing = axis + side * half_angle;
+                position + Vector2::new(bearing.cos(), bearing.sin()) * (range / half_angle.cos())
+            };
+            let middle = position + Vector2::new(axis.cos(), axis.sin()) * range;
+            self.note_wall_drawn(&[end(-1.0), middle, end(1.0)], band);
+        }
         let evidence = model.region_echo(axis, range, half_angle, sign * readings);
         self.apply(&beam, &evidence, kernel)
+    }
+
+    /// Notes the box around `points`, widened by `margin`, as holding a wall drawn
+    /// ([`Self::walls_drawn`]).
+    fn note_wall_drawn(&mut self, points: &[Vector2<f32>], margin: f32) {
+        let margin = Vector2::new(margin, margin);
+        let lower = points
+            .iter()
+            .fold(Vector2::repeat(f32::INFINITY), |m, p| m.inf(p));
+        let upper = points
+            .iter()
+            .fold(Vector2::repeat(f32::NEG_INFINITY), |m, p| m.sup(p));
+        self.walls_drawn.push((lower - margin, upper + margin));
     }
 
     /// Fuses the stretches of wall [`Lines`] last wrote (of the kind `kind`), those readings did
@@ -998,8 +1062,9 @@ impl Mapper {
         };
         let depth = tolerance.at(range) + model.band(range);
         let geometry = self.grid.geometry();
-        // Half a grid step apart, so that no cell of the sector is missed.
-        let step = 0.5 * geometry.resolution();
+        // Apart by at most a band (a wall drawn is two bands thick, so every one crossing the
+        // sector is met) and at most two grid steps.
+        let step = (2.0 * geometry.resolution()).min(model.band(range));
         let axis = Vector2::new(beam.axis.cos(), beam.axis.sin());
         // The annulus sector at the echo's range, sampled both ways.
         let arcs = (2.0 * depth / step).ceil() as usize;
@@ -1144,6 +1209,11 @@ impl Mapper {
         sign: f32,
         kernel: Kernel,
     ) -> usize {
+        if sign > 0.0 && model.region_weak_echo_explained {
+            // The profile reaches past the piece's ends (1.5 times its angle, below).
+            let reach = 0.5 * (stretch.b - stretch.a).norm() + model.band(3.0);
+            self.note_wall_drawn(&[stretch.a, stretch.b], reach);
+        }
         let half_length = 0.5 * (stretch.b - stretch.a).norm();
         let widest = model.region_half_angle_deg.to_radians();
         let distance = (half_length / widest.tan()).clamp(0.5, 3.0);
@@ -1193,6 +1263,7 @@ impl Mapper {
         self.grid.clear();
         self.radar.clear();
         self.readings = 0;
+        self.walls_drawn.clear();
         if let Some(regions) = &mut self.regions {
             regions.tracker = RegionTracker::default();
             regions.waiting.clear();
@@ -2208,6 +2279,36 @@ mod tests {
             );
             assert!(beside.is_some_and(|p| p > 0.5), "{board_first}: {beside:?}");
         }
+    }
+
+    #[test]
+    fn a_lobe_box_holds_its_whole_sector() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        for _ in 0..200 {
+            let position = Vector2::new(rng.random_range(-3.0..3.0), rng.random_range(-3.0..3.0));
+            let axis: f32 = rng.random_range(-3.1..3.1);
+            let range: f32 = rng.random_range(0.05..4.0);
+            let lobe: f32 = rng.random_range(0.05..0.8);
+            let depth: f32 = rng.random_range(0.0..0.3);
+            let (lower, upper) = lobe_box(position, axis, range, lobe, depth);
+            for _ in 0..50 {
+                let r = (range + rng.random_range(-depth..=depth)).max(0.0);
+                let bearing = axis + rng.random_range(-lobe..=lobe);
+                let p = position + Vector2::new(bearing.cos(), bearing.sin()) * r;
+                let inside = (lower.x - 1e-4..=upper.x + 1e-4).contains(&p.x)
+                    && (lower.y - 1e-4..=upper.y + 1e-4).contains(&p.y);
+                assert!(inside, "{p:?} outside {lower:?}..{upper:?}");
+            }
+        }
+        let a = (Vector2::new(0.0, 0.0), Vector2::new(1.0, 1.0));
+        assert!(boxes_meet(
+            a,
+            (Vector2::new(1.0, 0.5), Vector2::new(2.0, 2.0))
+        ));
+        assert!(!boxes_meet(
+            a,
+            (Vector2::new(1.1, 0.5), Vector2::new(2.0, 2.0))
+        ));
     }
 
     /// A wall square to the +x axis at x = 1 m, heard whole from the origin: readings −18°…18°
