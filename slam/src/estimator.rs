@@ -1423,33 +1423,72 @@ fn innovation(
     })
 }
 
-/// σ of the odometry's systematic errors before any sweep: scale error, drift (rad per metre),
-/// turn error.
-/// The position covariance a heading error adds to second order, which a covariance linear at
-/// the estimate leaves out: with the heading off by `u·δ` at the fraction `u` of the way along
+/// The position covariance a heading error adds beyond first order, which a covariance linear
+/// at the estimate leaves out: with the heading off by `u·δ` at the fraction `u` of the way along
 /// `path` (the estimated positions from where the heading was last known to now; a drift per
-/// metre grows so), δ ~ N(0, `heading_var`), the position is off by
-/// Σ (R(u·δ) − I)·s over the path's steps s: to first order the lateral error the graph holds,
-/// to second order −½δ²·M with M = Σ u²·s (the path shortened as it bends), whose second moment
-/// E[¼δ⁴]·M·Mᵀ = ¾σ⁴·M·Mᵀ is returned. Along a straight path of length L, M = L/3 and the
-/// variance L²σ⁴/12: 0.7 m of σ for 20 m at σ = 20°, 4.4 m at 50°, where the linear ellipse
-/// left 20 m at 50° uncovered by as much (`docs/results.md`, issue 25).
+/// metre grows so), δ ~ N(0, `heading_var`), the position is off by Σ (R(u·δ) − I)·s over the
+/// path's steps s. Its first-order part, the lateral error, is the graph's; the rest (to second
+/// order −½δ²·Σu²·s, the way shortened as it bends) is returned as its second moment about zero,
+/// E[r·rᵀ] over δ by Gauss–Hermite quadrature ([`HERMITE_NODES`] nodes). Along a straight path
+/// of length L it is L²σ⁴/12 along the way to leading order: 0.7 m of σ for 20 m at σ = 20°,
+/// 4.4 m at 50°, where the linear ellipse left 20 m at 50° uncovered by as much
+/// (`docs/results.md`, issue 25, "Open space, second order").
 fn heading_curvature_covariance(path: &[Vector2<f64>], heading_var: f64) -> Matrix2<f64> {
     let lengths: Vec<f64> = path.windows(2).map(|w| (w[1] - w[0]).norm()).collect();
     let total: f64 = lengths.iter().sum();
-    if !(total > 0.0 && heading_var.is_finite()) {
+    if !(total > 0.0 && heading_var.is_finite() && heading_var > 0.0) {
         return Matrix2::zeros();
     }
-    let mut along = 0.0;
-    let mut m = Vector2::zeros();
-    for (w, length) in path.windows(2).zip(&lengths) {
-        let u = (along + 0.5 * length) / total;
-        m += (w[1] - w[0]) * (u * u);
-        along += length;
+    let sigma = heading_var.sqrt();
+    let mut second_moment = Matrix2::zeros();
+    for &(node, weight) in hermite_rule() {
+        let delta = sigma * node;
+        let mut along = 0.0;
+        let mut beyond_linear = Vector2::zeros();
+        for (w, length) in path.windows(2).zip(&lengths) {
+            let step = w[1] - w[0];
+            let turn = (along + 0.5 * length) / total * delta;
+            let (sin, cos) = turn.sin_cos();
+            // R(turn)·s − s − turn·J·s, J the quarter turn.
+            beyond_linear += Vector2::new(
+                (cos - 1.0) * step.x - (sin - turn) * step.y,
+                (sin - turn) * step.x + (cos - 1.0) * step.y,
+            );
+            along += length;
+        }
+        second_moment += beyond_linear * beyond_linear.transpose() * weight;
     }
-    m * m.transpose() * (0.75 * heading_var * heading_var)
+    second_moment
 }
 
+/// Nodes of the Gauss–Hermite rule of [`heading_curvature_covariance`]: exact for polynomials of
+/// δ up to degree 39, so for the expansion of its rotations far beyond the fourth order at the
+/// headings σ a dead-reckoned sweep reaches (the third order and up matter past about 50°).
+const HERMITE_NODES: usize = 20;
+
+/// The probabilists' Gauss–Hermite rule of [`HERMITE_NODES`] nodes, (node, weight) with weights
+/// summing to 1, so that E[f(x)] for x ~ N(0, 1) ≈ Σ weight·f(node): the eigenvalues of the
+/// Jacobi matrix of the Hermite polynomials (Golub–Welsch), computed once.
+fn hermite_rule() -> &'static [(f64, f64)] {
+    static RULE: std::sync::OnceLock<Vec<(f64, f64)>> = std::sync::OnceLock::new();
+    RULE.get_or_init(|| {
+        let n = HERMITE_NODES;
+        let jacobi = DMatrix::from_fn(n, n, |i, j| {
+            if i.abs_diff(j) == 1 {
+                (i.max(j) as f64).sqrt()
+            } else {
+                0.0
+            }
+        });
+        let eigen = jacobi.symmetric_eigen();
+        (0..n)
+            .map(|k| (eigen.eigenvalues[k], eigen.eigenvectors[(0, k)].powi(2)))
+            .collect()
+    })
+}
+
+/// σ of the odometry's systematic errors before any sweep: scale error, drift (rad per metre),
+/// turn error.
 fn calibration_prior_sigma(errors: &OdometryErrors) -> Vector3<f64> {
     Vector3::new(
         errors.scale_sigma,
@@ -1594,7 +1633,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_second_order_heading_term_is_the_second_moment_a_linear_covariance_leaves_out() {
+    fn the_heading_term_is_the_second_moment_a_linear_covariance_leaves_out() {
         // A straight path of 20 m along +x in 200 steps, the heading off by u·δ at the fraction
         // u of the way, δ ~ N(0, σ²): the position error's part beyond first order, integrated
         // over δ (a fine grid weighted by the normal density), against the formula.
@@ -1602,7 +1641,7 @@ mod tests {
         let path: Vec<Vector2<f64>> = (0..=steps)
             .map(|k| Vector2::new(20.0 * k as f64 / steps as f64, 0.0))
             .collect();
-        for sigma in [0.1_f64, 0.2] {
+        for sigma in [0.1_f64, 0.2, 0.6, 1.0] {
             let mut second_moment = Matrix2::zeros();
             let n = 4001;
             for i in 0..n {
@@ -1622,16 +1661,27 @@ mod tests {
                 }
                 second_moment += beyond_linear * beyond_linear.transpose() * weight;
             }
-            let formula = heading_curvature_covariance(&path, sigma * sigma);
-            // Along the path: L²σ⁴/12 to leading order (third order and up are small here).
-            let expected = 20.0_f64.powi(2) * sigma.powi(4) / 12.0;
-            assert!((formula[(0, 0)] / expected - 1.0).abs() < 1e-3, "{formula}");
-            assert!(
-                (second_moment[(0, 0)] / formula[(0, 0)] - 1.0).abs() < 0.1,
-                "σ {sigma}: {second_moment} against {formula}"
-            );
-            assert!(formula[(1, 1)].abs() < 1e-12 && formula[(0, 1)].abs() < 1e-12);
+            let quadrature = heading_curvature_covariance(&path, sigma * sigma);
+            for (i, j) in [(0, 0), (1, 1)] {
+                assert!(
+                    (second_moment[(i, j)] / quadrature[(i, j)] - 1.0).abs() < 1e-3,
+                    "σ {sigma}: {second_moment} against {quadrature}"
+                );
+            }
+            // Along the path, L²σ⁴/12 to leading order; across it the third order, smaller.
+            let leading = 20.0_f64.powi(2) * sigma.powi(4) / 12.0;
+            if sigma <= 0.2 {
+                assert!(
+                    (quadrature[(0, 0)] / leading - 1.0).abs() < 0.1,
+                    "{quadrature}"
+                );
+            }
+            assert!(quadrature[(1, 1)] < quadrature[(0, 0)]);
         }
+        let rule = hermite_rule();
+        let moment = |k: i32| rule.iter().map(|(x, w)| w * x.powi(k)).sum::<f64>();
+        assert!((moment(0) - 1.0).abs() < 1e-12 && (moment(2) - 1.0).abs() < 1e-9);
+        assert!((moment(4) - 3.0).abs() < 1e-9 && (moment(8) - 105.0).abs() < 1e-6);
         // No heading uncertainty, or no way travelled: nothing added.
         assert_eq!(heading_curvature_covariance(&path, 0.0), Matrix2::zeros());
         assert_eq!(
