@@ -1042,9 +1042,6 @@ impl Mapper {
         }
     }
 
-    /// Whether the grid holds a cell on `beam`'s axis in front of its echo's band that is occupied
-    /// (p > [`WITHDRAW_ABOVE`]) and was heard from a bearing at least [`WITHDRAW_INCIDENCE_DEG`]
-    /// off the axis: a wall the axis meets at a slant, which could not answer the reading.
     /// Whether a wall drawn (a cell above [`WITHDRAW_ABOVE`]) within `lobe` of `beam`'s axis at
     /// its echo's range (within the depth tolerance and band) explains the echo, and no such wall
     /// runs through the echo on the axis: the reading heard that wall at its foot, off its axis,
@@ -1103,6 +1100,9 @@ impl Mapper {
         off_line
     }
 
+    /// Whether the grid holds a cell on `beam`'s axis in front of its echo's band that is occupied
+    /// (p > [`WITHDRAW_ABOVE`]) and was heard from a bearing at least [`WITHDRAW_INCIDENCE_DEG`]
+    /// off the axis: a wall the axis meets at a slant, which could not answer the reading.
     fn slanted_wall_in_front(&self, model: &SmoothModel, beam: &Beam) -> bool {
         let min_incidence = WITHDRAW_INCIDENCE_DEG.to_radians();
         let grid = &self.grid;
