@@ -430,7 +430,7 @@ pub struct Slam {
     refused: u32,
     last: Option<SweepEstimate>,
     /// The pose (index into `poses`) of the latest fix, or the first: where the heading was last
-    /// known, from which the published covariance's second-order heading term is taken.
+    /// known, from which the published covariance's heading term beyond first order is taken.
     anchor: usize,
 }
 
@@ -802,8 +802,9 @@ impl Slam {
         if state == FixState::Fix {
             self.anchor = k;
         }
-        // Published with the second-order part of the heading's uncertainty, which the graph's
-        // covariance, linear at the estimate, leaves out (a fix's heading σ makes it nil).
+        // Published with what the heading's uncertainty does beyond first order, which the
+        // graph's covariance, linear at the estimate, leaves out (nothing at a fix: its path is
+        // its own pose).
         let path: Vec<Vector2<f64>> = self.poses[self.anchor.min(k)..=k]
             .iter()
             .map(|p| self.graph.pose(p.var).translation.vector)
