@@ -59,7 +59,9 @@
 //! 4. A finished `.service` that no node (live or dead) holds a tag for has no members: every
 //!    member holds a tag while it is one, and a dynamic config without members is locked for good,
 //!    so nobody can join it again. Its `.dynamic` and then the record are removed, as its last
-//!    member was doing when it was killed; the next opener creates the service anew.
+//!    member was doing when it was killed; the next opener creates the service anew. The services
+//!    are listed before the tags are read, so a service a live process creates meanwhile (its tag
+//!    first) is either not listed or has its tag read.
 //! 5. A finished port's shared memory whose processes are all gone and whose port has no tag left
 //!    is removed: iceoryx2's clean-up (step 3) is done with that port, or it never was in a service.
 //!
@@ -448,9 +450,8 @@ impl<'a> Namespace<'a> {
         self.sweep_unfinished_records(&nodes, &mut busy)?;
         if busy.is_empty() {
             self.sweep_dead_nodes(nodes)?;
-            let tags = Tags::read(self)?;
-            self.sweep_abandoned_services(&tags)?;
-            self.sweep_abandoned_port_memory(&tags)?;
+            self.sweep_abandoned_services()?;
+            self.sweep_abandoned_port_memory()?;
         }
         Ok(busy)
     }
@@ -628,11 +629,18 @@ impl<'a> Namespace<'a> {
         Ok(())
     }
 
-    /// Step 4: finished services without members, half-removed by a killed last member.
-    fn sweep_abandoned_services(&self, tags: &Tags) -> Result<(), NamespaceError> {
+    /// Step 4: finished services without members, half-removed by a killed last member. The
+    /// services are listed before the tags are read: a live member wrote its tag before the record
+    /// was finished, so a service listed finished has its tag in the later read unless its last
+    /// member left it. Tags read first, a service created by a live process between the two
+    /// reads (tag, then record) looked abandoned and was removed under it (a consumer starting
+    /// beside a starting `sonar-fusion`, 2026-12-06: the exporter then waited for ever).
+    fn sweep_abandoned_services(&self) -> Result<(), NamespaceError> {
         let service = &self.cfg.global.service;
+        let listed = entries(&self.services)?;
         let shm = self.shared_memory()?;
-        for entry in entries(&self.services)? {
+        let tags = Tags::read(self)?;
+        for entry in listed {
             let name = entry.file_name();
             let Some(hash) = self.strip(name.as_bytes(), &service.static_config_storage_suffix)
             else {
@@ -671,8 +679,9 @@ impl<'a> Namespace<'a> {
         Ok(())
     }
 
-    /// Step 5: port memory of dead processes that no port tag refers to any more.
-    fn sweep_abandoned_port_memory(&self, tags: &Tags) -> Result<(), NamespaceError> {
+    /// Step 5: port memory of dead processes that no port tag refers to any more (listed before
+    /// the tags are read, as in step 4).
+    fn sweep_abandoned_port_memory(&self) -> Result<(), NamespaceError> {
         let service = &self.cfg.global.service;
         let not_ports = [
             &service.dynamic_config_storage_suffix,
@@ -680,7 +689,9 @@ impl<'a> Namespace<'a> {
             &service.blackboard_data_suffix,
             &self.cfg.global.node.global_mgmt_suffix,
         ];
-        for (path, name, _) in self.shared_memory()? {
+        let listed = self.shared_memory()?;
+        let tags = Tags::read(self)?;
+        for (path, name, _) in listed {
             if not_ports.iter().any(|s| name.ends_with(s.as_bytes())) {
                 continue;
             }

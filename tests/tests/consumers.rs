@@ -172,6 +172,11 @@ fn sonar_export_writes_the_live_room_as_png_ros_map_csv_and_npy() {
             // after only 46 readings once (cause not found yet; issue 16's notes).
             "--wait-readings",
             "100",
+            // A map that never comes fails the test with the exporter's own message instead of
+            // holding CI until its limit (it waited for ever once, a service removed under the
+            // fusion by a concurrent clean-up; fixed in sonar_common::namespace).
+            "--timeout",
+            "300",
         ],
     );
     let printed = check_ok("sonar-export", &out);
