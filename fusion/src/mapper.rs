@@ -826,13 +826,9 @@ impl Mapper {
             echo: Some(range),
         };
         if sign > 0.0 && model.region_weak_echo_explained {
-            let band = model.band(range);
-            let end = |side: f32| {
-                let bearing = axis + side * half_angle;
-                position + Vector2::new(bearing.cos(), bearing.sin()) * (range / half_angle.cos())
-            };
-            let middle = position + Vector2::new(axis.cos(), axis.sin()) * range;
-            self.note_wall_drawn(&[end(-1.0), middle, end(1.0)], band);
+            // The patch is straight: its box is its ends'.
+            let ends = Patch::new(position, axis, range, half_angle).ends;
+            self.note_wall_drawn(&ends, model.band(range));
         }
         let evidence = model.region_echo(axis, range, half_angle, sign * readings);
         self.apply(&beam, &evidence, kernel)
@@ -841,7 +837,7 @@ impl Mapper {
     /// Notes the box around `points`, widened by `margin`, as holding a wall drawn
     /// ([`Self::walls_drawn`]).
     fn note_wall_drawn(&mut self, points: &[Vector2<f32>], margin: f32) {
-        let margin = Vector2::new(margin, margin);
+        let margin = Vector2::repeat(margin);
         let lower = points
             .iter()
             .fold(Vector2::repeat(f32::INFINITY), |m, p| m.inf(p));
