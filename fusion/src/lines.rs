@@ -36,6 +36,9 @@ const CORNER_REACH_M: f32 = 1.5;
 pub(crate) const SAME_BEARING: f32 = 0.5 * std::f32::consts::PI / 180.0;
 /// Patches kept; the oldest are forgotten first.
 const KEPT: usize = 4096;
+/// Patches on one line are put on the line through their feet when the feet lie this far apart
+/// along it at least, metres.
+const FEET_APART_M: f32 = 0.5;
 /// A wall is followed from its patch along its line this far at most to a corner, metres: on the
 /// suite's `tune` split 2 m drew less of the walls, 4 m as much at less precision.
 pub(crate) const CORNER_WALL_M: f32 = 3.0;
@@ -68,6 +71,11 @@ pub(crate) struct Patch {
     /// Whether a patch from another viewpoint lies on its line ([`Self::on_line_with`]): its
     /// wall's line is known from two places.
     confirmed: bool,
+    /// Where it was heard: the foot of the perpendicular from its sensor, at its range along the
+    /// bearing it was heard from. A foot lies on the wall to within the range's error whatever
+    /// the bearing's; the line through several viewpoints' feet is steadier than any one
+    /// bearing ([`Lines::add`]).
+    foot: Vector2<f32>,
 }
 
 impl Patch {
@@ -90,7 +98,22 @@ impl Patch {
             along,
             spread: 0.0,
             confirmed: false,
+            foot,
         }
+    }
+
+    /// Puts it on the line square to `normal` at `offset` (facing along `normal`), its ends
+    /// projected onto that line.
+    fn move_to_line(&mut self, normal: Vector2<f32>, offset: f32) {
+        let along = Vector2::new(-normal.y, normal.x);
+        let project = |p: Vector2<f32>| p - normal * (normal.dot(&p) - offset);
+        self.ends = self.ends.map(project);
+        self.facing = normal.y.atan2(normal.x);
+        self.normal = normal;
+        self.along = along;
+        self.offset = offset;
+        self.from = along.dot(&self.ends[0]);
+        self.to = along.dot(&self.ends[1]);
     }
 
     /// Stands for `other` too if `other` repeats it ([`Self::repeats`]), widening its spread to
@@ -152,6 +175,12 @@ impl Patch {
         })
     }
 
+    /// Whether it was heard from `sensor` (one viewpoint) square to `facing` (one bearing).
+    fn heard_as(&self, sensor: Vector2<f32>, facing: f32) -> bool {
+        (self.sensor - sensor).norm() < OTHER_VIEWPOINT_M
+            && wrap_angle(self.facing - facing).abs() <= SAME_BEARING
+    }
+
     fn on_line_with(&self, other: &Patch) -> bool {
         wrap_angle(self.facing - other.facing).abs() <= SAME_FACING
             && (self.offset - other.offset).abs()
@@ -196,6 +225,41 @@ pub(crate) struct Stretch {
 }
 
 impl Stretch {
+    /// The parts of the stretch farther than `margin` from every point of `feet` (projected
+    /// onto it), in order, each at least `shortest` long.
+    pub(crate) fn without(
+        &self,
+        feet: &[Vector2<f32>],
+        margin: f32,
+        shortest: f32,
+    ) -> Vec<Stretch> {
+        let length = (self.b - self.a).norm();
+        if length <= 0.0 {
+            return Vec::new();
+        }
+        let direction = (self.b - self.a) / length;
+        let mut holes: Vec<(f32, f32)> = feet
+            .iter()
+            .map(|f| direction.dot(&(f - self.a)))
+            .map(|t| (t - margin, t + margin))
+            .collect();
+        holes.sort_by(|x, y| x.0.total_cmp(&y.0));
+        let mut parts = Vec::new();
+        let mut from = 0.0f32;
+        for (start, end) in holes.into_iter().chain(std::iter::once((length, length))) {
+            let to = start.min(length);
+            if to - from >= shortest {
+                parts.push(Stretch {
+                    a: self.a + direction * from,
+                    b: self.a + direction * to,
+                    ..*self
+                });
+            }
+            from = from.max(end);
+        }
+        parts
+    }
+
     /// The stretch cut into as few pieces as make each at most `longest` long, in order.
     pub(crate) fn pieces(self, longest: f32) -> impl Iterator<Item = Stretch> {
         let count = ((self.b - self.a).norm() / longest).ceil().max(1.0) as usize;
@@ -456,9 +520,20 @@ pub(crate) struct Lines {
     patches: Vec<Kept<Patch>>,
     /// The regions heard, to confirm corners.
     echoes: Vec<Kept<Echo>>,
+    /// Whether the patches on one line from several viewpoints are put on the line through
+    /// their feet ([`Lines::add`]).
+    through_feet: bool,
 }
 
 impl Lines {
+    /// With `through_feet`, patches on one line are put on the line through their feet.
+    pub fn new(through_feet: bool) -> Self {
+        Self {
+            through_feet,
+            ..Self::default()
+        }
+    }
+
     /// Adds `patch`; writes into `out` the stretches between it and the nearest patch on its line
     /// on either side, from another viewpoint, at most [`LONGEST_STRETCH_M`] away.
     pub fn add(&mut self, mut patch: Patch, out: &mut Vec<Stretch>) {
@@ -467,6 +542,9 @@ impl Lines {
         let mut before: Option<(f32, Patch)> = None;
         let mut after: Option<(f32, Patch)> = None;
         let mut confirmed = false;
+        if self.through_feet {
+            self.refit(&mut patch);
+        }
         for other in self
             .patches
             .iter_mut()
@@ -508,6 +586,55 @@ impl Lines {
         }
         patch.confirmed = confirmed;
         keep(&mut self.patches, patch, KEPT, Patch::absorb);
+    }
+
+    /// Puts `patch` and the patches on its line from other viewpoints on the line through all
+    /// their feet, when those feet lie at least [`FEET_APART_M`] apart along it.
+    fn refit(&mut self, patch: &mut Patch) {
+        let on_line: Vec<usize> = self
+            .patches
+            .iter()
+            .enumerate()
+            .filter(|(_, k)| patch.on_line_with(&k.item))
+            .map(|(i, _)| i)
+            .collect();
+        if on_line.is_empty() {
+            return;
+        }
+        let feet: Vec<Vector2<f32>> = on_line
+            .iter()
+            .map(|&i| self.patches[i].item.foot)
+            .chain(std::iter::once(patch.foot))
+            .collect();
+        let along: Vec<f32> = feet.iter().map(|f| patch.along.dot(f)).collect();
+        let span = along.iter().copied().fold(f32::NEG_INFINITY, f32::max)
+            - along.iter().copied().fold(f32::INFINITY, f32::min);
+        if span < FEET_APART_M {
+            return;
+        }
+        let n = feet.len() as f32;
+        let centre = feet.iter().sum::<Vector2<f32>>() / n;
+        let (mut xx, mut xy, mut yy) = (0.0, 0.0, 0.0);
+        for f in &feet {
+            let d = f - centre;
+            xx += d.x * d.x;
+            xy += d.x * d.y;
+            yy += d.y * d.y;
+        }
+        // The feet's direction of greatest spread (the principal axis) is the line's.
+        let angle = 0.5 * (2.0 * xy).atan2(xx - yy);
+        let mut normal = Vector2::new(-angle.sin(), angle.cos());
+        if normal.dot(&patch.normal) < 0.0 {
+            normal = -normal;
+        }
+        if wrap_angle(normal.y.atan2(normal.x) - patch.facing).abs() > SAME_FACING {
+            return;
+        }
+        let offset = normal.dot(&centre);
+        patch.move_to_line(normal, offset);
+        for i in on_line {
+            self.patches[i].item.move_to_line(normal, offset);
+        }
     }
 
     /// Remembers a region heard, which may confirm a corner ([`Self::join_ends`]).
@@ -615,11 +742,32 @@ impl Lines {
     /// Whether two walls heard so far meet at `point` (within `tolerance`): two patches whose
     /// lines pass through it, facing ways at least 30° apart, each within 1.5 m of it.
     pub fn corner_at(&self, point: Vector2<f32>, tolerance: f32) -> bool {
+        self.walls_meet_at(point, tolerance, |_| true)
+    }
+
+    /// [`Self::corner_at`], not counting the patches heard from `sensor` square to `facing`: a
+    /// whole region's own patch, whose line passes through its reflector whatever it is.
+    pub fn corner_of_others_at(
+        &self,
+        point: Vector2<f32>,
+        tolerance: f32,
+        sensor: Vector2<f32>,
+        facing: f32,
+    ) -> bool {
+        self.walls_meet_at(point, tolerance, |p| !p.heard_as(sensor, facing))
+    }
+
+    fn walls_meet_at(
+        &self,
+        point: Vector2<f32>,
+        tolerance: f32,
+        counted: impl Fn(&Patch) -> bool,
+    ) -> bool {
         let through: Vec<&Patch> = self
             .patches
             .iter()
             .map(|k| &k.item)
-            .filter(|p| p.reaches(point, tolerance))
+            .filter(|p| counted(p) && p.reaches(point, tolerance))
             .collect();
         through.iter().enumerate().any(|(i, a)| {
             through[i + 1..].iter().any(|b| {
@@ -634,9 +782,7 @@ impl Lines {
     pub fn forget(&mut self, sensor: Vector2<f32>, facing: f32, range: f32, tolerance: f32) {
         self.patches.retain(|k| {
             let p = &k.item;
-            !((p.sensor - sensor).norm() < OTHER_VIEWPOINT_M
-                && wrap_angle(p.facing - facing).abs() <= SAME_BEARING
-                && (p.range - range).abs() <= tolerance)
+            !(p.heard_as(sensor, facing) && (p.range - range).abs() <= tolerance)
         });
     }
 
@@ -701,6 +847,89 @@ mod tests {
         assert!(!one.corner_at(Vector2::new(2.0, 0.5), 0.05));
         // Beyond the reach of both patches: no corner.
         assert!(!lines.corner_at(corner * 3.0, 10.0));
+        // A corner heard whole from the origin, its patch square to 0°: with one wall beside
+        // it, its own patch makes the second wall for `corner_at`, not for
+        // `corner_of_others_at`; with both walls, a corner either way.
+        let mut one_wall = Lines::default();
+        one_wall.add(
+            Patch::new(Vector2::zeros(), 45.0 * DEG, 0.85, 13.0 * DEG),
+            &mut out,
+        );
+        one_wall.add(
+            Patch::new(Vector2::zeros(), 0.0, corner.x, 20.0 * DEG),
+            &mut out,
+        );
+        assert!(one_wall.corner_at(corner, 0.05));
+        assert!(!one_wall.corner_of_others_at(corner, 0.05, Vector2::zeros(), 0.0));
+        lines.add(
+            Patch::new(Vector2::zeros(), 0.0, corner.x, 20.0 * DEG),
+            &mut out,
+        );
+        assert!(lines.corner_of_others_at(corner, 0.05, Vector2::zeros(), 0.0));
+    }
+
+    #[test]
+    fn patches_of_one_wall_from_several_viewpoints_lie_on_the_line_through_their_feet() {
+        // The wall x = 2 heard at range 2 from (0, 0), (0, 0.6) and (0, 1.2), each region's
+        // middle bearing 1.5° off one way or the other: the feet lie on the wall within a
+        // millimetre, the facings 1.5° off it.
+        let heard = [(0.0, 1.5), (0.6, -1.5), (1.2, 1.0)]
+            .map(|(y, off)| Patch::new(Vector2::new(0.0, y), off * DEG, 2.0, 5.0 * DEG));
+        let fitted = |through_feet: bool| {
+            let mut lines = Lines::new(through_feet);
+            let mut out = Vec::new();
+            for patch in heard {
+                lines.add(patch, &mut out);
+            }
+            lines
+                .patches
+                .iter()
+                .map(|k| (k.item.facing, k.item.offset))
+                .collect::<Vec<_>>()
+        };
+        for (facing, offset) in fitted(true) {
+            assert!(facing.abs() < 0.1 * DEG, "{}°", facing / DEG);
+            assert!((offset - 2.0).abs() < 0.002, "{offset}");
+        }
+        // Left as heard: the first patch's facing stays 1.5° off.
+        assert!((fitted(false)[0].0 - 1.5 * DEG).abs() < 1e-4);
+        // Two feet 0.3 m apart say less about the line than the bearings: left as heard.
+        let mut lines = Lines::new(true);
+        let mut out = Vec::new();
+        lines.add(heard[0], &mut out);
+        lines.add(
+            Patch::new(Vector2::new(0.0, 0.3), -1.5 * DEG, 2.0, 5.0 * DEG),
+            &mut out,
+        );
+        assert!((lines.patches[0].item.facing - 1.5 * DEG).abs() < 1e-4);
+    }
+
+    #[test]
+    fn a_stretch_without_the_spots_around_feet_keeps_the_rest_in_order() {
+        let stretch = Stretch {
+            a: Vector2::new(0.0, 0.0),
+            b: Vector2::new(1.0, 0.0),
+            facing: 0.0,
+            readings: 2,
+        };
+        let feet = [Vector2::new(0.95, 0.0), Vector2::new(0.5, 0.2)];
+        let parts: Vec<(f32, f32)> = stretch
+            .without(&feet, 0.1, 0.05)
+            .iter()
+            .map(|p| (p.a.x, p.b.x))
+            .collect();
+        let expected = [(0.0, 0.4), (0.6, 0.85)];
+        assert_eq!(parts.len(), expected.len(), "{parts:?}");
+        for ((a, b), (ea, eb)) in parts.iter().zip(expected) {
+            assert!((a - ea).abs() < 1e-6 && (b - eb).abs() < 1e-6, "{parts:?}");
+        }
+        // No feet: the whole stretch; a part shorter than the shortest is left out.
+        assert_eq!(stretch.without(&[], 0.1, 0.05), vec![stretch]);
+        assert!(
+            stretch
+                .without(&[Vector2::new(0.5, 0.0)], 0.48, 0.05)
+                .is_empty()
+        );
     }
 
     #[test]

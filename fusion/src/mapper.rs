@@ -35,6 +35,13 @@ const WITHDRAW_ABOVE: f32 = 0.9;
 /// SRF05's specular cut-off, beyond which the wall could not have answered the reading.
 const WITHDRAW_INCIDENCE_DEG: f32 = 28.0;
 
+/// With `region_stretch_withdrawn_at_feet`: a drawn stretch is taken back this far each side of
+/// a refuting reading's foot, metres (about the spot a wall square to the reading would have
+/// answered from) …
+const REFUTED_AROUND_FOOT_M: f32 = 0.1;
+/// … and what is left of it drawn again in parts at least this long, metres.
+const SHORTEST_PART_M: f32 = 0.05;
+
 /// Stretches of wall are drawn in pieces at most this long, metres.
 const STRETCH_PIECE_M: f32 = 1.0;
 /// With `region_corner_walls_seen`: the viewpoints kept to see walls drawn on from, the latest
@@ -323,7 +330,7 @@ impl Mapper {
                     tolerance,
                     tracker: RegionTracker::default(),
                     waiting: Vec::new(),
-                    lines: Lines::default(),
+                    lines: Lines::new(m.region_lines_through_feet),
                     points: Points::default(),
                     viewpoints: VecDeque::new(),
                     stretches: Vec::new(),
@@ -613,6 +620,7 @@ impl Mapper {
         };
         cells += self.place_one_ended(&mut regions, Kernel::Cone);
         cells += self.place_corners(&mut regions, Kernel::Cone);
+        cells += self.redraw_corner_points(&mut regions, Kernel::Cone);
         if let ModelConfig::Smooth(model) = self.config.model
             && model.region_corner_walls
         {
@@ -760,12 +768,7 @@ impl Mapper {
         };
         let mut cells = 0;
         for kept in &found.became_points {
-            let tolerance = regions.tolerance.at(kept.range) + model.band(kept.range);
-            regions
-                .lines
-                .forget(kept.position, kept.axis, kept.range, tolerance);
-            cells += self.fuse_patch(&model, kept, -1.0, kernel);
-            cells += self.fuse_patch(&model, &self.as_point(kept), 1.0, kernel);
+            cells += self.redraw_as_point(&model, regions, kept, kernel);
         }
         regions.walls_placed = true;
         if found.point {
@@ -788,6 +791,45 @@ impl Mapper {
             &mut regions.stretches,
         );
         cells + self.place_stretches(&model, regions, Stretches::BetweenFeet, kernel)
+    }
+
+    /// With `region_corner_points`: draws again as points the whole regions' patches drawn since
+    /// the last sweep's end whose reflectors lie where two other walls heard meet, taking their
+    /// patches back and forgetting them as walls.
+    fn redraw_corner_points(&mut self, regions: &mut Regions, kernel: Kernel) -> usize {
+        let ModelConfig::Smooth(model) = self.config.model else {
+            return 0;
+        };
+        if !(model.region_corner_points && model.region_points && model.region_corner_walls) {
+            return 0;
+        }
+        let tolerance = regions.tolerance;
+        let lines = &regions.lines;
+        let corners = regions.points.corners(|d| {
+            let within = tolerance.at(d.range) + model.band(d.range);
+            lines.corner_of_others_at(d.reflector(), within, d.position, d.axis)
+        });
+        corners
+            .iter()
+            .map(|kept| self.redraw_as_point(&model, regions, kept, kernel))
+            .sum()
+    }
+
+    /// Takes back `kept`, a whole region's patch as drawn, draws it as a point and forgets it
+    /// as a wall to follow.
+    fn redraw_as_point(
+        &mut self,
+        model: &SmoothModel,
+        regions: &mut Regions,
+        kept: &points::Drawn,
+        kernel: Kernel,
+    ) -> usize {
+        let tolerance = regions.tolerance.at(kept.range) + model.band(kept.range);
+        regions
+            .lines
+            .forget(kept.position, kept.axis, kept.range, tolerance);
+        self.fuse_patch(model, kept, -1.0, kernel)
+            + self.fuse_patch(model, &self.as_point(kept), 1.0, kernel)
     }
 
     /// `patch` drawn as a point: a cell wide.
@@ -849,7 +891,7 @@ impl Mapper {
 
     /// Fuses the stretches of wall [`Lines`] last wrote (of the kind `kind`), those readings did
     /// not see through: with the kind's foot check on, those no reading refutes
-    /// ([`Self::refuted`]), kept to be taken back if a later one does
+    /// ([`Self::refuted_at`]), kept to be taken back if a later one does
     /// ([`Self::withdraw_refuted_stretches`]); else those along which the grid holds no three
     /// free cells in a row ([`Self::seen_through`]). With the foot check, stretches that lie on
     /// one line and overlap are checked and drawn as the pieces of their union
@@ -896,7 +938,7 @@ impl Mapper {
         cells
     }
 
-    /// Takes back the stretches drawn that a reading since refutes ([`Self::refuted`]): the
+    /// Takes back the stretches drawn that a reading since refutes ([`Self::refuted_at`]): the
     /// readings of viewpoints that came later, which would have heard the wall at their foot on
     /// it. A stretch is a guess no reading heard; without this it stayed drawn whatever the
     /// robot heard after it (on the suite, walls drawn across rooms from the first viewpoints).
@@ -907,17 +949,40 @@ impl Mapper {
         let now = regions.sightlines.pushed();
         let mut drawn = std::mem::take(&mut regions.drawn);
         let mut cells = 0;
+        let mut kept_parts = Vec::new();
         drawn.retain_mut(|d| {
             if d.unchecked_from == now {
                 return true;
             }
-            if self.refuted(&model, regions, &d.stretch, d.unchecked_from) {
-                cells += self.place_stretch(&model, &d.stretch, -1.0, kernel);
-                return false;
+            let (a, b) = (d.stretch.a, d.stretch.b);
+            let feet: Vec<Vector2<f32>> = self
+                .refuted_at(&model, regions, a, b, d.unchecked_from)
+                .map(|t| a + (b - a) * t)
+                .collect();
+            if feet.is_empty() {
+                d.unchecked_from = now;
+                return true;
             }
-            d.unchecked_from = now;
-            true
+            cells += self.place_stretch(&model, &d.stretch, -1.0, kernel);
+            if model.region_stretch_withdrawn_at_feet {
+                // Drawn again but where the readings' feet refute it.
+                for part in d
+                    .stretch
+                    .without(&feet, REFUTED_AROUND_FOOT_M, SHORTEST_PART_M)
+                {
+                    cells += self.place_stretch(&model, &part, 1.0, kernel);
+                    kept_parts.push(Drawn {
+                        stretch: part,
+                        unchecked_from: now,
+                    });
+                }
+            }
+            false
         });
+        drawn.extend(kept_parts);
+        while drawn.len() > DRAWN_KEPT {
+            drawn.pop_front();
+        }
         regions.drawn = drawn;
         cells
     }
@@ -1110,25 +1175,12 @@ impl Mapper {
         })
     }
 
-    /// Whether a reading refutes `stretch` ([`Sightlines::refuted_at`], those kept from number
-    /// `since` on): one whose lobe (learnt at that range) held the foot of its sensor's
-    /// perpendicular on the stretch, with no occupied cell between them, heard its first echo
-    /// farther than the foot by more than the depth tolerance and band: a flat wall there would
-    /// have answered it at the foot.
-    fn refuted(
-        &self,
-        model: &SmoothModel,
-        regions: &Regions,
-        stretch: &Stretch,
-        since: u64,
-    ) -> bool {
-        self.refuted_at(model, regions, stretch.a, stretch.b, since)
-            .next()
-            .is_some()
-    }
-
-    /// Where the readings that refute the wall from `a` to `b` ([`Self::refuted`]) have their
-    /// feet on it, as fractions of the way from `a` to `b` ([`Sightlines::refuted_at`]).
+    /// Where the readings that refute the wall from `a` to `b` have their feet on it, as
+    /// fractions of the way from `a` to `b` ([`Sightlines::refuted_at`], those kept from number
+    /// `since` on): readings whose lobe (learnt at that range) held the foot of their sensor's
+    /// perpendicular on the wall, with no occupied cell between them, and that heard their first
+    /// echo farther than the foot by more than the depth tolerance and band: a flat wall there
+    /// would have answered them at the foot.
     fn refuted_at<'a>(
         &'a self,
         model: &'a SmoothModel,
@@ -2006,8 +2058,20 @@ mod tests {
     }
 
     fn stretch_after_slanted_readings(foot_check: bool, doorway: Doorway) -> Option<f32> {
+        stretch_after_slanted_readings_at(foot_check, false, doorway, 0.45)
+    }
+
+    /// [`stretch_after_slanted_readings`], with `region_stretch_withdrawn_at_feet` as `at_feet`,
+    /// the occupancy at (2, `y`).
+    fn stretch_after_slanted_readings_at(
+        foot_check: bool,
+        at_feet: bool,
+        doorway: Doorway,
+        y: f32,
+    ) -> Option<f32> {
         let mut m = region_mapper(crate::model::SmoothModel {
             region_stretch_foot_check: foot_check,
+            region_stretch_withdrawn_at_feet: at_feet,
             ..Default::default()
         });
         let wall = |a: f32| (a.abs() <= 9.0).then_some(2.0);
@@ -2035,7 +2099,7 @@ mod tests {
             }
             m.close_region();
         }
-        let (x, y) = m.grid().geometry().cell_at(Point2::new(2.0, 0.45))?;
+        let (x, y) = m.grid().geometry().cell_at(Point2::new(2.0, y))?;
         m.grid().probability(x, y)
     }
 
@@ -2060,6 +2124,26 @@ mod tests {
         assert!(after.is_none_or(|p| p <= 0.5), "{after:?}");
         let (before, after) = (before.unwrap_or(0.5), after.unwrap_or(0.5));
         assert!((before - after).abs() < 0.05, "{before} against {after}");
+    }
+
+    #[test]
+    fn a_wall_drawn_between_two_feet_is_taken_back_only_around_the_refuting_foot_when_asked() {
+        let at = |at_feet: bool, y: f32| {
+            stretch_after_slanted_readings_at(true, at_feet, Doorway::Last, y).unwrap_or(0.5)
+        };
+        // The doorway's readings refute the stretch at their foot, (2, 1.1): taken back there
+        // either way.
+        assert!(at(false, 1.1) <= 0.5 && at(true, 1.1) <= 0.5);
+        // 0.65 m from that foot: taken back with the whole piece, or kept (as strong as drawn
+        // but for the fade at the ends of the part drawn again).
+        assert!(at(false, 0.45) <= 0.5, "{}", at(false, 0.45));
+        let drawn = stretch_after_slanted_readings_at(true, false, Doorway::None, 0.45);
+        let kept = at(true, 0.45);
+        assert!(kept > 0.5, "{kept}");
+        assert!(
+            drawn.is_some_and(|p| (p - kept).abs() < 0.05),
+            "{drawn:?} against {kept}"
+        );
     }
 
     #[test]

@@ -672,6 +672,26 @@ pub struct SmoothModel {
     /// heard the patch, or another viewpoint a whole region was heard from, sees it, as far as
     /// the grid shows (no wall between): not behind walls, where no reading could check it.
     pub region_corner_walls_seen: bool,
+    /// With `region_points` and `region_corner_walls`: at a sweep's end, a whole region's patch
+    /// drawn in that sweep whose reflector lies where two other walls heard so far meet
+    /// ([`crate::lines::Lines::corner_at`]) is a corner's (a concave corner answers from any
+    /// bearing, as a point does, over the whole lobe when its walls are met too slantwise to
+    /// answer) and is drawn a cell wide, its patch taken back; nor is it followed as a wall.
+    /// Drawn as a wall it was a stretch across the corner square to the bearing it was heard
+    /// from, half of it behind the room's walls.
+    pub region_corner_points: bool,
+    /// With `region_corner_walls`: the patches that lie on one line from several viewpoints,
+    /// their feet at least 0.5 m apart along it, are put on the line through their feet (a
+    /// total least-squares fit) before walls are followed from them. A foot lies on its wall to
+    /// within the range's error whatever the bearing's; a patch's own facing is its region's
+    /// middle bearing, a degree or two off, which a wall followed 3 m to its corner turns into
+    /// centimetres.
+    pub region_lines_through_feet: bool,
+    /// With `region_stretch_foot_check` or `region_corner_walls_foot_check`: a stretch drawn and
+    /// refuted later by a reading heard farther at its foot is taken back only within 10 cm of
+    /// that foot, not whole (a 1 m piece): a reading refutes the wall where it would have
+    /// answered, and what a whole piece took back with it was wall another viewpoint had drawn.
+    pub region_stretch_withdrawn_at_feet: bool,
 }
 
 /// Where a reading's echo puts its occupied evidence ([`SmoothModel::echo_placement`]).
@@ -722,6 +742,9 @@ impl Default for SmoothModel {
             region_corner_walls_confirmed: false,
             region_points: false,
             region_corner_walls_seen: false,
+            region_corner_points: false,
+            region_lines_through_feet: false,
+            region_stretch_withdrawn_at_feet: false,
         }
     }
 }

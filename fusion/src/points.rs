@@ -41,7 +41,7 @@ pub(crate) struct Drawn {
 
 impl Drawn {
     /// Where the reflector is: on the middle bearing, at the range.
-    fn reflector(&self) -> Vector2<f32> {
+    pub fn reflector(&self) -> Vector2<f32> {
         self.position + Vector2::new(self.axis.cos(), self.axis.sin()) * self.range
     }
 
@@ -54,6 +54,8 @@ impl Drawn {
 #[derive(Debug, Default)]
 pub(crate) struct Points {
     kept: VecDeque<Drawn>,
+    /// How many of the newest kept patches [`Points::corners`] has not looked at.
+    unchecked: usize,
 }
 
 /// What [`Points::add`] found: whether the new patch's reflector is a point, and the patches kept
@@ -106,6 +108,22 @@ impl Points {
                     self.kept.pop_front();
                 }
                 self.kept.push_back(patch);
+                self.unchecked = (self.unchecked + 1).min(self.kept.len());
+            }
+        }
+        found
+    }
+
+    /// Marks as points the patches kept since the last call, not points yet, that `is_corner`
+    /// says are a corner's, and returns them as drawn (to be taken back).
+    pub fn corners(&mut self, is_corner: impl Fn(&Drawn) -> bool) -> Vec<Drawn> {
+        let from = self.kept.len() - self.unchecked;
+        self.unchecked = 0;
+        let mut found = Vec::new();
+        for kept in self.kept.range_mut(from..) {
+            if !kept.point && is_corner(kept) {
+                kept.point = true;
+                found.push(*kept);
             }
         }
         found
@@ -113,6 +131,7 @@ impl Points {
 
     pub fn clear(&mut self) {
         self.kept.clear();
+        self.unchecked = 0;
     }
 }
 
@@ -201,5 +220,38 @@ mod tests {
         assert_eq!((found.point, found.became_points.len()), (true, 0));
         let first = points.kept.front().copied();
         assert_eq!(first.map(|d| (d.readings, d.point)), Some((8.0, true)));
+    }
+
+    #[test]
+    fn corners_looks_at_each_new_patch_once_and_makes_the_corners_points() {
+        let corner = Vector2::new(2.0, 2.0);
+        let at_corner = heard_from(0.0, 0.0, corner, 5.0);
+        let mut points = Points::default();
+        points.add(at_corner, 0.05);
+        points.add(heard_from(0.0, 0.0, Vector2::new(2.0, 0.0), 5.0), 0.05);
+        let found = points.corners(|d| (d.reflector() - corner).norm() < 0.01);
+        assert_eq!(
+            found,
+            vec![Drawn {
+                point: true,
+                ..at_corner
+            }]
+        );
+        // Each patch looked at once: nothing more, though the wall's patch is no point.
+        assert!(points.corners(|_| true).is_empty());
+        // Heard from another viewpoint at another bearing: a point already, nothing to take
+        // back; the new patch is looked at next time.
+        let found = points.add(heard_from(0.5, -1.0, corner, 4.0), 0.05);
+        assert!(found.point && found.became_points.is_empty());
+        assert!(points.corners(|_| true).is_empty());
+        let wall = heard_from(0.0, 1.0, Vector2::new(2.0, 1.0), 5.0);
+        points.add(wall, 0.05);
+        assert_eq!(
+            points.corners(|_| true),
+            vec![Drawn {
+                point: true,
+                ..wall
+            }]
+        );
     }
 }
