@@ -486,7 +486,7 @@ impl Mapper {
                 axis: region.axis,
                 half_width: region.half_width,
                 range: region.range,
-                tolerance: regions.tolerance.at(region.range) + model.band(region.range),
+                tolerance: model.depth_and_band(regions.tolerance, region.range),
                 whole: region.is_whole(),
             });
         }
@@ -677,7 +677,7 @@ impl Mapper {
             let explainable = || {
                 together.placed.iter().any(|p| p.unchecked > 0)
                     || beam.echo.is_some_and(|range| {
-                        let depth = tolerance.at(range) + model.band(range);
+                        let depth = model.depth_and_band(tolerance, range);
                         let sector = lobe_box(beam.position, beam.axis, range, lobe, depth);
                         walls_drawn.iter().any(|&drawn| boxes_meet(drawn, sector))
                     })
@@ -719,7 +719,7 @@ impl Mapper {
             let lobe = regions.lobe_of(&region, beam);
             let point =
                 region.position + Vector2::new(region.axis.cos(), region.axis.sin()) * region.range;
-            let tolerance = model.band(region.range) + regions.tolerance.at(region.range);
+            let tolerance = model.depth_and_band(regions.tolerance, region.range);
             if region.is_cut_and_narrow(lobe) && regions.lines.corner_at(point, tolerance) {
                 // A point: a cell wide.
                 let half_angle = (self.grid.geometry().resolution() / region.range).atan();
@@ -761,7 +761,7 @@ impl Mapper {
             point: false,
         };
         let found = if model.region_points {
-            let tolerance = regions.tolerance.at(region.range) + model.band(region.range);
+            let tolerance = model.depth_and_band(regions.tolerance, region.range);
             regions.points.add(drawn, tolerance)
         } else {
             points::Found::default()
@@ -806,7 +806,7 @@ impl Mapper {
         let tolerance = regions.tolerance;
         let lines = &regions.lines;
         let corners = regions.points.corners(|d| {
-            let within = tolerance.at(d.range) + model.band(d.range);
+            let within = model.depth_and_band(tolerance, d.range);
             lines.corner_of_others_at(d.reflector(), within, d.position, d.axis)
         });
         corners
@@ -824,7 +824,7 @@ impl Mapper {
         kept: &points::Drawn,
         kernel: Kernel,
     ) -> usize {
-        let tolerance = regions.tolerance.at(kept.range) + model.band(kept.range);
+        let tolerance = model.depth_and_band(regions.tolerance, kept.range);
         regions
             .lines
             .forget(kept.position, kept.axis, kept.range, tolerance);
@@ -1118,7 +1118,7 @@ impl Mapper {
         let Some(range) = beam.echo else {
             return false;
         };
-        let depth = tolerance.at(range) + model.band(range);
+        let depth = model.depth_and_band(tolerance, range);
         let geometry = self.grid.geometry();
         // Apart by at most a band (a wall drawn is two bands thick, so every one crossing the
         // sector is met) and at most two grid steps.
@@ -1203,7 +1203,7 @@ impl Mapper {
                 at: |distance| regions.lobe.at(distance),
                 widest: regions.lobe.widest_learnt(),
             },
-            |range| regions.tolerance.at(range) + model.band(range),
+            |range| model.depth_and_band(regions.tolerance, range),
             unhidden,
         )
     }

@@ -862,6 +862,12 @@ impl SmoothModel {
         self.min_band_m.max(self.band_fraction * d)
     }
 
+    /// How far a reflector heard at range `d` may lie from it along the beam and still be the
+    /// one heard: the regions' `depth` tolerance and the occupied band together.
+    pub(crate) fn depth_and_band(&self, depth: DepthTolerance, d: f32) -> f32 {
+        depth.at(d) + self.band(d)
+    }
+
     /// The wider profile's half-angle, radians, 0.1 % wider: beyond it 1 − (α/θ)² rounds to below
     /// zero for both profiles, so no cell there gets evidence.
     pub(crate) fn half_angle(&self) -> f32 {
