@@ -34,6 +34,10 @@
 //!   of the growing visible set also falls when the added viewpoints bring surfaces into sight
 //!   that they cannot hear (at a grazing angle, behind the head) and the map already held a
 //!   larger share of the rest; only erased samples say that fusing a viewpoint removed a wall.
+//!   **Earlier recall fell**: the recall of the samples visible at the previous viewpoint count
+//!   is lower with the viewpoints added than it was (erasures that what the new viewpoints drew
+//!   of those walls did not make up): the issue's "recall never falls when a viewpoint is added",
+//!   measured on a fixed set of walls.
 //! - **Precision**: the share of occupied cells whose centre lies within 5 cm of a true surface
 //!   (any, visible or not). **Median error**: the median distance from the occupied cells'
 //!   centres to the nearest true surface.
@@ -445,6 +449,10 @@ pub struct GridScore {
     /// Surface samples the map drew at the previous viewpoint count and no longer draws (walls
     /// the added viewpoints erased); `None` for a map scored alone ([`score_grid`]).
     pub erased: Option<usize>,
+    /// Whether the recall of the samples visible at the previous viewpoint count fell from what
+    /// it was then (the walls the earlier viewpoints saw, drawn less: erasures that the new
+    /// viewpoints' drawing did not make up); `None` for a map scored alone.
+    pub earlier_recall_fell: Option<bool>,
     pub occupied: usize,
     pub visible: usize,
 }
@@ -544,16 +552,46 @@ pub fn score_grid(map: &MapView, scene: &Scene, views: &[Pose], reach: Reach) ->
     score_samples(map, scene, views, reach).0
 }
 
-/// [`score_grid`], and for each of the scene's surface samples ([`surface_samples`], in order)
-/// whether it is visible and drawn.
+/// What [`score_samples`] found of each of the scene's surface samples ([`surface_samples`], in
+/// order).
+#[derive(Debug, Clone, PartialEq)]
+struct Samples {
+    /// Visible from some viewpoint.
+    visible: Vec<bool>,
+    /// Visible and drawn.
+    drawn: Vec<bool>,
+}
+
+impl Samples {
+    /// Surface samples drawn here and no longer in `later` (walls the added viewpoints erased).
+    fn erased_in(&self, later: &Samples) -> usize {
+        erased(&self.drawn, &later.drawn)
+    }
+
+    /// Whether `later`, a map of more viewpoints, draws fewer of the samples visible here than
+    /// this one does.
+    fn recall_fell_in(&self, later: &Samples) -> bool {
+        let drawn_of_these = |drawn: &[bool]| {
+            self.visible
+                .iter()
+                .zip(drawn)
+                .filter(|&(&v, &d)| v && d)
+                .count()
+        };
+        drawn_of_these(&later.drawn) < drawn_of_these(&self.drawn)
+    }
+}
+
+/// [`score_grid`], and which of the scene's surface samples are visible and drawn.
 fn score_samples(
     map: &MapView,
     scene: &Scene,
     views: &[Pose],
     reach: Reach,
-) -> (GridScore, Vec<bool>) {
+) -> (GridScore, Samples) {
     let samples = surface_samples(scene);
     let mut drawn_samples = vec![false; samples.len()];
+    let mut visible_samples = vec![false; samples.len()];
     let mut visible = 0;
     let mut drawn = 0;
     let mut first = 0;
@@ -561,7 +599,11 @@ fn score_samples(
     let mut faced = 0;
     let mut faced_drawn = 0;
     let faced_cos = FACED_DEG.to_radians().cos();
-    for (&(p, owner), drawn_sample) in samples.iter().zip(&mut drawn_samples) {
+    for ((&(p, owner), drawn_sample), visible_sample) in samples
+        .iter()
+        .zip(&mut drawn_samples)
+        .zip(&mut visible_samples)
+    {
         let seen: Vec<bool> = views
             .iter()
             .map(|v| in_sight(scene, v.at, p, Some(owner), reach.max_range_m))
@@ -571,6 +613,7 @@ fn score_samples(
         }
         let hit = drawn_near(map, p);
         *drawn_sample = hit;
+        *visible_sample = true;
         visible += 1;
         drawn += usize::from(hit);
         if seen.first() == Some(&true) {
@@ -603,10 +646,17 @@ fn score_samples(
         precision: share(on_surface, errors.len()),
         median_error_m: quantile(&errors, 0.5),
         erased: None,
+        earlier_recall_fell: None,
         occupied: errors.len(),
         visible,
     };
-    (score, drawn_samples)
+    (
+        score,
+        Samples {
+            visible: visible_samples,
+            drawn: drawn_samples,
+        },
+    )
 }
 
 /// Occupied within [`TOLERANCE_M`] of a true surface.
@@ -1002,8 +1052,8 @@ pub fn run_scene(
         .map(|f| Mapper::new(f.config).with_context(|| format!("setting up fusion {}", f.name)))
         .collect::<Result<Vec<_>>>()?;
     let mut grid = vec![Vec::new(); settings.fusion.len()];
-    // Per fusion, the samples drawn at the last viewpoint count scored.
-    let mut drawn_before: Vec<Option<Vec<bool>>> = vec![None; settings.fusion.len()];
+    // Per fusion, the samples visible and drawn at the last viewpoint count scored.
+    let mut drawn_before: Vec<Option<Samples>> = vec![None; settings.fusion.len()];
     let mut features = Vec::new();
     let cfg = scene_feature_config(&scene);
     let mut scene_map = FeatureMap::new(cfg).context("setting up the scene's feature map")?;
@@ -1034,7 +1084,8 @@ pub fn run_scene(
             if settings.viewpoints.contains(&(k + 1)) {
                 let map = probability_view(mapper).with_occupied_above(settings.occupied_above);
                 let (mut score, drawn) = score_samples(&map, &scene, &views[..=k], reach);
-                score.erased = before.as_deref().map(|b| erased(b, &drawn));
+                score.erased = before.as_ref().map(|b| b.erased_in(&drawn));
+                score.earlier_recall_fell = before.as_ref().map(|b| b.recall_fell_in(&drawn));
                 *before = Some(drawn);
                 scores.push(score);
             }
@@ -1158,6 +1209,8 @@ pub struct GridSummary {
     pub recall_fell: usize,
     /// Runs where the recall of view 1's walls fell from the previous viewpoint count.
     pub first_view_recall_fell: usize,
+    /// Runs where the recall of the walls visible at the previous viewpoint count fell.
+    pub earlier_recall_fell: usize,
     /// Runs where a surface sample drawn at the previous viewpoint count was no longer drawn.
     pub erased_runs: usize,
     /// The most samples one run erased from the previous viewpoint count.
@@ -1208,6 +1261,10 @@ pub fn grid_summaries(settings: &SuiteSettings, runs: &[Run]) -> Vec<GridSummary
                     ),
                     recall_fell: fell(|s| s.recall),
                     first_view_recall_fell: fell(|s| s.recall_first_view),
+                    earlier_recall_fell: scores
+                        .iter()
+                        .filter(|s| s.earlier_recall_fell == Some(true))
+                        .count(),
                     erased_runs: scores.iter().filter(|s| s.erased > Some(0)).count(),
                     erased_worst: scores.iter().filter_map(|s| s.erased).max().unwrap_or(0),
                     runs: scores.len(),
@@ -1249,8 +1306,9 @@ fn grid_markdown(
          sees within {FACED_DEG:.0}° of the surface's normal from a bearing its sweep covers (what a \
          specular sensor can hear); \
          \"fell\" counts runs where recall fell when viewpoints were added (from the previous \
-         count); \"erased\": runs where a surface sample drawn at the previous count is no longer \
-         drawn, and the most samples one run lost so.{}\n",
+         count): of the growing visible set, of view 1's walls, and of the walls visible at the \
+         previous count (\"earlier\"); \"erased\": runs where a surface sample drawn at the \
+         previous count is no longer drawn, and the most samples one run lost so.{}\n",
         settings.scenes,
         seeds.join(", "),
         settings.sweeps,
@@ -1267,13 +1325,13 @@ fn grid_markdown(
     );
     let _ = writeln!(
         t,
-        "| sensor | fusion | viewpoints | recall | precision | median error (cm) | recall of view 1's walls | recall faced | recall fell | view-1 recall fell | erased | runs |"
+        "| sensor | fusion | viewpoints | recall | precision | median error (cm) | recall of view 1's walls | recall faced | recall fell | view-1 recall fell | earlier recall fell | erased | runs |"
     );
-    let _ = writeln!(t, "|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(t, "|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for s in grid_summaries(settings, runs) {
         let _ = writeln!(
             t,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {}, {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {}, {} | {} |",
             s.sensor,
             s.fusion,
             s.viewpoints,
@@ -1284,6 +1342,7 @@ fn grid_markdown(
             cell(s.recall_faced, 1.0, 2),
             s.recall_fell,
             s.first_view_recall_fell,
+            s.earlier_recall_fell,
             s.erased_runs,
             s.erased_worst,
             s.runs
@@ -1569,11 +1628,47 @@ mod tests {
         let middle = map_of(|p| (p.x - 1.0).abs() < 0.011 && p.y.abs() < 0.5);
         let (s, before) = score_samples(&whole, &scene, &views, paper_reach());
         let (_, after) = score_samples(&middle, &scene, &views, paper_reach());
-        assert_eq!(s.erased, None);
+        assert_eq!((s.erased, s.earlier_recall_fell), (None, None));
         // Samples every 2 cm: 50 cm each end less the 5 cm the middle's cells still reach.
-        let lost = erased(&before, &after);
+        let lost = before.erased_in(&after);
         assert!((44..=48).contains(&lost), "{lost}");
-        assert_eq!(erased(&after, &before), 0);
+        assert_eq!(after.erased_in(&before), 0);
+        assert!(before.recall_fell_in(&after) && !after.recall_fell_in(&before));
+    }
+
+    #[test]
+    fn the_earlier_walls_recall_falls_only_when_fewer_of_them_are_drawn() {
+        // A near wall at x = 1 (|y| ≤ 1) seen from the origin, and behind it a second wall at
+        // x = 2 (|y| ≤ 0.5) that only a viewpoint at (1.5, 0) sees.
+        let scene = Scene::new(
+            "two walls",
+            vec![wall([1.0, -1.0], [1.0, 1.0]), wall([2.0, -0.5], [2.0, 0.5])],
+            vec![],
+        )
+        .unwrap();
+        let first = [Pose::new(0.0, 0.0, 0.0)];
+        let both = [Pose::new(0.0, 0.0, 0.0), Pose::new(1.5, 0.0, 0.0)];
+        let near = |p: Vec2| (p.x - 1.0).abs() < 0.011 && p.y.abs() < 1.0;
+        let far = |p: Vec2| (p.x - 2.0).abs() < 0.011 && p.y.abs() < 0.5;
+        let (_, before) = score_samples(&map_of(near), &scene, &first, paper_reach());
+        // The second viewpoint sees the far wall and draws none of it: the recall of the
+        // growing visible set falls, that of the earlier walls does not.
+        let (grown, kept) = score_samples(&map_of(near), &scene, &both, paper_reach());
+        assert!(grown.recall < Some(1.0));
+        assert!(!before.recall_fell_in(&kept));
+        // Half the near wall erased and the far wall drawn: the earlier walls' recall falls
+        // although more is drawn in all.
+        let half = score_samples(
+            &map_of(|p| (near(p) && p.y > 0.0) || far(p)),
+            &scene,
+            &both,
+            paper_reach(),
+        )
+        .1;
+        assert!(before.recall_fell_in(&half));
+        assert!(
+            half.drawn.iter().filter(|&&d| d).count() > before.drawn.iter().filter(|&&d| d).count()
+        );
     }
 
     #[test]
