@@ -69,6 +69,19 @@ fn lobe_box(
     (middle - reach, middle + reach)
 }
 
+/// A box (lower and upper corners, world metres) holding the axis from `position` along `axis`
+/// to `range`, and `margin` round it.
+fn axis_box(
+    position: Vector2<f32>,
+    axis: f32,
+    range: f32,
+    margin: f32,
+) -> (Vector2<f32>, Vector2<f32>) {
+    let end = position + Vector2::new(axis.cos(), axis.sin()) * range;
+    let margin = Vector2::repeat(margin);
+    (position.inf(&end) - margin, position.sup(&end) + margin)
+}
+
 /// Whether two boxes (lower and upper corners) overlap.
 fn boxes_meet(a: (Vector2<f32>, Vector2<f32>), b: (Vector2<f32>, Vector2<f32>)) -> bool {
     a.0.x <= b.1.x && b.0.x <= a.1.x && a.0.y <= b.1.y && b.0.y <= a.1.y
@@ -669,21 +682,31 @@ impl Mapper {
             .unwrap_or(self.config.sensor.limits().half_angle);
         let tolerance = regions.tolerance;
         let walls_drawn = std::mem::take(&mut self.walls_drawn);
+        let cell = self.grid.geometry().resolution();
         regions.weak.kept.retain_mut(|together| {
             let looked_at = |p: &Placed| if all { p.heard } else { p.unchecked };
             let beam = &together.placed[0].beam;
+            let new = together.placed.iter().any(|p| p.unchecked > 0);
+            let drawn_in = |area| walls_drawn.iter().any(|&drawn| boxes_meet(drawn, area));
             // A set looked at before can have become explained only where a wall was drawn
-            // since; the scan of its lobe is the costly part (a moving robot keeps thousands).
+            // since (every cell above WITHDRAW_ABOVE is a drawn wall's: readings placed by region
+            // carry no occupied evidence); the scans of its lobe and of its axis are the costly
+            // part (a moving robot keeps thousands). The walls drawn are noted only with
+            // `region_weak_echo_explained`.
             let explainable = || {
-                together.placed.iter().any(|p| p.unchecked > 0)
-                    || beam.echo.is_some_and(|range| {
-                        let depth = model.depth_and_band(tolerance, range);
-                        let sector = lobe_box(beam.position, beam.axis, range, lobe, depth);
-                        walls_drawn.iter().any(|&drawn| boxes_meet(drawn, sector))
+                new || beam.echo.is_some_and(|range| {
+                    let depth = model.depth_and_band(tolerance, range);
+                    drawn_in(lobe_box(beam.position, beam.axis, range, lobe, depth))
+                })
+            };
+            let slanted_in_front_possible = || {
+                new || !model.region_weak_echo_explained
+                    || beam.echo.is_none_or(|range| {
+                        drawn_in(axis_box(beam.position, beam.axis, range, cell))
                     })
             };
             let withdrawn = together.placed.iter().any(|p| looked_at(p) > 0)
-                && (self.slanted_wall_in_front(&model, beam)
+                && ((slanted_in_front_possible() && self.slanted_wall_in_front(&model, beam))
                     || (model.region_weak_echo_explained
                         && explainable()
                         && self.explained_off_axis(&model, lobe, tolerance, beam)));
