@@ -688,11 +688,11 @@ impl Mapper {
             let beam = &together.placed[0].beam;
             let new = together.placed.iter().any(|p| p.unchecked > 0);
             let drawn_in = |area| walls_drawn.iter().any(|&drawn| boxes_meet(drawn, area));
-            // A set looked at before can have become explained only where a wall was drawn
-            // since (every cell above WITHDRAW_ABOVE is a drawn wall's: readings placed by region
-            // carry no occupied evidence); the scans of its lobe and of its axis are the costly
-            // part (a moving robot keeps thousands). The walls drawn are noted only with
-            // `region_weak_echo_explained`.
+            // A set looked at before can have become withdrawable only where a wall was drawn
+            // since (a cell above WITHDRAW_ABOVE is a drawn wall's, readings placed by region
+            // carrying no occupied evidence, or eight weak echoes' stacked, left out here); the
+            // scans of its lobe and of its axis are the costly part (a moving robot keeps
+            // thousands). The walls drawn are noted only with `region_weak_echo_explained`.
             let explainable = || {
                 new || beam.echo.is_some_and(|range| {
                     let depth = model.depth_and_band(tolerance, range);
