@@ -38,3 +38,4 @@ pub use features::{FeatureFormat, write_features};
 pub use map::{Map, MapError};
 pub use output::{Format, write_map};
 pub use picture::PngOptions;
+pub use ros::Thresholds;

@@ -8,7 +8,7 @@ use std::str::FromStr;
 
 use crate::map::{Map, MapError};
 use crate::picture::{PngOptions, write_png};
-use crate::ros::{map_yaml, write_pgm};
+use crate::ros::{Thresholds, map_yaml, write_pgm};
 use crate::table::{write_csv, write_npy};
 
 /// A map file format.
@@ -88,13 +88,14 @@ pub fn stem(out: &Path) -> PathBuf {
     stem
 }
 
-/// Writes `map` in each of `formats` next to `stem` ([`Format::paths`]); returns the files written,
-/// in order. Existing files are replaced.
+/// Writes `map` in each of `formats` next to `stem` ([`Format::paths`]), the ROS map with
+/// `thresholds`; returns the files written, in order. Existing files are replaced.
 pub fn write_map(
     map: &Map<'_>,
     stem: &Path,
     formats: &[Format],
     png: &PngOptions,
+    thresholds: &Thresholds,
 ) -> Result<Vec<PathBuf>, MapError> {
     let mut written = Vec::new();
     for &format in formats {
@@ -102,12 +103,12 @@ pub fn write_map(
         match format {
             Format::Png => write_file(&paths[0], |w| write_png(w, map, png))?,
             Format::Pgm => {
-                write_file(&paths[0], |w| write_pgm(w, map))?;
+                write_file(&paths[0], |w| write_pgm(w, map, thresholds))?;
                 let image = paths[0]
                     .file_name()
                     .map(|n| n.to_string_lossy().into_owned())
                     .unwrap_or_default();
-                let yaml = map_yaml(map, &image);
+                let yaml = map_yaml(map, &image, thresholds);
                 write_file(&paths[1], |w| Ok(w.write_all(yaml.as_bytes())?))?;
             }
             Format::Csv => write_file(&paths[0], |w| write_csv(w, map))?,
@@ -208,6 +209,7 @@ mod tests {
             &dir.join("room"),
             &Format::ALL,
             &PngOptions::default(),
+            &Thresholds::default(),
         )
         .unwrap();
         let names: Vec<_> = written

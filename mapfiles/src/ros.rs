@@ -5,7 +5,9 @@
 //! (254), unknown ones grey (205). `map_server` reads a pixel `v` as occupancy `(255 − v) / 255`
 //! (`negate: 0`), occupied above `occupied_thresh`, free below `free_thresh`, unknown in between;
 //! grey 205 reads as 50/255 = 0.19608, just above `free_thresh` 0.196, so unknown stays unknown.
-//! Our cells are classified with the same thresholds: p > 0.65 occupied, p < 0.196 free.
+//! Our cells are classified with the same thresholds: p > 0.65 occupied, p < 0.196 free; the
+//! occupied threshold can be set higher or lower ([`Thresholds::occupied_above`]), and the YAML
+//! says which.
 //!
 //! Orientation: PGM rows run top-down, so the picture's first row is the grid's highest row; the
 //! YAML `origin` is the world position of the lower-left corner of the picture, which is the
@@ -17,7 +19,8 @@ use sonar_common::ipc::decode_probability;
 
 use crate::map::{Map, MapError};
 
-/// Cells with p above this are occupied (`occupied_thresh` in the YAML).
+/// Cells with p above this are occupied (`occupied_thresh` in the YAML), unless told otherwise:
+/// what `map_saver` writes.
 pub const OCCUPIED_THRESH: f32 = 0.65;
 /// Cells with p below this are free (`free_thresh` in the YAML).
 pub const FREE_THRESH: f32 = 0.196;
@@ -25,17 +28,66 @@ pub const PGM_OCCUPIED: u8 = 0;
 pub const PGM_FREE: u8 = 254;
 pub const PGM_UNKNOWN: u8 = 205;
 
-/// The PGM grey level of a snapshot cell value.
-pub fn pgm_value(cell: u8) -> u8 {
-    match decode_probability(cell) {
-        Some(p) if p > OCCUPIED_THRESH => PGM_OCCUPIED,
-        Some(p) if p < FREE_THRESH => PGM_FREE,
-        _ => PGM_UNKNOWN,
+/// The occupancy thresholds a ROS map is written with: cells above `occupied` black, below
+/// `free` white, grey between.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Thresholds {
+    occupied: f32,
+    free: f32,
+}
+
+impl Default for Thresholds {
+    fn default() -> Self {
+        Self {
+            occupied: OCCUPIED_THRESH,
+            free: FREE_THRESH,
+        }
     }
 }
 
-/// Writes `map` as a binary PGM (P5, maxval 255), first row = highest y.
-pub fn write_pgm<W: Write>(mut out: W, map: &Map<'_>) -> Result<(), MapError> {
+/// An occupied threshold the map cannot be written with.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error(
+    "occupied threshold {0} out of range: it must lie from 0.5 to 0.99 (cells more likely \
+     occupied than not, below certainty; 0.65 is what map_saver writes)"
+)]
+pub struct ThresholdOutOfRange(pub f32);
+
+impl Thresholds {
+    /// Cells counted occupied above `p` (0.5 to 0.99), free below [`FREE_THRESH`]: the grey of
+    /// unknown cells (0.196) stays between them.
+    pub fn occupied_above(p: f32) -> Result<Self, ThresholdOutOfRange> {
+        if (0.5..=0.99).contains(&p) {
+            Ok(Self {
+                occupied: p,
+                free: FREE_THRESH,
+            })
+        } else {
+            Err(ThresholdOutOfRange(p))
+        }
+    }
+
+    pub fn occupied(&self) -> f32 {
+        self.occupied
+    }
+
+    /// The PGM grey level of a snapshot cell value.
+    pub fn pgm_value(&self, cell: u8) -> u8 {
+        match decode_probability(cell) {
+            Some(p) if p > self.occupied => PGM_OCCUPIED,
+            Some(p) if p < self.free => PGM_FREE,
+            _ => PGM_UNKNOWN,
+        }
+    }
+}
+
+/// Writes `map` as a binary PGM (P5, maxval 255), first row = highest y, its cells classified by
+/// `thresholds`.
+pub fn write_pgm<W: Write>(
+    mut out: W,
+    map: &Map<'_>,
+    thresholds: &Thresholds,
+) -> Result<(), MapError> {
     let h = map.header();
     write!(
         out,
@@ -45,7 +97,7 @@ pub fn write_pgm<W: Write>(mut out: W, map: &Map<'_>) -> Result<(), MapError> {
     let mut line = Vec::with_capacity(map.width());
     for row in map.rows_top_down() {
         line.clear();
-        line.extend(row.iter().map(|&c| pgm_value(c)));
+        line.extend(row.iter().map(|&c| thresholds.pgm_value(c)));
         out.write_all(&line)?;
     }
     out.flush()?;
@@ -53,8 +105,8 @@ pub fn write_pgm<W: Write>(mut out: W, map: &Map<'_>) -> Result<(), MapError> {
 }
 
 /// The `map_server` YAML for `map`, whose picture is `image` (a path relative to the YAML file's
-/// directory, normally just the PGM's file name).
-pub fn map_yaml(map: &Map<'_>, image: &str) -> String {
+/// directory, normally just the PGM's file name), written with `thresholds`.
+pub fn map_yaml(map: &Map<'_>, image: &str, thresholds: &Thresholds) -> String {
     let h = map.header();
     format!(
         "# sonar occupancy map ({w} x {hgt} cells, {n} readings fused). Load it with\n\
@@ -73,8 +125,8 @@ pub fn map_yaml(map: &Map<'_>, image: &str) -> String {
         res = yaml_float(h.resolution_m),
         ox = yaml_float(h.origin_x_m),
         oy = yaml_float(h.origin_y_m),
-        occ = yaml_float(OCCUPIED_THRESH),
-        free = yaml_float(FREE_THRESH),
+        occ = yaml_float(thresholds.occupied),
+        free = yaml_float(thresholds.free),
     )
 }
 
@@ -115,6 +167,10 @@ mod tests {
     use crate::map::test_grid;
     use sonar_common::ipc::{CELL_UNKNOWN, encode_probability};
 
+    fn pgm_value(cell: u8) -> u8 {
+        Thresholds::default().pgm_value(cell)
+    }
+
     #[test]
     fn cells_are_classified_with_the_yaml_thresholds() {
         assert_eq!(pgm_value(254), PGM_OCCUPIED);
@@ -138,7 +194,7 @@ mod tests {
         let h = test_grid::header();
         let map = Map::new(&h, &test_grid::CELLS).unwrap();
         let mut bytes = Vec::new();
-        write_pgm(&mut bytes, &map).unwrap();
+        write_pgm(&mut bytes, &map, &Thresholds::default()).unwrap();
         let mut expected = b"P5\n# CREATOR: sonar-export 0.05 m/pix\n3 2\n255\n".to_vec();
         // Top row (y = 1): 0.5, 0.8, 0.1; bottom row (y = 0): free, unknown, occupied.
         expected.extend([205, 0, 254, 254, 205, 0]);
@@ -150,7 +206,7 @@ mod tests {
         let h = test_grid::header();
         let map = Map::new(&h, &test_grid::CELLS).unwrap();
         assert_eq!(
-            map_yaml(&map, "room.pgm"),
+            map_yaml(&map, "room.pgm", &Thresholds::default()),
             "# sonar occupancy map (3 x 2 cells, 42 readings fused). Load it with\n\
              #   ros2 run nav2_map_server map_server --ros-args -p yaml_filename:=<this file>\n\
              image: room.pgm\n\
@@ -167,7 +223,33 @@ mod tests {
             ..h
         };
         let map = Map::new(&whole, &test_grid::CELLS).unwrap();
-        assert!(map_yaml(&map, "x.pgm").contains("origin: [-4.0, 2.0, 0.0]\n"));
+        assert!(
+            map_yaml(&map, "x.pgm", &Thresholds::default()).contains("origin: [-4.0, 2.0, 0.0]\n")
+        );
+    }
+
+    #[test]
+    fn an_occupied_threshold_of_its_own_classifies_the_cells_and_is_written_in_the_yaml() {
+        let strict = Thresholds::occupied_above(0.8).unwrap();
+        assert_eq!(strict.pgm_value(encode_probability(0.7)), PGM_UNKNOWN);
+        assert_eq!(strict.pgm_value(encode_probability(0.81)), PGM_OCCUPIED);
+        assert_eq!(strict.pgm_value(encode_probability(0.19)), PGM_FREE);
+        assert_eq!(pgm_value(encode_probability(0.7)), PGM_OCCUPIED);
+        let h = test_grid::header();
+        let map = Map::new(&h, &test_grid::CELLS).unwrap();
+        let yaml = map_yaml(&map, "room.pgm", &strict);
+        assert!(
+            yaml.contains("occupied_thresh: 0.8\nfree_thresh: 0.196\n"),
+            "{yaml}"
+        );
+        // The test grid's 0.8 cell is no longer occupied at 0.8.
+        let mut bytes = Vec::new();
+        write_pgm(&mut bytes, &map, &strict).unwrap();
+        assert_eq!(bytes[bytes.len() - 6..], [205, 205, 254, 254, 205, 0]);
+        for bad in [0.3, 0.49, 1.0, f32::NAN] {
+            assert!(Thresholds::occupied_above(bad).is_err(), "{bad}");
+        }
+        assert!(Thresholds::occupied_above(0.5).is_ok());
     }
 
     #[test]

@@ -37,7 +37,7 @@ use sonar_fusion::poses::MAX_POSE_WAIT;
 use sonar_fusion::{
     FeatureTracker, FeaturesSection, FusionConfig, FusionFile, FusionSection, Preset,
 };
-use sonar_mapfiles::{FeatureFormat, Format, Map, PngOptions, output, write_features};
+use sonar_mapfiles::{FeatureFormat, Format, Map, PngOptions, Thresholds, output, write_features};
 use sonar_recorder::well_known::Options as WellKnownOptions;
 use sonar_recorder::{
     FeatureSnapshot, Message, ReadOptions, Recording, RecordingWriter, Ros2Bag, Topic,
@@ -118,6 +118,12 @@ struct Args {
     /// PNG without the legend strip (scale bar, colour ramp): exactly one pixel per cell.
     #[arg(long)]
     no_legend: bool,
+    /// The ROS map's (pgm) occupied threshold, 0.5 to 0.99: cells above it are black in the PGM
+    /// and the YAML's `occupied_thresh` says it. 0.65 is what map_saver writes; a higher one
+    /// leaves out the weakly held cells, where most of a sonar map's wrong ones are
+    /// (docs/results.md, "The grid as a ROS map reads it", by sensor).
+    #[arg(long, value_name = "P", default_value = "0.65", value_parser = parse_occupied_thresh)]
+    occupied_thresh: Thresholds,
     /// Draw the walls, corners and posts (sonar/features, or the offline feature tracker's) over
     /// the PNG in green, as the viewer's overlay (`o`) does: walls as lines, corners as crosses,
     /// posts as squares. A sonar map of a room is arcs, not walls (README, "What a sonar map
@@ -183,6 +189,14 @@ struct Args {
 struct Formats {
     maps: Vec<Format>,
     features: Vec<FeatureFormat>,
+}
+
+/// `--occupied-thresh`: a probability from 0.5 to 0.99.
+fn parse_occupied_thresh(s: &str) -> Result<Thresholds, String> {
+    let p: f32 = s
+        .parse()
+        .map_err(|_| format!("{s:?} is not a number (e.g. 0.65)"))?;
+    Thresholds::occupied_above(p).map_err(|e| e.to_string())
 }
 
 fn parse_formats(s: &str) -> Result<Formats, String> {
@@ -320,7 +334,13 @@ fn run(args: &Args) -> Result<Outcome> {
                 .filter(|_| args.features)
                 .map(|f| f.records.as_slice()),
         };
-        written.extend(sonar_mapfiles::write_map(&map, &stem, &formats.maps, &png)?);
+        written.extend(sonar_mapfiles::write_map(
+            &map,
+            &stem,
+            &formats.maps,
+            &png,
+            &args.occupied_thresh,
+        )?);
         info!(
             readings = header.readings_fused,
             seq = header.seq,
@@ -1054,6 +1074,20 @@ mod tests {
     use sonar_common::ipc::{FusionCommand, FusionCommandKind, Reading, ScanMode, preset_code};
     use sonar_recorder::Entry;
     use std::io::Cursor;
+
+    #[test]
+    fn the_occupied_threshold_is_a_probability_from_a_half_to_0_99() {
+        let args = |extra: &[&str]| {
+            Args::try_parse_from(["sonar-export"].iter().chain(extra).copied())
+                .map(|a| a.occupied_thresh.occupied())
+        };
+        assert_eq!(args(&[]).unwrap(), 0.65);
+        assert_eq!(args(&["--occupied-thresh", "0.8"]).unwrap(), 0.8);
+        for bad in ["1.2", "0.3", "high"] {
+            let err = args(&["--occupied-thresh", bad]).unwrap_err().to_string();
+            assert!(err.contains("--occupied-thresh"), "{err}");
+        }
+    }
 
     /// Offers snapshots (seq, sweep, readings) in turn; the answer to each.
     fn offers(mut w: Wanted, snapshots: &[(u64, u32, u64)]) -> Vec<Take> {
