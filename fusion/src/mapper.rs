@@ -978,14 +978,20 @@ impl Mapper {
                 return true;
             }
             let (a, b) = (d.stretch.a, d.stretch.b);
-            let feet: Vec<Vector2<f32>> = self
+            let mut refuting = self
                 .refuted_at(&model, regions, a, b, d.unchecked_from)
-                .map(|t| a + (b - a) * t)
-                .collect();
-            if feet.is_empty() {
+                .peekable();
+            if refuting.peek().is_none() {
                 d.unchecked_from = now;
                 return true;
             }
+            // Where the refuting feet lie is wanted only to draw the rest again.
+            let feet: Vec<Vector2<f32>> = if model.region_stretch_withdrawn_at_feet {
+                refuting.map(|t| a + (b - a) * t).collect()
+            } else {
+                drop(refuting);
+                Vec::new()
+            };
             cells += self.place_stretch(&model, &d.stretch, -1.0, kernel);
             if model.region_stretch_withdrawn_at_feet {
                 // Drawn again but where the readings' feet refute it.

@@ -674,7 +674,7 @@ pub struct SmoothModel {
     pub region_corner_walls_seen: bool,
     /// With `region_points` and `region_corner_walls`: at a sweep's end, a whole region's patch
     /// drawn in that sweep whose reflector lies where two other walls heard so far meet
-    /// ([`crate::lines::Lines::corner_at`]) is a corner's (a concave corner answers from any
+    /// ([`crate::lines::Lines::corner_of_others_at`]) is a corner's (a concave corner answers from any
     /// bearing, as a point does, over the whole lobe when its walls are met too slantwise to
     /// answer) and is drawn a cell wide, its patch taken back; nor is it followed as a wall.
     /// Drawn as a wall it was a stretch across the corner square to the bearing it was heard
@@ -690,7 +690,7 @@ pub struct SmoothModel {
     /// With `region_stretch_foot_check` or `region_corner_walls_foot_check`: a stretch drawn and
     /// refuted later by a reading heard farther at its foot is taken back only within 10 cm of
     /// that foot, not whole (a 1 m piece): a reading refutes the wall where it would have
-    /// answered, and what a whole piece took back with it was wall another viewpoint had drawn.
+    /// answered, and a whole piece taken back with it can hold wall another viewpoint drew.
     pub region_stretch_withdrawn_at_feet: bool,
 }
 
