@@ -229,6 +229,7 @@ pub fn run(bin_dir: &Path, cells: u32, resolution: f32, readings: usize) -> Resu
     let (mut to_reading, mut to_snapshot) = (Vec::new(), Vec::new());
     let mut rng = 0x9e37_79b9_7f4a_7c15u64 ^ u64::from(cells);
     let warmup = 10;
+    let mut slowest = Vec::new();
     for i in 0..warmup + readings {
         std::thread::sleep(Duration::from_millis(110 + jitter_ms(&mut rng, 40)));
         head.serve()?;
@@ -269,6 +270,9 @@ pub fn run(bin_dir: &Path, cells: u32, resolution: f32, readings: usize) -> Resu
             }
         }
         if i >= warmup {
+            if let Some(t) = snapshot_at {
+                slowest.push((t, i));
+            }
             to_snapshot.extend(snapshot_at);
             to_reading.extend(reading_at);
         }
@@ -285,6 +289,21 @@ pub fn run(bin_dir: &Path, cells: u32, resolution: f32, readings: usize) -> Resu
         show(quantile(&to_reading, 0.99)),
         show(quantile(&to_reading, 1.0)),
     );
+    // Which readings made the tail, by their place in the sweep: a sweep's last reading carries
+    // the sweep's end (its regions placed, its features), the first the next sweep's start.
+    slowest.sort_by(|a, b| b.cmp(a));
+    let tail: Vec<String> = slowest
+        .iter()
+        .take(5)
+        .map(|(t, i)| {
+            format!(
+                "{} (reading {} of its sweep)",
+                show(*t),
+                *i as u32 % SWEEP_READINGS + 1
+            )
+        })
+        .collect();
+    eprintln!("{cells}² slowest to a snapshot: {}", tail.join(", "));
     Ok(())
 }
 

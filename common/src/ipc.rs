@@ -21,6 +21,8 @@ pub const MAX_PINGS: usize = crate::protocol::MAX_PINGS_PER_READING;
 
 /// Averaged readings, one per 6° beam position, from the driver.
 pub const READINGS_SERVICE: &str = "sonar/readings";
+/// The sweeps the head reported ended, from the driver, each after its last reading.
+pub const SWEEP_ENDS_SERVICE: &str = "sonar/sweep_ends";
 /// Scan commands to the driver (full scan, local scan, stop), from any process.
 pub const COMMANDS_SERVICE: &str = "sonar/commands";
 /// The driver's connection state and counters, for viewers (history 1).
@@ -154,6 +156,27 @@ impl Reading {
         ScanMode::from_u8(self.mode)
     }
 }
+
+/// A sweep the head reported ended (`SWP,END`), on [`SWEEP_ENDS_SERVICE`]: published by the
+/// driver after the sweep's last reading, so a consumer that has that reading knows the sweep is
+/// whole now rather than when the next sweep's first reading comes (a quarter of a second later
+/// at the head's pace). Only for a sweep with a reading published; a head that never reports its
+/// sweeps' ends (the hobby dialect) sends none, so a consumer must still tell sweeps apart by
+/// the readings' `sweep_id`.
+#[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("sonar::SweepEndV1")]
+#[repr(C)]
+pub struct SweepEnd {
+    /// Host wall-clock time the end was read, ns since the Unix epoch.
+    pub stamp_ns: u64,
+    /// [`Reading::seq`] of the sweep's last reading.
+    pub last_seq: u64,
+    /// The ended sweep's [`Reading::sweep_id`].
+    pub sweep_id: u32,
+    pub reserved: u32,
+}
+
+const _: () = assert!(std::mem::size_of::<SweepEnd>() == 24);
 
 /// What a [`ScanCommand`] asks for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -998,6 +1021,22 @@ pub fn readings_service(node: &Node<ipc::Service>) -> Result<PubSub<Reading>, Ip
             subscribers: 8,
             buffer: 256,
             borrowed: Some(4),
+            history: 0,
+        },
+    )
+}
+
+/// `sonar/sweep_ends`: the driver's (and a second publisher's, as `sonar/readings` allows); a
+/// few ends buffered, since only the latest matters to a consumer that fell behind.
+pub fn sweep_ends_service(node: &Node<ipc::Service>) -> Result<PubSub<SweepEnd>, IpcError> {
+    pubsub(
+        node,
+        SWEEP_ENDS_SERVICE,
+        Qos {
+            publishers: 2,
+            subscribers: 8,
+            buffer: 4,
+            borrowed: None,
             history: 0,
         },
     )

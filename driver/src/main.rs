@@ -20,6 +20,7 @@ use iceoryx2::waitset::WaitSetRunResult;
 use serialport::{DataBits, Parity, SerialPort, StopBits, TTYPort};
 use sonar_common::ipc::{
     self, DriverStatus, IpcArgs, LinkState, Reading, ScanCommand, ScanCommandKind, ScanMode,
+    SweepEnd,
 };
 use sonar_common::logging::Misconfigured;
 use sonar_common::protocol::{
@@ -424,6 +425,10 @@ struct Link {
     print: bool,
     scan: ScanRequest,
     publisher: Publisher<Ipc, Reading, ()>,
+    /// The sweeps the head reports ended (`sonar/sweep_ends`).
+    sweep_ends: Publisher<Ipc, SweepEnd, ()>,
+    /// The latest reading published: its `seq` and `sweep_id`, what a sweep's end names.
+    last_published: Option<(u64, u32)>,
     notifier: Notifier<Ipc>,
     commands: Subscriber<Ipc, ScanCommand, ()>,
     status_publisher: Publisher<Ipc, DriverStatus, ()>,
@@ -471,6 +476,10 @@ impl Link {
             .publisher_builder()
             .create()
             .map_err(|e| ipc::IpcError::new("create readings publisher", e))?;
+        let sweep_ends = ipc::sweep_ends_service(node)?
+            .publisher_builder()
+            .create()
+            .map_err(|e| ipc::IpcError::new("create sweep ends publisher", e))?;
         let notifier = ipc::wakeup_notifier(node, ipc::READINGS_SERVICE)?;
         let commands = ipc::commands_service(node)?
             .subscriber_builder()
@@ -494,6 +503,8 @@ impl Link {
             print: args.print,
             scan: args.scan,
             publisher,
+            sweep_ends,
+            last_published: None,
             notifier,
             commands,
             status_publisher,
@@ -989,6 +1000,10 @@ impl Link {
                 } as u32;
                 debug!(?msg, "sweep start");
             }
+            DeviceMessage::SweepEnd { sweep } => {
+                debug!(?msg, "sweep end");
+                self.publish_sweep_end(*sweep)?;
+            }
             other => debug!(msg = ?other, "device message"),
         }
         Ok(())
@@ -1004,6 +1019,30 @@ impl Link {
         Ok(())
     }
 
+    /// Tells the consumers that device sweep `device` ended, if its last reading was the latest
+    /// published: they need not wait for the next sweep's first reading to see it whole. On
+    /// the readings' wake-up event, which the fusion waits on.
+    fn publish_sweep_end(&mut self, device: u32) -> Result<()> {
+        let Some((last_seq, sweep_id)) = self.last_published else {
+            return Ok(());
+        };
+        if self.sweeps.ended(device) != Some(sweep_id) {
+            return Ok(());
+        }
+        self.sweep_ends
+            .send_copy(SweepEnd {
+                stamp_ns: ipc::unix_time_ns(),
+                last_seq,
+                sweep_id,
+                reserved: 0,
+            })
+            .map_err(|e| ipc::IpcError::new("send sweep end", e))?;
+        self.notifier
+            .notify()
+            .map_err(|e| ipc::IpcError::new("notify readings", e))?;
+        Ok(())
+    }
+
     fn publish(&mut self, reading: &Reading) -> Result<()> {
         let sample = self
             .publisher
@@ -1016,6 +1055,7 @@ impl Link {
         self.notifier
             .notify()
             .map_err(|e| ipc::IpcError::new("notify readings", e))?;
+        self.last_published = Some((reading.seq, reading.sweep_id));
         self.status.angle_deg = reading.angle_deg;
         self.status.direction = i32::from(reading.direction);
         self.status.sweep_id = reading.sweep_id;

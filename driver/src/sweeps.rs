@@ -30,6 +30,12 @@ impl SweepIds {
         id
     }
 
+    /// The published id of device sweep `device` that the head reports ended (`SWP,END`): the
+    /// sweep going on, or `None` for any other (an end that crossed a reset, or came twice late).
+    pub fn ended(&self, device: u32) -> Option<u32> {
+        (self.last_device == Some(device)).then(|| self.base.wrapping_add(device))
+    }
+
     /// The head was reset: its next sweep is published as a new one, whatever its id.
     pub fn head_was_reset(&mut self) {
         self.base = self.last_published;
@@ -48,6 +54,24 @@ mod tests {
         // Reset in the middle of sweep 3: the device starts at 1 again.
         ids.head_was_reset();
         assert_eq!([1, 1, 2].map(|d| ids.of(d)), [4, 4, 5]);
+    }
+
+    #[test]
+    fn an_end_names_the_sweep_going_on_and_no_other() {
+        let mut ids = SweepIds::default();
+        assert_eq!(ids.ended(1), None, "no sweep yet");
+        assert_eq!(ids.of(1), 1);
+        assert_eq!(ids.ended(1), Some(1));
+        ids.head_was_reset();
+        assert_eq!(
+            ids.ended(1),
+            None,
+            "the interrupted sweep's end, after the reset"
+        );
+        assert_eq!(ids.of(1), 2);
+        assert_eq!(ids.ended(1), Some(2));
+        assert_eq!(ids.ended(0), None, "not the sweep going on");
+        assert_eq!(ids.of(1), 2, "looking an end up changes nothing");
     }
 
     #[test]

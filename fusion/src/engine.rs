@@ -257,6 +257,11 @@ impl Engine {
         Ok(())
     }
 
+    /// The sweep of the latest reading fused, if any.
+    pub fn sweep_id(&self) -> Option<u32> {
+        self.scan.map(|s| s.sweep_id)
+    }
+
     /// Whether `reading` starts a new sweep after readings of another one: the moment to publish
     /// the finished sweep's maps, before this reading changes them.
     pub fn starts_new_sweep(&self, reading: &Reading) -> bool {

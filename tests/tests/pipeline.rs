@@ -423,6 +423,95 @@ fn a_reset_head_is_sent_its_scan_again_and_a_different_head_is_refused() {
     });
 }
 
+/// A sweep the head reports ended is published whole at once: the driver passes the head's
+/// `SWP,END` on (`sonar/sweep_ends`) and the fusion places the sweep's last region of constant
+/// depth then, not when the next sweep's first reading comes (here none comes at all).
+#[test]
+fn a_sweep_the_head_reports_ended_is_mapped_whole_without_waiting_for_the_next() {
+    let sandbox = Sandbox::new("sweepend");
+    let node = sandbox.node("test-device");
+    let status = driver_status_subscriber(&node);
+    let grid = grid_subscriber(&node);
+    let ends = ipc::sweep_ends_service(&node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
+    let mut head = FakeHead::new();
+    let _driver = sandbox.spawn(
+        "sonar-driver",
+        &["--port", &head.serial.slave_path, "--scan", "full"],
+    );
+    let _fusion = sandbox.spawn("sonar-fusion", &["--no-persist"]);
+    head.handshake("TEST-HEAD");
+    wait_for_status(&node, &status, |s| {
+        s.link_state == LinkState::Connected as u32
+    });
+    wait_until(&node, "the fusion subscribed to the readings", || {
+        readings_subscribers(&node) >= 1
+    });
+
+    // A wall 1 m ahead heard from -30° to +30°: one region of constant depth, open until
+    // something ends it.
+    head.say(&DeviceMessage::SweepStart {
+        sweep: 7,
+        direction: Direction::Ccw,
+        mode: sonar_common::protocol::WireScanMode::Full,
+        from_cdeg: -3000,
+        to_cdeg: 3000,
+    });
+    let t = 5831; // ≈ 1.00 m at 20 °C
+    for (seq, angle_cdeg) in (-3000..=3000).step_by(600).enumerate() {
+        head.say(&DeviceMessage::Reading(WireReading {
+            seq: seq as u32,
+            time_ms: 1000 + 240 * seq as u32,
+            sweep: 7,
+            direction: Direction::Ccw,
+            angle_cdeg,
+            ping_count: 4,
+            echo_us: [t, t + 3, t, t - 3, 0, 0, 0, 0],
+        }));
+    }
+    let snapshot = |s: iceoryx2::sample::Sample<_, [u8], GridHeader>| GridSnapshot {
+        header: *s.user_header(),
+        cells: s.payload().to_vec(),
+    };
+    // The sweep's readings all fused, its last region still open.
+    let open = collect_until(
+        &node,
+        || grid.receive().unwrap().map(snapshot),
+        |got| got.last().is_some_and(|g| g.header.readings_fused == 11),
+    );
+    let open = open.last().unwrap();
+    let foot_open = open.max_near(1.0, 0.0, 1).unwrap_or(0.5);
+
+    head.say(&DeviceMessage::SweepEnd { sweep: 7 });
+    let end = collect_until(
+        &node,
+        || ends.receive().unwrap().map(|s| *s.payload()),
+        |got| !got.is_empty(),
+    )[0];
+    assert_eq!((end.sweep_id, end.last_seq), (7, 10), "{end:?}");
+    // A snapshot of the same readings with the region placed: the wall's foot more certain.
+    let whole = collect_until(
+        &node,
+        || grid.receive().unwrap().map(snapshot),
+        |got| {
+            got.last().is_some_and(|g| {
+                g.header.seq > open.header.seq
+                    && g.max_near(1.0, 0.0, 1).is_some_and(|p| p > foot_open)
+            })
+        },
+    );
+    let whole = whole.last().unwrap();
+    assert_eq!(whole.header.readings_fused, 11, "{:?}", whole.header);
+    assert!(
+        whole.max_near(1.0, 0.0, 1).is_some_and(|p| p > 0.5),
+        "the wall's foot is not occupied: {:?}",
+        whole.header
+    );
+}
+
 /// A command the head refuses (a segment outside its limits) reaches every consumer of the
 /// driver's status, with the head's reason.
 #[test]
