@@ -65,7 +65,7 @@ use sonar_common::ipc::Reading;
 use sonar_common::sensor::SensorConfig;
 use sonar_features::{Feature, FeatureKind, FeatureMap, Sweep};
 use sonar_fusion::{FusionConfig, FusionSection, Mapper, Observation, Preset};
-use sonar_sim::geometry::{distance_to_segment, segments_intersect};
+use sonar_sim::geometry::{distance_to_segment, rotate, segments_intersect};
 use sonar_sim::{Pose, Scene, SensorProfile, Vec2, Wall};
 use tracing::info;
 
@@ -791,7 +791,9 @@ impl Expected {
         }
     }
 
-    /// Expected of the map of several viewpoints: whatever one of them is expected to find.
+    /// The posts and walls expected of the map of several viewpoints: whatever one of them is
+    /// expected to find. Not the corners: each viewpoint's are the joints it looks into a
+    /// concave wedge of, listed in its own order ([`SeenJoints`] joins them).
     fn or(mut self, other: &Self) -> Self {
         let either = |a: &mut Vec<bool>, b: &[bool]| {
             a.resize(a.len().max(b.len()), false);
@@ -799,8 +801,49 @@ impl Expected {
         };
         either(&mut self.posts, &other.posts);
         either(&mut self.walls, &other.walls);
-        either(&mut self.corners, &other.corners);
+        self.corners.clear();
         self
+    }
+}
+
+/// Joints closer than this are one (the same joint brought into the scene's frame from two
+/// viewpoints differs by rounding only).
+const SAME_JOINT_M: f64 = 1e-3;
+
+/// The corners and wall ends of a scene as its viewpoints see them, in the scene's frame. A joint
+/// looks different from different places: a partition meeting a wall makes a concave corner on
+/// each side of it, each hidden from the other side, and the scene's own vertices are its joints
+/// seen from its origin only. So a map of several viewpoints is scored against the union: a
+/// corner wherever some viewpoint looks into a concave wedge (expected where such a viewpoint is
+/// expected to find it), a wall end or convex joint wherever some viewpoint sees one.
+#[derive(Debug, Default)]
+pub struct SeenJoints {
+    pub corners: Vec<(Vec2, bool)>,
+    pub edges: Vec<Vec2>,
+}
+
+impl SeenJoints {
+    /// Adds what viewpoint `view` sees: its `truth` and what it is `expected` to find, in its
+    /// frame.
+    fn add(&mut self, view: Pose, truth: &Truth, expected: &Expected) {
+        let to_scene = |p: Vec2| view.at + rotate(p, view.heading_rad);
+        for (&(at, _), &expect) in truth.corners.iter().zip(&expected.corners) {
+            let at = to_scene(at);
+            match self
+                .corners
+                .iter_mut()
+                .find(|(c, _)| (*c - at).norm() < SAME_JOINT_M)
+            {
+                Some((_, e)) => *e |= expect,
+                None => self.corners.push((at, expect)),
+            }
+        }
+        for &edge in &truth.edges {
+            let at = to_scene(edge);
+            if !self.edges.iter().any(|e| (*e - at).norm() < SAME_JOINT_M) {
+                self.edges.push(at);
+            }
+        }
     }
 }
 
@@ -817,7 +860,7 @@ fn merge_sweeps(map: &mut FeatureMap, readings: &[Reading], pose: &Isometry2<f64
 pub fn score_features(
     view_scene: &Scene,
     readings: &[Reading],
-) -> Result<(FeatureScore, Expected)> {
+) -> Result<(FeatureScore, Expected, Truth)> {
     let cfg = scene_feature_config(view_scene);
     let max_range_m = f64::from(cfg.sensor.max_range_m);
     let mut map = FeatureMap::new(cfg).context("setting up the feature map")?;
@@ -860,7 +903,7 @@ pub fn score_features(
             }
         }
     }
-    Ok((out, expected))
+    Ok((out, expected, truth))
 }
 
 /// A wall's line in normal form, its normal on the side of `towards`: (normal, distance from the
@@ -886,9 +929,9 @@ pub fn score_scene_map(
     scene: &Scene,
     map: &FeatureMap,
     expected: &Expected,
+    joints: &SeenJoints,
     scored: impl Fn(&Feature) -> bool,
 ) -> FeatureScore {
-    let truth = Truth::of(scene, Scan::Full);
     let features = map.features();
     let segments = map.segments(&[]);
     let mut used: Vec<bool> = features.iter().map(|f| !scored(f)).collect();
@@ -920,10 +963,10 @@ pub fn score_scene_map(
             }
         }
     }
-    for &edge in &truth.edges {
+    for &edge in &joints.edges {
         nearest(FeatureKind::Point, &|p| (p - point(edge)).norm());
     }
-    for (&(at, _), &expect) in truth.corners.iter().zip(&expected.corners) {
+    for &(at, expect) in &joints.corners {
         let error = nearest(FeatureKind::Corner, &|p| (p - point(at)).norm());
         if expect {
             out.expected[2] += 1;
@@ -972,10 +1015,23 @@ pub fn score_scene_map(
     }
     for (f, _) in features.iter().zip(&used).filter(|(_, u)| !**u) {
         let p = f.position();
+        let at = Vec2::new(p.x, p.y);
+        let nearest_corner_m = joints
+            .corners
+            .iter()
+            .map(|(c, _)| (*c - at).norm())
+            .fold(f64::INFINITY, f64::min);
         tracing::debug!(
             kind = ?f.kind(),
             x = p.x,
             y = p.y,
+            nearest_surface_m = scene.distance_to_surface(at),
+            nearest_corner_m,
+            nearest_joint_m = scene
+                .joints()
+                .iter()
+                .map(|j| (j.at - at).norm())
+                .fold(f64::INFINITY, f64::min),
             normal_deg = f.normal_deg(),
             seen = f.times_seen(),
             first_sweep = f.first_seen(),
@@ -1058,6 +1114,7 @@ pub fn run_scene(
     let cfg = scene_feature_config(&scene);
     let mut scene_map = FeatureMap::new(cfg).context("setting up the scene's feature map")?;
     let mut scene_expected = Expected::default();
+    let mut scene_joints = SeenJoints::default();
     for (k, &view) in views.iter().enumerate() {
         let view_scene = scenegen::seen_from(&scene, view)?;
         let capture = capture_with(
@@ -1068,8 +1125,9 @@ pub fn run_scene(
             mix(seed, index, k),
         )
         .with_context(|| format!("scene {} viewpoint {}", scene.name, k + 1))?;
-        let (view_features, expected) = score_features(&view_scene, &capture.readings)?;
+        let (view_features, expected, truth) = score_features(&view_scene, &capture.readings)?;
         features.push(view_features);
+        scene_joints.add(view, &truth, &expected);
         scene_expected = scene_expected.or(&expected);
         let true_pose = Isometry2::new(Vector2::new(view.at.x, view.at.y), view.heading_rad);
         merge_sweeps(&mut scene_map, &capture.readings, &true_pose);
@@ -1113,11 +1171,14 @@ pub fn run_scene(
         sensor,
         grid,
         features,
-        scene_features: score_scene_map(&scene, &scene_map, &scene_expected, |_| true),
+        scene_features: score_scene_map(&scene, &scene_map, &scene_expected, &scene_joints, |_| {
+            true
+        }),
         scene_features_confirmed: score_scene_map(
             &scene,
             &scene_map,
             &scene_expected,
+            &scene_joints,
             Feature::confirmed,
         ),
     })
@@ -1806,7 +1867,7 @@ mod structural_tests {
         let both = a.or(&b);
         assert_eq!(both.posts, vec![true, false]);
         assert_eq!(both.walls, vec![true, false, true]);
-        assert_eq!(both.corners, vec![true]);
+        assert!(both.corners.is_empty(), "corners are joined by SeenJoints");
         // A generated scene's map, scored in the scene's frame, finds walls and corners there
         // (4 of 10 walls and 5 of 8 corners with `srf05`, scene 0 of the report split).
         let generated = scenegen::generate(0).unwrap();
@@ -1820,6 +1881,48 @@ mod structural_tests {
                 .wall_angle_errors_deg
                 .iter()
                 .all(|&e| e <= PLANE_MATCH_DEG)
+        );
+    }
+
+    #[test]
+    fn a_joint_convex_from_the_scenes_origin_is_a_corner_for_a_viewpoint_inside_its_angle() {
+        let hard = |a: (f64, f64), b: (f64, f64)| Wall {
+            a: Vec2::new(a.0, a.1),
+            b: Vec2::new(b.0, b.1),
+            surface: sonar_sim::Surface::Hard,
+        };
+        // Two walls meeting at (1, 1): the origin looks at the outside of the angle, (2, 0) into it.
+        let scene = Scene::new(
+            "l",
+            vec![hard((1.0, -1.0), (1.0, 1.0)), hard((1.0, 1.0), (3.0, 1.0))],
+            vec![],
+        )
+        .unwrap();
+        let joint = Vec2::new(1.0, 1.0);
+        let from_origin = Truth::of(&scene, Scan::Full);
+        assert!(
+            from_origin
+                .corners
+                .iter()
+                .all(|(c, _)| (*c - joint).norm() > 0.01)
+        );
+        let mut joints = SeenJoints::default();
+        for view in [Pose::new(0.0, 0.0, 0.0), Pose::new(2.0, 0.0, 0.7)] {
+            let view_scene = scenegen::seen_from(&scene, view).unwrap();
+            let truth = Truth::of(&view_scene, Scan::Full);
+            let expected = Expected::of_view(&view_scene, &truth, 4.0);
+            joints.add(view, &truth, &expected);
+        }
+        let corners: Vec<_> = joints
+            .corners
+            .iter()
+            .filter(|(c, _)| (*c - joint).norm() < 0.01)
+            .collect();
+        assert_eq!(corners.len(), 1, "{joints:?}");
+        assert!(corners[0].1, "expected: in sight of (2, 0)");
+        assert!(
+            joints.edges.iter().any(|e| (*e - joint).norm() < 0.01),
+            "{joints:?}"
         );
     }
 
