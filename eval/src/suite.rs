@@ -1025,6 +1025,7 @@ pub fn score_scene_map(
             kind = ?f.kind(),
             x = p.x,
             y = p.y,
+            scene = %scene.name,
             nearest_surface_m = scene.distance_to_surface(at),
             nearest_corner_m,
             nearest_joint_m = scene
