@@ -868,6 +868,32 @@ pub fn score_features(
     let truth = Truth::of(view_scene, Scan::Full);
     let expected = Expected::of_view(view_scene, &truth, max_range_m);
     let scored = score(&map, &truth, &[]);
+    for (kind, at) in &scored.false_features {
+        let at = Vec2::new(at.x, at.y);
+        tracing::debug!(
+            scene = %view_scene.name,
+            ?kind,
+            x = at.x,
+            y = at.y,
+            nearest_surface_m = view_scene.distance_to_surface(at),
+            nearest_joint_m = view_scene
+                .joints()
+                .iter()
+                .map(|j| (j.at - at).norm())
+                .fold(f64::INFINITY, f64::min),
+            nearest_corner_m = truth
+                .corners
+                .iter()
+                .map(|(c, _)| (*c - at).norm())
+                .fold(f64::INFINITY, f64::min),
+            nearest_edge_m = truth
+                .edges
+                .iter()
+                .map(|e| (*e - at).norm())
+                .fold(f64::INFINITY, f64::min),
+            "false feature of a viewpoint"
+        );
+    }
     let mut out = FeatureScore {
         false_features: scored.false_features.len(),
         ..FeatureScore::default()
