@@ -25,7 +25,7 @@ use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use sonar_common::ipc::{
     self, DriverStatus, FeatureRecord, FeaturesHeader, FusionCommand, FusionCommandKind,
     FusionStatus, GridHeader, IpcArgs, IpcError, LinkState, LocalizedPose, Pose2D, Radar, Reading,
-    ScanCommand, ScanCommandKind, ScanMode, SlamCorrection, feature_kind, slam_state,
+    ScanCommand, ScanCommandKind, ScanMode, SlamCorrection, SweepEnd, feature_kind, slam_state,
 };
 
 /// How often `echo` and `hz` look for new messages.
@@ -79,6 +79,9 @@ enum Command {
 enum Topic {
     /// sonar/readings: one line per reading.
     Readings,
+    /// sonar/sweep_ends: each sweep the head reported ended, with its last reading's seq.
+    #[value(alias = "sweep_ends")]
+    SweepEnds,
     /// sonar/driver_status: the link, the scan, the counters.
     #[value(alias = "driver_status")]
     DriverStatus,
@@ -118,6 +121,7 @@ impl Topic {
     fn service(self) -> &'static str {
         match self {
             Topic::Readings => ipc::READINGS_SERVICE,
+            Topic::SweepEnds => ipc::SWEEP_ENDS_SERVICE,
             Topic::DriverStatus => ipc::DRIVER_STATUS_SERVICE,
             Topic::Grid => ipc::GRID_SERVICE,
             Topic::Pose => ipc::POSE_SERVICE,
@@ -329,6 +333,13 @@ fn receive_or_tick(
             &ipc::readings_service(node)?,
             service,
             reading_line,
+            each,
+        ),
+        Topic::SweepEnds => each_message(
+            node,
+            &ipc::sweep_ends_service(node)?,
+            service,
+            sweep_end_line,
             each,
         ),
         Topic::DriverStatus => each_message(
@@ -684,6 +695,13 @@ fn fusion_command_line(c: &FusionCommand) -> String {
         ),
         None => format!("unknown kind {} value {}", c.kind, c.value),
     }
+}
+
+fn sweep_end_line(e: &SweepEnd) -> String {
+    format!(
+        "stamp {} sweep {} ended, its last reading seq {}",
+        e.stamp_ns, e.sweep_id, e.last_seq
+    )
 }
 
 fn pose_line(p: &Pose2D) -> String {

@@ -815,6 +815,12 @@ fn the_sonar_command_lists_services_echoes_readings_and_measures_a_rate() {
         radar.starts_with("seq ") && radar.contains(" bins 60 "),
         "{radar}"
     );
+    // The head's sweep ends, as the driver passes them on.
+    let end = echo("sweep-ends");
+    assert!(
+        end.starts_with("stamp ") && end.contains(" ended, its last reading seq "),
+        "{end}"
+    );
     // The first sweep's snapshot lists the room's walls.
     let features = sandbox.run("sonar", &["echo", "features", "--count", "2"]);
     let features = check_ok("sonar echo features", &features);
