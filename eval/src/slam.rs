@@ -600,6 +600,7 @@ pub fn run(
                 error_cm = PoseError::of(&e.pose, &truth).position_m * 100.0,
                 error_deg = PoseError::of(&e.pose, &truth).heading_deg,
                 odometry_cm = PoseError::of(&e.odometry, &truth).position_m * 100.0,
+                odometry_deg = PoseError::of(&e.odometry, &truth).heading_deg,
                 sigma_cm = ?(e.covariance[(0, 0)].sqrt() * 100.0, e.covariance[(1, 1)].sqrt() * 100.0),
                 sigma_deg = e.covariance[(2, 2)].sqrt().to_degrees(),
                 nees = published,
