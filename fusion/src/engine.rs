@@ -11,7 +11,7 @@
 use nalgebra::{Isometry2, Vector2};
 use sonar_common::ipc::{
     FusionCommand, FusionCommandKind, GridHeader, LAYOUT_VERSION, Pose2D, RADAR_MAX_BINS, Radar,
-    Reading, SlamCorrection, preset_code, slam_state,
+    Reading, SlamCorrection, SweepEnd, preset_code, slam_state,
 };
 
 use crate::config::{ConfigError, FusionConfig, Preset};
@@ -62,8 +62,22 @@ pub struct Engine {
     early_pose_readings: u64,
     rejected_readings: u64,
     last_seq: Option<u64>,
+    /// The sweep of the latest reading fused, when it was closed on the head's word that it
+    /// ended ([`Self::sweep_ended`]): its next sweep's first reading need not close it again.
+    closed_sweep: Option<u32>,
     /// Bumped by every change of the state, so a saver knows whether there is anything new.
     revision: u64,
+}
+
+/// What a sweep's end ([`SweepEnd`], the head's word through the driver) did to the engine.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SweepEndOutcome {
+    /// Its last reading is still to be fused: offer the end again after it.
+    Early,
+    /// The sweep was closed; whether that changed the maps.
+    Closed { changed: bool },
+    /// Not the sweep the latest reading belongs to (fused past it, or another driver's): ignored.
+    Stale,
 }
 
 impl Engine {
@@ -81,6 +95,7 @@ impl Engine {
             early_pose_readings: 0,
             rejected_readings: 0,
             last_seq: None,
+            closed_sweep: None,
             revision: 0,
         })
     }
@@ -108,6 +123,7 @@ impl Engine {
             early_pose_readings: 0,
             rejected_readings: state.rejected_readings,
             last_seq: state.last_seq,
+            closed_sweep: None,
             revision: 0,
         })
     }
@@ -257,15 +273,46 @@ impl Engine {
         Ok(())
     }
 
-    /// The sweep of the latest reading fused, if any.
-    pub fn sweep_id(&self) -> Option<u32> {
-        self.scan.map(|s| s.sweep_id)
-    }
-
     /// Whether `reading` starts a new sweep after readings of another one: the moment to publish
     /// the finished sweep's maps, before this reading changes them.
     pub fn starts_new_sweep(&self, reading: &Reading) -> bool {
         self.scan.is_some_and(|s| s.sweep_id != reading.sweep_id)
+    }
+
+    /// Before fusing `reading`: when it starts a new sweep, closes the finished one
+    /// ([`Self::close_region`]) unless its end closed it already ([`Self::sweep_ended`]).
+    /// `Some(changed)` when it closed a sweep (the moment to publish that sweep's maps), `None`
+    /// otherwise.
+    pub fn close_finished_sweep(&mut self, reading: &Reading) -> Option<bool> {
+        if !self.starts_new_sweep(reading) {
+            // A reading after the end's word: the sweep goes on, and is closed again.
+            self.closed_sweep = None;
+            return None;
+        }
+        let closed = self.closed_sweep.take();
+        (closed != self.scan.map(|s| s.sweep_id)).then(|| self.close_region())
+    }
+
+    /// The head reported sweep `end.sweep_id` ended after reading `end.last_seq`: once that reading
+    /// is the latest fused, the sweep is closed now ([`Self::close_region`]), not when the next
+    /// sweep's first reading comes (a quarter of a second later at the head's pace). The maps are
+    /// the same either way, nothing being fused in between; what a recording or a live fusion
+    /// without the word (a hobby head) closes on the next reading instead, this closes at once.
+    pub fn sweep_ended(&mut self, end: &SweepEnd) -> SweepEndOutcome {
+        match self.last_seq {
+            Some(seq) if seq < end.last_seq => SweepEndOutcome::Early,
+            Some(seq)
+                if seq == end.last_seq
+                    && self.scan.is_some_and(|s| s.sweep_id == end.sweep_id)
+                    && self.closed_sweep != Some(end.sweep_id) =>
+            {
+                self.closed_sweep = Some(end.sweep_id);
+                SweepEndOutcome::Closed {
+                    changed: self.close_region(),
+                }
+            }
+            _ => SweepEndOutcome::Stale,
+        }
     }
 
     /// Places the evidence of the region of constant depth still open (with echoes placed by
@@ -525,6 +572,56 @@ mod tests {
         engine.fuse(&r1);
         assert!(!engine.starts_new_sweep(&reading(1, 6.0, 1.0)));
         assert!(engine.starts_new_sweep(&reading(2, 6.0, 1.0)));
+    }
+
+    /// A sweep closed on the head's word that it ended is closed once, where the next sweep's
+    /// first reading would have closed it: the same maps, and the last sweep whole without a
+    /// next reading.
+    #[test]
+    fn a_sweep_closed_on_its_end_makes_the_maps_of_one_closed_by_the_next_sweep() {
+        let mut on_end = Engine::new(FusionConfig::default(), 1000).unwrap();
+        let mut on_next = Engine::new(FusionConfig::default(), 1000).unwrap();
+        let readings: Vec<Reading> = sweeps()
+            .into_iter()
+            .enumerate()
+            .map(|(seq, r)| Reading {
+                seq: seq as u64,
+                ..r
+            })
+            .collect();
+        let end_of = |sweep_id: u32| SweepEnd {
+            sweep_id,
+            last_seq: 50 * u64::from(sweep_id) - 1,
+            ..SweepEnd::default()
+        };
+        for r in &readings {
+            let closed = on_end.close_finished_sweep(r);
+            assert_eq!(closed, None, "reading {}: closed on its end already", r.seq);
+            if r.seq == 49 {
+                assert_eq!(on_end.sweep_ended(&end_of(1)), SweepEndOutcome::Early);
+            }
+            on_end.fuse(r);
+            if r.seq == 49 {
+                assert_eq!(
+                    on_end.sweep_ended(&end_of(1)),
+                    SweepEndOutcome::Closed { changed: true }
+                );
+                assert_eq!(on_end.sweep_ended(&end_of(1)), SweepEndOutcome::Stale);
+            }
+            let closed = on_next.close_finished_sweep(r);
+            assert_eq!(closed.is_some(), r.seq == 50, "reading {}", r.seq);
+            on_next.fuse(r);
+            if r.seq == 50 {
+                assert_eq!(encoded(&mut on_end), encoded(&mut on_next));
+            }
+        }
+        assert_eq!(on_end.sweep_ended(&end_of(1)), SweepEndOutcome::Stale);
+        assert!(matches!(
+            on_end.sweep_ended(&end_of(2)),
+            SweepEndOutcome::Closed { .. }
+        ));
+        on_next.close_region();
+        assert_eq!(encoded(&mut on_end), encoded(&mut on_next));
     }
 
     /// A new sweep's SLAM correction places the next reading; a revision or a correction that is

@@ -38,7 +38,7 @@ use sonar_common::ipc::{
 };
 use sonar_common::throttle::Throttle;
 use sonar_fusion::SavedMap;
-use sonar_fusion::engine::Engine;
+use sonar_fusion::engine::{Engine, SweepEndOutcome};
 use sonar_fusion::features::SWEEP_IDLE;
 use sonar_fusion::history::Revised;
 use sonar_fusion::persist::{self, Restore, SaveReport, Saver};
@@ -400,7 +400,6 @@ fn run(args: &Args) -> Result<()> {
         pace: Pace::new(min_interval),
         sweep_end_pace: Pace::new(min_interval),
         pending_end: None,
-        closed_sweep: None,
         last_refresh: Instant::now(),
         ledger: Ledger::new(restored, engine.last_seq()),
         status_published: None,
@@ -974,9 +973,6 @@ struct Output<'a> {
     sweep_end_pace: Pace,
     /// The latest sweep end the driver reported whose last reading is not fused yet.
     pending_end: Option<SweepEnd>,
-    /// The sweep of the latest reading fused, when it was closed on the driver's word: its next
-    /// sweep's first reading need not close it again.
-    closed_sweep: Option<u32>,
     last_refresh: Instant,
     ledger: Ledger,
     /// The latest status published, and when.
@@ -1195,13 +1191,8 @@ impl Output<'_> {
                 self.waiting = Some((reading, received));
                 return Ok(false);
             }
-            if engine.starts_new_sweep(&reading) {
-                if self.closed_sweep.take() != engine.sweep_id() {
-                    self.close_sweep(engine)?;
-                }
-            } else {
-                // A reading after the driver's word: the sweep goes on, and is closed again.
-                self.closed_sweep = None;
+            if let Some(changed) = engine.close_finished_sweep(&reading) {
+                self.sweep_closed(engine, changed)?;
             }
             let stale_before = engine.stale_pose_readings();
             if !engine.fuse(&reading) {
@@ -1229,15 +1220,13 @@ impl Output<'_> {
         Ok(true)
     }
 
-    /// The finished sweep's last region of constant depth placed in its maps, and those maps
-    /// published, before the next sweep's first reading is fused. Counted by its own pace only:
-    /// the next reading's snapshot need not wait an interval behind it (with the region model,
-    /// whose sweep ends place the last region, the first reading of every sweep waited 100 ms: p99
-    /// line → snapshot 102 ms in `sonar-bench latency`).
-    fn close_sweep(&mut self, engine: &mut Engine) -> Result<()> {
-        if engine.close_region() {
-            self.dirty = true;
-        }
+    /// A sweep was closed ([`Engine::close_finished_sweep`], [`Engine::sweep_ended`]): its maps
+    /// published before the next sweep's first reading is fused. Counted by their own pace only:
+    /// the next reading's snapshot need not wait an interval behind them (with the region model,
+    /// whose sweep ends place the last region, the first reading of every sweep waited 100 ms:
+    /// p99 line → snapshot 102 ms in `sonar-bench latency`).
+    fn sweep_closed(&mut self, engine: &mut Engine, changed: bool) -> Result<()> {
+        self.dirty |= changed;
         let now = Instant::now();
         if self.dirty && self.sweep_end_pace.allows(now) {
             self.sweep_end_pace.sent(now);
@@ -1250,9 +1239,7 @@ impl Output<'_> {
     /// in the quiet before the next sweep, rather than on the next sweep's first reading, whose
     /// snapshot then waited for the sweep's walls drawn on to their corners, refutations and
     /// withdrawals and for the sweep's own snapshot (at 400² × 2 cm 0.65–0.82 ms of its
-    /// 1.2–1.4 ms, at 2048² × 1 cm 1.6–1.9 ms of 2.2–2.4 ms; `sonar-bench latency`). The maps
-    /// are the same either way: nothing is fused in between. Without the word (a hobby head, a
-    /// replay, a bridge) the next sweep's first reading closes it, as before.
+    /// 1.2–1.4 ms, at 2048² × 1 cm 1.6–1.9 ms of 2.2–2.4 ms; `sonar-bench latency`).
     fn close_ended_sweep(&mut self, engine: &mut Engine) -> Result<()> {
         while let Some(sample) = self
             .ports
@@ -1262,19 +1249,13 @@ impl Output<'_> {
         {
             self.pending_end = Some(*sample.payload());
         }
-        let Some(end) = self.pending_end else {
+        let Some(end) = self.pending_end.take() else {
             return Ok(());
         };
-        match engine.last_seq() {
-            // Its last reading is still to come (waiting for its pose, or behind others).
-            Some(seq) if seq < end.last_seq => {}
-            Some(seq) if seq == end.last_seq && engine.sweep_id() == Some(end.sweep_id) => {
-                self.pending_end = None;
-                self.close_sweep(engine)?;
-                self.closed_sweep = Some(end.sweep_id);
-            }
-            // Fused past it (the next reading closed it), or another driver's numbering.
-            _ => self.pending_end = None,
+        match engine.sweep_ended(&end) {
+            SweepEndOutcome::Early => self.pending_end = Some(end),
+            SweepEndOutcome::Closed { changed } => self.sweep_closed(engine, changed)?,
+            SweepEndOutcome::Stale => {}
         }
         Ok(())
     }

@@ -23,7 +23,7 @@ use mcap::records::{MessageHeader, Metadata, Record};
 use mcap::{McapError, WriteOptions};
 use sonar_common::ipc::{
     self, FeatureRecord, FeaturesHeader, FusionCommand, LAYOUT_VERSION, LocalizedPose, MAX_PINGS,
-    Pose2D, Reading, ScanCommand, SlamCorrection,
+    Pose2D, Reading, ScanCommand, SlamCorrection, SweepEnd,
 };
 
 /// Version of the recording format this crate writes and the newest it reads.
@@ -109,6 +109,15 @@ uint32 fixes
 float32 odometry_x_m
 float32 odometry_y_m
 float32 odometry_theta_rad
+uint32 reserved
+";
+
+/// `sonar::SweepEndV1`: a sweep the head reported ended, after its last reading.
+pub const SWEEP_END_SCHEMA: &str = "\
+# sonar::SweepEndV1 (docs/ipc.md): 24 bytes, little-endian
+uint64 stamp_ns
+uint64 last_seq
+uint32 sweep_id
 uint32 reserved
 ";
 
@@ -217,10 +226,14 @@ pub enum Topic {
     /// derives it); what an export draws `map → odom` with, and places the readings with when
     /// asked to (`sonar-export --slam-correction`).
     SlamCorrection,
+    /// `sonar/sweep_ends`, [`SweepEnd`]: where the head said its sweeps ended, so that an
+    /// export closes each sweep where the live fusion did (recordings without it close a sweep
+    /// on the next one's first reading, as the fusion does without the driver's word).
+    SweepEnds,
 }
 
 impl Topic {
-    pub const ALL: [Topic; 7] = [
+    pub const ALL: [Topic; 8] = [
         Topic::Readings,
         Topic::ScanCommands,
         Topic::FusionCommands,
@@ -228,6 +241,7 @@ impl Topic {
         Topic::Features,
         Topic::LocalizedPose,
         Topic::SlamCorrection,
+        Topic::SweepEnds,
     ];
 
     /// The iceoryx2 service name, which is also the MCAP topic.
@@ -240,6 +254,7 @@ impl Topic {
             Topic::Features => ipc::FEATURES_SERVICE,
             Topic::LocalizedPose => ipc::LOCALIZED_POSE_SERVICE,
             Topic::SlamCorrection => ipc::SLAM_CORRECTION_SERVICE,
+            Topic::SweepEnds => ipc::SWEEP_ENDS_SERVICE,
         }
     }
 
@@ -253,6 +268,7 @@ impl Topic {
             Topic::Features => "sonar/FeaturesV2",
             Topic::LocalizedPose => "sonar/LocalizedPoseV1",
             Topic::SlamCorrection => "sonar/SlamCorrectionV1",
+            Topic::SweepEnds => "sonar/SweepEndV1",
         }
     }
 
@@ -266,6 +282,7 @@ impl Topic {
             Topic::Features => FEATURES_SCHEMA,
             Topic::LocalizedPose => LOCALIZED_POSE_SCHEMA,
             Topic::SlamCorrection => SLAM_CORRECTION_SCHEMA,
+            Topic::SweepEnds => SWEEP_END_SCHEMA,
         }
     }
 
@@ -280,6 +297,7 @@ impl Topic {
             Topic::Features => None,
             Topic::LocalizedPose => Some(size_of::<LocalizedPose>()),
             Topic::SlamCorrection => Some(size_of::<SlamCorrection>()),
+            Topic::SweepEnds => Some(size_of::<SweepEnd>()),
         }
     }
 
@@ -349,6 +367,7 @@ pub enum Message {
     Features(FeatureSnapshot),
     LocalizedPose(LocalizedPose),
     SlamCorrection(SlamCorrection),
+    SweepEnd(SweepEnd),
 }
 
 impl Message {
@@ -361,6 +380,7 @@ impl Message {
             Message::Features(_) => Topic::Features,
             Message::LocalizedPose(_) => Topic::LocalizedPose,
             Message::SlamCorrection(_) => Topic::SlamCorrection,
+            Message::SweepEnd(_) => Topic::SweepEnds,
         }
     }
 
@@ -396,6 +416,12 @@ impl Message {
             Message::Features(f) => encode_features(&mut e, f),
             Message::LocalizedPose(p) => encode_localized_pose(&mut e, p),
             Message::SlamCorrection(c) => encode_slam_correction(&mut e, c),
+            Message::SweepEnd(end) => {
+                e.u64(end.stamp_ns);
+                e.u64(end.last_seq);
+                e.u32(end.sweep_id);
+                e.u32(end.reserved);
+            }
         }
         e.0
     }
@@ -439,6 +465,12 @@ impl Message {
             Topic::Features => Message::Features(decode_features(&mut d, layout)),
             Topic::LocalizedPose => Message::LocalizedPose(decode_localized_pose(&mut d)),
             Topic::SlamCorrection => Message::SlamCorrection(decode_slam_correction(&mut d)),
+            Topic::SweepEnds => Message::SweepEnd(SweepEnd {
+                stamp_ns: d.u64(),
+                last_seq: d.u64(),
+                sweep_id: d.u32(),
+                reserved: d.u32(),
+            }),
         })
     }
 
@@ -451,6 +483,7 @@ impl Message {
             Message::Features(f) => Some(f.header.stamp_ns),
             Message::LocalizedPose(p) => Some(p.stamp_ns),
             Message::SlamCorrection(c) => Some(c.stamp_ns),
+            Message::SweepEnd(end) => Some(end.stamp_ns),
             Message::ScanCommand(_) | Message::FusionCommand(_) => None,
         }
     }

@@ -97,7 +97,9 @@ impl WellKnownChannels {
                 self.converter.slam_correction(c);
                 Vec::new()
             }
-            Message::ScanCommand(_) | Message::FusionCommand(_) => Vec::new(),
+            Message::ScanCommand(_) | Message::FusionCommand(_) | Message::SweepEnd(_) => {
+                Vec::new()
+            }
         };
         self.write(writer, log_time_ns, outputs)
     }

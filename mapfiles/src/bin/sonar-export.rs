@@ -29,9 +29,9 @@ use iceoryx2::service::ipc::Service as Ipc;
 use iceoryx2::waitset::WaitSetRunResult;
 use sonar_common::ipc::{
     self, FusionCommandKind, GridHeader, IpcArgs, IpcError, LAYOUT_VERSION, Reading,
-    SlamCorrection, slam_state,
+    SlamCorrection, SweepEnd, slam_state,
 };
-use sonar_fusion::engine::Engine;
+use sonar_fusion::engine::{Engine, SweepEndOutcome};
 use sonar_fusion::history::Revised;
 use sonar_fusion::poses::MAX_POSE_WAIT;
 use sonar_fusion::{
@@ -849,6 +849,7 @@ fn fuse_recording<W: Write + Seek>(
         snapshots: 0,
         corrections: 0,
         revisions: 0,
+        pending_end: None,
     };
     for entry in &recording.entries {
         match &entry.message {
@@ -866,6 +867,10 @@ fn fuse_recording<W: Write + Seek>(
             }
             Message::SlamCorrection(c) if placement == Placement::SlamCorrection => {
                 run.slam_correction(c);
+            }
+            Message::SweepEnd(end) => {
+                run.pending_end = Some((entry.log_time_ns, *end));
+                run.close_ended_sweep(mcap.as_deref_mut())?;
             }
             Message::FusionCommand(c) if commands => {
                 // The readings before a command are fused before it, as the fusion receives them.
@@ -955,6 +960,8 @@ struct Run {
     /// caused.
     corrections: u64,
     revisions: u64,
+    /// The latest recorded sweep end whose last reading is not fused yet (it waits for its pose).
+    pending_end: Option<(u64, SweepEnd)>,
 }
 
 impl Run {
@@ -1003,6 +1010,40 @@ impl Run {
         }
     }
 
+    /// Closes the sweep a recorded end names once its last reading is fused, where the live
+    /// fusion closed it ([`Engine::sweep_ended`]); a recording without ends closes each sweep on
+    /// the next one's first reading, as the fusion does without the driver's word.
+    fn close_ended_sweep<W: Write + Seek>(
+        &mut self,
+        mcap: Option<&mut McapExport<W>>,
+    ) -> Result<()> {
+        let Some((logged_ns, end)) = self.pending_end.take() else {
+            return Ok(());
+        };
+        match self.engine.sweep_ended(&end) {
+            SweepEndOutcome::Early => self.pending_end = Some((logged_ns, end)),
+            SweepEndOutcome::Closed { .. } => self.sweep_closed(logged_ns, mcap)?,
+            SweepEndOutcome::Stale => {}
+        }
+        Ok(())
+    }
+
+    /// A sweep was closed: its map into the export, as the fusion publishes it then.
+    fn sweep_closed<W: Write + Seek>(
+        &mut self,
+        logged_ns: u64,
+        mcap: Option<&mut McapExport<W>>,
+    ) -> Result<()> {
+        if let Some(mcap) = mcap {
+            self.snapshots += 1;
+            mcap.grid(
+                logged_ns,
+                &grid_snapshot(&mut self.engine, self.snapshots, self.stamp),
+            )?;
+        }
+        Ok(())
+    }
+
     /// Completes the rebuild of the maps that revisions started, in one step (offline nothing
     /// waits for it).
     fn finish_rebuild(&mut self) {
@@ -1026,15 +1067,8 @@ impl Run {
         mut mcap: Option<&mut McapExport<W>>,
     ) -> Result<()> {
         self.finish_rebuild();
-        if self.engine.starts_new_sweep(r) {
-            self.engine.close_region();
-            if let Some(mcap) = mcap.as_deref_mut() {
-                self.snapshots += 1;
-                mcap.grid(
-                    logged_ns,
-                    &grid_snapshot(&mut self.engine, self.snapshots, self.stamp),
-                )?;
-            }
+        if self.engine.close_finished_sweep(r).is_some() {
+            self.sweep_closed(logged_ns, mcap.as_deref_mut())?;
         }
         if self.engine.fuse(r) {
             self.fused += 1;
@@ -1044,7 +1078,7 @@ impl Run {
         if let Some(tracker) = &mut self.tracker {
             tracker.follow(r, &mut self.engine, self.localize);
             if self.localize
-                && let Some(mcap) = mcap
+                && let Some(mcap) = mcap.as_deref_mut()
             {
                 // The correction the next reading is placed with: the frames say the same.
                 let c = tracker.correction();
@@ -1057,7 +1091,7 @@ impl Run {
             }
         }
         self.stamp = r.host_stamp_ns;
-        Ok(())
+        self.close_ended_sweep(mcap)
     }
 }
 

@@ -227,6 +227,7 @@ fn run(args: Args) -> Result<()> {
         features = count(Topic::Features),
         localized_poses = count(Topic::LocalizedPose),
         slam_corrections = count(Topic::SlamCorrection),
+        sweep_ends = count(Topic::SweepEnds),
         well_known = finished.well_known,
         lost,
         bytes = finished.bytes,
@@ -257,6 +258,8 @@ struct Ports {
     /// replayed: the fusion or sonar-slam derives them).
     localized_pose: OptionalPort<Subscriber<Ipc, ipc::LocalizedPose, ()>>,
     slam_correction: OptionalPort<Subscriber<Ipc, ipc::SlamCorrection, ()>>,
+    /// Where the head said its sweeps ended (their wake-up is the readings').
+    sweep_ends: OptionalPort<Subscriber<Ipc, ipc::SweepEnd, ()>>,
     /// Wake-up events: the readings' (required), then those of the other services had at start
     /// (one had later is polled).
     listeners: Vec<Listener<Ipc>>,
@@ -298,6 +301,9 @@ impl Ports {
                 ipc::SLAM_CORRECTION_SERVICE,
                 |n| subscriber(n, ipc::slam_correction_service),
             ),
+            sweep_ends: OptionalPort::open(node, ipc::SWEEP_ENDS_SERVICE, |n| {
+                subscriber(n, ipc::sweep_ends_service)
+            }),
             listeners: Vec::new(),
         };
         for (present, service) in [
@@ -339,6 +345,7 @@ impl Ports {
         self.grid.retry(node, now);
         self.localized_pose.retry(node, now);
         self.slam_correction.retry(node, now);
+        self.sweep_ends.retry(node, now);
     }
 }
 
@@ -489,7 +496,13 @@ impl Recorder {
         if let Some(sub) = ports.grid.get() {
             self.drain_grid(sub, now);
         }
-        self.drain_readings(&ports.readings)
+        let done = self.drain_readings(&ports.readings);
+        // After the readings: an end follows its sweep's last reading.
+        if let Some(sub) = ports.sweep_ends.get() {
+            let next = || Ok::<_, ReceiveError>(sub.receive()?.map(|s| Message::SweepEnd(*s)));
+            self.drain(Topic::SweepEnds, next, ipc::unix_time_ns());
+        }
+        done
     }
 
     fn send(&mut self, log_time_ns: u64, message: Message) {

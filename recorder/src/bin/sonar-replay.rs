@@ -142,7 +142,9 @@ fn run(args: Args) -> Result<()> {
         .entries
         .iter()
         .filter(|e| match e.message.topic() {
-            Topic::Readings => true,
+            // The sweeps' ends go with the readings: the fusion closes a sweep where the live one
+            // did, the last one too (`docs/ipc.md`, `sonar/sweep_ends`).
+            Topic::Readings | Topic::SweepEnds => true,
             // Addressed to the driver, or derived from the readings by the fusion or sonar-slam.
             Topic::ScanCommands
             | Topic::Features
@@ -232,6 +234,8 @@ struct Ports {
     readings: Port<Reading>,
     fusion_commands: Option<Port<ipc::FusionCommand>>,
     pose: Option<Port<ipc::Pose2D>>,
+    /// With the readings' wake-up event, which the fusion waits on.
+    sweep_ends: Option<Port<ipc::SweepEnd>>,
 }
 
 impl Ports {
@@ -262,11 +266,24 @@ impl Ports {
         } else {
             None
         };
+        let sweep_ends = if recording.count(Topic::SweepEnds) > 0 {
+            let publisher = ipc::sweep_ends_service(node)?
+                .publisher_builder()
+                .create()
+                .map_err(|e| IpcError::new("create sonar/sweep_ends publisher", e))?;
+            Some((
+                publisher,
+                ipc::wakeup_notifier(node, ipc::READINGS_SERVICE)?,
+            ))
+        } else {
+            None
+        };
         Ok(Self {
             readings_service,
             readings,
             fusion_commands,
             pose,
+            sweep_ends,
         })
     }
 
@@ -318,6 +335,16 @@ impl Ports {
                         p.stamp_ns = ipc::unix_time_ns();
                     }
                     send(port, p, ipc::POSE_SERVICE)
+                }
+                None => Ok(()),
+            },
+            Message::SweepEnd(end) => match &self.sweep_ends {
+                Some(port) => {
+                    let mut end = *end;
+                    if restamp {
+                        end.stamp_ns = ipc::unix_time_ns();
+                    }
+                    send(port, end, ipc::SWEEP_ENDS_SERVICE)
                 }
                 None => Ok(()),
             },

@@ -100,6 +100,15 @@ fn sample_messages() -> Vec<(u64, Message)> {
                 ..SlamCorrection::default()
             }),
         ),
+        (
+            t + 9,
+            Message::SweepEnd(SweepEnd {
+                stamp_ns: t + 9,
+                last_seq: 2,
+                sweep_id: 7,
+                reserved: 0,
+            }),
+        ),
     ]
 }
 
@@ -337,6 +346,11 @@ fn schemas_match_the_rust_layouts_field_by_field() {
             refused,
         ]
     );
+    assert_layout!(
+        Topic::SweepEnds.schema(),
+        SweepEnd,
+        [stamp_ns, last_seq, sweep_id, reserved]
+    );
     let sizes = [
         (Topic::Readings, size_of::<Reading>()),
         (Topic::ScanCommands, size_of::<ScanCommand>()),
@@ -344,6 +358,7 @@ fn schemas_match_the_rust_layouts_field_by_field() {
         (Topic::Pose, size_of::<Pose2D>()),
         (Topic::LocalizedPose, size_of::<LocalizedPose>()),
         (Topic::SlamCorrection, size_of::<SlamCorrection>()),
+        (Topic::SweepEnds, size_of::<SweepEnd>()),
     ];
     for (topic, size) in sizes {
         assert_eq!(topic.message_size(), Some(size), "{topic}");
@@ -419,6 +434,7 @@ fn encoding_is_the_shared_memory_image() {
             Message::Pose(p) => image(p),
             Message::LocalizedPose(p) => image(p),
             Message::SlamCorrection(c) => image(c),
+            Message::SweepEnd(e) => image(e),
             Message::Features(f) => {
                 let mut bytes = image(&f.header);
                 bytes.extend_from_slice(&(f.records.len() as u32).to_le_bytes());
