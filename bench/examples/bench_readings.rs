@@ -17,9 +17,7 @@ use sonar_fusion::{FusionConfig, Preset, engine::Engine};
 /// A reading fused, the finished sweep's last region closed first if it starts a new one.
 #[inline(never)]
 fn fuse(engine: &mut Engine, r: &Reading) -> bool {
-    if engine.starts_new_sweep(r) {
-        engine.close_region();
-    }
+    engine.close_finished_sweep(r);
     engine.fuse(r)
 }
 

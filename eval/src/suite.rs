@@ -806,6 +806,13 @@ impl Expected {
     }
 }
 
+/// The distance from `at` to the nearest of `points` (infinite for none): for the logs.
+fn nearest_m(points: impl Iterator<Item = Vec2>, at: Vec2) -> f64 {
+    points
+        .map(|p| (p - at).norm())
+        .fold(f64::INFINITY, f64::min)
+}
+
 /// Joints closer than this are one (the same joint brought into the scene's frame from two
 /// viewpoints differs by rounding only).
 const SAME_JOINT_M: f64 = 1e-3;
@@ -876,21 +883,9 @@ pub fn score_features(
             x = at.x,
             y = at.y,
             nearest_surface_m = view_scene.distance_to_surface(at),
-            nearest_joint_m = view_scene
-                .joints()
-                .iter()
-                .map(|j| (j.at - at).norm())
-                .fold(f64::INFINITY, f64::min),
-            nearest_corner_m = truth
-                .corners
-                .iter()
-                .map(|(c, _)| (*c - at).norm())
-                .fold(f64::INFINITY, f64::min),
-            nearest_edge_m = truth
-                .edges
-                .iter()
-                .map(|e| (*e - at).norm())
-                .fold(f64::INFINITY, f64::min),
+            nearest_joint_m = nearest_m(view_scene.joints().iter().map(|j| j.at), at),
+            nearest_corner_m = nearest_m(truth.corners.iter().map(|c| c.0), at),
+            nearest_edge_m = nearest_m(truth.edges.iter().copied(), at),
             "false feature of a viewpoint"
         );
     }
@@ -1042,23 +1037,14 @@ pub fn score_scene_map(
     for (f, _) in features.iter().zip(&used).filter(|(_, u)| !**u) {
         let p = f.position();
         let at = Vec2::new(p.x, p.y);
-        let nearest_corner_m = joints
-            .corners
-            .iter()
-            .map(|(c, _)| (*c - at).norm())
-            .fold(f64::INFINITY, f64::min);
         tracing::debug!(
             kind = ?f.kind(),
             x = p.x,
             y = p.y,
             scene = %scene.name,
             nearest_surface_m = scene.distance_to_surface(at),
-            nearest_corner_m,
-            nearest_joint_m = scene
-                .joints()
-                .iter()
-                .map(|j| (j.at - at).norm())
-                .fold(f64::INFINITY, f64::min),
+            nearest_corner_m = nearest_m(joints.corners.iter().map(|c| c.0), at),
+            nearest_joint_m = nearest_m(scene.joints().iter().map(|j| j.at), at),
             normal_deg = f.normal_deg(),
             seen = f.times_seen(),
             first_sweep = f.first_seen(),

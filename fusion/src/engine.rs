@@ -700,9 +700,7 @@ mod tests {
         for r in &readings {
             // As the process does, and the rebuild after it: a sweep's last region of constant
             // depth is placed when the next sweep begins.
-            if right.starts_new_sweep(r) {
-                right.close_region();
-            }
+            right.close_finished_sweep(r);
             right.fuse(r);
         }
         assert_ne!(encoded(&mut live), encoded(&mut right));
