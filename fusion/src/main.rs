@@ -488,6 +488,8 @@ fn run(args: &Args) -> Result<()> {
     // Stopping: the readings already delivered are fused and the map they make is published
     // (pace or not), so a replay's last readings reach the saved map and its subscribers.
     while out.fuse_readings(&mut engine, features.as_mut(), PoseWait::None)? {}
+    // A sweep whose end came with those readings is closed, as an export of the recording does.
+    out.close_ended_sweep(&mut engine)?;
     while engine.rebuilding() {
         out.rebuild_step(&mut engine);
     }
