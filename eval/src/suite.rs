@@ -1578,6 +1578,43 @@ mod tests {
     }
 
     #[test]
+    fn a_joint_convex_from_the_scenes_origin_is_a_corner_for_a_viewpoint_inside_its_angle() {
+        // Two walls meeting at (1, 1): the origin looks at the outside of the angle, (2, 0) into it.
+        let scene = Scene::new(
+            "l",
+            vec![wall([1.0, -1.0], [1.0, 1.0]), wall([1.0, 1.0], [3.0, 1.0])],
+            vec![],
+        )
+        .unwrap();
+        let joint = Vec2::new(1.0, 1.0);
+        let from_origin = Truth::of(&scene, Scan::Full);
+        assert!(
+            from_origin
+                .corners
+                .iter()
+                .all(|(c, _)| (*c - joint).norm() > 0.01)
+        );
+        let mut joints = SeenJoints::default();
+        for view in [Pose::new(0.0, 0.0, 0.0), Pose::new(2.0, 0.0, 0.7)] {
+            let view_scene = scenegen::seen_from(&scene, view).unwrap();
+            let truth = Truth::of(&view_scene, Scan::Full);
+            let expected = Expected::of_view(&view_scene, &truth, 4.0);
+            joints.add(view, &truth, &expected);
+        }
+        let corners: Vec<_> = joints
+            .corners
+            .iter()
+            .filter(|(c, _)| (*c - joint).norm() < 0.01)
+            .collect();
+        assert_eq!(corners.len(), 1, "{joints:?}");
+        assert!(corners[0].1, "expected: in sight of (2, 0)");
+        assert!(
+            joints.edges.iter().any(|e| (*e - joint).norm() < 0.01),
+            "{joints:?}"
+        );
+    }
+
+    #[test]
     fn grid_scoring_of_a_hand_checked_scene() {
         // Two walls, 2 m long, at x = 1 (facing the sensor) and x = 2 behind it (hidden where
         // the first covers it: |y| <= 1 is hidden, 1 < |y| <= 1.5 not).
@@ -1894,48 +1931,6 @@ mod structural_tests {
                 .wall_angle_errors_deg
                 .iter()
                 .all(|&e| e <= PLANE_MATCH_DEG)
-        );
-    }
-
-    #[test]
-    fn a_joint_convex_from_the_scenes_origin_is_a_corner_for_a_viewpoint_inside_its_angle() {
-        let hard = |a: (f64, f64), b: (f64, f64)| Wall {
-            a: Vec2::new(a.0, a.1),
-            b: Vec2::new(b.0, b.1),
-            surface: sonar_sim::Surface::Hard,
-        };
-        // Two walls meeting at (1, 1): the origin looks at the outside of the angle, (2, 0) into it.
-        let scene = Scene::new(
-            "l",
-            vec![hard((1.0, -1.0), (1.0, 1.0)), hard((1.0, 1.0), (3.0, 1.0))],
-            vec![],
-        )
-        .unwrap();
-        let joint = Vec2::new(1.0, 1.0);
-        let from_origin = Truth::of(&scene, Scan::Full);
-        assert!(
-            from_origin
-                .corners
-                .iter()
-                .all(|(c, _)| (*c - joint).norm() > 0.01)
-        );
-        let mut joints = SeenJoints::default();
-        for view in [Pose::new(0.0, 0.0, 0.0), Pose::new(2.0, 0.0, 0.7)] {
-            let view_scene = scenegen::seen_from(&scene, view).unwrap();
-            let truth = Truth::of(&view_scene, Scan::Full);
-            let expected = Expected::of_view(&view_scene, &truth, 4.0);
-            joints.add(view, &truth, &expected);
-        }
-        let corners: Vec<_> = joints
-            .corners
-            .iter()
-            .filter(|(c, _)| (*c - joint).norm() < 0.01)
-            .collect();
-        assert_eq!(corners.len(), 1, "{joints:?}");
-        assert!(corners[0].1, "expected: in sight of (2, 0)");
-        assert!(
-            joints.edges.iter().any(|e| (*e - joint).norm() < 0.01),
-            "{joints:?}"
         );
     }
 
