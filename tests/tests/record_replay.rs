@@ -355,21 +355,34 @@ fn grid_subscriber(node: &Node<Ipc>) -> GridSubscriber {
         .unwrap()
 }
 
-/// The first `sonar/grid` snapshot with exactly `readings` fused: its header and cells. Gives up
-/// after [`PATIENCE`] naming the last snapshot had and the fusion's latest status (a reading lost
-/// on the way never comes: its `readings_lost`).
+/// A snapshot that follows the last one with the same readings by this long has not come: the
+/// map after them is settled. The sweep those readings end is closed after the snapshot of its
+/// last reading once the head's end of it comes (`sonar/sweep_ends`), so two snapshots can hold the
+/// same readings, the second with the sweep's last region placed; the fusion sends the second
+/// within its snapshot interval (100 ms) of the first.
+const SETTLED: Duration = Duration::from_secs(3);
+
+/// The last `sonar/grid` snapshot with exactly `readings` fused, once none has followed it for
+/// [`SETTLED`]: its header and cells. Gives up after [`PATIENCE`] naming the last snapshot had and
+/// the fusion's latest status (a reading lost on the way never comes: its `readings_lost`).
 fn map_after(node: &Node<Ipc>, grid: &GridSubscriber, readings: u64) -> (ipc::GridHeader, Vec<u8>) {
     let status = fusion_status_subscriber(node);
     let deadline = Instant::now() + PATIENCE;
     let mut last = None;
     let mut last_status = None;
+    let mut found: Option<(ipc::GridHeader, Vec<u8>, Instant)> = None;
     loop {
         while let Some(sample) = grid.receive().unwrap() {
             let header = *sample.user_header();
             if header.readings_fused == readings {
-                return (header, sample.payload().to_vec());
+                found = Some((header, sample.payload().to_vec(), Instant::now()));
             }
             last = Some(header);
+        }
+        if let Some((header, cells, at)) = &found
+            && at.elapsed() >= SETTLED
+        {
+            return (*header, cells.clone());
         }
         while let Some(sample) = status.receive().unwrap() {
             last_status = Some(*sample.payload());
