@@ -698,6 +698,7 @@ pub fn evaluate(settings: &SlamSettings) -> Result<Vec<Run>> {
                         level = level.label(),
                         sweeps = r.slam.len(),
                         slam_max_cm = largest(&r.slam, false) * 100.0,
+                        revised_max_cm = r.revised.iter().map(|e| e.position_m).fold(0.0, f64::max) * 100.0,
                         localize_max_cm = largest(&r.localize, false) * 100.0,
                         odometry_max_cm = largest_odometry(&r.slam, false) * 100.0,
                         "run done"
@@ -1152,7 +1153,7 @@ mod tests {
         assert!((turned - 90.0).abs() < 10.0, "{turned}");
         let walls = sonar_features::FeatureMap::new(SlamConfig::default().features)
             .unwrap()
-            .walls_on_the_move(&placed);
+            .walls_on_the_move(&placed, sonar_features::NearRegions::AsWalls);
         let end_wall: Vec<_> = walls
             .iter()
             .filter(|o| o.whole && (o.range_m - 1.88).abs() < 0.03)

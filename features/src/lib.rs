@@ -104,7 +104,7 @@ pub use error::FeatureError;
 pub use feature::{Feature, FeatureKind};
 pub use geometry::{wrap_deg, wrap_rad};
 pub use localize::{Needs, PoseFix, WallAhead};
-pub use map::{FeatureMap, FeatureSummary, SweepReport};
+pub use map::{FeatureMap, FeatureSummary, NearRegions, SweepReport};
 pub use noise::{NoiseConfig, NoiseModel, PingPair};
 pub use odometry::OdometryErrors;
 pub use physics::{EchoPhysics, Reflector};

@@ -63,6 +63,19 @@ pub(crate) struct Placed {
 /// generated suite is one place; a robot scanning on the move makes a new one every 20 cm.
 pub(crate) const ONE_PLACE_M: f64 = 0.2;
 
+/// What [`FeatureMap::walls_on_the_move`] makes of a region as wide as both a post's cone and a
+/// wall's region ([`Observation::also_plane`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NearRegions {
+    /// Left out: the caller merges what it is given as walls, and a post beside the path would
+    /// become one.
+    LeftOut,
+    /// Taken for a wall too: for a caller that admits a wall only once another viewpoint places
+    /// it alike (a post's "wall" turns with the viewpoint, a wall's stays). In a hallway of
+    /// 1–1.4 m the side walls are such regions.
+    AsWalls,
+}
+
 /// Normal directions tried for the walls of a sweep on the move, degrees apart.
 const MOVING_NORMAL_STEP_DEG: f64 = 2.0;
 /// Pings within this of a tried normal are looked at: a wall is heard within its specular cut-off
@@ -292,7 +305,16 @@ impl FeatureMap {
     /// whose normals lie within the specular cut-off of each other (from one place such walls
     /// share their pings) the one kept is whole if any is, and of those the one whose region
     /// holds the most pings.
-    pub fn walls_on_the_move(&self, readings: &[(Reading, Isometry2<f64>)]) -> Vec<Observation> {
+    ///
+    /// A region as wide as both a post's cone and a wall's region (a wall within about 0.6 m,
+    /// abeam in a hallway) is a point to the classifier unless a corner beside it says otherwise
+    /// ([`Observation::also_plane`]); `near_regions` says whether such a region whose middle
+    /// lies on the normal is taken for a wall too.
+    pub fn walls_on_the_move(
+        &self,
+        readings: &[(Reading, Isometry2<f64>)],
+        near_regions: NearRegions,
+    ) -> Vec<Observation> {
         // (whole, pings in its region, range tolerance, the plane), every normal's.
         let mut found: Vec<(bool, u32, f64, Observation)> = Vec::new();
         let steps = (360.0 / MOVING_NORMAL_STEP_DEG).round() as usize;
@@ -310,8 +332,15 @@ impl FeatureMap {
             for o in classify(&rcds, &self.cfg).observations {
                 let agrees = crate::geometry::wrap_deg(o.bearing_deg - normal).abs()
                     <= MOVING_NORMAL_STEP_DEG / 2.0;
-                if o.kind == FeatureKind::Plane && agrees {
+                let wall = o.kind == FeatureKind::Plane
+                    || o.also_plane && near_regions == NearRegions::AsWalls;
+                if wall && agrees {
                     let pings = rcds.get(o.rcd).map_or(0, |r| r.pings);
+                    let o = Observation {
+                        kind: FeatureKind::Plane,
+                        also_plane: false,
+                        ..o
+                    };
                     found.push((o.whole, pings, gate.tolerance_at(o.range_m), o));
                 }
             }
@@ -967,12 +996,11 @@ mod tests {
         m.features().iter().filter(|f| f.kind() == kind).collect()
     }
 
-    #[test]
-    fn a_wall_passed_on_the_move_is_found_under_its_own_normal() {
-        // Driving along x at 5 cm per reading past a wall 0.8 m to the left (y = 0.8) while the
-        // head turns from 45° to 135°: every ping within the cut-off of the wall's normal hears
-        // 0.8 m, each from its own place.
-        let readings: Vec<(Reading, Isometry2<f64>)> = (0..16)
+    /// Driving along x at 5 cm per reading past a wall `distance_m` to the left while the head
+    /// turns from 45° to 135°: every ping within the cut-off of the wall's normal hears it, each
+    /// from its own place.
+    fn passing_a_wall(distance_m: f64) -> Vec<(Reading, Isometry2<f64>)> {
+        (0..16)
             .map(|k| {
                 let centre = 45.0 + 6.0 * k as f32;
                 let ranges: Vec<f64> = [-2.25, -0.75, 0.75, 2.25]
@@ -980,7 +1008,7 @@ mod tests {
                     .map(|o| {
                         let axis = f64::from(centre) + o;
                         if (axis - 90.0).abs() <= 28.0 {
-                            0.8
+                            distance_m
                         } else {
                             0.0
                         }
@@ -989,7 +1017,32 @@ mod tests {
                 let pose = Isometry2::translation(0.05 * f64::from(k), 0.0);
                 (reading(centre, 1, &ranges), pose)
             })
-            .collect();
+            .collect()
+    }
+
+    #[test]
+    fn a_wall_close_abeam_on_the_move_is_a_wall_only_when_asked() {
+        // At 0.45 m a wall's region is as wide as a post's cone: a point to the classifier.
+        let readings = passing_a_wall(0.45);
+        let m = map();
+        let at_wall = |near_regions| -> Vec<Observation> {
+            m.walls_on_the_move(&readings, near_regions)
+                .into_iter()
+                .filter(|o| (o.range_m - 0.45).abs() < 0.01)
+                .collect()
+        };
+        assert!(at_wall(NearRegions::LeftOut).is_empty());
+        let walls = at_wall(NearRegions::AsWalls);
+        assert_eq!(walls.len(), 1, "{walls:?}");
+        let wall = &walls[0];
+        assert_eq!(wall.kind, FeatureKind::Plane);
+        assert!(!wall.also_plane && wall.whole, "{wall:?}");
+        assert!((wall.bearing_deg - 90.0).abs() < 1.0, "{wall:?}");
+    }
+
+    #[test]
+    fn a_wall_passed_on_the_move_is_found_under_its_own_normal() {
+        let readings = passing_a_wall(0.8);
         let m = map();
         let near = |o: &Observation| {
             o.kind == FeatureKind::Plane
@@ -1004,7 +1057,7 @@ mod tests {
         ));
         assert!(!along_axes.observations.iter().any(near), "{along_axes:?}");
         // Under the wall's own normal the ranges are one again.
-        let walls = m.walls_on_the_move(&readings);
+        let walls = m.walls_on_the_move(&readings, NearRegions::LeftOut);
         assert_eq!(walls.iter().filter(|o| near(o)).count(), 1, "{walls:?}");
     }
 
@@ -1015,7 +1068,7 @@ mod tests {
         // and whole. (With every ping at its reading's pose, each reading's pings land up to
         // 8.1° from where they were aimed, and no wall is found there at all.)
         let (readings, _) = crate::pings::tests::turning_in_place();
-        let walls = map().walls_on_the_move(&readings);
+        let walls = map().walls_on_the_move(&readings, NearRegions::LeftOut);
         let wall = walls
             .iter()
             .find(|o| o.kind == FeatureKind::Plane && (o.range_m - 1.0).abs() < 0.01)
@@ -1038,7 +1091,7 @@ mod tests {
         // of the reference's heading (from 100° to 294°).
         for (start, wall_deg) in [(-100.0, 0.0), (100.0, 180.0)] {
             let (readings, _) = crate::pings::tests::turning_in_place_at(45.0, start, wall_deg);
-            let walls = map().walls_on_the_move(&readings);
+            let walls = map().walls_on_the_move(&readings, NearRegions::LeftOut);
             let at_wall: Vec<&Observation> = walls
                 .iter()
                 .filter(|o| (o.range_m - 1.0).abs() < 0.01)

@@ -37,7 +37,7 @@ use sonar_common::ipc::{
 };
 use sonar_features::{
     DriftEstimate, DriftFilter, FeatureConfig, FeatureError, FeatureKind, FeatureMap,
-    FeatureSummary, Needs, PoseFix, Sweep, SweepReport,
+    FeatureSummary, NearRegions, Needs, PoseFix, Sweep, SweepReport,
 };
 
 use crate::engine::Engine;
@@ -248,7 +248,8 @@ impl FeatureTracker {
         // On the move, regions of constant depth break up (a wall's foot slides along it with the
         // robot): such a sweep is seen by its walls, found under the motion along each normal.
         let observations = if moving {
-            self.map.walls_on_the_move(&self.pending)
+            self.map
+                .walls_on_the_move(&self.pending, NearRegions::LeftOut)
         } else {
             classification.observations
         };

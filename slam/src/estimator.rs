@@ -8,7 +8,9 @@
 //!    instant, interpolated between the odometry's samples, relative to the sweep's first reading.
 //! 2. The features crate extracts what the sweep saw: regions of constant depth classified into
 //!    walls, corners and posts when it was taken standing still; walls only, found under the
-//!    motion along each normal, when it was taken on the move. Such a wall is measured from the
+//!    motion along each normal, when it was taken on the move, a region as wide as a post's cone
+//!    included (a hallway's side wall close abeam, [`NearRegions::AsWalls`]: a post's "wall"
+//!    turns with the viewpoint and is never admitted, step 5). Such a wall is measured from the
 //!    reading that faced it: the sweep's pose, then the odometry to that reading corrected by
 //!    the odometry's errors in the graph, so the walls of a sweep on the move teach the graph
 //!    those errors as they hold the pose.
@@ -71,7 +73,7 @@
 use nalgebra::{DMatrix, DVector, Isometry2, Matrix2, Matrix2x3, Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 use sonar_common::ipc::Reading;
-use sonar_features::{FeatureConfig, FeatureMap, OdometryErrors, Sweep, wrap_rad};
+use sonar_features::{FeatureConfig, FeatureMap, NearRegions, OdometryErrors, Sweep, wrap_rad};
 
 use crate::error::SlamError;
 use crate::graph::{
@@ -495,7 +497,8 @@ impl Slam {
         let sweep =
             Sweep::from_readings_at(placed.iter().map(|(r, p)| (r, *p)), &self.cfg.features);
         let observations = if moving {
-            self.extractor.walls_on_the_move(&placed)
+            self.extractor
+                .walls_on_the_move(&placed, NearRegions::AsWalls)
         } else {
             self.extractor.observe(&sweep).1.observations
         };
