@@ -9,6 +9,7 @@ use sonar_common::ipc;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Channel {
     Readings,
+    SweepEnds,
     DriverStatus,
     Grid,
     Radar,
@@ -22,8 +23,9 @@ pub enum Channel {
 
 impl Channel {
     /// Every channel, telemetry first.
-    pub const ALL: [Channel; 10] = [
+    pub const ALL: [Channel; 11] = [
         Channel::Readings,
+        Channel::SweepEnds,
         Channel::DriverStatus,
         Channel::Grid,
         Channel::Radar,
@@ -39,6 +41,7 @@ impl Channel {
     pub fn name(self) -> &'static str {
         match self {
             Channel::Readings => "readings",
+            Channel::SweepEnds => "sweep_ends",
             Channel::DriverStatus => "driver_status",
             Channel::Grid => "grid",
             Channel::Radar => "radar",
@@ -55,6 +58,7 @@ impl Channel {
     pub fn service(self) -> &'static str {
         match self {
             Channel::Readings => ipc::READINGS_SERVICE,
+            Channel::SweepEnds => ipc::SWEEP_ENDS_SERVICE,
             Channel::DriverStatus => ipc::DRIVER_STATUS_SERVICE,
             Channel::Grid => ipc::GRID_SERVICE,
             Channel::Radar => ipc::RADAR_SERVICE,
@@ -72,18 +76,23 @@ impl Channel {
         matches!(self, Channel::Commands | Channel::FusionCommands)
     }
 
-    /// Whether the service's consumers sleep on a wake-up event of the same name, which the
-    /// publishing side must then notify.
-    pub fn has_wakeup(self) -> bool {
-        matches!(
-            self,
+    /// The wake-up event the service's consumers sleep on, which the publishing side must then
+    /// notify: most carry their own service's name; a sweep's end wakes the readings' consumers
+    /// (the fusion closes the sweep as it fuses readings); `None`: looked at by polling.
+    pub fn wakeup_event(self) -> Option<&'static str> {
+        match self {
             Channel::Readings
-                | Channel::Grid
-                | Channel::Radar
-                | Channel::Features
-                | Channel::Commands
-                | Channel::FusionCommands
-        )
+            | Channel::Grid
+            | Channel::Radar
+            | Channel::Features
+            | Channel::Commands
+            | Channel::FusionCommands => Some(self.service()),
+            Channel::SweepEnds => Some(ipc::READINGS_SERVICE),
+            Channel::DriverStatus
+            | Channel::FusionStatus
+            | Channel::Pose
+            | Channel::LocalizedPose => None,
+        }
     }
 
     /// A state (the latest value is all a newcomer needs), not a stream: the robot keeps its
@@ -91,7 +100,11 @@ impl Channel {
     pub fn is_state(self) -> bool {
         !matches!(
             self,
-            Channel::Readings | Channel::Pose | Channel::Commands | Channel::FusionCommands
+            Channel::Readings
+                | Channel::SweepEnds
+                | Channel::Pose
+                | Channel::Commands
+                | Channel::FusionCommands
         )
     }
 

@@ -97,7 +97,7 @@ struct Args {
     /// zenoh endpoints to connect to, comma-separated, e.g. tls/192.168.1.20:7447.
     #[arg(long, env = "SONAR_BRIDGE_CONNECT", value_delimiter = ',')]
     connect: Vec<String>,
-    /// Services to carry, comma-separated: readings, driver_status, grid, radar, features,
+    /// Services to carry, comma-separated: readings, sweep_ends, driver_status, grid, radar, features,
     /// fusion_status, pose, localized_pose, commands, fusion_commands [default: all].
     #[arg(long, value_delimiter = ',')]
     services: Vec<String>,
@@ -626,8 +626,8 @@ impl Bridge {
                     })
                     .wait()
                     .map_err(zerr(format!("declare publisher {key}")))?;
-                let woken = channel.has_wakeup()
-                    && match ipc::wakeup_listener(node, channel.service()) {
+                let woken = channel.wakeup_event().is_some_and(|event| {
+                    match ipc::wakeup_listener(node, event) {
                         Ok(listener) => {
                             wakeups.push(listener);
                             true
@@ -637,7 +637,8 @@ impl Bridge {
                             warn!("{e}: {channel} is looked at every {STATE_POLL:?} instead");
                             false
                         }
-                    };
+                    }
+                });
                 outbound.push(Outbound {
                     channel,
                     read: ports::reader(node, channel)?,

@@ -77,6 +77,7 @@ struct SliceLimits<H> {
 pub fn expect(channel: Channel) -> Expect {
     match channel {
         Channel::Readings => Expect::fixed::<ipc::Reading>(),
+        Channel::SweepEnds => Expect::fixed::<ipc::SweepEnd>(),
         Channel::DriverStatus => Expect::fixed::<ipc::DriverStatus>(),
         Channel::Radar => Expect::fixed::<ipc::Radar>(),
         Channel::FusionStatus => Expect::fixed::<ipc::FusionStatus>(),
@@ -93,6 +94,7 @@ pub fn expect(channel: Channel) -> Expect {
 pub fn reader(node: &Node<Ipc>, channel: Channel) -> Result<Reader, IpcError> {
     match channel {
         Channel::Readings => fixed_reader(node, ipc::readings_service),
+        Channel::SweepEnds => fixed_reader(node, ipc::sweep_ends_service),
         Channel::DriverStatus => fixed_reader(node, ipc::driver_status_service),
         Channel::Radar => fixed_reader(node, ipc::radar_service),
         Channel::FusionStatus => fixed_reader(node, ipc::fusion_status_service),
@@ -107,13 +109,13 @@ pub fn reader(node: &Node<Ipc>, channel: Channel) -> Result<Reader, IpcError> {
 
 /// A writer into `channel`'s local service (notifying its wake-up event where it has one).
 pub fn writer(node: &Node<Ipc>, channel: Channel) -> Result<Writer, IpcError> {
-    let notifier = if channel.has_wakeup() {
-        Some(ipc::wakeup_notifier(node, channel.service())?)
-    } else {
-        None
+    let notifier = match channel.wakeup_event() {
+        Some(event) => Some(ipc::wakeup_notifier(node, event)?),
+        None => None,
     };
     match channel {
         Channel::Readings => fixed_writer(node, channel, ipc::readings_service, notifier),
+        Channel::SweepEnds => fixed_writer(node, channel, ipc::sweep_ends_service, notifier),
         Channel::DriverStatus => fixed_writer(node, channel, ipc::driver_status_service, notifier),
         Channel::Radar => fixed_writer(node, channel, ipc::radar_service, notifier),
         Channel::FusionStatus => fixed_writer(node, channel, ipc::fusion_status_service, notifier),

@@ -26,7 +26,7 @@
 use iceoryx2::prelude::ZeroCopySend;
 use sonar_common::ipc::{
     DriverStatus, FeatureRecord, FeaturesHeader, FusionCommand, FusionStatus, GridHeader,
-    LocalizedPose, Pose2D, Radar, Reading, ScanCommand,
+    LocalizedPose, Pose2D, Radar, Reading, ScanCommand, SweepEnd,
 };
 
 const MAGIC: &[u8; 4] = b"SNBR";
@@ -152,6 +152,7 @@ pub unsafe trait Plain: Copy + ZeroCopySend + 'static {
 // SAFETY: each is `#[repr(C)]` of integers and floats with explicit padding fields; the size checks
 // in `common::ipc` and the offsets in `docs/ipc.md` account for every byte.
 unsafe impl Plain for Reading {}
+unsafe impl Plain for SweepEnd {}
 unsafe impl Plain for DriverStatus {}
 unsafe impl Plain for Radar {}
 unsafe impl Plain for Pose2D {}

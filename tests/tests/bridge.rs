@@ -3,7 +3,7 @@
 //! `sonar-bridge`; the laptop runs `sonar-bridge --mode remote` and the unchanged `sonar-viewer` in
 //! tmux, and the test reads both sides' shared memory (network namespaces do not separate
 //! /dev/shm). Over mutual TLS (certificates from `sonar-bridge certs`) the grid must arrive byte
-//! for byte, the viewer must draw the room, a key pressed in it must start a local scan on the
+//! for byte, a sweep's end after its last reading, the viewer must draw the room, a key pressed in it must start a local scan on the
 //! robot's driver, and the map must resume after the link was cut for 10 s. Intruders on the link
 //! (plain zenoh peers played by `sonar-test-peer`: no certificate, another authority's, a valid
 //! but unlisted one, a listed reader) read nothing or command nothing, and bomb frames from a
@@ -23,7 +23,7 @@ use sonar_bridge::wire::{self, Codec, Expect};
 use sonar_common::ipc::{self, GridHeader, ScanCommand, ScanCommandKind, ScanMode};
 use sonar_e2e::{
     PATIENCE, Proc, Sandbox, Tmux, driver_status_subscriber, grid_subscriber, map_wall_rows,
-    path_str, wait_for_status,
+    path_str, readings_subscriber, wait_for_status,
 };
 
 const LINK_CUT: Duration = Duration::from_secs(10);
@@ -254,6 +254,12 @@ fn a_laptop_watches_and_commands_the_robot_over_zenoh_through_a_cut_link() {
     let laptop_grid = grid_subscriber(&laptop_node);
     let robot_status = driver_status_subscriber(&robot_node);
     let laptop_status = driver_status_subscriber(&laptop_node);
+    let laptop_readings = readings_subscriber(&laptop_node);
+    let laptop_ends = ipc::sweep_ends_service(&laptop_node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap();
 
     let fusion = robot.spawn("sonar-fusion", &["--no-persist"]);
     let (sim, pty) = robot.spawn_sim(&["--scene", "room", "--speed", "20", "--seed", "3"]);
@@ -282,6 +288,23 @@ fn a_laptop_watches_and_commands_the_robot_over_zenoh_through_a_cut_link() {
     let mut robot_grids = BTreeMap::new();
     let first =
         wait_for_identical_grid(&robot_node, &robot_grid, &laptop_grid, &mut robot_grids, 0);
+
+    // A sweep's end comes after its last reading, both carried: a fusion on the laptop would
+    // close the sweep without waiting for the next one.
+    let mut seen: BTreeMap<u64, u32> = BTreeMap::new();
+    let deadline = Instant::now() + PATIENCE;
+    'ended: loop {
+        assert!(Instant::now() < deadline, "no sweep end reached the laptop");
+        while let Some(r) = laptop_readings.receive().unwrap() {
+            seen.insert(r.payload().seq, r.payload().sweep_id);
+        }
+        while let Some(end) = laptop_ends.receive().unwrap() {
+            if seen.get(&end.payload().last_seq) == Some(&end.payload().sweep_id) {
+                break 'ended;
+            }
+        }
+        let _ = laptop_node.wait(Duration::from_millis(20));
+    }
 
     // The unchanged viewer on the laptop, in a terminal in the laptop's namespace, draws the room.
     let viewer_log = laptop.root.join("viewer.log");
@@ -369,6 +392,7 @@ fn a_laptop_watches_and_commands_the_robot_over_zenoh_through_a_cut_link() {
         p.terminate();
     }
     drop((robot_grid, laptop_grid, robot_status, laptop_status));
+    drop((laptop_readings, laptop_ends));
     drop((robot_node, laptop_node));
     for side in [&robot, &laptop] {
         assert!(
