@@ -708,6 +708,15 @@ pub fn readings_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, Reading, ()> {
         .unwrap()
 }
 
+/// A subscriber to `sonar/sweep_ends`.
+pub fn sweep_ends_subscriber(node: &Node<Ipc>) -> Subscriber<Ipc, ipc::SweepEnd, ()> {
+    ipc::sweep_ends_service(node)
+        .unwrap()
+        .subscriber_builder()
+        .create()
+        .unwrap()
+}
+
 pub fn receive_reading(sub: &Subscriber<Ipc, Reading, ()>) -> Option<Reading> {
     sub.receive().unwrap().map(|s| *s.payload())
 }

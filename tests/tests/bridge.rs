@@ -23,7 +23,7 @@ use sonar_bridge::wire::{self, Codec, Expect};
 use sonar_common::ipc::{self, GridHeader, ScanCommand, ScanCommandKind, ScanMode};
 use sonar_e2e::{
     PATIENCE, Proc, Sandbox, Tmux, driver_status_subscriber, grid_subscriber, map_wall_rows,
-    path_str, readings_subscriber, wait_for_status,
+    path_str, readings_subscriber, sweep_ends_subscriber, wait_for_status,
 };
 
 const LINK_CUT: Duration = Duration::from_secs(10);
@@ -255,11 +255,7 @@ fn a_laptop_watches_and_commands_the_robot_over_zenoh_through_a_cut_link() {
     let robot_status = driver_status_subscriber(&robot_node);
     let laptop_status = driver_status_subscriber(&laptop_node);
     let laptop_readings = readings_subscriber(&laptop_node);
-    let laptop_ends = ipc::sweep_ends_service(&laptop_node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let laptop_ends = sweep_ends_subscriber(&laptop_node);
 
     let fusion = robot.spawn("sonar-fusion", &["--no-persist"]);
     let (sim, pty) = robot.spawn_sim(&["--scene", "room", "--speed", "20", "--seed", "3"]);

@@ -20,7 +20,7 @@ use sonar_e2e::{
     collect_with_truth, corridor_grid_config, drive_drifting_corridor, driver_status_subscriber,
     features_subscriber, grid_subscriber, localized_pose_subscriber, readings_subscriber,
     readings_subscribers, receive_reading, room, room_features, send_scan_command,
-    true_pose_subscriber, wait_for_status, wait_until,
+    sweep_ends_subscriber, true_pose_subscriber, wait_for_status, wait_until,
 };
 
 /// The test plays the microcontroller on a pseudo-terminal of its own.
@@ -432,11 +432,7 @@ fn a_sweep_the_head_reports_ended_is_mapped_whole_without_waiting_for_the_next()
     let node = sandbox.node("test-device");
     let status = driver_status_subscriber(&node);
     let grid = grid_subscriber(&node);
-    let ends = ipc::sweep_ends_service(&node)
-        .unwrap()
-        .subscriber_builder()
-        .create()
-        .unwrap();
+    let ends = sweep_ends_subscriber(&node);
     let mut head = FakeHead::new();
     let _driver = sandbox.spawn(
         "sonar-driver",
