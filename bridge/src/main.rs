@@ -97,8 +97,8 @@ struct Args {
     /// zenoh endpoints to connect to, comma-separated, e.g. tls/192.168.1.20:7447.
     #[arg(long, env = "SONAR_BRIDGE_CONNECT", value_delimiter = ',')]
     connect: Vec<String>,
-    /// Services to carry, comma-separated: readings, sweep_ends, driver_status, grid, radar, features,
-    /// fusion_status, pose, localized_pose, commands, fusion_commands [default: all].
+    /// Services to carry, comma-separated: readings, sweep_ends, driver_status, grid, radar,
+    /// features, fusion_status, pose, localized_pose, commands, fusion_commands [default: all].
     #[arg(long, value_delimiter = ',')]
     services: Vec<String>,
     /// Seconds between the grid snapshots sent on the link, at least (0: every one) [default: 0.5],
