@@ -267,14 +267,14 @@ impl Ports {
             None
         };
         let sweep_ends = if recording.count(Topic::SweepEnds) > 0 {
-            let publisher = ipc::sweep_ends_service(node)?
-                .publisher_builder()
-                .create()
-                .map_err(|e| IpcError::new("create sonar/sweep_ends publisher", e))?;
-            Some((
-                publisher,
-                ipc::wakeup_notifier(node, ipc::READINGS_SERVICE)?,
-            ))
+            // On the readings' wake-up event, which the fusion waits on (as the driver does).
+            let service = ipc::sweep_ends_service(node)?;
+            Some(port_waking(
+                node,
+                &service,
+                ipc::SWEEP_ENDS_SERVICE,
+                ipc::READINGS_SERVICE,
+            )?)
         } else {
             None
         };
@@ -361,11 +361,21 @@ fn port<T: std::fmt::Debug + ZeroCopySend>(
     service: &PubSub<T>,
     name: &str,
 ) -> Result<Port<T>> {
+    port_waking(node, service, name, name)
+}
+
+/// A publisher on `service` (named `name`) with a notifier of the wake-up event `event`.
+fn port_waking<T: std::fmt::Debug + ZeroCopySend>(
+    node: &Node<Ipc>,
+    service: &PubSub<T>,
+    name: &str,
+    event: &str,
+) -> Result<Port<T>> {
     let publisher = service
         .publisher_builder()
         .create()
         .map_err(|e| IpcError::new(format!("create {name} publisher"), e))?;
-    let notifier = ipc::wakeup_notifier(node, name)?;
+    let notifier = ipc::wakeup_notifier(node, event)?;
     Ok((publisher, notifier))
 }
 
