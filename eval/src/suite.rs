@@ -1225,10 +1225,19 @@ pub fn evaluate(settings: &SuiteSettings) -> Result<Vec<Run>> {
                     };
                     let run = run_scene(&generated[k as usize], k, seed, sensor, settings);
                     let n = done.fetch_add(1, Ordering::Relaxed) + 1;
+                    // The first fusion's map from the most viewpoints, to find a run worth a
+                    // picture without the tables.
+                    let last = run
+                        .as_ref()
+                        .ok()
+                        .and_then(|r| r.grid.first())
+                        .and_then(|counts| counts.last());
                     info!(
                         scene = k,
                         seed,
                         %sensor,
+                        recall = last.and_then(|g| g.recall),
+                        precision = last.and_then(|g| g.precision),
                         "suite run {n} of {} done",
                         tasks.len()
                     );

@@ -108,12 +108,15 @@ impl Engine {
         state: MapState,
     ) -> Result<Self, StateError> {
         let skip = state.history.len().saturating_sub(history_limit);
+        let history = History::restored(
+            history_limit,
+            state.history.into_iter().skip(skip).map(Into::into),
+        );
+        let mut mapper = Mapper::restore(config, state.maps)?;
+        mapper.remember_readings(history.observations());
         Ok(Self {
-            mapper: Mapper::restore(config, state.maps)?,
-            history: History::restored(
-                history_limit,
-                state.history.into_iter().skip(skip).map(Into::into),
-            ),
+            mapper,
+            history,
             scan: state.scan,
             poses: PoseTrack::new(state.robot_pose.into()),
             pose: state.robot_pose.into(),

@@ -230,6 +230,16 @@ impl<R: Combine> Layer<R> {
         self.encode_all();
     }
 
+    /// Sets the cells at `indices` back to unknown, noting them for the next [`Self::flush`].
+    fn forget(&mut self, indices: &[usize]) {
+        for &i in indices {
+            self.cells[i] = R::UNKNOWN;
+            let row = i / self.row_len;
+            let at = i - row * self.row_len;
+            self.note_dirty_in_row(row, at, at + 1);
+        }
+    }
+
     /// Each cell's class, brought up to date.
     fn classes(&mut self) -> &[u8] {
         self.flush();
@@ -477,6 +487,20 @@ impl OccupancyGrid {
             })
     }
 
+    /// Writes into `out` the index of every cell above p = 0.5, in row order. Brings the kept
+    /// state up to date first, as [`Self::encoded`] does, and reads the class kept per cell.
+    pub(crate) fn occupied_cells_into(&mut self, out: &mut Vec<usize>) {
+        let classes: &[u8] = with_layer!(&mut self.store, l => l.classes());
+        let (occupied, confident) = (CellClass::Occupied as u8, CellClass::Confident as u8);
+        out.extend(
+            classes
+                .iter()
+                .enumerate()
+                .filter(|&(_, &c)| c == occupied || c == confident)
+                .map(|(i, _)| i),
+        );
+    }
+
     /// Brings `out`, a copy of the snapshot bytes of version `held` (`None`: unknown contents,
     /// e.g. a sample never written), up to date with [`Self::encoded`]: only the spans of the
     /// rows re-encoded since then are copied, if the grid still knows them (the last
@@ -583,6 +607,21 @@ impl OccupancyGrid {
     }
 
     /// Every cell back to unknown.
+    /// Sets the cells at `indices` (row-major, as [`GridGeometry::index`] gives them) back to
+    /// unknown, as if no reading had reached them: their evidence and the bearing they were heard
+    /// from are forgotten.
+    ///
+    /// # Panics
+    /// If an index lies outside the grid.
+    pub(crate) fn forget_cells(&mut self, indices: &[usize]) {
+        with_layer!(&mut self.store, l => l.forget(indices));
+        if !self.heard.is_empty() {
+            for &i in indices {
+                self.heard[i] = f32::NAN;
+            }
+        }
+    }
+
     pub fn clear(&mut self) {
         fn reset<R: Combine>(l: &mut Layer<R>) {
             l.cells.fill(R::UNKNOWN);

@@ -198,6 +198,7 @@ pub mod features;
 pub mod file;
 pub mod geometry;
 pub mod grid;
+mod hidden;
 pub mod history;
 pub mod kernel;
 mod lines;

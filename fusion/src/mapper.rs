@@ -9,6 +9,7 @@ use crate::config::{ConfigError, FusionConfig};
 use crate::geometry::GridGeometry;
 use crate::geometry::{incidence, wrap_angle};
 use crate::grid::{Above, OccupancyGrid, with_layer};
+use crate::hidden::{self, Hiding, Sight};
 use crate::kernel::ConeCache;
 use crate::lines::{self, Echo, Lines, Patch, Stretch};
 use crate::model::{CellEvidence, ModelConfig, SmoothModel, with_model};
@@ -160,11 +161,39 @@ struct Regions {
     /// Whether a region, a corner or a stretch placed occupied evidence since the weak echoes
     /// were last looked at: only such walls can withdraw one ([`WITHDRAW_ABOVE`]).
     walls_placed: bool,
+    /// With `region_hidden_unknown`: where the sensor stood and what it heard, to tell the cells
+    /// no viewpoint could have heard.
+    hiding: Option<Hiding>,
     /// The region closed last: what cut short the next one's start, if it did.
     previous: Option<Region>,
     /// With `region_small_cutters_free`: the readings of a region cut short on both sides, the
     /// first cutter small, waiting for the region after it (the second cutter) to close.
     between: Option<Between>,
+}
+
+/// The grid as [`Hiding::hidden_cells`] sees it.
+struct GridSight<'a> {
+    grid: &'a OccupancyGrid,
+    hiding_above: Above,
+    model: &'a SmoothModel,
+}
+
+impl Sight for GridSight<'_> {
+    fn hides(&self, index: usize) -> bool {
+        let n = self.grid.geometry().cells_per_side();
+        self.grid.is_above(index % n, index / n, self.hiding_above)
+    }
+
+    fn own_normal(&self, index: usize) -> Option<Vector2<f32>> {
+        let n = self.grid.geometry().cells_per_side();
+        self.grid
+            .heard_from(index % n, index / n)
+            .map(|bearing| Vector2::new(bearing.cos(), bearing.sin()))
+    }
+
+    fn near_line(&self, distance: f32) -> f32 {
+        2.0 * self.model.band(distance)
+    }
 }
 
 /// With `region_weak_echo_withdrawn`: the weak echoes placed and not yet taken back, those that
@@ -354,6 +383,7 @@ impl Mapper {
                     cut: Vec::new(),
                     weak: WeakEchoes::default(),
                     walls_placed: false,
+                    hiding: m.region_hidden_unknown.then(|| Hiding::new(&geometry)),
                     previous: None,
                     between: None,
                 }),
@@ -413,6 +443,7 @@ impl Mapper {
         self.pose = obs.pose;
         let mut cells_updated = 0;
         if let Some(mut regions) = self.regions.take() {
+            self.note_for_hiding(&mut regions, obs, beam.as_ref());
             let heard = Heard {
                 position: obs.pose.translation.vector,
                 axis: wrap_angle(obs.pose.rotation.angle() + obs.angle_rad),
@@ -450,6 +481,50 @@ impl Mapper {
             radar_bin,
             cells_updated,
         })
+    }
+
+    /// With `region_hidden_unknown`: notes where `obs` was taken from and, if its `beam` has an
+    /// echo, what it heard.
+    fn note_for_hiding(&self, regions: &mut Regions, obs: &Observation, beam: Option<&Beam>) {
+        if let (Some(hiding), ModelConfig::Smooth(model)) = (&mut regions.hiding, self.config.model)
+        {
+            let echo = beam
+                .and_then(|b| b.echo)
+                .map(|range| (range, model.band(range)));
+            hiding.note_reading(
+                self.grid.geometry(),
+                obs.pose.translation.vector,
+                wrap_angle(obs.pose.rotation.angle() + obs.angle_rad),
+                echo,
+            );
+        }
+    }
+
+    /// Notes the readings behind a restored map (those kept of them) as if fused, without fusing
+    /// them: with `region_hidden_unknown`, where the sensor stood and what it heard, so that the
+    /// next look hides nothing those readings saw.
+    pub(crate) fn remember_readings<'a>(
+        &mut self,
+        observations: impl Iterator<Item = &'a Observation>,
+    ) {
+        let Some(mut regions) = self.regions.take() else {
+            return;
+        };
+        if regions.hiding.is_some() {
+            for obs in observations {
+                // The maps' own readings, which were placed: a beam that does not build now did
+                // not then either.
+                let beam = Beam::new(
+                    obs,
+                    self.config.sensor.limits(),
+                    self.config.clear_on_no_echo,
+                )
+                .ok()
+                .flatten();
+                self.note_for_hiding(&mut regions, obs, beam.as_ref());
+            }
+        }
+        self.regions = Some(regions);
     }
 
     /// Fuses one reading's beam with the model's evidence.
@@ -655,8 +730,39 @@ impl Mapper {
         }
         cells += self.withdraw_refuted_stretches(&mut regions, Kernel::Cone);
         cells += self.withdraw_weak_echoes(&mut regions, Kernel::Cone);
+        cells += self.forget_hidden(&mut regions);
         self.regions = Some(regions);
         cells
+    }
+
+    /// With `region_hidden_unknown`, when a look is due ([`Hiding::due`]): sets the occupied
+    /// cells no viewpoint could have heard back to unknown ([`crate::hidden`]). Returns how many.
+    fn forget_hidden(&mut self, regions: &mut Regions) -> usize {
+        let (ModelConfig::Smooth(model), Some(hiding)) = (self.config.model, &mut regions.hiding)
+        else {
+            return 0;
+        };
+        if !hiding.due(self.readings) {
+            return 0;
+        }
+        let mut occupied = Vec::new();
+        self.grid.occupied_cells_into(&mut occupied);
+        let sight = GridSight {
+            grid: &self.grid,
+            hiding_above: self.grid.above(hidden::HIDING_ABOVE),
+            model: &model,
+        };
+        let mut out = Vec::new();
+        hiding.hidden_cells(
+            self.grid.geometry(),
+            self.config.sensor.limits().max_range,
+            model.region_hidden_behind_walls,
+            &occupied,
+            &sight,
+            &mut out,
+        );
+        self.grid.forget_cells(&out);
+        out.len()
     }
 
     /// Takes back the weak echoes with an occupied cell on their axis in front of them: a wall
@@ -1353,6 +1459,9 @@ impl Mapper {
             regions.cut.clear();
             regions.weak = WeakEchoes::default();
             regions.walls_placed = false;
+            if let Some(hiding) = &mut regions.hiding {
+                hiding.clear();
+            }
             regions.previous = None;
             regions.between = None;
         }
@@ -1813,6 +1922,58 @@ mod tests {
             m.update(obs).unwrap();
         }
         m.close_region();
+    }
+
+    /// The range to the wall along x = `x` from `at` at bearing `deg`, if it lies ahead.
+    fn to_wall_at_x(at: (f32, f32), x: f32, deg: f32) -> Option<f32> {
+        let c = (deg * DEG).cos();
+        let range = (x - at.0) / c;
+        (range > 0.0 && range < 4.0).then_some(range)
+    }
+
+    #[test]
+    fn a_restored_map_keeps_what_its_readings_saw_from_the_other_side_of_a_wall() {
+        // From the origin: a wall along x = 1 ahead and one along x = −1 behind, each heard
+        // square over ±15°, four times.
+        let a = (0.0, 0.0);
+        let mut heard_from_a = sweep(a, (-15.0, 15.0), 4, |deg| to_wall_at_x(a, 1.0, deg));
+        heard_from_a.extend(sweep(a, (165.0, 195.0), 4, |deg| {
+            to_wall_at_x(a, -1.0, deg)
+        }));
+        let config = FusionConfig::preset(Preset::Recommended);
+        let mut live = Mapper::new(config).unwrap();
+        for obs in &heard_from_a {
+            live.update(obs).unwrap();
+        }
+        live.close_region();
+        assert!(probability_at(&live, -1.0, 0.0).is_some_and(|p| p > 0.9));
+        let mut saved = MapperState::default();
+        live.save_into(&mut saved);
+
+        // Restored, then sweeps from x = 2, which hear the wall along x = 1 from its other side:
+        // the wall behind the origin lies behind it as seen from there.
+        let b = (2.0, 0.0);
+        let from_b = sweep(b, (165.0, 195.0), 4, |deg| to_wall_at_x(b, 1.0, deg));
+        let after = |remembered: bool| {
+            let mut m = Mapper::restore(config, saved.clone()).unwrap();
+            if remembered {
+                m.remember_readings(heard_from_a.iter());
+            }
+            for obs in &from_b {
+                m.update(obs).unwrap();
+            }
+            m.close_region();
+            probability_at(&m, -1.0, 0.0)
+        };
+        assert!(
+            after(true).is_some_and(|p| p > 0.9),
+            "the wall behind the origin, seen from it, stays"
+        );
+        assert_eq!(
+            after(false),
+            None,
+            "not told where its readings were taken, the map hides it from x = 2"
+        );
     }
 
     #[test]

@@ -692,6 +692,16 @@ pub struct SmoothModel {
     /// that foot, not whole (a 1 m piece): a reading refutes the wall where it would have
     /// answered, and a whole piece taken back with it can hold wall another viewpoint drew.
     pub region_stretch_withdrawn_at_feet: bool,
+    /// With `echo_placement = "region"`: at a sweep's end, an occupied cell that every viewpoint
+    /// within the sensor's reach sees only through something a reading heard (within 1° of its
+    /// axis at its echo's range) and the grid holds above p = 0.97, more than 10 cm in front of
+    /// it, is set back to unknown unless a reading heard it too: sound does not pass what
+    /// echoed, so no echo could have come from there ([`crate::hidden`]).
+    pub region_hidden_unknown: bool,
+    /// With `region_hidden_unknown`: any cell the grid holds above p = 0.97 hides what lies
+    /// behind it, walls drawn on included. Fewer wrong cells, but a wall drawn on wrongly in
+    /// front of a true one hides that one too.
+    pub region_hidden_behind_walls: bool,
 }
 
 /// Where a reading's echo puts its occupied evidence ([`SmoothModel::echo_placement`]).
@@ -745,6 +755,8 @@ impl Default for SmoothModel {
             region_corner_points: false,
             region_lines_through_feet: false,
             region_stretch_withdrawn_at_feet: false,
+            region_hidden_unknown: false,
+            region_hidden_behind_walls: false,
         }
     }
 }
