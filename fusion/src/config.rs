@@ -179,9 +179,7 @@ impl FusionConfig {
             // viewpoints lie on the line through their feet, and a stretch refuted later is taken
             // back only around the refuting foot ("nineteenth round": less error for every
             // profile, more precision for three, and view 1's walls no longer lost as
-            // viewpoints are added, for up to 0.02 less recall). Occupied cells that every
-            // viewpoint sees only through something a reading heard are set back to unknown
-            // ("twentieth round": 0.01–0.02 more precision for every profile, no recall lost).
+            // viewpoints are added, for up to 0.02 less recall).
             Preset::Recommended => (
                 ModelConfig::Smooth(SmoothModel {
                     echo_placement: EchoPlacement::Region,
@@ -200,7 +198,6 @@ impl FusionConfig {
                     region_corner_points: true,
                     region_lines_through_feet: true,
                     region_stretch_withdrawn_at_feet: true,
-                    region_hidden_unknown: true,
                     ..SmoothModel::default()
                 }),
                 RuleConfig::LogOdds(LogOddsRule::default()),
@@ -467,7 +464,6 @@ mod tests {
                 region_corner_points: true,
                 region_lines_through_feet: true,
                 region_stretch_withdrawn_at_feet: true,
-                region_hidden_unknown: true,
                 ..fewer_walls
             }
         );
@@ -479,6 +475,15 @@ mod tests {
             crate::model::SmoothModel {
                 region_corner_walls_confirmed: true,
                 ..preset
+            }
+        );
+        let narrow = parse(include_str!("../../examples/region-map-narrow-beam.toml"));
+        assert_eq!(
+            narrow,
+            crate::model::SmoothModel {
+                region_hidden_unknown: true,
+                region_hidden_behind_walls: true,
+                ..confirmed
             }
         );
     }

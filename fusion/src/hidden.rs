@@ -22,7 +22,7 @@
 //! file is told where its kept readings (the engine's history) were taken and what they heard
 //! ([`crate::mapper::Mapper::remember_readings`]); readings older than those are forgotten.
 
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 
 use nalgebra::Vector2;
 
@@ -45,6 +45,11 @@ const HEARD_OFF_AXIS_DEG: f32 = 1.0;
 /// look walks every occupied cell.
 const READINGS_BETWEEN_LOOKS: u64 = 25;
 
+/// A cell hidden from every viewpoint at a look is looked at again from the viewpoints added
+/// since only, but from all of them at every this many looks: what hides it may have been taken
+/// back since.
+const FULL_LOOK_EVERY: u64 = 8;
+
 /// Where the sensor stood, every [`VIEWPOINT_SPACING_M`] or so.
 #[derive(Debug, Default, Clone)]
 struct Viewpoints {
@@ -65,13 +70,6 @@ impl Viewpoints {
     fn clear(&mut self) {
         self.kept.clear();
         self.sites.clear();
-    }
-
-    fn within(&self, point: Vector2<f32>, reach: f32) -> impl Iterator<Item = Vector2<f32>> + '_ {
-        self.kept
-            .iter()
-            .copied()
-            .filter(move |v| (point - v).norm_squared() <= reach * reach)
     }
 }
 
@@ -116,11 +114,14 @@ impl CellSet {
                     0.0
                 };
                 if (a + along * t - c).norm() <= reach {
-                    let i = geometry.index(x, y);
-                    self.bits[i / 64] |= 1 << (i % 64);
+                    self.insert(geometry.index(x, y));
                 }
             }
         }
+    }
+
+    fn insert(&mut self, index: usize) {
+        self.bits[index / 64] |= 1 << (index % 64);
     }
 
     fn contains(&self, index: usize) -> bool {
@@ -129,6 +130,88 @@ impl CellSet {
 
     fn clear(&mut self) {
         self.bits.fill(0);
+    }
+}
+
+/// Side of the square blocks of cells [`Blocking`] notes as holding a cell that hides or not,
+/// cells.
+const BLOCK_CELLS: usize = 8;
+
+/// The cells that hide, and which blocks of [`BLOCK_CELLS`]² cells hold one: a sight line
+/// crosses mostly open space, and steps through an empty block at once.
+#[derive(Debug, Clone)]
+struct Blocking {
+    cells: CellSet,
+    blocks: Vec<bool>,
+    blocks_per_side: usize,
+}
+
+impl Blocking {
+    fn new(geometry: &GridGeometry) -> Self {
+        let blocks_per_side = geometry.cells_per_side().div_ceil(BLOCK_CELLS);
+        Self {
+            cells: CellSet::new(geometry),
+            blocks: vec![false; blocks_per_side * blocks_per_side],
+            blocks_per_side,
+        }
+    }
+
+    fn clear(&mut self) {
+        self.cells.clear();
+        self.blocks.fill(false);
+    }
+
+    fn insert(&mut self, geometry: &GridGeometry, index: usize) {
+        self.cells.insert(index);
+        let n = geometry.cells_per_side();
+        let (x, y) = (index % n, index / n);
+        self.blocks[(y / BLOCK_CELLS) * self.blocks_per_side + x / BLOCK_CELLS] = true;
+    }
+
+    /// Whether one of the points `from + direction · k · resolution`, k = 1 ..= `steps`, lies
+    /// in a cell that hides and `counts` it (given the point). The same points and cells as
+    /// looking at each in turn; those in empty blocks are passed over.
+    fn meets(
+        &self,
+        geometry: &GridGeometry,
+        from: Vector2<f32>,
+        direction: Vector2<f32>,
+        steps: usize,
+        counts: impl Fn(Vector2<f32>) -> bool,
+    ) -> bool {
+        let n = geometry.cells_per_side();
+        let res = geometry.resolution();
+        let origin = geometry.cell_centre(0, 0).coords - Vector2::repeat(0.5 * res);
+        // Steps to the block's edge along one axis, from `u` (cells) moving `d` cells a step.
+        // Within the grid `u` ≥ 0, so a cast truncates as `floor` would (which is a library
+        // call on the baseline x86-64 target).
+        let to_edge = |u: f32, d: f32| {
+            let block = ((u as usize / BLOCK_CELLS) * BLOCK_CELLS) as f32;
+            if d > 0.0 {
+                (block + BLOCK_CELLS as f32 - u) / d
+            } else if d < 0.0 {
+                (block - u) / d
+            } else {
+                f32::INFINITY
+            }
+        };
+        let mut k = 1;
+        while k <= steps {
+            let at = from + direction * (k as f32 * res);
+            if let Some((cx, cy)) = geometry.cell_at(at.into()) {
+                if !self.blocks[(cy / BLOCK_CELLS) * self.blocks_per_side + cx / BLOCK_CELLS] {
+                    let u = (at - origin) / res;
+                    let inside = to_edge(u.x, direction.x).min(to_edge(u.y, direction.y));
+                    k += (inside as usize).max(1);
+                    continue;
+                }
+                if self.cells.contains(cy * n + cx) && counts(at) {
+                    return true;
+                }
+            }
+            k += 1;
+        }
+        false
     }
 }
 
@@ -152,6 +235,21 @@ pub(crate) struct Hiding {
     heard: CellSet,
     /// Readings fused at the last look.
     looked_at: u64,
+    /// The cells that hide, as of the last look.
+    blocking: Blocking,
+    /// Per occupied cell at the last look, what it found.
+    seen_from: HashMap<usize, Seen>,
+    /// Looks taken.
+    looks: u64,
+}
+
+/// What a look found of an occupied cell.
+#[derive(Debug, Clone, Copy)]
+enum Seen {
+    /// Seen from the viewpoint kept at this place.
+    From(usize),
+    /// Hidden from the first this many viewpoints kept.
+    HiddenFromFirst(usize),
 }
 
 impl Hiding {
@@ -160,6 +258,9 @@ impl Hiding {
             viewpoints: Viewpoints::default(),
             heard: CellSet::new(geometry),
             looked_at: 0,
+            blocking: Blocking::new(geometry),
+            seen_from: HashMap::new(),
+            looks: 0,
         }
     }
 
@@ -196,6 +297,8 @@ impl Hiding {
         self.viewpoints.clear();
         self.heard.clear();
         self.looked_at = 0;
+        self.seen_from.clear();
+        self.looks = 0;
     }
 
     /// Of the `occupied` cells (grid indices), writes into `out` those that no reading heard and
@@ -203,9 +306,11 @@ impl Hiding {
     /// viewpoint meets a cell that hides (one a reading heard, or with `behind_walls` any) more
     /// than [`HIDING_MARGIN_M`] before the cell, off the line of the wall the cell stands for (a
     /// sight line that meets a wall at a slant runs through the wall's own band for a while
-    /// before it reaches the cell). Sight lines are looked along a cell at a time.
+    /// before it reaches the cell). Sight lines are looked along a cell at a time; the viewpoint
+    /// that saw a cell at the last look is tried first, then the latest first (a cell drawn since
+    /// was mostly drawn from where the sensor stands now).
     pub fn hidden_cells(
-        &self,
+        &mut self,
         geometry: &GridGeometry,
         reach: f32,
         behind_walls: bool,
@@ -213,34 +318,75 @@ impl Hiding {
         sight: &impl Sight,
         out: &mut Vec<usize>,
     ) {
+        self.blocking.clear();
+        for &j in occupied {
+            if sight.hides(j) && (behind_walls || self.heard.contains(j)) {
+                self.blocking.insert(geometry, j);
+            }
+        }
         let n = geometry.cells_per_side();
         let step = geometry.resolution();
+        self.looks += 1;
+        let full = self.looks.is_multiple_of(FULL_LOOK_EVERY);
+        let seen_before = std::mem::take(&mut self.seen_from);
+        let viewpoints = &self.viewpoints.kept;
         for &i in occupied {
             if self.heard.contains(i) {
                 continue;
             }
             let cell: Vector2<f32> = geometry.cell_centre(i % n, i / n).coords;
             let normal = sight.own_normal(i);
-            let mut in_reach = false;
-            let seen = self.viewpoints.within(cell, reach).any(|from| {
-                in_reach = true;
+            let sees = |from: Vector2<f32>| {
                 let distance = (cell - from).norm();
                 let direction = (cell - from) / distance.max(f32::EPSILON);
                 let near_line = sight.near_line(distance);
                 let steps = ((distance - HIDING_MARGIN_M) / step).floor().max(0.0) as usize;
-                !(1..=steps).any(|k| {
-                    let at = from + direction * (k as f32 * step);
-                    geometry.cell_at(at.into()).is_some_and(|(cx, cy)| {
-                        let j = geometry.index(cx, cy);
-                        sight.hides(j)
-                            && (behind_walls || self.heard.contains(j))
-                            && normal
-                                .is_none_or(|normal| normal.dot(&(at - cell)).abs() > near_line)
-                    })
+                !self.blocking.meets(geometry, from, direction, steps, |at| {
+                    normal.is_none_or(|normal| normal.dot(&(at - cell)).abs() > near_line)
                 })
-            });
-            if in_reach && !seen {
-                out.push(i);
+            };
+            let in_reach =
+                |&(_, v): &(usize, &Vector2<f32>)| (cell - v).norm_squared() <= reach * reach;
+            let before = match seen_before.get(&i) {
+                Some(&Seen::From(k)) => viewpoints.get(k).map(|v| (k, v)).filter(in_reach),
+                _ => None,
+            };
+            // Hidden from every viewpoint kept at a recent look: only those added since are
+            // looked from again.
+            let first = match (full, seen_before.get(&i)) {
+                (false, Some(&Seen::HiddenFromFirst(count))) => count,
+                _ => 0,
+            };
+            let mut any_in_reach = first > 0;
+            let seer = before
+                .into_iter()
+                .chain(
+                    viewpoints
+                        .iter()
+                        .enumerate()
+                        .skip(first)
+                        .rev()
+                        .filter(in_reach),
+                )
+                .inspect(|_| any_in_reach = true)
+                .find(|&(_, &v)| sees(v));
+            match seer {
+                Some((k, _)) => {
+                    self.seen_from.insert(i, Seen::From(k));
+                }
+                None if any_in_reach => {
+                    self.seen_from
+                        .insert(i, Seen::HiddenFromFirst(viewpoints.len()));
+                    out.push(i);
+                }
+                None => {}
+            }
+        }
+        // A hidden cell is unknown until something draws it again: what it was hidden from is
+        // kept for then.
+        for (i, seen) in seen_before {
+            if let Seen::HiddenFromFirst(_) = seen {
+                self.seen_from.entry(i).or_insert(seen);
             }
         }
     }
@@ -303,11 +449,29 @@ mod tests {
         }
     }
 
+    /// Of `cells`, those hidden behind `walls` (heard or not, if `behind_walls`), the walls'
+    /// own cells occupied too.
+    fn hidden_of(
+        hiding: &Hiding,
+        reach: f32,
+        behind_walls: bool,
+        cells: &[usize],
+        walls: &Walls,
+    ) -> Vec<usize> {
+        let g = geometry();
+        let mut occupied: Vec<usize> = (0..g.len()).filter(|&i| walls.cells.contains(i)).collect();
+        occupied.extend(cells.iter().filter(|&&i| !walls.cells.contains(i)));
+        let mut out = Vec::new();
+        hiding
+            .clone()
+            .hidden_cells(&g, reach, behind_walls, &occupied, walls, &mut out);
+        out.retain(|i| cells.contains(i));
+        out
+    }
+
     /// The `cells` hidden behind `walls`, heard or not.
     fn hidden(hiding: &Hiding, reach: f32, cells: &[usize], walls: &Walls) -> Vec<usize> {
-        let mut out = Vec::new();
-        hiding.hidden_cells(&geometry(), reach, true, cells, walls, &mut out);
-        out
+        hidden_of(hiding, reach, true, cells, walls)
     }
 
     /// A reading from `at` that heard nothing.
@@ -357,11 +521,7 @@ mod tests {
         let mut hiding = Hiding::new(&g);
         stood_at(&mut hiding, (0.0, 0.0));
         let behind = index_at(&g, 1.5, 0.3);
-        let behind_heard = |hiding: &Hiding| {
-            let mut out = Vec::new();
-            hiding.hidden_cells(&g, 4.0, false, &[behind], &walls, &mut out);
-            out
-        };
+        let behind_heard = |hiding: &Hiding| hidden_of(hiding, 4.0, false, &[behind], &walls);
         assert!(
             behind_heard(&hiding).is_empty(),
             "the wall was drawn, not heard"

@@ -1940,7 +1940,17 @@ mod tests {
         heard_from_a.extend(sweep(a, (165.0, 195.0), 4, |deg| {
             to_wall_at_x(a, -1.0, deg)
         }));
-        let config = FusionConfig::preset(Preset::Recommended);
+        let preset = FusionConfig::preset(Preset::Recommended);
+        let ModelConfig::Smooth(model) = preset.model else {
+            panic!("the recommended preset's model is the smooth one");
+        };
+        let config = FusionConfig {
+            model: ModelConfig::Smooth(crate::model::SmoothModel {
+                region_hidden_unknown: true,
+                ..model
+            }),
+            ..preset
+        };
         let mut live = Mapper::new(config).unwrap();
         for obs in &heard_from_a {
             live.update(obs).unwrap();
