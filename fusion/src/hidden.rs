@@ -479,13 +479,18 @@ mod tests {
         hiding.note_reading(&geometry(), Vector2::new(at.0, at.1), 0.0, None);
     }
 
+    /// A wall along x = 1 from y = −0.5 to 0.5, and the sensor at the origin.
+    fn wall_ahead_of_the_origin(g: &GridGeometry) -> (Walls, Hiding) {
+        let walls = Walls::new(g, &[[1.0, -0.5, 1.0, 0.5]]);
+        let mut hiding = Hiding::new(g);
+        stood_at(&mut hiding, (0.0, 0.0));
+        (walls, hiding)
+    }
+
     #[test]
     fn a_cell_behind_a_wall_is_hidden_from_a_viewpoint_in_front_of_it() {
         let g = geometry();
-        // A wall along x = 1 from y = −0.5 to 0.5; the sensor at the origin.
-        let walls = Walls::new(&g, &[[1.0, -0.5, 1.0, 0.5]]);
-        let mut hiding = Hiding::new(&g);
-        stood_at(&mut hiding, (0.0, 0.0));
+        let (walls, mut hiding) = wall_ahead_of_the_origin(&g);
         let behind = index_at(&g, 1.5, 0.0);
         let on_wall = index_at(&g, 1.0, 0.0);
         let beside = index_at(&g, 1.5, 0.9);
@@ -500,10 +505,9 @@ mod tests {
     #[test]
     fn a_cell_a_reading_heard_is_kept_whatever_lies_in_front() {
         let g = geometry();
-        // A wall drawn across x = 1, perhaps wrongly: a reading along the x axis heard an echo
-        // at 1.5 m, so something is there and sound reached it.
-        let walls = Walls::new(&g, &[[1.0, -0.5, 1.0, 0.5]]);
-        let mut hiding = Hiding::new(&g);
+        // The wall drawn, perhaps wrongly: a reading along the x axis heard an echo at 1.5 m,
+        // so something is there and sound reached it.
+        let (walls, mut hiding) = wall_ahead_of_the_origin(&g);
         hiding.note_reading(&g, Vector2::zeros(), 0.0, Some((1.5, 0.025)));
         let heard = index_at(&g, 1.5, 0.0);
         let off_axis = index_at(&g, 1.5, 0.1);
@@ -517,9 +521,7 @@ mod tests {
     #[test]
     fn only_what_a_reading_heard_hides_unless_every_wall_does() {
         let g = geometry();
-        let walls = Walls::new(&g, &[[1.0, -0.5, 1.0, 0.5]]);
-        let mut hiding = Hiding::new(&g);
-        stood_at(&mut hiding, (0.0, 0.0));
+        let (walls, mut hiding) = wall_ahead_of_the_origin(&g);
         let behind = index_at(&g, 1.5, 0.3);
         let behind_heard = |hiding: &Hiding| hidden_of(hiding, 4.0, false, &[behind], &walls);
         assert!(
