@@ -606,7 +606,6 @@ impl OccupancyGrid {
         }
     }
 
-    /// Every cell back to unknown.
     /// Sets the cells at `indices` (row-major, as [`GridGeometry::index`] gives them) back to
     /// unknown, as if no reading had reached them: their evidence and the bearing they were heard
     /// from are forgotten.
@@ -622,6 +621,7 @@ impl OccupancyGrid {
         }
     }
 
+    /// Every cell back to unknown.
     pub fn clear(&mut self) {
         fn reset<R: Combine>(l: &mut Layer<R>) {
             l.cells.fill(R::UNKNOWN);
