@@ -22,7 +22,9 @@
 //! file is told where its kept readings (the engine's history) were taken and what they heard
 //! ([`crate::mapper::Mapper::remember_readings`]); readings older than those are forgotten.
 
-use std::collections::{HashMap, HashSet};
+use std::collections::HashSet;
+
+use rustc_hash::FxHashMap;
 
 use nalgebra::Vector2;
 
@@ -168,9 +170,11 @@ impl Blocking {
         self.blocks[(y / BLOCK_CELLS) * self.blocks_per_side + x / BLOCK_CELLS] = true;
     }
 
-    /// Whether one of the points `from + direction · k · resolution`, k = 1 ..= `steps`, lies
-    /// in a cell that hides and `counts` it (given the point). The same points and cells as
-    /// looking at each in turn; those in empty blocks are passed over.
+    /// Whether the sight line from `from` along the unit vector `direction`, from one cell's
+    /// width out to `steps` cells' widths, crosses a cell that hides and `counts` it (given the
+    /// middle of the stretch of line inside that cell). Every cell the line crosses is looked at
+    /// once (a grid walk, Amanatides and Woo), and each block holding nothing that hides is
+    /// crossed in one step.
     fn meets(
         &self,
         geometry: &GridGeometry,
@@ -179,39 +183,84 @@ impl Blocking {
         steps: usize,
         counts: impl Fn(Vector2<f32>) -> bool,
     ) -> bool {
-        let n = geometry.cells_per_side();
+        let n = geometry.cells_per_side() as i64;
         let res = geometry.resolution();
         let origin = geometry.cell_centre(0, 0).coords - Vector2::repeat(0.5 * res);
-        // Steps to the block's edge along one axis, from `u` (cells) moving `d` cells a step.
-        // Within the grid `u` ≥ 0, so a cast truncates as `floor` would (which is a library
-        // call on the baseline x86-64 target).
-        let to_edge = |u: f32, d: f32| {
-            let block = ((u as usize / BLOCK_CELLS) * BLOCK_CELLS) as f32;
-            if d > 0.0 {
-                (block + BLOCK_CELLS as f32 - u) / d
-            } else if d < 0.0 {
-                (block - u) / d
-            } else {
-                f32::INFINITY
-            }
-        };
-        let mut k = 1;
-        while k <= steps {
-            let at = from + direction * (k as f32 * res);
-            if let Some((cx, cy)) = geometry.cell_at(at.into()) {
-                if !self.blocks[(cy / BLOCK_CELLS) * self.blocks_per_side + cx / BLOCK_CELLS] {
-                    let u = (at - origin) / res;
-                    let inside = to_edge(u.x, direction.x).min(to_edge(u.y, direction.y));
-                    k += (inside as usize).max(1);
-                    continue;
-                }
-                if self.cells.contains(cy * n + cx) && counts(at) {
-                    return true;
-                }
-            }
-            k += 1;
+        // In cells, from the grid's corner; the line's parameter is in cells' widths too.
+        let start = (from - origin) / res;
+        let (first, last) = (1.0, steps as f32);
+        if last < first {
+            return false;
         }
-        false
+        let blocks = self.blocks_per_side as i64;
+        let block = BLOCK_CELLS as f32;
+        walk(
+            start / block,
+            direction / block,
+            first,
+            last,
+            |bx, by, enter, leave| {
+                let holds = bx >= 0
+                    && by >= 0
+                    && bx < blocks
+                    && by < blocks
+                    && self.blocks[(by * blocks + bx) as usize];
+                holds
+                    && walk(start, direction, enter, leave, |cx, cy, enter, leave| {
+                        cx >= 0
+                            && cy >= 0
+                            && cx < n
+                            && cy < n
+                            && self.cells.contains((cy * n + cx) as usize)
+                            && counts(from + direction * (0.5 * (enter + leave) * res))
+                    })
+            },
+        )
+    }
+}
+
+/// Walks the unit squares of a grid crossed by the line `start + direction · t` for t from
+/// `first` to `last` (in order, each once), calling `visit(x, y, enter, leave)` with the square
+/// and the stretch of t inside it, until `visit` says true; whether it did.
+fn walk(
+    start: Vector2<f32>,
+    direction: Vector2<f32>,
+    first: f32,
+    last: f32,
+    mut visit: impl FnMut(i64, i64, f32, f32) -> bool,
+) -> bool {
+    let at = start + direction * first;
+    let (mut x, mut y) = (at.x.floor() as i64, at.y.floor() as i64);
+    // Per axis: the step, the t at which the line next crosses a square's edge, and the t
+    // between two such crossings.
+    let axis = |p: f32, d: f32, cell: i64| {
+        if d > 0.0 {
+            (1, first + ((cell + 1) as f32 - p) / d, 1.0 / d)
+        } else if d < 0.0 {
+            (-1, first + (cell as f32 - p) / d, -1.0 / d)
+        } else {
+            (0, f32::INFINITY, f32::INFINITY)
+        }
+    };
+    let (step_x, mut next_x, delta_x) = axis(at.x, direction.x, x);
+    let (step_y, mut next_y, delta_y) = axis(at.y, direction.y, y);
+    let mut enter = first;
+    loop {
+        let leave = next_x.min(next_y).min(last);
+        if visit(x, y, enter, leave) {
+            return true;
+        }
+        if leave >= last {
+            return false;
+        }
+        enter = leave;
+        if next_x < next_y {
+            x += step_x;
+            next_x += delta_x;
+        } else {
+            y += step_y;
+            next_y += delta_y;
+        }
     }
 }
 
@@ -238,7 +287,7 @@ pub(crate) struct Hiding {
     /// The cells that hide, as of the last look.
     blocking: Blocking,
     /// Per occupied cell at the last look, what it found.
-    seen_from: HashMap<usize, Seen>,
+    seen_from: FxHashMap<usize, Seen>,
     /// Looks taken.
     looks: u64,
 }
@@ -259,7 +308,7 @@ impl Hiding {
             heard: CellSet::new(geometry),
             looked_at: 0,
             blocking: Blocking::new(geometry),
-            seen_from: HashMap::new(),
+            seen_from: FxHashMap::default(),
             looks: 0,
         }
     }
@@ -306,7 +355,7 @@ impl Hiding {
     /// viewpoint meets a cell that hides (one a reading heard, or with `behind_walls` any) more
     /// than [`HIDING_MARGIN_M`] before the cell, off the line of the wall the cell stands for (a
     /// sight line that meets a wall at a slant runs through the wall's own band for a while
-    /// before it reaches the cell). Sight lines are looked along a cell at a time; the viewpoint
+    /// before it reaches the cell). Sight lines are walked cell by cell ([`walk`]); the viewpoint
     /// that saw a cell at the last look is tried first, then the latest first (a cell drawn since
     /// was mostly drawn from where the sensor stands now).
     pub fn hidden_cells(
@@ -567,6 +616,39 @@ mod tests {
         );
         walls.normal = Some(Vector2::new(0.0, 1.0));
         assert!(hidden(&hiding, 4.0, &[far_end], &walls).is_empty());
+    }
+
+    #[test]
+    fn a_walk_crosses_every_square_the_line_passes_through_once_and_in_order() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        for _ in 0..500 {
+            let start = Vector2::new(rng.random_range(0.0..50.0), rng.random_range(0.0..50.0));
+            let angle: f32 = rng.random_range(0.0..std::f32::consts::TAU);
+            let direction = Vector2::new(angle.cos(), angle.sin());
+            let (first, last) = (1.0, rng.random_range(1.0..40.0));
+            let mut walked = Vec::new();
+            walk(start, direction, first, last, |x, y, enter, leave| {
+                assert!(enter <= leave);
+                walked.push((x, y));
+                false
+            });
+            for pair in walked.windows(2) {
+                let (a, b) = (pair[0], pair[1]);
+                assert_eq!((a.0 - b.0).abs() + (a.1 - b.1).abs(), 1, "{walked:?}");
+            }
+            // Every point of the line, sampled finely, lies in a square walked, away from the
+            // squares' edges (where rounding may put it either side).
+            let samples = ((last - first) * 100.0) as usize;
+            for k in 0..=samples {
+                let p = start + direction * (first + k as f32 * 0.01);
+                let off_edge = |v: f32| (v - v.round()).abs() > 1e-3;
+                if off_edge(p.x) && off_edge(p.y) {
+                    let square = (p.x.floor() as i64, p.y.floor() as i64);
+                    assert!(walked.contains(&square), "{square:?} not walked");
+                }
+            }
+        }
     }
 
     #[test]
