@@ -415,6 +415,8 @@ impl Hiding {
                         .enumerate()
                         .skip(first)
                         .rev()
+                        // The one tried first is not looked from again.
+                        .filter(|&(k, _)| before.is_none_or(|(b, _)| b != k))
                         .filter(in_reach),
                 )
                 .inspect(|_| any_in_reach = true)
