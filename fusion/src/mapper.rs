@@ -83,6 +83,15 @@ fn axis_box(
     (position.inf(&end) - margin, position.sup(&end) + margin)
 }
 
+/// Every number from 0 to `last`, once each, the nearest to `last / 2` first.
+fn from_the_middle(last: usize) -> impl Iterator<Item = usize> {
+    let middle = last / 2;
+    (0..=last - middle).flat_map(move |d| {
+        let below = (d > 0).then(|| middle.checked_sub(d)).flatten();
+        std::iter::once(middle + d).chain(below)
+    })
+}
+
 /// Whether two boxes (lower and upper corners) overlap.
 fn boxes_meet(a: (Vector2<f32>, Vector2<f32>), b: (Vector2<f32>, Vector2<f32>)) -> bool {
     a.0.x <= b.1.x && b.0.x <= a.1.x && a.0.y <= b.1.y && b.0.y <= a.1.y
@@ -1263,7 +1272,9 @@ impl Mapper {
         let arcs = (2.0 * depth / step).ceil() as usize;
         let rays = (2.0 * lobe * (range + depth) / step).ceil() as usize;
         let mut off_line = false;
-        for j in 0..=rays {
+        // From the axis outwards: the answer does not depend on the order, and a wall that
+        // explains the echo (and so ends the search) mostly crosses the axis.
+        for j in from_the_middle(rays) {
             let bearing = beam.axis - lobe + 2.0 * lobe * j as f32 / rays.max(1) as f32;
             let direction = Vector2::new(bearing.cos(), bearing.sin());
             for i in 0..=arcs {
@@ -2559,6 +2570,23 @@ mod tests {
             );
             assert!(beside.is_some_and(|p| p > 0.5), "{board_first}: {beside:?}");
         }
+    }
+
+    #[test]
+    fn from_the_middle_gives_every_number_once_nearest_the_middle_first() {
+        for last in 0..40 {
+            let order: Vec<usize> = from_the_middle(last).collect();
+            let mut sorted = order.clone();
+            sorted.sort_unstable();
+            assert_eq!(sorted, (0..=last).collect::<Vec<_>>(), "{last}: {order:?}");
+            let off = |j: usize| j.abs_diff(last / 2);
+            assert!(
+                order.windows(2).all(|w| off(w[0]) <= off(w[1])),
+                "{order:?}"
+            );
+        }
+        assert_eq!(from_the_middle(4).collect::<Vec<_>>(), [2, 3, 1, 4, 0]);
+        assert_eq!(from_the_middle(3).collect::<Vec<_>>(), [1, 2, 0, 3]);
     }
 
     #[test]
