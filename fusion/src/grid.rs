@@ -5,11 +5,12 @@ use std::fmt;
 use std::ops::Range;
 use std::sync::atomic::{AtomicU64, Ordering};
 
+use nalgebra::Vector2;
 use sonar_common::ipc::CELL_UNKNOWN;
 
 pub use crate::encoding::CONFIDENT_PROBABILITY;
 use crate::encoding::{CellClass, KeyEncoder};
-use crate::geometry::GridGeometry;
+use crate::geometry::{GridGeometry, walk};
 use crate::rule::{
     BayesRule, Combine, DempsterShaferRule, HimmRule, LogOddsRule, RuleConfig, RuleKind,
 };
@@ -313,6 +314,71 @@ static NEXT_GRID_ID: AtomicU64 = AtomicU64::new(0);
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Above(f32);
 
+/// Cells a side of the squares [`OccupancyGrid::squares_above`] tells apart.
+pub(crate) const SQUARE_CELLS: usize = 8;
+
+/// Which squares of [`SQUARE_CELLS`]² cells held a cell above a threshold when it was taken, so
+/// that a look along a line steps over the others at once.
+#[derive(Debug)]
+pub(crate) struct SquaresAbove {
+    above: Vec<bool>,
+    per_side: i64,
+}
+
+impl SquaresAbove {
+    pub(crate) fn of(grid: &OccupancyGrid, above: Above) -> Self {
+        let mut squares = Vec::new();
+        grid.squares_above(above, &mut squares);
+        Self {
+            above: squares,
+            per_side: grid.geometry().cells_per_side().div_ceil(SQUARE_CELLS) as i64,
+        }
+    }
+
+    /// Whether one of the cells a grid step apart from `from` along the unit vector `direction`
+    /// (`from + direction · k · resolution` for k from 1 to `steps`, those on the grid) passes
+    /// `test`, a test only a cell above the threshold can pass: only the samples within one
+    /// step of a square holding such a cell are tested, the same answer as testing them all.
+    pub(crate) fn any_along(
+        &self,
+        geometry: &GridGeometry,
+        from: Vector2<f32>,
+        direction: Vector2<f32>,
+        steps: usize,
+        mut test: impl FnMut(usize, usize) -> bool,
+    ) -> bool {
+        if steps == 0 {
+            return false;
+        }
+        let res = geometry.resolution();
+        let side = SQUARE_CELLS as f32;
+        // In squares, from the grid's corner; the line's parameter stays in grid steps.
+        let start = (from - geometry.origin()) / (res * side);
+        let per_side = self.per_side;
+        let mut sample = |k: usize| {
+            geometry
+                .cell_at((from + direction * (k as f32 * res)).into())
+                .is_some_and(|(x, y)| test(x, y))
+        };
+        walk(
+            start,
+            direction / side,
+            1.0,
+            steps as f32,
+            |sx, sy, enter, leave| {
+                let holds = (0..per_side).contains(&sx)
+                    && (0..per_side).contains(&sy)
+                    && self.above[(sy * per_side + sx) as usize];
+                holds && {
+                    let first = (enter.floor() as usize).saturating_sub(1).max(1);
+                    let last = (leave.ceil() as usize + 1).min(steps);
+                    (first..=last).any(&mut sample)
+                }
+            },
+        )
+    }
+}
+
 /// The probability method's map (paper §III.B.2, "Grid-Probability Array").
 pub struct OccupancyGrid {
     /// Unique in the process ([`EncodedVersion`]).
@@ -433,6 +499,41 @@ impl OccupancyGrid {
         let i = self.geometry.index(x, y);
         // An unreached cell's key is NaN: not above.
         with_layer!(&self.store, l => l.rule.key(l.cells[i]) > above.0)
+    }
+
+    /// Writes into `out`, per square of [`SQUARE_CELLS`]² cells (row-major, the grid's side
+    /// divided by [`SQUARE_CELLS`] and rounded up squares per side), whether one of its cells is
+    /// above `above` ([`Self::is_above`]).
+    pub(crate) fn squares_above(&self, above: Above, out: &mut Vec<bool>) {
+        let n = self.geometry.cells_per_side();
+        let per_side = n.div_ceil(SQUARE_CELLS);
+        out.clear();
+        out.resize(per_side * per_side, false);
+        if n == 0 {
+            return;
+        }
+        // Eight cells at a time and without a branch per cell, so that they are compared at once.
+        let any_above = |cells: &[f32]| cells.iter().fold(false, |any, &key| any | (key > above.0));
+        with_layer!(&self.store, l => {
+            let mut keys = [0.0f32; SQUARE_CELLS];
+            for (y, row) in l.cells.chunks_exact(n).enumerate() {
+                let squares = &mut out[(y / SQUARE_CELLS) * per_side..][..per_side];
+                let whole = row.chunks_exact(SQUARE_CELLS);
+                let rest = whole.remainder();
+                for (square, cells) in squares.iter_mut().zip(whole) {
+                    for (key, &cell) in keys.iter_mut().zip(cells) {
+                        *key = l.rule.key(cell);
+                    }
+                    *square |= any_above(&keys);
+                }
+                if !rest.is_empty() {
+                    for (key, &cell) in keys.iter_mut().zip(rest) {
+                        *key = l.rule.key(cell);
+                    }
+                    squares[per_side - 1] |= any_above(&keys[..rest.len()]);
+                }
+            }
+        });
     }
 
     /// The world bearing from which cell (`x`, `y`) was last heard occupied, if it was and the
@@ -726,6 +827,88 @@ mod tests {
             g.probabilities_into(&mut p);
             assert!(p.iter().all(|&v| v == 0.5));
         }
+    }
+
+    #[test]
+    fn a_square_is_above_when_one_of_its_cells_is() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        // Sides that are and are not whole squares.
+        for n in [1usize, 8, 13, 40, 61] {
+            let mut g = OccupancyGrid::new(
+                GridGeometry::new(n, 0.1),
+                &RuleConfig::LogOdds(LogOddsRule::default()),
+                false,
+            );
+            let cells: Vec<f32> = (0..n * n)
+                .map(|_| match rng.random_range(0..40) {
+                    0 => 3.5,
+                    1 => f32::NAN,
+                    _ => rng.random_range(-2.0..0.5),
+                })
+                .collect();
+            let CellStore::LogOdds(l) = &mut g.parts_mut().1 else {
+                unreachable!()
+            };
+            l.set_cells(cells);
+            let above = g.above(0.9);
+            let mut squares = Vec::new();
+            g.squares_above(above, &mut squares);
+            let per_side = n.div_ceil(SQUARE_CELLS);
+            assert_eq!(squares.len(), per_side * per_side);
+            for (k, &square) in squares.iter().enumerate() {
+                let (sx, sy) = (k % per_side, k / per_side);
+                let expected = (sy * SQUARE_CELLS..((sy + 1) * SQUARE_CELLS).min(n)).any(|y| {
+                    (sx * SQUARE_CELLS..((sx + 1) * SQUARE_CELLS).min(n))
+                        .any(|x| g.is_above(x, y, above))
+                });
+                assert_eq!(square, expected, "{n}² grid, square ({sx}, {sy})");
+            }
+        }
+    }
+
+    #[test]
+    fn a_look_along_a_line_over_the_squares_tests_what_a_look_at_every_sample_does() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let n = 100;
+        let mut g = OccupancyGrid::new(
+            GridGeometry::new(n, 0.02),
+            &RuleConfig::LogOdds(LogOddsRule::default()),
+            false,
+        );
+        // Short walls scattered over open space.
+        let mut cells = vec![-1.0f32; n * n];
+        for _ in 0..12 {
+            let (x, y) = (rng.random_range(0..n - 6), rng.random_range(0..n));
+            cells[y * n + x..][..6].fill(3.5);
+        }
+        let CellStore::LogOdds(l) = &mut g.parts_mut().1 else {
+            unreachable!()
+        };
+        l.set_cells(cells);
+        let above = g.above(0.9);
+        let squares = SquaresAbove::of(&g, above);
+        let geometry = *g.geometry();
+        let (mut met, mut missed) = (0, 0);
+        for _ in 0..2000 {
+            let from = Vector2::new(rng.random_range(-1.2..1.2), rng.random_range(-1.2..1.2));
+            let angle: f32 = rng.random_range(0.0..std::f32::consts::TAU);
+            let direction = Vector2::new(angle.cos(), angle.sin());
+            let steps = rng.random_range(0..150);
+            // A test that passes a third of the cells above, as the callers' tests of a cell's
+            // place or bearing do.
+            let test = |x: usize, y: usize| g.is_above(x, y, above) && !(x + y).is_multiple_of(3);
+            let every_sample = (1..=steps)
+                .filter_map(|k| {
+                    geometry.cell_at((from + direction * (k as f32 * geometry.resolution())).into())
+                })
+                .any(|(x, y)| test(x, y));
+            let over_squares = squares.any_along(&geometry, from, direction, steps, test);
+            assert_eq!(over_squares, every_sample, "{from:?} {angle} {steps}");
+            if every_sample { met += 1 } else { missed += 1 }
+        }
+        assert!(met > 100 && missed > 100, "{met} {missed}");
     }
 
     #[test]

@@ -28,7 +28,7 @@ use rustc_hash::FxHashMap;
 
 use nalgebra::Vector2;
 
-use crate::geometry::GridGeometry;
+use crate::geometry::{GridGeometry, walk};
 
 /// A viewpoint closer than this to one kept is not kept again, metres: a robot driving while
 /// it scans stands somewhere new at every reading.
@@ -216,51 +216,6 @@ impl Blocking {
                     })
             },
         )
-    }
-}
-
-/// Walks the unit squares of a grid crossed by the line `start + direction · t` for t from
-/// `first` to `last` (in order, each once), calling `visit(x, y, enter, leave)` with the square
-/// and the stretch of t inside it, until `visit` says true; whether it did.
-fn walk(
-    start: Vector2<f32>,
-    direction: Vector2<f32>,
-    first: f32,
-    last: f32,
-    mut visit: impl FnMut(i64, i64, f32, f32) -> bool,
-) -> bool {
-    let at = start + direction * first;
-    let (mut x, mut y) = (at.x.floor() as i64, at.y.floor() as i64);
-    // Per axis: the step, the t at which the line next crosses a square's edge, and the t
-    // between two such crossings.
-    let axis = |p: f32, d: f32, cell: i64| {
-        if d > 0.0 {
-            (1, first + ((cell + 1) as f32 - p) / d, 1.0 / d)
-        } else if d < 0.0 {
-            (-1, first + (cell as f32 - p) / d, -1.0 / d)
-        } else {
-            (0, f32::INFINITY, f32::INFINITY)
-        }
-    };
-    let (step_x, mut next_x, delta_x) = axis(at.x, direction.x, x);
-    let (step_y, mut next_y, delta_y) = axis(at.y, direction.y, y);
-    let mut enter = first;
-    loop {
-        let leave = next_x.min(next_y).min(last);
-        if visit(x, y, enter, leave) {
-            return true;
-        }
-        if leave >= last {
-            return false;
-        }
-        enter = leave;
-        if next_x < next_y {
-            x += step_x;
-            next_x += delta_x;
-        } else {
-            y += step_y;
-            next_y += delta_y;
-        }
     }
 }
 
@@ -618,39 +573,6 @@ mod tests {
         );
         walls.normal = Some(Vector2::new(0.0, 1.0));
         assert!(hidden(&hiding, 4.0, &[far_end], &walls).is_empty());
-    }
-
-    #[test]
-    fn a_walk_crosses_every_square_the_line_passes_through_once_and_in_order() {
-        use rand::{Rng, SeedableRng};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-        for _ in 0..500 {
-            let start = Vector2::new(rng.random_range(0.0..50.0), rng.random_range(0.0..50.0));
-            let angle: f32 = rng.random_range(0.0..std::f32::consts::TAU);
-            let direction = Vector2::new(angle.cos(), angle.sin());
-            let (first, last) = (1.0, rng.random_range(1.0..40.0));
-            let mut walked = Vec::new();
-            walk(start, direction, first, last, |x, y, enter, leave| {
-                assert!(enter <= leave);
-                walked.push((x, y));
-                false
-            });
-            for pair in walked.windows(2) {
-                let (a, b) = (pair[0], pair[1]);
-                assert_eq!((a.0 - b.0).abs() + (a.1 - b.1).abs(), 1, "{walked:?}");
-            }
-            // Every point of the line, sampled finely, lies in a square walked, away from the
-            // squares' edges (where rounding may put it either side).
-            let samples = ((last - first) * 100.0) as usize;
-            for k in 0..=samples {
-                let p = start + direction * (first + k as f32 * 0.01);
-                let off_edge = |v: f32| (v - v.round()).abs() > 1e-3;
-                if off_edge(p.x) && off_edge(p.y) {
-                    let square = (p.x.floor() as i64, p.y.floor() as i64);
-                    assert!(walked.contains(&square), "{square:?} not walked");
-                }
-            }
-        }
     }
 
     #[test]

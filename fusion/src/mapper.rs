@@ -8,7 +8,7 @@ use nalgebra::{Isometry2, Vector2};
 use crate::config::{ConfigError, FusionConfig};
 use crate::geometry::GridGeometry;
 use crate::geometry::{incidence, wrap_angle};
-use crate::grid::{Above, OccupancyGrid, with_layer};
+use crate::grid::{Above, OccupancyGrid, SquaresAbove, with_layer};
 use crate::hidden::{self, Hiding, Sight};
 use crate::kernel::ConeCache;
 use crate::lines::{self, Echo, Lines, Patch, Stretch};
@@ -798,6 +798,8 @@ impl Mapper {
         let tolerance = regions.tolerance;
         let walls_drawn = std::mem::take(&mut self.walls_drawn);
         let cell = self.grid.geometry().resolution();
+        // Taken when first needed, and again after a withdrawal has changed the grid.
+        let mut squares: Option<SquaresAbove> = None;
         regions.weak.kept.retain_mut(|together| {
             let looked_at = |p: &Placed| if all { p.heard } else { p.unchecked };
             let beam = &together.placed[0].beam;
@@ -820,11 +822,19 @@ impl Mapper {
                         drawn_in(axis_box(beam.position, beam.axis, range, cell))
                     })
             };
+            let mut slanted_in_front = || {
+                let squares = squares
+                    .get_or_insert_with(|| SquaresAbove::of(&self.grid, self.above_withdraw));
+                self.slanted_wall_in_front(&model, beam, squares)
+            };
             let withdrawn = together.placed.iter().any(|p| looked_at(p) > 0)
-                && ((slanted_in_front_possible() && self.slanted_wall_in_front(&model, beam))
+                && ((slanted_in_front_possible() && slanted_in_front())
                     || (model.region_weak_echo_explained
                         && explainable()
                         && self.explained_off_axis(&model, lobe, tolerance, beam)));
+            if withdrawn {
+                squares = None;
+            }
             for placed in &mut together.placed {
                 if withdrawn {
                     // Log-odds add: one weak echo as strong as its hearings stands for them.
@@ -1310,10 +1320,18 @@ impl Mapper {
     /// Whether the grid holds a cell on `beam`'s axis in front of its echo's band that is occupied
     /// (p > [`WITHDRAW_ABOVE`]) and was heard from a bearing at least [`WITHDRAW_INCIDENCE_DEG`]
     /// off the axis: a wall the axis meets at a slant, which could not answer the reading.
-    fn slanted_wall_in_front(&self, model: &SmoothModel, beam: &Beam) -> bool {
+    /// `squares` are the grid's above [`WITHDRAW_ABOVE`] as it is now.
+    fn slanted_wall_in_front(
+        &self,
+        model: &SmoothModel,
+        beam: &Beam,
+        squares: &SquaresAbove,
+    ) -> bool {
         let min_incidence = WITHDRAW_INCIDENCE_DEG.to_radians();
         let grid = &self.grid;
-        self.cells_in_front(model, beam).any(|(x, y)| {
+        let direction = Vector2::new(beam.axis.cos(), beam.axis.sin());
+        let steps = self.steps_in_front(model, beam);
+        squares.any_along(grid.geometry(), beam.position, direction, steps, |x, y| {
             grid.is_above(x, y, self.above_withdraw)
                 && grid
                     .heard_from(x, y)
