@@ -7,6 +7,8 @@
 //! bearings), and the stretch between them is wall too, unless a reading saw through it (the
 //! mapper checks that against the grid before it fills the stretch).
 
+use std::collections::VecDeque;
+
 use nalgebra::Vector2;
 
 use crate::geometry::wrap_angle;
@@ -480,7 +482,12 @@ impl<T> Kept<T> {
 /// Keeps `item` in `kept`, at most `most` of them: if one kept already `absorb`s it (stands for
 /// it too), that one counts one more hearing instead, else it is added, the oldest forgotten
 /// first.
-fn keep<T>(kept: &mut Vec<Kept<T>>, item: T, most: usize, absorb: impl Fn(&mut T, &T) -> bool) {
+fn keep<T>(
+    kept: &mut VecDeque<Kept<T>>,
+    item: T,
+    most: usize,
+    absorb: impl Fn(&mut T, &T) -> bool,
+) {
     if let Some(same) = kept
         .iter_mut()
         .find_map(|k| absorb(&mut k.item, &item).then_some(k))
@@ -490,9 +497,10 @@ fn keep<T>(kept: &mut Vec<Kept<T>>, item: T, most: usize, absorb: impl Fn(&mut T
         return;
     }
     if kept.len() == most {
-        kept.remove(0);
+        // The oldest goes: a queue, not a shift of thousands.
+        kept.pop_front();
     }
-    kept.push(Kept {
+    kept.push_back(Kept {
         item,
         heard: 1,
         fresh: 1,
@@ -517,9 +525,9 @@ fn push_new(out: &mut Vec<Stretch>, stretch: Stretch, readings: u32) {
 /// thousands of copies that every new patch would be paired with ([`Self::join_ends`]).
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Lines {
-    patches: Vec<Kept<Patch>>,
+    patches: VecDeque<Kept<Patch>>,
     /// The regions heard, to confirm corners.
-    echoes: Vec<Kept<Echo>>,
+    echoes: VecDeque<Kept<Echo>>,
     /// Whether the patches on one line from several viewpoints are put on the line through
     /// their feet ([`Lines::add`]).
     through_feet: bool,
@@ -677,9 +685,10 @@ impl Lines {
         // Each pair with a fresh patch once: a fresh one with every patch before it, and with
         // those after it that are not fresh.
         for (i, a) in self.patches.iter().enumerate().filter(|(_, k)| k.fresh > 0) {
-            let partners = self.patches[..i]
-                .iter()
-                .chain(self.patches[i + 1..].iter().filter(|k| k.fresh == 0));
+            let partners = self
+                .patches
+                .range(..i)
+                .chain(self.patches.range(i + 1..).filter(|k| k.fresh == 0));
             for b in partners {
                 let readings = a.fresh_pairs(b);
                 let (a, b) = (&a.item, &b.item);
