@@ -1282,8 +1282,9 @@ impl Mapper {
         let arcs = (2.0 * depth / step).ceil() as usize;
         let rays = (2.0 * lobe * (range + depth) / step).ceil() as usize;
         let mut off_line = false;
-        // From the axis outwards: the answer does not depend on the order, and a wall that
-        // explains the echo (and so ends the search) mostly crosses the axis.
+        // From the axis outwards: the answer does not depend on the order, and the search ends
+        // at the first wall cell whose line crosses the axis at the echo (the echo is then that
+        // wall's own), which mostly lies near the axis.
         for j in from_the_middle(rays) {
             let bearing = beam.axis - lobe + 2.0 * lobe * j as f32 / rays.max(1) as f32;
             let direction = Vector2::new(bearing.cos(), bearing.sin());
