@@ -314,34 +314,37 @@ static NEXT_GRID_ID: AtomicU64 = AtomicU64::new(0);
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Above(f32);
 
-/// Cells a side of the squares [`OccupancyGrid::squares_above`] tells apart.
+/// Cells a side of the squares [`OccupancyGrid::square_above`] tells apart.
 pub(crate) const SQUARE_CELLS: usize = 8;
 
-/// Which squares of [`SQUARE_CELLS`]² cells held a cell above a threshold when it was taken, so
-/// that a look along a line steps over the others at once.
+/// Which squares of [`SQUARE_CELLS`]² cells hold a cell above a threshold, each found out the
+/// first time a look needs it (a look touches few of a large grid's squares), so that a look
+/// along a line steps over the others at once. What it found holds while the grid is unchanged.
 #[derive(Debug)]
 pub(crate) struct SquaresAbove {
-    above: Vec<bool>,
+    above: Above,
+    /// Per square, row-major: not yet known, or whether it holds such a cell.
+    squares: Vec<Option<bool>>,
     per_side: i64,
 }
 
 impl SquaresAbove {
-    pub(crate) fn of(grid: &OccupancyGrid, above: Above) -> Self {
-        let mut squares = Vec::new();
-        grid.squares_above(above, &mut squares);
+    pub(crate) fn new(grid: &OccupancyGrid, above: Above) -> Self {
+        let per_side = grid.geometry().cells_per_side().div_ceil(SQUARE_CELLS);
         Self {
-            above: squares,
-            per_side: grid.geometry().cells_per_side().div_ceil(SQUARE_CELLS) as i64,
+            above,
+            squares: vec![None; per_side * per_side],
+            per_side: per_side as i64,
         }
     }
 
     /// Whether one of the cells a grid step apart from `from` along the unit vector `direction`
     /// (`from + direction · k · resolution` for k from 1 to `steps`, those on the grid) passes
-    /// `test`, a test only a cell above the threshold can pass: only the samples within one
-    /// step of a square holding such a cell are tested, the same answer as testing them all.
+    /// `test`, a test only a cell of `grid` above the threshold can pass: only the samples within
+    /// one step of a square holding such a cell are tested, the same answer as testing them all.
     pub(crate) fn any_along(
-        &self,
-        geometry: &GridGeometry,
+        &mut self,
+        grid: &OccupancyGrid,
         from: Vector2<f32>,
         direction: Vector2<f32>,
         steps: usize,
@@ -350,11 +353,13 @@ impl SquaresAbove {
         if steps == 0 {
             return false;
         }
+        let geometry = grid.geometry();
         let res = geometry.resolution();
         let side = SQUARE_CELLS as f32;
         // In squares, from the grid's corner; the line's parameter stays in grid steps.
         let start = (from - geometry.origin()) / (res * side);
-        let per_side = self.per_side;
+        let (per_side, above) = (self.per_side, self.above);
+        let squares = &mut self.squares;
         let mut sample = |k: usize| {
             geometry
                 .cell_at((from + direction * (k as f32 * res)).into())
@@ -366,9 +371,10 @@ impl SquaresAbove {
             1.0,
             steps as f32,
             |sx, sy, enter, leave| {
-                let holds = (0..per_side).contains(&sx)
-                    && (0..per_side).contains(&sy)
-                    && self.above[(sy * per_side + sx) as usize];
+                let on_grid = (0..per_side).contains(&sx) && (0..per_side).contains(&sy);
+                let holds = on_grid
+                    && *squares[(sy * per_side + sx) as usize]
+                        .get_or_insert_with(|| grid.square_above(sx as usize, sy as usize, above));
                 holds && {
                     let first = (enter.floor() as usize).saturating_sub(1).max(1);
                     let last = (leave.ceil() as usize + 1).min(steps);
@@ -501,39 +507,22 @@ impl OccupancyGrid {
         with_layer!(&self.store, l => l.rule.key(l.cells[i]) > above.0)
     }
 
-    /// Writes into `out`, per square of [`SQUARE_CELLS`]² cells (row-major, the grid's side
-    /// divided by [`SQUARE_CELLS`] and rounded up squares per side), whether one of its cells is
-    /// above `above` ([`Self::is_above`]).
-    pub(crate) fn squares_above(&self, above: Above, out: &mut Vec<bool>) {
+    /// Whether square (`sx`, `sy`) of [`SQUARE_CELLS`]² cells (those of it on the grid) holds a
+    /// cell above `above` ([`Self::is_above`]).
+    ///
+    /// # Panics
+    /// If the square lies outside the grid.
+    pub(crate) fn square_above(&self, sx: usize, sy: usize, above: Above) -> bool {
         let n = self.geometry.cells_per_side();
-        let per_side = n.div_ceil(SQUARE_CELLS);
-        out.clear();
-        out.resize(per_side * per_side, false);
-        if n == 0 {
-            return;
-        }
-        // Eight cells at a time and without a branch per cell, so that they are compared at once.
-        let any_above = |cells: &[f32]| cells.iter().fold(false, |any, &key| any | (key > above.0));
-        with_layer!(&self.store, l => {
-            let mut keys = [0.0f32; SQUARE_CELLS];
-            for (y, row) in l.cells.chunks_exact(n).enumerate() {
-                let squares = &mut out[(y / SQUARE_CELLS) * per_side..][..per_side];
-                let whole = row.chunks_exact(SQUARE_CELLS);
-                let rest = whole.remainder();
-                for (square, cells) in squares.iter_mut().zip(whole) {
-                    for (key, &cell) in keys.iter_mut().zip(cells) {
-                        *key = l.rule.key(cell);
-                    }
-                    *square |= any_above(&keys);
-                }
-                if !rest.is_empty() {
-                    for (key, &cell) in keys.iter_mut().zip(rest) {
-                        *key = l.rule.key(cell);
-                    }
-                    squares[per_side - 1] |= any_above(&keys[..rest.len()]);
-                }
-            }
-        });
+        let (x0, y0) = (sx * SQUARE_CELLS, sy * SQUARE_CELLS);
+        assert!(x0 < n && y0 < n, "square ({sx}, {sy}) outside a {n}² grid");
+        let columns = x0..(x0 + SQUARE_CELLS).min(n);
+        with_layer!(&self.store, l => (y0..(y0 + SQUARE_CELLS).min(n)).any(|y| {
+            // Without a branch per cell, so that a row's cells are compared at once.
+            l.cells[y * n..][columns.clone()]
+                .iter()
+                .fold(false, |any, &cell| any | (l.rule.key(cell) > above.0))
+        }))
     }
 
     /// The world bearing from which cell (`x`, `y`) was last heard occupied, if it was and the
@@ -852,12 +841,10 @@ mod tests {
             };
             l.set_cells(cells);
             let above = g.above(0.9);
-            let mut squares = Vec::new();
-            g.squares_above(above, &mut squares);
             let per_side = n.div_ceil(SQUARE_CELLS);
-            assert_eq!(squares.len(), per_side * per_side);
-            for (k, &square) in squares.iter().enumerate() {
+            for k in 0..per_side * per_side {
                 let (sx, sy) = (k % per_side, k / per_side);
+                let square = g.square_above(sx, sy, above);
                 let expected = (sy * SQUARE_CELLS..((sy + 1) * SQUARE_CELLS).min(n)).any(|y| {
                     (sx * SQUARE_CELLS..((sx + 1) * SQUARE_CELLS).min(n))
                         .any(|x| g.is_above(x, y, above))
@@ -888,7 +875,7 @@ mod tests {
         };
         l.set_cells(cells);
         let above = g.above(0.9);
-        let squares = SquaresAbove::of(&g, above);
+        let mut squares = SquaresAbove::new(&g, above);
         let geometry = *g.geometry();
         let (mut met, mut missed) = (0, 0);
         for _ in 0..2000 {
@@ -904,7 +891,7 @@ mod tests {
                     geometry.cell_at((from + direction * (k as f32 * geometry.resolution())).into())
                 })
                 .any(|(x, y)| test(x, y));
-            let over_squares = squares.any_along(&geometry, from, direction, steps, test);
+            let over_squares = squares.any_along(&g, from, direction, steps, test);
             assert_eq!(over_squares, every_sample, "{from:?} {angle} {steps}");
             if every_sample { met += 1 } else { missed += 1 }
         }

@@ -824,7 +824,7 @@ impl Mapper {
             };
             let mut slanted_in_front = || {
                 let squares = squares
-                    .get_or_insert_with(|| SquaresAbove::of(&self.grid, self.above_withdraw));
+                    .get_or_insert_with(|| SquaresAbove::new(&self.grid, self.above_withdraw));
                 self.slanted_wall_in_front(&model, beam, squares)
             };
             let withdrawn = together.placed.iter().any(|p| looked_at(p) > 0)
@@ -1321,18 +1321,18 @@ impl Mapper {
     /// Whether the grid holds a cell on `beam`'s axis in front of its echo's band that is occupied
     /// (p > [`WITHDRAW_ABOVE`]) and was heard from a bearing at least [`WITHDRAW_INCIDENCE_DEG`]
     /// off the axis: a wall the axis meets at a slant, which could not answer the reading.
-    /// `squares` are the grid's above [`WITHDRAW_ABOVE`] as it is now.
+    /// `squares`: what is known of the grid's squares above [`WITHDRAW_ABOVE`] as it is now.
     fn slanted_wall_in_front(
         &self,
         model: &SmoothModel,
         beam: &Beam,
-        squares: &SquaresAbove,
+        squares: &mut SquaresAbove,
     ) -> bool {
         let min_incidence = WITHDRAW_INCIDENCE_DEG.to_radians();
         let grid = &self.grid;
         let direction = Vector2::new(beam.axis.cos(), beam.axis.sin());
         let steps = self.steps_in_front(model, beam);
-        squares.any_along(grid.geometry(), beam.position, direction, steps, |x, y| {
+        squares.any_along(grid, beam.position, direction, steps, |x, y| {
             grid.is_above(x, y, self.above_withdraw)
                 && grid
                     .heard_from(x, y)
