@@ -137,9 +137,18 @@ def main():
             sequences.append(sequence)
             typestore.deserialize_cdr(payload, TOPICS[topic])
         check(sequences[0] >= 1, f"{topic}: sequence numbers start at {sequences[0]}")
+        # rmw_zenoh's publishers (and the bridge, after them) drop a sample rather than block
+        # when zenoh's queue is full (a loaded machine, a slow link); its subscribers count the
+        # gaps as lost messages. So the numbers must rise, never repeat or go back, and the gaps
+        # stay a minority of what was sent.
         check(
-            sequences == list(range(sequences[0], sequences[0] + len(sequences))),
-            f"{topic}: sequence numbers {sequences[:5]}… do not rise by one",
+            all(a < b for a, b in zip(sequences, sequences[1:])),
+            f"{topic}: sequence numbers {sequences[:5]}… do not rise",
+        )
+        sent = sequences[-1] - sequences[0] + 1
+        check(
+            2 * len(sequences) > sent,
+            f"{topic}: {sent - len(sequences)} of {sent} samples lost",
         )
     check(len(set(gids.values())) == 3, "one GID for all topics")
 
