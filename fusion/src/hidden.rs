@@ -185,9 +185,8 @@ impl Blocking {
     ) -> bool {
         let n = geometry.cells_per_side() as i64;
         let res = geometry.resolution();
-        let origin = geometry.cell_centre(0, 0).coords - Vector2::repeat(0.5 * res);
         // In cells, from the grid's corner; the line's parameter is in cells' widths too.
-        let start = (from - origin) / res;
+        let start = (from - geometry.origin()) / res;
         let (first, last) = (1.0, steps as f32);
         if last < first {
             return false;
