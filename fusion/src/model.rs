@@ -18,6 +18,7 @@ use std::str::FromStr;
 use serde::{Deserialize, Serialize};
 
 use crate::config_error::{ConfigError, UnknownName, check};
+use crate::geometry;
 use crate::observation::Beam;
 use crate::regions::DepthTolerance;
 
@@ -1014,7 +1015,7 @@ impl CellEvidence for RegionEcho {
     #[inline(always)]
     fn trusted_log_odds(&self, r: f32, alpha: f32, trust: f32) -> f32 {
         // The distance along the axis, not the range: the patch is straight, as a wall is.
-        let j = (r * alpha.cos() - self.d) * self.inv_band;
+        let j = (r * geometry::cos(alpha) - self.d) * self.inv_band;
         let l = self.l_occ
             * positive(1.0 - alpha * alpha * self.inv_sq)
             * positive(1.0 - j * j)
