@@ -7,7 +7,7 @@
 //! bearings), and the stretch between them is wall too, unless a reading saw through it (the
 //! mapper checks that against the grid before it fills the stretch).
 
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
 
 use nalgebra::Vector2;
 
@@ -276,9 +276,16 @@ impl Stretch {
     /// Whether this stretch is `other` again: faced the same way, each end within
     /// [`SAME_LINE_M`] of `other`'s (two patches of one wall joined to the same corner).
     pub(crate) fn repeats(&self, other: &Stretch) -> bool {
-        // The ends first: most stretches kept lie elsewhere, and they are cheaper to compare.
-        (self.a - other.a).norm() <= SAME_LINE_M
-            && (self.b - other.b).norm() <= SAME_LINE_M
+        // The ends first: most stretches kept lie elsewhere, and they are cheaper to compare;
+        // each end's coordinates before its distance (a square root), which holds them, with
+        // room for the distance's rounding, so the answer is the distance's.
+        let near = |p: Vector2<f32>, q: Vector2<f32>| {
+            let d = p - q;
+            let box_side = SAME_LINE_M * (1.0 + 1e-5);
+            d.x.abs() <= box_side && d.y.abs() <= box_side && d.norm() <= SAME_LINE_M
+        };
+        near(self.a, other.a)
+            && near(self.b, other.b)
             && wrap_angle(self.facing - other.facing).abs() <= SAME_FACING
     }
 }
@@ -528,6 +535,8 @@ pub(crate) struct Lines {
     patches: VecDeque<Kept<Patch>>,
     /// The regions heard, to confirm corners.
     echoes: VecDeque<Kept<Echo>>,
+    /// Where the kept regions were heard from ([`EchoPlaces`]).
+    places: EchoPlaces,
     /// Whether the patches on one line from several viewpoints are put on the line through
     /// their feet ([`Lines::add`]).
     through_feet: bool,
@@ -645,10 +654,36 @@ impl Lines {
         }
     }
 
-    /// Remembers a region heard, which may confirm a corner ([`Self::join_ends`]).
+    /// Remembers a region heard, which may confirm a corner ([`Self::join_ends`]): as one more
+    /// hearing of the oldest kept one it repeats ([`Echo::repeats`]), else as the newest, the
+    /// oldest forgotten first (what [`keep`] does, with the kept ones found by place).
     pub fn hear(&mut self, echo: Echo) {
-        keep(&mut self.echoes, echo, KEPT_ECHOES, |kept, echo| {
-            echo.repeats(kept)
+        let first = self.places.first;
+        let repeated = match self.places.near(&echo) {
+            Some(near) => near
+                .filter(|&n| echo.repeats(&self.echoes[(n - first) as usize].item))
+                .min(),
+            None => (first..)
+                .zip(&self.echoes)
+                .find_map(|(n, kept)| echo.repeats(&kept.item).then_some(n)),
+        };
+        if let Some(n) = repeated {
+            let same = &mut self.echoes[(n - first) as usize];
+            same.heard = same.heard.saturating_add(1);
+            same.fresh = same.fresh.saturating_add(1).min(same.heard);
+            return;
+        }
+        if self.echoes.len() == KEPT_ECHOES
+            && let Some(oldest) = self.echoes.pop_front()
+        {
+            self.places.forget_first(oldest.item.sensor);
+        }
+        self.places
+            .add(echo.sensor, first + self.echoes.len() as u64);
+        self.echoes.push_back(Kept {
+            item: echo,
+            heard: 1,
+            fresh: 1,
         });
     }
 
@@ -798,12 +833,82 @@ impl Lines {
     pub fn clear(&mut self) {
         self.patches.clear();
         self.echoes.clear();
+        self.places = EchoPlaces::default();
+    }
+}
+
+/// Squares of this side, metres, hold the places regions were heard from ([`EchoPlaces`]).
+const PLACE_M: f32 = 0.1;
+
+/// The kept regions by the square of [`PLACE_M`] their sensor stood in, each by its number (the
+/// kept ones are numbered in the order they were heard, from `first`, the oldest kept). A region
+/// repeats only one heard within half its depth tolerance of where it was heard
+/// ([`Echo::repeats`]), so where that is within a square, the kept ones in the nine squares about
+/// it are all it can repeat: a moving robot hears every region from a new place, and looked
+/// through all of the thousands kept for each (issue 29).
+#[derive(Debug, Clone, Default)]
+struct EchoPlaces {
+    squares: HashMap<(i32, i32), VecDeque<u64>>,
+    first: u64,
+}
+
+impl EchoPlaces {
+    fn square(at: Vector2<f32>) -> (i32, i32) {
+        // Saturating casts: a position beyond ±2e8 m still lands in a square.
+        (
+            (at.x / PLACE_M).floor() as i32,
+            (at.y / PLACE_M).floor() as i32,
+        )
+    }
+
+    /// The numbers of the kept regions `echo` may repeat, if the squares about its place hold
+    /// every one (else `None`: look through them all).
+    fn near(&self, echo: &Echo) -> Option<impl Iterator<Item = u64> + '_> {
+        // Repeating needs the sensors within half the smaller of the two tolerances (a NaN one
+        // is looked for everywhere, as before).
+        let within_a_square = 0.5 * echo.tolerance <= PLACE_M;
+        if !within_a_square {
+            return None;
+        }
+        let (x, y) = Self::square(echo.sensor);
+        Some(
+            (x.saturating_sub(1)..=x.saturating_add(1))
+                .flat_map(move |sx| {
+                    (y.saturating_sub(1)..=y.saturating_add(1)).map(move |sy| (sx, sy))
+                })
+                .filter_map(|key| self.squares.get(&key))
+                .flatten()
+                .copied(),
+        )
+    }
+
+    fn add(&mut self, sensor: Vector2<f32>, number: u64) {
+        self.squares
+            .entry(Self::square(sensor))
+            .or_default()
+            .push_back(number);
+    }
+
+    /// Forgets the oldest kept region, heard from `sensor`.
+    fn forget_first(&mut self, sensor: Vector2<f32>) {
+        let key = Self::square(sensor);
+        if let Some(numbers) = self.squares.get_mut(&key) {
+            // Numbers are pushed in order, so the oldest of a square is its first.
+            if numbers.front() == Some(&self.first) {
+                numbers.pop_front();
+            }
+            if numbers.is_empty() {
+                self.squares.remove(&key);
+            }
+        }
+        self.first += 1;
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
 
     const DEG: f32 = std::f32::consts::PI / 180.0;
 
@@ -965,6 +1070,49 @@ mod tests {
         lines.add(heard_from(5.0), &mut out);
         assert!(out.is_empty());
     }
+    proptest! {
+        /// Regions heard from a head standing still (repeats) and from a robot driving (new
+        /// places), beyond what is kept: found by place, they are kept as looking through every
+        /// kept one finds them ([`keep`]), the same hearings counted on the same ones.
+        #[test]
+        fn echoes_found_by_place_are_kept_as_a_look_through_all_keeps_them(
+            heard in proptest::collection::vec(
+                (0u8..6, 0u8..4, 0u8..3, any::<bool>(), prop_oneof![Just(0.05f32), Just(0.3f32)]),
+                1..300,
+            ),
+        ) {
+            let mut lines = Lines::default();
+            let mut all: VecDeque<Kept<Echo>> = VecDeque::new();
+            for (i, &(place, bearing, range, whole, tolerance)) in heard.iter().enumerate() {
+                let echo = Echo {
+                    // Six places 2 cm apart, across a square's edge; some heard once, on the move.
+                    sensor: if i % 7 == 0 {
+                        Vector2::new(0.013 * i as f32, -0.37)
+                    } else {
+                        Vector2::new(0.08 + 0.02 * f32::from(place), 0.1)
+                    },
+                    axis: f32::from(bearing) * 2.0 * DEG,
+                    half_width: 5.0 * DEG,
+                    range: 1.0 + 0.01 * f32::from(range),
+                    tolerance,
+                    whole,
+                };
+                lines.hear(echo);
+                keep(&mut all, echo, KEPT_ECHOES.min(40), |kept, echo| echo.repeats(kept));
+                while lines.echoes.len() > 40 {
+                    // Keep both to 40: forget the oldest as `hear` does at its limit.
+                    if let Some(oldest) = lines.echoes.pop_front() {
+                        lines.places.forget_first(oldest.item.sensor);
+                    }
+                }
+            }
+            let seen = |k: &VecDeque<Kept<Echo>>| {
+                k.iter().map(|k| (k.item, k.heard, k.fresh)).collect::<Vec<_>>()
+            };
+            prop_assert_eq!(seen(&lines.echoes), seen(&all));
+        }
+    }
+
     #[test]
     fn walls_are_drawn_to_the_concave_corner_where_an_echo_was_heard() {
         // A room's walls x = 2 m and y = 1.5 m heard square from the origin (patches ±10°); their
