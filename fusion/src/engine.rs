@@ -67,6 +67,9 @@ pub struct Engine {
     closed_sweep: Option<u32>,
     /// Bumped by every change of the state, so a saver knows whether there is anything new.
     revision: u64,
+    /// The sensor's constant lateness, metres, taken off every reading's range
+    /// ([`Self::set_range_offset`]).
+    range_offset_m: f32,
 }
 
 /// What a sweep's end ([`SweepEnd`], the head's word through the driver) did to the engine.
@@ -97,6 +100,7 @@ impl Engine {
             last_seq: None,
             closed_sweep: None,
             revision: 0,
+            range_offset_m: 0.0,
         })
     }
 
@@ -128,6 +132,7 @@ impl Engine {
             last_seq: state.last_seq,
             closed_sweep: None,
             revision: 0,
+            range_offset_m: 0.0,
         })
     }
 
@@ -329,6 +334,14 @@ impl Engine {
         changed
     }
 
+    /// Takes `offset_m`, the sensor's constant lateness (calibrated on a wall; negative for a
+    /// sensor that reads short), off every reading's range fused from now on
+    /// ([`Observation::calibrated`]): the fusion process gives it `[features] range_offset_m`,
+    /// so the grid and the features place an echo at the same distance.
+    pub fn set_range_offset(&mut self, offset_m: f32) {
+        self.range_offset_m = offset_m;
+    }
+
     /// Fuses `reading` at the current pose into both maps; `false` if the kernels refused it.
     pub fn fuse(&mut self, reading: &Reading) -> bool {
         let PlacedPose { pose, kind } = self.poses.at(reading.host_stamp_ns);
@@ -340,7 +353,7 @@ impl Engine {
             PoseKind::Initial | PoseKind::Interpolated => {}
         }
         self.pose = self.correction * pose;
-        let obs = Observation::from_reading(reading, self.pose);
+        let obs = Observation::from_reading(reading, self.pose).calibrated(self.range_offset_m);
         self.last_seq = Some(reading.seq);
         self.revision += 1;
         self.scan = Some(ScanState {
@@ -527,6 +540,8 @@ impl Engine {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::Preset;
+    use nalgebra::Point2;
     use sonar_common::ipc::{ScanMode, flags, model_code, rule_code};
 
     fn reading(sweep_id: u32, angle_deg: f32, distance_m: f32) -> Reading {
@@ -565,6 +580,45 @@ mod tests {
         let mut cells = vec![0; engine.grid_len()];
         engine.encode_grid(&mut cells);
         cells
+    }
+
+    /// Where the grid holds its most likely cell on the x axis (0.5–1.5 m), after readings
+    /// straight ahead that heard `distance_m`, with the sensor's range offset `offset_m`.
+    fn wall_on_the_axis(distance_m: f32, offset_m: f32) -> f32 {
+        let mut engine = Engine::new(FusionConfig::preset(Preset::Paper), 10).unwrap();
+        engine.set_range_offset(offset_m);
+        for seq in 0..4 {
+            assert!(engine.fuse(&Reading {
+                seq,
+                ..reading(1, 0.0, distance_m)
+            }));
+        }
+        let grid = engine.mapper().grid();
+        let geometry = grid.geometry();
+        let (_, y) = geometry.cell_at(Point2::origin()).unwrap();
+        let (from, _) = geometry.cell_at(Point2::new(0.5, 0.0)).unwrap();
+        let (to, _) = geometry.cell_at(Point2::new(1.5, 0.0)).unwrap();
+        let best = (from..=to)
+            .max_by(|&a, &b| {
+                let p = |x| grid.probability(x, y).unwrap_or(0.0);
+                p(a).total_cmp(&p(b))
+            })
+            .unwrap();
+        geometry.cell_centre(best, y).x
+    }
+
+    /// A sensor that reads 4 cm short, calibrated as such (`[features] range_offset_m = -0.04`),
+    /// has its echoes placed where a sensor that reads true would place them, 4 cm farther (two
+    /// cells), as the features place them.
+    #[test]
+    fn a_calibrated_range_offset_moves_the_grid_s_echoes_by_it() {
+        let short = wall_on_the_axis(1.0, 0.0);
+        let calibrated = wall_on_the_axis(1.0, -0.04);
+        assert_eq!(calibrated, wall_on_the_axis(1.04, 0.0));
+        assert!(
+            (calibrated - short - 0.04).abs() < 0.001,
+            "calibrated wall at {calibrated} m, uncalibrated at {short} m"
+        );
     }
 
     #[test]

@@ -341,6 +341,8 @@ fn run(args: &Args) -> Result<()> {
             false,
         ),
     };
+    // One calibration for both maps: the features take it off their pings.
+    engine.set_range_offset(features.config.range_offset_m as f32);
     let footprint = check_shared_memory(engine.grid_len())?;
     info!(
         cells = config.grid.cells,

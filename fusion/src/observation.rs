@@ -21,7 +21,23 @@ pub struct Observation {
     pub max_range_m: f32,
 }
 
+/// The nearest a calibrated range is placed, metres: an echo nearer than the sensor's calibrated
+/// lateness is still an echo, at the sensor.
+const NEAREST_CALIBRATED_M: f32 = 0.001;
+
 impl Observation {
+    /// This observation with the sensor's constant lateness `offset_m` (calibrated on a wall:
+    /// `[features] range_offset_m`, negative for a sensor that reads short) taken off its range,
+    /// as the features take it off their pings: one calibration for both maps.
+    pub fn calibrated(self, offset_m: f32) -> Self {
+        Self {
+            range_m: self
+                .range_m
+                .map(|r| (r - offset_m).max(NEAREST_CALIBRATED_M)),
+            ..self
+        }
+    }
+
     /// The reading as the driver published it, taken at `pose`. A reading flagged `NO_ECHO` or
     /// `OUT_OF_RANGE` carries no range: its distance is never used as an obstacle.
     pub fn from_reading(reading: &Reading, pose: Isometry2<f32>) -> Self {

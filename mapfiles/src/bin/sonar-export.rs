@@ -827,7 +827,9 @@ fn fuse_recording<W: Write + Seek>(
         with_features,
     } = offline;
     let localize = placement == Placement::Localize;
-    let engine = Engine::new(config, OFFLINE_HISTORY).context("invalid fusion settings")?;
+    let mut engine = Engine::new(config, OFFLINE_HISTORY).context("invalid fusion settings")?;
+    // As sonar-fusion: the features' calibration of the sensor's range for the grid too.
+    engine.set_range_offset(features.config.range_offset_m as f32);
     let tracker = (with_features || localize)
         .then(|| {
             if localize {
