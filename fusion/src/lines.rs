@@ -476,6 +476,21 @@ struct Kept<T> {
 }
 
 impl<T> Kept<T> {
+    /// `item`, heard once, that once fresh.
+    fn new(item: T) -> Self {
+        Self {
+            item,
+            heard: 1,
+            fresh: 1,
+        }
+    }
+
+    /// Counts one more hearing, fresh.
+    fn heard_again(&mut self) {
+        self.heard = self.heard.saturating_add(1);
+        self.fresh = self.fresh.saturating_add(1).min(self.heard);
+    }
+
     /// How many pairs of a hearing of this and one of `other` have a fresh one in them: as many
     /// times as [`Lines::join_ends`] would draw what the two make if every hearing were kept
     /// apart, each paired once with every other.
@@ -499,19 +514,14 @@ fn keep<T>(
         .iter_mut()
         .find_map(|k| absorb(&mut k.item, &item).then_some(k))
     {
-        same.heard = same.heard.saturating_add(1);
-        same.fresh = same.fresh.saturating_add(1).min(same.heard);
+        same.heard_again();
         return;
     }
     if kept.len() == most {
         // The oldest goes: a queue, not a shift of thousands.
         kept.pop_front();
     }
-    kept.push_back(Kept {
-        item,
-        heard: 1,
-        fresh: 1,
-    });
+    kept.push_back(Kept::new(item));
 }
 
 /// Adds `stretch`, counting `readings`, to `out`: to the one there it repeats, if any, else as a
@@ -658,6 +668,11 @@ impl Lines {
     /// hearing of the oldest kept one it repeats ([`Echo::repeats`]), else as the newest, the
     /// oldest forgotten first (what [`keep`] does, with the kept ones found by place).
     pub fn hear(&mut self, echo: Echo) {
+        self.hear_keeping(echo, KEPT_ECHOES);
+    }
+
+    /// [`Self::hear`], keeping at most `most` regions.
+    fn hear_keeping(&mut self, echo: Echo, most: usize) {
         let first = self.places.first;
         let repeated = match self.places.near(&echo) {
             Some(near) => near
@@ -668,23 +683,22 @@ impl Lines {
                 .find_map(|(n, kept)| echo.repeats(&kept.item).then_some(n)),
         };
         if let Some(n) = repeated {
-            let same = &mut self.echoes[(n - first) as usize];
-            same.heard = same.heard.saturating_add(1);
-            same.fresh = same.fresh.saturating_add(1).min(same.heard);
+            self.echoes[(n - first) as usize].heard_again();
             return;
         }
-        if self.echoes.len() == KEPT_ECHOES
-            && let Some(oldest) = self.echoes.pop_front()
-        {
-            self.places.forget_first(oldest.item.sensor);
+        if self.echoes.len() >= most {
+            self.forget_oldest_echo();
         }
         self.places
-            .add(echo.sensor, first + self.echoes.len() as u64);
-        self.echoes.push_back(Kept {
-            item: echo,
-            heard: 1,
-            fresh: 1,
-        });
+            .add(echo.sensor, self.places.first + self.echoes.len() as u64);
+        self.echoes.push_back(Kept::new(echo));
+    }
+
+    /// Forgets the oldest region kept, and where it was heard from.
+    fn forget_oldest_echo(&mut self) {
+        if let Some(oldest) = self.echoes.pop_front() {
+            self.places.forget_first(oldest.item.sensor);
+        }
     }
 
     /// Writes into `out` the stretches of wall from patches to where their walls end, at most
@@ -1097,14 +1111,9 @@ mod tests {
                     tolerance,
                     whole,
                 };
-                lines.hear(echo);
-                keep(&mut all, echo, KEPT_ECHOES.min(40), |kept, echo| echo.repeats(kept));
-                while lines.echoes.len() > 40 {
-                    // Keep both to 40: forget the oldest as `hear` does at its limit.
-                    if let Some(oldest) = lines.echoes.pop_front() {
-                        lines.places.forget_first(oldest.item.sensor);
-                    }
-                }
+                // At most 40 kept, so that the oldest are forgotten many times over.
+                lines.hear_keeping(echo, 40);
+                keep(&mut all, echo, 40, |kept, echo| echo.repeats(kept));
             }
             let seen = |k: &VecDeque<Kept<Echo>>| {
                 k.iter().map(|k| (k.item, k.heard, k.fresh)).collect::<Vec<_>>()
