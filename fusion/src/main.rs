@@ -352,6 +352,7 @@ fn run(args: &Args) -> Result<()> {
         rule = config.rule.kind().name(),
         preset = config.matching_preset().map_or("custom", Preset::name),
         clear_on_no_echo = config.clear_on_no_echo,
+        range_offset_m = features.config.range_offset_m,
         shm_mib = format_args!("{:.1}", footprint as f64 / f64::from(1 << 20)),
         state_file = persistence.as_ref().map(|(p, _)| p.display().to_string()),
         features = tracker.is_some(),
