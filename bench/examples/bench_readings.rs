@@ -8,6 +8,10 @@
 //!   bench_readings READINGS SKIP           # fuses SKIP readings, then READINGS more in `measured`
 //!   bench_readings READINGS SKIP moving    # the same with the robot driving round a room
 //!                                          # (`sonar_bench::room_reading`, `moving_pose`)
+//!
+//! With `SONAR_BENCH_FINGERPRINT=1` it also prints the final map's fingerprint
+//! (`OccupancyGrid::fingerprint`, after the counted work), to check that a change leaves a long
+//! run's map bit for bit as it was.
 
 use anyhow::{Context, Result};
 use sonar_bench::{moving_pose, room_reading, synthetic_reading};
@@ -57,6 +61,12 @@ fn main() -> Result<()> {
         "fused {} readings after {skip}",
         measured(&mut engine, skip, n, moving)?
     );
+    if std::env::var_os("SONAR_BENCH_FINGERPRINT").is_some() {
+        println!(
+            "map fingerprint {:016x}",
+            engine.mapper().grid().fingerprint()
+        );
+    }
     Ok(())
 }
 

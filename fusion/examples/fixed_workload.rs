@@ -222,18 +222,6 @@ fn features_snapshot(tracker: &FeatureTracker, engine: &mut Engine, seq: u64) ->
 
 /// FNV-1a over the bits of every cell's probability: equal for equal maps, so a change that must
 /// leave the maps bit for bit as they were can be checked on this workload.
-fn fingerprint(engine: &Engine) -> u64 {
-    let grid = engine.mapper().grid();
-    let mut probabilities = vec![0.0f32; grid.geometry().len()];
-    grid.probabilities_into(&mut probabilities);
-    probabilities
-        .iter()
-        .flat_map(|p| p.to_bits().to_le_bytes())
-        .fold(0xcbf2_9ce4_8422_2325, |h, b| {
-            (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)
-        })
-}
-
 fn main() -> Result<()> {
     let args = Args::parse();
     let config = FusionConfig {
@@ -303,7 +291,10 @@ fn main() -> Result<()> {
         counts.occupied, counts.free, counts.unknown
     );
     if args.fingerprint {
-        println!("map fingerprint {:016x}", fingerprint(&engine));
+        println!(
+            "map fingerprint {:016x}",
+            engine.mapper().grid().fingerprint()
+        );
     }
     if counter.is_some() {
         println!("grid cells changed: {cells_changed}");

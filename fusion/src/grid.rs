@@ -545,6 +545,19 @@ impl OccupancyGrid {
         });
     }
 
+    /// A fingerprint of the map: FNV-1a over every cell's probability ([`Self::probabilities_into`]),
+    /// bit for bit, so that a change meant to leave the maps as they were can be checked to.
+    pub fn fingerprint(&self) -> u64 {
+        let mut probabilities = vec![0.0f32; self.geometry.len()];
+        self.probabilities_into(&mut probabilities);
+        probabilities
+            .iter()
+            .flat_map(|p| p.to_bits().to_le_bytes())
+            .fold(0xcbf2_9ce4_8422_2325, |h, b| {
+                (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3)
+            })
+    }
+
     /// Every cell in the snapshot encoding of `sonar_common::ipc` (0 = free … 254 = occupied,
     /// 127 = even odds, [`CELL_UNKNOWN`] = 255 for never observed), row-major, and the counts for
     /// the snapshot header. Costs one encoding per cell fused since the last call.
@@ -816,6 +829,29 @@ mod tests {
             g.probabilities_into(&mut p);
             assert!(p.iter().all(|&v| v == 0.5));
         }
+    }
+
+    /// Equal maps have equal fingerprints; one cell's probability moved a little changes it.
+    #[test]
+    fn a_fingerprint_tells_maps_apart_by_a_bit() {
+        let grid_of = |cells: Vec<f32>| {
+            let mut g = OccupancyGrid::new(
+                GridGeometry::new(4, 0.1),
+                &RuleConfig::LogOdds(LogOddsRule::default()),
+                false,
+            );
+            let CellStore::LogOdds(l) = &mut g.parts_mut().1 else {
+                unreachable!()
+            };
+            l.set_cells(cells);
+            g
+        };
+        let cells: Vec<f32> = (0..16).map(|k| k as f32 * 0.1 - 0.8).collect();
+        let mut nudged = cells.clone();
+        nudged[5] += 0.01;
+        let fingerprint = grid_of(cells.clone()).fingerprint();
+        assert_eq!(fingerprint, grid_of(cells).fingerprint());
+        assert_ne!(fingerprint, grid_of(nudged).fingerprint());
     }
 
     #[test]
