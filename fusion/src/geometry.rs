@@ -204,6 +204,26 @@ pub(crate) fn cos(x: f32) -> f32 {
     if far { -c } else { c }
 }
 
+/// A box (lower and upper corners, world metres) holding the sector of a lobe seen from
+/// `position`, `lobe` radians each side of `axis`, from `range` less `depth` to `range` plus
+/// `depth`: the square about the point at `range` on the axis that holds every point of it.
+pub(crate) fn sector_box(
+    position: Vector2<f32>,
+    axis: f32,
+    range: f32,
+    lobe: f32,
+    depth: f32,
+) -> (Vector2<f32>, Vector2<f32>) {
+    let middle = position + Vector2::new(axis.cos(), axis.sin()) * range;
+    // The sector's farthest points from its middle are its corners.
+    let corner = |r: f32| Vector2::new(r * lobe.cos() - range, r * lobe.sin()).norm();
+    let reach = corner(range + depth)
+        .max(corner((range - depth).max(0.0)))
+        .max(depth);
+    let reach = Vector2::repeat(reach);
+    (middle - reach, middle + reach)
+}
+
 /// `angle` wrapped into [−π, π].
 pub(crate) fn wrap_angle(angle: f32) -> f32 {
     angle - TAU * (angle / TAU).round()

@@ -11,7 +11,7 @@ use std::collections::{HashMap, VecDeque};
 
 use nalgebra::Vector2;
 
-use crate::geometry::wrap_angle;
+use crate::geometry::{sector_box, wrap_angle};
 
 /// Two patches face the same way within this angle, radians (3°).
 const SAME_FACING: f32 = 3.0 * std::f32::consts::PI / 180.0;
@@ -690,14 +690,27 @@ impl Lines {
             self.forget_oldest_echo();
         }
         self.places
-            .add(echo.sensor, self.places.first + self.echoes.len() as u64);
+            .add(&echo, self.places.first + self.echoes.len() as u64);
         self.echoes.push_back(Kept::new(echo));
     }
 
     /// Forgets the oldest region kept, and where it was heard from.
     fn forget_oldest_echo(&mut self) {
         if let Some(oldest) = self.echoes.pop_front() {
-            self.places.forget_first(oldest.item.sensor);
+            self.places.forget_first(&oldest.item);
+        }
+    }
+
+    /// Whether some region kept heard `point` ([`Echo::heard`], with `slack`): among those whose
+    /// reach holds it ([`EchoPlaces::reaching`]), or all of them when `slack` is wider than the
+    /// reach was filed with.
+    fn heard_at(&self, point: Vector2<f32>, slack: f32) -> bool {
+        let first = self.places.first;
+        match self.places.reaching(point, slack) {
+            Some(mut numbers) => {
+                numbers.any(|n| self.echoes[(n - first) as usize].item.heard(point, slack))
+            }
+            None => self.echoes.iter().any(|e| e.item.heard(point, slack)),
         }
     }
 
@@ -757,9 +770,7 @@ impl Lines {
                 // that it is confirmed if the corner of any two of the patches they stand for
                 // would have been.
                 let slack = (a.spread + b.spread) / a.normal.perp(&b.normal).abs();
-                if stretches.iter().all(Option::is_none)
-                    || !self.echoes.iter().any(|e| e.item.heard(corner, slack))
-                {
+                if stretches.iter().all(Option::is_none) || !self.heard_at(corner, slack) {
                     continue;
                 }
                 for (p, stretch) in stretches.into_iter().flatten() {
@@ -863,8 +874,20 @@ const PLACE_M: f32 = 0.1;
 #[derive(Debug, Clone, Default)]
 struct EchoPlaces {
     squares: HashMap<(i32, i32), VecDeque<u64>>,
+    /// The kept regions by the squares of [`REACH_M`] their reach crosses ([`Self::reach`]), and
+    /// those whose reach crosses more than [`WIDEST_REACH`] squares a side (looked at for every
+    /// point).
+    reach: HashMap<(i32, i32), VecDeque<u64>>,
+    wide: VecDeque<u64>,
     first: u64,
 }
+
+/// Squares of this side, metres, hold where the regions kept may have heard something.
+const REACH_M: f32 = 0.5;
+/// A corner's slack up to which the regions' reach, filed, holds every region that heard it.
+const SLACK_FILED_M: f32 = 0.25;
+/// A region whose reach crosses more squares a side than this is looked at for every point.
+const WIDEST_REACH: f32 = 16.0;
 
 impl EchoPlaces {
     fn square(at: Vector2<f32>) -> (i32, i32) {
@@ -896,23 +919,102 @@ impl EchoPlaces {
         )
     }
 
-    fn add(&mut self, sensor: Vector2<f32>, number: u64) {
-        self.squares
-            .entry(Self::square(sensor))
-            .or_default()
-            .push_back(number);
+    /// The squares of [`REACH_M`] (the first and the last, both ways) in which the points
+    /// `echo` hears with a slack up to [`SLACK_FILED_M`] may lie: its reach, the box round its
+    /// sector; `None` if that spans more than [`WIDEST_REACH`] squares a side or is no box.
+    fn reach(echo: &Echo) -> Option<((i32, i32), (i32, i32))> {
+        let lobe = echo.half_width + ECHO_MARGIN;
+        // The box round a sector of a half turn or more each side is no bound of it (nor is a
+        // NaN's).
+        let bounded = lobe < std::f32::consts::PI;
+        if !bounded {
+            return None;
+        }
+        let (lower, upper) = sector_box(
+            echo.sensor,
+            echo.axis,
+            echo.range,
+            lobe,
+            echo.tolerance + SLACK_FILED_M,
+        );
+        let square = |v: f32| (v / REACH_M).floor();
+        let (first, last) = (lower.map(square), upper.map(square));
+        let span = last - first;
+        // Also false for a NaN.
+        let narrow = span.x <= WIDEST_REACH && span.y <= WIDEST_REACH;
+        narrow.then(|| {
+            (
+                (first.x as i32, first.y as i32),
+                (last.x as i32, last.y as i32),
+            )
+        })
     }
 
-    /// Forgets the oldest kept region, heard from `sensor`.
-    fn forget_first(&mut self, sensor: Vector2<f32>) {
-        let key = Self::square(sensor);
-        if let Some(numbers) = self.squares.get_mut(&key) {
-            // Numbers are pushed in order, so the oldest of a square is its first.
-            if numbers.front() == Some(&self.first) {
-                numbers.pop_front();
+    /// The numbers of the kept regions that may have heard `point` with `slack`, if they were
+    /// filed for it (else `None`: look at them all).
+    fn reaching(&self, point: Vector2<f32>, slack: f32) -> Option<impl Iterator<Item = u64> + '_> {
+        let filed = slack <= SLACK_FILED_M;
+        if !filed {
+            return None;
+        }
+        let key = (
+            (point.x / REACH_M).floor() as i32,
+            (point.y / REACH_M).floor() as i32,
+        );
+        Some(
+            self.reach
+                .get(&key)
+                .into_iter()
+                .flatten()
+                .chain(&self.wide)
+                .copied(),
+        )
+    }
+
+    fn add(&mut self, echo: &Echo, number: u64) {
+        self.squares
+            .entry(Self::square(echo.sensor))
+            .or_default()
+            .push_back(number);
+        match Self::reach(echo) {
+            Some(((x0, y0), (x1, y1))) => {
+                for x in x0..=x1 {
+                    for y in y0..=y1 {
+                        self.reach.entry((x, y)).or_default().push_back(number);
+                    }
+                }
             }
-            if numbers.is_empty() {
-                self.squares.remove(&key);
+            None => self.wide.push_back(number),
+        }
+    }
+
+    /// Forgets the oldest kept region, `echo`.
+    fn forget_first(&mut self, echo: &Echo) {
+        // Numbers are pushed in order, so the oldest of a square is its first.
+        let first = self.first;
+        let forget = |map: &mut HashMap<(i32, i32), VecDeque<u64>>, key| {
+            if let Some(numbers) = map.get_mut(&key) {
+                if numbers.front() == Some(&first) {
+                    numbers.pop_front();
+                }
+                if numbers.is_empty() {
+                    map.remove(&key);
+                }
+            }
+        };
+        forget(&mut self.squares, Self::square(echo.sensor));
+        match Self::reach(echo) {
+            Some(((x0, y0), (x1, y1))) => {
+                for x in x0..=x1 {
+                    for y in y0..=y1 {
+                        forget(&mut self.reach, (x, y));
+                    }
+                }
+            }
+            None => {
+                if self.wide.front() == Some(&first) {
+                    self.wide.pop_front();
+                }
             }
         }
         self.first += 1;
@@ -1119,6 +1221,46 @@ mod tests {
                 k.iter().map(|k| (k.item, k.heard, k.fresh)).collect::<Vec<_>>()
             };
             prop_assert_eq!(seen(&lines.echoes), seen(&all));
+        }
+    }
+
+    proptest! {
+        /// Whether some kept region heard a point, asked of the regions filed by their reach,
+        /// is what asking every kept one says: for points in and out of reach, slacks filed and
+        /// not, regions wide and narrow, and after the oldest are forgotten.
+        #[test]
+        fn a_point_heard_by_the_regions_filed_by_reach_is_heard_by_all(
+            heard in proptest::collection::vec(
+                (-3.0f32..3.0, -3.0f32..3.0, -3.2f32..3.2, 0.1f32..4.0, 0.0f32..3.2, 0.01f32..0.3),
+                1..80,
+            ),
+            points in proptest::collection::vec((-7.0f32..7.0, -7.0f32..7.0, 0.0f32..0.5), 1..60),
+        ) {
+            let mut lines = Lines::default();
+            for &(x, y, axis, range, half_width, tolerance) in &heard {
+                lines.hear_keeping(
+                    Echo {
+                        sensor: Vector2::new(x, y),
+                        axis,
+                        half_width,
+                        range,
+                        tolerance,
+                        whole: false,
+                    },
+                    50,
+                );
+            }
+            for &(x, y, slack) in &points {
+                let point = Vector2::new(x, y);
+                let all = lines.echoes.iter().any(|e| e.item.heard(point, slack));
+                prop_assert_eq!(lines.heard_at(point, slack), all, "{:?} with slack {}", point, slack);
+            }
+            // Points each region heard, on its axis at its range.
+            for e in &lines.echoes {
+                let e = e.item;
+                let point = e.sensor + Vector2::new(e.axis.cos(), e.axis.sin()) * e.range;
+                prop_assert!(lines.heard_at(point, 0.0));
+            }
         }
     }
 

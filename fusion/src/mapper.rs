@@ -7,7 +7,7 @@ use nalgebra::{Isometry2, Vector2};
 
 use crate::config::{ConfigError, FusionConfig};
 use crate::geometry::GridGeometry;
-use crate::geometry::{incidence, wrap_angle};
+use crate::geometry::{incidence, sector_box, wrap_angle};
 use crate::grid::{Above, OccupancyGrid, SquaresAbove, with_layer};
 use crate::hidden::{self, Hiding, Sight};
 use crate::kernel::ConeCache;
@@ -49,26 +49,6 @@ const STRETCH_PIECE_M: f32 = 1.0;
 /// this many, each at least [`VIEWPOINTS_APART_M`] from the others.
 const VIEWPOINTS_KEPT: usize = 32;
 const VIEWPOINTS_APART_M: f32 = 0.25;
-
-/// A box (lower and upper corners, world metres) holding the sector of a lobe seen from
-/// `position`, `lobe` radians each side of `axis`, from `range` less `depth` to `range` plus
-/// `depth`: the square about the point at `range` on the axis that holds every point of it.
-fn lobe_box(
-    position: Vector2<f32>,
-    axis: f32,
-    range: f32,
-    lobe: f32,
-    depth: f32,
-) -> (Vector2<f32>, Vector2<f32>) {
-    let middle = position + Vector2::new(axis.cos(), axis.sin()) * range;
-    // The sector's farthest points from its middle are its corners.
-    let corner = |r: f32| Vector2::new(r * lobe.cos() - range, r * lobe.sin()).norm();
-    let reach = corner(range + depth)
-        .max(corner((range - depth).max(0.0)))
-        .max(depth);
-    let reach = Vector2::repeat(reach);
-    (middle - reach, middle + reach)
-}
 
 /// A box (lower and upper corners, world metres) holding the axis from `position` along `axis`
 /// to `range`, and `margin` round it.
@@ -813,7 +793,7 @@ impl Mapper {
             let explainable = || {
                 new || beam.echo.is_some_and(|range| {
                     let depth = model.depth_and_band(tolerance, range);
-                    drawn_in(lobe_box(beam.position, beam.axis, range, lobe, depth))
+                    drawn_in(sector_box(beam.position, beam.axis, range, lobe, depth))
                 })
             };
             let slanted_in_front_possible = || {
@@ -2609,7 +2589,7 @@ mod tests {
     }
 
     #[test]
-    fn a_lobe_box_holds_its_whole_sector() {
+    fn a_sector_box_holds_its_whole_sector() {
         let mut rng = ChaCha8Rng::seed_from_u64(7);
         for _ in 0..200 {
             let position = Vector2::new(rng.random_range(-3.0..3.0), rng.random_range(-3.0..3.0));
@@ -2617,7 +2597,7 @@ mod tests {
             let range: f32 = rng.random_range(0.05..4.0);
             let lobe: f32 = rng.random_range(0.05..0.8);
             let depth: f32 = rng.random_range(0.0..0.3);
-            let (lower, upper) = lobe_box(position, axis, range, lobe, depth);
+            let (lower, upper) = sector_box(position, axis, range, lobe, depth);
             for _ in 0..50 {
                 let r = (range + rng.random_range(-depth..=depth)).max(0.0);
                 let bearing = axis + rng.random_range(-lobe..=lobe);
