@@ -7,7 +7,9 @@
 //! bearings), and the stretch between them is wall too, unless a reading saw through it (the
 //! mapper checks that against the grid before it fills the stretch).
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::VecDeque;
+
+use rustc_hash::FxHashMap;
 
 use nalgebra::Vector2;
 
@@ -873,17 +875,17 @@ const PLACE_M: f32 = 0.1;
 /// through all of the thousands kept for each (issue 29).
 #[derive(Debug, Clone, Default)]
 struct EchoPlaces {
-    squares: HashMap<(i32, i32), VecDeque<u64>>,
+    squares: FxHashMap<(i32, i32), VecDeque<u64>>,
     /// The kept regions by the squares of [`REACH_M`] their reach crosses ([`Self::reach`]), and
     /// those whose reach crosses more than [`WIDEST_REACH`] squares a side (looked at for every
     /// point).
-    reach: HashMap<(i32, i32), VecDeque<u64>>,
+    reach: FxHashMap<(i32, i32), VecDeque<u64>>,
     wide: VecDeque<u64>,
     first: u64,
 }
 
 /// Squares of this side, metres, hold where the regions kept may have heard something.
-const REACH_M: f32 = 0.5;
+const REACH_M: f32 = 1.0;
 /// A corner's slack up to which the regions' reach, filed, holds every region that heard it.
 const SLACK_FILED_M: f32 = 0.25;
 /// A region whose reach crosses more squares a side than this is looked at for every point.
@@ -992,7 +994,7 @@ impl EchoPlaces {
     fn forget_first(&mut self, echo: &Echo) {
         // Numbers are pushed in order, so the oldest of a square is its first.
         let first = self.first;
-        let forget = |map: &mut HashMap<(i32, i32), VecDeque<u64>>, key| {
+        let forget = |map: &mut FxHashMap<(i32, i32), VecDeque<u64>>, key| {
             if let Some(numbers) = map.get_mut(&key) {
                 if numbers.front() == Some(&first) {
                     numbers.pop_front();
