@@ -867,14 +867,18 @@ impl Lines {
 /// Squares of this side, metres, hold the places regions were heard from ([`EchoPlaces`]).
 const PLACE_M: f32 = 0.1;
 
-/// The kept regions by the square of [`PLACE_M`] their sensor stood in, each by its number (the
-/// kept ones are numbered in the order they were heard, from `first`, the oldest kept). A region
-/// repeats only one heard within half its depth tolerance of where it was heard
-/// ([`Echo::repeats`]), so where that is within a square, the kept ones in the nine squares about
-/// it are all it can repeat: a moving robot hears every region from a new place, and looked
-/// through all of the thousands kept for each (issue 29).
+/// The kept regions filed two ways, each by its number (the kept ones are numbered in the order
+/// they were heard, from `first`, the oldest kept), so that a moving robot's look for a region
+/// does not go through all of the thousands kept (issue 29):
+///
+/// - by the square of [`PLACE_M`] their sensor stood in: a region repeats only one heard within
+///   half its depth tolerance of where it was heard ([`Echo::repeats`]), so where that is within
+///   a square, the kept ones in the nine squares about it are all it can repeat;
+/// - by the squares of [`REACH_M`] their reach crosses ([`Self::reach`]): a corner can have been
+///   heard only by the regions filed in its own square ([`Lines::join_ends`]).
 #[derive(Debug, Clone, Default)]
 struct EchoPlaces {
+    /// The kept regions by the square their sensor stood in.
     squares: FxHashMap<(i32, i32), VecDeque<u64>>,
     /// The kept regions by the squares of [`REACH_M`] their reach crosses ([`Self::reach`]), and
     /// those whose reach crosses more than [`WIDEST_REACH`] squares a side (looked at for every
@@ -892,12 +896,10 @@ const SLACK_FILED_M: f32 = 0.25;
 const WIDEST_REACH: f32 = 16.0;
 
 impl EchoPlaces {
-    fn square(at: Vector2<f32>) -> (i32, i32) {
+    /// The square of side `side` that holds `at`.
+    fn square(at: Vector2<f32>, side: f32) -> (i32, i32) {
         // Saturating casts: a position beyond ±2e8 m still lands in a square.
-        (
-            (at.x / PLACE_M).floor() as i32,
-            (at.y / PLACE_M).floor() as i32,
-        )
+        ((at.x / side).floor() as i32, (at.y / side).floor() as i32)
     }
 
     /// The numbers of the kept regions `echo` may repeat, if the squares about its place hold
@@ -909,7 +911,7 @@ impl EchoPlaces {
         if !within_a_square {
             return None;
         }
-        let (x, y) = Self::square(echo.sensor);
+        let (x, y) = Self::square(echo.sensor, PLACE_M);
         Some(
             (x.saturating_sub(1)..=x.saturating_add(1))
                 .flat_map(move |sx| {
@@ -959,13 +961,9 @@ impl EchoPlaces {
         if !filed {
             return None;
         }
-        let key = (
-            (point.x / REACH_M).floor() as i32,
-            (point.y / REACH_M).floor() as i32,
-        );
         Some(
             self.reach
-                .get(&key)
+                .get(&Self::square(point, REACH_M))
                 .into_iter()
                 .flatten()
                 .chain(&self.wide)
@@ -975,7 +973,7 @@ impl EchoPlaces {
 
     fn add(&mut self, echo: &Echo, number: u64) {
         self.squares
-            .entry(Self::square(echo.sensor))
+            .entry(Self::square(echo.sensor, PLACE_M))
             .or_default()
             .push_back(number);
         match Self::reach(echo) {
@@ -1004,7 +1002,7 @@ impl EchoPlaces {
                 }
             }
         };
-        forget(&mut self.squares, Self::square(echo.sensor));
+        forget(&mut self.squares, Self::square(echo.sensor, PLACE_M));
         match Self::reach(echo) {
             Some(((x0, y0), (x1, y1))) => {
                 for x in x0..=x1 {
