@@ -831,21 +831,24 @@ mod tests {
         }
     }
 
+    /// A log-odds grid `n` cells a side of `resolution` metres holding `cells`, row-major.
+    fn log_odds_grid(n: usize, resolution: f32, cells: Vec<f32>) -> OccupancyGrid {
+        let mut g = OccupancyGrid::new(
+            GridGeometry::new(n, resolution),
+            &RuleConfig::LogOdds(LogOddsRule::default()),
+            false,
+        );
+        let CellStore::LogOdds(l) = &mut g.parts_mut().1 else {
+            unreachable!()
+        };
+        l.set_cells(cells);
+        g
+    }
+
     /// Equal maps have equal fingerprints; one cell's probability moved a little changes it.
     #[test]
     fn a_fingerprint_tells_maps_apart_by_a_bit() {
-        let grid_of = |cells: Vec<f32>| {
-            let mut g = OccupancyGrid::new(
-                GridGeometry::new(4, 0.1),
-                &RuleConfig::LogOdds(LogOddsRule::default()),
-                false,
-            );
-            let CellStore::LogOdds(l) = &mut g.parts_mut().1 else {
-                unreachable!()
-            };
-            l.set_cells(cells);
-            g
-        };
+        let grid_of = |cells: Vec<f32>| log_odds_grid(4, 0.1, cells);
         let cells: Vec<f32> = (0..16).map(|k| k as f32 * 0.1 - 0.8).collect();
         let mut nudged = cells.clone();
         nudged[5] += 0.01;
@@ -860,11 +863,6 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         // Sides that are and are not whole squares.
         for n in [1usize, 8, 13, 40, 61] {
-            let mut g = OccupancyGrid::new(
-                GridGeometry::new(n, 0.1),
-                &RuleConfig::LogOdds(LogOddsRule::default()),
-                false,
-            );
             let cells: Vec<f32> = (0..n * n)
                 .map(|_| match rng.random_range(0..40) {
                     0 => 3.5,
@@ -872,10 +870,7 @@ mod tests {
                     _ => rng.random_range(-2.0..0.5),
                 })
                 .collect();
-            let CellStore::LogOdds(l) = &mut g.parts_mut().1 else {
-                unreachable!()
-            };
-            l.set_cells(cells);
+            let g = log_odds_grid(n, 0.1, cells);
             let above = g.above(0.9);
             let per_side = n.div_ceil(SQUARE_CELLS);
             for k in 0..per_side * per_side {
@@ -895,21 +890,13 @@ mod tests {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
         let n = 100;
-        let mut g = OccupancyGrid::new(
-            GridGeometry::new(n, 0.02),
-            &RuleConfig::LogOdds(LogOddsRule::default()),
-            false,
-        );
         // Short walls scattered over open space.
         let mut cells = vec![-1.0f32; n * n];
         for _ in 0..12 {
             let (x, y) = (rng.random_range(0..n - 6), rng.random_range(0..n));
             cells[y * n + x..][..6].fill(3.5);
         }
-        let CellStore::LogOdds(l) = &mut g.parts_mut().1 else {
-            unreachable!()
-        };
-        l.set_cells(cells);
+        let g = log_odds_grid(n, 0.02, cells);
         let above = g.above(0.9);
         let mut squares = SquaresAbove::new(&g, above);
         let geometry = *g.geometry();
@@ -936,15 +923,7 @@ mod tests {
 
     #[test]
     fn encoding_and_counts_follow_the_cells() {
-        let mut g = OccupancyGrid::new(
-            GridGeometry::new(2, 1.0),
-            &RuleConfig::LogOdds(LogOddsRule::default()),
-            false,
-        );
-        let CellStore::LogOdds(l) = &mut g.parts_mut().1 else {
-            unreachable!()
-        };
-        l.set_cells(vec![-2.0, 0.0, 3.5, f32::NAN]);
+        let mut g = log_odds_grid(2, 1.0, vec![-2.0, 0.0, 3.5, f32::NAN]);
         let mut bytes = [0u8; 4];
         let counts = g.encode_into(&mut bytes);
         assert_eq!(reference_encoding(&g), (bytes.to_vec(), counts));
