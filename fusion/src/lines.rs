@@ -902,6 +902,11 @@ impl EchoPlaces {
         ((at.x / side).floor() as i32, (at.y / side).floor() as i32)
     }
 
+    /// Every square from `first` to `last` (corners), both ways.
+    fn each_square((first, last): ((i32, i32), (i32, i32))) -> impl Iterator<Item = (i32, i32)> {
+        (first.0..=last.0).flat_map(move |x| (first.1..=last.1).map(move |y| (x, y)))
+    }
+
     /// The numbers of the kept regions `echo` may repeat, if the squares about its place hold
     /// every one (else `None`: look through them all).
     fn near(&self, echo: &Echo) -> Option<impl Iterator<Item = u64> + '_> {
@@ -912,11 +917,12 @@ impl EchoPlaces {
             return None;
         }
         let (x, y) = Self::square(echo.sensor, PLACE_M);
+        let about = (
+            (x.saturating_sub(1), y.saturating_sub(1)),
+            (x.saturating_add(1), y.saturating_add(1)),
+        );
         Some(
-            (x.saturating_sub(1)..=x.saturating_add(1))
-                .flat_map(move |sx| {
-                    (y.saturating_sub(1)..=y.saturating_add(1)).map(move |sy| (sx, sy))
-                })
+            Self::each_square(about)
                 .filter_map(|key| self.squares.get(&key))
                 .flatten()
                 .copied(),
@@ -977,11 +983,9 @@ impl EchoPlaces {
             .or_default()
             .push_back(number);
         match Self::reach(echo) {
-            Some(((x0, y0), (x1, y1))) => {
-                for x in x0..=x1 {
-                    for y in y0..=y1 {
-                        self.reach.entry((x, y)).or_default().push_back(number);
-                    }
+            Some(reach) => {
+                for key in Self::each_square(reach) {
+                    self.reach.entry(key).or_default().push_back(number);
                 }
             }
             None => self.wide.push_back(number),
@@ -1004,11 +1008,9 @@ impl EchoPlaces {
         };
         forget(&mut self.squares, Self::square(echo.sensor, PLACE_M));
         match Self::reach(echo) {
-            Some(((x0, y0), (x1, y1))) => {
-                for x in x0..=x1 {
-                    for y in y0..=y1 {
-                        forget(&mut self.reach, (x, y));
-                    }
+            Some(reach) => {
+                for key in Self::each_square(reach) {
+                    forget(&mut self.reach, key);
                 }
             }
             None => {
