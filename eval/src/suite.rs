@@ -63,7 +63,7 @@ use anyhow::{Context, Result, bail};
 use nalgebra::{Isometry2, Point2, Vector2};
 use sonar_common::ipc::Reading;
 use sonar_common::sensor::SensorConfig;
-use sonar_features::{Feature, FeatureKind, FeatureMap, Sweep};
+use sonar_features::{Feature, FeatureKind, FeatureMap, Segment, Sweep};
 use sonar_fusion::{FusionConfig, FusionSection, Mapper, Observation, Preset};
 use sonar_sim::geometry::{distance_to_segment, rotate, segments_intersect};
 use sonar_sim::{Pose, Scene, SensorProfile, Vec2, Wall};
@@ -927,6 +927,15 @@ pub fn score_features(
     Ok((out, expected, truth))
 }
 
+/// Where `f` was seen: a plane's segment's middle (its position is the foot of the perpendicular
+/// from the origin, which may lie anywhere on its line), else its position.
+fn seen_at(f: &Feature, segments: &[Segment]) -> Point2<f64> {
+    segments
+        .iter()
+        .find(|g| g.plane_id == f.id())
+        .map_or(f.position(), |g| nalgebra::center(&g.a, &g.b))
+}
+
 /// A wall's line in normal form, its normal on the side of `towards`: (normal, distance from the
 /// origin, possibly negative).
 fn wall_line(w: &Wall, towards: Vector2<f64>) -> (Vector2<f64>, f64) {
@@ -1007,10 +1016,7 @@ pub fn score_scene_map(
                 let n = Vector2::new(normal_deg.to_radians().cos(), normal_deg.to_radians().sin());
                 let (wn, wd) = wall_line(w, n);
                 let angle = sonar_features::wrap_deg(wn.y.atan2(wn.x).to_degrees() - normal_deg);
-                let seen_at = segments
-                    .iter()
-                    .find(|g| g.plane_id == f.id())
-                    .map_or(f.position(), |g| nalgebra::center(&g.a, &g.b));
+                let seen_at = seen_at(f, &segments);
                 let distance = wn.dot(&seen_at.coords) - wd;
                 (angle.abs() <= PLANE_MATCH_DEG && distance.abs() <= MATCH_M).then_some((
                     i,
@@ -1035,12 +1041,30 @@ pub fn score_scene_map(
         }
     }
     for (f, _) in features.iter().zip(&used).filter(|(_, u)| !**u) {
-        let p = f.position();
+        let p = seen_at(f, &segments);
         let at = Vec2::new(p.x, p.y);
+        // For a plane, the wall whose normal is nearest its own among those whose line passes
+        // within 50 cm of where it was seen: the angle and the distance there.
+        let nearest_wall = f.normal_deg().and_then(|normal_deg| {
+            let n = Vector2::new(normal_deg.to_radians().cos(), normal_deg.to_radians().sin());
+            scene
+                .walls()
+                .iter()
+                .map(|w| {
+                    let (wn, wd) = wall_line(w, n);
+                    let angle =
+                        sonar_features::wrap_deg(wn.y.atan2(wn.x).to_degrees() - normal_deg);
+                    (angle.abs(), (wn.dot(&p.coords) - wd).abs())
+                })
+                .filter(|(_, d)| *d <= 0.5)
+                .min_by(|a, b| a.0.total_cmp(&b.0))
+        });
         tracing::debug!(
             kind = ?f.kind(),
             x = p.x,
             y = p.y,
+            wall_angle_deg = nearest_wall.map(|w| w.0),
+            wall_distance_m = nearest_wall.map(|w| w.1),
             scene = %scene.name,
             nearest_surface_m = scene.distance_to_surface(at),
             nearest_corner_m = nearest_m(joints.corners.iter().map(|c| c.0), at),
