@@ -5,10 +5,15 @@
 //! - `sonar echo TOPIC`: each message of a service decoded on one line (the layouts are
 //!   `sonar_common::ipc`'s, so the tool never disagrees with the pipeline about them).
 //! - `sonar hz TOPIC`: messages per second, once a second.
+//! - `sonar reset-head`: a person's acknowledgement of a head stopped on a hardware fault.
+//! - `sonar calibrate-range`: the sensor's range offset, on a wall at a known distance
+//!   ([`calibrate`]).
 //!
 //! It is an ordinary consumer: it subscribes like the viewer does and costs the pipeline nothing
 //! but a subscriber slot. It polls every [`POLL`] (a shell tool, not part of the pipeline), and
 //! stops on Ctrl-C, SIGTERM, or after `--count`.
+
+mod calibrate;
 
 use std::fmt::Write as _;
 use std::io::Write as _;
@@ -40,6 +45,7 @@ const POLL: Duration = Duration::from_millis(5);
 ///   sonar echo readings --count 10
 ///   sonar hz grid
 ///   sonar reset-head        # a person checked a head stopped on a hardware fault
+///   sonar calibrate-range --wall-distance 1.00   # the head still, facing a wall 1 m away
 #[derive(Debug, Parser)]
 #[command(name = "sonar", version, verbatim_doc_comment)]
 struct Cli {
@@ -71,6 +77,12 @@ enum Command {
     /// switches, their wiring, that it turns freely): the driver sends RESET, the head homes
     /// again, then the driver sends its scan. As the viewer's R key.
     ResetHead,
+    /// Measures the sensor's range offset (`[features] range_offset_m`, taken off every range by
+    /// the features, the grid and the SLAM) on a flat wall at a known distance: keep the head
+    /// still, facing the wall with nothing nearer, while it sweeps; each sweep's wall, seen
+    /// whole, gives its distance as the mean of its pings, and the offset is their mean less
+    /// the distance given. Prints the lines to put in the pipeline's configuration file.
+    CalibrateRange(calibrate::Settings),
 }
 
 /// The services `echo` and `hz` know how to decode (a service's own name, `driver_status`, is
@@ -153,6 +165,7 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Hz { topic, count } => hz(&node, topic, count),
         Command::ResetHead => reset_head(&node),
+        Command::CalibrateRange(settings) => calibrate::run(&node, &settings),
     }
 }
 

@@ -82,6 +82,7 @@
 //! - A region cut by the end of the scan or hidden by a nearer target shows only part of its
 //!   width; narrow ones are left unclassified rather than guessed.
 
+pub mod calibrate;
 pub mod classify;
 pub mod config;
 pub mod drift;
@@ -97,6 +98,7 @@ pub mod pings;
 pub mod rcd;
 pub mod segment;
 
+pub use calibrate::{CalibrationError, RangeOffset, WallSighting, range_offset, wall_in_sweep};
 pub use classify::{Class, Classification, Observation, classify};
 pub use config::{FeatureConfig, MergeConfig, SegmentConfig};
 pub use drift::{DriftEstimate, DriftFilter};

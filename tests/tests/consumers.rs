@@ -754,6 +754,77 @@ fn a_consumer_of_another_user_is_told_why_it_cannot_enter_the_namespace() {
     assert!(!stderr.contains("InternalError"), "{stderr}");
 }
 
+/// `sonar calibrate-range` through a sensor that reports ranges about 3 cm short in whole
+/// centimetres on a 3° stepper (the simulator's `nxt` profile, described by
+/// `examples/nxt-head.toml`), facing the paper room's wall 1.20 m ahead: the offset it prints is
+/// that sensor's (its 3 cm less the simulator's few millimetres of detector lateness, within a
+/// centimetre), ready to paste; the same head described as the paper's SRF05 stepper finds no
+/// wall and says what to do.
+#[test]
+fn the_range_offset_of_a_sensor_reading_short_is_measured_on_a_wall() {
+    let sandbox = Sandbox::new("calibrate");
+    let (sim, pty) = sandbox.spawn_sim(&[
+        "--scene",
+        "room",
+        "--profile",
+        "nxt",
+        "--speed",
+        "20",
+        "--seed",
+        "3",
+    ]);
+    let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
+    let config = workspace().join("examples/nxt-head.toml");
+    let out = sandbox.run(
+        "sonar",
+        &[
+            "calibrate-range",
+            "--wall-distance",
+            "1.2",
+            "--bearing",
+            "0",
+            "--config",
+            path_str(&config),
+            "--timeout",
+            "60",
+        ],
+    );
+    let printed = check_ok("sonar calibrate-range", &out);
+    let offset: f64 = printed
+        .lines()
+        .find_map(|l| l.strip_prefix("range_offset_m = "))
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or_else(|| panic!("no offset line in\n{printed}"));
+    assert!((-0.035..=-0.015).contains(&offset), "{printed}");
+    let progress = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(
+        progress.matches(": wall at 1.1").count(),
+        3,
+        "three sweeps, each with the wall a few cm short:\n{progress}"
+    );
+
+    let out = sandbox.run(
+        "sonar",
+        &[
+            "calibrate-range",
+            "--wall-distance",
+            "1.2",
+            "--sweeps",
+            "1",
+            "--timeout",
+            "60",
+        ],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("0 of 3 sweeps saw a wall whole") && stderr.contains("--config"),
+        "{stderr}"
+    );
+    stop_driver(driver);
+    sim.terminate();
+}
+
 /// `sonar services`, `sonar echo`, `sonar hz` on the running room: the pipeline's services with
 /// the processes attached, readings decoded in order, a rate.
 #[test]

@@ -1,0 +1,246 @@
+//! `sonar calibrate-range`: the sensor's range offset, measured on a wall at a known distance.
+//!
+//! It listens to `sonar/readings` like any consumer, groups them by sweep, and hands each whole
+//! sweep to [`sonar_features::wall_in_sweep`]; after `--sweeps` sightings of one wall,
+//! [`sonar_features::range_offset`] gives the offset, printed as the `[features]` lines to put
+//! in the pipeline's configuration. The first sweep it sees is left out: it joined it somewhere
+//! in the middle.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use iceoryx2::prelude::*;
+use iceoryx2::service::ipc::Service as Ipc;
+use sonar_common::ipc::{self, IpcError, Reading};
+use sonar_features::{
+    FeatureConfig, RangeOffset, Sweep, WallSighting, range_offset, wall_in_sweep,
+};
+use sonar_fusion::FusionFile;
+
+/// How often it looks for new readings.
+const POLL: Duration = Duration::from_millis(20);
+
+/// Sweeps without a wall seen whole, per sweep asked for, before it gives up.
+const TRIES_PER_SWEEP: usize = 3;
+
+/// What `calibrate-range` is told.
+#[derive(Debug, Clone, clap::Args)]
+pub struct Settings {
+    /// The wall's perpendicular distance from the head's turning axis, metres: measure it square
+    /// to the wall (where the software places the sensor, so the transducer's place on the arm
+    /// is measured with the sensor's own lateness).
+    #[arg(long, value_name = "M")]
+    pub wall_distance: f64,
+    /// Sweeps that saw the wall to measure over.
+    #[arg(long, value_name = "N", default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=100))]
+    pub sweeps: u32,
+    /// Bearing of the wall's normal in the sensor's frame, degrees (0 = the head's forward axis,
+    /// counter-clockwise): the wall whose normal lies nearest is used. Without it, the nearest
+    /// wall the sweep saw whole.
+    #[arg(long, value_name = "DEG", allow_hyphen_values = true)]
+    pub bearing: Option<f64>,
+    /// The pipeline's configuration file: its `[features]` table says how the head's pings lie
+    /// and what echoes its sensor hears (`[features.sensor]`, `[features.echo]`); without it the
+    /// SRF05 on the paper's stepper.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Give up when no reading arrives for this long, seconds.
+    #[arg(long, value_name = "S", default_value_t = 10.0)]
+    pub timeout: f64,
+}
+
+/// Measures the offset from the readings on `node` and prints it.
+pub fn run(node: &Node<Ipc>, settings: &Settings) -> Result<()> {
+    anyhow::ensure!(
+        settings.wall_distance.is_finite() && settings.wall_distance > 0.0,
+        "--wall-distance must be a positive distance in metres, got {}",
+        settings.wall_distance
+    );
+    anyhow::ensure!(
+        settings.timeout.is_finite() && settings.timeout > 0.0,
+        "--timeout must be a positive number of seconds, got {}",
+        settings.timeout
+    );
+    let file = FusionFile::read(settings.config.as_deref())?;
+    let cfg = file.features.config;
+    let readings = ipc::readings_service(node)?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| IpcError::new(format!("subscribe to {}", ipc::READINGS_SERVICE), e))?;
+    eprintln!(
+        "keep the head still, facing the wall {:.3} m away with nothing nearer; measuring over {} sweeps",
+        settings.wall_distance, settings.sweeps
+    );
+    let wanted = settings.sweeps as usize;
+    let timeout = Duration::from_secs_f64(settings.timeout);
+    let mut collector = Collector::default();
+    let mut sightings = Vec::new();
+    let mut quantum = None;
+    let mut looked_at = 0;
+    let mut last_reading = Instant::now();
+    while sightings.len() < wanted {
+        let mut finished = Vec::new();
+        while let Some(sample) = readings
+            .receive()
+            .map_err(|e| IpcError::new(format!("receive from {}", ipc::READINGS_SERVICE), e))?
+        {
+            last_reading = Instant::now();
+            finished.extend(collector.push(*sample.payload()));
+        }
+        for (sweep_id, sweep_readings) in finished {
+            looked_at += 1;
+            let sweep = Sweep::from_readings(&sweep_readings, &cfg);
+            quantum = quantum.or(sweep.range_quantum_m());
+            match wall_in_sweep(&sweep, &cfg, settings.bearing)? {
+                Some(wall) => {
+                    eprintln!("sweep {sweep_id}: {}", sighting_line(&wall));
+                    sightings.push(wall);
+                }
+                None => eprintln!(
+                    "sweep {sweep_id}: no wall seen whole ({} readings)",
+                    sweep_readings.len()
+                ),
+            }
+            if sightings.len() == wanted {
+                break;
+            }
+            if looked_at >= TRIES_PER_SWEEP * wanted && sightings.len() < wanted {
+                bail!(
+                    "{} of {looked_at} sweeps saw a wall whole: face one flat wall, square, with \
+                     nothing nearer in the head's sweep (and --config if the head is not the \
+                     paper's SRF05 stepper)",
+                    sightings.len()
+                );
+            }
+        }
+        if last_reading.elapsed() > timeout {
+            bail!(
+                "no reading for {:.0} s: is sonar-driver running, the head scanning, with the \
+                 same --iox-* settings? (`sonar hz readings`)",
+                settings.timeout
+            );
+        }
+        if node.wait(POLL).is_err() {
+            bail!("interrupted before {wanted} sweeps saw the wall");
+        }
+    }
+    let offset = range_offset(&sightings, settings.wall_distance, quantum)
+        .context("measuring the range offset")?;
+    print!("{}", result_text(&offset, settings.wall_distance, &cfg));
+    Ok(())
+}
+
+/// A sweep's wall, for the progress lines.
+fn sighting_line(wall: &WallSighting) -> String {
+    format!(
+        "wall at {:.3} m ± {:.3}, its normal at {:.1}°, {} pings",
+        wall.distance_m, wall.sigma_m, wall.normal_deg, wall.pings
+    )
+}
+
+/// The result, and the lines that set it in a configuration file.
+fn result_text(offset: &RangeOffset, wall_distance: f64, cfg: &FeatureConfig) -> String {
+    // The uncertainty to configure: the measurement's, but not below a millimetre (a wall is
+    // never flat and square to better than that).
+    let sigma = offset.sigma_m.max(0.001);
+    format!(
+        "range offset {:+.4} m (σ {:.4} m) over {} sweeps of the wall at {:.3} m, its normal at \
+         {:.1}° (currently configured: {:+.4} m)\n\
+         put in the pipeline's configuration file (the fusion reads [features], sonar-slam \
+         [slam.features]):\n\
+         [features]\n\
+         range_offset_m = {offset:.4}\n\
+         range_offset_sigma_m = {sigma:.4}\n\
+         [slam.features]\n\
+         range_offset_m = {offset:.4}\n\
+         range_offset_sigma_m = {sigma:.4}\n",
+        offset.offset_m,
+        offset.sigma_m,
+        offset.sweeps,
+        wall_distance,
+        offset.normal_deg,
+        cfg.range_offset_m,
+        offset = offset.offset_m,
+    )
+}
+
+/// Readings grouped by sweep as they arrive: a sweep is whole once a reading of another arrives.
+/// The first sweep is dropped (joined in its middle).
+#[derive(Debug, Default)]
+struct Collector {
+    current: Option<u32>,
+    readings: Vec<Reading>,
+    first_seen: bool,
+}
+
+impl Collector {
+    /// Adds `reading`; the sweep it finished, if it did, with its id.
+    fn push(&mut self, reading: Reading) -> Option<(u32, Vec<Reading>)> {
+        let finished = match self.current {
+            Some(id) if id != reading.sweep_id => {
+                let readings = std::mem::take(&mut self.readings);
+                let whole = std::mem::replace(&mut self.first_seen, true);
+                whole.then_some((id, readings))
+            }
+            _ => None,
+        };
+        self.current = Some(reading.sweep_id);
+        self.readings.push(reading);
+        finished
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn reading(seq: u64, sweep_id: u32) -> Reading {
+        Reading {
+            seq,
+            sweep_id,
+            ..Reading::default()
+        }
+    }
+
+    #[test]
+    fn sweeps_are_whole_once_the_next_begins_and_the_first_is_left_out() {
+        let mut c = Collector::default();
+        let ids = [7, 7, 8, 8, 8, 9, 10];
+        let finished: Vec<(u32, usize)> = ids
+            .iter()
+            .enumerate()
+            .filter_map(|(seq, &id)| c.push(reading(seq as u64, id)))
+            .map(|(id, readings)| (id, readings.len()))
+            .collect();
+        // Sweep 7 was joined in its middle; 8 and 9 are whole; 10 is not finished yet.
+        assert_eq!(finished, vec![(8, 3), (9, 1)]);
+    }
+
+    #[test]
+    fn the_result_says_what_to_configure() {
+        let offset = RangeOffset {
+            offset_m: -0.0298,
+            sigma_m: 0.0029,
+            sweeps: 3,
+            normal_deg: 1.5,
+        };
+        let text = result_text(&offset, 1.0, &FeatureConfig::default());
+        assert!(text.contains("range_offset_m = -0.0298\n"), "{text}");
+        assert!(text.contains("range_offset_sigma_m = 0.0029\n"), "{text}");
+        assert!(text.contains("[features]\n"), "{text}");
+        // The lines parse as the pipeline's configuration and set the offset for the fusion and
+        // for sonar-slam.
+        let toml_part = &text[text.find("\n[features]\n").expect("a table")..];
+        let file: FusionFile = toml::from_str(toml_part).expect("a valid configuration");
+        assert_eq!(file.features.config.range_offset_m, -0.0298);
+        assert_eq!(file.features.config.range_offset_sigma_m, 0.0029);
+        #[derive(serde::Deserialize)]
+        struct WithSlam {
+            slam: sonar_slam::SlamSection,
+        }
+        let slam: WithSlam = toml::from_str(toml_part).expect("a valid [slam] table");
+        assert_eq!(slam.slam.config.features.range_offset_m, -0.0298);
+        assert_eq!(slam.slam.config.features.range_offset_sigma_m, 0.0029);
+    }
+}
