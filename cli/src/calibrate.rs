@@ -3,7 +3,8 @@
 //! It listens to `sonar/readings` like any consumer, groups them by sweep, and hands each whole
 //! sweep to [`sonar_features::wall_in_sweep`]; after `--sweeps` sightings of one wall,
 //! [`sonar_features::range_offset`] gives the offset, printed as the `[features]` lines to put
-//! in the pipeline's configuration. The first sweep it sees is left out: it joined it somewhere
+//! in the pipeline's configuration (the fusion's, and the SLAM's unless `[slam.features]` sets
+//! its own). The first sweep it sees is left out: it joined it somewhere
 //! in the middle.
 
 use std::path::PathBuf;
@@ -147,12 +148,9 @@ fn result_text(offset: &RangeOffset, wall_distance: f64, cfg: &FeatureConfig) ->
     format!(
         "range offset {:+.4} m (σ {:.4} m) over {} sweeps of the wall at {:.3} m, its normal at \
          {:.1}° (currently configured: {:+.4} m)\n\
-         put in the pipeline's configuration file (the fusion reads [features], sonar-slam \
-         [slam.features]):\n\
+         put in the pipeline's configuration file (sonar-fusion and sonar-slam read it there, \
+         unless [slam.features] sets its own):\n\
          [features]\n\
-         range_offset_m = {offset:.4}\n\
-         range_offset_sigma_m = {sigma:.4}\n\
-         [slam.features]\n\
          range_offset_m = {offset:.4}\n\
          range_offset_sigma_m = {sigma:.4}\n",
         offset.offset_m,
@@ -239,7 +237,10 @@ mod tests {
         struct WithSlam {
             slam: sonar_slam::SlamSection,
         }
-        let slam: WithSlam = toml::from_str(toml_part).expect("a valid [slam] table");
+        let table: toml::Table = toml::from_str(toml_part).expect("valid TOML");
+        let slam: WithSlam = sonar_slam::section::with_pipeline_features(table)
+            .try_into()
+            .expect("a valid [slam] table");
         assert_eq!(slam.slam.config.features.range_offset_m, -0.0298);
         assert_eq!(slam.slam.config.features.range_offset_sigma_m, 0.0029);
     }

@@ -35,6 +35,7 @@ use sonar_common::throttle::Throttle;
 use sonar_slam::message::{
     LandmarksStamp, Totals, correction_message, landmarks_snapshot, revision_message,
 };
+use sonar_slam::section::with_pipeline_features;
 use sonar_slam::{FixState, Slam, SlamConfig, SlamSection, SweepEstimate};
 use tracing::{debug, info, warn};
 
@@ -73,8 +74,10 @@ const REVISE_DEG: f64 = 0.1;
 ///
 /// Settings come from the `[slam]` table of --config (every field of the library's SlamConfig:
 /// gates, kernel, fix limits, and in `[slam.features]` the feature extraction with the odometry's
-/// error model in `[slam.features.odometry]`; `enabled` is sonar-pipeline's); other tables are
-/// ignored.
+/// error model in `[slam.features.odometry]`; `enabled` is sonar-pipeline's). The feature
+/// extraction starts from the file's `[features]` (the head's pings, its echoes' cones, the range
+/// offset `sonar calibrate-range` measured: the same head as the fusion's), with what
+/// `[slam.features]` sets laid over it; other tables are ignored.
 ///
 /// Examples:
 ///   sonar-slam
@@ -83,7 +86,8 @@ const REVISE_DEG: f64 = 0.1;
 #[derive(Debug, Parser)]
 #[command(version, verbatim_doc_comment)]
 struct Args {
-    /// Pipeline configuration file (TOML); its `[slam]` table is read, the others ignored.
+    /// Pipeline configuration file (TOML); its `[slam]` table is read, and `[features]` under
+    /// `[slam.features]`; the others are ignored.
     #[arg(long, env = "SONAR_CONFIG")]
     config: Option<PathBuf>,
     #[command(flatten)]
@@ -109,8 +113,18 @@ fn load_config(path: Option<&Path>) -> Result<SlamConfig> {
     };
     let text =
         std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let file: SlamFile = sonar_common::toml_file::parse(&text)
+    // Read as written first, for errors placed where they are; then with the head described by
+    // [features] under what [slam.features] sets (`with_pipeline_features`).
+    let table: toml::Table = sonar_common::toml_file::parse(&text)
         .map_err(|message| anyhow::anyhow!("{}: {message}", path.display()))?;
+    let _: SlamFile = sonar_common::toml_file::parse(&text)
+        .map_err(|message| anyhow::anyhow!("{}: {message}", path.display()))?;
+    let file: SlamFile = with_pipeline_features(table).try_into().with_context(|| {
+        format!(
+            "{}: [features] as the SLAM reads it ([slam.features] over it)",
+            path.display()
+        )
+    })?;
     Ok(file.slam.config)
 }
 
@@ -500,6 +514,28 @@ mod tests {
         assert_eq!(config.fix_max_sigma_m, 0.08);
         assert_eq!(config.gate_chi2, SlamConfig::default().gate_chi2);
         assert_eq!(load_config(None).ok(), Some(SlamConfig::default()));
+    }
+
+    #[test]
+    fn the_head_and_its_calibration_come_from_the_features_table() {
+        // What `sonar calibrate-range` prints, and the head of examples/nxt-head.toml.
+        let text = format!(
+            "{}\n[features]\nrange_offset_m = -0.024\nrange_offset_sigma_m = 0.003\n\n[slam]\nenabled = true\n",
+            include_str!("../../examples/nxt-head.toml")
+        );
+        let f = file(&text);
+        let config = load_config(Some(&f.0)).unwrap_or_else(|e| panic!("{e:#}"));
+        assert_eq!(config.features.range_offset_m, -0.024);
+        assert_eq!(config.features.range_offset_sigma_m, 0.003);
+        assert_eq!(config.features.sensor.step_deg, 3.0);
+        assert_eq!(config.features.echo.specular_cutoff_deg, 20.0);
+        // A mistake in [features] is this process's error too.
+        let f = file("[features]\nrange_offset_m = \"short\"\n");
+        let e = format!(
+            "{:#}",
+            load_config(Some(&f.0)).err().unwrap_or_else(|| panic!())
+        );
+        assert!(e.contains("[features] as the SLAM reads it"), "{e}");
     }
 
     #[test]
