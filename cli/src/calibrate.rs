@@ -7,6 +7,7 @@
 //! its own). The first sweep it sees is left out: it joined it somewhere
 //! in the middle.
 
+use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -14,6 +15,7 @@ use anyhow::{Context, Result, bail};
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use sonar_common::ipc::{self, IpcError, Reading};
+use sonar_features::calibrate::{expected_half_width_deg, head_step_deg};
 use sonar_features::{
     FeatureConfig, RangeOffset, Sweep, WallSighting, range_offset, wall_in_sweep,
 };
@@ -64,7 +66,10 @@ pub fn run(node: &Node<Ipc>, settings: &Settings) -> Result<()> {
         settings.timeout
     );
     let file = FusionFile::read(settings.config.as_deref())?;
-    let cfg = file.features.config;
+    let configured = file.features.config;
+    // The head as its readings show it, once a sweep is in (`head_checked`).
+    let mut cfg = configured;
+    let mut head_checked = false;
     let readings = ipc::readings_service(node)?
         .subscriber_builder()
         .create()
@@ -90,6 +95,10 @@ pub fn run(node: &Node<Ipc>, settings: &Settings) -> Result<()> {
             finished.extend(collector.push(*sample.payload()));
         }
         for (sweep_id, sweep_readings) in finished {
+            if !head_checked {
+                head_checked = true;
+                cfg = head_as_read(&configured, &sweep_readings);
+            }
             looked_at += 1;
             let sweep = Sweep::from_readings(&sweep_readings, &cfg);
             quantum = quantum.or(sweep.range_quantum_m());
@@ -109,8 +118,9 @@ pub fn run(node: &Node<Ipc>, settings: &Settings) -> Result<()> {
             if looked_at >= TRIES_PER_SWEEP * wanted && sightings.len() < wanted {
                 bail!(
                     "{} of {looked_at} sweeps saw a wall whole: face one flat wall, square, with \
-                     nothing nearer in the head's sweep (and --config if the head is not the \
-                     paper's SRF05 stepper)",
+                     nothing nearer in the head's sweep; give its normal's bearing (--bearing, \
+                     0 = ahead) to take the region heard there whatever the configured cones, \
+                     or the head's description (--config) if it is not the paper's SRF05",
                     sightings.len()
                 );
             }
@@ -128,39 +138,141 @@ pub fn run(node: &Node<Ipc>, settings: &Settings) -> Result<()> {
     }
     let offset = range_offset(&sightings, settings.wall_distance, quantum)
         .context("measuring the range offset")?;
-    print!("{}", result_text(&offset, settings.wall_distance, &cfg));
+    let head = Head::of(&configured, &cfg, &sightings);
+    print!("{}", result_text(&offset, settings.wall_distance, &head));
     Ok(())
+}
+
+/// Spacings of the head's step and the configured one further apart than this share are a
+/// different head (the readings' spacing is exact: the stepper's).
+const STEP_MISMATCH: f64 = 0.1;
+
+/// `configured` with the head's step and pings per reading as `readings` (one sweep) show them,
+/// when they differ from the configured ones (said on stderr): pings placed at the wrong angles
+/// break every region, and no wall is found.
+fn head_as_read(configured: &FeatureConfig, readings: &[Reading]) -> FeatureConfig {
+    let Some((step, pings)) = head_step_deg(readings) else {
+        return *configured;
+    };
+    let said = f64::from(configured.sensor.step_deg);
+    if (step - said).abs() <= STEP_MISMATCH * said && pings == configured.sensor.pings_per_reading {
+        return *configured;
+    }
+    eprintln!(
+        "the readings lie {:.2}° apart with {pings} pings each: the head steps {step:.2}°, the \
+         configuration says {said:.2}° and {} pings ([features.sensor]); measuring with the head's",
+        step * f64::from(pings),
+        configured.sensor.pings_per_reading
+    );
+    let mut cfg = *configured;
+    cfg.sensor.step_deg = step as f32;
+    cfg.sensor.pings_per_reading = pings;
+    cfg
+}
+
+/// What the sweeps showed of the head against its configuration.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Head {
+    /// The range offset configured now.
+    configured_offset_m: f64,
+    /// The head's step and pings per reading as read, if they differ from the configured ones.
+    step: Option<(f32, u8)>,
+    /// The wall's half-width as heard (mean over the sweeps) and as the configured cones expect
+    /// at its distance.
+    half_width_deg: (f64, Option<f64>),
+    /// The step the measurement ran with, degrees.
+    step_deg: f64,
+    /// Whether the configured cones took the wall for one in every sweep.
+    classified: bool,
+}
+
+impl Head {
+    fn of(configured: &FeatureConfig, used: &FeatureConfig, sightings: &[WallSighting]) -> Self {
+        let n = sightings.len().max(1) as f64;
+        let distance = sightings.iter().map(|s| s.distance_m).sum::<f64>() / n;
+        let step_changed = used.sensor.step_deg != configured.sensor.step_deg
+            || used.sensor.pings_per_reading != configured.sensor.pings_per_reading;
+        Self {
+            configured_offset_m: configured.range_offset_m,
+            step: step_changed.then_some((used.sensor.step_deg, used.sensor.pings_per_reading)),
+            half_width_deg: (
+                sightings.iter().map(|s| s.half_width_deg).sum::<f64>() / n,
+                expected_half_width_deg(used, distance),
+            ),
+            step_deg: f64::from(used.sensor.step_deg),
+            classified: sightings.iter().all(|s| s.classified),
+        }
+    }
+
+    /// Whether the wall's width is not the configured cones': more than a step apart, or not
+    /// taken for a wall by them.
+    fn width_differs(&self) -> bool {
+        let (heard, expected) = self.half_width_deg;
+        !self.classified || expected.is_none_or(|e| (heard - e).abs() > self.step_deg)
+    }
 }
 
 /// A sweep's wall, for the progress lines.
 fn sighting_line(wall: &WallSighting) -> String {
     format!(
-        "wall at {:.3} m ± {:.3}, its normal at {:.1}°, {} pings",
-        wall.distance_m, wall.sigma_m, wall.normal_deg, wall.pings
+        "wall at {:.3} m ± {:.3}, its normal at {:.1}°, heard over ±{:.1}°, {} pings{}",
+        wall.distance_m,
+        wall.sigma_m,
+        wall.normal_deg,
+        wall.half_width_deg,
+        wall.pings,
+        if wall.classified {
+            ""
+        } else {
+            " (not a wall to the configured cones: taken as the region at --bearing)"
+        }
     )
 }
 
 /// The result, and the lines that set it in a configuration file.
-fn result_text(offset: &RangeOffset, wall_distance: f64, cfg: &FeatureConfig) -> String {
+fn result_text(offset: &RangeOffset, wall_distance: f64, head: &Head) -> String {
     // The uncertainty to configure: the measurement's, but not below a millimetre (a wall is
     // never flat and square to better than that).
     let sigma = offset.sigma_m.max(0.001);
-    format!(
+    let (heard, expected) = head.half_width_deg;
+    let mut text = format!(
         "range offset {:+.4} m (σ {:.4} m) over {} sweeps of the wall at {:.3} m, its normal at \
          {:.1}° (currently configured: {:+.4} m)\n\
-         put in the pipeline's configuration file (sonar-fusion and sonar-slam read it there, \
-         unless [slam.features] sets its own):\n\
-         [features]\n\
-         range_offset_m = {offset:.4}\n\
-         range_offset_sigma_m = {sigma:.4}\n",
+         the wall answered over ±{heard:.1}° about its normal; the configured cones expect {}\n",
         offset.offset_m,
         offset.sigma_m,
         offset.sweeps,
         wall_distance,
         offset.normal_deg,
-        cfg.range_offset_m,
-        offset = offset.offset_m,
-    )
+        head.configured_offset_m,
+        expected.map_or_else(|| "none at this range".to_owned(), |e| format!("±{e:.1}°")),
+    );
+    text.push_str(
+        "put in the pipeline's configuration file (sonar-fusion and sonar-slam read it there, \
+         unless [slam.features] sets its own):\n",
+    );
+    let _ = write!(
+        text,
+        "[features]\nrange_offset_m = {:.4}\nrange_offset_sigma_m = {sigma:.4}\n",
+        offset.offset_m
+    );
+    if let Some((step, pings)) = head.step {
+        let _ = write!(
+            text,
+            "[features.sensor]\nstep_deg = {step:.2}\npings_per_reading = {pings}\n"
+        );
+    }
+    if head.width_differs() {
+        // A wall heard squarely and near answers over the specular cut-off, unless the beam is
+        // narrower (docs/features.md, "Another sensor's cones").
+        let _ = write!(
+            text,
+            "[features.echo]\nspecular_cutoff_deg = {heard:.1}   # the wall's cone as heard; if \
+             the beam is narrower, set its cone instead (docs/features.md, \"Another sensor's \
+             cones\")\n"
+        );
+    }
+    text
 }
 
 /// Readings grouped by sweep as they arrive: a sweep is whole once a reading of another arrives.
@@ -223,7 +335,19 @@ mod tests {
             sweeps: 3,
             normal_deg: 1.5,
         };
-        let text = result_text(&offset, 1.0, &FeatureConfig::default());
+        let cfg = FeatureConfig::default();
+        let wall = |half_width_deg: f64, classified: bool| WallSighting {
+            distance_m: 0.97,
+            sigma_m: 0.001,
+            normal_deg: 1.5,
+            pings: 12,
+            half_width_deg,
+            classified,
+        };
+        // The head as configured, its wall as wide as the cones expect: the offset alone.
+        let head = Head::of(&cfg, &cfg, &[wall(28.2, true)]);
+        let text = result_text(&offset, 1.0, &head);
+        assert!(!text.contains("[features.sensor]") && !text.contains("[features.echo]"));
         assert!(text.contains("range_offset_m = -0.0298\n"), "{text}");
         assert!(text.contains("range_offset_sigma_m = 0.0029\n"), "{text}");
         assert!(text.contains("[features]\n"), "{text}");
@@ -243,5 +367,49 @@ mod tests {
             .expect("a valid [slam] table");
         assert_eq!(slam.slam.config.features.range_offset_m, -0.0298);
         assert_eq!(slam.slam.config.features.range_offset_sigma_m, 0.0029);
+
+        // A head stepping 3° with two pings a reading, its walls heard over ±20°, described as
+        // the paper's: the lines say so, and set as they say, the description is the head's.
+        let mut read = cfg;
+        read.sensor.step_deg = 3.0;
+        read.sensor.pings_per_reading = 2;
+        let head = Head::of(&cfg, &read, &[wall(20.3, false), wall(19.9, false)]);
+        let text = result_text(&offset, 1.0, &head);
+        assert!(
+            text.contains("[features.sensor]\nstep_deg = 3.00\npings_per_reading = 2\n"),
+            "{text}"
+        );
+        assert!(text.contains("specular_cutoff_deg = 20.1"), "{text}");
+        let toml_part = &text[text.find("\n[features]\n").expect("a table")..];
+        let file: FusionFile = toml::from_str(toml_part).expect("a valid configuration");
+        assert_eq!(file.features.config.sensor.step_deg, 3.0);
+        assert_eq!(file.features.config.sensor.pings_per_reading, 2);
+        assert!((file.features.config.echo.specular_cutoff_deg - 20.1).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_head_stepping_otherwise_than_configured_is_measured_as_it_steps() {
+        let configured = FeatureConfig::default();
+        let readings: Vec<Reading> = (0..10u64)
+            .map(|i| Reading {
+                seq: i,
+                sweep_id: 1,
+                angle_deg: -90.0 + 6.0 * i as f32,
+                ping_count: 2,
+                ..Reading::default()
+            })
+            .collect();
+        let used = head_as_read(&configured, &readings);
+        assert_eq!(used.sensor.step_deg, 3.0);
+        assert_eq!(used.sensor.pings_per_reading, 2);
+        // The paper's head (four pings 1.5° apart, readings 6° apart) is left as configured.
+        let paper: Vec<Reading> = readings
+            .iter()
+            .map(|r| Reading {
+                ping_count: 4,
+                ..*r
+            })
+            .collect();
+        assert_eq!(head_as_read(&configured, &paper), configured);
     }
 }

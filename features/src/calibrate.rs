@@ -14,6 +14,13 @@
 //! mean over the sweeps of those distances less the true one ([`range_offset`]): it holds the
 //! sensor's lateness and the arm's length together, which is what the software must take off.
 //!
+//! The same sweeps check the head's description, which the features need to recognise a wall at
+//! all: the readings' spacing over their pings gives the head's step ([`head_step_deg`]), and
+//! the wall's region its width, against the plane cone `[features.echo]` predicts. Asked for the
+//! wall by its bearing, the calibration takes the region seen whole there even when the
+//! configured cones do not call it a wall, so a head described wrongly is still measured and
+//! told what it shows.
+//!
 //! A constant is all one wall can tell. A scale error (the speed of sound, 0.17 % per °C of a
 //! wrong air temperature) grows with the range: two walls at different distances would tell it
 //! apart; here it is the air temperature's to get right.
@@ -23,7 +30,9 @@ use crate::error::FeatureError;
 use crate::feature::FeatureKind;
 use crate::geometry::wrap_deg;
 use crate::map::FeatureMap;
+use crate::physics::Reflector;
 use crate::pings::Sweep;
+use sonar_common::ipc::Reading;
 
 /// The wall one sweep heard, as the calibration uses it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -37,6 +46,11 @@ pub struct WallSighting {
     pub normal_deg: f64,
     /// Pings that heard it.
     pub pings: u32,
+    /// Half the width of its region, degrees: the cone over which the wall answered.
+    pub half_width_deg: f64,
+    /// Whether the features took it for a wall (else: the region seen whole nearest the bearing
+    /// asked for, which the configured cones do not call a wall).
+    pub classified: bool,
 }
 
 /// The offset measured over several sweeps.
@@ -89,8 +103,11 @@ const SAME_WALL_DEG: f64 = 10.0;
 const MOST_OFFSET_M: f64 = 0.15;
 
 /// The wall `sweep` heard whole: of the regions classified as a wall and seen whole, the one
-/// whose normal lies nearest `bearing_deg`, or without it the nearest wall. `cfg`'s range offset
-/// is not applied (it is what is measured). `None` when the sweep saw no wall whole.
+/// whose normal lies nearest `bearing_deg` (within [`SAME_WALL_DEG`]), or without it the nearest
+/// wall. With `bearing_deg`, when no such wall lies there, the region seen whole whose middle
+/// lies nearest it (within [`SAME_WALL_DEG`]): the wall the person faced, which the configured
+/// cones do not call one. `cfg`'s range offset is not applied (it is what is measured). `None`
+/// when the sweep saw nothing whole there.
 pub fn wall_in_sweep(
     sweep: &Sweep,
     cfg: &FeatureConfig,
@@ -112,15 +129,64 @@ pub fn wall_in_sweep(
             sigma_m: o.range_sigma_random_m,
             normal_deg: o.bearing_deg,
             pings: rcds[o.rcd].pings,
+            half_width_deg: rcds[o.rcd].width_deg() / 2.0,
+            classified: true,
         });
-    let chosen = match bearing_deg {
-        Some(b) => walls.min_by(|x, y| {
-            let off = |w: &WallSighting| wrap_deg(w.normal_deg - b).abs();
-            off(x).total_cmp(&off(y))
-        }),
-        None => walls.min_by(|x, y| x.distance_m.total_cmp(&y.distance_m)),
+    let Some(b) = bearing_deg else {
+        return Ok(walls.min_by(|x, y| x.distance_m.total_cmp(&y.distance_m)));
     };
-    Ok(chosen)
+    let off = |deg: f64| wrap_deg(deg - b).abs();
+    let classified = walls
+        .filter(|w| off(w.normal_deg) <= SAME_WALL_DEG)
+        .min_by(|x, y| off(x.normal_deg).total_cmp(&off(y.normal_deg)));
+    Ok(classified.or_else(|| {
+        rcds.iter()
+            .filter(|r| r.is_whole() && off(r.centre_deg()) <= SAME_WALL_DEG)
+            .min_by(|x, y| off(x.centre_deg()).total_cmp(&off(y.centre_deg())))
+            .map(|r| WallSighting {
+                distance_m: r.range_m,
+                sigma_m: r.range_sigma_m,
+                normal_deg: r.centre_deg(),
+                pings: r.pings,
+                half_width_deg: r.width_deg() / 2.0,
+                classified: false,
+            })
+    }))
+}
+
+/// Half the width of the region `cfg` expects a wall at `range_m` to answer over, degrees
+/// (its plane cone); `None` where it expects none.
+pub fn expected_half_width_deg(cfg: &FeatureConfig, range_m: f64) -> Option<f64> {
+    let beam = f64::from(cfg.sensor.beam_half_angle_deg);
+    cfg.echo
+        .cone_half_angle_deg(Reflector::Plane, range_m, beam)
+}
+
+/// The head's step between pings as its readings show it, degrees, and the pings of a reading:
+/// the median spacing of consecutive readings (by `seq`, within one sweep) over the pings each
+/// holds (the most common count). `None` with fewer than three readings or no spacing.
+pub fn head_step_deg(readings: &[Reading]) -> Option<(f64, u8)> {
+    let mut by_seq: Vec<&Reading> = readings.iter().collect();
+    by_seq.sort_by_key(|r| r.seq);
+    let mut spacings: Vec<f64> = by_seq
+        .windows(2)
+        .filter(|w| w[1].seq == w[0].seq + 1 && w[1].sweep_id == w[0].sweep_id)
+        .map(|w| wrap_deg(f64::from(w[1].angle_deg) - f64::from(w[0].angle_deg)).abs())
+        .filter(|d| *d > 1e-6)
+        .collect();
+    if spacings.len() < 2 {
+        return None;
+    }
+    spacings.sort_by(f64::total_cmp);
+    let spacing = spacings[spacings.len() / 2];
+    let mut counts = [0usize; 256];
+    for r in &by_seq {
+        counts[usize::from(r.ping_count)] += 1;
+    }
+    let pings = (1..=255u8)
+        .max_by_key(|&n| counts[usize::from(n)])
+        .filter(|&n| counts[usize::from(n)] > 0)?;
+    Some((spacing / f64::from(pings), pings))
 }
 
 /// The offset from the walls the sweeps saw (one per sweep) and the wall's true distance.
@@ -183,11 +249,22 @@ mod tests {
     use crate::pings::Ping;
 
     /// A standing sweep from −150° to 150° in `step` of a flat wall at `distance` whose normal
-    /// lies at `normal` (degrees): every ping within `cutoff` of the normal hears the wall's foot,
-    /// `bias` added and jittered by `jitter` (a fixed pattern, so the test is exact), the others
-    /// nothing.
+    /// lies at `normal` (degrees): every ping within the SRF05's 28° cut-off of the normal hears
+    /// the wall's foot, `bias` added and jittered by `jitter` (a fixed pattern, so the test is
+    /// exact), the others nothing.
     fn wall_sweep(distance: f64, normal: f64, bias: f64, jitter: f64, step: f64) -> Sweep {
-        let cutoff = 28.0;
+        cut_off_wall_sweep(distance, normal, bias, jitter, step, 28.0)
+    }
+
+    /// [`wall_sweep`] with the specular cut-off `cutoff`.
+    fn cut_off_wall_sweep(
+        distance: f64,
+        normal: f64,
+        bias: f64,
+        jitter: f64,
+        step: f64,
+        cutoff: f64,
+    ) -> Sweep {
         let count = (300.0 / step) as usize + 1;
         let pings = (0..count)
             .map(|i| {
@@ -285,6 +362,8 @@ mod tests {
             sigma_m: 0.001,
             normal_deg,
             pings: 30,
+            half_width_deg: 28.0,
+            classified: true,
         };
         assert!(matches!(
             range_offset(&[at(1.0, 0.0), at(1.0, 40.0)], 1.0, None),
@@ -318,6 +397,8 @@ mod tests {
             sigma_m: 0.0,
             normal_deg: 0.0,
             pings: 10,
+            half_width_deg: 20.0,
+            classified: true,
         };
         let offset = range_offset(&[whole(0.97), whole(0.97), whole(0.97)], 1.0, Some(0.01))
             .expect("plausible");
@@ -326,5 +407,49 @@ mod tests {
             (offset.sigma_m - 0.01 / 12f64.sqrt()).abs() < 1e-12,
             "{offset:?}"
         );
+    }
+
+    #[test]
+    fn a_wall_narrower_than_configured_is_still_found_by_its_bearing_and_its_width_told() {
+        // A sensor whose walls answer over ±20°, described as the SRF05 (±28°): not a wall to
+        // the classifier, but the region seen whole where the person faced one.
+        let sweep = cut_off_wall_sweep(1.0, 5.0, -0.02, 0.0, 1.5, 20.0);
+        let cfg = FeatureConfig::default();
+        assert_eq!(wall_in_sweep(&sweep, &cfg, None).expect("valid"), None);
+        let wall = wall_in_sweep(&sweep, &cfg, Some(0.0))
+            .expect("valid")
+            .expect("the region faced");
+        assert!(!wall.classified, "{wall:?}");
+        assert!((wall.distance_m - 0.98).abs() < 1e-9, "{wall:?}");
+        assert!((wall.normal_deg - 5.0).abs() < 1.0, "{wall:?}");
+        assert!((wall.half_width_deg - 20.0).abs() <= 1.5, "{wall:?}");
+        let expected = expected_half_width_deg(&cfg, 1.0).expect("a wall is heard at 1 m");
+        assert!((expected - 28.0).abs() < 0.5, "{expected}");
+        // Nothing whole within 10° of a bearing asked for: none.
+        assert_eq!(
+            wall_in_sweep(&sweep, &cfg, Some(60.0)).expect("valid"),
+            None
+        );
+    }
+
+    #[test]
+    fn the_head_s_step_is_the_readings_spacing_over_their_pings() {
+        let reading = |seq: u64, sweep_id: u32, angle_deg: f32, ping_count: u8| Reading {
+            seq,
+            sweep_id,
+            angle_deg,
+            ping_count,
+            ..Reading::default()
+        };
+        // Two pings a reading, 6° apart, going clockwise, a sweep's turn and one lost reading.
+        let readings: Vec<Reading> = (0..20u64)
+            .filter(|&i| i != 7)
+            .map(|i| reading(i, 3, 90.0 - 6.0 * i as f32, 2))
+            .chain([reading(20, 4, -30.0, 2), reading(21, 4, -24.0, 1)])
+            .collect();
+        let (step, pings) = head_step_deg(&readings).expect("spacings");
+        assert_eq!(pings, 2);
+        assert!((step - 3.0).abs() < 1e-6, "{step}");
+        assert_eq!(head_step_deg(&readings[..2]), None);
     }
 }

@@ -758,8 +758,9 @@ fn a_consumer_of_another_user_is_told_why_it_cannot_enter_the_namespace() {
 /// centimetres on a 3° stepper (the simulator's `nxt` profile, described by
 /// `examples/nxt-head.toml`), facing the paper room's wall 1.20 m ahead: the offset it prints is
 /// that sensor's (its 3 cm less the simulator's few millimetres of detector lateness, within a
-/// centimetre), ready to paste; the same head described as the paper's SRF05 stepper finds no
-/// wall and says what to do.
+/// centimetre), ready to paste. The same head described as the paper's SRF05 stepper: told the
+/// wall's bearing it measures the same offset and says how the head steps and how wide it hears
+/// the wall (its 20° cut-off); not told, it finds no wall and says what to do.
 #[test]
 fn the_range_offset_of_a_sensor_reading_short_is_measured_on_a_wall() {
     let sandbox = Sandbox::new("calibrate");
@@ -775,27 +776,35 @@ fn the_range_offset_of_a_sensor_reading_short_is_measured_on_a_wall() {
     ]);
     let driver = sandbox.spawn("sonar-driver", &["--port", &pty, "--scan", "full"]);
     let config = workspace().join("examples/nxt-head.toml");
-    let out = sandbox.run(
-        "sonar",
-        &[
+    let calibrate = |extra: &[&str]| {
+        let mut args = vec![
             "calibrate-range",
             "--wall-distance",
             "1.2",
-            "--bearing",
-            "0",
-            "--config",
-            path_str(&config),
             "--timeout",
             "60",
-        ],
+        ];
+        args.extend_from_slice(extra);
+        sandbox.run("sonar", &args)
+    };
+    let offset_of = |printed: &str| -> f64 {
+        printed
+            .lines()
+            .find_map(|l| l.strip_prefix("range_offset_m = "))
+            .and_then(|v| v.trim().parse().ok())
+            .unwrap_or_else(|| panic!("no offset line in\n{printed}"))
+    };
+
+    let out = calibrate(&["--bearing", "0", "--config", path_str(&config)]);
+    let printed = check_ok("sonar calibrate-range --config", &out);
+    assert!(
+        (-0.035..=-0.015).contains(&offset_of(&printed)),
+        "{printed}"
     );
-    let printed = check_ok("sonar calibrate-range", &out);
-    let offset: f64 = printed
-        .lines()
-        .find_map(|l| l.strip_prefix("range_offset_m = "))
-        .and_then(|v| v.trim().parse().ok())
-        .unwrap_or_else(|| panic!("no offset line in\n{printed}"));
-    assert!((-0.035..=-0.015).contains(&offset), "{printed}");
+    assert!(
+        !printed.contains("[features.sensor]") && !printed.contains("[features.echo]"),
+        "the head as described:\n{printed}"
+    );
     let progress = String::from_utf8_lossy(&out.stderr);
     assert_eq!(
         progress.matches(": wall at 1.1").count(),
@@ -803,22 +812,29 @@ fn the_range_offset_of_a_sensor_reading_short_is_measured_on_a_wall() {
         "three sweeps, each with the wall a few cm short:\n{progress}"
     );
 
-    let out = sandbox.run(
-        "sonar",
-        &[
-            "calibrate-range",
-            "--wall-distance",
-            "1.2",
-            "--sweeps",
-            "1",
-            "--timeout",
-            "60",
-        ],
+    let out = calibrate(&["--bearing", "0"]);
+    let printed = check_ok("sonar calibrate-range without the head", &out);
+    assert!(
+        (-0.035..=-0.015).contains(&offset_of(&printed)),
+        "{printed}"
     );
+    assert!(
+        printed.contains("[features.sensor]\nstep_deg = 3.00\npings_per_reading = 2\n"),
+        "{printed}"
+    );
+    let cutoff: f64 = printed
+        .lines()
+        .find_map(|l| l.strip_prefix("specular_cutoff_deg = "))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no cut-off in\n{printed}"));
+    assert!((18.0..=23.0).contains(&cutoff), "{printed}");
+
+    let out = calibrate(&["--sweeps", "1"]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "{stderr}");
     assert!(
-        stderr.contains("0 of 3 sweeps saw a wall whole") && stderr.contains("--config"),
+        stderr.contains("0 of 3 sweeps saw a wall whole") && stderr.contains("--bearing"),
         "{stderr}"
     );
     stop_driver(driver);
