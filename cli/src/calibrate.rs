@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
-use sonar_common::ipc::{self, IpcError, Reading};
+use sonar_common::ipc::{self, IpcError, Reading, flags};
 use sonar_features::calibrate::{expected_half_width_deg, head_step_deg};
 use sonar_features::{
     FeatureConfig, RangeOffset, Sweep, WallSighting, range_offset, wall_in_sweep,
@@ -151,6 +151,11 @@ const STEP_MISMATCH: f64 = 0.1;
 /// when they differ from the configured ones (said on stderr): pings placed at the wrong angles
 /// break every region, and no wall is found.
 fn head_as_read(configured: &FeatureConfig, readings: &[Reading]) -> FeatureConfig {
+    // One range per angle (a hobby sketch, an imported log): the features take such a sweep's
+    // step from its spacing themselves.
+    if readings.iter().all(|r| r.flags & flags::NO_RAW_PINGS != 0) {
+        return *configured;
+    }
     let Some((step, pings)) = head_step_deg(readings) else {
         return *configured;
     };
@@ -411,5 +416,15 @@ mod tests {
             })
             .collect();
         assert_eq!(head_as_read(&configured, &paper), configured);
+        // One range per angle: the features take its step from the spacing.
+        let per_angle: Vec<Reading> = readings
+            .iter()
+            .map(|r| Reading {
+                ping_count: 1,
+                flags: flags::NO_RAW_PINGS,
+                ..*r
+            })
+            .collect();
+        assert_eq!(head_as_read(&configured, &per_angle), configured);
     }
 }
