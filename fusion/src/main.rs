@@ -360,6 +360,12 @@ fn run(args: &Args) -> Result<()> {
         slam_correction,
         "fusion engine ready"
     );
+    if features.config.range_offset_m == 0.0 {
+        info!(
+            "the sensor's range offset is not calibrated ([features] range_offset_m = 0): \
+             `sonar calibrate-range --wall-distance M` measures it on a wall M metres away"
+        );
+    }
     if let Some((path, _)) = &persistence {
         persist::check_writable(path).with_context(|| {
             format!(
