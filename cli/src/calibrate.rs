@@ -4,8 +4,10 @@
 //! sweep to [`sonar_features::wall_in_sweep`]; after `--sweeps` sightings of one wall,
 //! [`sonar_features::range_offset`] gives the offset, printed as the `[features]` lines to put
 //! in the pipeline's configuration (the fusion's, and the SLAM's unless `[slam.features]` sets
-//! its own). The first sweep it sees is left out: it joined it somewhere
-//! in the middle.
+//! its own). The first sweep it sees is left out: it joined it somewhere in the middle. The
+//! first whole sweep also shows how the head steps ([`head_as_read`]), and each wall's region
+//! how wide the sensor hears a wall: both are checked against the configuration and printed as
+//! lines to set when they differ.
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -39,8 +41,9 @@ pub struct Settings {
     #[arg(long, value_name = "N", default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=100))]
     pub sweeps: u32,
     /// Bearing of the wall's normal in the sensor's frame, degrees (0 = the head's forward axis,
-    /// counter-clockwise): the wall whose normal lies nearest is used. Without it, the nearest
-    /// wall the sweep saw whole.
+    /// counter-clockwise): the wall whose normal lies within 10° of it, or else the region seen
+    /// whole there even when the configured cones call it no wall (a head not yet described).
+    /// Without it, the nearest wall the sweep saw whole.
     #[arg(long, value_name = "DEG", allow_hyphen_values = true)]
     pub bearing: Option<f64>,
     /// The pipeline's configuration file: its `[features]` table says how the head's pings lie
