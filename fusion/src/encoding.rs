@@ -386,6 +386,7 @@ impl KeyEncoder {
 mod tests {
     use super::*;
     use crate::rule::{BayesRule, DempsterShaferRule, HimmRule, LogOddsRule};
+    use crate::test_strategies::between;
     use proptest::prelude::*;
 
     /// What the encoder must give for `key`: the snapshot byte and the counts as the reference
@@ -600,7 +601,7 @@ mod tests {
         /// Over the keys a rule's cells hold and beyond them (a hand-made state), bit for bit.
         #[test]
         fn bytes_and_counts_equal_the_reference_encoder(
-            unit in -0.5f32..1.5,
+            unit in between(-0.5, 1.5),
             bits in any::<u32>(),
         ) {
             let (bayes, dempster_shafer, log_odds) = &*ENCODERS;

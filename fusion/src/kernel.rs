@@ -849,6 +849,7 @@ mod tests {
     use crate::model::{ModelConfig, ModelKind};
     use crate::observation::Observation;
     use crate::rule::{RuleConfig, RuleKind};
+    use crate::test_strategies::between;
     use nalgebra::{Isometry2, Vector2};
     use proptest::prelude::*;
     use rand::{Rng, SeedableRng};
@@ -934,12 +935,16 @@ mod tests {
         fn every_path_agrees_with_the_reference_to_the_last_bit(
             model in 0..ModelKind::ALL.len(),
             rule in 0..RuleKind::ALL.len(),
-            centre in (-0.2f32..0.2, -0.2f32..0.2),
-            pose in (-2.5f32..2.5, -2.5f32..2.5, -3.2f32..3.2),
-            half_angle_deg in 5.0f32..45.0,
+            centre in (between(-0.2, 0.2), between(-0.2, 0.2)),
+            pose in (between(-2.5, 2.5), between(-2.5, 2.5), between(-3.2, 3.2)),
+            half_angle_deg in between(5.0, 45.0),
             parked in any::<bool>(),
             readings in prop::collection::vec(
-                (-180.0f32..180.0, prop::option::of(0.05f32..4.3), (-0.2f32..0.2, -0.2f32..0.2)),
+                (
+                    between(-180.0, 180.0),
+                    prop::option::of(between(0.05, 4.3)),
+                    (between(-0.2, 0.2), between(-0.2, 0.2)),
+                ),
                 1..8,
             ),
         ) {

@@ -215,6 +215,8 @@ pub mod rule;
 mod sightlines;
 pub mod state;
 pub mod status;
+#[cfg(test)]
+mod test_strategies;
 
 pub use config::{ConfigError, FusionConfig, GridConfig, Preset, SensorLimits, UnknownName};
 pub use engine::SavedMap;

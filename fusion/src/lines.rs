@@ -1026,6 +1026,7 @@ impl EchoPlaces {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_strategies::between;
     use proptest::prelude::*;
 
     const DEG: f32 = std::f32::consts::PI / 180.0;
@@ -1233,10 +1234,20 @@ mod tests {
         #[test]
         fn a_point_heard_by_the_regions_filed_by_reach_is_heard_by_all(
             heard in proptest::collection::vec(
-                (-3.0f32..3.0, -3.0f32..3.0, -3.2f32..3.2, 0.1f32..4.0, 0.0f32..3.2, 0.01f32..0.3),
+                (
+                    between(-3.0, 3.0),
+                    between(-3.0, 3.0),
+                    between(-3.2, 3.2),
+                    between(0.1, 4.0),
+                    between(0.0, 3.2),
+                    between(0.01, 0.3),
+                ),
                 1..80,
             ),
-            points in proptest::collection::vec((-7.0f32..7.0, -7.0f32..7.0, 0.0f32..0.5), 1..60),
+            points in proptest::collection::vec(
+                (between(-7.0, 7.0), between(-7.0, 7.0), between(0.0, 0.5)),
+                1..60,
+            ),
         ) {
             let mut lines = Lines::default();
             for &(x, y, axis, range, half_width, tolerance) in &heard {
