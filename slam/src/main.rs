@@ -145,6 +145,9 @@ fn run(args: &Args) -> Result<()> {
     info!(
         fix_max_sigma_m = config.fix_max_sigma_m,
         fix_max_sigma_deg = config.fix_max_sigma_deg,
+        // The head as [features] (under [slam.features]) describes it.
+        step_deg = config.features.sensor.step_deg,
+        range_offset_m = config.features.range_offset_m,
         "sonar-slam ready: readings from {}, odometry from {}, corrections on {}, landmarks on {}",
         ipc::READINGS_SERVICE,
         ipc::POSE_SERVICE,
