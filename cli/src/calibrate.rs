@@ -70,9 +70,8 @@ pub fn run(node: &Node<Ipc>, settings: &Settings) -> Result<()> {
     );
     let file = FusionFile::read(settings.config.as_deref())?;
     let configured = file.features.config;
-    // The head as its readings show it, once a sweep is in (`head_checked`).
-    let mut cfg = configured;
-    let mut head_checked = false;
+    // The head as its readings show it, from the first whole sweep on.
+    let mut cfg: Option<FeatureConfig> = None;
     let readings = ipc::readings_service(node)?
         .subscriber_builder()
         .create()
@@ -98,10 +97,7 @@ pub fn run(node: &Node<Ipc>, settings: &Settings) -> Result<()> {
             finished.extend(collector.push(*sample.payload()));
         }
         for (sweep_id, sweep_readings) in finished {
-            if !head_checked {
-                head_checked = true;
-                cfg = head_as_read(&configured, &sweep_readings);
-            }
+            let cfg = *cfg.get_or_insert_with(|| head_as_read(&configured, &sweep_readings));
             looked_at += 1;
             let sweep = Sweep::from_readings(&sweep_readings, &cfg);
             quantum = quantum.or(sweep.range_quantum_m());
@@ -118,7 +114,7 @@ pub fn run(node: &Node<Ipc>, settings: &Settings) -> Result<()> {
             if sightings.len() == wanted {
                 break;
             }
-            if looked_at >= TRIES_PER_SWEEP * wanted && sightings.len() < wanted {
+            if looked_at >= TRIES_PER_SWEEP * wanted {
                 bail!(
                     "{} of {looked_at} sweeps saw a wall whole: face one flat wall, square, with \
                      nothing nearer in the head's sweep; give its normal's bearing (--bearing, \
@@ -141,7 +137,7 @@ pub fn run(node: &Node<Ipc>, settings: &Settings) -> Result<()> {
     }
     let offset = range_offset(&sightings, settings.wall_distance, quantum)
         .context("measuring the range offset")?;
-    let head = Head::of(&configured, &cfg, &sightings);
+    let head = Head::of(&configured, &cfg.unwrap_or(configured), &sightings);
     print!("{}", result_text(&offset, settings.wall_distance, &head));
     Ok(())
 }

@@ -32,6 +32,7 @@ use crate::geometry::wrap_deg;
 use crate::map::FeatureMap;
 use crate::physics::Reflector;
 use crate::pings::Sweep;
+use crate::rcd::Rcd;
 use sonar_common::ipc::Reading;
 
 /// The wall one sweep heard, as the calibration uses it.
@@ -51,6 +52,21 @@ pub struct WallSighting {
     /// Whether the features took it for a wall (else: the region seen whole nearest the bearing
     /// asked for, which the configured cones do not call a wall).
     pub classified: bool,
+}
+
+impl WallSighting {
+    /// The wall whose region is `rcd`, its normal at `normal_deg` (the region's range and its
+    /// jitter are the observation's: `crate::classify` takes them from the region).
+    fn of(rcd: &Rcd, normal_deg: f64, classified: bool) -> Self {
+        Self {
+            distance_m: rcd.range_m,
+            sigma_m: rcd.range_sigma_m,
+            normal_deg,
+            pings: rcd.pings,
+            half_width_deg: rcd.width_deg() / 2.0,
+            classified,
+        }
+    }
 }
 
 /// The offset measured over several sweeps.
@@ -124,14 +140,7 @@ pub fn wall_in_sweep(
         .observations
         .iter()
         .filter(|o| o.kind == FeatureKind::Plane && o.whole)
-        .map(|o| WallSighting {
-            distance_m: o.range_m,
-            sigma_m: o.range_sigma_random_m,
-            normal_deg: o.bearing_deg,
-            pings: rcds[o.rcd].pings,
-            half_width_deg: rcds[o.rcd].width_deg() / 2.0,
-            classified: true,
-        });
+        .map(|o| WallSighting::of(&rcds[o.rcd], o.bearing_deg, true));
     let Some(b) = bearing_deg else {
         return Ok(walls.min_by(|x, y| x.distance_m.total_cmp(&y.distance_m)));
     };
@@ -143,14 +152,7 @@ pub fn wall_in_sweep(
         rcds.iter()
             .filter(|r| r.is_whole() && off(r.centre_deg()) <= SAME_WALL_DEG)
             .min_by(|x, y| off(x.centre_deg()).total_cmp(&off(y.centre_deg())))
-            .map(|r| WallSighting {
-                distance_m: r.range_m,
-                sigma_m: r.range_sigma_m,
-                normal_deg: r.centre_deg(),
-                pings: r.pings,
-                half_width_deg: r.width_deg() / 2.0,
-                classified: false,
-            })
+            .map(|r| WallSighting::of(r, r.centre_deg(), false))
     }))
 }
 
