@@ -32,6 +32,7 @@
 //! [`Observation::from_reading`]: sonar_fusion::Observation::from_reading
 //! [`Mapper`]: sonar_fusion::Mapper
 
+pub mod calibration;
 pub mod feature_report;
 pub mod features;
 pub mod image;

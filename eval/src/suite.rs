@@ -63,12 +63,15 @@ use anyhow::{Context, Result, bail};
 use nalgebra::{Isometry2, Point2, Vector2};
 use sonar_common::ipc::Reading;
 use sonar_common::sensor::SensorConfig;
-use sonar_features::{Feature, FeatureKind, FeatureMap, Segment, Sweep};
+use sonar_features::{
+    Feature, FeatureConfig, FeatureKind, FeatureMap, RangeOffset, Segment, Sweep,
+};
 use sonar_fusion::{FusionConfig, FusionSection, Mapper, Observation, Preset};
 use sonar_sim::geometry::{distance_to_segment, rotate, segments_intersect};
 use sonar_sim::{Pose, Scene, SensorProfile, Vec2, Wall};
 use tracing::info;
 
+use crate::calibration;
 use crate::features::{MATCH_M, PLANE_MATCH_DEG, Truth, scene_feature_config, score};
 use crate::image::{self, Canvas, Window};
 use crate::metrics::{MapView, quantile};
@@ -198,11 +201,67 @@ impl FromStr for NoiseChoice {
     }
 }
 
-/// The sensor of a run: a profile, its range noise perhaps replaced.
+/// The sensor of a run: a profile, its range noise perhaps replaced, and its range offset if
+/// it was calibrated (`--suite-calibrate`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SensorChoice {
     pub profile: ProfileChoice,
     pub noise: Option<RangeNoise>,
+    /// The offset measured as `sonar calibrate-range` measures it ([`crate::calibration`]),
+    /// taken off every range by the grids and the features.
+    pub calibrated: Option<RangeOffset>,
+}
+
+impl SensorChoice {
+    /// `scene` heard by this sensor: its profile's echoes and head, its noise.
+    pub fn apply(&self, scene: &mut Scene) {
+        if let Some(p) = self.profile.0 {
+            scene.set_profile(p);
+        }
+        if let Some(n) = self.noise {
+            scene.noise.range_sigma_m = n.sigma_m;
+            scene.noise.range_sigma_fraction = n.fraction;
+        }
+    }
+
+    /// The features' configuration for `scene` (heard by this sensor), calibrated if it was.
+    fn feature_config(&self, scene: &Scene) -> FeatureConfig {
+        let cfg = scene_feature_config(scene);
+        match self.calibrated {
+            Some(c) => FeatureConfig {
+                range_offset_m: c.offset_m,
+                range_offset_sigma_m: c.sigma_m,
+                ..cfg
+            },
+            None => cfg,
+        }
+    }
+
+    /// The grid's observation of `reading` at `pose`, calibrated if the sensor was.
+    fn observation(&self, reading: &Reading, pose: Isometry2<f32>) -> Observation {
+        let observation = Observation::from_reading(reading, pose);
+        match self.calibrated {
+            Some(c) => observation.calibrated(c.offset_m as f32),
+            None => observation,
+        }
+    }
+
+    /// This sensor with its range offset measured in the calibration room, echo noise seeded
+    /// by `seed`.
+    fn calibrate(self, seed: u64) -> Result<Self> {
+        let offset = calibration::measured_range_offset(|s| self.apply(s), seed)
+            .with_context(|| format!("calibrating {self}"))?;
+        info!(
+            sensor = %self,
+            offset_m = offset.offset_m,
+            sigma_m = offset.sigma_m,
+            "range offset measured on the calibration room's wall"
+        );
+        Ok(Self {
+            calibrated: Some(offset),
+            ..self
+        })
+    }
 }
 
 impl std::fmt::Display for SensorChoice {
@@ -213,6 +272,9 @@ impl std::fmt::Display for SensorChoice {
             if n.fraction > 0.0 {
                 write!(f, " + {:.1} %", n.fraction * 100.0)?;
             }
+        }
+        if let Some(c) = self.calibrated {
+            write!(f, ", calibrated {:+.1} mm", c.offset_m * 1000.0)?;
         }
         Ok(())
     }
@@ -361,7 +423,15 @@ pub struct SuiteArgs {
     /// `sonar-export --format pgm` writes (what nav2 takes for an obstacle).
     #[arg(long, value_name = "P", default_value_t = crate::metrics::OCCUPIED_ABOVE, value_parser = parse_occupied_above)]
     pub suite_occupied_above: f32,
+    /// Calibrate each sensor's range offset first, as `sonar calibrate-range` does on a robot
+    /// (three sweeps standing 1.20 m from the built-in room's wall, none of the suite's scenes),
+    /// and take the offset measured off every range in the grids and the features.
+    #[arg(long)]
+    pub suite_calibrate: bool,
 }
+
+/// The echo noise's seed of the calibration sweeps (none of the suite's runs uses the room).
+const CALIBRATION_SEED: u64 = 1;
 
 fn parse_occupied_above(s: &str) -> Result<f32, String> {
     match s.trim().parse::<f32>() {
@@ -403,9 +473,18 @@ impl SuiteSettings {
                 args.suite_noise.iter().map(move |n| SensorChoice {
                     profile,
                     noise: n.0,
+                    calibrated: None,
                 })
             })
             .collect();
+        let sensors = if args.suite_calibrate {
+            sensors
+                .into_iter()
+                .map(|s| s.calibrate(CALIBRATION_SEED))
+                .collect::<Result<Vec<_>>>()?
+        } else {
+            sensors
+        };
         if args.suite_seeds.0.is_empty() || sensors.is_empty() || viewpoints.is_empty() {
             bail!("the suite needs at least one seed, profile, noise level and viewpoint count");
         }
@@ -862,13 +941,14 @@ fn merge_sweeps(map: &mut FeatureMap, readings: &[Reading], pose: &Isometry2<f64
     }
 }
 
-/// Runs the features on `readings` (one viewpoint, in its frame: `view_scene`, heard by the
-/// head of its sensor profile) and scores them; with what the viewpoint was expected to find.
+/// Runs the features configured by `cfg` on `readings` (one viewpoint, in its frame:
+/// `view_scene`) and scores them; with what the viewpoint was expected to find.
 pub fn score_features(
     view_scene: &Scene,
+    cfg: &FeatureConfig,
     readings: &[Reading],
 ) -> Result<(FeatureScore, Expected, Truth)> {
-    let cfg = scene_feature_config(view_scene);
+    let cfg = *cfg;
     let max_range_m = f64::from(cfg.sensor.max_range_m);
     let mut map = FeatureMap::new(cfg).context("setting up the feature map")?;
     merge_sweeps(&mut map, readings, &Isometry2::identity());
@@ -1128,13 +1208,7 @@ pub fn run_scene(
     settings: &SuiteSettings,
 ) -> Result<Run> {
     let mut scene = generated.scene.clone();
-    if let Some(p) = sensor.profile.0 {
-        scene.set_profile(p);
-    }
-    if let Some(n) = sensor.noise {
-        scene.noise.range_sigma_m = n.sigma_m;
-        scene.noise.range_sigma_fraction = n.fraction;
-    }
+    sensor.apply(&mut scene);
     let head = Head::of(&scene);
     let reach = Reach::of(&head.sensor);
     let most = settings.viewpoints.iter().copied().max().unwrap_or(1);
@@ -1148,7 +1222,7 @@ pub fn run_scene(
     // Per fusion, the samples visible and drawn at the last viewpoint count scored.
     let mut drawn_before: Vec<Option<Samples>> = vec![None; settings.fusion.len()];
     let mut features = Vec::new();
-    let cfg = scene_feature_config(&scene);
+    let cfg = sensor.feature_config(&scene);
     let mut scene_map = FeatureMap::new(cfg).context("setting up the scene's feature map")?;
     let mut scene_expected = Expected::default();
     let mut scene_joints = SeenJoints::default();
@@ -1162,7 +1236,8 @@ pub fn run_scene(
             mix(seed, index, k),
         )
         .with_context(|| format!("scene {} viewpoint {}", scene.name, k + 1))?;
-        let (view_features, expected, truth) = score_features(&view_scene, &capture.readings)?;
+        let (view_features, expected, truth) =
+            score_features(&view_scene, &cfg, &capture.readings)?;
         features.push(view_features);
         scene_joints.add(view, &truth, &expected);
         scene_expected = scene_expected.or(&expected);
@@ -1172,7 +1247,7 @@ pub fn run_scene(
         for ((mapper, scores), before) in mappers.iter_mut().zip(&mut grid).zip(&mut drawn_before) {
             for r in &capture.readings {
                 mapper
-                    .update(&Observation::from_reading(r, pose))
+                    .update(&sensor.observation(r, pose))
                     .with_context(|| format!("fusing reading {}", r.seq))?;
             }
             mapper.close_region();
@@ -1196,6 +1271,8 @@ pub fn run_scene(
             .collect();
         let name = format!("{:?}-{index:03}-seed{seed}-{sensor}.png", settings.split)
             .to_lowercase()
+            // A calibrated offset's sign kept apart from the separators.
+            .replace('+', "plus")
             .replace(
                 |c: char| !c.is_ascii_alphanumeric() && c != '.' && c != '-',
                 "-",
@@ -1835,6 +1912,7 @@ mod tests {
         let label = SensorChoice {
             profile: ProfileChoice(Some(SensorProfile::Srf05)),
             noise: Some(n),
+            calibrated: None,
         };
         assert_eq!(label.to_string(), "srf05, σ 10 mm + 1.0 %");
         assert_ne!(Split::Tune.scene_seed(3), Split::Report.scene_seed(3));
@@ -1911,6 +1989,7 @@ mod structural_tests {
             .map(|profile| SensorChoice {
                 profile,
                 noise: None,
+                calibrated: None,
             })
             .collect();
         SuiteSettings {
@@ -2017,6 +2096,39 @@ mod structural_tests {
         assert_ne!(a, run_scene(&generated, 0, 2, profile, &s).unwrap());
         // Something to score: walls in sight, cells occupied.
         assert!(a.grid[0].iter().all(|g| g.visible > 0 && g.occupied > 0));
+    }
+
+    /// The sensor that reads 3 cm short, calibrated in the room, finds the scene's walls where
+    /// they are: its scene map's walls lie nearer their true lines than uncalibrated, and the
+    /// grid's echoes are moved by the offset measured.
+    #[test]
+    fn a_calibrated_sensor_reading_short_finds_walls_where_they_are() {
+        let s = settings(vec![ProfileChoice(Some(SensorProfile::Nxt))]);
+        let generated = scenegen::generate(s.split.scene_seed(0)).unwrap();
+        let raw = s.sensors[0];
+        let calibrated = raw.calibrate(CALIBRATION_SEED).unwrap();
+        assert!(calibrated.to_string().starts_with("nxt, calibrated -2"));
+        let median_wall_error = |sensor| {
+            let run = run_scene(&generated, 0, 1, sensor, &s).unwrap();
+            let mut errors = run.scene_features.wall_distance_errors_m;
+            assert!(errors.len() >= 3, "{sensor}: {} walls found", errors.len());
+            errors.sort_by(f64::total_cmp);
+            errors[errors.len() / 2]
+        };
+        let (before, after) = (median_wall_error(raw), median_wall_error(calibrated));
+        assert!(
+            after < before - 0.01,
+            "median wall error {before} → {after} m"
+        );
+        let reading = Reading {
+            distance_m: 1.0,
+            ..Reading::default()
+        };
+        let pose = Isometry2::identity();
+        let offset = calibrated.calibrated.unwrap().offset_m as f32;
+        let moved = calibrated.observation(&reading, pose).range_m.unwrap()
+            - raw.observation(&reading, pose).range_m.unwrap();
+        assert!((moved + offset).abs() < 1e-6, "{moved} against {offset}");
     }
 
     /// The aim: fusing more viewpoints never loses walls. Measured both ways: the recall
