@@ -433,8 +433,9 @@ pub fn run_slam(tour: &TourCapture, config: SlamConfig) -> Result<SlamOutput> {
     }
     tracing::debug!(
         calibration = ?slam.calibration(),
+        range_bias_m = ?slam.range_bias(),
         landmarks = slam.landmark_count(),
-        "SLAM at the end of the tour (scale error, drift rad/m, turn error)"
+        "SLAM at the end of the tour (scale error, drift rad/m, turn error; range bias)"
     );
     Ok(SlamOutput {
         estimates,

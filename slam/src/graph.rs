@@ -1,7 +1,7 @@
-//! The factor graph: poses, landmarks and the odometry's systematic errors as one state, solved
-//! by Gauss–Newton with Levenberg's damping on sparse normal equations (nalgebra-sparse's
-//! Cholesky factorisation), a Huber kernel on the landmark factors, and covariances read from the
-//! inverse of the undamped normal matrix.
+//! The factor graph: poses, landmarks, the odometry's systematic errors and the sensor's range
+//! bias as one state, solved by Gauss–Newton with Levenberg's damping on sparse normal equations
+//! (nalgebra-sparse's Cholesky factorisation), a Huber kernel on the landmark factors, and
+//! covariances read from the inverse of the undamped normal matrix.
 //!
 //! Variables are appended as they come (the odometry's errors first, then a pose per sweep and a
 //! landmark when one is admitted); a [`Checkpoint`] lets the caller take back what one sweep
@@ -141,7 +141,11 @@ enum Factor {
         z: Measurement,
         sqrt_information: Matrix2<f64>,
         seen_after: Option<SeenAfter>,
+        /// The range bias it shares with every range ([`Graph::add_range_bias`]), if estimated.
+        range_bias: Option<Var>,
     },
+    /// A zero-mean Gaussian prior on a scalar (the sensor's range bias).
+    Scalar { var: Var, inverse_sigma: f64 },
     /// A ping's range to a wall landmark, taken at the pose `steps` of odometry (corrected by the
     /// errors at `calibration`) after `pose`: the distance across the wall from the ping's own
     /// place, under the Huber kernel.
@@ -152,6 +156,7 @@ enum Factor {
         steps: Vec<Step>,
         range: f64,
         inverse_sigma: f64,
+        range_bias: Option<Var>,
     },
 }
 
@@ -195,6 +200,7 @@ impl Factor {
     fn keys(&self) -> Vec<usize> {
         match self {
             Factor::Prior { var, .. } => (*var..var + 3).collect(),
+            Factor::Scalar { var, .. } => vec![*var],
             Factor::Odometry {
                 from,
                 to,
@@ -208,6 +214,7 @@ impl Factor {
                 pose,
                 landmark,
                 seen_after,
+                range_bias,
                 ..
             } => (*pose..pose + 3)
                 .chain(*landmark..landmark + 2)
@@ -216,15 +223,18 @@ impl Factor {
                         .iter()
                         .flat_map(|s| s.calibration..s.calibration + 3),
                 )
+                .chain(range_bias.iter().copied())
                 .collect(),
             Factor::Range {
                 pose,
                 calibration,
                 wall,
+                range_bias,
                 ..
             } => (*pose..pose + 3)
                 .chain(*calibration..calibration + 3)
                 .chain(*wall..wall + 2)
+                .chain(range_bias.iter().copied())
                 .collect(),
         }
     }
@@ -233,7 +243,7 @@ impl Factor {
     /// if it has steps.
     fn steps(&self) -> Option<(&[Step], Var)> {
         match self {
-            Factor::Prior { .. } => None,
+            Factor::Prior { .. } | Factor::Scalar { .. } => None,
             Factor::Odometry {
                 steps, calibration, ..
             }
@@ -300,17 +310,22 @@ impl Factor {
                     (sqrt_information * r).as_slice(),
                 ))
             }
+            Factor::Scalar { var, inverse_sigma } => {
+                Some(DVector::from_element(1, x[*var] * inverse_sigma))
+            }
             Factor::Landmark {
                 pose,
                 landmark,
                 kind,
                 z,
                 sqrt_information,
+                range_bias,
                 ..
             } => {
                 let at = pose_moved(*pose);
                 let predicted = predict(*kind, &at, &vec2(x, *landmark))?;
                 let mut r = z - predicted;
+                r.x -= range_bias.map_or(0.0, |b| x[b]);
                 r.y = wrap_rad(r.y);
                 Some(DVector::from_column_slice(
                     (sqrt_information * r).as_slice(),
@@ -321,13 +336,15 @@ impl Factor {
                 wall,
                 range,
                 inverse_sigma,
+                range_bias,
                 ..
             } => {
                 let at = pose_moved(*pose);
                 let predicted = range_to_wall(&at, &vec2(x, *wall));
+                let bias = range_bias.map_or(0.0, |b| x[b]);
                 Some(DVector::from_element(
                     1,
-                    (range - predicted) * inverse_sigma,
+                    (range - bias - predicted) * inverse_sigma,
                 ))
             }
         }
@@ -338,6 +355,7 @@ impl Factor {
     }
 
     fn is_odometry(&self) -> bool {
+        // Not the range bias's prior: a sweep that moves the bias says nothing of the odometry.
         matches!(self, Factor::Odometry { .. } | Factor::Prior { .. })
     }
 }
@@ -401,6 +419,8 @@ pub struct Graph {
     starts: Vec<Var>,
     factors: Vec<Factor>,
     huber_k: f64,
+    /// The sensor's range bias, once added ([`Self::add_range_bias`]).
+    range_bias: Option<Var>,
     /// The last symbolic factorisation and the pattern it is of, reused while H's pattern stays
     /// the same (every iteration of a solve, the covariances after it): nalgebra-sparse's
     /// symbolic step grows faster with the graph than the numeric one.
@@ -414,6 +434,7 @@ impl Graph {
             starts: Vec::new(),
             factors: Vec::new(),
             huber_k,
+            range_bias: None,
             symbolic: RefCell::new(None),
         }
     }
@@ -439,6 +460,7 @@ impl Graph {
         self.factors.truncate(c.factors);
         self.x.truncate(c.variables);
         self.starts.retain(|&v| v < c.variables);
+        self.range_bias = self.range_bias.filter(|&v| v < c.variables);
         let n = self.x.len().min(values.len());
         self.x[..n].copy_from_slice(&values[..n]);
     }
@@ -525,6 +547,7 @@ impl Graph {
             z,
             sqrt_information: Matrix2::from_diagonal(&sigma.map(|s| 1.0 / s)),
             seen_after,
+            range_bias: self.range_bias,
         });
     }
 
@@ -546,7 +569,35 @@ impl Graph {
             steps,
             range,
             inverse_sigma: 1.0 / sigma,
+            range_bias: self.range_bias,
         });
+    }
+
+    /// Adds the sensor's range bias, with a zero-mean prior of σ `sigma`: what every range
+    /// measures beyond the truth, the same for every landmark and wall ranged on (a detector's
+    /// lateness, the transducer's place on the arm, a processed sensor's own offset). Every
+    /// landmark and range factor added after it measures its range less the bias. A wall's own
+    /// place takes up the bias seen from one side; a corner, an edge or a wall seen from both
+    /// sides from several places tells it (a bias puts a corner farther from each viewpoint, not
+    /// at one spot). Its value is [`Self::range_bias`].
+    pub fn add_range_bias(&mut self, sigma: f64) -> Var {
+        let var = self.add_variable(&[0.0]);
+        self.factors.push(Factor::Scalar {
+            var,
+            inverse_sigma: 1.0 / sigma,
+        });
+        self.range_bias = Some(var);
+        var
+    }
+
+    /// The range bias as estimated, metres; 0 when it is not estimated.
+    pub fn range_bias(&self) -> f64 {
+        self.range_bias.map_or(0.0, |b| self.x[b])
+    }
+
+    /// Where the range bias is in the state, if it is estimated.
+    pub fn range_bias_var(&self) -> Option<Var> {
+        self.range_bias
     }
 
     /// Σ ‖r‖² of the odometry's factors and priors: how well the odometry still fits.
@@ -921,6 +972,54 @@ mod tests {
             odometry_only[(0, 0)] >= cov[(0, 0)],
             "{odometry_only} {cov}"
         );
+    }
+
+    /// A sensor reading 3 cm long sees a corner from three anchored poses: each range puts the
+    /// corner 3 cm farther from its viewpoint, which no one spot explains; with the range bias
+    /// in the state the graph finds the bias and the corner where it is, and a wall seen from
+    /// one side takes up the bias in its own place as before. Without the bias, the corner's
+    /// sightings disagree and it lies farther off.
+    #[test]
+    fn a_range_bias_is_found_from_a_corner_seen_from_several_places() {
+        let corner = Vector2::new(2.0, 1.0);
+        let wall = Vector2::new(0.0, 3.0);
+        let solve = |estimate_bias: bool| {
+            let mut g = Graph::new(1.5);
+            if estimate_bias {
+                g.add_range_bias(0.05);
+            }
+            let c = g.add_variable(&[1.9, 1.1]);
+            let w = g.add_variable(&[0.0, 2.9]);
+            for at in [
+                Vector3::new(0.0, 0.0, 0.0),
+                Vector3::new(0.0, 1.8, 0.0),
+                Vector3::new(1.2, -0.6, 0.5),
+            ] {
+                let pose = anchored(&mut g, at);
+                for (kind, var, truth) in [
+                    (LandmarkKind::Point, c, corner),
+                    (LandmarkKind::Line, w, wall),
+                ] {
+                    let mut z = predict(kind, &at, &truth).unwrap();
+                    z.x += 0.03;
+                    g.add_landmark_factor(pose, var, kind, z, Vector2::new(SIGMA, 0.01), None);
+                }
+            }
+            g.optimize();
+            (g.range_bias(), (g.vector2(c) - corner).norm(), g.vector2(w))
+        };
+        let (bias, corner_error, wall_seen) = solve(true);
+        assert!((bias - 0.03).abs() < 0.005, "bias {bias}");
+        assert!(corner_error < 0.005, "corner {corner_error} m off");
+        assert!((wall_seen.y - 3.0).abs() < 0.005, "wall at {wall_seen}");
+        let (bias, uncorrected, wall_seen) = solve(false);
+        assert_eq!(bias, 0.0);
+        assert!(
+            uncorrected > 2.0 * corner_error,
+            "corner {uncorrected} m off"
+        );
+        // Unestimated, the wall moves out by the bias.
+        assert!((wall_seen.y - 3.03).abs() < 0.005, "wall at {wall_seen}");
     }
 
     /// A sweep on the move: the end wall x = 3 seen from the sweep's pose, and again after 2 m

@@ -192,6 +192,7 @@ fn run(args: &Args) -> Result<()> {
         readings_lost = process.readings_lost,
         revisions = process.revisions,
         calibration = ?process.slam.calibration(),
+        range_bias_m = ?process.slam.range_bias(),
         "sonar-slam stopped"
     );
     Ok(())
