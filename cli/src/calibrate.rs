@@ -266,6 +266,12 @@ fn result_text(offset: &RangeOffset, wall_distance: f64, head: &Head) -> String 
             "[features.sensor]\nstep_deg = {step:.2}\npings_per_reading = {pings}\n"
         );
     }
+    // A comment, so that it pastes anywhere: the file may have a [slam] table already.
+    let _ = writeln!(
+        text,
+        "# and under [slam], the range bias the SLAM estimates known as well: \
+         range_bias_sigma_m = {sigma:.4}"
+    );
     if head.width_differs() {
         // A wall heard squarely and near answers over the specular cut-off, unless the beam is
         // narrower (docs/features.md, "Another sensor's cones").
@@ -371,6 +377,14 @@ mod tests {
             .expect("a valid [slam] table");
         assert_eq!(slam.slam.config.features.range_offset_m, -0.0298);
         assert_eq!(slam.slam.config.features.range_offset_sigma_m, 0.0029);
+        // The SLAM's range bias, said in a comment: its key set under [slam] as it says.
+        let hint = text
+            .lines()
+            .find(|l| l.starts_with("# and under [slam]"))
+            .expect("the SLAM's line");
+        let key = &hint[hint.find("range_bias_sigma_m").expect("its key")..];
+        let slam: WithSlam = toml::from_str(&format!("[slam]\n{key}\n")).expect("a [slam] table");
+        assert_eq!(slam.slam.config.range_bias_sigma_m, 0.0029);
 
         // A head stepping 3° with two pings a reading, its walls heard over ±20°, described as
         // the paper's: the lines say so, and set as they say, the description is the head's.
