@@ -214,7 +214,7 @@ pub struct SensorChoice {
 
 impl SensorChoice {
     /// `scene` heard by this sensor: its profile's echoes and head, its noise.
-    pub fn apply(&self, scene: &mut Scene) {
+    fn apply(&self, scene: &mut Scene) {
         if let Some(p) = self.profile.0 {
             scene.set_profile(p);
         }
