@@ -7,8 +7,9 @@
 //! on, `--max-rate 10`), warms it up with two sweeps at 1 k/s and stops it 1 s after the last
 //! reading; its `fusion stopped` line gives
 //! the readings fused and received and the snapshots. The offered rate climbs by 1.5× from
-//! `--start-rate` while no more than 0.1 % is lost; the last such rate is the lossless
-//! throughput, then 2× and 4× of it are offered.
+//! `--start-rate` while no more than 0.1 % is lost, then the step between the last such rate and
+//! the first lossy one is halved three times (geometrically: to 5 %); the highest rate lost
+//! nothing is the lossless throughput, then 2× and 4× of it are offered.
 //!
 //! The head stands still by default, so every sweep repeats the one before: the best case for
 //! the region model, which keeps a repeated patch or weak echo once. With `--moving` the robot
@@ -161,6 +162,12 @@ const WARMUP: u64 = 100;
 /// Most lost of what was sent for a step to count as lossless.
 const LOSSLESS: f64 = 0.001;
 
+/// Each step of the climb offers this many times the last.
+const CLIMB: f64 = 1.5;
+
+/// Halvings of the last climb step: 1.5^(1/8), the lossless rate known to 5 %.
+const REFINE_STEPS: usize = 3;
+
 pub fn print_header() {
     println!(
         "| grid | step | offered/s | sent | lost | fused/s | snapshots/s | fusion CPU s | fused per fusion CPU s | load average |"
@@ -203,15 +210,33 @@ pub fn run(
             break;
         }
         lossless = Some(step);
-        rate *= 1.5;
+        rate *= CLIMB;
         if rate > 2e6 {
             break;
         }
     }
-    let Some(lossless) = lossless else {
+    let Some(mut lossless) = lossless else {
         println!("| {grid} | no lossless rate from {start_rate}/s | | | | | | | | |");
         return Ok(());
     };
+    // Between the last lossless step and the first lossy one, halved (geometrically) a few
+    // times: a climb's step alone leaves the rate known to 1.5×.
+    let mut lossy = rate;
+    for _ in 0..REFINE_STEPS {
+        let between = (lossless.offered_per_s * lossy).sqrt();
+        let step = offer(&mut sandbox, cells, resolution, between, seconds, moving)?;
+        let passed = step.lost_fraction() <= LOSSLESS;
+        print_row(
+            &grid,
+            if passed { "refine" } else { "refine (lossy)" },
+            &step,
+        );
+        if passed {
+            lossless = step;
+        } else {
+            lossy = between;
+        }
+    }
     print_row(&grid, "**lossless**", &lossless);
     for factor in [2.0, 4.0] {
         let step = offer(
