@@ -1,10 +1,10 @@
 //! `sonar calibrate-range`: the sensor's range offset, measured on a wall at a known distance.
 //!
 //! It listens to `sonar/readings` like any consumer, groups them by sweep, and hands each whole
-//! sweep to [`sonar_features::wall_in_sweep`]; after `--sweeps` sightings of one wall,
-//! [`sonar_features::range_offset`] gives the offset, printed as the `[features]` lines to put
-//! in the pipeline's configuration (the fusion's, and the SLAM's unless `[slam.features]` sets
-//! its own). The first sweep it sees is left out: it joined it somewhere in the middle. The
+//! sweep to [`sonar_features::WallSightings`] ([`sonar_features::wall_in_sweep`]); after
+//! `--sweeps` sightings of one wall, [`sonar_features::range_offset`] gives the offset, printed
+//! as the `[features]` lines to put in the pipeline's configuration (the fusion's, and the
+//! SLAM's unless `[slam.features]` sets its own). The first sweep it sees is left out: it joined it somewhere in the middle. The
 //! first whole sweep also shows how the head steps ([`head_as_read`]), and each wall's region
 //! how wide the sensor hears a wall: both are checked against the configuration and printed as
 //! lines to set when they differ.
@@ -18,9 +18,7 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as Ipc;
 use sonar_common::ipc::{self, IpcError, Reading, flags};
 use sonar_features::calibrate::{expected_half_width_deg, head_step_deg};
-use sonar_features::{
-    FeatureConfig, RangeOffset, Sweep, WallSighting, range_offset, wall_in_sweep,
-};
+use sonar_features::{FeatureConfig, RangeOffset, WallSighting, WallSightings};
 use sonar_fusion::FusionFile;
 
 /// How often it looks for new readings.
@@ -83,11 +81,10 @@ pub fn run(node: &Node<Ipc>, settings: &Settings) -> Result<()> {
     let wanted = settings.sweeps as usize;
     let timeout = Duration::from_secs_f64(settings.timeout);
     let mut collector = Collector::default();
-    let mut sightings = Vec::new();
-    let mut quantum = None;
+    let mut sightings = WallSightings::default();
     let mut looked_at = 0;
     let mut last_reading = Instant::now();
-    while sightings.len() < wanted {
+    while sightings.sightings().len() < wanted {
         let mut finished = Vec::new();
         while let Some(sample) = readings
             .receive()
@@ -99,19 +96,14 @@ pub fn run(node: &Node<Ipc>, settings: &Settings) -> Result<()> {
         for (sweep_id, sweep_readings) in finished {
             let cfg = *cfg.get_or_insert_with(|| head_as_read(&configured, &sweep_readings));
             looked_at += 1;
-            let sweep = Sweep::from_readings(&sweep_readings, &cfg);
-            quantum = quantum.or(sweep.range_quantum_m());
-            match wall_in_sweep(&sweep, &cfg, settings.bearing)? {
-                Some(wall) => {
-                    eprintln!("sweep {sweep_id}: {}", sighting_line(&wall));
-                    sightings.push(wall);
-                }
+            match sightings.look(&sweep_readings, &cfg, settings.bearing)? {
+                Some(wall) => eprintln!("sweep {sweep_id}: {}", sighting_line(&wall)),
                 None => eprintln!(
                     "sweep {sweep_id}: no wall seen whole ({} readings)",
                     sweep_readings.len()
                 ),
             }
-            if sightings.len() == wanted {
+            if sightings.sightings().len() == wanted {
                 break;
             }
             if looked_at >= TRIES_PER_SWEEP * wanted {
@@ -120,7 +112,7 @@ pub fn run(node: &Node<Ipc>, settings: &Settings) -> Result<()> {
                      nothing nearer in the head's sweep; give its normal's bearing (--bearing, \
                      0 = ahead) to take the region heard there whatever the configured cones, \
                      or the head's description (--config) if it is not the paper's SRF05",
-                    sightings.len()
+                    sightings.sightings().len()
                 );
             }
         }
@@ -135,9 +127,14 @@ pub fn run(node: &Node<Ipc>, settings: &Settings) -> Result<()> {
             bail!("interrupted before {wanted} sweeps saw the wall");
         }
     }
-    let offset = range_offset(&sightings, settings.wall_distance, quantum)
+    let offset = sightings
+        .offset(settings.wall_distance)
         .context("measuring the range offset")?;
-    let head = Head::of(&configured, &cfg.unwrap_or(configured), &sightings);
+    let head = Head::of(
+        &configured,
+        &cfg.unwrap_or(configured),
+        sightings.sightings(),
+    );
     print!("{}", result_text(&offset, settings.wall_distance, &head));
     Ok(())
 }

@@ -4,13 +4,13 @@
 //!
 //! The head stands at the centre of the built-in `room` scene, its wall 1.20 m ahead (the
 //! command `docs/features.md` shows), and sweeps [`SWEEPS`] times with the sensor under test;
-//! each sweep's wall at bearing 0 gives a distance and [`range_offset`] their offset. Nothing
-//! of the scene under evaluation is used, and the offset is what the sensor shows, not what its
-//! profile was written with: an evaluation that takes it off the ranges is calibrated as the
-//! robot would be, no better.
+//! each sweep's wall at bearing 0 gives a distance and [`WallSightings::offset`] their offset.
+//! Nothing of the scene under evaluation is used, and the offset is what the sensor shows, not
+//! what its profile was written with: an evaluation that takes it off the ranges is calibrated
+//! as the robot would be, no better.
 
 use anyhow::{Context, Result, bail};
-use sonar_features::{RangeOffset, Sweep, range_offset, wall_in_sweep};
+use sonar_features::{RangeOffset, WallSightings};
 use sonar_sim::Scene;
 
 use crate::features::scene_feature_config;
@@ -30,22 +30,17 @@ pub fn measured_range_offset(sensor: impl FnOnce(&mut Scene), seed: u64) -> Resu
     let cfg = scene_feature_config(&room);
     let capture = capture_with(room.clone(), Head::of(&room), Scan::Full, SWEEPS, seed)
         .context("sweeping the calibration room")?;
-    let mut sightings = Vec::new();
-    let mut quantum = None;
+    let mut sightings = WallSightings::default();
     for readings in capture.readings.chunk_by(|a, b| a.sweep_id == b.sweep_id) {
-        let sweep = Sweep::from_readings(readings, &cfg);
-        quantum = quantum.or(sweep.range_quantum_m());
-        if let Some(wall) = wall_in_sweep(&sweep, &cfg, Some(0.0))? {
-            sightings.push(wall);
-        }
+        sightings.look(readings, &cfg, Some(0.0))?;
     }
-    if sightings.is_empty() {
+    if sightings.sightings().is_empty() {
         bail!(
             "no sweep of {} in the calibration room heard its wall {WALL_DISTANCE_M} m ahead whole",
             capture.sweeps
         );
     }
-    Ok(range_offset(&sightings, WALL_DISTANCE_M, quantum)?)
+    Ok(sightings.offset(WALL_DISTANCE_M)?)
 }
 
 #[cfg(test)]

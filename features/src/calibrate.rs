@@ -245,6 +245,41 @@ pub fn range_offset(
     })
 }
 
+/// The walls seen so far, one per sweep looked at, and the range quantum the sweeps showed: what
+/// the offset is measured from, sweep by sweep ([`Self::look`], [`Self::offset`]).
+#[derive(Debug, Clone, Default)]
+pub struct WallSightings {
+    sightings: Vec<WallSighting>,
+    quantum_m: Option<f64>,
+}
+
+impl WallSightings {
+    /// Looks for the wall in one sweep's `readings` ([`wall_in_sweep`], the pings placed as `cfg`
+    /// says) and keeps it; the wall, if the sweep saw it whole.
+    pub fn look(
+        &mut self,
+        readings: &[Reading],
+        cfg: &FeatureConfig,
+        bearing_deg: Option<f64>,
+    ) -> Result<Option<WallSighting>, CalibrationError> {
+        let sweep = Sweep::from_readings(readings, cfg);
+        self.quantum_m = self.quantum_m.or(sweep.range_quantum_m());
+        let wall = wall_in_sweep(&sweep, cfg, bearing_deg)?;
+        self.sightings.extend(wall);
+        Ok(wall)
+    }
+
+    /// The walls kept, in the order seen.
+    pub fn sightings(&self) -> &[WallSighting] {
+        &self.sightings
+    }
+
+    /// The offset from the walls kept and the wall's true distance ([`range_offset`]).
+    pub fn offset(&self, true_distance_m: f64) -> Result<RangeOffset, CalibrationError> {
+        range_offset(&self.sightings, true_distance_m, self.quantum_m)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

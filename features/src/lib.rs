@@ -98,7 +98,9 @@ pub mod pings;
 pub mod rcd;
 pub mod segment;
 
-pub use calibrate::{CalibrationError, RangeOffset, WallSighting, range_offset, wall_in_sweep};
+pub use calibrate::{
+    CalibrationError, RangeOffset, WallSighting, WallSightings, range_offset, wall_in_sweep,
+};
 pub use classify::{Class, Classification, Observation, classify};
 pub use config::{FeatureConfig, MergeConfig, SegmentConfig};
 pub use drift::{DriftEstimate, DriftFilter};
