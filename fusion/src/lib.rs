@@ -192,6 +192,7 @@
 
 pub mod config;
 mod config_error;
+mod drawn;
 mod encoding;
 pub mod engine;
 pub mod features;

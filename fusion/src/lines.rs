@@ -18,7 +18,7 @@ use crate::geometry::{sector_box, wrap_angle};
 /// Two patches face the same way within this angle, radians (3°).
 const SAME_FACING: f32 = 3.0 * std::f32::consts::PI / 180.0;
 /// Two patches lie on one line while their offsets differ by at most this much, metres …
-const SAME_LINE_M: f32 = 0.03;
+pub(crate) const SAME_LINE_M: f32 = 0.03;
 /// … plus this fraction of the farther patch's range.
 const SAME_LINE_FRACTION: f32 = 0.01;
 /// Patches from sensor positions closer than this are from one viewpoint (its repeated sweeps),

@@ -6,6 +6,7 @@ use std::fmt;
 use nalgebra::{Isometry2, Vector2};
 
 use crate::config::{ConfigError, FusionConfig};
+use crate::drawn::DrawnStretches;
 use crate::geometry::GridGeometry;
 use crate::geometry::{incidence, sector_box, wrap_angle};
 use crate::grid::{Above, OccupancyGrid, SquaresAbove, with_layer};
@@ -138,8 +139,8 @@ struct Regions {
     /// stretch of wall ([`crate::sightlines`]).
     sightlines: Sightlines,
     /// With a stretch's foot check on: the stretches of that kind drawn, newest last, at most
-    /// [`DRAWN_KEPT`], each taken back if a later reading refutes it.
-    drawn: VecDeque<Drawn>,
+    /// [`crate::drawn::KEPT`], each taken back if a later reading refutes it.
+    drawn: DrawnStretches,
     /// With `region_one_end`: the sweep's one-ended regions, placed at its end, each with its
     /// readings (with `region_one_end_free`, else none).
     one_ended: Vec<(Region, Vec<Beam>)>,
@@ -261,17 +262,6 @@ impl WeakEchoes {
     }
 }
 
-/// A stretch of wall drawn, as many readings as drew it all together, and the first reading kept
-/// in [`Sightlines`] it has not yet been checked against.
-#[derive(Debug)]
-struct Drawn {
-    stretch: Stretch,
-    unchecked_from: u64,
-}
-
-/// Stretches kept to be taken back if refuted: about eight viewpoints' worth of walls.
-const DRAWN_KEPT: usize = 1024;
-
 /// Which stretches of wall [`Lines`] wrote: those between two patches of one wall, or those
 /// from a patch on to where its wall ends ([`Lines::join_ends`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -289,21 +279,9 @@ struct Between {
 
 impl Regions {
     /// Keeps `stretch`, just drawn and checked against every reading kept, to be taken back if
-    /// a later reading refutes it: with the one kept it repeats, counting its readings too, else
-    /// as the newest, the oldest forgotten first.
+    /// a later reading refutes it ([`DrawnStretches::keep`]).
     fn keep_drawn(&mut self, stretch: Stretch) {
-        let now = self.sightlines.pushed();
-        if let Some(same) = self.drawn.iter_mut().find(|d| stretch.repeats(&d.stretch)) {
-            same.stretch.readings = same.stretch.readings.saturating_add(stretch.readings);
-            return;
-        }
-        if self.drawn.len() >= DRAWN_KEPT {
-            self.drawn.pop_front();
-        }
-        self.drawn.push_back(Drawn {
-            stretch,
-            unchecked_from: now,
-        });
+        self.drawn.keep(stretch, self.sightlines.pushed());
     }
 
     /// Whether `region` is a small reflector's ([`Region::is_small`]), measured against the
@@ -367,7 +345,7 @@ impl Mapper {
                     stretches: Vec::new(),
                     lobe: LobeWidth::default(),
                     sightlines: Sightlines::default(),
-                    drawn: VecDeque::new(),
+                    drawn: DrawnStretches::default(),
                     one_ended: Vec::new(),
                     cut: Vec::new(),
                     weak: WeakEchoes::default(),
@@ -1105,18 +1083,12 @@ impl Mapper {
                     .without(&feet, REFUTED_AROUND_FOOT_M, SHORTEST_PART_M)
                 {
                     cells += self.place_stretch(&model, &part, 1.0, kernel);
-                    kept_parts.push(Drawn {
-                        stretch: part,
-                        unchecked_from: now,
-                    });
+                    kept_parts.push(part);
                 }
             }
             false
         });
-        drawn.extend(kept_parts);
-        while drawn.len() > DRAWN_KEPT {
-            drawn.pop_front();
-        }
+        drawn.push_unchecked(kept_parts, now);
         regions.drawn = drawn;
         cells
     }
