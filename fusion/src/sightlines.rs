@@ -35,12 +35,13 @@ pub(crate) struct Sightline {
 }
 
 /// A sightline kept, with the unit vector along its axis (what [`Sightlines::refuted_at`] compares
-/// with the direction to a foot, without an angle per reading) and its number.
+/// with the direction to a foot, without an angle per reading), its number and its sector.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Kept {
     sightline: Sightline,
     direction: Vector2<f32>,
     number: u64,
+    sector: u8,
 }
 
 /// Sightlines are kept by the bearing of their axis, in this many sectors of equal width: a
@@ -48,6 +49,7 @@ struct Kept {
 /// foot on its line), so [`Sightlines::refuted_at`] looks into the few sectors about the normal's
 /// two bearings instead of every reading kept.
 const SECTORS: usize = 72;
+const _: () = assert!(SECTORS <= 128, "a sector's bit in a u128");
 const SECTOR_WIDTH: f32 = std::f32::consts::TAU / SECTORS as f32;
 
 /// The sector of world bearing `bearing` (any angle).
@@ -64,13 +66,20 @@ pub(crate) struct Lobe<F: Fn(f32) -> Option<f32>> {
     pub widest: Option<f32>,
 }
 
+/// When the readings since the number asked for are at most this many,
+/// [`Sightlines::refuted_at`] goes through them in the order pushed, skipping those of other
+/// sectors by a bit each, instead of looking into each sector: a moving robot's stretches are
+/// checked at each sweep's end against that sweep's readings alone, a thousand stretches
+/// against a few dozen readings (issue 29).
+const LATEST_IN_ORDER: u64 = 256;
+
 /// The latest readings with an echo.
 #[derive(Debug, Clone)]
 pub(crate) struct Sightlines {
     /// Per sector of axis bearing, oldest first.
     sectors: Vec<VecDeque<Kept>>,
-    /// The sector of every reading kept, oldest first: the oldest is forgotten first.
-    order: VecDeque<u8>,
+    /// Every reading kept, oldest first: the oldest is forgotten first.
+    order: VecDeque<Kept>,
     /// How many readings were ever pushed: the number of the next one.
     pushed: u64,
 }
@@ -91,16 +100,18 @@ impl Sightlines {
         if self.order.len() == KEPT
             && let Some(oldest) = self.order.pop_front()
         {
-            self.sectors[usize::from(oldest)].pop_front();
+            self.sectors[usize::from(oldest.sector)].pop_front();
         }
         let sector = sector(reading.axis);
-        self.sectors[sector].push_back(Kept {
+        let kept = Kept {
             sightline: reading,
             direction: Vector2::new(reading.axis.cos(), reading.axis.sin()),
             number: self.pushed,
-        });
-        // SECTORS < 256.
-        self.order.push_back(sector as u8);
+            // SECTORS ≤ 128.
+            sector: sector as u8,
+        };
+        self.sectors[sector].push_back(kept);
+        self.order.push_back(kept);
         self.pushed += 1;
     }
 
@@ -125,6 +136,22 @@ impl Sightlines {
     /// stretch of that line is refuted if a foot lies on it: the wall is refuted if there is one.
     pub fn refuted_at<L: Fn(f32) -> Option<f32>>(
         &self,
+        since: u64,
+        a: Vector2<f32>,
+        b: Vector2<f32>,
+        lobe: Lobe<L>,
+        margin: impl Fn(f32) -> f32,
+        clear: impl Fn(Vector2<f32>, Vector2<f32>) -> bool,
+    ) -> impl Iterator<Item = f32> {
+        self.refuted_looking(LATEST_IN_ORDER, since, a, b, lobe, margin, clear)
+    }
+
+    /// [`Self::refuted_at`], going through the readings in the order pushed when at most
+    /// `in_order_up_to` came since `since`, else sector by sector: the same feet either way.
+    #[allow(clippy::too_many_arguments)]
+    fn refuted_looking<L: Fn(f32) -> Option<f32>>(
+        &self,
+        in_order_up_to: u64,
         since: u64,
         a: Vector2<f32>,
         b: Vector2<f32>,
@@ -174,29 +201,55 @@ impl Sightlines {
             Some(_) if reach >= std::f32::consts::FRAC_PI_2 => [(0, SECTORS), (0, 0)],
             Some(_) => [sectors(normal), sectors(normal + std::f32::consts::PI)],
         };
-        ranges
+        let sectors = ranges
             .into_iter()
-            .flat_map(|(first, count)| (0..count).map(move |k| (first + k) % SECTORS))
-            // Each sector holds its readings in the order they were pushed: those before `since`
-            // are skipped whole (a stretch checked again at each sweep's end looks at that
-            // sweep's readings alone).
-            .flat_map(move |k| {
-                let sector = &self.sectors[k];
-                let first = match sector.back() {
-                    Some(newest) if newest.number >= since => {
-                        sector.partition_point(|kept| kept.number < since)
-                    }
-                    _ => sector.len(),
-                };
-                sector.range(first..)
+            .flat_map(|(first, count)| (0..count).map(move |k| (first + k) % SECTORS));
+        // The readings since `since`, if few, in the order pushed (the latest are the last),
+        // those of the sectors looked into by their bit; else each sector's.
+        let latest = self.pushed.saturating_sub(since);
+        let in_order = latest <= in_order_up_to;
+        let bits = sectors.fold(0u128, |bits, k| bits | (1u128 << k));
+        let first_latest = self.order.len().saturating_sub(latest as usize);
+        let latest_in_order = self
+            .order
+            .range(
+                if in_order {
+                    first_latest
+                } else {
+                    self.order.len()
+                }..,
+            )
+            .filter(move |kept| bits & (1u128 << kept.sector) != 0);
+        // Each sector once, even where the two bearings' sectors meet (a lobe near a right
+        // angle).
+        let mut unvisited = if in_order { 0 } else { bits };
+        let by_sector = std::iter::from_fn(move || {
+            (unvisited != 0).then(|| {
+                let k = unvisited.trailing_zeros() as usize;
+                unvisited &= unvisited - 1;
+                k
             })
-            .filter_map(refuted_at)
+        })
+        // Each sector holds its readings in the order they were pushed: those before `since`
+        // are skipped whole.
+        .flat_map(move |k| {
+            let sector = &self.sectors[k];
+            let first = match sector.back() {
+                Some(newest) if newest.number >= since => {
+                    sector.partition_point(|kept| kept.number < since)
+                }
+                _ => sector.len(),
+            };
+            sector.range(first..)
+        });
+        latest_in_order.chain(by_sector).filter_map(refuted_at)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
 
     const DEG: f32 = std::f32::consts::PI / 180.0;
 
@@ -353,6 +406,39 @@ mod tests {
             range: 3.0,
         });
         assert!(!refuted(&lines));
+    }
+
+    proptest! {
+        /// Whichever way the readings are gone through, in the order pushed or sector by
+        /// sector, the same readings refute a stretch, at the same feet; past [`KEPT`]
+        /// readings, so that the oldest are forgotten inside the code checked.
+        #[test]
+        fn in_order_and_by_sector_the_same_feet(
+            readings in prop::collection::vec(
+                (-3.0f32..3.0, -3.0f32..3.0, -180.0f32..180.0, 0.3f32..4.0),
+                1..4400,
+            ),
+            ends in (-3.0f32..3.0, -3.0f32..3.0, -3.0f32..3.0, -3.0f32..3.0),
+            lobe_deg in 5.0f32..100.0,
+            since_back in 0u64..600,
+        ) {
+            let mut lines = Sightlines::default();
+            for &(x, y, axis, range) in &readings {
+                lines.push(Sightline { position: Vector2::new(x, y), axis: axis * DEG, range });
+            }
+            let (a, b) = (Vector2::new(ends.0, ends.1), Vector2::new(ends.2, ends.3));
+            let since = lines.pushed().saturating_sub(since_back);
+            let feet = |in_order_up_to| {
+                let lobe = Lobe { at: |d: f32| (d < 3.5).then_some(lobe_deg * DEG), widest: Some(lobe_deg * DEG) };
+                let mut feet: Vec<f32> = lines
+                    .refuted_looking(in_order_up_to, since, a, b, lobe, |r| 0.02 + 0.01 * r, |_, _| true)
+                    .collect();
+                feet.sort_by(f32::total_cmp);
+                feet
+            };
+            let (in_order, by_sector) = (feet(u64::MAX), feet(0));
+            prop_assert_eq!(&in_order, &by_sector);
+        }
     }
 
     #[test]
