@@ -55,6 +55,7 @@
 //! [`fuse_run`], so they agree with the reference to the last bit.
 
 use std::f32::consts::PI;
+use std::ops::RangeInclusive;
 
 use crate::config::FusionConfig;
 use crate::geometry::{GridGeometry, SensorCell, off_axis, polar};
@@ -165,9 +166,20 @@ impl Spans {
     /// `radius` cells of the sensor's cell, cells of `resolution` metres.
     fn new(radius: i64, resolution: f32, axis: f32, cone: f32, reach: f32) -> Self {
         let sector = Sector::new(axis, cone_margin(cone), reach / resolution);
+        // Only the rows the sector reaches into (a narrow cone's are a fraction of the square:
+        // a moving robot's heading meets every direction key, each computed once), with two
+        // rows to spare each way for the rounding: the rows beyond hold none of its points.
+        let [lowest, highest] = sector.extent_in_y();
+        let first = ((lowest - 0.5).floor() as i64 - 2).max(-radius);
+        let last = ((highest + 0.5).ceil() as i64 + 2).min(radius);
+        Self::over_rows(radius, &sector, first..=last)
+    }
+
+    /// The spans of `sector`'s rows `oy` in `rows` (those beyond empty), within `radius` cells.
+    fn over_rows(radius: i64, sector: &Sector, rows_looked_at: RangeInclusive<i64>) -> Self {
         let mut first_row = None;
         let mut rows = Vec::new();
-        for oy in -radius..=radius {
+        for oy in rows_looked_at {
             let span = match sector.across_band(oy as f64 - 0.5, oy as f64 + 0.5) {
                 // The cell `ox` holds a sector point (x, y) of the band, for some sensor position
                 // in the cell, when |ox − x| ≤ 1/2.
@@ -210,6 +222,8 @@ struct Sector {
     edges: Option<[[f64; 2]; 2]>,
     axis: f64,
     half: f64,
+    /// The sine and cosine of its edges' bearings, `axis ∓ half`.
+    edge_sin_cos: [(f64, f64); 2],
 }
 
 /// How much wider than the cone the sector is, radians: far more than the f32 bearing's rounding
@@ -229,7 +243,25 @@ impl Sector {
                 .then(|| [edge(axis - half), edge(axis + half)]),
             axis,
             half,
+            edge_sin_cos: [(axis - half).sin_cos(), (axis + half).sin_cos()],
         }
+    }
+
+    /// The lowest and highest y of its points, cells: its apex's, its arc's ends', and the
+    /// arc's top and bottom where it runs through them.
+    fn extent_in_y(&self) -> [f64; 2] {
+        if self.edges.is_none() {
+            return [-self.reach, self.reach];
+        }
+        let ends = self.edge_sin_cos.map(|(s, _)| self.reach * s);
+        let mut extent = [ends[0].min(ends[1]).min(0.0), ends[0].max(ends[1]).max(0.0)];
+        if self.holds_direction(-std::f64::consts::FRAC_PI_2) {
+            extent[0] = -self.reach;
+        }
+        if self.holds_direction(std::f64::consts::FRAC_PI_2) {
+            extent[1] = self.reach;
+        }
+        extent
     }
 
     /// Whether the direction `angle` lies within the sector's angle.
@@ -289,8 +321,7 @@ impl Sector {
             }
         }
         if self.edges.is_some() {
-            for angle in [self.axis - self.half, self.axis + self.half] {
-                let (s, c) = angle.sin_cos();
+            for (s, c) in self.edge_sin_cos {
                 if in_band(self.reach * s) {
                     include(self.reach * c);
                 }
@@ -923,6 +954,34 @@ mod tests {
             spanned < 3 * inside,
             "{spanned} cells spanned for {inside} inside"
         );
+    }
+
+    #[test]
+    fn spans_from_the_rows_the_sector_reaches_are_those_of_every_row() {
+        // Every direction key, cones from a degree to more than a half turn, reaches from a
+        // cell to past the square, radii of the grids in use: computing only the rows the
+        // sector reaches into leaves out rows with no span, nothing else.
+        let mut checked = 0;
+        for (radius, resolution) in [(200i64, 0.02f32), (400, 0.01), (41, 0.1)] {
+            for cone_deg in [1.0f32, 7.0, 15.0, 30.0, 89.0, 91.0, 200.0] {
+                for reach in [0.015f32, 0.5, 4.0, 9.0] {
+                    for key in (0..ANGLE_KEYS).step_by(7).chain([0, 360, 720, 1080]) {
+                        let axis = key as f32 * ANGLE_STEP - PI;
+                        let cone = cone_deg.to_radians();
+                        let spans = Spans::new(radius, resolution, axis, cone, reach);
+                        let sector = Sector::new(axis, cone_margin(cone), reach / resolution);
+                        let every = Spans::over_rows(radius, &sector, -radius..=radius);
+                        assert_eq!(
+                            (spans.first_row, &spans.rows),
+                            (every.first_row, &every.rows),
+                            "radius {radius} cone {cone_deg}° reach {reach} key {key}"
+                        );
+                        checked += 1;
+                    }
+                }
+            }
+        }
+        assert!(checked > 5000, "{checked}");
     }
 
     proptest! {
