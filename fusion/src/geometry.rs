@@ -289,9 +289,79 @@ pub(crate) fn walk(
     }
 }
 
+/// Boxes (lower and upper corners, world metres) kept as four columns, so that whether any of
+/// them meets a box (overlaps it, edges included) is asked of [`BOX_LANES`] at a time: a moving robot asks it
+/// of hundreds of boxes for each of thousands of weak echoes at every sweep's end (issue 29).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Boxes {
+    /// [`BOX_LANES`] boxes at a time, the last lanes of the last empty (they meet nothing).
+    lanes: Vec<BoxLanes>,
+    len: usize,
+}
+
+/// How many boxes [`Boxes::any_meets`] compares at once, without a branch between them.
+const BOX_LANES: usize = 8;
+
+#[derive(Debug, Clone, Copy)]
+struct BoxLanes {
+    lower_x: [f32; BOX_LANES],
+    lower_y: [f32; BOX_LANES],
+    upper_x: [f32; BOX_LANES],
+    upper_y: [f32; BOX_LANES],
+}
+
+impl BoxLanes {
+    /// Empty boxes: lower corners above every upper corner, so none meets anything.
+    const EMPTY: Self = Self {
+        lower_x: [f32::INFINITY; BOX_LANES],
+        lower_y: [f32::INFINITY; BOX_LANES],
+        upper_x: [f32::NEG_INFINITY; BOX_LANES],
+        upper_y: [f32::NEG_INFINITY; BOX_LANES],
+    };
+}
+
+impl Boxes {
+    pub fn push(&mut self, (lower, upper): (Vector2<f32>, Vector2<f32>)) {
+        let lane = self.len % BOX_LANES;
+        if lane == 0 {
+            self.lanes.push(BoxLanes::EMPTY);
+        }
+        if let Some(last) = self.lanes.last_mut() {
+            last.lower_x[lane] = lower.x;
+            last.lower_y[lane] = lower.y;
+            last.upper_x[lane] = upper.x;
+            last.upper_y[lane] = upper.y;
+        }
+        self.len += 1;
+    }
+
+    pub fn clear(&mut self) {
+        self.lanes.clear();
+        self.len = 0;
+    }
+
+    /// Whether one of the boxes meets (overlaps, edges included) `area`, lower and upper corners.
+    pub fn any_meets(&self, (lower, upper): (Vector2<f32>, Vector2<f32>)) -> bool {
+        self.lanes.iter().any(|b| {
+            (0..BOX_LANES).fold(false, |any, i| {
+                any | ((b.lower_x[i] <= upper.x)
+                    & (lower.x <= b.upper_x[i])
+                    & (b.lower_y[i] <= upper.y)
+                    & (lower.y <= b.upper_y[i]))
+            })
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    /// Whether two boxes (lower and upper corners) overlap, one pair at a time.
+    fn boxes_meet(a: (Vector2<f32>, Vector2<f32>), b: (Vector2<f32>, Vector2<f32>)) -> bool {
+        a.0.x <= b.1.x && b.0.x <= a.1.x && a.0.y <= b.1.y && b.0.y <= a.1.y
+    }
 
     #[test]
     fn default_grid_is_centred_on_the_origin() {
@@ -443,6 +513,39 @@ mod tests {
                     assert!(walked.contains(&square), "{square:?} not walked");
                 }
             }
+        }
+    }
+
+    #[test]
+    fn boxes_that_touch_meet() {
+        let a = (Vector2::new(0.0, 0.0), Vector2::new(1.0, 1.0));
+        assert!(boxes_meet(
+            a,
+            (Vector2::new(1.0, 0.5), Vector2::new(2.0, 2.0))
+        ));
+        assert!(!boxes_meet(
+            a,
+            (Vector2::new(1.1, 0.5), Vector2::new(2.0, 2.0))
+        ));
+    }
+
+    proptest! {
+        /// Asked eight at a time, the boxes meet a box exactly when one of them does, one by one.
+        #[test]
+        fn boxes_meet_an_area_as_one_of_them_does(
+            boxes in prop::collection::vec((-5.0f32..5.0, -5.0f32..5.0, 0.0f32..2.0, 0.0f32..2.0), 0..40),
+            area in (-5.0f32..5.0, -5.0f32..5.0, 0.0f32..2.0, 0.0f32..2.0),
+        ) {
+            let as_box = |(x, y, w, h): (f32, f32, f32, f32)| (Vector2::new(x, y), Vector2::new(x + w, y + h));
+            let mut columns = Boxes::default();
+            for &b in &boxes {
+                columns.push(as_box(b));
+            }
+            let area = as_box(area);
+            prop_assert_eq!(
+                columns.any_meets(area),
+                boxes.iter().any(|&b| boxes_meet(as_box(b), area))
+            );
         }
     }
 }

@@ -8,7 +8,7 @@ use nalgebra::{Isometry2, Vector2};
 use crate::config::{ConfigError, FusionConfig};
 use crate::drawn::DrawnStretches;
 use crate::geometry::GridGeometry;
-use crate::geometry::{incidence, sector_box, wrap_angle};
+use crate::geometry::{Boxes, incidence, sector_box, wrap_angle};
 use crate::grid::{Above, OccupancyGrid, SquaresAbove, with_layer};
 use crate::hidden::{self, Hiding, Sight};
 use crate::kernel::ConeCache;
@@ -73,11 +73,6 @@ fn from_the_middle(last: usize) -> impl Iterator<Item = usize> {
     })
 }
 
-/// Whether two boxes (lower and upper corners) overlap.
-fn boxes_meet(a: (Vector2<f32>, Vector2<f32>), b: (Vector2<f32>, Vector2<f32>)) -> bool {
-    a.0.x <= b.1.x && b.0.x <= a.1.x && a.0.y <= b.1.y && b.0.y <= a.1.y
-}
-
 /// Which kernel fuses a reading into the grid. Both give the same grid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Kernel {
@@ -115,7 +110,7 @@ pub struct Mapper {
     /// With `region_weak_echo_explained`: the boxes (lower and upper corners, world metres) of
     /// the walls drawn since the weak echoes were last looked at, where a weak echo looked at
     /// before can have become explained ([`Mapper::withdraw_weak_echoes`]).
-    walls_drawn: Vec<(Vector2<f32>, Vector2<f32>)>,
+    walls_drawn: Boxes,
 }
 
 /// With echoes placed by region: the tracker, and the readings of the open region, whose free
@@ -333,7 +328,7 @@ impl Mapper {
             paper_arrays: PaperArrays::default(),
             readings: 0,
             pose: Isometry2::identity(),
-            walls_drawn: Vec::new(),
+            walls_drawn: Boxes::default(),
             regions: match &config.model {
                 ModelConfig::Smooth(m) => m.regions().map(|tolerance| Regions {
                     tolerance,
@@ -762,7 +757,7 @@ impl Mapper {
             let looked_at = |p: &Placed| if all { p.heard } else { p.unchecked };
             let beam = &together.placed[0].beam;
             let new = together.placed.iter().any(|p| p.unchecked > 0);
-            let drawn_in = |area| walls_drawn.iter().any(|&drawn| boxes_meet(drawn, area));
+            let drawn_in = |area| walls_drawn.any_meets(area);
             // A set looked at before can have become withdrawable only where a wall was drawn
             // since (a cell above WITHDRAW_ABOVE is a drawn wall's, readings placed by region
             // carrying no occupied evidence, or eight weak echoes' stacked, left out here); the
@@ -2579,15 +2574,6 @@ mod tests {
                 assert!(inside, "{p:?} outside {lower:?}..{upper:?}");
             }
         }
-        let a = (Vector2::new(0.0, 0.0), Vector2::new(1.0, 1.0));
-        assert!(boxes_meet(
-            a,
-            (Vector2::new(1.0, 0.5), Vector2::new(2.0, 2.0))
-        ));
-        assert!(!boxes_meet(
-            a,
-            (Vector2::new(1.1, 0.5), Vector2::new(2.0, 2.0))
-        ));
     }
 
     /// A wall square to the +x axis at x = 1 m, heard whole from the origin: readings −18°…18°
