@@ -82,6 +82,8 @@ pub(crate) struct Sightlines {
     order: VecDeque<Kept>,
     /// How many readings were ever pushed: the number of the next one.
     pushed: u64,
+    /// [`LATEST_IN_ORDER`] (a test sets it to look both ways).
+    latest_in_order: u64,
 }
 
 impl Default for Sightlines {
@@ -90,6 +92,7 @@ impl Default for Sightlines {
             sectors: vec![VecDeque::new(); SECTORS],
             order: VecDeque::new(),
             pushed: 0,
+            latest_in_order: LATEST_IN_ORDER,
         }
     }
 }
@@ -136,22 +139,6 @@ impl Sightlines {
     /// stretch of that line is refuted if a foot lies on it: the wall is refuted if there is one.
     pub fn refuted_at<L: Fn(f32) -> Option<f32>>(
         &self,
-        since: u64,
-        a: Vector2<f32>,
-        b: Vector2<f32>,
-        lobe: Lobe<L>,
-        margin: impl Fn(f32) -> f32,
-        clear: impl Fn(Vector2<f32>, Vector2<f32>) -> bool,
-    ) -> impl Iterator<Item = f32> {
-        self.refuted_looking(LATEST_IN_ORDER, since, a, b, lobe, margin, clear)
-    }
-
-    /// [`Self::refuted_at`], going through the readings in the order pushed when at most
-    /// `in_order_up_to` came since `since`, else sector by sector: the same feet either way.
-    #[allow(clippy::too_many_arguments)]
-    fn refuted_looking<L: Fn(f32) -> Option<f32>>(
-        &self,
-        in_order_up_to: u64,
         since: u64,
         a: Vector2<f32>,
         b: Vector2<f32>,
@@ -207,7 +194,7 @@ impl Sightlines {
         // The readings since `since`, if few, in the order pushed (the latest are the last),
         // those of the sectors looked into by their bit; else each sector's.
         let latest = self.pushed.saturating_sub(since);
-        let in_order = latest <= in_order_up_to;
+        let in_order = latest <= self.latest_in_order;
         let bits = sectors.fold(0u128, |bits, k| bits | (1u128 << k));
         let first_latest = self.order.len().saturating_sub(latest as usize);
         let latest_in_order = self
@@ -428,10 +415,11 @@ mod tests {
             }
             let (a, b) = (Vector2::new(ends.0, ends.1), Vector2::new(ends.2, ends.3));
             let since = lines.pushed().saturating_sub(since_back);
-            let feet = |in_order_up_to| {
+            let mut feet = |latest_in_order| {
+                lines.latest_in_order = latest_in_order;
                 let lobe = Lobe { at: |d: f32| (d < 3.5).then_some(lobe_deg * DEG), widest: Some(lobe_deg * DEG) };
                 let mut feet: Vec<f32> = lines
-                    .refuted_looking(in_order_up_to, since, a, b, lobe, |r| 0.02 + 0.01 * r, |_, _| true)
+                    .refuted_at(since, a, b, lobe, |r| 0.02 + 0.01 * r, |_, _| true)
                     .collect();
                 feet.sort_by(f32::total_cmp);
                 feet
