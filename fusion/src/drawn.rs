@@ -231,10 +231,12 @@ mod tests {
                 let now = step as u64;
                 // Ends on a 2 cm lattice: many repeat, across squares' edges too.
                 let (x, y) = (f32::from(x) * 0.02, f32::from(y) * 0.02);
-                let s = stretch(x, y, x + f32::from(dx) * 0.02, y + 1.0, f32::from(facing), readings);
+                let (bx, facing) = (x + f32::from(dx) * 0.02, f32::from(facing));
+                let s = stretch(x, y, bx, y + 1.0, facing, readings);
                 match kind {
                     0 => {
-                        // Those with a multiple of three readings taken back, two parts drawn again.
+                        // Those with a multiple of three readings taken back, two parts drawn
+                        // again.
                         filed.retain_mut(|d| d.stretch.readings % 3 != 0);
                         all.0.retain(|(d, _)| d.readings % 3 != 0);
                         let parts = [s, stretch(x, y + 2.0, x, y + 3.0, 0.0, 1)];

@@ -290,8 +290,9 @@ pub(crate) fn walk(
 }
 
 /// Boxes (lower and upper corners, world metres) kept as four columns, so that whether any of
-/// them meets a box (overlaps it, edges included) is asked of [`BOX_LANES`] at a time: a moving robot asks it
-/// of hundreds of boxes for each of thousands of weak echoes at every sweep's end (issue 29).
+/// them meets a box (overlaps it, edges included) is asked of [`BOX_LANES`] at a time: a moving
+/// robot asks it of hundreds of boxes for each of thousands of weak echoes at every sweep's end
+/// (issue 29).
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Boxes {
     /// [`BOX_LANES`] boxes at a time, the last lanes of the last empty (they meet nothing).
@@ -533,10 +534,15 @@ mod tests {
         /// Asked eight at a time, the boxes meet a box exactly when one of them does, one by one.
         #[test]
         fn boxes_meet_an_area_as_one_of_them_does(
-            boxes in prop::collection::vec((-5.0f32..5.0, -5.0f32..5.0, 0.0f32..2.0, 0.0f32..2.0), 0..40),
+            boxes in prop::collection::vec(
+                (-5.0f32..5.0, -5.0f32..5.0, 0.0f32..2.0, 0.0f32..2.0),
+                0..40,
+            ),
             area in (-5.0f32..5.0, -5.0f32..5.0, 0.0f32..2.0, 0.0f32..2.0),
         ) {
-            let as_box = |(x, y, w, h): (f32, f32, f32, f32)| (Vector2::new(x, y), Vector2::new(x + w, y + h));
+            let as_box = |(x, y, w, h): (f32, f32, f32, f32)| {
+                (Vector2::new(x, y), Vector2::new(x + w, y + h))
+            };
             let mut columns = Boxes::default();
             for &b in &boxes {
                 columns.push(as_box(b));

@@ -417,7 +417,10 @@ mod tests {
             let since = lines.pushed().saturating_sub(since_back);
             let mut feet = |latest_in_order| {
                 lines.latest_in_order = latest_in_order;
-                let lobe = Lobe { at: |d: f32| (d < 3.5).then_some(lobe_deg * DEG), widest: Some(lobe_deg * DEG) };
+                let lobe = Lobe {
+                    at: |d: f32| (d < 3.5).then_some(lobe_deg * DEG),
+                    widest: Some(lobe_deg * DEG),
+                };
                 let mut feet: Vec<f32> = lines
                     .refuted_at(since, a, b, lobe, |r| 0.02 + 0.01 * r, |_, _| true)
                     .collect();
