@@ -789,12 +789,22 @@ fn over_runs(values: impl IntoIterator<Item = f64>, scale: f64, digits: usize) -
     })
 }
 
+/// `n` of `of` as a whole percentage, with as many decimals as it takes where the whole one
+/// would read as all or none and is not (20 fixes of 9145 outside their ellipse are 99.8 %, not
+/// 100 %).
 fn share(n: usize, of: usize) -> String {
     if of == 0 {
-        "–".into()
-    } else {
-        format!("{:.0} % of {of}", 100.0 * n as f64 / of as f64)
+        return "–".into();
     }
+    let percent = 100.0 * n as f64 / of as f64;
+    let reads_as = |decimals: usize| format!("{percent:.decimals$}");
+    let all_or_none = |text: &str| text.parse::<f64>().is_ok_and(|p| p == 0.0 || p == 100.0);
+    let decimals = if n == 0 || n == of {
+        0
+    } else {
+        (0..6).find(|&d| !all_or_none(&reads_as(d))).unwrap_or(6)
+    };
+    format!("{} % of {of}", reads_as(decimals))
 }
 
 /// The figures as Markdown: one table per odometry level, a row per family and method.
@@ -1026,6 +1036,17 @@ pub fn markdown(settings: &SlamSettings, runs: &[Run]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_share_reads_as_all_or_none_only_when_it_is() {
+        assert_eq!(share(9145, 9145), "100 % of 9145");
+        assert_eq!(share(9125, 9145), "99.8 % of 9145");
+        assert_eq!(share(9999, 10000), "99.99 % of 10000");
+        assert_eq!(share(1, 3000), "0.03 % of 3000");
+        assert_eq!(share(0, 3000), "0 % of 3000");
+        assert_eq!(share(87, 100), "87 % of 100");
+        assert_eq!(share(0, 0), "–");
+    }
 
     #[test]
     fn every_family_makes_a_valid_tour_scene_and_layouts_differ() {
