@@ -4,10 +4,10 @@
 //! sweep to [`sonar_features::WallSightings`] ([`sonar_features::wall_in_sweep`]); after
 //! `--sweeps` sightings of one wall, [`sonar_features::range_offset`] gives the offset, printed
 //! as the `[features]` lines to put in the pipeline's configuration (the fusion's, and the
-//! SLAM's unless `[slam.features]` sets its own). The first sweep it sees is left out: it joined it somewhere in the middle. The
-//! first whole sweep also shows how the head steps ([`head_as_read`]), and each wall's region
-//! how wide the sensor hears a wall: both are checked against the configuration and printed as
-//! lines to set when they differ.
+//! SLAM's unless `[slam.features]` sets its own). The first sweep it sees is left out: it
+//! joined it somewhere in the middle. The first whole sweep also shows how the head steps
+//! ([`head_as_read`]), and each wall's region how wide the sensor hears a wall: both are
+//! checked against the configuration and printed as lines to set when they differ.
 
 use std::fmt::Write as _;
 use std::path::PathBuf;

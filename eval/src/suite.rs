@@ -945,10 +945,9 @@ fn merge_sweeps(map: &mut FeatureMap, readings: &[Reading], pose: &Isometry2<f64
 /// `view_scene`) and scores them; with what the viewpoint was expected to find.
 pub fn score_features(
     view_scene: &Scene,
-    cfg: &FeatureConfig,
+    cfg: FeatureConfig,
     readings: &[Reading],
 ) -> Result<(FeatureScore, Expected, Truth)> {
-    let cfg = *cfg;
     let max_range_m = f64::from(cfg.sensor.max_range_m);
     let mut map = FeatureMap::new(cfg).context("setting up the feature map")?;
     merge_sweeps(&mut map, readings, &Isometry2::identity());
@@ -1236,8 +1235,7 @@ pub fn run_scene(
             mix(seed, index, k),
         )
         .with_context(|| format!("scene {} viewpoint {}", scene.name, k + 1))?;
-        let (view_features, expected, truth) =
-            score_features(&view_scene, &cfg, &capture.readings)?;
+        let (view_features, expected, truth) = score_features(&view_scene, cfg, &capture.readings)?;
         features.push(view_features);
         scene_joints.add(view, &truth, &expected);
         scene_expected = scene_expected.or(&expected);
