@@ -19,6 +19,14 @@
 //! rectangle). The **viewpoints** are eight poses drawn uniformly inside the room or corridor at
 //! least 0.35 m from every surface, each with a uniform heading; the suite uses the first 1, 3
 //! and 8, so the sets are nested.
+//!
+//! The **arenas** ([`Family::Arenas`]) are another family, after the only recorded scans the
+//! project was measured on that it did not write (issue 23: a rotating ultrasonic sensor at five
+//! known places inside a 2.1 m arena of eight boards): a square of four thin boards
+//! ([`Surface::Board`], 1.9–2.3 m a side, meeting at the corners) with two to four inner boards
+//! (0.3–0.8 m, any orientation) and nothing else; everything answers 8 dB less than a wall and
+//! nothing edge-on, so the beams of one place pass beside and along the boards another place
+//! hears. Eight viewpoints as above; the recorded scans had five (`--suite-viewpoints 1,3,5`).
 
 use anyhow::{Result, bail};
 use rand::{Rng, SeedableRng};
@@ -36,12 +44,32 @@ const CLEARANCE_M: f64 = 0.15;
 /// Every wall stays within this of the origin (the fusion grid reaches ±4 m).
 const EXTENT_M: f64 = 3.6;
 
-/// The two layouts.
+/// The layouts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Layout {
     Room,
     Corridor,
+    Arena,
 }
+
+/// Which scenes the generator draws from a seed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Family {
+    /// Rooms and corridors of hard walls, with partitions, doorways, thin boards, posts and table
+    /// legs (half each).
+    #[default]
+    Rooms,
+    /// Small square arenas of thin boards with inner boards, after the recorded scans of issue
+    /// 23.
+    Arenas,
+}
+
+/// An arena's side, metres (the recorded one: 2.1 m).
+const ARENA_SIDE_M: std::ops::RangeInclusive<f64> = 1.9..=2.3;
+/// Inner boards of an arena (the recorded one had eight boards in all).
+const ARENA_INNER_BOARDS: std::ops::RangeInclusive<usize> = 2..=4;
+/// An arena's inner boards' lengths, metres.
+const ARENA_BOARD_M: std::ops::RangeInclusive<f64> = 0.3..=0.8;
 
 /// A generated scene: geometry in the world frame and the viewpoints to scan it from.
 #[derive(Debug, Clone)]
@@ -107,11 +135,12 @@ impl Builder {
         distance_to_surfaces(&self.walls, &self.posts, p)
     }
 
-    /// A board of random length and orientation somewhere in `area`, clear of everything.
-    fn board(&mut self, area: Area) {
+    /// A board of random length (within `lengths`) and orientation somewhere in `area`, clear
+    /// of everything.
+    fn board(&mut self, area: Area, lengths: std::ops::RangeInclusive<f64>) {
         for _ in 0..50 {
             let centre = area.sample(&mut self.rng);
-            let len = self.rng.random_range(0.4..=1.2);
+            let len = self.rng.random_range(lengths.clone());
             let half = rotate(
                 Vec2::new(len / 2.0, 0.0),
                 self.rng.random_range(0.0..std::f64::consts::PI),
@@ -183,30 +212,42 @@ impl Builder {
     }
 }
 
-/// The scene of `seed`.
+/// The scene of `seed` among the rooms and corridors.
 pub fn generate(seed: u64) -> Result<Generated> {
+    generate_in(Family::Rooms, seed)
+}
+
+/// The scene of `seed` in `family`.
+pub fn generate_in(family: Family, seed: u64) -> Result<Generated> {
     let mut b = Builder {
         rng: ChaCha8Rng::seed_from_u64(seed),
         walls: Vec::new(),
         posts: Vec::new(),
     };
-    let layout = if b.rng.random_bool(0.5) {
-        Layout::Room
-    } else {
-        Layout::Corridor
+    let layout = match family {
+        Family::Arenas => Layout::Arena,
+        Family::Rooms if b.rng.random_bool(0.5) => Layout::Room,
+        Family::Rooms => Layout::Corridor,
     };
     let area = match layout {
         Layout::Room => room(&mut b),
         Layout::Corridor => corridor(&mut b),
+        Layout::Arena => arena(&mut b),
     };
-    for _ in 0..b.rng.random_range(0..=2) {
-        b.board(area);
-    }
-    for _ in 0..b.rng.random_range(0..=3) {
-        b.post(area);
-    }
-    if b.rng.random_bool(0.5) {
-        b.table(area);
+    if layout == Layout::Arena {
+        for _ in 0..b.rng.random_range(ARENA_INNER_BOARDS) {
+            b.board(area, ARENA_BOARD_M);
+        }
+    } else {
+        for _ in 0..b.rng.random_range(0..=2) {
+            b.board(area, 0.4..=1.2);
+        }
+        for _ in 0..b.rng.random_range(0..=3) {
+            b.post(area);
+        }
+        if b.rng.random_bool(0.5) {
+            b.table(area);
+        }
     }
     let mut viewpoints = Vec::new();
     for _ in 0..10_000 {
@@ -253,7 +294,11 @@ pub fn generate(seed: u64) -> Result<Generated> {
             heading_rad: v.heading_rad + turn,
         })
         .collect();
-    let mut scene = Scene::new(&format!("gen-{seed}"), walls, posts)?;
+    let prefix = match family {
+        Family::Rooms => "gen",
+        Family::Arenas => "arena",
+    };
+    let mut scene = Scene::new(&format!("{prefix}-{seed}"), walls, posts)?;
     scene.description = format!("generated {layout:?} (seed {seed})").to_lowercase();
     Ok(Generated {
         scene,
@@ -338,6 +383,35 @@ fn room(b: &mut Builder) -> Area {
     Area {
         lo: Vec2::new(x0 + m, y0 + m),
         hi: Vec2::new(x1 - m, y1 - m),
+    }
+}
+
+/// A square of four thin boards meeting at its corners, centred off the origin by up to 0.3 m;
+/// returns its inside.
+fn arena(b: &mut Builder) -> Area {
+    let side = b.rng.random_range(ARENA_SIDE_M);
+    let c = Vec2::new(
+        b.rng.random_range(-0.3..=0.3),
+        b.rng.random_range(-0.3..=0.3),
+    );
+    let h = side / 2.0;
+    let corners = [
+        Vec2::new(c.x - h, c.y - h),
+        Vec2::new(c.x + h, c.y - h),
+        Vec2::new(c.x + h, c.y + h),
+        Vec2::new(c.x - h, c.y + h),
+    ];
+    for k in 0..4 {
+        b.walls.push(Wall {
+            a: corners[k],
+            b: corners[(k + 1) % 4],
+            surface: Surface::Board,
+        });
+    }
+    let m = 0.05;
+    Area {
+        lo: Vec2::new(c.x - h + m, c.y - h + m),
+        hi: Vec2::new(c.x + h - m, c.y + h - m),
     }
 }
 
@@ -434,6 +508,57 @@ mod tests {
         assert_ne!(
             generate(1).unwrap().scene.walls(),
             generate(2).unwrap().scene.walls()
+        );
+    }
+
+    #[test]
+    fn arenas_are_squares_of_boards_with_inner_boards_and_room_for_every_viewpoint() {
+        for seed in 0..40 {
+            let g = generate_in(Family::Arenas, seed).unwrap();
+            assert_eq!(g.layout, Layout::Arena);
+            assert_eq!(g.scene.name, format!("arena-{seed}"));
+            assert_eq!(
+                g.scene.walls(),
+                generate_in(Family::Arenas, seed).unwrap().scene.walls()
+            );
+            let walls = g.scene.walls();
+            assert!(walls.iter().all(|w| w.surface == Surface::Board), "{seed}");
+            assert!(g.scene.posts().is_empty(), "{seed}");
+            // Four sides of one length meeting end to end, then the inner boards.
+            let side = (walls[0].b - walls[0].a).norm();
+            assert!(ARENA_SIDE_M.contains(&side), "{seed}: side {side}");
+            for k in 0..4 {
+                assert!(((walls[k].b - walls[k].a).norm() - side).abs() < 1e-9);
+                assert!((walls[k].b - walls[(k + 1) % 4].a).norm() < 1e-9);
+            }
+            let inner = walls.len() - 4;
+            assert!(
+                inner <= *ARENA_INNER_BOARDS.end(),
+                "{seed}: {inner} inner boards"
+            );
+            for w in &walls[4..] {
+                assert!(ARENA_BOARD_M.contains(&(w.b - w.a).norm()), "{seed}: {w:?}");
+            }
+            assert_eq!(g.viewpoints.len(), VIEWPOINTS);
+            for v in &g.viewpoints {
+                assert!(g.scene.distance_to_surface(v.at) >= VIEWPOINT_CLEARANCE_M - 1e-9);
+            }
+        }
+        let inner: usize = (0..40)
+            .map(|seed| {
+                generate_in(Family::Arenas, seed)
+                    .unwrap()
+                    .scene
+                    .walls()
+                    .len()
+                    - 4
+            })
+            .sum();
+        assert!(inner >= 2 * 40, "{inner} inner boards in 40 arenas");
+        // The rooms' family is what it was.
+        assert_eq!(
+            generate(5).unwrap().scene.walls(),
+            generate_in(Family::Rooms, 5).unwrap().scene.walls()
         );
     }
 

@@ -76,7 +76,7 @@ use crate::features::{MATCH_M, PLANE_MATCH_DEG, Truth, scene_feature_config, sco
 use crate::image::{self, Canvas, Window};
 use crate::metrics::{MapView, quantile};
 use crate::pipeline::{Head, Scan, capture_with, probability_view};
-use crate::scenegen::{self, Generated, VIEWPOINTS};
+use crate::scenegen::{self, Family, Generated, VIEWPOINTS};
 
 /// A surface counts as drawn, and an occupied cell as on a surface, within this.
 pub const TOLERANCE_M: f64 = 0.05;
@@ -401,6 +401,12 @@ pub struct SuiteArgs {
     /// Which scenes: `tune` (seeds 0, 2, 4, …) to tune on, `report` (1, 3, 5, …) to report.
     #[arg(long, value_enum, default_value_t = Split::Report)]
     pub suite_split: Split,
+    /// Which family of scenes: `rooms` (rooms and corridors of hard walls with partitions,
+    /// doorways, boards, posts and table legs) or `arenas` (square arenas of thin boards, 1.9–2.3
+    /// m a side, with two to four inner boards, after the recorded scans of issue 23: five
+    /// places there, so `--suite-viewpoints 1,3,5`).
+    #[arg(long, value_enum, default_value_t = Family::Rooms)]
+    pub suite_family: Family,
     /// Complete full sweeps (300°, there and back counts two) per viewpoint.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=20))]
     pub suite_sweeps: u32,
@@ -453,6 +459,7 @@ pub struct SuiteSettings {
     pub viewpoints: Vec<usize>,
     pub fusion: Vec<FusionChoice>,
     pub split: Split,
+    pub family: Family,
     pub sweeps: u32,
     pub jobs: usize,
     /// Where to write a picture of each run's maps ([`score_picture`]), if anywhere.
@@ -503,6 +510,7 @@ impl SuiteSettings {
                 args.suite_fusion.clone()
             },
             split: args.suite_split,
+            family: args.suite_family,
             sweeps: args.suite_sweeps,
             jobs: usize::try_from(args.suite_jobs).unwrap_or(1),
             pictures: args.suite_pictures.clone(),
@@ -1267,14 +1275,21 @@ pub fn run_scene(
                 score_picture(&map, &scene, views, reach)
             })
             .collect();
-        let name = format!("{:?}-{index:03}-seed{seed}-{sensor}.png", settings.split)
-            .to_lowercase()
-            // A calibrated offset's sign kept apart from the separators.
-            .replace('+', "plus")
-            .replace(
-                |c: char| !c.is_ascii_alphanumeric() && c != '.' && c != '-',
-                "-",
-            );
+        let family = match settings.family {
+            Family::Rooms => "",
+            Family::Arenas => "arena-",
+        };
+        let name = format!(
+            "{family}{:?}-{index:03}-seed{seed}-{sensor}.png",
+            settings.split
+        )
+        .to_lowercase()
+        // A calibrated offset's sign kept apart from the separators.
+        .replace('+', "plus")
+        .replace(
+            |c: char| !c.is_ascii_alphanumeric() && c != '.' && c != '-',
+            "-",
+        );
         image::write_png(&image::compose(&[panels], None), &dir.join(name))?;
     }
     Ok(Run {
@@ -1308,7 +1323,7 @@ pub fn evaluate(settings: &SuiteSettings) -> Result<Vec<Run>> {
         }
     }
     let generated: Vec<Generated> = (0..settings.scenes)
-        .map(|k| scenegen::generate(settings.split.scene_seed(k)))
+        .map(|k| scenegen::generate_in(settings.family, settings.split.scene_seed(k)))
         .collect::<Result<_>>()?;
     let next = AtomicUsize::new(0);
     let done = AtomicUsize::new(0);
@@ -1481,7 +1496,7 @@ fn grid_markdown(
 ) {
     let _ = writeln!(
         t,
-        "### Generated scene suite: grid\n\n{} scenes of the `{split}` split × seeds {} × \
+        "### Generated scene suite: grid\n\n{} {} of the `{split}` split × seeds {} × \
          {} full sweeps per viewpoint. Median / worst over scenes × seeds. Recall and precision \
          within {:.0} cm of the true surfaces visible from the viewpoints fused; \"view 1\" is \
          the recall of what the first viewpoint sees alone; \"faced\" of what some viewpoint \
@@ -1492,6 +1507,10 @@ fn grid_markdown(
          previous count (\"earlier\"); \"erased\": runs where a surface sample drawn at the \
          previous count is no longer drawn, and the most samples one run lost so.{}\n",
         settings.scenes,
+        match settings.family {
+            Family::Rooms => "scenes",
+            Family::Arenas => "arenas of thin boards",
+        },
         seeds.join(", "),
         settings.sweeps,
         TOLERANCE_M * 100.0,
@@ -1997,6 +2016,7 @@ mod structural_tests {
             viewpoints: vec![1, 3, 8],
             fusion: vec!["recommended".parse().unwrap()],
             split: Split::Report,
+            family: Family::Rooms,
             sweeps: 2,
             jobs: 1,
             pictures: None,
