@@ -153,6 +153,8 @@ struct Cones {
     /// The reference point target; 0 where it would not be heard at all.
     point: f64,
     plane: Option<f64>,
+    /// The weakest wall's ([`crate::EchoPhysics::weakest_plane_db`]).
+    weakest_plane: Option<f64>,
     corner: Option<f64>,
 }
 
@@ -163,6 +165,7 @@ impl Cones {
         Self {
             point: cone(cfg.echo.reference_point()).unwrap_or(0.0),
             plane: cone(Reflector::Plane),
+            weakest_plane: cfg.echo.weakest_plane_cone_half_angle_deg(range_m, beam),
             corner: cone(Reflector::Corner),
         }
     }
@@ -309,6 +312,14 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
                 h
             } else if fits(cones.corner) {
                 Hypothesis::one(Class::Corner, centre, centre_sigma)
+            } else if cones
+                .plane
+                .zip(cones.weakest_plane)
+                .is_some_and(|(hard, weakest)| w >= 2.0 * weakest - tol && w < 2.0 * hard)
+            {
+                // Narrower than a hard wall's, as wide as a weaker wall's: a thin board, a soft
+                // surface, heard over less of the beam.
+                Hypothesis::one(Class::Plane, centre, centre_sigma)
             } else if w <= 4.0 * point + tol {
                 Hypothesis {
                     class: Class::TwoPoints,
@@ -578,6 +589,7 @@ fn corner_beside_its_wall(rcds: &[Rcd], i: usize, cfg: &FeatureConfig) -> Option
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::EchoPhysics;
     use crate::pings::{Ping, Sweep};
     use crate::rcd::tests::{regions, run, sweep};
 
@@ -677,6 +689,51 @@ mod tests {
         );
         let o = c.observations[1];
         assert!((o.bearing_deg - 45.0).abs() <= 0.75, "{o:?}");
+    }
+
+    /// An HC-SR04-like beam: a thin board (8 dB less than a wall) is heard over less of the
+    /// beam than a hard wall, and its region is still a plane, not two posts; with only hard
+    /// walls' widths allowed (`weakest_plane_db = 0`) it was two points.
+    #[test]
+    fn with_a_narrow_beam_a_board_narrower_than_a_hard_wall_is_a_plane() {
+        let mut cfg = FeatureConfig::default();
+        cfg.echo.beam_6db_half_angle_deg = 6.0;
+        cfg.echo.threshold_db = -24.0;
+        cfg.echo.tvg_db_per_m = 6.0;
+        cfg.echo.tvg_max_range_m = 4.0;
+        let board = EchoPhysics {
+            threshold_db: cfg.echo.threshold_db + 8.0,
+            ..cfg.echo
+        };
+        let hard = cfg
+            .echo
+            .cone_half_angle_deg(Reflector::Plane, 1.0, 30.0)
+            .unwrap();
+        let thin = board
+            .cone_half_angle_deg(Reflector::Plane, 1.0, 30.0)
+            .unwrap();
+        let point = cfg
+            .echo
+            .cone_half_angle_deg(cfg.echo.reference_point(), 1.0, 30.0)
+            .unwrap();
+        // Two steps or more apart: no tolerance takes one for the other.
+        assert!(
+            hard - thin > 1.5 && thin - point > 1.5,
+            "{hard} {thin} {point}"
+        );
+        let ranges = cone_sweep(-45.75, 62, &[(3.0, thin, 1.0)]);
+        let rcds = regions(&sweep(-45.75, &ranges));
+        let c = classify(&rcds, &cfg);
+        assert_eq!(c.classes, [Class::Plane], "{rcds:?}");
+        assert!((c.observations[0].bearing_deg - 3.0).abs() <= 0.75, "{c:?}");
+        cfg.echo.weakest_plane_db = 0.0;
+        let c = classify(&rcds, &cfg);
+        assert_eq!(c.classes, [Class::TwoPoints], "{rcds:?}");
+        // A post at that range is still a point.
+        let ranges = cone_sweep(-45.75, 62, &[(3.0, point, 0.975)]);
+        let rcds = regions(&sweep(-45.75, &ranges));
+        cfg.echo.weakest_plane_db = 12.0;
+        assert_eq!(classify(&rcds, &cfg).classes, [Class::Point], "{rcds:?}");
     }
 
     #[test]

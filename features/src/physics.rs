@@ -46,6 +46,14 @@ pub struct EchoPhysics {
     /// two: 2.5 cm, the paper's small obstacles. A thicker post is heard over a wider cone and
     /// is reported as two targets (see the crate docs).
     pub point_radius_m: f64,
+    /// How much less than a hard wall a flat surface may return and still be taken for a wall:
+    /// 12 dB (a thin board, cardboard, a soft surface; sensor-facts: a PING))) hears flat cardboard
+    /// within ≈ 10° at 1.14 m, where its beam reaches a hard wall's specular cut-off). Where the
+    /// beam, not the cut-off, bounds a wall's cone (a narrow-beam sensor, a far wall), a weaker
+    /// wall is heard over a narrower run than a hard one; a region seen whole between the two
+    /// widths is a plane ([`EchoPhysics::weakest_plane_cone_half_angle_deg`]). 0 takes only hard
+    /// walls' widths.
+    pub weakest_plane_db: f64,
 }
 
 impl Default for EchoPhysics {
@@ -59,6 +67,7 @@ impl Default for EchoPhysics {
             threshold_db: -15.0,
             corner_loss_db: 3.0,
             point_radius_m: 0.025,
+            weakest_plane_db: 12.0,
         }
     }
 }
@@ -119,6 +128,20 @@ impl EchoPhysics {
         })
     }
 
+    /// Half-angle of the cone of the weakest wall ([`EchoPhysics::weakest_plane_db`] below a hard
+    /// one) at `range_m`, degrees; `None` when it is not heard even on the axis.
+    pub fn weakest_plane_cone_half_angle_deg(
+        &self,
+        range_m: f64,
+        beam_half_angle_deg: f64,
+    ) -> Option<f64> {
+        let weaker = Self {
+            threshold_db: self.threshold_db + self.weakest_plane_db,
+            ..*self
+        };
+        weaker.cone_half_angle_deg(Reflector::Plane, range_m, beam_half_angle_deg)
+    }
+
     /// The widest region of constant depth one target can make at `range_m`, degrees: a wall's
     /// or a corner's cone, or the union of two reference points' (see [`mod@crate::classify`]).
     pub fn widest_region_deg(&self, range_m: f64, beam_half_angle_deg: f64) -> f64 {
@@ -147,6 +170,45 @@ mod tests {
 
     fn cone(reflector: Reflector, r: f64) -> Option<f64> {
         EchoPhysics::default().cone_half_angle_deg(reflector, r, BEAM)
+    }
+
+    #[test]
+    fn the_weakest_wall_is_narrower_only_where_the_beam_bounds_a_walls_cone() {
+        let wide = EchoPhysics::default();
+        // Near, the cut-off bounds a hard wall and a 12 dB weaker one alike ...
+        assert_eq!(
+            wide.weakest_plane_cone_half_angle_deg(0.5, BEAM),
+            Some(28.0)
+        );
+        // ... farther, the weaker one is heard over less of the beam, and far not at all.
+        let at_1_m = wide.weakest_plane_cone_half_angle_deg(1.0, BEAM).unwrap();
+        assert!(at_1_m < 27.0, "{at_1_m}");
+        assert_eq!(
+            wide.cone_half_angle_deg(Reflector::Plane, 1.0, BEAM),
+            Some(28.0)
+        );
+        assert_eq!(wide.weakest_plane_cone_half_angle_deg(20.0, BEAM), None);
+        // A narrow beam bounds every wall's cone: the weaker one is narrower at any range.
+        let narrow = EchoPhysics {
+            beam_6db_half_angle_deg: 6.0,
+            threshold_db: -24.0,
+            ..wide
+        };
+        for r in [0.5, 1.0, 2.0] {
+            let hard = narrow
+                .cone_half_angle_deg(Reflector::Plane, r, BEAM)
+                .unwrap();
+            let weak = narrow.weakest_plane_cone_half_angle_deg(r, BEAM).unwrap();
+            assert!(weak < hard - 1.0, "{r}: {weak} {hard}");
+        }
+        let same = EchoPhysics {
+            weakest_plane_db: 0.0,
+            ..narrow
+        };
+        assert_eq!(
+            same.weakest_plane_cone_half_angle_deg(1.0, BEAM),
+            same.cone_half_angle_deg(Reflector::Plane, 1.0, BEAM)
+        );
     }
 
     #[test]
