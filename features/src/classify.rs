@@ -732,7 +732,7 @@ mod tests {
         // A post at that range is still a point.
         let ranges = cone_sweep(-45.75, 62, &[(3.0, point, 0.975)]);
         let rcds = regions(&sweep(-45.75, &ranges));
-        cfg.echo.weakest_plane_db = 12.0;
+        cfg.echo.weakest_plane_db = 8.0;
         assert_eq!(classify(&rcds, &cfg).classes, [Class::Point], "{rcds:?}");
     }
 

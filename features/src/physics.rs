@@ -47,12 +47,12 @@ pub struct EchoPhysics {
     /// is reported as two targets (see the crate docs).
     pub point_radius_m: f64,
     /// How much less than a hard wall a flat surface may return and still be taken for a wall:
-    /// 12 dB (a thin board, cardboard, a soft surface; sensor-facts: a PING))) hears flat cardboard
-    /// within ≈ 10° at 1.14 m, where its beam reaches a hard wall's specular cut-off). Where the
-    /// beam, not the cut-off, bounds a wall's cone (a narrow-beam sensor, a far wall), a weaker
-    /// wall is heard over a narrower run than a hard one; a region seen whole between the two
-    /// widths is a plane ([`EchoPhysics::weakest_plane_cone_half_angle_deg`]). 0 takes only hard
-    /// walls' widths.
+    /// 8 dB, a thin board (sensor-facts: a PING))) hears flat cardboard within ≈ 10° at 1.14 m,
+    /// where its beam reaches a hard wall's specular cut-off; raise it for weaker surfaces).
+    /// Where the beam, not the cut-off, bounds a wall's cone (a narrow-beam sensor, a far wall),
+    /// a weaker wall is heard over a narrower run than a hard one; a region seen whole between
+    /// the two widths is a plane ([`EchoPhysics::weakest_plane_cone_half_angle_deg`]). 0 takes
+    /// only hard walls' widths.
     pub weakest_plane_db: f64,
 }
 
@@ -67,7 +67,7 @@ impl Default for EchoPhysics {
             threshold_db: -15.0,
             corner_loss_db: 3.0,
             point_radius_m: 0.025,
-            weakest_plane_db: 12.0,
+            weakest_plane_db: 8.0,
         }
     }
 }
@@ -175,16 +175,16 @@ mod tests {
     #[test]
     fn the_weakest_wall_is_narrower_only_where_the_beam_bounds_a_walls_cone() {
         let wide = EchoPhysics::default();
-        // Near, the cut-off bounds a hard wall and a 12 dB weaker one alike ...
+        // Near, the cut-off bounds a hard wall and an 8 dB weaker one alike ...
         assert_eq!(
-            wide.weakest_plane_cone_half_angle_deg(0.5, BEAM),
+            wide.weakest_plane_cone_half_angle_deg(1.0, BEAM),
             Some(28.0)
         );
         // ... farther, the weaker one is heard over less of the beam, and far not at all.
-        let at_1_m = wide.weakest_plane_cone_half_angle_deg(1.0, BEAM).unwrap();
-        assert!(at_1_m < 27.0, "{at_1_m}");
+        let at_3_m = wide.weakest_plane_cone_half_angle_deg(3.0, BEAM).unwrap();
+        assert!(at_3_m < 27.0, "{at_3_m}");
         assert_eq!(
-            wide.cone_half_angle_deg(Reflector::Plane, 1.0, BEAM),
+            wide.cone_half_angle_deg(Reflector::Plane, 3.0, BEAM),
             Some(28.0)
         );
         assert_eq!(wide.weakest_plane_cone_half_angle_deg(20.0, BEAM), None);
