@@ -2064,6 +2064,30 @@ mod structural_tests {
         );
     }
 
+    /// An arena of thin boards seen from five places through the narrow-beam sensor: the boards
+    /// are found as walls from each place (every board was two posts before `weakest_plane_db`),
+    /// and the places added erase none of the first place's boards.
+    #[test]
+    fn in_an_arena_of_boards_a_narrow_beam_finds_walls_and_more_places_erase_none() {
+        let mut s = settings(vec![ProfileChoice(Some(SensorProfile::HcSr04))]);
+        s.family = Family::Arenas;
+        s.viewpoints = vec![1, 5];
+        let generated = scenegen::generate_in(s.family, s.split.scene_seed(0)).unwrap();
+        let run = run_scene(&generated, 0, 1, s.sensors[0], &s).unwrap();
+        let (found, expected) = run
+            .features
+            .iter()
+            .fold((0, 0), |(f, e), v| (f + v.found[1], e + v.expected[1]));
+        assert!(
+            expected >= 5 && 2 * found >= expected,
+            "{found} of {expected} walls"
+        );
+        let [one, five] = [&run.grid[0][0], &run.grid[0][1]];
+        let first = |g: &GridScore| g.recall_first_view.unwrap();
+        assert!(first(five) >= first(one), "{one:?} → {five:?}");
+        assert!(first(one) > 0.0, "{one:?}");
+    }
+
     #[test]
     fn an_empty_scene_gives_no_features_and_no_occupied_cells() {
         let empty = Generated {
