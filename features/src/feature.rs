@@ -43,6 +43,9 @@ pub struct Feature {
     /// Whether every sighting was taken within [`crate::map::ONE_PLACE_M`] of
     /// [`Self::seen_from`]: the same view repeated, whose misreading repeats with it.
     pub(crate) one_place: bool,
+    /// A point every sighting of which was a region as wide as a wall's would be there
+    /// ([`crate::Observation::also_plane`]): one place could not tell it from a wall.
+    pub(crate) may_be_plane: bool,
 }
 
 impl Feature {
