@@ -297,6 +297,12 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
     match (rcd.start.is_natural(), rcd.end.is_natural()) {
         (true, true) => {
             let centre = rcd.centre_deg();
+            // Narrower than a hard wall's region, as wide as a weaker wall's: a thin board, a soft
+            // surface, heard over less of the beam.
+            let weaker_plane = cones
+                .plane
+                .zip(cones.weakest_plane)
+                .is_some_and(|(hard, weakest)| w >= 2.0 * weakest - tol && w < 2.0 * hard);
             if w <= 2.0 * point + tol {
                 let mut h = Hypothesis::one(Class::Point, centre, centre_sigma);
                 if fits(cones.plane) {
@@ -304,6 +310,10 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
                         deg: centre,
                         sigma: centre_sigma,
                     });
+                } else if weaker_plane {
+                    // As wide as a weaker wall's too: a point that says it may be a wall, but no
+                    // wall for the corner test below (a narrow beam's hard corner is as wide).
+                    h.also_plane = true;
                 }
                 h
             } else if fits(cones.plane) {
@@ -312,13 +322,7 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
                 h
             } else if fits(cones.corner) {
                 Hypothesis::one(Class::Corner, centre, centre_sigma)
-            } else if cones
-                .plane
-                .zip(cones.weakest_plane)
-                .is_some_and(|(hard, weakest)| w >= 2.0 * weakest - tol && w < 2.0 * hard)
-            {
-                // Narrower than a hard wall's, as wide as a weaker wall's: a thin board, a soft
-                // surface, heard over less of the beam.
+            } else if weaker_plane {
                 Hypothesis::one(Class::Plane, centre, centre_sigma)
             } else if w <= 4.0 * point + tol {
                 Hypothesis {
@@ -734,6 +738,23 @@ mod tests {
         let rcds = regions(&sweep(-45.75, &ranges));
         cfg.echo.weakest_plane_db = 8.0;
         assert_eq!(classify(&rcds, &cfg).classes, [Class::Point], "{rcds:?}");
+        assert!(!classify(&rcds, &cfg).observations[0].also_plane);
+        // Near the sensor a board is as wide as a post's cone there: a point that may be a wall.
+        let near = 0.4;
+        let board = board
+            .cone_half_angle_deg(Reflector::Plane, near, 30.0)
+            .unwrap();
+        let post = cfg
+            .echo
+            .cone_half_angle_deg(cfg.echo.reference_point(), near, 30.0)
+            .unwrap();
+        // Within the width tolerance (a step and twice the cones' σ) of a post's region.
+        assert!(2.0 * board <= 2.0 * post + 2.5, "{board} {post}");
+        let ranges = cone_sweep(-45.75, 62, &[(3.0, board, near)]);
+        let rcds = regions(&sweep(-45.75, &ranges));
+        let c = classify(&rcds, &cfg);
+        assert_eq!(c.classes, [Class::Point], "{rcds:?}");
+        assert!(c.observations[0].also_plane, "{c:?}");
     }
 
     #[test]
