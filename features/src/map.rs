@@ -478,6 +478,7 @@ impl FeatureMap {
                 f.confidence = 0.0;
             }
         }
+        let points_at_corners = points_at_corners(&self.features);
         let on_walls = points_on_confirmed_walls(&self.features);
         for f in self
             .features
@@ -485,6 +486,11 @@ impl FeatureMap {
             .filter(|f| on_walls.contains(&f.id))
         {
             f.confidence = 0.0;
+        }
+        for f in self.features.iter_mut() {
+            if points_at_corners.contains(&f.id) {
+                f.kind = FeatureKind::Corner;
+            }
         }
         let explained = explained_by_corners(&self.features, &self.cfg);
         for f in self
@@ -849,6 +855,66 @@ const EXPLAINED_M: f64 = 0.10;
 /// Two planes cross at a corner only at this angle or more (a corner's echoes taken for walls
 /// from two places have normals that differ by the angle between the places, seen from it).
 const CROSSING_DEG: f64 = 10.0;
+
+/// Point features where two of the map's walls meet in a concave corner: on both lines (within
+/// three σ across each and [`CORNER_LINE_M`], the walls at [`CROSSING_DEG`] or more to each
+/// other, at least one heard from two places: two phantom walls heard from one place may cross
+/// at a post), each wall running from there into the other's front (the side it was heard from),
+/// as a room's corner does and a box's outer edge does not. A corner heard over fewer pings than
+/// its cone, as one between two thin boards is (each bounce loses a board's strength), is as
+/// narrow as a post's and was taken for one; a post stands clear of the walls by its radius at
+/// least.
+fn points_at_corners(features: &[Feature]) -> Vec<u64> {
+    let walls: Vec<&Feature> = features
+        .iter()
+        .filter(|f| f.kind == FeatureKind::Plane)
+        .collect();
+    let on_line = |w: &Feature, p: &Feature| {
+        let n = w.normal();
+        let across_sigma =
+            (w.covariance_own()[(1, 1)] + (n.transpose() * p.covariance() * n)[(0, 0)]).sqrt();
+        (n.dot(&p.position().coords) - w.mean.y).abs() <= (3.0 * across_sigma).min(CORNER_LINE_M)
+    };
+    // The side of `w` it was heard from, and where it runs from `at` (towards its feet).
+    let front = |w: &Feature, q: Vector2<f64>| {
+        let n = w.normal();
+        (n.dot(&q) - w.mean.y).signum() == (n.dot(&w.seen_from) - w.mean.y).signum()
+    };
+    let runs = |w: &Feature, at: Vector2<f64>| {
+        let along = w.direction().unwrap_or_default();
+        let middle = (w.feet.0 + w.feet.1) / 2.0 - along.dot(&at);
+        (middle.abs() > CORNER_STEP_M).then(|| along * middle.signum())
+    };
+    features
+        .iter()
+        .filter(|p| p.kind == FeatureKind::Point)
+        .filter(|p| {
+            let at = p.position().coords;
+            walls.iter().enumerate().any(|(i, a)| {
+                on_line(a, p)
+                    && walls[i + 1..].iter().any(|b| {
+                        let confirmed = !a.one_place || !b.one_place;
+                        let crossing =
+                            a.normal().perp(&b.normal()).abs() >= CROSSING_DEG.to_radians().sin();
+                        crossing
+                            && confirmed
+                            && on_line(b, p)
+                            && runs(a, at).zip(runs(b, at)).is_some_and(|(ua, ub)| {
+                                front(b, at + ua * CORNER_STEP_M)
+                                    && front(a, at + ub * CORNER_STEP_M)
+                            })
+                    })
+            })
+        })
+        .map(|p| p.id)
+        .collect()
+}
+
+/// A step along a wall from a corner, to tell which side of the other wall it runs into.
+const CORNER_STEP_M: f64 = 0.05;
+/// A point at a corner lies on both walls' lines within three σ, and within this however
+/// uncertain a wall: a post stands clear of a wall by its radius (a generated scene's by 15 cm).
+const CORNER_LINE_M: f64 = 0.05;
 
 /// Planes seen from one place only (their feet within [`SegmentConfig::corner_tolerance_m`] of
 /// each other) whose foot lies on a corner: one of the map's corners, where the plane crosses
@@ -1366,6 +1432,37 @@ mod tests {
         let mut tentative = wall.clone();
         tentative.one_place = true;
         assert!(on_walls(point(0.3, 2.0), &tentative).is_empty());
+    }
+
+    /// A point where two walls meet in a concave corner is that corner (a faint corner, heard over
+    /// fewer pings than its cone); not at a box's outer edge, not on two walls only one place
+    /// heard, not off either line.
+    #[test]
+    fn a_point_where_two_walls_meet_in_a_concave_corner_is_that_corner() {
+        // A room's corner at (1, 2): a wall along y = 2 running to x < 1, and one along x = 1
+        // running to y < 2, both heard from the origin (inside).
+        let mut top = feature(1, FeatureKind::Plane, Vector2::new(FRAC_PI_2, 2.0), 90.0);
+        top.feet = (-0.5, 0.5);
+        let mut side = feature(2, FeatureKind::Plane, Vector2::new(0.0, 1.0), 0.0);
+        side.feet = (0.5, 1.5);
+        side.one_place = false;
+        let point = |x: f64, y: f64| feature(3, FeatureKind::Point, Vector2::new(x, y), 60.0);
+        let at =
+            |p: Feature, a: &Feature, b: &Feature| points_at_corners(&[a.clone(), b.clone(), p]);
+        assert_eq!(at(point(0.999, 1.999), &top, &side), vec![3]);
+        // 10 cm off the side wall's line: a post near the corner.
+        assert!(at(point(0.9, 1.999), &top, &side).is_empty());
+        // Neither wall heard from two places: two phantoms may cross anywhere.
+        let mut tentative = side.clone();
+        tentative.one_place = true;
+        assert!(at(point(0.999, 1.999), &top, &tentative).is_empty());
+        // A box's outer edge: the same two lines heard from outside (above and to the right),
+        // each face running away from the other's front: a point there is the edge.
+        let mut above = top.clone();
+        above.seen_from = Vector2::new(0.0, 3.0);
+        let mut right = side.clone();
+        right.seen_from = Vector2::new(2.0, 1.0);
+        assert!(at(point(1.0, 2.0), &above, &right).is_empty());
     }
 
     /// A point whose region was as wide as a wall's there (near the sensor, where one place
