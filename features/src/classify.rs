@@ -299,8 +299,13 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
             let centre = rcd.centre_deg();
             // Narrower than a hard wall's region, as wide as a weaker wall's: a thin board, a soft
             // surface, heard over less of the beam.
+            // Only where the beam bounds even a hard wall's cone (a narrow beam): where a hard
+            // wall fills the cut-off, regions narrower than that far off are as often two
+            // targets or a corridor's far end (the SLAM admitted phantom walls from them on the
+            // built-in corridor with the default echo model).
             let weaker_plane = cones
                 .plane
+                .filter(|&hard| hard < cfg.echo.specular_cutoff_deg)
                 .zip(cones.weakest_plane)
                 .is_some_and(|(hard, weakest)| w >= 2.0 * weakest - tol && w < 2.0 * hard);
             if w <= 2.0 * point + tol {
@@ -755,6 +760,16 @@ mod tests {
         let c = classify(&rcds, &cfg);
         assert_eq!(c.classes, [Class::Point], "{rcds:?}");
         assert!(c.observations[0].also_plane, "{c:?}");
+        // With a wide beam a hard wall fills the cut-off out to the sensor's reach: a region
+        // narrower than that far off is not taken for a weaker wall.
+        let wide = FeatureConfig::default();
+        let far = 3.5;
+        let weak = wide.echo.weakest_plane_cone_half_angle_deg(far, 30.0).unwrap();
+        assert!(weak < 25.0, "{weak}");
+        let ranges = cone_sweep(-60.75, 82, &[(3.0, weak, far)]);
+        let rcds = regions(&sweep(-60.75, &ranges));
+        let c = classify(&rcds, &wide);
+        assert!(!c.classes.contains(&Class::Plane), "{rcds:?} {c:?}");
     }
 
     #[test]
