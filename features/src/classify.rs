@@ -764,7 +764,10 @@ mod tests {
         // narrower than that far off is not taken for a weaker wall.
         let wide = FeatureConfig::default();
         let far = 3.5;
-        let weak = wide.echo.weakest_plane_cone_half_angle_deg(far, 30.0).unwrap();
+        let weak = wide
+            .echo
+            .weakest_plane_cone_half_angle_deg(far, 30.0)
+            .unwrap();
         assert!(weak < 25.0, "{weak}");
         let ranges = cone_sweep(-60.75, 82, &[(3.0, weak, far)]);
         let rcds = regions(&sweep(-60.75, &ranges));
