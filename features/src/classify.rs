@@ -667,15 +667,22 @@ mod tests {
         assert!(!c.observations[0].also_plane, "{:?}", c.observations);
     }
 
-    #[test]
-    fn with_a_narrow_beam_a_corner_as_wide_as_a_wall_is_found_from_its_walls() {
-        // An HC-SR04-like beam (round trip 6 dB down at 6°): a wall 1.2 m away is heard within
-        // ±11°, the corner of two such walls 1.7 m away within ±10°, widths a step apart.
+    /// The features configured for an HC-SR04-like beam: round trip 6 dB down at 6°, the
+    /// `hc-sr04` profile's gain and threshold.
+    fn narrow_beam() -> FeatureConfig {
         let mut cfg = FeatureConfig::default();
         cfg.echo.beam_6db_half_angle_deg = 6.0;
         cfg.echo.threshold_db = -24.0;
         cfg.echo.tvg_db_per_m = 6.0;
         cfg.echo.tvg_max_range_m = 4.0;
+        cfg
+    }
+
+    #[test]
+    fn with_a_narrow_beam_a_corner_as_wide_as_a_wall_is_found_from_its_walls() {
+        // An HC-SR04-like beam (round trip 6 dB down at 6°): a wall 1.2 m away is heard within
+        // ±11°, the corner of two such walls 1.7 m away within ±10°, widths a step apart.
+        let cfg = narrow_beam();
         let cone = |r: Reflector, range: f64| cfg.echo.cone_half_angle_deg(r, range, 30.0).unwrap();
         let corner_range = 1.2 * 2f64.sqrt();
         let (wall, corner) = (
@@ -705,11 +712,7 @@ mod tests {
     /// walls' widths allowed (`weakest_plane_db = 0`) it was two points.
     #[test]
     fn with_a_narrow_beam_a_board_narrower_than_a_hard_wall_is_a_plane() {
-        let mut cfg = FeatureConfig::default();
-        cfg.echo.beam_6db_half_angle_deg = 6.0;
-        cfg.echo.threshold_db = -24.0;
-        cfg.echo.tvg_db_per_m = 6.0;
-        cfg.echo.tvg_max_range_m = 4.0;
+        let mut cfg = narrow_beam();
         let board = EchoPhysics {
             threshold_db: cfg.echo.threshold_db + 8.0,
             ..cfg.echo
