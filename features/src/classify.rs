@@ -298,11 +298,10 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
         (true, true) => {
             let centre = rcd.centre_deg();
             // Narrower than a hard wall's region, as wide as a weaker wall's: a thin board, a soft
-            // surface, heard over less of the beam.
-            // Only where the beam bounds even a hard wall's cone (a narrow beam): where a hard
-            // wall fills the cut-off, regions narrower than that far off are as often two
-            // targets or a corridor's far end (the SLAM admitted phantom walls from them on the
-            // built-in corridor with the default echo model).
+            // surface, heard over less of the beam. Only where the beam bounds even a hard
+            // wall's cone (a narrow beam): where a hard wall fills the cut-off, regions narrower
+            // than that far off are as often other targets (the SLAM admitted phantom walls from
+            // them on the built-in corridor with the default echo model).
             let weaker_plane = cones
                 .plane
                 .filter(|&hard| hard < cfg.echo.specular_cutoff_deg)

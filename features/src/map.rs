@@ -748,9 +748,7 @@ fn corners_on_confirmed_walls(features: &[Feature]) -> Vec<u64> {
             let at = c.position().coords;
             walls.iter().any(|wall| {
                 let another_through = walls.iter().any(|w| {
-                    w.id != wall.id
-                        && wall.normal().perp(&w.normal()).abs() >= CROSSING_DEG.to_radians().sin()
-                        && (w.normal().dot(&at) - w.mean.y).abs() <= CORNER_LINE_M
+                    w.id != wall.id && lines_cross(wall, w) && off_line(w, at) <= CORNER_LINE_M
                 });
                 on_line(wall, c).is_some_and(|foot| within_feet(wall, foot)) && !another_through
             })
@@ -767,7 +765,17 @@ fn on_line(wall: &Feature, f: &Feature) -> Option<f64> {
     let at = f.position().coords;
     let across_sigma =
         (wall.covariance_own()[(1, 1)] + (n.transpose() * f.covariance() * n)[(0, 0)]).sqrt();
-    ((n.dot(&at) - wall.mean.y).abs() <= 3.0 * across_sigma).then(|| along.dot(&at))
+    (off_line(wall, at) <= 3.0 * across_sigma).then(|| along.dot(&at))
+}
+
+/// How far `at` lies from `wall`'s line.
+fn off_line(wall: &Feature, at: Vector2<f64>) -> f64 {
+    (wall.normal().dot(&at) - wall.mean.y).abs()
+}
+
+/// Whether two walls' lines cross at [`CROSSING_DEG`] or more.
+fn lines_cross(a: &Feature, b: &Feature) -> bool {
+    a.normal().perp(&b.normal()).abs() >= CROSSING_DEG.to_radians().sin()
 }
 
 /// Whether `foot` lies where a wall heard from two places or more was met by the sensor's
@@ -908,8 +916,7 @@ fn points_at_corners(features: &[Feature]) -> Vec<u64> {
         .filter(|f| f.kind == FeatureKind::Plane)
         .collect();
     let on_both = |w: &Feature, p: &Feature| {
-        on_line(w, p).is_some()
-            && (w.normal().dot(&p.position().coords) - w.mean.y).abs() <= CORNER_LINE_M
+        on_line(w, p).is_some() && off_line(w, p.position().coords) <= CORNER_LINE_M
     };
     // The side of `w` it was heard from, and where it runs from `at` (towards its feet).
     let front = |w: &Feature, q: Vector2<f64>| {
@@ -930,9 +937,7 @@ fn points_at_corners(features: &[Feature]) -> Vec<u64> {
                 on_both(a, p)
                     && walls[i + 1..].iter().any(|b| {
                         let confirmed = !a.one_place || !b.one_place;
-                        let crossing =
-                            a.normal().perp(&b.normal()).abs() >= CROSSING_DEG.to_radians().sin();
-                        crossing
+                        lines_cross(a, b)
                             && confirmed
                             && on_both(b, p)
                             && runs(a, at).zip(runs(b, at)).is_some_and(|(ua, ub)| {
@@ -1009,7 +1014,7 @@ fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
         let on_a_wall = features.iter().any(|other| {
             other.kind == FeatureKind::Plane
                 && !other.one_place
-                && n.perp(&other.normal()).abs() >= CROSSING_DEG.to_radians().sin()
+                && lines_cross(plane, other)
                 && (other.normal().dot(&foot) - other.mean.y).abs() <= tolerance
         });
         if at_corner || crossing || on_a_wall {
