@@ -10,9 +10,9 @@
 //!   the room toured by a robot that scans while it drives (every reading from a new position,
 //!   placed at the robot's true pose of its instant), or with `--scenes arena` an arena of thin
 //!   boards of the suite's second family (after the recorded scans of issue 23, whose arena MRPT
-//!   mapped at 0.62 recall), heard through a sensor profile (`--profile`). Readings without an echo are given to both (our
-//!   recommended preset ignores them; MRPT is told its maximum range is the sensor's, so it
-//!   inserts nothing for them either).
+//!   mapped at 0.62 recall), heard through a sensor profile (`--profile`). Readings without an
+//!   echo are given to both (our recommended preset ignores them; MRPT is told its maximum range
+//!   is the sensor's, so it inserts nothing for them either).
 //! - **Ours**: [`Engine::fuse`] with the recommended preset (smooth model, log-odds rule), what
 //!   `sonar-fusion` calls per reading, no snapshot. A viewpoint's pose is given as the engine's
 //!   correction ([`Engine::set_correction`]), outside the timing.
