@@ -747,10 +747,13 @@ fn corners_on_confirmed_walls(features: &[Feature]) -> Vec<u64> {
         .filter(|c| {
             let at = c.position().coords;
             walls.iter().any(|wall| {
-                let another_through = walls.iter().any(|w| {
-                    w.id != wall.id && lines_cross(wall, w) && off_line(w, at) <= CORNER_LINE_M
-                });
-                on_line(wall, c).is_some_and(|foot| within_feet(wall, foot)) && !another_through
+                // Only for a wall it lies on: the other walls are looked through after.
+                let another_through = || {
+                    walls.iter().any(|w| {
+                        w.id != wall.id && lines_cross(wall, w) && off_line(w, at) <= CORNER_LINE_M
+                    })
+                };
+                on_line(wall, c).is_some_and(|foot| within_feet(wall, foot)) && !another_through()
             })
         })
         .map(|c| c.id)
