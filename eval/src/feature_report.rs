@@ -249,6 +249,7 @@ pub fn markdown(settings: &FeatureSettings, r: &FeatureResults) -> String {
         settings.seeds,
         settings.sweeps,
     );
+    s += &profile_note(settings);
 
     // The aims.
     let (post_all, post_missed) = post_errors(&r.post, When::All);
@@ -553,6 +554,18 @@ fn found(all: impl Iterator<Item = bool>) -> (usize, usize) {
 }
 
 /// The robustness runs as Markdown: per noise level the posts, the rooms and the aims of issue 23.
+/// Which sensor the scenes were heard through, when not the simulator's default: a paragraph.
+fn profile_note(settings: &FeatureSettings) -> String {
+    settings.profile.0.map_or_else(String::new, |p| {
+        format!(
+            "Heard through the simulator's `{}` profile: its head, echoes and noise (amplitude \
+             jitter, dropouts, ghosts), the features set for its echoes as its owner would set \
+             them; a noise level replaces its range noise and keeps the rest.\n\n",
+            p.name()
+        )
+    })
+}
+
 pub fn levels_markdown(settings: &FeatureSettings, levels: &[LevelResults]) -> String {
     let mut s = String::new();
     let runs = settings.bearings_deg.len() * settings.seeds.len();
@@ -568,6 +581,7 @@ pub fn levels_markdown(settings: &FeatureSettings, levels: &[LevelResults]) -> S
         crate::features::OFF_CENTRE.len(),
         settings.sweeps,
     );
+    s += &profile_note(settings);
     let _ = write!(
         s,
         "| noise | 5 cm post at 1 m: error (missed) | two posts resolved at"

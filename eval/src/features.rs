@@ -29,8 +29,9 @@ use sonar_fusion::Preset;
 use sonar_sim::{Post, Scene, Vec2, Wall};
 
 use crate::metrics::{apparent_width, gap_between};
-use crate::pipeline::{Maps, Scan, capture, two_posts};
+use crate::pipeline::{Head, Maps, Scan, capture_with, two_posts};
 use crate::report::{GAP_DEPTH_M, WIDTH_WINDOW_M};
+use crate::suite::ProfileChoice;
 
 /// A feature lies on a truth element within this distance.
 pub const MATCH_M: f64 = 0.10;
@@ -59,6 +60,9 @@ pub struct FeatureSettings {
     pub levels: Vec<NoiseLevel>,
     /// Centre spacings of the two-post scenes in the robustness runs, millimetres.
     pub level_spacings_mm: Vec<u32>,
+    /// The simulated sensor every scene is heard through (the paper head and the simulator's
+    /// default echoes without one), and the features set for it as its owner would set them.
+    pub profile: ProfileChoice,
 }
 
 /// `scene` turned by `deg` counter-clockwise about the sensor, everything else kept.
@@ -212,9 +216,13 @@ impl NoiseLevel {
         out
     }
 
-    /// `scene` with this noise.
+    /// `scene` with this noise: its range noise replaced (a sensor profile's jitter, dropouts and
+    /// transients kept), or its own with [`Self::NONE`].
     fn on(&self, scene: &Scene) -> Scene {
         let mut out = scene.clone();
+        if *self == Self::NONE {
+            return out;
+        }
         out.noise.range_sigma_m = self.sigma_m;
         out.noise.range_sigma_fraction = self.fraction;
         out
@@ -271,9 +279,9 @@ pub struct FeatureMaps {
     pub all: FeatureMap,
 }
 
-/// Runs `readings` (several sweeps, in order) through the feature pipeline, one sweep at a time.
-pub fn feature_maps(readings: &[Reading]) -> Result<FeatureMaps> {
-    let cfg = FeatureConfig::default();
+/// Runs `readings` (several sweeps, in order) through the feature pipeline set up with `cfg`,
+/// one sweep at a time.
+pub fn feature_maps(readings: &[Reading], cfg: FeatureConfig) -> Result<FeatureMaps> {
     let mut all = FeatureMap::new(cfg).context("setting up the feature map")?;
     let mut first = None;
     for sweep in readings.chunk_by(|a, b| a.sweep_id == b.sweep_id) {
@@ -660,15 +668,21 @@ fn family_at(
     level: NoiseLevel,
 ) -> Result<Family> {
     let mut runs = Vec::new();
+    let mut base = base.clone();
+    if let Some(profile) = settings.profile.0 {
+        base.set_profile(profile);
+    }
+    let cfg = scene_feature_config(&base);
+    let head = Head::of(&base);
     for &bearing in &settings.bearings_deg {
-        let scene = level.on(&rotated(base, bearing)?);
+        let scene = level.on(&rotated(&base, bearing)?);
         let scan = Scan::for_scene(&scene);
         let truth = Truth::of(&scene, scan);
         for &seed in &settings.seeds {
-            let mut cap = capture(scene.clone(), scan, settings.sweeps, seed)
+            let mut cap = capture_with(scene.clone(), head, scan, settings.sweeps, seed)
                 .with_context(|| format!("simulating {} at {bearing}° with seed {seed}", name))?;
             level.drop_pings(&mut cap.readings, seed);
-            let maps = feature_maps(&cap.readings)?;
+            let maps = feature_maps(&cap.readings, cfg.clone())?;
             let support = match grid {
                 GridUse::Support => occupied_cells(&cap.readings)?,
                 GridUse::None | GridUse::Figures => Vec::new(),

@@ -100,6 +100,12 @@ struct Args {
     /// Of the feature evaluation, only the robustness runs under noise.
     #[arg(long, conflicts_with = "motion_only")]
     feature_levels_only: bool,
+    /// The simulated sensor the feature evaluation hears its scenes through: a simulator profile
+    /// (srf05, hc-sr04, nxt), each with its own head, echoes and noise, the features set for it
+    /// as its owner would, or default (the paper's head and the simulator's default echoes).
+    /// The noise levels replace a profile's range noise and keep its jitter and dropouts.
+    #[arg(long, default_value = "default")]
+    feature_profile: suite::ProfileChoice,
     /// Seeds of the motion evaluation (the tour scenes driven with a drifting odometry, fused at
     /// the true poses, the odometry's, and the odometry's with localisation): comma-separated
     /// values or ranges FROM..TO:STEP, or `none` to skip it.
@@ -365,6 +371,7 @@ fn run(args: Args) -> Result<()> {
             spacings_mm: args.feature_spacings.0,
             levels: args.feature_noise.0,
             level_spacings_mm: args.feature_level_spacings.0,
+            profile: args.feature_profile,
         };
         if !args.feature_levels_only {
             let results = features::evaluate(&feature_settings)?;
@@ -508,6 +515,13 @@ mod tests {
         assert_eq!(a.feature_seeds.0, [1.0, 2.0, 3.0]);
         assert_eq!(a.feature_spacings.0.len(), 13);
         assert!(!a.features_only && !a.motion_only);
+        assert_eq!(a.feature_profile, suite::ProfileChoice(None));
+        let a = Args::try_parse_from(["sonar-eval", "--feature-profile", "hc-sr04"]).unwrap();
+        assert_eq!(
+            a.feature_profile,
+            suite::ProfileChoice(Some(sonar_sim::SensorProfile::HcSr04))
+        );
+        assert!(Args::try_parse_from(["sonar-eval", "--feature-profile", "srf04"]).is_err());
         assert_eq!((a.motion_seeds.0.len(), a.motion_metres), (10, 20.0));
         assert!(Args::try_parse_from(["sonar-eval", "--sweeps", "0"]).is_err());
         assert!(Args::try_parse_from(["sonar-eval", "--motion-metres", "0"]).is_err());

@@ -4,6 +4,7 @@
 
 use sonar_eval::feature_report::{self, When};
 use sonar_eval::features::{FeatureSettings, NoiseLevel, evaluate, evaluate_levels};
+use sonar_eval::suite::ProfileChoice;
 
 #[test]
 fn the_feature_evaluation_runs_and_meets_its_aims_on_a_small_sample() {
@@ -14,6 +15,7 @@ fn the_feature_evaluation_runs_and_meets_its_aims_on_a_small_sample() {
         spacings_mm: vec![200, 400],
         levels: Vec::new(),
         level_spacings_mm: Vec::new(),
+        profile: ProfileChoice(None),
     };
     let r = evaluate(&settings).unwrap();
     let (post, missed) = feature_report::post_errors(&r.post, When::All);
@@ -61,6 +63,7 @@ fn the_features_hold_at_a_hobby_sensors_noise_on_a_small_sample() {
         spacings_mm: Vec::new(),
         levels: vec![NoiseLevel::parse("10+1%").unwrap()],
         level_spacings_mm: vec![200],
+        profile: ProfileChoice(None),
     };
     let levels = evaluate_levels(&settings).unwrap();
     let l = &levels[0];
