@@ -556,14 +556,29 @@ fn found(all: impl Iterator<Item = bool>) -> (usize, usize) {
 /// The robustness runs as Markdown: per noise level the posts, the rooms and the aims of issue 23.
 /// Which sensor the scenes were heard through, when not the simulator's default: a paragraph.
 fn profile_note(settings: &FeatureSettings) -> String {
-    settings.profile.0.map_or_else(String::new, |p| {
+    let mut s = settings.profile.0.map_or_else(String::new, |p| {
         format!(
             "Heard through the simulator's `{}` profile: its head, echoes and noise (amplitude \
              jitter, dropouts, ghosts), the features set for its echoes as its owner would set \
-             them; a noise level replaces its range noise and keeps the rest.\n\n",
+             them; a noise level replaces its range noise and keeps the rest.",
             p.name()
         )
-    })
+    });
+    if let Some(c) = settings.calibrated {
+        if !s.is_empty() {
+            s.push(' ');
+        }
+        s += &format!(
+            "Calibrated first as `sonar calibrate-range` does (the built-in room's wall 1.2 m \
+             ahead): {:+.1} mm (σ {:.1} mm) taken off every range the features see.",
+            c.offset_m * 1000.0,
+            c.sigma_m * 1000.0
+        );
+    }
+    if !s.is_empty() {
+        s += "\n\n";
+    }
+    s
 }
 
 pub fn levels_markdown(settings: &FeatureSettings, levels: &[LevelResults]) -> String {

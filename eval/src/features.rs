@@ -24,7 +24,7 @@
 use anyhow::{Context, Result};
 use nalgebra::{Isometry2, Matrix2, Point2, Vector2};
 use sonar_common::ipc::Reading;
-use sonar_features::{EchoPhysics, FeatureConfig, FeatureKind, FeatureMap, Sweep};
+use sonar_features::{EchoPhysics, FeatureConfig, FeatureKind, FeatureMap, RangeOffset, Sweep};
 use sonar_fusion::Preset;
 use sonar_sim::{Post, Scene, Vec2, Wall};
 
@@ -63,6 +63,10 @@ pub struct FeatureSettings {
     /// The simulated sensor every scene is heard through (the paper head and the simulator's
     /// default echoes without one), and the features set for it as its owner would set them.
     pub profile: ProfileChoice,
+    /// The sensor's range offset measured as its owner measures it (`--feature-calibrate`,
+    /// [`crate::calibration`]), taken off every range the features see; the grids' figures
+    /// stay uncalibrated.
+    pub calibrated: Option<RangeOffset>,
 }
 
 /// `scene` turned by `deg` counter-clockwise about the sensor, everything else kept.
@@ -672,7 +676,11 @@ fn family_at(
     if let Some(profile) = settings.profile.0 {
         base.set_profile(profile);
     }
-    let cfg = scene_feature_config(&base);
+    let mut cfg = scene_feature_config(&base);
+    if let Some(c) = settings.calibrated {
+        cfg.range_offset_m = c.offset_m;
+        cfg.range_offset_sigma_m = c.sigma_m;
+    }
     let head = Head::of(&base);
     for &bearing in &settings.bearings_deg {
         let scene = level.on(&rotated(&base, bearing)?);
@@ -682,7 +690,7 @@ fn family_at(
             let mut cap = capture_with(scene.clone(), head, scan, settings.sweeps, seed)
                 .with_context(|| format!("simulating {} at {bearing}° with seed {seed}", name))?;
             level.drop_pings(&mut cap.readings, seed);
-            let maps = feature_maps(&cap.readings, cfg.clone())?;
+            let maps = feature_maps(&cap.readings, cfg)?;
             let support = match grid {
                 GridUse::Support => occupied_cells(&cap.readings)?,
                 GridUse::None | GridUse::Figures => Vec::new(),
@@ -828,11 +836,16 @@ pub fn evaluate_levels(settings: &FeatureSettings) -> Result<Vec<LevelResults>> 
         .collect()
 }
 
-/// The features' echo physics for a sensor the simulator plays with `echo` (its profile's beam,
-/// cut-off, gain and threshold): what a robot builder who measured that sensor's cones would set
-/// in `[features.echo]`. The simulator's defaults give [`EchoPhysics::default`].
-pub fn feature_physics(echo: &sonar_sim::EchoParams) -> EchoPhysics {
+/// The features' echo physics for a sensor the simulator plays with `echo` and `noise` (its
+/// profile's beam, cut-off, gain, threshold and the threshold's jitter): what a robot builder
+/// who measured that sensor's cones would set in `[features.echo]`. The simulator's defaults
+/// give [`EchoPhysics::default`].
+pub fn feature_physics(
+    echo: &sonar_sim::EchoParams,
+    noise: &sonar_sim::NoiseParams,
+) -> EchoPhysics {
     EchoPhysics {
+        threshold_jitter_db: noise.threshold_jitter_db,
         beam_6db_half_angle_deg: echo.beam_6db_half_angle_deg,
         specular_cutoff_deg: echo.specular_cutoff_deg,
         absorption_db_per_m: echo.absorption_db_per_m,
@@ -850,7 +863,7 @@ pub fn feature_physics(echo: &sonar_sim::EchoParams) -> EchoPhysics {
 pub fn scene_feature_config(scene: &Scene) -> FeatureConfig {
     FeatureConfig {
         sensor: crate::pipeline::Head::of(scene).sensor,
-        echo: feature_physics(&scene.echo),
+        echo: feature_physics(&scene.echo, &scene.noise),
         ..FeatureConfig::default()
     }
 }
@@ -884,7 +897,7 @@ mod tests {
     fn the_feature_physics_defaults_are_the_simulators() {
         let f = EchoPhysics::default();
         let e = EchoParams::default();
-        assert_eq!(feature_physics(&e), f);
+        assert_eq!(feature_physics(&e, &sonar_sim::NoiseParams::default()), f);
         assert_eq!(
             (f.beam_6db_half_angle_deg, f.specular_cutoff_deg),
             (e.beam_6db_half_angle_deg, e.specular_cutoff_deg)
@@ -1003,6 +1016,7 @@ mod tests {
             range_sigma_random_m: 0.001,
             range_sigma_systematic_m: 0.002,
             bearing_sigma_deg: 0.3,
+            bearing_sigma_random_deg: 0.0,
             rcd: 0,
             whole: true,
             also_plane: false,

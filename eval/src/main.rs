@@ -11,7 +11,7 @@ use sonar_eval::motion::{self, MotionSettings};
 use sonar_eval::report::{self, Settings};
 use sonar_eval::slam;
 use sonar_eval::suite::{self, SuiteArgs, SuiteSettings};
-use sonar_eval::{feature_report, image};
+use sonar_eval::{calibration, feature_report, image};
 use sonar_sim::{BUILTIN_NAMES, Scene};
 use tracing::info;
 
@@ -106,6 +106,11 @@ struct Args {
     /// The noise levels replace a profile's range noise and keep its jitter and dropouts.
     #[arg(long, default_value = "default")]
     feature_profile: suite::ProfileChoice,
+    /// Calibrate the feature evaluation's sensor first, as `sonar calibrate-range` does (three
+    /// sweeps of the built-in room's wall 1.2 m ahead), and take the measured range offset off
+    /// every range the features see (the grids' figures stay uncalibrated).
+    #[arg(long)]
+    feature_calibrate: bool,
     /// Seeds of the motion evaluation (the tour scenes driven with a drifting odometry, fused at
     /// the true poses, the odometry's, and the odometry's with localisation): comma-separated
     /// values or ranges FROM..TO:STEP, or `none` to skip it.
@@ -372,6 +377,26 @@ fn run(args: Args) -> Result<()> {
             levels: args.feature_noise.0,
             level_spacings_mm: args.feature_level_spacings.0,
             profile: args.feature_profile,
+            calibrated: if args.feature_calibrate {
+                let profile = args.feature_profile.0;
+                let offset = calibration::measured_range_offset(
+                    |scene| {
+                        if let Some(p) = profile {
+                            scene.set_profile(p);
+                        }
+                    },
+                    calibration::SEED,
+                )
+                .context("calibrating the feature evaluation's sensor")?;
+                info!(
+                    offset_m = offset.offset_m,
+                    sigma_m = offset.sigma_m,
+                    "range offset measured on the calibration room's wall"
+                );
+                Some(offset)
+            } else {
+                None
+            },
         };
         if !args.feature_levels_only {
             let results = features::evaluate(&feature_settings)?;
@@ -516,7 +541,15 @@ mod tests {
         assert_eq!(a.feature_spacings.0.len(), 13);
         assert!(!a.features_only && !a.motion_only);
         assert_eq!(a.feature_profile, suite::ProfileChoice(None));
-        let a = Args::try_parse_from(["sonar-eval", "--feature-profile", "hc-sr04"]).unwrap();
+        assert!(!a.feature_calibrate);
+        let a = Args::try_parse_from([
+            "sonar-eval",
+            "--feature-profile",
+            "hc-sr04",
+            "--feature-calibrate",
+        ])
+        .unwrap();
+        assert!(a.feature_calibrate);
         assert_eq!(
             a.feature_profile,
             suite::ProfileChoice(Some(sonar_sim::SensorProfile::HcSr04))

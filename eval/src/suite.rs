@@ -436,9 +436,6 @@ pub struct SuiteArgs {
     pub suite_calibrate: bool,
 }
 
-/// The echo noise's seed of the calibration sweeps (none of the suite's runs uses the room).
-const CALIBRATION_SEED: u64 = 1;
-
 fn parse_occupied_above(s: &str) -> Result<f32, String> {
     match s.trim().parse::<f32>() {
         Ok(p) if (0.5..1.0).contains(&p) => Ok(p),
@@ -487,7 +484,7 @@ impl SuiteSettings {
         let sensors = if args.suite_calibrate {
             sensors
                 .into_iter()
-                .map(|s| s.calibrate(CALIBRATION_SEED))
+                .map(|s| s.calibrate(calibration::SEED))
                 .collect::<Result<Vec<_>>>()?
         } else {
             sensors
@@ -2148,7 +2145,7 @@ mod structural_tests {
         let s = settings(vec![ProfileChoice(Some(SensorProfile::Nxt))]);
         let generated = scenegen::generate(s.split.scene_seed(0)).unwrap();
         let raw = s.sensors[0];
-        let calibrated = raw.calibrate(CALIBRATION_SEED).unwrap();
+        let calibrated = raw.calibrate(calibration::SEED).unwrap();
         assert!(calibrated.to_string().starts_with("nxt, calibrated -2"));
         let median_wall_error = |sensor| {
             let run = run_scene(&generated, 0, 1, sensor, &s).unwrap();

@@ -16,6 +16,7 @@ fn the_feature_evaluation_runs_and_meets_its_aims_on_a_small_sample() {
         levels: Vec::new(),
         level_spacings_mm: Vec::new(),
         profile: ProfileChoice(None),
+        calibrated: None,
     };
     let r = evaluate(&settings).unwrap();
     let (post, missed) = feature_report::post_errors(&r.post, When::All);
@@ -64,6 +65,7 @@ fn the_features_hold_at_a_hobby_sensors_noise_on_a_small_sample() {
         levels: vec![NoiseLevel::parse("10+1%").unwrap()],
         level_spacings_mm: vec![200],
         profile: ProfileChoice(None),
+        calibrated: None,
     };
     let levels = evaluate_levels(&settings).unwrap();
     let l = &levels[0];

@@ -74,6 +74,9 @@ pub struct Observation {
     pub range_sigma_systematic_m: f64,
     /// Bearing error, 1σ; shared by every sweep taken from the same place.
     pub bearing_sigma_deg: f64,
+    /// Bearing error independent from sweep to sweep, 1σ: the amplitude jitter moving the
+    /// edges of the region it was found from ([`crate::EchoPhysics::threshold_jitter_db`]).
+    pub bearing_sigma_random_deg: f64,
     /// Index of the region it came from.
     pub rcd: usize,
     /// Its region was seen whole: both ends natural, so its width was measured rather than
@@ -152,6 +155,9 @@ impl Hypothesis {
 struct Cones {
     /// The reference point target; 0 where it would not be heard at all.
     point: f64,
+    /// The same with the threshold at the low end of its jitter: the widest a reference point's
+    /// cone is heard in any sweep ([`crate::EchoPhysics::threshold_jitter_db`]; `point` without).
+    point_widest: f64,
     plane: Option<f64>,
     /// The weakest wall's ([`crate::EchoPhysics::weakest_plane_db`]).
     weakest_plane: Option<f64>,
@@ -162,8 +168,15 @@ impl Cones {
     fn at(range_m: f64, cfg: &FeatureConfig) -> Self {
         let beam = f64::from(cfg.sensor.beam_half_angle_deg);
         let cone = |r: Reflector| cfg.echo.cone_half_angle_deg(r, range_m, beam);
+        let lowered = crate::EchoPhysics {
+            threshold_db: cfg.echo.threshold_db - cfg.echo.threshold_jitter_db,
+            ..cfg.echo
+        };
         Self {
             point: cone(cfg.echo.reference_point()).unwrap_or(0.0),
+            point_widest: lowered
+                .cone_half_angle_deg(cfg.echo.reference_point(), range_m, beam)
+                .unwrap_or(0.0),
             plane: cone(Reflector::Plane),
             weakest_plane: cfg.echo.weakest_plane_cone_half_angle_deg(range_m, beam),
             corner: cone(Reflector::Corner),
@@ -249,6 +262,7 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
                 Class::Corner => Some(FeatureKind::Corner),
                 Class::Unclassified => None,
             };
+            let jitter = bearing_jitter_deg(rcd, h.class, cfg);
             kind.into_iter().flat_map(move |kind| {
                 h.bearings.iter().map(move |b| Observation {
                     kind,
@@ -257,6 +271,7 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
                     range_sigma_random_m: rcd.range_sigma_m,
                     range_sigma_systematic_m: cfg.range_sigma_systematic_m(rcd.range_m),
                     bearing_sigma_deg: b.sigma,
+                    bearing_sigma_random_deg: jitter,
                     rcd: i,
                     whole: rcd.is_whole(),
                     also_plane: h.also_plane && h.class == Class::Point,
@@ -267,6 +282,26 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
     Classification {
         classes: hypotheses.iter().map(|h| h.class).collect(),
         observations,
+    }
+}
+
+/// The part of the bearing σ of a target of `class` found from `rcd` that the amplitude jitter
+/// makes, independent from sweep to sweep: each edge of its cone moves by
+/// [`crate::EchoPhysics::edge_jitter_sigma_deg`], so a bearing from a region's two edges (its
+/// centre) by that over √2, one from one edge (two points, a region seen from one end) by that.
+fn bearing_jitter_deg(rcd: &Rcd, class: Class, cfg: &FeatureConfig) -> f64 {
+    let reflector = match class {
+        Class::Point | Class::TwoPoints => cfg.echo.reference_point(),
+        Class::Plane => Reflector::Plane,
+        Class::Corner => Reflector::Corner,
+        Class::Unclassified => return 0.0,
+    };
+    let beam = f64::from(cfg.sensor.beam_half_angle_deg);
+    let edge = cfg.echo.edge_jitter_sigma_deg(reflector, rcd.range_m, beam);
+    if rcd.is_whole() && class != Class::TwoPoints {
+        edge / std::f64::consts::SQRT_2
+    } else {
+        edge
     }
 }
 
@@ -294,6 +329,9 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
     let from_edge = |edge_sigma: f64| edge_sigma.hypot(cfg.cone_sigma_deg);
     let fits = |half: Option<f64>| half.is_some_and(|h| (w - 2.0 * h).abs() <= tol);
     let point = cones.point;
+    // A point's region is as wide as its cone in the sweep that heard it widest; two points'
+    // as the union of two such.
+    let widest = cones.point_widest;
     match (rcd.start.is_natural(), rcd.end.is_natural()) {
         (true, true) => {
             let centre = rcd.centre_deg();
@@ -328,7 +366,10 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
                 Hypothesis::one(Class::Corner, centre, centre_sigma)
             } else if weaker_plane {
                 Hypothesis::one(Class::Plane, centre, centre_sigma)
-            } else if w <= 4.0 * point + tol {
+            } else if w <= 2.0 * widest + tol {
+                // As wide as one point heard through a lowered threshold: one point.
+                Hypothesis::one(Class::Point, centre, centre_sigma)
+            } else if w <= 4.0 * widest + tol {
                 Hypothesis {
                     class: Class::TwoPoints,
                     or_plane: None,
@@ -868,6 +909,37 @@ mod tests {
         );
         // The wall behind, heard beside the posts out to its cut-off, is one plane.
         assert!(c.classes.contains(&Class::TwoPoints) && c.classes.contains(&Class::Plane));
+    }
+
+    #[test]
+    fn with_amplitude_jitter_a_post_heard_wide_is_one_point_whose_bearing_varies_between_sweeps() {
+        // The SRF05 profile's post: 5 cm at 1 m, about 1 dB over the threshold on its axis.
+        let mut cfg = FeatureConfig::default();
+        cfg.echo.tvg_db_per_m = 6.0;
+        cfg.echo.tvg_max_range_m = 4.0;
+        cfg.echo.threshold_db = -19.5;
+        let steady = Cones::at(0.975, &cfg).point;
+        cfg.echo.threshold_jitter_db = 1.0;
+        let widest = Cones::at(0.975, &cfg).point_widest;
+        assert!(widest > steady + 3.0, "{steady} {widest}");
+        // A sweep whose pings drew low thresholds heard it over its widest cone.
+        let ranges = cone_sweep(-45.75, 62, &[(2.0, widest, 0.975)]);
+        let rcds = regions(&sweep(-45.75, &ranges));
+        let c = classify(&rcds, &cfg);
+        assert_eq!(c.classes, [Class::Point], "{rcds:?}");
+        let o = c.observations[0];
+        assert!((o.bearing_deg - 2.0).abs() <= 0.75, "{o:?}");
+        // Each edge anywhere within a few degrees from sweep to sweep: the centre's σ.
+        assert!(o.bearing_sigma_random_deg > 2.0, "{o:?}");
+        // Told the threshold does not move, the same region is two posts, each placed to a step.
+        cfg.echo.threshold_jitter_db = 0.0;
+        let c = classify(&rcds, &cfg);
+        assert_eq!(c.classes, [Class::TwoPoints]);
+        assert!(
+            c.observations
+                .iter()
+                .all(|o| o.bearing_sigma_random_deg == 0.0)
+        );
     }
 
     #[test]

@@ -187,6 +187,7 @@ impl FeatureConfig {
             "echo.threshold_db must be a number",
         )?;
         non_negative(e.corner_loss_db, "echo.corner_loss_db")?;
+        non_negative(e.threshold_jitter_db, "echo.threshold_jitter_db")?;
         positive(e.point_radius_m, "echo.point_radius_m")?;
         check(self.min_pings >= 1, "min_pings must be at least 1")?;
         check(

@@ -40,8 +40,8 @@ use crate::rcd::{Gate, Rcd, extract};
 use crate::segment::{Segment, segments};
 use sonar_common::ipc::Reading;
 
-/// Smallest bearing σ used for the independent part, so its covariance stays invertible (the
-/// bearing has no error independent between sweeps taken from one place).
+/// Smallest bearing σ used for the independent part, so its covariance stays invertible (without
+/// amplitude jitter the bearing has no error independent between sweeps taken from one place).
 const BEARING_FLOOR_DEG: f64 = 0.01;
 
 /// An observation in the map's frame.
@@ -117,7 +117,10 @@ impl Placed {
         let beta = o.bearing_deg.to_radians();
         let random = Matrix2::from_diagonal(&Vector2::new(
             o.range_sigma_random_m.powi(2),
-            BEARING_FLOOR_DEG.to_radians().powi(2),
+            BEARING_FLOOR_DEG
+                .hypot(o.bearing_sigma_random_deg)
+                .to_radians()
+                .powi(2),
         ));
         let systematic = Matrix2::from_diagonal(&Vector2::new(
             o.range_sigma_systematic_m.powi(2),
@@ -1229,6 +1232,46 @@ mod tests {
                 "start {start}: {wall:?}"
             );
         }
+    }
+
+    #[test]
+    fn a_post_whose_bearing_jitters_from_sweep_to_sweep_is_one_feature_averaged() {
+        // A post near the limit of its range, 1 m ahead: the amplitude jitter moves its
+        // region's edges, so each sweep's bearing lies anywhere within a few degrees.
+        let sighting = |bearing_deg: f64, random_deg: f64| Observation {
+            kind: FeatureKind::Point,
+            range_m: 1.0,
+            bearing_deg,
+            range_sigma_random_m: 0.002,
+            range_sigma_systematic_m: 0.002,
+            bearing_sigma_deg: 0.3,
+            bearing_sigma_random_deg: random_deg,
+            rcd: 0,
+            whole: true,
+            also_plane: false,
+        };
+        let bearings = [-3.0, 3.5, -1.5, 2.0, 0.5, -2.5, 3.0, 1.0];
+        let merged = |random_deg: f64| {
+            let mut m = map();
+            for b in bearings {
+                m.merge(
+                    &[sighting(b, random_deg)],
+                    &Sweep::default(),
+                    &Isometry2::identity(),
+                    &Matrix3::zeros(),
+                );
+            }
+            m
+        };
+        let m = merged(2.5);
+        let points = of_kind(&m, FeatureKind::Point);
+        assert_eq!(points.len(), 1);
+        let mean_deg = bearings.iter().sum::<f64>() / bearings.len() as f64;
+        let p = points[0].position();
+        assert!((p.y.atan2(p.x).to_degrees() - mean_deg).abs() < 0.5, "{p}");
+        assert_eq!(points[0].times_seen(), bearings.len() as u32);
+        // Taken for the step's error alone, repeated in every sweep, the sightings disagree.
+        assert!(of_kind(&merged(0.0), FeatureKind::Point).len() > 1);
     }
 
     #[test]

@@ -54,6 +54,13 @@ pub struct EchoPhysics {
     /// the two widths is a plane ([`EchoPhysics::weakest_plane_cone_half_angle_deg`]). 0 takes
     /// only hard walls' widths.
     pub weakest_plane_db: f64,
+    /// How far the detection threshold moves from ping to ping, ± dB (uniform): a real
+    /// sensor's amplitude jitter (about ±1 dB). A cone's edge then lies anywhere between the
+    /// cones of the margin less and more the jitter, independently in every sweep; near the
+    /// limit of a target's range, where the margin is a dB or two, that is degrees
+    /// ([`EchoPhysics::edge_jitter_sigma_deg`]). 0 (the simulator's default echoes) takes every
+    /// edge where the margin puts it.
+    pub threshold_jitter_db: f64,
 }
 
 impl Default for EchoPhysics {
@@ -68,6 +75,7 @@ impl Default for EchoPhysics {
             corner_loss_db: 3.0,
             point_radius_m: 0.025,
             weakest_plane_db: 8.0,
+            threshold_jitter_db: 0.0,
         }
     }
 }
@@ -140,6 +148,30 @@ impl EchoPhysics {
             ..*self
         };
         weaker.cone_half_angle_deg(Reflector::Plane, range_m, beam_half_angle_deg)
+    }
+
+    /// σ of the edge of `reflector`'s cone at `range_m` from sweep to sweep, degrees: with the
+    /// threshold anywhere within ± [`EchoPhysics::threshold_jitter_db`], the edge lies anywhere
+    /// between the cones of the margin less and more the jitter (taken as uniform between them).
+    pub fn edge_jitter_sigma_deg(
+        &self,
+        reflector: Reflector,
+        range_m: f64,
+        beam_half_angle_deg: f64,
+    ) -> f64 {
+        let jitter = self.threshold_jitter_db;
+        if jitter <= 0.0 {
+            return 0.0;
+        }
+        let cone = |shift: f64| {
+            Self {
+                threshold_db: self.threshold_db + shift,
+                ..*self
+            }
+            .cone_half_angle_deg(reflector, range_m, beam_half_angle_deg)
+            .unwrap_or(0.0)
+        };
+        (cone(-jitter) - cone(jitter)) / 12f64.sqrt()
     }
 
     /// The widest region of constant depth one target can make at `range_m`, degrees: a wall's
@@ -224,6 +256,27 @@ mod tests {
         // A thicker post is heard over a wider cone.
         let thick = cone(Reflector::Cylinder { radius_m: 0.05 }, 0.975).unwrap();
         assert!(thick > h + 3.0, "{thick}");
+    }
+
+    #[test]
+    fn a_cones_edge_jitters_most_near_the_limit_of_its_targets_range() {
+        let steady = EchoPhysics::default();
+        let post = steady.reference_point();
+        assert_eq!(steady.edge_jitter_sigma_deg(post, 1.0, BEAM), 0.0);
+        let jittery = EchoPhysics {
+            threshold_jitter_db: 1.0,
+            ..steady
+        };
+        let near = jittery.edge_jitter_sigma_deg(post, 0.5, BEAM);
+        let far = jittery.edge_jitter_sigma_deg(post, 2.0, BEAM);
+        assert!(near > 0.0 && far > 2.0 * near, "{near} {far}");
+        // A wall's cone held at the specular cut-off either way does not move.
+        assert_eq!(
+            jittery.edge_jitter_sigma_deg(Reflector::Plane, 1.0, BEAM),
+            0.0
+        );
+        // Beyond the range where even the lowered threshold hears it: nothing to jitter.
+        assert_eq!(jittery.edge_jitter_sigma_deg(post, 5.0, BEAM), 0.0);
     }
 
     #[test]

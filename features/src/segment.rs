@@ -139,6 +139,7 @@ mod tests {
             range_sigma_random_m: 0.001,
             range_sigma_systematic_m: 0.002,
             bearing_sigma_deg: 0.3,
+            bearing_sigma_random_deg: 0.0,
             rcd: 0,
             whole: true,
             also_plane: false,

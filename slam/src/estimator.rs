@@ -529,7 +529,9 @@ impl Slam {
                     sigma: Vector2::new(
                         (o.range_sigma_random_m.powi(2) + o.range_sigma_systematic_m.powi(2))
                             .sqrt(),
-                        o.bearing_sigma_deg.to_radians(),
+                        o.bearing_sigma_deg
+                            .hypot(o.bearing_sigma_random_deg)
+                            .to_radians(),
                     )
                     .zip_map(&floor, f64::hypot),
                     certain: !moving || o.whole,
