@@ -1151,6 +1151,11 @@ pub fn score_scene_map(
             wall_distance_m = nearest_wall.map(|w| w.1),
             scene = %scene.name,
             nearest_surface_m = scene.distance_to_surface(at),
+            nearest_post = ?scene
+                .posts()
+                .iter()
+                .map(|q| (((q.centre - at).norm() - q.radius).abs(), q.radius))
+                .min_by(|a, b| a.0.total_cmp(&b.0)),
             nearest_corner_m = nearest_m(joints.corners.iter().map(|c| c.0), at),
             nearest_joint_m = nearest_m(scene.joints().iter().map(|j| j.at), at),
             normal_deg = f.normal_deg(),

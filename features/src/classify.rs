@@ -89,6 +89,11 @@ pub struct Observation {
     /// may as well be a wall at `range_m` whose normal lies at `bearing_deg`. One viewpoint
     /// cannot tell a plane from a point (Leonard & Durrant-Whyte); sightings from several can.
     pub also_plane: bool,
+    /// One of two points a region was split into, which one post thicker than the reference
+    /// would fill as well (one viewpoint cannot tell them): the bearing of the region's centre,
+    /// where such a post's near face would lie at `range_m`. A second place tells them
+    /// ([`crate::FeatureMap::merge`]).
+    pub pair_centre_deg: Option<f64>,
 }
 
 /// The classes of a sweep's regions (one per region, same order) and the targets they gave.
@@ -275,6 +280,8 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
                     rcd: i,
                     whole: rcd.is_whole(),
                     also_plane: h.also_plane && h.class == Class::Point,
+                    pair_centre_deg: (h.class == Class::TwoPoints)
+                        .then(|| crate::geometry::wrap_deg(rcd.centre_deg())),
                 })
             })
         })

@@ -237,6 +237,7 @@ mod tests {
                 rcd: 0,
                 whole: true,
                 also_plane: false,
+                pair_centre_deg: None,
             }
         };
         for kind in with {
@@ -258,6 +259,7 @@ mod tests {
                             rcd: 0,
                             whole: true,
                             also_plane: false,
+                            pair_centre_deg: None,
                         });
                     }
                 }

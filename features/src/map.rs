@@ -58,6 +58,9 @@ pub(crate) struct Placed {
     from: Vector2<f64>,
     /// A point whose region was as wide as a wall's there ([`Observation::also_plane`]).
     also_plane: bool,
+    /// One of two points split from a region one thicker post would fill: where that post's
+    /// near face would lie ([`Observation::pair_centre_deg`]), in the map's frame.
+    pair_centre: Option<Vector2<f64>>,
 }
 
 /// Sightings taken within this of each other are from one place: the same view of the same
@@ -138,6 +141,10 @@ impl Placed {
                         beta.sin(),
                         o.range_m * beta.cos(),
                     );
+                let pair_centre = o.pair_centre_deg.map(|deg| {
+                    let c = deg.to_radians();
+                    (pose * Point2::new(o.range_m * c.cos(), o.range_m * c.sin())).coords
+                });
                 Self {
                     kind: o.kind,
                     mean: world.coords,
@@ -147,6 +154,7 @@ impl Placed {
                     foot: 0.0,
                     from: t,
                     also_plane: o.also_plane,
+                    pair_centre,
                 }
             }
             FeatureKind::Plane => {
@@ -175,6 +183,7 @@ impl Placed {
                     foot: t.dot(&along),
                     from: t,
                     also_plane: false,
+                    pair_centre: None,
                 }
             }
         }
@@ -452,6 +461,7 @@ impl FeatureMap {
                 seen_from: z.from,
                 one_place: true,
                 may_be_plane: z.also_plane,
+                pair_centre: z.pair_centre,
             });
             self.next_id += 1;
             report.added += 1;
@@ -465,8 +475,33 @@ impl FeatureMap {
             f.last_seen = f.last_seen.max(other.last_seen);
             f.one_place &= other.one_place && (other.seen_from - f.seen_from).norm() <= ONE_PLACE_M;
             f.may_be_plane &= other.may_be_plane;
+            f.pair_centre = f.pair_centre.filter(|_| other.pair_centre.is_some());
             self.features[merged].confidence = 0.0;
             report.merged += 1;
+        }
+        for post in thick_posts(&self.features) {
+            let mut kept = self.features[post.kept].clone();
+            for &i in &post.merged {
+                let other = &self.features[i];
+                kept.times_seen += other.times_seen;
+                kept.confidence = kept.confidence.max(other.confidence);
+                kept.first_seen = kept.first_seen.min(other.first_seen);
+                kept.last_seen = kept.last_seen.max(other.last_seen);
+            }
+            // The near faces from the two places lie up to the post's diameter apart: the
+            // midpoint is off the nearest face by up to half of that, whichever it is.
+            let spread = Matrix2::identity() * (post.apart_m / 2.0).powi(2);
+            kept.mean = post.at;
+            kept.weights += spread;
+            kept.systematic += spread;
+            kept.one_place = false;
+            kept.pair_centre = None;
+            kept.may_be_plane = false;
+            self.features[post.kept] = kept;
+            for &i in &post.merged {
+                self.features[i].confidence = 0.0;
+            }
+            report.merged += post.merged.len();
         }
         self.past.push_back(PastSweep {
             sweep: sweep.clone(),
@@ -620,6 +655,10 @@ fn refine(f: &mut Feature, z: &Placed, stamp: u64, cfg: &MergeConfig) {
     f.may_be_plane &= z.also_plane;
     if f.kind == FeatureKind::Plane {
         f.feet = (f.feet.0.min(z.foot), f.feet.1.max(z.foot));
+    }
+    if z.pair_centre.is_none() {
+        // Heard as a point on its own: a post there, not half of a thicker one's region.
+        f.pair_centre = None;
     }
 }
 
@@ -1030,6 +1069,80 @@ fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
     explained
 }
 
+/// The near faces of one post seen from two places lie no farther apart than its diameter: a
+/// post whose region two places split in two, with the split's centres this close, is one post
+/// up to this thick.
+const THICK_POST_M: f64 = 0.15;
+/// Two points split from one region share its centre (to rounding; a sweep later from the same
+/// place refines them without moving it).
+const SAME_REGION_M: f64 = 0.02;
+
+/// One thick post found from the points two places split its region into.
+struct ThickPost {
+    /// The feature that becomes the post.
+    kept: usize,
+    /// The others, merged into it.
+    merged: Vec<usize>,
+    /// Between the two places' region centres (each the near face seen from there).
+    at: Vector2<f64>,
+    /// How far apart those were.
+    apart_m: f64,
+}
+
+/// Points split in two from one region ([`Feature::pair_centre`]) at two places whose regions'
+/// centres agree within [`THICK_POST_M`]: one thick post, not two pairs. Two posts close
+/// together are split alike from every place and their points merge as each place confirms
+/// them (so the second place's sightings start no pair of their own); a thick post's points
+/// stand a half-cone to either side of the line of sight, so each place's pair lies across its
+/// own ray, elsewhere, while the centres of both regions lie on the post. (The paper's
+/// obstacle, a 10 cm post, heard from one place: two points; from two, one.)
+fn thick_posts(features: &[Feature]) -> Vec<ThickPost> {
+    let paired: Vec<(usize, Vector2<f64>)> = features
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| f.kind == FeatureKind::Point && f.confidence > 0.0)
+        .filter_map(|(i, f)| Some((i, f.pair_centre?)))
+        .collect();
+    let mut taken = vec![false; features.len()];
+    let mut posts = Vec::new();
+    for &(i, ca) in &paired {
+        for &(j, cb) in &paired {
+            let (a, b) = (&features[i], &features[j]);
+            if j <= i
+                || taken[i]
+                || taken[j]
+                || (a.seen_from - b.seen_from).norm() <= ONE_PLACE_M
+                || (ca - cb).norm() > THICK_POST_M
+            {
+                continue;
+            }
+            let group: Vec<usize> = paired
+                .iter()
+                .filter(|&&(k, c)| {
+                    !taken[k]
+                        && ((c - ca).norm() <= SAME_REGION_M || (c - cb).norm() <= SAME_REGION_M)
+                })
+                .map(|&(k, _)| k)
+                .collect();
+            for &k in &group {
+                taken[k] = true;
+            }
+            let kept = group
+                .iter()
+                .copied()
+                .max_by_key(|&k| features[k].times_seen)
+                .unwrap_or(i);
+            posts.push(ThickPost {
+                kept,
+                merged: group.into_iter().filter(|&k| k != kept).collect(),
+                at: (ca + cb) / 2.0,
+                apart_m: (ca - cb).norm(),
+            });
+        }
+    }
+    posts
+}
+
 /// Point features seen from different directions (their latest rays more than
 /// [`MergeConfig::post_turn_deg`] apart) within [`MergeConfig::post_spread_m`] of each other:
 /// one post, whose echo point (its surface nearest the sensor) moves round it with the sensor;
@@ -1249,6 +1362,7 @@ mod tests {
             rcd: 0,
             whole: true,
             also_plane: false,
+            pair_centre_deg: None,
         };
         let bearings = [-3.0, 3.5, -1.5, 2.0, 0.5, -2.5, 3.0, 1.0];
         let merged = |random_deg: f64| {
@@ -1272,6 +1386,64 @@ mod tests {
         assert_eq!(points[0].times_seen(), bearings.len() as u32);
         // Taken for the step's error alone, repeated in every sweep, the sightings disagree.
         assert!(of_kind(&merged(0.0), FeatureKind::Point).len() > 1);
+    }
+
+    /// The two points one place split a region into, `range_m` away about `centre_deg` (in the
+    /// sensor's frame), a half-cone of `half_deg` in from the region's ends.
+    fn split_in_two(range_m: f64, centre_deg: f64, half_deg: f64) -> [Observation; 2] {
+        [-1.0, 1.0].map(|side| Observation {
+            kind: FeatureKind::Point,
+            range_m,
+            bearing_deg: centre_deg + side * half_deg,
+            range_sigma_random_m: 0.002,
+            range_sigma_systematic_m: 0.002,
+            bearing_sigma_deg: 0.3,
+            bearing_sigma_random_deg: 0.0,
+            rcd: 0,
+            whole: true,
+            also_plane: false,
+            pair_centre_deg: Some(centre_deg),
+        })
+    }
+
+    #[test]
+    fn a_thick_post_split_in_two_from_two_places_is_one_post_and_two_posts_stay_two() {
+        let merge = |m: &mut FeatureMap, obs: &[Observation], pose: Isometry2<f64>| {
+            m.merge(obs, &Sweep::default(), &pose, &Matrix3::zeros());
+        };
+        let from_a = Isometry2::identity();
+        let from_b = Isometry2::new(Vector2::new(1.0, -1.0), FRAC_PI_2);
+        // A 10 cm post at (1, 0): its near face 0.95 m from either place, its region split
+        // into two points 6° to either side of the line of sight, across that line.
+        let mut m = map();
+        merge(&mut m, &split_in_two(0.95, 0.0, 6.0), from_a);
+        assert_eq!(
+            of_kind(&m, FeatureKind::Point).len(),
+            2,
+            "one place: two points"
+        );
+        merge(&mut m, &split_in_two(0.95, 0.0, 6.0), from_b);
+        let posts = of_kind(&m, FeatureKind::Point);
+        assert_eq!(posts.len(), 1, "{posts:?}");
+        let p = posts[0].position();
+        assert!((p - Point2::new(0.975, -0.025)).norm() < 0.01, "{p}");
+        assert!(!posts[0].one_place && posts[0].times_seen() == 4);
+        // Its σ covers the post's radius: the midpoint is up to that from either near face.
+        assert!(
+            posts[0].covariance().trace().sqrt() >= 0.05,
+            "{:?}",
+            posts[0]
+        );
+
+        // Two 5 cm posts at (1, ±0.1): from (2, 0) facing back, the same two points.
+        let mut m = map();
+        let split = (0.1f64).atan().to_degrees();
+        merge(&mut m, &split_in_two(1.0, 0.0, split), from_a);
+        let from_c = Isometry2::new(Vector2::new(2.0, 0.0), std::f64::consts::PI);
+        merge(&mut m, &split_in_two(1.0, 0.0, split), from_c);
+        let posts = of_kind(&m, FeatureKind::Point);
+        assert_eq!(posts.len(), 2, "{posts:?}");
+        assert!(posts.iter().all(|p| !p.one_place));
     }
 
     #[test]
@@ -1627,6 +1799,7 @@ mod tests {
             seen_from: Vector2::zeros(),
             one_place: true,
             may_be_plane: false,
+            pair_centre: None,
         }
     }
 

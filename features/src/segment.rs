@@ -143,6 +143,7 @@ mod tests {
             rcd: 0,
             whole: true,
             also_plane: false,
+            pair_centre_deg: None,
         }
     }
 
