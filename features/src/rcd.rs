@@ -15,8 +15,8 @@
 //!    ([`crate::noise`]). Up to three pings that heard **nothing** (dropouts), one of
 //!    which may have heard **nearer** than the run (a transient: the SRF05's spurious echoes end a
 //!    ping early, by any amount), are bridged when the ping after them continues the run, and
-//!    counted as outliers. A ping that hears **farther** is never bridged: the beam went past the
-//!    target there, which is evidence of a gap (two posts with a way between them). Runs are then
+//!    counted as outliers. A ping that hears **farther** is not bridged here: the beam went past
+//!    the target there, which is evidence of a gap (two posts with a way between them). Runs are then
 //!    split at significant steps in range (targets nearer in range than the gate), touching runs
 //!    at one range joined again, and the pings at their boundaries settled.
 //! 2. **Ends**: [`End::Natural`] when the next ping heard farther or nothing (the target left the
@@ -27,7 +27,9 @@
 //! 3. **Joining**: two runs at the same range, separated only by pings that heard nearer, are one
 //!    target partly hidden (the wall behind a post): they are joined, the hidden pings counted —
 //!    unless together they would be wider than any one target's region at that range (the four
-//!    corners of a square room, all at one range between the nearer walls, stay four).
+//!    corners of a square room, all at one range between the nearer walls, stay four). With
+//!    amplitude jitter, runs at one range separated by one or two pings that heard farther or
+//!    nothing where the jitter can lose a faint post's echo are one run too (`join_missed`).
 //! 4. Runs of fewer than `min_pings` pings are dropped; the rest become [`Rcd`]s, their range the
 //!    mean of their pings less the sensor's calibrated offset (`range_offset_m`).
 
@@ -264,6 +266,7 @@ pub fn extract(sweep: &Sweep, cfg: &FeatureConfig, gate: &Gate) -> Vec<Rcd> {
         (run.end, run.end_steps) = end_kind(sweep, run, gate, Side::End);
     }
     let runs = join_hidden(sweep, runs, cfg, gate);
+    let runs = join_missed(sweep, runs, cfg, gate);
     let pings = sweep.pings();
     runs.into_iter()
         .filter(|r| r.stats.n >= cfg.min_pings)
@@ -654,6 +657,81 @@ fn end_kind(sweep: &Sweep, run: &Run, gate: &Gate, side: Side) -> (End, f64) {
     }
 }
 
+/// Most pings between two runs at one range that a faint target's amplitude jitter may have
+/// lost ([`join_missed`]).
+const MAX_MISSED: usize = 2;
+
+/// Joins runs at the same range separated by at most [`MAX_MISSED`] pings that heard farther or
+/// nothing, where the amplitude jitter lets a point target miss them: near the limit of a post's
+/// range the threshold moving by ±[`crate::EchoPhysics::threshold_jitter_db`] loses pings inside
+/// its cone (the `srf05` profile's post at 1 m, 1 dB over its threshold, was broken into two or
+/// three regions in a third of its sweeps, each taken for a post of its own). Only where such a
+/// miss can happen: the gap lies outside the cone the reference post keeps whatever the jitter
+/// (its cone with the threshold at the top of it) about the joined run's middle, and the joined
+/// run is no wider than that post heard through the lowest threshold. Without jitter the cone
+/// kept is the cone, and nothing is joined: a ping that heard past a target inside its cone says
+/// there is a gap (two posts with a way between them).
+fn join_missed(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) -> Vec<Run> {
+    let jitter = cfg.echo.threshold_jitter_db;
+    if jitter <= 0.0 {
+        return runs;
+    }
+    let beam = f64::from(cfg.sensor.beam_half_angle_deg);
+    let pings = sweep.pings();
+    let post = cfg.echo.reference_point();
+    let cone_at = |shift: f64, range: f64| {
+        crate::EchoPhysics {
+            threshold_db: cfg.echo.threshold_db + shift,
+            ..cfg.echo
+        }
+        .cone_half_angle_deg(post, range, beam)
+        .unwrap_or(0.0)
+    };
+    let mut out: Vec<Run> = Vec::with_capacity(runs.len());
+    for r in runs {
+        if let Some(prev) = out.last_mut() {
+            let gap = r.first.saturating_sub(prev.last + 1);
+            let missed = (prev.last + 1..r.first).all(|k| {
+                !sweep.gap_before(k)
+                    && pings[k]
+                        .range_m
+                        .is_none_or(|range| gate.farther(&prev.stats, range))
+            });
+            let mut stats = prev.stats;
+            stats.merge(&r.stats);
+            let range = stats.mean();
+            let middle = (pings[prev.first].bearing_deg + pings[r.last].bearing_deg) / 2.0;
+            let width =
+                pings[r.last].bearing_deg - pings[prev.first].bearing_deg + sweep.step_deg();
+            let kept = cone_at(jitter, range);
+            let outside_kept =
+                (prev.last + 1..r.first).all(|k| (pings[k].bearing_deg - middle).abs() > kept);
+            if r.first > prev.last
+                && gap <= MAX_MISSED
+                && missed
+                && !sweep.gap_before(r.first)
+                && prev.end == End::Natural
+                && r.start == End::Natural
+                && gate.same_range(&prev.stats, &r.stats)
+                && outside_kept
+                && width
+                    <= 2.0 * cone_at(-jitter, range) + cfg.width_tolerance_deg(sweep.step_deg())
+            {
+                prev.stats = stats;
+                prev.outliers += gap as u32 + r.outliers;
+                prev.hidden += r.hidden;
+                prev.last = r.last;
+                prev.end = r.end;
+                prev.end_steps = r.end_steps;
+                prev.end_neighbour = r.end_neighbour;
+                continue;
+            }
+        }
+        out.push(r);
+    }
+    out
+}
+
 /// Joins runs at the same range separated only by pings that heard nearer: one target, partly
 /// hidden by a nearer one, if no wider than one target's region can be.
 fn join_hidden(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) -> Vec<Run> {
@@ -753,6 +831,73 @@ pub(crate) mod tests {
 
     fn rcds(from_deg: f64, ranges: &[f64]) -> Vec<Rcd> {
         regions(&sweep(from_deg, ranges))
+    }
+
+    #[test]
+    fn a_faint_posts_pings_lost_to_the_amplitude_jitter_leave_one_region() {
+        // The SRF05 profile's 5 cm post at 1 m, about 1 dB over its threshold: a ping on its
+        // flank heard the wall behind it.
+        let mut cfg = FeatureConfig::default();
+        cfg.echo.tvg_db_per_m = 6.0;
+        cfg.echo.tvg_max_range_m = 4.0;
+        cfg.echo.threshold_db = -19.5;
+        let ranges = cat(&[
+            run(3, 2.0),
+            run(3, 0.975),
+            run(1, 2.0),
+            run(12, 0.975),
+            run(3, 2.0),
+        ]);
+        let s = sweep(-15.0, &ranges);
+        let noise = NoiseModel::estimate(s.pairs().iter().copied(), &cfg.noise);
+        let posts = |cfg: &FeatureConfig| -> Vec<Rcd> {
+            extract(&s, cfg, &Gate::new(noise, cfg))
+                .into_iter()
+                .filter(|r| r.range_m < 1.5)
+                .collect()
+        };
+        // Told the threshold does not move, the pings that heard past it are a gap.
+        assert_eq!(posts(&cfg).len(), 2);
+        cfg.echo.threshold_jitter_db = 1.0;
+        let joined = posts(&cfg);
+        assert_eq!(joined.len(), 1, "{joined:?}");
+        let r = joined[0];
+        assert_eq!((r.pings, r.outliers), (15, 1), "{r:?}");
+        assert!(r.is_whole());
+        // On the post's axis even the highest threshold hears it; and a post heard well over its
+        // threshold (half a metre away) keeps every ping of its cone whatever the jitter: a gap
+        // there is a way between two posts.
+        let on_axis = cat(&[
+            run(3, 2.0),
+            run(7, 0.975),
+            run(1, 2.0),
+            run(7, 0.975),
+            run(3, 2.0),
+        ]);
+        let s = sweep(-15.0, &on_axis);
+        let gate = Gate::new(
+            NoiseModel::estimate(s.pairs().iter().copied(), &cfg.noise),
+            &cfg,
+        );
+        let split = extract(&s, &cfg, &gate)
+            .into_iter()
+            .filter(|r| r.range_m < 1.5)
+            .count();
+        assert_eq!(split, 2);
+        let near: Vec<f64> = ranges
+            .iter()
+            .map(|&r| if r < 1.0 { 0.475 } else { r })
+            .collect();
+        let s = sweep(-15.0, &near);
+        let gate = Gate::new(
+            NoiseModel::estimate(s.pairs().iter().copied(), &cfg.noise),
+            &cfg,
+        );
+        let near_posts = extract(&s, &cfg, &gate)
+            .into_iter()
+            .filter(|r| r.range_m < 1.0)
+            .count();
+        assert_eq!(near_posts, 2);
     }
 
     #[test]
