@@ -1143,10 +1143,26 @@ pub fn score_scene_map(
                 .filter(|(_, d)| *d <= 0.5)
                 .min_by(|a, b| a.0.total_cmp(&b.0))
         });
+        // The map's other walls whose lines pass within 5 cm of where it was seen, at 10° or
+        // more to it (all, and those heard from two places or more): two walls meeting there.
+        let through: Vec<bool> = features
+            .iter()
+            .filter(|g| g.id() != f.id() && g.kind() == FeatureKind::Plane)
+            .filter_map(|g| {
+                let (phi, d) = (g.normal_deg()?.to_radians(), g.distance_m()?);
+                let n = Vector2::new(phi.cos(), phi.sin());
+                let turned = f.normal_deg().is_none_or(|own| {
+                    sonar_features::wrap_deg(own - phi.to_degrees()).abs() >= 10.0
+                });
+                ((n.dot(&p.coords) - d).abs() <= 0.05 && turned).then_some(g.confirmed())
+            })
+            .collect();
         tracing::debug!(
             kind = ?f.kind(),
             x = p.x,
             y = p.y,
+            walls_through = through.len(),
+            confirmed_walls_through = through.iter().filter(|c| **c).count(),
             wall_angle_deg = nearest_wall.map(|w| w.0),
             wall_distance_m = nearest_wall.map(|w| w.1),
             scene = %scene.name,
