@@ -1143,6 +1143,25 @@ fn thick_posts(features: &[Feature]) -> Vec<ThickPost> {
     posts
 }
 
+/// Whether two point features heard from one place only, the same place, lie within the gate of
+/// each other under both their covariances: one target whose sightings fell in two groups. A
+/// faint post's region breaks into pieces under the amplitude jitter, two of them in one sweep,
+/// and a sweep refines a feature once: the second piece starts a feature of its own a few
+/// degrees off, which the post's later sightings do not reach ([`refine`] gates each sighting,
+/// not the features against each other). Without jitter a point's bearing is known to a fraction
+/// of a step, and two posts a few centimetres apart stay two.
+fn one_view_alike(a: &Feature, b: &Feature, gate_chi2: f64) -> bool {
+    a.one_place
+        && b.one_place
+        && (a.seen_from - b.seen_from).norm() <= ONE_PLACE_M
+        && (a.covariance_own() + b.covariance_own())
+            .try_inverse()
+            .is_some_and(|inv| {
+                let d = a.mean - b.mean;
+                (d.transpose() * inv * d)[(0, 0)] <= gate_chi2
+            })
+}
+
 /// Point features seen from different directions (their latest rays more than
 /// [`MergeConfig::post_turn_deg`] apart) within [`MergeConfig::post_spread_m`] of each other:
 /// one post, whose echo point (its surface nearest the sensor) moves round it with the sensor;
@@ -1165,6 +1184,7 @@ fn same_targets(features: &[Feature], cfg: &MergeConfig) -> Vec<(usize, usize)> 
                 FeatureKind::Point => {
                     (turned > cfg.post_turn_deg && apart <= cfg.post_spread_m)
                         || apart <= cfg.one_point_m
+                        || one_view_alike(a, b, cfg.gate_chi2)
                 }
                 FeatureKind::Corner => apart <= cfg.one_corner_m,
                 FeatureKind::Plane => false,
@@ -1386,6 +1406,38 @@ mod tests {
         assert_eq!(points[0].times_seen(), bearings.len() as u32);
         // Taken for the step's error alone, repeated in every sweep, the sightings disagree.
         assert!(of_kind(&merged(0.0), FeatureKind::Point).len() > 1);
+    }
+
+    #[test]
+    fn two_pieces_of_one_faint_posts_region_in_one_sweep_are_one_post() {
+        // The amplitude jitter broke the post's region in two: two points 7° apart at 1 m from
+        // one sweep, each bearing known to ±3° from sweep to sweep.
+        let piece = |bearing_deg: f64, random_deg: f64| Observation {
+            kind: FeatureKind::Point,
+            range_m: 1.0,
+            bearing_deg,
+            range_sigma_random_m: 0.002,
+            range_sigma_systematic_m: 0.002,
+            bearing_sigma_deg: 0.3,
+            bearing_sigma_random_deg: random_deg,
+            rcd: 0,
+            whole: true,
+            also_plane: false,
+            pair_centre_deg: None,
+        };
+        let points = |random_deg: f64| {
+            let mut m = map();
+            m.merge(
+                &[piece(-3.0, random_deg), piece(4.0, random_deg)],
+                &Sweep::default(),
+                &Isometry2::identity(),
+                &Matrix3::zeros(),
+            );
+            of_kind(&m, FeatureKind::Point).len()
+        };
+        assert_eq!(points(3.0), 1);
+        // Bearings known to a fraction of a step: two posts 12 cm apart.
+        assert_eq!(points(0.0), 2);
     }
 
     /// The two points one place split a region into, `range_m` away about `centre_deg` (in the
