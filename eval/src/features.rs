@@ -893,6 +893,34 @@ mod tests {
         off
     }
 
+    /// The heads in `examples/` a robot builder starts from are the simulator's profiles, as
+    /// the evaluation configures the features for them: a profile that changes changes them.
+    #[test]
+    fn the_example_heads_are_the_profiles_the_evaluation_hears() {
+        for (file, profile) in [
+            (
+                include_str!("../../examples/srf05-head.toml"),
+                sonar_sim::SensorProfile::Srf05,
+            ),
+            (
+                include_str!("../../examples/hc-sr04-head.toml"),
+                sonar_sim::SensorProfile::HcSr04,
+            ),
+            (
+                include_str!("../../examples/nxt-head.toml"),
+                sonar_sim::SensorProfile::Nxt,
+            ),
+        ] {
+            let table: toml::Table = toml::from_str(file).unwrap();
+            let example: FeatureConfig = table["features"].clone().try_into().unwrap();
+            let mut scene = Scene::builtin("room").unwrap();
+            scene.set_profile(profile);
+            let heard = scene_feature_config(&scene);
+            assert_eq!(example.echo, heard.echo, "{profile}");
+            assert_eq!(example.sensor, heard.sensor, "{profile}");
+        }
+    }
+
     #[test]
     fn the_feature_physics_defaults_are_the_simulators() {
         let f = EchoPhysics::default();
