@@ -647,7 +647,7 @@ mod tests {
     use super::*;
     use crate::EchoPhysics;
     use crate::pings::{Ping, Sweep};
-    use crate::rcd::tests::{regions, run, sweep};
+    use crate::rcd::tests::{regions, run, srf05_echoes, sweep};
 
     fn classified(from_deg: f64, ranges: &[f64]) -> (Vec<Rcd>, Classification) {
         let cfg = FeatureConfig::default();
@@ -921,10 +921,7 @@ mod tests {
     #[test]
     fn with_amplitude_jitter_a_post_heard_wide_is_one_point_whose_bearing_varies_between_sweeps() {
         // The SRF05 profile's post: 5 cm at 1 m, about 1 dB over the threshold on its axis.
-        let mut cfg = FeatureConfig::default();
-        cfg.echo.tvg_db_per_m = 6.0;
-        cfg.echo.tvg_max_range_m = 4.0;
-        cfg.echo.threshold_db = -19.5;
+        let mut cfg = srf05_echoes();
         let steady = Cones::at(0.975, &cfg).point;
         cfg.echo.threshold_jitter_db = 1.0;
         let widest = Cones::at(0.975, &cfg).point_widest;

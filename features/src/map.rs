@@ -1371,25 +1371,12 @@ mod tests {
     fn a_post_whose_bearing_jitters_from_sweep_to_sweep_is_one_feature_averaged() {
         // A post near the limit of its range, 1 m ahead: the amplitude jitter moves its
         // region's edges, so each sweep's bearing lies anywhere within a few degrees.
-        let sighting = |bearing_deg: f64, random_deg: f64| Observation {
-            kind: FeatureKind::Point,
-            range_m: 1.0,
-            bearing_deg,
-            range_sigma_random_m: 0.002,
-            range_sigma_systematic_m: 0.002,
-            bearing_sigma_deg: 0.3,
-            bearing_sigma_random_deg: random_deg,
-            rcd: 0,
-            whole: true,
-            also_plane: false,
-            pair_centre_deg: None,
-        };
         let bearings = [-3.0, 3.5, -1.5, 2.0, 0.5, -2.5, 3.0, 1.0];
         let merged = |random_deg: f64| {
             let mut m = map();
             for b in bearings {
                 m.merge(
-                    &[sighting(b, random_deg)],
+                    &[point_sighting(1.0, b, random_deg)],
                     &Sweep::default(),
                     &Isometry2::identity(),
                     &Matrix3::zeros(),
@@ -1412,23 +1399,13 @@ mod tests {
     fn two_pieces_of_one_faint_posts_region_in_one_sweep_are_one_post() {
         // The amplitude jitter broke the post's region in two: two points 7° apart at 1 m from
         // one sweep, each bearing known to ±3° from sweep to sweep.
-        let piece = |bearing_deg: f64, random_deg: f64| Observation {
-            kind: FeatureKind::Point,
-            range_m: 1.0,
-            bearing_deg,
-            range_sigma_random_m: 0.002,
-            range_sigma_systematic_m: 0.002,
-            bearing_sigma_deg: 0.3,
-            bearing_sigma_random_deg: random_deg,
-            rcd: 0,
-            whole: true,
-            also_plane: false,
-            pair_centre_deg: None,
-        };
         let points = |random_deg: f64| {
             let mut m = map();
             m.merge(
-                &[piece(-3.0, random_deg), piece(4.0, random_deg)],
+                &[
+                    point_sighting(1.0, -3.0, random_deg),
+                    point_sighting(1.0, 4.0, random_deg),
+                ],
                 &Sweep::default(),
                 &Isometry2::identity(),
                 &Matrix3::zeros(),
@@ -1444,18 +1421,27 @@ mod tests {
     /// sensor's frame), a half-cone of `half_deg` in from the region's ends.
     fn split_in_two(range_m: f64, centre_deg: f64, half_deg: f64) -> [Observation; 2] {
         [-1.0, 1.0].map(|side| Observation {
+            pair_centre_deg: Some(centre_deg),
+            ..point_sighting(range_m, centre_deg + side * half_deg, 0.0)
+        })
+    }
+
+    /// A point seen whole `range_m` away at `bearing_deg`, its bearing known to 0.3° from the
+    /// step and to `random_deg` from sweep to sweep.
+    fn point_sighting(range_m: f64, bearing_deg: f64, random_deg: f64) -> Observation {
+        Observation {
             kind: FeatureKind::Point,
             range_m,
-            bearing_deg: centre_deg + side * half_deg,
+            bearing_deg,
             range_sigma_random_m: 0.002,
             range_sigma_systematic_m: 0.002,
             bearing_sigma_deg: 0.3,
-            bearing_sigma_random_deg: 0.0,
+            bearing_sigma_random_deg: random_deg,
             rcd: 0,
             whole: true,
             also_plane: false,
-            pair_centre_deg: Some(centre_deg),
-        })
+            pair_centre_deg: None,
+        }
     }
 
     #[test]

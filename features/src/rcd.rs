@@ -824,9 +824,23 @@ pub(crate) mod tests {
 
     /// The regions of `sweep` with the noise estimated from its own pings, as the map does.
     pub(crate) fn regions(sweep: &Sweep) -> Vec<Rcd> {
-        let cfg = FeatureConfig::default();
+        regions_with(sweep, &FeatureConfig::default())
+    }
+
+    /// The same, the features set up with `cfg`.
+    fn regions_with(sweep: &Sweep, cfg: &FeatureConfig) -> Vec<Rcd> {
         let noise = NoiseModel::estimate(sweep.pairs().iter().copied(), &cfg.noise);
-        extract(sweep, &cfg, &Gate::new(noise, &cfg))
+        extract(sweep, cfg, &Gate::new(noise, cfg))
+    }
+
+    /// The features set up for the `srf05` profile's echoes, the threshold steady: its 5 cm post
+    /// at 1 m about 1 dB over the threshold on its axis.
+    pub(crate) fn srf05_echoes() -> FeatureConfig {
+        let mut cfg = FeatureConfig::default();
+        cfg.echo.tvg_db_per_m = 6.0;
+        cfg.echo.tvg_max_range_m = 4.0;
+        cfg.echo.threshold_db = -19.5;
+        cfg
     }
 
     fn rcds(from_deg: f64, ranges: &[f64]) -> Vec<Rcd> {
@@ -837,29 +851,24 @@ pub(crate) mod tests {
     fn a_faint_posts_pings_lost_to_the_amplitude_jitter_leave_one_region() {
         // The SRF05 profile's 5 cm post at 1 m, about 1 dB over its threshold: a ping on its
         // flank heard the wall behind it.
-        let mut cfg = FeatureConfig::default();
-        cfg.echo.tvg_db_per_m = 6.0;
-        cfg.echo.tvg_max_range_m = 4.0;
-        cfg.echo.threshold_db = -19.5;
-        let ranges = cat(&[
+        let mut cfg = srf05_echoes();
+        let posts = |cfg: &FeatureConfig, ranges: &[f64], nearer_than: f64| -> Vec<Rcd> {
+            regions_with(&sweep(-15.0, ranges), cfg)
+                .into_iter()
+                .filter(|r| r.range_m < nearer_than)
+                .collect()
+        };
+        let flank = cat(&[
             run(3, 2.0),
             run(3, 0.975),
             run(1, 2.0),
             run(12, 0.975),
             run(3, 2.0),
         ]);
-        let s = sweep(-15.0, &ranges);
-        let noise = NoiseModel::estimate(s.pairs().iter().copied(), &cfg.noise);
-        let posts = |cfg: &FeatureConfig| -> Vec<Rcd> {
-            extract(&s, cfg, &Gate::new(noise, cfg))
-                .into_iter()
-                .filter(|r| r.range_m < 1.5)
-                .collect()
-        };
         // Told the threshold does not move, the pings that heard past it are a gap.
-        assert_eq!(posts(&cfg).len(), 2);
+        assert_eq!(posts(&cfg, &flank, 1.5).len(), 2);
         cfg.echo.threshold_jitter_db = 1.0;
-        let joined = posts(&cfg);
+        let joined = posts(&cfg, &flank, 1.5);
         assert_eq!(joined.len(), 1, "{joined:?}");
         let r = joined[0];
         assert_eq!((r.pings, r.outliers), (15, 1), "{r:?}");
@@ -874,30 +883,12 @@ pub(crate) mod tests {
             run(7, 0.975),
             run(3, 2.0),
         ]);
-        let s = sweep(-15.0, &on_axis);
-        let gate = Gate::new(
-            NoiseModel::estimate(s.pairs().iter().copied(), &cfg.noise),
-            &cfg,
-        );
-        let split = extract(&s, &cfg, &gate)
-            .into_iter()
-            .filter(|r| r.range_m < 1.5)
-            .count();
-        assert_eq!(split, 2);
-        let near: Vec<f64> = ranges
+        assert_eq!(posts(&cfg, &on_axis, 1.5).len(), 2);
+        let near: Vec<f64> = flank
             .iter()
             .map(|&r| if r < 1.0 { 0.475 } else { r })
             .collect();
-        let s = sweep(-15.0, &near);
-        let gate = Gate::new(
-            NoiseModel::estimate(s.pairs().iter().copied(), &cfg.noise),
-            &cfg,
-        );
-        let near_posts = extract(&s, &cfg, &gate)
-            .into_iter()
-            .filter(|r| r.range_m < 1.0)
-            .count();
-        assert_eq!(near_posts, 2);
+        assert_eq!(posts(&cfg, &near, 1.0).len(), 2);
     }
 
     #[test]
