@@ -29,9 +29,8 @@ use sonar_fusion::Preset;
 use sonar_sim::{Post, Scene, Vec2, Wall};
 
 use crate::metrics::{apparent_width, gap_between};
-use crate::pipeline::{Head, Maps, Scan, capture_with, two_posts};
+use crate::pipeline::{Head, Maps, ProfileChoice, Scan, capture_with, two_posts};
 use crate::report::{GAP_DEPTH_M, WIDTH_WINDOW_M};
-use crate::suite::ProfileChoice;
 
 /// A feature lies on a truth element within this distance.
 pub const MATCH_M: f64 = 0.10;

@@ -11,7 +11,7 @@ use sonar_eval::motion::{self, MotionSettings};
 use sonar_eval::report::{self, Settings};
 use sonar_eval::slam;
 use sonar_eval::suite::{self, SuiteArgs, SuiteSettings};
-use sonar_eval::{calibration, feature_report, image};
+use sonar_eval::{calibration, feature_report, image, pipeline};
 use sonar_sim::{BUILTIN_NAMES, Scene};
 use tracing::info;
 
@@ -105,7 +105,7 @@ struct Args {
     /// as its owner would, or default (the paper's head and the simulator's default echoes).
     /// The noise levels replace a profile's range noise and keep its jitter and dropouts.
     #[arg(long, default_value = "default")]
-    feature_profile: suite::ProfileChoice,
+    feature_profile: pipeline::ProfileChoice,
     /// Calibrate the feature evaluation's sensor first, as `sonar calibrate-range` does (three
     /// sweeps of the built-in room's wall 1.2 m ahead), and take the measured range offset off
     /// every range the features see (the grids' figures stay uncalibrated).
@@ -149,7 +149,7 @@ struct Args {
     /// hc-sr04, nxt) or default (the simulator without a profile); the SLAM and the localisation
     /// are told each one's head and echo cones.
     #[arg(long, default_value = "default", value_delimiter = ',')]
-    slam_profiles: Vec<suite::ProfileChoice>,
+    slam_profiles: Vec<pipeline::ProfileChoice>,
     /// Layout seeds of the SLAM evaluation's generated tours (as --motion-seeds).
     #[arg(long, default_value = "4..8:1", value_parser = parse_seeds)]
     slam_layouts: Values,
@@ -540,7 +540,7 @@ mod tests {
         assert_eq!(a.feature_seeds.0, [1.0, 2.0, 3.0]);
         assert_eq!(a.feature_spacings.0.len(), 13);
         assert!(!a.features_only && !a.motion_only);
-        assert_eq!(a.feature_profile, suite::ProfileChoice(None));
+        assert_eq!(a.feature_profile, pipeline::ProfileChoice(None));
         assert!(!a.feature_calibrate);
         let a = Args::try_parse_from([
             "sonar-eval",
@@ -552,7 +552,7 @@ mod tests {
         assert!(a.feature_calibrate);
         assert_eq!(
             a.feature_profile,
-            suite::ProfileChoice(Some(sonar_sim::SensorProfile::HcSr04))
+            pipeline::ProfileChoice(Some(sonar_sim::SensorProfile::HcSr04))
         );
         assert!(Args::try_parse_from(["sonar-eval", "--feature-profile", "srf04"]).is_err());
         assert_eq!((a.motion_seeds.0.len(), a.motion_metres), (10, 20.0));
@@ -566,7 +566,7 @@ mod tests {
             a.slam_odometry.0,
             [slam::OdometryLevel::MEDIUM, slam::OdometryLevel::POOR]
         );
-        assert_eq!(a.slam_profiles, [suite::ProfileChoice(None)]);
+        assert_eq!(a.slam_profiles, [pipeline::ProfileChoice(None)]);
         let a = Args::try_parse_from([
             "sonar-eval",
             "--slam",
@@ -581,8 +581,8 @@ mod tests {
         assert_eq!(
             a.slam_profiles,
             [
-                suite::ProfileChoice(Some(sonar_sim::SensorProfile::Nxt)),
-                suite::ProfileChoice(None)
+                pipeline::ProfileChoice(Some(sonar_sim::SensorProfile::Nxt)),
+                pipeline::ProfileChoice(None)
             ]
         );
         assert_eq!(a.slam_tours.0, [slam::Family::Loop, slam::Family::Office]);

@@ -22,8 +22,10 @@ use sonar_driver::decoder::{Decoded, Decoder, Dialect};
 use sonar_fusion::{FusionConfig, Mapper, Observation, Preset};
 use sonar_sim::{
     Carrier, Device, EchoModel, Firmware, NativeDevice, OdometryParams, Pose, PoseSample, Post,
-    Rover, Scene, Surface, Timing, Vec2, Wall, act_carried, report_sweeps,
+    Rover, Scene, SensorProfile, Surface, Timing, Vec2, Wall, act_carried, report_sweeps,
 };
+
+use std::str::FromStr;
 
 use crate::metrics::{MapKind, MapView};
 
@@ -93,6 +95,32 @@ pub struct Capture {
 pub fn capture(scene: Scene, scan: Scan, sweeps: u32, seed: u64) -> Result<Capture> {
     let head = Head::default();
     capture_with(scene, head, scan, sweeps, seed)
+}
+
+/// A sensor profile, or `default`: the simulator's calibration without a profile (the one
+/// behind the paper scenes' figures).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ProfileChoice(pub Option<SensorProfile>);
+
+impl FromStr for ProfileChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        if s == "default" {
+            return Ok(Self(None));
+        }
+        s.parse::<SensorProfile>()
+            .map(|p| Self(Some(p)))
+            .map_err(|e| format!("{e}, or default"))
+    }
+}
+
+impl std::fmt::Display for ProfileChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.0 {
+            Some(p) => write!(f, "{p}"),
+            None => f.write_str("default"),
+        }
+    }
 }
 
 /// The simulated head's geometry and timing: the paper's by default, a sensor profile's

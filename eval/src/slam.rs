@@ -45,8 +45,8 @@ use crate::feature_report::Spread;
 use crate::features::scene_feature_config;
 use crate::landmarks::{self, LandmarkScore};
 use crate::motion::{POSE_RATE_HZ, Placement, PoseError, fuse_tour, grid_over, nees, truth_at};
-use crate::pipeline::{Scan, TourCapture, capture_tour, probability_view};
-use crate::suite::{GridScore, ProfileChoice, Reach, score_grid};
+use crate::pipeline::{ProfileChoice, Scan, TourCapture, capture_tour, probability_view};
+use crate::suite::{GridScore, Reach, score_grid};
 
 /// χ² of 3 degrees of freedom at 95 %: a fix whose NEES is within lies inside its 95 % ellipse.
 pub const CHI2_3_95: f64 = 7.81;

@@ -68,14 +68,14 @@ use sonar_features::{
 };
 use sonar_fusion::{FusionConfig, FusionSection, Mapper, Observation, Preset};
 use sonar_sim::geometry::{distance_to_segment, rotate, segments_intersect};
-use sonar_sim::{Pose, Scene, SensorProfile, Vec2, Wall};
+use sonar_sim::{Pose, Scene, Vec2, Wall};
 use tracing::info;
 
 use crate::calibration;
 use crate::features::{MATCH_M, PLANE_MATCH_DEG, Truth, scene_feature_config, score};
 use crate::image::{self, Canvas, Window};
 use crate::metrics::{MapView, quantile};
-use crate::pipeline::{Head, Scan, capture_with, probability_view};
+use crate::pipeline::{Head, ProfileChoice, Scan, capture_with, probability_view};
 use crate::scenegen::{self, Family, Generated, VIEWPOINTS};
 
 /// A surface counts as drawn, and an occupied cell as on a surface, within this.
@@ -137,32 +137,6 @@ impl Split {
         match self {
             Split::Tune => 2 * k,
             Split::Report => 2 * k + 1,
-        }
-    }
-}
-
-/// A sensor profile, or `default`: the simulator's calibration without a profile (the one
-/// behind the paper scenes' figures).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ProfileChoice(pub Option<SensorProfile>);
-
-impl FromStr for ProfileChoice {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        if s == "default" {
-            return Ok(Self(None));
-        }
-        s.parse::<SensorProfile>()
-            .map(|p| Self(Some(p)))
-            .map_err(|e| format!("{e}, or default"))
-    }
-}
-
-impl std::fmt::Display for ProfileChoice {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self.0 {
-            Some(p) => write!(f, "{p}"),
-            None => f.write_str("default"),
         }
     }
 }
@@ -1661,7 +1635,7 @@ fn features_table(
 mod tests {
     use super::*;
     use sonar_fusion::GridGeometry;
-    use sonar_sim::{Surface, Wall};
+    use sonar_sim::{SensorProfile, Surface, Wall};
 
     fn wall(a: [f64; 2], b: [f64; 2]) -> Wall {
         Wall {
@@ -2017,6 +1991,7 @@ mod pose_tests {
 #[cfg(test)]
 mod structural_tests {
     use super::*;
+    use sonar_sim::SensorProfile;
 
     fn settings(profiles: Vec<ProfileChoice>) -> SuiteSettings {
         let sensors = profiles

@@ -4,7 +4,7 @@
 
 use sonar_eval::feature_report::{self, When};
 use sonar_eval::features::{FeatureSettings, NoiseLevel, evaluate, evaluate_levels};
-use sonar_eval::suite::ProfileChoice;
+use sonar_eval::pipeline::ProfileChoice;
 
 #[test]
 fn the_feature_evaluation_runs_and_meets_its_aims_on_a_small_sample() {

@@ -42,9 +42,11 @@ use nalgebra::{Isometry2, Vector2};
 use sonar_common::ipc::{FusionCommand, FusionCommandKind, Reading};
 use sonar_eval::metrics::{MapKind, MapView, quantile};
 use sonar_eval::motion::{POSE_RATE_HZ, truth_at};
-use sonar_eval::pipeline::{Head, Scan, capture_tour, capture_with, probability_view};
+use sonar_eval::pipeline::{
+    Head, ProfileChoice, Scan, capture_tour, capture_with, probability_view,
+};
 use sonar_eval::scenegen::{self, Family};
-use sonar_eval::suite::{GridScore, ProfileChoice, Reach, score_grid};
+use sonar_eval::suite::{GridScore, Reach, score_grid};
 use sonar_fusion::engine::Engine;
 use sonar_fusion::{FusionConfig, GridConfig, GridGeometry, Preset};
 use sonar_sim::{OdometryParams, Pose, Scene};
