@@ -173,15 +173,14 @@ impl Cones {
     fn at(range_m: f64, cfg: &FeatureConfig) -> Self {
         let beam = f64::from(cfg.sensor.beam_half_angle_deg);
         let cone = |r: Reflector| cfg.echo.cone_half_angle_deg(r, range_m, beam);
-        let lowered = crate::EchoPhysics {
-            threshold_db: cfg.echo.threshold_db - cfg.echo.threshold_jitter_db,
-            ..cfg.echo
-        };
         Self {
             point: cone(cfg.echo.reference_point()).unwrap_or(0.0),
-            point_widest: lowered
-                .cone_half_angle_deg(cfg.echo.reference_point(), range_m, beam)
-                .unwrap_or(0.0),
+            point_widest: cfg.echo.cone_with_threshold_moved_deg(
+                cfg.echo.reference_point(),
+                range_m,
+                beam,
+                -cfg.echo.threshold_jitter_db,
+            ),
             plane: cone(Reflector::Plane),
             weakest_plane: cfg.echo.weakest_plane_cone_half_angle_deg(range_m, beam),
             corner: cone(Reflector::Corner),

@@ -53,6 +53,15 @@ pub struct Feature {
 }
 
 impl Feature {
+    /// Takes `other`'s sightings into this one's count, confidence and first and last sweeps:
+    /// the two were one target.
+    pub(crate) fn absorb_sightings(&mut self, other: &Feature) {
+        self.times_seen += other.times_seen;
+        self.confidence = self.confidence.max(other.confidence);
+        self.first_seen = self.first_seen.min(other.first_seen);
+        self.last_seen = self.last_seen.max(other.last_seen);
+    }
+
     pub fn id(&self) -> u64 {
         self.id
     }

@@ -469,10 +469,7 @@ impl FeatureMap {
         for (kept, merged) in same_targets(&self.features, &merge_cfg) {
             let other = self.features[merged].clone();
             let f = &mut self.features[kept];
-            f.times_seen += other.times_seen;
-            f.confidence = f.confidence.max(other.confidence);
-            f.first_seen = f.first_seen.min(other.first_seen);
-            f.last_seen = f.last_seen.max(other.last_seen);
+            f.absorb_sightings(&other);
             f.one_place &= other.one_place && (other.seen_from - f.seen_from).norm() <= ONE_PLACE_M;
             f.may_be_plane &= other.may_be_plane;
             f.pair_centre = f.pair_centre.filter(|_| other.pair_centre.is_some());
@@ -482,11 +479,7 @@ impl FeatureMap {
         for post in thick_posts(&self.features) {
             let mut kept = self.features[post.kept].clone();
             for &i in &post.merged {
-                let other = &self.features[i];
-                kept.times_seen += other.times_seen;
-                kept.confidence = kept.confidence.max(other.confidence);
-                kept.first_seen = kept.first_seen.min(other.first_seen);
-                kept.last_seen = kept.last_seen.max(other.last_seen);
+                kept.absorb_sightings(&self.features[i]);
             }
             // The near faces from the two places lie up to the post's diameter apart: the
             // midpoint is off the nearest face by up to half of that, whichever it is.

@@ -163,15 +163,28 @@ impl EchoPhysics {
         if jitter <= 0.0 {
             return 0.0;
         }
-        let cone = |shift: f64| {
-            Self {
-                threshold_db: self.threshold_db + shift,
-                ..*self
-            }
-            .cone_half_angle_deg(reflector, range_m, beam_half_angle_deg)
-            .unwrap_or(0.0)
+        let cone = |by_db: f64| {
+            self.cone_with_threshold_moved_deg(reflector, range_m, beam_half_angle_deg, by_db)
         };
         (cone(-jitter) - cone(jitter)) / 12f64.sqrt()
+    }
+
+    /// Half-angle of `reflector`'s cone at `range_m` with the detection threshold moved by
+    /// `by_db` (down by the jitter: the widest it is heard in any sweep; up: the cone every
+    /// sweep keeps), degrees; 0 where it is not heard even on the axis.
+    pub fn cone_with_threshold_moved_deg(
+        &self,
+        reflector: Reflector,
+        range_m: f64,
+        beam_half_angle_deg: f64,
+        by_db: f64,
+    ) -> f64 {
+        Self {
+            threshold_db: self.threshold_db + by_db,
+            ..*self
+        }
+        .cone_half_angle_deg(reflector, range_m, beam_half_angle_deg)
+        .unwrap_or(0.0)
     }
 
     /// The widest region of constant depth one target can make at `range_m`, degrees: a wall's

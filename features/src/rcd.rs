@@ -679,13 +679,9 @@ fn join_missed(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) 
     let beam = f64::from(cfg.sensor.beam_half_angle_deg);
     let pings = sweep.pings();
     let post = cfg.echo.reference_point();
-    let cone_at = |shift: f64, range: f64| {
-        crate::EchoPhysics {
-            threshold_db: cfg.echo.threshold_db + shift,
-            ..cfg.echo
-        }
-        .cone_half_angle_deg(post, range, beam)
-        .unwrap_or(0.0)
+    let cone_at = |by_db: f64, range: f64| {
+        cfg.echo
+            .cone_with_threshold_moved_deg(post, range, beam, by_db)
     };
     let mut out: Vec<Run> = Vec::with_capacity(runs.len());
     for r in runs {
