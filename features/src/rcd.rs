@@ -702,8 +702,7 @@ fn join_missed(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) 
             let kept = cone_at(jitter, range);
             let outside_kept =
                 (prev.last + 1..r.first).all(|k| (pings[k].bearing_deg - middle).abs() > kept);
-            if r.first > prev.last
-                && gap <= MAX_MISSED
+            if (1..=MAX_MISSED).contains(&gap)
                 && missed
                 && !sweep.gap_before(r.first)
                 && prev.end == End::Natural
