@@ -378,22 +378,13 @@ fn run(args: Args) -> Result<()> {
             level_spacings_mm: args.feature_level_spacings.0,
             profile: args.feature_profile,
             calibrated: if args.feature_calibrate {
-                let profile = args.feature_profile.0;
-                let offset = calibration::measured_range_offset(
-                    |scene| {
-                        if let Some(p) = profile {
-                            scene.set_profile(p);
-                        }
-                    },
-                    calibration::SEED,
-                )
-                .context("calibrating the feature evaluation's sensor")?;
-                info!(
-                    offset_m = offset.offset_m,
-                    sigma_m = offset.sigma_m,
-                    "range offset measured on the calibration room's wall"
-                );
-                Some(offset)
+                // Measured as the suite's --suite-calibrate measures it, the profile's own noise.
+                let sensor = suite::SensorChoice {
+                    profile: args.feature_profile,
+                    noise: None,
+                    calibrated: None,
+                };
+                sensor.calibrate(calibration::SEED)?.calibrated
             } else {
                 None
             },

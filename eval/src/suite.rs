@@ -222,7 +222,7 @@ impl SensorChoice {
 
     /// This sensor with its range offset measured in the calibration room, echo noise seeded
     /// by `seed`.
-    fn calibrate(self, seed: u64) -> Result<Self> {
+    pub fn calibrate(self, seed: u64) -> Result<Self> {
         let offset = calibration::measured_range_offset(|s| self.apply(s), seed)
             .with_context(|| format!("calibrating {self}"))?;
         info!(
