@@ -1099,6 +1099,11 @@ pub fn score_scene_map(
         }
     }
     for (f, _) in features.iter().zip(&used).filter(|(_, u)| !**u) {
+        out.false_features += 1;
+        // What follows only describes it, in the debug log.
+        if !tracing::enabled!(tracing::Level::DEBUG) {
+            continue;
+        }
         let p = seen_at(f, &segments);
         let at = Vec2::new(p.x, p.y);
         // For a plane, the wall whose normal is nearest its own among those whose line passes
@@ -1156,7 +1161,6 @@ pub fn score_scene_map(
             confirmed = f.confirmed(),
             "false feature in a scene's map"
         );
-        out.false_features += 1;
     }
     out
 }
