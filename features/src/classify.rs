@@ -352,7 +352,7 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
                 .zip(cones.weakest_plane)
                 .is_some_and(|(hard, weakest)| w >= 2.0 * weakest - tol && w < 2.0 * hard);
             if w <= 2.0 * point + tol {
-                let mut h = Hypothesis::one(Class::Point, centre, centre_sigma);
+                let mut h = Hypothesis::one(Class::Point, rcd.heard_centre_deg, centre_sigma);
                 if fits(cones.plane) {
                     h.or_plane = Some(Bearing {
                         deg: centre,
@@ -374,7 +374,7 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
                 Hypothesis::one(Class::Plane, centre, centre_sigma)
             } else if w <= 2.0 * widest + tol {
                 // As wide as one point heard through a lowered threshold: one point.
-                Hypothesis::one(Class::Point, centre, centre_sigma)
+                Hypothesis::one(Class::Point, rcd.heard_centre_deg, centre_sigma)
             } else if w <= 4.0 * widest + tol {
                 Hypothesis {
                     class: Class::TwoPoints,

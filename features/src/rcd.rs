@@ -35,7 +35,7 @@
 
 use crate::config::FeatureConfig;
 use crate::noise::NoiseModel;
-use crate::pings::Sweep;
+use crate::pings::{Ping, Sweep};
 
 /// Why a region of constant depth ends where it does.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -85,6 +85,11 @@ pub struct Rcd {
     pub start_interval_deg: f64,
     /// The same at the end.
     pub end_interval_deg: f64,
+    /// Mean bearing of every ping of the sweep at the run's range within the widest cone a
+    /// reference point target could be heard over about the run's middle
+    /// ([`heard_centre_deg`]); the middle between the edges ([`Rcd::centre_deg`]) when the
+    /// threshold does not jitter.
+    pub heard_centre_deg: f64,
 }
 
 impl Rcd {
@@ -221,6 +226,11 @@ impl Gate {
             && s.hi.max(r) - s.lo.min(r) <= 2.0 * self.tolerance_at(s.mean())
     }
 
+    /// Neither farther nor nearer: a ping of the run's target.
+    fn at_range(&self, s: &Stats, r: f64) -> bool {
+        (r - s.mean()).abs() <= self.reach(s)
+    }
+
     fn farther(&self, s: &Stats, r: f64) -> bool {
         r > s.mean() + self.reach(s)
     }
@@ -268,26 +278,143 @@ pub fn extract(sweep: &Sweep, cfg: &FeatureConfig, gate: &Gate) -> Vec<Rcd> {
     let runs = join_hidden(sweep, runs, cfg, gate);
     let runs = join_missed(sweep, runs, cfg, gate);
     let pings = sweep.pings();
-    runs.into_iter()
+    let runs: Vec<Run> = runs
+        .into_iter()
         .filter(|r| r.stats.n >= cfg.min_pings)
-        .map(|r| Rcd {
-            range_m: r.stats.mean() - cfg.range_offset_m,
-            // The sensor's noise is a floor: a few pings can agree by chance; a wider sample
-            // spread (a transient absorbed into the run) is kept.
-            range_sigma_m: r.stats.sample_sd().max(gate.noise.sigma_at(r.stats.mean()))
-                / f64::from(r.stats.n).sqrt(),
-            first_deg: pings[r.first].bearing_deg,
-            last_deg: pings[r.last].bearing_deg,
-            step_deg: sweep.step_deg(),
-            pings: r.stats.n,
-            outliers: r.outliers,
-            hidden: r.hidden,
-            start: r.start,
-            end: r.end,
-            start_interval_deg: r.start_steps * sweep.step_deg(),
-            end_interval_deg: r.end_steps * sweep.step_deg(),
+        .collect();
+    runs.iter()
+        .map(|&r| {
+            let mut rcd = Rcd {
+                range_m: r.stats.mean() - cfg.range_offset_m,
+                // The sensor's noise is a floor: a few pings can agree by chance; a wider sample
+                // spread (a transient absorbed into the run) is kept.
+                range_sigma_m: r.stats.sample_sd().max(gate.noise.sigma_at(r.stats.mean()))
+                    / f64::from(r.stats.n).sqrt(),
+                first_deg: pings[r.first].bearing_deg,
+                last_deg: pings[r.last].bearing_deg,
+                step_deg: sweep.step_deg(),
+                pings: r.stats.n,
+                outliers: r.outliers,
+                hidden: r.hidden,
+                start: r.start,
+                end: r.end,
+                start_interval_deg: r.start_steps * sweep.step_deg(),
+                end_interval_deg: r.end_steps * sweep.step_deg(),
+                heard_centre_deg: 0.0,
+            };
+            rcd.heard_centre_deg = if cfg.echo.threshold_jitter_db > 0.0 {
+                let own = own_span(sweep, &runs, &r, cfg, gate);
+                heard_centre_deg(sweep, &r.stats, rcd.centre_deg(), own, cfg, gate)
+            } else {
+                rcd.centre_deg()
+            };
+            rcd
         })
         .collect()
+}
+
+/// The pings (indices) between the regions of `runs` beside `run` that are other targets at its
+/// range: regions at the same range whose union with it no point target's cone could span
+/// (wider than the reference point heard through the lowest threshold), or with a ping between
+/// the two that missed it inside the cone it keeps whatever the jitter (a way between two
+/// targets, as [`join_missed`] tells them). A piece of the same target's cone split off by
+/// missed pings is neither, and is looked into.
+fn own_span(
+    sweep: &Sweep,
+    runs: &[Run],
+    run: &Run,
+    cfg: &FeatureConfig,
+    gate: &Gate,
+) -> std::ops::Range<usize> {
+    let pings = sweep.pings();
+    let range = run.stats.mean();
+    let widest = 2.0 * point_widest_deg(cfg, range) + cfg.width_tolerance_deg(sweep.step_deg());
+    let kept = point_kept_deg(cfg, range);
+    let another_target = |o: &Run| {
+        let (a, b) = (run.first.min(o.first), run.last.max(o.last));
+        let span = pings[b].bearing_deg - pings[a].bearing_deg + sweep.step_deg();
+        let middle = (pings[a].bearing_deg + pings[b].bearing_deg) / 2.0;
+        let gap = if o.first > run.last {
+            run.last + 1..o.first
+        } else {
+            o.last + 1..run.first
+        };
+        span > widest || !outside_kept(pings, gap, middle, kept)
+    };
+    let others = runs
+        .iter()
+        .filter(|o| o.first != run.first && gate.same_range(&o.stats, &run.stats))
+        .filter(|o| another_target(o));
+    let after = others
+        .clone()
+        .map(|o| o.last)
+        .filter(|&l| l < run.first)
+        .max();
+    let before = others.map(|o| o.first).filter(|&f| f > run.last).min();
+    after.map_or(0, |l| l + 1)..before.unwrap_or(pings.len())
+}
+
+/// Every ping of `gap` lies farther than `kept` degrees from `middle`: outside the cone a
+/// point target there keeps whatever the jitter, where a miss may be the jitter's.
+fn outside_kept(pings: &[Ping], gap: std::ops::Range<usize>, middle: f64, kept: f64) -> bool {
+    gap.into_iter()
+        .all(|k| (pings[k].bearing_deg - middle).abs() > kept)
+}
+
+/// Half-angle of the widest cone the reference point target is heard over at `range_m`: the
+/// threshold at the low end of its jitter.
+fn point_widest_deg(cfg: &FeatureConfig, range_m: f64) -> f64 {
+    cfg.echo.cone_with_threshold_moved_deg(
+        cfg.echo.reference_point(),
+        range_m,
+        f64::from(cfg.sensor.beam_half_angle_deg),
+        -cfg.echo.threshold_jitter_db,
+    )
+}
+
+/// Half-angle of the cone the reference point target is heard over whatever the jitter: the
+/// threshold at the top of it.
+fn point_kept_deg(cfg: &FeatureConfig, range_m: f64) -> f64 {
+    cfg.echo.cone_with_threshold_moved_deg(
+        cfg.echo.reference_point(),
+        range_m,
+        f64::from(cfg.sensor.beam_half_angle_deg),
+        cfg.echo.threshold_jitter_db,
+    )
+}
+
+/// The bearing of a point target from every ping of `sweep` that heard its range (`stats`)
+/// within the widest cone the reference point is heard over at that range (the threshold at
+/// the low end of its jitter, one step to spare) about `about_deg`, looked at twice, the second
+/// time about the first mean. With the threshold jittering a faint target is heard by each ping
+/// on its cone's flanks only by chance (the `srf05` profile's post at 1 m, about 1 dB over its
+/// threshold, by a ping at 6° from its axis about half the time), so a region's two outermost
+/// pings, and the region itself, end wherever a ping first missed: its middle wandered by 2° from
+/// sweep to sweep, and a flank ping beyond a miss was left out of the region (bridged as a
+/// transient of the wall behind, or a region of its own). The mean of every ping the target
+/// answered weighs each by its chance of being heard, which falls off symmetrically about the
+/// axis: 1.3° from sweep to sweep there. Only the pings in `between` (indices), the span up to
+/// the regions of other targets at that range.
+fn heard_centre_deg(
+    sweep: &Sweep,
+    stats: &Stats,
+    about_deg: f64,
+    between: std::ops::Range<usize>,
+    cfg: &FeatureConfig,
+    gate: &Gate,
+) -> f64 {
+    let half = point_widest_deg(cfg, stats.mean()) + sweep.step_deg();
+    let mean_about = |centre: f64| {
+        let (sum, n) = sweep.pings()[between.clone()]
+            .iter()
+            .filter(|p| p.range_m.is_some_and(|r| gate.at_range(stats, r)))
+            .map(|p| crate::geometry::wrap_deg(p.bearing_deg - centre))
+            .filter(|off| off.abs() <= half)
+            .fold((0.0, 0u32), |(sum, n), off| (sum + off, n + 1));
+        (n > 0).then(|| centre + sum / f64::from(n))
+    };
+    let first = mean_about(about_deg).unwrap_or(about_deg);
+    mean_about(first).unwrap_or(first)
 }
 
 /// Most consecutive pings bridged inside one run: a sensor that loses a share p of its pings
@@ -676,13 +803,7 @@ fn join_missed(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) 
     if jitter <= 0.0 {
         return runs;
     }
-    let beam = f64::from(cfg.sensor.beam_half_angle_deg);
     let pings = sweep.pings();
-    let post = cfg.echo.reference_point();
-    let cone_at = |by_db: f64, range: f64| {
-        cfg.echo
-            .cone_with_threshold_moved_deg(post, range, beam, by_db)
-    };
     let mut out: Vec<Run> = Vec::with_capacity(runs.len());
     for r in runs {
         if let Some(prev) = out.last_mut() {
@@ -699,9 +820,12 @@ fn join_missed(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) 
             let middle = (pings[prev.first].bearing_deg + pings[r.last].bearing_deg) / 2.0;
             let width =
                 pings[r.last].bearing_deg - pings[prev.first].bearing_deg + sweep.step_deg();
-            let kept = cone_at(jitter, range);
-            let outside_kept =
-                (prev.last + 1..r.first).all(|k| (pings[k].bearing_deg - middle).abs() > kept);
+            let outside_kept = outside_kept(
+                pings,
+                prev.last + 1..r.first,
+                middle,
+                point_kept_deg(cfg, range),
+            );
             if (1..=MAX_MISSED).contains(&gap)
                 && missed
                 && !sweep.gap_before(r.first)
@@ -710,7 +834,8 @@ fn join_missed(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) 
                 && gate.same_range(&prev.stats, &r.stats)
                 && outside_kept
                 && width
-                    <= 2.0 * cone_at(-jitter, range) + cfg.width_tolerance_deg(sweep.step_deg())
+                    <= 2.0 * point_widest_deg(cfg, range)
+                        + cfg.width_tolerance_deg(sweep.step_deg())
             {
                 prev.stats = stats;
                 prev.outliers += gap as u32 + r.outliers;
@@ -793,7 +918,6 @@ fn join_hidden(sweep: &Sweep, runs: Vec<Run>, cfg: &FeatureConfig, gate: &Gate) 
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::pings::Ping;
 
     /// A sweep of pings 1.5° apart from `from_deg`, with these ranges (0 = no echo).
     pub(crate) fn sweep(from_deg: f64, ranges: &[f64]) -> Sweep {
@@ -836,6 +960,17 @@ pub(crate) mod tests {
         cfg.echo.tvg_max_range_m = 4.0;
         cfg.echo.threshold_db = -19.5;
         cfg
+    }
+
+    /// `n` pings from `from_deg` that hear a target at 0.975 m within `half_deg` of `axis_deg`
+    /// and a wall at 2 m elsewhere.
+    fn cone_sweep_ranges(from_deg: f64, n: usize, axis_deg: f64, half_deg: f64) -> Vec<f64> {
+        (0..n)
+            .map(|i| {
+                let off = from_deg + 1.5 * i as f64 - axis_deg;
+                if off.abs() <= half_deg { 0.975 } else { 2.0 }
+            })
+            .collect()
     }
 
     fn rcds(from_deg: f64, ranges: &[f64]) -> Vec<Rcd> {
@@ -884,6 +1019,81 @@ pub(crate) mod tests {
             .map(|&r| if r < 1.0 { 0.475 } else { r })
             .collect();
         assert_eq!(posts(&cfg, &near, 1.0).len(), 2);
+    }
+
+    #[test]
+    fn a_faint_posts_bearing_is_the_mean_of_every_ping_that_heard_it() {
+        use rand::{Rng, SeedableRng, rngs::StdRng};
+        // The SRF05 profile's post at 0.975 m, 1° off the ping grid, a wall behind at 2 m; each
+        // ping's threshold moved by up to ±1 dB, so its flanks are heard by chance and a miss
+        // ends the region anywhere.
+        let mut cfg = srf05_echoes();
+        cfg.echo.threshold_jitter_db = 1.0;
+        let beam = f64::from(cfg.sensor.beam_half_angle_deg);
+        let axis = 1.0;
+        let mut rng = StdRng::seed_from_u64(7);
+        let (mut heard, mut edges) = (Vec::new(), Vec::new());
+        for _ in 0..300 {
+            let ranges: Vec<f64> = (0..40)
+                .map(|i| {
+                    let off = -30.0 + 1.5 * i as f64 - axis;
+                    let by_db = rng.random_range(-1.0..=1.0);
+                    let cone = cfg.echo.cone_with_threshold_moved_deg(
+                        cfg.echo.reference_point(),
+                        0.975,
+                        beam,
+                        by_db,
+                    );
+                    if off.abs() <= cone { 0.975 } else { 2.0 }
+                })
+                .collect();
+            let post = regions_with(&sweep(-30.0, &ranges), &cfg)
+                .into_iter()
+                .filter(|r| r.range_m < 1.5)
+                .max_by_key(|r| r.pings);
+            if let Some(r) = post {
+                heard.push(r.heard_centre_deg - axis);
+                edges.push(r.centre_deg() - axis);
+            }
+        }
+        let stats = |v: &[f64]| {
+            let mean = v.iter().sum::<f64>() / v.len() as f64;
+            let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / v.len() as f64).sqrt();
+            (mean, sd)
+        };
+        let ((mean, sd), (_, edges_sd)) = (stats(&heard), stats(&edges));
+        assert!(heard.len() >= 290, "{}", heard.len());
+        assert!(mean.abs() < 0.2, "{mean} {sd}");
+        assert!(sd < 0.8 * edges_sd, "{sd} against the edges' {edges_sd}");
+        // Without jitter the bearing is the middle between the edges.
+        cfg.echo.threshold_jitter_db = 0.0;
+        let steady = cone_sweep_ranges(-30.0, 40, axis, 11.6);
+        for r in regions_with(&sweep(-30.0, &steady), &cfg) {
+            assert_eq!(r.heard_centre_deg, r.centre_deg());
+        }
+    }
+
+    #[test]
+    fn a_faint_posts_bearing_is_not_drawn_to_another_post_at_its_range() {
+        // Two faint posts 0.975 m away, their cones 9° apart with the wall heard between: the
+        // pings at 0° and ±1.5° missed inside the cone either would keep whatever the jitter,
+        // so neither post's bearing looks into the other's pings.
+        let mut cfg = srf05_echoes();
+        cfg.echo.threshold_jitter_db = 1.0;
+        let ranges = cat(&[
+            run(6, 2.0),
+            run(7, 0.975),
+            run(3, 2.0),
+            run(7, 0.975),
+            run(6, 2.0),
+        ]);
+        let posts: Vec<Rcd> = regions_with(&sweep(-21.0, &ranges), &cfg)
+            .into_iter()
+            .filter(|r| r.range_m < 1.5)
+            .collect();
+        assert_eq!(posts.len(), 2, "{posts:?}");
+        assert!((posts[0].heard_centre_deg + 7.5).abs() < 1e-9, "{posts:?}");
+        assert!((posts[1].heard_centre_deg - 7.5).abs() < 1e-9, "{posts:?}");
     }
 
     #[test]
