@@ -188,10 +188,37 @@ impl Cones {
     }
 }
 
+/// What a region seen from one natural end may be when it is no wider than a post's cone
+/// partly seen: where the cut-off is narrower than that cone (a 20° cut-off, near) such a region
+/// is as wide as a wall's from its cut-off edge.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CutRegions {
+    /// A wall when another region of the sweep is its corner (a sweep from one place: the
+    /// paper's corner scene, cut by its local scan, through the `nxt` profile).
+    ToldByTheirCorner,
+    /// Nothing told: the pings of a sweep on the move brought to one place
+    /// ([`crate::FeatureMap::walls_on_the_move`]), whose regions a sweep's end cuts anywhere and
+    /// whose corners are not where the walls' lines meet (the SLAM's driven hallway took such
+    /// regions for walls and ran worse than its odometry).
+    Untold,
+}
+
 /// Classifies every region of one sweep (`rcds` in order of bearing, as [`crate::rcd::extract`]
 /// returns them) and estimates its targets.
 pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
+    classify_with(rcds, cfg, CutRegions::ToldByTheirCorner)
+}
+
+/// As [`classify`], with the regions cut at one end told as `cut` says.
+pub fn classify_with(rcds: &[Rcd], cfg: &FeatureConfig, cut: CutRegions) -> Classification {
     let mut hypotheses: Vec<Hypothesis> = rcds.iter().map(|r| by_width(r, cfg)).collect();
+    if cut == CutRegions::Untold {
+        for h in &mut hypotheses {
+            if h.class == Class::Unclassified {
+                h.or_plane = None;
+            }
+        }
+    }
     // Corners are tested against the planes found by width, so in a second pass; first against
     // the planes seen whole (both ends natural), since a region taken for a plane from one
     // natural end may itself be a corner. A region that is a point or a plane by its width is a
@@ -203,7 +230,12 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
             .map(|(h, r)| h.plane().filter(|_| r.is_whole()))
             .collect()
     };
-    let candidates = whole_planes(&hypotheses);
+    // A region seen from one end that may be a wall is a candidate too, to be supported.
+    let candidates: Vec<Option<Bearing>> = hypotheses
+        .iter()
+        .zip(rcds)
+        .map(|(h, r)| h.plane().filter(|_| r.is_whole() || h.or_plane.is_some()))
+        .collect();
     let mut supported = vec![false; rcds.len()];
     for i in 0..rcds.len() {
         if let Some((_, by)) = corner_of_planes(rcds, &hypotheses, &candidates, i, cfg) {
@@ -398,7 +430,7 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
                 Hypothesis::unclassified()
             }
         }
-        (true, false) | (false, true) if w > 2.0 * point + tol => {
+        (true, false) | (false, true) => {
             // The natural edge is the cone's edge; the reflector's axis lies one half-cone
             // inward.
             let (inward, sigma) = if rcd.start.is_natural() {
@@ -411,7 +443,18 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
             // aimed at a wall's normal (a corner's vertex) heard it. Narrower, the rest of the
             // region is hidden and it could be anything.
             let within = |half: Option<f64>| half.filter(|h| w <= 2.0 * h + tol && w >= h - tol);
-            if let Some(h) = within(cones.plane) {
+            if w <= 2.0 * point + tol {
+                // As narrow as a point's cone partly seen, which is as wide as a wall's where
+                // the cut-off is narrower than that cone (a 20° cut-off, near): a wall if another
+                // region is its corner (below), else nothing told.
+                Hypothesis {
+                    or_plane: within(cones.plane).map(|h| Bearing {
+                        deg: axis(h),
+                        sigma,
+                    }),
+                    ..Hypothesis::unclassified()
+                }
+            } else if let Some(h) = within(cones.plane) {
                 Hypothesis::one(Class::Plane, axis(h), sigma)
             } else if let Some(h) = within(cones.corner) {
                 Hypothesis::one(Class::Corner, axis(h), sigma)
@@ -962,6 +1005,58 @@ mod tests {
             .unwrap();
         assert!((corner.bearing_deg - 45.0).abs() < 0.75, "{corner:?}");
         assert!((corner.range_m - 1.7).abs() < 0.001);
+    }
+
+    #[test]
+    fn walls_cut_by_a_local_scan_narrower_than_a_posts_cone_are_walls_of_their_corner() {
+        // A sensor with a 20° specular cut-off (the `nxt` profile) scanning ±61° into the
+        // paper's corner 1.2 m ahead: its walls' normals at ±45°, 0.85 m away, each heard from
+        // its cut-off to the scan's end, 36° of a region, no wider than a post's cone there
+        // (±17.4°) partly seen: one end natural, too narrow for the plane rule of a region seen
+        // from one end. The corner between them lies where both walls' lines meet its range.
+        let mut cfg = FeatureConfig::default();
+        cfg.echo.specular_cutoff_deg = 20.0;
+        cfg.echo.tvg_db_per_m = 6.0;
+        cfg.echo.tvg_max_range_m = 4.0;
+        cfg.echo.threshold_db = -19.5;
+        let (d, corner_range) = (1.2 / 2f64.sqrt(), 1.2);
+        let corner = cfg
+            .echo
+            .cone_half_angle_deg(Reflector::Corner, corner_range, 30.0)
+            .unwrap();
+        let post = Cones::at(d, &cfg).point;
+        assert!(2.0 * post > 36.0 - 2.5, "{post}");
+        let targets = [
+            (-45.0, 20.0, d),
+            (0.0, corner, corner_range),
+            (45.0, 20.0, d),
+        ];
+        let ranges = cone_sweep(-60.75, 82, &targets);
+        let rcds = regions(&sweep(-60.75, &ranges));
+
+        let c = classify(&rcds, &cfg);
+        assert_eq!(
+            c.classes,
+            [Class::Plane, Class::Corner, Class::Plane],
+            "{rcds:?}"
+        );
+        let normals: Vec<f64> = c
+            .observations
+            .iter()
+            .filter(|o| o.kind == FeatureKind::Plane)
+            .map(|o| o.bearing_deg)
+            .collect();
+        assert!(
+            (normals[0] + 45.0).abs() < 2.0 && (normals[1] - 45.0).abs() < 2.0,
+            "{normals:?}"
+        );
+        // Not on the move, where a sweep's end cuts regions anywhere.
+        let moving = classify_with(&rcds, &cfg, CutRegions::Untold);
+        assert!(!moving.classes.contains(&Class::Plane), "{moving:?}");
+        // One such region with no corner beside it says nothing: a post partly seen is as wide.
+        let alone = cone_sweep(-60.75, 82, &[(45.0, 20.0, d)]);
+        let rcds = regions(&sweep(-60.75, &alone));
+        assert_eq!(classify(&rcds, &cfg).classes, [Class::Unclassified]);
     }
 
     #[test]

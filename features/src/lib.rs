@@ -101,7 +101,7 @@ pub mod segment;
 pub use calibrate::{
     CalibrationError, RangeOffset, WallSighting, WallSightings, range_offset, wall_in_sweep,
 };
-pub use classify::{Class, Classification, Observation, classify};
+pub use classify::{Class, Classification, CutRegions, Observation, classify, classify_with};
 pub use config::{FeatureConfig, MergeConfig, SegmentConfig};
 pub use drift::{DriftEstimate, DriftFilter};
 pub use error::FeatureError;

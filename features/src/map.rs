@@ -30,7 +30,7 @@ use std::collections::VecDeque;
 
 use nalgebra::{Isometry2, Matrix2, Matrix2x3, Matrix3, Point2, Vector2, Vector3};
 
-use crate::classify::{Classification, Observation, classify};
+use crate::classify::{Classification, CutRegions, Observation, classify, classify_with};
 use crate::config::{FeatureConfig, MergeConfig};
 use crate::error::FeatureError;
 use crate::feature::{Feature, FeatureKind};
@@ -345,7 +345,7 @@ impl FeatureMap {
             // One noise estimate per direction (the gate), for the regions and the check below.
             let gate = self.gate(&sweep);
             let rcds = extract(&sweep, &self.cfg, &gate);
-            for o in classify(&rcds, &self.cfg).observations {
+            for o in classify_with(&rcds, &self.cfg, CutRegions::Untold).observations {
                 let agrees = crate::geometry::wrap_deg(o.bearing_deg - normal).abs()
                     <= MOVING_NORMAL_STEP_DEG / 2.0;
                 let wall = o.kind == FeatureKind::Plane
