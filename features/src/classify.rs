@@ -211,14 +211,7 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
 
 /// As [`classify`], with the regions cut at one end told as `cut` says.
 pub fn classify_with(rcds: &[Rcd], cfg: &FeatureConfig, cut: CutRegions) -> Classification {
-    let mut hypotheses: Vec<Hypothesis> = rcds.iter().map(|r| by_width(r, cfg)).collect();
-    if cut == CutRegions::Untold {
-        for h in &mut hypotheses {
-            if h.class == Class::Unclassified {
-                h.or_plane = None;
-            }
-        }
-    }
+    let mut hypotheses: Vec<Hypothesis> = rcds.iter().map(|r| by_width(r, cfg, cut)).collect();
     // Corners are tested against the planes found by width, so in a second pass; first against
     // the planes seen whole (both ends natural), since a region taken for a plane from one
     // natural end may itself be a corner. A region that is a point or a plane by its width is a
@@ -355,8 +348,9 @@ fn heard_over_the_beam_by_a_point(rcd: &Rcd, cfg: &FeatureConfig) -> bool {
             .is_some_and(|corner| 2.0 * corner - 2.0 * cones.point <= 2.0 * tol)
 }
 
-/// The class a region's width and ends allow, before corners are tested.
-fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
+/// The class a region's width and ends allow, before corners are tested; a region cut at one end
+/// as `cut` says.
+fn by_width(rcd: &Rcd, cfg: &FeatureConfig, cut: CutRegions) -> Hypothesis {
     let cones = Cones::at(rcd.range_m, cfg);
     let w = rcd.width_deg();
     let tol = rcd.width_tolerance_deg(cfg.cone_sigma_deg);
@@ -448,10 +442,12 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig) -> Hypothesis {
                 // the cut-off is narrower than that cone (a 20° cut-off, near): a wall if another
                 // region is its corner (below), else nothing told.
                 Hypothesis {
-                    or_plane: within(cones.plane).map(|h| Bearing {
-                        deg: axis(h),
-                        sigma,
-                    }),
+                    or_plane: within(cones.plane)
+                        .filter(|_| cut == CutRegions::ToldByTheirCorner)
+                        .map(|h| Bearing {
+                            deg: axis(h),
+                            sigma,
+                        }),
                     ..Hypothesis::unclassified()
                 }
             } else if let Some(h) = within(cones.plane) {
