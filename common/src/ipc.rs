@@ -873,6 +873,23 @@ impl IpcError {
 /// a node starts ([`crate::namespace`]), whose own patience this matches.
 pub const CREATION_PATIENCE: std::time::Duration = crate::namespace::PATIENCE;
 
+/// Installs iceoryx2's SIGINT/SIGTERM handler now, once per process. iceoryx2 installs it only
+/// the first time something asks whether a stop was requested (the first [`Node::wait`]), so
+/// until then a SIGTERM kills the process outright and the node it created stays behind in the
+/// namespace (the launcher's `kill -9` test caught the driver so, mid-handshake, about one run in
+/// ten). Called just before creating the node by the processes that stop on a wait's termination
+/// request and wait soon after (the driver, the fusion, the SLAM, the recorder, the Foxglove
+/// server); not by those that handle signals themselves (the launcher, the viewer, the
+/// simulator), whose handlers iceoryx2's would replace, nor where no wait follows (a stop would
+/// then wait for nothing). A stop requested after it is seen by the first wait.
+pub fn catch_termination_requests() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    // Nothing can have been caught before the handler existed, so this asks away nothing.
+    ONCE.call_once(|| {
+        iceoryx2_bb_posix::signal::SignalHandler::termination_requested();
+    });
+}
+
 /// Where the iceoryx2 services live. Every process of one pipeline must get the same values.
 #[derive(Debug, Clone, Default, clap::Args)]
 pub struct IpcArgs {

@@ -260,6 +260,7 @@ fn run(args: Args) -> Result<()> {
     // opened first so that a second driver on a busy port says so, rather than failing on the
     // readings service that the first driver already publishes.
     let mut port = open_port(&args)?;
+    sonar_common::ipc::catch_termination_requests();
     let node = args.ipc.node("sonar-driver")?;
     let mut link = Link::new(&node, &args, sensor)?;
     let mut backoff = MIN_BACKOFF;

@@ -70,6 +70,7 @@ fn main() -> std::process::ExitCode {
 }
 
 fn run(args: Args, flood: &FloodGuard) -> Result<()> {
+    sonar_common::ipc::catch_termination_requests();
     let node = args.ipc.node("sonar-foxglove")?;
     // iceoryx2 installs its SIGINT/SIGTERM handler on the first wait: before subscribing, so that
     // anyone who sees us can stop us cleanly.

@@ -380,6 +380,7 @@ fn run(args: &Args) -> Result<()> {
         .map(|(path, period)| Saving::new(path, period, &engine))
         .transpose()?;
 
+    sonar_common::ipc::catch_termination_requests();
     let node = args.ipc.node("sonar-fusion")?;
     let ports = Ports::new(&node, engine.grid_len(), slam_correction)?;
     let min_interval = Duration::from_secs_f64(1.0 / args.max_snapshot_rate);

@@ -131,6 +131,7 @@ fn load_config(path: Option<&Path>) -> Result<SlamConfig> {
 fn run(args: &Args) -> Result<()> {
     let config = load_config(args.config.as_deref())?;
     let slam = Slam::new(config).context("invalid [slam] settings")?;
+    sonar_common::ipc::catch_termination_requests();
     let node = args.ipc.node("sonar-slam")?;
     let ports = Ports::new(&node)?;
     let waitset = WaitSetBuilder::new()

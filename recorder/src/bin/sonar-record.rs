@@ -123,6 +123,7 @@ struct Finished {
 }
 
 fn run(args: Args) -> Result<()> {
+    sonar_common::ipc::catch_termination_requests();
     let node = args.ipc.node("sonar-record")?;
     // iceoryx2 installs its SIGINT/SIGTERM handler on the first wait; until then a signal kills
     // the process outright. Install it before subscribing, so that anyone who sees our
