@@ -72,8 +72,8 @@ fn main() -> std::process::ExitCode {
 fn run(args: Args, flood: &FloodGuard) -> Result<()> {
     sonar_common::ipc::catch_termination_requests();
     let node = args.ipc.node("sonar-foxglove")?;
-    // iceoryx2 installs its SIGINT/SIGTERM handler on the first wait: before subscribing, so that
-    // anyone who sees us can stop us cleanly.
+    // The stop signal is caught from before the node (so anyone who sees us can stop us
+    // cleanly); one that came while the node was made ends the run here, before subscribing.
     if node.wait(Duration::ZERO).is_err() {
         info!("signal received before start");
         return Ok(());

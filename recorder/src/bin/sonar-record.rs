@@ -125,9 +125,8 @@ struct Finished {
 fn run(args: Args) -> Result<()> {
     sonar_common::ipc::catch_termination_requests();
     let node = args.ipc.node("sonar-record")?;
-    // iceoryx2 installs its SIGINT/SIGTERM handler on the first wait; until then a signal kills
-    // the process outright. Install it before subscribing, so that anyone who sees our
-    // subscription may stop us cleanly.
+    // The stop signal is caught from before the node (so anyone who sees our subscription may
+    // stop us cleanly); one that came while the node was made is seen here.
     let signalled_early = node.wait(Duration::ZERO).is_err();
     let mut ports = Ports::open(&node, !args.no_foxglove)?;
 
