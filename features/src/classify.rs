@@ -45,7 +45,7 @@
 use crate::config::FeatureConfig;
 use crate::feature::FeatureKind;
 use crate::physics::Reflector;
-use crate::rcd::{End, Rcd};
+use crate::rcd::{End, Rcd, point_widest_deg};
 
 /// What a region of constant depth was taken for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -175,12 +175,7 @@ impl Cones {
         let cone = |r: Reflector| cfg.echo.cone_half_angle_deg(r, range_m, beam);
         Self {
             point: cone(cfg.echo.reference_point()).unwrap_or(0.0),
-            point_widest: cfg.echo.cone_with_threshold_moved_deg(
-                cfg.echo.reference_point(),
-                range_m,
-                beam,
-                -cfg.echo.threshold_jitter_db,
-            ),
+            point_widest: point_widest_deg(cfg, range_m),
             plane: cone(Reflector::Plane),
             weakest_plane: cfg.echo.weakest_plane_cone_half_angle_deg(range_m, beam),
             corner: cone(Reflector::Corner),

@@ -362,8 +362,8 @@ fn outside_kept(pings: &[Ping], gap: std::ops::Range<usize>, middle: f64, kept: 
 }
 
 /// Half-angle of the widest cone the reference point target is heard over at `range_m`: the
-/// threshold at the low end of its jitter.
-fn point_widest_deg(cfg: &FeatureConfig, range_m: f64) -> f64 {
+/// threshold at the low end of its jitter (the classifier's widest point cone too).
+pub(crate) fn point_widest_deg(cfg: &FeatureConfig, range_m: f64) -> f64 {
     cfg.echo.cone_with_threshold_moved_deg(
         cfg.echo.reference_point(),
         range_m,
