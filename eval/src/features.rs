@@ -275,10 +275,11 @@ pub fn thick_post(radius_m: f64) -> Result<Scene> {
     Ok(scene)
 }
 
-/// The feature maps of one capture: after its first sweep and after all.
+/// The feature maps of one capture: after its first two sweeps (one each way: the earliest the
+/// map publishes a feature, [`FeatureMap::features`]) and after all.
 #[derive(Debug)]
 pub struct FeatureMaps {
-    pub first: FeatureMap,
+    pub first_two: FeatureMap,
     pub all: FeatureMap,
 }
 
@@ -286,15 +287,15 @@ pub struct FeatureMaps {
 /// one sweep at a time.
 pub fn feature_maps(readings: &[Reading], cfg: FeatureConfig) -> Result<FeatureMaps> {
     let mut all = FeatureMap::new(cfg).context("setting up the feature map")?;
-    let mut first = None;
+    let mut first_two = None;
     for sweep in readings.chunk_by(|a, b| a.sweep_id == b.sweep_id) {
         all.update(&Sweep::from_readings(sweep, &cfg), &Isometry2::identity());
-        if first.is_none() {
-            first = Some(all.clone());
+        if first_two.is_none() && all.sweeps() == 2 {
+            first_two = Some(all.clone());
         }
     }
     Ok(FeatureMaps {
-        first: first.unwrap_or_else(|| all.clone()),
+        first_two: first_two.unwrap_or_else(|| all.clone()),
         all,
     })
 }
@@ -465,7 +466,7 @@ fn mahalanobis2(e: Vector2<f64>, c: Matrix2<f64>) -> Option<f64> {
 /// Scores `map` against `truth`; `support` (occupied grid cells) lets the planes' segments grow.
 pub fn score(map: &FeatureMap, truth: &Truth, support: &[Point2<f64>]) -> Scored {
     let mut out = Scored::default();
-    let features = map.features();
+    let features: Vec<&sonar_features::Feature> = map.features().collect();
     let segments = map.segments(support);
     let mut used = vec![false; features.len()];
     // Points: posts first (their errors are reported), then edges.
@@ -622,8 +623,8 @@ fn grid_figures(scene: &Scene, readings: &[Reading]) -> Result<GridFigures> {
 pub struct Run {
     pub bearing_deg: f64,
     pub seed: u64,
-    /// After the first sweep and after all.
-    pub first: Scored,
+    /// After the first two sweeps and after all.
+    pub first_two: Scored,
     pub all: Scored,
     /// For post scenes.
     pub grid: Option<GridFigures>,
@@ -698,7 +699,7 @@ fn family_at(
                 bearing_deg: bearing,
                 seed,
                 // The grid of all sweeps would not match the map of the first.
-                first: score(&maps.first, &truth, &[]),
+                first_two: score(&maps.first_two, &truth, &[]),
                 all: score(&maps.all, &truth, &support),
                 grid: match grid {
                     GridUse::Figures => Some(grid_figures(&scene, &cap.readings)?),
@@ -1064,12 +1065,15 @@ mod tests {
             observation(FeatureKind::Plane, 2.002, -0.4),
             observation(FeatureKind::Corner, 1.5, 20.0),
         ];
-        map.merge(
-            &obs,
-            &Sweep::default(),
-            &Isometry2::identity(),
-            &nalgebra::Matrix3::zeros(),
-        );
+        // Two sweeps heard them: published.
+        for _ in 0..2 {
+            map.merge(
+                &obs,
+                &Sweep::default(),
+                &Isometry2::identity(),
+                &nalgebra::Matrix3::zeros(),
+            );
+        }
         let s = score(&map, &truth, &[]);
         let post = s.posts[0].unwrap();
         assert!((post - 0.975 * 0.5f64.to_radians()).abs() < 1e-3, "{post}");

@@ -1020,7 +1020,7 @@ pub fn score_scene_map(
     joints: &SeenJoints,
     scored: impl Fn(&Feature) -> bool,
 ) -> FeatureScore {
-    let features = map.features();
+    let features: Vec<&Feature> = map.features().collect();
     let segments = map.segments(&[]);
     let mut used: Vec<bool> = features.iter().map(|f| !scored(f)).collect();
     let mut out = FeatureScore::default();

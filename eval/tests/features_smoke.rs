@@ -54,13 +54,14 @@ fn the_feature_evaluation_runs_and_meets_its_aims_on_a_small_sample() {
 
 /// The robustness runs at a hobby sensor's noise (σ = 1 cm + 1 % of the range), briefly: the
 /// issue's aims on the post and two posts 20 cm apart, and the square room with the sensor off
-/// its centre and the L room found whole, on two bearings, one seed, two sweeps.
+/// its centre and the L room found whole, on two bearings, one seed, three sweeps (a feature is
+/// published once two sweeps heard it: of two, a faint one may be heard by one only).
 #[test]
 fn the_features_hold_at_a_hobby_sensors_noise_on_a_small_sample() {
     let settings = FeatureSettings {
         bearings_deg: vec![0.0, 2.625],
         seeds: vec![1],
-        sweeps: 2,
+        sweeps: 3,
         spacings_mm: Vec::new(),
         levels: vec![NoiseLevel::parse("10+1%").unwrap()],
         level_spacings_mm: vec![200],

@@ -166,6 +166,14 @@ impl Feature {
         self.ray_deg
     }
 
+    /// Whether two sweeps or more heard it. What one sweep alone heard, a sweep after it did not
+    /// hear again (or none came): most often one sweep's misreading (a lost ping cutting a wall's
+    /// region into a post's, a corner's echo at a sweep's end), so the map keeps it as a
+    /// candidate and does not publish it ([`crate::FeatureMap::features`]).
+    pub fn heard_again(&self) -> bool {
+        self.times_seen >= 2
+    }
+
     /// Whether it was heard from two places or more (sightings more than 20 cm apart):
     /// **confirmed**. A feature heard from one place only is
     /// **tentative**: every sighting repeats one view, and whatever that view misread (a corner's

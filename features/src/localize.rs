@@ -114,7 +114,7 @@ impl FeatureMap {
     ) -> Option<WallAhead> {
         let axis = pose.rotation.angle() + bearing_rad;
         let p = pose.translation.vector;
-        self.features()
+        self.tracked()
             .iter()
             .filter(|f| f.kind() == FeatureKind::Plane && f.times_seen() >= RANGING_MIN_SIGHTINGS)
             .filter_map(|f| {
@@ -151,7 +151,7 @@ impl FeatureMap {
         let prior_information = prior_covariance.try_inverse()?;
         let x0 = crate::geometry::pose_vector(prior);
         let gate = self.config().merge.gate_chi2;
-        let anchors = self.features();
+        let anchors = self.tracked();
         let mut x = x0;
         let mut covariance = *prior_covariance;
         let mut matched = 0;
@@ -284,7 +284,7 @@ mod tests {
                 map.merge(&observe(&pose, &ALL), &no_pings, &pose, &Matrix3::zeros());
             }
         }
-        assert_eq!(map.features().len(), 4, "{:?}", map.features());
+        assert_eq!(map.tracked().len(), 4, "{:?}", map.tracked());
         map
     }
 

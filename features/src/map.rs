@@ -35,6 +35,7 @@ use crate::config::{FeatureConfig, MergeConfig};
 use crate::error::FeatureError;
 use crate::feature::{Feature, FeatureKind};
 use crate::noise::{NoiseLog, NoiseModel};
+use crate::physics::Reflector;
 use crate::pings::Sweep;
 use crate::rcd::{Gate, Rcd, extract};
 use crate::segment::{Segment, segments};
@@ -257,8 +258,15 @@ impl FeatureMap {
         &self.cfg
     }
 
-    /// The features, in order of creation.
-    pub fn features(&self) -> &[Feature] {
+    /// The features the map publishes, in order of creation: those heard by two sweeps or more
+    /// ([`Feature::heard_again`]). What one sweep alone heard is a candidate, kept to merge the
+    /// next sweeps' sightings with and to [`Self::localize`] against, but not a feature yet.
+    pub fn features(&self) -> impl Iterator<Item = &Feature> {
+        self.features.iter().filter(|f| f.heard_again())
+    }
+
+    /// Every feature tracked, the candidates too.
+    pub fn tracked(&self) -> &[Feature] {
         &self.features
     }
 
@@ -505,7 +513,7 @@ impl FeatureMap {
             self.past.pop_front();
         }
         for f in &mut self.features {
-            if point_outweighed(f, &self.past, self.cfg.range_offset_m) {
+            if point_outweighed(f, &self.past, &self.cfg) {
                 f.confidence = 0.0;
             }
         }
@@ -542,15 +550,15 @@ impl FeatureMap {
     /// The partial planes as segments; `support` are points known to be occupied (the grid's
     /// occupied cells, in the map's frame) that let a plane grow beyond its feet.
     pub fn segments(&self, support: &[Point2<f64>]) -> Vec<Segment> {
-        segments(&self.features, support, &self.cfg.segments)
+        let published: Vec<&Feature> = self.features().collect();
+        segments(&published, support, &self.cfg.segments)
     }
 
     /// Every feature as one flat record, its segment attached: what a fixed-size publication
     /// record carries.
     pub fn summaries(&self, support: &[Point2<f64>]) -> Vec<FeatureSummary> {
         let segments = self.segments(support);
-        self.features
-            .iter()
+        self.features()
             .map(|f| {
                 let p = f.position();
                 let c = f.covariance();
@@ -664,7 +672,7 @@ fn fade(
     gate: &Gate,
     cfg: &FeatureConfig,
 ) -> bool {
-    let heard = heard_at(f, sweep, pose, gate, cfg.range_offset_m);
+    let heard = heard_at(f, sweep, pose, gate, cfg);
     let mut missed = true;
     match heard {
         // A post or corner seen once and not again by the next sweep that heard
@@ -713,7 +721,7 @@ fn refuted_from_elsewhere(f: &Feature, pose: &Isometry2<f64>) -> bool {
 /// does not outweigh the place that heard it; two do. A ping that heard something at its range
 /// may have heard the post in a region not classified as one: no evidence against it. (A sweep
 /// after its own that misses it from elsewhere removes it at once: [`refuted_from_elsewhere`].)
-fn point_outweighed(f: &Feature, past: &VecDeque<PastSweep>, range_offset_m: f64) -> bool {
+fn point_outweighed(f: &Feature, past: &VecDeque<PastSweep>, cfg: &FeatureConfig) -> bool {
     if f.kind != FeatureKind::Point || !f.one_place {
         return false;
     }
@@ -725,7 +733,7 @@ fn point_outweighed(f: &Feature, past: &VecDeque<PastSweep>, range_offset_m: f64
         if (here - f.seen_from).norm() <= ONE_PLACE_M {
             continue;
         }
-        match heard_at(f, &p.sweep, &p.pose, &p.gate, range_offset_m) {
+        match heard_at(f, &p.sweep, &p.pose, &p.gate, cfg) {
             Some(Heard::There) => return false,
             Some(Heard::Past) if (at - here).norm() <= own_range + NO_FARTHER_M => misses += 1,
             Some(Heard::Past | Heard::Nearer) | None => {}
@@ -832,18 +840,20 @@ enum Heard {
     Nearer,
     /// Something at the feature's range.
     There,
-    /// Farther, or nothing: a target there would have been heard on its axis.
+    /// Farther, or nothing where a target there would have been heard on its axis.
     Past,
 }
 
 /// What `sweep`, taken at `pose`, heard on the ping aimed at the feature; `None` if it aimed none
-/// at it (or stands behind a plane).
+/// at it (or stands behind a plane), or heard nothing where the feature would not have answered
+/// either (beyond the sensor's reach, or where even the feature's echo on the axis falls under
+/// the threshold: a corner 4 m off).
 fn heard_at(
     f: &Feature,
     sweep: &Sweep,
     pose: &Isometry2<f64>,
     gate: &Gate,
-    range_offset_m: f64,
+    cfg: &FeatureConfig,
 ) -> Option<Heard> {
     let inverse = pose.inverse();
     let (bearing_deg, range) = match f.kind {
@@ -872,25 +882,47 @@ fn heard_at(
         bearing_deg,
         range,
         gate.tolerance_at(range) + 3.0 * sigma,
-        range_offset_m,
+        cfg.range_offset_m,
+        answers_at(f.kind, range, cfg),
     )
 }
 
-/// What `sweep` heard on its ping at `bearing_deg` about a target at `range` (± `margin`).
+/// Whether a target of `kind` would answer a ping aimed at it from `range_m`: within the
+/// sensor's reach, and its echo on the axis above the threshold (the reference post for a point).
+fn answers_at(kind: FeatureKind, range_m: f64, cfg: &FeatureConfig) -> bool {
+    let reflector = match kind {
+        FeatureKind::Point => cfg.echo.reference_point(),
+        FeatureKind::Plane => Reflector::Plane,
+        FeatureKind::Corner => Reflector::Corner,
+    };
+    range_m <= f64::from(cfg.sensor.max_range_m)
+        && cfg
+            .echo
+            .cone_half_angle_deg(
+                reflector,
+                range_m,
+                f64::from(cfg.sensor.beam_half_angle_deg),
+            )
+            .is_some()
+}
+
+/// What `sweep` heard on its ping at `bearing_deg` about a target at `range` (± `margin`); a
+/// ping that heard nothing is evidence only where the target `answers`.
 fn heard(
     sweep: &Sweep,
     bearing_deg: f64,
     range: f64,
     margin: f64,
     range_offset_m: f64,
+    answers: bool,
 ) -> Option<Heard> {
     let ping = sweep.ping_at(bearing_deg)?;
-    Some(match ping.range_m.map(|r| r - range_offset_m) {
-        None => Heard::Past,
-        Some(r) if r > range + margin => Heard::Past,
-        Some(r) if r < range - margin => Heard::Nearer,
-        Some(_) => Heard::There,
-    })
+    match ping.range_m.map(|r| r - range_offset_m) {
+        None => answers.then_some(Heard::Past),
+        Some(r) if r > range + margin => Some(Heard::Past),
+        Some(r) if r < range - margin => Some(Heard::Nearer),
+        Some(_) => Some(Heard::There),
+    }
 }
 
 /// The foot of a plane seen from one place (its feet within `tolerance` of each other), if any.
@@ -928,6 +960,7 @@ fn foot_heard_off_normal(
         range,
         gate.tolerance_at(range) + 3.0 * sigma,
         cfg.range_offset_m,
+        false,
     ) == Some(Heard::There)
 }
 
@@ -1247,7 +1280,7 @@ mod tests {
     }
 
     fn of_kind(m: &FeatureMap, kind: FeatureKind) -> Vec<&Feature> {
-        m.features().iter().filter(|f| f.kind() == kind).collect()
+        m.tracked().iter().filter(|f| f.kind() == kind).collect()
     }
 
     /// Driving along x at 5 cm per reading past a wall `distance_m` to the left while the head
@@ -1522,7 +1555,7 @@ mod tests {
         let mut removed = false;
         for _ in 0..8 {
             let r = update(&mut m, &sweep_readings(-1, empty));
-            match m.features().iter().find(|f| f.id() == id) {
+            match m.tracked().iter().find(|f| f.id() == id) {
                 Some(f) => {
                     assert_eq!(r.missed, 1);
                     confidences.push(f.confidence());
@@ -1594,7 +1627,7 @@ mod tests {
         assert!(
             of_kind(&m, FeatureKind::Point).is_empty(),
             "{:?}",
-            m.features()
+            m.tracked()
         );
         // Seen twice, it stays.
         let mut m = map();
@@ -1889,9 +1922,49 @@ mod tests {
     }
 
     #[test]
+    fn a_ping_that_heard_nothing_misses_only_what_would_have_answered_it() {
+        let m = map();
+        let cfg = *m.config();
+        // A corner 2 m ahead of where it was heard, and sweeps that heard nothing at all.
+        let corner = feature(1, FeatureKind::Corner, Vector2::new(2.0, 0.0), 0.0);
+        let silent = Sweep::from_readings(&sweep_readings(1, |_| 0.0), &cfg);
+        let gate = m.gate(&silent);
+        let confidence_after = |x: f64| {
+            let mut f = corner.clone();
+            let missed = fade(
+                &mut f,
+                &silent,
+                &Isometry2::translation(x, 0.0),
+                &gate,
+                &cfg,
+            );
+            (missed, f.confidence)
+        };
+        // From 1.5 m it would have answered: a miss.
+        let (missed, confidence) = confidence_after(0.5);
+        assert!(missed && confidence < corner.confidence);
+        // From 5 m, beyond the sensor's 4 m, nothing could have answered: no evidence.
+        assert_eq!(confidence_after(-3.0), (false, corner.confidence));
+        // Heard past it from there, it is still a miss.
+        let past = Sweep::from_readings(&sweep_readings(1, |_| 3.9), &cfg);
+        let mut f = corner.clone();
+        assert!(fade(
+            &mut f,
+            &past,
+            &Isometry2::translation(1.0, 0.0),
+            &gate,
+            &cfg
+        ));
+    }
+
+    #[test]
     fn summaries_carry_what_a_record_needs() {
         let mut m = map();
         update(&mut m, &sweep_readings(1, post_scene(0.0)));
+        // One sweep's targets are candidates, not published.
+        assert_eq!(m.tracked().len(), 2);
+        assert!(m.summaries(&[]).is_empty());
+        update(&mut m, &sweep_readings(-1, post_scene(0.0)));
         let s = m.summaries(&[]);
         assert_eq!(s.len(), 2);
         let wall = s.iter().find(|s| s.kind == FeatureKind::Plane).unwrap();
@@ -1899,17 +1972,17 @@ mod tests {
         let post = s.iter().find(|s| s.kind == FeatureKind::Point).unwrap();
         assert!(post.angle_sigma_deg.is_none() && post.segment.is_none());
         assert!(post.cov_xx > 0.0 && post.cov_yy > 0.0);
-        assert_eq!((post.times_seen, post.last_seen), (1, 1));
+        assert_eq!((post.times_seen, post.last_seen), (2, 2));
         assert!(!post.confirmed, "heard from one place: tentative");
         // Clearing forgets the features; sweeps and ids go on.
         m.clear();
-        assert!(m.features().is_empty());
+        assert!(m.tracked().is_empty());
         update(&mut m, &sweep_readings(1, post_scene(0.0)));
-        assert_eq!(m.sweeps(), 2);
+        assert_eq!(m.sweeps(), 3);
         assert!(
-            m.features()
+            m.tracked()
                 .iter()
-                .all(|f| f.id() > 2 && f.first_seen() == 2)
+                .all(|f| f.id() > 2 && f.first_seen() == 3)
         );
     }
 }

@@ -48,12 +48,13 @@ impl Segment {
 
 /// One segment per plane among `features`.
 pub fn segments(
-    features: &[Feature],
+    features: &[&Feature],
     support: &[Point2<f64>],
     cfg: &SegmentConfig,
 ) -> Vec<Segment> {
     let corners: Vec<&Feature> = features
         .iter()
+        .copied()
         .filter(|f| f.kind() == FeatureKind::Corner)
         .collect();
     features
@@ -147,7 +148,8 @@ mod tests {
         }
     }
 
-    /// A map holding the wall x = 1.2 (seen from the origin) and the given corners.
+    /// A map holding the wall x = 1.2 (seen from the origin) and the given corners, each heard
+    /// by two sweeps (published).
     fn wall_map(corners: &[(f64, f64)]) -> FeatureMap {
         let mut m = FeatureMap::new(FeatureConfig::default()).unwrap();
         let mut obs = vec![observation(FeatureKind::Plane, 1.2, 0.0)];
@@ -158,12 +160,14 @@ mod tests {
                 y.atan2(x).to_degrees(),
             )
         }));
-        m.merge(
-            &obs,
-            &Sweep::default(),
-            &Isometry2::identity(),
-            &nalgebra::Matrix3::zeros(),
-        );
+        for _ in 0..2 {
+            m.merge(
+                &obs,
+                &Sweep::default(),
+                &Isometry2::identity(),
+                &nalgebra::Matrix3::zeros(),
+            );
+        }
         m
     }
 

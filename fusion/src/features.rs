@@ -352,11 +352,11 @@ impl FeatureTracker {
 
     /// Features in the map.
     pub fn len(&self) -> usize {
-        self.map.features().len()
+        self.map.features().count()
     }
 
     pub fn is_empty(&self) -> bool {
-        self.map.features().is_empty()
+        self.map.features().next().is_none()
     }
 
     /// The snapshot's header and records, most confident first, at most [`MAX_FEATURES`]. The
@@ -378,10 +378,7 @@ impl FeatureTracker {
     }
 
     fn has_planes(&self) -> bool {
-        self.map
-            .features()
-            .iter()
-            .any(|f| f.kind() == FeatureKind::Plane)
+        self.map.features().any(|f| f.kind() == FeatureKind::Plane)
     }
 
     /// [`Self::snapshot`] with the walls' segments grown along `support`.
@@ -881,7 +878,7 @@ mod tests {
         assert!(
             tracker
                 .map
-                .features()
+                .tracked()
                 .iter()
                 .all(|f| f.kind() == FeatureKind::Plane)
         );
@@ -939,17 +936,16 @@ mod tests {
         // Without localisation the drifted sweeps see the post and the wall off: a second wall,
         // and a second post 4 cm from the first, taken for one target heard as two points
         // (`merge.one_point_m`).
-        assert_eq!(plain.len(), 3, "{:?}", plain.map.features());
+        assert_eq!(plain.len(), 3, "{:?}", plain.map.tracked());
         assert_eq!(
             plain
                 .map
                 .features()
-                .iter()
                 .filter(|f| f.kind() == FeatureKind::Plane)
                 .count(),
             2,
             "{:?}",
-            plain.map.features()
+            plain.map.tracked()
         );
 
         let mut tracker = FeatureTracker::with_localization(FeatureConfig::default()).unwrap();
