@@ -1166,6 +1166,40 @@ fn thick_posts(features: &[Feature]) -> Vec<ThickPost> {
             });
         }
     }
+    // A pair whose region's centre a point heard whole from elsewhere lies on: that point is
+    // the post, heard whole where it fills less of the beam (farther, or from a side where the
+    // pair's own sightings merged into its two points and left no second pair to agree with).
+    for (s, single) in features.iter().enumerate() {
+        if single.kind != FeatureKind::Point
+            || single.confidence <= 0.0
+            || single.pair_centre.is_some()
+            || taken[s]
+        {
+            continue;
+        }
+        let at = single.position().coords;
+        let Some(&(_, centre)) = paired.iter().find(|&&(k, c)| {
+            !taken[k]
+                && (features[k].seen_from - single.seen_from).norm() > ONE_PLACE_M
+                && (c - at).norm() <= THICK_POST_M
+        }) else {
+            continue;
+        };
+        let merged: Vec<usize> = paired
+            .iter()
+            .filter(|&&(k, c)| !taken[k] && (c - centre).norm() <= SAME_REGION_M)
+            .map(|&(k, _)| k)
+            .collect();
+        for &k in merged.iter().chain([&s]) {
+            taken[k] = true;
+        }
+        posts.push(ThickPost {
+            kept: s,
+            merged,
+            at: (centre + at) / 2.0,
+            apart_m: (centre - at).norm(),
+        });
+    }
     posts
 }
 
@@ -1508,6 +1542,34 @@ mod tests {
         let posts = of_kind(&m, FeatureKind::Point);
         assert_eq!(posts.len(), 2, "{posts:?}");
         assert!(posts.iter().all(|p| !p.one_place));
+    }
+
+    #[test]
+    fn a_thick_post_split_in_two_from_one_place_and_heard_whole_from_another_is_one_post() {
+        let merge = |m: &mut FeatureMap, obs: &[Observation], pose: Isometry2<f64>| {
+            m.merge(obs, &Sweep::default(), &pose, &Matrix3::zeros());
+        };
+        // A 10 cm post at (1, 0), heard wide from the origin and split in two 9° to either side
+        // (near face at 0.95 m), heard whole from (1, -1) facing it (near face 0.95 m away, at
+        // (1, -0.05)), 12 cm from either point of the pair.
+        let from_b = Isometry2::new(Vector2::new(1.0, -1.0), FRAC_PI_2);
+        let mut m = map();
+        merge(&mut m, &split_in_two(0.95, 0.0, 9.0), Isometry2::identity());
+        merge(&mut m, &[point_sighting(0.95, 0.0, 0.0)], from_b);
+        let posts = of_kind(&m, FeatureKind::Point);
+        assert_eq!(posts.len(), 1, "{posts:?}");
+        let p = posts[0].position();
+        assert!((p - Point2::new(0.975, -0.025)).norm() < 0.01, "{p}");
+        assert!(!posts[0].one_place && posts[0].times_seen() == 3);
+        // Heard whole 20 cm off the pair's centre: another post, the pair stays.
+        let mut m = map();
+        merge(&mut m, &split_in_two(0.95, 0.0, 9.0), Isometry2::identity());
+        merge(
+            &mut m,
+            &[point_sighting(0.95, 0.0, 0.0)],
+            Isometry2::new(Vector2::new(1.2, -1.0), FRAC_PI_2),
+        );
+        assert_eq!(of_kind(&m, FeatureKind::Point).len(), 3);
     }
 
     #[test]
