@@ -24,7 +24,14 @@
 //! Each feature remembers where it was first seen from and whether every sighting came from
 //! that one place ([`ONE_PLACE_M`]): sightings from one place repeat one view and its misreading,
 //! so a point seen from one place only and missed by a ping from elsewhere, no farther from it,
-//! is removed at once (a post returns the same echo from every side).
+//! is removed at once (a post returns the same echo from every side). A ping that heard nothing
+//! misses only a feature that would have answered it: within the sensor's reach, and where the
+//! echo model hears that kind of target on the axis.
+//!
+//! **Publication**: what one sweep alone heard is a candidate, kept (merged with, faded, matched
+//! by [`FeatureMap::localize`]) but not published: [`FeatureMap::features`], its segments and
+//! summaries hold the features two sweeps or more heard, [`FeatureMap::tracked`] every one. Most
+//! of what a single sweep heard and the next did not is that sweep's misreading.
 
 use std::collections::VecDeque;
 
