@@ -890,7 +890,7 @@ fn heard_at(
         range,
         gate.tolerance_at(range) + 3.0 * sigma,
         cfg.range_offset_m,
-        answers_at(f.kind, range, cfg),
+        || answers_at(f.kind, range, cfg),
     )
 }
 
@@ -914,18 +914,18 @@ fn answers_at(kind: FeatureKind, range_m: f64, cfg: &FeatureConfig) -> bool {
 }
 
 /// What `sweep` heard on its ping at `bearing_deg` about a target at `range` (± `margin`); a
-/// ping that heard nothing is evidence only where the target `answers`.
+/// ping that heard nothing is evidence only where the target `answers` (asked only then).
 fn heard(
     sweep: &Sweep,
     bearing_deg: f64,
     range: f64,
     margin: f64,
     range_offset_m: f64,
-    answers: bool,
+    answers: impl FnOnce() -> bool,
 ) -> Option<Heard> {
     let ping = sweep.ping_at(bearing_deg)?;
     match ping.range_m.map(|r| r - range_offset_m) {
-        None => answers.then_some(Heard::Past),
+        None => answers().then_some(Heard::Past),
         Some(r) if r > range + margin => Some(Heard::Past),
         Some(r) if r < range - margin => Some(Heard::Nearer),
         Some(_) => Some(Heard::There),
@@ -967,7 +967,7 @@ fn foot_heard_off_normal(
         range,
         gate.tolerance_at(range) + 3.0 * sigma,
         cfg.range_offset_m,
-        false,
+        || false,
     ) == Some(Heard::There)
 }
 
