@@ -539,7 +539,8 @@ impl FeatureMap {
                 f.kind = FeatureKind::Corner;
             }
         }
-        let explained = explained_by_corners(&self.features, &self.cfg);
+        let mut explained = explained_by_corners(&self.features, &self.cfg);
+        explained.extend(explained_by_posts(&self.features, &self.cfg));
         for f in self
             .features
             .iter_mut()
@@ -1100,6 +1101,30 @@ fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
         }
     }
     explained
+}
+
+/// Planes and corners heard from one place only that lie on a post heard from two places or
+/// more (a plane's foot, a corner's vertex within [`EXPLAINED_M`] of it): the post's echo, taken
+/// for a wall where its region was as wide as a wall's (near the sensor, a narrow beam) or for a
+/// corner where a wall's line met its range. A real wall or corner there would stand behind the
+/// post, at another range from the place that heard it.
+fn explained_by_posts(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
+    let posts: Vec<Vector2<f64>> = features
+        .iter()
+        .filter(|f| f.kind == FeatureKind::Point && !f.one_place && f.confidence > 0.0)
+        .map(|f| f.position().coords)
+        .collect();
+    features
+        .iter()
+        .filter(|f| f.one_place)
+        .filter_map(|f| match f.kind {
+            FeatureKind::Plane => Some((f.id, single_foot(f, cfg.segments.corner_tolerance_m)?)),
+            FeatureKind::Corner => Some((f.id, f.position().coords)),
+            FeatureKind::Point => None,
+        })
+        .filter(|(_, at)| posts.iter().any(|p| (p - at).norm() <= EXPLAINED_M))
+        .map(|(id, _)| id)
+        .collect()
 }
 
 /// The near faces of one post seen from two places lie no farther apart than its diameter: a
@@ -1959,6 +1984,22 @@ mod tests {
         let mut first = wall.clone();
         first.feet = (at.y, at.y);
         assert_eq!(explained_by_corners(&[first, crossing], &cfg), vec![1, 3]);
+    }
+
+    #[test]
+    fn a_wall_or_corner_heard_from_one_place_on_a_post_two_places_heard_is_that_posts_echo() {
+        let cfg = FeatureConfig::default();
+        let mut post = feature(1, FeatureKind::Point, Vector2::new(1.0, 0.0), 0.0);
+        post.one_place = false;
+        // A wall 1 m ahead heard from one place with its foot at the post, and one 20 cm behind.
+        let wall = |id: u64, d: f64| feature(id, FeatureKind::Plane, Vector2::new(0.0, d), 0.0);
+        let corner = feature(4, FeatureKind::Corner, Vector2::new(1.05, 0.0), 0.0);
+        let features = [post.clone(), wall(2, 1.0), wall(3, 1.2), corner];
+        assert_eq!(explained_by_posts(&features, &cfg), vec![2, 4]);
+        // A post heard from one place only explains nothing.
+        let mut features = features;
+        features[0].one_place = true;
+        assert!(explained_by_posts(&features, &cfg).is_empty());
     }
 
     #[test]
