@@ -40,16 +40,16 @@ impl Spread {
     }
 }
 
-/// Which map of a run: after its first two sweeps, or after all.
+/// Which map of a run: after its first sweep, or after all.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum When {
-    FirstTwo,
+    First,
     All,
 }
 
 fn scored(run: &Run, when: When) -> &Scored {
     match when {
-        When::FirstTwo => &run.first_two,
+        When::First => &run.first,
         When::All => &run.all,
     }
 }
@@ -253,7 +253,7 @@ pub fn markdown(settings: &FeatureSettings, r: &FeatureResults) -> String {
 
     // The aims.
     let (post_all, post_missed) = post_errors(&r.post, When::All);
-    let (post_first_two, _) = post_errors(&r.post, When::FirstTwo);
+    let (post_first, _) = post_errors(&r.post, When::First);
     let post_ok = post_all.is_some_and(|p| p.median <= 0.03 && p.worst <= 0.05) && post_missed == 0;
     let spacing_ok = |f: &Family| {
         let (ok, n) = resolved(f);
@@ -278,10 +278,10 @@ pub fn markdown(settings: &FeatureSettings, r: &FeatureResults) -> String {
     let _ = writeln!(
         s,
         "| 5 cm post at 1 m: position error ≤ 3 cm median, ≤ 5 cm worst | {} after {} sweeps \
-         ({} after two); missed in {post_missed} of {runs} runs | {} |",
+         ({} after one); missed in {post_missed} of {runs} runs | {} |",
         spread_fine(post_all),
         settings.sweeps,
-        spread_fine(post_first_two),
+        spread_fine(post_first),
         verdict(post_ok)
     );
     let _ = writeln!(
@@ -445,7 +445,7 @@ pub fn markdown(settings: &FeatureSettings, r: &FeatureResults) -> String {
     let _ = writeln!(
         s,
         "False features per run (a feature that matches nothing in the scene, or a second one on \
-         the same thing):\n\n| scene | after two sweeps | after {} sweeps | what they were |\n\
+         the same thing):\n\n| scene | after one sweep | after {} sweeps | what they were |\n\
          |---|---|---|---|",
         settings.sweeps
     );
@@ -488,7 +488,7 @@ pub fn markdown(settings: &FeatureSettings, r: &FeatureResults) -> String {
         let _ = writeln!(
             s,
             "| {name} | {} | {} | {what} |",
-            fmt(false_features(f, When::FirstTwo)),
+            fmt(false_features(f, When::First)),
             fmt(false_features(f, When::All))
         );
     }
@@ -719,7 +719,7 @@ mod tests {
         Run {
             bearing_deg: 0.0,
             seed: 1,
-            first_two: scored.clone(),
+            first: scored.clone(),
             all: scored,
             grid: Some(GridFigures {
                 width_m: [Some(0.4), None],
@@ -755,7 +755,7 @@ mod tests {
         let [paper, rec] = grid_widths(&f);
         assert_eq!((paper.0.unwrap().median, paper.1), (0.4, 0));
         assert_eq!((rec.0, rec.1), (None, 2));
-        let (angle, _, missed) = wall_errors(&f, When::FirstTwo);
+        let (angle, _, missed) = wall_errors(&f, When::First);
         assert_eq!((angle.unwrap().worst, missed), (0.5, 0));
     }
 

@@ -275,11 +275,10 @@ pub fn thick_post(radius_m: f64) -> Result<Scene> {
     Ok(scene)
 }
 
-/// The feature maps of one capture: after its first two sweeps (one each way: the earliest the
-/// map publishes a feature, [`FeatureMap::features`]) and after all.
+/// The feature maps of one capture: after its first sweep and after all.
 #[derive(Debug)]
 pub struct FeatureMaps {
-    pub first_two: FeatureMap,
+    pub first: FeatureMap,
     pub all: FeatureMap,
 }
 
@@ -287,15 +286,15 @@ pub struct FeatureMaps {
 /// one sweep at a time.
 pub fn feature_maps(readings: &[Reading], cfg: FeatureConfig) -> Result<FeatureMaps> {
     let mut all = FeatureMap::new(cfg).context("setting up the feature map")?;
-    let mut first_two = None;
+    let mut first = None;
     for sweep in readings.chunk_by(|a, b| a.sweep_id == b.sweep_id) {
         all.update(&Sweep::from_readings(sweep, &cfg), &Isometry2::identity());
-        if first_two.is_none() && all.sweeps() == 2 {
-            first_two = Some(all.clone());
+        if first.is_none() {
+            first = Some(all.clone());
         }
     }
     Ok(FeatureMaps {
-        first_two: first_two.unwrap_or_else(|| all.clone()),
+        first: first.unwrap_or_else(|| all.clone()),
         all,
     })
 }
@@ -623,8 +622,8 @@ fn grid_figures(scene: &Scene, readings: &[Reading]) -> Result<GridFigures> {
 pub struct Run {
     pub bearing_deg: f64,
     pub seed: u64,
-    /// After the first two sweeps and after all.
-    pub first_two: Scored,
+    /// After the first sweep and after all.
+    pub first: Scored,
     pub all: Scored,
     /// For post scenes.
     pub grid: Option<GridFigures>,
@@ -699,7 +698,7 @@ fn family_at(
                 bearing_deg: bearing,
                 seed,
                 // The grid of all sweeps would not match the map of the first.
-                first_two: score(&maps.first_two, &truth, &[]),
+                first: score(&maps.first, &truth, &[]),
                 all: score(&maps.all, &truth, &support),
                 grid: match grid {
                     GridUse::Figures => Some(grid_figures(&scene, &cap.readings)?),

@@ -54,8 +54,8 @@ fn the_feature_evaluation_runs_and_meets_its_aims_on_a_small_sample() {
 
 /// The robustness runs at a hobby sensor's noise (σ = 1 cm + 1 % of the range), briefly: the
 /// issue's aims on the post and two posts 20 cm apart, and the square room with the sensor off
-/// its centre and the L room found whole, on two bearings, one seed, three sweeps (a feature is
-/// published once two sweeps heard it: of two, a faint one may be heard by one only).
+/// its centre and the L room found whole, on two bearings, one seed, three sweeps (what one sweep
+/// of two from a place heard is withheld, and a faint wall may be heard by one of two only).
 #[test]
 fn the_features_hold_at_a_hobby_sensors_noise_on_a_small_sample() {
     let settings = FeatureSettings {

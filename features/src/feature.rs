@@ -50,6 +50,9 @@ pub struct Feature {
     /// thicker post would fill too ([`crate::Observation::pair_centre_deg`]): where that post's
     /// near face would lie, as first seen.
     pub(crate) pair_centre: Option<Vector2<f64>>,
+    /// Sweeps merged from within [`crate::map::ONE_PLACE_M`] of [`Self::seen_from`], from the
+    /// remembered ones before its first sighting on: how often its place could have heard it.
+    pub(crate) place_sweeps: u32,
 }
 
 impl Feature {
@@ -57,6 +60,7 @@ impl Feature {
     /// the two were one target.
     pub(crate) fn absorb_sightings(&mut self, other: &Feature) {
         self.times_seen += other.times_seen;
+        self.place_sweeps = self.place_sweeps.max(other.place_sweeps);
         self.confidence = self.confidence.max(other.confidence);
         self.first_seen = self.first_seen.min(other.first_seen);
         self.last_seen = self.last_seen.max(other.last_seen);
@@ -166,12 +170,14 @@ impl Feature {
         self.ray_deg
     }
 
-    /// Whether two sweeps or more heard it. What one sweep alone heard, a sweep after it did not
-    /// hear again (or none came): most often one sweep's misreading (a lost ping cutting a wall's
-    /// region into a post's, a corner's echo at a sweep's end), so the map keeps it as a
-    /// candidate and does not publish it ([`crate::FeatureMap::features`]).
-    pub fn heard_again(&self) -> bool {
-        self.times_seen >= 2
+    /// Whether the map publishes it: two sweeps or more heard it, or its place has had one sweep
+    /// only (a scan of one revolution, a robot on the move). What one sweep alone heard where
+    /// another sweep from the same place did not hear it again is most often that sweep's
+    /// misreading (a lost ping cutting a wall's region into a post's, a corner's echo at a
+    /// sweep's end): the map keeps it as a candidate and does not publish it
+    /// ([`crate::FeatureMap::features`]).
+    pub fn published(&self) -> bool {
+        self.times_seen >= 2 || self.place_sweeps < 2
     }
 
     /// Whether it was heard from two places or more (sightings more than 20 cm apart):

@@ -40,9 +40,9 @@
 //!    form.
 //! 4. [`FeatureMap`]: observations placed with the sweep's pose, merged into the feature of their
 //!    kind they match (Mahalanobis gate; Kalman refinement), else new; features aimed at but not
-//!    heard fade and are removed; a feature is published once two sweeps heard it. Uncertainty in
-//!    two parts: jitter averages out over sweeps, the bearing's quantisation (same ping angles
-//!    every sweep) does not.
+//!    heard fade and are removed; what one sweep heard and another from its place did not is
+//!    withheld. Uncertainty in two parts: jitter averages out over sweeps, the bearing's
+//!    quantisation (same ping angles every sweep) does not.
 //! 5. [`segment`]: each plane as a segment from its feet to the corners on its line, or through
 //!    occupied grid cells passed in as support points.
 //! 6. [`FeatureMap::summaries`]: every feature as one flat record (kind, position, covariance,
@@ -62,10 +62,7 @@
 //!         Ping { bearing_deg, range_m: (bearing_deg.abs() <= 13.4).then_some(0.975) }
 //!     })
 //!     .collect();
-//! // One sweep's targets are candidates; the second sweep that hears them publishes them.
-//! for _ in 0..2 {
-//!     map.update(&Sweep::from_pings(pings.clone(), 1.5)?, &Isometry2::identity());
-//! }
+//! map.update(&Sweep::from_pings(pings, 1.5)?, &Isometry2::identity());
 //! let post = &map.summaries(&[])[0];
 //! assert_eq!(post.kind, FeatureKind::Point);
 //! assert!((post.x - 0.975).abs() < 0.001 && post.y.abs() < 0.001);

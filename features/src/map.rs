@@ -28,10 +28,12 @@
 //! misses only a feature that would have answered it: within the sensor's reach, and where the
 //! echo model hears that kind of target on the axis.
 //!
-//! **Publication**: what one sweep alone heard is a candidate, kept (merged with, faded, matched
-//! by [`FeatureMap::localize`]) but not published: [`FeatureMap::features`], its segments and
-//! summaries hold the features two sweeps or more heard, [`FeatureMap::tracked`] every one. Most
-//! of what a single sweep heard and the next did not is that sweep's misreading.
+//! **Publication**: what one sweep heard and another sweep from the same place did not is a
+//! candidate, kept (merged with, faded, matched by [`FeatureMap::localize`]) but not published:
+//! [`FeatureMap::features`], its segments and summaries hold the features two sweeps or more
+//! heard, or the only sweep their place had (one revolution, a robot on the move);
+//! [`FeatureMap::tracked`] every one. Most of what one sweep heard and the next from its place did
+//! not is that sweep's misreading.
 
 use std::collections::VecDeque;
 
@@ -265,11 +267,12 @@ impl FeatureMap {
         &self.cfg
     }
 
-    /// The features the map publishes, in order of creation: those heard by two sweeps or more
-    /// ([`Feature::heard_again`]). What one sweep alone heard is a candidate, kept to merge the
-    /// next sweeps' sightings with and to [`Self::localize`] against, but not a feature yet.
+    /// The features the map publishes, in order of creation ([`Feature::published`]): those two
+    /// sweeps or more heard, or the only sweep of their place. What one sweep heard and another
+    /// from its place did not is a candidate, kept to merge later sightings with and to
+    /// [`Self::localize`] against, but not published.
     pub fn features(&self) -> impl Iterator<Item = &Feature> {
-        self.features.iter().filter(|f| f.heard_again())
+        self.features.iter().filter(|f| f.published())
     }
 
     /// Every feature tracked, the candidates too.
@@ -459,7 +462,20 @@ impl FeatureMap {
                 report.missed += 1;
             }
         }
+        // This sweep's place: a feature from within one place of it could have been heard again.
+        let here = pose.translation.vector;
+        for f in &mut self.features {
+            if (f.seen_from - here).norm() <= ONE_PLACE_M {
+                f.place_sweeps += 1;
+            }
+        }
         for (z, _) in placed.iter().zip(&obs_used).filter(|(_, used)| !**used) {
+            // This sweep and the remembered ones from its place.
+            let place_sweeps = 1 + self
+                .past
+                .iter()
+                .filter(|p| (p.pose.translation.vector - z.from).norm() <= ONE_PLACE_M)
+                .count();
             self.features.push(Feature {
                 id: self.next_id,
                 kind: z.kind,
@@ -477,6 +493,7 @@ impl FeatureMap {
                 one_place: true,
                 may_be_plane: z.also_plane,
                 pair_centre: z.pair_centre,
+                place_sweeps: u32::try_from(place_sweeps).unwrap_or(u32::MAX),
             });
             self.next_id += 1;
             report.added += 1;
@@ -1958,6 +1975,7 @@ mod tests {
             one_place: true,
             may_be_plane: false,
             pair_centre: None,
+            place_sweeps: 2,
         }
     }
 
@@ -2068,13 +2086,21 @@ mod tests {
     }
 
     #[test]
-    fn summaries_carry_what_a_record_needs() {
+    fn summaries_carry_what_a_record_needs_and_what_one_sweep_of_two_heard_is_not_published() {
         let mut m = map();
         update(&mut m, &sweep_readings(1, post_scene(0.0)));
-        // One sweep's targets are candidates, not published.
+        // The only sweep of its place: published.
+        assert_eq!(m.summaries(&[]).len(), 2);
+        // A second sweep from there hears the wall but not the post: the post, heard by one
+        // sweep of two, is a candidate, kept but not published.
+        let wall_only = |b: f64| if b.abs() <= 28.0 { 2.0 } else { 0.0 };
+        update(&mut m, &sweep_readings(-1, wall_only));
         assert_eq!(m.tracked().len(), 2);
-        assert!(m.summaries(&[]).is_empty());
-        update(&mut m, &sweep_readings(-1, post_scene(0.0)));
+        let s = m.summaries(&[]);
+        assert_eq!(s.len(), 1);
+        assert_eq!(s[0].kind, FeatureKind::Plane);
+        // Heard again, it is published.
+        update(&mut m, &sweep_readings(1, post_scene(0.0)));
         let s = m.summaries(&[]);
         assert_eq!(s.len(), 2);
         let wall = s.iter().find(|s| s.kind == FeatureKind::Plane).unwrap();
@@ -2082,17 +2108,17 @@ mod tests {
         let post = s.iter().find(|s| s.kind == FeatureKind::Point).unwrap();
         assert!(post.angle_sigma_deg.is_none() && post.segment.is_none());
         assert!(post.cov_xx > 0.0 && post.cov_yy > 0.0);
-        assert_eq!((post.times_seen, post.last_seen), (2, 2));
+        assert_eq!((post.times_seen, post.last_seen), (2, 3));
         assert!(!post.confirmed, "heard from one place: tentative");
         // Clearing forgets the features; sweeps and ids go on.
         m.clear();
         assert!(m.tracked().is_empty());
         update(&mut m, &sweep_readings(1, post_scene(0.0)));
-        assert_eq!(m.sweeps(), 3);
+        assert_eq!(m.sweeps(), 4);
         assert!(
             m.tracked()
                 .iter()
-                .all(|f| f.id() > 2 && f.first_seen() == 3)
+                .all(|f| f.id() > 2 && f.first_seen() == 4)
         );
     }
 }

@@ -689,12 +689,11 @@ mod tests {
     fn a_sweep_is_placed_at_its_pose_and_one_on_the_move_ping_by_ping() {
         let mut tracker = FeatureTracker::new(FeatureConfig::default()).unwrap();
         let moved = Isometry2::new(Vector2::new(2.0, -1.0), std::f32::consts::FRAC_PI_2);
-        // Two sweeps standing there: the post is published once the second hears it again.
-        for r in sweep(1).iter().chain(&sweep(2)) {
+        for r in &sweep(1) {
             tracker.push(r, &moved);
         }
         let still = tracker.finish_sweep().unwrap();
-        assert!(!still.moving && still.refined == 1, "{still:?}");
+        assert!(!still.moving && still.added == 1, "{still:?}");
         let mut mapper = Mapper::new(FusionConfig::default()).unwrap();
         let mut post_at = |tracker: &FeatureTracker| {
             let (_, records) = tracker.snapshot(mapper.grid_mut(), 0, 0);
@@ -711,7 +710,7 @@ mod tests {
         // nothing to the map.
         for k in 0..50 {
             let ahead = 0.01 * (k as f32 - 20.0).clamp(0.0, 30.0);
-            let r = reading_of(3, -147.0 + 6.0 * k as f32, false, ahead);
+            let r = reading_of(2, -147.0 + 6.0 * k as f32, false, ahead);
             tracker.push(&r, &(moved * Isometry2::translation(ahead, 0.0)));
         }
         let on_the_move = tracker.finish_sweep().unwrap();
@@ -1165,7 +1164,7 @@ mod tests {
     fn clearing_forgets_features_and_the_pending_sweep() {
         let mut tracker = FeatureTracker::new(FeatureConfig::default()).unwrap();
         let pose = Isometry2::identity();
-        for r in sweep(1).iter().chain(&sweep(2)).chain(&sweep(3)[..3]) {
+        for r in sweep(1).iter().chain(&sweep(2)[..3]) {
             tracker.push(r, &pose);
         }
         assert_eq!(tracker.len(), 1);
