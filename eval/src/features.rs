@@ -1064,15 +1064,12 @@ mod tests {
             observation(FeatureKind::Plane, 2.002, -0.4),
             observation(FeatureKind::Corner, 1.5, 20.0),
         ];
-        // Two sweeps heard them: published.
-        for _ in 0..2 {
-            map.merge(
-                &obs,
-                &Sweep::default(),
-                &Isometry2::identity(),
-                &nalgebra::Matrix3::zeros(),
-            );
-        }
+        map.merge(
+            &obs,
+            &Sweep::default(),
+            &Isometry2::identity(),
+            &nalgebra::Matrix3::zeros(),
+        );
         let s = score(&map, &truth, &[]);
         let post = s.posts[0].unwrap();
         assert!((post - 0.975 * 0.5f64.to_radians()).abs() < 1e-3, "{post}");

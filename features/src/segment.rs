@@ -148,8 +148,7 @@ mod tests {
         }
     }
 
-    /// A map holding the wall x = 1.2 (seen from the origin) and the given corners, each heard
-    /// by two sweeps (published).
+    /// A map holding the wall x = 1.2 (seen from the origin) and the given corners.
     fn wall_map(corners: &[(f64, f64)]) -> FeatureMap {
         let mut m = FeatureMap::new(FeatureConfig::default()).unwrap();
         let mut obs = vec![observation(FeatureKind::Plane, 1.2, 0.0)];
@@ -160,14 +159,12 @@ mod tests {
                 y.atan2(x).to_degrees(),
             )
         }));
-        for _ in 0..2 {
-            m.merge(
-                &obs,
-                &Sweep::default(),
-                &Isometry2::identity(),
-                &nalgebra::Matrix3::zeros(),
-            );
-        }
+        m.merge(
+            &obs,
+            &Sweep::default(),
+            &Isometry2::identity(),
+            &nalgebra::Matrix3::zeros(),
+        );
         m
     }
 
