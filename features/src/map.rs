@@ -1216,8 +1216,9 @@ fn thick_posts(features: &[Feature]) -> Vec<ThickPost> {
         }
     }
     // A pair whose region's centre a point heard whole from elsewhere lies on: that point is
-    // the post, heard whole where it fills less of the beam (farther, or from a side where the
-    // pair's own sightings merged into its two points and left no second pair to agree with).
+    // the post, whose region that place heard a step or two narrower (places that split it
+    // alike merged their sightings into the first pair's two points, leaving no second pair to
+    // agree with).
     for (s, single) in features.iter().enumerate() {
         if single.kind != FeatureKind::Point
             || single.confidence <= 0.0
