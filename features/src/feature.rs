@@ -176,8 +176,20 @@ impl Feature {
     /// misreading (a lost ping cutting a wall's region into a post's, a corner's echo at a
     /// sweep's end): the map keeps it as a candidate and does not publish it
     /// ([`crate::FeatureMap::features`]).
+    ///
+    /// Nor a point that only one place heard, over a region as wide as a wall's would be at its
+    /// range ([`Self::may_be_a_wall`]): from one place a wall's foot answers so too, and a board
+    /// heard square from close by was such a post in every sweep of its place. Another place
+    /// tells: a post answers it at the same spot, a wall at that place's own foot.
     pub fn published(&self) -> bool {
-        self.times_seen >= 2 || self.place_sweeps < 2
+        (self.times_seen >= 2 || self.place_sweeps < 2) && !self.may_be_a_wall()
+    }
+
+    /// A point heard from one place only, every sighting a region as wide as a wall's would be
+    /// there (near the sensor a post's cone is as wide as a wall's): a post or the foot of a
+    /// wall, which one viewpoint cannot tell apart (Leonard & Durrant-Whyte).
+    pub fn may_be_a_wall(&self) -> bool {
+        self.kind == FeatureKind::Point && self.one_place && self.may_be_plane
     }
 
     /// Whether it was heard from two places or more (sightings more than 20 cm apart):

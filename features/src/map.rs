@@ -1782,6 +1782,27 @@ mod tests {
     }
 
     #[test]
+    fn a_point_as_wide_as_a_wall_heard_from_one_place_is_published_once_another_place_hears_it() {
+        // A post 40 cm ahead (its centre at (0.425, 0)) fills ±28°, as a wall's foot there would:
+        // from one place a post or a wall.
+        let near_post = |b: f64| if b.abs() <= 28.0 { 0.4 } else { 0.0 };
+        let mut m = map();
+        update(&mut m, &sweep_readings(1, near_post));
+        update(&mut m, &sweep_readings(-1, near_post));
+        let points = of_kind(&m, FeatureKind::Point);
+        assert_eq!(points.len(), 1, "{:?}", m.tracked());
+        assert!(points[0].may_be_a_wall() && points[0].times_seen() == 2);
+        assert_eq!(m.features().count(), 0, "withheld: {:?}", m.tracked());
+        // From 42.5 cm to the side, turned to face it: the same near face, so a post.
+        let pose = Isometry2::new(Vector2::new(0.425, -0.425), FRAC_PI_2);
+        let sweep = Sweep::from_readings(&sweep_readings(1, near_post), m.config());
+        m.update(&sweep, &pose);
+        let published: Vec<&Feature> = m.features().collect();
+        assert_eq!(published.len(), 1, "{:?}", m.tracked());
+        assert!(published[0].kind() == FeatureKind::Point && published[0].confirmed());
+    }
+
+    #[test]
     fn a_post_seen_from_one_place_and_missed_from_nearer_elsewhere_is_removed() {
         let seen_twice = || {
             let mut m = map();
