@@ -40,8 +40,9 @@
 //!    form.
 //! 4. [`FeatureMap`]: observations placed with the sweep's pose, merged into the feature of their
 //!    kind they match (Mahalanobis gate; Kalman refinement), else new; features aimed at but not
-//!    heard fade and are removed; what one sweep heard and another from its place did not is
-//!    withheld. Uncertainty in two parts: jitter averages out over sweeps, the bearing's
+//!    heard fade and are removed; what one sweep heard and another from its place did not, and a
+//!    point one place heard as wide as a wall (a post or a wall's foot), are withheld.
+//!    Uncertainty in two parts: jitter averages out over sweeps, the bearing's
 //!    quantisation (same ping angles every sweep) does not.
 //! 5. [`segment`]: each plane as a segment from its feet to the corners on its line, or through
 //!    occupied grid cells passed in as support points.

@@ -33,7 +33,9 @@
 //! [`FeatureMap::features`], its segments and summaries hold the features two sweeps or more
 //! heard, or the only sweep their place had (one revolution, a robot on the move);
 //! [`FeatureMap::tracked`] every one. Most of what one sweep heard and the next from its place did
-//! not is that sweep's misreading.
+//! not is that sweep's misreading. Nor is a point published that one place alone heard over a
+//! region as wide as a wall's ([`Feature::may_be_a_wall`]): from there a post and a wall's foot
+//! answer alike, and another place tells them.
 
 use std::collections::VecDeque;
 
@@ -268,9 +270,10 @@ impl FeatureMap {
     }
 
     /// The features the map publishes, in order of creation ([`Feature::published`]): those two
-    /// sweeps or more heard, or the only sweep of their place. What one sweep heard and another
-    /// from its place did not is a candidate, kept to merge later sightings with and to
-    /// [`Self::localize`] against, but not published.
+    /// sweeps or more heard, or the only sweep of their place, but for a point one place alone
+    /// heard as wide as a wall. What one sweep heard and another from its place did not, and such
+    /// a point, are candidates, kept to merge later sightings with and to [`Self::localize`]
+    /// against, but not published.
     pub fn features(&self) -> impl Iterator<Item = &Feature> {
         self.features.iter().filter(|f| f.published())
     }
