@@ -1047,6 +1047,7 @@ mod tests {
             rcd: 0,
             whole: true,
             also_plane: false,
+            also_corner: false,
             pair_centre_deg: None,
         }
     }

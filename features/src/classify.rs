@@ -89,6 +89,11 @@ pub struct Observation {
     /// may as well be a wall at `range_m` whose normal lies at `bearing_deg`. One viewpoint
     /// cannot tell a plane from a point (Leonard & Durrant-Whyte); sightings from several can.
     pub also_plane: bool,
+    /// A plane whose region a corner's echo would fill as well (its width within both cones'
+    /// tolerance, or cut short on one side and no wider than either): it may as well be a
+    /// corner's vertex at its foot, heard from inside the corner's opening. Another place tells:
+    /// a wall heard there whose line runs through the foot ([`crate::FeatureMap::merge`]).
+    pub also_corner: bool,
     /// One of two points a region was split into, which one post thicker than the reference
     /// would fill as well (one viewpoint cannot tell them): the bearing of the region's centre,
     /// where such a post's near face would lie at `range_m`. A second place tells them
@@ -121,7 +126,8 @@ struct Hypothesis {
     /// It had an `or_plane` that no corner settled: still a point or a plane.
     also_plane: bool,
     /// A plane whose width is also a corner's (a narrow beam hears a wall and a corner over
-    /// nearly the same cone): a corner should another region's plane meet it there.
+    /// nearly the same cone; a region cut short on one side is no wider than either): a corner
+    /// should another region's plane meet it there.
     or_corner: bool,
 }
 
@@ -299,6 +305,7 @@ pub fn classify_with(rcds: &[Rcd], cfg: &FeatureConfig, cut: CutRegions) -> Clas
                     rcd: i,
                     whole: rcd.is_whole(),
                     also_plane: h.also_plane && h.class == Class::Point,
+                    also_corner: h.or_corner && h.class == Class::Plane,
                     pair_centre_deg: (h.class == Class::TwoPoints)
                         .then(|| crate::geometry::wrap_deg(rcd.centre_deg())),
                 })
@@ -446,7 +453,9 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig, cut: CutRegions) -> Hypothesis {
                     ..Hypothesis::unclassified()
                 }
             } else if let Some(h) = within(cones.plane) {
-                Hypothesis::one(Class::Plane, axis(h), sigma)
+                let mut hypothesis = Hypothesis::one(Class::Plane, axis(h), sigma);
+                hypothesis.or_corner = within(cones.corner).is_some();
+                hypothesis
             } else if let Some(h) = within(cones.corner) {
                 Hypothesis::one(Class::Corner, axis(h), sigma)
             } else {
@@ -927,6 +936,31 @@ mod tests {
             "one edge and the cut-off's uncertainty"
         );
         assert!(!o.whole, "placed from one edge: {o:?}");
+        // A corner's cone (30° here, the wall's 28°) holds a region cut on one side as well.
+        assert!(o.also_corner, "{o:?}");
+    }
+
+    #[test]
+    fn a_wall_cut_on_one_side_narrower_than_a_corners_half_cone_is_no_corner() {
+        // A narrow specular cut-off: a wall 1.5 m off is heard 15° either side of its normal, a
+        // corner 30°.
+        let mut cfg = FeatureConfig::default();
+        cfg.echo.specular_cutoff_deg = 15.0;
+        let cones = Cones::at(1.5, &cfg);
+        assert_eq!((cones.plane, cones.corner), (Some(15.0), Some(30.0)));
+        // The wall's normal at 45°, the scan stops at 51.75°: 22° of its 30° heard, narrower
+        // than a corner's half-cone.
+        let cut = |half: f64| {
+            let ranges = cone_sweep(-9.75, 42, &[(45.0, half, 1.5)]);
+            let rcds = regions(&sweep(-9.75, &ranges));
+            assert_eq!(rcds[0].end, End::Unknown);
+            let c = classify(&rcds, &cfg);
+            assert_eq!(c.classes, [Class::Plane]);
+            c.observations[0]
+        };
+        assert!(!cut(15.0).also_corner);
+        // 29° heard, about a corner's half-cone and a wall's whole: either.
+        assert!(cut(22.0).also_corner);
     }
 
     #[test]

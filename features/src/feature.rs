@@ -46,6 +46,9 @@ pub struct Feature {
     /// A point every sighting of which was a region as wide as a wall's would be there
     /// ([`crate::Observation::also_plane`]): one place could not tell it from a wall.
     pub(crate) may_be_plane: bool,
+    /// A plane every sighting of which was a region a corner's echo would fill as well
+    /// ([`crate::Observation::also_corner`]): one place could not tell it from a corner's vertex.
+    pub(crate) may_be_corner: bool,
     /// A point every sighting of which was one of two points split from a region that one
     /// thicker post would fill too ([`crate::Observation::pair_centre_deg`]): where that post's
     /// near face would lie, as first seen.

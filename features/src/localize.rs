@@ -237,6 +237,7 @@ mod tests {
                 rcd: 0,
                 whole: true,
                 also_plane: false,
+                also_corner: false,
                 pair_centre_deg: None,
             }
         };
@@ -259,6 +260,7 @@ mod tests {
                             rcd: 0,
                             whole: true,
                             also_plane: false,
+                            also_corner: false,
                             pair_centre_deg: None,
                         });
                     }

@@ -70,6 +70,8 @@ pub(crate) struct Placed {
     from: Vector2<f64>,
     /// A point whose region was as wide as a wall's there ([`Observation::also_plane`]).
     also_plane: bool,
+    /// A plane whose region a corner's echo would fill as well ([`Observation::also_corner`]).
+    also_corner: bool,
     /// One of two points split from a region one thicker post would fill: where that post's
     /// near face would lie ([`Observation::pair_centre_deg`]), in the map's frame.
     pair_centre: Option<Vector2<f64>>,
@@ -166,6 +168,7 @@ impl Placed {
                     foot: 0.0,
                     from: t,
                     also_plane: o.also_plane,
+                    also_corner: false,
                     pair_centre,
                 }
             }
@@ -195,6 +198,7 @@ impl Placed {
                     foot: t.dot(&along),
                     from: t,
                     also_plane: false,
+                    also_corner: o.also_corner,
                     pair_centre: None,
                 }
             }
@@ -376,6 +380,7 @@ impl FeatureMap {
                     let o = Observation {
                         kind: FeatureKind::Plane,
                         also_plane: false,
+                        also_corner: false,
                         ..o
                     };
                     found.push((o.whole, pings, gate.tolerance_at(o.range_m), o));
@@ -495,6 +500,7 @@ impl FeatureMap {
                 seen_from: z.from,
                 one_place: true,
                 may_be_plane: z.also_plane,
+                may_be_corner: z.also_corner,
                 pair_centre: z.pair_centre,
                 place_sweeps: u32::try_from(place_sweeps).unwrap_or(u32::MAX),
             });
@@ -507,6 +513,7 @@ impl FeatureMap {
             f.absorb_sightings(&other);
             f.one_place &= other.one_place && (other.seen_from - f.seen_from).norm() <= ONE_PLACE_M;
             f.may_be_plane &= other.may_be_plane;
+            f.may_be_corner &= other.may_be_corner;
             f.pair_centre = f.pair_centre.filter(|_| other.pair_centre.is_some());
             self.features[merged].confidence = 0.0;
             report.merged += 1;
@@ -682,6 +689,7 @@ fn refine(f: &mut Feature, z: &Placed, stamp: u64, cfg: &MergeConfig) {
     f.ray_deg = z.ray_deg;
     f.one_place &= (z.from - f.seen_from).norm() <= ONE_PLACE_M;
     f.may_be_plane &= z.also_plane;
+    f.may_be_corner &= z.also_corner;
     if f.kind == FeatureKind::Plane {
         f.feet = (f.feet.0.min(z.foot), f.feet.1.max(z.foot));
     }
@@ -1109,12 +1117,26 @@ fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
         // sensor hears as a wall only from the other wall's line when they meet at a right
         // angle; a corner's vertex is where two walls meet. (Any other plane, or one first seen
         // from elsewhere, cost walls on the tune split: 3155 -> 3146 of 3519 per viewpoint,
-        // 674 -> 673 of 933 per scene, hc-sr04 and srf05.)
+        // 674 -> 673 of 933 per scene, hc-sr04 and srf05.) A plane one place heard over a region
+        // a corner's echo fills as well ([`Feature::may_be_corner`]) is a corner's echo on the
+        // line of a wall heard from any other place: there one place's guess meets another's
+        // sighting (a wall from one place only, taken for a corner's wall whatever the plane,
+        // removed boards from the arenas where a board's end was heard as a wall). Along its own
+        // line the foot is known only to the bearing's error times the range, so it is on the
+        // other line within the tolerance and that error's share across it.
+        let bearing_sigma = plane.covariance_own()[(0, 0)].sqrt();
+        let along_sigma = (foot - plane.seen_from).norm() * bearing_sigma;
         let on_a_wall = features.iter().any(|other| {
+            let told_by = !other.one_place
+                || plane.may_be_corner
+                    && plane.one_place
+                    && (other.seen_from - plane.seen_from).norm() > ONE_PLACE_M;
+            let sin = n.perp(&other.normal()).abs();
             other.kind == FeatureKind::Plane
-                && !other.one_place
+                && told_by
                 && lines_cross(plane, other)
-                && (other.normal().dot(&foot) - other.mean.y).abs() <= tolerance
+                && (other.normal().dot(&foot) - other.mean.y).abs()
+                    <= tolerance + 3.0 * along_sigma * sin
         });
         if at_corner || crossing || on_a_wall {
             explained.push(plane.id);
@@ -1553,6 +1575,7 @@ mod tests {
             rcd: 0,
             whole: true,
             also_plane: false,
+            also_corner: false,
             pair_centre_deg: None,
         }
     }
@@ -1999,6 +2022,7 @@ mod tests {
             seen_from: Vector2::zeros(),
             one_place: true,
             may_be_plane: false,
+            may_be_corner: false,
             pair_centre: None,
             place_sweeps: 2,
         }
@@ -2072,6 +2096,40 @@ mod tests {
         // A plane nearly parallel through the foot is the same wall, not a corner.
         let parallel = feature(2, FeatureKind::Plane, Vector2::new(0.05, 2.0), 0.0);
         assert!(explained_by_corners(&[wall, parallel], &cfg).is_empty());
+    }
+
+    #[test]
+    fn a_plane_that_may_be_a_corners_echo_is_one_on_the_line_of_a_wall_another_place_heard() {
+        let cfg = FeatureConfig::default();
+        // A wall 2 m ahead (x = 2) heard from the origin with its foot at (2, 0.5), and a wall
+        // y = d heard from one place only, 1 m off the first.
+        let mut plane = feature(1, FeatureKind::Plane, Vector2::new(0.0, 2.0), 0.0);
+        plane.feet = (0.5, 0.5);
+        let across = |d: f64, from: Vector2<f64>| {
+            let mut f = feature(2, FeatureKind::Plane, Vector2::new(FRAC_PI_2, d), 90.0);
+            f.seen_from = from;
+            f
+        };
+        let elsewhere = Vector2::new(1.0, 0.0);
+        // A region a wall's cone alone holds: the other place's guess does not tell.
+        assert!(explained_by_corners(&[plane.clone(), across(0.5, elsewhere)], &cfg).is_empty());
+        // One a corner's would hold as well: that wall's corner, heard from inside it.
+        plane.may_be_corner = true;
+        assert_eq!(
+            explained_by_corners(&[plane.clone(), across(0.5, elsewhere)], &cfg),
+            vec![1]
+        );
+        // The other wall heard from the same place: one view's guesses, no second opinion.
+        let same_place = Vector2::new(0.1, 0.0);
+        assert!(explained_by_corners(&[plane.clone(), across(0.5, same_place)], &cfg).is_empty());
+        // The other line 8 cm from the foot: off it for a bearing known to 1 mrad, on it for one
+        // known to 1° (the foot 3.6 cm along its line at 2 m).
+        assert!(explained_by_corners(&[plane.clone(), across(0.58, elsewhere)], &cfg).is_empty());
+        plane.random[(0, 0)] = 1f64.to_radians().powi(2);
+        assert_eq!(
+            explained_by_corners(&[plane, across(0.58, elsewhere)], &cfg),
+            vec![1]
+        );
     }
 
     #[test]
