@@ -1067,7 +1067,9 @@ const CORNER_LINE_M: f64 = 0.05;
 /// Planes seen from one place only (their feet within [`SegmentConfig::corner_tolerance_m`] of
 /// each other) whose foot lies on a corner: one of the map's corners, where the plane crosses
 /// another such plane, or on the line of a plane seen from two places or more (at
-/// [`CROSSING_DEG`] or more to it, within the tolerance): where two walls meet. From where it
+/// [`CROSSING_DEG`] or more to it, within the tolerance and the foot's error along its own
+/// line; from one other place will do for a plane that may be a corner's echo,
+/// [`Feature::may_be_corner`]): where two walls meet. From where it
 /// was heard, a corner's vertex is the nearest point of a line across the ray: its echo looks
 /// like a wall's, with the vertex as the foot, and from two places it looks like two walls whose
 /// feet are where they cross. A real wall's foot lies on it, at a corner only when heard from
