@@ -38,6 +38,10 @@ pub struct Feature {
     /// the direction 90° counter-clockwise of the normal, from the foot of the map origin's
     /// perpendicular): the extent of direct evidence.
     pub(crate) feet: (f64, f64),
+    /// Plane: the feet themselves, in the coordinate of [`Self::feet`], one for each stretch of
+    /// [`crate::map::FOOT_SPACING_M`] where a sensor's perpendicular met it: where the wall is
+    /// known to stand (between two feet it may have a doorway).
+    pub(crate) feet_heard: Vec<f64>,
     /// Where the sensor stood at the first sighting, in the map's frame.
     pub(crate) seen_from: Vector2<f64>,
     /// Whether every sighting was taken within [`crate::map::ONE_PLACE_M`] of
@@ -62,11 +66,23 @@ impl Feature {
     /// Takes `other`'s sightings into this one's count, confidence and first and last sweeps:
     /// the two were one target.
     pub(crate) fn absorb_sightings(&mut self, other: &Feature) {
+        for &foot in &other.feet_heard {
+            self.hear_foot(foot);
+        }
         self.times_seen += other.times_seen;
         self.place_sweeps = self.place_sweeps.max(other.place_sweeps);
         self.confidence = self.confidence.max(other.confidence);
         self.first_seen = self.first_seen.min(other.first_seen);
         self.last_seen = self.last_seen.max(other.last_seen);
+    }
+
+    /// Notes a plane's foot at `foot` (along its line), unless one within
+    /// [`crate::map::FOOT_SPACING_M`] is noted already.
+    pub(crate) fn hear_foot(&mut self, foot: f64) {
+        let spacing = crate::map::FOOT_SPACING_M;
+        if !self.feet_heard.iter().any(|f| (f - foot).abs() < spacing) {
+            self.feet_heard.push(foot);
+        }
     }
 
     pub fn id(&self) -> u64 {

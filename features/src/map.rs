@@ -497,6 +497,11 @@ impl FeatureMap {
                 last_seen: stamp,
                 ray_deg: z.ray_deg,
                 feet: (z.foot, z.foot),
+                feet_heard: if z.kind == FeatureKind::Plane {
+                    vec![z.foot]
+                } else {
+                    Vec::new()
+                },
                 seen_from: z.from,
                 one_place: true,
                 may_be_plane: z.also_plane,
@@ -567,6 +572,7 @@ impl FeatureMap {
             }
         }
         let mut explained = explained_by_corners(&self.features, &self.cfg);
+        explained.extend(heard_through_walls(&self.features));
         explained.extend(explained_by_posts(&self.features, &self.cfg));
         for f in self
             .features
@@ -692,6 +698,7 @@ fn refine(f: &mut Feature, z: &Placed, stamp: u64, cfg: &MergeConfig) {
     f.may_be_corner &= z.also_corner;
     if f.kind == FeatureKind::Plane {
         f.feet = (f.feet.0.min(z.foot), f.feet.1.max(z.foot));
+        f.hear_foot(z.foot);
     }
     if z.pair_centre.is_none() {
         // Heard as a point on its own: a post there, not half of a thicker one's region.
@@ -1055,6 +1062,48 @@ fn points_at_corners(features: &[Feature]) -> Vec<u64> {
             })
         })
         .map(|p| p.id)
+        .collect()
+}
+
+/// A wall heard at a foot stands within this of it, and two feet closer than this are noted as
+/// one ([`Feature::feet_heard`]).
+pub(crate) const FOOT_SPACING_M: f64 = 0.10;
+/// A target heard through a wall lies at least this far behind its line (more than a corner's or
+/// a wall's end's error across it).
+const BEHIND_WALL_M: f64 = 0.10;
+
+/// Posts and corners heard from one place only that lie behind a wall heard from two places or
+/// more, as seen from that place: the wall's line crosses the way from the place to the target
+/// within [`FOOT_SPACING_M`] of a foot where the wall was heard, the target
+/// [`BEHIND_WALL_M`] or more behind it. Sound does not pass through a wall at any angle, so no
+/// echo came from there straight: it came round by two walls (a double bounce in a corner,
+/// heard late and so farther off along the ray). Only where a foot shows the wall stands: between
+/// two feet a wall may have a doorway, through which targets are heard.
+fn heard_through_walls(features: &[Feature]) -> Vec<u64> {
+    let walls: Vec<&Feature> = features
+        .iter()
+        .filter(|w| w.kind == FeatureKind::Plane && !w.one_place)
+        .collect();
+    features
+        .iter()
+        .filter(|f| f.one_place && f.kind != FeatureKind::Plane)
+        .filter(|f| {
+            let from = f.seen_from;
+            let at = f.position().coords;
+            walls.iter().any(|w| {
+                let (n, d) = (w.normal(), w.mean.y);
+                let (side_from, side_at) = (n.dot(&from) - d, n.dot(&at) - d);
+                if side_from * side_at >= 0.0 || side_at.abs() < BEHIND_WALL_M {
+                    return false;
+                }
+                let crossing = from + (at - from) * (side_from / (side_from - side_at));
+                let along = w.direction().unwrap_or_default().dot(&crossing);
+                w.feet_heard
+                    .iter()
+                    .any(|foot| (foot - along).abs() <= FOOT_SPACING_M)
+            })
+        })
+        .map(|f| f.id)
         .collect()
 }
 
@@ -2021,6 +2070,7 @@ mod tests {
             last_seen: 2,
             ray_deg,
             feet: (0.0, 0.0),
+            feet_heard: Vec::new(),
             seen_from: Vector2::zeros(),
             one_place: true,
             may_be_plane: false,
@@ -2132,6 +2182,44 @@ mod tests {
             explained_by_corners(&[plane, across(0.58, elsewhere)], &cfg),
             vec![1]
         );
+    }
+
+    #[test]
+    fn a_target_one_place_heard_behind_where_a_wall_was_heard_is_a_double_bounce() {
+        // A wall x = 1 heard from two places, one of its feet at (1, 0); targets heard from the
+        // origin.
+        let mut wall = feature(1, FeatureKind::Plane, Vector2::new(0.0, 1.0), 0.0);
+        wall.one_place = false;
+        wall.feet_heard = vec![0.0];
+        let corner = |x: f64, y: f64| feature(2, FeatureKind::Corner, Vector2::new(x, y), 0.0);
+        let through =
+            |wall: &Feature, target: Feature| heard_through_walls(&[wall.clone(), target]);
+        // A corner 2 m out, straight through the foot: its echo came round.
+        assert_eq!(through(&wall, corner(2.0, 0.05)), vec![2]);
+        // A post too.
+        let post = feature(2, FeatureKind::Point, Vector2::new(2.0, 0.05), 0.0);
+        assert_eq!(through(&wall, post), vec![2]);
+        // The way crosses the line 25 cm from the foot: there may be a doorway.
+        assert!(through(&wall, corner(2.0, 0.5)).is_empty());
+        // 5 cm behind the line: the wall's own corner, placed a little deep.
+        assert!(through(&wall, corner(1.05, 0.0)).is_empty());
+        // The wall heard from one place only: it may be a corner's echo itself.
+        let mut one_place = wall.clone();
+        one_place.one_place = true;
+        assert!(through(&one_place, corner(2.0, 0.05)).is_empty());
+        // A corner two places heard stays whatever a wall says.
+        let mut confirmed = corner(2.0, 0.05);
+        confirmed.one_place = false;
+        assert!(through(&wall, confirmed).is_empty());
+    }
+
+    #[test]
+    fn a_plane_keeps_one_foot_for_each_stretch_it_was_heard_on() {
+        let mut wall = feature(1, FeatureKind::Plane, Vector2::new(0.0, 1.0), 0.0);
+        for foot in [0.0, 0.04, 0.5, 0.52, -0.3] {
+            wall.hear_foot(foot);
+        }
+        assert_eq!(wall.feet_heard, vec![0.0, 0.5, -0.3]);
     }
 
     #[test]
