@@ -1064,39 +1064,32 @@ mod tests {
 
     #[test]
     fn a_region_with_no_natural_end_is_a_corner_only_of_a_wall_beside_it() {
+        // The class of the region 1.887 m off among `targets`, checked to have no natural end.
+        let far_class = |targets: &[(f64, f64, f64)]| {
+            let (rcds, c) = classified(-59.25, &cone_sweep(-59.25, 60, targets));
+            let i = rcds
+                .iter()
+                .position(|r| (r.range_m - 1.887).abs() < 0.01)
+                .unwrap();
+            let r = &rcds[i];
+            assert!(!r.start.is_natural() && !r.end.is_natural(), "{rcds:?}");
+            c.classes[i]
+        };
         // A wall 1.2 m off (normal −40°, heard to −12°), and 1.887 m off a region heard only
         // between two posts 1 m off, where that wall's line meets its range (−40° + 50.5°): no
         // edge and no width to go by, and the wall is not what hides it.
         let posts = [(5.0, 2.0, 1.0), (16.0, 2.0, 1.0)];
         let far = (10.5, 5.0, 1.887);
-        let ranges = cone_sweep(-59.25, 60, &[(-40.0, 28.0, 1.2), posts[0], posts[1], far]);
-        let (rcds, c) = classified(-59.25, &ranges);
-        let i = rcds
-            .iter()
-            .position(|r| (r.range_m - 1.887).abs() < 0.01)
-            .unwrap();
-        assert!(
-            !rcds[i].start.is_natural() && !rcds[i].end.is_natural(),
-            "{rcds:?}"
+        assert_ne!(
+            far_class(&[(-40.0, 28.0, 1.2), posts[0], posts[1], far]),
+            Class::Corner
         );
-        assert_ne!(c.classes[i], Class::Corner, "{rcds:?} {c:?}");
         // The same region right beside the wall that hides it, its range where the wall's line
         // meets it: that wall's corner.
-        let ranges = cone_sweep(
-            -59.25,
-            60,
-            &[(-30.0, 28.0, 1.6), (2.0, 10.0, 1.887), (10.0, 3.0, 1.0)],
+        assert_eq!(
+            far_class(&[(-30.0, 28.0, 1.6), (2.0, 10.0, 1.887), (10.0, 3.0, 1.0)]),
+            Class::Corner
         );
-        let (rcds, c) = classified(-59.25, &ranges);
-        let i = rcds
-            .iter()
-            .position(|r| (r.range_m - 1.887).abs() < 0.01)
-            .unwrap();
-        assert!(
-            !rcds[i].start.is_natural() && !rcds[i].end.is_natural(),
-            "{rcds:?}"
-        );
-        assert_eq!(c.classes[i], Class::Corner, "{rcds:?} {c:?}");
     }
 
     #[test]
