@@ -564,7 +564,7 @@ fn corner_of_planes(
         }
     };
     let (hidden_below, hidden_above) = (hidden(false), hidden(true));
-    let mut estimates: Vec<(Bearing, usize, bool, bool)> = Vec::new();
+    let mut estimates: Vec<(Bearing, usize, bool)> = Vec::new();
     for (j, plane) in rcds.iter().enumerate() {
         let Some(normal) = planes[j].filter(|_| j != i) else {
             continue;
@@ -617,12 +617,7 @@ fn corner_of_planes(
                     rcd.end_interval_deg,
                 );
             if inside {
-                estimates.push((
-                    Bearing { deg, sigma },
-                    j,
-                    beside(plane),
-                    behind_hidden_end(j),
-                ));
+                estimates.push((Bearing { deg, sigma }, j, beside(plane)));
             }
         }
     }
@@ -636,9 +631,9 @@ fn corner_of_planes(
     // its wall and it left to neither was lost under a hobby sensor's noise).
     let beside_any = estimates.iter().any(|e| e.2);
     let no_natural_end = !rcd.start.is_natural() && !rcd.end.is_natural();
-    let used: Vec<&(Bearing, usize, bool, bool)> = estimates
+    let used: Vec<&(Bearing, usize, bool)> = estimates
         .iter()
-        .filter(|e| e.2 || !beside_any && (!no_natural_end || e.3))
+        .filter(|e| e.2 || !beside_any && (!no_natural_end || behind_hidden_end(e.1)))
         .collect();
     if used.is_empty() {
         return None;

@@ -38,9 +38,9 @@ pub struct Feature {
     /// the direction 90° counter-clockwise of the normal, from the foot of the map origin's
     /// perpendicular): the extent of direct evidence.
     pub(crate) feet: (f64, f64),
-    /// Plane: the feet themselves, in the coordinate of [`Self::feet`], one for each stretch of
-    /// [`crate::map::FOOT_SPACING_M`] where a sensor's perpendicular met it: where the wall is
-    /// known to stand (between two feet it may have a doorway).
+    /// Plane: the feet themselves, in the coordinate of [`Self::feet`], in order, one for each
+    /// stretch of [`crate::map::FOOT_SPACING_M`] where a sensor's perpendicular met it: where the
+    /// wall is known to stand (between two feet it may have a doorway).
     pub(crate) feet_heard: Vec<f64>,
     /// Where the sensor stood at the first sighting, in the map's frame.
     pub(crate) seen_from: Vector2<f64>,
@@ -79,10 +79,21 @@ impl Feature {
     /// Notes a plane's foot at `foot` (along its line), unless one within
     /// [`crate::map::FOOT_SPACING_M`] is noted already.
     pub(crate) fn hear_foot(&mut self, foot: f64) {
-        let spacing = crate::map::FOOT_SPACING_M;
-        if !self.feet_heard.iter().any(|f| (f - foot).abs() < spacing) {
-            self.feet_heard.push(foot);
+        if !self.foot_near(foot, crate::map::FOOT_SPACING_M) {
+            let at = self.feet_heard.partition_point(|&f| f < foot);
+            self.feet_heard.insert(at, foot);
         }
+    }
+
+    /// Whether a plane was heard at a foot within `within` of `along` (along its line).
+    pub(crate) fn foot_near(&self, along: f64, within: f64) -> bool {
+        let at = self.feet_heard.partition_point(|&f| f < along);
+        let near = |i: usize| {
+            self.feet_heard
+                .get(i)
+                .is_some_and(|f| (f - along).abs() <= within)
+        };
+        near(at) || at.checked_sub(1).is_some_and(near)
     }
 
     pub fn id(&self) -> u64 {

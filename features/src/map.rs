@@ -1098,9 +1098,7 @@ fn heard_through_walls(features: &[Feature]) -> Vec<u64> {
                 }
                 let crossing = from + (at - from) * (side_from / (side_from - side_at));
                 let along = w.direction().unwrap_or_default().dot(&crossing);
-                w.feet_heard
-                    .iter()
-                    .any(|foot| (foot - along).abs() <= FOOT_SPACING_M)
+                w.foot_near(along, FOOT_SPACING_M)
             })
         })
         .map(|f| f.id)
@@ -2219,7 +2217,9 @@ mod tests {
         for foot in [0.0, 0.04, 0.5, 0.52, -0.3] {
             wall.hear_foot(foot);
         }
-        assert_eq!(wall.feet_heard, vec![0.0, 0.5, -0.3]);
+        assert_eq!(wall.feet_heard, vec![-0.3, 0.0, 0.5]);
+        assert!(wall.foot_near(0.55, 0.1) && wall.foot_near(-0.25, 0.1));
+        assert!(!wall.foot_near(0.25, 0.1) && !wall.foot_near(0.7, 0.1));
     }
 
     #[test]
