@@ -503,11 +503,18 @@ fn corner_of_planes(
                 && next(rcd.first_deg - plane.last_deg, rcd.start_interval_deg))
     };
     // Whether `plane`'s region is among the nearer ones that hide an end of this one: reached
-    // from that end across nearer regions only, each beginning at the ping after the last (a
-    // wall's region broken by a lost ping or a jittered range is still the wall beside).
+    // from that end across pieces of it only (regions at its range: a wall's region broken by a
+    // lost ping or a jittered range is still the wall beside, another target between is not).
     let behind_hidden_end = |j: usize| {
         // At most one ping between: one a step in range left to neither region, or lost.
         let next = |gap: f64| gap > 0.0 && gap < 2.5 * step;
+        let wall = &rcds[j];
+        let piece_of_wall = |p: &Rcd| {
+            let sigma2 = p.range_sigma_m.powi(2)
+                + wall.range_sigma_m.powi(2)
+                + 2.0 * (cfg.range_sigma_rel * wall.range_m).powi(2);
+            (p.range_m - wall.range_m).abs() <= 3.0 * sigma2.sqrt()
+        };
         let chain = |toward_higher: bool| {
             let mut edge = if toward_higher {
                 rcd.last_deg
@@ -527,6 +534,9 @@ fn corner_of_planes(
                 };
                 if k == j {
                     return true;
+                }
+                if !piece_of_wall(p) {
+                    return false;
                 }
                 edge = if toward_higher {
                     p.last_deg
