@@ -636,9 +636,9 @@ fn corner_of_planes(
     // natural end shows neither an edge nor its width, so only planes among the nearer regions
     // that hide an end speak for it: a wall's region cut by the scan and a nearer target, a
     // double bounce masked on both sides, lay where another wall's line met their range (on the
-    // suite's `report` split the rooms' scene maps held 0.07–0.10 false features a scene more
-    // so; those planes right beside it alone, 0.16–0.36, but an L room's corner beyond a ping
-    // its wall and it left to neither was lost under a hobby sensor's noise).
+    // suite's `report` split the rooms' scene maps held 0.16–0.36 false features a scene more
+    // so; the planes right beside it alone did as well, but lost an L room's corner beyond a
+    // ping its wall and it left to neither under a hobby sensor's noise).
     let beside_any = estimates.iter().any(|e| e.2);
     let no_natural_end = !rcd.start.is_natural() && !rcd.end.is_natural();
     let used: Vec<&(Bearing, usize, bool)> = estimates
