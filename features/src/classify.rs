@@ -522,14 +522,8 @@ fn corner_of_planes(
                 rcd.first_deg
             };
             loop {
-                let Some((k, p)) = rcds.iter().enumerate().find(|(_, p)| {
-                    p.range_m < rcd.range_m
-                        && if toward_higher {
-                            next(p.first_deg - edge)
-                        } else {
-                            next(edge - p.last_deg)
-                        }
-                }) else {
+                let Some((k, p)) = nearer_beside(rcds, rcd.range_m, edge, toward_higher, next)
+                else {
                     return false;
                 };
                 if k == j {
@@ -559,16 +553,16 @@ fn corner_of_planes(
             return None;
         }
         let next = |gap: f64| gap > 0.0 && gap < interval + step / 2.0;
-        let occluder = rcds.iter().find(|p| {
-            p.range_m < rcd.range_m
-                && if toward_higher {
-                    next(p.first_deg - rcd.last_deg)
-                } else {
-                    next(rcd.first_deg - p.last_deg)
-                }
-        });
-        match (occluder, end) {
-            (Some(p), _) => Some((p.start_edge_deg(), p.end_edge_deg())),
+        let edge = if toward_higher {
+            rcd.last_deg
+        } else {
+            rcd.first_deg
+        };
+        match (
+            nearer_beside(rcds, rcd.range_m, edge, toward_higher, next),
+            end,
+        ) {
+            (Some((_, p)), _) => Some((p.start_edge_deg(), p.end_edge_deg())),
             (None, End::Unknown) => Some((f64::NEG_INFINITY, f64::INFINITY)),
             (None, _) => None,
         }
@@ -662,6 +656,25 @@ fn corner_of_planes(
         .map(|(_, j, ..)| *j)
         .collect();
     Some((Bearing { deg, sigma }, agree))
+}
+
+/// The first region nearer than `range_m` that begins past `edge_deg` (ends before it, unless
+/// `toward_higher`) by a gap `next` accepts: what hides a region's end there.
+fn nearer_beside(
+    rcds: &[Rcd],
+    range_m: f64,
+    edge_deg: f64,
+    toward_higher: bool,
+    next: impl Fn(f64) -> bool,
+) -> Option<(usize, &Rcd)> {
+    rcds.iter().enumerate().find(|(_, p)| {
+        p.range_m < range_m
+            && if toward_higher {
+                next(p.first_deg - edge_deg)
+            } else {
+                next(edge_deg - p.last_deg)
+            }
+    })
 }
 
 /// If region `i`, seen from one natural end and hidden at the other by a nearer region, is a
