@@ -547,19 +547,9 @@ impl Mapper {
                 cells += self.fuse_beam(beam, kernel);
             }
         } else {
-            // The readings of a region not whole may have heard something off their axes: a weak
-            // echo on their own axis, unless the grid already holds an occupied cell in front of
-            // it on that axis (what the axis met would have answered nearer).
+            // The readings of a region not whole may have heard something off their axes.
             if model.region_weak_echo_log_odds > 0.0 {
-                for beam in &regions.waiting {
-                    if !self.occupied_in_front(&model, beam) {
-                        let echo = model.weak_echo(beam, model.region_weak_echo_log_odds);
-                        cells += self.apply(beam, &echo, kernel);
-                        if model.region_weak_echo_withdrawn {
-                            regions.weak.keep(*beam, self.steps_in_front(&model, beam));
-                        }
-                    }
-                }
+                cells += self.place_weak_echoes(regions, region, &model, kernel);
             }
             if model.region_masked_free && region.ends == [End::Occluded; 2] {
                 let beam = self.config.sensor.limits().half_angle;
@@ -627,6 +617,39 @@ impl Mapper {
                 ..*beam
             };
             cells += self.fuse_beam(&cleared, kernel);
+        }
+        cells
+    }
+
+    /// Places the weak echoes of `region`'s readings (a region not whole): each on its own axis,
+    /// unless the grid already holds an occupied cell in front of it on that axis (what the axis
+    /// met would have answered nearer); with `region_weak_echo_at_reflector`, those of a region
+    /// heard to stop on one side and cut short by a nearer echo on the other on the bearing its
+    /// reflector was heard from ([`Region::cut_short_axis`]), which no reading's axis met.
+    fn place_weak_echoes(
+        &mut self,
+        regions: &mut Regions,
+        region: &Region,
+        model: &SmoothModel,
+        kernel: Kernel,
+    ) -> usize {
+        // Only with a lobe learnt at some range: the sensor's configured beam is no measure of
+        // where its echoes fade.
+        let reflector = model
+            .region_weak_echo_at_reflector
+            .then(|| regions.lobe.at(region.range))
+            .flatten()
+            .and_then(|lobe| region.cut_short_axis(lobe));
+        let mut cells = 0;
+        for beam in &regions.waiting {
+            let beam = reflector.map_or(*beam, |axis| Beam { axis, ..*beam });
+            if reflector.is_some() || !self.occupied_in_front(model, &beam) {
+                let echo = model.weak_echo(&beam, model.region_weak_echo_log_odds);
+                cells += self.apply(&beam, &echo, kernel);
+                if model.region_weak_echo_withdrawn {
+                    regions.weak.keep(beam, self.steps_in_front(model, &beam));
+                }
+            }
         }
         cells
     }
@@ -1911,12 +1934,17 @@ mod tests {
     #[test]
     fn a_restored_map_keeps_what_its_readings_saw_from_the_other_side_of_a_wall() {
         // From the origin: a wall along x = 1 ahead and one along x = −1 behind, each heard
-        // square over ±15°, four times.
+        // square over ±15° (nothing heard beyond, ±25°), four times.
         let a = (0.0, 0.0);
-        let mut heard_from_a = sweep(a, (-15.0, 15.0), 4, |deg| to_wall_at_x(a, 1.0, deg));
-        heard_from_a.extend(sweep(a, (165.0, 195.0), 4, |deg| {
-            to_wall_at_x(a, -1.0, deg)
-        }));
+        let square = |at: (f32, f32), x: f32, facing: f32| {
+            move |deg: f32| {
+                ((deg - facing).abs() <= 15.0)
+                    .then(|| to_wall_at_x(at, x, deg))
+                    .flatten()
+            }
+        };
+        let mut heard_from_a = sweep(a, (-25.0, 25.0), 4, square(a, 1.0, 0.0));
+        heard_from_a.extend(sweep(a, (155.0, 205.0), 4, square(a, -1.0, 180.0)));
         let preset = FusionConfig::preset(Preset::Recommended);
         let ModelConfig::Smooth(model) = preset.model else {
             panic!("the recommended preset's model is the smooth one");
@@ -1940,7 +1968,7 @@ mod tests {
         // Restored, then sweeps from x = 2, which hear the wall along x = 1 from its other side:
         // the wall behind the origin lies behind it as seen from there.
         let b = (2.0, 0.0);
-        let from_b = sweep(b, (165.0, 195.0), 4, |deg| to_wall_at_x(b, 1.0, deg));
+        let from_b = sweep(b, (155.0, 205.0), 4, square(b, 1.0, 180.0));
         let after = |remembered: bool| {
             let mut m = Mapper::restore(config, saved.clone()).unwrap();
             if remembered {
@@ -2449,6 +2477,45 @@ mod tests {
         assert_eq!(heard(0.0), [true, true]);
         // A point a cell (2 cm) wide: the axis's cells only.
         assert_eq!(heard(0.02), [true, false]);
+    }
+
+    #[test]
+    fn a_wall_heard_beside_a_post_has_its_weak_echo_where_its_reflector_lies() {
+        // From the origin, readings every 1.5°, two sweeps: a thin post at 0.9 m heard within ±15°
+        // (a whole region, which teaches the lobe: ±15°), the wall along x = 1.2 behind it heard
+        // at its perpendicular 1.2 m from 16.5° to 19.5° on either side, farther beyond. The
+        // wall's foot lies behind the post; those readings heard it at their lobe's edge: the
+        // reading at 21° did not, so the wall's reflector lies less than 15° from 21°, and every
+        // reading of the region heard it, within 15° of 19.5°: between 4.5° and 6°.
+        let heard = |at_reflector: bool| {
+            let mut m = region_mapper(crate::model::SmoothModel {
+                region_weak_echo_log_odds: 0.3,
+                region_weak_echo_half_width_m: 0.02,
+                region_weak_echo_at_reflector: at_reflector,
+                ..Default::default()
+            });
+            for obs in sweep((0.0, 0.0), (-39.0, 39.0), 2, |deg: f32| {
+                Some(match deg.abs() {
+                    a if a <= 15.0 => 0.9,
+                    a if a <= 20.0 => 1.2,
+                    _ => 1.5,
+                })
+            }) {
+                m.update(&obs).unwrap();
+            }
+            m.close_region();
+            let occupied = |deg: f32| {
+                let (s, c) = (deg * DEG).sin_cos();
+                probability_at(&m, 1.2 * c, 1.2 * s).is_some_and(|p| p > 0.5)
+            };
+            // On the reflector's bearing, 0.6 cm in front of the wall; on the readings' axes,
+            // 6–7 cm in front of it.
+            [5.25, -5.25, 18.0, -18.0].map(occupied)
+        };
+        // The first sweep heard the wall at −16.5° to −19.5° before the post taught it the lobe:
+        // those weak echoes are on their axes.
+        assert_eq!(heard(true), [true, true, false, true]);
+        assert_eq!(heard(false), [false, false, true, true]);
     }
 
     /// From the origin, an echo at 1 m heard from one limit of the scan to the other: no region,

@@ -627,6 +627,13 @@ pub struct SmoothModel {
     /// the lobe; an arc across the axis draws cells on no surface wherever the axis meets a wall
     /// at a slant or the echo came from off the axis. A grid cell (0.02) draws it as a point.
     pub region_weak_echo_half_width_m: f32,
+    /// With weak echoes: the readings of a region heard to stop on one side and cut short by a
+    /// nearer echo on the other put their weak echoes on the bearing its reflector was heard
+    /// from, a lobe less half a step in from the natural end
+    /// ([`crate::regions::Region::cut_short_axis`]), instead of on their own axes, once the lobe
+    /// has been learnt: a wall heard beside a post, its foot hidden behind the post, is heard at
+    /// the lobe's edge, not on the axes.
+    pub region_weak_echo_at_reflector: bool,
     /// With `echo_placement = "region"`: the readings of a region cut short on both sides by
     /// nearer echoes clear their axes up to the nearer of those echoes' ranges
     /// ([`crate::regions::Region::masking_range`]) less its depth tolerance and band: whatever
@@ -745,6 +752,7 @@ impl Default for SmoothModel {
             region_weak_echo_log_odds: 0.0,
             region_weak_echo_withdrawn: false,
             region_weak_echo_explained: false,
+            region_weak_echo_at_reflector: false,
             region_weak_echo_half_width_m: 0.0,
             region_masked_free: false,
             region_small_cutters_free: false,

@@ -84,6 +84,9 @@ pub(crate) struct Region {
     pub ends: [End; 2],
     /// The range of the nearer echo beside each end that is [`End::Occluded`], else `None`.
     pub masking: [Option<f32>; 2],
+    /// The signed angle between neighbouring readings where the region was heard (the way the
+    /// head turned, even for a region of one reading), 0 when neither neighbour was adjacent.
+    pub turn: f32,
 }
 
 impl Region {
@@ -125,6 +128,28 @@ impl Region {
 }
 
 impl Region {
+    /// Where the reflector of a region heard to stop on one side and cut short by a nearer echo
+    /// on the other lies: `lobe` (radians, the half-width of the whole regions heard at this
+    /// range) less half a step in from its natural end. Every reading of the region heard it, so
+    /// it lies within a lobe of the last one next to the natural end; the reading beyond that end
+    /// did not, so it lies a lobe or more from that one: between the two, a step wide. The
+    /// nearer echo on the other side hides how far the region would have run, so its middle
+    /// bearing says nothing (a wall heard beside a post, its foot behind the post). `None` for
+    /// other regions, a region wider than two lobes (more than one reflector) or a lobe narrower
+    /// than half a step.
+    pub fn cut_short_axis(&self, lobe: f32) -> Option<f32> {
+        let half = 0.5 * self.span;
+        // The natural end's axis, and the way in from it.
+        let (end, inwards) = match self.ends {
+            [End::Natural, End::Occluded] => (self.axis - half, self.turn.signum()),
+            [End::Occluded, End::Natural] => (self.axis + half, -self.turn.signum()),
+            _ => return None,
+        };
+        let inset = lobe - 0.5 * self.turn.abs();
+        (self.turn != 0.0 && inset > 0.0 && self.span.abs() <= 2.0 * lobe)
+            .then(|| wrap_angle(end + inwards * inset))
+    }
+
     /// The angle between its neighbouring readings, radians (0 for one reading).
     pub fn step(&self) -> f32 {
         if self.readings > 1 {
@@ -245,6 +270,8 @@ struct Open {
     start: End,
     /// The nearer echo's range beside the first reading, if it was cut short there.
     start_masking: Option<f32>,
+    /// The step from the reading before the first, if adjacent, else 0.
+    turn: f32,
 }
 
 impl Open {
@@ -253,9 +280,11 @@ impl Open {
     }
 
     /// The region, closed on `last_axis` with `end` beside it: `masking` is the next reading's
-    /// range when that reading was nearer ([`End::Occluded`]).
-    fn close(&self, last_axis: f32, end: End, masking: Option<f32>) -> Region {
+    /// range when that reading was nearer ([`End::Occluded`]), `step` the step to it (0 if not
+    /// adjacent).
+    fn close(&self, last_axis: f32, end: End, masking: Option<f32>, step: f32) -> Region {
         Region {
+            turn: if self.turn != 0.0 { self.turn } else { step },
             position: (self.first_position + self.last_position) * 0.5,
             axis: wrap_angle(self.first_axis + 0.5 * wrap_angle(last_axis - self.first_axis)),
             range: self.range(),
@@ -287,14 +316,14 @@ impl RegionTracker {
     /// Takes the next reading; returns the region it closed, if any.
     pub fn push(&mut self, heard: &Heard, tolerance: &DepthTolerance) -> Option<Region> {
         // Whether this reading is the next angle on from the last one, the same way round.
-        let (adjacent, turning) = match self.last {
-            Some(last) => {
-                let step = wrap_angle(heard.axis - last.axis);
-                let onwards = step != 0.0 && step.abs() <= MAX_GAP && step * last.turning >= 0.0;
-                (onwards, if onwards { step.signum() } else { 0.0 })
-            }
-            None => (false, 0.0),
-        };
+        // The step from the last one if it is, else 0.
+        let step_in = self.last.map_or(0.0, |last| {
+            let step = wrap_angle(heard.axis - last.axis);
+            let onwards = step != 0.0 && step.abs() <= MAX_GAP && step * last.turning >= 0.0;
+            if onwards { step } else { 0.0 }
+        });
+        let adjacent = step_in != 0.0;
+        let turning = if adjacent { step_in.signum() } else { 0.0 };
         let last = self.last.replace(Last {
             axis: heard.axis,
             range: heard.range,
@@ -303,7 +332,10 @@ impl RegionTracker {
         let last_axis = last.map_or(heard.axis, |l| l.axis);
         let Some(range) = heard.range else {
             let end = if adjacent { End::Natural } else { End::Unknown };
-            return self.open.take().map(|o| o.close(last_axis, end, None));
+            return self
+                .open
+                .take()
+                .map(|o| o.close(last_axis, end, None, step_in));
         };
         if let Some(open) = &mut self.open
             && adjacent
@@ -333,7 +365,12 @@ impl RegionTracker {
             } else {
                 End::Unknown
             };
-            o.close(last_axis, end, (end == End::Occluded).then_some(range))
+            o.close(
+                last_axis,
+                end,
+                (end == End::Occluded).then_some(range),
+                step_in,
+            )
         });
         let start_masking = match last {
             Some(Last { range: Some(r), .. }) if start == End::Occluded => Some(r),
@@ -347,6 +384,7 @@ impl RegionTracker {
             readings: 1,
             start,
             start_masking,
+            turn: step_in,
         });
         closed
     }
@@ -356,7 +394,12 @@ impl RegionTracker {
     pub fn close(&mut self) -> Option<Region> {
         let last = self.last.take();
         let open = self.open.take()?;
-        Some(open.close(last.map_or(open.first_axis, |l| l.axis), End::Unknown, None))
+        Some(open.close(
+            last.map_or(open.first_axis, |l| l.axis),
+            End::Unknown,
+            None,
+            0.0,
+        ))
     }
 }
 
@@ -524,6 +567,52 @@ mod tests {
             (18.0, None),
         ]);
         assert!(!whole[0].is_one_ended());
+    }
+
+    #[test]
+    fn a_region_stopping_on_one_side_and_cut_short_on_the_other_has_its_reflector_a_lobe_in() {
+        let lobe = 15f32.to_radians();
+        // A wall heard beside a post: the post (nearer) up to 15°, the wall at 21° and 27°, then
+        // farther. Every reading of the region heard the reflector, within 15° of 27°; the one at
+        // 33° did not, so it lies 15° or more from 33°: between 12° and 18°, its middle 15°.
+        // Turning the other way, the same from the other side; one reading alone as well.
+        let rising = [
+            (9.0, Some(0.9)),
+            (15.0, Some(0.9)),
+            (21.0, Some(1.2)),
+            (27.0, Some(1.2)),
+            (33.0, Some(1.4)),
+        ];
+        let falling: Vec<_> = rising.iter().rev().copied().collect();
+        let alone = [(15.0, Some(0.9)), (21.0, Some(1.2)), (27.0, Some(1.4))];
+        for (readings, ends, reflector) in [
+            (rising.to_vec(), [End::Occluded, End::Natural], 15.0),
+            (falling, [End::Natural, End::Occluded], 15.0),
+            (alone.to_vec(), [End::Occluded, End::Natural], 9.0),
+        ] {
+            let wall = regions(&readings)
+                .into_iter()
+                .find(|r| (r.range - 1.2).abs() < 1e-3)
+                .unwrap();
+            assert_eq!(wall.ends, ends);
+            let axis = wall.cut_short_axis(lobe).unwrap().to_degrees();
+            assert!((axis - reflector).abs() < 1e-3, "{axis} for {readings:?}");
+            // More than two lobes wide: more than one reflector.
+            assert_eq!(wall.cut_short_axis(1f32.to_radians()), None);
+        }
+        // Not for a region stopping on both sides, nor one that runs to the sweep's limit, nor
+        // one cut short on both.
+        for readings in [
+            vec![(15.0, Some(1.4)), (21.0, Some(1.2)), (27.0, Some(1.4))],
+            vec![(21.0, Some(1.2)), (27.0, Some(1.4))],
+            vec![(15.0, Some(0.9)), (21.0, Some(1.2)), (27.0, Some(0.9))],
+        ] {
+            let region = regions(&readings)
+                .into_iter()
+                .find(|r| (r.range - 1.2).abs() < 1e-3)
+                .unwrap();
+            assert_eq!(region.cut_short_axis(lobe), None, "{readings:?}");
+        }
     }
 
     #[test]
