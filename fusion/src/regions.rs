@@ -116,14 +116,19 @@ impl Region {
     /// `None` if the region is not one-ended or does not reach that far in from its natural end
     /// (the reflector's bearing then lies where nothing was heard).
     pub fn one_ended_axis(&self, lobe: f32) -> Option<f32> {
-        let half = 0.5 * self.span;
-        // The natural end's axis, and the way in from it.
-        let (end, inwards) = match self.ends {
-            [End::Natural, End::Unknown] => (self.axis - half, self.span.signum()),
-            [End::Unknown, End::Natural] => (self.axis + half, -self.span.signum()),
-            _ => return None,
-        };
+        let (end, inwards) = self.natural_end_beside(End::Unknown)?;
         (self.span.abs() >= lobe).then(|| wrap_angle(end + inwards * lobe))
+    }
+
+    /// The axis of the region's natural end and the sign of the way in from it, if one end is
+    /// [`End::Natural`] and the other is `other`.
+    fn natural_end_beside(&self, other: End) -> Option<(f32, f32)> {
+        let half = 0.5 * self.span;
+        match self.ends {
+            [End::Natural, o] if o == other => Some((self.axis - half, self.turn.signum())),
+            [o, End::Natural] if o == other => Some((self.axis + half, -self.turn.signum())),
+            _ => None,
+        }
     }
 }
 
@@ -138,13 +143,7 @@ impl Region {
     /// other regions, a region wider than two lobes (more than one reflector) or a lobe narrower
     /// than half a step.
     pub fn cut_short_axis(&self, lobe: f32) -> Option<f32> {
-        let half = 0.5 * self.span;
-        // The natural end's axis, and the way in from it.
-        let (end, inwards) = match self.ends {
-            [End::Natural, End::Occluded] => (self.axis - half, self.turn.signum()),
-            [End::Occluded, End::Natural] => (self.axis + half, -self.turn.signum()),
-            _ => return None,
-        };
+        let (end, inwards) = self.natural_end_beside(End::Occluded)?;
         let inset = lobe - 0.5 * self.turn.abs();
         (self.turn != 0.0 && inset > 0.0 && self.span.abs() <= 2.0 * lobe)
             .then(|| wrap_angle(end + inwards * inset))
