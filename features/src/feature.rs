@@ -4,6 +4,10 @@
 
 use nalgebra::{Matrix2, Point2, Vector2};
 
+/// A wall heard at a foot stands within this of it, and two feet closer than this are noted as
+/// one ([`Feature::feet_heard`]).
+pub(crate) const FOOT_SPACING_M: f64 = 0.10;
+
 /// What kind of target a feature is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum FeatureKind {
@@ -39,7 +43,7 @@ pub struct Feature {
     /// perpendicular): the extent of direct evidence.
     pub(crate) feet: (f64, f64),
     /// Plane: the feet themselves, in the coordinate of [`Self::feet`], in order, one for each
-    /// stretch of [`crate::map::FOOT_SPACING_M`] where a sensor's perpendicular met it: where the
+    /// stretch of [`FOOT_SPACING_M`] where a sensor's perpendicular met it: where the
     /// wall is known to stand (between two feet it may have a doorway).
     pub(crate) feet_heard: Vec<f64>,
     /// Where the sensor stood at the first sighting, in the map's frame.
@@ -77,9 +81,9 @@ impl Feature {
     }
 
     /// Notes a plane's foot at `foot` (along its line), unless one within
-    /// [`crate::map::FOOT_SPACING_M`] is noted already.
+    /// [`FOOT_SPACING_M`] is noted already.
     pub(crate) fn hear_foot(&mut self, foot: f64) {
-        if !self.foot_near(foot, crate::map::FOOT_SPACING_M) {
+        if !self.foot_near(foot, FOOT_SPACING_M) {
             let at = self.feet_heard.partition_point(|&f| f < foot);
             self.feet_heard.insert(at, foot);
         }

@@ -44,7 +44,7 @@ use nalgebra::{Isometry2, Matrix2, Matrix2x3, Matrix3, Point2, Vector2, Vector3}
 use crate::classify::{Classification, CutRegions, Observation, classify, classify_with};
 use crate::config::{FeatureConfig, MergeConfig};
 use crate::error::FeatureError;
-use crate::feature::{Feature, FeatureKind};
+use crate::feature::{FOOT_SPACING_M, Feature, FeatureKind};
 use crate::noise::{NoiseLog, NoiseModel};
 use crate::physics::Reflector;
 use crate::pings::Sweep;
@@ -1065,9 +1065,6 @@ fn points_at_corners(features: &[Feature]) -> Vec<u64> {
         .collect()
 }
 
-/// A wall heard at a foot stands within this of it, and two feet closer than this are noted as
-/// one ([`Feature::feet_heard`]).
-pub(crate) const FOOT_SPACING_M: f64 = 0.10;
 /// A target heard through a wall lies at least this far behind its line (more than a corner's or
 /// a wall's end's error across it).
 const BEHIND_WALL_M: f64 = 0.10;
