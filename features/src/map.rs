@@ -1122,6 +1122,7 @@ const CORNER_LINE_M: f64 = 0.05;
 /// [`SegmentConfig::corner_tolerance_m`]: crate::config::SegmentConfig::corner_tolerance_m
 fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
     let tolerance = cfg.segments.corner_tolerance_m;
+    let beam_cos = f64::from(cfg.sensor.beam_half_angle_deg).to_radians().cos();
     let corners: Vec<&Feature> = features
         .iter()
         .filter(|f| f.kind == FeatureKind::Corner)
@@ -1135,15 +1136,17 @@ fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
     for &(plane, foot) in &single {
         let (n, d) = (plane.normal(), plane.mean.y);
         let sigma = plane.covariance_own()[(1, 1)].sqrt();
+        // A corner first heard along another ray than the plane.
+        let heard_elsewhere = |c: &Feature| {
+            crate::geometry::wrap_deg(c.ray_deg - plane.ray_deg).abs() > cfg.merge.post_turn_deg
+        };
         // The vertex lies on the line (its echo's range is the plane's distance), up to both
         // ranges' errors; along it, up to the bearing's.
         let at_corner = corners.iter().any(|c| {
             let v = c.position().coords;
             let across_sigma =
                 (sigma.powi(2) + (n.transpose() * c.covariance() * n)[(0, 0)]).sqrt();
-            let elsewhere = crate::geometry::wrap_deg(c.ray_deg - plane.ray_deg).abs()
-                > cfg.merge.post_turn_deg;
-            elsewhere
+            heard_elsewhere(c)
                 && (v - foot).norm() <= EXPLAINED_M
                 && (n.dot(&v) - d).abs() <= 3.0 * across_sigma
         });
@@ -1184,7 +1187,27 @@ fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
                 && (other.normal().dot(&foot) - other.mean.y).abs()
                     <= tolerance + 3.0 * along_sigma * sin
         });
-        if at_corner || crossing || on_a_wall {
+        // A plane one place heard over a region a corner's echo fills as well, with a corner two
+        // places heard at the plane's own range from that place and within the beam of its
+        // normal: the corner's echo, its bearing placed off the vertex (a region running to the
+        // sweep's limit is placed a lobe in from its natural end, and a corner answers over a
+        // wider lobe than the one learnt; the vertex may lie beyond the limit). A wall's corner
+        // on the plane's line off its foot lies farther than the plane's range, as every point of
+        // a wall but its foot does.
+        let range = d - n.dot(&plane.seen_from);
+        let corner_at_range = plane.may_be_corner
+            && corners.iter().any(|c| {
+                let to = c.position().coords - plane.seen_from;
+                let towards = to.normalize();
+                let range_sigma = (sigma.powi(2)
+                    + (towards.transpose() * c.covariance() * towards)[(0, 0)])
+                    .sqrt();
+                !c.one_place
+                    && heard_elsewhere(c)
+                    && (to.norm() - range).abs() <= 3.0 * range_sigma
+                    && towards.dot(&n) >= beam_cos
+            });
+        if at_corner || crossing || on_a_wall || corner_at_range {
             explained.push(plane.id);
         }
     }
@@ -2177,6 +2200,42 @@ mod tests {
             explained_by_corners(&[plane, across(0.58, elsewhere)], &cfg),
             vec![1]
         );
+    }
+
+    #[test]
+    fn a_plane_that_may_be_a_corners_echo_with_a_corner_at_its_range_is_that_corner() {
+        let cfg = FeatureConfig::default();
+        // A plane 2 m ahead of the origin (x = 2, its foot at (2, 0)) heard from the origin over
+        // a region a corner's echo fills as well.
+        let mut plane = feature(1, FeatureKind::Plane, Vector2::new(0.0, 2.0), 0.0);
+        plane.may_be_corner = true;
+        // A corner heard from two places, first along another ray, `dist` from the origin at
+        // `deg` off the plane's normal.
+        let corner = |deg: f64, dist: f64, one_place: bool| {
+            let (s, c) = deg.to_radians().sin_cos();
+            let mut f = feature(2, FeatureKind::Corner, Vector2::new(c, s) * dist, 60.0);
+            f.one_place = one_place;
+            f
+        };
+        // At the plane's range 12° off its normal (42 cm along its line from its foot): the
+        // plane was that corner's echo.
+        assert_eq!(
+            explained_by_corners(&[plane.clone(), corner(12.0, 2.0, false)], &cfg),
+            vec![1]
+        );
+        // On the plane's line 12° off, as a true wall's own corner beyond its foot: 2/cos 12° =
+        // 2.045 m away, farther than the plane.
+        let on_the_line = 2.0 / 12f64.to_radians().cos();
+        assert!(
+            explained_by_corners(&[plane.clone(), corner(12.0, on_the_line, false)], &cfg)
+                .is_empty()
+        );
+        // Outside the beam (±30°), or heard from one place only: no.
+        assert!(explained_by_corners(&[plane.clone(), corner(35.0, 2.0, false)], &cfg).is_empty());
+        assert!(explained_by_corners(&[plane.clone(), corner(12.0, 2.0, true)], &cfg).is_empty());
+        // A plane over a region a wall's cone alone holds: kept.
+        plane.may_be_corner = false;
+        assert!(explained_by_corners(&[plane, corner(12.0, 2.0, false)], &cfg).is_empty());
     }
 
     #[test]
