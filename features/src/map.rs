@@ -82,6 +82,11 @@ pub(crate) struct Placed {
 /// generated suite is one place; a robot scanning on the move makes a new one every 20 cm.
 pub(crate) const ONE_PLACE_M: f64 = 0.2;
 
+/// Whether sightings taken at `a` and `b` are from one place ([`ONE_PLACE_M`]).
+fn one_place(a: Vector2<f64>, b: Vector2<f64>) -> bool {
+    (a - b).norm() <= ONE_PLACE_M
+}
+
 /// What [`FeatureMap::walls_on_the_move`] makes of a region as wide as both a post's cone and a
 /// wall's region ([`Observation::also_plane`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -473,7 +478,7 @@ impl FeatureMap {
         // This sweep's place: a feature from within one place of it could have been heard again.
         let here = pose.translation.vector;
         for f in &mut self.features {
-            if (f.seen_from - here).norm() <= ONE_PLACE_M {
+            if one_place(f.seen_from, here) {
                 f.place_sweeps += 1;
             }
         }
@@ -482,7 +487,7 @@ impl FeatureMap {
             let place_sweeps = 1 + self
                 .past
                 .iter()
-                .filter(|p| (p.pose.translation.vector - z.from).norm() <= ONE_PLACE_M)
+                .filter(|p| one_place(p.pose.translation.vector, z.from))
                 .count();
             self.features.push(Feature {
                 id: self.next_id,
@@ -516,7 +521,7 @@ impl FeatureMap {
             let other = self.features[merged].clone();
             let f = &mut self.features[kept];
             f.absorb_sightings(&other);
-            f.one_place &= other.one_place && (other.seen_from - f.seen_from).norm() <= ONE_PLACE_M;
+            f.one_place &= other.one_place && one_place(other.seen_from, f.seen_from);
             f.may_be_plane &= other.may_be_plane;
             f.may_be_corner &= other.may_be_corner;
             f.pair_centre = f.pair_centre.filter(|_| other.pair_centre.is_some());
@@ -693,7 +698,7 @@ fn refine(f: &mut Feature, z: &Placed, stamp: u64, cfg: &MergeConfig) {
     f.confidence += cfg.confirm_gain * (1.0 - f.confidence);
     f.last_seen = stamp;
     f.ray_deg = z.ray_deg;
-    f.one_place &= (z.from - f.seen_from).norm() <= ONE_PLACE_M;
+    f.one_place &= one_place(z.from, f.seen_from);
     f.may_be_plane &= z.also_plane;
     f.may_be_corner &= z.also_corner;
     if f.kind == FeatureKind::Plane {
@@ -750,7 +755,7 @@ fn refuted_from_elsewhere(f: &Feature, pose: &Isometry2<f64>) -> bool {
     let at = f.position().coords;
     f.kind == FeatureKind::Point
         && f.one_place
-        && (here - f.seen_from).norm() > ONE_PLACE_M
+        && !one_place(here, f.seen_from)
         && (at - here).norm() <= (at - f.seen_from).norm() + NO_FARTHER_M
 }
 
@@ -773,7 +778,7 @@ fn point_outweighed(f: &Feature, past: &VecDeque<PastSweep>, cfg: &FeatureConfig
     let mut misses = 0;
     for p in past {
         let here = p.pose.translation.vector;
-        if (here - f.seen_from).norm() <= ONE_PLACE_M {
+        if one_place(here, f.seen_from) {
             continue;
         }
         match heard_at(f, &p.sweep, &p.pose, &p.gate, cfg) {
@@ -805,7 +810,7 @@ fn points_on_confirmed_walls(features: &[Feature]) -> Vec<u64> {
         .filter(|p| p.kind == FeatureKind::Point && p.one_place)
         .filter(|p| {
             features.iter().any(|wall| {
-                let heard_elsewhere = (wall.seen_from - p.seen_from).norm() > ONE_PLACE_M;
+                let heard_elsewhere = !one_place(wall.seen_from, p.seen_from);
                 on_line(wall, p).is_some_and(|foot| {
                     within_feet(wall, foot) || p.may_be_plane && heard_elsewhere
                 })
@@ -1136,6 +1141,10 @@ fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
     for &(plane, foot) in &single {
         let (n, d) = (plane.normal(), plane.mean.y);
         let sigma = plane.covariance_own()[(1, 1)].sqrt();
+        // The plane's distance error and `c`'s along the unit vector `u`, together.
+        let with_corner = |c: &Feature, u: Vector2<f64>| {
+            (sigma.powi(2) + (u.transpose() * c.covariance() * u)[(0, 0)]).sqrt()
+        };
         // A corner first heard along another ray than the plane.
         let heard_elsewhere = |c: &Feature| {
             crate::geometry::wrap_deg(c.ray_deg - plane.ray_deg).abs() > cfg.merge.post_turn_deg
@@ -1144,11 +1153,9 @@ fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
         // ranges' errors; along it, up to the bearing's.
         let at_corner = corners.iter().any(|c| {
             let v = c.position().coords;
-            let across_sigma =
-                (sigma.powi(2) + (n.transpose() * c.covariance() * n)[(0, 0)]).sqrt();
             heard_elsewhere(c)
                 && (v - foot).norm() <= EXPLAINED_M
-                && (n.dot(&v) - d).abs() <= 3.0 * across_sigma
+                && (n.dot(&v) - d).abs() <= 3.0 * with_corner(c, n)
         });
         let crossing = single.iter().any(|&(other, other_foot)| {
             let (m, e) = (other.normal(), other.mean.y);
@@ -1179,7 +1186,7 @@ fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
             let told_by = !other.one_place
                 || plane.may_be_corner
                     && plane.one_place
-                    && (other.seen_from - plane.seen_from).norm() > ONE_PLACE_M;
+                    && !one_place(other.seen_from, plane.seen_from);
             let sin = n.perp(&other.normal()).abs();
             other.kind == FeatureKind::Plane
                 && told_by
@@ -1199,12 +1206,9 @@ fn explained_by_corners(features: &[Feature], cfg: &FeatureConfig) -> Vec<u64> {
             && corners.iter().any(|c| {
                 let to = c.position().coords - plane.seen_from;
                 let towards = to.normalize();
-                let range_sigma = (sigma.powi(2)
-                    + (towards.transpose() * c.covariance() * towards)[(0, 0)])
-                    .sqrt();
                 !c.one_place
                     && heard_elsewhere(c)
-                    && (to.norm() - range).abs() <= 3.0 * range_sigma
+                    && (to.norm() - range).abs() <= 3.0 * with_corner(c, towards)
                     && towards.dot(&n) >= beam_cos
             });
         if at_corner || crossing || on_a_wall || corner_at_range {
@@ -1280,7 +1284,7 @@ fn thick_posts(features: &[Feature]) -> Vec<ThickPost> {
             if j <= i
                 || taken[i]
                 || taken[j]
-                || (a.seen_from - b.seen_from).norm() <= ONE_PLACE_M
+                || one_place(a.seen_from, b.seen_from)
                 || (ca - cb).norm() > THICK_POST_M
             {
                 continue;
@@ -1324,7 +1328,7 @@ fn thick_posts(features: &[Feature]) -> Vec<ThickPost> {
         let at = single.position().coords;
         let Some(&(_, centre)) = paired.iter().find(|&&(k, c)| {
             !taken[k]
-                && (features[k].seen_from - single.seen_from).norm() > ONE_PLACE_M
+                && !one_place(features[k].seen_from, single.seen_from)
                 && (c - at).norm() <= THICK_POST_M
         }) else {
             continue;
@@ -1357,7 +1361,7 @@ fn thick_posts(features: &[Feature]) -> Vec<ThickPost> {
 fn one_view_alike(a: &Feature, b: &Feature, gate_chi2: f64) -> bool {
     a.one_place
         && b.one_place
-        && (a.seen_from - b.seen_from).norm() <= ONE_PLACE_M
+        && one_place(a.seen_from, b.seen_from)
         && (a.covariance_own() + b.covariance_own())
             .try_inverse()
             .is_some_and(|inv| {
