@@ -264,6 +264,7 @@ struct Open {
     first_position: Vector2<f32>,
     first_axis: f32,
     last_position: Vector2<f32>,
+    last_axis: f32,
     range_sum: f32,
     readings: u32,
     start: End,
@@ -274,22 +275,44 @@ struct Open {
 }
 
 impl Open {
+    fn new(heard: &Heard, range: f32, start: End, start_masking: Option<f32>, turn: f32) -> Self {
+        Self {
+            first_position: heard.position,
+            first_axis: heard.axis,
+            last_position: heard.position,
+            last_axis: heard.axis,
+            range_sum: range,
+            readings: 1,
+            start,
+            start_masking,
+            turn,
+        }
+    }
+
     fn range(&self) -> f32 {
         self.range_sum / self.readings as f32
     }
 
-    /// The region, closed on `last_axis` with `end` beside it: `masking` is the next reading's
+    fn extend(&mut self, heard: &Heard, range: f32) {
+        self.last_position = heard.position;
+        self.last_axis = heard.axis;
+        self.range_sum += range;
+        self.readings += 1;
+    }
+
+    /// The region, closed with `end` beside its last reading: `masking` is the next reading's
     /// range when that reading was nearer ([`End::Occluded`]), `step` the step to it (0 if not
     /// adjacent).
-    fn close(&self, last_axis: f32, end: End, masking: Option<f32>, step: f32) -> Region {
+    fn close(&self, end: End, masking: Option<f32>, step: f32) -> Region {
+        let span = wrap_angle(self.last_axis - self.first_axis);
         Region {
             turn: if self.turn != 0.0 { self.turn } else { step },
             position: (self.first_position + self.last_position) * 0.5,
-            axis: wrap_angle(self.first_axis + 0.5 * wrap_angle(last_axis - self.first_axis)),
+            axis: wrap_angle(self.first_axis + 0.5 * span),
             range: self.range(),
             readings: self.readings,
-            half_width: 0.5 * wrap_angle(last_axis - self.first_axis).abs(),
-            span: wrap_angle(last_axis - self.first_axis),
+            half_width: 0.5 * span.abs(),
+            span,
             ends: [self.start, end],
             masking: [self.start_masking, masking],
         }
@@ -309,10 +332,21 @@ struct Last {
 pub(crate) struct RegionTracker {
     open: Option<Open>,
     last: Option<Last>,
+    /// The step into a reading without an echo that came next after the open region, held until
+    /// the reading after it tells whether the region goes on over it ([`Self::push`]).
+    silent: Option<f32>,
 }
 
 impl RegionTracker {
     /// Takes the next reading; returns the region it closed, if any.
+    ///
+    /// One reading without an echo between readings of the same depth does not end the region:
+    /// it goes on over the silent reading as over a reading missing from the angles (within
+    /// [`MAX_GAP`]). A reading's pings must agree for it to have a range, so a lost or stray ping
+    /// silences a reading now and then wherever the head points (on the `nxt` profile's two
+    /// pings, a reading in thirty); split there, a wall's region became two, each taken for a
+    /// whole reflector at its own middle bearing, up to half the region's width off the wall's
+    /// foot.
     pub fn push(&mut self, heard: &Heard, tolerance: &DepthTolerance) -> Option<Region> {
         // Whether this reading is the next angle on from the last one, the same way round.
         // The step from the last one if it is, else 0.
@@ -328,21 +362,40 @@ impl RegionTracker {
             range: heard.range,
             turning,
         });
-        let last_axis = last.map_or(heard.axis, |l| l.axis);
-        let Some(range) = heard.range else {
-            let end = if adjacent { End::Natural } else { End::Unknown };
-            return self
+        // The region held over a silent reading: on, if this one hears its depth; else it
+        // stopped being heard at the silent one.
+        let mut closed = None;
+        if let Some(silent_step) = self.silent.take() {
+            if let Some(open) = &mut self.open
+                && let Some(range) = heard.range
+                && adjacent
+                && wrap_angle(heard.axis - open.last_axis).abs() <= MAX_GAP
+                && tolerance.admits(open.range(), range)
+            {
+                open.extend(heard, range);
+                return None;
+            }
+            closed = self
                 .open
                 .take()
-                .map(|o| o.close(last_axis, end, None, step_in));
+                .map(|o| o.close(End::Natural, None, silent_step));
+        }
+        let Some(range) = heard.range else {
+            if adjacent && self.open.is_some() {
+                self.silent = Some(step_in);
+                return closed;
+            }
+            return closed.or_else(|| {
+                self.open
+                    .take()
+                    .map(|o| o.close(End::Unknown, None, step_in))
+            });
         };
         if let Some(open) = &mut self.open
             && adjacent
             && tolerance.admits(open.range(), range)
         {
-            open.last_position = heard.position;
-            open.range_sum += range;
-            open.readings += 1;
+            open.extend(heard, range);
             return None;
         }
         // This reading starts a region; what lies beside it on each side.
@@ -358,47 +411,33 @@ impl RegionTracker {
             Some(Last { range: Some(r), .. }) if adjacent => beside(r, range),
             _ => End::Unknown,
         };
-        let closed = self.open.take().map(|o| {
+        let cut = self.open.take().map(|o| {
             let end = if adjacent {
                 beside(range, o.range())
             } else {
                 End::Unknown
             };
-            o.close(
-                last_axis,
-                end,
-                (end == End::Occluded).then_some(range),
-                step_in,
-            )
+            o.close(end, (end == End::Occluded).then_some(range), step_in)
         });
         let start_masking = match last {
             Some(Last { range: Some(r), .. }) if start == End::Occluded => Some(r),
             _ => None,
         };
-        self.open = Some(Open {
-            first_position: heard.position,
-            first_axis: heard.axis,
-            last_position: heard.position,
-            range_sum: range,
-            readings: 1,
-            start,
-            start_masking,
-            turn: step_in,
-        });
-        closed
+        self.open = Some(Open::new(heard, range, start, start_masking, step_in));
+        closed.or(cut)
     }
 
     /// Closes the open region, if any, at the end of a sweep or of a run of readings: its last
-    /// end is unknown, and the next reading starts afresh.
+    /// end is unknown (or natural, if a silent reading followed it), and the next reading starts
+    /// afresh.
     pub fn close(&mut self) -> Option<Region> {
-        let last = self.last.take();
+        self.last = None;
+        let silent = self.silent.take();
         let open = self.open.take()?;
-        Some(open.close(
-            last.map_or(open.first_axis, |l| l.axis),
-            End::Unknown,
-            None,
-            0.0,
-        ))
+        Some(match silent {
+            Some(step) => open.close(End::Natural, None, step),
+            None => open.close(End::Unknown, None, 0.0),
+        })
     }
 }
 
@@ -465,8 +504,8 @@ mod tests {
             (6.0, Some(1.0)),
             (12.0, Some(2.0)), // farther: 1 m ends naturally, 2 m starts occluded by 1 m
             (18.0, Some(2.0)),
-            (24.0, None), // no echo: a natural end
-            (30.0, Some(2.0)),
+            (24.0, None), // no echo and then another depth: a natural end
+            (30.0, Some(2.2)),
             (36.0, Some(3.0)), // farther
             (42.0, None),
             (48.0, Some(2.5)),
@@ -489,6 +528,43 @@ mod tests {
         );
         let whole: Vec<_> = found.iter().map(Region::is_whole).collect();
         assert_eq!(whole, [false, false, true, false, false, false, false]);
+    }
+
+    #[test]
+    fn one_silent_reading_between_readings_of_one_depth_does_not_end_their_region() {
+        use End::{Natural, Unknown};
+        // A wall's foot at 90°, one reading across it silent (its pings did not agree).
+        let found = regions(&[
+            (66.0, None),
+            (72.0, Some(0.44)),
+            (78.0, Some(0.44)),
+            (84.0, None),
+            (90.0, Some(0.44)),
+            (96.0, Some(0.44)),
+            (102.0, None),
+            (108.0, None),
+        ]);
+        assert_eq!(summary(&found), vec![(84, 4, [Natural, Natural])]);
+        assert!((found[0].half_width.to_degrees() - 12.0).abs() < 1e-3);
+        // Two silent readings, a silent reading before another depth, and one at the sweep's
+        // end: the region stopped being heard there.
+        let found = regions(&[
+            (0.0, Some(1.0)),
+            (6.0, None),
+            (12.0, None),
+            (18.0, Some(1.0)),
+            (24.0, None),
+            (30.0, Some(1.5)),
+            (36.0, None),
+        ]);
+        assert_eq!(
+            summary(&found),
+            vec![
+                (0, 1, [Unknown, Natural]),
+                (18, 1, [Natural, Natural]),
+                (30, 1, [Natural, Natural]),
+            ]
+        );
     }
 
     #[test]
