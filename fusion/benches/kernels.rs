@@ -56,6 +56,7 @@ fn readings() -> Vec<Observation> {
             pose: Isometry2::identity(),
             angle_rad: deg.to_radians(),
             range_m: Some(rng.random_range(0.3..3.5)),
+            rejected_echo_m: None,
             beam_half_angle_rad: 30f32.to_radians(),
             max_range_m: 4.0,
         })

@@ -235,6 +235,7 @@ mod tests {
             pose: Isometry2::new(Vector2::new(x, 0.0), 0.0),
             angle_rad: angle,
             range_m: Some(1.0),
+            rejected_echo_m: None,
             beam_half_angle_rad: 0.26,
             max_range_m: 3.0,
         }

@@ -1028,6 +1028,7 @@ mod tests {
                     pose: Isometry2::new(Vector2::new(pose.0 + moved.0, pose.1 + moved.1), pose.2),
                     angle_rad: angle_deg.to_radians(),
                     range_m,
+                    rejected_echo_m: None,
                     beam_half_angle_rad: half_angle_deg.to_radians(),
                     max_range_m: 4.0,
                 };

@@ -410,6 +410,7 @@ impl Mapper {
                 position: obs.pose.translation.vector,
                 axis: wrap_angle(obs.pose.rotation.angle() + obs.angle_rad),
                 range: beam.and_then(|b| b.echo),
+                rejected: obs.rejected_echo_m,
             };
             if let ModelConfig::Smooth(model) = self.config.model
                 && (model.region_stretch_foot_check || model.region_corner_walls_foot_check)
@@ -1486,6 +1487,7 @@ mod tests {
             pose: Isometry2::identity(),
             angle_rad: angle_deg * DEG,
             range_m,
+            rejected_echo_m: None,
             beam_half_angle_rad: 30.0 * DEG,
             max_range_m: 4.0,
         }
@@ -1544,6 +1546,7 @@ mod tests {
                     pose,
                     angle_rad: random_angle_deg(&mut rng, &centres) * DEG,
                     range_m: rng.random_bool(0.85).then(|| rng.random_range(0.05..4.3)),
+                    rejected_echo_m: None,
                     beam_half_angle_rad: rng.random_range(10.0..40.0) * DEG,
                     max_range_m: 4.0,
                 }
@@ -1575,6 +1578,7 @@ mod tests {
                     pose,
                     angle_rad: (-150.0 + 6.0 * (i % 51) as f32) * DEG,
                     range_m: if i % 5 == 4 { None } else { range },
+                    rejected_echo_m: None,
                     beam_half_angle_rad: 30.0 * DEG,
                     max_range_m: 4.0,
                 }

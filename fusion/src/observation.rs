@@ -1,7 +1,7 @@
 //! What the kernels consume: one reading, placed in the world.
 
 use nalgebra::{Isometry2, Vector2};
-use sonar_common::ipc::Reading;
+use sonar_common::ipc::{Reading, flags};
 
 use crate::geometry::wrap_angle;
 
@@ -15,6 +15,12 @@ pub struct Observation {
     pub angle_rad: f32,
     /// Measured range, metres; `None` when nothing echoed or the echo lay outside the sensor's range.
     pub range_m: Option<f32>,
+    /// Without a range because the pings disagreed (the driver's `PINGS_REJECTED`), the nearest
+    /// echo one of them heard within the sensor's range, metres: something was there. Between
+    /// readings that heard a farther reflector, it cut that reflector's region short
+    /// ([`crate::regions`]); the driver keeps a lone echo out of the range (a transient is as
+    /// likely), and with two pings a reading (`nxt`) any reading across an edge has none.
+    pub rejected_echo_m: Option<f32>,
     /// Half-width of the beam (the paper's ±30°), radians.
     pub beam_half_angle_rad: f32,
     /// Farthest range the sensor reports, metres (the paper's R).
@@ -30,10 +36,10 @@ impl Observation {
     /// `[features] range_offset_m`, negative for a sensor that reads short) taken off its range,
     /// as the features take it off their pings: one calibration for both maps.
     pub fn calibrated(self, offset_m: f32) -> Self {
+        let calibrated = |r: f32| (r - offset_m).max(NEAREST_CALIBRATED_M);
         Self {
-            range_m: self
-                .range_m
-                .map(|r| (r - offset_m).max(NEAREST_CALIBRATED_M)),
+            range_m: self.range_m.map(calibrated),
+            rejected_echo_m: self.rejected_echo_m.map(calibrated),
             ..self
         }
     }
@@ -45,10 +51,25 @@ impl Observation {
             pose,
             angle_rad: reading.angle_deg.to_radians(),
             range_m: reading.is_valid_range().then_some(reading.distance_m),
+            rejected_echo_m: rejected_echo_m(reading),
             beam_half_angle_rad: reading.beam_half_angle_deg.to_radians(),
             max_range_m: reading.max_range_m,
         }
     }
+}
+
+/// [`Observation::rejected_echo_m`] of `reading`.
+fn rejected_echo_m(reading: &Reading) -> Option<f32> {
+    if reading.is_valid_range() || !reading.has(flags::PINGS_REJECTED) {
+        return None;
+    }
+    let pings = usize::from(reading.ping_count).min(reading.echo_us.len());
+    reading.echo_us[..pings]
+        .iter()
+        .filter(|&&t| t > 0)
+        .map(|&t| 0.5e-6 * reading.speed_of_sound_mps * t as f32)
+        .filter(|r| (reading.min_range_m..reading.max_range_m).contains(r))
+        .reduce(f32::min)
 }
 
 /// An observation the kernels cannot place.
@@ -134,7 +155,6 @@ impl Beam {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use sonar_common::ipc::flags;
 
     const LIMITS: Limits = Limits {
         half_angle: 0.5,
@@ -146,6 +166,7 @@ mod tests {
             pose: Isometry2::identity(),
             angle_rad: 0.3,
             range_m,
+            rejected_echo_m: None,
             beam_half_angle_rad: 0.6,
             max_range_m: 5.0,
         }
@@ -170,6 +191,41 @@ mod tests {
                 None
             );
         }
+    }
+
+    #[test]
+    fn a_reading_whose_pings_disagreed_keeps_the_nearest_echo_one_heard() {
+        let v = 343.0;
+        let us = |m: f32| (2.0 * m / v * 1e6).round() as u32;
+        let mut r = Reading {
+            flags: flags::NO_ECHO | flags::PINGS_REJECTED,
+            speed_of_sound_mps: v,
+            min_range_m: 0.03,
+            max_range_m: 4.0,
+            ping_count: 4,
+            beam_half_angle_deg: 30.0,
+            ..Default::default()
+        };
+        // A ping nearer than the sensor's minimum, one beyond its maximum, one silent: the
+        // nearest in range is 1.2 m.
+        r.echo_us[..5].copy_from_slice(&[us(0.01), us(2.5), 0, us(1.2), us(4.5)]);
+        let o = Observation::from_reading(&r, Isometry2::identity());
+        assert_eq!(o.range_m, None);
+        let rejected = o.rejected_echo_m.unwrap();
+        assert!((rejected - 1.2).abs() < 1e-3, "{rejected}");
+        // Only the reading's own pings count (the fifth lies past its ping count), and
+        // calibration takes the same offset off as off a range.
+        assert!((o.calibrated(0.05).rejected_echo_m.unwrap() - 1.15).abs() < 1e-3);
+        // Without the flag (nothing heard, or a range agreed on) there is none.
+        r.flags = flags::NO_ECHO;
+        assert_eq!(
+            Observation::from_reading(&r, Isometry2::identity()).rejected_echo_m,
+            None
+        );
+        r.flags = flags::PINGS_REJECTED;
+        r.distance_m = 2.5;
+        let agreed = Observation::from_reading(&r, Isometry2::identity());
+        assert_eq!((agreed.range_m, agreed.rejected_echo_m), (Some(2.5), None));
     }
 
     #[test]

@@ -82,8 +82,9 @@ pub const MAGIC: [u8; 8] = *b"SONARMAP";
 /// Version of the file layout and of the payload's encoding; a file of another version is refused.
 ///
 /// Version 2 added the bearing each cell was last heard occupied from (the smooth model's);
-/// version 3 the radar's bins, which follow the head.
-pub const FORMAT_VERSION: u32 = 3;
+/// version 3 the radar's bins, which follow the head; version 4 the nearest echo of the readings
+/// kept whose pings disagreed ([`crate::Observation::rejected_echo_m`]).
+pub const FORMAT_VERSION: u32 = 4;
 /// Magic, version and the two lengths.
 const HEADER_LEN: u64 = 24;
 const CHECKSUM_LEN: u64 = 4;
@@ -856,7 +857,7 @@ mod tests {
         assert!(matches!(err, LoadError::WrongVersion { found: 7 }));
         assert_eq!(
             err.to_string(),
-            "it is format version 7; this build reads version 3"
+            "it is format version 7; this build reads version 4"
         );
     }
 

@@ -288,6 +288,7 @@ mod tests {
             pose: Isometry2::identity(),
             angle_rad: angle_deg.to_radians(),
             range_m,
+            rejected_echo_m: None,
             beam_half_angle_rad: 30f32.to_radians(),
             max_range_m: 4.0,
         }

@@ -41,6 +41,11 @@ impl DepthTolerance {
     fn admits(&self, region_range: f32, range: f32) -> bool {
         (range - region_range).abs() <= self.at(region_range)
     }
+
+    /// Whether `range` is nearer than `region_range` by more than the tolerance.
+    fn nearer(&self, range: f32, region_range: f32) -> bool {
+        range < region_range - self.at(region_range)
+    }
 }
 
 /// One reading as the tracker sees it: where the sensor was, where it pointed (world bearing),
@@ -51,6 +56,9 @@ pub(crate) struct Heard {
     pub axis: f32,
     /// `None`: no echo, which closes any open region.
     pub range: Option<f32>,
+    /// Without a range because its pings disagreed, the nearest echo one of them heard
+    /// ([`crate::observation::Observation::rejected_echo_m`]).
+    pub rejected: Option<f32>,
 }
 
 /// What lies beside a region's first or last reading.
@@ -324,6 +332,8 @@ impl Open {
 struct Last {
     axis: f32,
     range: Option<f32>,
+    /// [`Heard::rejected`].
+    rejected: Option<f32>,
     turning: f32,
 }
 
@@ -360,6 +370,7 @@ impl RegionTracker {
         let last = self.last.replace(Last {
             axis: heard.axis,
             range: heard.range,
+            rejected: heard.rejected,
             turning,
         });
         // The region held over a silent reading: on, if this one hears its depth; else it
@@ -381,6 +392,16 @@ impl RegionTracker {
                 .map(|o| o.close(End::Natural, None, silent_step));
         }
         let Some(range) = heard.range else {
+            // Its pings disagreed, one hearing nearer: a nearer reflector cut the region short.
+            let cut_short = |o: &mut Open| {
+                adjacent
+                    && heard
+                        .rejected
+                        .is_some_and(|n| tolerance.nearer(n, o.range()))
+            };
+            if let Some(open) = self.open.take_if(cut_short) {
+                return Some(open.close(End::Occluded, heard.rejected, step_in));
+            }
             if adjacent && self.open.is_some() {
                 self.silent = Some(step_in);
                 return closed;
@@ -407,6 +428,11 @@ impl RegionTracker {
             }
         };
         let start = match last {
+            Some(Last {
+                range: None,
+                rejected: Some(n),
+                ..
+            }) if adjacent && tolerance.nearer(n, range) => End::Occluded,
             Some(Last { range: None, .. }) if adjacent => End::Natural,
             Some(Last { range: Some(r), .. }) if adjacent => beside(r, range),
             _ => End::Unknown,
@@ -420,7 +446,9 @@ impl RegionTracker {
             o.close(end, (end == End::Occluded).then_some(range), step_in)
         });
         let start_masking = match last {
-            Some(Last { range: Some(r), .. }) if start == End::Occluded => Some(r),
+            Some(Last {
+                range, rejected, ..
+            }) if start == End::Occluded => range.or(rejected),
             _ => None,
         };
         self.open = Some(Open::new(heard, range, start, start_masking, step_in));
@@ -455,6 +483,7 @@ mod tests {
             position: Vector2::new(1.0, 2.0),
             axis: axis_deg.to_radians(),
             range,
+            rejected: None,
         }
     }
 
@@ -565,6 +594,36 @@ mod tests {
                 (30, 1, [Natural, Natural]),
             ]
         );
+    }
+
+    #[test]
+    fn a_reading_whose_pings_disagreed_with_one_nearer_cuts_a_region_short() {
+        use End::{Natural, Occluded, Unknown};
+        let mut tracker = RegionTracker::default();
+        let mut found = Vec::new();
+        // A wall at 2 m, an edge at 1 m beside it: the reading across the edge heard both.
+        for (axis, range, rejected) in [
+            (0.0, None, None),
+            (6.0, Some(2.0), None),
+            (12.0, Some(2.0), None),
+            (18.0, None, Some(1.0)),
+            (24.0, Some(2.0), None),
+            (30.0, None, Some(2.01)), // disagreeing at the region's depth: silent
+            (36.0, Some(2.0), None),
+        ] {
+            let heard = Heard {
+                rejected,
+                ..heard(axis, range)
+            };
+            found.extend(tracker.push(&heard, &TOLERANCE));
+        }
+        found.extend(tracker.close());
+        assert_eq!(
+            summary(&found),
+            vec![(9, 2, [Natural, Occluded]), (30, 2, [Occluded, Unknown])]
+        );
+        assert_eq!(found[0].masking, [None, Some(1.0)]);
+        assert_eq!(found[1].masking, [Some(1.0), None]);
     }
 
     #[test]

@@ -168,6 +168,7 @@ pub(crate) struct SavedObservation {
     pose: SavedPose,
     angle_rad: f32,
     range_m: Option<f32>,
+    rejected_echo_m: Option<f32>,
     beam_half_angle_rad: f32,
     max_range_m: f32,
 }
@@ -178,6 +179,7 @@ impl From<&Observation> for SavedObservation {
             pose: o.pose.into(),
             angle_rad: o.angle_rad,
             range_m: o.range_m,
+            rejected_echo_m: o.rejected_echo_m,
             beam_half_angle_rad: o.beam_half_angle_rad,
             max_range_m: o.max_range_m,
         }
@@ -190,6 +192,7 @@ impl From<SavedObservation> for Observation {
             pose: o.pose.into(),
             angle_rad: o.angle_rad,
             range_m: o.range_m,
+            rejected_echo_m: o.rejected_echo_m,
             beam_half_angle_rad: o.beam_half_angle_rad,
             max_range_m: o.max_range_m,
         }
