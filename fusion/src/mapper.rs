@@ -855,6 +855,7 @@ impl Mapper {
                     half_angle,
                     readings: region.readings as f32,
                     point: true,
+                    step: region.turn.abs(),
                 };
                 cells += self.fuse_patch(&model, &point, 1.0, kernel);
                 regions.walls_placed = true;
@@ -884,6 +885,7 @@ impl Mapper {
             half_angle,
             readings: region.readings as f32,
             point: false,
+            step: region.turn.abs(),
         };
         let found = if model.region_points {
             let tolerance = model.depth_and_band(regions.tolerance, region.range);
