@@ -489,10 +489,15 @@ mod tests {
 
     /// Feeds `(angle, range)` readings; returns the regions closed on the way and at the end.
     fn regions(readings: &[(f32, Option<f32>)]) -> Vec<Region> {
+        regions_heard(readings.iter().map(|&(a, r)| heard(a, r)))
+    }
+
+    /// [`regions`] of readings as the tracker takes them.
+    fn regions_heard(readings: impl IntoIterator<Item = Heard>) -> Vec<Region> {
         let mut tracker = RegionTracker::default();
         let mut out: Vec<Region> = readings
-            .iter()
-            .filter_map(|&(a, r)| tracker.push(&heard(a, r), &TOLERANCE))
+            .into_iter()
+            .filter_map(|h| tracker.push(&h, &TOLERANCE))
             .collect();
         out.extend(tracker.close());
         out
@@ -599,25 +604,22 @@ mod tests {
     #[test]
     fn a_reading_whose_pings_disagreed_with_one_nearer_cuts_a_region_short() {
         use End::{Natural, Occluded, Unknown};
-        let mut tracker = RegionTracker::default();
-        let mut found = Vec::new();
         // A wall at 2 m, an edge at 1 m beside it: the reading across the edge heard both.
-        for (axis, range, rejected) in [
-            (0.0, None, None),
-            (6.0, Some(2.0), None),
-            (12.0, Some(2.0), None),
-            (18.0, None, Some(1.0)),
-            (24.0, Some(2.0), None),
-            (30.0, None, Some(2.01)), // disagreeing at the region's depth: silent
-            (36.0, Some(2.0), None),
-        ] {
-            let heard = Heard {
+        let found = regions_heard(
+            [
+                (0.0, None, None),
+                (6.0, Some(2.0), None),
+                (12.0, Some(2.0), None),
+                (18.0, None, Some(1.0)),
+                (24.0, Some(2.0), None),
+                (30.0, None, Some(2.01)), // disagreeing at the region's depth: silent
+                (36.0, Some(2.0), None),
+            ]
+            .map(|(axis, range, rejected)| Heard {
                 rejected,
                 ..heard(axis, range)
-            };
-            found.extend(tracker.push(&heard, &TOLERANCE));
-        }
-        found.extend(tracker.close());
+            }),
+        );
         assert_eq!(
             summary(&found),
             vec![(9, 2, [Natural, Occluded]), (30, 2, [Occluded, Unknown])]
