@@ -58,9 +58,14 @@ impl Observation {
     }
 }
 
-/// [`Observation::rejected_echo_m`] of `reading`.
+/// [`Observation::rejected_echo_m`] of `reading` (a head that sends no raw pings has none). Each
+/// ping's range as the features place pings (`sonar_features`' `placed_pings`, in f64 with
+/// fallbacks for readings that carry no speed of sound).
 fn rejected_echo_m(reading: &Reading) -> Option<f32> {
-    if reading.is_valid_range() || !reading.has(flags::PINGS_REJECTED) {
+    if reading.is_valid_range()
+        || !reading.has(flags::PINGS_REJECTED)
+        || reading.has(flags::NO_RAW_PINGS)
+    {
         return None;
     }
     let pings = usize::from(reading.ping_count).min(reading.echo_us.len());
@@ -216,8 +221,14 @@ mod tests {
         // Only the reading's own pings count (the fifth lies past its ping count), and
         // calibration takes the same offset off as off a range.
         assert!((o.calibrated(0.05).rejected_echo_m.unwrap() - 1.15).abs() < 1e-3);
-        // Without the flag (nothing heard, or a range agreed on) there is none.
+        // Without the flag (nothing heard, or a range agreed on), or from a head that sends no raw
+        // pings, there is none.
         r.flags = flags::NO_ECHO;
+        assert_eq!(
+            Observation::from_reading(&r, Isometry2::identity()).rejected_echo_m,
+            None
+        );
+        r.flags = flags::NO_ECHO | flags::PINGS_REJECTED | flags::NO_RAW_PINGS;
         assert_eq!(
             Observation::from_reading(&r, Isometry2::identity()).rejected_echo_m,
             None

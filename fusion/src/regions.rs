@@ -353,8 +353,8 @@ impl RegionTracker {
     /// One reading without an echo between readings of the same depth does not end the region:
     /// it goes on over the silent reading as over a reading missing from the angles (within
     /// [`MAX_GAP`]). A reading's pings must agree for it to have a range, so a lost or stray ping
-    /// silences a reading now and then wherever the head points (on the `nxt` profile's two
-    /// pings, a reading in thirty); split there, a wall's region became two, each taken for a
+    /// silences a reading now and then wherever the head points (most often with the `nxt`
+    /// profile's two pings a reading); split there, a wall's region became two, each taken for a
     /// whole reflector at its own middle bearing, up to half the region's width off the wall's
     /// foot.
     pub fn push(&mut self, heard: &Heard, tolerance: &DepthTolerance) -> Option<Region> {
