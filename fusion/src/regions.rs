@@ -337,26 +337,46 @@ struct Last {
     turning: f32,
 }
 
+/// A reading without a range that came next after the open region, held until the reading after
+/// it tells whether the region goes on over it ([`RegionTracker::push`]).
+#[derive(Debug, Clone, Copy)]
+struct Held {
+    /// The step into it.
+    step: f32,
+    /// The nearest echo one of its pings heard, if nearer than the region ([`Heard::rejected`]).
+    nearer: Option<f32>,
+}
+
+impl Held {
+    /// How the region before it ends where it stopped going on: cut short by what it heard
+    /// nearer, else stopping to answer there.
+    fn close(self, open: &Open) -> Region {
+        match self.nearer {
+            Some(n) => open.close(End::Occluded, Some(n), self.step),
+            None => open.close(End::Natural, None, self.step),
+        }
+    }
+}
+
 /// Groups readings, in the order the head takes them, into regions of constant depth.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct RegionTracker {
     open: Option<Open>,
     last: Option<Last>,
-    /// The step into a reading without an echo that came next after the open region, held until
-    /// the reading after it tells whether the region goes on over it ([`Self::push`]).
-    silent: Option<f32>,
+    held: Option<Held>,
 }
 
 impl RegionTracker {
     /// Takes the next reading; returns the region it closed, if any.
     ///
-    /// One reading without an echo between readings of the same depth does not end the region:
-    /// it goes on over the silent reading as over a reading missing from the angles (within
-    /// [`MAX_GAP`]). A reading's pings must agree for it to have a range, so a lost or stray ping
-    /// silences a reading now and then wherever the head points (most often with the `nxt`
-    /// profile's two pings a reading); split there, a wall's region became two, each taken for a
-    /// whole reflector at its own middle bearing, up to half the region's width off the wall's
-    /// foot.
+    /// One reading without a range between readings of the same depth does not end the region:
+    /// it goes on over it as over a reading missing from the angles (within [`MAX_GAP`]). A
+    /// reading's pings must agree for it to have a range, so a lost or stray ping silences a
+    /// reading now and then wherever the head points (most often with the `nxt` profile's two
+    /// pings a reading); split there, a wall's region became two, each taken for a whole
+    /// reflector at its own middle bearing, up to half the region's width off the wall's foot.
+    /// When the region does not go on, it ended at that reading: cut short if one of its pings
+    /// heard something nearer (an edge in front of it), else stopping to answer.
     pub fn push(&mut self, heard: &Heard, tolerance: &DepthTolerance) -> Option<Region> {
         // Whether this reading is the next angle on from the last one, the same way round.
         // The step from the last one if it is, else 0.
@@ -373,10 +393,9 @@ impl RegionTracker {
             rejected: heard.rejected,
             turning,
         });
-        // The region held over a silent reading: on, if this one hears its depth; else it
-        // stopped being heard at the silent one.
+        // The region held over a reading without a range: on, if this one hears its depth.
         let mut closed = None;
-        if let Some(silent_step) = self.silent.take() {
+        if let Some(held) = self.held.take() {
             if let Some(open) = &mut self.open
                 && let Some(range) = heard.range
                 && adjacent
@@ -386,24 +405,17 @@ impl RegionTracker {
                 open.extend(heard, range);
                 return None;
             }
-            closed = self
-                .open
-                .take()
-                .map(|o| o.close(End::Natural, None, silent_step));
+            closed = self.open.take().map(|o| held.close(&o));
         }
         let Some(range) = heard.range else {
-            // Its pings disagreed, one hearing nearer: a nearer reflector cut the region short.
-            let cut_short = |o: &mut Open| {
-                adjacent
-                    && heard
-                        .rejected
-                        .is_some_and(|n| tolerance.nearer(n, o.range()))
-            };
-            if let Some(open) = self.open.take_if(cut_short) {
-                return Some(open.close(End::Occluded, heard.rejected, step_in));
-            }
-            if adjacent && self.open.is_some() {
-                self.silent = Some(step_in);
+            if adjacent && let Some(open) = &self.open {
+                let nearer = heard
+                    .rejected
+                    .filter(|&n| tolerance.nearer(n, open.range()));
+                self.held = Some(Held {
+                    step: step_in,
+                    nearer,
+                });
                 return closed;
             }
             return closed.or_else(|| {
@@ -456,14 +468,14 @@ impl RegionTracker {
     }
 
     /// Closes the open region, if any, at the end of a sweep or of a run of readings: its last
-    /// end is unknown (or natural, if a silent reading followed it), and the next reading starts
-    /// afresh.
+    /// end is unknown (or as the reading without a range after it says), and the next reading
+    /// starts afresh.
     pub fn close(&mut self) -> Option<Region> {
         self.last = None;
-        let silent = self.silent.take();
+        let held = self.held.take();
         let open = self.open.take()?;
-        Some(match silent {
-            Some(step) => open.close(End::Natural, None, step),
+        Some(match held {
+            Some(held) => held.close(&open),
             None => open.close(End::Unknown, None, 0.0),
         })
     }
@@ -604,16 +616,20 @@ mod tests {
     #[test]
     fn a_reading_whose_pings_disagreed_with_one_nearer_cuts_a_region_short() {
         use End::{Natural, Occluded, Unknown};
-        // A wall at 2 m, an edge at 1 m beside it: the reading across the edge heard both.
+        // A wall at 2 m, a post at 1 m in front of it: the readings across the post's edges
+        // heard both; a stray ping later on the wall.
         let found = regions_heard(
             [
                 (0.0, None, None),
                 (6.0, Some(2.0), None),
                 (12.0, Some(2.0), None),
-                (18.0, None, Some(1.0)),
-                (24.0, Some(2.0), None),
-                (30.0, None, Some(2.01)), // disagreeing at the region's depth: silent
-                (36.0, Some(2.0), None),
+                (18.0, None, Some(1.0)), // the post's edge: the wall's region cut short
+                (24.0, Some(1.0), None),
+                (30.0, Some(1.0), None),
+                (36.0, None, Some(1.0)), // the other edge: the post stops being heard
+                (42.0, Some(2.0), None),
+                (48.0, None, Some(0.7)), // a stray ping: the wall goes on
+                (54.0, Some(2.0), None),
             ]
             .map(|(axis, range, rejected)| Heard {
                 rejected,
@@ -622,10 +638,14 @@ mod tests {
         );
         assert_eq!(
             summary(&found),
-            vec![(9, 2, [Natural, Occluded]), (30, 2, [Occluded, Unknown])]
+            vec![
+                (9, 2, [Natural, Occluded]),
+                (27, 2, [Natural, Natural]),
+                (48, 2, [Occluded, Unknown]),
+            ]
         );
         assert_eq!(found[0].masking, [None, Some(1.0)]);
-        assert_eq!(found[1].masking, [Some(1.0), None]);
+        assert_eq!(found[2].masking, [Some(1.0), None]);
     }
 
     #[test]
