@@ -393,20 +393,20 @@ impl RegionTracker {
             rejected: heard.rejected,
             turning,
         });
-        // The region held over a reading without a range: on, if this one hears its depth.
-        let mut closed = None;
-        if let Some(held) = self.held.take() {
-            if let Some(open) = &mut self.open
-                && let Some(range) = heard.range
-                && adjacent
-                && wrap_angle(heard.axis - open.last_axis).abs() <= MAX_GAP
-                && tolerance.admits(open.range(), range)
-            {
-                open.extend(heard, range);
-                return None;
-            }
-            closed = self.open.take().map(|o| held.close(&o));
+        // The open region goes on if this reading hears its depth, the next angle on from its
+        // last reading or from one held after it (within MAX_GAP of its last either way).
+        let held = self.held.take();
+        if let Some(open) = &mut self.open
+            && let Some(range) = heard.range
+            && adjacent
+            && wrap_angle(heard.axis - open.last_axis).abs() <= MAX_GAP
+            && tolerance.admits(open.range(), range)
+        {
+            open.extend(heard, range);
+            return None;
         }
+        // Else, after a held reading, it ended there.
+        let closed = held.and_then(|held| self.open.take().map(|o| held.close(&o)));
         let Some(range) = heard.range else {
             if adjacent && let Some(open) = &self.open {
                 let nearer = heard
@@ -424,13 +424,6 @@ impl RegionTracker {
                     .map(|o| o.close(End::Unknown, None, step_in))
             });
         };
-        if let Some(open) = &mut self.open
-            && adjacent
-            && tolerance.admits(open.range(), range)
-        {
-            open.extend(heard, range);
-            return None;
-        }
         // This reading starts a region; what lies beside it on each side.
         let beside = |other: f32, this: f32| {
             if other < this {
