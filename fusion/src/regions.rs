@@ -74,6 +74,15 @@ pub(crate) enum End {
     Unknown,
 }
 
+/// Where a one-ended region's reflector lies ([`Region::one_ended_axis`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct OneEndedAxis {
+    /// The bearing, radians.
+    pub axis: f32,
+    /// Whether the region's readings reach that bearing; if not, it lies beyond them.
+    pub reached: bool,
+}
+
 /// A closed region of constant depth.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Region {
@@ -121,11 +130,16 @@ impl Region {
     /// Where the reflector of a one-ended region ([`Self::is_one_ended`]) lies: one lobe
     /// half-width `lobe` (radians, the half-width of the whole regions heard at this range) in
     /// from its natural end, as a whole region spans the lobe's width centred on its reflector.
-    /// `None` if the region is not one-ended or does not reach that far in from its natural end
-    /// (the reflector's bearing then lies where nothing was heard).
-    pub fn one_ended_axis(&self, lobe: f32) -> Option<f32> {
+    /// The reading beside the natural end heard it and the one beyond did not, so it lies there
+    /// whether or not the region reaches that far: when it does not, beyond the region's last
+    /// reading (the head turned back, or the readings stop, before coming to it). `None` if the
+    /// region is not one-ended.
+    pub fn one_ended_axis(&self, lobe: f32) -> Option<OneEndedAxis> {
         let (end, inwards) = self.natural_end_beside(End::Unknown)?;
-        (self.span.abs() >= lobe).then(|| wrap_angle(end + inwards * lobe))
+        Some(OneEndedAxis {
+            axis: wrap_angle(end + inwards * lobe),
+            reached: self.span.abs() >= lobe,
+        })
     }
 
     /// The axis of the region's natural end and the sign of the way in from it, if one end is
@@ -694,10 +708,19 @@ mod tests {
             let wall = regions(&readings)[0];
             assert_eq!(wall.ends, [End::Unknown, End::Natural]);
             assert!(wall.is_one_ended());
-            let axis = wall.one_ended_axis(lobe).unwrap().to_degrees();
+            let placed = wall.one_ended_axis(lobe).unwrap();
+            let axis = placed.axis.to_degrees();
             assert!((axis - foot).abs() < 1e-3, "{axis}");
-            // Narrower than the lobe: the foot lies where nothing was heard.
-            assert_eq!(wall.one_ended_axis(37f32.to_radians()), None);
+            assert!(placed.reached);
+            // Narrower than a lobe of 37°: the foot lies beyond the last reading, still a lobe in
+            // from the natural end (10° farther than with 27°).
+            let beyond = wall.one_ended_axis(37f32.to_radians()).unwrap();
+            let axis = beyond.axis.to_degrees();
+            assert!(
+                (axis - (foot + foot.signum() * 10.0)).abs() < 1e-3,
+                "{axis}"
+            );
+            assert!(!beyond.reached);
         }
         // Cut short by a nearer echo: not one-ended (placed from those, patches lay on a surface
         // a third to a half of the time); whole: placed at its middle instead.
