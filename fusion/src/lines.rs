@@ -123,10 +123,16 @@ impl Patch {
         }
     }
 
-    /// Whether its wall may be followed on: confirmed, or needing no confirmation and
-    /// `unconfirmed` (what the caller allows an unconfirmed patch).
-    fn followed(&self, unconfirmed: bool) -> bool {
-        self.confirmed || (!self.needs_confirming && unconfirmed)
+    /// Whether its wall may be followed on: confirmed; else, needing no confirmation, if
+    /// `unconfirmed` (what the caller allows an unconfirmed patch); else if `between_feet`
+    /// says so (asked only then).
+    fn followed(&self, unconfirmed: bool, between_feet: impl FnOnce() -> bool) -> bool {
+        self.confirmed
+            || if self.needs_confirming {
+                between_feet()
+            } else {
+                unconfirmed
+            }
     }
 
     /// Puts it on the line square to `normal` at `offset` (facing along `normal`), its ends
@@ -461,6 +467,9 @@ pub(crate) struct Echo {
     /// Whether the reflector stopped being heard on both sides (its middle bearing is the
     /// reflector's).
     pub whole: bool,
+    /// Whether nearer echoes cut it short on both sides: a concave corner's, heard between its
+    /// walls' feet ([`Lines::join_ends`]).
+    pub masked: bool,
 }
 
 impl Echo {
@@ -734,12 +743,21 @@ impl Lines {
     /// reach holds it ([`EchoPlaces::reaching`]), or all of them when `slack` is wider than the
     /// reach was filed with.
     fn heard_at(&self, point: Vector2<f32>, slack: f32) -> bool {
+        self.heard_at_by(point, slack, |_| true)
+    }
+
+    /// [`Self::heard_at`], by the regions `counted` counts only.
+    fn heard_at_by(
+        &self,
+        point: Vector2<f32>,
+        slack: f32,
+        counted: impl Fn(&Echo) -> bool,
+    ) -> bool {
+        let heard = |e: &Echo| counted(e) && e.heard(point, slack);
         let first = self.places.first;
         match self.places.reaching(point, slack) {
-            Some(mut numbers) => {
-                numbers.any(|n| self.echoes[(n - first) as usize].item.heard(point, slack))
-            }
-            None => self.echoes.iter().any(|e| e.item.heard(point, slack)),
+            Some(mut numbers) => numbers.any(|n| heard(&self.echoes[(n - first) as usize].item)),
+            None => self.echoes.iter().any(|e| heard(&e.item)),
         }
     }
 
@@ -790,16 +808,25 @@ impl Lines {
                 // Within reach of either patch before the echoes are searched: in a large map
                 // most pairs of walls meet far from both.
                 let one_place = (a.sensor - b.sensor).norm() < OTHER_VIEWPOINT_M;
-                let followed = |p: &Patch| p.followed(!confirmed_corners || one_place);
-                let stretches = [
-                    a.towards(corner).filter(|_| followed(a)).map(|s| (a, s)),
-                    b.towards(corner).filter(|_| followed(b)).map(|s| (b, s)),
-                ];
                 // The corner of two patches that stand for others moves with their lines: as
                 // far as their spreads together across the sine of the angle between them, so
                 // that it is confirmed if the corner of any two of the patches they stand for
                 // would have been.
                 let slack = (a.spread + b.spread) / a.normal.perp(&b.normal).abs();
+                // A patch needing confirmation is followed from the place both walls were heard
+                // only to a corner heard between their feet (a region cut short on both sides),
+                // as a local scan hears a room's corner between two walls that each run to the
+                // scan's limit; looked for once, if such a patch reaches the corner.
+                let mut between_feet = None;
+                let mut followed = |p: &Patch| {
+                    p.followed(!confirmed_corners || one_place, || {
+                        *between_feet.get_or_insert_with(|| {
+                            one_place && self.heard_at_by(corner, slack, |e| e.masked)
+                        })
+                    })
+                };
+                let stretches =
+                    [a, b].map(|p| p.towards(corner).filter(|_| followed(p)).map(|s| (p, s)));
                 if stretches.iter().all(Option::is_none) || !self.heard_at(corner, slack) {
                     continue;
                 }
@@ -823,7 +850,7 @@ impl Lines {
                 let echo = &e.item;
                 if echo.whole
                     && let reflector = echo.reflector()
-                    && a.item.followed(true)
+                    && a.item.followed(true, || false)
                     && a.item.passes_through(reflector, echo.tolerance)
                     && let Some(stretch) = a.item.towards(reflector)
                 {
@@ -1244,6 +1271,7 @@ mod tests {
                     range: 1.0 + 0.01 * f32::from(range),
                     tolerance,
                     whole,
+                    masked: false,
                 };
                 // At most 40 kept, so that the oldest are forgotten many times over.
                 lines.hear_keeping(echo, 40);
@@ -1288,6 +1316,7 @@ mod tests {
                         range,
                         tolerance,
                         whole: false,
+                        masked: false,
                     },
                     50,
                 );
@@ -1322,6 +1351,7 @@ mod tests {
             range,
             tolerance: 0.05,
             whole: false,
+            masked: false,
         };
         let joined = |echoes: &[Echo], walls: &[Patch]| {
             let mut lines = Lines::default();
@@ -1360,6 +1390,7 @@ mod tests {
             range: 2f32.sqrt() * 1.0,
             tolerance: 0.05,
             whole: false,
+            masked: false,
         };
         assert!(joined(&[heard_outside], &outside).is_empty());
         // Only once per patch added: a second call without new patches draws nothing.
@@ -1382,6 +1413,7 @@ mod tests {
             range: 2.5,
             tolerance: 0.05,
             whole: false,
+            masked: false,
         };
         let one_ended = Patch::new(Vector2::zeros(), 0.0, 2.0, 10.0 * DEG).needing_confirmation();
         let other_wall = Patch::new(Vector2::zeros(), 90.0 * DEG, 1.5, 10.0 * DEG);
@@ -1395,6 +1427,18 @@ mod tests {
         assert_eq!(out.len(), 1, "{out:?}");
         assert_eq!(out[0].facing, other_wall.facing);
         assert!((out[0].b - corner).norm() < 1e-4, "{out:?}");
+        // From the one place, a corner heard between the walls' feet (its region cut short on
+        // both sides, as a local scan hears a room's corner): followed on from there too.
+        let mut between_feet = Lines::default();
+        let mut joined = Vec::new();
+        between_feet.hear(Echo {
+            masked: true,
+            ..echo
+        });
+        between_feet.add(one_ended, &mut joined);
+        between_feet.add(other_wall, &mut joined);
+        between_feet.join_ends(false, all_seen, &mut joined);
+        assert_eq!(joined.len(), 2, "{joined:?}");
         // The wall x = 2 heard from (0, −0.6) as well: both its patches are followed on.
         let mut confirmed = Vec::new();
         lines.add(
@@ -1424,6 +1468,7 @@ mod tests {
             range: 2.5,
             tolerance: 0.05,
             whole: false,
+            masked: false,
         };
         let east = Patch::new(Vector2::zeros(), 0.0, 2.0, 10.0 * DEG);
         let north = Patch::new(Vector2::new(1.0, 0.0), 90.0 * DEG, 1.5, 10.0 * DEG);
@@ -1467,6 +1512,7 @@ mod tests {
                 range: to.norm(),
                 tolerance: 0.05,
                 whole: true,
+                masked: false,
             }
         };
         let jamb = Vector2::new(2.0, 1.2);
@@ -1519,6 +1565,7 @@ mod tests {
                 range: 2.5 + noise(sweep, 2),
                 tolerance: 0.05,
                 whole: false,
+                masked: false,
             });
             lines.join_ends(false, all_seen, &mut out);
             // Both walls drawn on to the corner, every sweep, each once: as many readings as
@@ -1562,6 +1609,7 @@ mod tests {
             range: 1.2,
             tolerance: 0.05,
             whole: false,
+            masked: false,
         };
         // The corner of walls at 0.9 m lies at 1.273 m: 0.073 from the echo's range.
         let mut lines = Lines::default();
