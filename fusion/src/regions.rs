@@ -74,6 +74,10 @@ pub(crate) enum End {
     Unknown,
 }
 
+/// A region heard by a head that moved no more than this, metres, from its first reading to its
+/// last was heard from one place ([`Region::one_ended_axis`]).
+pub(crate) const STOOD_STILL_M: f32 = 0.01;
+
 /// Where a one-ended region's reflector lies ([`Region::one_ended_axis`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct OneEndedAxis {
@@ -104,6 +108,8 @@ pub(crate) struct Region {
     /// The signed angle between neighbouring readings where the region was heard (the way the
     /// head turned, even for a region of one reading), 0 when neither neighbour was adjacent.
     pub turn: f32,
+    /// How far the sensor moved from the region's first reading to its last, metres.
+    pub moved: f32,
 }
 
 impl Region {
@@ -133,12 +139,16 @@ impl Region {
     /// The reading beside the natural end heard it and the one beyond did not, so it lies there
     /// whether or not the region reaches that far: when it does not, beyond the region's last
     /// reading (the head turned back, or the readings stop, before coming to it). `None` if the
-    /// region is not one-ended.
+    /// region is not one-ended, or does not reach that far and was heard by a head that moved
+    /// (more than [`STOOD_STILL_M`]): the bearing beyond its readings is then from no place the
+    /// head stood (on the driven room tour, placed so, the map at true poses lost 0.08 of
+    /// precision, `docs/fusion.md`).
     pub fn one_ended_axis(&self, lobe: f32) -> Option<OneEndedAxis> {
         let (end, inwards) = self.natural_end_beside(End::Unknown)?;
-        Some(OneEndedAxis {
+        let reached = self.span.abs() >= lobe;
+        (reached || self.moved <= STOOD_STILL_M).then(|| OneEndedAxis {
             axis: wrap_angle(end + inwards * lobe),
-            reached: self.span.abs() >= lobe,
+            reached,
         })
     }
 
@@ -337,6 +347,7 @@ impl Open {
             span,
             ends: [self.start, end],
             masking: [self.start_masking, masking],
+            moved: (self.last_position - self.first_position).norm(),
         }
     }
 }
@@ -721,6 +732,13 @@ mod tests {
                 "{axis}"
             );
             assert!(!beyond.reached);
+            // Heard by a head that moved 5 cm meanwhile: placed only where its readings reach.
+            let moving = Region {
+                moved: 0.05,
+                ..wall
+            };
+            assert!(moving.one_ended_axis(lobe).is_some());
+            assert_eq!(moving.one_ended_axis(37f32.to_radians()), None);
         }
         // Cut short by a nearer echo: not one-ended (placed from those, patches lay on a surface
         // a third to a half of the time); whole: placed at its middle instead.
