@@ -1335,6 +1335,20 @@ mod tests {
         }
     }
 
+    /// A region heard from the origin at `range` about 36.9°, 6° each side, not whole: the
+    /// corner (2, 1.5) of the walls x = 2 and y = 1.5 when `range` is 2.5.
+    fn corner_echo(range: f32) -> Echo {
+        Echo {
+            sensor: Vector2::zeros(),
+            axis: 36.9 * DEG,
+            half_width: 6.0 * DEG,
+            range,
+            tolerance: 0.05,
+            whole: false,
+            masked: false,
+        }
+    }
+
     #[test]
     fn walls_are_drawn_to_the_concave_corner_where_an_echo_was_heard() {
         // A room's walls x = 2 m and y = 1.5 m heard square from the origin (patches ±10°); their
@@ -1344,15 +1358,7 @@ mod tests {
             Patch::new(Vector2::zeros(), 0.0, 2.0, 10.0 * DEG),
             Patch::new(Vector2::zeros(), 90.0 * DEG, 1.5, 10.0 * DEG),
         ];
-        let echo = |range: f32| Echo {
-            sensor: Vector2::zeros(),
-            axis: 36.9 * DEG,
-            half_width: 6.0 * DEG,
-            range,
-            tolerance: 0.05,
-            whole: false,
-            masked: false,
-        };
+        let echo = corner_echo;
         let joined = |echoes: &[Echo], walls: &[Patch]| {
             let mut lines = Lines::default();
             let mut out = Vec::new();
@@ -1406,15 +1412,7 @@ mod tests {
     fn a_patch_needing_confirmation_is_followed_on_once_another_viewpoint_confirms_it() {
         // The room of the test above, its wall x = 2 heard one-ended from the origin.
         let corner = Vector2::new(2.0, 1.5);
-        let echo = Echo {
-            sensor: Vector2::zeros(),
-            axis: 36.9 * DEG,
-            half_width: 6.0 * DEG,
-            range: 2.5,
-            tolerance: 0.05,
-            whole: false,
-            masked: false,
-        };
+        let echo = corner_echo(2.5);
         let one_ended = Patch::new(Vector2::zeros(), 0.0, 2.0, 10.0 * DEG).needing_confirmation();
         let other_wall = Patch::new(Vector2::zeros(), 90.0 * DEG, 1.5, 10.0 * DEG);
         let mut lines = Lines::default();
@@ -1461,15 +1459,7 @@ mod tests {
         // patches come from two places, each alone on its line. A post there, heard from each
         // place, would give the same patches.
         let corner = Vector2::new(2.0, 1.5);
-        let echo = Echo {
-            sensor: Vector2::zeros(),
-            axis: 36.9 * DEG,
-            half_width: 6.0 * DEG,
-            range: 2.5,
-            tolerance: 0.05,
-            whole: false,
-            masked: false,
-        };
+        let echo = corner_echo(2.5);
         let east = Patch::new(Vector2::zeros(), 0.0, 2.0, 10.0 * DEG);
         let north = Patch::new(Vector2::new(1.0, 0.0), 90.0 * DEG, 1.5, 10.0 * DEG);
         let joined = |confirmed: bool, walls: &[Patch]| {
