@@ -113,9 +113,9 @@ impl Patch {
     /// The patch, its wall followed on only once another viewpoint's patch lies on its line: a
     /// one-ended region's, whose bearing is known from its natural end alone (on the suite's
     /// `tune` split, `srf05`, 2.7° off its wall's at the median and 5–6° at the upper quartile).
-    /// Followed on from it for metres, a wall a few
-    /// degrees off ran beside the true one or across the room; on its line with another
-    /// viewpoint's patch, both are put on the line through their feet first.
+    /// Followed on from it for metres, a wall a few degrees off ran beside the true one or
+    /// across the room; on its line with another viewpoint's patch, both are put on the line
+    /// through their feet first.
     pub fn needing_confirmation(self) -> Self {
         Self {
             needs_confirming: true,
