@@ -543,7 +543,7 @@ impl Mapper {
             });
         }
         if region.is_whole() {
-            let half_angle = model.region_patch_half_angle(region.half_width);
+            let half_angle = model.region_patch_half_angle(region.half_width, region.range);
             cells += self.place_region(regions, region, region.axis, half_angle, kernel);
             for beam in &regions.waiting {
                 cells += self.fuse_beam(beam, kernel);
@@ -673,7 +673,7 @@ impl Mapper {
                 // precision at 8 viewpoints for no recall (docs/fusion.md). A quarter when it
                 // lies beyond the readings: none of them tells where the wall goes on.
                 let share = if placed.reached { 0.5 } else { 0.25 };
-                let half_angle = model.region_patch_half_angle(share * lobe);
+                let half_angle = model.region_patch_half_angle(share * lobe, region.range);
                 cells += self.place_region(regions, &region, placed.axis, half_angle, kernel);
                 // Placed, its readings heard that reflector as a whole region's do theirs.
                 for beam in &readings {
@@ -2244,6 +2244,31 @@ mod tests {
         assert!(occupied(&m, 1.01, -0.03));
         assert!(!occupied(&m, 1.01, 0.2));
         assert!(!occupied(&m, 1.01, -0.25));
+    }
+
+    #[test]
+    fn a_far_wall_is_drawn_no_farther_along_than_its_half_width_in_metres() {
+        // The wall x = 3 heard square from the origin within ±27°: its region 54° wide, its
+        // patch 18° each side (0.97 m at 3 m) by the angle alone.
+        let scan = |half_width_m: f32| {
+            let mut m = region_mapper(crate::model::SmoothModel {
+                region_half_width_m: half_width_m,
+                ..Default::default()
+            });
+            for obs in &sweep((0.0, 0.0), (-60.0, 60.0), 1, |a| {
+                (a.abs() <= 27.0).then_some(3.0)
+            }) {
+                m.update(obs).unwrap();
+            }
+            m.close_region();
+            m
+        };
+        let occupied = |m: &Mapper, y: f32| probability_at(m, 3.01, y).is_some_and(|p| p > 0.5);
+        let angle_alone = scan(0.0);
+        assert!(occupied(&angle_alone, 0.3) && occupied(&angle_alone, 0.8));
+        let metres = scan(0.5);
+        assert!(occupied(&metres, 0.3) && occupied(&metres, -0.3));
+        assert!(!occupied(&metres, 0.6) && !occupied(&metres, -0.6));
     }
 
     #[test]

@@ -580,6 +580,12 @@ pub struct SmoothModel {
     /// With `echo_placement = "region"`: half the angle, seen from the sensor, of the straight patch
     /// a region's occupied evidence is drawn on, square to its middle bearing at its range.
     pub region_half_angle_deg: f32,
+    /// With `echo_placement = "region"`: when above 0, a region's patch also reaches at most this
+    /// many metres along the wall each side of its foot, whatever its range. A foot heard says
+    /// nothing of where its wall ends, and an angle claims more of it the farther it is: 18° is
+    /// 0.3 m each side at 1 m and 1.3 m at 4 m, past many a board's end (docs/fusion.md,
+    /// twenty-ninth round). 0: the angle alone.
+    pub region_half_width_m: f32,
     /// With `echo_placement = "region"`: a region heard to stop on one side and running to the
     /// sweep's limit (or a gap in the angles) on the other is placed at the sweep's end one lobe
     /// half-width in from its natural end, the lobe learnt from the whole regions
@@ -745,6 +751,7 @@ impl Default for SmoothModel {
             region_tolerance_m: 0.02,
             region_tolerance_fraction: 0.02,
             region_half_angle_deg: 18.0,
+            region_half_width_m: 0.0,
             region_one_end: false,
             region_one_end_free: false,
             region_corners: false,
@@ -849,6 +856,12 @@ impl SmoothModel {
             self.region_half_angle_deg,
             self.region_half_angle_deg > 0.0 && self.region_half_angle_deg < 60.0,
             "in (0, 60) degrees",
+        )?;
+        check(
+            "model.region_half_width_m",
+            self.region_half_width_m,
+            (0.0..=10.0).contains(&self.region_half_width_m),
+            "in [0, 10] metres (0: no limit)",
         )
     }
 
@@ -982,10 +995,16 @@ impl SmoothModel {
         }
     }
 
-    /// The half-angle of the patch of a region `half_width` wide each side, radians: its own
-    /// width, at least 3° (a single reading), at most `region_half_angle_deg`.
-    pub(crate) fn region_patch_half_angle(&self, half_width: f32) -> f32 {
-        half_width.clamp(3f32.to_radians(), self.region_half_angle_deg.to_radians())
+    /// The half-angle of the patch of a region `half_width` wide each side at `range`, radians:
+    /// its own width, at most `region_half_angle_deg` and `region_half_width_m` along the wall,
+    /// at least 3° (a single reading).
+    pub(crate) fn region_patch_half_angle(&self, half_width: f32, range: f32) -> f32 {
+        let mut widest = self.region_half_angle_deg.to_radians();
+        if self.region_half_width_m > 0.0 {
+            widest = widest.min((self.region_half_width_m / range).atan());
+        }
+        // A reading's width even where the metres would allow less (beyond 9.5 m at 0.5 m).
+        half_width.min(widest).max(3f32.to_radians())
     }
 }
 
