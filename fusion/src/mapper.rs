@@ -1514,6 +1514,17 @@ mod tests {
         .unwrap()
     }
 
+    /// A mapper placing echoes by region with `model`, after `observations` and its last
+    /// region closed.
+    fn region_scan(model: crate::model::SmoothModel, observations: &[Observation]) -> Mapper {
+        let mut m = region_mapper(model);
+        for obs in observations {
+            m.update(obs).unwrap();
+        }
+        m.close_region();
+        m
+    }
+
     /// Every probability of the grid, `None` for unknown cells.
     fn cells(m: &Mapper) -> Vec<Option<f32>> {
         let n = m.grid().geometry().cells_per_side();
@@ -2231,14 +2242,13 @@ mod tests {
             |m: &Mapper, x: f32, y: f32| probability_at(m, x, y).is_some_and(|p| p > 0.5);
         // The wall x = 1, its foot at 0°, heard within the lobe (±27°); the sweep starts at 10°,
         // so the region runs from its limit to its natural end at 27°, 17° wide.
-        let mut m = region_mapper(crate::model::SmoothModel {
-            region_one_end: true,
-            ..Default::default()
-        });
-        for obs in &sweep((0.0, 0.0), (10.0, 60.0), 1, |a| (a <= 27.0).then_some(1.0)) {
-            m.update(obs).unwrap();
-        }
-        m.close_region();
+        let m = region_scan(
+            crate::model::SmoothModel {
+                region_one_end: true,
+                ..Default::default()
+            },
+            &sweep((0.0, 0.0), (10.0, 60.0), 1, |a| (a <= 27.0).then_some(1.0)),
+        );
         // Before any whole region the lobe is the beam's 30° less half a step: the foot a lobe in
         // from 27°, at −2.25°, beyond the first reading; its patch a quarter lobe each side.
         assert!(occupied(&m, 1.01, -0.03));
@@ -2250,18 +2260,15 @@ mod tests {
     fn a_far_wall_is_drawn_no_farther_along_than_its_half_width_in_metres() {
         // The wall x = 3 heard square from the origin within ±27°: its region 54° wide, its
         // patch 18° each side (0.97 m at 3 m) by the angle alone.
+        let wall = sweep((0.0, 0.0), (-60.0, 60.0), 1, |a| {
+            (a.abs() <= 27.0).then_some(3.0)
+        });
         let scan = |half_width_m: f32| {
-            let mut m = region_mapper(crate::model::SmoothModel {
+            let model = crate::model::SmoothModel {
                 region_half_width_m: half_width_m,
                 ..Default::default()
-            });
-            for obs in &sweep((0.0, 0.0), (-60.0, 60.0), 1, |a| {
-                (a.abs() <= 27.0).then_some(3.0)
-            }) {
-                m.update(obs).unwrap();
-            }
-            m.close_region();
-            m
+            };
+            region_scan(model, &wall)
         };
         let occupied = |m: &Mapper, y: f32| probability_at(m, 3.01, y).is_some_and(|p| p > 0.5);
         let angle_alone = scan(0.0);
@@ -2273,26 +2280,24 @@ mod tests {
 
     #[test]
     fn a_region_cut_short_by_nearer_echoes_clears_up_to_them_when_asked() {
+        // Two posts at 1 m, heard whole on either side; the reading between them, along +x,
+        // hears the wall behind at 2 m, its region cut short on both sides.
+        let readings = [
+            (-36.0, None),
+            (-24.0, Some(1.0)),
+            (-12.0, Some(1.0)),
+            (0.0, Some(2.0)),
+            (12.0, Some(1.0)),
+            (24.0, Some(1.0)),
+            (36.0, None),
+        ]
+        .map(|(a, r)| reading(a, r));
         let scan = |masked_free: bool| {
-            let mut m = region_mapper(crate::model::SmoothModel {
+            let model = crate::model::SmoothModel {
                 region_masked_free: masked_free,
                 ..Default::default()
-            });
-            // Two posts at 1 m, heard whole on either side; the reading between them, along +x,
-            // hears the wall behind at 2 m, its region cut short on both sides.
-            for (a, r) in [
-                (-36.0, None),
-                (-24.0, Some(1.0)),
-                (-12.0, Some(1.0)),
-                (0.0, Some(2.0)),
-                (12.0, Some(1.0)),
-                (24.0, Some(1.0)),
-                (36.0, None),
-            ] {
-                m.update(&reading(a, r)).unwrap();
-            }
-            m.close_region();
-            m
+            };
+            region_scan(model, &readings)
         };
         let at = |m: &Mapper, x: f32| {
             let g = *m.grid().geometry();
