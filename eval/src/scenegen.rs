@@ -307,6 +307,40 @@ pub fn generate_in(family: Family, seed: u64) -> Result<Generated> {
     })
 }
 
+/// Salt of the draw of rough walls, so that it leaves the scene's own draws as they were.
+const ROUGH_SALT: u64 = 0x726f_7567_6800_0000;
+
+impl Generated {
+    /// The same scene with about `share` of its hard walls rough ([`Surface::Rough`]: brick, a
+    /// full bookshelf, ribbed panels, which scatter sound back from wherever they are met), each
+    /// drawn from `seed` on its own: the geometry, the viewpoints and every other wall as they
+    /// were.
+    pub fn with_rough_walls(self, share: f64, seed: u64) -> Result<Self> {
+        if !(0.0..=1.0).contains(&share) {
+            bail!("a share of rough walls must lie in 0..=1, not {share}");
+        }
+        if share == 0.0 {
+            return Ok(self);
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ ROUGH_SALT);
+        let walls = self
+            .scene
+            .walls()
+            .iter()
+            .map(|w| {
+                let rough = rng.random_bool(share) && w.surface == Surface::Hard;
+                Wall {
+                    surface: if rough { Surface::Rough } else { w.surface },
+                    ..*w
+                }
+            })
+            .collect();
+        let mut scene = Scene::new(&self.scene.name, walls, self.scene.posts().to_vec())?;
+        scene.description = format!("{}, {share} of its walls rough", self.scene.description);
+        Ok(Self { scene, ..self })
+    }
+}
+
 /// A room; returns its inside, less the clearance.
 fn room(b: &mut Builder) -> Area {
     let (w, h): (f64, f64) = (b.rng.random_range(2.4..=4.6), b.rng.random_range(2.4..=4.6));
@@ -470,6 +504,36 @@ pub fn seen_from(scene: &Scene, pose: Pose) -> Result<Scene> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn rough_walls_are_drawn_from_their_own_seed_and_change_nothing_else() {
+        let smooth = generate_in(Family::Rooms, 7).unwrap();
+        let rough = smooth.clone().with_rough_walls(0.5, 7).unwrap();
+        let (a, b) = (smooth.scene.walls(), rough.scene.walls());
+        assert_eq!(a.len(), b.len());
+        for (x, y) in a.iter().zip(b) {
+            assert_eq!((x.a, x.b), (y.a, y.b));
+            match x.surface {
+                Surface::Hard => assert!(matches!(y.surface, Surface::Hard | Surface::Rough)),
+                other => assert_eq!(y.surface, other),
+            }
+        }
+        assert!(b.iter().any(|w| w.surface == Surface::Rough));
+        assert!(b.iter().any(|w| w.surface == Surface::Hard));
+        assert_eq!(smooth.viewpoints, rough.viewpoints);
+        let all = smooth.clone().with_rough_walls(1.0, 7).unwrap();
+        assert!(all.scene.walls().iter().all(|w| w.surface != Surface::Hard));
+        assert!(smooth.clone().with_rough_walls(1.5, 7).is_err());
+        assert_eq!(
+            smooth
+                .clone()
+                .with_rough_walls(0.0, 7)
+                .unwrap()
+                .scene
+                .walls(),
+            smooth.scene.walls()
+        );
+    }
     use sonar_sim::geometry::distance_to_segment;
 
     #[test]

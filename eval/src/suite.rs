@@ -381,6 +381,12 @@ pub struct SuiteArgs {
     /// places there, so `--suite-viewpoints 1,3,5`).
     #[arg(long, value_enum, default_value_t = Family::Rooms)]
     pub suite_family: Family,
+    /// Share of the scenes' hard walls made rough, 0 to 1 (brick, full bookshelves, ribbed
+    /// panels: they scatter sound back from wherever they are met, where a smooth wall answers
+    /// only near square on), each wall drawn from its scene's seed; 0, the default, leaves every
+    /// wall smooth.
+    #[arg(long, default_value_t = 0.0, value_name = "SHARE")]
+    pub suite_rough: f64,
     /// Complete full sweeps (300°, there and back counts two) per viewpoint.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=20))]
     pub suite_sweeps: u32,
@@ -431,6 +437,8 @@ pub struct SuiteSettings {
     pub fusion: Vec<FusionChoice>,
     pub split: Split,
     pub family: Family,
+    /// Share of the hard walls made rough ([`Generated::with_rough_walls`]).
+    pub rough_share: f64,
     pub sweeps: u32,
     pub jobs: usize,
     /// Where to write a picture of each run's maps ([`score_picture`]), if anywhere.
@@ -482,6 +490,7 @@ impl SuiteSettings {
             },
             split: args.suite_split,
             family: args.suite_family,
+            rough_share: args.suite_rough,
             sweeps: args.suite_sweeps,
             jobs: usize::try_from(args.suite_jobs).unwrap_or(1),
             pictures: args.suite_pictures.clone(),
@@ -1319,7 +1328,11 @@ pub fn evaluate(settings: &SuiteSettings) -> Result<Vec<Run>> {
         }
     }
     let generated: Vec<Generated> = (0..settings.scenes)
-        .map(|k| scenegen::generate_in(settings.family, settings.split.scene_seed(k)))
+        .map(|k| {
+            let seed = settings.split.scene_seed(k);
+            scenegen::generate_in(settings.family, seed)?
+                .with_rough_walls(settings.rough_share, seed)
+        })
         .collect::<Result<_>>()?;
     let next = AtomicUsize::new(0);
     let done = AtomicUsize::new(0);
@@ -2014,6 +2027,7 @@ mod structural_tests {
             fusion: vec!["recommended".parse().unwrap()],
             split: Split::Report,
             family: Family::Rooms,
+            rough_share: 0.0,
             sweeps: 2,
             jobs: 1,
             pictures: None,

@@ -38,6 +38,11 @@
 //!   that foot lies on the wall, inside the beam, and at an incidence (= the foot's angle off the beam
 //!   axis) under [`EchoParams::specular_cutoff_deg`] (sensor-facts: a flat card read correctly up to
 //!   ≈ 25–30°). It reads the perpendicular distance: foreshortening.
+//! - a **rough wall** ([`Surface::Rough`]: brick, a full bookshelf) mirrors as a flat wall does,
+//!   [`EchoParams::rough_specular_loss_db`] weaker, and also scatters from every point of it in
+//!   the beam ([`EchoParams::rough_diffuse_db`], Lambert's law): met beyond the cut-off it still
+//!   answers, from the nearest point of it in the beam loud enough, so a slanted rough wall reads
+//!   short (sensor-facts' foreshortening).
 //! - a **corner** (concave joint of opening up to [`EchoParams::corner_max_opening_deg`]) returns
 //!   from its vertex whenever the vertex is in the beam.
 //! - an **edge** (free wall end, convex joint) returns weakly from its vertex.
@@ -84,6 +89,9 @@ const BEAM_REFERENCE_DB: f64 = 6.0;
 const FLAT_JOINT_DEG: f64 = 1.0;
 /// A surface does not hide itself: the line of sight stops this short of the target.
 const SELF_OCCLUSION_M: f64 = 0.005;
+/// A rough wall's scattering points are looked at this far apart in bearing, degrees: 3 mm apart
+/// along a wall 2 m away met 45° off square, under the detector's jitter of a wavelength.
+const SCATTER_STEP_DEG: f64 = 0.05;
 /// A two-bounce path whose crossings lie closer than this is a corner's own echo, not a ghost.
 const GHOST_APART_M: f64 = 0.02;
 
@@ -107,6 +115,7 @@ impl EchoParams {
             Surface::Hard => 0.0,
             Surface::Soft => self.soft_loss_db,
             Surface::Board => self.board_loss_db,
+            Surface::Rough => self.rough_specular_loss_db,
         }
     }
 }
@@ -237,6 +246,7 @@ impl EchoModel {
                 hear(Target::Wall(i), foot, r, level, p.specular_cutoff_deg);
             }
         }
+
         for (i, j) in self.scene.joints().iter().enumerate() {
             let Some(v) = j.seen_from(sensor) else {
                 continue;
@@ -262,6 +272,11 @@ impl EchoModel {
             let nearest = centre * (r / d);
             let level = Self::cylinder_db(r, c.radius) - p.surface_loss_db(c.surface);
             hear(Target::Post(i), nearest, r, level, f64::INFINITY);
+        }
+        for (i, w) in self.scene.walls().iter().enumerate() {
+            if w.surface == Surface::Rough {
+                self.scattered(i, aim_deg, &mut out);
+            }
         }
         if p.double_bounce {
             self.double_bounces(aim_deg, &mut out);
@@ -328,6 +343,109 @@ impl EchoModel {
                     margin_db: level + (beam_p + beam_q) / 2.0 + self.receiver_db(range)
                         - p.threshold_db,
                 });
+            }
+        }
+    }
+
+    /// The scattered echoes of rough wall `i` ([`Surface::Rough`]) to a ping aimed at `aim_deg`
+    /// (absolute, degrees): every point of it in the beam scatters back, so the ping hears the
+    /// nearest point loud enough. Along a wall the range grows away from the foot of the
+    /// perpendicular, so its points in the beam are walked outward from the one nearest the foot,
+    /// every [`SCATTER_STEP_DEG`] of bearing, nearest first; each loud enough to be heard with the
+    /// threshold at the bottom of its jitter is an echo, and the walk stops at the first loud
+    /// enough with the threshold at its top (nothing farther can be heard first). The level of
+    /// a point at range r met at incidence i: [`EchoParams::rough_diffuse_db`] −
+    /// 30·log10(2r) + 20·log10(cos i), with the beam's and the receiver's gains.
+    fn scattered(&self, i: usize, aim_deg: f64, out: &mut Vec<Echo>) {
+        let p = &self.scene.echo;
+        let w = self.scene.walls()[i];
+        let (a, b) = (w.a - self.pose.at, w.b - self.pose.at);
+        let e = b - a;
+        let len = e.norm();
+        // The foot's distance and bearing; no echo from a wall met edge-on.
+        let along = e * (1.0 / len);
+        let foot = a - along * a.dot(along);
+        let d = foot.norm();
+        if d < 1e-6 {
+            return;
+        }
+        let half = f64::from(self.sensor.beam_half_angle_deg);
+        let max_range = f64::from(self.sensor.max_range_m);
+        let slack = self.scene.noise.threshold_jitter_db;
+        // The wall's bearings in the beam, relative to the aim: it subtends less than a half turn.
+        let (mut lo, mut hi) = (
+            angle_diff_deg(a.angle_deg(), aim_deg),
+            angle_diff_deg(b.angle_deg(), aim_deg),
+        );
+        if lo > hi {
+            std::mem::swap(&mut lo, &mut hi);
+        }
+        if hi - lo > 180.0 {
+            return; // the wall runs behind the sensor across the aim's opposite: not in the beam
+        }
+        let (lo, hi) = (lo.max(-half), hi.min(half));
+        if lo > hi {
+            return;
+        }
+        let foot_off = angle_diff_deg(foot.angle_deg(), aim_deg);
+        let start = foot_off.clamp(lo, hi);
+        let range_at = |off: f64| d / (off - foot_off).to_radians().cos();
+        // The loudest the wall could be anywhere in the beam: at its nearest range, square on,
+        // on the axis, with the receiver's best gain over its ranges.
+        let nearest = range_at(start);
+        let gain_peak = p.tvg_max_range_m.clamp(nearest, max_range.max(nearest));
+        let best_receiver = self.receiver_db(nearest).max(self.receiver_db(gain_peak));
+        if p.rough_diffuse_db - 30.0 * (2.0 * nearest).log10() + best_receiver - p.threshold_db
+            < -slack
+        {
+            return;
+        }
+        // Outward on both sides of `start`, nearest first (by the bearing's distance from the
+        // foot's); a side ends at the beam's edge, the wall's end or the sensor's reach.
+        let mut sides = [
+            Some(start),
+            (start > lo).then_some(start - SCATTER_STEP_DEG),
+        ];
+        let within = |off: f64| (lo..=hi).contains(&off) && range_at(off) <= max_range;
+        loop {
+            sides = sides.map(|side| side.filter(|&off| within(off)));
+            let side = match sides {
+                [Some(u), Some(v)] if (v - foot_off).abs() < (u - foot_off).abs() => 1,
+                [Some(_), _] => 0,
+                [None, Some(_)] => 1,
+                [None, None] => return,
+            };
+            let Some(off) = sides[side] else { return };
+            sides[side] = Some(if side == 0 {
+                off + SCATTER_STEP_DEG
+            } else {
+                off - SCATTER_STEP_DEG
+            });
+            let range = range_at(off);
+            let Some(beam) = self.beam_db(off) else {
+                continue;
+            };
+            let incidence_db = 20.0 * (d / range).log10();
+            let margin_db = p.rough_diffuse_db - 30.0 * (2.0 * range).log10()
+                + incidence_db
+                + beam
+                + self.receiver_db(range)
+                - p.threshold_db;
+            if margin_db < -slack {
+                continue;
+            }
+            let (s, c) = (aim_deg + off).to_radians().sin_cos();
+            let at = Vec2::new(c, s) * range;
+            if self.occluded(at) {
+                continue;
+            }
+            out.push(Echo {
+                target: Target::Wall(i),
+                range_m: range,
+                margin_db,
+            });
+            if margin_db >= slack {
+                return;
             }
         }
     }
@@ -657,6 +775,64 @@ mod tests {
             .unwrap();
         let soft = model(vec![soft], vec![]).echoes(0.0)[0];
         assert!((hard.margin_db - soft.margin_db - 12.0).abs() < 1e-9);
+    }
+
+    fn rough(mut w: Wall) -> Wall {
+        w.surface = Surface::Rough;
+        w
+    }
+
+    #[test]
+    fn a_rough_wall_met_square_on_mirrors_less_than_a_smooth_one() {
+        let hard = model(vec![facing_wall(2.0)], vec![])
+            .first_echo(0.0)
+            .unwrap();
+        let rough = model(vec![rough(facing_wall(2.0))], vec![])
+            .first_echo(0.0)
+            .unwrap();
+        assert!((rough.range_m - 2.0).abs() < 1e-9, "{rough:?}");
+        assert!((hard.margin_db - rough.margin_db - 3.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_rough_wall_met_beyond_the_cutoff_answers_from_the_nearest_point_loud_enough() {
+        // 45° off square: a smooth wall mirrors the ping away, a rough one scatters some back.
+        let smooth = model(vec![facing_wall(1.0)], vec![]);
+        assert_eq!(smooth.first_echo(45.0), None);
+        let m = model(vec![rough(facing_wall(1.0))], vec![]);
+        let e = m.first_echo(45.0).expect("a rough wall is heard");
+        assert_eq!(e.target, Target::Wall(0));
+        // Nearer than where the axis meets the wall (1/cos 45°), no nearer than the beam's edge.
+        let edge = 1.0 / (45.0f64 - 30.0).to_radians().cos();
+        let axis = 1.0 / 45.0f64.to_radians().cos();
+        assert!(e.range_m > edge - 1e-9 && e.range_m < axis, "{e:?}");
+        // Nothing nearer in the beam is loud enough: every point of the wall between the beam's
+        // edge and the echo's, looked at 0.005° apart, is under the threshold.
+        let p = EchoParams::default();
+        let level = |off_deg: f64| {
+            let r = 1.0 / (45.0 + off_deg).to_radians().cos();
+            p.rough_diffuse_db - 30.0 * (2.0 * r).log10()
+                + 20.0 * (1.0 / r).log10()
+                + m.beam_db(off_deg).unwrap()
+                + m.receiver_db(r)
+                - p.threshold_db
+        };
+        let mut off: f64 = -30.0;
+        while 1.0 / (45.0 + off).to_radians().cos() < e.range_m - 0.003 {
+            assert!(level(off) < 0.0, "{off}° off the axis is loud enough");
+            off += 0.005;
+        }
+        // Farther off square it is heard nearer the beam's edge, then not at all.
+        let at60 = m.first_echo(60.0).map(|e| e.range_m);
+        assert!(at60.is_some_and(|r| r > e.range_m), "{at60:?}");
+        let far = model(vec![rough(facing_wall(3.0))], vec![]);
+        assert_eq!(far.first_echo(80.0), None);
+    }
+
+    #[test]
+    fn a_rough_wall_behind_another_is_not_heard_through_it() {
+        let m = model(vec![facing_wall(1.0), rough(facing_wall(1.5))], vec![]);
+        assert!(m.echoes(45.0).iter().all(|e| e.target != Target::Wall(1)));
     }
 
     #[test]

@@ -37,6 +37,16 @@ pub struct EchoParams {
     /// than the beam is tall) against a wall that fills the beam: a low target strength. Its ends
     /// return nothing (a board seen edge-on is silent).
     pub board_loss_db: f64,
+    /// Loss of a rough surface's mirror echo against a smooth wall's ([`Surface::Rough`]): part
+    /// of the sound it scatters instead of mirroring.
+    pub rough_specular_loss_db: f64,
+    /// Level of a rough surface's scattered echo met square on, against a flat mirror's at 0.5 m
+    /// (0 dB). Each point of it in the beam scatters back by Lambert's law (its level falls as
+    /// 20·log10 of the cosine of its incidence), and the patch the beam lights grows with range,
+    /// so it falls as −30·log10(2r) where a mirror's falls as −20·log10(2r). Not fitted to a
+    /// measurement (none is at hand): −6 dB lets a rough wall be heard on the beam's axis 30° off
+    /// square to about 2.4 m through the `srf05` profile, 45° off to 1.8 m, 60° off to 1.2 m.
+    pub rough_diffuse_db: f64,
     /// Double-bounce ghosts: a ping that leaves by one wall, meets a second and comes back by
     /// the first (the path of two mirror images, S → A → B → S) returns a late phantom from where
     /// no surface is, in corners that are not square and between a wall and a board or partition
@@ -67,6 +77,8 @@ impl Default for EchoParams {
             edge_radius_m: 0.01,
             soft_loss_db: 12.0,
             board_loss_db: 8.0,
+            rough_specular_loss_db: 3.0,
+            rough_diffuse_db: -6.0,
             double_bounce: false,
             double_bounce_loss_db: 6.0,
             range_bias_m: 0.0,
@@ -139,6 +151,7 @@ impl EchoParams {
             (p.corner_loss_db, "echo.corner_loss_db"),
             (p.soft_loss_db, "echo.soft_loss_db"),
             (p.board_loss_db, "echo.board_loss_db"),
+            (p.rough_specular_loss_db, "echo.rough_specular_loss_db"),
             (p.double_bounce_loss_db, "echo.double_bounce_loss_db"),
             (p.range_step_m, "echo.range_step_m"),
         ] {
@@ -147,6 +160,10 @@ impl EchoParams {
                 &format!("{name} must be >= 0"),
             )?;
         }
+        require(
+            p.rough_diffuse_db.is_finite(),
+            "echo.rough_diffuse_db must be a number",
+        )?;
         require(
             p.threshold_db.is_finite(),
             "echo.threshold_db must be a number",

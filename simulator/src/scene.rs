@@ -12,7 +12,7 @@
 //! [[segments]]                           # a wall, metres
 //! from = [2.0, -1.5]
 //! to = [2.0, 1.5]
-//! surface = "hard"                       # optional: "hard" (default), "soft" or "board" (thin)
+//! surface = "hard"                       # optional: "hard" (default), "soft", "board" (thin) or "rough"
 //!
 //! [[polygons]]                           # a closed chain of walls (a room, a box)
 //! points = [[1.2, 1.2], [-1.2, 1.2], [-1.2, -1.2], [1.2, -1.2]]
@@ -80,6 +80,12 @@ pub enum Surface {
     /// A thin board (a shelf, a skirting, a panel lower than the beam is tall): hard but a small
     /// target ([`EchoParams::board_loss_db`]), and its ends return nothing: edge-on it is silent.
     Board,
+    /// Brick, stone, a full bookshelf, a radiator, ribbed panels: hard but rough at 40 kHz (its
+    /// relief deeper than half the 8.6 mm wavelength), so it scatters as well as mirrors: every
+    /// part of it in the beam sends some sound back, however it is met
+    /// ([`EchoParams::rough_diffuse_db`]), and its mirror echo is weaker
+    /// ([`EchoParams::rough_specular_loss_db`]).
+    Rough,
 }
 
 /// A flat wall between two points.
