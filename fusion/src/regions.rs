@@ -297,6 +297,10 @@ struct Open {
     first_axis: f32,
     last_position: Vector2<f32>,
     last_axis: f32,
+    /// The angle turned from the first reading's axis to the last one's, step by step: a
+    /// region may span more than a half turn (a sensor close to a rough wall, a continuous
+    /// head), where the difference of its end axes alone is ambiguous.
+    swept: f32,
     range_sum: f32,
     readings: u32,
     start: End,
@@ -313,6 +317,7 @@ impl Open {
             first_axis: heard.axis,
             last_position: heard.position,
             last_axis: heard.axis,
+            swept: 0.0,
             range_sum: range,
             readings: 1,
             start,
@@ -326,6 +331,7 @@ impl Open {
     }
 
     fn extend(&mut self, heard: &Heard, range: f32) {
+        self.swept += wrap_angle(heard.axis - self.last_axis);
         self.last_position = heard.position;
         self.last_axis = heard.axis;
         self.range_sum += range;
@@ -336,7 +342,7 @@ impl Open {
     /// range when that reading was nearer ([`End::Occluded`]), `step` the step to it (0 if not
     /// adjacent).
     fn close(&self, end: End, masking: Option<f32>, step: f32) -> Region {
-        let span = wrap_angle(self.last_axis - self.first_axis);
+        let span = self.swept;
         Region {
             turn: if self.turn != 0.0 { self.turn } else { step },
             position: (self.first_position + self.last_position) * 0.5,
@@ -539,6 +545,32 @@ mod tests {
             .iter()
             .map(|r| (r.axis.to_degrees().round() as i32, r.readings, r.ends))
             .collect()
+    }
+
+    #[test]
+    fn a_region_wider_than_a_half_turn_has_its_middle_bearing_in_its_middle() {
+        // From −84° down through 180° to 96°, 31 readings at 0.55 m (a sensor close to rough
+        // walls), nothing heard beside: 180° wide, its middle at −174°; and 37 readings, 216°
+        // wide, from −72° down to 72°: its middle at 180°, not at 0°.
+        for (first, readings, middle) in [(-84.0f32, 31, -174.0f32), (-72.0, 37, -180.0)] {
+            let mut heard = vec![(first + 6.0, None)];
+            heard.extend((0..readings).map(|k| (first - 6.0 * k as f32, Some(0.55))));
+            heard.push((first - 6.0 * readings as f32, None));
+            let width = 6.0 * (readings - 1) as f32;
+            for (reading, turn) in [
+                (heard.clone(), -1.0),
+                (heard.into_iter().rev().collect(), 1.0),
+            ] {
+                let found = regions(&reading);
+                assert_eq!(found.len(), 1, "{found:?}");
+                let region = found[0];
+                assert!(region.is_whole());
+                let off = wrap_angle(region.axis - middle.to_radians()).to_degrees();
+                assert!(off.abs() < 1e-2, "{off}° off: {region:?}");
+                assert!((region.half_width.to_degrees() - width / 2.0).abs() < 1e-2);
+                assert!((region.span.to_degrees() - turn * width).abs() < 1e-2);
+            }
+        }
     }
 
     #[test]
