@@ -20,6 +20,12 @@
 //! each target's cone edge); wider than two points but narrower than a plane → a single **point**
 //! stronger than the reference (a thick pillar; its bearing is still the centre).
 //!
+//! A rough wall (brick, a full bookshelf) answers from wherever the beam meets it: its foot's
+//! region is as wide as the beam and more, and beyond both its ends the range climbs on as the
+//! beam's edge slides along the wall ([`Rcd::sloping`]). Such a region is a **plane** at its
+//! centre whatever its width; the pieces of the climbs beside it are no targets
+//! (**unclassified**), nor corners of that wall (they lie on its line, where a corner would).
+//!
 //! One end natural, the other hidden or at the scan's end: the width is only a lower bound. Wider
 //! than a point's cone, it is a **plane** (or, wider than a plane can be, a **corner**) placed from
 //! its natural end: the normal lies one cut-off inward from the cone's edge. Narrower, it could be
@@ -213,7 +219,9 @@ pub fn classify(rcds: &[Rcd], cfg: &FeatureConfig) -> Classification {
 /// As [`classify`], with the regions cut at one end told as `cut` says.
 pub fn classify_with(rcds: &[Rcd], cfg: &FeatureConfig, cut: CutRegions) -> Classification {
     let mut hypotheses: Vec<Hypothesis> = rcds.iter().map(|r| by_width(r, cfg, cut)).collect();
-    // Corners are tested against the planes found by width, so in a second pass; first against
+    // Corners are tested against the planes found by width, so in a second pass (not against a
+    // rough wall's foot: the regions on its line beside it are its climb, where the beam's edge
+    // met it, and its corners are never the nearest of it in the beam); first against
     // the planes seen whole (both ends natural), since a region taken for a plane from one
     // natural end may itself be a corner. A region that is a point or a plane by its width is a
     // plane when another region is that plane's corner (a wall near the sensor, whose corners
@@ -221,14 +229,17 @@ pub fn classify_with(rcds: &[Rcd], cfg: &FeatureConfig, cut: CutRegions) -> Clas
     let whole_planes = |hs: &[Hypothesis]| -> Vec<Option<Bearing>> {
         hs.iter()
             .zip(rcds)
-            .map(|(h, r)| h.plane().filter(|_| r.is_whole()))
+            .map(|(h, r)| h.plane().filter(|_| r.is_whole() && !r.is_sloping_foot()))
             .collect()
     };
     // A region seen from one end that may be a wall is a candidate too, to be supported.
     let candidates: Vec<Option<Bearing>> = hypotheses
         .iter()
         .zip(rcds)
-        .map(|(h, r)| h.plane().filter(|_| r.is_whole() || h.or_plane.is_some()))
+        .map(|(h, r)| {
+            h.plane()
+                .filter(|_| (r.is_whole() || h.or_plane.is_some()) && !r.is_sloping_foot())
+        })
         .collect();
     let mut supported = vec![false; rcds.len()];
     for i in 0..rcds.len() {
@@ -264,7 +275,8 @@ pub fn classify_with(rcds: &[Rcd], cfg: &FeatureConfig, cut: CutRegions) -> Clas
     let planes: Vec<Option<Bearing>> = hypotheses
         .iter()
         .zip(&corners)
-        .map(|(h, c)| h.plane().filter(|_| c.is_none()))
+        .zip(rcds)
+        .map(|((h, c), r)| h.plane().filter(|_| c.is_none() && !r.is_sloping_foot()))
         .collect();
     for (i, c) in corners.iter_mut().enumerate() {
         if c.is_none() && hypotheses[i].class != Class::Plane {
@@ -272,7 +284,8 @@ pub fn classify_with(rcds: &[Rcd], cfg: &FeatureConfig, cut: CutRegions) -> Clas
         }
     }
     for ((h, c), rcd) in hypotheses.iter_mut().zip(corners).zip(rcds) {
-        if let Some(b) = c {
+        // A piece of a rough wall's climb lies where the beam's edge met the wall: no corner.
+        if let Some(b) = c.filter(|_| !rcd.is_on_a_slope()) {
             *h = Hypothesis::one(Class::Corner, b.deg, b.sigma);
         } else if h.class == Class::Corner && heard_over_the_beam_by_a_point(rcd, cfg) {
             // A corner by its width alone, which no wall of the sweep meets, where a point target
@@ -359,6 +372,18 @@ fn by_width(rcd: &Rcd, cfg: &FeatureConfig, cut: CutRegions) -> Hypothesis {
     let (start_sigma, end_sigma) = (rcd.start_edge_sigma_deg(), rcd.end_edge_sigma_deg());
     // Both edges quantised, independently: the centre's error is half their difference.
     let centre_sigma = start_sigma.hypot(end_sigma) / 2.0;
+    if rcd.is_on_a_slope() {
+        return Hypothesis::unclassified();
+    }
+    if rcd.is_sloping_foot() {
+        // A rough wall's foot, however wide: where its ramps start depends on the noise, so
+        // the middle is known to the cone's σ as well as the edges'.
+        return Hypothesis::one(
+            Class::Plane,
+            rcd.centre_deg(),
+            centre_sigma.hypot(cfg.cone_sigma_deg),
+        );
+    }
     // One edge quantised, and a modelled half-cone.
     let from_edge = |edge_sigma: f64| edge_sigma.hypot(cfg.cone_sigma_deg);
     let fits = |half: Option<f64>| half.is_some_and(|h| (w - 2.0 * h).abs() <= tol);

@@ -24,6 +24,10 @@
 //!    one), [`End::Unknown`] at the end of the scan, at lost readings, at an ambiguous neighbour,
 //!    or where the run's range comes back past a burst of lost pings. A lone nearer ping followed
 //!    by farther or nothing is a transient: the end is natural.
+//!    Beyond each end the next pings are also looked at for a **slope** ([`Slope`]): a range
+//!    that climbs on smoothly from the region's is a rough wall going on at a slant (it
+//!    scatters from wherever the beam's edge meets it), so a region with climbs on both sides
+//!    is a rough wall's foot, and one between a climb and a nearer echo is a piece of the climb.
 //! 3. **Joining**: two runs at the same range, separated only by pings that heard nearer, are one
 //!    target partly hidden (the wall behind a post): they are joined, the hidden pings counted —
 //!    unless together they would be wider than any one target's region at that range (the four
@@ -90,9 +94,39 @@ pub struct Rcd {
     /// ([`heard_centre_deg`]); the middle between the edges ([`Rcd::centre_deg`]) when the
     /// threshold does not jitter.
     pub heard_centre_deg: f64,
+    /// Beyond each end (start, end), the pings' ranges rise on smoothly from the region's: the
+    /// same surface going on at a slant, heard where it is nearest in the beam. A smooth wall
+    /// answers only near square on, so past its region the pings hear something else or nothing;
+    /// a rough one (brick, a full bookshelf) scatters from wherever the beam meets it, so past
+    /// the region of its foot the range climbs as the beam's edge slides along it ([`slope`]).
+    /// Climbing on both sides: a rough wall's foot; climbing on one and falling on the other:
+    /// a piece of a rough wall's climb, no target of its own.
+    pub sloping: [Option<Slope>; 2],
 }
 
 impl Rcd {
+    /// The foot of a rough wall: the range climbs on beyond both ends ([`Rcd::sloping`]), so the
+    /// region is where the wall's nearest point lies inside the beam, centred on its normal
+    /// whatever its width.
+    pub fn is_sloping_foot(&self) -> bool {
+        self.sloping == [Some(Slope::Climbing); 2]
+    }
+
+    /// A piece of a rough wall's climb: the range climbs on beyond one end and falls away, or
+    /// was cut short by a nearer echo, beyond the other ([`Rcd::sloping`]), so its pings heard
+    /// the wall where the beam's edge met it, no target at their own range.
+    pub fn is_on_a_slope(&self) -> bool {
+        // Falling beyond an end, or cut short there by a nearer echo (the climb's lower part,
+        // split from it within the noise).
+        let lower =
+            |slope: Option<Slope>, end: End| slope == Some(Slope::Falling) || end == End::Occluded;
+        match self.sloping {
+            [Some(Slope::Climbing), other] => lower(other, self.end),
+            [other, Some(Slope::Climbing)] => lower(other, self.start),
+            _ => false,
+        }
+    }
+
     /// Both ends natural: the target left its cone on each side, so the width was measured,
     /// not bounded.
     pub fn is_whole(&self) -> bool {
@@ -301,6 +335,7 @@ pub fn extract(sweep: &Sweep, cfg: &FeatureConfig, gate: &Gate) -> Vec<Rcd> {
                 start_interval_deg: r.start_steps * sweep.step_deg(),
                 end_interval_deg: r.end_steps * sweep.step_deg(),
                 heard_centre_deg: 0.0,
+                sloping: [Side::Start, Side::End].map(|side| slope(sweep, &r, gate, side)),
             };
             rcd.heard_centre_deg = if cfg.echo.threshold_jitter_db > 0.0 {
                 let own = own_span(sweep, &runs, &r, cfg, gate);
@@ -699,15 +734,36 @@ enum Side {
     End,
 }
 
-/// What the ping just outside a run's end says about it, and the span (in steps) in which the
-/// cone's edge lies.
-fn end_kind(sweep: &Sweep, run: &Run, gate: &Gate, side: Side) -> (End, f64) {
-    let pings = sweep.pings();
-    // The ping `steps` beyond the run on `side`, if no readings are lost on the way.
-    // A full circle has no scan end: past its last ping comes its first.
-    let n = pings.len();
+/// Pings beyond a region's end looked at for a slope ([`slope`]), and the fewest that must
+/// have an echo, one after the other.
+const SLOPE_PINGS: usize = 8;
+const SLOPE_MIN_PINGS: usize = 3;
+/// The first of them lies within this share of the region's range (beyond its noise): farther
+/// or nearer, the beam met another target.
+const SLOPE_FIRST_SHARE: f64 = 0.08;
+/// The slope must stand out of the pings' noise by this many standard errors.
+const SLOPE_T: f64 = 3.0;
+/// No ping lies off the straight line through them by more than this many of the noise's σ (a
+/// step to another target would).
+const SLOPE_RESIDUAL_SIGMAS: f64 = 3.5;
+
+/// How the range goes on beyond a region's end ([`slope`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Slope {
+    /// It climbs on from the region's: the surface goes on at a slant, heard where the beam's
+    /// edge meets it ([`Rcd::sloping`]).
+    Climbing,
+    /// It steps down to a nearer surface within a few percent of the region's range: beside a
+    /// climb, the region lies on it.
+    Falling,
+}
+
+/// The index of the ping `steps` beyond `run` on `side`, if no readings are lost on the way;
+/// past a full circle's last ping comes its first.
+fn beyond(sweep: &Sweep, run: &Run, side: Side, steps: usize) -> Option<usize> {
+    let n = sweep.pings().len();
     let circular = sweep.is_circular();
-    let outside = |steps: usize| match side {
+    match side {
         Side::Start => (0..steps).try_fold(run.first, |k, _| match k.checked_sub(1) {
             Some(j) => Some(j).filter(|_| !sweep.gap_before(k)),
             None => circular.then(|| n - 1),
@@ -719,7 +775,69 @@ fn end_kind(sweep: &Sweep, run: &Run, gate: &Gate, side: Side) -> (End, f64) {
                 circular.then_some(0)
             }
         }),
-    };
+    }
+}
+
+/// How the range goes on beyond `run`'s end on `side` ([`Rcd::sloping`]): the pings there,
+/// [`SLOPE_MIN_PINGS`] to [`SLOPE_PINGS`] of them each with an echo, start within
+/// [`SLOPE_FIRST_SHARE`] of the run's range; they **climb** when none is nearer than the run,
+/// they lie along a straight line (by step) rising [`SLOPE_T`] standard errors above level, and
+/// none lies off that line by more than the noise allows; they **fall** when none is farther
+/// than the run and the first is nearer or the line falls as steeply. The pings past a smooth wall's region hear nothing, or another target
+/// at a step; past a post's, the wall behind it.
+fn slope(sweep: &Sweep, run: &Run, gate: &Gate, side: Side) -> Option<Slope> {
+    let pings = sweep.pings();
+    let ranges: Vec<f64> = (1..=SLOPE_PINGS)
+        .map_while(|steps| beyond(sweep, run, side, steps).and_then(|k| pings[k].range_m))
+        .collect();
+    if ranges.len() < SLOPE_MIN_PINGS {
+        return None;
+    }
+    let mean = run.stats.mean();
+    let reach = gate.reach(&run.stats);
+    if (ranges[0] - mean).abs() > mean * SLOPE_FIRST_SHARE + reach {
+        return None;
+    }
+    // Least squares of range on the step.
+    let n = ranges.len() as f64;
+    let k_mean = (n + 1.0) / 2.0;
+    let r_mean = ranges.iter().sum::<f64>() / n;
+    let sxx: f64 = (1..=ranges.len())
+        .map(|k| (k as f64 - k_mean).powi(2))
+        .sum();
+    let sxy: f64 = ranges
+        .iter()
+        .enumerate()
+        .map(|(i, r)| (i as f64 + 1.0 - k_mean) * (r - r_mean))
+        .sum();
+    let gradient = sxy / sxx;
+    let sigma = gate.noise.sigma_at(r_mean);
+    let off_line = ranges
+        .iter()
+        .enumerate()
+        .map(|(i, r)| (r - r_mean - gradient * (i as f64 + 1.0 - k_mean)).abs())
+        .fold(0.0, f64::max);
+    let significant = SLOPE_T * sigma / sxx.sqrt();
+    let climbs = gradient > significant
+        && off_line <= SLOPE_RESIDUAL_SIGMAS * sigma
+        && ranges.iter().all(|&r| r >= mean - reach);
+    // Down to a nearer surface that may then run level (a rough wall's foot): no straight line.
+    let falls = (ranges[0] < mean - reach || gradient < -significant)
+        && ranges.iter().all(|&r| r <= mean + reach);
+    if climbs {
+        Some(Slope::Climbing)
+    } else if falls {
+        Some(Slope::Falling)
+    } else {
+        None
+    }
+}
+
+/// What the ping just outside a run's end says about it, and the span (in steps) in which the
+/// cone's edge lies.
+fn end_kind(sweep: &Sweep, run: &Run, gate: &Gate, side: Side) -> (End, f64) {
+    let pings = sweep.pings();
+    let outside = |steps: usize| beyond(sweep, run, side, steps);
     // Split from a part at another range: nearer beyond hides this one, farther is its edge.
     let neighbour = match side {
         Side::Start => run.start_neighbour,
@@ -975,6 +1093,76 @@ pub(crate) mod tests {
 
     fn rcds(from_deg: f64, ranges: &[f64]) -> Vec<Rcd> {
         regions(&sweep(from_deg, ranges))
+    }
+
+    /// A rough wall `d` m away, its normal at 0°, swept from −60° to 60°: heard at its foot
+    /// while the foot lies within 30° of a ping's axis, beyond that where the beam's edge meets
+    /// it, and not past 50°; ±3 mm of jitter.
+    fn rough_wall_ranges(d: f64) -> Vec<f64> {
+        (0..=80)
+            .map(|i| {
+                let bearing = -60.0 + 1.5 * f64::from(i);
+                let past_edge = (f64::abs(bearing) - 30.0).max(0.0);
+                let jitter = if i % 2 == 0 { 0.003 } else { -0.003 };
+                if f64::abs(bearing) > 50.0 {
+                    0.0
+                } else {
+                    d / past_edge.to_radians().cos() + jitter
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_rough_walls_foot_climbs_on_beyond_both_ends_and_its_climbs_are_no_targets() {
+        for d in [0.8, 1.5, 2.5] {
+            let found = rcds(-60.0, &rough_wall_ranges(d));
+            let foot = found
+                .iter()
+                .filter(|r| (r.range_m - d).abs() < 0.01)
+                .max_by_key(|r| r.pings)
+                .unwrap_or_else(|| panic!("{found:?}"));
+            assert!(foot.is_sloping_foot(), "{foot:?}");
+            let classes = crate::classify::classify(&found, &FeatureConfig::default());
+            for (r, class) in found.iter().zip(&classes.classes) {
+                if std::ptr::eq(r, foot) {
+                    assert_eq!(*class, crate::classify::Class::Plane, "{r:?}");
+                } else {
+                    // The climbs: no post, corner or wall of their own.
+                    assert_eq!(*class, crate::classify::Class::Unclassified, "{r:?}");
+                }
+            }
+            let wall = classes
+                .observations
+                .iter()
+                .find(|o| o.kind == crate::feature::FeatureKind::Plane)
+                .expect("the wall");
+            // Its normal within two of its own σ.
+            assert!(
+                wall.bearing_deg.abs() <= 2.0 * wall.bearing_sigma_deg,
+                "{wall:?}"
+            );
+            assert!((wall.range_m - d).abs() < 0.01, "{wall:?}");
+        }
+    }
+
+    #[test]
+    fn a_posts_region_and_a_smooth_walls_do_not_slope() {
+        // A post with the wall behind it, and a smooth wall heard within its cut-off only.
+        let post = rcds(-30.0, &cone_sweep_ranges(-30.0, 41, 0.0, 10.0));
+        let smooth: Vec<f64> = (0..=80)
+            .map(|i| {
+                if (-60.0 + 1.5 * f64::from(i)).abs() <= 28.0 {
+                    1.5
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let wall = rcds(-60.0, &smooth);
+        for r in post.iter().chain(&wall) {
+            assert_eq!(r.sloping, [None, None], "{r:?}");
+        }
     }
 
     #[test]
