@@ -1,7 +1,8 @@
 //! The generated scene suite (`sonar-eval --suite`): many layouts, viewpoints, seeds and sensor
 //! profiles, scored against each scene's true geometry, never against another output of ours.
 //!
-//! For every generated scene ([`crate::scenegen`]), noise seed and sensor (a profile, its
+//! For every generated scene ([`crate::scenegen`]; with `--suite-rough`, a share of its hard walls
+//! rough, [`Generated::with_rough_walls`]), noise seed and sensor (a profile, its
 //! per-ping range noise perhaps replaced by a `--suite-noise` level), the head scans
 //! the scene from each of its eight viewpoints in turn (the pipeline's own simulated device and
 //! driver decoder, [`crate::pipeline::capture_with`], `--suite-sweeps` full sweeps each, the
