@@ -150,6 +150,11 @@ struct Args {
     /// are told each one's head and echo cones.
     #[arg(long, default_value = "default", value_delimiter = ',')]
     slam_profiles: Vec<pipeline::ProfileChoice>,
+    /// Share of every SLAM tour's walls made rough, 0 to 1 (brick, full shelves: they scatter
+    /// sound back from wherever they are met), each wall drawn from its layout; 0, the
+    /// default, leaves every wall smooth.
+    #[arg(long, default_value_t = 0.0, value_name = "SHARE")]
+    slam_rough: f64,
     /// Layout seeds of the SLAM evaluation's generated tours (as --motion-seeds).
     #[arg(long, default_value = "4..8:1", value_parser = parse_seeds)]
     slam_layouts: Values,
@@ -335,6 +340,7 @@ fn run(args: Args) -> Result<()> {
             levels: args.slam_odometry.0,
             config: toml::from_str(&args.slam_config)
                 .with_context(|| format!("--slam-config {:?}", args.slam_config))?,
+            rough_share: args.slam_rough,
         };
         let runs = slam::evaluate(&settings)?;
         let text = slam::markdown(&settings, &runs);

@@ -35,6 +35,10 @@ use anyhow::{Context, Result};
 use nalgebra::{Isometry2, Vector2};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+
+/// Salt of the draw of rough walls ([`Family::scene_with_rough_walls`]), so that it leaves the
+/// layout's own draws as they were.
+const ROUGH_SALT: u64 = 0x726f_7567_6800_0001;
 use sonar_common::ipc::Reading;
 use sonar_features::FeatureConfig;
 use sonar_fusion::{FusionConfig, Mapper, Observation};
@@ -114,6 +118,17 @@ impl Family {
     /// The scene of layout `layout`, and the tour's length in metres (three rounds of a loop's
     /// ring, three of the office's table; out and back otherwise).
     pub fn scene(self, layout: u64) -> Result<(Scene, f64)> {
+        self.scene_with_rough_walls(layout, 0.0)
+    }
+
+    /// As [`Self::scene`], with about `share` of its walls rough (brick, full shelves:
+    /// `surface = "rough"`), each drawn from the layout on its own, the rest as it was.
+    pub fn scene_with_rough_walls(self, layout: u64, share: f64) -> Result<(Scene, f64)> {
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&share),
+            "a share of rough walls must lie in 0..=1, not {share}"
+        );
+        let mut rough = ChaCha8Rng::seed_from_u64(layout ^ ROUGH_SALT ^ self as u64);
         let mut rng =
             ChaCha8Rng::seed_from_u64(layout.wrapping_mul(7919).wrapping_add(self as u64));
         let rotation = rng.random_range(0.0..2.0 * PI);
@@ -221,6 +236,9 @@ impl Family {
                 "[[segments]]\nfrom = [{:.4}, {:.4}]\nto = [{:.4}, {:.4}]",
                 f[0], f[1], t[0], t[1]
             );
+            if share > 0.0 && rough.random_bool(share) {
+                let _ = writeln!(toml, "surface = \"rough\"");
+            }
         }
         for (centre, radius) in posts {
             let c = turn(centre);
@@ -400,6 +418,8 @@ pub struct SlamSettings {
     pub seeds: Vec<u64>,
     pub levels: Vec<OdometryLevel>,
     pub config: SlamConfig,
+    /// Share of every tour's walls made rough ([`Family::scene_with_rough_walls`]).
+    pub rough_share: f64,
 }
 
 /// Feeds `tour` to `slam` as a process would get it: every odometry sample up to a reading's
@@ -550,8 +570,9 @@ pub fn run(
     level: OdometryLevel,
     profile: ProfileChoice,
     mut config: SlamConfig,
+    rough_share: f64,
 ) -> Result<Run> {
-    let (mut scene, metres) = family.scene(layout)?;
+    let (mut scene, metres) = family.scene_with_rough_walls(layout, rough_share)?;
     if let Some(p) = profile.0 {
         scene.set_profile(p);
     }
@@ -690,7 +711,15 @@ pub fn evaluate(settings: &SlamSettings) -> Result<Vec<Run>> {
                     } else {
                         seed
                     };
-                    let r = run(family, layout, seed, level, profile, settings.config)?;
+                    let r = run(
+                        family,
+                        layout,
+                        seed,
+                        level,
+                        profile,
+                        settings.config,
+                        settings.rough_share,
+                    )?;
                     tracing::info!(
                         family = family.name(),
                         %profile,
@@ -1068,6 +1097,30 @@ mod tests {
         let (a, _) = Family::Hallway.scene(1).unwrap();
         let (b, _) = Family::Hallway.scene(2).unwrap();
         assert_ne!(a.walls()[0].a, b.walls()[0].a);
+    }
+
+    #[test]
+    fn a_tours_rough_walls_are_drawn_on_their_own_and_change_nothing_else() {
+        use sonar_sim::Surface;
+        for family in Family::ALL {
+            let (smooth, metres) = family.scene(3).unwrap();
+            let (rough, rough_metres) = family.scene_with_rough_walls(3, 0.5).unwrap();
+            assert_eq!(metres, rough_metres);
+            assert_eq!(smooth.robot, rough.robot, "{}", family.name());
+            assert_eq!(smooth.walls().len(), rough.walls().len());
+            for (a, b) in smooth.walls().iter().zip(rough.walls()) {
+                assert_eq!((a.a, a.b, a.surface), (b.a, b.b, Surface::Hard));
+                assert!(matches!(b.surface, Surface::Hard | Surface::Rough));
+            }
+        }
+        let all = |f: Family| f.scene_with_rough_walls(3, 1.0).unwrap().0;
+        assert!(
+            all(Family::Office)
+                .walls()
+                .iter()
+                .all(|w| w.surface == Surface::Rough)
+        );
+        assert!(Family::Office.scene_with_rough_walls(3, 1.5).is_err());
     }
 
     /// The structural check CI runs (the figures come from `sonar-eval --slam`, out of CI): a
