@@ -310,34 +310,37 @@ pub fn generate_in(family: Family, seed: u64) -> Result<Generated> {
 /// Salt of the draw of rough walls, so that it leaves the scene's own draws as they were.
 const ROUGH_SALT: u64 = 0x726f_7567_6800_0000;
 
+/// `scene` with about `share` of its hard walls rough ([`Surface::Rough`]: brick, a full
+/// bookshelf, ribbed panels, which scatter sound back from wherever they are met), each drawn
+/// from `seed` on its own (salted, so that no draw of the scene's own repeats): the geometry, the
+/// robot and every other wall as they were.
+pub fn with_rough_walls(scene: &Scene, share: f64, seed: u64) -> Result<Scene> {
+    if !(0.0..=1.0).contains(&share) {
+        bail!("a share of rough walls must lie in 0..=1, not {share}");
+    }
+    if share == 0.0 {
+        return Ok(scene.clone());
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ ROUGH_SALT);
+    let mut rough = scene.with_surfaces(|w| {
+        if rng.random_bool(share) && w.surface == Surface::Hard {
+            Surface::Rough
+        } else {
+            w.surface
+        }
+    })?;
+    rough.description = format!("{}, {share} of its walls rough", scene.description);
+    Ok(rough)
+}
+
 impl Generated {
-    /// The same scene with about `share` of its hard walls rough ([`Surface::Rough`]: brick, a
-    /// full bookshelf, ribbed panels, which scatter sound back from wherever they are met), each
-    /// drawn from `seed` on its own: the geometry, the viewpoints and every other wall as they
-    /// were.
+    /// The same scene with about `share` of its hard walls rough ([`with_rough_walls`]), drawn
+    /// from `seed`; the viewpoints as they were.
     pub fn with_rough_walls(self, share: f64, seed: u64) -> Result<Self> {
-        if !(0.0..=1.0).contains(&share) {
-            bail!("a share of rough walls must lie in 0..=1, not {share}");
-        }
-        if share == 0.0 {
-            return Ok(self);
-        }
-        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ ROUGH_SALT);
-        let walls = self
-            .scene
-            .walls()
-            .iter()
-            .map(|w| {
-                let rough = rng.random_bool(share) && w.surface == Surface::Hard;
-                Wall {
-                    surface: if rough { Surface::Rough } else { w.surface },
-                    ..*w
-                }
-            })
-            .collect();
-        let mut scene = Scene::new(&self.scene.name, walls, self.scene.posts().to_vec())?;
-        scene.description = format!("{}, {share} of its walls rough", self.scene.description);
-        Ok(Self { scene, ..self })
+        Ok(Self {
+            scene: with_rough_walls(&self.scene, share, seed)?,
+            ..self
+        })
     }
 }
 

@@ -35,10 +35,6 @@ use anyhow::{Context, Result};
 use nalgebra::{Isometry2, Vector2};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-
-/// Salt of the draw of rough walls ([`Family::scene_with_rough_walls`]), so that it leaves the
-/// layout's own draws as they were.
-const ROUGH_SALT: u64 = 0x726f_7567_6800_0001;
 use sonar_common::ipc::Reading;
 use sonar_features::FeatureConfig;
 use sonar_fusion::{FusionConfig, Mapper, Observation};
@@ -50,6 +46,7 @@ use crate::features::scene_feature_config;
 use crate::landmarks::{self, LandmarkScore};
 use crate::motion::{POSE_RATE_HZ, Placement, PoseError, fuse_tour, grid_over, nees, truth_at};
 use crate::pipeline::{ProfileChoice, Scan, TourCapture, capture_tour, probability_view};
+use crate::scenegen;
 use crate::suite::{GridScore, Reach, score_grid};
 
 /// χ² of 3 degrees of freedom at 95 %: a fix whose NEES is within lies inside its 95 % ellipse.
@@ -115,20 +112,17 @@ impl Family {
         Self::ALL.into_iter().find(|f| f.name() == name)
     }
 
+    /// As [`Self::scene`], with about `share` of its walls rough ([`scenegen::with_rough_walls`]:
+    /// brick, full shelves), each drawn from the layout on its own, the rest as it was.
+    pub fn scene_with_rough_walls(self, layout: u64, share: f64) -> Result<(Scene, f64)> {
+        let (scene, metres) = self.scene(layout)?;
+        let seed = layout.wrapping_mul(7919).wrapping_add(self as u64);
+        Ok((scenegen::with_rough_walls(&scene, share, seed)?, metres))
+    }
+
     /// The scene of layout `layout`, and the tour's length in metres (three rounds of a loop's
     /// ring, three of the office's table; out and back otherwise).
     pub fn scene(self, layout: u64) -> Result<(Scene, f64)> {
-        self.scene_with_rough_walls(layout, 0.0)
-    }
-
-    /// As [`Self::scene`], with about `share` of its walls rough (brick, full shelves:
-    /// `surface = "rough"`), each drawn from the layout on its own, the rest as it was.
-    pub fn scene_with_rough_walls(self, layout: u64, share: f64) -> Result<(Scene, f64)> {
-        anyhow::ensure!(
-            (0.0..=1.0).contains(&share),
-            "a share of rough walls must lie in 0..=1, not {share}"
-        );
-        let mut rough = ChaCha8Rng::seed_from_u64(layout ^ ROUGH_SALT ^ self as u64);
         let mut rng =
             ChaCha8Rng::seed_from_u64(layout.wrapping_mul(7919).wrapping_add(self as u64));
         let rotation = rng.random_range(0.0..2.0 * PI);
@@ -236,9 +230,6 @@ impl Family {
                 "[[segments]]\nfrom = [{:.4}, {:.4}]\nto = [{:.4}, {:.4}]",
                 f[0], f[1], t[0], t[1]
             );
-            if share > 0.0 && rough.random_bool(share) {
-                let _ = writeln!(toml, "surface = \"rough\"");
-            }
         }
         for (centre, radius) in posts {
             let c = turn(centre);

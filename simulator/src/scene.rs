@@ -483,6 +483,29 @@ impl Scene {
         distance_to_surfaces(&self.walls, &self.posts, p)
     }
 
+    /// This scene with each wall's surface as `surface` says (given the wall as it is), every
+    /// other part of it, the robot's tour included, kept.
+    pub fn with_surfaces(
+        &self,
+        mut surface: impl FnMut(&Wall) -> Surface,
+    ) -> Result<Scene, SceneError> {
+        let walls = self
+            .walls
+            .iter()
+            .map(|w| Wall {
+                surface: surface(w),
+                ..*w
+            })
+            .collect();
+        let rebuilt = Scene::new(&self.name, walls, self.posts.clone())?;
+        Ok(Scene {
+            walls: rebuilt.walls,
+            joints: rebuilt.joints,
+            vertices: rebuilt.vertices,
+            ..self.clone()
+        })
+    }
+
     /// This scene with every wall and post moved by `map` (a rigid motion: turned about the
     /// sensor, or into another frame), named `name`; description, suggested scan, profile, echo
     /// and noise kept. A robot's tour is not moved with it and is dropped.
@@ -712,6 +735,29 @@ mod tests {
             .find(|v| (v.at - Vec2::new(1.0, 0.3)).norm() < 1e-9)
             .unwrap();
         assert!((joint.opening_deg - 90.0).abs() < 1e-9, "{joint:?}");
+    }
+
+    #[test]
+    fn with_surfaces_changes_the_walls_and_their_joints_and_keeps_the_rest() {
+        let tour = Scene::builtin("room-tour").unwrap();
+        assert!(tour.robot.is_some());
+        let rough = tour.with_surfaces(|_| Surface::Rough).unwrap();
+        assert!(rough.walls().iter().all(|w| w.surface == Surface::Rough));
+        assert_eq!(rough.walls().len(), tour.walls().len());
+        assert_eq!(rough.robot, tour.robot);
+        assert_eq!(
+            (rough.name.as_str(), rough.scan),
+            (tour.name.as_str(), tour.scan)
+        );
+        let seen = |s: &Scene| {
+            s.joints()
+                .iter()
+                .filter_map(|j| j.seen_from(Vec2::new(0.0, 0.0)))
+                .flat_map(|v| v.surfaces)
+                .collect::<Vec<_>>()
+        };
+        assert!(!seen(&rough).is_empty());
+        assert!(seen(&rough).iter().all(|&s| s == Surface::Rough));
     }
 
     #[test]
