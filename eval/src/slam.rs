@@ -116,15 +116,21 @@ impl Family {
     /// brick, full shelves), each drawn from the layout on its own, the rest as it was.
     pub fn scene_with_rough_walls(self, layout: u64, share: f64) -> Result<(Scene, f64)> {
         let (scene, metres) = self.scene(layout)?;
-        let seed = layout.wrapping_mul(7919).wrapping_add(self as u64);
-        Ok((scenegen::with_rough_walls(&scene, share, seed)?, metres))
+        Ok((
+            scenegen::with_rough_walls(&scene, share, self.seed(layout))?,
+            metres,
+        ))
+    }
+
+    /// The seed of layout `layout`'s draws.
+    fn seed(self, layout: u64) -> u64 {
+        layout.wrapping_mul(7919).wrapping_add(self as u64)
     }
 
     /// The scene of layout `layout`, and the tour's length in metres (three rounds of a loop's
     /// ring, three of the office's table; out and back otherwise).
     pub fn scene(self, layout: u64) -> Result<(Scene, f64)> {
-        let mut rng =
-            ChaCha8Rng::seed_from_u64(layout.wrapping_mul(7919).wrapping_add(self as u64));
+        let mut rng = ChaCha8Rng::seed_from_u64(self.seed(layout));
         let rotation = rng.random_range(0.0..2.0 * PI);
         let (walls, posts, waypoints, mode, metres) = match self {
             Family::Corridor | Family::RoomTour => {

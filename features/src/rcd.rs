@@ -783,8 +783,8 @@ fn beyond(sweep: &Sweep, run: &Run, side: Side, steps: usize) -> Option<usize> {
 /// [`SLOPE_FIRST_SHARE`] of the run's range; they **climb** when none is nearer than the run,
 /// they lie along a straight line (by step) rising [`SLOPE_T`] standard errors above level, and
 /// none lies off that line by more than the noise allows; they **fall** when none is farther
-/// than the run and the first is nearer or the line falls as steeply. The pings past a smooth wall's region hear nothing, or another target
-/// at a step; past a post's, the wall behind it.
+/// than the run and the first is nearer or the line falls as steeply. The pings past a smooth
+/// wall's region hear nothing, or another target at a step; past a post's, the wall behind it.
 fn slope(sweep: &Sweep, run: &Run, gate: &Gate, side: Side) -> Option<Slope> {
     let pings = sweep.pings();
     let ranges: Vec<f64> = (1..=SLOPE_PINGS)

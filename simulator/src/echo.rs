@@ -202,6 +202,12 @@ impl EchoModel {
         -20.0 * (2.0 * r).log10()
     }
 
+    /// A rough wall's scattering met square on at range `r`, before beam and receiver gains:
+    /// [`EchoParams::rough_diffuse_db`] at 0.5 m, falling as the patch the beam lights grows.
+    fn scatter_db(&self, r: f64) -> f64 {
+        self.scene.echo.rough_diffuse_db - 30.0 * (2.0 * r).log10()
+    }
+
     /// Spreading of a vertical cylinder of radius `a`: a mirror curved in one plane.
     fn cylinder_db(r: f64, a: f64) -> f64 {
         Self::plane_db(r) + 10.0 * (a / r).log10()
@@ -246,7 +252,6 @@ impl EchoModel {
                 hear(Target::Wall(i), foot, r, level, p.specular_cutoff_deg);
             }
         }
-
         for (i, j) in self.scene.joints().iter().enumerate() {
             let Some(v) = j.seen_from(sensor) else {
                 continue;
@@ -354,8 +359,8 @@ impl EchoModel {
     /// every [`SCATTER_STEP_DEG`] of bearing, nearest first; each loud enough to be heard with the
     /// threshold at the bottom of its jitter is an echo, and the walk stops at the first loud
     /// enough with the threshold at its top (nothing farther can be heard first). The level of
-    /// a point at range r met at incidence i: [`EchoParams::rough_diffuse_db`] −
-    /// 30·log10(2r) + 20·log10(cos i), with the beam's and the receiver's gains.
+    /// a point at range r met at incidence i: [`Self::scatter_db`] + 20·log10(cos i), with the
+    /// beam's and the receiver's gains.
     fn scattered(&self, i: usize, aim_deg: f64, out: &mut Vec<Echo>) {
         let p = &self.scene.echo;
         let w = self.scene.walls()[i];
@@ -395,9 +400,7 @@ impl EchoModel {
         let nearest = range_at(start);
         let gain_peak = p.tvg_max_range_m.clamp(nearest, max_range.max(nearest));
         let best_receiver = self.receiver_db(nearest).max(self.receiver_db(gain_peak));
-        if p.rough_diffuse_db - 30.0 * (2.0 * nearest).log10() + best_receiver - p.threshold_db
-            < -slack
-        {
+        if self.scatter_db(nearest) + best_receiver - p.threshold_db < -slack {
             return;
         }
         // Outward on both sides of `start`, nearest first (by the bearing's distance from the
@@ -426,10 +429,7 @@ impl EchoModel {
                 continue;
             };
             let incidence_db = 20.0 * (d / range).log10();
-            let margin_db = p.rough_diffuse_db - 30.0 * (2.0 * range).log10()
-                + incidence_db
-                + beam
-                + self.receiver_db(range)
+            let margin_db = self.scatter_db(range) + incidence_db + beam + self.receiver_db(range)
                 - p.threshold_db;
             if margin_db < -slack {
                 continue;
